@@ -1,0 +1,240 @@
+"""The cell model: what a batched simulator needs, as arrays (DESIGN 1.2, 1.3).
+
+A :class:`CellModel` is the output of discretization and the only input the
+surrogate needs. Cells are indexed ``0 .. n_cells-1``; the last cell is the rigid
+passenger compartment (``is_rigid``). Null cells (ROI space enveloped by no
+sub-assembly) are kept as rows with ``is_null`` set: they have no mass, no
+parameters and no links.
+
+Connectivity is a list of directed links ``src -> dst`` owned by the upstream
+cell ``src``, one per (src, dst, direction). Directions are indexed by
+:data:`DIRECTIONS`; energy never flows toward -x, so there is no -x direction.
+A link with ``gap > 0`` joins two cells separated along x by null space: it
+carries load only once the gap has closed (e.g. powertrain onto the dash).
+
+The seven parameters per cell (paper Eq. 7), in :data:`PARAM_NAMES` order:
+
+- ``E_x`` [J]: elastic energy the cell stores at crush onset along x; with the
+  crush force it sets the cell's elastic stiffness ``k = F_c^2 / (2 E_x)``.
+- ``E_s`` [J]: saturation energy, the most the cell can absorb by crushing;
+  once absorbed, the cell bottoms out and transmits all further load.
+- ``f_x, f_y, f_y', f_z, f_z'`` [-]: transmission factors to the +x, +y, -y,
+  +z and -z neighbours; zero where transfer is impossible, summing to one.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+
+import numpy as np
+
+from marlcrash.errors import ModelError
+
+PARAM_NAMES: tuple[str, ...] = ("E_x", "E_s", "f_x", "f_y", "f_yn", "f_z", "f_zn")
+"""The seven cell parameters; ``f_yn``/``f_zn`` are the paper's ``f_y'``/``f_z'``."""
+PARAM_UNITS: tuple[str, ...] = ("J", "J", "-", "-", "-", "-", "-")
+N_PARAMS = 7
+BEHAVIOUR = slice(0, 2)
+"""Slice of the behaviour parameters ``E_x, E_s`` in the 7-vector."""
+TRANSMISSION = slice(2, 7)
+"""Slice of the five transmission factors in the 7-vector."""
+
+DIRECTIONS: tuple[str, ...] = ("+x", "+y", "-y", "+z", "-z")
+"""Link directions, aligned with the transmission factors."""
+DIRECTION_VECTORS = np.array([[1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], dtype=np.float64)
+
+FORMAT_VERSION = 1
+
+
+@dataclass
+class CellModel:
+    """A discretized vehicle front, ready for simulation. SI units throughout.
+
+    Shapes: ``n`` cells (the compartment included), ``L`` links, ``K`` sensors,
+    ``A`` sub-assemblies.
+
+    Attributes:
+        lo, hi: ``[n, 3]`` axis-aligned bounding box of each cell [m].
+        centroid: ``[n, 3]`` mass centroid (geometric centre for massless cells) [m].
+        volume: ``[n]`` enveloped volume [m^3].
+        mass: ``[n]`` mass [kg]; the compartment carries everything outside the ROI.
+        material: ``[n, 8]`` mass-weighted aggregate material 8-vector (SI).
+        params: ``[n, 7]`` initial parameters (:data:`PARAM_NAMES`).
+        feasible: ``[n, 5]`` bool, where a transmission factor may be non-zero.
+        subassembly: ``[n]`` int64 index into ``subassembly_names`` (-1 for null cells).
+        is_null, is_sensor, is_rigid: ``[n]`` bool flags.
+        front_area: ``[n]`` projected area [m^2] the cell exposes to a rigid wall
+            at the front (non-zero only for cells the barrier plane meets first).
+        crush_length: ``[n]`` length [m] of the cell along x (its crushable stroke
+            before compaction is applied by the simulator).
+        link_src, link_dst: ``[L]`` int64 cell indices (``src`` upstream).
+        link_dir: ``[L]`` int64 index into :data:`DIRECTIONS`.
+        link_contact_area: ``[L]`` shared face area between the two cells [m^2].
+        link_material_area: ``[L]`` material cross-section at the shared boundary [m^2]
+            (zero where there is no material continuity).
+        link_gap: ``[L]`` null-space gap [m] along x that must close before contact.
+        link_share: ``[L]`` share of the source's direction factor carried by this
+            link; shares of one (src, direction) sum to one.
+        sensor_names: ``[K]`` names; ``sensor_cell``: ``[K]`` cell index;
+            ``sensor_position``: ``[K, 3]`` [m].
+        subassembly_names: ``[A]`` names.
+        method: ``uniform`` or ``optimized``.
+        target_cell_volume: [m^3].
+        roi_depth: crop depth [m]; ``roi_lo``, ``roi_hi``: ``[3]`` ROI box [m].
+        planes_y: sorted y positions of the section planes [m].
+        vehicle_width: lateral extent of the vehicle [m] (overlaps are fractions of it).
+        roi_mass: material mass inside the ROI [kg] (compartment parts excluded).
+        total_mass: vehicle mass [kg].
+        grid_edges: x, y, z edges of the fine voxel grid [m] (for plots and masks).
+        grid_labels: ``[nx, ny, nz]`` int64 cell index per voxel, -1 outside cells.
+        name: model name; ``meta``: free JSON-serialisable notes (warnings, config).
+    """
+
+    lo: np.ndarray
+    hi: np.ndarray
+    centroid: np.ndarray
+    volume: np.ndarray
+    mass: np.ndarray
+    material: np.ndarray
+    params: np.ndarray
+    feasible: np.ndarray
+    subassembly: np.ndarray
+    is_null: np.ndarray
+    is_sensor: np.ndarray
+    is_rigid: np.ndarray
+    front_area: np.ndarray
+    crush_length: np.ndarray
+    link_src: np.ndarray
+    link_dst: np.ndarray
+    link_dir: np.ndarray
+    link_contact_area: np.ndarray
+    link_material_area: np.ndarray
+    link_gap: np.ndarray
+    link_share: np.ndarray
+    sensor_names: list[str]
+    sensor_cell: np.ndarray
+    sensor_position: np.ndarray
+    subassembly_names: list[str]
+    method: str
+    target_cell_volume: float
+    roi_depth: float
+    roi_lo: np.ndarray
+    roi_hi: np.ndarray
+    planes_y: np.ndarray
+    vehicle_width: float
+    roi_mass: float
+    total_mass: float
+    grid_edges: tuple[np.ndarray, np.ndarray, np.ndarray]
+    grid_labels: np.ndarray
+    name: str = "vehicle"
+    meta: dict = field(default_factory=dict)
+
+    # ----------------------------------------------------------- properties
+    @property
+    def n_cells(self) -> int:
+        return int(self.mass.shape[0])
+
+    @property
+    def n_links(self) -> int:
+        return int(self.link_src.shape[0])
+
+    @property
+    def n_null(self) -> int:
+        return int(self.is_null.sum())
+
+    @property
+    def n_active(self) -> int:
+        """Number of non-null, non-rigid cells (the ones with parameters to tune)."""
+        return int((~self.is_null & ~self.is_rigid).sum())
+
+    @property
+    def compartment(self) -> int:
+        """Index of the rigid compartment cell."""
+        return int(np.flatnonzero(self.is_rigid)[0])
+
+    @property
+    def roi_volume(self) -> float:
+        """Volume of the ROI box [m^3]."""
+        return float(np.prod(self.roi_hi - self.roi_lo))
+
+    def cells_of(self, subassembly: str) -> np.ndarray:
+        """Indices of the cells of one sub-assembly."""
+        try:
+            k = self.subassembly_names.index(subassembly)
+        except ValueError:
+            raise ModelError(f"unknown sub-assembly {subassembly!r}; known: {self.subassembly_names}") from None
+        return np.flatnonzero(self.subassembly == k)
+
+    # ----------------------------------------------------------- validation
+    def validate(self) -> None:
+        """Check shapes and invariants; raise :class:`ModelError` on the first violation."""
+        n = self.n_cells
+        for f in ("lo", "hi", "centroid", "material", "params", "feasible"):
+            a = getattr(self, f)
+            width = {"lo": 3, "hi": 3, "centroid": 3, "material": 8, "params": N_PARAMS, "feasible": 5}[f]
+            if a.shape != (n, width):
+                raise ModelError(f"CellModel.{f} must be [{n}, {width}], got {list(a.shape)}")
+        for f in ("volume", "mass", "subassembly", "is_null", "is_sensor", "is_rigid", "front_area", "crush_length"):
+            if getattr(self, f).shape != (n,):
+                raise ModelError(f"CellModel.{f} must be [{n}], got {list(getattr(self, f).shape)}")
+        L = self.n_links
+        for f in ("link_dst", "link_dir", "link_contact_area", "link_material_area", "link_gap", "link_share"):
+            if getattr(self, f).shape != (L,):
+                raise ModelError(f"CellModel.{f} must be [{L}], got {list(getattr(self, f).shape)}")
+        if int(self.is_rigid.sum()) != 1:
+            raise ModelError(f"CellModel needs exactly one rigid compartment cell, got {int(self.is_rigid.sum())}")
+        for f in ("mass", "params", "material", "lo", "hi", "centroid", "link_gap", "link_share"):
+            if not np.isfinite(getattr(self, f)).all():
+                raise ModelError(f"CellModel.{f} contains non-finite values")
+        if L and (
+            min(self.link_src.min(), self.link_dst.min()) < 0 or max(self.link_src.max(), self.link_dst.max()) >= n
+        ):
+            raise ModelError("CellModel links refer to cells outside 0..n_cells-1")
+
+    # ----------------------------------------------------------- save / load
+    def save(self, path: str | Path) -> None:
+        """Write to a ``.npz`` file: arrays plus a JSON header, no pickled objects."""
+        arrays: dict[str, np.ndarray] = {}
+        header: dict = {"format_version": FORMAT_VERSION}
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if f.name == "grid_edges":
+                for axis, e in zip("xyz", v, strict=True):
+                    arrays[f"grid_edges_{axis}"] = np.asarray(e)
+            elif isinstance(v, np.ndarray):
+                arrays[f.name] = v
+            else:
+                header[f.name] = v
+        arrays["__header__"] = np.frombuffer(json.dumps(header).encode(), dtype=np.uint8)
+        path = Path(path)
+        tmp = path.with_name(path.name + ".tmp")
+        with open(tmp, "wb") as fh:
+            np.savez_compressed(fh, **arrays)
+        tmp.replace(path)
+
+    @classmethod
+    def load(cls, path: str | Path) -> CellModel:
+        """Read a file written by :meth:`save` (``allow_pickle=False``)."""
+        path = Path(path)
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                arrays = {k: z[k] for k in z.files}
+        except (OSError, ValueError) as e:
+            raise ModelError(f"{path}: not a readable CellModel file ({e})") from None
+        if "__header__" not in arrays:
+            raise ModelError(f"{path}: not a CellModel file (no header)")
+        header = json.loads(arrays.pop("__header__").tobytes().decode())
+        if header.pop("format_version", None) != FORMAT_VERSION:
+            raise ModelError(f"{path}: unsupported CellModel format version")
+        kwargs = dict(header)
+        kwargs["grid_edges"] = tuple(arrays.pop(f"grid_edges_{a}") for a in "xyz")
+        kwargs.update(arrays)
+        names = {f.name for f in fields(cls)}
+        missing = names - set(kwargs)
+        if missing:
+            raise ModelError(f"{path}: CellModel file lacks {sorted(missing)}")
+        out = cls(**{k: v for k, v in kwargs.items() if k in names})
+        out.validate()
+        return out

@@ -1,0 +1,160 @@
+"""Config plumbing: YAML files to typed dataclasses, with errors that name the key.
+
+Each component has one dataclass schema whose defaults are *not* the source of
+truth: values live in ``configs/*.yaml``. :func:`from_dict` builds a schema from a
+mapping, rejecting unknown keys and wrong types with the dotted key and the file,
+and calls the schema's ``validate()`` for cross-field checks.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import types
+import typing
+from pathlib import Path
+from typing import Any, TypeVar
+
+import yaml
+
+from marlcrash.errors import ConfigError
+
+T = TypeVar("T")
+
+
+def config_dir() -> Path:
+    """The folder of YAML configs: ``$MARLCRASH_CONFIGS`` or the repository's ``configs/``."""
+    env = os.environ.get("MARLCRASH_CONFIGS")
+    if env:
+        return Path(env)
+    return Path(__file__).resolve().parent.parent / "configs"
+
+
+def load_yaml(path: str | Path) -> dict[str, Any]:
+    """Read a YAML mapping; raise :class:`ConfigError` naming the file on any problem."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as e:
+        raise ConfigError(f"cannot read config file ({e.strerror})", path=path) from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        where = f" at line {mark.line + 1}" if mark is not None else ""
+        raise ConfigError(f"invalid YAML{where}: {getattr(e, 'problem', e)}", path=path) from None
+    if data is None:
+        return {}
+    if not isinstance(data, dict):
+        raise ConfigError(f"expected a mapping at the top level, got {type(data).__name__}", path=path)
+    return data
+
+
+def _check_type(value: Any, tp: Any, key: str, path: str | Path | None) -> Any:
+    origin = typing.get_origin(tp)
+    args = typing.get_args(tp)
+    if tp is Any:
+        return value
+    if origin in (typing.Union, types.UnionType):
+        if value is None and type(None) in args:
+            return None
+        errors = []
+        for a in args:
+            if a is type(None):
+                continue
+            try:
+                return _check_type(value, a, key, path)
+            except ConfigError as e:
+                errors.append(e.reason)
+        raise ConfigError("; ".join(errors), key=key, path=path)
+    if dataclasses.is_dataclass(tp):
+        if not isinstance(value, dict):
+            raise ConfigError(f"expected a mapping, got {value!r}", key=key, path=path)
+        return from_dict(tp, value, prefix=key, path=path)
+    if origin in (list, tuple):
+        if not isinstance(value, list | tuple):
+            raise ConfigError(f"expected a list, got {value!r}", key=key, path=path)
+        inner = args[0] if args else Any
+        items = [_check_type(v, inner, f"{key}[{i}]", path) for i, v in enumerate(value)]
+        return tuple(items) if origin is tuple else items
+    if origin is dict:
+        if not isinstance(value, dict):
+            raise ConfigError(f"expected a mapping, got {value!r}", key=key, path=path)
+        vt = args[1] if len(args) == 2 else Any
+        return {k: _check_type(v, vt, f"{key}.{k}", path) for k, v in value.items()}
+    if origin is typing.Literal:
+        if value not in args:
+            raise ConfigError(f"expected one of {list(args)}, got {value!r}", key=key, path=path)
+        return value
+    if tp is float:
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise ConfigError(f"expected a number, got {value!r}", key=key, path=path)
+        return float(value)
+    if tp is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"expected an integer, got {value!r}", key=key, path=path)
+        return value
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"expected true or false, got {value!r}", key=key, path=path)
+        return value
+    if tp is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"expected a string, got {value!r}", key=key, path=path)
+        return value
+    return value
+
+
+def from_dict(cls: type[T], data: dict[str, Any], prefix: str = "", path: str | Path | None = None) -> T:
+    """Build dataclass ``cls`` from ``data``, checking keys and types, then ``validate()``.
+
+    Args:
+        cls: a dataclass schema.
+        data: the mapping (e.g. from :func:`load_yaml`); missing keys keep defaults.
+        prefix: dotted key of ``data`` inside a larger config, for messages.
+        path: the file the mapping came from, for messages.
+
+    Raises:
+        ConfigError: unknown key, wrong type, or a failed ``validate()``.
+    """
+    hints = typing.get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
+    kwargs = {}
+    for k, v in data.items():
+        key = f"{prefix}.{k}" if prefix else str(k)
+        if k not in names:
+            raise ConfigError(f"unknown key; expected one of {sorted(names)}", key=key, path=path)
+        kwargs[k] = _check_type(v, hints[k], key, path)
+    try:
+        obj = cls(**kwargs)
+    except TypeError as e:
+        raise ConfigError(str(e), key=prefix or None, path=path) from None
+    validate = getattr(obj, "validate", None)
+    if callable(validate):
+        try:
+            validate()
+        except ConfigError as e:
+            if e.path is None and path is not None:
+                raise ConfigError(e.reason, key=e.key, path=path) from None
+            raise
+    return obj
+
+
+def load_config(cls: type[T], path: str | Path, overrides: dict[str, Any] | None = None) -> T:
+    """Load a YAML file into ``cls``, applying dotted-key ``overrides`` first."""
+    data = load_yaml(path)
+    for dotted, value in (overrides or {}).items():
+        node = data
+        parts = dotted.split(".")
+        for p in parts[:-1]:
+            node = node.setdefault(p, {})
+            if not isinstance(node, dict):
+                raise ConfigError("cannot override inside a non-mapping value", key=dotted, path=path)
+        node[parts[-1]] = value
+    return from_dict(cls, data, path=path)
+
+
+def require(condition: bool, key: str, message: str) -> None:
+    """Raise :class:`ConfigError` for ``key`` unless ``condition`` holds (for ``validate()``)."""
+    if not condition:
+        raise ConfigError(message, key=key)

@@ -1,0 +1,397 @@
+"""The finite-element vehicle model (DESIGN 1.1) as plain arrays in SI units.
+
+Elements refer to nodes by *index* into ``coords`` (ids are kept beside for
+round trips and messages). Shells are stored as quads; a triangle repeats its
+third node (``n4 == n3``), as LS-DYNA writes it. Solids are stored as 8-node
+bricks with LS-DYNA's degenerate forms (tetrahedra ``n1 n2 n3 n4 n4 n4 n4 n4``,
+pentahedra ``n1 .. n5 n5 n6 n6``).
+
+Axes follow marlcrash's convention once :meth:`VehicleModel.transformed` has
+applied an :class:`AxisMap`: x points rearward from the front-most point, y is
+lateral with +y to the driver's left, z is up.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from marlcrash.errors import ConfigError, ModelError
+from marlcrash.vehicle.materials import Material
+
+COMPARTMENT = "compartment"
+"""Name of the sub-assembly treated as the rigid passenger compartment."""
+
+# Hexahedron faces in LS-DYNA node order (0-based), outward normals for a
+# right-handed element; degenerate tets and pentas collapse some faces to zero area.
+HEX_FACES = np.array(
+    [[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]],
+    dtype=np.int64,
+)
+
+
+@dataclass(frozen=True)
+class Part:
+    """A part: elements sharing one section and one material.
+
+    Attributes:
+        id: part id in the deck.
+        name: part title (may be empty).
+        material_id: id of its material.
+        section_id: id of its section card (``None`` if the deck gives none).
+        thickness: section shell thickness [m] (``None`` for non-shell sections).
+        beam_area: section beam cross-sectional area [m^2] (``None`` for non-beams).
+    """
+
+    id: int
+    name: str
+    material_id: int
+    section_id: int | None = None
+    thickness: float | None = None
+    beam_area: float | None = None
+
+
+_AXIS_RE = re.compile(r"^([+-]?)([xyz])$")
+
+
+@dataclass(frozen=True)
+class AxisMap:
+    """Maps a deck's axes onto marlcrash's (x rearward, y left, z up).
+
+    Each field names the deck axis, with sign, that becomes that marlcrash axis:
+    ``AxisMap(x="+x", y="+z", z="+y")`` reads a deck whose y axis is vertical and
+    whose z axis is lateral. After the rotation, the model is shifted so the
+    front-most point is at x = 0 and the lateral centre of its bounding box at
+    y = 0 (or at ``y_center`` if given, in metres of the mapped frame); z keeps
+    the deck's origin.
+    """
+
+    x: str = "+x"
+    y: str = "+y"
+    z: str = "+z"
+    y_center: float | None = None
+
+    @classmethod
+    def parse(cls, text: str) -> AxisMap:
+        """Parse ``"x=+x,y=+z,z=+y"`` (missing axes keep the identity)."""
+        fields: dict[str, str] = {}
+        for item in filter(None, (t.strip() for t in text.split(","))):
+            key, sep, value = item.partition("=")
+            key = key.strip()
+            if not sep or key not in ("x", "y", "z"):
+                raise ConfigError(f"expected items like 'x=+x,y=+z,z=+y', got {item!r}", key="axis_map")
+            fields[key] = value.strip()
+        out = cls(**fields)
+        out.matrix()  # validates
+        return out
+
+    def matrix(self) -> np.ndarray:
+        """The 3x3 signed permutation ``R`` with ``mapped = R @ deck``."""
+        rows = []
+        used = set()
+        for target, spec in (("x", self.x), ("y", self.y), ("z", self.z)):
+            m = _AXIS_RE.match(str(spec).strip())
+            if not m:
+                raise ConfigError(f"expected a deck axis like '+x', '-z', got {spec!r}", key=f"axis_map.{target}")
+            sign = -1.0 if m.group(1) == "-" else 1.0
+            axis = "xyz".index(m.group(2))
+            if axis in used:
+                raise ConfigError(f"deck axis {m.group(2)!r} is used twice in {self}", key=f"axis_map.{target}")
+            used.add(axis)
+            row = np.zeros(3)
+            row[axis] = sign
+            rows.append(row)
+        return np.array(rows)
+
+
+@dataclass
+class VehicleModel:
+    """Nodes, elements, parts, materials and sub-assemblies of a vehicle, in SI.
+
+    Shapes: ``N`` nodes, ``S`` shells, ``V`` solids, ``B`` beams.
+
+    Attributes:
+        node_ids: ``[N]`` int64 node ids.
+        coords: ``[N, 3]`` float64 node coordinates [m].
+        shell_ids, shell_part: ``[S]`` int64 element and part ids.
+        shell_nodes: ``[S, 4]`` int64 node indices.
+        shell_thickness: ``[S]`` float64 thickness [m] (element value, else section).
+        solid_ids, solid_part: ``[V]`` int64.
+        solid_nodes: ``[V, 8]`` int64 node indices.
+        beam_ids, beam_part: ``[B]`` int64.
+        beam_nodes: ``[B, 2]`` int64 node indices.
+        beam_area: ``[B]`` float64 cross-sectional area [m^2].
+        parts: part id -> :class:`Part`.
+        materials: material id -> :class:`Material` (complete 8-vectors).
+        subassemblies: name -> part ids; every part is in at most one.
+        name: a readable model name.
+        units: the unit system the source was written in.
+        skipped_cards: keyword -> count of cards the reader did not interpret.
+        warnings: everything defaulted or skipped while building the model.
+    """
+
+    node_ids: np.ndarray
+    coords: np.ndarray
+    shell_ids: np.ndarray
+    shell_part: np.ndarray
+    shell_nodes: np.ndarray
+    shell_thickness: np.ndarray
+    solid_ids: np.ndarray
+    solid_part: np.ndarray
+    solid_nodes: np.ndarray
+    beam_ids: np.ndarray
+    beam_part: np.ndarray
+    beam_nodes: np.ndarray
+    beam_area: np.ndarray
+    parts: dict[int, Part]
+    materials: dict[int, Material]
+    subassemblies: dict[str, list[int]]
+    name: str = "vehicle"
+    units: str = "m-kg-s"
+    skipped_cards: dict[str, int] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+
+    # ------------------------------------------------------------------ sizes
+    @property
+    def n_nodes(self) -> int:
+        return int(self.node_ids.shape[0])
+
+    @property
+    def n_shells(self) -> int:
+        return int(self.shell_ids.shape[0])
+
+    @property
+    def n_solids(self) -> int:
+        return int(self.solid_ids.shape[0])
+
+    @property
+    def n_beams(self) -> int:
+        return int(self.beam_ids.shape[0])
+
+    # ------------------------------------------------------------- geometry
+    def shell_areas(self) -> np.ndarray:
+        """``[S]`` shell mid-surface areas [m^2] (quads as two triangles)."""
+        p = self.coords[self.shell_nodes]  # [S, 4, 3]
+        a1 = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+        a2 = np.cross(p[:, 2] - p[:, 0], p[:, 3] - p[:, 0])
+        return 0.5 * (np.linalg.norm(a1, axis=1) + np.linalg.norm(a2, axis=1))
+
+    def solid_volumes(self) -> np.ndarray:
+        """``[V]`` solid volumes [m^3] by the divergence theorem over the 6 faces.
+
+        Exact for bricks with planar faces and for the degenerate tet/penta forms.
+        """
+        p = self.coords[self.solid_nodes]  # [V, 8, 3]
+        c = p.mean(axis=1, keepdims=True)
+        f = p[:, HEX_FACES] - c[:, None]  # [V, 6, 4, 3]
+        t1 = np.einsum("vfi,vfi->vf", f[:, :, 0], np.cross(f[:, :, 1], f[:, :, 2]))
+        t2 = np.einsum("vfi,vfi->vf", f[:, :, 0], np.cross(f[:, :, 2], f[:, :, 3]))
+        return np.abs((t1 + t2).sum(axis=1) / 6.0)
+
+    def beam_lengths(self) -> np.ndarray:
+        """``[B]`` beam lengths [m]."""
+        p = self.coords[self.beam_nodes]
+        return np.linalg.norm(p[:, 1] - p[:, 0], axis=1)
+
+    def material_of_parts(self, part_ids: np.ndarray) -> np.ndarray:
+        """Material ids ``[n]`` for an array of part ids."""
+        lut = {pid: p.material_id for pid, p in self.parts.items()}
+        return np.array([lut[int(p)] for p in part_ids], dtype=np.int64)
+
+    def _density_of_parts(self, part_ids: np.ndarray) -> np.ndarray:
+        if part_ids.size == 0:
+            return np.zeros(0)
+        uniq, inv = np.unique(part_ids, return_inverse=True)
+        rho = np.array([self.materials[self.parts[int(p)].material_id].density for p in uniq])
+        return rho[inv]
+
+    def element_masses(self) -> dict[str, np.ndarray]:
+        """Masses [kg] of every element: ``{"shell": [S], "solid": [V], "beam": [B]}``."""
+        return {
+            "shell": self.shell_areas() * self.shell_thickness * self._density_of_parts(self.shell_part),
+            "solid": self.solid_volumes() * self._density_of_parts(self.solid_part),
+            "beam": self.beam_lengths() * self.beam_area * self._density_of_parts(self.beam_part),
+        }
+
+    def part_masses(self) -> dict[int, float]:
+        """Part id -> mass [kg]."""
+        out = dict.fromkeys(self.parts, 0.0)
+        em = self.element_masses()
+        for kind, parts in (
+            ("shell", self.shell_part),
+            ("solid", self.solid_part),
+            ("beam", self.beam_part),
+        ):
+            if parts.size:
+                uniq, inv = np.unique(parts, return_inverse=True)
+                sums = np.bincount(inv, weights=em[kind])
+                for pid, m in zip(uniq.tolist(), sums.tolist(), strict=True):
+                    out[int(pid)] = out.get(int(pid), 0.0) + float(m)
+        return out
+
+    def total_mass(self) -> float:
+        """Total mass [kg]."""
+        return float(sum(self.part_masses().values()))
+
+    def bounds(self) -> np.ndarray:
+        """``[2, 3]`` min and max corner of the nodes actually used by elements [m]."""
+        used = self.used_nodes()
+        if used.size == 0:
+            raise ModelError(f"{self.name}: the model has no elements")
+        c = self.coords[used]
+        return np.stack([c.min(axis=0), c.max(axis=0)])
+
+    def used_nodes(self) -> np.ndarray:
+        """Sorted indices of nodes referenced by at least one element."""
+        return np.unique(np.concatenate([self.shell_nodes.ravel(), self.solid_nodes.ravel(), self.beam_nodes.ravel()]))
+
+    # --------------------------------------------------------- sub-assemblies
+    def subassembly_of_part(self) -> dict[int, str]:
+        """Part id -> sub-assembly name; parts in none map to ``part_<id>``."""
+        out = {pid: f"part_{pid}" for pid in self.parts}
+        for name, pids in self.subassemblies.items():
+            for pid in pids:
+                out[int(pid)] = name
+        return out
+
+    def with_subassemblies(self, mapping: dict[str, list[int]]) -> VehicleModel:
+        """A copy whose sub-assemblies are ``mapping`` (validated)."""
+        out = replace(self, subassemblies={k: [int(p) for p in v] for k, v in mapping.items()})
+        out.validate()
+        return out
+
+    def with_default_subassemblies(self) -> VehicleModel:
+        """A copy in which every part without a sub-assembly is its own, ``part_<id>``."""
+        mapping = {k: list(v) for k, v in self.subassemblies.items()}
+        owned = {p for v in mapping.values() for p in v}
+        for pid in sorted(self.parts):
+            if pid not in owned:
+                mapping[f"part_{pid}"] = [pid]
+        return replace(self, subassemblies=mapping)
+
+    # ------------------------------------------------------------ transforms
+    def transformed(self, axis_map: AxisMap) -> VehicleModel:
+        """A copy in marlcrash axes: rotated by ``axis_map``, front at x = 0, centred in y."""
+        r = axis_map.matrix()
+        c = self.coords @ r.T
+        used = self.used_nodes()
+        ref = c[used] if used.size else c
+        if ref.size:
+            lo, hi = ref.min(axis=0), ref.max(axis=0)
+            shift = np.array(
+                [
+                    lo[0],
+                    0.5 * (lo[1] + hi[1]) if axis_map.y_center is None else axis_map.y_center,
+                    0.0,
+                ]
+            )
+            c = c - shift
+        return replace(self, coords=c)
+
+    # ------------------------------------------------------------ validation
+    def validate(self) -> None:
+        """Check internal consistency; raise :class:`ModelError` naming the first problem."""
+        n = self.n_nodes
+        if self.coords.shape != (n, 3):
+            raise ModelError(f"{self.name}: coords must be [{n}, 3], got {self.coords.shape}")
+        bad = ~np.isfinite(self.coords).all(axis=1)
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            raise ModelError(
+                f"{self.name}: node {int(self.node_ids[i])} has a non-finite coordinate {self.coords[i].tolist()}"
+            )
+        for kind, ids, parts, nodes, width in (
+            ("shell", self.shell_ids, self.shell_part, self.shell_nodes, 4),
+            ("solid", self.solid_ids, self.solid_part, self.solid_nodes, 8),
+            ("beam", self.beam_ids, self.beam_part, self.beam_nodes, 2),
+        ):
+            if nodes.shape != (ids.shape[0], width) or parts.shape != ids.shape:
+                raise ModelError(
+                    f"{self.name}: {kind} arrays disagree: ids {ids.shape}, parts {parts.shape}, nodes {nodes.shape}"
+                )
+            if nodes.size and (nodes.min() < 0 or nodes.max() >= n):
+                i = int(np.flatnonzero(((nodes < 0) | (nodes >= n)).any(axis=1))[0])
+                raise ModelError(f"{self.name}: {kind} {int(ids[i])} refers to a node index outside 0..{n - 1}")
+            unknown = np.setdiff1d(np.unique(parts), np.fromiter(self.parts, dtype=np.int64))
+            if unknown.size:
+                i = int(np.flatnonzero(parts == unknown[0])[0])
+                raise ModelError(f"{self.name}: {kind} {int(ids[i])} refers to unknown part {int(unknown[0])}")
+        for pid, p in self.parts.items():
+            if p.material_id not in self.materials:
+                raise ModelError(f"{self.name}: part {pid} refers to unknown material {p.material_id}")
+        seen: dict[int, str] = {}
+        for name, pids in self.subassemblies.items():
+            for pid in pids:
+                if pid not in self.parts:
+                    raise ModelError(f"{self.name}: sub-assembly {name!r} lists unknown part {pid}")
+                if pid in seen:
+                    raise ModelError(f"{self.name}: part {pid} is in two sub-assemblies, {seen[pid]!r} and {name!r}")
+                seen[pid] = name
+        if (self.shell_thickness < 0).any() or not np.isfinite(self.shell_thickness).all():
+            raise ModelError(f"{self.name}: shell thickness must be finite and >= 0")
+
+    # --------------------------------------------------------------- meshes
+    def shell_triangles(self, mask: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Triangulate shells.
+
+        Args:
+            mask: optional ``[S]`` bool selecting shells.
+
+        Returns:
+            ``(tri, owner)``: ``[T, 3]`` node indices and ``[T]`` shell index of each
+            triangle; degenerate second triangles of 3-node shells are dropped.
+        """
+        idx = np.arange(self.n_shells) if mask is None else np.flatnonzero(mask)
+        q = self.shell_nodes[idx]
+        t1 = q[:, [0, 1, 2]]
+        t2 = q[:, [0, 2, 3]]
+        keep2 = q[:, 3] != q[:, 2]
+        tri = np.concatenate([t1, t2[keep2]])
+        owner = np.concatenate([idx, idx[keep2]])
+        return tri, owner
+
+    def solid_boundary_triangles(self, mask: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Boundary faces of the selected solids, triangulated.
+
+        Faces shared by two solids are interior and dropped. Returns ``(tri, owner)``
+        as :meth:`shell_triangles`, ``owner`` indexing solids.
+        """
+        idx = np.arange(self.n_solids) if mask is None else np.flatnonzero(mask)
+        if idx.size == 0:
+            return np.zeros((0, 3), np.int64), np.zeros(0, np.int64)
+        quads = self.solid_nodes[idx][:, HEX_FACES].reshape(-1, 4)  # [6V, 4]
+        owner = np.repeat(idx, 6)
+        key = np.sort(quads, axis=1)
+        _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+        boundary = counts[inv.ravel()] == 1
+        # drop faces collapsed to a point or a line
+        distinct = (np.diff(key, axis=1) != 0).sum(axis=1) + 1
+        boundary &= distinct >= 3
+        quads, owner = quads[boundary], owner[boundary]
+        t1 = quads[:, [0, 1, 2]]
+        t2 = quads[:, [0, 2, 3]]
+        ok1 = (t1[:, 0] != t1[:, 1]) & (t1[:, 1] != t1[:, 2]) & (t1[:, 0] != t1[:, 2])
+        ok2 = (t2[:, 0] != t2[:, 1]) & (t2[:, 1] != t2[:, 2]) & (t2[:, 0] != t2[:, 2])
+        return np.concatenate([t1[ok1], t2[ok2]]), np.concatenate([owner[ok1], owner[ok2]])
+
+    def part_mesh(self, part_id: int):
+        """A :class:`trimesh.Trimesh` of one part (shells and solid boundary faces)."""
+        import trimesh
+
+        tri_s, _ = self.shell_triangles(self.shell_part == part_id)
+        tri_v, _ = self.solid_boundary_triangles(self.solid_part == part_id)
+        tri = np.concatenate([tri_s, tri_v])
+        used, inv = np.unique(tri.ravel(), return_inverse=True)
+        return trimesh.Trimesh(self.coords[used], inv.reshape(-1, 3), process=False)
+
+
+def empty_int(*shape: int) -> np.ndarray:
+    """An empty int64 array of the given trailing shape (``empty_int(0, 4)``)."""
+    return np.zeros(shape, dtype=np.int64)
+
+
+def empty_float(*shape: int) -> np.ndarray:
+    """An empty float64 array of the given shape."""
+    return np.zeros(shape, dtype=np.float64)
