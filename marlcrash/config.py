@@ -58,6 +58,9 @@ def _check_type(value: Any, tp: Any, key: str, path: str | Path | None) -> Any:
     if origin in (typing.Union, types.UnionType):
         if value is None and type(None) in args:
             return None
+        options = [a for a in args if a is not type(None)]
+        if len(options) == 1:
+            return _check_type(value, options[0], key, path)
         errors = []
         for a in args:
             if a is type(None):
@@ -134,9 +137,11 @@ def from_dict(cls: type[T], data: dict[str, Any], prefix: str = "", path: str | 
         try:
             validate()
         except ConfigError as e:
-            if e.path is None and path is not None:
-                raise ConfigError(e.reason, key=e.key, path=path) from None
-            raise
+            # Schemas name keys relative to themselves; make them absolute here.
+            key = e.key
+            if prefix and key is not None and not key.startswith(prefix + "."):
+                key = f"{prefix}.{key}"
+            raise ConfigError(e.reason, key=key or prefix or None, path=e.path or path) from None
     return obj
 
 
@@ -155,6 +160,10 @@ def load_config(cls: type[T], path: str | Path, overrides: dict[str, Any] | None
 
 
 def require(condition: bool, key: str, message: str) -> None:
-    """Raise :class:`ConfigError` for ``key`` unless ``condition`` holds (for ``validate()``)."""
+    """Raise :class:`ConfigError` for ``key`` unless ``condition`` holds (for ``validate()``).
+
+    ``key`` is relative to the schema being validated; :func:`from_dict` prefixes it
+    with the schema's own position in a larger config.
+    """
     if not condition:
         raise ConfigError(message, key=key)

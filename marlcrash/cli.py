@@ -1,0 +1,172 @@
+"""The ``marlcrash`` command line.
+
+Each sub-command is a thin layer over library calls: parse arguments, call the
+library, print a table or one JSON object. User errors (bad deck, bad config)
+print ``error: ...`` on stderr and exit with status 2, never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import warnings
+from pathlib import Path
+
+from marlcrash.errors import ConfigError, MarlcrashError
+
+DECK_SUFFIXES = (".k", ".key", ".dyn", ".kw")
+
+
+# ----------------------------------------------------------------- helpers
+def _parse_params(items: list[str] | None) -> dict[str, float]:
+    out: dict[str, float] = {}
+    for item in items or []:
+        name, sep, value = item.partition("=")
+        if not sep or not name.strip():
+            raise ConfigError(f"expected NAME=VALUE, got {item!r}", key="--param")
+        try:
+            out[name.strip()] = float(value)
+        except ValueError:
+            raise ConfigError(f"value of {name.strip()!r} must be a number, got {value!r}", key="--param") from None
+    return out
+
+
+def _add_vehicle_args(p: argparse.ArgumentParser, deck_required: bool) -> None:
+    p.add_argument(
+        "deck",
+        nargs=None if deck_required else "?",
+        help="LS-DYNA keyword deck (.k/.key/.dyn), a synthetic-vehicle YAML, or a registered vehicle name"
+        + ("" if deck_required else " (default: the embedded synthetic B-segment car)"),
+    )
+    p.add_argument(
+        "--param",
+        action="append",
+        metavar="NAME=VALUE",
+        help="value for a *PARAMETER the deck uses but does not define (repeatable)",
+    )
+    p.add_argument("--units", help="deck unit system: mm-t-s, mm-kg-ms or m-kg-s (default: detected)")
+    p.add_argument(
+        "--axis-map",
+        metavar="MAP",
+        help="deck axes to marlcrash axes (x rearward, y left, z up), e.g. 'x=+x,y=+z,z=+y'",
+    )
+    p.add_argument("--subassemblies", metavar="MAP.yaml", help="YAML file mapping parts to named sub-assemblies")
+    p.add_argument("--seed", type=int, default=None, help="variant seed for a synthetic vehicle (default: nominal)")
+
+
+def load_model_from_args(args: argparse.Namespace):
+    """Load the vehicle named by CLI arguments (deck path, YAML, registered name or default)."""
+    from marlcrash.vehicle.model import AxisMap
+
+    target = args.deck
+    is_deck = target is not None and Path(target).suffix.lower() in DECK_SUFFIXES
+    if is_deck:
+        from marlcrash.vehicle.keyword import read_deck
+
+        return read_deck(
+            target,
+            params=_parse_params(args.param),
+            units=args.units,
+            axis_map=AxisMap.parse(args.axis_map) if args.axis_map else None,
+            subassemblies=args.subassemblies,
+        )
+    for flag in ("param", "units", "axis_map"):
+        if getattr(args, flag):
+            raise ConfigError(f"--{flag.replace('_', '-')} only applies to keyword decks ({', '.join(DECK_SUFFIXES)})")
+    from marlcrash.vehicle.registry import load_vehicle
+
+    model = load_vehicle(target or "b_segment", seed=args.seed)
+    if args.subassemblies:
+        from marlcrash.vehicle.subassembly_map import load_subassembly_map
+
+        model = model.with_subassemblies(load_subassembly_map(args.subassemblies, model))
+    return model
+
+
+def _print_json(obj: dict) -> None:
+    print(json.dumps(obj, indent=2, sort_keys=False))
+
+
+# ---------------------------------------------------------------- commands
+def cmd_inspect(args: argparse.Namespace) -> int:
+    from marlcrash.vehicle.summary import format_vehicle_summary, vehicle_summary
+
+    summary = vehicle_summary(load_model_from_args(args))
+    if args.json:
+        _print_json(summary)
+    else:
+        print(format_vehicle_summary(summary))
+    return 0
+
+
+def cmd_discretize(args: argparse.Namespace) -> int:
+    from marlcrash.cells import discretization_summary, format_discretization_summary, load_cells_config
+
+    model = load_model_from_args(args)
+    overrides = {}
+    if args.method:
+        overrides["method"] = args.method
+    config = load_cells_config(args.config, overrides=overrides)
+    summary, cells = discretization_summary(model, config, return_cells=True)
+    if args.save:
+        cells.save(args.save)
+    if args.plot:
+        from marlcrash.cells.plot import plot_cells
+
+        plot_cells(cells, args.plot)
+    if args.json:
+        _print_json(summary)
+    else:
+        print(format_discretization_summary(summary))
+        if args.save:
+            print(f"\ncell model written to {args.save}")
+        if args.plot:
+            print(f"plot written to {args.plot}")
+    return 0
+
+
+# ------------------------------------------------------------------ parser
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="marlcrash",
+        description="Cell surrogates of vehicle frontal crash structures, calibrated with multi-agent RL.",
+    )
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("inspect", help="summarise an FE deck: nodes, elements, parts, masses, sub-assemblies")
+    _add_vehicle_args(p, deck_required=True)
+    p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
+    p.set_defaults(func=cmd_inspect)
+
+    p = sub.add_parser("discretize", help="discretize a vehicle front into cells (paper Table 2)")
+    _add_vehicle_args(p, deck_required=False)
+    p.add_argument("--method", choices=["uniform", "optimized"], help="discretization method (default: config)")
+    p.add_argument("--config", help="discretization config YAML (default: configs/cells.yaml)")
+    p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
+    p.add_argument("--plot", metavar="FILE.png", help="write a 3D picture of the cells coloured by sub-assembly")
+    p.add_argument("--save", metavar="CELLS.npz", help="write the cell model")
+    p.set_defaults(func=cmd_discretize)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``marlcrash`` console script."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        with warnings.catch_warnings():
+            if getattr(args, "json", False):
+                # Keep stdout one clean JSON object; warnings go to stderr anyway.
+                warnings.simplefilter("default")
+            return int(args.func(args) or 0)
+    except MarlcrashError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    except FileNotFoundError as e:
+        print(f"error: {e.filename}: no such file", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

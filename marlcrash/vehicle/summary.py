@@ -1,0 +1,93 @@
+"""A readable and a JSON summary of a vehicle model (what ``marlcrash inspect`` prints)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from marlcrash.vehicle.model import VehicleModel
+
+
+def vehicle_summary(model: VehicleModel) -> dict:
+    """Counts, per-part data, sub-assemblies and skipped cards of a model.
+
+    Returns:
+        A JSON-serialisable dict with ``n_nodes``, ``n_shells``, ``n_solids``, ``n_beams``,
+        ``n_parts``, ``parts`` (part id as string -> mass [kg]), ``part_details`` (id -> name,
+        material, thickness [mm], element counts, mass), ``subassemblies`` (name -> part ids),
+        ``total_mass_kg``, ``skipped_cards``, ``units``, ``bounds_m``, ``warnings``.
+    """
+    masses = model.part_masses()
+    details = {}
+    for pid, part in sorted(model.parts.items()):
+        mat = model.materials[part.material_id]
+        thick = model.shell_thickness[model.shell_part == pid]
+        details[str(pid)] = {
+            "name": part.name,
+            "material_id": part.material_id,
+            "material": mat.name,
+            "material_kind": mat.kind,
+            "density_kg_m3": mat.density,
+            "thickness_mm": float(np.mean(thick) * 1e3) if thick.size else None,
+            "n_shells": int((model.shell_part == pid).sum()),
+            "n_solids": int((model.solid_part == pid).sum()),
+            "n_beams": int((model.beam_part == pid).sum()),
+            "mass_kg": masses.get(pid, 0.0),
+        }
+    try:
+        bounds = model.bounds().tolist()
+    except ValueError:
+        bounds = None
+    return {
+        "name": model.name,
+        "units": model.units,
+        "n_nodes": model.n_nodes,
+        "n_shells": model.n_shells,
+        "n_solids": model.n_solids,
+        "n_beams": model.n_beams,
+        "n_parts": len(model.parts),
+        "parts": {str(pid): masses.get(pid, 0.0) for pid in sorted(model.parts)},
+        "part_details": details,
+        "subassemblies": {k: list(v) for k, v in model.subassemblies.items()},
+        "total_mass_kg": float(sum(masses.values())),
+        "skipped_cards": dict(sorted(model.skipped_cards.items())),
+        "bounds_m": bounds,
+        "warnings": list(model.warnings),
+    }
+
+
+def format_vehicle_summary(s: dict) -> str:
+    """Render :func:`vehicle_summary` as a plain-text report."""
+    lines = [
+        f"model      {s['name']}  (deck units {s['units']}, shown in SI)",
+        f"nodes      {s['n_nodes']}",
+        f"elements   {s['n_shells']} shells, {s['n_solids']} solids, {s['n_beams']} beams",
+        f"total mass {s['total_mass_kg']:.3f} kg",
+    ]
+    if s["bounds_m"] is not None:
+        lo, hi = s["bounds_m"]
+        ext = [h - l for l, h in zip(lo, hi, strict=True)]
+        lines.append(f"extent     x {ext[0]:.3f} m, y {ext[1]:.3f} m, z {ext[2]:.3f} m")
+    lines.append("")
+    lines.append(f"{'part':>6}  {'name':<28} {'material':<24} {'t [mm]':>7} {'elements':>9} {'mass [kg]':>11}")
+    for pid, d in s["part_details"].items():
+        t = "-" if d["thickness_mm"] is None else f"{d['thickness_mm']:.3g}"
+        n = d["n_shells"] + d["n_solids"] + d["n_beams"]
+        lines.append(
+            f"{pid:>6}  {d['name'][:28]:<28} {(d['material'] + ' (' + d['material_kind'] + ')')[:24]:<24} "
+            f"{t:>7} {n:>9} {d['mass_kg']:>11.3f}"
+        )
+    lines.append("")
+    lines.append("sub-assemblies")
+    for name, pids in s["subassemblies"].items():
+        lines.append(f"  {name:<28} parts {', '.join(str(p) for p in pids)}")
+    if s["skipped_cards"]:
+        lines.append("")
+        total = sum(s["skipped_cards"].values())
+        lines.append(f"skipped cards ({total}): " + ", ".join(f"{k} x{v}" for k, v in s["skipped_cards"].items()))
+    if s["warnings"]:
+        lines.append("")
+        lines.append(f"warnings ({len(s['warnings'])}):")
+        lines.extend(f"  {w}" for w in s["warnings"][:20])
+        if len(s["warnings"]) > 20:
+            lines.append(f"  ... and {len(s['warnings']) - 20} more")
+    return "\n".join(lines)

@@ -1,0 +1,219 @@
+"""Core data model: units, materials, VehicleModel geometry and validation, axis maps, config plumbing."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from marlcrash.config import from_dict, load_config, require
+from marlcrash.errors import ConfigError, ModelError
+from marlcrash.units import UNIT_SYSTEMS, detect_unit_system, get_unit_system
+from marlcrash.vehicle.materials import Material, complete_material, mass_weighted
+from marlcrash.vehicle.model import AxisMap, Part, VehicleModel
+
+
+def _steel(mid: int = 1) -> Material:
+    return complete_material(Material(mid, "steel", "plastic_kinematic", 7850.0, 2.1e11, yield_strength=3.5e8))
+
+
+def _box_model() -> VehicleModel:
+    """A unit cube solid, a tetrahedron solid, one quad shell and one triangle shell, one beam."""
+    coords = np.array(
+        [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]], dtype=float
+    )
+    return VehicleModel(
+        node_ids=np.arange(1, 9),
+        coords=coords,
+        shell_ids=np.array([10, 11]),
+        shell_part=np.array([2, 2]),
+        shell_nodes=np.array([[0, 1, 2, 3], [0, 1, 5, 5]]),
+        shell_thickness=np.array([0.002, 0.001]),
+        solid_ids=np.array([20, 21]),
+        solid_part=np.array([1, 1]),
+        solid_nodes=np.array([[0, 1, 2, 3, 4, 5, 6, 7], [0, 1, 3, 4, 4, 4, 4, 4]]),
+        beam_ids=np.array([30]),
+        beam_part=np.array([3]),
+        beam_nodes=np.array([[0, 6]]),
+        beam_area=np.array([1e-4]),
+        parts={1: Part(1, "block", 1), 2: Part(2, "skin", 1, thickness=0.002), 3: Part(3, "rod", 1, beam_area=1e-4)},
+        materials={1: _steel()},
+        subassemblies={"front": [1, 2]},
+    )
+
+
+def test_unit_system_conversions():
+    mm_t_s = get_unit_system("mm-t-s")
+    assert mm_t_s.density == pytest.approx(1e12)  # t/mm^3 -> kg/m^3
+    assert mm_t_s.stress == pytest.approx(1e6)  # MPa -> Pa
+    assert mm_t_s.force == pytest.approx(1.0)  # N
+    mm_kg_ms = get_unit_system("mm-kg-ms")
+    assert mm_kg_ms.stress == pytest.approx(1e9)  # GPa
+    assert mm_kg_ms.force == pytest.approx(1e3)  # kN
+    assert mm_kg_ms.velocity == pytest.approx(1.0)  # mm/ms = m/s
+    with pytest.raises(ConfigError, match="unknown unit system"):
+        get_unit_system("in-lbf-s")
+
+
+@pytest.mark.parametrize("name", sorted(UNIT_SYSTEMS))
+def test_detect_unit_system_steel(name):
+    u = UNIT_SYSTEMS[name]
+    rho = np.array([7850.0, 2700.0, 7850.0]) / u.density
+    e = np.array([2.1e11, 7e10, 2.1e11]) / u.stress
+    assert detect_unit_system(rho, e) == u
+
+
+def test_detect_unit_system_ambiguous_or_empty():
+    assert detect_unit_system(np.array([]), np.array([])) is None
+    assert detect_unit_system(np.array([1e-30]), np.array([1.0])) is None
+
+
+def test_complete_material_derives_and_warns():
+    m = complete_material(Material(7, "alu", "elastic", 2700.0, 7e10, poisson_ratio=0.33))
+    assert m.shear_modulus == pytest.approx(7e10 / (2 * 1.33))
+    assert m.bulk_modulus == pytest.approx(7e10 / (3 * (1 - 0.66)))
+    assert m.yield_strength > 0 and m.ultimate_strength >= m.yield_strength
+    assert any("yield strength missing" in w for w in m.warnings)
+    assert np.isfinite(m.vector()).all() and m.vector().shape == (8,)
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"density": math.nan, "youngs_modulus": 2e11}, "density"),
+        ({"density": 7850.0, "youngs_modulus": 0.0}, "Young"),
+        ({"density": 7850.0, "youngs_modulus": 2e11, "poisson_ratio": 0.6}, "Poisson"),
+    ],
+)
+def test_complete_material_rejects(kwargs, match):
+    with pytest.raises(ModelError, match=match):
+        complete_material(Material(3, "bad", "elastic", **kwargs))
+
+
+def test_mass_weighted_aggregate():
+    v = np.array([[1.0] * 8, [3.0] * 8])
+    np.testing.assert_allclose(mass_weighted(v, np.array([1.0, 3.0])), [2.5] * 8)
+    np.testing.assert_allclose(mass_weighted(v, np.zeros(2)), np.zeros(8))
+
+
+def test_geometry_against_closed_forms():
+    m = _box_model()
+    np.testing.assert_allclose(m.solid_volumes(), [1.0, 1.0 / 6.0], rtol=1e-12)
+    np.testing.assert_allclose(m.shell_areas(), [1.0, 0.5], rtol=1e-12)
+    np.testing.assert_allclose(m.beam_lengths(), [math.sqrt(3.0)], rtol=1e-12)
+    masses = m.part_masses()
+    assert masses[1] == pytest.approx(7850.0 * (1 + 1 / 6))
+    assert masses[2] == pytest.approx(7850.0 * (0.002 + 0.5 * 0.001))
+    assert masses[3] == pytest.approx(7850.0 * math.sqrt(3.0) * 1e-4)
+    assert m.total_mass() == pytest.approx(sum(masses.values()))
+
+
+def test_boundary_faces_of_two_bricks_drop_the_shared_face():
+    coords = np.array([[x, y, z] for z in (0, 1) for y in (0, 1) for x in (0, 1, 2)], dtype=float)
+
+    # node index = x + 3*y + 6*z
+    def n(x, y, z):
+        return x + 3 * y + 6 * z
+
+    bricks = [
+        [n(i, 0, 0), n(i + 1, 0, 0), n(i + 1, 1, 0), n(i, 1, 0), n(i, 0, 1), n(i + 1, 0, 1), n(i + 1, 1, 1), n(i, 1, 1)]
+        for i in (0, 1)
+    ]
+    m = _box_model()
+    m.coords, m.node_ids = coords, np.arange(1, 13)
+    m.solid_nodes, m.solid_ids, m.solid_part = np.array(bricks), np.array([1, 2]), np.array([1, 1])
+    m.shell_nodes, m.shell_ids, m.shell_part, m.shell_thickness = (
+        np.zeros((0, 4), int),
+        np.zeros(0, int),
+        np.zeros(0, int),
+        np.zeros(0),
+    )
+    m.beam_nodes, m.beam_ids, m.beam_part, m.beam_area = (
+        np.zeros((0, 2), int),
+        np.zeros(0, int),
+        np.zeros(0, int),
+        np.zeros(0),
+    )
+    tri, _ = m.solid_boundary_triangles()
+    assert tri.shape[0] == 20  # 10 outer quads, 2 triangles each
+    mesh = m.part_mesh(1)
+    assert mesh.is_watertight
+    assert mesh.volume == pytest.approx(2.0)
+
+
+def test_validate_names_the_problem():
+    m = _box_model()
+    m.validate()
+    bad = _box_model()
+    bad.coords[3, 1] = np.nan
+    with pytest.raises(ModelError, match="node 4 has a non-finite"):
+        bad.validate()
+    bad = _box_model()
+    bad.shell_part[1] = 99
+    with pytest.raises(ModelError, match="shell 11 refers to unknown part 99"):
+        bad.validate()
+    bad = _box_model()
+    bad.solid_nodes[0, 0] = 50
+    with pytest.raises(ModelError, match="solid 20 refers to a node index"):
+        bad.validate()
+    with pytest.raises(ModelError, match="part 1 is in two sub-assemblies"):
+        _box_model().with_subassemblies({"a": [1], "b": [1, 2]})
+
+
+def test_default_subassemblies_and_lookup():
+    m = _box_model().with_default_subassemblies()
+    assert m.subassemblies == {"front": [1, 2], "part_3": [3]}
+    assert m.subassembly_of_part() == {1: "front", 2: "front", 3: "part_3"}
+
+
+def test_axis_map_parse_and_transform():
+    am = AxisMap.parse("x=+x,y=+z,z=+y")
+    np.testing.assert_array_equal(am.matrix(), [[1, 0, 0], [0, 0, 1], [0, 1, 0]])
+    m = _box_model()
+    m.coords = m.coords * np.array([1.0, 2.0, 3.0]) + np.array([5.0, 6.0, 7.0])
+    t = m.transformed(am)
+    lo, hi = t.bounds()
+    assert lo[0] == pytest.approx(0.0)  # front at x = 0
+    assert lo[1] == pytest.approx(-hi[1])  # centred laterally
+    assert hi[1] - lo[1] == pytest.approx(3.0)  # deck z extent became lateral
+    assert lo[2] == pytest.approx(6.0)  # deck y became z, origin kept
+    flipped = m.transformed(AxisMap(x="-x"))
+    assert flipped.bounds()[0][0] == pytest.approx(0.0)
+    for text, match in [("x=+q", "deck axis"), ("x=+x,y=+x", "used twice"), ("w=+x", "expected items")]:
+        with pytest.raises(ConfigError, match=match):
+            AxisMap.parse(text)
+
+
+@dataclass
+class _Inner:
+    rate: float = 1.0
+
+    def validate(self):
+        require(self.rate > 0, "rate", f"must be > 0, got {self.rate}")
+
+
+@dataclass
+class _Outer:
+    name: str = "x"
+    count: int = 1
+    inner: _Inner | None = None
+    tags: list[str] | None = None
+
+
+def test_from_dict_types_keys_and_validate(tmp_path):
+    o = from_dict(_Outer, {"name": "a", "count": 3, "inner": {"rate": 2}, "tags": ["p"]})
+    assert o.inner.rate == 2.0 and o.tags == ["p"]
+    with pytest.raises(ConfigError, match="key 'colour': unknown key"):
+        from_dict(_Outer, {"colour": 1})
+    with pytest.raises(ConfigError, match="key 'count': expected an integer"):
+        from_dict(_Outer, {"count": "3"})
+    with pytest.raises(ConfigError, match=r"key 'inner\.rate': must be > 0"):
+        from_dict(_Outer, {"inner": {"rate": -1.0}})
+    f = tmp_path / "c.yaml"
+    f.write_text("name: b\ninner:\n  rate: 0.5\n")
+    assert load_config(_Outer, f, overrides={"inner.rate": 4.0}).inner.rate == 4.0
+    f.write_text("name: [unclosed\n")
+    with pytest.raises(ConfigError, match=r"c\.yaml: invalid YAML at line"):
+        load_config(_Outer, f)
