@@ -1,0 +1,86 @@
+"""Vehicle registry: every config in configs/vehicle/ is registered and builds; names, paths and errors."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from marlcrash.errors import ConfigError
+from marlcrash.vehicle.model import COMPARTMENT, VehicleModel
+from marlcrash.vehicle.registry import (
+    DEFAULT_VEHICLE,
+    VEHICLES,
+    list_vehicles,
+    load_vehicle,
+    vehicle_config_path,
+    vehicle_dir,
+)
+from marlcrash.vehicle.synthetic import build_vehicle, load_synthetic_config
+
+
+def test_every_vehicle_file_is_registered():
+    files = {p.name for p in vehicle_dir().glob("*.y*ml")}
+    assert files, f"no vehicle configs in {vehicle_dir()}"
+    assert files == set(VEHICLES.values())
+    assert DEFAULT_VEHICLE in list_vehicles()
+    assert list_vehicles() == sorted(list_vehicles())
+
+
+@pytest.mark.parametrize("name", list_vehicles())
+def test_registered_vehicle_builds(name):
+    model = load_vehicle(name)
+    assert isinstance(model, VehicleModel)
+    model.validate()
+    cfg = load_synthetic_config(vehicle_config_path(name))
+    assert model.total_mass() == pytest.approx(cfg.total_mass, rel=1e-9)
+    assert COMPARTMENT in model.subassemblies
+    assert model.bounds()[0, 0] == 0.0
+
+
+def test_unknown_name_lists_known_vehicles():
+    with pytest.raises(ConfigError) as err:
+        load_vehicle("zz_not_a_car")
+    msg = str(err.value)
+    assert "zz_not_a_car" in msg
+    for name in list_vehicles():
+        assert name in msg
+
+
+def test_yaml_path_and_seed_pass_through():
+    path = vehicle_config_path(DEFAULT_VEHICLE)
+    by_path = load_vehicle(str(path), seed=5)
+    by_name = load_vehicle(DEFAULT_VEHICLE, seed=5)
+    direct = build_vehicle(load_synthetic_config(path), seed=5)
+    np.testing.assert_array_equal(by_path.coords, direct.coords)
+    np.testing.assert_array_equal(by_name.shell_thickness, direct.shell_thickness)
+
+
+def test_missing_files_and_deck_seed_are_config_errors(tmp_path):
+    with pytest.raises(ConfigError, match="not found"):
+        load_vehicle(str(tmp_path / "nope.yaml"))
+    with pytest.raises(ConfigError, match="not found"):
+        load_vehicle(str(tmp_path / "nope.k"))
+    deck = tmp_path / "car.key"
+    deck.write_text("*KEYWORD\n*END\n")
+    with pytest.raises(ConfigError) as err:
+        load_vehicle(str(deck), seed=3)
+    assert err.value.key == "seed"
+
+
+def test_deck_options_for_a_synthetic_car_are_a_config_error():
+    with pytest.raises(ConfigError, match="units"):
+        load_vehicle(DEFAULT_VEHICLE, units="mm-t-s")
+
+
+# the writer warns that e.g. *MAT_RIGID has no strength fields; that is its documented limit
+@pytest.mark.filterwarnings("ignore:.*keyword cards cannot carry:UserWarning")
+def test_deck_path_is_read_with_the_keyword_reader(tmp_path):
+    writer = pytest.importorskip("marlcrash.vehicle.keyword_writer")
+    pytest.importorskip("marlcrash.vehicle.keyword")
+    car = load_vehicle(DEFAULT_VEHICLE)
+    path = tmp_path / "car.k"
+    writer.write_deck(car, path, units="mm-t-s", subassembly_yaml=False)
+    model = load_vehicle(str(path), units="mm-t-s")
+    assert isinstance(model, VehicleModel)
+    assert model.n_nodes == car.n_nodes and model.n_shells == car.n_shells and model.n_solids == car.n_solids
+    assert model.total_mass() == pytest.approx(car.total_mass(), rel=1e-6)
