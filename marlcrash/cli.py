@@ -101,14 +101,11 @@ def cmd_inspect(args: argparse.Namespace) -> int:
 
 
 def cmd_discretize(args: argparse.Namespace) -> int:
-    from marlcrash.cells import discretization_summary, format_discretization_summary, load_cells_config
+    from marlcrash.cells import discretization_summary, format_discretization_summary, load_discretization_config
 
     model = load_model_from_args(args)
-    overrides = {}
-    if args.method:
-        overrides["method"] = args.method
-    config = load_cells_config(args.config, overrides=overrides)
-    summary, cells = discretization_summary(model, config, return_cells=True)
+    config = load_discretization_config(args.config)
+    summary, cells = discretization_summary(model, config, method=args.method)
     if args.save:
         cells.save(args.save)
     if args.plot:
@@ -154,12 +151,14 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``marlcrash`` console script."""
     parser = build_parser()
     args = parser.parse_args(argv)
+    # Warnings (skipped cards, defaulted material values) are messages for the user, not
+    # for a developer: print them without the source line that raised them.
+    warnings.formatwarning = lambda message, category, *a, **k: f"warning: {message}\n"
     try:
-        with warnings.catch_warnings():
-            if getattr(args, "json", False):
-                # Keep stdout one clean JSON object; warnings go to stderr anyway.
-                warnings.simplefilter("default")
-            return int(args.func(args) or 0)
+        return int(args.func(args) or 0)
+    except BrokenPipeError:  # e.g. `marlcrash ... | head`
+        sys.stderr.close()
+        return 0
     except MarlcrashError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2

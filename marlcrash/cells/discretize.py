@@ -1,0 +1,795 @@
+"""VehicleModel -> CellModel: uniform and optimized discretization (DESIGN 1.2, 1.3).
+
+Steps: crop the ROI and place the section planes (:mod:`.roi`); build the fine
+voxel grid and sample every ROI element into it (:mod:`.grid`); label voxels
+with cells (uniform blocks, or per sub-assembly envelopes split into pieces of
+about the target volume, null space and sensor cells); extract links and
+their material sections (:mod:`.transmission`, :mod:`.sections`); initialise
+the seven parameters (:mod:`.transmission`, :mod:`.params`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+from scipy import ndimage
+from scipy.spatial import cKDTree
+
+from marlcrash.cells.grid import KIND_SOLID, FineGrid, Samples, build_grid, sample_elements
+from marlcrash.cells.model import CellModel
+from marlcrash.cells.params import behaviour_params
+from marlcrash.cells.roi import Roi, region_of_interest
+from marlcrash.cells.sections import grid_sections
+from marlcrash.cells.transmission import aggregate_links, extract_faces, transmission_factors
+from marlcrash.config import config_dir, from_dict, load_config, require
+from marlcrash.errors import ConfigError, ModelError
+from marlcrash.vehicle.model import COMPARTMENT, VehicleModel
+
+SENSOR_RULES = ("upfront_left", "upfront_right", "compartment", "position")
+
+
+@dataclass
+class SensorSpec:
+    """One acceleration sensor, clustered as its own cell.
+
+    Attributes:
+        name: sensor name.
+        rule: ``upfront_left`` / ``upfront_right`` (``x = upfront_sensor_x``,
+            ``y = +-upfront_sensor_y_fraction * W``, z at the ROI mid-height, snapped to the
+            nearest voxel with material), ``compartment`` (the rigid compartment cell) or
+            ``position`` (the explicit position; inside the ROI snapped like up-front sensors,
+            outside it the compartment).
+        position: ``[x, y, z]`` [m] overriding the rule's position, or ``None``.
+    """
+
+    name: str
+    rule: Literal["upfront_left", "upfront_right", "compartment", "position"] = "position"
+    position: list[float] | None = None
+
+    def validate(self) -> None:
+        require(bool(self.name), "name", "sensor name must not be empty")
+        if self.position is not None:
+            require(
+                len(self.position) == 3 and all(np.isfinite(self.position)),
+                "position",
+                f"expected [x, y, z] in m, got {self.position}",
+            )
+        require(
+            self.rule != "position" or self.position is not None,
+            "position",
+            f"sensor {self.name!r} with rule 'position' needs a position [x, y, z] in m",
+        )
+
+
+def _default_sensors() -> list[SensorSpec]:
+    return [
+        SensorSpec("upfront_left", "upfront_left"),
+        SensorSpec("upfront_right", "upfront_right"),
+        SensorSpec("tunnel", "compartment"),
+    ]
+
+
+@dataclass
+class DiscretizationConfig:
+    """Schema of ``configs/cells.yaml`` (each key is documented there with its unit)."""
+
+    roi_depth: float = 1.2
+    target_cell_volume: float = 3e-4
+    solid_target_cell_volume: float = 0.03
+    subassembly_target_cell_volume: dict[str, float] = field(default_factory=dict)
+    method: Literal["optimized", "uniform"] = "optimized"
+    overlaps: list[float] = field(default_factory=lambda: [0.4, 0.25])
+    voxels_per_cell_edge: int = 4
+    samples_per_pitch: int = 2
+    max_subdivision: int = 12
+    envelope_closing_iterations: int = 1
+    principal_min_share: float = 0.6
+    weight_x: float = 2.0
+    weight_lateral: float = 1.0
+    weight_vertical: float = 1.0
+    crush_efficiency_shell: float = 0.4
+    crush_efficiency_solid: float = 1.0
+    compaction_shell: float = 0.3
+    compaction_solid: float = 0.9
+    min_section_fraction: float = 0.1
+    upfront_sensor_x: float = 0.2
+    upfront_sensor_y_fraction: float = 0.3
+    sensors: list[SensorSpec] = field(default_factory=_default_sensors)
+
+    def validate(self) -> None:
+        """Cross-field checks; raise :class:`ConfigError` naming the key and value."""
+        require(self.roi_depth > 0, "roi_depth", f"expected a depth > 0 m, got {self.roi_depth}")
+        require(self.target_cell_volume > 0, "target_cell_volume", f"expected > 0 m^3, got {self.target_cell_volume}")
+        require(
+            self.target_cell_volume ** (1 / 3) <= self.roi_depth,
+            "target_cell_volume",
+            f"cell edge {self.target_cell_volume ** (1 / 3):.3g} m exceeds roi_depth {self.roi_depth} m",
+        )
+        require(
+            self.solid_target_cell_volume >= self.target_cell_volume,
+            "solid_target_cell_volume",
+            f"expected >= target_cell_volume = {self.target_cell_volume} m^3, got {self.solid_target_cell_volume}",
+        )
+        for name, v in self.subassembly_target_cell_volume.items():
+            require(v > 0, f"subassembly_target_cell_volume.{name}", f"expected a volume > 0 m^3, got {v}")
+        for i, o in enumerate(self.overlaps):
+            require(0 < o < 1, f"overlaps[{i}]", f"expected a fraction in (0, 1), got {o}")
+        for key in ("voxels_per_cell_edge", "samples_per_pitch", "max_subdivision"):
+            require(getattr(self, key) >= 1, key, f"expected an integer >= 1, got {getattr(self, key)}")
+        require(
+            self.voxels_per_cell_edge <= 16, "voxels_per_cell_edge", f"expected <= 16, got {self.voxels_per_cell_edge}"
+        )
+        require(
+            self.envelope_closing_iterations >= 0,
+            "envelope_closing_iterations",
+            f"expected >= 0, got {self.envelope_closing_iterations}",
+        )
+        require(
+            0 <= self.principal_min_share <= 1,
+            "principal_min_share",
+            f"expected a share in [0, 1], got {self.principal_min_share}",
+        )
+        for key in ("weight_x", "weight_lateral", "weight_vertical"):
+            require(getattr(self, key) > 0, key, f"expected a weight > 0, got {getattr(self, key)}")
+        for key in ("crush_efficiency_shell", "crush_efficiency_solid"):
+            require(0 < getattr(self, key) <= 1, key, f"expected an efficiency in (0, 1], got {getattr(self, key)}")
+        for key in ("compaction_shell", "compaction_solid"):
+            require(0 <= getattr(self, key) < 1, key, f"expected a fraction in [0, 1), got {getattr(self, key)}")
+        require(
+            0 < self.min_section_fraction <= 1,
+            "min_section_fraction",
+            f"expected a fraction in (0, 1], got {self.min_section_fraction}",
+        )
+        require(
+            0 <= self.upfront_sensor_x <= self.roi_depth,
+            "upfront_sensor_x",
+            f"expected a value in [0, roi_depth = {self.roi_depth}] m, got {self.upfront_sensor_x}",
+        )
+        require(
+            0 <= self.upfront_sensor_y_fraction <= 0.5,
+            "upfront_sensor_y_fraction",
+            f"expected a fraction in [0, 0.5], got {self.upfront_sensor_y_fraction}",
+        )
+        names = [s.name for s in self.sensors]
+        for i, s in enumerate(self.sensors):
+            try:
+                s.validate()
+            except ConfigError as e:
+                raise ConfigError(e.reason, key=f"sensors[{i}].{e.key}") from None
+        dup = sorted({n for n in names if names.count(n) > 1})
+        require(not dup, "sensors", f"sensor names must be unique, repeated: {dup}")
+
+
+def load_discretization_config(path=None, overrides: dict | None = None) -> DiscretizationConfig:
+    """Load ``configs/cells.yaml`` (or ``path``) with optional dotted-key overrides."""
+    return load_config(DiscretizationConfig, path or (config_dir() / "cells.yaml"), overrides)
+
+
+def config_from_dict(data: dict) -> DiscretizationConfig:
+    """Build a config from a mapping (missing keys keep the schema defaults)."""
+    return from_dict(DiscretizationConfig, data)
+
+
+# ----------------------------------------------------------------------------- labelling
+@dataclass
+class _Labels:
+    labels: np.ndarray  # [nx, ny, nz] cell per voxel
+    cell_sub: np.ndarray  # [n] sub-assembly index, -1 null, n_sub for the compartment
+    is_null: np.ndarray  # [n]
+    is_sensor: np.ndarray  # [n]
+    cell_of_sample: np.ndarray  # [P]
+    sensor_cell: np.ndarray  # [K]
+    sensor_position: np.ndarray  # [K, 3]
+
+
+_CROSS = ndimage.generate_binary_structure(3, 1)
+_YZ = np.zeros((3, 3, 3), dtype=bool)
+_YZ[1] = ndimage.generate_binary_structure(2, 1)
+
+
+def _envelope(occ: np.ndarray, iterations: int) -> np.ndarray:
+    """Closed, y-z hole-filled envelope of an occupancy crop (padded internally)."""
+    r = iterations + 1
+    pad = np.pad(occ, r)
+    if iterations > 0:
+        pad = ndimage.binary_closing(pad, structure=_CROSS, iterations=iterations)
+    pad = ndimage.binary_fill_holes(pad, structure=_YZ)
+    return pad[r:-r, r:-r, r:-r] | occ
+
+
+def _resolve_owners(
+    grid: FineGrid, vox: np.ndarray, samples: Samples, n_sub: int, comp_vox: np.ndarray, iterations: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per voxel owning sub-assembly (-1 none, ``n_sub`` compartment) and the owner's mass in it."""
+    nvox = grid.n_voxels
+    shape = grid.shape
+    best = np.full(nvox, -1.0)
+    owner = np.full(nvox, -1, dtype=np.int64)
+    own_mass = np.zeros(nvox)
+    key = samples.subassembly * nvox + vox
+    uk, inv = np.unique(key, return_inverse=True)
+    mass = np.bincount(inv, weights=samples.mass, minlength=uk.size)
+    ksub, kvox = uk // nvox, uk % nvox
+    groups = [(n_sub, comp_vox, np.zeros(comp_vox.size))]
+    starts = np.searchsorted(ksub, np.arange(n_sub + 1))
+    groups += [(s, kvox[starts[s] : starts[s + 1]], mass[starts[s] : starts[s + 1]]) for s in range(n_sub)]
+    for s, vv, mm in groups:  # a loop over sub-assemblies, each vectorized over its voxels
+        if vv.size == 0:
+            continue
+        ijk = np.array(np.unravel_index(vv, shape))
+        lo = np.maximum(ijk.min(axis=1) - iterations - 1, 0)
+        hi = np.minimum(ijk.max(axis=1) + iterations + 2, shape)
+        crop = tuple(hi - lo)
+        occ = np.zeros(crop, dtype=bool)
+        local = tuple(ijk - lo[:, None])
+        occ[local] = True
+        env = _envelope(occ, iterations)
+        m = np.zeros(crop)
+        m[local] = mm
+        e = np.nonzero(env)
+        flat = np.ravel_multi_index(tuple(e[a] + lo[a] for a in range(3)), shape)
+        if s == n_sub:
+            score = np.full(flat.size, -0.5)  # the compartment yields to any deformable envelope
+        else:
+            tie = 1e-9 * mm.sum() / max(int(env.sum()), 1)  # empty voxels go to the denser envelope
+            score = m[e] + tie
+        better = score > best[flat]
+        best[flat[better]] = score[better]
+        owner[flat[better]] = s
+        own_mass[flat[better]] = m[e][better] if s != n_sub else 0.0
+    # every sub-assembly with material keeps at least its densest voxel
+    present = np.unique(ksub)
+    missing = np.setdiff1d(present, np.unique(owner[owner >= 0]))
+    for s in missing.tolist():
+        sel = np.flatnonzero(ksub == s)
+        v = kvox[sel[np.argmax(mass[sel])]]
+        owner[v] = s
+        own_mass[v] = mass[sel].max()
+    return owner, own_mass
+
+
+def _bisect(coords: np.ndarray, group: np.ndarray, n_pieces: np.ndarray, pitch: np.ndarray) -> np.ndarray:
+    """Split voxel groups recursively into pieces, vectorized over all pieces of a level.
+
+    Each piece with a target count ``n > 1`` is cut along its longest extent at the
+    voxel-count quantile ``floor(n/2) / n`` (cut between voxel planes), the halves
+    getting ``floor(n/2)`` and ``n - floor(n/2)`` pieces, until every piece has ``n = 1``.
+
+    Args:
+        coords: ``[m, 3]`` voxel centres [m].
+        group: ``[m]`` initial piece (0..G-1) of each voxel.
+        n_pieces: ``[G]`` target piece count per group.
+        pitch: ``[3]`` representative voxel pitch [m] (added to extents).
+
+    Returns:
+        ``[m]`` piece index of each voxel (0..P-1, compact).
+    """
+    piece = group.copy()
+    n_of = n_pieces.astype(np.int64).copy()
+    while True:
+        act_p = n_of > 1
+        if not act_p.any():
+            break
+        act = act_p[piece]
+        idx = np.flatnonzero(act)
+        p = piece[idx]
+        c = coords[idx]
+        npc = n_of.size
+        lo = np.full((npc, 3), np.inf)
+        hi = np.full((npc, 3), -np.inf)
+        for a in range(3):
+            np.minimum.at(lo[:, a], p, c[:, a])
+            np.maximum.at(hi[:, a], p, c[:, a])
+        ext = np.where(np.isfinite(lo), hi - lo, 0.0)
+        axis = np.argmax(ext + pitch[None, :] * (ext > 0), axis=1)
+        cannot = ext[np.arange(npc), axis] <= 0
+        n_of[cannot & act_p] = 1  # a single voxel plane cannot be split
+        v = c[np.arange(idx.size), axis[p]]
+        order = np.lexsort((v, p))
+        vs = v[order]
+        count = np.bincount(p, minlength=npc)
+        start = np.cumsum(count) - count
+        n1 = n_of // 2
+        k = np.clip(np.floor(count * n1 / np.maximum(n_of, 1)).astype(np.int64), 0, np.maximum(count - 1, 0))
+        t = np.full(npc, np.inf)
+        has = count > 0
+        t[has] = vs[(start + k)[has]]
+        left_strict = np.bincount(p, weights=(v < t[p]).astype(float), minlength=npc)
+        use_le = left_strict == 0
+        left = np.where(use_le[p], v <= t[p], v < t[p])
+        split = (n_of[p] > 1) & ~left
+        new_id = np.arange(npc) + npc
+        piece[idx[split]] = new_id[p[split]]
+        n_new = np.where(n_of > 1, n_of - n1, 0)
+        n_of = np.concatenate([np.where(n_of > 1, n1, n_of), n_new])
+        if n_of.size > 4 * piece.size + 16:
+            raise ModelError("bisection did not converge")  # defensive: cannot happen with integer halving
+    _, compact = np.unique(piece, return_inverse=True)
+    return compact.ravel()
+
+
+def _snap(grid: FineGrid, candidates: np.ndarray, position: np.ndarray) -> int:
+    """Flat index of the candidate voxel nearest to ``position``."""
+    centres = grid.voxel_centers(candidates)
+    i = int(np.argmin(np.linalg.norm(centres - position[None, :], axis=1)))
+    return int(candidates[i])
+
+
+def _sensor_requests(cfg: DiscretizationConfig, roi: Roi) -> list[tuple[str, np.ndarray | None]]:
+    """(name, position or None for the compartment) per sensor, before snapping."""
+    out = []
+    zmid = 0.5 * (roi.lo[2] + roi.hi[2])
+    ymid = 0.5 * (roi.lo[1] + roi.hi[1])
+    for s in cfg.sensors:
+        if s.position is not None:
+            p = np.array(s.position, dtype=np.float64)
+        elif s.rule == "compartment":
+            p = None
+        else:
+            sign = 1.0 if s.rule == "upfront_left" else -1.0
+            p = np.array([cfg.upfront_sensor_x, ymid + sign * cfg.upfront_sensor_y_fraction * roi.width, zmid])
+        inside = p is not None and bool(((p >= roi.lo) & (p <= roi.hi)).all())
+        out.append((s.name, p if (inside and s.rule != "compartment") else None))
+    return out
+
+
+def _attribute_samples(
+    grid: FineGrid, labels_flat: np.ndarray, cell_sub: np.ndarray, vox: np.ndarray, samples: Samples
+) -> np.ndarray:
+    """Cell of every sample: its voxel's cell if of its own sub-assembly, else the nearest such cell."""
+    cell = labels_flat[vox]
+    bad = cell_sub[cell] != samples.subassembly
+    for s in np.unique(samples.subassembly[bad]).tolist():  # loop over sub-assemblies
+        own = np.flatnonzero(cell_sub[labels_flat] == s)
+        if own.size == 0:
+            raise ModelError(f"sub-assembly index {s} has material but no cell")
+        tree = cKDTree(grid.voxel_centers(own))
+        q = np.flatnonzero(bad & (samples.subassembly == s))
+        _, nearest = tree.query(samples.pos[q])
+        cell[q] = labels_flat[own[nearest]]
+    return cell
+
+
+def _subassembly_targets(samples: Samples, n_sub: int, names: list[str], cfg: DiscretizationConfig) -> np.ndarray:
+    """``[n_sub]`` target cell volume [m^3] per sub-assembly.
+
+    ``subassembly_target_cell_volume`` overrides by name; otherwise sub-assemblies whose
+    material volume is mostly solid elements (near-rigid blocks such as a powertrain, which
+    crush little and move as a few lumped masses) use ``solid_target_cell_volume``; all
+    others ``target_cell_volume``.
+    """
+    vol = np.bincount(samples.subassembly, weights=samples.volume, minlength=n_sub)[:n_sub]
+    solid = np.bincount(
+        samples.subassembly, weights=np.where(samples.kind == KIND_SOLID, samples.volume, 0.0), minlength=n_sub
+    )[:n_sub]
+    target = np.where(solid > 0.5 * vol, cfg.solid_target_cell_volume, cfg.target_cell_volume)
+    for i, name in enumerate(names[:n_sub]):
+        if name in cfg.subassembly_target_cell_volume:
+            target[i] = cfg.subassembly_target_cell_volume[name]
+    return target
+
+
+def _optimized(
+    grid: FineGrid,
+    roi: Roi,
+    vox: np.ndarray,
+    samples: Samples,
+    n_sub: int,
+    comp_vox: np.ndarray,
+    cfg: DiscretizationConfig,
+    names: list[str],
+) -> _Labels:
+    shape = grid.shape
+    nvox = grid.n_voxels
+    target = _subassembly_targets(samples, n_sub, names, cfg)
+    n_bands = int(grid.band_y.max()) + 1
+    owner, own_mass = _resolve_owners(grid, vox, samples, n_sub, comp_vox, cfg.envelope_closing_iterations)
+    _, iy, _ = np.unravel_index(np.arange(nvox), shape)
+    band = grid.band_y[iy]
+    vvol = grid.voxel_volume().ravel()
+    # sensors: a block of about one target volume around the snapped voxel, same sub-assembly and band
+    group = np.full(nvox, -1, dtype=np.int64)
+    sensor_groups, sensor_pos, sensor_is_comp = [], [], []
+    cand = np.flatnonzero((owner >= 0) & (owner < n_sub) & (own_mass > 0))
+    half = cfg.voxels_per_cell_edge // 2
+    reqs = _sensor_requests(cfg, roi)
+    n_groups_base = n_sub * (int(grid.band_y.max()) + 1)
+    for k, (_, p) in enumerate(reqs):  # loop over a handful of sensors
+        if p is None or cand.size == 0:
+            sensor_is_comp.append(True)
+            sensor_pos.append(None)
+            continue
+        v = _snap(grid, cand, p)
+        vi = np.array(np.unravel_index(v, shape))
+        lo = np.maximum(vi - half, 0)
+        hi = np.minimum(lo + cfg.voxels_per_cell_edge, shape)
+        sl = tuple(slice(int(a), int(b)) for a, b in zip(lo, hi, strict=True))
+        block = np.zeros(shape, dtype=bool)
+        block[sl] = True
+        block = block.ravel() & (owner == owner[v]) & (band == band[v]) & (group < 0)
+        block[v] = True
+        group[block] = n_groups_base + k
+        sensor_groups.append(n_groups_base + k)
+        sensor_is_comp.append(False)
+        sensor_pos.append(grid.voxel_centers(np.array([v]))[0])
+    # sub-assembly envelopes per y band, split into pieces of about the target volume
+    owned = (owner >= 0) & (owner < n_sub) & (group < 0)
+    group[owned] = owner[owned] * (int(grid.band_y.max()) + 1) + band[owned]
+    member = np.flatnonzero(group >= 0)
+    ug, ginv = np.unique(group[member], return_inverse=True)
+    gvol = np.bincount(ginv, weights=vvol[member])
+    n_pieces = np.maximum(1, np.round(gvol / target[np.minimum(ug // n_bands, n_sub - 1)])).astype(np.int64)
+    n_pieces[np.isin(ug, sensor_groups)] = 1
+    pitch = np.array([grid.widths(a).mean() for a in range(3)])
+    piece = _bisect(grid.voxel_centers(member), ginv.ravel(), n_pieces, pitch)
+    n_cells_mat = int(piece.max()) + 1 if piece.size else 0
+    labels = np.full(nvox, -1, dtype=np.int64)
+    labels[member] = piece
+    cell_sub = np.zeros(n_cells_mat, dtype=np.int64)
+    cell_sub[piece] = np.where(group[member] >= n_groups_base, owner[member], group[member] // (grid.band_y.max() + 1))
+    is_sensor = np.zeros(n_cells_mat, dtype=bool)
+    sensor_cell_mat = {}
+    for g in sensor_groups:
+        c = int(piece[np.flatnonzero(group[member] == g)[0]])
+        is_sensor[c] = True
+        sensor_cell_mat[g - n_groups_base] = c
+    # null space: connected empty components per y band
+    empty = (owner < 0).reshape(shape)
+    null_lab = np.zeros(shape, dtype=np.int64)
+    n_null = 0
+    for b in range(int(grid.band_y.max()) + 1):  # loop over the few y bands
+        cols = np.flatnonzero(grid.band_y == b)
+        lab, nb = ndimage.label(empty[:, cols, :])
+        null_lab[:, cols, :] = np.where(lab > 0, lab + n_null, 0)
+        n_null += nb
+    nl = null_lab.ravel()
+    labels[nl > 0] = n_cells_mat + nl[nl > 0] - 1
+    n = n_cells_mat + n_null + 1
+    comp = n - 1
+    labels[owner == n_sub] = comp
+    cell_sub = np.concatenate([cell_sub, np.full(n_null, -1), [n_sub]])
+    is_null = np.zeros(n, dtype=bool)
+    is_null[n_cells_mat:comp] = True
+    is_sensor = np.concatenate([is_sensor, np.zeros(n_null + 1, dtype=bool)])
+    cell_of_sample = _attribute_samples(grid, labels, cell_sub, vox, samples)
+    # cells left without material (envelope interior only) merge into the nearest cell of their sub-assembly
+    mass = np.bincount(cell_of_sample, weights=samples.mass, minlength=n)
+    empty_cells = (~is_null) & (mass <= 0) & (np.arange(n) != comp)
+    if empty_cells.any():
+        for s in np.unique(cell_sub[empty_cells]).tolist():
+            src = np.flatnonzero(empty_cells[labels] & (cell_sub[labels] == s))
+            dst = np.flatnonzero((~empty_cells[labels]) & (cell_sub[labels] == s))
+            _, nearest = cKDTree(grid.voxel_centers(dst)).query(grid.voxel_centers(src))
+            labels[src] = labels[dst[nearest]]
+        keep = ~empty_cells
+        new = np.cumsum(keep) - 1
+        labels = new[labels]
+        cell_of_sample = new[cell_of_sample]
+        cell_sub, is_null, is_sensor = cell_sub[keep], is_null[keep], is_sensor[keep]
+        sensor_cell_mat = {k: int(new[c]) for k, c in sensor_cell_mat.items()}
+        n = int(keep.sum())
+        comp = n - 1
+    sensor_cell = np.array([sensor_cell_mat.get(k, comp) for k in range(len(reqs))], dtype=np.int64)
+    return _Labels(
+        labels=labels.reshape(shape),
+        cell_sub=cell_sub,
+        is_null=is_null,
+        is_sensor=is_sensor,
+        cell_of_sample=cell_of_sample,
+        sensor_cell=sensor_cell,
+        sensor_position=_sensor_positions(sensor_pos),
+    )
+
+
+def _sensor_positions(pos: list) -> np.ndarray:
+    return np.array([[np.nan] * 3 if p is None else list(p) for p in pos], dtype=np.float64).reshape(-1, 3)
+
+
+def _uniform(
+    grid: FineGrid,
+    roi: Roi,
+    vox: np.ndarray,
+    samples: Samples,
+    n_sub: int,
+    comp_vox: np.ndarray,
+    cfg: DiscretizationConfig,
+    names: list[str],
+) -> _Labels:
+    shape = grid.shape
+    _, nby, nbz = grid.n_blocks
+    bx, by, bz = grid.block
+    bid = ((bx[:, None, None] * nby + by[None, :, None]) * nbz + bz[None, None, :]).ravel()
+    nb = grid.n_uniform_cells
+    sb = bid[vox]
+    key = sb * n_sub + samples.subassembly
+    uk, inv = np.unique(key, return_inverse=True)
+    m = np.bincount(inv, weights=samples.mass, minlength=uk.size)
+    kb, ks = uk // n_sub, uk % n_sub
+    order = np.lexsort((-m, kb))
+    first = np.ones(order.size, dtype=bool)
+    first[1:] = kb[order][1:] != kb[order][:-1]
+    dom = np.full(nb, -1, dtype=np.int64)
+    dom[kb[order][first]] = ks[order][first]
+    has_mat = dom >= 0
+    has_comp = np.zeros(nb, dtype=bool)
+    has_comp[bid[comp_vox]] = True
+    n_mat = int(has_mat.sum())
+    null_blocks = ~has_mat & ~has_comp
+    n_null = int(null_blocks.sum())
+    n = n_mat + n_null + 1
+    comp = n - 1
+    cell_of_block = np.full(nb, comp, dtype=np.int64)
+    cell_of_block[has_mat] = np.arange(n_mat)
+    cell_of_block[null_blocks] = n_mat + np.arange(n_null)
+    labels = cell_of_block[bid]
+    cell_sub = np.concatenate([dom[has_mat], np.full(n_null, -1), [n_sub]])
+    is_null = np.zeros(n, dtype=bool)
+    is_null[n_mat:comp] = True
+    is_sensor = np.zeros(n, dtype=bool)
+    cand = np.unique(vox)
+    sensor_cell, sensor_pos = [], []
+    for _, p in _sensor_requests(cfg, roi):
+        if p is None or cand.size == 0:
+            sensor_cell.append(comp)
+            sensor_pos.append(None)
+            continue
+        v = _snap(grid, cand, p)
+        sensor_cell.append(int(labels[v]))
+        is_sensor[labels[v]] = True
+        sensor_pos.append(grid.voxel_centers(np.array([v]))[0])
+    return _Labels(
+        labels=labels.reshape(shape),
+        cell_sub=cell_sub,
+        is_null=is_null,
+        is_sensor=is_sensor,
+        cell_of_sample=labels[vox],
+        sensor_cell=np.array(sensor_cell, dtype=np.int64),
+        sensor_position=_sensor_positions(sensor_pos),
+    )
+
+
+# ----------------------------------------------------------------------------- assembly
+def _subassembly_table(model: VehicleModel, comp_parts: np.ndarray) -> tuple[list[str], dict[int, int]]:
+    """Sub-assembly names (compartment last) and part id -> index."""
+    of_part = model.subassembly_of_part()
+    comp_set = set(comp_parts.tolist())
+    names = [n for n in model.subassemblies if n != COMPARTMENT]
+    names += sorted({of_part[p] for p in model.parts if of_part[p] not in names and p not in comp_set})
+    names = [n for n in names if n != COMPARTMENT] + [COMPARTMENT]
+    index = {n: i for i, n in enumerate(names)}
+    part_sub = {p: (len(names) - 1 if p in comp_set else index[of_part[p]]) for p in model.parts}
+    return names, part_sub
+
+
+def _voxel_boxes(grid: FineGrid, labels: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per-cell voxel bounding boxes ``[n, 3]`` x2 and voxel volume ``[n]`` (cells without voxels: nan, 0)."""
+    flat = labels.ravel()
+    order = np.argsort(flat, kind="stable")
+    fl = flat[order]
+    cells, starts = np.unique(fl, return_index=True)
+    lo = np.full((n, 3), np.nan)
+    hi = np.full((n, 3), np.nan)
+    idx = np.unravel_index(order, grid.shape)
+    for a in range(3):
+        e = grid.edges[a]
+        lo[cells, a] = e[np.minimum.reduceat(idx[a], starts)]
+        hi[cells, a] = e[np.maximum.reduceat(idx[a], starts) + 1]
+    vol = np.bincount(flat, weights=grid.voxel_volume().ravel(), minlength=n)
+    return lo, hi, vol
+
+
+def _material_table(model: VehicleModel) -> tuple[np.ndarray, dict[int, int]]:
+    mids = sorted(model.materials)
+    table = np.stack([model.materials[m].vector() for m in mids]) if mids else np.zeros((0, 8))
+    row = {m: i for i, m in enumerate(mids)}
+    return table, {pid: row[p.material_id] for pid, p in model.parts.items()}
+
+
+def _compartment_aggregate(
+    model: VehicleModel, roi: Roi, mat_table, part_row
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Material 8-vector, mass centroid and bounding box of everything not discretized."""
+    vec_sum = np.zeros(8)
+    mom = np.zeros(3)
+    mtot = 0.0
+    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+    for kind, sel, parts, nodes in (
+        ("shell", ~roi.shell_in, model.shell_part, model.shell_nodes),
+        ("solid", ~roi.solid_in, model.solid_part, model.solid_nodes),
+        ("beam", ~roi.beam_in, model.beam_part, model.beam_nodes),
+    ):
+        if not sel.any():
+            continue
+        m = roi.masses[kind][sel]
+        pts = model.coords[nodes[sel]]
+        c = pts.mean(axis=1)
+        rows = np.array([part_row[int(p)] for p in np.unique(parts[sel])])
+        uniq, inv = np.unique(parts[sel], return_inverse=True)
+        msum = np.bincount(inv, weights=m, minlength=uniq.size)
+        vec_sum += (mat_table[rows] * msum[:, None]).sum(axis=0)
+        mom += (c * m[:, None]).sum(axis=0)
+        mtot += float(m.sum())
+        lo = np.minimum(lo, pts.reshape(-1, 3).min(axis=0))
+        hi = np.maximum(hi, pts.reshape(-1, 3).max(axis=0))
+    if mtot <= 0:
+        return np.zeros(8), np.full(3, np.nan), lo, hi
+    return vec_sum / mtot, mom / mtot, lo, hi
+
+
+def discretize(model: VehicleModel, config: DiscretizationConfig | None = None, method: str | None = None) -> CellModel:
+    """Discretize a vehicle's front into a :class:`CellModel`.
+
+    Args:
+        model: the vehicle in marlcrash axes (x rearward from the front at 0, y left, z up).
+        config: discretization settings; ``None`` loads ``configs/cells.yaml``.
+        method: ``"optimized"`` or ``"uniform"``; overrides ``config.method``.
+
+    Returns:
+        The validated :class:`CellModel` (compartment last).
+
+    Raises:
+        ConfigError: unknown method or invalid config.
+        ModelError: the vehicle is inconsistent or has no deformable material in the ROI.
+    """
+    cfg = load_discretization_config() if config is None else config
+    method = cfg.method if method is None else method
+    if method not in ("optimized", "uniform"):
+        raise ConfigError(f"expected 'optimized' or 'uniform', got {method!r}", key="method")
+    t0 = time.perf_counter()
+    timings: dict[str, float] = {}
+
+    def tick(name):
+        nonlocal t0
+        t1 = time.perf_counter()
+        timings[name] = round(t1 - t0, 4)
+        t0 = t1
+
+    model.validate()
+    roi = region_of_interest(model, cfg.roi_depth, cfg.overlaps)
+    grid = build_grid(roi.lo, roi.hi, roi.planes_y, cfg.target_cell_volume, cfg.voxels_per_cell_edge)
+    names, part_sub = _subassembly_table(model, roi.compartment_parts)
+    n_sub = len(names) - 1
+    mat_table, part_row = _material_table(model)
+    pitch = grid.min_pitch()
+    tick("roi_grid")
+    samples = sample_elements(
+        model, roi.shell_in, roi.solid_in, roi.beam_in, part_row, part_sub, pitch,
+        cfg.samples_per_pitch, cfg.max_subdivision, roi.masses,
+    )  # fmt: skip
+    vox, _ = grid.locate(samples.pos, clamp=True)
+    # compartment material inside the ROI box labels its voxels as the compartment
+    comp_parts = roi.compartment_parts
+    near = []
+    for parts, nodes in ((model.shell_part, model.shell_nodes), (model.solid_part, model.solid_nodes)):
+        x = model.coords[nodes][:, :, 0]
+        near.append(np.isin(parts, comp_parts) & (x.min(axis=1) < roi.hi[0]))
+    beam_x = model.coords[model.beam_nodes][:, :, 0]
+    near.append(np.isin(model.beam_part, comp_parts) & (beam_x.min(axis=1) < roi.hi[0]))
+    comp_samples = sample_elements(
+        model, near[0], near[1], near[2], part_row, part_sub, pitch, 1, cfg.max_subdivision, roi.masses
+    )
+    cv, inside = grid.locate(comp_samples.pos, clamp=False)
+    comp_vox = np.unique(cv[inside])
+    tick("sampling")
+    builder = _optimized if method == "optimized" else _uniform
+    lab = builder(grid, roi, vox, samples, n_sub, comp_vox, cfg, names)
+    tick("labelling")
+    n = lab.is_null.shape[0]
+    comp = n - 1
+    cos = lab.cell_of_sample
+    # mass, material, centroid
+    mass = np.bincount(cos, weights=samples.mass, minlength=n)
+    mass[comp] = 0.0
+    mvec = np.stack(
+        [np.bincount(cos, weights=samples.mass * mat_table[samples.material, j], minlength=n) for j in range(8)], axis=1
+    )
+    material = np.divide(mvec, mass[:, None], out=np.zeros((n, 8)), where=mass[:, None] > 0)
+    mom = np.stack([np.bincount(cos, weights=samples.mass * samples.pos[:, a], minlength=n) for a in range(3)], axis=1)
+    lo, hi, volume = _voxel_boxes(grid, lab.labels, n)
+    geo_centre = 0.5 * (lo + hi)
+    centroid = np.where(mass[:, None] > 0, mom / np.where(mass > 0, mass, 1.0)[:, None], geo_centre)
+    cvec, ccen, clo, chi = _compartment_aggregate(model, roi, mat_table, part_row)
+    comp_mass = roi.total_mass - float(mass.sum())
+    mass[comp] = comp_mass
+    material[comp] = cvec
+    if not np.isfinite(ccen).all():
+        ccen = np.array([roi.hi[0], 0.5 * (roi.lo[1] + roi.hi[1]), 0.5 * (roi.lo[2] + roi.hi[2])])
+        clo = np.array([roi.hi[0], roi.lo[1], roi.lo[2]])
+        chi = np.array([roi.hi[0], roi.hi[1], roi.hi[2]])
+    centroid[comp] = ccen
+    lo[comp] = np.minimum(clo, np.where(np.isfinite(lo[comp]), lo[comp], np.inf))
+    hi[comp] = np.maximum(chi, np.where(np.isfinite(hi[comp]), hi[comp], -np.inf))
+    volume[comp] = float(np.prod(hi[comp] - lo[comp]))
+    tick("aggregate")
+    # links, sections, factors
+    faces, front_area = extract_faces(lab.labels, grid, lab.is_null, comp)
+    planes = faces.needed_planes()
+    reach = roi.hi[0] + 2 * pitch
+    near_roi = [
+        model.coords[nodes][:, :, 0].min(axis=1) < reach
+        for nodes in (model.shell_nodes, model.solid_nodes, model.beam_nodes)
+    ]
+    sections = grid_sections(model, grid, planes, *near_roi)
+    links = aggregate_links(faces, sections, planes, n)
+    tick("links_sections")
+    is_rigid = np.zeros(n, dtype=bool)
+    is_rigid[comp] = True
+    active = ~lab.is_null & ~is_rigid & (mass > 0)
+    factors, feasible, share = transmission_factors(
+        n, links, active, (cfg.weight_x, cfg.weight_lateral, cfg.weight_vertical), cfg.principal_min_share
+    )
+    crush_length = np.where(lab.is_null | is_rigid, 0.0, hi[:, 0] - lo[:, 0])
+    crush_length = np.where(np.isfinite(crush_length), crush_length, 0.0)
+    e_x, e_s, _ = behaviour_params(
+        samples, cos, n, material, crush_length, active,
+        cfg.crush_efficiency_shell, cfg.crush_efficiency_solid, cfg.compaction_shell, cfg.compaction_solid,
+        cfg.min_section_fraction,
+    )  # fmt: skip
+    params = np.concatenate([e_x[:, None], e_s[:, None], factors], axis=1)
+    tick("params")
+    # sub-assembly indices: keep names that own a cell, compartment included
+    used = np.unique(lab.cell_sub[lab.cell_sub >= 0])
+    remap = np.full(n_sub + 1, -1, dtype=np.int64)
+    remap[used] = np.arange(used.size)
+    cell_sub = np.where(lab.cell_sub >= 0, remap[np.maximum(lab.cell_sub, 0)], -1)
+    sensor_pos = lab.sensor_position.copy()
+    for k in range(sensor_pos.shape[0]):
+        if not np.isfinite(sensor_pos[k]).all():
+            spec = cfg.sensors[k]
+            sensor_pos[k] = spec.position if spec.position is not None else ccen
+    warnings = []
+    if comp_mass <= 0:
+        warnings.append(f"the compartment has no mass ({comp_mass:.3g} kg): every element lies in the ROI")
+    out = CellModel(
+        lo=np.where(np.isfinite(lo), lo, 0.0),
+        hi=np.where(np.isfinite(hi), hi, 0.0),
+        centroid=centroid,
+        volume=volume,
+        mass=mass,
+        material=material,
+        params=params,
+        feasible=feasible,
+        subassembly=cell_sub,
+        is_null=lab.is_null,
+        is_sensor=lab.is_sensor,
+        is_rigid=is_rigid,
+        front_area=front_area,
+        crush_length=crush_length,
+        link_src=links.src,
+        link_dst=links.dst,
+        link_dir=links.dir,
+        link_contact_area=links.contact_area,
+        link_material_area=links.material_area,
+        link_gap=links.gap,
+        link_share=share,
+        sensor_names=[s.name for s in cfg.sensors],
+        sensor_cell=lab.sensor_cell,
+        sensor_position=sensor_pos,
+        subassembly_names=[names[i] for i in used.tolist()],
+        method=method,
+        target_cell_volume=float(cfg.target_cell_volume),
+        roi_depth=float(cfg.roi_depth),
+        roi_lo=roi.lo,
+        roi_hi=roi.hi,
+        planes_y=roi.planes_y,
+        vehicle_width=roi.width,
+        roi_mass=roi.roi_mass,
+        total_mass=roi.total_mass,
+        grid_edges=grid.edges,
+        grid_labels=lab.labels,
+        name=model.name,
+        meta={
+            "config": dataclasses.asdict(cfg),
+            "n_cells_uniform": grid.n_uniform_cells,
+            "grid_shape": list(grid.shape),
+            "n_samples": samples.n,
+            "timings_s": timings,
+            "warnings": warnings,
+        },
+    )
+    out.validate()
+    return out

@@ -1,0 +1,57 @@
+"""3D picture of a cell model: voxels of the non-null cells coloured by sub-assembly."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from marlcrash.cells.model import CellModel
+
+
+def plot_cells(cells: CellModel, path: str | Path, max_points: int = 60000) -> Path:
+    """Write a 3D scatter PNG of the cells' voxels coloured by sub-assembly (null cells omitted).
+
+    Args:
+        cells: the cell model (its ``grid_labels`` give the voxels).
+        path: output ``.png`` path.
+        max_points: at most this many voxels are drawn (an even subsample beyond it).
+
+    Returns:
+        The path written. Sensor cells are drawn in black, larger.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    labels = cells.grid_labels
+    ex, ey, ez = (np.asarray(e) for e in cells.grid_edges)
+    flat = labels.ravel()
+    show = (flat >= 0) & ~cells.is_null[np.maximum(flat, 0)] & ~cells.is_rigid[np.maximum(flat, 0)]
+    idx = np.flatnonzero(show)
+    if idx.size > max_points:
+        idx = idx[np.linspace(0, idx.size - 1, max_points).astype(np.int64)]
+    ix, iy, iz = np.unravel_index(idx, labels.shape)
+    cx, cy, cz = 0.5 * (ex[1:] + ex[:-1]), 0.5 * (ey[1:] + ey[:-1]), 0.5 * (ez[1:] + ez[:-1])
+    sub = cells.subassembly[flat[idx]]
+    sensor = cells.is_sensor[flat[idx]]
+    fig = plt.figure(figsize=(10, 7))
+    ax = fig.add_subplot(projection="3d")
+    cmap = plt.get_cmap("tab20")
+    for k, name in enumerate(cells.subassembly_names):
+        m = (sub == k) & ~sensor
+        if m.any():
+            ax.scatter(cx[ix[m]], cy[iy[m]], cz[iz[m]], s=2, color=cmap(k % 20), label=name, depthshade=False)
+    if sensor.any():
+        ax.scatter(cx[ix[sensor]], cy[iy[sensor]], cz[iz[sensor]], s=8, color="k", label="sensor cells")
+    ax.set_xlabel("x [m] (rearward)")
+    ax.set_ylabel("y [m] (left)")
+    ax.set_zlabel("z [m]")
+    ax.set_title(f"{cells.name}: {cells.method}, {cells.n_cells} cells ({cells.n_null} null)")
+    ax.legend(loc="upper left", fontsize=6, markerscale=3, ncol=2)
+    ax.view_init(elev=25, azim=-130)
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

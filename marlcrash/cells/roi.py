@@ -1,0 +1,153 @@
+"""Region of interest, section planes and the rigid compartment (DESIGN 1.2).
+
+In marlcrash axes (x rearward from the front at x = 0, y lateral with +y left,
+z up) the ROI is the box ``x in [0, roi_depth]``, ``y in [-W/2, W/2]`` (``W`` the
+vehicle width) and ``z`` spanning the deformable material in front of
+``roi_depth``. The sub-assembly :data:`~marlcrash.vehicle.model.COMPARTMENT`
+(or, if the model has none, every part of rigid material) is not discretized:
+it and every element whose centroid lies behind ``roi_depth`` form one rigid
+compartment cell.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from marlcrash.errors import ConfigError, ModelError
+from marlcrash.vehicle.model import COMPARTMENT, VehicleModel
+
+
+@dataclass
+class Roi:
+    """The region of interest of a vehicle.
+
+    Attributes:
+        lo, hi: ``[3]`` ROI box corners [m].
+        width: vehicle width ``W`` [m] from the model bounds.
+        planes_y: sorted y positions of the section planes [m] (``0``, ``+-y1``, ``+-y2``).
+        compartment_parts: sorted part ids of the compartment.
+        shell_in, solid_in, beam_in: ``[S]``, ``[V]``, ``[B]`` bool, elements that are discretized
+            (not compartment, centroid in front of ``roi_depth``).
+        roi_mass: mass of the discretized elements [kg].
+        total_mass: vehicle mass [kg].
+        masses: the model's element masses (``VehicleModel.element_masses``), reused downstream.
+    """
+
+    lo: np.ndarray
+    hi: np.ndarray
+    width: float
+    planes_y: np.ndarray
+    compartment_parts: np.ndarray
+    shell_in: np.ndarray
+    solid_in: np.ndarray
+    beam_in: np.ndarray
+    roi_mass: float
+    total_mass: float
+    masses: dict[str, np.ndarray]
+
+    @property
+    def volume(self) -> float:
+        """ROI box volume [m^3]."""
+        return float(np.prod(self.hi - self.lo))
+
+
+def section_planes(width: float, overlaps: list[float] | tuple[float, ...]) -> np.ndarray:
+    """Section planes in y for the centre line and each barrier overlap.
+
+    A barrier covering the fraction ``o`` of the width from one side has its edge
+    at ``|y| = W/2 - o W``: 40 % gives ``+-0.1 W``, 25 % gives ``+-0.25 W``.
+
+    Args:
+        width: vehicle width ``W`` [m].
+        overlaps: overlap fractions in ``(0, 1)``.
+
+    Returns:
+        Sorted unique plane positions [m], always including ``y0 = 0``.
+    """
+    ys = [0.0]
+    for i, o in enumerate(overlaps):
+        if not 0.0 < o < 1.0:
+            raise ConfigError(f"overlap fractions must lie in (0, 1), got {o}", key=f"overlaps[{i}]")
+        y = abs(0.5 * width - o * width)
+        ys += [y, -y]
+    return np.unique(np.round(np.array(ys), 12))
+
+
+def compartment_parts(model: VehicleModel) -> np.ndarray:
+    """Part ids of the rigid compartment: its sub-assembly, else all rigid-material parts."""
+    if COMPARTMENT in model.subassemblies:
+        return np.array(sorted(int(p) for p in model.subassemblies[COMPARTMENT]), dtype=np.int64)
+    rigid = [pid for pid, p in model.parts.items() if model.materials[p.material_id].is_rigid]
+    return np.array(sorted(rigid), dtype=np.int64)
+
+
+def _centroid_x(model: VehicleModel, nodes: np.ndarray) -> np.ndarray:
+    if nodes.shape[0] == 0:
+        return np.zeros(0)
+    return model.coords[nodes][:, :, 0].mean(axis=1)
+
+
+def region_of_interest(model: VehicleModel, roi_depth: float, overlaps: list[float] | tuple[float, ...]) -> Roi:
+    """Crop the vehicle: ROI box, section planes and which elements are discretized.
+
+    Args:
+        model: the vehicle in marlcrash axes.
+        roi_depth: crop depth behind the front-most point [m].
+        overlaps: barrier overlap fractions defining the y section planes.
+
+    Returns:
+        The :class:`Roi`.
+
+    Raises:
+        ModelError: the model has no deformable material in front of ``roi_depth``.
+    """
+    if not roi_depth > 0:
+        raise ConfigError(f"expected a positive depth [m], got {roi_depth}", key="roi_depth")
+    b = model.bounds()
+    width = float(b[1, 1] - b[0, 1])
+    if width <= 0:
+        raise ModelError(f"{model.name}: vehicle has zero width (all nodes at y = {b[0, 1]} m)")
+    comp = compartment_parts(model)
+    masses = model.element_masses()
+    sel = {}
+    for kind, parts, nodes in (
+        ("shell", model.shell_part, model.shell_nodes),
+        ("solid", model.solid_part, model.solid_nodes),
+        ("beam", model.beam_part, model.beam_nodes),
+    ):
+        sel[kind] = (~np.isin(parts, comp)) & (_centroid_x(model, nodes) < roi_depth)
+    used = np.concatenate(
+        [
+            model.shell_nodes[sel["shell"]].ravel(),
+            model.solid_nodes[sel["solid"]].ravel(),
+            model.beam_nodes[sel["beam"]].ravel(),
+        ]
+    )
+    if used.size == 0:
+        raise ModelError(
+            f"{model.name}: no deformable element has its centroid in front of roi_depth = {roi_depth} m "
+            f"(model x range {b[0, 0]:.3f} .. {b[1, 0]:.3f} m, compartment parts {comp.tolist()[:10]})"
+        )
+    z = model.coords[np.unique(used), 2]
+    zlo, zhi = float(z.min()), float(z.max())
+    if zhi - zlo < 1e-6:
+        zlo, zhi = zlo - 0.5e-3, zhi + 0.5e-3
+    lo = np.array([0.0, -0.5 * width + 0.5 * (b[0, 1] + b[1, 1]), zlo])
+    hi = np.array([roi_depth, 0.5 * width + 0.5 * (b[0, 1] + b[1, 1]), zhi])
+    roi_mass = float(sum(masses[k][sel[k]].sum() for k in sel))
+    total = float(sum(m.sum() for m in masses.values()))
+    return Roi(
+        lo=lo,
+        hi=hi,
+        width=width,
+        planes_y=section_planes(width, overlaps) + 0.5 * (b[0, 1] + b[1, 1]),
+        compartment_parts=comp,
+        shell_in=sel["shell"],
+        solid_in=sel["solid"],
+        beam_in=sel["beam"],
+        roi_mass=roi_mass,
+        total_mass=total,
+        masses=masses,
+    )

@@ -1,0 +1,97 @@
+"""Table-2-like summaries of a discretization (what ``marlcrash discretize`` prints)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from marlcrash.cells.discretize import DiscretizationConfig, discretize, load_discretization_config
+from marlcrash.cells.model import CellModel
+from marlcrash.vehicle.model import COMPARTMENT, VehicleModel
+
+
+def summarize_cells(cells: CellModel, n_cells_optimized: int | None = None) -> dict:
+    """Summary of one cell model.
+
+    Args:
+        cells: a discretized model (either method).
+        n_cells_optimized: count of the optimized model, if ``cells`` is a uniform one.
+
+    Returns:
+        A JSON-serialisable dict: ``method``, ``n_cells`` (this model, all cells),
+        ``roi_volume_mm3``, ``target_cell_volume_mm3``, ``n_cells_uniform`` (uniform grid
+        cells over the ROI), ``n_cells_optimized`` (all cells of the optimized model:
+        non-null, null, sensor and compartment), ``n_null_cells`` and ``n_sensor_cells``
+        (this model), ``roi_mass_kg``, ``cell_mass_kg`` (cells without the compartment),
+        ``compartment_mass_kg``, ``total_mass_kg``, ``n_subassemblies``, ``n_sensors``,
+        ``n_links`` and ``cells_per_subassembly`` (name -> count).
+    """
+    comp = cells.compartment
+    counts = {name: int((cells.subassembly == i).sum()) for i, name in enumerate(cells.subassembly_names)}
+    non_comp = np.arange(cells.n_cells) != comp
+    if cells.method == "optimized":
+        n_cells_optimized = cells.n_cells
+    return {
+        "name": cells.name,
+        "method": cells.method,
+        "n_cells": cells.n_cells,
+        "roi_volume_mm3": cells.roi_volume * 1e9,
+        "target_cell_volume_mm3": cells.target_cell_volume * 1e9,
+        "n_cells_uniform": int(cells.meta["n_cells_uniform"]),
+        "n_cells_optimized": n_cells_optimized,
+        "n_null_cells": cells.n_null,
+        "n_sensor_cells": int(cells.is_sensor.sum()),
+        "roi_mass_kg": cells.roi_mass,
+        "cell_mass_kg": float(cells.mass[non_comp].sum()),
+        "compartment_mass_kg": float(cells.mass[comp]),
+        "total_mass_kg": cells.total_mass,
+        "n_subassemblies": len([n for n in cells.subassembly_names if n != COMPARTMENT]),
+        "n_sensors": len(cells.sensor_names),
+        "n_links": cells.n_links,
+        "cells_per_subassembly": counts,
+    }
+
+
+def discretization_summary(
+    model: VehicleModel, config: DiscretizationConfig | None = None, method: str | None = None
+) -> tuple[dict, CellModel]:
+    """Discretize ``model`` and summarise it.
+
+    Args:
+        model: vehicle in marlcrash axes.
+        config: discretization config (default ``configs/cells.yaml``).
+        method: ``uniform`` or ``optimized`` (default: the config's).
+
+    Returns:
+        ``(summary, cells)``: :func:`summarize_cells` of the chosen model (with the
+        optimized count filled in for a uniform model too) and the cell model itself.
+    """
+    cfg = load_discretization_config() if config is None else config
+    cells = discretize(model, cfg, method=method)
+    n_opt = None if cells.method == "optimized" else discretize(model, cfg, method="optimized").n_cells
+    return summarize_cells(cells, n_opt), cells
+
+
+def format_discretization_summary(s: dict) -> str:
+    """Render a summary as the paper's Table 2 plus cells per sub-assembly."""
+    rows = [
+        ("model", s["name"], ""),
+        ("method", s["method"], ""),
+        ("ROI volume", f"{s['roi_volume_mm3']:.4g}", "mm^3"),
+        ("threshold cell volume", f"{s['target_cell_volume_mm3']:.4g}", "mm^3"),
+        ("cells, uniform discretization", f"{s['n_cells_uniform']}", ""),
+        ("cells, optimized discretization", f"{s['n_cells_optimized']}", ""),
+        ("  of which null cells", f"{s['n_null_cells']}", "" if s["method"] == "optimized" else "(uniform model)"),
+        ("  of which sensor cells", f"{s['n_sensor_cells']}", ""),
+        ("links", f"{s['n_links']}", ""),
+        ("ROI material mass", f"{s['roi_mass_kg']:.3f}", "kg"),
+        ("sum of cell masses", f"{s['cell_mass_kg']:.3f}", "kg"),
+        ("rigid compartment mass", f"{s['compartment_mass_kg']:.3f}", "kg"),
+        ("total mass", f"{s['total_mass_kg']:.3f}", "kg"),
+    ]
+    width = max(len(r[0]) for r in rows)
+    lines = [f"{name:<{width}}  {value:>12} {unit}".rstrip() for name, value, unit in rows]
+    lines.append("")
+    lines.append(f"cells per sub-assembly ({s['n_subassemblies']} sub-assemblies + compartment):")
+    for name, n in s["cells_per_subassembly"].items():
+        lines.append(f"  {name:<28} {n:>6}")
+    return "\n".join(lines)

@@ -1,0 +1,1447 @@
+"""LS-DYNA keyword deck reader (DESIGN 3): a deck file to a :class:`VehicleModel` in SI.
+
+Coverage:
+
+- formats: fixed (8/10/16-character fields), long (20-character fields; a keyword
+  suffix ``+`` or ``*KEYWORD LONG=Y``), I10 (fields under 10 characters widened to
+  10; suffix ``%`` or ``*KEYWORD I10=Y``) and free format (comma-separated lines,
+  which may stand between fixed-format lines of one block); ``$`` comments;
+- structure: ``*KEYWORD``, ``*TITLE``, ``*END`` (ends the current file),
+  ``*INCLUDE`` (paths relative to the including file, nested), ``*INCLUDE_PATH``
+  and ``*INCLUDE_PATH_RELATIVE``;
+- ``*PARAMETER`` (``R``/``I``/``C`` typed), ``*PARAMETER_LOCAL`` (treated as global)
+  and ``*PARAMETER_EXPRESSION``; ``&name`` and ``-&name`` in any numeric field.
+  ``params=`` supplies values for parameters the deck uses but does not define,
+  and overrides deck values (each override is recorded in ``model.warnings``);
+- geometry: ``*NODE`` (blank fields read as 0), ``*ELEMENT_SHELL`` with options
+  ``THICKNESS``/``BETA``/``MCID``/``OFFSET`` (element thickness 0 means the
+  section's), ``*ELEMENT_SOLID`` (one line of 8 nodes, or the two-line form with 8
+  or 10 nodes, 10-node tets kept as their 4 corner nodes; option ``ORTHO``),
+  ``*ELEMENT_BEAM`` (options ``THICKNESS``/``SECTION`` give element areas;
+  ``PID``/``OFFSET``/``ORIENTATION``/``SCALAR``/``SCALR``/``WARPAGE`` are read past);
+- properties: ``*PART`` (title line + card; ``CONTACT``, ``PRINT``,
+  ``ATTACHMENT_NODES``, ``AVERAGED``, ``INERTIA`` cards read past),
+  ``*SECTION_SHELL`` (mean of T1..T4), ``*SECTION_SOLID``, ``*SECTION_BEAM`` (area A
+  of resultant/truss beams, or from TS1/TS2/TT1/TT2 for rectangular and tubular
+  integrated beams), all with ``_TITLE``;
+- materials: ``*MAT_ELASTIC``/``*MAT_001``, ``*MAT_PLASTIC_KINEMATIC``/``*MAT_003``,
+  ``*MAT_RIGID``/``*MAT_020``, ``*MAT_PIECEWISE_LINEAR_PLASTICITY``/``*MAT_024``
+  (eight-point curves or an LCSS ``*DEFINE_CURVE``), with ``_TITLE``; any other
+  ``*MAT_...`` is read for RO, E, PR from its first card where those fields are
+  numbers (``*MAT_NULL`` from its own columns). The hardening modulus from ETAN is
+  ``E ETAN / (E - ETAN)``; the ultimate strength is the yield stress at the failure
+  strain (FS, FAIL) or the curve maximum; the fracture strength the curve value at
+  FAIL. Everything else is completed by :func:`complete_material`;
+- ``*SET_PART``, ``*SET_PART_LIST`` and ``*SET_PART_LIST_GENERATE`` (usable as
+  ``"set:<id>"`` in sub-assembly maps).
+
+Every other card (``*CONTROL_*``, ``*DATABASE_*``, ``*CONTACT_*``, ``*HOURGLASS``,
+``*INITIAL_*``, ``*RIGIDWALL_*``, ``*BOUNDARY_*``, ``*SET_NODE*``, unknown ones) is
+skipped, counted per keyword in ``VehicleModel.skipped_cards`` and summarised in one
+:class:`UserWarning`.
+
+Big blocks (``*NODE``, ``*ELEMENT_*``) are parsed vectorised: the block's lines are
+laid out as a ``[n, width]`` byte array, columns are sliced and converted with
+numpy; lines in free format, with parameter references or with unusual characters,
+and any chunk the fast conversion rejects, go through the per-line parser, which
+is the authority on values and produces the error messages.
+
+Errors:
+    DeckError: every problem in the deck -- a file or include that cannot be read,
+        a line that is not a keyword where one is needed, a non-numeric or blank
+        required field, an undefined parameter, duplicate node/element/part/section/
+        material ids, elements or parts referring to unknown nodes, parts, sections or
+        materials, non-finite coordinates, undetectable units. The message names the
+        file and 1-based line and says what was expected and what was found, e.g.
+        ``car.k line 812: *NODE expects a numeric x coordinate in columns 9-24, got 'abc'``.
+    ConfigError: a bad ``units=`` name, ``axis_map`` or sub-assembly map.
+"""
+
+from __future__ import annotations
+
+import ast
+import bisect
+import math
+import operator
+import warnings
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from marlcrash.errors import DeckError, ModelError
+from marlcrash.units import UnitSystem, detect_unit_system, get_unit_system
+from marlcrash.vehicle.materials import Material, complete_material
+from marlcrash.vehicle.model import AxisMap, Part, VehicleModel
+
+__all__ = ["read_deck"]
+
+_CHUNK = 65536  # rows converted per numpy call when a fast conversion needs a fallback
+_NO_FAILURE = 1e20  # LS-DYNA's conventional "never fails" strain
+
+# --------------------------------------------------------------------------- layouts
+
+
+@dataclass(frozen=True)
+class _Field:
+    """One field of a fixed-format card: its name, standard width, kind and label."""
+
+    name: str
+    width: int
+    kind: str  # "i" integer, "f" real
+    label: str
+
+
+def _layout(*specs: tuple[str, int, str, str]) -> tuple[_Field, ...]:
+    return tuple(_Field(*s) for s in specs)
+
+
+def _ids(prefix: str, count: int, width: int, label: str) -> list[tuple[str, int, str, str]]:
+    return [(f"{prefix}{i}", width, "i", f"{label} {prefix}{i}") for i in range(1, count + 1)]
+
+
+_NODE = _layout(
+    ("nid", 8, "i", "node id"),
+    ("x", 16, "f", "x coordinate"),
+    ("y", 16, "f", "y coordinate"),
+    ("z", 16, "f", "z coordinate"),
+)
+_ELEM_HEAD = [("eid", 8, "i", "element id"), ("pid", 8, "i", "part id")]
+_SHELL = _layout(*_ELEM_HEAD, *_ids("n", 8, 8, "node id"))
+_SHELL_T = _layout(*[(f"t{i}", 16, "f", f"thickness THIC{i}") for i in range(1, 5)])
+_SOLID = _layout(*_ELEM_HEAD, *_ids("n", 8, 8, "node id"))
+_SOLID_HEAD = _layout(*_ELEM_HEAD)
+_SOLID_NODES = _layout(*_ids("n", 10, 8, "node id"))
+_BEAM = _layout(*_ELEM_HEAD, *_ids("n", 3, 8, "node id"))
+_BEAM_T = _layout(*[(f"p{i}", 16, "f", f"PARM{i}") for i in range(1, 5)])
+
+
+def _card(*names: str, kinds: str | None = None) -> tuple[_Field, ...]:
+    """A card of 10-character fields; ``kinds`` gives 'i'/'f' per field (default 'f')."""
+    kinds = kinds or "f" * len(names)
+    return tuple(_Field(n, 10, k, n.upper()) for n, k in zip(names, kinds, strict=True))
+
+
+_PART = _card("pid", "secid", "mid", kinds="iii")
+_SEC_SHELL_1 = _card("secid", "elform", "shrf", "nip", "propt", "qr", "icomp", kinds="iifffff")
+_SEC_SHELL_2 = _card("t1", "t2", "t3", "t4")
+_SEC_SOLID = _card("secid", "elform", kinds="if")
+_SEC_BEAM_1 = _card("secid", "elform", "shrf", "qr", "cst", kinds="iffff")
+_SEC_BEAM_2 = _card("a1", "a2", "a3", "a4")
+_MAT_1 = _card("mid", "c1", "c2", "c3", "c4", "c5", "c6", "c7", kinds="ifffffff")
+_MAT_8 = _card(*(f"c{i}" for i in range(8)))
+_SET_HEAD = _card("sid", kinds="i")
+_SET_IDS = _card(*(f"p{i}" for i in range(8)), kinds="i" * 8)
+_CURVE_HEAD = _card("lcid", "sidr", "sfa", "sfo", "offa", "offo", kinds="iiffff")
+_CURVE_PT = (_Field("a", 20, "f", "abscissa"), _Field("o", 20, "f", "ordinate"))
+
+
+def _widths(layout: tuple[_Field, ...], fmt: str) -> list[int]:
+    if fmt == "long":
+        return [20] * len(layout)
+    if fmt == "i10":
+        return [max(f.width, 10) for f in layout]
+    return [f.width for f in layout]
+
+
+_INT_OK = np.zeros(256, dtype=bool)
+_INT_OK[np.frombuffer(b"0123456789+- ", dtype=np.uint8)] = True
+_FLOAT_OK = _INT_OK.copy()
+_FLOAT_OK[np.frombuffer(b".eE", dtype=np.uint8)] = True
+
+# --------------------------------------------------------------------------- sources
+
+
+class _Source:
+    """One deck file: its bytes and line table (``[L]`` arrays of line starts and ends)."""
+
+    def __init__(self, path: Path, data: bytes):
+        if not data.endswith(b"\n"):
+            data += b"\n"
+        self.path = path
+        self.data = data
+        self.buf = np.frombuffer(data, dtype=np.uint8)
+        nl = np.flatnonzero(self.buf == 10)
+        self.starts = np.concatenate([[0], nl[:-1] + 1]).astype(np.int64)
+        ends = nl.astype(np.int64)
+        cr = (ends > self.starts) & (self.buf[np.maximum(ends - 1, 0)] == 13)
+        self.ends = ends - cr
+        nonempty = self.ends > self.starts
+        self.first = np.where(nonempty, self.buf[np.minimum(self.starts, len(self.buf) - 1)], 0)
+        self.special = np.zeros(len(self.starts), dtype=bool)
+        for ch in (b",", b"&", b"\t"):
+            pos = np.flatnonzero(self.buf == ch[0])
+            if pos.size:
+                self.special[np.searchsorted(self.starts, pos, side="right") - 1] = True
+
+    @classmethod
+    def load(cls, path: Path, including: tuple[Path, int] | None = None) -> _Source:
+        try:
+            data = path.read_bytes()
+        except OSError as e:
+            if including is not None:
+                raise DeckError(f"*INCLUDE cannot read {str(path)!r} ({e.strerror})", *including) from None
+            raise DeckError(f"cannot read the deck ({e.strerror})", path) from None
+        return cls(path, data)
+
+    @property
+    def n_lines(self) -> int:
+        return len(self.starts)
+
+    def text(self, i: int) -> str:
+        return self.data[self.starts[i] : self.ends[i]].decode("latin-1")
+
+    def padded(self, rows: np.ndarray, width: int) -> np.ndarray:
+        """``[n, width]`` uint8 array of the given lines, cut or padded with spaces."""
+        n = len(rows)
+        out = np.full((n, width), 32, dtype=np.uint8)
+        if n == 0:
+            return out
+        s = self.starts[rows]
+        lengths = self.ends[rows] - s
+        if (lengths == lengths[0]).all() and (n == 1 or (np.diff(s) == s[1] - s[0]).all()):
+            stride = int(s[1] - s[0]) if n > 1 else int(lengths[0]) + 1
+            m = min(int(lengths[0]), width)
+            if m:
+                view = np.lib.stride_tricks.as_strided(
+                    self.buf[int(s[0]) :], shape=(n, m), strides=(stride, 1), writeable=False
+                )
+                out[:, :m] = view
+            return out
+        cols = np.arange(width)
+        for a in range(0, n, _CHUNK):
+            ss, ll = s[a : a + _CHUNK], lengths[a : a + _CHUNK]
+            mask = cols[None, :] < ll[:, None]
+            pos = ss[:, None] + cols[None, :]
+            block = out[a : a + _CHUNK]
+            block[mask] = self.buf[pos[mask]]
+        return out
+
+
+@dataclass
+class _Block:
+    """One keyword and its data lines (0-based indices; comments removed)."""
+
+    keyword: str
+    fmt: str
+    src: _Source
+    line: int
+    rows: np.ndarray
+
+    def lineno(self, row: int) -> int:
+        return int(row) + 1
+
+    def err(self, reason: str, row: int | None = None) -> DeckError:
+        return DeckError(reason, self.src.path, self.lineno(self.line if row is None else row))
+
+
+@dataclass
+class _Locs:
+    """Where rows of a concatenated table came from, for messages."""
+
+    offsets: list[int] = field(default_factory=list)
+    chunks: list[tuple[_Source, np.ndarray]] = field(default_factory=list)
+    total: int = 0
+
+    def add(self, src: _Source, rows: np.ndarray) -> None:
+        self.offsets.append(self.total)
+        self.chunks.append((src, rows))
+        self.total += len(rows)
+
+    def where(self, i: int) -> tuple[Path, int]:
+        k = bisect.bisect_right(self.offsets, i) - 1
+        src, rows = self.chunks[k]
+        return src.path, int(rows[i - self.offsets[k]]) + 1
+
+
+# --------------------------------------------------------------------------- values
+
+
+class _Params:
+    """Deck parameters: name -> value, with where each was defined."""
+
+    def __init__(self, user: dict[str, float] | None):
+        self.values: dict[str, float | int | str] = {}
+        self.user = {str(k).strip().lower(): v for k, v in (user or {}).items()}
+        self.exprs: list[tuple[str, str, str, Path, int]] = []
+        self.notes: list[str] = []
+
+    def define(self, name: str, value: float | int | str) -> None:
+        self.values[name.lower()] = value
+
+    def finish(self) -> None:
+        """Apply ``params=`` overrides, then evaluate expressions in deck order."""
+        for k, v in self.user.items():
+            if k in self.values and self.values[k] != v:
+                self.notes.append(f"parameter {k!r}: deck value {self.values[k]!r} overridden by params= {v!r}")
+            self.values[k] = v
+        for kind, name, expr, path, line in self.exprs:
+            if name in self.user:
+                self.notes.append(f"parameter {name!r}: deck expression overridden by params= {self.user[name]!r}")
+                continue
+            val = _eval_expr(expr, self, path, line)
+            if kind == "I" and not (math.isfinite(val) and abs(val) < 2**62):
+                raise DeckError(f"*PARAMETER_EXPRESSION expects an integer value for {name!r}, got {val}", path, line)
+            self.values[name] = round(val) if kind == "I" else val
+
+    def get(self, name: str, path: Path, line: int) -> float | int | str:
+        key = name.strip().lower()
+        if key in self.values:
+            return self.values[key]
+        if key in self.user:
+            return self.user[key]
+        raise DeckError(
+            f"parameter {key!r} is used but not defined in the deck; define it with *PARAMETER or pass "
+            f"params={{{key!r}: value}}",
+            path,
+            line,
+        )
+
+
+_FUNCS = {
+    "sin": math.sin,
+    "cos": math.cos,
+    "tan": math.tan,
+    "asin": math.asin,
+    "acos": math.acos,
+    "atan": math.atan,
+    "atan2": math.atan2,
+    "sqrt": math.sqrt,
+    "exp": math.exp,
+    "log": math.log,
+    "log10": math.log10,
+    "abs": abs,
+    "min": min,
+    "max": max,
+    "int": int,
+    "aint": math.trunc,
+    "nint": round,
+}
+_BINOPS = {
+    ast.Add: operator.add,
+    ast.Sub: operator.sub,
+    ast.Mult: operator.mul,
+    ast.Div: operator.truediv,
+    ast.Pow: operator.pow,
+    ast.Mod: operator.mod,
+}
+
+
+def _eval_expr(text: str, params: _Params, path: Path, line: int) -> float:
+    """Evaluate a ``*PARAMETER_EXPRESSION`` right-hand side (arithmetic only)."""
+    src = text.strip().replace("^", "**").replace("&", "")
+
+    def ev(node: ast.AST) -> float:
+        if isinstance(node, ast.Expression):
+            return ev(node.body)
+        if isinstance(node, ast.Constant) and isinstance(node.value, int | float):
+            return float(node.value)
+        if isinstance(node, ast.Name):
+            if node.id.lower() == "pi":
+                return math.pi
+            v = params.get(node.id, path, line)
+            if isinstance(v, str):
+                raise DeckError(f"*PARAMETER_EXPRESSION uses character parameter {node.id!r} as a number", path, line)
+            return float(v)
+        if isinstance(node, ast.BinOp) and type(node.op) in _BINOPS:
+            return _BINOPS[type(node.op)](ev(node.left), ev(node.right))
+        if isinstance(node, ast.UnaryOp) and isinstance(node.op, ast.USub | ast.UAdd):
+            v = ev(node.operand)
+            return -v if isinstance(node.op, ast.USub) else v
+        if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id.lower() in _FUNCS:
+            return float(_FUNCS[node.func.id.lower()](*[ev(a) for a in node.args]))
+        raise ValueError("unsupported expression")
+
+    try:
+        return float(ev(ast.parse(src, mode="eval")))
+    except DeckError:
+        raise
+    except (SyntaxError, ValueError, TypeError, ZeroDivisionError, OverflowError, RecursionError, MemoryError):
+        raise DeckError(
+            f"*PARAMETER_EXPRESSION expects an arithmetic expression, got {text.strip()!r}", path, line
+        ) from None
+
+
+def _to_number(tok: str, kind: str) -> float | int:
+    """Convert a stripped token; raises ValueError when it is not a number of that kind."""
+    if kind == "i":
+        try:
+            return int(tok)
+        except ValueError:
+            v = float(tok)  # integral reals such as "2." are accepted in integer fields
+            if not v.is_integer():
+                raise
+            return int(v)
+    try:
+        return float(tok)
+    except ValueError:
+        if "d" in tok.lower():  # Fortran double exponent, 1.0D+03
+            return float(tok.lower().replace("d", "e"))
+        raise
+
+
+def _columns(widths: list[int]) -> list[tuple[int, int]]:
+    cols, c = [], 0
+    for w in widths:
+        cols.append((c, c + w))
+        c += w
+    return cols
+
+
+def _read_line(
+    block: _Block, row: int, layout: tuple[_Field, ...], params: _Params, lenient: bool = False
+) -> list[float | int | None]:
+    """Slow path: parse one line against ``layout``; blanks are ``None``.
+
+    With ``lenient``, non-numeric fields become ``None`` instead of raising.
+    """
+    text = block.src.text(row)
+    widths = _widths(layout, block.fmt)
+    if "," in text:
+        toks = [t.strip() for t in text.split(",")]
+        toks += [""] * (len(layout) - len(toks))
+        where = [f"in free-format field {i + 1}" for i in range(len(layout))]
+    else:
+        cols = _columns(widths)
+        toks = [text[a:b].strip() for a, b in cols]
+        where = [f"in columns {a + 1}-{b}" for a, b in cols]
+    out: list[float | int | None] = []
+    lineno = block.lineno(row)
+    for f, tok, wh in zip(layout, toks, where, strict=False):
+        if not tok:
+            out.append(None)
+            continue
+        neg = tok.startswith("-&")
+        if neg or tok.startswith("&"):
+            v = params.get(tok[2:] if neg else tok[1:], block.src.path, lineno)
+            if isinstance(v, str):
+                try:
+                    v = _to_number(v.strip(), f.kind)
+                except ValueError:
+                    if lenient:
+                        out.append(None)
+                        continue
+                    raise block.err(
+                        f"*{block.keyword} expects a numeric {f.label} {wh}, but parameter {tok!r} is {v!r}", row
+                    ) from None
+            if f.kind == "i":
+                if not float(v).is_integer() or abs(v) >= 2**62:
+                    raise block.err(
+                        f"*{block.keyword} expects an integer {f.label} {wh}, parameter {tok!r} is {v}", row
+                    )
+                v = int(v)
+            out.append(-v if neg else v)
+            continue
+        try:
+            val = _to_number(tok, f.kind)
+            if f.kind == "i" and abs(val) >= 2**62:
+                raise OverflowError
+            out.append(val)
+        except (ValueError, OverflowError):
+            if lenient:
+                out.append(None)
+                continue
+            what = "an integer" if f.kind == "i" else "a numeric"
+            raise block.err(f"*{block.keyword} expects {what} {f.label} {wh}, got {tok!r}", row) from None
+    return out
+
+
+def _field_where(block: _Block, row: int, layout: tuple[_Field, ...], k: int) -> str:
+    text = block.src.text(row)
+    if "," in text:
+        toks = text.split(",")
+        tok = toks[k].strip() if k < len(toks) else ""
+        return f"in free-format field {k + 1}, got {tok!r}" if tok else f"in free-format field {k + 1}, got blank"
+    a, b = _columns(_widths(layout, block.fmt))[k]
+    tok = text[a:b].strip()
+    return f"in columns {a + 1}-{b}, got {tok!r}" if tok else f"in columns {a + 1}-{b}, got blank"
+
+
+def _convert(sub: np.ndarray, dtype: type) -> tuple[np.ndarray, np.ndarray]:
+    """Convert ``[n, w]`` space-padded digits to numbers; returns values and a ``[n]`` failure mask."""
+    n, w = sub.shape
+    vals = np.zeros(n, dtype=dtype)
+    bad = np.zeros(n, dtype=bool)
+    strs = np.ascontiguousarray(sub).view(f"S{w}").ravel()
+    for a in range(0, n, _CHUNK):
+        part = strs[a : a + _CHUNK]
+        try:
+            vals[a : a + _CHUNK] = part.astype(dtype)
+        except (ValueError, OverflowError, TypeError, UnicodeError):
+            for j, s in enumerate(part.tolist()):
+                try:
+                    vals[a + j] = dtype(s) if dtype is np.float64 else int(s)
+                except (ValueError, OverflowError, TypeError, UnicodeError):
+                    bad[a + j] = True
+    return vals, bad
+
+
+def _table(
+    block: _Block,
+    rows: np.ndarray,
+    layout: tuple[_Field, ...],
+    params: _Params,
+    required: tuple[str, ...] = (),
+    positive: tuple[str, ...] = (),
+) -> dict[str, np.ndarray]:
+    """Parse lines ``rows`` of ``block`` against ``layout``, vectorised.
+
+    Returns one ``[n]`` array per field (int64 or float64, blanks as 0). Fields in
+    ``required`` must not be blank; fields in ``positive`` must be > 0.
+    """
+    n = len(rows)
+    widths = _widths(layout, block.fmt)
+    cols = _columns(widths)
+    src = block.src
+    arr = src.padded(rows, cols[-1][1])
+    slow = src.special[rows].copy()
+    subs = []
+    for f, (a, b) in zip(layout, cols, strict=True):
+        sub = arr[:, a:b]
+        table = _INT_OK if f.kind == "i" else _FLOAT_OK
+        slow |= ~table[sub].all(axis=1)
+        blank = (sub == 32).all(axis=1)
+        if f.name in required:
+            slow |= blank
+        subs.append((sub, blank))
+    out: dict[str, np.ndarray] = {}
+    fast = np.flatnonzero(~slow)
+    for f, (sub, blank) in zip(layout, subs, strict=True):
+        dtype = np.int64 if f.kind == "i" else np.float64
+        col = np.zeros(n, dtype=dtype)
+        if fast.size:
+            s = sub[fast]
+            b = blank[fast]
+            s[b, -1] = ord("0")
+            vals, bad = _convert(s, dtype)
+            col[fast] = vals
+            slow[fast[bad]] = True
+        out[f.name] = col
+    for i in np.flatnonzero(slow).tolist():
+        vals = _read_line(block, int(rows[i]), layout, params)
+        for k, (f, v) in enumerate(zip(layout, vals, strict=True)):
+            if v is None and f.name in required:
+                raise block.err(
+                    f"*{block.keyword} expects {f.label} {_field_where(block, int(rows[i]), layout, k)}", int(rows[i])
+                )
+            out[f.name][i] = 0 if v is None else v
+    for name in positive:
+        bad = np.flatnonzero(out[name] <= 0)
+        if bad.size:
+            i = int(bad[0])
+            k = [f.name for f in layout].index(name)
+            raise block.err(
+                f"*{block.keyword} expects a positive {layout[k].label} {_field_where(block, int(rows[i]), layout, k)}",
+                int(rows[i]),
+            )
+    return out
+
+
+def _nonblank(block: _Block, rows: np.ndarray) -> np.ndarray:
+    """The rows that are not entirely blank (blank lines are skipped in one-line tables)."""
+    if rows.size == 0:
+        return rows
+    src = block.src
+    lengths = src.ends[rows] - src.starts[rows]
+    keep = lengths > 0
+    cand = np.flatnonzero(keep)
+    if cand.size:
+        w = int(lengths.max())
+        if w <= 256:
+            arr = src.padded(rows[cand], w)
+            keep[cand] = ~(arr == 32).all(axis=1)
+        else:
+            keep[cand] = [bool(src.text(int(r)).strip()) for r in rows[cand]]
+    return rows[keep]
+
+
+# --------------------------------------------------------------------------- scanning
+
+
+@dataclass
+class _Deck:
+    """Everything read from the deck, in deck units, before assembly."""
+
+    params: _Params
+    title: str | None = None
+    blocks: list[_Block] = field(default_factory=list)
+    skipped: Counter = field(default_factory=Counter)
+    notes: list[str] = field(default_factory=list)
+    include_paths: list[Path] = field(default_factory=list)
+
+
+def _keyword_line(text: str) -> tuple[str, str | None, list[str]]:
+    """``*NAME[+|%|-] rest`` -> (NAME, format suffix, rest tokens)."""
+    toks = text[1:].split()
+    if not toks:
+        return "", None, []
+    name = toks[0].upper()
+    suffix = None
+    if name[-1:] in ("+", "%", "-"):
+        suffix, name = name[-1], name[:-1]
+    rest = toks[1:]
+    if rest and rest[0] in ("+", "%", "-"):
+        suffix, rest = rest[0], rest[1:]
+    return name, suffix, rest
+
+
+def _scan(path: Path, deck: _Deck, fmt: str, stack: tuple[Path, ...], including: tuple[Path, int] | None) -> None:
+    """Split one file into keyword blocks, following includes; read parameters now."""
+    src = _Source.load(path, including)
+    kw = np.flatnonzero(src.first == ord("*"))
+    head_end = int(kw[0]) if kw.size else src.n_lines
+    for i in np.flatnonzero(src.first[:head_end] != ord("$")).tolist():
+        if src.text(i).strip():
+            raise DeckError(f"expected a keyword line starting with '*', got data {src.text(i)[:40]!r}", path, i + 1)
+    bounds = [*kw.tolist(), src.n_lines]
+    for j in range(len(kw)):
+        k, end = bounds[j], bounds[j + 1]
+        name, suffix, rest = _keyword_line(src.text(k))
+        if not name:
+            raise DeckError("expected a keyword name after '*', got nothing", path, k + 1)
+        rows = np.arange(k + 1, end, dtype=np.int64)
+        rows = rows[src.first[rows] != ord("$")]
+        while rows.size and not src.text(int(rows[-1])).strip():
+            rows = rows[:-1]
+        bfmt = {"+": "long", "%": "i10", "-": "std"}.get(suffix or "", fmt)
+        block = _Block(name, bfmt, src, k, rows)
+        if name == "END":
+            return
+        if name == "KEYWORD":
+            opts = {t.upper().partition("=")[0]: t.upper().partition("=")[2] for t in rest if "=" in t}
+            if opts.get("LONG") in ("Y", "YES"):
+                fmt = "long"
+            elif opts.get("I10") in ("Y", "YES"):
+                fmt = "i10"
+            elif opts.get("LONG") == "S":
+                fmt = "std"
+        elif name == "TITLE":
+            if rows.size and deck.title is None:
+                deck.title = src.text(int(rows[0])).strip()
+        elif name in ("INCLUDE_PATH", "INCLUDE_PATH_RELATIVE"):
+            for r in rows.tolist():
+                p = Path(src.text(r).strip())
+                deck.include_paths.append(p if p.is_absolute() else path.parent / p)
+        elif name == "INCLUDE":
+            for r, fname in _include_names(src, rows):
+                target = _resolve_include(fname, path, deck, r)
+                if target in stack:
+                    raise DeckError(f"*INCLUDE {fname!r} includes itself (cycle through {target.name})", path, r + 1)
+                _scan(target, deck, fmt, (*stack, target), (path, r + 1))
+        elif name in ("PARAMETER", "PARAMETER_LOCAL"):
+            _read_parameters(block, deck.params)
+        elif name == "PARAMETER_EXPRESSION" or name == "PARAMETER_EXPRESSION_LOCAL":
+            _read_parameter_expressions(block, deck.params)
+        else:
+            deck.blocks.append(block)
+
+
+def _include_names(src: _Source, rows: np.ndarray) -> list[tuple[int, str]]:
+    out: list[tuple[int, str]] = []
+    pending: tuple[int, str] | None = None
+    for r in rows.tolist():
+        t = src.text(r).strip()
+        if pending is not None:
+            t = pending[1] + t
+        first = pending[0] if pending is not None else r
+        if t.endswith(" +"):
+            pending = (first, t[:-2].rstrip())
+            continue
+        pending = None
+        if t:
+            out.append((first, t))
+    if pending is not None:
+        out.append(pending)
+    return out
+
+
+def _resolve_include(fname: str, including: Path, deck: _Deck, row: int) -> Path:
+    p = Path(fname)
+    candidates = [p] if p.is_absolute() else [including.parent / p, *(d / p for d in deck.include_paths)]
+    for c in candidates:
+        if c.is_file():
+            return c.resolve()
+    looked = ", ".join(str(c.parent) for c in candidates)
+    raise DeckError(f"*INCLUDE file {fname!r} not found (looked in {looked})", including, row + 1)
+
+
+def _param_pairs(block: _Block, row: int) -> list[tuple[str, str]]:
+    text = block.src.text(row)
+    if "," in text:
+        toks = [t.strip() for t in text.split(",")]
+        return [(toks[i], toks[i + 1] if i + 1 < len(toks) else "") for i in range(0, len(toks), 2) if toks[i]]
+    w = 20 if block.fmt == "long" else 10
+    pairs = []
+    for a in range(0, len(text), 2 * w):
+        name, val = text[a : a + w].strip(), text[a + w : a + 2 * w].strip()
+        if name:
+            pairs.append((name, val))
+    ok = all(p[0][:1].upper() in "RIC" and p[0][1:].strip() and " " not in p[0][1:].strip() for p in pairs)
+    if ok and all(p[1] for p in pairs):
+        return pairs
+    toks = text.split()  # whitespace-separated fallback: "R name value" or "Rname value"
+    out, i = [], 0
+    while i < len(toks):
+        t = toks[i]
+        if len(t) == 1 and t.upper() in "RIC" and i + 2 < len(toks) + 1:
+            out.append((f"{t} {toks[i + 1]}" if i + 1 < len(toks) else t, toks[i + 2] if i + 2 < len(toks) else ""))
+            i += 3
+        else:
+            out.append((t, toks[i + 1] if i + 1 < len(toks) else ""))
+            i += 2
+    return out
+
+
+def _read_parameters(block: _Block, params: _Params) -> None:
+    for r in block.rows.tolist():
+        if not block.src.text(r).strip():
+            continue
+        for head, val in _param_pairs(block, r):
+            kind, name = head[:1].upper(), head[1:].strip()
+            if kind not in ("R", "I", "C") or not name:
+                raise block.err(f"*PARAMETER expects a type R, I or C followed by a name, got {head!r}", r)
+            if kind == "C":
+                params.define(name, val)
+                continue
+            try:
+                v = _to_number(val, "i" if kind == "I" else "f")
+            except (ValueError, OverflowError):
+                raise block.err(f"*PARAMETER expects a {kind} value for {name!r}, got {val!r}", r) from None
+            params.define(name, v)
+
+
+def _read_parameter_expressions(block: _Block, params: _Params) -> None:
+    w = 20 if block.fmt == "long" else 10
+    for r in block.rows.tolist():
+        text = block.src.text(r)
+        if not text.strip():
+            continue
+        head, expr = text.split(",", 1) if "," in text else (text[:w], text[w:])
+        head = head.strip()
+        kind, name = head[:1].upper(), head[1:].strip()
+        if kind not in ("R", "I") or not name:
+            raise block.err(f"*PARAMETER_EXPRESSION expects a type R or I followed by a name, got {head!r}", r)
+        params.exprs.append((kind, name.lower(), expr, block.src.path, r + 1))
+
+
+# --------------------------------------------------------------------------- cards
+
+
+@dataclass
+class _Elements:
+    """Elements of one kind, in deck units; node columns hold node ids."""
+
+    width: int
+    ids: list[np.ndarray] = field(default_factory=list)
+    part: list[np.ndarray] = field(default_factory=list)
+    nodes: list[np.ndarray] = field(default_factory=list)
+    extra: list[np.ndarray] = field(default_factory=list)  # shells: [n, 4] thickness, beams: [n] area or nan
+    locs: _Locs = field(default_factory=_Locs)
+
+    def add(self, src, rows, ids, part, nodes, extra) -> None:
+        self.ids.append(ids)
+        self.part.append(part)
+        self.nodes.append(nodes)
+        self.extra.append(extra)
+        self.locs.add(src, rows)
+
+    def cat(self, extra_shape: tuple[int, ...]):
+        if not self.ids:
+            z = np.zeros(0, dtype=np.int64)
+            return z, z, np.zeros((0, self.width), np.int64), np.zeros((0, *extra_shape))
+        return (
+            np.concatenate(self.ids),
+            np.concatenate(self.part),
+            np.concatenate(self.nodes),
+            np.concatenate(self.extra),
+        )
+
+
+@dataclass
+class _Section:
+    kind: str  # shell, solid, beam
+    value: float | None  # shell thickness or beam area (deck units); None where unknown
+    elform: int
+    cst: int
+    where: tuple[Path, int]
+
+
+@dataclass
+class _RawMaterial:
+    mid: int
+    name: str
+    kind: str
+    values: dict[str, float]
+    where: tuple[Path, int]
+
+
+@dataclass
+class _Tables:
+    node_ids: list[np.ndarray] = field(default_factory=list)
+    coords: list[np.ndarray] = field(default_factory=list)
+    node_locs: _Locs = field(default_factory=_Locs)
+    shells: _Elements = field(default_factory=lambda: _Elements(4))
+    solids: _Elements = field(default_factory=lambda: _Elements(8))
+    beams: _Elements = field(default_factory=lambda: _Elements(2))
+    parts: dict[int, tuple[str, int, int, tuple[Path, int]]] = field(default_factory=dict)
+    sections: dict[int, _Section] = field(default_factory=dict)
+    materials: dict[int, _RawMaterial] = field(default_factory=dict)
+    sets: dict[int, tuple[str, list[int]]] = field(default_factory=dict)
+    curves: dict[int, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+
+
+def _split_options(name: str, base: str) -> set[str]:
+    rest = name[len(base) :]
+    return {o for o in rest.split("_") if o}
+
+
+def _read_node(block: _Block, t: _Tables, params: _Params) -> None:
+    rows = _nonblank(block, block.rows)
+    if rows.size == 0:
+        return
+    v = _table(block, rows, _NODE, params, required=("nid",), positive=("nid",))
+    xyz = np.stack([v["x"], v["y"], v["z"]], axis=1)
+    bad = np.flatnonzero(~np.isfinite(xyz).all(axis=1))
+    if bad.size:
+        i = int(bad[0])
+        raise block.err(f"*NODE expects finite coordinates for node {int(v['nid'][i])}, got {xyz[i].tolist()}", rows[i])
+    t.node_ids.append(v["nid"])
+    t.coords.append(xyz)
+    t.node_locs.add(block.src, rows)
+
+
+def _grouped(block: _Block, per: int, rows: np.ndarray | None = None) -> list[np.ndarray]:
+    rows = block.rows if rows is None else rows
+    if rows.size % per:
+        last = int(rows[-1])
+        raise block.err(
+            f"*{block.keyword} expects {per} lines per element, but the block ends after "
+            f"{rows.size % per} line(s) of the last element",
+            last,
+        )
+    return [rows[i::per] for i in range(per)]
+
+
+_SHELL_OPTS = {"THICKNESS", "BETA", "MCID", "OFFSET"}
+_SOLID_OPTS = {"ORTHO", "TET10"}
+_BEAM_OPTS = {"THICKNESS", "SECTION", "PID", "OFFSET", "ORIENTATION", "SCALAR", "SCALR", "WARPAGE"}
+
+
+def _read_shell(block: _Block, opts: set[str], t: _Tables, params: _Params) -> None:
+    per = 1 + bool(opts & {"THICKNESS", "BETA", "MCID"}) + ("OFFSET" in opts)
+    rows = _nonblank(block, block.rows) if per == 1 else block.rows
+    if rows.size == 0:
+        return
+    groups = _grouped(block, per, rows)
+    main = groups[0]
+    v = _table(block, main, _SHELL[:6], params, ("eid", "pid", "n1", "n2", "n3"), ("eid", "pid", "n1", "n2", "n3"))
+    nodes = np.stack([v["n1"], v["n2"], v["n3"], v["n4"]], axis=1)
+    nodes[:, 3] = np.where(nodes[:, 3] <= 0, nodes[:, 2], nodes[:, 3])
+    thick = np.zeros((main.size, 4))
+    if per > 1 and opts & {"THICKNESS", "BETA", "MCID"}:
+        th = _table(block, groups[1], _SHELL_T, params)
+        thick = np.stack([th[f"t{i}"] for i in range(1, 5)], axis=1)
+        bad = np.flatnonzero(~np.isfinite(thick).all(axis=1) | (thick < 0).any(axis=1))
+        if bad.size:
+            i = int(bad[0])
+            raise block.err(f"*{block.keyword} expects thicknesses >= 0, got {thick[i].tolist()}", groups[1][i])
+    t.shells.add(block.src, main, v["eid"], v["pid"], nodes, thick)
+
+
+def _read_solid(block: _Block, opts: set[str], t: _Tables, params: _Params) -> None:
+    rows = block.rows
+    if rows.size == 0:
+        return
+    two_line = "TET10" in opts
+    if not two_line:
+        first = _read_line(block, int(rows[0]), _SOLID, params)
+        two_line = all(x is None for x in first[2:])
+    per = (2 if two_line else 1) + 2 * ("ORTHO" in opts)
+    if per == 1:
+        rows = _nonblank(block, rows)
+    groups = _grouped(block, per, rows)
+    main = groups[0]
+    req = ("eid", "pid") if two_line else ("eid", "pid", "n1", "n2", "n3", "n4")
+    head = _table(block, main, _SOLID_HEAD if two_line else _SOLID, params, req, req)
+    if two_line:
+        nd = _table(block, groups[1], _SOLID_NODES, params, ("n1", "n2", "n3", "n4"), ("n1", "n2", "n3", "n4"))
+        nodes = np.stack([nd[f"n{i}"] for i in range(1, 9)], axis=1)
+        is_tet10 = (nd["n9"] > 0) | (nd["n10"] > 0) | ("TET10" in opts)
+        nodes[is_tet10, 4:] = nodes[is_tet10, 3:4]
+        node_rows = groups[1]
+    else:
+        nodes = np.stack([head[f"n{i}"] for i in range(1, 9)], axis=1)
+        node_rows = main
+    tail = nodes[:, 4:]
+    tet = (tail <= 0).all(axis=1)
+    nodes[tet, 4:] = nodes[tet, 3:4]
+    bad = np.flatnonzero((nodes <= 0).any(axis=1))
+    if bad.size:
+        i = int(bad[0])
+        raise block.err(
+            f"*{block.keyword} expects 4 (tetrahedron) or 8 positive node ids, got {nodes[i].tolist()}", node_rows[i]
+        )
+    t.solids.add(block.src, main, head["eid"], head["pid"], nodes, np.zeros(main.size))
+
+
+def _read_beam(block: _Block, opts: set[str], t: _Tables, params: _Params) -> None:
+    extra_opts = ["THICKNESS", "SECTION", "PID", "OFFSET", "ORIENTATION", "SCALAR", "SCALR", "WARPAGE"]
+    order = [o for o in extra_opts if o in opts]
+    if "THICKNESS" in order and "SECTION" in order:
+        order.remove("SECTION")
+    per = 1 + len(order)
+    rows = _nonblank(block, block.rows) if per == 1 else block.rows
+    if rows.size == 0:
+        return
+    groups = _grouped(block, per, rows)
+    main = groups[0]
+    req = ("eid", "pid", "n1", "n2")
+    v = _table(block, main, _BEAM, params, req, req)
+    parm = np.full((main.size, 4), np.nan)
+    for o in ("THICKNESS", "SECTION"):
+        if o in order:
+            p = _table(block, groups[1 + order.index(o)], _BEAM_T, params)
+            parm = np.stack([p[f"p{i}"] for i in range(1, 5)], axis=1)
+            parm[(parm == 0).all(axis=1)] = np.nan
+    t.beams.add(block.src, main, v["eid"], v["pid"], np.stack([v["n1"], v["n2"]], axis=1), parm)
+
+
+def _read_part(block: _Block, opts: set[str], t: _Tables, params: _Params) -> None:
+    rows = block.rows.tolist()
+    i = 0
+    while i < len(rows):
+        title = block.src.text(rows[i]).strip()
+        if i + 1 >= len(rows):
+            raise block.err("*PART expects a card with PID, SECID, MID after the title line, got end of block", rows[i])
+        r = rows[i + 1]
+        pid, secid, mid = _read_line(block, r, _PART, params)
+        for val, label in ((pid, "PID"), (secid, "SECID"), (mid, "MID")):
+            if val is None or val <= 0:
+                k = ["PID", "SECID", "MID"].index(label)
+                raise block.err(f"*PART expects a positive {label} {_field_where(block, r, _PART, k)}", r)
+        if pid in t.parts:
+            prev = t.parts[pid][3]
+            raise block.err(f"*PART id {pid} is defined twice (first in {prev[0].name} line {prev[1]})", r)
+        t.parts[int(pid)] = (title, int(secid), int(mid), (block.src.path, r + 1))
+        i += 2
+        i += sum(o in opts for o in ("CONTACT", "PRINT", "ATTACHMENT", "AVERAGED"))
+        if "INERTIA" in opts:
+            ircs = _read_line(block, rows[i], _card("xc", "yc", "zc", "tm", "ircs"), params) if i < len(rows) else []
+            i += 3 + (len(ircs) == 5 and ircs[4] == 1)
+            break  # cards after an inertia part are read past; one part per *PART_INERTIA block
+
+
+def _section_blocks(block: _Block) -> tuple[list[int], bool]:
+    return block.rows.tolist(), "TITLE" in _split_options(block.keyword, block.keyword.split("_")[0] + "_")
+
+
+def _add_section(block: _Block, t: _Tables, secid: int | None, sec: _Section, row: int) -> None:
+    if secid is None or secid <= 0:
+        raise block.err(f"*{block.keyword} expects a positive SECID in columns 1-10, got {secid!r}", row)
+    if secid in t.sections:
+        prev = t.sections[secid].where
+        raise block.err(f"section id {secid} is defined twice (first in {prev[0].name} line {prev[1]})", row)
+    t.sections[secid] = sec
+
+
+def _read_section(block: _Block, kind: str, opts: set[str], t: _Tables, params: _Params) -> None:
+    rows = block.rows.tolist()
+    title = "TITLE" in opts
+    i = 0
+    while i < len(rows):
+        i += title
+        if i >= len(rows):
+            raise block.err(f"*{block.keyword} expects a section card after the title, got end of block", rows[-1])
+        r = rows[i]
+        where = (block.src.path, r + 1)
+        if kind == "solid":
+            secid, elform = _read_line(block, r, _SEC_SOLID, params)
+            _add_section(block, t, secid, _Section("solid", None, int(elform or 1), 0, where), r)
+            i += 1
+            continue
+        if i + 1 >= len(rows):
+            raise block.err(f"*{block.keyword} expects a second card after the section card, got end of block", r)
+        if kind == "shell":
+            secid, elform, _shrf, nip, _propt, _qr, icomp = _read_line(block, r, _SEC_SHELL_1, params)
+            ts = [x or 0.0 for x in _read_line(block, rows[i + 1], _SEC_SHELL_2, params)]
+            t1 = ts[0]
+            ts = [x if x > 0 else t1 for x in ts]
+            if any(x < 0 for x in ts) or not all(math.isfinite(x) for x in ts):
+                raise block.err(f"*{block.keyword} expects thicknesses T1..T4 >= 0, got {ts}", rows[i + 1])
+            _add_section(block, t, secid, _Section("shell", float(np.mean(ts)), int(elform or 0), 0, where), r)
+            i += 2
+            if icomp == 1:
+                i += math.ceil((nip or 2) / 8)
+            if (elform or 0) >= 101 or (opts - {"TITLE"}):
+                break  # user-element or option cards follow: only the first section of this block is read
+        else:
+            secid, elform, _shrf, qr, cst = _read_line(block, r, _SEC_BEAM_1, params)
+            a1, a2, a3, a4 = (x or 0.0 for x in _read_line(block, rows[i + 1], _SEC_BEAM_2, params))
+            elform, cst = int(elform or 1), int(cst or 0)
+            area = _beam_area(elform, cst, a1, a2, a3, a4, qr or 0.0)
+            _add_section(block, t, secid, _Section("beam", area, elform, cst, where), r)
+            i += 2
+            if opts - {"TITLE"}:
+                break
+
+
+def _beam_area(elform: int, cst: int, a1: float, a2: float, a3: float, a4: float, qr: float = 0.0) -> float | None:
+    """Beam cross-section area (deck units) from section or element parameters, ``None`` if unknown."""
+    if elform in (2, 3, 12, 13):
+        return a1 if a1 > 0 else None
+    if elform in (1, 4, 5, 7, 8, 9, 11, 14) and qr >= 0:
+        s = 0.5 * (a1 + (a2 or a1))
+        tt = 0.5 * (a3 + (a4 or a3))
+        if cst == 0:
+            return s * tt if s > 0 and tt > 0 else None
+        if cst == 1:
+            return 0.25 * math.pi * (s**2 - tt**2) if s > tt >= 0 and s > 0 else None
+    return None
+
+
+_MAT_KINDS = {
+    "ELASTIC": "elastic",
+    "001": "elastic",
+    "PLASTIC_KINEMATIC": "plastic_kinematic",
+    "003": "plastic_kinematic",
+    "RIGID": "rigid",
+    "020": "rigid",
+    "PIECEWISE_LINEAR_PLASTICITY": "piecewise_linear",
+    "024": "piecewise_linear",
+}
+_MAT_024_VARIANTS = ("LOG_INTERPOLATION", "STOCHASTIC", "MIDFAIL", "2D")
+_NOT_MATERIALS = ("ADD_", "THERMAL_", "NONLOCAL")
+
+
+def _material_kind(keyword: str) -> tuple[str, bool] | None:
+    """(kind, has_title) for a ``MAT_...`` keyword, ``None`` for cards that are no material."""
+    name = keyword[4:]
+    if name.startswith(_NOT_MATERIALS) or not name:
+        return None
+    title = name.endswith("_TITLE")
+    if title:
+        name = name[: -len("_TITLE")]
+    if name in _MAT_KINDS:
+        return _MAT_KINDS[name], title
+    for base in ("PIECEWISE_LINEAR_PLASTICITY", "024"):
+        if name.startswith(base + "_") and name[len(base) + 1 :] in _MAT_024_VARIANTS:
+            return "piecewise_linear", title
+    return ("null" if name in ("NULL", "009") else "other"), title
+
+
+def _read_material(block: _Block, kind: str, title: bool, t: _Tables, params: _Params) -> None:
+    rows = block.rows.tolist()
+    name = block.keyword
+    if title:
+        if not rows:
+            raise block.err(f"*{block.keyword} expects a title line, got end of block")
+        name = block.src.text(rows[0]).strip() or name
+        rows = rows[1:]
+    if not rows:
+        raise block.err(f"*{block.keyword} expects a card with MID, RO, ...; got end of block")
+    r = rows[0]
+    lenient = kind in ("other", "null")
+    c = _read_line(block, r, _MAT_1, params, lenient=lenient)
+    mid = c[0]
+    if mid is None or mid <= 0:
+        raise block.err(f"*{block.keyword} expects a positive MID {_field_where(block, r, _MAT_1, 0)}", r)
+    if mid in t.materials:
+        prev = t.materials[mid].where
+        raise block.err(f"material id {mid} is defined twice (first in {prev[0].name} line {prev[1]})", r)
+
+    def card(k: int) -> list[float]:
+        if k >= len(rows):
+            return [0.0] * 8
+        return [x or 0.0 for x in _read_line(block, rows[k], _MAT_8, params, lenient=lenient)]
+
+    f = [x if x is not None else math.nan for x in c[1:]]
+    vals: dict[str, float] = {"ro": f[0], "e": f[1], "pr": f[2]}
+    if kind == "null":
+        vals = {"ro": f[0], "e": f[5], "pr": f[6]}
+        kind = "other"
+    elif kind == "plastic_kinematic":
+        vals.update(sigy=f[3], etan=f[4], fail=card(1)[2])
+    elif kind == "piecewise_linear":
+        c2 = card(1)
+        vals.update(sigy=f[3], etan=f[4], fail=f[5], lcss=c2[2])
+        vals["eps"], vals["es"] = card(2), card(3)  # type: ignore[assignment]
+    t.materials[int(mid)] = _RawMaterial(int(mid), name, kind, vals, (block.src.path, r + 1))
+
+
+def _read_set_part(block: _Block, opts: set[str], t: _Tables, params: _Params) -> None:
+    rows = block.rows.tolist()
+    title = ""
+    if "TITLE" in opts:
+        title = block.src.text(rows[0]).strip() if rows else ""
+        rows = rows[1:]
+    if not rows:
+        raise block.err(f"*{block.keyword} expects a card with SID, got end of block")
+    (sid,) = _read_line(block, rows[0], _SET_HEAD, params)
+    if sid is None or sid <= 0:
+        raise block.err(
+            f"*{block.keyword} expects a positive SID {_field_where(block, rows[0], _SET_HEAD, 0)}", rows[0]
+        )
+    ids: list[int] = []
+    for r in rows[1:]:
+        vals = [int(x) for x in _read_line(block, r, _SET_IDS, params) if x]
+        if "GENERATE" in opts:
+            for a, b in zip(vals[0::2], vals[1::2], strict=False):
+                ids.extend(range(a, b + 1))
+        else:
+            ids.extend(vals)
+    t.sets[int(sid)] = (title, ids)
+
+
+def _read_curve(block: _Block, opts: set[str], t: _Tables, params: _Params) -> None:
+    rows = block.rows.tolist()
+    if "TITLE" in opts:
+        rows = rows[1:]
+    if not rows:
+        raise block.err(f"*{block.keyword} expects a card with LCID, got end of block")
+    lcid, _sidr, sfa, sfo, offa, offo = _read_line(block, rows[0], _CURVE_HEAD, params)
+    if lcid is None or lcid <= 0:
+        raise block.err(f"*{block.keyword} expects a positive LCID in columns 1-10, got {lcid!r}", rows[0])
+    pts = np.array([[x or 0.0 for x in _read_line(block, r, _CURVE_PT, params)] for r in rows[1:]]).reshape(-1, 2)
+    x = pts[:, 0] * (sfa or 1.0) + (offa or 0.0)
+    y = pts[:, 1] * (sfo or 1.0) + (offo or 0.0)
+    t.curves[int(lcid)] = (x, y)
+
+
+def _dispatch(block: _Block, t: _Tables, deck: _Deck) -> None:
+    kw = block.keyword
+    params = deck.params
+    if kw == "NODE":
+        _read_node(block, t, params)
+        return
+    for base, opts_ok, reader in (
+        ("ELEMENT_SHELL", _SHELL_OPTS, _read_shell),
+        ("ELEMENT_SOLID", _SOLID_OPTS, _read_solid),
+        ("ELEMENT_BEAM", _BEAM_OPTS, _read_beam),
+    ):
+        if kw == base or kw.startswith(base + "_"):
+            opts = _split_options(kw, base)
+            if opts <= opts_ok:
+                reader(block, opts, t, params)
+                return
+            deck.skipped[kw] += 1
+            return
+    if kw == "PART" or kw.startswith("PART_"):
+        opts = _split_options(kw, "PART")
+        opts = {"ATTACHMENT" if o == "NODES" else o for o in opts} - {"NODES"}
+        if opts <= {"CONTACT", "PRINT", "ATTACHMENT", "AVERAGED", "INERTIA"}:
+            _read_part(block, opts, t, params)
+        else:
+            deck.skipped[kw] += 1
+        return
+    for base, kind in (("SECTION_SHELL", "shell"), ("SECTION_SOLID", "solid"), ("SECTION_BEAM", "beam")):
+        if kw == base or kw.startswith(base + "_"):
+            opts = _split_options(kw, base)
+            if opts <= {"TITLE"} or (kind == "shell" and opts <= {"TITLE", "ALE", "MISC", "EFG", "XFEM"}):
+                _read_section(block, kind, opts, t, params)
+            else:
+                deck.skipped[kw] += 1
+            return
+    if kw.startswith("MAT_"):
+        mk = _material_kind(kw)
+        if mk is None:
+            deck.skipped[kw] += 1
+        else:
+            _read_material(block, mk[0], mk[1], t, params)
+        return
+    if kw == "SET_PART" or kw.startswith("SET_PART_"):
+        opts = _split_options(kw, "SET_PART")
+        if opts <= {"LIST", "TITLE", "GENERATE"}:
+            _read_set_part(block, opts, t, params)
+        else:
+            deck.skipped[kw] += 1
+        return
+    if kw in ("DEFINE_CURVE", "DEFINE_CURVE_TITLE"):
+        _read_curve(block, _split_options(kw, "DEFINE_CURVE"), t, params)
+        return
+    deck.skipped[kw] += 1
+
+
+# --------------------------------------------------------------------------- assembly
+
+
+def _material_si(raw: _RawMaterial, u: UnitSystem, curves: dict, notes: list[str]) -> Material:
+    v = raw.values
+    ro, e, pr = v["ro"] * u.density, v["e"] * u.stress, v["pr"]
+    sy = su = sf = math.nan
+    if raw.kind in ("plastic_kinematic", "piecewise_linear"):
+        sy = v["sigy"] * u.stress
+        etan = v["etan"] * u.stress
+        fail = v["fail"]
+        eh = e * etan / (e - etan) if 0 < etan < e else 0.0
+        has_fail = 0 < fail < _NO_FAILURE
+        pts = None
+        if raw.kind == "piecewise_linear":
+            lcss = int(v["lcss"])
+            if lcss > 0 and lcss in curves:
+                x, y = curves[lcss]
+                pts = (x, y * u.stress)
+            elif lcss > 0:
+                notes.append(f"material {raw.mid} ({raw.name}): LCSS {lcss} is not a *DEFINE_CURVE, ETAN used")
+            else:
+                es = np.asarray(v["es"], dtype=float)
+                keep = es > 0
+                if keep.any():
+                    pts = (np.asarray(v["eps"], dtype=float)[keep], es[keep] * u.stress)
+        if pts is not None and len(pts[1]):
+            x, y = pts
+            if not sy > 0:
+                sy = float(y[0])
+            su = float(np.max(y))
+            sf = float(np.interp(fail, x, y)) if has_fail else su
+        elif has_fail and sy > 0:
+            su = sf = sy + eh * fail
+    return Material(
+        id=raw.mid,
+        name=raw.name,
+        kind=raw.kind,
+        density=ro,
+        youngs_modulus=e,
+        yield_strength=sy,
+        ultimate_strength=su,
+        fracture_strength=sf,
+        poisson_ratio=pr,
+    )
+
+
+def _lookup(keys: np.ndarray, values: np.ndarray, query: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Vectorised dict lookup: ``(values[pos], found)`` for sorted ``keys``."""
+    if keys.size == 0:
+        return np.zeros(query.shape, values.dtype), np.zeros(query.shape, bool)
+    pos = np.searchsorted(keys, query)
+    pos_c = np.minimum(pos, keys.size - 1)
+    found = keys[pos_c] == query
+    return values[pos_c], found
+
+
+def _check_duplicates(ids: np.ndarray, locs: _Locs, what: str) -> None:
+    if ids.size < 2:
+        return
+    order = np.argsort(ids, kind="stable")
+    s = ids[order]
+    dup = np.flatnonzero(s[1:] == s[:-1])
+    if dup.size:
+        k = int(dup[0])
+        first, second = int(order[k]), int(order[k + 1])
+        p1, l1 = locs.where(first)
+        p2, l2 = locs.where(second)
+        raise DeckError(f"{what} id {int(s[k])} is defined twice (first in {p1.name} line {l1})", p2, l2)
+
+
+def _assemble(deck: _Deck, t: _Tables, units: str | None, main: Path) -> tuple[VehicleModel, list[str]]:
+    notes: list[str] = list(deck.params.notes)
+    # ---- units
+    if units is not None:
+        u = get_unit_system(units)
+    else:
+        rho = np.array([m.values["ro"] for m in t.materials.values()], dtype=float)
+        e = np.array([m.values["e"] for m in t.materials.values()], dtype=float)
+        u = detect_unit_system(rho, e)
+        if u is None:
+            med = f"{np.nanmedian(rho):.4g}" if rho.size else "n/a"
+            raise DeckError(
+                f"cannot tell the unit system from material densities (median {med}) and moduli; "
+                "pass units= one of 'mm-t-s', 'mm-kg-ms', 'm-kg-s'",
+                main,
+            )
+    # ---- nodes
+    if not t.node_ids:
+        raise DeckError("the deck has no *NODE data", main)
+    node_ids = np.concatenate(t.node_ids)
+    coords = np.concatenate(t.coords) * u.length
+    _check_duplicates(node_ids, t.node_locs, "node")
+    order = np.argsort(node_ids, kind="stable")
+    sorted_ids = node_ids[order]
+
+    def node_index(ids: np.ndarray, locs: _Locs, kind: str, eids: np.ndarray) -> np.ndarray:
+        idx, found = _lookup(sorted_ids, order, ids)
+        if not found.all():
+            row = int(np.flatnonzero(~found.all(axis=1))[0])
+            missing = int(ids[row][~found[row]][0])
+            raise DeckError(f"{kind} element {int(eids[row])} refers to undefined node {missing}", *locs.where(row))
+        return idx
+
+    # ---- parts, sections, materials
+    materials: dict[int, Material] = {}
+    es_known = [m.values["e"] * u.stress for m in t.materials.values() if m.values["e"] > 0]
+    for mid, raw in t.materials.items():
+        m = _material_si(raw, u, t.curves, notes)
+        if not (math.isfinite(m.youngs_modulus) and m.youngs_modulus > 0) and raw.kind == "other":
+            e_def = float(np.median(es_known)) if es_known else 2.1e11
+            notes.append(f"material {mid} ({raw.name}): Young's modulus not given, defaulted to {e_def:.4g} Pa")
+            m = Material(mid, m.name, m.kind, m.density, e_def, poisson_ratio=m.poisson_ratio)
+        if not math.isfinite(m.density) and raw.kind == "other":
+            raise DeckError(f"*MAT card {mid} expects a numeric density RO in columns 11-20", *raw.where)
+        try:
+            m = complete_material(m)
+        except ModelError as err:
+            raise DeckError(str(err), *raw.where) from None
+        materials[mid] = m
+        notes.extend(m.warnings)
+    parts: dict[int, Part] = {}
+    for pid, (title, secid, mid, where) in t.parts.items():
+        if secid not in t.sections:
+            raise DeckError(f"*PART {pid} refers to undefined section {secid}", *where)
+        if mid not in materials:
+            raise DeckError(f"*PART {pid} refers to undefined material {mid}", *where)
+        sec = t.sections[secid]
+        thick = sec.value * u.length if sec.kind == "shell" and sec.value is not None else None
+        area = sec.value * u.area if sec.kind == "beam" and sec.value is not None else None
+        parts[pid] = Part(pid, title, mid, secid, thick, area)
+    part_keys = np.array(sorted(parts), dtype=np.int64)
+    sec_kind = np.array([t.sections[parts[p].section_id].kind for p in part_keys.tolist()], dtype=object)
+
+    def part_checks(kind: str, elems: _Elements, ids: np.ndarray, pid: np.ndarray) -> np.ndarray:
+        _check_duplicates(ids, elems.locs, f"{kind} element")
+        pos, found = _lookup(part_keys, np.arange(part_keys.size), pid)
+        if not found.all():
+            row = int(np.flatnonzero(~found)[0])
+            raise DeckError(
+                f"{kind} element {int(ids[row])} refers to undefined part {int(pid[row])}", *elems.locs.where(row)
+            )
+        wrong = np.flatnonzero(sec_kind[pos] != kind) if pos.size else np.zeros(0, int)
+        if wrong.size:
+            row = int(wrong[0])
+            p = parts[int(pid[row])]
+            raise DeckError(
+                f"{kind} element {int(ids[row])} is in part {p.id} whose section {p.section_id} is a "
+                f"*SECTION_{sec_kind[pos[row]].upper()}, expected a *SECTION_{kind.upper()}",
+                *elems.locs.where(row),
+            )
+        return pos
+
+    # shells
+    s_ids, s_part, s_nid, s_t = t.shells.cat((4,))
+    pos = part_checks("shell", t.shells, s_ids, s_part)
+    s_nodes = node_index(s_nid, t.shells.locs, "shell", s_ids)
+    sec_t = np.array([(parts[p].thickness or 0.0) / u.length for p in part_keys.tolist()])
+    tsec = sec_t[pos] if pos.size else np.zeros(0)
+    tt = np.where(s_t > 0, s_t, tsec[:, None])
+    tri = s_nid[:, 3] == s_nid[:, 2]
+    s_thick = np.where(tri, tt[:, :3].mean(axis=1), tt.mean(axis=1)) * u.length
+    zero = np.flatnonzero(s_thick <= 0)
+    if zero.size:
+        zp = np.unique(s_part[zero]).tolist()
+        notes.append(f"{zero.size} shells in parts {zp[:10]} have neither element nor section thickness: mass 0")
+    # solids
+    v_ids, v_part, v_nid, _ = t.solids.cat(())
+    part_checks("solid", t.solids, v_ids, v_part)
+    v_nodes = node_index(v_nid, t.solids.locs, "solid", v_ids)
+    # beams
+    b_ids, b_part, b_nid, b_parm = t.beams.cat((4,))
+    pos = part_checks("beam", t.beams, b_ids, b_part)
+    b_nodes = node_index(b_nid, t.beams.locs, "beam", b_ids)
+    b_area = np.zeros(b_ids.size)
+    if b_ids.size:
+        sec_area = np.array([(parts[p].beam_area or np.nan) / u.area for p in part_keys.tolist()])
+        b_area = sec_area[pos]
+        has = ~np.isnan(b_parm).any(axis=1)
+        for row in np.flatnonzero(has).tolist():  # element-level sections are rare: a loop is fine
+            sec = t.sections[parts[int(b_part[row])].section_id]
+            a = _beam_area(sec.elform, sec.cst, *b_parm[row].tolist())
+            if a is not None:
+                b_area[row] = a
+        missing = np.isnan(b_area)
+        if missing.any():
+            notes.append(f"{int(missing.sum())} beams have no cross-section area the reader can compute: area 0")
+            b_area[missing] = 0.0
+        b_area = b_area * u.area
+    if s_ids.size + v_ids.size + b_ids.size == 0:
+        raise DeckError("the deck has no *ELEMENT_SHELL, *ELEMENT_SOLID or *ELEMENT_BEAM data", main)
+    model = VehicleModel(
+        node_ids=node_ids,
+        coords=coords,
+        shell_ids=s_ids,
+        shell_part=s_part,
+        shell_nodes=s_nodes,
+        shell_thickness=s_thick,
+        solid_ids=v_ids,
+        solid_part=v_part,
+        solid_nodes=v_nodes,
+        beam_ids=b_ids,
+        beam_part=b_part,
+        beam_nodes=b_nodes,
+        beam_area=b_area,
+        parts=parts,
+        materials=materials,
+        subassemblies={},
+        name=deck.title or main.stem,
+        units=u.name,
+        skipped_cards=dict(sorted(deck.skipped.items())),
+        warnings=notes,
+    )
+    return model, notes
+
+
+def read_deck(
+    path: str | Path,
+    *,
+    params: dict[str, float] | None = None,
+    units: str | None = None,
+    axis_map: AxisMap | None = None,
+    subassemblies: str | Path | dict[str, list[int]] | None = None,
+    name: str | None = None,
+) -> VehicleModel:
+    """Read an LS-DYNA keyword deck into a validated :class:`VehicleModel` in SI units.
+
+    Args:
+        path: the main deck file; ``*INCLUDE`` paths are relative to the including file.
+        params: values of parameters the deck uses (``&name``); they also override
+            the deck's own ``*PARAMETER`` values.
+        units: the deck's unit system (``mm-t-s``, ``mm-kg-ms``, ``m-kg-s``); detected
+            from material densities and moduli when ``None``.
+        axis_map: how the deck's axes map onto marlcrash's (x rearward, y left, z up);
+            identity when ``None``. The model is always shifted so its front is at
+            x = 0 and its lateral centre at y = 0 (:meth:`VehicleModel.transformed`).
+        subassemblies: a sub-assembly YAML file (see
+            :mod:`marlcrash.vehicle.subassembly_map`) or a mapping name -> part ids or
+            part-name globs; parts it leaves out become their own ``part_<id>``.
+            ``None``: every part is its own sub-assembly.
+        name: the model's name; default the deck's ``*TITLE`` or the file stem.
+
+    Returns:
+        The model: ``coords [N, 3]`` in metres, ``shell_nodes [S, 4]``, ``solid_nodes
+        [V, 8]``, ``beam_nodes [B, 2]`` as node indices, thicknesses [m], areas [m^2],
+        complete materials; ``skipped_cards`` counts the cards not interpreted.
+
+    Raises:
+        DeckError: the deck is malformed or inconsistent (file and line named).
+        ConfigError: unknown ``units`` name, bad ``axis_map`` or sub-assembly map.
+    """
+    from marlcrash.vehicle.subassembly_map import load_subassembly_map, resolve_subassemblies
+
+    main = Path(path)
+    deck = _Deck(params=_Params(params))
+    _scan(main, deck, "std", (main.resolve(),), None)
+    deck.params.finish()
+    tables = _Tables()
+    for block in deck.blocks:
+        _dispatch(block, tables, deck)
+    model, _ = _assemble(deck, tables, units, main)
+    if name is not None:
+        model.name = name
+    try:
+        model.validate()
+    except ModelError as e:
+        raise DeckError(str(e), main) from None
+    model = model.transformed(axis_map if axis_map is not None else AxisMap())
+    sets = {sid: (title, ids) for sid, (title, ids) in tables.sets.items()}
+    if subassemblies is not None:
+        if isinstance(subassemblies, dict):
+            mapping = resolve_subassemblies(subassemblies, model, part_sets=sets)
+        else:
+            mapping = load_subassembly_map(subassemblies, model, part_sets=sets)
+        model = model.with_subassemblies(mapping)
+    model = model.with_default_subassemblies()
+    if deck.skipped:
+        total = sum(deck.skipped.values())
+        listing = ", ".join(f"*{k} x{n}" for k, n in sorted(deck.skipped.items()))
+        msg = f"{main.name}: skipped {total} card(s) the reader does not interpret: {listing}"
+        model.warnings.append(msg)
+        warnings.warn(msg, UserWarning, stacklevel=2)
+    return model

@@ -1,0 +1,257 @@
+"""Write a :class:`VehicleModel` as a fixed-format LS-DYNA keyword deck (DESIGN 3).
+
+The deck holds ``*NODE`` (16-character coordinates, 10 significant digits),
+``*ELEMENT_SHELL_THICKNESS`` (element thickness on every shell), ``*ELEMENT_SOLID``,
+``*ELEMENT_BEAM_THICKNESS`` (element area as PARM1 of a resultant beam),
+``*PART``, one ``*SECTION_SHELL/SOLID/BEAM`` per part, and materials by kind:
+``elastic`` -> ``*MAT_ELASTIC``, ``plastic_kinematic`` -> ``*MAT_PLASTIC_KINEMATIC``,
+``piecewise_linear`` -> ``*MAT_PIECEWISE_LINEAR_PLASTICITY``, ``rigid`` ->
+``*MAT_RIGID`` (``other`` is written as ``*MAT_ELASTIC``). Sections and materials use
+per-keyword long format (``+``, 20-character fields) so their values survive a round
+trip to 13 significant digits. A ``<stem>.subassemblies.yaml`` beside the deck holds
+the sub-assemblies. :func:`marlcrash.vehicle.keyword.read_deck` reads the pair back
+to the same model.
+
+What the cards cannot carry: strengths of elastic and rigid materials (the reader
+re-derives them with :func:`complete_material`), a fracture strength different from
+the ultimate one for ``plastic_kinematic``, shear and bulk moduli inconsistent with
+E and nu. The writer warns (:class:`UserWarning`) when a model holds such values.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import tempfile
+import warnings
+from collections.abc import Iterable
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from marlcrash.errors import ModelError
+from marlcrash.units import get_unit_system
+from marlcrash.vehicle.materials import MATERIAL_FIELDS, Material, complete_material
+from marlcrash.vehicle.model import VehicleModel
+from marlcrash.vehicle.subassembly_map import dump_subassembly_map
+
+__all__ = ["write_deck"]
+
+# Plastic strain at which MAT_003/MAT_024 cards place the ultimate strength, and at
+# which MAT_024 places the fracture strength: the model's 8-vector has strengths,
+# not strains, so the writer picks typical values for car-body steels.
+STRAIN_AT_ULTIMATE = 0.2
+STRAIN_AT_FRACTURE = 0.3
+_ROWS = 100_000  # rows formatted per write call
+
+
+def _f20(x: float) -> str:
+    return f"{x:20.12e}"
+
+
+def _card(values: Iterable[float | int]) -> str:
+    out = []
+    for v in values:
+        out.append(f"{v:20d}" if isinstance(v, int) else _f20(float(v)))
+    return "".join(out) + "\n"
+
+
+def _write_rows(f, fmt: str, *cols: np.ndarray) -> None:
+    n = len(cols[0]) if cols else 0
+    for a in range(0, n, _ROWS):
+        rows = zip(*(c[a : a + _ROWS].tolist() for c in cols), strict=True)
+        f.write("".join(fmt % r for r in rows))
+
+
+def _id_format(max_id: int) -> tuple[str, int]:
+    """Keyword suffix and id width for ids up to ``max_id``."""
+    return ("", 8) if max_id < 10**8 else ("+", 20)
+
+
+def _material_cards(m: Material, u) -> tuple[str, list[str]]:
+    """Keyword text of one material and the 8-vector entries it cannot carry."""
+    ro, e, nu = m.density / u.density, m.youngs_modulus / u.stress, m.poisson_ratio
+    sy, su, sf = (m.yield_strength / u.stress, m.ultimate_strength / u.stress, m.fracture_strength / u.stress)
+    title = m.name.replace("\n", " ")[:80]
+    kind = m.kind
+    rebuilt = Material(m.id, m.name, kind, m.density, m.youngs_modulus, poisson_ratio=nu)
+    if kind in ("elastic", "other"):
+        text = f"*MAT_ELASTIC_TITLE+\n{title}\n" + _card([m.id, ro, e, nu])
+    elif kind == "rigid":
+        text = f"*MAT_RIGID_TITLE+\n{title}\n" + _card([m.id, ro, e, nu]) + _card([1.0, 0, 0]) + "\n"
+    elif kind == "plastic_kinematic":
+        eh = (su - sy) / STRAIN_AT_ULTIMATE
+        etan = e * eh / (e + eh)
+        text = (
+            f"*MAT_PLASTIC_KINEMATIC_TITLE+\n{title}\n"
+            + _card([m.id, ro, e, nu, sy, etan, 0.0])
+            + _card([0.0, 0.0, STRAIN_AT_ULTIMATE, 0.0])
+        )
+        rebuilt = Material(
+            m.id,
+            m.name,
+            kind,
+            m.density,
+            m.youngs_modulus,
+            yield_strength=m.yield_strength,
+            ultimate_strength=sy * u.stress + etan * e / (e - etan) * STRAIN_AT_ULTIMATE * u.stress,
+            fracture_strength=math.nan,
+            poisson_ratio=nu,
+        )
+        rebuilt = replace(rebuilt, fracture_strength=rebuilt.ultimate_strength)
+    elif kind == "piecewise_linear":
+        eps, es = [0.0, STRAIN_AT_ULTIMATE], [sy, su]
+        fail = 0.0
+        if sf != su:
+            eps.append(STRAIN_AT_FRACTURE)
+            es.append(sf)
+            fail = STRAIN_AT_FRACTURE
+        text = (
+            f"*MAT_PIECEWISE_LINEAR_PLASTICITY_TITLE+\n{title}\n"
+            + _card([m.id, ro, e, nu, sy, 0.0, fail, 0.0])
+            + _card([0.0, 0.0, 0, 0, 0.0])
+            + _card(eps + [0.0] * (8 - len(eps)))
+            + _card(es + [0.0] * (8 - len(es)))
+        )
+        rebuilt = Material(
+            m.id,
+            m.name,
+            kind,
+            m.density,
+            m.youngs_modulus,
+            yield_strength=m.yield_strength,
+            ultimate_strength=max(m.ultimate_strength, m.fracture_strength),
+            fracture_strength=m.fracture_strength,
+            poisson_ratio=nu,
+        )
+    else:
+        raise ModelError(f"material {m.id}: unknown kind {kind!r}")
+    if not np.isfinite(m.vector()).all():
+        raise ModelError(
+            f"material {m.id} ({m.name}): incomplete 8-vector {m.vector().tolist()}; use complete_material"
+        )
+    back = complete_material(rebuilt).vector()
+    lost = [
+        name
+        for name, a, b in zip(MATERIAL_FIELDS, m.vector(), back, strict=True)
+        if not math.isclose(a, b, rel_tol=1e-9, abs_tol=0.0)
+    ]
+    if kind == "other":
+        lost.append("kind (written as elastic)")
+    return text, lost
+
+
+def _part_kinds(model: VehicleModel) -> dict[int, str]:
+    kinds: dict[int, str] = {}
+    for kind, parts in (("shell", model.shell_part), ("solid", model.solid_part), ("beam", model.beam_part)):
+        for pid in np.unique(parts).tolist():
+            if pid in kinds and kinds[pid] != kind:
+                raise ModelError(f"{model.name}: part {pid} holds both {kinds[pid]} and {kind} elements")
+            kinds[int(pid)] = kind
+    return kinds
+
+
+def write_deck(model: VehicleModel, path: str | Path, *, units: str = "mm-t-s", subassembly_yaml: bool = True) -> Path:
+    """Write ``model`` as a fixed-format keyword deck in ``units``.
+
+    Args:
+        model: a valid model (SI units).
+        path: the deck file to write (written atomically: a temporary file, then renamed).
+        units: unit system of the deck: ``mm-t-s``, ``mm-kg-ms`` or ``m-kg-s``.
+        subassembly_yaml: also write ``<stem>.subassemblies.yaml`` beside the deck.
+
+    Returns:
+        The deck path.
+
+    Raises:
+        ModelError: the model is invalid, a part mixes element kinds, or a material is
+            incomplete.
+        ConfigError: unknown ``units``.
+    """
+    u = get_unit_system(units)
+    model.validate()
+    path = Path(path)
+    kinds = _part_kinds(model)
+    lost: dict[int, list[str]] = {}
+    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", newline="\n") as f:
+            f.write(f"$ written by marlcrash from model {model.name!r}, units {u.name}\n*KEYWORD\n*TITLE\n")
+            f.write((model.name or "vehicle").replace("\n", " ")[:80] + "\n")
+            for mid in sorted(model.materials):
+                text, miss = _material_cards(model.materials[mid], u)
+                f.write(text)
+                if miss:
+                    lost[mid] = miss
+            used_secids: set[int] = set()
+            fresh = max([p.section_id or 0 for p in model.parts.values()] + list(model.parts) + [0]) + 1
+            for pid in sorted(model.parts):
+                p = model.parts[pid]
+                secid = p.section_id if p.section_id is not None and p.section_id not in used_secids else None
+                if secid is None:
+                    secid, fresh = fresh, fresh + 1
+                used_secids.add(secid)
+                kind = kinds.get(pid, "shell")
+                f.write(f"*PART\n{p.name.replace(chr(10), ' ')[:80]}\n")
+                f.write(f"{pid:10d}{secid:10d}{p.material_id:10d}\n")
+                if kind == "shell":
+                    t = (p.thickness or 0.0) / u.length
+                    f.write("*SECTION_SHELL+\n" + _card([secid, 2, 1.0, 2, 0.0]) + _card([t, t, t, t]))
+                elif kind == "solid":
+                    f.write("*SECTION_SOLID+\n" + _card([secid, 1]))
+                else:
+                    sel = model.beam_part == pid
+                    a = p.beam_area if p.beam_area else float(np.median(model.beam_area[sel])) if sel.any() else 0.0
+                    a /= u.area
+                    i = a * a / (4 * math.pi)  # solid circular section of that area
+                    f.write("*SECTION_BEAM+\n" + _card([secid, 2, 1.0, 2.0, 0.0]) + _card([a, i, i, 2 * i]))
+            _write_geometry(f, model, u)
+            f.write("*END\n")
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    if subassembly_yaml:
+        dump_subassembly_map(model.subassemblies, path.with_name(path.stem + ".subassemblies.yaml"))
+    if lost:
+        listing = "; ".join(f"material {mid}: {', '.join(v)}" for mid, v in sorted(lost.items()))
+        warnings.warn(f"{path.name}: the keyword cards cannot carry {listing}", UserWarning, stacklevel=2)
+    return path
+
+
+def _write_geometry(f, model: VehicleModel, u) -> None:
+    ids = model.node_ids
+    sfx, w = _id_format(int(ids.max()) if ids.size else 0)
+    cw = 20 if sfx else 16
+    f.write(f"*NODE{sfx}\n")
+    c = _tidy(model.coords / u.length)
+    _write_rows(f, f"%{w}d%{cw}.9e%{cw}.9e%{cw}.9e\n", ids, c[:, 0], c[:, 1], c[:, 2])
+    nid = model.node_ids
+    if model.n_shells:
+        n = nid[model.shell_nodes]
+        sfx, w = _id_format(max(int(n.max()), int(model.shell_ids.max()), int(model.shell_part.max())))
+        tw = 20 if sfx else 16
+        t = _tidy(model.shell_thickness / u.length)
+        f.write(f"*ELEMENT_SHELL_THICKNESS{sfx}\n")
+        fmt = f"%{w}d" * 6 + "\n" + f"%{tw}.9e" * 4 + "\n"
+        _write_rows(f, fmt, model.shell_ids, model.shell_part, n[:, 0], n[:, 1], n[:, 2], n[:, 3], t, t, t, t)
+    if model.n_solids:
+        n = nid[model.solid_nodes]
+        sfx, w = _id_format(max(int(n.max()), int(model.solid_ids.max()), int(model.solid_part.max())))
+        f.write(f"*ELEMENT_SOLID{sfx}\n")
+        _write_rows(f, f"%{w}d" * 10 + "\n", model.solid_ids, model.solid_part, *(n[:, k] for k in range(8)))
+    if model.n_beams:
+        n = nid[model.beam_nodes]
+        sfx, w = _id_format(max(int(n.max()), int(model.beam_ids.max()), int(model.beam_part.max())))
+        tw = 20 if sfx else 16
+        a = _tidy(model.beam_area / u.area)
+        i = a * a / (4 * math.pi)
+        f.write(f"*ELEMENT_BEAM_THICKNESS{sfx}\n")
+        fmt = f"%{w}d" * 4 + "\n" + f"%{tw}.9e" * 4 + "\n"
+        _write_rows(f, fmt, model.beam_ids, model.beam_part, n[:, 0], n[:, 1], a, i, i, 2 * i)
+
+
+def _tidy(x: np.ndarray) -> np.ndarray:
+    """Flush magnitudes below 1e-99 to 0 so every value fits its field with a 2-digit exponent."""
+    return np.where(np.abs(x) < 1e-99, 0.0, x)

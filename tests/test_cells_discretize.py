@@ -1,0 +1,263 @@
+"""Discretization: counts, mass conservation, planes, sensors, parameters, IO, config errors."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from test_cells_helpers import build_model, mini_car, plate, tube_x
+from test_cells_transmission import check_invariants
+
+from marlcrash.cells import (
+    CellModel,
+    DiscretizationConfig,
+    SensorSpec,
+    discretization_summary,
+    discretize,
+    format_discretization_summary,
+    load_discretization_config,
+)
+from marlcrash.cells.plot import plot_cells
+from marlcrash.config import config_dir, from_dict
+from marlcrash.errors import ConfigError, ModelError
+from marlcrash.vehicle.model import COMPARTMENT
+
+
+@pytest.fixture(scope="module")
+def car():
+    return mini_car()
+
+
+@pytest.fixture(scope="module")
+def cfg():
+    return load_discretization_config()
+
+
+@pytest.fixture(scope="module")
+def uniform(car, cfg):
+    return discretize(car, cfg, method="uniform")
+
+
+@pytest.fixture(scope="module")
+def optimized(car, cfg):
+    return discretize(car, cfg, method="optimized")
+
+
+def _roi_mass_reference(model, depth):
+    """Independent ROI mass: non-compartment elements with centroid x < depth."""
+    em = model.element_masses()
+    comp = set(model.subassemblies.get(COMPARTMENT, []))
+    total = 0.0
+    for kind, parts, nodes in (
+        ("shell", model.shell_part, model.shell_nodes),
+        ("solid", model.solid_part, model.solid_nodes),
+    ):
+        cx = model.coords[nodes][:, :, 0].mean(axis=1)
+        keep = (cx < depth) & ~np.isin(parts, list(comp))
+        total += em[kind][keep].sum()
+    return total
+
+
+def _assert_counts_and_mass(model, cfg, uni, opt):
+    roi_cells = uni.roi_volume / cfg.target_cell_volume
+    assert uni.meta["n_cells_uniform"] == pytest.approx(roi_cells, rel=0.10)
+    assert opt.n_cells <= uni.meta["n_cells_uniform"] / 8
+    ref = _roi_mass_reference(model, cfg.roi_depth)
+    for c in (uni, opt):
+        cell_mass = c.mass[~c.is_rigid].sum()
+        assert cell_mass == pytest.approx(ref, rel=5e-3)
+        assert c.mass[c.compartment] == pytest.approx(model.total_mass() - cell_mass, rel=1e-9)
+        assert c.mass.sum() == pytest.approx(model.total_mass(), rel=1e-12)
+        assert (c.mass[c.is_null] == 0).all() and (c.mass[~c.is_null] > 0).all()
+
+
+def test_counts_and_mass_on_hand_built_car(car, cfg, uniform, optimized):
+    # uniform cells = grid blocks, except blocks holding only compartment material, which join the compartment
+    vpe = cfg.voxels_per_cell_edge
+    nx, ny, nz = uniform.grid_labels.shape
+    block_label = uniform.grid_labels[::vpe, ::vpe, ::vpe]
+    n_comp_blocks = int((block_label == uniform.compartment).sum())
+    assert block_label.size == uniform.meta["n_cells_uniform"] == (nx // vpe) * (ny // vpe) * (nz // vpe)
+    assert uniform.n_cells == uniform.meta["n_cells_uniform"] - n_comp_blocks + 1
+    _assert_counts_and_mass(car, cfg, uniform, optimized)
+
+
+def test_uniform_blocks_are_exact_voxel_blocks(uniform, cfg):
+    vpe = cfg.voxels_per_cell_edge
+    lab = uniform.grid_labels
+    nx, ny, nz = lab.shape
+    blocks = lab.reshape(nx // vpe, vpe, ny // vpe, vpe, nz // vpe, vpe)
+    # every block of vpe^3 voxels carries one label
+    assert (blocks == blocks[:, :1, :, :1, :, :1]).all()
+    expected = cfg.target_cell_volume
+    vols = uniform.volume[~uniform.is_rigid]
+    assert np.median(vols) == pytest.approx(expected, rel=0.15)
+
+
+def test_cells_never_straddle_section_planes(uniform, optimized):
+    for c in (uniform, optimized):
+        assert c.planes_y.tolist() == pytest.approx([-0.25 * 1.6, -0.1 * 1.6, 0.0, 0.1 * 1.6, 0.25 * 1.6])
+        ey = c.grid_edges[1]
+        for p in c.planes_y:
+            j = int(np.argmin(np.abs(ey - p)))
+            assert abs(ey[j] - p) < 1e-12
+            left, right = c.grid_labels[:, j - 1, :], c.grid_labels[:, j, :]
+            shared = np.intersect1d(left, right)
+            assert shared.size == 0 or (c.is_rigid[shared]).all()
+
+
+def test_every_cell_holds_only_its_own_subassembly(car, optimized):
+    # per sub-assembly, the cells' masses add up to that sub-assembly's ROI mass
+    em = car.element_masses()
+    pm = {}
+    for kind, parts, nodes in (("shell", car.shell_part, car.shell_nodes), ("solid", car.solid_part, car.solid_nodes)):
+        cx = car.coords[nodes][:, :, 0].mean(axis=1)
+        for pid in np.unique(parts):
+            sel = (parts == pid) & (cx < optimized.roi_depth)
+            pm[int(pid)] = pm.get(int(pid), 0.0) + em[kind][sel].sum()
+    for name, pids in car.subassemblies.items():
+        if name == COMPARTMENT:
+            continue
+        got = optimized.mass[optimized.cells_of(name)].sum()
+        assert got == pytest.approx(sum(pm[p] for p in pids), rel=1e-9), name
+
+
+def test_invariants_and_sensors(uniform, optimized):
+    for c in (uniform, optimized):
+        check_invariants(c)
+        assert c.sensor_names == ["upfront_left", "upfront_right", "tunnel"]
+        left, right, tunnel = c.sensor_cell
+        assert tunnel == c.compartment
+        assert c.is_sensor[left] and c.is_sensor[right] and left != right
+        assert not c.is_null[[left, right]].any()
+        assert c.sensor_position[0, 1] > 0 > c.sensor_position[1, 1]
+        # the barrier plane meets some cell in every column: front areas tile the ROI's y-z face
+        face = np.prod((c.roi_hi - c.roi_lo)[1:])
+        assert c.front_area.sum() == pytest.approx(face, rel=1e-12)
+    # the optimized sensor cell is about one target volume
+    s = optimized.sensor_cell[0]
+    assert optimized.volume[s] <= 1.01 * optimized.target_cell_volume
+
+
+def test_gap_links_cross_null_space(optimized):
+    gap = optimized.link_gap > 0
+    assert gap.any()
+    assert (optimized.link_dir[gap] == 0).all()
+    assert (optimized.link_material_area[gap] == 0).all()
+    # the cooling plate (x 0.15) reaches the powertrain (x 0.45) across ~0.3 m of null space minus cell extents
+    cool, pt = optimized.cells_of("cooling"), optimized.cells_of("powertrain")
+    sel = np.isin(optimized.link_src, cool) & np.isin(optimized.link_dst, pt)
+    assert sel.any() and (optimized.link_gap[sel] > 0.1).all()
+
+
+def test_behaviour_parameters_of_a_tube_cell_match_closed_form():
+    t, side = 1.5e-3, 0.08
+    model = build_model(
+        [
+            ("rail", "shell", tube_x(0.0, 0.3, 0.01, 0.09, -0.04, 0.04, 12, 3), t, 1),
+            (COMPARTMENT, "shell", plate([0.3, -0.3, -0.05], [0, 0.6, 0], [0.2, 0, 0.1], 2, 2), 0.01, 2),
+        ]
+    )
+    cfg = DiscretizationConfig(
+        roi_depth=0.2,
+        target_cell_volume=0.1**3,
+        overlaps=[],
+        upfront_sensor_x=0.05,
+        sensors=[SensorSpec("c", "compartment")],
+    )
+    cells = discretize(model, cfg, method="uniform")
+    c = int(cells.grid_labels[2, np.searchsorted(cells.grid_edges[1], 0.05) - 1, 1])
+    area = 4 * side * t  # tube walls along x
+    length = 0.1
+    force = cfg.crush_efficiency_shell * 0.5 * (3e8 + 5e8) * area
+    assert cells.crush_length[c] == pytest.approx(length, rel=1e-12)
+    assert cells.params[c, 1] == pytest.approx(force * (1 - cfg.compaction_shell) * length, rel=1e-9)
+    assert cells.params[c, 0] == pytest.approx(force**2 / (2 * 210e9 * area / length), rel=1e-9)
+
+
+def test_save_load_round_trip(optimized, tmp_path):
+    path = tmp_path / "cells.npz"
+    optimized.save(path)
+    back = CellModel.load(path)
+    for f in optimized.__dataclass_fields__:
+        a, b = getattr(optimized, f), getattr(back, f)
+        if f == "grid_edges":
+            for x, y in zip(a, b, strict=True):
+                np.testing.assert_array_equal(x, y)
+        elif isinstance(a, np.ndarray):
+            np.testing.assert_array_equal(a, b)
+            assert a.dtype == b.dtype
+        elif f != "meta":
+            assert a == b, f
+    assert back.meta["n_cells_uniform"] == optimized.meta["n_cells_uniform"]
+
+
+def test_summary_and_plot(car, cfg, optimized, tmp_path):
+    s, cells = discretization_summary(car, cfg)
+    assert cells.n_cells == optimized.n_cells
+    assert s["n_cells_optimized"] == optimized.n_cells
+    assert s["n_cells_uniform"] == optimized.meta["n_cells_uniform"]
+    assert s["roi_volume_mm3"] == pytest.approx(optimized.roi_volume * 1e9)
+    assert s["target_cell_volume_mm3"] == pytest.approx(3e5)
+    assert s["cell_mass_kg"] == pytest.approx(s["roi_mass_kg"], rel=5e-3)
+    assert s["n_sensors"] == 3 and s["n_subassemblies"] == 8
+    assert sum(s["cells_per_subassembly"].values()) == optimized.n_cells - optimized.n_null
+    s_uniform, uniform = discretization_summary(car, cfg, method="uniform")
+    assert s_uniform["method"] == "uniform" and s_uniform["n_cells"] == uniform.n_cells
+    assert s_uniform["n_cells_optimized"] == optimized.n_cells
+    assert s_uniform["cell_mass_kg"] == pytest.approx(s["cell_mass_kg"], rel=1e-9)
+    table = format_discretization_summary(s)
+    assert f"{optimized.n_cells}" in table and "cells per sub-assembly" in table
+    png = plot_cells(optimized, tmp_path / "cells.png")
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_config_file_and_errors():
+    cfg = load_discretization_config(config_dir() / "cells.yaml")
+    assert cfg.method == "optimized" and cfg.overlaps == [0.4, 0.25]
+    with pytest.raises(ConfigError, match=r"overlaps\[1\]"):
+        from_dict(DiscretizationConfig, {"overlaps": [0.4, 1.5]})
+    with pytest.raises(ConfigError, match="roi_depth"):
+        from_dict(DiscretizationConfig, {"roi_depth": -1.0})
+    with pytest.raises(ConfigError, match="unknown key"):
+        from_dict(DiscretizationConfig, {"roi_dept": 1.0})
+    with pytest.raises(ConfigError, match=r"sensors\[0\].position"):
+        from_dict(DiscretizationConfig, {"sensors": [{"name": "s", "rule": "position"}]})
+    with pytest.raises(ConfigError, match="method"):
+        discretize(mini_car(), cfg, method="voronoi")
+
+
+def test_no_material_in_front_of_the_roi_depth_is_a_model_error(cfg):
+    model = build_model(
+        [
+            ("rail", "shell", tube_x(2.0, 2.5, -0.1, 0.1, 0.0, 0.1, 4, 2), 1e-3, 1),
+            ("rail", "shell", tube_x(0.0, 0.1, -0.8, -0.7, 0, 0.1, 2, 2), 1e-3, 2),
+        ]
+    )
+    model = model.with_subassemblies({COMPARTMENT: [2], "rail": [1]})
+    with pytest.raises(ModelError, match="roi_depth"):
+        discretize(model, cfg)
+
+
+# ------------------------------------------------------------------ the synthetic B-segment car
+@pytest.fixture(scope="module")
+def synthetic():
+    syn = pytest.importorskip("marlcrash.vehicle.synthetic")
+    model = syn.default_vehicle()
+    cfg = load_discretization_config()
+    return model, cfg, discretize(model, cfg, method="uniform"), discretize(model, cfg, method="optimized")
+
+
+def test_synthetic_car_counts_mass_and_invariants(synthetic):
+    model, cfg, uni, opt = synthetic
+    _assert_counts_and_mass(model, cfg, uni, opt)
+    check_invariants(uni)
+    check_invariants(opt)
+
+
+def test_synthetic_car_round_trip(synthetic, tmp_path):
+    _, _, _, opt = synthetic
+    opt.save(tmp_path / "syn.npz")
+    back = CellModel.load(tmp_path / "syn.npz")
+    for f in ("params", "feasible", "mass", "link_src", "link_dst", "link_dir", "link_share", "grid_labels"):
+        np.testing.assert_array_equal(getattr(back, f), getattr(opt, f))
+    assert back.subassembly_names == opt.subassembly_names and back.sensor_names == opt.sensor_names

@@ -1,0 +1,186 @@
+"""Transmission factors: the paper's A1 / B1 / D1 situations and the five boundary conditions."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from test_cells_helpers import build_model, plate, tube_x
+
+from marlcrash.cells import DiscretizationConfig, SensorSpec, discretize
+from marlcrash.cells.model import DIRECTIONS
+from marlcrash.cells.transmission import Links, transmission_factors
+from marlcrash.vehicle.model import COMPARTMENT
+
+T1, T2, TT = 2e-3, 1e-3, 1.5e-3  # plate strip and tube wall thicknesses [m]
+X, Y, YN, Z, ZN = range(5)
+
+
+def _cfg(depth):
+    # 0.1 m uniform cells, only the centre-line plane, a single sensor in the compartment
+    return DiscretizationConfig(
+        roi_depth=depth,
+        target_cell_volume=0.1**3,
+        overlaps=[],
+        upfront_sensor_x=0.05,
+        sensors=[SensorSpec("tunnel", "compartment")],
+    )
+
+
+def _compartment():
+    return (COMPARTMENT, "shell", plate([0.3, -0.3, -0.05], [0, 0.6, 0], [0.2, 0, 0.1], 2, 2), 0.01, 2)
+
+
+def _cell_at(cells, p):
+    idx = [int(np.searchsorted(e, v, side="right") - 1) for e, v in zip(cells.grid_edges, p, strict=True)]
+    return int(cells.grid_labels[tuple(idx)])
+
+
+def _links(cells, src, dst=None, d=None):
+    m = cells.link_src == src
+    if dst is not None:
+        m &= cells.link_dst == dst
+    if d is not None:
+        m &= cells.link_dir == d
+    return np.flatnonzero(m)
+
+
+def check_invariants(cells):
+    """Boundary conditions every cell model must satisfy."""
+    p = cells.params
+    active = ~cells.is_null & ~cells.is_rigid
+    f = p[:, 2:]
+    np.testing.assert_allclose(f[active].sum(axis=1), 1.0, atol=1e-9)
+    assert (f >= 0).all() and (f <= 1 + 1e-12).all()
+    assert (p[~active] == 0).all(), "null cells and the compartment carry no parameters"
+    assert (f[~cells.feasible] == 0).all(), "infeasible factors are exactly 0"
+    assert not cells.feasible[~active].any()
+    assert (p[active, :2] > 0).all(), "every cell with material gets positive E_x, E_s"
+    # links: no -x direction, none from/to null cells, none owned by the compartment, shares sum to 1
+    assert set(np.unique(cells.link_dir).tolist()) <= set(range(len(DIRECTIONS)))
+    assert not cells.is_null[cells.link_src].any() and not cells.is_null[cells.link_dst].any()
+    assert not cells.is_rigid[cells.link_src].any()
+    assert (cells.link_src != cells.link_dst).all()
+    g = cells.link_src * 5 + cells.link_dir
+    sums = np.bincount(g, weights=cells.link_share, minlength=5 * cells.n_cells)
+    np.testing.assert_allclose(sums[np.unique(g)], 1.0, atol=1e-9)
+    # x links point rearward: the destination reaches behind the source's front
+    x = cells.link_dir == X
+    assert (cells.hi[cells.link_dst[x], 0] > cells.lo[cells.link_src[x], 0]).all()
+    # every +x voxel face between two non-null cells is a +x link; none runs the other way unless
+    # the pair also touches that way round (interlocked shapes)
+    lab = cells.grid_labels
+    a, b = lab[:-1].ravel(), lab[1:].ravel()
+    m = (a != b) & ~cells.is_null[a] & ~cells.is_null[b] & ~cells.is_rigid[a]
+    pairs = set(zip(a[m].tolist(), b[m].tolist(), strict=True))
+    xl = set(
+        zip(
+            cells.link_src[x & (cells.link_gap == 0)].tolist(),
+            cells.link_dst[x & (cells.link_gap == 0)].tolist(),
+            strict=True,
+        )
+    )
+    assert pairs <= xl
+    # the minimum principal share where +x material continuity exists
+    A = np.bincount(g, weights=cells.link_material_area, minlength=5 * cells.n_cells).reshape(-1, 5)
+    cont = active & (A[:, X] > 0)
+    mins = cells.meta["config"]["principal_min_share"]
+    assert (f[cont, X] >= mins - 1e-12).all()
+
+
+def test_d1_lateral_split_follows_material_areas():
+    """Cell D between C (-y) and E (+y): f_y / (f_y + f_y') = A_DE / (A_DC + A_DE) (paper Eq. 4, 5).
+
+    Sign convention: f_y points toward +y, so E is D's +y neighbour.
+    """
+    model = build_model(
+        [
+            ("panel", "shell", plate([0.0, -0.3, 0.0], [0, 0.35, 0], [0.15, 0, 0], 7, 3), T1, 1),
+            ("panel", "shell", plate([0.0, 0.05, 0.0], [0, 0.25, 0], [0.15, 0, 0], 5, 3), T2, 1),
+            _compartment(),
+        ]
+    )
+    cells = discretize(model, _cfg(0.1), method="uniform")
+    check_invariants(cells)
+    d, c, e = (_cell_at(cells, (0.05, y, 0.0)) for y in (0.05, -0.05, 0.15))
+    a_de = cells.link_material_area[_links(cells, d, e, Y)].sum()
+    a_dc = cells.link_material_area[_links(cells, d, c, YN)].sum()
+    # closed form: the boundary at y = 0 (y = 0.1) crosses 0.1 m of the 2 mm (1 mm) strip inside the ROI
+    assert a_dc == pytest.approx(0.1 * T1, rel=1e-9)
+    assert a_de == pytest.approx(0.1 * T2, rel=1e-9)
+    f = cells.params[d, 2:]
+    assert f[Y] / (f[Y] + f[YN]) == pytest.approx(a_de / (a_dc + a_de), abs=1e-9)
+    assert f[Y] / (f[Y] + f[YN]) == pytest.approx(1 / 3, abs=1e-9)
+    # the panel continues rearward across x = roi_depth: f_x is raised to the minimum share
+    assert f[X] == pytest.approx(cells.meta["config"]["principal_min_share"], abs=1e-12)
+    assert f[Z] == 0 and f[ZN] == 0
+
+
+def test_a1_no_lateral_material_continuity_gives_zero_lateral_factors():
+    """Two separate tubes side by side: the cells touch laterally but no material crosses."""
+    model = build_model(
+        [
+            ("tube_d", "shell", tube_x(0.0, 0.2, 0.01, 0.09, -0.04, 0.04, 8, 3), TT, 1),
+            ("tube_e", "shell", tube_x(0.0, 0.2, 0.11, 0.19, -0.04, 0.04, 8, 3), TT, 1),
+            _compartment(),
+        ]
+    )
+    cells = discretize(model, _cfg(0.1), method="uniform")
+    check_invariants(cells)
+    d, e = _cell_at(cells, (0.05, 0.05, 0.0)), _cell_at(cells, (0.05, 0.15, 0.0))
+    lat = _links(cells, d, e, Y)
+    assert lat.size == 1 and cells.link_contact_area[lat[0]] > 0
+    assert cells.link_material_area[lat[0]] == 0.0
+    np.testing.assert_allclose(cells.params[d, 2:], [1, 0, 0, 0, 0], atol=1e-12)
+    assert cells.feasible[d, Y] and not cells.feasible[d, YN]  # contact on +y, null space on -y
+
+
+def test_b1_no_reverse_flow_toward_the_cell_ahead():
+    """A tube through two cells along x: the rear cell B1 never sends energy to A ahead of it."""
+    model = build_model([("rail", "shell", tube_x(0.0, 0.3, 0.01, 0.09, -0.04, 0.04, 12, 3), TT, 1), _compartment()])
+    cells = discretize(model, _cfg(0.2), method="uniform")
+    check_invariants(cells)
+    a, b1 = _cell_at(cells, (0.05, 0.05, 0.0)), _cell_at(cells, (0.15, 0.05, 0.0))
+    assert a != b1
+    assert _links(cells, b1, a).size == 0, "no link from B1 back to A (-x flow)"
+    fwd = _links(cells, a, b1)
+    assert fwd.size == 1 and cells.link_dir[fwd[0]] == X
+    assert cells.link_material_area[fwd[0]] == pytest.approx(4 * 0.08 * TT, rel=1e-2)
+    np.testing.assert_allclose(cells.params[b1, 2:], [1, 0, 0, 0, 0], atol=1e-12)
+    np.testing.assert_array_equal(cells.feasible[b1], [True, False, False, False, False])
+    rear = _links(cells, b1, cells.compartment, X)
+    assert rear.size == 1 and cells.link_material_area[rear[0]] > 0
+
+
+def test_factor_formula_min_share_and_ratios():
+    # one cell, material areas +x 1, +y 3, -y 1 (weights 2, 1, 1): raw 2:3:1 -> f_x 1/3 < 0.6
+    links = Links(
+        src=np.array([0, 0, 0, 1]),
+        dst=np.array([1, 2, 3, 0]),
+        dir=np.array([X, Y, YN, X]),
+        contact_area=np.array([1.0, 1.0, 1.0, 1.0]),
+        material_area=np.array([1.0, 3.0, 1.0, 0.0]),
+        gap=np.zeros(4),
+    )
+    active = np.array([True, True, False, False])
+    f, feas, share = transmission_factors(4, links, active, (2.0, 1.0, 1.0), 0.6)
+    np.testing.assert_allclose(f[0], [0.6, 0.3, 0.1, 0.0, 0.0], atol=1e-15)
+    # cell 1 has only contact (no material anywhere): falls back to contact areas
+    np.testing.assert_allclose(f[1], [1.0, 0, 0, 0, 0], atol=1e-15)
+    assert (f[2:] == 0).all() and not feas[2:].any()
+    np.testing.assert_allclose(share, 1.0)
+
+
+def test_contact_fallback_and_link_shares():
+    # no material at all: contact areas 1 (+x) and 1 (+z), equal weights -> 0.5/0.5, then x raised to 0.6;
+    # two +x links with contact 1 and 3 share 1:3
+    links = Links(
+        src=np.array([0, 0, 0]),
+        dst=np.array([1, 2, 3]),
+        dir=np.array([X, X, Z]),
+        contact_area=np.array([1.0, 3.0, 4.0]),
+        material_area=np.zeros(3),
+        gap=np.array([0.0, 0.05, 0.0]),
+    )
+    f, _, share = transmission_factors(4, links, np.array([True, False, False, False]), (1.0, 1.0, 1.0), 0.6)
+    np.testing.assert_allclose(f[0], [0.6, 0, 0, 0.4, 0], atol=1e-15)
+    np.testing.assert_allclose(share, [0.25, 0.75, 1.0])

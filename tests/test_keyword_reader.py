@@ -1,0 +1,424 @@
+"""The LS-DYNA keyword reader: formats, cards, parameters, includes, errors."""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import numpy as np
+import pytest
+
+from marlcrash.errors import ConfigError, DeckError
+from marlcrash.vehicle.keyword import read_deck
+from marlcrash.vehicle.model import AxisMap
+from marlcrash.vehicle.subassembly_map import dump_subassembly_map, load_subassembly_map
+
+HEAD = """*KEYWORD
+*TITLE
+test deck
+*PART
+front plate
+         1         1         1
+*SECTION_SHELL
+         1         2
+       2.0       2.0       2.0       2.0
+*MAT_ELASTIC
+         1  7.85e-09  210000.0       0.3
+"""
+NODES = """*NODE
+       1
+       2           100.0
+       3           100.0           100.0
+       4                           100.0
+"""
+SHELL = """*ELEMENT_SHELL
+       1       1       1       2       3       4
+"""
+
+
+def _write(tmp_path, text, name="deck.k"):
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+def _read(path, **kw):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        return read_deck(path, **kw)
+
+
+def test_minimal_fixed_deck_in_si(tmp_path):
+    m = _read(_write(tmp_path, HEAD + NODES + SHELL + "*END\n"))
+    assert m.name == "test deck" and m.units == "mm-t-s"
+    assert m.n_nodes == 4 and m.n_shells == 1
+    np.testing.assert_allclose(m.bounds(), [[0, -0.05, 0], [0.1, 0.05, 0]])  # shifted: front x = 0, centred y
+    assert m.shell_thickness[0] == pytest.approx(2e-3)
+    # 0.1 m x 0.1 m x 2 mm x 7850 kg/m^3
+    assert m.total_mass() == pytest.approx(0.01 * 2e-3 * 7850, rel=1e-12)
+    assert m.subassemblies == {"part_1": [1]}
+    assert m.materials[1].kind == "elastic" and m.materials[1].youngs_modulus == pytest.approx(2.1e11)
+
+
+def test_free_long_i10_and_mixed_formats_agree(tmp_path):
+    ref = _read(_write(tmp_path, HEAD + NODES + SHELL))
+    free_nodes = "*NODE\n1,0,0,0\n2,100.0\n       3           100.0           100.0\n4,,100\n"
+    m_free = _read(_write(tmp_path, HEAD + free_nodes + "*ELEMENT_SHELL\n1,1,1,2,3,4\n", "free.k"))
+    long_nodes = "*NODE +\n" + "".join(
+        f"{i:20d}{x:20.4f}{y:20.4f}{0.0:20.4f}\n" for i, x, y in ((1, 0, 0), (2, 100, 0), (3, 100, 100), (4, 0, 100))
+    )
+    long_shell = "*ELEMENT_SHELL+\n" + "".join(f"{v:20d}" for v in (1, 1, 1, 2, 3, 4)) + "\n"
+    m_long = _read(_write(tmp_path, HEAD + long_nodes + long_shell, "long.k"))
+    glob_long = "*KEYWORD LONG=Y\n" + HEAD.replace("*KEYWORD\n", "").replace(
+        "\n         1         1         1", "\n" + "".join(f"{1:20d}" for _ in range(3))
+    )
+    glob_long = glob_long.replace(
+        "         1         2\n       2.0       2.0       2.0       2.0", f"{1:20d}{2:20d}\n" + f"{2.0:20.1f}" * 4
+    )
+    glob_long = glob_long.replace(
+        "         1  7.85e-09  210000.0       0.3", f"{1:20d}{7.85e-9:20.3e}{210000.0:20.1f}{0.3:20.2f}"
+    )
+    m_glob = _read(_write(tmp_path, glob_long + long_nodes.replace(" +", "") + long_shell.replace("+", ""), "glob.k"))
+    i10 = "*NODE %\n" + "".join(
+        f"{i:10d}{x:16.4f}{y:16.4f}{0.0:16.4f}\n" for i, x, y in ((1, 0, 0), (2, 100, 0), (3, 100, 100), (4, 0, 100))
+    )
+    m_i10 = _read(
+        _write(
+            tmp_path, HEAD + i10 + "*ELEMENT_SHELL%\n" + "".join(f"{v:10d}" for v in (1, 1, 1, 2, 3, 4)) + "\n", "i10.k"
+        )
+    )
+    for m in (m_free, m_long, m_glob, m_i10):
+        np.testing.assert_array_equal(m.node_ids, ref.node_ids)
+        np.testing.assert_allclose(m.coords, ref.coords)
+        np.testing.assert_array_equal(m.shell_nodes, ref.shell_nodes)
+        assert m.total_mass() == pytest.approx(ref.total_mass())
+
+
+def test_fast_and_slow_paths_agree_on_a_large_block(tmp_path):
+    rng = np.random.default_rng(0)
+    n = 3000
+    xyz = rng.uniform(-2000, 2000, (n, 3))
+    lines = [f"{i + 1:8d}{x:16.6f}{y:16.6f}{z:16.6f}" for i, (x, y, z) in enumerate(xyz)]
+    lines[17] = f"18,{float(xyz[17, 0])!r},{float(xyz[17, 1])!r},{float(xyz[17, 2])!r}"  # free format in a fixed block
+    lines[2500] = f"{2501:8d}{'1.5D+02':>16}{xyz[2500, 1]:16.6f}"  # Fortran exponent and blank z: per-line parser
+    lines.insert(1000, "$ a comment inside the block")
+    lines.insert(2000, "")
+    shells = "".join(f"{k + 1:8d}{1:8d}{k + 1:8d}{k + 2:8d}{k + 3:8d}{k + 3:8d}\n" for k in range(n - 3))
+    deck = HEAD + "*NODE\n" + "\n".join(lines) + "\n*ELEMENT_SHELL\n" + shells
+    m = _read(_write(tmp_path, deck))
+    assert m.n_nodes == n and m.n_shells == n - 3
+    # an independent per-line read with Python float()
+    expect = np.array(
+        [
+            [float(t) for t in ln.split(",")[1:]]
+            if "," in ln
+            else [
+                float(ln[a:b].replace("D", "E")) if ln[a:b].strip() else 0.0 for a, b in ((8, 24), (24, 40), (40, 56))
+            ]
+            for ln in lines
+            if ln and not ln.startswith("$")
+        ]
+    )
+    assert expect[2500, 0] == 150.0 and expect[2500, 2] == 0.0
+    np.testing.assert_allclose((m.coords - m.coords[0]) * 1000, expect - expect[0], rtol=0, atol=1e-9)
+
+
+def test_parameters_and_references(tmp_path):
+    deck = """*KEYWORD
+*PARAMETER
+R tbumper 3.0
+Ithree     3
+*PARAMETER_EXPRESSION
+R twice    tbumper*2 + sqrt(4) - 2
+*PART
+p
+         1         1         1
+*SECTION_SHELL
+         1         2
+&twice,&twice,&twice,&twice
+*MAT_ELASTIC
+         1  7.85e-09  210000.0       0.3
+*NODE
+       1
+       2      &tbumper
+       3           100.0         -&tsize
+       4
+*ELEMENT_SHELL
+       1       1       1       2  &three
+"""
+    p = _write(tmp_path, deck)
+    with pytest.raises(DeckError, match=r"deck.k line 18: parameter 'tsize' is used but not defined"):
+        _read(p)
+    m = _read(p, params={"tsize": 50})
+    assert m.shell_thickness[0] == pytest.approx(6e-3)
+    np.testing.assert_allclose(m.coords[1] - m.coords[0], [3e-3, 0, 0])
+    assert m.coords[2, 1] - m.coords[0, 1] == pytest.approx(-0.05)  # y field of node 3
+    m2 = _read(p, params={"tsize": 50, "tbumper": 4.0})  # params= override the deck, recorded
+    assert m2.shell_thickness[0] == pytest.approx(8e-3)
+    assert any("overridden" in w for w in m2.warnings)
+
+
+def test_nested_includes_relative_to_including_file(tmp_path):
+    sub = tmp_path / "sub"
+    sub.mkdir()
+    (sub / "deeper").mkdir()
+    _write(sub / "deeper", "*KEYWORD\n" + SHELL + "*END\nthis line after *END is ignored\n", "elems.k")
+    _write(sub, "*KEYWORD\n" + NODES + "*INCLUDE\ndeeper/elems.k\n", "mesh.k")
+    m = _read(_write(tmp_path, HEAD + "*INCLUDE\nsub/mesh.k\n"))
+    assert m.n_nodes == 4 and m.n_shells == 1
+    p = _write(tmp_path, HEAD + "$ comment\n*INCLUDE\nsub/missing.k\n", "bad.k")
+    with pytest.raises(DeckError, match=r"bad.k line 14: \*INCLUDE file 'sub/missing.k' not found"):
+        _read(p)
+    _write(tmp_path, "*KEYWORD\n*INCLUDE\nloop.k\n", "loop.k")
+    with pytest.raises(DeckError, match="cycle"):
+        _read(tmp_path / "loop.k")
+
+
+def test_shell_thickness_rules_and_triangles(tmp_path):
+    nodes = NODES + "       5           200.0\n"
+    shells = """*ELEMENT_SHELL_THICKNESS
+       1       1       1       2       3       4
+           0.000           0.000           0.000           0.000
+       2       1       2       5       3       3
+             1.0             2.0             3.0            99.0
+       3       1       1       2       3
+             1.0             1.0             1.0             3.0
+"""
+    m = _read(
+        _write(
+            tmp_path, HEAD.replace("       2.0       2.0       2.0       2.0", "       2.0       4.0") + nodes + shells
+        )
+    )
+    # section: t1=2, t2=4, t3=t4 default to t1 -> mean 2.5; element 0 -> section
+    assert m.parts[1].thickness == pytest.approx(2.5e-3)
+    np.testing.assert_allclose(m.shell_thickness, [2.5e-3, 2e-3, 1e-3])  # triangles use THIC1..3
+    assert m.shell_nodes[2, 3] == m.shell_nodes[2, 2]  # blank n4 -> triangle
+    # tri area 0.5 * 0.1 * 0.1
+    assert m.element_masses()["shell"][1] == pytest.approx(0.005 * 2e-3 * 7850)
+
+
+def test_solids_beams_and_sections(tmp_path):
+    deck = """*KEYWORD
+*PART
+block
+         1         1         1
+*SECTION_SOLID_TITLE
+brick
+         1         1
+*PART
+bar
+         2         2         1
+*SECTION_BEAM
+         2         2
+      50.0
+*PART
+tube
+         3         3         1
+*SECTION_BEAM
+         3         1       1.0       2.0       1.0
+      20.0      20.0      10.0      10.0
+*MAT_PLASTIC_KINEMATIC_TITLE
+steel
+         1  7.85e-09  200000.0       0.3     300.0    2000.0
+       0.0       0.0       0.2
+*NODE
+1,0,0,0
+2,10,0,0
+3,10,10,0
+4,0,10,0
+5,0,0,10
+6,10,0,10
+7,10,10,10
+8,0,10,10
+9,20,0,0
+*ELEMENT_SOLID
+       1       1       1       2       3       4       5       6       7       8
+       2       1       2       9       3       6
+*ELEMENT_SOLID
+       3       1
+       1       2       4       5       0       0       0       0       0       0
+*ELEMENT_BEAM
+       4       2       1       9
+       5       3       1       9
+*ELEMENT_BEAM_THICKNESS
+       6       2       2       9
+            75.0
+"""
+    m = _read(_write(tmp_path, deck))
+    vol = m.solid_volumes()
+    np.testing.assert_allclose(vol, [1e-6, 1e-6 / 6, 1e-6 / 6], rtol=1e-12)
+    np.testing.assert_allclose(m.beam_area, [50e-6, math.pi / 4 * (20**2 - 10**2) * 1e-6, 75e-6])
+    mat = m.materials[1]
+    assert mat.name == "steel" and mat.kind == "plastic_kinematic"
+    eh = 200000.0 * 2000.0 / (200000.0 - 2000.0)
+    assert mat.ultimate_strength == pytest.approx((300.0 + eh * 0.2) * 1e6)
+    assert mat.fracture_strength == pytest.approx(mat.ultimate_strength)
+    assert mat.shear_modulus == pytest.approx(2e11 / 2.6)
+
+
+def test_material_cards(tmp_path):
+    mats = """*MAT_PIECEWISE_LINEAR_PLASTICITY
+         1  7.85e-09  210000.0       0.3     250.0       0.0      0.25
+       0.0       0.0         0
+       0.0       0.1       0.2       0.3
+     250.0     350.0     420.0     400.0
+*MAT_024_TITLE
+curve driven
+         2  7.85e-09  210000.0       0.3       0.0       0.0       0.0
+       0.0       0.0        77
+*DEFINE_CURVE
+        77                 1.0    1000.0
+                 0.0                0.30
+                 0.5                0.45
+*MAT_RIGID
+         3  7.85e-09  210000.0       0.3
+*MAT_HONEYCOMB
+         4  1.00e-10    1000.0      0.01
+*MAT_NULL
+         5  1.00e-09       0.0       0.0       0.0       0.0    5000.0      0.25
+*MAT_ADD_EROSION
+         1
+"""
+    parts = "".join(f"*PART\np{i}\n{i:10d}{1:10d}{i:10d}\n" for i in range(1, 6))
+    base = "*KEYWORD\n*SECTION_SHELL\n         1\n       1.0\n*NODE\n1\n2,1\n3,1,1\n"
+    shells = "*ELEMENT_SHELL\n" + "".join(f"{i:8d}{i:8d}       1       2       3\n" for i in range(1, 6))
+    with pytest.warns(UserWarning, match=r"skipped 1 card\(s\).*\*MAT_ADD_EROSION x1") as rec:
+        m = read_deck(_write(tmp_path, base + parts + mats + shells))
+    assert len([r for r in rec if "skipped" in str(r.message)]) == 1
+    assert m.skipped_cards == {"MAT_ADD_EROSION": 1}
+    a, b, r, h, n = (m.materials[i] for i in range(1, 6))
+    assert (a.kind, b.kind, r.kind, h.kind, n.kind) == (
+        "piecewise_linear",
+        "piecewise_linear",
+        "rigid",
+        "other",
+        "other",
+    )
+    assert a.yield_strength == pytest.approx(250e6) and a.ultimate_strength == pytest.approx(420e6)
+    assert a.fracture_strength == pytest.approx(np.interp(0.25, [0, 0.1, 0.2, 0.3], [250, 350, 420, 400]) * 1e6)
+    assert b.name == "curve driven"
+    assert b.yield_strength == pytest.approx(300e6) and b.ultimate_strength == pytest.approx(450e6)
+    assert h.density == pytest.approx(100.0) and h.youngs_modulus == pytest.approx(1e9)
+    assert n.youngs_modulus == pytest.approx(5e9) and n.poisson_ratio == 0.25
+    assert r.is_rigid
+
+
+def test_skipped_cards_counted_in_one_warning(tmp_path):
+    extra = (
+        "*CONTROL_TERMINATION\n0.1\n*DATABASE_GLSTAT\n1e-4\n*DATABASE_GLSTAT\n1e-4\n*FOO_BAR\nx\n*SET_NODE_LIST\n1\n1\n"
+    )
+    with warnings.catch_warnings(record=True) as rec:
+        warnings.simplefilter("always")
+        m = read_deck(_write(tmp_path, HEAD + extra + NODES + SHELL))
+    msgs = [str(r.message) for r in rec if issubclass(r.category, UserWarning)]
+    assert len(msgs) == 1 and "skipped 5 card(s)" in msgs[0]
+    assert m.skipped_cards == {"CONTROL_TERMINATION": 1, "DATABASE_GLSTAT": 2, "FOO_BAR": 1, "SET_NODE_LIST": 1}
+
+
+@pytest.mark.parametrize(
+    ("body", "pattern"),
+    [
+        (
+            NODES.replace("       2           100.0", "       2           abc  "),
+            r"line 14: \*NODE expects a numeric x coordinate in columns 9-24, got 'abc'",
+        ),
+        (NODES + "       1             1.0\n", r"line 17: node id 1 is defined twice \(first in deck.k line 13\)"),
+        (
+            NODES.replace("           100.0           100.0", "             nan           100.0"),
+            r"line 15: \*NODE expects finite",
+        ),
+        (NODES + SHELL.replace("       4\n", "       9\n"), r"line 18: shell element 1 refers to undefined node 9"),
+        (
+            NODES + SHELL.replace("       1       1       1", "       1       7       1"),
+            r"line 18: shell element 1 refers to undefined part 7",
+        ),
+        (
+            NODES + "*ELEMENT_SHELL\n       1       1       1       2\n",
+            r"line 18: \*ELEMENT_SHELL expects node id n3 in columns 33-40, got blank",
+        ),
+        (
+            NODES + "*ELEMENT_SHELL_THICKNESS\n       1       1       1       2       3       4\n",
+            r"line 18: \*ELEMENT_SHELL_THICKNESS expects 2 lines per element",
+        ),
+        (
+            NODES + "*ELEMENT_SHELL\n       1     1.5       1       2       3\n",
+            r"line 18: .*integer part id in columns 9-16, got '1.5'",
+        ),
+    ],
+)
+def test_errors_name_file_line_and_what(tmp_path, body, pattern):
+    with pytest.raises(DeckError, match=r"deck.k " + pattern):
+        _read(_write(tmp_path, HEAD + body))
+
+
+def test_reference_errors_on_parts(tmp_path):
+    bad_sec = HEAD.replace("         1         1         1", "         1         4         1")
+    with pytest.raises(DeckError, match=r"deck.k line 6: \*PART 1 refers to undefined section 4"):
+        _read(_write(tmp_path, bad_sec + NODES + SHELL))
+    bad_mat = HEAD.replace("         1         1         1", "         1         1         3")
+    with pytest.raises(DeckError, match=r"deck.k line 6: \*PART 1 refers to undefined material 3"):
+        _read(_write(tmp_path, bad_mat + NODES + SHELL))
+    with pytest.raises(DeckError, match="no \\*NODE"):
+        _read(_write(tmp_path, HEAD))
+    with pytest.raises(DeckError, match="cannot read the deck"):
+        _read(tmp_path / "nope.k")
+    with pytest.raises(DeckError, match=r"lead.k line 2: expected a keyword line starting with '\*', got data"):
+        _read(_write(tmp_path, "$ header\n       5\n" + HEAD + NODES + SHELL, "lead.k"))
+
+
+def test_units_detection_and_override(tmp_path):
+    si = HEAD.replace("  7.85e-09  210000.0", "    7850.0   2.1e+11").replace(
+        "       2.0       2.0       2.0       2.0", "     0.002"
+    )
+    m = _read(_write(tmp_path, si + NODES.replace("100.0", "  0.1") + SHELL))
+    assert m.units == "m-kg-s" and m.total_mass() == pytest.approx(0.01 * 2e-3 * 7850)
+    mixed = HEAD.replace("  7.85e-09  210000.0", "       1.0   2.1e+11")
+    with pytest.raises(DeckError, match=r"pass units= one of"):
+        _read(_write(tmp_path, mixed + NODES + SHELL))
+    m2 = _read(_write(tmp_path, mixed + NODES + SHELL), units="m-kg-s")
+    assert m2.materials[1].density == 1.0
+    with pytest.raises(ConfigError, match="unknown unit system"):
+        _read(_write(tmp_path, HEAD + NODES + SHELL), units="furlongs")
+
+
+def test_axis_map_rotates_then_shifts(tmp_path):
+    m = _read(_write(tmp_path, HEAD + NODES + SHELL), axis_map=AxisMap(x="-y", y="+x", z="+z"))
+    b = m.bounds()
+    np.testing.assert_allclose(b, [[0, -0.05, 0], [0.1, 0.05, 0]], atol=1e-15)
+
+
+def test_subassembly_map_yaml_sets_and_errors(tmp_path):
+    parts = "".join(
+        f"*PART\n{name}\n{i:10d}{1:10d}{1:10d}\n" for i, name in ((1, "hood outer"), (2, "Hood inner"), (3, "bumper"))
+    )
+    shells = "*ELEMENT_SHELL\n" + "".join(f"{i:8d}{i:8d}       1       2       3       4\n" for i in (1, 2, 3))
+    sets = "*SET_PART_LIST_TITLE\nfront\n        10\n         3\n"
+    deck = _write(
+        tmp_path,
+        HEAD.split("*PART")[0]
+        + parts
+        + HEAD.split("front plate\n         1         1         1\n")[1]
+        + sets
+        + NODES
+        + shells,
+    )
+    y = tmp_path / "map.yaml"
+    y.write_text("subassemblies:  # name -> parts\n  hood: ['hood*']\n  front: ['set:10']\n")
+    m = _read(deck, subassemblies=y)
+    assert m.subassemblies == {"hood": [1, 2], "front": [3]}
+    m2 = _read(deck, subassemblies={"bumper": [3]})
+    assert m2.subassemblies == {"bumper": [3], "part_1": [1], "part_2": [2]}
+    for text, pattern in (
+        ("subassemblies:\n  a: [9]\n", r"map.yaml key 'subassemblies.a\[0\]': unknown part 9"),
+        ("subassemblies:\n  a: [3]\n  b: ['bump*']\n", r"key 'subassemblies.b\[0\]': part 3 .* in two sub-assemblies"),
+        ("subassemblies:\n  a: ['door*']\n", r"pattern 'door\*' matches no part"),
+        ("subassemblies:\n  a: ['set:4']\n", r"unknown \*SET_PART 4"),
+        ("subassemblies:\n  a: [1\n", r"map.yaml: invalid YAML"),
+        ("groups:\n  a: [1]\n", r"key 'groups': unknown key"),
+        ("subassemblies:\n  a: 1\n", r"expected a non-empty list"),
+    ):
+        y.write_text(text)
+        with pytest.raises(ConfigError, match=pattern):
+            _read(deck, subassemblies=y)
+    out = dump_subassembly_map({"hood": [1, 2], "front bumper": [3]}, tmp_path / "d.yaml")
+    assert load_subassembly_map(out, m) == {"hood": [1, 2], "front bumper": [3]}

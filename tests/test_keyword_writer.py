@@ -1,0 +1,185 @@
+"""Round trips: VehicleModel -> write_deck -> read_deck gives the same model."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+from marlcrash.errors import ModelError
+from marlcrash.vehicle.keyword import read_deck
+from marlcrash.vehicle.keyword_writer import write_deck
+from marlcrash.vehicle.materials import MATERIAL_FIELDS, Material, complete_material
+from marlcrash.vehicle.model import Part, VehicleModel
+
+
+def _model() -> VehicleModel:
+    """A model already in marlcrash axes: front at x = 0, centred in y."""
+    rng = np.random.default_rng(3)
+    coords = np.array(
+        [
+            [0.0, -0.5, 0.1],
+            [0.1, -0.5, 0.1],
+            [0.1, 0.5, 0.1],
+            [0.0, 0.5, 0.1],
+            [0.2, 0.0, 0.3],  # tri apex
+            [0.3, -0.1, 0.0],  # hex 8 nodes
+            [0.4, -0.1, 0.0],
+            [0.4, 0.1, 0.0],
+            [0.3, 0.1, 0.0],
+            [0.3, -0.1, 0.2],
+            [0.4, -0.1, 0.2],
+            [0.4, 0.1, 0.2],
+            [0.3, 0.1, 0.2],
+            [0.5, 0.0, 0.0],  # tet apex
+            [0.6, 0.2, 0.5],  # beam end
+        ]
+    )
+    coords[:, 0] += rng.uniform(0, 1e-3, len(coords)) * np.r_[0, rng.uniform(0, 1, len(coords) - 1)]
+    coords[:, 2] += rng.uniform(-1e-3, 1e-3, len(coords))
+    node_ids = np.arange(101, 101 + len(coords)) * 7
+    mats = {
+        1: complete_material(Material(1, "mild steel", "elastic", 7850.0, 2.1e11, poisson_ratio=0.3)),
+        2: complete_material(
+            Material(
+                2,
+                "DP600",
+                "plastic_kinematic",
+                7850.0,
+                2.1e11,
+                yield_strength=3.5e8,
+                ultimate_strength=6.1e8,
+                poisson_ratio=0.3,
+            )
+        ),
+        3: complete_material(
+            Material(
+                3,
+                "AA6061",
+                "piecewise_linear",
+                2700.0,
+                7.0e10,
+                yield_strength=2.4e8,
+                ultimate_strength=3.1e8,
+                fracture_strength=2.9e8,
+                poisson_ratio=0.33,
+            )
+        ),
+        4: complete_material(Material(4, "rigid wall", "rigid", 7800.0, 2.0e11, poisson_ratio=0.29)),
+    }
+    parts = {
+        10: Part(10, "bumper beam", 2, 10, thickness=1.7e-3),
+        11: Part(11, "crash box", 3, 11, thickness=2.25e-3),
+        12: Part(12, "engine block", 1, 12),
+        13: Part(13, "rail link", 4, 13, beam_area=3.3e-4),
+    }
+    return VehicleModel(
+        node_ids=node_ids,
+        coords=coords,
+        shell_ids=np.array([5, 6]),
+        shell_part=np.array([10, 11]),
+        shell_nodes=np.array([[0, 1, 2, 3], [1, 4, 2, 2]]),
+        shell_thickness=np.array([1.7e-3, 2.6e-3]),
+        solid_ids=np.array([20, 21]),
+        solid_part=np.array([12, 12]),
+        solid_nodes=np.array([[5, 6, 7, 8, 9, 10, 11, 12], [6, 13, 7, 10, 10, 10, 10, 10]]),
+        beam_ids=np.array([30]),
+        beam_part=np.array([13]),
+        beam_nodes=np.array([[4, 14]]),
+        beam_area=np.array([4.1e-4]),
+        parts=parts,
+        materials=mats,
+        subassemblies={"bumper": [10, 11], "powertrain": [12], "rails": [13]},
+        name="round trip car",
+    )
+
+
+def _same(a: VehicleModel, b: VehicleModel) -> None:
+    np.testing.assert_array_equal(a.node_ids, b.node_ids)
+    np.testing.assert_allclose(a.coords, b.coords, rtol=1e-9, atol=1e-12)
+    for kind in ("shell", "solid", "beam"):
+        for attr in ("ids", "part", "nodes"):
+            np.testing.assert_array_equal(getattr(a, f"{kind}_{attr}"), getattr(b, f"{kind}_{attr}"))
+    np.testing.assert_allclose(a.shell_thickness, b.shell_thickness, rtol=1e-9)
+    np.testing.assert_allclose(a.beam_area, b.beam_area, rtol=1e-9)
+    assert a.parts.keys() == b.parts.keys()
+    for pid, p in a.parts.items():
+        q = b.parts[pid]
+        assert (p.name, p.material_id, p.section_id) == (q.name, q.material_id, q.section_id)
+        for x, y in ((p.thickness, q.thickness), (p.beam_area, q.beam_area)):
+            assert (x is None) == (y is None)
+            if x is not None:
+                assert y == pytest.approx(x, rel=1e-12)
+    assert a.materials.keys() == b.materials.keys()
+    for mid, m in a.materials.items():
+        n = b.materials[mid]
+        assert (m.kind, m.name) == (n.kind, n.name)
+        for f, x, y in zip(MATERIAL_FIELDS, m.vector(), n.vector(), strict=True):
+            assert y == pytest.approx(x, rel=1e-10), f"material {mid} {f}"
+    assert a.subassemblies == b.subassemblies
+    np.testing.assert_allclose(a.total_mass(), b.total_mass(), rtol=1e-9)
+
+
+@pytest.mark.parametrize("units", ["mm-t-s", "mm-kg-ms", "m-kg-s"])
+def test_round_trip_is_identical(tmp_path, units):
+    m = _model()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # every value of this model is carried by the cards
+        deck = write_deck(m, tmp_path / "car.k", units=units)
+    yaml_path = tmp_path / "car.subassemblies.yaml"
+    assert yaml_path.is_file()
+    back = read_deck(deck, units=units, subassemblies=yaml_path)
+    _same(m, back)
+    assert back.units == units
+    assert back.skipped_cards == {}
+
+
+def test_units_are_detected_and_values_scaled(tmp_path):
+    m = _model()
+    deck = write_deck(m, tmp_path / "car.k", units="mm-t-s")
+    text = deck.read_text()
+    # steel density in t/mm^3 and a coordinate in mm appear literally
+    assert "7.850000000000e-09" in text
+    back = read_deck(deck, subassemblies=tmp_path / "car.subassemblies.yaml")
+    assert back.units == "mm-t-s"
+    _same(m, back)
+
+
+def test_mass_matches_independent_sum(tmp_path):
+    m = _model()
+    back = read_deck(write_deck(m, tmp_path / "c.k"), subassemblies=tmp_path / "c.subassemblies.yaml")
+    c = m.coords
+    quad = 0.5 * (
+        np.linalg.norm(np.cross(c[1] - c[0], c[2] - c[0])) + np.linalg.norm(np.cross(c[2] - c[0], c[3] - c[0]))
+    )
+    tri = 0.5 * np.linalg.norm(np.cross(c[4] - c[1], c[2] - c[1]))
+    hexv = abs(np.linalg.det(np.stack([c[6] - c[5], c[8] - c[5], c[9] - c[5]])))  # near-box: edge triple product
+    tet = abs(np.linalg.det(np.stack([c[13] - c[6], c[7] - c[6], c[10] - c[6]]))) / 6
+    beam = np.linalg.norm(c[14] - c[4])
+    expected = {
+        10: quad * 1.7e-3 * 7850,
+        11: tri * 2.6e-3 * 2700,
+        12: (hexv + tet) * 7850,
+        13: beam * 4.1e-4 * 7800,
+    }
+    got = back.part_masses()
+    for pid, v in expected.items():
+        assert got[pid] == pytest.approx(v, rel=2e-2 if pid == 12 else 1e-9)
+
+
+def test_writer_warns_about_values_it_cannot_carry(tmp_path):
+    m = _model()
+    mats = dict(m.materials)
+    mats[1] = complete_material(Material(1, "odd", "elastic", 7850.0, 2.1e11, yield_strength=9e8, poisson_ratio=0.3))
+    m.materials = mats
+    with pytest.warns(UserWarning, match="material 1: yield_strength"):
+        write_deck(m, tmp_path / "x.k")
+
+
+def test_writer_rejects_mixed_parts_and_leaves_nothing_behind(tmp_path):
+    m = _model()
+    m.solid_part = np.array([12, 10])
+    with pytest.raises(ModelError, match="part 10 holds both shell and solid"):
+        write_deck(m, tmp_path / "bad.k")
+    assert list(tmp_path.iterdir()) == []

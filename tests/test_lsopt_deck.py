@@ -1,0 +1,89 @@
+"""The public LS-OPT small-car deck (../shared/data), checked against a hand computation."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+from marlcrash.errors import DeckError
+from marlcrash.vehicle.keyword import read_deck
+from marlcrash.vehicle.model import AxisMap
+
+PARAMS = {"tbumper": 3, "thood": 1}
+
+
+def _hand_masses(path) -> tuple[int, int, dict[int, float]]:
+    """Part masses [kg] from a plain line-by-line read, independent of the reader.
+
+    The deck's facts, read by eye: section thicknesses 2 (part 1), &tbumper (2),
+    &thood (3, 4, 5), 0 (6) mm; element thicknesses 0 (use the section) or 0.2 mm;
+    densities in t/mm^3; nodes in 8+16+16+16 columns with blanks meaning 0.
+    """
+    lines = path.read_text().splitlines()
+    section_t = {1: 2.0, 2: PARAMS["tbumper"], 3: PARAMS["thood"], 4: PARAMS["thood"], 5: PARAMS["thood"], 6: 0.0}
+    density = {}
+    nodes: dict[int, np.ndarray] = {}
+    shells = []
+    block = None
+    data: list[str] = []
+    for ln in [*lines, "*END"]:
+        if ln.startswith("$"):
+            continue
+        if ln.startswith("*"):
+            if block and block.startswith("*MAT_"):
+                density[int(data[0][:10])] = float(data[0][10:20])
+            block, data = ln.strip(), []
+            continue
+        data.append(ln)
+        if block == "*NODE":
+            f = [ln[0:8], ln[8:24], ln[24:40], ln[40:56]]
+            nodes[int(f[0])] = np.array([float(v) if v.strip() else 0.0 for v in f[1:]])
+        elif block == "*ELEMENT_SHELL_THICKNESS" and len(data) % 2 == 0:
+            head, thick = data[-2], data[-1]
+            ids = [int(head[i : i + 8]) for i in range(0, 48, 8)]
+            t = [float(v) for v in thick.split()]
+            shells.append((ids[1], ids[2:], t))
+    masses = dict.fromkeys(range(1, 7), 0.0)
+    for pid, nids, t in shells:
+        p = [nodes[n] for n in nids]
+        area = 0.5 * (
+            np.linalg.norm(np.cross(p[1] - p[0], p[2] - p[0])) + np.linalg.norm(np.cross(p[2] - p[0], p[3] - p[0]))
+        )
+        th = np.mean([x if x > 0 else section_t[pid] for x in t])
+        masses[pid] += area * th * density[pid] * 1000.0  # mm^3 * t/mm^3 -> t -> kg
+    return len(nodes), len(shells), masses
+
+
+def test_counts_and_part_masses_match_hand_computation(lsopt_deck):
+    with pytest.warns(UserWarning, match="skipped"):
+        m = read_deck(lsopt_deck, params=PARAMS)
+    n_nodes, n_shells, expect = _hand_masses(lsopt_deck)
+    assert (m.n_nodes, m.n_shells, len(m.parts)) == (1236, 1174, 6) == (n_nodes, n_shells, 6)
+    got = m.part_masses()
+    for pid, mass in expect.items():
+        assert got[pid] == pytest.approx(mass, rel=1e-9), f"part {pid}"
+    assert m.units == "mm-t-s"
+    assert m.materials[6].kind == "rigid" and m.materials[1].kind == "plastic_kinematic"
+    assert m.parts[6].thickness == 0.0  # the rigid part's section thickness is 0; element thickness applies
+    assert m.shell_thickness[m.shell_part == 6] == pytest.approx(0.2e-3)
+    assert m.parts[2].thickness == pytest.approx(3e-3) and m.parts[3].thickness == pytest.approx(1e-3)
+    assert m.skipped_cards["HOURGLASS"] == 6 and m.skipped_cards["SET_NODE_LIST"] == 3
+
+
+def test_undefined_parameters_are_named_with_their_line(lsopt_deck):
+    with pytest.raises(DeckError, match=r"lsopt_small_car5.k line \d+: parameter 'tbumper' is used but not defined"):
+        read_deck(lsopt_deck)
+    with pytest.raises(DeckError, match=r"line \d+: parameter 'thood'"):
+        read_deck(lsopt_deck, params={"tbumper": 3})
+
+
+def test_axis_map_makes_the_vertical_deck_axis_z(lsopt_deck):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        m = read_deck(lsopt_deck, params=PARAMS, axis_map=AxisMap(x="+x", y="+z", z="+y"))
+    lo, hi = m.bounds()
+    assert hi[2] - lo[2] == pytest.approx(1.397, abs=1e-3)  # roof at 1397 mm over the ground
+    assert lo[0] == pytest.approx(0.0) and lo[1] == pytest.approx(-hi[1])  # front at x = 0, centred laterally
+    assert hi[1] - lo[1] == pytest.approx(1.778 + 0.254, abs=1e-3)  # deck z spans -254 .. 1778 mm
