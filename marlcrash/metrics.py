@@ -1,0 +1,333 @@
+"""Similarity of an estimated and a reference signal (paper Eq. 8 to 11), batched in torch.
+
+All metrics take ``q`` (the estimate, the paper's Q) and ``p`` (the reference, P)
+as ``[..., T]`` tensors, typically ``[B, n_sensors, T]`` velocities [m/s], and
+return ``[...]`` (``[B, n_sensors]``). They run on any device, support float64,
+and are differentiable (the Frechet distance is only sub-differentiable: its
+gradient flows through the pair of points that sets the leash length).
+
+- :func:`area_between`: ``A = integral |Q - P| dt`` [m for velocities]. The
+  default ``method="exact"`` integrates the piecewise-linear interpolants
+  exactly: an interval where ``Q - P`` changes sign is split at its crossing
+  into two triangles. ``method="trapezoid"`` applies the trapezoid rule to
+  ``|Q - P|`` (it over-estimates intervals with a crossing).
+- :func:`discrete_frechet`: the discrete Frechet distance of the polylines
+  ``(t_i, q_i)`` and ``(s_j, p_j)`` (Eiter and Mannila's coupling distance,
+  Eq. 9, 10): the shortest leash that lets two walkers traverse both point
+  sequences forward only. Points are Euclidean in ``(time_scale * t,
+  value_scale * v)``; the default scales of 1 use unscaled SI (s, m/s), as in
+  the paper's Table 3. Q may have ``n`` and P ``m`` points.
+- :func:`rmse`: root mean square of ``Q - P`` over the common time samples (Eq. 11).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Literal, NamedTuple
+
+import torch
+
+from marlcrash.config import require
+from marlcrash.errors import PulseError
+
+
+class Metrics(NamedTuple):
+    """The three similarity metrics, each ``[...]`` (e.g. ``[B, n_sensors]``), SI units."""
+
+    area: torch.Tensor
+    dfd: torch.Tensor
+    rmse: torch.Tensor
+
+
+@dataclass
+class MetricsConfig:
+    """How the similarity metrics are computed (part of a reward config).
+
+    Attributes:
+        area_method: ``exact`` (piecewise-linear, split at crossings) or ``trapezoid``.
+        dfd_time_scale: factor on time [s] before Frechet distances (1: unscaled SI).
+        dfd_value_scale: factor on the signal [m/s] before Frechet distances (1: unscaled SI).
+    """
+
+    area_method: Literal["exact", "trapezoid"] = "exact"
+    dfd_time_scale: float = 1.0
+    dfd_value_scale: float = 1.0
+
+    def validate(self) -> None:
+        """Raise :class:`~marlcrash.errors.ConfigError` for non-positive scales."""
+        require(self.dfd_time_scale > 0, "metrics.dfd_time_scale", f"must be > 0, got {self.dfd_time_scale}")
+        require(self.dfd_value_scale > 0, "metrics.dfd_value_scale", f"must be > 0, got {self.dfd_value_scale}")
+
+
+def _safe_sqrt(x: torch.Tensor) -> torch.Tensor:
+    """``sqrt(x)`` for ``x >= 0`` whose gradient at 0 is 0 instead of NaN."""
+    pos = x > 0
+    return torch.where(pos, torch.sqrt(torch.where(pos, x, torch.ones_like(x))), torch.zeros_like(x))
+
+
+def _check_pair(q: torch.Tensor, p: torch.Tensor) -> None:
+    if q.shape[-1] != p.shape[-1]:
+        raise PulseError(
+            f"expected q and p on common time samples (same last dimension), got shapes {tuple(q.shape)} "
+            f"and {tuple(p.shape)}; resample first"
+        )
+    if q.shape[-1] < 2:
+        raise PulseError(f"expected at least 2 time samples, got {q.shape[-1]}")
+
+
+def _steps(time: torch.Tensor | None, dt: float | None, like: torch.Tensor) -> torch.Tensor:
+    """Interval lengths ``[..., T-1]`` from ``time [T]``/``[..., T]`` or a uniform ``dt``."""
+    if (time is None) == (dt is None):
+        raise PulseError("pass exactly one of time (sample times [s]) or dt (uniform step [s])")
+    if time is None:
+        return torch.full_like(like[..., 1:], float(dt))
+    time = torch.as_tensor(time, dtype=like.dtype, device=like.device)
+    if time.shape[-1] != like.shape[-1]:
+        raise PulseError(f"time has {time.shape[-1]} samples, the signals {like.shape[-1]}")
+    return time[..., 1:] - time[..., :-1]
+
+
+def area_between(
+    q: torch.Tensor,
+    p: torch.Tensor,
+    time: torch.Tensor | None = None,
+    *,
+    dt: float | None = None,
+    method: Literal["exact", "trapezoid"] = "exact",
+) -> torch.Tensor:
+    """Area between two curves on common time samples (paper Eq. 8).
+
+    Args:
+        q: ``[..., T]`` estimate.
+        p: ``[..., T]`` reference (broadcastable with ``q``).
+        time: ``[T]`` or ``[..., T]`` sample times [s]; or give ``dt``.
+        dt: uniform sampling interval [s].
+        method: ``exact`` or ``trapezoid`` (module docstring).
+
+    Returns:
+        ``[...]`` area [signal unit * s].
+    """
+    _check_pair(q, p)
+    d = q - p
+    h = _steps(time, dt, d)
+    d0, d1 = d[..., :-1], d[..., 1:]
+    a0, a1 = d0.abs(), d1.abs()
+    if method == "trapezoid":
+        return (0.5 * (a0 + a1) * h).sum(-1)
+    if method != "exact":
+        raise PulseError(f"area method must be 'exact' or 'trapezoid', got {method!r}")
+    cross = d0 * d1 < 0
+    s = a0 + a1
+    # a crossing splits the interval into triangles of bases h*a0/s and h*a1/s
+    split = (d0 * d0 + d1 * d1) / torch.where(cross, s, torch.ones_like(s))
+    return (0.5 * h * torch.where(cross, split, s)).sum(-1)
+
+
+def rmse(q: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
+    """Root mean square error over the common time samples (paper Eq. 11).
+
+    Args:
+        q: ``[..., T]`` estimate; p: ``[..., T]`` reference.
+
+    Returns:
+        ``[...]`` RMSE [signal unit].
+    """
+    _check_pair(q, p)
+    return _safe_sqrt(((q - p) ** 2).mean(-1))
+
+
+def curve_points(
+    values: torch.Tensor,
+    time: torch.Tensor | None = None,
+    *,
+    dt: float | None = None,
+    time_scale: float = 1.0,
+    value_scale: float = 1.0,
+) -> torch.Tensor:
+    """Points ``[..., T, 2]`` = ``(time_scale * t, value_scale * v)`` of a sampled curve ``values [..., T]``."""
+    if (time is None) == (dt is None):
+        raise PulseError("pass exactly one of time (sample times [s]) or dt (uniform step [s])")
+    if time is None:
+        time = torch.arange(values.shape[-1], dtype=values.dtype, device=values.device) * float(dt)
+    time = torch.as_tensor(time, dtype=values.dtype, device=values.device)
+    if time.shape[-1] != values.shape[-1]:
+        raise PulseError(f"time has {time.shape[-1]} samples, the signal {values.shape[-1]}")
+    time = time.expand(values.shape)
+    return torch.stack([time * time_scale, values * value_scale], dim=-1)
+
+
+def discrete_frechet_points(q: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
+    """Discrete Frechet distance of point sequences, batched (paper Eq. 9, 10).
+
+    The coupling distance ``c[i, j] = max(d(q_i, p_j), min(c[i-1, j], c[i-1, j-1], c[i, j-1]))``
+    is evaluated iteratively one anti-diagonal ``i + j = k`` at a time: each diagonal depends
+    only on the two before it, so the ``n + m - 1`` steps are vectorized over the batch and
+    along the diagonal (``O(n m)`` work, no recursion, no loop over the batch).
+
+    Args:
+        q: ``[..., n, D]`` points of the estimate.
+        p: ``[..., m, D]`` points of the reference; batch dimensions broadcast with ``q``'s.
+
+    Returns:
+        ``[...]`` distances (Euclidean, in the points' units).
+    """
+    if q.ndim < 2 or p.ndim < 2 or q.shape[-1] != p.shape[-1]:
+        raise PulseError(f"expected points [..., n, D] and [..., m, D], got {tuple(q.shape)} and {tuple(p.shape)}")
+    n, m = q.shape[-2], p.shape[-2]
+    if n < 1 or m < 1:
+        raise PulseError(f"expected at least one point per curve, got n={n}, m={m}")
+    batch = torch.broadcast_shapes(q.shape[:-2], p.shape[:-2])
+    dtype = torch.promote_types(q.dtype, p.dtype)
+    qb = q.to(dtype).expand(*batch, n, q.shape[-1]).reshape(-1, n, q.shape[-1])
+    pb = p.to(dtype).expand(*batch, m, p.shape[-1]).reshape(-1, m, p.shape[-1])
+    track = torch.is_grad_enabled() and (qb.requires_grad or pb.requires_grad)
+    with torch.no_grad():
+        value, arg = _frechet_dp(qb.detach(), pb.detach(), track)
+    if not track:
+        return value.reshape(batch)
+    # The distance equals the length of one bottleneck pair (i*, j*); its gradient is the
+    # (sub)gradient of the whole dynamic program, without keeping n + m graphs of it.
+    rows = torch.arange(qb.shape[0], device=qb.device)
+    gap = qb[rows, arg // m] - pb[rows, arg % m]
+    return _safe_sqrt((gap**2).sum(-1)).reshape(batch)
+
+
+def _frechet_dp(q: torch.Tensor, p: torch.Tensor, track: bool) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """Anti-diagonal dynamic program on ``q [B, n, D]``, ``p [B, m, D]`` (no autograd).
+
+    Memory: the ``[B, n, m]`` distance table plus ``O(B n)`` per diagonal. The table is
+    read along anti-diagonals through a strided view (cell ``(i, k - i)`` sits at flat
+    offset ``k + i (m - 1)``), and diagonals live in buffers padded with one leading
+    ``+inf`` so that the three predecessors of every cell are plain slices.
+
+    Returns the ``[B]`` distances and, if ``track``, the ``[B]`` flat index ``i * m + j``
+    of the pair whose distance they equal.
+    """
+    bsz, n, dim = q.shape
+    m = p.shape[1]
+    dev, dtype = q.device, q.dtype
+    sq = torch.zeros(bsz, n, m, dtype=dtype, device=dev)
+    for c in range(dim):  # coordinate by coordinate: no [B, n, m, D] temporary
+        sq += (q[:, :, c, None] - p[:, None, :, c]) ** 2
+    dist = sq.sqrt_()
+    n_diag = n + m - 1
+    diag = dist.as_strided((bsz, n_diag, n), (n * m, 1, m - 1))  # diag[:, k, i] = dist[:, i, k - i] where valid
+    k_idx = torch.arange(n_diag, device=dev)[:, None]
+    i_idx = torch.arange(n, device=dev)[None, :]
+    invalid = (k_idx - i_idx < 0) | (k_idx - i_idx >= m)  # [n + m - 1, n]
+    own_arg = i_idx * m + (k_idx - i_idx).clamp(0, m - 1)
+    prev2, prev1, cur = (torch.full((bsz, n + 1), math.inf, dtype=dtype, device=dev) for _ in range(3))
+    prev1[:, 1] = dist[:, 0, 0]
+    if track:
+        arg2, arg1, argc = (torch.zeros(bsz, n + 1, dtype=torch.long, device=dev) for _ in range(3))
+    for k in range(1, n_diag):
+        up, left, corner = prev1[:, :-1], prev1[:, 1:], prev2[:, :-1]  # c[i-1, j], c[i, j-1], c[i-1, j-1]
+        d = diag[:, k]
+        if track:
+            left_best = left <= corner
+            best = torch.where(left_best, left, corner)
+            best_arg = torch.where(left_best, arg1[:, 1:], arg2[:, :-1])
+            up_best = up < best
+            best = torch.where(up_best, up, best)
+            best_arg = torch.where(up_best, arg1[:, :-1], best_arg)
+            own = d >= best
+            torch.where(own, d, best, out=cur[:, 1:])
+            torch.where(own, own_arg[k], best_arg, out=argc[:, 1:])
+            arg2, arg1, argc = arg1, argc, arg2
+        else:
+            best = torch.minimum(up, left)
+            torch.minimum(best, corner, out=best)
+            torch.maximum(d, best, out=cur[:, 1:])
+        cur[:, 1:].masked_fill_(invalid[k], math.inf)
+        prev2, prev1, cur = prev1, cur, prev2
+    return prev1[:, n].clone(), (arg1[:, n].clone() if track else None)
+
+
+def discrete_frechet(
+    q: torch.Tensor,
+    p: torch.Tensor,
+    time_q: torch.Tensor | None = None,
+    time_p: torch.Tensor | None = None,
+    *,
+    dt: float | None = None,
+    time_scale: float = 1.0,
+    value_scale: float = 1.0,
+) -> torch.Tensor:
+    """Discrete Frechet distance of sampled curves ``(t, q(t))`` and ``(s, p(s))``.
+
+    Args:
+        q: ``[..., n]`` estimate values.
+        p: ``[..., m]`` reference values (batch dimensions broadcast).
+        time_q: ``[n]``/``[..., n]`` times [s] of ``q``; time_p likewise (default: ``time_q``).
+        dt: uniform step [s] for both curves instead of times.
+        time_scale: factor on times before distances (1: seconds, as in the paper).
+        value_scale: factor on values before distances.
+
+    Returns:
+        ``[...]`` distances.
+    """
+    if dt is not None:
+        pq = curve_points(q, dt=dt, time_scale=time_scale, value_scale=value_scale)
+        pp = curve_points(p, dt=dt, time_scale=time_scale, value_scale=value_scale)
+    else:
+        if time_q is None:
+            raise PulseError("pass time_q (and time_p if it differs) or dt")
+        time_p = time_q if time_p is None else time_p
+        pq = curve_points(q, time_q, time_scale=time_scale, value_scale=value_scale)
+        pp = curve_points(p, time_p, time_scale=time_scale, value_scale=value_scale)
+    return discrete_frechet_points(pq, pp)
+
+
+def discrete_frechet_ragged(qs: Sequence[torch.Tensor], ps: Sequence[torch.Tensor]) -> torch.Tensor:
+    """Discrete Frechet distances of pairs of point sequences of any lengths ``n_b``, ``m_b``.
+
+    Each curve is padded to the longest by repeating its last point, which leaves its
+    discrete Frechet distance unchanged (a repeated point can always be coupled with the
+    partner's current point at no extra cost), and the batch is computed at once.
+
+    Args:
+        qs: ``B`` tensors ``[n_b, D]``; ps: ``B`` tensors ``[m_b, D]``.
+
+    Returns:
+        ``[B]`` distances.
+    """
+    if len(qs) != len(ps) or not qs:
+        raise PulseError(f"expected two equally long, non-empty lists of curves, got {len(qs)} and {len(ps)}")
+
+    def stack(curves: Sequence[torch.Tensor]) -> torch.Tensor:
+        size = max(c.shape[0] for c in curves)
+        return torch.stack([torch.cat([c, c[-1:].expand(size - c.shape[0], -1)]) for c in curves])
+
+    return discrete_frechet_points(stack(qs), stack(ps))
+
+
+def compute_metrics(
+    q: torch.Tensor,
+    p: torch.Tensor,
+    time: torch.Tensor | None = None,
+    *,
+    dt: float | None = None,
+    config: MetricsConfig | None = None,
+) -> Metrics:
+    """All three metrics of ``q`` against ``p`` on common samples.
+
+    Args:
+        q: ``[..., T]`` estimate, e.g. ``[B, n_sensors, T]`` velocities [m/s].
+        p: ``[..., T]`` reference (broadcastable, e.g. ``[n_sensors, T]``).
+        time: ``[T]`` sample times [s]; or ``dt``.
+        dt: uniform sampling interval [s].
+        config: area method and Frechet scaling (default: exact area, unscaled SI).
+
+    Returns:
+        :class:`Metrics` of ``[...]`` tensors.
+    """
+    cfg = config or MetricsConfig()
+    q, p = torch.broadcast_tensors(q, p)
+    area = area_between(q, p, time, dt=dt, method=cfg.area_method)
+    if time is None:
+        dfd = discrete_frechet(q, p, dt=dt, time_scale=cfg.dfd_time_scale, value_scale=cfg.dfd_value_scale)
+    else:
+        dfd = discrete_frechet(q, p, time, time_scale=cfg.dfd_time_scale, value_scale=cfg.dfd_value_scale)
+    return Metrics(area=area, dfd=dfd, rmse=rmse(q, p))

@@ -1,0 +1,55 @@
+"""Crash pulses: the signal type, SAE J211 CFC filtering, integration, resampling, file IO.
+
+Convention (see :mod:`marlcrash.pulse.signal`): SI inside; velocity is the
+vehicle's forward speed and acceleration its derivative, so a frontal crash
+pulse is negative.
+"""
+
+from marlcrash.pulse.cfc import CFC_CLASSES, cfc_coefficients, cfc_filter, cfc_filter_torch, cfc_matrix, f_h
+from marlcrash.pulse.io import (
+    plot_pulse,
+    pulse_summary,
+    read_csv,
+    read_mme,
+    read_pulse,
+    write_csv,
+    write_mme,
+)
+from marlcrash.pulse.signal import (
+    SURROGATE_RATE_HZ,
+    Pulse,
+    filter_pulse,
+    find_time_zero,
+    from_rearward_x,
+    integrate,
+    integrate_torch,
+    prepare_velocity,
+    resample,
+    shift_time,
+)
+
+__all__ = [
+    "CFC_CLASSES",
+    "SURROGATE_RATE_HZ",
+    "Pulse",
+    "cfc_coefficients",
+    "cfc_filter",
+    "cfc_filter_torch",
+    "cfc_matrix",
+    "f_h",
+    "filter_pulse",
+    "find_time_zero",
+    "from_rearward_x",
+    "integrate",
+    "integrate_torch",
+    "plot_pulse",
+    "prepare_velocity",
+    "pulse_summary",
+    "read_csv",
+    "read_mme",
+    "read_pulse",
+    "resample",
+    "shift_time",
+    "write_csv",
+    "write_mme",
+]

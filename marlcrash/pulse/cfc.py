@@ -1,0 +1,159 @@
+"""SAE J211 channel frequency class (CFC) filtering.
+
+SAE J211-1 (and ISO 6487) specify the CFC filter as a 4-pole phase-less
+Butterworth low-pass: a 2-pole Butterworth section run forward, then backward
+over the data. For a CFC class ``C`` the section's design frequency is
+``wd = 2*pi*C*2.0775`` [rad/s]; prewarped with ``wa = tan(wd*T/2)`` it gives the
+recursion
+
+    y[n] = a0*x[n] + a1*x[n-1] + a2*x[n-2] + b1*y[n-1] + b2*y[n-2]
+
+with ``a0 = wa^2/(1+sqrt(2)*wa+wa^2)``, ``a1 = 2*a0``, ``a2 = a0``,
+``b1 = -2*(wa^2-1)/(1+sqrt(2)*wa+wa^2)``, ``b2 = (-1+sqrt(2)*wa-wa^2)/(1+sqrt(2)*wa+wa^2)``.
+Run twice, the magnitude is squared: the -3 dB point ``F_H`` lies at
+``2.0775*C*(sqrt(2)-1)^(1/4) = 5/3*C`` (100 Hz for CFC 60) and the phase is zero.
+
+End handling (a documented choice; J211 asks that start-up transients be kept
+out of the data): before filtering, each end is padded with ``pad_time``
+(default 10 ms) of its point-symmetric ("odd") reflection about the end value,
+and the recursion starts in the steady state of the first padded value
+(``scipy.signal.filtfilt(..., padtype="odd")``). Constants and straight lines
+pass through unchanged, so a pulse that ends at a non-zero level keeps it.
+
+Two front ends share these coefficients: :func:`cfc_filter` (numpy, any axis,
+for file IO) and :func:`cfc_filter_torch` (a cached ``[T, T]`` matrix, batched
+and differentiable, for surrogate outputs at a fixed length).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import warnings
+
+import numpy as np
+import scipy.signal
+import torch
+
+from marlcrash.errors import ConfigError, PulseError
+
+CFC_CLASSES: tuple[int, ...] = (60, 180, 600, 1000)
+"""The channel frequency classes of SAE J211 / ISO 6487."""
+DESIGN_FACTOR = 2.0775
+"""Design frequency of the 2-pole section per CFC unit (J211: ``wd = 2*pi*CFC*2.0775``)."""
+DEFAULT_PAD_TIME = 0.010
+"""Length [s] of the odd reflection added at both ends before filtering."""
+
+
+def check_cfc(cfc: int) -> int:
+    """Return ``cfc`` if it is a J211 class, else raise :class:`ConfigError` listing them."""
+    if isinstance(cfc, bool) or not isinstance(cfc, int | np.integer) or int(cfc) not in CFC_CLASSES:
+        raise ConfigError(f"expected a CFC class in {list(CFC_CLASSES)}, got {cfc!r}", key="cfc")
+    return int(cfc)
+
+
+def f_h(cfc: int) -> float:
+    """The J211 -3 dB frequency ``F_H = 5/3 * CFC`` [Hz] (100 Hz for CFC 60)."""
+    return 5.0 / 3.0 * check_cfc(cfc)
+
+
+def _check_dt(dt: float, cfc: int) -> float:
+    if not (isinstance(dt, int | float | np.floating) and math.isfinite(dt) and dt > 0):
+        raise PulseError(f"sampling interval must be a positive number of seconds, got {dt!r}")
+    fd = DESIGN_FACTOR * cfc
+    if dt * fd >= 0.5:
+        raise PulseError(
+            f"CFC {cfc} needs a sampling rate above {2 * fd:.0f} Hz (its design frequency {fd:.1f} Hz "
+            f"must lie below Nyquist); got {1 / dt:.1f} Hz"
+        )
+    if 1.0 / dt < 10.0 * f_h(cfc):
+        warnings.warn(
+            f"sampling rate {1 / dt:.0f} Hz is below 10 x F_H = {10 * f_h(cfc):.0f} Hz for CFC {cfc}; the filter's "
+            f"response departs from the analog J211 corridor as F_H nears Nyquist",
+            stacklevel=3,
+        )
+    return float(dt)
+
+
+def cfc_coefficients(cfc: int, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """Coefficients of the J211 2-pole section, in scipy's ``(b, a)`` form.
+
+    Args:
+        cfc: channel frequency class (60, 180, 600 or 1000).
+        dt: sampling interval [s].
+
+    Returns:
+        ``b = [a0, a1, a2]`` and ``a = [1, -b1, -b2]`` (J211 writes the feedback
+        terms with a plus sign; scipy's ``lfilter`` subtracts them).
+
+    Raises:
+        ConfigError: ``cfc`` is not a J211 class.
+        PulseError: ``dt`` is not positive or too coarse for the class.
+    """
+    cfc = check_cfc(cfc)
+    dt = _check_dt(dt, cfc)
+    wd = 2.0 * math.pi * cfc * DESIGN_FACTOR
+    wa = math.sin(wd * dt / 2.0) / math.cos(wd * dt / 2.0)
+    den = 1.0 + math.sqrt(2.0) * wa + wa**2
+    a0 = wa**2 / den
+    b1 = -2.0 * (wa**2 - 1.0) / den
+    b2 = (-1.0 + math.sqrt(2.0) * wa - wa**2) / den
+    return np.array([a0, 2.0 * a0, a0]), np.array([1.0, -b1, -b2])
+
+
+def cfc_filter(x: np.ndarray, dt: float, cfc: int = 60, *, axis: int = -1, pad_time: float = DEFAULT_PAD_TIME):
+    """Filter uniformly sampled data with the J211 CFC filter (zero phase).
+
+    Args:
+        x: samples along ``axis``, e.g. ``[K, T]`` accelerations [any unit].
+        dt: sampling interval [s].
+        cfc: channel frequency class (60, 180, 600 or 1000).
+        axis: the time axis.
+        pad_time: length [s] of the odd reflection at each end (clipped to the record).
+
+    Returns:
+        The filtered array, same shape and dtype float64.
+
+    Raises:
+        PulseError: non-finite samples, fewer than 3 samples, or a bad ``dt``.
+        ConfigError: ``cfc`` is not a J211 class.
+    """
+    x = np.asarray(x, dtype=np.float64)
+    if x.ndim == 0 or x.shape[axis] < 3:
+        raise PulseError(f"CFC filtering needs at least 3 samples along axis {axis}, got shape {x.shape}")
+    if not np.all(np.isfinite(x)):
+        raise PulseError("CFC filtering needs finite samples; found NaN or inf")
+    b, a = cfc_coefficients(cfc, dt)
+    padlen = min(round(pad_time / dt), x.shape[axis] - 1)
+    if padlen < 0:
+        raise PulseError(f"pad_time must be >= 0 s, got {pad_time!r}")
+    return scipy.signal.filtfilt(b, a, x, axis=axis, padtype="odd" if padlen > 0 else None, padlen=padlen)
+
+
+@functools.lru_cache(maxsize=32)
+def _cfc_matrix_cached(n: int, dt: float, cfc: int, pad_time: float) -> np.ndarray:
+    # The filter is linear in x, so filtering the identity gives its matrix: y = M @ x.
+    return np.ascontiguousarray(cfc_filter(np.eye(n), dt, cfc, axis=0, pad_time=pad_time))
+
+
+def cfc_matrix(n: int, dt: float, cfc: int = 60, pad_time: float = DEFAULT_PAD_TIME) -> np.ndarray:
+    """The ``[n, n]`` matrix ``M`` with ``cfc_filter(x) == M @ x`` for records of ``n`` samples."""
+    if isinstance(n, bool) or not isinstance(n, int) or n < 3:
+        raise PulseError(f"CFC filtering needs at least 3 samples, got n={n!r}")
+    return _cfc_matrix_cached(n, float(dt), check_cfc(cfc), float(pad_time))
+
+
+def cfc_filter_torch(x: torch.Tensor, dt: float, cfc: int = 60, pad_time: float = DEFAULT_PAD_TIME) -> torch.Tensor:
+    """Batched, differentiable CFC filter over the last axis (same result as :func:`cfc_filter`).
+
+    Args:
+        x: ``[..., T]`` uniformly sampled signals (e.g. ``[B, n_sensors, T]``).
+        dt: sampling interval [s].
+        cfc: channel frequency class.
+        pad_time: end padding [s], as in :func:`cfc_filter`.
+
+    Returns:
+        ``[..., T]`` filtered signals, on ``x``'s device and dtype.
+    """
+    m = torch.as_tensor(cfc_matrix(int(x.shape[-1]), dt, cfc, pad_time), dtype=x.dtype, device=x.device)
+    return x @ m.T

@@ -1,0 +1,568 @@
+"""Reading and writing crash pulses: CSV and ISO-MME, a summary and a plot.
+
+Every reader returns a :class:`~marlcrash.pulse.signal.Pulse` in marlcrash's
+convention (SI, forward speed, frontal crash pulse negative; see
+:mod:`marlcrash.pulse.signal`). ``sign`` multiplies the acceleration on read:
+``+1`` for data in the SAE J211 / ISO 6487 vehicle frame (x forward), ``-1`` for
+data that records deceleration as positive.
+
+CSV: an optional block of ``#`` comment lines, one header row, then one row per
+sample. Time in seconds (``time_unit="ms"`` for milliseconds), acceleration in g
+(``unit="m/s2"`` for SI). Columns are chosen by name; the delimiter (``,``, ``;``
+or tab) is detected from the header.
+
+ISO-MME (ISO/TS 13499): a test folder with ``<test>.mme`` and a ``Channel``
+folder holding ``<test>.chn`` (the channel list) and one file per channel,
+``<test>.001``, ``<test>.002``, ... Each channel file starts with
+``Name  :value`` header lines; the samples follow, one value per line. Time is
+``Time of first sample + i * Sampling interval`` [s]; ``Unit`` gives the
+acceleration unit (``g`` or ``m/s**2``). ``Channel frequency class`` is
+information only: samples read from ISO-MME count as unfiltered.
+
+Every malformed input raises :class:`~marlcrash.errors.PulseError` naming the
+file, the line (and column) and what was expected.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import re
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from marlcrash.errors import PulseError
+from marlcrash.pulse.cfc import DEFAULT_PAD_TIME
+from marlcrash.pulse.signal import (
+    DEFAULT_THRESHOLD_G,
+    MIN_SAMPLES,
+    Pulse,
+    filter_pulse,
+    find_time_zero,
+    resample,
+)
+from marlcrash.units import G0
+
+_ACC_UNITS = {"g": G0, "m/s2": 1.0, "m/s^2": 1.0, "m/s**2": 1.0, "m/s²": 1.0, "m/(s*s)": 1.0, "mm/s2": 1e-3}
+_TIME_UNITS = {"s": 1.0, "ms": 1e-3}
+_TIME_NAMES = ("time", "t", "zeit", "time_s", "time [s]", "time (s)")
+
+
+def _err(reason: str, path: str | Path, line: int | None = None, column: str | None = None) -> PulseError:
+    where = Path(path).name if line is None else f"{Path(path).name} line {line}"
+    if column is not None:
+        where += f", column {column!r}"
+    return PulseError(f"{where}: {reason}")
+
+
+def acc_unit_factor(unit: str, path: str | Path | None = None, line: int | None = None) -> float:
+    """SI factor [m/s^2 per unit] of an acceleration unit name (``g``, ``m/s2``, ``m/s**2`` ...)."""
+    key = unit.strip().lower().replace(" ", "")
+    if key in _ACC_UNITS:
+        return _ACC_UNITS[key]
+    reason = f"expected an acceleration unit in {sorted(_ACC_UNITS)}, got {unit!r}"
+    raise _err(reason, path, line) if path is not None else PulseError(reason)
+
+
+# ----------------------------------------------------------------------------------------------- CSV
+
+
+def read_csv(
+    path: str | Path,
+    *,
+    time_col: str | None = None,
+    acc_col: str | Sequence[str] | None = None,
+    unit: str = "g",
+    time_unit: str = "s",
+    sign: float = 1.0,
+) -> Pulse:
+    """Read a pulse from a CSV file with a header row.
+
+    Args:
+        path: the file.
+        time_col: name of the time column (default: the first column named like ``time``/``t``,
+            else the first column).
+        acc_col: name (or names) of the acceleration column(s) (default: every other column).
+        unit: acceleration unit of the file, ``g`` or ``m/s2``.
+        time_unit: time unit of the file, ``s`` or ``ms``.
+        sign: ``+1`` or ``-1``, multiplies the acceleration (module docstring).
+
+    Returns:
+        A :class:`Pulse` with one channel per acceleration column, named by its header.
+
+    Raises:
+        PulseError: unreadable file, missing column, ragged row, non-numeric or non-finite
+            cell, time not strictly increasing, or too few samples.
+    """
+    path = Path(path)
+    factor = acc_unit_factor(unit)
+    if time_unit not in _TIME_UNITS:
+        raise PulseError(f"time_unit: expected one of {sorted(_TIME_UNITS)}, got {time_unit!r}")
+    if sign not in (1, -1, 1.0, -1.0):
+        raise PulseError(f"sign: expected +1 or -1, got {sign!r}")
+    try:
+        text = path.read_text(encoding="utf-8-sig", errors="replace")
+    except OSError as e:
+        raise _err(f"cannot read pulse file ({e.strerror})", path) from None
+    lines = text.splitlines()
+    first = next((i for i, s in enumerate(lines) if s.strip() and not s.lstrip().startswith("#")), None)
+    if first is None:
+        raise _err("expected a header row and samples, found no data", path)
+    header_line = lines[first]
+    delim = max((",", ";", "\t"), key=header_line.count)
+    if header_line.count(delim) == 0:
+        raise _err(
+            f"expected a header with at least two columns separated by ',', ';' or tab, got {header_line!r}",
+            path,
+            first + 1,
+        )
+    header = [h.strip() for h in next(csv.reader([header_line], delimiter=delim))]
+    for j, h in enumerate(header):
+        if not h:
+            raise _err(f"header column {j + 1} is empty; every column needs a name", path, first + 1)
+        if header.index(h) != j:
+            raise _err(f"duplicate column name {h!r} in the header", path, first + 1)
+
+    def find(name: str) -> int:
+        if name in header:
+            return header.index(name)
+        low = [h.lower() for h in header]
+        if name.lower() in low:
+            return low.index(name.lower())
+        raise _err(f"column {name!r} not found; the header has {header}", path, first + 1)
+
+    if time_col is None:
+        low = [h.lower() for h in header]
+        ti = next((j for j, h in enumerate(low) if h in _TIME_NAMES or h.startswith("time")), 0)
+    else:
+        ti = find(time_col)
+    if acc_col is None:
+        ai = [j for j in range(len(header)) if j != ti]
+    else:
+        names = [acc_col] if isinstance(acc_col, str) else list(acc_col)
+        ai = [find(n) for n in names]
+        if ti in ai:
+            raise _err(f"column {header[ti]!r} is chosen as both time and acceleration", path, first + 1)
+    rows: list[list[float]] = []
+    line_of: list[int] = []
+    wanted = [ti, *ai]
+    for lineno, row in enumerate(csv.reader(lines[first + 1 :], delimiter=delim), start=first + 2):
+        if not row or all(not c.strip() for c in row) or row[0].lstrip().startswith("#"):
+            continue
+        if len(row) != len(header):
+            raise _err(f"expected {len(header)} fields as in the header, got {len(row)}", path, lineno)
+        vals = []
+        for j in wanted:
+            cell = row[j].strip()
+            try:
+                v = float(cell)
+            except ValueError:
+                raise _err(f"expected a number, got {cell!r}", path, lineno, header[j]) from None
+            if not math.isfinite(v):
+                raise _err(f"expected a finite number, got {cell!r}", path, lineno, header[j])
+            vals.append(v)
+        rows.append(vals)
+        line_of.append(lineno)
+    if len(rows) < MIN_SAMPLES:
+        raise _err(f"expected at least {MIN_SAMPLES} samples, got {len(rows)}", path)
+    data = np.asarray(rows, dtype=np.float64)
+    time = data[:, 0] * _TIME_UNITS[time_unit]
+    steps = np.diff(time)
+    if np.any(steps <= 0):
+        i = int(np.argmax(steps <= 0))
+        what = "duplicated time" if steps[i] == 0 else "time goes backwards"
+        raise _err(
+            f"{what}: expected time to strictly increase, got {data[i + 1, 0]!r} after {data[i, 0]!r}",
+            path,
+            line_of[i + 1],
+            header[ti],
+        )
+    acc = data[:, 1:].T * (factor * float(sign))
+    return Pulse(time=time, acc=acc, channels=tuple(header[j] for j in ai), source=str(path))
+
+
+def write_csv(pulse: Pulse, path: str | Path, *, unit: str = "g", time_col: str = "time") -> Path:
+    """Write a pulse as CSV (time in s, acceleration in ``unit``), the format :func:`read_csv` reads."""
+    path = Path(path)
+    factor = acc_unit_factor(unit)
+    data = np.column_stack([pulse.time, pulse.acc.T / factor])
+    header = ",".join([time_col, *pulse.channels])
+    tmp = path.with_name(path.name + ".tmp")
+    np.savetxt(tmp, data, delimiter=",", header=header, comments="", fmt="%.17g")
+    tmp.replace(path)
+    return path
+
+
+# ------------------------------------------------------------------------------------------ ISO-MME
+
+
+def _parse_header(path: Path, lines: list[str]) -> tuple[dict[str, tuple[str, int]], int]:
+    """``Name :value`` lines -> {lower-case name: (value, line number)}; returns the first data line index."""
+    header: dict[str, tuple[str, int]] = {}
+    start = len(lines)
+    for i, raw in enumerate(lines):
+        if ":" not in raw:
+            start = i
+            break
+        name, _, value = raw.partition(":")
+        if not name.strip():
+            raise _err(f"expected 'Name :value', got {raw!r}", path, i + 1)
+        header.setdefault(name.strip().lower(), (value.strip(), i + 1))
+    return header, start
+
+
+def _read_lines(path: Path) -> list[str]:
+    try:
+        # MME files come from many labs and tools; latin-1 never fails to decode.
+        return path.read_text(encoding="latin-1").splitlines()
+    except OSError as e:
+        raise _err(f"cannot read ({e.strerror})", path) from None
+
+
+def _header_float(path: Path, header: dict[str, tuple[str, int]], key: str) -> float:
+    if key not in header:
+        raise _err(f"missing header line {key.capitalize()!r} (expected 'Name :value')", path)
+    value, line = header[key]
+    try:
+        v = float(value)
+    except ValueError:
+        raise _err(f"{key.capitalize()!r}: expected a number, got {value!r}", path, line) from None
+    if not math.isfinite(v):
+        raise _err(f"{key.capitalize()!r}: expected a finite number, got {value!r}", path, line)
+    return v
+
+
+def _read_mme_channel(path: Path) -> dict[str, Any]:
+    lines = _read_lines(path)
+    header, start = _parse_header(path, lines)
+    t_first = _header_float(path, header, "time of first sample")
+    dt = _header_float(path, header, "sampling interval")
+    if dt <= 0:
+        raise _err(f"'Sampling interval': expected > 0 s, got {dt!r}", path, header["sampling interval"][1])
+    if "unit" not in header:
+        raise _err("missing header line 'Unit' (expected 'Name :value')", path)
+    unit, unit_line = header["unit"]
+    factor = acc_unit_factor(unit, path, unit_line)
+    values = []
+    for lineno, raw in enumerate(lines[start:], start=start + 1):
+        s = raw.strip()
+        if not s:
+            continue
+        try:
+            v = float(s)
+        except ValueError:
+            raise _err(f"expected one sample value per line, got {s!r}", path, lineno) from None
+        if not math.isfinite(v):
+            raise _err(f"expected a finite sample value, got {s!r}", path, lineno)
+        values.append(v)
+    if "number of samples" in header:
+        n_decl = _header_float(path, header, "number of samples")
+        if int(n_decl) != len(values):
+            raise _err(
+                f"'Number of samples' says {int(n_decl)}, found {len(values)} values",
+                path,
+                header["number of samples"][1],
+            )
+    if len(values) < MIN_SAMPLES:
+        raise _err(f"expected at least {MIN_SAMPLES} samples, got {len(values)}", path)
+    name = header.get("name of the channel", ("", 0))[0]
+    code = header.get("channel code", ("", 0))[0]
+    return {
+        "name": name,
+        "code": code if code and code.upper() != "NOVALUE" else "",
+        "t_first": t_first,
+        "dt": dt,
+        "n": len(values),
+        "acc": np.asarray(values) * factor,
+    }
+
+
+def _mme_paths(path: Path) -> tuple[Path, Path]:
+    """(test .mme file, Channel folder) for a test folder or its .mme file."""
+    if path.is_dir():
+        mmes = sorted(path.glob("*.mme")) + sorted(path.glob("*.MME"))
+        if len(mmes) != 1:
+            raise _err(f"expected exactly one <test>.mme file in the test folder, found {len(mmes)}", path)
+        mme = mmes[0]
+    elif path.is_file():
+        mme = path
+    else:
+        raise _err("no such ISO-MME test folder or .mme file", path)
+    folder = next((d for d in mme.parent.iterdir() if d.is_dir() and d.name.lower() == "channel"), None)
+    if folder is None:
+        raise _err("expected a 'Channel' folder next to the .mme file", mme)
+    return mme, folder
+
+
+def read_mme(path: str | Path, *, channels: str | Sequence[str] | None = None, sign: float = 1.0) -> Pulse:
+    """Read acceleration channels of an ISO-MME test.
+
+    Args:
+        path: the test folder or its ``<test>.mme`` file.
+        channels: channel(s) to read, each matched (case-insensitively) against the channel
+            code (e.g. ``10VEHC0000ACXP``), the ``Name of the channel`` or the file name
+            (``<test>.001``); default: every channel.
+        sign: ``+1`` or ``-1``, multiplies the acceleration (module docstring).
+
+    Returns:
+        A :class:`Pulse`; the selected channels must share one time base. Channel names are
+        the channel codes where given, else the channel names.
+
+    Raises:
+        PulseError: missing files, malformed headers or samples, a non-acceleration unit,
+            unknown channels, or channels with different time bases.
+    """
+    path = Path(path)
+    if sign not in (1, -1, 1.0, -1.0):
+        raise PulseError(f"sign: expected +1 or -1, got {sign!r}")
+    mme, folder = _mme_paths(path)
+    test = mme.stem
+    _read_lines(mme)  # the test description must at least be readable
+    files = sorted(p for p in folder.iterdir() if p.is_file() and re.fullmatch(r"\d{3}", p.suffix[1:] or ""))
+    files = [p for p in files if p.stem.lower() == test.lower()]
+    if not files:
+        raise _err(f"no channel files {test}.001, {test}.002, ... in the Channel folder", mme)
+    if channels is None:
+        chosen = files
+    else:
+        wanted = [channels] if isinstance(channels, str) else list(channels)
+        # headers only, to match names before parsing every sample
+        info = []
+        for p in files:
+            h, _ = _parse_header(p, _read_lines(p)[:200])
+            info.append(
+                (
+                    p,
+                    {
+                        h.get("channel code", ("", 0))[0].lower(),
+                        h.get("name of the channel", ("", 0))[0].lower(),
+                        p.name.lower(),
+                    },
+                )
+            )
+        chosen = []
+        for w in wanted:
+            hit = [p for p, names in info if w.lower() in names]
+            if not hit:
+                known = sorted({n for _, names in info for n in names if n and n != "novalue"})
+                raise _err(f"channel {w!r} not found; the test has {known}", mme)
+            chosen.append(hit[0])
+    chans = [_read_mme_channel(p) for p in chosen]
+    ref = chans[0]
+    for p, c in zip(chosen[1:], chans[1:], strict=True):
+        if (
+            c["n"] != ref["n"]
+            or abs(c["dt"] - ref["dt"]) > 1e-9 * ref["dt"]
+            or abs(c["t_first"] - ref["t_first"]) > 1e-12
+        ):
+            raise _err(
+                f"time base (first sample {c['t_first']} s, interval {c['dt']} s, {c['n']} samples) differs from "
+                f"{chosen[0].name} ({ref['t_first']} s, {ref['dt']} s, {ref['n']} samples); read them separately",
+                p,
+            )
+    time = ref["t_first"] + np.arange(ref["n"]) * ref["dt"]
+    acc = np.stack([c["acc"] for c in chans]) * float(sign)
+    names = tuple(c["code"] or c["name"] or p.name for c, p in zip(chans, chosen, strict=True))
+    # 'Channel frequency class' is not trusted as a record of filtering already applied (labs use it for
+    # the class a channel *should* be filtered with), so the pulse counts as unfiltered (cfc=None).
+    return Pulse(time=time, acc=acc, channels=names, source=str(mme))
+
+
+def write_mme(pulse: Pulse, folder: str | Path, test: str = "TEST", *, unit: str = "g") -> Path:
+    """Write a uniformly sampled pulse as an ISO-MME test folder that :func:`read_mme` reads.
+
+    Args:
+        pulse: the pulse (uniform sampling required).
+        folder: the test folder to create (its parent must exist).
+        test: the test name (file stem).
+        unit: acceleration unit of the channel files, ``g`` or ``m/s**2``.
+
+    Returns:
+        The path of ``<folder>/<test>.mme``.
+    """
+    if not pulse.is_uniform:
+        raise PulseError("ISO-MME needs uniform sampling; resample the pulse first")
+    factor = acc_unit_factor(unit)
+    folder = Path(folder)
+    chan_dir = folder / "Channel"
+    chan_dir.mkdir(parents=True, exist_ok=True)
+    mme = folder / f"{test}.mme"
+    mme.write_text(
+        "Data format edition number  :1.6\n"
+        f"Laboratory test ref. number :{test}\n"
+        "Title                       :written by marlcrash\n"
+        f"Number of channels          :{pulse.n_channels}\n",
+        encoding="latin-1",
+    )
+    lines = ["Instrumentation standard    :ISO 6487", f"Number of channels          :{pulse.n_channels}"]
+    for k, name in enumerate(pulse.channels, start=1):
+        lines.append(f"Name of channel {k:03d}         :{name}")
+    (chan_dir / f"{test}.chn").write_text("\n".join(lines) + "\n", encoding="latin-1")
+    for k, name in enumerate(pulse.channels, start=1):
+        head = [
+            f"Name of the channel         :{name}",
+            f"Channel code                :{name}",
+            f"Channel frequency class     :{pulse.cfc if pulse.cfc is not None else 'NOVALUE'}",
+            f"Unit                        :{unit}",
+            "Reference system            :SAE",
+            f"Time of first sample        :{float(pulse.time[0])!r}",
+            f"Sampling interval           :{float(pulse.dt)!r}",
+            f"Number of samples           :{pulse.n_samples}",
+        ]
+        body = "\n".join(f"{v!r}" for v in (pulse.acc[k - 1] / factor).tolist())
+        (chan_dir / f"{test}.{k:03d}").write_text("\n".join(head) + "\n" + body + "\n", encoding="latin-1")
+    return mme
+
+
+def read_pulse(path: str | Path, **kwargs: Any) -> Pulse:
+    """Read a CSV file (``.csv``/``.txt``) or an ISO-MME test (folder or ``.mme``) by its path.
+
+    ``kwargs`` go to :func:`read_csv` or :func:`read_mme`; ``acc_col`` is accepted for both
+    (for ISO-MME it selects channels).
+    """
+    path = Path(path)
+    if path.is_dir() or path.suffix.lower() == ".mme":
+        if "acc_col" in kwargs:
+            kwargs["channels"] = kwargs.pop("acc_col")
+        kwargs.pop("time_col", None)
+        unit = kwargs.pop("unit", None)
+        if unit not in (None, "g"):
+            raise PulseError(f"{path.name}: ISO-MME channels carry their own 'Unit'; do not pass unit={unit!r}")
+        kwargs.pop("time_unit", None)
+        return read_mme(path, **kwargs)
+    if path.suffix.lower() in (".csv", ".txt"):
+        return read_csv(path, **kwargs)
+    raise _err("expected a .csv/.txt file, a .mme file or an ISO-MME test folder", path)
+
+
+# ------------------------------------------------------------------------------------- summary, plot
+
+
+def pulse_summary(
+    path: str | Path,
+    *,
+    time_col: str | None = None,
+    acc_col: str | None = None,
+    unit: str = "g",
+    cfc: int | None = 60,
+    sign: float = 1.0,
+    time_zero: str = "threshold",
+    threshold_g: float = DEFAULT_THRESHOLD_G,
+) -> dict[str, Any]:
+    """Key figures of one acceleration channel of a pulse file (the ``marlcrash pulse`` command).
+
+    The channel is CFC-filtered at its recording rate (non-uniform records are first
+    resampled at their mean rate), time zero is found (:func:`~marlcrash.pulse.signal.find_time_zero`,
+    or the file's t = 0 with ``time_zero="file"``), and the filtered acceleration is
+    integrated from time zero.
+
+    Args:
+        path: CSV file, ``.mme`` file or ISO-MME test folder.
+        time_col: CSV time column (see :func:`read_csv`).
+        acc_col: the channel (CSV column or MME channel); default the first acceleration channel.
+        unit: CSV acceleration unit, ``g`` or ``m/s2``.
+        cfc: CFC class, or ``None`` for no filtering.
+        sign: ``+1`` or ``-1`` (see the module docstring).
+        time_zero: ``"threshold"`` or ``"file"``.
+        threshold_g: time-zero threshold [g].
+
+    Returns:
+        A JSON-ready dict: ``file``, ``channel``, ``n_samples``, ``sample_rate_hz``, ``duration_ms``,
+        ``cfc``, ``t0_ms`` (time zero on the file's clock), ``peak_g`` (largest magnitude of the
+        filtered acceleration), ``t_peak_ms`` (after time zero), ``delta_v_ms`` (magnitude of the
+        velocity change from time zero to the end of the record, m/s), ``delta_v_max_ms`` (largest
+        magnitude reached), ``delta_v_150ms_ms`` (at 150 ms after time zero; ``None`` if the record
+        is shorter) and ``delta_v_kmh`` (``delta_v_ms`` in km/h).
+    """
+    kwargs: dict[str, Any] = {"sign": sign}
+    p = Path(path)
+    if not (p.is_dir() or p.suffix.lower() == ".mme"):
+        kwargs.update(time_col=time_col, unit=unit)
+    if acc_col is not None:
+        kwargs["acc_col"] = acc_col
+    pulse = read_pulse(p, **kwargs).select(0)
+    n_raw, rate_raw = pulse.n_samples, pulse.sample_rate_hz
+    work = pulse if pulse.is_uniform else resample(pulse, pulse.sample_rate_hz)
+    if cfc is not None:
+        work = filter_pulse(work, cfc, DEFAULT_PAD_TIME)
+    if time_zero == "threshold":
+        t0 = find_time_zero(work, threshold_g)
+    elif time_zero == "file":
+        t0 = 0.0
+    else:
+        raise PulseError(f"time_zero must be 'threshold' or 'file', got {time_zero!r}")
+    if not work.time[0] <= t0 < work.time[-1]:
+        raise _err(f"time zero {t0} s lies outside the record [{work.time[0]}, {work.time[-1]}] s", p)
+    acc = work.acc[0]
+    v = work.velocity()[0]
+    v_rel = v - np.interp(t0, work.time, v)
+    after = work.time >= t0
+    i_peak = int(np.argmax(np.abs(acc)))
+    t150 = t0 + 0.150
+    dv150 = float(abs(np.interp(t150, work.time, v_rel))) if t150 <= work.time[-1] + 1e-12 else None
+    return {
+        "file": str(p),
+        "channel": pulse.channels[0],
+        "n_samples": n_raw,
+        "sample_rate_hz": float(rate_raw),
+        "duration_ms": float((pulse.time[-1] - pulse.time[0]) * 1e3),
+        "cfc": cfc,
+        "t0_ms": float(t0 * 1e3),
+        "peak_g": float(abs(acc[i_peak]) / G0),
+        "t_peak_ms": float((work.time[i_peak] - t0) * 1e3),
+        "delta_v_ms": float(abs(v_rel[-1])),
+        "delta_v_max_ms": float(np.max(np.abs(v_rel[after]))),
+        "delta_v_150ms_ms": dv150,
+        "delta_v_kmh": float(abs(v_rel[-1]) * 3.6),
+    }
+
+
+def plot_pulse(
+    pulse: Pulse,
+    path: str | Path,
+    *,
+    reference: Pulse | None = None,
+    title: str | None = None,
+) -> Path:
+    """Write a PNG with acceleration [g] and velocity change [km/h] of every channel.
+
+    Args:
+        pulse: the pulse to draw (all channels).
+        path: the PNG to write.
+        reference: an optional second pulse drawn dashed (e.g. the reference of a calibration).
+        title: figure title (default: the pulse's source file name).
+
+    Returns:
+        ``path``.
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    path = Path(path)
+    fig = Figure(figsize=(8, 6), dpi=100)
+    FigureCanvasAgg(fig)
+    ax_a, ax_v = fig.subplots(2, 1, sharex=True)
+    for p, style, tag in ((pulse, "-", ""), (reference, "--", " (ref)")):
+        if p is None:
+            continue
+        v = p.velocity()
+        for k, name in enumerate(p.channels):
+            label = f"{name}{tag}" + (f" CFC{p.cfc}" if p.cfc else "")
+            ax_a.plot(p.time * 1e3, p.acc[k] / G0, style, lw=1.2, label=label)
+            ax_v.plot(p.time * 1e3, v[k] * 3.6, style, lw=1.2, label=label)
+    ax_a.set_ylabel("acceleration [g]")
+    ax_v.set_ylabel("velocity change [km/h]")
+    ax_v.set_xlabel("time [ms]")
+    for ax in (ax_a, ax_v):
+        ax.grid(True, alpha=0.3)
+        ax.axhline(0.0, color="k", lw=0.5)
+    ax_a.legend(loc="best", fontsize=8)
+    fig.suptitle(title if title is not None else (Path(pulse.source).name if pulse.source else "pulse"))
+    fig.tight_layout()
+    tmp = path.with_name(path.name + ".tmp.png")
+    fig.savefig(tmp, format="png")
+    tmp.replace(path)
+    return path

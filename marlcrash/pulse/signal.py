@@ -1,0 +1,301 @@
+"""Crash pulses: the signal type, integration, resampling and time-zero alignment.
+
+Sign and unit convention (one for all of marlcrash):
+
+- Inside, a pulse is SI: time [s], acceleration [m/s^2], velocity [m/s].
+- *Velocity is the vehicle's forward speed* and acceleration its time
+  derivative. A vehicle running into a barrier slows down, so a frontal crash
+  pulse is **negative** and the velocity change over the crash is negative.
+  This is the SAE J211 / ISO 6487 vehicle frame (x forward), so test data in
+  that frame is read with ``sign=+1`` (the default); data recorded with
+  deceleration positive is read with ``sign=-1``.
+- The cell model's x axis points rearward (DESIGN 1.3), so a surrogate's
+  x-acceleration ``a_x`` of a sensor maps to a pulse as ``acc = -a_x``
+  (:func:`from_rearward_x`).
+
+The processing chain for a reference (DESIGN 1.4, 1.5) is: CFC-filter at the
+recording rate -> find time zero -> resample to the surrogate's 2 kHz output
+grid -> integrate to velocity (:func:`prepare_velocity`).
+
+Time zero (a documented choice): the first instant at which the magnitude of
+the CFC-filtered acceleration of any channel reaches ``threshold_g`` (default
+0.5 g), linearly interpolated between samples. Because the CFC filter is
+zero-phase (non-causal), its output rises a little before the raw signal does,
+so this instant is slightly earlier than a threshold crossing of raw data.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+import torch
+
+from marlcrash.errors import PulseError
+from marlcrash.pulse.cfc import DEFAULT_PAD_TIME, cfc_filter, check_cfc
+from marlcrash.units import G0
+
+SURROGATE_RATE_HZ = 2000.0
+"""Output rate of the surrogate's sensors (DESIGN 1.4): one step is 0.5 ms."""
+DEFAULT_THRESHOLD_G = 0.5
+"""Acceleration magnitude [g] whose first crossing defines time zero."""
+MIN_SAMPLES = 8
+"""Fewest samples a pulse may have."""
+UNIFORM_RTOL = 1e-3
+"""Largest relative deviation of a time step from the mean step for a 'uniform' record."""
+
+
+@dataclass(frozen=True)
+class Pulse:
+    """Acceleration histories of one crash, in marlcrash's convention (module docstring).
+
+    Attributes:
+        time: ``[T]`` strictly increasing sample times [s].
+        acc: ``[K, T]`` accelerations [m/s^2] of ``K`` channels (sensors), forward positive.
+        channels: ``K`` channel names.
+        source: the file the pulse came from ('' if built in memory).
+        cfc: the CFC class already applied, ``None`` for unfiltered data.
+    """
+
+    time: np.ndarray
+    acc: np.ndarray
+    channels: tuple[str, ...]
+    source: str = ""
+    cfc: int | None = None
+
+    def __post_init__(self):
+        where = f"{self.source}: " if self.source else ""
+        time = np.asarray(self.time, dtype=np.float64)
+        acc = np.asarray(self.acc, dtype=np.float64)
+        if acc.ndim == 1:
+            acc = acc[None, :]
+        if time.ndim != 1 or acc.ndim != 2 or acc.shape[1] != time.shape[0]:
+            raise PulseError(f"{where}expected time [T] and acc [K, T], got shapes {time.shape} and {acc.shape}")
+        if time.shape[0] < MIN_SAMPLES:
+            raise PulseError(f"{where}expected at least {MIN_SAMPLES} samples, got {time.shape[0]}")
+        if not (np.all(np.isfinite(time)) and np.all(np.isfinite(acc))):
+            raise PulseError(f"{where}time and acceleration must be finite; found NaN or inf")
+        steps = np.diff(time)
+        if np.any(steps <= 0):
+            i = int(np.argmax(steps <= 0))
+            raise PulseError(
+                f"{where}time must strictly increase; sample {i + 1} has t={time[i + 1]!r} after t={time[i]!r}"
+            )
+        channels = tuple(str(c) for c in self.channels)
+        if len(channels) != acc.shape[0]:
+            raise PulseError(f"{where}expected {acc.shape[0]} channel names, got {len(channels)}")
+        object.__setattr__(self, "time", time)
+        object.__setattr__(self, "acc", acc)
+        object.__setattr__(self, "channels", channels)
+
+    @property
+    def n_samples(self) -> int:
+        """Number of samples ``T``."""
+        return int(self.time.shape[0])
+
+    @property
+    def n_channels(self) -> int:
+        """Number of channels ``K``."""
+        return int(self.acc.shape[0])
+
+    @property
+    def dt(self) -> float:
+        """Mean sampling interval [s]."""
+        return float((self.time[-1] - self.time[0]) / (self.n_samples - 1))
+
+    @property
+    def sample_rate_hz(self) -> float:
+        """Mean sampling rate [Hz]."""
+        return 1.0 / self.dt
+
+    @property
+    def is_uniform(self) -> bool:
+        """Whether every time step is within :data:`UNIFORM_RTOL` of the mean step."""
+        return bool(np.max(np.abs(np.diff(self.time) - self.dt)) <= UNIFORM_RTOL * self.dt)
+
+    def select(self, channels: str | int | Sequence[str | int]) -> Pulse:
+        """The pulse restricted to some channels, by name or index (order kept as given)."""
+        items = [channels] if isinstance(channels, str | int) else list(channels)
+        idx = []
+        for c in items:
+            if isinstance(c, str):
+                if c not in self.channels:
+                    raise PulseError(f"channel {c!r} not found; the pulse has {list(self.channels)}")
+                idx.append(self.channels.index(c))
+            else:
+                if not -self.n_channels <= c < self.n_channels:
+                    raise PulseError(f"channel index {c} out of range for {self.n_channels} channels")
+                idx.append(c % self.n_channels)
+        return replace(self, acc=self.acc[idx], channels=tuple(self.channels[i] for i in idx))
+
+    def velocity(self, v0: float = 0.0) -> np.ndarray:
+        """``[K, T]`` forward velocity [m/s]: ``v0`` plus the trapezoid integral of ``acc``."""
+        return integrate(self.time, self.acc, v0=v0)
+
+
+def from_rearward_x(acc_x: np.ndarray | torch.Tensor) -> np.ndarray | torch.Tensor:
+    """Convert an acceleration along the cell model's rearward x axis to marlcrash's pulse sign."""
+    return -acc_x
+
+
+def integrate(time: np.ndarray, acc: np.ndarray, v0: float | np.ndarray = 0.0) -> np.ndarray:
+    """Cumulative trapezoid integral along the last axis.
+
+    Args:
+        time: ``[T]`` sample times [s].
+        acc: ``[..., T]`` accelerations [m/s^2].
+        v0: velocity at ``time[0]`` [m/s], scalar or ``[...]``.
+
+    Returns:
+        ``[..., T]`` velocity [m/s].
+    """
+    acc = np.asarray(acc, dtype=np.float64)
+    h = np.diff(np.asarray(time, dtype=np.float64))
+    inc = 0.5 * (acc[..., 1:] + acc[..., :-1]) * h
+    out = np.concatenate([np.zeros((*acc.shape[:-1], 1)), np.cumsum(inc, axis=-1)], axis=-1)
+    return out + np.asarray(v0, dtype=np.float64)[..., None]
+
+
+def integrate_torch(acc: torch.Tensor, dt: float, v0: float | torch.Tensor = 0.0) -> torch.Tensor:
+    """Batched cumulative trapezoid integral of ``[..., T]`` uniformly sampled accelerations.
+
+    Args:
+        acc: ``[..., T]`` accelerations [m/s^2] (e.g. ``[B, n_sensors, T]``).
+        dt: sampling interval [s].
+        v0: initial velocity [m/s], scalar or ``[...]``.
+
+    Returns:
+        ``[..., T]`` velocity [m/s], ``v[..., 0] == v0``; differentiable.
+    """
+    inc = 0.5 * (acc[..., 1:] + acc[..., :-1]) * dt
+    zero = torch.zeros_like(acc[..., :1])
+    v0 = torch.as_tensor(v0, dtype=acc.dtype, device=acc.device)
+    return torch.cat([zero, torch.cumsum(inc, dim=-1)], dim=-1) + v0.unsqueeze(-1)
+
+
+def filter_pulse(pulse: Pulse, cfc: int = 60, pad_time: float = DEFAULT_PAD_TIME) -> Pulse:
+    """CFC-filter every channel of a uniformly sampled pulse (see :mod:`marlcrash.pulse.cfc`).
+
+    Raises:
+        PulseError: the pulse is not uniformly sampled (resample it first) or already filtered
+            with a lower (stricter) class.
+    """
+    cfc = check_cfc(cfc)
+    if not pulse.is_uniform:
+        raise PulseError(
+            f"{pulse.source or 'pulse'}: CFC filtering needs uniform sampling; resample first "
+            f"(marlcrash.pulse.resample)"
+        )
+    if pulse.cfc is not None and pulse.cfc < cfc:
+        raise PulseError(f"{pulse.source or 'pulse'}: already filtered with CFC {pulse.cfc}, cannot apply CFC {cfc}")
+    acc = cfc_filter(pulse.acc, pulse.dt, cfc, axis=-1, pad_time=pad_time)
+    return replace(pulse, acc=acc, cfc=cfc)
+
+
+def resample(
+    pulse: Pulse, rate_hz: float = SURROGATE_RATE_HZ, t_start: float | None = None, t_end: float | None = None
+) -> Pulse:
+    """Linearly interpolate a pulse onto the uniform grid ``t_start + i / rate_hz``.
+
+    Filter before downsampling: linear interpolation does not remove content above
+    the new Nyquist frequency (CFC 60 leaves nothing above ~300 Hz, far below 1 kHz).
+
+    Args:
+        pulse: the pulse.
+        rate_hz: new sampling rate [Hz].
+        t_start: first sample time [s] (default: the pulse's first time).
+        t_end: last time [s] to cover, inclusive within 1e-9 s (default: the pulse's last time).
+
+    Raises:
+        PulseError: a bad rate or a window outside the record.
+    """
+    if not (np.isfinite(rate_hz) and rate_hz > 0):
+        raise PulseError(f"resampling rate must be a positive number of Hz, got {rate_hz!r}")
+    t0 = pulse.time[0] if t_start is None else float(t_start)
+    t1 = pulse.time[-1] if t_end is None else float(t_end)
+    eps = 1e-9
+    if t0 < pulse.time[0] - eps or t1 > pulse.time[-1] + eps or t1 <= t0:
+        raise PulseError(
+            f"{pulse.source or 'pulse'}: resampling window [{t0:.6g}, {t1:.6g}] s must lie inside the record "
+            f"[{pulse.time[0]:.6g}, {pulse.time[-1]:.6g}] s"
+        )
+    n = int(np.floor((t1 - t0) * rate_hz + 1e-6)) + 1
+    grid = t0 + np.arange(n) / rate_hz
+    acc = np.stack([np.interp(grid, pulse.time, a) for a in pulse.acc])
+    return replace(pulse, time=grid, acc=acc)
+
+
+def find_time_zero(pulse: Pulse, threshold_g: float = DEFAULT_THRESHOLD_G) -> float:
+    """Time zero [s]: first crossing of ``|acc| = threshold_g`` by any channel (interpolated).
+
+    Pass a filtered pulse (:func:`filter_pulse`); noise on raw data would trigger early.
+
+    Raises:
+        PulseError: no channel reaches the threshold, or it is already exceeded at the first sample.
+    """
+    if not threshold_g > 0:
+        raise PulseError(f"time-zero threshold must be > 0 g, got {threshold_g!r}")
+    level = threshold_g * G0
+    mag = np.abs(pulse.acc)
+    above = mag >= level
+    if not above.any():
+        raise PulseError(
+            f"{pulse.source or 'pulse'}: no channel reaches the time-zero threshold {threshold_g} g "
+            f"(peak {mag.max() / G0:.3g} g)"
+        )
+    first = np.where(above.any(axis=1), above.argmax(axis=1), pulse.n_samples)
+    k = int(first.argmin())
+    i = int(first[k])
+    if i == 0:
+        raise PulseError(
+            f"{pulse.source or 'pulse'}: channel {pulse.channels[k]!r} already exceeds {threshold_g} g at the first "
+            f"sample; the record needs pre-impact data to find time zero"
+        )
+    m0, m1 = mag[k, i - 1], mag[k, i]
+    return float(pulse.time[i - 1] + (level - m0) / (m1 - m0) * (pulse.time[i] - pulse.time[i - 1]))
+
+
+def shift_time(pulse: Pulse, t0: float) -> Pulse:
+    """The pulse with its clock shifted so that ``t0`` becomes time 0."""
+    return replace(pulse, time=pulse.time - float(t0))
+
+
+def prepare_velocity(
+    pulse: Pulse,
+    *,
+    cfc: int | None = 60,
+    rate_hz: float = SURROGATE_RATE_HZ,
+    duration: float | None = None,
+    time_zero: str = "threshold",
+    threshold_g: float = DEFAULT_THRESHOLD_G,
+    v0: float = 0.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Turn a raw reference pulse into the velocity signal the metrics compare (DESIGN 1.5).
+
+    Args:
+        pulse: the raw (or already filtered) pulse.
+        cfc: CFC class to apply at the recording rate; ``None`` to skip (data already filtered).
+        rate_hz: output rate [Hz] (the surrogate's 2 kHz by default).
+        duration: length [s] of the window after time zero (default: to the end of the record).
+        time_zero: ``"threshold"`` (see :func:`find_time_zero`) or ``"file"`` (the file's t = 0).
+        threshold_g: time-zero threshold [g].
+        v0: forward speed [m/s] at time zero (0 gives the velocity change).
+
+    Returns:
+        ``time [T]`` from 0 at ``rate_hz`` and ``velocity [K, T]`` [m/s], ``velocity[:, 0] == v0``.
+    """
+    p = pulse
+    if not p.is_uniform:
+        p = resample(p, p.sample_rate_hz)
+    if cfc is not None:
+        p = filter_pulse(p, cfc)
+    if time_zero == "threshold":
+        t0 = find_time_zero(p, threshold_g)
+    elif time_zero == "file":
+        t0 = 0.0
+    else:
+        raise PulseError(f"time_zero must be 'threshold' or 'file', got {time_zero!r}")
+    t_end = p.time[-1] if duration is None else t0 + float(duration)
+    q = shift_time(resample(p, rate_hz, t0, t_end), t0)
+    return q.time, q.velocity(v0)

@@ -1,0 +1,344 @@
+"""Rewards and termination from the similarity metrics (DESIGN 1.5, paper Eq. 12, Table 3).
+
+A reward *form* maps the metrics of the current iteration ``t`` and of the
+previous one ``t-1`` to one team reward per batch element:
+
+- ``paper_factor`` (the paper's default): ``F = a/A + b/DFD + c/RMSE`` and
+  ``r = F(t) - F(t-1)``, the improvement of the factor. ``F`` explodes near a
+  perfect fit; ``min_metric`` floors each metric so it stays finite.
+- ``log_ratio`` (well scaled): ``S = wA*A/A0 + wD*DFD/D0 + wR*RMSE/R0`` and
+  ``r = log(S(t-1) / S(t))``; halving the weighted error earns ``log 2``
+  whatever its size.
+- ``neg_weighted_sum``: ``r = -S(t)``, a dense state reward (no difference).
+
+Metrics arrive per sensor, ``[*batch, n_sensors]``; they are combined over the
+sensors (``mean`` or ``max``) before the form is applied. Each form has a YAML
+file ``configs/reward/<name>.yaml`` (:func:`load_reward_config`) whose
+``params`` fill the form's parameter dataclass.
+
+Termination (:func:`termination`): success when every metric of every sensor
+is below its success threshold; failure when any metric of any sensor is above
+its failure limit (a hopeless state); truncation after ``max_iterations``.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, ClassVar, Literal, NamedTuple
+
+import torch
+
+from marlcrash.config import config_dir, from_dict, load_config, require
+from marlcrash.errors import ConfigError
+from marlcrash.metrics import Metrics, MetricsConfig, compute_metrics
+
+
+def paper_factor(
+    area: torch.Tensor | float,
+    dfd: torch.Tensor | float,
+    rmse: torch.Tensor | float,
+    a: float = 1.0,
+    b: float = 1.0,
+    c: float = 1.0,
+) -> torch.Tensor:
+    """The paper's reward factor ``a/A + b/DFD + c/RMSE`` (Table 3 uses ``a = b = c = 1``), elementwise."""
+    area, dfd, rmse = (
+        torch.as_tensor(x, dtype=torch.float64) if not torch.is_tensor(x) else x for x in (area, dfd, rmse)
+    )
+    return a / area + b / dfd + c / rmse
+
+
+def reduce_sensors(metrics: Metrics, how: str) -> Metrics:
+    """Combine ``[*batch, n_sensors]`` metrics over the last dimension: ``mean`` or ``max``."""
+    if how == "mean":
+        return Metrics(*(m.mean(-1) for m in metrics))
+    if how == "max":
+        return Metrics(*(m.amax(-1) for m in metrics))
+    raise ConfigError(f"expected 'mean' or 'max', got {how!r}", key="sensor_reduction")
+
+
+# ------------------------------------------------------------------------------------- reward forms
+
+
+@dataclass
+class PaperFactorParams:
+    """Parameters of ``paper_factor`` (weights of the reciprocal metrics, and their floor)."""
+
+    a: float = 1.0
+    b: float = 1.0
+    c: float = 1.0
+    min_metric: float = 1e-6
+
+    def validate(self) -> None:
+        """Weights must be >= 0 and not all 0; the floor > 0."""
+        for k in ("a", "b", "c"):
+            require(getattr(self, k) >= 0, f"params.{k}", f"must be >= 0, got {getattr(self, k)}")
+        require(self.a + self.b + self.c > 0, "params", "at least one of a, b, c must be > 0")
+        require(self.min_metric > 0, "params.min_metric", f"must be > 0, got {self.min_metric}")
+
+
+@dataclass
+class WeightedSumParams:
+    """Parameters of ``log_ratio`` and ``neg_weighted_sum``: ``S = sum_k w_k * metric_k / scale_k``."""
+
+    w_area: float = 1.0
+    w_dfd: float = 1.0
+    w_rmse: float = 1.0
+    area_scale: float = 0.01
+    dfd_scale: float = 0.1
+    rmse_scale: float = 0.1
+    eps: float = 1e-9
+
+    def validate(self) -> None:
+        """Weights >= 0 and not all 0; scales > 0; eps >= 0."""
+        for k in ("w_area", "w_dfd", "w_rmse"):
+            require(getattr(self, k) >= 0, f"params.{k}", f"must be >= 0, got {getattr(self, k)}")
+        require(self.w_area + self.w_dfd + self.w_rmse > 0, "params", "at least one weight must be > 0")
+        for k in ("area_scale", "dfd_scale", "rmse_scale"):
+            require(getattr(self, k) > 0, f"params.{k}", f"must be > 0, got {getattr(self, k)}")
+        require(self.eps >= 0, "params.eps", f"must be >= 0, got {self.eps}")
+
+    def weighted_sum(self, m: Metrics) -> torch.Tensor:
+        """``S = wA*A/A0 + wD*DFD/D0 + wR*RMSE/R0``, elementwise."""
+        return (
+            self.w_area * m.area / self.area_scale
+            + self.w_dfd * m.dfd / self.dfd_scale
+            + self.w_rmse * m.rmse / self.rmse_scale
+        )
+
+
+class RewardForm(ABC):
+    """A reward form: ``score`` of one iteration's metrics, and the reward from two iterations.
+
+    Subclasses set ``name``, ``params_cls`` and implement :meth:`score` and :meth:`reward`.
+    Metrics passed here are already combined over sensors (``[*batch]``).
+    """
+
+    name: ClassVar[str]
+    params_cls: ClassVar[type]
+
+    def __init__(self, params: Any):
+        self.params = params
+
+    @abstractmethod
+    def score(self, m: Metrics) -> torch.Tensor:
+        """A quality of one iteration's fit, higher is better, ``[*batch]``."""
+
+    @abstractmethod
+    def reward(self, m: Metrics, prev: Metrics | None) -> torch.Tensor:
+        """Reward ``[*batch]`` for reaching ``m`` from ``prev`` (``None`` at the first step: zero)."""
+
+
+class PaperFactor(RewardForm):
+    """``r = F(t) - F(t-1)`` with ``F = a/A + b/DFD + c/RMSE`` (metrics floored at ``min_metric``)."""
+
+    name = "paper_factor"
+    params_cls = PaperFactorParams
+
+    def score(self, m: Metrics) -> torch.Tensor:
+        """The factor ``F``."""
+        f = self.params
+        lo = f.min_metric
+        return paper_factor(m.area.clamp_min(lo), m.dfd.clamp_min(lo), m.rmse.clamp_min(lo), f.a, f.b, f.c)
+
+    def reward(self, m: Metrics, prev: Metrics | None) -> torch.Tensor:
+        """``F(t) - F(t-1)``; zero without a previous iteration."""
+        s = self.score(m)
+        return torch.zeros_like(s) if prev is None else s - self.score(prev)
+
+
+class LogRatio(RewardForm):
+    """``r = log(S(t-1) / S(t))`` of the weighted, normalised metric sum ``S``."""
+
+    name = "log_ratio"
+    params_cls = WeightedSumParams
+
+    def score(self, m: Metrics) -> torch.Tensor:
+        """``-log(S + eps)``."""
+        return -torch.log(self.params.weighted_sum(m) + self.params.eps)
+
+    def reward(self, m: Metrics, prev: Metrics | None) -> torch.Tensor:
+        """``log((S(t-1) + eps) / (S(t) + eps))``; zero without a previous iteration."""
+        s = self.score(m)
+        return torch.zeros_like(s) if prev is None else s - self.score(prev)
+
+
+class NegWeightedSum(RewardForm):
+    """``r = -S(t)``: a dense reward on the state, not on the improvement."""
+
+    name = "neg_weighted_sum"
+    params_cls = WeightedSumParams
+
+    def score(self, m: Metrics) -> torch.Tensor:
+        """``-S``."""
+        return -self.params.weighted_sum(m)
+
+    def reward(self, m: Metrics, prev: Metrics | None) -> torch.Tensor:
+        """``-S(t)`` (``prev`` is not used)."""
+        return self.score(m)
+
+
+REWARD_FORMS: dict[str, type[RewardForm]] = {c.name: c for c in (PaperFactor, LogRatio, NegWeightedSum)}
+"""Reward forms by name; each has ``configs/reward/<name>.yaml``."""
+
+
+def _form_class(name: str) -> type[RewardForm]:
+    if name not in REWARD_FORMS:
+        raise ConfigError(f"unknown reward form {name!r}; known forms: {sorted(REWARD_FORMS)}", key="name")
+    return REWARD_FORMS[name]
+
+
+def get_reward(name: str, **params: Any) -> RewardForm:
+    """A reward form by name, with parameters (checked like config keys; defaults otherwise).
+
+    Raises:
+        ConfigError: unknown name (the message lists the known ones) or bad parameter.
+    """
+    cls = _form_class(name)
+    return cls(from_dict(cls.params_cls, params, prefix="params"))
+
+
+# ------------------------------------------------------------------------------------------- configs
+
+
+@dataclass
+class TerminationConfig:
+    """Episode ends (DESIGN 1.5); a ``None`` threshold or limit is not checked.
+
+    Attributes:
+        success_area, success_dfd, success_rmse: success when every sensor is below all of these [SI].
+        failure_area, failure_dfd, failure_rmse: failure when any sensor exceeds any of these [SI].
+        max_iterations: truncation after this many iterations.
+    """
+
+    success_area: float | None = None
+    success_dfd: float | None = None
+    success_rmse: float | None = None
+    failure_area: float | None = None
+    failure_dfd: float | None = None
+    failure_rmse: float | None = None
+    max_iterations: int = 50
+
+    def validate(self) -> None:
+        """Thresholds > 0, each success threshold below its failure limit, max_iterations >= 1."""
+        for metric in ("area", "dfd", "rmse"):
+            lo, hi = getattr(self, f"success_{metric}"), getattr(self, f"failure_{metric}")
+            for k, v in ((f"success_{metric}", lo), (f"failure_{metric}", hi)):
+                require(v is None or v > 0, f"termination.{k}", f"must be > 0 or null, got {v}")
+            require(
+                lo is None or hi is None or lo < hi,
+                f"termination.success_{metric}",
+                f"must be below failure_{metric}, got {lo} >= {hi}",
+            )
+        require(self.max_iterations >= 1, "termination.max_iterations", f"must be >= 1, got {self.max_iterations}")
+
+
+@dataclass
+class RewardConfig:
+    """One reward setup: the form and its parameters, how metrics are measured, termination.
+
+    Attributes:
+        name: a key of :data:`REWARD_FORMS`.
+        sensor_reduction: ``mean`` or ``max`` over sensors before the form.
+        params: the form's parameters (keys of its parameter dataclass).
+        metrics: how A, DFD and RMSE are computed.
+        termination: success/failure thresholds and the iteration limit.
+    """
+
+    name: str = "paper_factor"
+    sensor_reduction: Literal["mean", "max"] = "mean"
+    params: dict[str, float] = field(default_factory=dict)
+    metrics: MetricsConfig = field(default_factory=MetricsConfig)
+    termination: TerminationConfig = field(default_factory=TerminationConfig)
+
+    def validate(self) -> None:
+        """Check the name is registered and the params fit the form."""
+        cls = _form_class(self.name)
+        from_dict(cls.params_cls, self.params, prefix="params")
+
+
+def reward_config_path(name: str) -> Path:
+    """``configs/reward/<name>.yaml``."""
+    return config_dir() / "reward" / f"{name}.yaml"
+
+
+def load_reward_config(name_or_path: str | Path, overrides: dict[str, Any] | None = None) -> RewardConfig:
+    """Load a :class:`RewardConfig` by form name (``configs/reward/<name>.yaml``) or from a file."""
+    path = Path(name_or_path)
+    if path.suffix not in (".yaml", ".yml"):
+        _form_class(str(name_or_path))
+        path = reward_config_path(str(name_or_path))
+    return load_config(RewardConfig, path, overrides)
+
+
+class Termination(NamedTuple):
+    """Episode-end flags, each ``[*batch]`` bool."""
+
+    success: torch.Tensor
+    failure: torch.Tensor
+    truncated: torch.Tensor
+
+
+def termination(metrics: Metrics, cfg: TerminationConfig, iteration: int | torch.Tensor) -> Termination:
+    """Success, failure and truncation flags from per-sensor metrics ``[*batch, n_sensors]``.
+
+    Args:
+        metrics: per-sensor metrics.
+        cfg: thresholds and limits.
+        iteration: iterations done so far (scalar or ``[*batch]``).
+
+    Returns:
+        :class:`Termination`; ``success`` wins over ``failure`` (they cannot both hold when
+        every success threshold is below its failure limit).
+    """
+    ref = metrics.area
+    success = torch.ones(ref.shape[:-1], dtype=torch.bool, device=ref.device)
+    failure = torch.zeros_like(success)
+    checked = False
+    for metric, value in zip(("area", "dfd", "rmse"), metrics, strict=True):
+        lo, hi = getattr(cfg, f"success_{metric}"), getattr(cfg, f"failure_{metric}")
+        if lo is not None:
+            success = success & (value < lo).all(-1)
+            checked = True
+        if hi is not None:
+            failure = failure | (value > hi).any(-1)
+    if not checked:
+        success = torch.zeros_like(success)
+    it = torch.as_tensor(iteration, device=ref.device)
+    truncated = (it >= cfg.max_iterations).expand(success.shape).clone()
+    return Termination(success=success, failure=failure & ~success, truncated=truncated)
+
+
+class Reward:
+    """A reward config made callable: metrics, reward and termination in one object.
+
+    Example::
+
+        rw = Reward(load_reward_config("log_ratio"))
+        m = rw.metrics(v_est, v_ref, dt=5e-4)          # [B, n_sensors] each
+        r = rw(m, m_prev)                               # [B]
+        done = rw.termination(m, iteration)
+    """
+
+    def __init__(self, cfg: RewardConfig):
+        self.cfg = cfg
+        self.form = get_reward(cfg.name, **cfg.params)
+
+    def metrics(self, q: torch.Tensor, p: torch.Tensor, time: torch.Tensor | None = None, *, dt=None) -> Metrics:
+        """Per-sensor metrics of estimate ``q [..., K, T]`` against reference ``p`` (see ``compute_metrics``)."""
+        return compute_metrics(q, p, time, dt=dt, config=self.cfg.metrics)
+
+    def score(self, metrics: Metrics) -> torch.Tensor:
+        """The form's score ``[*batch]`` of per-sensor metrics."""
+        return self.form.score(reduce_sensors(metrics, self.cfg.sensor_reduction))
+
+    def __call__(self, metrics: Metrics, prev: Metrics | None) -> torch.Tensor:
+        """Team reward ``[*batch]`` for per-sensor metrics ``metrics`` after ``prev``."""
+        how = self.cfg.sensor_reduction
+        return self.form.reward(reduce_sensors(metrics, how), None if prev is None else reduce_sensors(prev, how))
+
+    def termination(self, metrics: Metrics, iteration: int | torch.Tensor) -> Termination:
+        """Episode-end flags (see :func:`termination`)."""
+        return termination(metrics, self.cfg.termination, iteration)

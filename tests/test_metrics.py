@@ -1,0 +1,192 @@
+"""Metrics against plain, independent references (python loops / numpy), batched torch, gradients."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import similaritymeasures
+import torch
+
+from marlcrash.errors import PulseError
+from marlcrash.metrics import (
+    MetricsConfig,
+    area_between,
+    compute_metrics,
+    curve_points,
+    discrete_frechet,
+    discrete_frechet_points,
+    discrete_frechet_ragged,
+    rmse,
+)
+
+N_PAIRS = 100
+
+
+def ref_frechet(P: np.ndarray, Q: np.ndarray) -> float:
+    """Eiter and Mannila's discrete Frechet distance, the classic table filled with python loops."""
+    n, m = len(P), len(Q)
+    ca = np.full((n, m), -1.0)
+    for i in range(n):
+        for j in range(m):
+            d = math.dist(P[i], Q[j])
+            if i == 0 and j == 0:
+                ca[i, j] = d
+            elif i == 0:
+                ca[i, j] = max(ca[i, j - 1], d)
+            elif j == 0:
+                ca[i, j] = max(ca[i - 1, j], d)
+            else:
+                ca[i, j] = max(min(ca[i - 1, j], ca[i - 1, j - 1], ca[i, j - 1]), d)
+    return float(ca[n - 1, m - 1])
+
+
+def ref_area_exact(t: np.ndarray, q: np.ndarray, p: np.ndarray) -> float:
+    """Integral of |q - p| for piecewise-linear curves, splitting sign-changing intervals at the root."""
+    total = 0.0
+    for k in range(len(t) - 1):
+        h = t[k + 1] - t[k]
+        d0, d1 = q[k] - p[k], q[k + 1] - p[k + 1]
+        if d0 * d1 >= 0:
+            total += h * (abs(d0) + abs(d1)) / 2
+        else:
+            tc = h * d0 / (d0 - d1)  # root of the linear difference
+            total += abs(d0) * tc / 2 + abs(d1) * (h - tc) / 2
+    return total
+
+
+def random_curve(rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Velocity-like curve: times over ~0.1 s, values of a few m/s."""
+    t = np.cumsum(rng.uniform(1e-4, 2e-3, size=n))
+    v = 10 * np.cos(np.linspace(0, 2, n)) + rng.normal(scale=0.5, size=n)
+    return t, v
+
+
+def test_frechet_equals_eiter_mannila_on_100_random_pairs_of_different_lengths():
+    rng = np.random.default_rng(0)
+    qs, ps, refs = [], [], []
+    for _ in range(N_PAIRS):
+        n, m = rng.integers(1, 60, size=2)
+        tq, vq = random_curve(rng, n)
+        tp, vp = random_curve(rng, m)
+        ref = ref_frechet(np.c_[tq, vq], np.c_[tp, vp])
+        got = discrete_frechet(torch.tensor(vq), torch.tensor(vp), torch.tensor(tq), torch.tensor(tp))
+        assert got.dtype == torch.float64
+        assert abs(got.item() - ref) <= 1e-9 * max(1.0, ref)
+        # a second reference where conventions match (Euclidean points, same recursion)
+        assert abs(similaritymeasures.frechet_dist(np.c_[tq, vq], np.c_[tp, vp]) - ref) <= 1e-9 * max(1.0, ref)
+        qs.append(torch.tensor(np.c_[tq, vq]))
+        ps.append(torch.tensor(np.c_[tp, vp]))
+        refs.append(ref)
+    # all 100 ragged pairs in one batch
+    np.testing.assert_allclose(discrete_frechet_ragged(qs, ps).numpy(), refs, rtol=1e-12, atol=1e-12)
+
+
+def test_frechet_batched_over_sensors_with_scaling():
+    rng = np.random.default_rng(1)
+    B, K, n, m = 3, 2, 25, 40
+    q = torch.tensor(rng.normal(size=(B, K, n)))
+    p = torch.tensor(rng.normal(size=(K, m)))  # reference broadcast over the batch
+    tq, tp = torch.linspace(0, 0.1, n, dtype=torch.float64), torch.linspace(0, 0.1, m, dtype=torch.float64)
+    got = discrete_frechet(q, p, tq, tp, time_scale=1000.0, value_scale=2.0)
+    assert got.shape == (B, K)
+    for b in range(B):
+        for k in range(K):
+            ref = ref_frechet(np.c_[tq * 1000, 2 * q[b, k]], np.c_[tp * 1000, 2 * p[k]])
+            assert got[b, k].item() == pytest.approx(ref, abs=1e-12)
+
+
+def test_frechet_properties():
+    t = torch.linspace(0, 0.15, 301, dtype=torch.float64)
+    v = 11.1 * torch.cos(t * 20)
+    assert discrete_frechet(v, v, t).item() == 0.0
+    w = v + 0.3
+    assert discrete_frechet(v, w, t).item() == pytest.approx(0.3, abs=1e-12)  # a constant offset is the leash
+    a, b = torch.randn(50, dtype=torch.float64), torch.randn(70, dtype=torch.float64)
+    ta, tb = torch.linspace(0, 1, 50, dtype=torch.float64), torch.linspace(0, 1, 70, dtype=torch.float64)
+    assert discrete_frechet(a, b, ta, tb).item() == pytest.approx(discrete_frechet(b, a, tb, ta).item(), abs=1e-15)
+    pts = curve_points(a, ta)
+    assert pts.shape == (50, 2)
+    # duplicating points leaves the distance unchanged (the basis of the ragged padding)
+    dup = torch.cat([pts[:10], pts[9:10], pts[10:]])
+    pb = curve_points(b, tb)
+    assert discrete_frechet_points(dup, pb).item() == discrete_frechet_points(pts, pb).item()
+
+
+def test_area_equals_reference_on_100_random_pairs_of_different_lengths():
+    rng = np.random.default_rng(2)
+    for _ in range(N_PAIRS):
+        n = int(rng.integers(2, 120))
+        t, q = random_curve(rng, n)
+        p = q + rng.normal(scale=0.3, size=n)  # crossings are frequent
+        tt, qt, pt = (torch.tensor(x) for x in (t, q, p))
+        exact = area_between(qt, pt, tt).item()
+        assert abs(exact - ref_area_exact(t, q, p)) <= 1e-9 * max(1.0, exact)
+        trap = area_between(qt, pt, tt, method="trapezoid").item()
+        assert abs(trap - np.trapezoid(np.abs(q - p), t)) <= 1e-9 * max(1.0, trap)
+        assert exact <= trap + 1e-15  # the trapezoid rule over-estimates crossing intervals
+        assert rmse(qt, pt).item() == pytest.approx(np.sqrt(np.mean((q - p) ** 2)), abs=1e-12)
+
+
+def test_area_uniform_dt_and_batch():
+    rng = np.random.default_rng(3)
+    q, p = rng.normal(size=(4, 3, 50)), rng.normal(size=(4, 3, 50))
+    dt = 5e-4
+    got = area_between(torch.tensor(q), torch.tensor(p), dt=dt)
+    t = np.arange(50) * dt
+    ref = np.array([[ref_area_exact(t, q[b, k], p[b, k]) for k in range(3)] for b in range(4)])
+    np.testing.assert_allclose(got.numpy(), ref, rtol=1e-12)
+
+
+def test_compute_metrics_shapes_and_config():
+    rng = np.random.default_rng(4)
+    q = torch.tensor(rng.normal(size=(5, 3, 30)))
+    p = torch.tensor(rng.normal(size=(3, 30)))
+    m = compute_metrics(q, p, dt=5e-4)
+    assert all(x.shape == (5, 3) and x.dtype == torch.float64 for x in m)
+    m2 = compute_metrics(q, p, dt=5e-4, config=MetricsConfig("trapezoid", 1000.0, 1.0))
+    assert (m2.area >= m.area).all() and (m2.dfd >= m.dfd).all()
+    t = torch.arange(30, dtype=torch.float64) * 5e-4
+    m3 = compute_metrics(q, p, t)
+    for a, b in zip(m, m3, strict=True):
+        torch.testing.assert_close(a, b, rtol=1e-12, atol=1e-14)
+
+
+def test_gradients_area_rmse_and_frechet():
+    rng = np.random.default_rng(5)
+    p = torch.tensor(rng.normal(size=(2, 12)))
+    t = torch.tensor(np.cumsum(rng.uniform(0.01, 0.02, size=12)))
+    q = torch.tensor(rng.normal(size=(2, 12)), requires_grad=True)
+    assert torch.autograd.gradcheck(lambda x: area_between(x, p, t), (q,))
+    assert torch.autograd.gradcheck(lambda x: rmse(x, p), (q,))
+    assert torch.autograd.gradcheck(lambda x: discrete_frechet(x, p, t), (q,))
+    # at a perfect fit the gradients are finite (zero), not NaN
+    z = p.clone().requires_grad_(True)
+    (area_between(z, p, t) + rmse(z, p) + discrete_frechet(z, p, t)).sum().backward()
+    assert torch.isfinite(z.grad).all()
+
+
+def test_frechet_gradient_matches_autograd_through_the_dynamic_program():
+    """The bottleneck-pair gradient equals autograd through a differentiable max/min recursion."""
+    rng = np.random.default_rng(6)
+    q = torch.tensor(rng.normal(size=(9, 2)), requires_grad=True)
+    p = torch.tensor(rng.normal(size=(7, 2)))
+    d = torch.cdist(q, p, compute_mode="donot_use_mm_for_euclid_dist")
+    ca = [[None] * 7 for _ in range(9)]
+    for i in range(9):
+        for j in range(7):
+            prev = [ca[a][b] for a, b in ((i - 1, j), (i - 1, j - 1), (i, j - 1)) if a >= 0 and b >= 0]
+            ca[i][j] = d[i, j] if not prev else torch.maximum(d[i, j], torch.stack(prev).min())
+    (g_ref,) = torch.autograd.grad(ca[8][6], q)
+    (g,) = torch.autograd.grad(discrete_frechet_points(q, p), q)
+    torch.testing.assert_close(g, g_ref)
+
+
+def test_metric_input_errors():
+    with pytest.raises(PulseError, match="common time samples"):
+        rmse(torch.zeros(3, 10), torch.zeros(3, 11))
+    with pytest.raises(PulseError, match="exactly one of time"):
+        area_between(torch.zeros(10), torch.zeros(10))
+    with pytest.raises(PulseError, match="points"):
+        discrete_frechet_points(torch.zeros(10), torch.zeros(10))

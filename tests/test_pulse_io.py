@@ -1,0 +1,244 @@
+"""Pulse IO: CSV and ISO-MME round trips, delta-v of analytic pulses, summary, plot, bad input."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from marlcrash.errors import PulseError
+from marlcrash.pulse import (
+    Pulse,
+    filter_pulse,
+    find_time_zero,
+    from_rearward_x,
+    integrate,
+    plot_pulse,
+    prepare_velocity,
+    pulse_summary,
+    read_csv,
+    read_mme,
+    read_pulse,
+    resample,
+    write_csv,
+    write_mme,
+)
+from marlcrash.units import G0
+
+DATA = Path(__file__).parent / "data"
+DV = 40 / 3.6  # [m/s] velocity change of the analytic pulses
+
+
+def half_sine(t: np.ndarray, tau: float, dv: float = DV) -> np.ndarray:
+    """Frontal pulse (negative) of duration tau [s] whose integral is -dv (exactly 2 A tau / pi = dv)."""
+    amp = dv * math.pi / (2 * tau)
+    return np.where((t >= 0) & (t <= tau), -amp * np.sin(math.pi * np.clip(t, 0, tau) / tau), 0.0)
+
+
+@pytest.fixture
+def analytic() -> Pulse:
+    t = np.arange(-0.02, 0.2, 1e-4)
+    return Pulse(t, np.stack([half_sine(t, 0.080), half_sine(t, 0.060)]), ("tunnel", "radsup"))
+
+
+def test_integration_of_a_half_sine_is_exact_to_discretization():
+    t = np.arange(0, 0.1 + 1e-12, 1e-5)
+    v = integrate(t, half_sine(t, 0.1), v0=DV)
+    exact = DV - DV * (1 - np.cos(math.pi * t / 0.1)) / 2
+    np.testing.assert_allclose(v, exact, atol=1e-6)
+
+
+@pytest.mark.parametrize("unit", ["g", "m/s2"])
+def test_csv_round_trip_delta_v_within_one_percent(tmp_path, analytic, unit):
+    path = write_csv(analytic, tmp_path / "pulse.csv", unit=unit)
+    back = read_csv(path, unit=unit)
+    assert back.channels == ("tunnel", "radsup")
+    np.testing.assert_allclose(back.acc, analytic.acc, rtol=1e-12, atol=1e-9)
+    filtered = filter_pulse(back, 60)
+    dv_end = filtered.velocity()[:, -1]
+    np.testing.assert_allclose(dv_end, -DV, rtol=0.01)
+    # the convention: a frontal crash pulse is negative, the velocity change too
+    assert (filtered.acc.min(axis=1) < -10 * G0).all() and (dv_end < 0).all()
+
+
+def test_mme_round_trip_delta_v_within_one_percent(tmp_path, analytic):
+    mme = write_mme(analytic, tmp_path / "T1", "T1")
+    assert mme.name == "T1.mme" and (tmp_path / "T1" / "Channel" / "T1.002").is_file()
+    back = read_mme(tmp_path / "T1")
+    assert back.channels == ("tunnel", "radsup")
+    np.testing.assert_allclose(back.time, analytic.time, atol=1e-12)
+    np.testing.assert_allclose(back.acc, analytic.acc, rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose(filter_pulse(back, 60).velocity()[:, -1], -DV, rtol=0.01)
+    one = read_mme(mme, channels="RADSUP")  # by the .mme file, channel matched case-insensitively
+    assert one.channels == ("radsup",)
+
+
+def test_committed_csv_and_mme_examples_agree_and_give_40_kmh():
+    csv = read_pulse(DATA / "halfsine_40kmh.csv")
+    mme = read_pulse(DATA / "HS40")
+    assert csv.channels == ("tunnel_acx", "radsup_acx")
+    assert mme.channels == ("10TUNN0000ACXP", "10RADS0000ACXP")
+    assert csv.n_samples == mme.n_samples == 1101 and csv.sample_rate_hz == pytest.approx(5000.0)
+    np.testing.assert_allclose(csv.acc, mme.acc, rtol=1e-4, atol=1e-3)  # g vs m/s**2 channel, 5 digits
+    for p in (csv, mme):
+        np.testing.assert_allclose(filter_pulse(p, 60).velocity()[:, -1], -DV, rtol=0.01)
+
+
+def test_sign_and_time_unit_options(tmp_path, analytic):
+    path = tmp_path / "ms.csv"
+    data = np.column_stack([analytic.time * 1e3, -analytic.acc[0] / G0])  # ms, deceleration positive
+    np.savetxt(path, data, delimiter=";", header="Time [ms];x", comments="")
+    p = read_csv(path, acc_col="x", time_unit="ms", sign=-1)
+    np.testing.assert_allclose(p.time, analytic.time, atol=1e-12)
+    np.testing.assert_allclose(p.acc[0], analytic.acc[0], atol=1e-9)
+    assert float(from_rearward_x(np.array(2.0))) == -2.0
+
+
+def test_pulse_summary_csv_and_mme(tmp_path, analytic):
+    amp_g = DV * math.pi / (2 * 0.080) / G0  # 22.25 g
+    for path in (write_csv(analytic, tmp_path / "a.csv"), write_mme(analytic, tmp_path / "M", "M").parent):
+        s = pulse_summary(path, acc_col="tunnel")
+        assert s["channel"] == "tunnel" and s["n_samples"] == analytic.n_samples
+        assert s["sample_rate_hz"] == pytest.approx(1e4)
+        assert s["peak_g"] == pytest.approx(amp_g, rel=0.01)
+        # time zero: the 0.5 g crossing of the raw pulse is asin(0.5 g / A) * tau / pi = 0.57 ms after the
+        # onset; the zero-phase filter output rises a little earlier (0.23 ms), never before the onset - 1 ms
+        t0_raw = math.asin(0.5 / amp_g) * 0.080 / math.pi * 1e3
+        assert t0_raw - 0.5 < s["t0_ms"] <= t0_raw
+        assert s["t_peak_ms"] == pytest.approx(40.0 - s["t0_ms"], abs=0.2)
+        assert s["delta_v_ms"] == pytest.approx(DV, rel=0.01)
+        assert s["delta_v_150ms_ms"] == pytest.approx(DV, rel=0.01)
+        assert s["delta_v_kmh"] == pytest.approx(40.0, rel=0.01)
+    short = Pulse(analytic.time[:1000], analytic.acc[:, :1000], analytic.channels)  # ends at 80 ms
+    s = pulse_summary(write_csv(short, tmp_path / "short.csv"), time_zero="file")
+    assert s["delta_v_150ms_ms"] is None and s["t0_ms"] == 0.0
+
+
+def test_prepare_velocity_gives_2_khz_from_time_zero(analytic):
+    t, v = prepare_velocity(analytic, duration=0.15, v0=DV)
+    assert t[0] == 0.0 and len(t) == 301
+    np.testing.assert_allclose(np.diff(t), 5e-4, atol=1e-12)
+    np.testing.assert_allclose(v[:, 0], DV)
+    np.testing.assert_allclose(v[:, -1], 0.0, atol=0.01 * DV)
+    t0 = find_time_zero(filter_pulse(analytic, 60))
+    assert -0.001 < t0 < 0.001
+
+
+def test_resample_is_linear_interpolation(analytic):
+    r = resample(analytic, 2000.0, 0.0, 0.1)
+    assert r.n_samples == 201 and r.time[-1] == pytest.approx(0.1)
+    np.testing.assert_allclose(r.acc[0], np.interp(r.time, analytic.time, analytic.acc[0]))
+    with pytest.raises(PulseError, match="inside the record"):
+        resample(analytic, 2000.0, -1.0, 0.1)
+
+
+def test_plot_pulse_writes_png(tmp_path, analytic):
+    out = plot_pulse(filter_pulse(analytic, 60), tmp_path / "p.png", reference=analytic)
+    data = out.read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 5000
+
+
+# ------------------------------------------------------------------------------------- bad input
+
+
+def _csv(tmp_path: Path, text: str) -> Path:
+    path = tmp_path / "bad.csv"
+    path.write_text(text)
+    return path
+
+
+GOOD_ROWS = "".join(f"{i * 1e-4:.4f},{-float(i)}\n" for i in range(20))
+BAD_CELL_ROWS = "".join(f"{i * 1e-4:.4f},{'abc' if i == 5 else -float(i)}\n" for i in range(20))
+
+
+@pytest.mark.parametrize(
+    ("text", "kwargs", "pattern"),
+    [
+        ("time,acc\n" + GOOD_ROWS, {"acc_col": "accel"}, r"bad\.csv line 1: column 'accel' not found"),
+        (
+            "time,acc\n" + BAD_CELL_ROWS,
+            {},
+            r"bad\.csv line 7, column 'acc': "
+            r"expected a number, got 'abc'",
+        ),
+        ("time,acc\n0.0000,1\n0.0001,nan\n" + GOOD_ROWS, {}, r"bad\.csv line 3, column 'acc': expected a finite"),
+        (
+            "time,acc\n0.0000,1\n0.0002,1\n0.0001,1\n" + "".join(f"{1 + i},0\n" for i in range(10)),
+            {},
+            r"bad\.csv line 4, column 'time': time goes backwards",
+        ),
+        (
+            "time,acc\n0.0000,1\n0.0001,1\n0.0001,1\n" + "".join(f"{1 + i},0\n" for i in range(10)),
+            {},
+            r"bad\.csv line 4, column 'time': duplicated time",
+        ),
+        ("time,acc\n0.0000,1\n0.0001,1\n", {}, r"bad\.csv: expected at least 8 samples, got 2"),
+        ("time,acc\n0.0000,1,3\n" + GOOD_ROWS, {}, r"bad\.csv line 2: expected 2 fields as in the header, got 3"),
+        ("# only a comment\n", {}, r"bad\.csv: expected a header row"),
+        ("time,acc\n" + GOOD_ROWS, {"unit": "furlong"}, r"expected an acceleration unit"),
+    ],
+    ids=["missing-column", "non-numeric", "nan", "backwards", "duplicate", "too-few", "ragged", "empty", "unit"],
+)
+def test_bad_csv_raises_pulse_error_with_file_and_line(tmp_path, text, kwargs, pattern):
+    with pytest.raises(PulseError, match=pattern):
+        read_csv(_csv(tmp_path, text), **kwargs)
+
+
+def test_missing_file_and_unknown_format(tmp_path):
+    with pytest.raises(PulseError, match=r"nope\.csv: cannot read"):
+        read_csv(tmp_path / "nope.csv")
+    (tmp_path / "x.bin").write_bytes(b"\0")
+    with pytest.raises(PulseError, match=r"x\.bin: expected a \.csv"):
+        read_pulse(tmp_path / "x.bin")
+
+
+def _mme(tmp_path: Path, analytic: Pulse) -> Path:
+    write_mme(analytic, tmp_path / "B", "B")
+    return tmp_path / "B" / "Channel" / "B.001"
+
+
+def _edit(path: Path, old: str, new: str) -> None:
+    path.write_text(path.read_text(encoding="latin-1").replace(old, new, 1), encoding="latin-1")
+
+
+def test_bad_mme_sample_line(tmp_path, analytic):
+    ch = _mme(tmp_path, analytic)
+    lines = ch.read_text(encoding="latin-1").splitlines()
+    lines[20] = "1.0e0x"
+    ch.write_text("\n".join(lines) + "\n", encoding="latin-1")
+    with pytest.raises(PulseError, match=r"B\.001 line 21: expected one sample value per line, got '1.0e0x'"):
+        read_mme(tmp_path / "B")
+
+
+def test_bad_mme_headers(tmp_path, analytic):
+    ch = _mme(tmp_path, analytic)
+    _edit(ch, "Unit                        :g", "Unit                        :N")
+    with pytest.raises(PulseError, match=r"B\.001 line 4: expected an acceleration unit"):
+        read_mme(tmp_path / "B")
+    _edit(ch, "Unit                        :N", "Unit                        :g")
+    _edit(ch, "Number of samples           :2200", "Number of samples           :2201")
+    with pytest.raises(PulseError, match=r"B\.001 line 8: 'Number of samples' says 2201, found 2200"):
+        read_mme(tmp_path / "B")
+    _edit(ch, "Number of samples           :2201", "Number of samples           :2200")
+    _edit(ch, "Sampling interval           :", "Sampling interval           :x")
+    with pytest.raises(PulseError, match=r"B\.001 line 7: 'Sampling interval': expected a number"):
+        read_mme(tmp_path / "B")
+    with pytest.raises(PulseError, match=r"channel 'HEAD' not found"):
+        read_mme(tmp_path / "B", channels="HEAD")
+
+
+def test_mme_without_channel_folder(tmp_path):
+    (tmp_path / "E").mkdir()
+    (tmp_path / "E" / "E.mme").write_text("Data format edition number  :1.6\n")
+    with pytest.raises(PulseError, match=r"E\.mme: expected a 'Channel' folder"):
+        read_mme(tmp_path / "E")
+
+
+def test_pulse_rejects_non_increasing_time_and_nan():
+    t = np.arange(10) * 1e-3
+    with pytest.raises(PulseError, match="strictly increase"):
+        Pulse(t[::-1], np.zeros(10), ("a",))
+    with pytest.raises(PulseError, match="finite"):
+        Pulse(t, np.full(10, np.nan), ("a",))

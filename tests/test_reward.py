@@ -1,0 +1,155 @@
+"""Reward forms, their registry and YAML configs, the paper's Table 3, termination."""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import pytest
+import torch
+
+from marlcrash.config import config_dir
+from marlcrash.errors import ConfigError
+from marlcrash.metrics import Metrics
+from marlcrash.reward import (
+    REWARD_FORMS,
+    Reward,
+    TerminationConfig,
+    get_reward,
+    load_reward_config,
+    paper_factor,
+    reduce_sensors,
+    termination,
+)
+
+# The paper's Table 3 (DESIGN 1.5): metric rows and the factor a/A + b/DFD + c/RMSE, a = b = c = 1.
+TABLE3_A = [0.0259, 0.0311, 0.0363, 0.0189, 0.0015, 0.0415]
+TABLE3_DFD = [0.423, 0.455, 0.487, 0.411, 0.335, 0.519]
+TABLE3_RMSE = [0.2585, 0.2737, 0.2889, 0.22, 0.1511, 0.3041]
+TABLE3_FACTOR = [44.84, 38.00, 33.06, 59.89, 676.27, 29.31]
+REWARD_DIR = config_dir() / "reward"
+
+
+def table3_metrics() -> Metrics:
+    """The six iterations as [6, 1] (one sensor)."""
+    return Metrics(*(torch.tensor(row, dtype=torch.float64)[:, None] for row in (TABLE3_A, TABLE3_DFD, TABLE3_RMSE)))
+
+
+def test_paper_table3_factor_row():
+    f = paper_factor(*(torch.tensor(row, dtype=torch.float64) for row in (TABLE3_A, TABLE3_DFD, TABLE3_RMSE)))
+    for got, want in zip(f.tolist(), TABLE3_FACTOR, strict=True):
+        assert abs(got - want) < 0.01, (got, want)
+    # the same through the configured paper form (the metric floor 1e-6 is far below Table 3's values)
+    rw = Reward(load_reward_config("paper_factor"))
+    torch.testing.assert_close(rw.score(table3_metrics()), f, rtol=0, atol=1e-12)
+
+
+def test_paper_reward_is_the_factor_improvement():
+    m = table3_metrics()
+    rw = Reward(load_reward_config("paper_factor"))
+    prev = Metrics(*(x[:-1] for x in m))
+    cur = Metrics(*(x[1:] for x in m))
+    r = rw(cur, prev)
+    want = [b - a for a, b in itertools.pairwise(TABLE3_FACTOR)]
+    for got, w in zip(r.tolist(), want, strict=True):
+        assert abs(got - w) < 0.02
+    assert (rw(cur, None) == 0).all()
+
+
+def test_every_yaml_is_registered_and_every_form_has_a_yaml():
+    files = {p.stem for p in REWARD_DIR.glob("*.yaml")}
+    assert files == set(REWARD_FORMS), (files, set(REWARD_FORMS))
+
+
+@pytest.mark.parametrize("name", sorted(REWARD_FORMS))
+def test_each_config_loads_names_its_form_and_comments_every_key(name):
+    cfg = load_reward_config(name)
+    assert cfg.name == name
+    rw = Reward(cfg)
+    assert rw.form.name == name
+    for lineno, line in enumerate((REWARD_DIR / f"{name}.yaml").read_text().splitlines(), start=1):
+        if line.strip() and not line.lstrip().startswith("#"):
+            assert " # " in line, f"{name}.yaml line {lineno} has no comment: {line!r}"
+    # a better fit scores higher under every form
+    m = table3_metrics()
+    s = rw.score(m)
+    assert s[4] > s[0] > s[5]
+
+
+def test_unknown_form_lists_the_known_ones():
+    with pytest.raises(ConfigError, match=r"unknown reward form 'nope'.*log_ratio.*paper_factor"):
+        get_reward("nope")
+    with pytest.raises(ConfigError, match="unknown reward form"):
+        load_reward_config("nope")
+
+
+def test_bad_params_name_the_key(tmp_path):
+    with pytest.raises(ConfigError, match=r"key 'params.a'"):
+        get_reward("paper_factor", a=-1.0)
+    with pytest.raises(ConfigError, match=r"key 'params.w'"):
+        get_reward("log_ratio", w=1.0)
+    text = (REWARD_DIR / "log_ratio.yaml").read_text().replace("rmse_scale: 0.25", "rmse_scale: -1")
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(text)
+    with pytest.raises(ConfigError, match=r"bad\.yaml key 'params.rmse_scale': must be > 0"):
+        load_reward_config(bad)
+    with pytest.raises(ConfigError, match=r"success_rmse"):
+        load_reward_config("log_ratio", overrides={"termination.success_rmse": 5.0})
+
+
+def test_log_ratio_is_scale_free():
+    rw = get_reward("log_ratio", area_scale=0.02, dfd_scale=0.4, rmse_scale=0.25, eps=0.0)
+    m = Metrics(torch.tensor([0.02, 2e-4]), torch.tensor([0.4, 4e-3]), torch.tensor([0.25, 2.5e-3]))
+    half = Metrics(*(x / 2 for x in m))
+    torch.testing.assert_close(rw.reward(half, m), torch.full((2,), math.log(2.0), dtype=torch.float32))
+    assert rw.reward(m, half).tolist() == pytest.approx([-math.log(2.0)] * 2)
+    # the paper's factor gives wildly different rewards for the same relative improvement
+    pf = get_reward("paper_factor")
+    r = pf.reward(half, m)
+    assert r[1] / r[0] > 50
+
+
+def test_neg_weighted_sum():
+    rw = get_reward("neg_weighted_sum", w_area=2.0, w_dfd=0.0, w_rmse=1.0, area_scale=0.01, rmse_scale=0.1)
+    m = Metrics(torch.tensor([0.01]), torch.tensor([9.0]), torch.tensor([0.2]))
+    assert rw.reward(m, None).item() == pytest.approx(-(2.0 * 1.0 + 2.0))
+
+
+def test_sensor_reduction_and_perfect_fit_stays_finite():
+    m = Metrics(torch.tensor([[1.0, 3.0]]), torch.tensor([[2.0, 4.0]]), torch.tensor([[0.0, 1.0]]))
+    assert reduce_sensors(m, "mean").area.item() == 2.0 and reduce_sensors(m, "max").dfd.item() == 4.0
+    with pytest.raises(ConfigError, match="sensor_reduction"):
+        reduce_sensors(m, "median")
+    zero = Metrics(*(torch.zeros(1, 3) for _ in range(3)))
+    for name in REWARD_FORMS:
+        assert torch.isfinite(Reward(load_reward_config(name)).score(zero)).all()
+
+
+def test_termination_flags():
+    cfg = TerminationConfig(0.01, 0.1, 0.1, 1.0, 5.0, 3.0, max_iterations=10)
+    good = Metrics(torch.tensor([[0.001, 0.002]]), torch.tensor([[0.05, 0.05]]), torch.tensor([[0.01, 0.02]]))
+    mixed = Metrics(torch.tensor([[0.001, 0.02]]), torch.tensor([[0.05, 0.05]]), torch.tensor([[0.01, 0.02]]))
+    hopeless = Metrics(torch.tensor([[0.5, 0.5]]), torch.tensor([[6.0, 0.5]]), torch.tensor([[0.5, 0.5]]))
+    batch = Metrics(*(torch.cat([a, b, c]) for a, b, c in zip(good, mixed, hopeless, strict=True)))
+    t = termination(batch, cfg, iteration=3)
+    assert t.success.tolist() == [True, False, False]  # every sensor must pass every threshold
+    assert t.failure.tolist() == [False, False, True]  # any sensor over any limit fails
+    assert t.truncated.tolist() == [False, False, False]
+    assert termination(batch, cfg, iteration=10).truncated.tolist() == [True, True, True]
+    off = TerminationConfig(max_iterations=5)
+    t = termination(batch, off, torch.tensor([1, 5, 9]))
+    assert not t.success.any() and not t.failure.any() and t.truncated.tolist() == [False, True, True]
+
+
+def test_reward_end_to_end_on_velocity_curves():
+    """Metrics of a surrogate that moves toward the reference earn a positive reward under every form."""
+    dt = 5e-4
+    t = torch.arange(301, dtype=torch.float64) * dt
+    ref = (11.1 * torch.cos(math.pi * t / 0.16)).clamp_min(-1.0).expand(2, 3, 301)
+    far, near = ref * 1.2, ref * 1.05
+    for name in ("paper_factor", "log_ratio"):
+        rw = Reward(load_reward_config(name))
+        m_far, m_near = rw.metrics(far, ref, dt=dt), rw.metrics(near, ref, dt=dt)
+        assert m_far.area.shape == (2, 3)
+        assert (rw(m_near, m_far) > 0).all() and (rw(m_far, m_near) < 0).all()
+        assert rw.termination(rw.metrics(ref, ref, dt=dt), 0).success.all()
