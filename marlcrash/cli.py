@@ -123,6 +123,40 @@ def cmd_discretize(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_pulse(args: argparse.Namespace) -> int:
+    from marlcrash.pulse.io import plot_pulse, pulse_summary, read_pulse
+    from marlcrash.pulse.signal import filter_pulse
+
+    summary = pulse_summary(
+        args.file,
+        time_col=args.time_col,
+        acc_col=args.acc_col,
+        unit=args.unit,
+        cfc=None if args.cfc == 0 else args.cfc,
+        sign=-1.0 if args.deceleration_positive else 1.0,
+        time_zero=args.time_zero,
+    )
+    if args.plot:
+        pulse = read_pulse(
+            args.file,
+            time_col=args.time_col,
+            acc_col=args.acc_col,
+            unit=args.unit,
+            sign=-1.0 if args.deceleration_positive else 1.0,
+        )
+        if args.cfc:
+            pulse = filter_pulse(pulse, args.cfc)
+        plot_pulse(pulse, args.plot, title=Path(args.file).name)
+        summary["plot"] = str(args.plot)
+    if args.json:
+        _print_json(summary)
+    else:
+        width = max(len(k) for k in summary)
+        for k, v in summary.items():
+            print(f"{k:<{width}}  {v:.4g}" if isinstance(v, float) else f"{k:<{width}}  {v}")
+    return 0
+
+
 # ------------------------------------------------------------------ parser
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
@@ -144,6 +178,27 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--plot", metavar="FILE.png", help="write a 3D picture of the cells coloured by sub-assembly")
     p.add_argument("--save", metavar="CELLS.npz", help="write the cell model")
     p.set_defaults(func=cmd_discretize)
+
+    p = sub.add_parser("pulse", help="read a measured crash pulse (CSV or ISO-MME), CFC-filter and integrate it")
+    p.add_argument("file", help="CSV file with a header row, an ISO-MME .mme file or test folder")
+    p.add_argument("--time-col", help="CSV time column (seconds); default: the first column")
+    p.add_argument("--acc-col", help="acceleration column / ISO-MME channel; default: the first acceleration")
+    p.add_argument("--unit", choices=["g", "m/s2"], default="g", help="CSV acceleration unit (default g)")
+    p.add_argument("--cfc", type=int, default=60, choices=[0, 60, 180, 600, 1000], help="CFC class, 0 for none")
+    p.add_argument(
+        "--time-zero",
+        choices=["threshold", "file"],
+        default="threshold",
+        help="time zero: first crossing of 0.5 g (default) or the file's t = 0",
+    )
+    p.add_argument(
+        "--deceleration-positive",
+        action="store_true",
+        help="the file records deceleration as positive (default: SAE J211 sign, a frontal pulse is negative)",
+    )
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--plot", metavar="FILE.png", help="write acceleration and velocity plots")
+    p.set_defaults(func=cmd_pulse)
     return parser
 
 

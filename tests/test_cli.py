@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -73,3 +74,27 @@ def test_discretize_lsopt_with_axis_map(lsopt_deck):
     )
     assert out["n_cells_optimized"] > 0 and out["n_subassemblies"] >= 5
     assert out["cell_mass_kg"] == pytest.approx(out["roi_mass_kg"], rel=5e-3)
+
+
+DATA = Path(__file__).parent / "data"
+
+
+def test_pulse_json_and_plot(tmp_path):
+    plot = tmp_path / "pulse.png"
+    out = json.loads(run_cli("pulse", str(DATA / "halfsine_40kmh.csv"), "--json", "--plot", str(plot)).stdout)
+    for key in ("n_samples", "sample_rate_hz", "peak_g", "t_peak_ms", "delta_v_ms", "delta_v_150ms_ms"):
+        assert key in out, key
+    # the file is a 40 km/h half-sine (tests/data/README.md): delta-v 11.11 m/s
+    assert out["delta_v_ms"] == pytest.approx(40 / 3.6, rel=0.01)
+    assert out["sample_rate_hz"] == pytest.approx(5000.0)
+    assert plot.stat().st_size > 10_000
+    mme = json.loads(run_cli("pulse", str(DATA / "HS40"), "--json").stdout)
+    assert mme["delta_v_ms"] == pytest.approx(40 / 3.6, rel=0.01)
+
+
+def test_pulse_bad_file_is_a_clear_error(tmp_path):
+    bad = tmp_path / "bad.csv"
+    bad.write_text("t,a\n0,1\n0.001,abc\n")
+    proc = run_cli("pulse", str(bad), check=False)
+    assert proc.returncode == 2
+    assert "bad.csv line 3" in proc.stderr and "Traceback" not in proc.stderr
