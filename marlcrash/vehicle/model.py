@@ -245,7 +245,10 @@ class VehicleModel:
 
     def used_nodes(self) -> np.ndarray:
         """Sorted indices of nodes referenced by at least one element."""
-        return np.unique(np.concatenate([self.shell_nodes.ravel(), self.solid_nodes.ravel(), self.beam_nodes.ravel()]))
+        used = np.zeros(self.n_nodes, dtype=bool)
+        for nodes in (self.shell_nodes, self.solid_nodes, self.beam_nodes):
+            used[nodes.ravel()] = True
+        return np.flatnonzero(used)
 
     # --------------------------------------------------------- sub-assemblies
     def subassembly_of_part(self) -> dict[int, str]:
@@ -275,9 +278,11 @@ class VehicleModel:
     def transformed(self, axis_map: AxisMap) -> VehicleModel:
         """A copy in marlcrash axes: rotated by ``axis_map``, front at x = 0, centred in y."""
         r = axis_map.matrix()
-        c = self.coords @ r.T
+        # a signed permutation: gather columns instead of a matrix product
+        axis = np.abs(r).argmax(axis=1)
+        c = self.coords[:, axis] * r[np.arange(3), axis]
         used = self.used_nodes()
-        ref = c[used] if used.size else c
+        ref = c[used] if used.size < self.n_nodes else c
         if ref.size:
             lo, hi = ref.min(axis=0), ref.max(axis=0)
             shift = np.array(
