@@ -1,0 +1,542 @@
+"""The crash surrogate: batched, differentiable explicit dynamics over the cell graph (DESIGN 4).
+
+Realisation: a lumped-mass, elastic-plastic spring model (Kamal-type), 1D motion
+along x per cell.
+
+- Nodes: every cell is a node with one degree of freedom ``s`` (travel toward the
+  barrier, i.e. along -x, from the initial position); null cells are inert nodes
+  with no links and no contact. The whole vehicle starts at the impact speed.
+- Links: each link ``src -> dst`` is an elastic-plastic element on the relative
+  travel ``delta = s_dst - s_src`` (compression positive; for +x links the rear
+  cell closing on the front one, for lateral links a shear-like coupling). From the
+  source cell's parameters: crush force ``F_c = E_s / (stroke_fraction * crush_length)``,
+  elastic stiffness ``k = F_c^2 / (2 E_x)``; the link carries the share
+  ``f_dir * link_share`` of both. Lateral links yield symmetrically, axial links
+  in tension at ``tension_ratio * F``, gap links carry only compression after the
+  gap has closed.
+- Saturation: once the plastic work of a cell's links reaches ``E_s`` the cell has
+  bottomed out: its links stop yielding and stiffen by ``densification_factor``,
+  so all further load is transmitted.
+- Wall: one-sided penalty contact (with damping while penetrating) on each cell's
+  front area covered by the barrier (:func:`~marlcrash.sim.scenario.barrier_fraction`).
+- Integrator: symplectic Euler with ``substeps`` steps per output step.
+
+Stability choice (documented effect on the pulse): an explicit step ``dt`` is
+stable when every node's summed stiffness is below ``2 m / dt^2``. Every element
+stiffness ``k`` is therefore combined *in series* with a numerical compliance
+``k_cap = c * min(m_i / deg_i, m_j / deg_j) / dt^2`` (``c = stiffness_cap``,
+``deg`` = number of elements at the node): ``k_eff = k k_cap / (k + k_cap)``. This is
+smooth (differentiable), never stiffer than the cap, so stable for any parameters
+(Gershgorin bound, ``c < 2``). Effect: the elastic rise of the pulse is softer
+(elastic energy at crush onset is ``F^2 / 2 k_eff >= E_x``) when ``k`` exceeds the
+cap; crush forces (plateaus) and energies absorbed are not changed. Light cells are
+mass-scaled up to ``mass_floor`` with the added mass taken from the compartment,
+so the vehicle mass and the initial kinetic energy are unchanged.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+import torch
+
+from marlcrash.cells.model import N_PARAMS, PARAM_NAMES, CellModel
+from marlcrash.config import config_dir, load_config, require
+from marlcrash.errors import ModelError
+from marlcrash.sim.energy import cell_energies
+from marlcrash.sim.scenario import CrashScenario, barrier_fraction
+
+_BIG = 1e30  # "infinite" yield force of a bottomed-out link [N]
+_EPS_K = 1e-9  # floor of element stiffness relative to its cap, keeps f / k finite for idle links [-]
+
+
+@dataclass
+class SimConfig:
+    """Integrator and contact settings; values in ``configs/sim.yaml`` (see its comments)."""
+
+    substeps: int = 1
+    stiffness_cap: float = 1.0
+    mass_floor: float = 0.05
+    stroke_fraction: float = 0.7
+    densification_factor: float = 10.0
+    tension_ratio: float = 0.3
+    link_damping_ratio: float = 0.05
+    wall_stiffness: float = 1e10
+    wall_damping_ratio: float = 0.7
+    dtype: Literal["float64", "float32"] = "float64"
+    backend: Literal["torch", "numba", "auto"] = "auto"
+
+    def validate(self) -> None:
+        """Range checks; raise :class:`~marlcrash.errors.ConfigError` naming the key."""
+        require(1 <= self.substeps <= 1000, "substeps", f"substeps must be in [1, 1000], got {self.substeps}")
+        require(
+            0.0 < self.stiffness_cap < 2.0,
+            "stiffness_cap",
+            f"stiffness_cap must be in (0, 2) for stability, got {self.stiffness_cap}",
+        )
+        require(self.mass_floor >= 0.0, "mass_floor", f"mass_floor must be >= 0 kg, got {self.mass_floor}")
+        require(
+            0.0 < self.stroke_fraction <= 1.0,
+            "stroke_fraction",
+            f"stroke_fraction must be in (0, 1], got {self.stroke_fraction}",
+        )
+        require(
+            self.densification_factor >= 1.0,
+            "densification_factor",
+            f"densification_factor must be >= 1, got {self.densification_factor}",
+        )
+        require(
+            0.0 <= self.tension_ratio <= 1.0,
+            "tension_ratio",
+            f"tension_ratio must be in [0, 1], got {self.tension_ratio}",
+        )
+        require(
+            0.0 <= self.link_damping_ratio <= 0.5,
+            "link_damping_ratio",
+            f"link_damping_ratio must be in [0, 0.5], got {self.link_damping_ratio}",
+        )
+        require(
+            self.wall_stiffness > 0.0, "wall_stiffness", f"wall_stiffness must be > 0 N/m^3, got {self.wall_stiffness}"
+        )
+        require(
+            0.0 <= self.wall_damping_ratio <= 1.0,
+            "wall_damping_ratio",
+            f"wall_damping_ratio must be in [0, 1], got {self.wall_damping_ratio}",
+        )
+
+    @property
+    def torch_dtype(self) -> torch.dtype:
+        return torch.float64 if self.dtype == "float64" else torch.float32
+
+
+def load_sim_config(path: str | Path | None = None, overrides: dict | None = None) -> SimConfig:
+    """Load ``configs/sim.yaml`` (or ``path``) with optional dotted-key overrides."""
+    return load_config(SimConfig, path or config_dir() / "sim.yaml", overrides)
+
+
+@dataclass
+class SimResult:
+    """Output of one batched simulation; ``T`` output samples including t = 0.
+
+    Signs: velocities and accelerations are along the direction of travel (toward
+    the barrier): velocity starts at the impact speed, deceleration is negative.
+
+    Attributes:
+        time: ``[T]`` output times [s].
+        sensor_names: ``[K]`` names of the recorded sensors.
+        acceleration: ``[B, K, T]`` sensor-cell acceleration [m/s^2].
+        velocity: ``[B, K, T]`` sensor-cell velocity [m/s].
+        compartment_displacement: ``[B, T]`` compartment travel since first contact [m].
+        compartment_velocity: ``[B, T]`` compartment velocity [m/s].
+        crush: ``[B, T]`` dynamic crush [m]: compartment travel since the front touched
+            the barrier, less the (numerical) penalty penetration of the front into the wall.
+        kinetic, stored, absorbed: ``[B, T]`` energy totals [J] (leapfrog kinetic energy;
+            elastic energy in links and contact; work dissipated by plasticity,
+            densification, damping).
+        plastic: ``[B, T]`` return-mapping plastic work of all links [J] (independent check).
+        initial: ``[B]`` initial kinetic energy [J].
+        cell_input, cell_absorbed, cell_transmitted: ``[B, n_cells, T']`` cumulative
+            per-cell energies [J] (``T' = T`` for ``record_cells='series'``, 1 for
+            ``'final'``, 0 for ``'none'``).
+        cell_plastic: ``[B, n_cells]`` final plastic work per cell [J].
+        saturated: ``[B, n_cells]`` bool, cell bottomed out (plastic work reached E_s).
+    """
+
+    time: torch.Tensor
+    sensor_names: list[str]
+    acceleration: torch.Tensor
+    velocity: torch.Tensor
+    compartment_displacement: torch.Tensor
+    compartment_velocity: torch.Tensor
+    crush: torch.Tensor
+    kinetic: torch.Tensor
+    stored: torch.Tensor
+    absorbed: torch.Tensor
+    plastic: torch.Tensor
+    initial: torch.Tensor
+    cell_input: torch.Tensor
+    cell_absorbed: torch.Tensor
+    cell_transmitted: torch.Tensor
+    cell_plastic: torch.Tensor
+    saturated: torch.Tensor
+
+    def __getitem__(self, idx) -> SimResult:
+        """Select batch rows (``result[3]``, ``result[2:5]``), keeping the batch dimension."""
+        if isinstance(idx, int):
+            idx = slice(idx, idx + 1)
+        out = {}
+        for f in fields(self):
+            v = getattr(self, f.name)
+            out[f.name] = v[idx] if isinstance(v, torch.Tensor) and f.name != "time" else v
+        return SimResult(**out)
+
+
+@dataclass
+class LinkProps:
+    """Per-batch element properties derived from the parameters (all ``[B, L]`` or ``[B, n]``)."""
+
+    yield_c: torch.Tensor  # [B, L] compressive yield (crush) force [N]
+    yield_t: torch.Tensor  # [B, L] tensile yield force magnitude [N]
+    k: torch.Tensor  # [B, L] effective elastic stiffness [N/m]
+    k_dense: torch.Tensor  # [B, L] effective stiffness once the source cell bottomed out [N/m]
+    damping: torch.Tensor  # [B, L] viscous coefficient while elastic [N s/m]
+    e_s: torch.Tensor  # [B, n] saturation energy per cell (inf for cells without links) [J]
+
+
+@dataclass
+class WallProps:
+    """Per-batch contact properties (``[B, n]``) and scenario tensors (``[B]``)."""
+
+    k: torch.Tensor  # [B, n] penalty stiffness [N/m] (0 where not covered)
+    damping: torch.Tensor  # [B, n] contact damping [N s/m]
+    gap: torch.Tensor  # [B, n] x distance from the first contact point to the cell front [m]
+    covered: torch.Tensor  # [B, n] bool, cell front covered by the barrier
+    speed: torch.Tensor  # [B] impact speed [m/s]
+
+
+class Surrogate:
+    """Batched cell-surrogate simulator of one :class:`CellModel`.
+
+    ``Surrogate(cells, config)`` precomputes index tensors, scaled masses and
+    stability caps once; :meth:`run` then simulates ``B`` parameter sets.
+
+    Args:
+        cells: the cell model (validated here).
+        config: integrator settings; ``None`` loads ``configs/sim.yaml``.
+        output_dt: output step [s] the stability caps are computed for (2 kHz default).
+
+    Raises:
+        ModelError: links touching null cells or owned by the compartment, no mass.
+    """
+
+    def __init__(self, cells: CellModel, config: SimConfig | None = None, output_dt: float = 5e-4):
+        cells.validate()
+        self.cells = cells
+        self.config = cfg = config if config is not None else load_sim_config()
+        self.output_dt = float(output_dt)
+        self.dt = self.output_dt / cfg.substeps
+        dtype = self.dtype = cfg.torch_dtype
+        n, L = cells.n_cells, cells.n_links
+        self.n, self.L = n, L
+        src, dst = cells.link_src.astype(np.int64), cells.link_dst.astype(np.int64)
+        null, rigid = cells.is_null.astype(bool), cells.is_rigid.astype(bool)
+        self.comp = cells.compartment
+        if L and (null[src].any() or null[dst].any()):
+            bad = int(np.flatnonzero(null[src] | null[dst])[0])
+            raise ModelError(f"link {bad} ({src[bad]} -> {dst[bad]}) touches a null cell; null cells have no links")
+        if L and rigid[src].any():
+            bad = int(np.flatnonzero(rigid[src])[0])
+            raise ModelError(f"link {bad} is owned by the rigid compartment cell {src[bad]}; energy never flows to -x")
+        if (np.asarray(cells.link_dir) < 0).any() or (np.asarray(cells.link_dir) > 4).any():
+            raise ModelError("CellModel.link_dir must index DIRECTIONS (0..4)")
+        active = ~null & ~rigid
+        if (cells.crush_length[active] <= 0).any():
+            bad = int(np.flatnonzero(active & (cells.crush_length <= 0))[0])
+            raise ModelError(f"cell {bad}: crush_length must be > 0 m, got {cells.crush_length[bad]}")
+
+        # Mass scaling: light cells raised to the floor, the compartment pays for it.
+        mass = np.where(null, 1.0, cells.mass.astype(np.float64))
+        added = np.where(active, np.maximum(cfg.mass_floor - mass, 0.0), 0.0)
+        mass = mass + added
+        mass[self.comp] -= added.sum()
+        if (mass[~null] <= 0).any():
+            raise ModelError(
+                f"non-positive cell mass after mass scaling (floor {cfg.mass_floor} kg); check CellModel.mass"
+            )
+        self.mass_added = float(added.sum())
+        exposed = (cells.front_area > 0) & active
+        deg = np.bincount(src, minlength=n) + np.bincount(dst, minlength=n) + exposed.astype(np.int64)
+        deg = np.maximum(deg, 1)
+        c = cfg.stiffness_cap / self.dt**2
+        m_per = mass / deg
+        cap_link = c * np.minimum(m_per[src], m_per[dst])
+        m_pair = mass[src] * mass[dst] / (mass[src] + mass[dst])
+
+        t = lambda a, dt=dtype: torch.as_tensor(np.asarray(a), dtype=dt)  # noqa: E731
+        self.src, self.dst = t(src, torch.int64), t(dst, torch.int64)
+        self.param_index = t(src * 5 + cells.link_dir.astype(np.int64), torch.int64)  # into f.reshape(B, n*5)
+        self.share = t(cells.link_share)
+        self.gap = t(cells.link_gap)
+        self.is_gap = t(cells.link_gap > 0, torch.bool)
+        self.is_axial = t(cells.link_dir == 0, torch.bool)
+        self.cap_link = t(cap_link)
+        self.m_pair = t(m_pair)
+        self.mass = t(mass)
+        self.mass_ke = t(np.where(null, 0.0, mass))  # null cells carry no energy
+        self.cap_wall = t(c * m_per)
+        self.exposed = t(exposed, torch.bool)
+        self.front_area = t(np.where(exposed, cells.front_area, 0.0))
+        self.active = t(active, torch.bool)
+        self.has_links = t(np.bincount(src, minlength=n) > 0, torch.bool)
+        self.crush_length = t(np.where(active, cells.crush_length, 1.0))
+        self.lo_x = t(cells.lo[:, 0])
+        self.lo_y, self.hi_y = t(cells.lo[:, 1]), t(cells.hi[:, 1])
+        self.width = float(cells.vehicle_width)
+
+    # ------------------------------------------------------------------ inputs
+    def check_params(self, params: torch.Tensor | np.ndarray) -> torch.Tensor:
+        """Validate ``params`` and return them as ``[B, n_cells, 7]`` in the simulation dtype.
+
+        Null and rigid cells' rows are ignored (not checked, replaced by neutral values).
+
+        Raises:
+            ModelError: wrong shape, non-finite values, ``E_x <= 0`` or ``E_s <= 0`` or
+                negative transmission factors in an active cell (named by index and parameter).
+        """
+        p = torch.as_tensor(params)
+        if p.ndim == 2:
+            p = p[None]
+        if p.ndim != 3 or p.shape[1:] != (self.n, N_PARAMS):
+            raise ModelError(
+                f"params must be [B, {self.n}, {N_PARAMS}] (or [{self.n}, {N_PARAMS}]), got {list(p.shape)}"
+            )
+        if not p.is_floating_point():
+            raise ModelError(f"params must be floating point, got {p.dtype}")
+        p = p.to(self.dtype)
+        with torch.no_grad():
+            act = p[:, self.active]
+            bad = ~torch.isfinite(act)
+            bad[..., :2] |= act[..., :2] <= 0
+            bad[..., 2:] |= act[..., 2:] < 0
+            if bool(bad.any()):
+                b, i, j = (int(x) for x in torch.nonzero(bad)[0])
+                cell = int(torch.nonzero(self.active)[i])
+                raise ModelError(
+                    f"params[{b}, {cell}, {j}] ({PARAM_NAMES[j]}) of active cell {cell} must be finite and "
+                    f"{'> 0' if j < 2 else '>= 0'}, got {float(act[b, i, j])}"
+                )
+        neutral = torch.tensor([1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0], dtype=self.dtype)
+        return torch.where(self.active[None, :, None], p, neutral)
+
+    def link_props(self, params: torch.Tensor) -> LinkProps:
+        """Element properties from checked ``params [B, n, 7]`` (differentiable)."""
+        cfg = self.config
+        B = params.shape[0]
+        e_x, e_s = params[..., 0], params[..., 1]
+        f_c = e_s / (cfg.stroke_fraction * self.crush_length)  # [B, n] crush force [N]
+        k_c = f_c * f_c / (2.0 * e_x)  # [B, n] elastic stiffness [N/m]
+        factor = params[..., 2:].reshape(B, self.n * 5)[:, self.param_index] * self.share  # [B, L]
+        yield_c = f_c[:, self.src] * factor
+        k_raw = k_c[:, self.src] * factor
+        cap = self.cap_link
+        k = k_raw * cap / (k_raw + cap) + _EPS_K * cap
+        kd_raw = cfg.densification_factor * k_raw
+        k_dense = kd_raw * cap / (kd_raw + cap) + _EPS_K * cap
+        t_ratio = torch.where(self.is_axial, cfg.tension_ratio, 1.0).to(self.dtype)
+        yield_t = torch.where(self.is_gap, torch.zeros_like(yield_c), yield_c * t_ratio)
+        damping = 2.0 * cfg.link_damping_ratio * torch.sqrt(k * self.m_pair)
+        e_s_cell = torch.where(self.has_links, e_s, torch.full_like(e_s, float("inf")))
+        return LinkProps(yield_c, yield_t, k, k_dense, damping, e_s_cell)
+
+    def scenario_tensors(
+        self,
+        batch: int,
+        scenario: CrashScenario | None = None,
+        speed: torch.Tensor | None = None,
+        overlap: torch.Tensor | None = None,
+        side: torch.Tensor | None = None,
+    ) -> WallProps:
+        """Wall contact for ``batch`` rows from a scenario or per-row tensors.
+
+        Args:
+            batch: ``B``.
+            scenario: defaults for any tensor not given.
+            speed: ``[B]`` impact speed [m/s]; overlap: ``[B]`` in (0, 1]; side: ``[B]`` +1 left, -1 right.
+
+        Raises:
+            ModelError: tensors of the wrong shape or out of range.
+        """
+
+        def vec(x, default, name):
+            if x is None:
+                if scenario is None:
+                    raise ModelError(f"give a scenario or the per-batch tensor '{name}'")
+                x = default
+            x = torch.as_tensor(x, dtype=self.dtype)
+            if x.ndim == 0:
+                x = x.expand(batch)
+            if x.shape != (batch,) or not bool(torch.isfinite(x).all()):
+                raise ModelError(f"'{name}' must be a finite tensor of shape [{batch}], got {list(x.shape)}")
+            return x
+
+        sp = vec(speed, None if scenario is None else scenario.speed, "speed")
+        ov = vec(overlap, None if scenario is None else scenario.overlap, "overlap")
+        sd = vec(side, None if scenario is None else scenario.side_sign, "side")
+        if bool((sp <= 0).any()) or bool(((ov <= 0) | (ov > 1)).any()) or bool((sd.abs() != 1).any()):
+            raise ModelError(f"need speed > 0 m/s, overlap in (0, 1], side in {{+1, -1}}; got {sp}, {ov}, {sd}")
+        frac = barrier_fraction(self.lo_y, self.hi_y, self.width, ov, sd) * self.exposed
+        covered = frac > 0
+        if not bool(covered.any(dim=1).all()):
+            raise ModelError("the barrier covers no cell front in some batch rows; check overlap/side and front_area")
+        first = torch.where(covered, self.lo_x, torch.full_like(frac, float("inf"))).amin(dim=1, keepdim=True)
+        gap = torch.where(covered, self.lo_x - first, torch.zeros_like(frac))
+        k_raw = self.config.wall_stiffness * self.front_area * frac
+        k = torch.where(covered, k_raw * self.cap_wall / (k_raw + self.cap_wall), torch.zeros_like(frac))
+        damping = 2.0 * self.config.wall_damping_ratio * torch.sqrt(k * self.mass)
+        return WallProps(k, damping, gap, covered, sp)
+
+    # ------------------------------------------------------------------ run
+    def run(
+        self,
+        params: torch.Tensor | np.ndarray,
+        scenario: CrashScenario | None = None,
+        *,
+        speed: torch.Tensor | None = None,
+        overlap: torch.Tensor | None = None,
+        side: torch.Tensor | None = None,
+        duration: float | None = None,
+        sensors: list[str] | None = None,
+        record_cells: Literal["series", "final", "none"] = "series",
+        backend: Literal["torch", "numba", "auto"] | None = None,
+    ) -> SimResult:
+        """Simulate ``B`` crashes.
+
+        Args:
+            params: ``[B, n_cells, 7]`` (or ``[n_cells, 7]``) cell parameters.
+            scenario: load case (speed, overlap, side, duration, sensors); per-row tensors override it.
+            speed, overlap, side: optional ``[B]`` tensors (m/s, fraction, +1 left / -1 right).
+            duration: simulated window [s] when no scenario is given (default 0.150).
+            sensors: sensor names to record (default: the scenario's list, else all).
+            record_cells: per-cell energy series (``series``), final values only, or none.
+            backend: ``torch`` (differentiable reference), ``numba`` (fast no-grad), ``auto``
+                (numba unless gradients are required); default from the config.
+
+        Returns:
+            A :class:`SimResult`.
+        """
+        p = self.check_params(params)
+        if scenario is not None and abs(scenario.output_dt - self.output_dt) > 1e-12:
+            raise ModelError(
+                f"scenario output step {scenario.output_dt} s differs from the surrogate's {self.output_dt} s; "
+                "build the Surrogate with output_dt=scenario.output_dt"
+            )
+        dur = duration if duration is not None else (scenario.duration if scenario is not None else 0.150)
+        n_out = round(dur / self.output_dt) + 1
+        names = sensors if sensors is not None else (list(scenario.sensors) if scenario is not None else [])
+        sensor_idx = self._sensor_index(names)
+        wall = self.scenario_tensors(p.shape[0], scenario, speed, overlap, side)
+        props = self.link_props(p)
+        backend = backend or self.config.backend
+        if backend == "auto":
+            backend = "torch" if (torch.is_grad_enabled() and p.requires_grad) else "numba"
+        if backend == "numba":
+            from marlcrash.sim.kernels import run_numba
+
+            return run_numba(self, props, wall, n_out, sensor_idx, record_cells)
+        return self._run_torch(props, wall, n_out, sensor_idx, record_cells)
+
+    def _sensor_index(self, names: list[str]) -> tuple[list[str], torch.Tensor]:
+        all_names = list(self.cells.sensor_names)
+        if not names:
+            names = all_names
+        missing = [s for s in names if s not in all_names]
+        if missing:
+            raise ModelError(f"unknown sensors {missing}; the cell model has {all_names}")
+        idx = [int(self.cells.sensor_cell[all_names.index(s)]) for s in names]
+        return list(names), torch.tensor(idx, dtype=torch.int64)
+
+    def _run_torch(self, props: LinkProps, wall: WallProps, n_out: int, sensor_idx, record_cells) -> SimResult:
+        names, sidx = sensor_idx
+        B, n = props.k.shape[0], self.n
+        dt, sub = self.dt, self.config.substeps
+        src, dst, is_gap = self.src, self.dst, self.is_gap
+        m, m_ke = self.mass, self.mass_ke
+        zl = props.k.new_zeros((B, self.L))
+        zn = props.k.new_zeros((B, n))
+        v = wall.speed[:, None].expand(B, n).clone()
+        s = zn.clone()
+        f_el, o, f_prev, fw_prev = zl.clone(), self.gap.expand(B, -1).clone(), zl.clone(), zn.clone()
+        plastic = zn.clone()
+        work, passed, w_work, w_in = zl.clone(), zl.clone(), zn.clone(), zn.clone()
+        stored_l, stored_w = zl.clone(), zn.clone()
+        e0 = 0.5 * (m_ke * v * v).sum(dim=1)
+        step_in = wall.speed[:, None] * dt  # [B, 1] moving-frame drift per step
+
+        rec: dict[str, list[torch.Tensor]] = {k: [] for k in ("acc", "vel", "s", "vc", "pen", "ke", "st", "ab", "pl")}
+        cells_rec: dict[str, list[torch.Tensor]] = {"in": [], "ab": [], "tr": []}
+
+        def record(acc, vel, ke):
+            pen = torch.where(wall.covered, (s - wall.gap).clamp_min(0.0), zn).amax(dim=1)
+            st = stored_l.sum(dim=1) + stored_w.sum(dim=1)
+            rec["acc"].append(acc[:, sidx])
+            rec["vel"].append(vel[:, sidx])
+            rec["s"].append(s[:, self.comp])
+            rec["vc"].append(vel[:, self.comp])
+            rec["pen"].append(pen)
+            rec["ke"].append(ke)
+            rec["st"].append(st)
+            rec["ab"].append(work.sum(dim=1) + w_work.sum(dim=1) - st)
+            rec["pl"].append(plastic.sum(dim=1))
+            if record_cells == "series":
+                ci, ca, ct = cell_energies(work, passed, stored_l, w_work, w_in, stored_w, src, dst)
+                cells_rec["in"].append(ci)
+                cells_rec["ab"].append(ca)
+                cells_rec["tr"].append(ct)
+
+        record(zn, v, e0)
+        for step in range(1, (n_out - 1) * sub + 1):
+            ds = dt * v
+            s = s + ds
+            dd = ds[:, dst] - ds[:, src]
+            sat = (plastic >= props.e_s)[:, src]
+            k = torch.where(sat, props.k_dense, props.k)
+            yc = torch.where(sat, torch.full_like(k, _BIG), props.yield_c)
+            yt = torch.where(sat & ~is_gap, torch.full_like(k, _BIG), props.yield_t)
+            z = f_el / k - o + dd
+            f_tr = k * torch.where(is_gap, z.clamp_min(0.0), z)
+            o = torch.where(is_gap, (-z).clamp_min(0.0), zl)
+            f_new = torch.minimum(torch.maximum(f_tr, -yt), yc)
+            plastic = plastic.index_add(1, src, f_new * (f_tr - f_new) / k)
+            elastic = (f_tr == f_new) & (~is_gap | (z > 0))
+            f_tot = f_new + torch.where(elastic, props.damping * dd / dt, zl)
+            pen = s - wall.gap
+            in_contact = wall.covered & (pen > 0)
+            fw = torch.where(in_contact, (wall.k * pen + wall.damping * v).clamp_min(0.0), zn)
+            force = zn.index_add(1, src, f_tot).index_add(1, dst, -f_tot) - fw
+            acc = force / m
+            v_new = v + dt * acc
+            # Work with the same discrete forces (trapezoid): closes the leapfrog balance exactly.
+            fbar = 0.5 * (f_prev + f_tot)
+            work = work + fbar * dd
+            passed = passed + fbar * (step_in - ds[:, dst])
+            fwbar = 0.5 * (fw_prev + fw)
+            w_work = w_work + fwbar * ds
+            w_in = w_in + fwbar * step_in
+            stored_l = 0.5 * f_new * f_new / k
+            stored_w = torch.where(in_contact, 0.5 * wall.k * pen * pen, zn)
+            f_el, f_prev, fw_prev = f_new, f_tot, fw
+            if step % sub == 0:
+                record(acc, 0.5 * (v + v_new), 0.5 * (m_ke * v * v_new).sum(dim=1))
+            v = v_new
+
+        stack = lambda key: torch.stack(rec[key], dim=-1)  # noqa: E731
+        if record_cells == "final":
+            ci, ca, ct = cell_energies(work, passed, stored_l, w_work, w_in, stored_w, src, dst)
+            cell_in, cell_ab, cell_tr = ci[..., None], ca[..., None], ct[..., None]
+        elif record_cells == "series":
+            cell_in, cell_ab, cell_tr = (torch.stack(cells_rec[k], dim=-1) for k in ("in", "ab", "tr"))
+        else:
+            cell_in = cell_ab = cell_tr = zn.new_zeros((B, n, 0))
+        comp = stack("s")
+        return SimResult(
+            time=torch.arange(n_out, dtype=self.dtype) * self.output_dt,
+            sensor_names=names,
+            acceleration=stack("acc"),
+            velocity=stack("vel"),
+            compartment_displacement=comp,
+            compartment_velocity=stack("vc"),
+            crush=comp - stack("pen"),
+            kinetic=stack("ke"),
+            stored=stack("st"),
+            absorbed=stack("ab"),
+            plastic=stack("pl"),
+            initial=e0,
+            cell_input=cell_in,
+            cell_absorbed=cell_ab,
+            cell_transmitted=cell_tr,
+            cell_plastic=plastic,
+            saturated=plastic >= props.e_s,
+        )

@@ -1,0 +1,95 @@
+"""Crash scenarios: registry, validation, unit conversion, barrier coverage."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from sim_fixtures import block, vehicle_block
+
+from marlcrash.config import from_dict
+from marlcrash.errors import ConfigError
+from marlcrash.sim.scenario import CrashScenario, barrier_mask, get_scenario, list_scenarios, scenario_dir
+
+REQUIRED = {
+    "full_width_40",
+    "full_width_56",
+    "offset40_left",
+    "offset40_right",
+    "small_overlap_left",
+    "small_overlap_right",
+}
+
+
+def test_every_yaml_is_registered_and_required_ones_exist():
+    files = {p.stem for p in scenario_dir().glob("*.yaml")}
+    assert files == set(list_scenarios())
+    assert files >= REQUIRED
+
+
+@pytest.mark.parametrize("name", list_scenarios())
+def test_registered_scenarios_load(name):
+    sc = get_scenario(name)
+    assert sc.name == name
+    assert sc.n_outputs == 301 and sc.output_dt == pytest.approx(5e-4)
+    assert sc.speed == pytest.approx(sc.speed_kmh / 3.6)
+    text = (scenario_dir() / f"{name}.yaml").read_text()
+    for line in text.splitlines():
+        if line.strip() and not line.lstrip().startswith("#"):
+            assert "#" in line, f"{name}.yaml: key without a comment: {line!r}"
+
+
+def test_speed_conversion():
+    assert get_scenario("full_width_40").speed == pytest.approx(11.1111111, rel=1e-7)
+
+
+@pytest.mark.parametrize(
+    "key,value",
+    [
+        ("overlap", 0.0),
+        ("overlap", 1.5),
+        ("speed_kmh", -3.0),
+        ("side", "top"),
+        ("duration", 0.0),
+        ("barrier", "odb"),
+        ("duration", 0.15025),
+    ],
+)
+def test_invalid_values_name_the_key(key, value):
+    with pytest.raises(ConfigError) as e:
+        from_dict(CrashScenario, {key: value})
+    assert key in str(e.value)
+
+
+def test_unknown_scenario_lists_known():
+    with pytest.raises(ConfigError, match="full_width_40"):
+        get_scenario("nope")
+
+
+def test_unknown_key_rejected(tmp_path):
+    with pytest.raises(ConfigError, match="speed"):
+        from_dict(CrashScenario, {"speed": 3.0})
+
+
+def test_barrier_mask_full_and_offsets_on_block():
+    cells = block()  # 5 columns of 0.2 m over y in [-0.5, 0.5]; 40 % offset edge at |y| = 0.1
+    front = (cells.front_area > 0) & ~cells.is_null
+    full = barrier_mask(cells, get_scenario("full_width_40"))
+    np.testing.assert_array_equal(full, front.astype(float))
+    left = barrier_mask(cells, get_scenario("offset40_left"))
+    right = barrier_mask(cells, get_scenario("offset40_right"))
+    ymid = 0.5 * (cells.lo[:, 1] + cells.hi[:, 1])
+    np.testing.assert_array_equal(left, (front & (ymid > 0.1)).astype(float))
+    np.testing.assert_array_equal(right, (front & (ymid < -0.1)).astype(float))
+    assert set(np.unique(left)) <= {0.0, 1.0}  # cells never straddle the barrier edge
+
+
+@pytest.mark.parametrize(
+    "name,frac",
+    [("offset40_left", 0.4), ("small_overlap_left", 0.25), ("small_overlap_right", 0.25), ("full_width_56", 1.0)],
+)
+def test_covered_front_area_fraction_on_vehicle_block(name, frac):
+    cells = vehicle_block()
+    m = barrier_mask(cells, get_scenario(name))
+    total = cells.front_area[~cells.is_null].sum()
+    assert (m * cells.front_area).sum() / total == pytest.approx(frac, abs=1e-9)
+    assert set(np.unique(m)) <= {0.0, 1.0}
