@@ -123,6 +123,73 @@ def cmd_discretize(args: argparse.Namespace) -> int:
     return 0
 
 
+def scenario_from_args(args: argparse.Namespace):
+    """The crash scenario named by ``--scenario`` with ``--speed/--overlap/--side`` overrides."""
+    from dataclasses import replace
+
+    from marlcrash.sim.scenario import get_scenario
+
+    scenario = get_scenario(args.scenario or "full_width_40")
+    overrides = {
+        key: value
+        for key, value in (("speed_kmh", args.speed), ("overlap", args.overlap), ("side", args.side))
+        if value is not None
+    }
+    if not overrides:
+        return scenario
+    scenario = replace(scenario, **overrides)
+    scenario = replace(scenario, name=f"{scenario.name}_custom", description="command-line overrides")
+    scenario.validate()
+    return scenario
+
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    import torch
+
+    from marlcrash.cells import discretize, load_discretization_config
+    from marlcrash.pulse.simulation import crash_summary, plot_crash, write_crash_csv
+    from marlcrash.sim import Surrogate
+
+    scenario = scenario_from_args(args)
+    model = load_model_from_args(args)
+    cells = discretize(model, load_discretization_config(args.config), method=args.method)
+    sim = Surrogate(cells, output_dt=scenario.output_dt)
+    params = torch.as_tensor(cells.params)[None]
+    result = sim.run(params, scenario, record_cells="series" if args.plot else "final")
+    summary = crash_summary(result, cells, scenario)
+    if args.csv:
+        write_crash_csv(result, args.csv)
+        summary["csv"] = str(args.csv)
+    if args.plot:
+        plot_crash(result, cells, args.plot, title=f"{cells.name}: {scenario.name}")
+        summary["plot"] = str(args.plot)
+    if args.json:
+        _print_json(summary)
+        return 0
+    t0v = summary["time_to_zero_velocity_ms"]
+    print(
+        f"vehicle {cells.name} ({cells.n_cells} cells), scenario {scenario.name}: {scenario.speed_kmh:g} km/h, "
+        f"overlap {scenario.overlap:g} ({scenario.side})"
+    )
+    print(f"peak compartment deceleration  {summary['peak_decel_g']:8.1f} g (CFC60) at {summary['t_peak_ms']:.1f} ms")
+    print(f"time to zero velocity          {'never' if t0v is None else f'{t0v:8.1f} ms'}")
+    print(f"maximum dynamic crush          {summary['max_crush_m']:8.3f} m")
+    print(
+        f"rebound velocity               {summary['rebound_velocity_ms']:8.2f} m/s "
+        f"({100 * summary['rebound_fraction']:.1f} % of impact speed)"
+    )
+    print(f"energy balance, max rel. error {summary['energy_balance_max_rel_error']:8.1e}")
+    for name, d in summary["sensors"].items():
+        print(
+            f"  sensor {name:<16} peak {d['peak_g']:7.1f} g at {d['t_peak_ms']:6.1f} ms, "
+            f"delta-v {d['delta_v_ms']:6.2f} m/s"
+        )
+    for key in ("csv", "plot"):
+        if key in summary:
+            print(f"{key} written to {summary[key]}")
+    return 0
+
+
 def cmd_pulse(args: argparse.Namespace) -> int:
     from marlcrash.pulse.io import plot_pulse, pulse_summary, read_pulse
     from marlcrash.pulse.signal import filter_pulse
@@ -178,6 +245,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--plot", metavar="FILE.png", help="write a 3D picture of the cells coloured by sub-assembly")
     p.add_argument("--save", metavar="CELLS.npz", help="write the cell model")
     p.set_defaults(func=cmd_discretize)
+
+    p = sub.add_parser("simulate", help="simulate a frontal crash of a vehicle's cell surrogate")
+    _add_vehicle_args(p, deck_required=False)
+    p.add_argument("--scenario", help="registered crash scenario (configs/scenarios; default full_width_40)")
+    p.add_argument("--speed", type=float, metavar="KMH", help="impact speed [km/h] (overrides the scenario's)")
+    p.add_argument("--overlap", type=float, metavar="F", help="barrier overlap as a fraction of vehicle width")
+    p.add_argument("--side", choices=["left", "right"], help="struck side for partial overlaps")
+    p.add_argument("--method", choices=["uniform", "optimized"], help="discretization method (default: config)")
+    p.add_argument("--config", help="discretization config YAML (default: configs/cells.yaml)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--csv", metavar="FILE.csv", help="write time, per-sensor acceleration and velocity, crush")
+    p.add_argument("--plot", metavar="FILE.png", help="plot pulses per sensor and energy per sub-assembly")
+    p.set_defaults(func=cmd_simulate)
 
     p = sub.add_parser("pulse", help="read a measured crash pulse (CSV or ISO-MME), CFC-filter and integrate it")
     p.add_argument("file", help="CSV file with a header row, an ISO-MME .mme file or test folder")

@@ -98,3 +98,35 @@ def test_pulse_bad_file_is_a_clear_error(tmp_path):
     proc = run_cli("pulse", str(bad), check=False)
     assert proc.returncode == 2
     assert "bad.csv line 3" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_simulate_json_csv_plot(tmp_path):
+    csv_path, plot = tmp_path / "sim.csv", tmp_path / "sim.png"
+    out = json.loads(
+        run_cli("simulate", "--scenario", "full_width_40", "--json", "--csv", str(csv_path), "--plot", str(plot)).stdout
+    )
+    for key in (
+        "peak_decel_g",
+        "time_to_zero_velocity_ms",
+        "max_crush_m",
+        "rebound_velocity_ms",
+        "energy_balance_max_rel_error",
+        "n_cells",
+        "sensors",
+    ):
+        assert key in out, key
+    assert out["energy_balance_max_rel_error"] < 5e-3
+    assert set(out["sensors"]) == {"upfront_left", "upfront_right", "tunnel"}
+    header = csv_path.read_text().splitlines()[0].split(",")
+    assert header[0] == "time_s" and "tunnel_acc_g" in header and "crush_m" in header
+    assert len(csv_path.read_text().splitlines()) == 1 + 301  # 150 ms at 2 kHz, t = 0 included
+    assert plot.stat().st_size > 10_000
+
+
+def test_simulate_overrides_and_errors():
+    out = json.loads(run_cli("simulate", "--speed", "56", "--overlap", "0.4", "--side", "right", "--json").stdout)
+    assert (out["speed_kmh"], out["overlap"], out["side"]) == (56.0, 0.4, "right")
+    proc = run_cli("simulate", "--speed", "-3", check=False)
+    assert proc.returncode == 2 and "speed_kmh" in proc.stderr
+    proc = run_cli("simulate", "--scenario", "moon_landing", check=False)
+    assert proc.returncode == 2 and "full_width_40" in proc.stderr  # lists the registered ones

@@ -1,0 +1,168 @@
+"""Key figures, CSV export and plots of a simulated crash (``marlcrash simulate``).
+
+The figures are the ones crash engineers read off a full-vehicle pulse: peak
+compartment deceleration (CFC60), time to zero velocity, maximum dynamic crush,
+rebound velocity; plus the energy balance error of the simulation and the energy
+absorbed per sub-assembly. Sign convention as everywhere in marlcrash: velocity is
+the forward (travel) speed, so a frontal crash pulse is negative.
+"""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+
+from marlcrash.cells.model import CellModel
+from marlcrash.pulse.cfc import cfc_filter
+from marlcrash.sim.energy import max_balance_error
+from marlcrash.sim.scenario import CrashScenario
+from marlcrash.sim.surrogate import SimResult
+from marlcrash.units import G0
+
+
+def _first_crossing_ms(t: np.ndarray, v: np.ndarray) -> float | None:
+    """First time [ms] at which ``v`` reaches zero, interpolated; ``None`` if it never does."""
+    idx = np.flatnonzero(v <= 0.0)
+    if idx.size == 0:
+        return None
+    i = int(idx[0])
+    if i == 0:
+        return float(t[0] * 1e3)
+    f = v[i - 1] / (v[i - 1] - v[i])
+    return float((t[i - 1] + f * (t[i] - t[i - 1])) * 1e3)
+
+
+def compartment_sensor(result: SimResult, cells: CellModel) -> int | None:
+    """Index into ``result.sensor_names`` of a sensor on the rigid compartment, if any."""
+    for k, name in enumerate(result.sensor_names):
+        if int(cells.sensor_cell[list(cells.sensor_names).index(name)]) == cells.compartment:
+            return k
+    return None
+
+
+def crash_summary(result: SimResult, cells: CellModel, scenario: CrashScenario, cfc: int = 60, row: int = 0) -> dict:
+    """Key figures of one simulated crash (batch row ``row``).
+
+    Returns:
+        A JSON-ready dict: ``scenario``, ``speed_kmh``, ``overlap``, ``side``, ``n_cells``,
+        ``peak_decel_g`` (largest CFC-filtered compartment deceleration, g), ``t_peak_ms``,
+        ``time_to_zero_velocity_ms`` (compartment; ``None`` if it never stops in the window),
+        ``max_crush_m``, ``rebound_velocity_ms`` (largest rearward compartment speed after the
+        stop, m/s, >= 0), ``rebound_fraction`` (of the impact speed),
+        ``energy_balance_max_rel_error``, ``absorbed_energy_kj`` (sub-assembly -> kJ at the end;
+        present when per-cell energies were recorded), and ``sensors`` (name -> ``peak_g``,
+        ``t_peak_ms``, ``delta_v_ms``).
+    """
+    t = result.time.detach().cpu().numpy()
+    dt = float(t[1] - t[0])
+    v_comp = result.compartment_velocity[row].detach().cpu().numpy()
+    sensors = {}
+    for k, name in enumerate(result.sensor_names):
+        a = cfc_filter(result.acceleration[row, k].detach().cpu().numpy(), dt, cfc)
+        v = result.velocity[row, k].detach().cpu().numpy()
+        i = int(np.argmin(a))
+        sensors[name] = {
+            "peak_g": float(-a[i] / G0),
+            "t_peak_ms": float(t[i] * 1e3),
+            "delta_v_ms": float(v[0] - v[-1]),
+        }
+    k_comp = compartment_sensor(result, cells)
+    if k_comp is not None:
+        a_comp = cfc_filter(result.acceleration[row, k_comp].detach().cpu().numpy(), dt, cfc)
+    else:
+        a_comp = cfc_filter(np.gradient(v_comp, dt), dt, cfc)
+    i_peak = int(np.argmin(a_comp))
+    t_stop = _first_crossing_ms(t, v_comp)
+    rebound = float(max(0.0, -v_comp.min())) if t_stop is not None else 0.0
+    out = {
+        "scenario": scenario.name,
+        "speed_kmh": scenario.speed_kmh,
+        "overlap": scenario.overlap,
+        "side": scenario.side,
+        "n_cells": cells.n_cells,
+        "peak_decel_g": float(-a_comp[i_peak] / G0),
+        "t_peak_ms": float(t[i_peak] * 1e3),
+        "time_to_zero_velocity_ms": t_stop,
+        "max_crush_m": float(result.crush[row].max()),
+        "rebound_velocity_ms": rebound,
+        "rebound_fraction": rebound / scenario.speed,
+        "energy_balance_max_rel_error": max_balance_error(result[row]),
+        "sensors": sensors,
+    }
+    absorbed = subassembly_absorbed(result, cells, row)
+    if absorbed is not None:
+        out["absorbed_energy_kj"] = {k: float(v[-1] / 1e3) for k, v in absorbed.items()}
+    return out
+
+
+def subassembly_absorbed(result: SimResult, cells: CellModel, row: int = 0) -> dict[str, np.ndarray] | None:
+    """Energy [J] absorbed per sub-assembly, ``name -> [T']``; ``None`` without per-cell records."""
+    e = result.cell_absorbed[row].detach().cpu().numpy()  # [n, T']
+    if e.shape[-1] == 0:
+        return None
+    sub = np.where(cells.is_null, -1, cells.subassembly)
+    n_sub = len(cells.subassembly_names)
+    sums = np.zeros((n_sub, e.shape[-1]))
+    np.add.at(sums, sub[sub >= 0], e[sub >= 0])
+    return {name: sums[i] for i, name in enumerate(cells.subassembly_names)}
+
+
+def write_crash_csv(result: SimResult, path: str | Path, row: int = 0) -> Path:
+    """Write time [s], per-sensor acceleration [g] and velocity [m/s], crush [m] as CSV (atomically)."""
+    path = Path(path)
+    t = result.time.detach().cpu().numpy()
+    cols = {"time_s": t}
+    for k, name in enumerate(result.sensor_names):
+        cols[f"{name}_acc_g"] = result.acceleration[row, k].detach().cpu().numpy() / G0
+        cols[f"{name}_vel_ms"] = result.velocity[row, k].detach().cpu().numpy()
+    cols["crush_m"] = result.crush[row].detach().cpu().numpy()
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(list(cols))
+        w.writerows(np.stack(list(cols.values()), axis=1).tolist())
+    tmp.replace(path)
+    return path
+
+
+def plot_crash(result: SimResult, cells: CellModel, path: str | Path, title: str = "", cfc: int = 60, row: int = 0):
+    """PNG: CFC-filtered acceleration and velocity per sensor, energy absorbed per sub-assembly."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t = result.time.detach().cpu().numpy()
+    dt = float(t[1] - t[0])
+    absorbed = subassembly_absorbed(result, cells, row)
+    n_panels = 3 if absorbed is not None else 2
+    fig, axes = plt.subplots(n_panels, 1, figsize=(8, 3.0 * n_panels), sharex=True)
+    for k, name in enumerate(result.sensor_names):
+        a = cfc_filter(result.acceleration[row, k].detach().cpu().numpy(), dt, cfc) / G0
+        axes[0].plot(t * 1e3, a, label=f"{name} CFC{cfc}")
+        axes[1].plot(t * 1e3, result.velocity[row, k].detach().cpu().numpy(), label=name)
+    axes[0].set_ylabel("acceleration [g]")
+    axes[1].set_ylabel("velocity [m/s]")
+    for ax in axes[:2]:
+        ax.axhline(0.0, color="k", lw=0.5)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    if absorbed is not None:
+        tt = t[: next(iter(absorbed.values())).shape[0]] * 1e3
+        names = [n for n, v in absorbed.items() if v[-1] > 1e-3 * max(1.0, result.initial[row].item())]
+        axes[2].stackplot(tt, *[absorbed[n] / 1e3 for n in names], labels=names)
+        axes[2].plot(t * 1e3, result.kinetic[row].detach().cpu().numpy() / 1e3, "k--", lw=1, label="kinetic")
+        axes[2].set_ylabel("absorbed energy [kJ]")
+        axes[2].legend(fontsize=6, ncol=3, loc="upper right")
+        axes[2].grid(alpha=0.3)
+    axes[-1].set_xlabel("time [ms]")
+    fig.suptitle(title)
+    fig.tight_layout()
+    path = Path(path)
+    tmp = path.with_name(path.stem + ".tmp.png")
+    fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+    tmp.replace(path)
+    return path
