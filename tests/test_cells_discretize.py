@@ -261,3 +261,27 @@ def test_synthetic_car_round_trip(synthetic, tmp_path):
     for f in ("params", "feasible", "mass", "link_src", "link_dst", "link_dir", "link_share", "grid_labels"):
         np.testing.assert_array_equal(getattr(back, f), getattr(opt, f))
     assert back.subassembly_names == opt.subassembly_names and back.sensor_names == opt.sensor_names
+
+
+def test_symmetric_car_gives_mirror_symmetric_cells():
+    """The nominal synthetic car is mirror-symmetric, so its cell model must be too.
+
+    Panels lying exactly in a grid plane (a wheel's flat side) used to be binned to the
+    inner voxel on one side and the outer one on the other.
+    """
+    synthetic = pytest.importorskip("marlcrash.vehicle.synthetic")
+    cells = discretize(synthetic.default_vehicle())
+    names = cells.subassembly_names
+    for name in names:
+        if name.endswith("_left"):
+            twin = name[: -len("_left")] + "_right"
+            assert cells.cells_of(name).size == cells.cells_of(twin).size, name
+            np.testing.assert_allclose(cells.mass[cells.cells_of(name)].sum(), cells.mass[cells.cells_of(twin)].sum())
+    lab = cells.grid_labels
+    sub = np.where(lab >= 0, cells.subassembly[np.maximum(lab, 0)], -1)
+    swap = np.arange(-1, len(names))
+    for i, n in enumerate(names):
+        other = n.replace("_left", "_tmp").replace("_right", "_left").replace("_tmp", "_right")
+        swap[i + 1] = names.index(other)
+    mirrored = swap[sub[:, ::-1, :] + 1]
+    assert (mirrored == sub).mean() > 0.999

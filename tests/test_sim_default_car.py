@@ -21,15 +21,11 @@ from marlcrash.units import G0
 from marlcrash.vehicle.synthetic import default_vehicle
 
 KMH40 = {"speed_kmh": 40.0}
-_WHEEL_GAP = (
-    "known gap: at 40 km/h the struck right wheel (6 cells, the left one has 5) is driven onto the rigid "
-    "compartment through gap links at ~70 ms and gives a late 46 g peak (full width: 38 g)"
-)
 PARTIAL = (
     "offset40_left",
     "offset40_right",
     "small_overlap_left",
-    pytest.param("small_overlap_right", marks=pytest.mark.xfail(strict=True, reason=_WHEEL_GAP)),
+    "small_overlap_right",
 )
 
 

@@ -256,7 +256,8 @@ def _bisect(coords: np.ndarray, group: np.ndarray, n_pieces: np.ndarray, pitch: 
     """Split voxel groups recursively into pieces, vectorized over all pieces of a level.
 
     Each piece with a target count ``n > 1`` is cut along its longest extent at the
-    voxel-count quantile ``floor(n/2) / n`` (cut between voxel planes), the halves
+    voxel-count quantile ``floor(n/2) / n`` (cut between voxel planes; lateral cuts
+    counted from the side nearer y = 0, so mirrored pieces split alike), the halves
     getting ``floor(n/2)`` and ``n - floor(n/2)`` pieces, until every piece has ``n = 1``.
 
     Args:
@@ -289,6 +290,10 @@ def _bisect(coords: np.ndarray, group: np.ndarray, n_pieces: np.ndarray, pitch: 
         cannot = ext[np.arange(npc), axis] <= 0
         n_of[cannot & act_p] = 1  # a single voxel plane cannot be split
         v = c[np.arange(idx.size), axis[p]]
+        # Lateral cuts are counted from the side nearer the centre plane y = 0, so a piece
+        # right of it is split as the mirror image of its twin on the left.
+        flip = (axis[p] == 1) & ((lo[p, 1] + hi[p, 1]) < 0)
+        v = np.where(flip, -v, v)
         order = np.lexsort((v, p))
         vs = v[order]
         count = np.bincount(p, minlength=npc)
@@ -313,9 +318,17 @@ def _bisect(coords: np.ndarray, group: np.ndarray, n_pieces: np.ndarray, pitch: 
 
 
 def _snap(grid: FineGrid, candidates: np.ndarray, position: np.ndarray) -> int:
-    """Flat index of the candidate voxel nearest to ``position``."""
+    """Flat index of the candidate voxel nearest to ``position``.
+
+    Ties (a position midway between voxel centres) go to the voxel farther from the
+    centre plane y = 0, then to larger x (deeper into the structure) and smaller z, so
+    mirrored positions snap to mirrored voxels.
+    """
     centres = grid.voxel_centers(candidates)
-    i = int(np.argmin(np.linalg.norm(centres - position[None, :], axis=1)))
+    dist = np.linalg.norm(centres - position[None, :], axis=1)
+    near = np.flatnonzero(dist <= dist.min() + 1e-9)
+    c = centres[near]
+    i = near[np.lexsort((c[:, 2], -c[:, 0], -np.abs(c[:, 1])))[0]]
     return int(candidates[i])
 
 
@@ -405,7 +418,10 @@ def _optimized(
             continue
         v = _snap(grid, cand, p)
         vi = np.array(np.unravel_index(v, shape))
-        lo = np.maximum(vi - half, 0)
+        before = np.full(3, half)
+        if p[1] < 0:  # mirror the block's lateral extent for sensors right of the centre plane
+            before[1] = cfg.voxels_per_cell_edge - 1 - half
+        lo = np.maximum(vi - before, 0)
         hi = np.minimum(lo + cfg.voxels_per_cell_edge, shape)
         sl = tuple(slice(int(a), int(b)) for a, b in zip(lo, hi, strict=True))
         block = np.zeros(shape, dtype=bool)

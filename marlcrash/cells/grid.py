@@ -97,7 +97,7 @@ class FineGrid:
         inside = np.ones(points.shape[0], dtype=bool)
         for a in range(3):
             e = self.edges[a]
-            i = np.searchsorted(e, points[:, a], side="right") - 1
+            i = bin_index(e, points[:, a], mirror=a == 1)
             inside &= (points[:, a] >= e[0]) & (points[:, a] <= e[-1])
             i = np.clip(i, 0, len(e) - 2)
             idx.append(i)
@@ -105,6 +105,22 @@ class FineGrid:
         if not clamp:
             flat = np.where(inside, flat, -1)
         return flat, inside
+
+
+def bin_index(edges: np.ndarray, values: np.ndarray, mirror: bool = False) -> np.ndarray:
+    """Bin of each value in sorted ``edges`` (unclamped: -1 below, ``len(edges)-1`` above).
+
+    A value exactly on an inner edge goes to the bin above it. With ``mirror`` (the
+    lateral axis, whose edges are symmetric about y = 0), a negative value on an edge
+    goes to the bin below instead, so ties always fall away from the centre plane and
+    a mirror-symmetric vehicle gives a mirror-symmetric binning (panels lying exactly
+    in a grid plane, like a wheel's flat side, are common in generated meshes).
+    """
+    i = np.searchsorted(edges, values, side="right") - 1
+    if mirror:
+        neg = values < 0
+        i[neg] = np.searchsorted(edges, values[neg], side="left") - 1
+    return i
 
 
 def _axis_edges(bounds: np.ndarray, h: float, voxels_per_edge: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
-from marlcrash.cells.grid import FineGrid, _solid_samples, _subdivisions
+from marlcrash.cells.grid import FineGrid, _solid_samples, _subdivisions, bin_index
 from marlcrash.vehicle.model import VehicleModel
 
 PLANE_NUDGE = 1e-6
@@ -27,12 +27,23 @@ def _other_axes(axis: int) -> tuple[int, int]:
 
 
 def _bin(
-    out: np.ndarray, plane: np.ndarray, u: np.ndarray, v: np.ndarray, area: np.ndarray, eu: np.ndarray, ev: np.ndarray
+    out: np.ndarray,
+    plane: np.ndarray,
+    u: np.ndarray,
+    v: np.ndarray,
+    area: np.ndarray,
+    eu: np.ndarray,
+    ev: np.ndarray,
+    mirror: tuple[bool, bool] = (False, False),
 ) -> None:
-    """Add ``area`` at (plane, column of (u, v)) into ``out`` ``[n_planes, nu, nv]``; points outside are dropped."""
+    """Add ``area`` at (plane, column of (u, v)) into ``out`` ``[n_planes, nu, nv]``; points outside are dropped.
+
+    ``mirror`` marks which of u, v is the lateral axis (ties fall away from y = 0, see
+    :func:`~marlcrash.cells.grid.bin_index`).
+    """
     tol = 1e-9  # material lying exactly on the box boundary (a wall on the ROI's top face) belongs to the box
-    iu = np.clip(np.searchsorted(eu, u, side="right") - 1, 0, len(eu) - 2)
-    iv = np.clip(np.searchsorted(ev, v, side="right") - 1, 0, len(ev) - 2)
+    iu = np.clip(bin_index(eu, u, mirror[0]), 0, len(eu) - 2)
+    iv = np.clip(bin_index(ev, v, mirror[1]), 0, len(ev) - 2)
     ok = (u >= eu[0] - tol) & (u <= eu[-1] + tol) & (v >= ev[0] - tol) & (v <= ev[-1] + tol)
     if not ok.any():
         return
@@ -122,7 +133,7 @@ def shell_sections(
     start = np.repeat(np.cumsum(m) - m, m)
     frac = (np.arange(rep.size) - start + 0.5) / m[rep]
     mid = seg[rep, 0] + frac[:, None] * d[rep]
-    _bin(out, pl[rep], mid[:, u_ax], mid[:, v_ax], (length * t / m)[rep], eu, ev)
+    _bin(out, pl[rep], mid[:, u_ax], mid[:, v_ax], (length * t / m)[rep], eu, ev, (u_ax == 1, v_ax == 1))
     return out
 
 
@@ -171,7 +182,7 @@ def solid_sections(
     c = pos[:, axis]
     item, plane = _crossings(np.where(ok, c - 0.5 * ext, np.inf), np.where(ok, c + 0.5 * ext, -np.inf), planes)
     if item.size:
-        _bin(out, plane, pos[item, u_ax], pos[item, v_ax], vol[item] / ext[item], eu, ev)
+        _bin(out, plane, pos[item, u_ax], pos[item, v_ax], vol[item] / ext[item], eu, ev, (u_ax == 1, v_ax == 1))
     return out
 
 
@@ -196,7 +207,7 @@ def beam_sections(
     item, plane, denom = item[ok], plane[ok], denom[ok]
     t = (planes[plane] - a[item]) / denom
     x = p[item, 0] + t[:, None] * (p[item, 1] - p[item, 0])
-    _bin(out, plane, x[:, u_ax], x[:, v_ax], model.beam_area[idx][item], eu, ev)
+    _bin(out, plane, x[:, u_ax], x[:, v_ax], model.beam_area[idx][item], eu, ev, (u_ax == 1, v_ax == 1))
     return out
 
 
