@@ -1,0 +1,517 @@
+"""The calibration core: ``B`` batched calibration environments in torch (DESIGN 1.4, 1.5, 5).
+
+One :class:`CalibrationCore` holds ``B`` independent episodes of calibrating one
+:class:`~marlcrash.cells.model.CellModel` against references. Both front doors (the
+PettingZoo ``ParallelEnv`` with ``B = 1`` and the batched TorchRL ``EnvBase``) are thin
+layers over it, so they give the same numbers for the same seed and actions.
+
+Episode (per environment row):
+
+- :meth:`CalibrationCore.reset` draws a scenario and a reference
+  (:class:`~marlcrash.references.ReferenceSampler`), resets the parameters to the
+  model's initial ones, fixes the active agents by the impact-region rule
+  (:mod:`marlcrash.envs.masking`) and simulates once for the first observation.
+- :meth:`CalibrationCore.step` maps actions ``[B, n_agents, act_dim]`` in ``[-1, 1]`` to
+  per-cell log increments (``* max_step``; zero for inactive agents; behaviour changes
+  of saturated cells damped when the saturation preference is on), applies them
+  (:func:`apply_increments`), runs ONE batched no-grad simulation for all ``B`` rows
+  (``record_cells="final"``), and computes metrics, team reward and end flags.
+
+Actions: ``subassembly`` granularity, ``act_dim = 7`` log-scale increments applied to
+all the agent's cells; ``cell`` granularity, ``act_dim = 7 * max_cells``: per cell (in
+the agent's slot order) 7 increments, padded, with :meth:`CalibrationCore.action_mask`.
+
+Parameter update (:func:`apply_increments`): ``E <- clip(E * exp(d), lo * E0, hi * E0)``;
+transmission factors ``g = ((f + floor) * exp(d) - floor)^+`` on feasible entries (zero
+elsewhere), renormalised to sum one. The shift ``floor`` lets a feasible factor that is
+currently zero grow again; a zero increment leaves the cell unchanged (bit-exact).
+
+Observation per agent, ``[B, n_agents, obs_dim]`` float32, concatenated:
+
+1. the state vector of DESIGN 1.4: ``(v_ref - v_est) * velocity_scale`` for every
+   sensor and output step, ``K * T`` values (same for all agents);
+2. own parameters relative to initial: ``log(p / p0) * param_scale``; ``subassembly``:
+   the mean over the agent's cells (7 values; transmission means over feasible entries),
+   ``cell``: per cell padded (``7 * max_cells``);
+3. its cells' absorbed-energy fractions ``absorbed / E_s`` from the last simulation,
+   ``* energy_scale``, padded (``max_cells``);
+4. its identity, one-hot (``n_agents``).
+
+Global state ``[B, state_dim]``: the state vector, every agent's 7 mean log-ratios and
+its mean absorbed-energy fraction.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+import numba
+import numpy as np
+import torch
+
+from marlcrash.cells.model import CellModel
+from marlcrash.config import config_dir, load_config, require
+from marlcrash.envs.agents import AgentsConfig, build_agents
+from marlcrash.envs.masking import ImpactRegions, MaskingConfig
+from marlcrash.errors import ConfigError, MarlcrashError
+from marlcrash.metrics import Metrics, area_between, compute_metrics, rmse
+from marlcrash.references import ReferenceConfig, ReferenceSampler
+from marlcrash.reward import Reward, TerminationConfig, load_reward_config
+from marlcrash.sim.surrogate import SimConfig, Surrogate, load_sim_config
+
+
+class ActionError(MarlcrashError):
+    """Actions of the wrong shape, dtype, or with non-finite values."""
+
+
+@dataclass
+class ObservationConfig:
+    """Scales of the observation parts (values in ``configs/env``)."""
+
+    velocity_scale: float = 1.0
+    param_scale: float = 1.0
+    energy_scale: float = 1.0
+
+    def validate(self) -> None:
+        for k in ("velocity_scale", "param_scale", "energy_scale"):
+            v = getattr(self, k)
+            require(math.isfinite(v) and v > 0, k, f"expected a finite scale > 0, got {v}")
+
+
+@dataclass
+class EnvConfig:
+    """Calibration environment settings; values and their meaning in ``configs/env/default.yaml``."""
+
+    vehicle: str = "b_segment"
+    vehicle_seed: int | None = None
+    discretization: Literal["optimized", "uniform"] = "optimized"
+    sensors: list[str] = field(default_factory=list)
+    scenarios: dict[str, float] = field(default_factory=lambda: {"full_width_40": 1.0})
+    granularity: Literal["subassembly", "cell"] = "subassembly"
+    max_step: float = 0.1
+    behaviour_bounds: list[float] = field(default_factory=lambda: [0.25, 4.0])
+    transmission_floor: float = 0.01
+    agents: AgentsConfig = field(default_factory=AgentsConfig)
+    masking: MaskingConfig = field(default_factory=MaskingConfig)
+    reward: str = "log_ratio"
+    termination: TerminationConfig = field(default_factory=TerminationConfig)
+    reference: ReferenceConfig = field(default_factory=ReferenceConfig)
+    observation: ObservationConfig = field(default_factory=ObservationConfig)
+    metrics_backend: Literal["numba", "torch"] = "numba"
+    sim_backend: Literal["numba", "torch", "auto"] = "auto"
+    seed: int = 0
+
+    def validate(self) -> None:
+        require(bool(self.scenarios), "scenarios", "expected at least one scenario name with a weight")
+        for k, w in self.scenarios.items():
+            require(math.isfinite(w) and w > 0, f"scenarios.{k}", f"expected a weight > 0, got {w}")
+        require(0.0 < self.max_step <= 2.0, "max_step", f"expected a log increment in (0, 2], got {self.max_step}")
+        b = self.behaviour_bounds
+        require(len(b) == 2 and 0.0 < b[0] <= 1.0 <= b[1] and math.isfinite(b[1]), "behaviour_bounds",
+                f"expected [lo, hi] with 0 < lo <= 1 <= hi (factors of the initial E_x, E_s), got {b}")  # fmt: skip
+        require(0.0 < self.transmission_floor <= 1.0, "transmission_floor",
+                f"expected a value in (0, 1], got {self.transmission_floor}")  # fmt: skip
+
+
+def env_config_path(name: str) -> Path:
+    """``configs/env/<name>.yaml``."""
+    return config_dir() / "env" / f"{name}.yaml"
+
+
+def load_env_config(name_or_path: str | Path = "default", overrides: dict | None = None) -> EnvConfig:
+    """Load an env config by registered name (``configs/env/<name>.yaml``) or path, with dotted overrides."""
+    path = Path(name_or_path)
+    if path.suffix not in (".yaml", ".yml"):
+        path = env_config_path(str(name_or_path))
+        if not path.is_file():
+            known = sorted(p.stem for p in (config_dir() / "env").glob("*.yaml"))
+            raise ConfigError(f"unknown env config {str(name_or_path)!r}; registered: {known}", key="env")
+    return load_config(EnvConfig, path, overrides)
+
+
+@functools.lru_cache(maxsize=4)
+def build_cells(vehicle: str, seed: int | None, method: str) -> CellModel:
+    """Discretize a registered vehicle (or a vehicle file) once per process and cache it."""
+    from marlcrash.cells.discretize import discretize
+    from marlcrash.vehicle.registry import load_vehicle
+
+    return discretize(load_vehicle(vehicle, seed=seed), method=method)
+
+
+# ------------------------------------------------------------------------------------- parameter update
+def apply_increments(
+    params: torch.Tensor,
+    inc: torch.Tensor,
+    init: torch.Tensor,
+    feasible: torch.Tensor,
+    bounds: tuple[float, float],
+    floor: float,
+) -> torch.Tensor:
+    """Apply per-cell log increments to parameters, keeping them feasible.
+
+    Args:
+        params: ``[B, n_cells, 7]`` current parameters.
+        inc: ``[B, n_cells, 7]`` log increments (zero: unchanged).
+        init: ``[n_cells, 7]`` initial parameters (bounds of ``E_x``, ``E_s``).
+        feasible: ``[n_cells, 5]`` bool feasible transmission factors.
+        bounds: ``(lo, hi)``: ``E`` stays within ``[lo, hi] * E0``.
+        floor: shift of the multiplicative transmission update (module docstring).
+
+    Returns:
+        ``[B, n_cells, 7]`` new parameters: ``E`` in bounds, factors ``>= 0``, zero where
+        infeasible, summing to one (cells with a non-zero increment; others untouched).
+    """
+    e0 = init[None, :, :2]
+    e = (params[..., :2] * torch.exp(inc[..., :2])).clamp(min=bounds[0] * e0, max=bounds[1] * e0)
+    f = params[..., 2:]
+    g = (((f + floor) * torch.exp(inc[..., 2:])) - floor).clamp_min(0.0) * feasible
+    total = g.sum(-1, keepdim=True)
+    changed = (inc[..., 2:] != 0).any(-1, keepdim=True) & (total > 0)
+    f_new = torch.where(changed, g / torch.where(total > 0, total, torch.ones_like(total)), f)
+    return torch.cat([e, f_new], dim=-1)
+
+
+# ------------------------------------------------------------------------------------- fast metrics
+_DFD_BLOCK = 32  # rows per kernel block: the inner loop runs across rows, so it vectorizes
+
+
+@numba.njit(cache=True, parallel=True)
+def _dfd_rows(q: np.ndarray, p: np.ndarray, dt: float, ts: float, vs: float) -> np.ndarray:  # pragma: no cover
+    """Discrete Frechet distances of ``R`` pairs of curves ``(i dt ts, q[r, i] vs)``, ``(j dt ts, p[r, j] vs)``.
+
+    Squared distances are propagated (max/min commute with the final square root); each block
+    of rows keeps two ``[m, block]`` rows of the coupling table and loops innermost over rows.
+    """
+    n_rows, n = q.shape
+    m = p.shape[1]
+    out = np.empty(n_rows)
+    n_blocks = (n_rows + _DFD_BLOCK - 1) // _DFD_BLOCK
+    for b in numba.prange(n_blocks):
+        r0 = b * _DFD_BLOCK
+        w = min(n_rows, r0 + _DFD_BLOCK) - r0
+        qt = np.ascontiguousarray(q[r0 : r0 + w].T * vs)  # [n, w]
+        pt = np.ascontiguousarray(p[r0 : r0 + w].T * vs)  # [m, w]
+        prev = np.empty((m, w))
+        cur = np.empty((m, w))
+        for i in range(n):
+            for j in range(m):
+                tt = ((i - j) * dt * ts) ** 2
+                if i == 0 and j == 0:
+                    for k in range(w):
+                        dv = qt[i, k] - pt[j, k]
+                        cur[j, k] = tt + dv * dv
+                elif i == 0:
+                    for k in range(w):
+                        dv = qt[i, k] - pt[j, k]
+                        cur[j, k] = max(cur[j - 1, k], tt + dv * dv)
+                elif j == 0:
+                    for k in range(w):
+                        dv = qt[i, k] - pt[j, k]
+                        cur[j, k] = max(prev[j, k], tt + dv * dv)
+                else:
+                    for k in range(w):
+                        dv = qt[i, k] - pt[j, k]
+                        cur[j, k] = max(min(min(prev[j, k], prev[j - 1, k]), cur[j - 1, k]), tt + dv * dv)
+            prev, cur = cur, prev
+        for k in range(w):
+            out[r0 + k] = math.sqrt(prev[m - 1, k])
+    return out
+
+
+def fast_metrics(q: torch.Tensor, p: torch.Tensor, dt: float, reward: Reward) -> Metrics:
+    """The metrics of :func:`marlcrash.metrics.compute_metrics` for uniform samples, no-grad and fast.
+
+    Area and RMSE come from :mod:`marlcrash.metrics`; the discrete Frechet distance is the
+    same recursion (Eiter and Mannila) on both curves' points ``(t * time_scale, v * value_scale)``
+    evaluated row by row in a compiled kernel with ``O(T)`` memory instead of the ``[N, T, T]`` table.
+
+    Args:
+        q, p: ``[..., T]`` estimate and reference on the grid ``i * dt``.
+        dt: sample step [s].
+        reward: supplies the metric settings.
+
+    Returns:
+        :class:`Metrics` of ``[...]`` float64 tensors.
+    """
+    cfg = reward.cfg.metrics
+    q, p = torch.broadcast_tensors(q.double(), p.double())
+    shape = q.shape[:-1]
+    dfd = _dfd_rows(q.reshape(-1, q.shape[-1]).numpy(), p.reshape(-1, p.shape[-1]).numpy(), float(dt),
+                    float(cfg.dfd_time_scale), float(cfg.dfd_value_scale))  # fmt: skip
+    return Metrics(
+        area=area_between(q, p, dt=dt, method=cfg.area_method),
+        dfd=torch.from_numpy(dfd).reshape(shape),
+        rmse=rmse(q, p),
+    )
+
+
+# ------------------------------------------------------------------------------------------ the core
+class CalibrationCore:
+    """``B`` batched calibration episodes (module docstring).
+
+    Args:
+        config: the env config (:func:`load_env_config`).
+        batch_size: ``B``.
+        cells: the model to calibrate; ``None`` discretizes ``config.vehicle`` (cached).
+        sim_config: simulator settings; ``None`` loads ``configs/sim.yaml``.
+
+    Raises:
+        ConfigError: invalid agents, scenarios, sensors or reference settings.
+    """
+
+    def __init__(
+        self,
+        config: EnvConfig,
+        batch_size: int = 1,
+        cells: CellModel | None = None,
+        sim_config: SimConfig | None = None,
+    ):
+        if not isinstance(batch_size, int) or batch_size < 1:
+            raise ConfigError(f"batch_size must be a positive integer, got {batch_size!r}", key="batch_size")
+        self.config = cfg = config
+        self.B = batch_size
+        self.cells = cells if cells is not None else build_cells(cfg.vehicle, cfg.vehicle_seed, cfg.discretization)
+        self.sensors = list(cfg.sensors) or list(self.cells.sensor_names)
+        rcfg = load_reward_config(cfg.reward)
+        rcfg.termination = cfg.termination
+        self.reward_fn = Reward(rcfg)
+        self.layout = build_agents(self.cells, cfg.agents)
+        self.regions = ImpactRegions(self.cells, self.layout, cfg.masking)
+        sim_cfg = sim_config if sim_config is not None else load_sim_config()
+        first = next(iter(cfg.scenarios))
+        from marlcrash.sim.scenario import get_scenario
+
+        rate = get_scenario(first).output_rate if cfg.reference.kind != "file" else None
+        if rate is None:
+            rate = get_scenario(cfg.reference.files[0].scenario).output_rate
+        self.sim = Surrogate(self.cells, sim_cfg, output_dt=1.0 / rate)
+        self.sampler = ReferenceSampler(
+            self.cells, self.sim, self.sensors, cfg.scenarios, cfg.reference, vehicle=cfg.vehicle,
+            bounds=(cfg.behaviour_bounds[0], cfg.behaviour_bounds[1]), backend=cfg.sim_backend,
+        )  # fmt: skip
+        self.duration, self.dt = self.sampler.duration, 1.0 / self.sampler.output_rate
+        self.T, self.K = self.sampler.n_outputs, len(self.sensors)
+        lay = self.layout
+        self.A, self.M = lay.n_agents, lay.max_cells
+        self.act_dim = 7 if cfg.granularity == "subassembly" else 7 * self.M
+        own_dim = 7 if cfg.granularity == "subassembly" else 7 * self.M
+        self.obs_dim = self.K * self.T + own_dim + self.M + self.A
+        self.state_dim = self.K * self.T + 8 * self.A
+
+        n = self.cells.n_cells
+        f64 = torch.float64
+        self.init = torch.as_tensor(self.cells.params, dtype=f64)
+        self.feasible = torch.as_tensor(self.cells.feasible)
+        self._init_pos = self.init > 0  # [n, 7]: where a log-ratio is defined
+        self._owned = lay.owned[None, :, None]
+        self._agent_of = lay.agent_of_cell.clamp_min(0)
+        self._slot_of = lay.slot_of_cell.clamp_min(0)
+        self._eye = torch.eye(self.A, dtype=torch.float32)
+        valid = lay.valid[:, :, None].expand(self.A, self.M, 7)
+        feas = torch.cat([torch.ones(n, 2, dtype=torch.bool), self.feasible], dim=1)[lay.cells]  # [A, M, 7]
+        self._static_action_mask = (
+            torch.ones(self.A, 7, dtype=torch.bool)
+            if cfg.granularity == "subassembly"
+            else (valid & feas).reshape(self.A, -1)
+        )
+        self._summary_w = (lay.valid[:, :, None] & self._init_pos[lay.cells]).to(f64)  # [A, M, 7]
+        self._summary_n = self._summary_w.sum(1).clamp_min(1.0)  # [A, 7]
+
+        B = self.B
+        self.params = self.init[None].repeat(B, 1, 1)
+        self.ref_velocity = torch.zeros(B, self.K, self.T, dtype=f64)
+        self.est_velocity = torch.zeros(B, self.K, self.T, dtype=f64)
+        self.speed = torch.zeros(B, dtype=f64)
+        self.overlap = torch.ones(B, dtype=f64)
+        self.side = torch.ones(B, dtype=f64)
+        self.active = torch.ones(B, self.A, dtype=torch.bool)
+        self.saturated = torch.zeros(B, n, dtype=torch.bool)
+        self.energy_fraction = torch.zeros(B, n, dtype=f64)
+        self.metrics = Metrics(*(torch.zeros(B, self.K, dtype=f64) for _ in range(3)))
+        self.iteration = torch.zeros(B, dtype=torch.int64)
+        self.reward = torch.zeros(B, dtype=f64)
+        self.terminated = torch.zeros(B, dtype=torch.bool)
+        self.truncated = torch.zeros(B, dtype=torch.bool)
+        self.success = torch.zeros(B, dtype=torch.bool)
+        self.scenario: list[str] = [""] * B
+        self.true_params: torch.Tensor | None = None
+        self.rng = np.random.default_rng(cfg.seed)
+
+    # ------------------------------------------------------------------------------------ seeding
+    def seed(self, seed: int | None) -> None:
+        """Re-seed the core's own generator (the global RNGs are never touched)."""
+        self.rng = np.random.default_rng(seed)
+
+    # --------------------------------------------------------------------------------- simulation
+    def _simulate(self, rows: torch.Tensor | slice) -> None:
+        with torch.no_grad():
+            res = self.sim.run(self.params[rows], speed=self.speed[rows], overlap=self.overlap[rows],
+                               side=self.side[rows], duration=self.duration, sensors=self.sensors,
+                               record_cells="final", backend=self.config.sim_backend)  # fmt: skip
+        est = res.velocity.to(torch.float64)
+        self.est_velocity[rows] = est
+        e_s = self.params[rows][..., 1]
+        absorbed = res.cell_absorbed[..., -1].to(torch.float64)
+        self.energy_fraction[rows] = torch.where(e_s > 0, absorbed / torch.where(e_s > 0, e_s, 1.0), 0.0)
+        self.saturated[rows] = res.saturated
+        ref = self.ref_velocity[rows]
+        if self.config.metrics_backend == "numba":
+            m = fast_metrics(est, ref, self.dt, self.reward_fn)
+        else:
+            m = compute_metrics(est, ref, dt=self.dt, config=self.reward_fn.cfg.metrics)
+        return m
+
+    # -------------------------------------------------------------------------------------- reset
+    def reset(self, seed: int | None = None, mask: torch.Tensor | None = None) -> None:
+        """Start new episodes in the rows of ``mask`` (``[B]`` bool; all rows if ``None``).
+
+        Draws scenario and reference per row with the core's generator (re-seeded first when
+        ``seed`` is given), resets parameters, fixes the active agents and simulates once.
+        """
+        if seed is not None:
+            self.seed(seed)
+        if mask is None:
+            rows = torch.arange(self.B)
+        else:
+            mask = torch.as_tensor(mask, dtype=torch.bool).reshape(-1)
+            if mask.shape != (self.B,):
+                raise ActionError(f"reset mask must be [{self.B}] bool, got shape {list(mask.shape)}")
+            rows = torch.nonzero(mask).flatten()
+        if rows.numel() == 0:
+            return
+        ref = self.sampler.sample(self.rng, int(rows.numel()))
+        for i, r in enumerate(rows.tolist()):  # scenario names: per-row Python strings
+            self.scenario[r] = ref.scenario[i]
+        self.speed[rows], self.overlap[rows], self.side[rows] = ref.speed, ref.overlap, ref.side
+        self.ref_velocity[rows] = ref.velocity
+        if ref.true_params is not None:
+            if self.true_params is None:
+                self.true_params = self.init[None].repeat(self.B, 1, 1)
+            self.true_params[rows] = ref.true_params
+        self.params[rows] = self.init
+        self.active[rows] = self.regions.active(ref.overlap, ref.side, ref.speed)
+        m = self._simulate(rows)
+        for old, new in zip(self.metrics, m, strict=True):
+            old[rows] = new
+        self.iteration[rows] = 0
+        self.reward[rows] = 0.0
+        self.terminated[rows] = False
+        self.truncated[rows] = False
+        self.success[rows] = False
+
+    # ------------------------------------------------------------------------------------ actions
+    def check_actions(self, actions: torch.Tensor | np.ndarray) -> torch.Tensor:
+        """Validate ``[B, n_agents, act_dim]`` float actions; return them clipped to [-1, 1] as float64.
+
+        Raises:
+            ActionError: wrong type, shape or dtype, or NaN/inf entries (named by index).
+        """
+        if isinstance(actions, np.ndarray):
+            actions = torch.from_numpy(actions)
+        if not isinstance(actions, torch.Tensor):
+            raise ActionError(f"actions must be a tensor [B, n_agents, act_dim], got {type(actions).__name__}")
+        want = (self.B, self.A, self.act_dim)
+        if tuple(actions.shape) != want:
+            raise ActionError(
+                f"actions must have shape [B={self.B}, n_agents={self.A}, act_dim={self.act_dim}] "
+                f"({self.config.granularity} granularity), got {list(actions.shape)}"
+            )
+        if not actions.is_floating_point():
+            raise ActionError(f"actions must be floating point (float32 or float64), got {actions.dtype}")
+        bad = ~torch.isfinite(actions)
+        if bool(bad.any()):
+            b, a, j = (int(x) for x in torch.nonzero(bad)[0])
+            raise ActionError(
+                f"actions must be finite; actions[{b}, {a}, {j}] (agent {self.layout.names[a]!r}) is "
+                f"{float(actions[b, a, j])} ({int(bad.sum())} non-finite entries)"
+            )
+        return actions.to(torch.float64).clamp(-1.0, 1.0)
+
+    def increments(self, actions: torch.Tensor) -> torch.Tensor:
+        """Per-cell log increments ``[B, n_cells, 7]`` from checked actions ``[B, n_agents, act_dim]``.
+
+        Inactive agents and unowned cells get zero; with the saturation preference, behaviour
+        increments of cells saturated in the last simulation are damped.
+        """
+        a = actions * (self.config.max_step * self.active[..., None])
+        if self.config.granularity == "subassembly":
+            inc = a[:, self._agent_of]  # [B, n, 7]
+        else:
+            inc = a.view(self.B, self.A, self.M, 7)[:, self._agent_of, self._slot_of]
+        inc = inc * self._owned
+        m = self.config.masking
+        if m.saturation_preference:
+            damp = torch.where(self.saturated, m.saturation_damping, 1.0).to(inc.dtype)
+            inc = torch.cat([inc[..., :2] * damp[..., None], inc[..., 2:]], dim=-1)
+        return inc
+
+    def apply_actions(self, actions: torch.Tensor | np.ndarray) -> None:
+        """Check and apply actions to the parameters, without simulating."""
+        inc = self.increments(self.check_actions(actions))
+        lo, hi = self.config.behaviour_bounds
+        self.params = apply_increments(self.params, inc, self.init, self.feasible, (lo, hi),
+                                       self.config.transmission_floor)  # fmt: skip
+
+    def action_mask(self) -> torch.Tensor:
+        """``[B, n_agents, act_dim]`` bool: entries that act (valid slot, feasible factor, active agent)."""
+        return self._static_action_mask[None] & self.active[..., None]
+
+    # --------------------------------------------------------------------------------------- step
+    def step(self, actions: torch.Tensor | np.ndarray) -> None:
+        """Apply actions, simulate all ``B`` rows once, update metrics, reward and end flags."""
+        prev = self.metrics
+        self.apply_actions(actions)
+        m = self._simulate(slice(None))
+        self.metrics = m
+        self.iteration += 1
+        self.reward = self.reward_fn(m, prev).to(torch.float64)
+        term = self.reward_fn.termination(m, self.iteration)
+        self.success = term.success
+        self.terminated = term.success | term.failure
+        self.truncated = term.truncated & ~self.terminated
+
+    @property
+    def done(self) -> torch.Tensor:
+        """``[B]`` bool, episode over (terminated or truncated)."""
+        return self.terminated | self.truncated
+
+    # ------------------------------------------------------------------------------- observations
+    def _log_ratio(self) -> torch.Tensor:
+        ratio = self.params / torch.where(self._init_pos, self.init, 1.0)
+        return torch.where(self._init_pos & (self.params > 0), torch.log(ratio.clamp_min(1e-300)), 0.0)
+
+    def state_vector(self) -> torch.Tensor:
+        """``[B, K * T]`` scaled signed differences reference minus estimate (DESIGN 1.4)."""
+        d = (self.ref_velocity - self.est_velocity) * self.config.observation.velocity_scale
+        return d.reshape(self.B, -1)
+
+    def observations(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """Per-agent observations ``[B, n_agents, obs_dim]`` and global state ``[B, state_dim]`` (float32)."""
+        o = self.config.observation
+        lay = self.layout
+        sv = self.state_vector().to(torch.float32)
+        lr = self._log_ratio()[:, lay.cells]  # [B, A, M, 7]
+        summary = (lr * self._summary_w).sum(2) / self._summary_n  # [B, A, 7]
+        if self.config.granularity == "subassembly":
+            own = summary * o.param_scale
+        else:
+            own = (lr * lay.valid[..., None]).reshape(self.B, self.A, -1) * o.param_scale
+        energy = self.energy_fraction[:, lay.cells] * lay.valid  # [B, A, M]
+        obs = torch.cat(
+            [
+                sv[:, None, :].expand(self.B, self.A, sv.shape[1]),
+                own.to(torch.float32),
+                (energy * o.energy_scale).to(torch.float32),
+                self._eye.expand(self.B, self.A, self.A),
+            ],
+            dim=-1,
+        )
+        mean_energy = energy.sum(-1) / lay.count
+        state = torch.cat(
+            [sv, (summary * o.param_scale).reshape(self.B, -1).float(), (mean_energy * o.energy_scale).float()], dim=-1
+        )
+        return obs, state

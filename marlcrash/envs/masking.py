@@ -1,0 +1,124 @@
+"""The impact-region rule (DESIGN 1.4, 5): which agents may act in an episode.
+
+Regions, batched over ``B`` scenarios (overlap fraction, struck side, speed):
+
+- *Primary*: deformable cells struck by the barrier: the barrier's lateral band
+  (:func:`marlcrash.sim.scenario.barrier_fraction` ``> 0`` over the cell's y-extent)
+  and no deeper than ``primary_depth`` metres behind the front-most struck cell.
+- *Secondary*: cells the load reaches early, i.e. not primary, reachable from a
+  primary cell along at most ``secondary_hops`` directed links (load-path direction
+  ``src -> dst``) whose directions are in ``secondary_directions``, and whose
+  centroid lies at most ``secondary_depth`` metres behind the front-most struck cell.
+  At ``speed_depth_time > 0`` both depths grow with the impact speed by
+  ``speed * speed_depth_time`` (faster crashes load deeper structure within the window).
+
+An agent is active when at least ``min_fraction`` of its cells (and at least one)
+lie in the region of the mode: ``none`` (every agent active), ``primary``,
+``primary_secondary`` (union of both regions).
+
+The saturation preference (DESIGN 1.4) is configured here too: when
+``saturation_preference`` is on, behaviour-parameter changes of cells that saturated
+in the last simulation are multiplied by ``saturation_damping``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+import torch
+
+from marlcrash.cells.model import DIRECTIONS, CellModel
+from marlcrash.config import require
+from marlcrash.envs.agents import AgentLayout
+from marlcrash.sim.scenario import barrier_fraction
+
+
+@dataclass
+class MaskingConfig:
+    """Impact-region masking and saturation preference (module docstring); values in ``configs/env``."""
+
+    mode: Literal["none", "primary", "primary_secondary"] = "primary_secondary"
+    primary_depth: float = 1.2
+    secondary_hops: int = 2
+    secondary_depth: float = 0.6
+    secondary_directions: list[str] = field(default_factory=lambda: list(DIRECTIONS))
+    speed_depth_time: float = 0.0
+    min_fraction: float = 0.1
+    saturation_preference: bool = True
+    saturation_damping: float = 0.2
+
+    def validate(self) -> None:
+        require(self.primary_depth > 0, "primary_depth", f"must be > 0 m, got {self.primary_depth}")
+        require(self.secondary_hops >= 0, "secondary_hops", f"must be >= 0, got {self.secondary_hops}")
+        require(self.secondary_depth >= 0, "secondary_depth", f"must be >= 0 m, got {self.secondary_depth}")
+        bad = [d for d in self.secondary_directions if d not in DIRECTIONS]
+        require(not bad, "secondary_directions", f"expected directions from {list(DIRECTIONS)}, got {bad}")
+        require(self.speed_depth_time >= 0, "speed_depth_time", f"must be >= 0 s, got {self.speed_depth_time}")
+        require(0.0 < self.min_fraction <= 1.0, "min_fraction", f"must be in (0, 1], got {self.min_fraction}")
+        require(0.0 <= self.saturation_damping <= 1.0, "saturation_damping",
+                f"must be in [0, 1], got {self.saturation_damping}")  # fmt: skip
+
+
+class ImpactRegions:
+    """Batched impact regions and agent activity for one cell model and agent layout.
+
+    Args:
+        cells: the cell model.
+        layout: the agents.
+        config: masking settings.
+    """
+
+    def __init__(self, cells: CellModel, layout: AgentLayout, config: MaskingConfig):
+        self.config = config
+        self.layout = layout
+        dt = torch.float64
+        self.lo_y = torch.as_tensor(cells.lo[:, 1], dtype=dt)
+        self.hi_y = torch.as_tensor(cells.hi[:, 1], dtype=dt)
+        self.x = torch.as_tensor(cells.centroid[:, 0], dtype=dt)
+        self.lo_x = torch.as_tensor(cells.lo[:, 0], dtype=dt)
+        self.width = float(cells.vehicle_width)
+        self.deformable = torch.as_tensor(~cells.is_null & ~cells.is_rigid)
+        keep = np.isin(cells.link_dir, [DIRECTIONS.index(d) for d in config.secondary_directions])
+        self.src = torch.as_tensor(cells.link_src[keep].astype(np.int64))
+        self.dst = torch.as_tensor(cells.link_dst[keep].astype(np.int64))
+        self.n = cells.n_cells
+
+    def _depth(self, base: float, speed: torch.Tensor) -> torch.Tensor:
+        return base + self.config.speed_depth_time * speed.to(torch.float64)  # [B]
+
+    def primary(self, overlap: torch.Tensor, side: torch.Tensor, speed: torch.Tensor) -> torch.Tensor:
+        """``[B, n_cells]`` bool primary region for ``[B]`` overlaps, sides (+1 left, -1 right), speeds [m/s]."""
+        frac = barrier_fraction(self.lo_y, self.hi_y, self.width, overlap.to(torch.float64), side)
+        struck = (frac > 0) & self.deformable
+        front = torch.where(struck, self.lo_x, torch.full_like(frac, float("inf"))).amin(dim=1, keepdim=True)
+        self._front = front
+        return struck & (self.lo_x - front <= self._depth(self.config.primary_depth, speed)[:, None])
+
+    def regions(
+        self, overlap: torch.Tensor, side: torch.Tensor, speed: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Primary and secondary regions, each ``[B, n_cells]`` bool (disjoint)."""
+        prim = self.primary(overlap, side, speed)
+        reach = prim.clone()
+        frontier = prim.to(torch.float64)
+        for _ in range(self.config.secondary_hops):  # loop over hops, vectorized over cells and links
+            step = torch.zeros_like(frontier).index_add_(1, self.dst, frontier[:, self.src])
+            new = (step > 0) & ~reach
+            reach |= new
+            frontier = new.to(torch.float64)
+        near = self.x[None, :] - self._front <= self._depth(self.config.secondary_depth, speed)[:, None]
+        second = reach & ~prim & near & self.deformable
+        return prim, second
+
+    def active(self, overlap: torch.Tensor, side: torch.Tensor, speed: torch.Tensor) -> torch.Tensor:
+        """``[B, n_agents]`` bool activity flags for the configured mode."""
+        B = overlap.shape[0]
+        if self.config.mode == "none":
+            return torch.ones(B, self.layout.n_agents, dtype=torch.bool)
+        prim, second = self.regions(overlap, side, speed)
+        region = prim if self.config.mode == "primary" else prim | second
+        inside = region[:, self.layout.cells] & self.layout.valid  # [B, A, M]
+        n_in = inside.sum(-1)
+        return (n_in > 0) & (n_in >= self.config.min_fraction * self.layout.count)

@@ -1,0 +1,139 @@
+"""Front door one: a PettingZoo ``ParallelEnv`` over the calibration core with ``B = 1``.
+
+- ``possible_agents``: every agent of the layout; ``agents``: the agents active in the
+  episode (impact-region rule), fixed at reset and emptied when the episode ends.
+- :meth:`CalibrationParallelEnv.reset` returns observations and infos for EVERY possible
+  agent (TorchRL's ``PettingZooWrapper`` indexes all of them at reset); ``step`` returns
+  entries for the live agents only.
+- Spaces are fixed per agent (``gymnasium.spaces.Box``, float32): observations
+  ``[obs_dim]``, actions ``[act_dim]`` in ``[-1, 1]``; the same objects on every call.
+- Actions of agents not in ``agents`` (inactive or finished) are ignored; missing actions
+  of live agents count as zero (no change).
+- Every agent receives the team reward. Infos carry the per-sensor metrics ``area``,
+  ``dfd``, ``rmse`` (``[n_sensors]`` arrays, the same for every agent).
+- Seeding: ``reset(seed=...)`` re-seeds the core's own generator only.
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import numpy as np
+import torch
+from gymnasium import spaces
+from pettingzoo import ParallelEnv
+
+from marlcrash.cells.model import CellModel
+from marlcrash.envs.core import ActionError, CalibrationCore, EnvConfig, load_env_config
+from marlcrash.sim.surrogate import SimConfig
+
+
+class CalibrationParallelEnv(ParallelEnv):
+    """Calibration of one cell model against one reference per episode (module docstring).
+
+    Args:
+        config: env config; ``None`` loads ``configs/env/default.yaml``.
+        cells: the model to calibrate (``None``: discretize ``config.vehicle``).
+        sim_config: simulator settings (``None``: ``configs/sim.yaml``).
+        render_mode: only ``None`` (no rendering).
+    """
+
+    metadata: ClassVar[dict] = {"name": "marlcrash_calibration_v0", "render_modes": [], "is_parallelizable": True}
+
+    def __init__(
+        self,
+        config: EnvConfig | None = None,
+        cells: CellModel | None = None,
+        sim_config: SimConfig | None = None,
+        render_mode: str | None = None,
+    ):
+        if render_mode is not None:
+            raise ActionError(f"render_mode must be None (no rendering), got {render_mode!r}")
+        self.render_mode = None
+        self.core = CalibrationCore(config if config is not None else load_env_config(), 1, cells, sim_config)
+        c = self.core
+        self.possible_agents: list[str] = list(c.layout.names)
+        self.agents: list[str] = []
+        self._index = {a: i for i, a in enumerate(self.possible_agents)}
+        self._obs_spaces = {
+            a: spaces.Box(-np.inf, np.inf, shape=(c.obs_dim,), dtype=np.float32) for a in self.possible_agents
+        }
+        self._act_spaces = {
+            a: spaces.Box(-1.0, 1.0, shape=(c.act_dim,), dtype=np.float32) for a in self.possible_agents
+        }
+        self.observation_spaces = self._obs_spaces
+        self.action_spaces = self._act_spaces
+        self.state_space = spaces.Box(-np.inf, np.inf, shape=(c.state_dim,), dtype=np.float32)
+        self._started = False
+
+    def observation_space(self, agent: str) -> spaces.Box:
+        return self._obs_spaces[agent]
+
+    def action_space(self, agent: str) -> spaces.Box:
+        return self._act_spaces[agent]
+
+    # -------------------------------------------------------------------------------- helpers
+    def _observations(self, agents: list[str]) -> dict[str, np.ndarray]:
+        obs, self._state = self.core.observations()
+        o = obs[0].numpy()
+        return {a: o[self._index[a]].copy() for a in agents}
+
+    def _infos(self, agents: list[str]) -> dict[str, dict[str, Any]]:
+        m = self.core.metrics
+        base = {"area": m.area[0].numpy(), "dfd": m.dfd[0].numpy(), "rmse": m.rmse[0].numpy()}
+        return {a: {k: v.copy() for k, v in base.items()} for a in agents}
+
+    def state(self) -> np.ndarray:
+        """Global state ``[state_dim]`` float32 (for centralized critics)."""
+        return self._state[0].numpy().copy()
+
+    # ---------------------------------------------------------------------------------- API
+    def reset(self, seed: int | None = None, options: dict | None = None):
+        """New episode; observations and infos for every possible agent (module docstring)."""
+        self.core.reset(seed=seed)
+        active = self.core.active[0].tolist()
+        self.agents = [a for a, on in zip(self.possible_agents, active, strict=True) if on]
+        self._started = True
+        return self._observations(self.possible_agents), self._infos(self.possible_agents)
+
+    def step(self, actions: dict[str, np.ndarray]):
+        """One calibration iteration; returns dicts for the agents live at its start."""
+        if not self._started:
+            raise ActionError("call reset() before step()")
+        if not isinstance(actions, dict):
+            raise ActionError(f"actions must be a dict agent name -> array [{self.core.act_dim}], got {type(actions)}")
+        live = list(self.agents)
+        if not live:
+            raise ActionError("the episode is over (no live agents); call reset()")
+        arr = np.zeros((1, self.core.A, self.core.act_dim), dtype=np.float64)
+        for name, act in actions.items():  # dict of agents -> array: an I/O edge
+            if name not in self._index:
+                raise ActionError(f"unknown agent {name!r}; possible agents are {self.possible_agents}")
+            if name not in live:
+                continue
+            a = np.asarray(act)
+            if a.shape != (self.core.act_dim,):
+                raise ActionError(
+                    f"action of agent {name!r} must have shape [{self.core.act_dim}], got {list(a.shape)}"
+                )
+            if not np.issubdtype(a.dtype, np.floating):
+                raise ActionError(f"action of agent {name!r} must be floating point, got {a.dtype}")
+            arr[0, self._index[name]] = a
+        self.core.step(torch.from_numpy(arr))
+        c = self.core
+        r = float(c.reward[0])
+        term, trunc = bool(c.terminated[0]), bool(c.truncated[0])
+        obs = self._observations(live)
+        rewards = dict.fromkeys(live, r)
+        terminations = dict.fromkeys(live, term)
+        truncations = dict.fromkeys(live, trunc)
+        infos = self._infos(live)
+        if term or trunc:
+            self.agents = []
+        return obs, rewards, terminations, truncations, infos
+
+    def render(self) -> None:
+        return None
+
+    def close(self) -> None:
+        return None

@@ -1,0 +1,324 @@
+"""Reference pulses for calibration (DESIGN 1.4, 1.5, 4 "Reference signals").
+
+A reference is the velocity per sensor that the surrogate is calibrated to, on the
+surrogate's output grid (``T`` samples at the scenario's output rate, 2 kHz), in the
+surrogate's sign convention (forward speed, starting at the impact speed). Three kinds:
+
+- ``twin``: the same :class:`CellModel` with a hidden, seeded perturbation per
+  sub-assembly, simulated as the "real test". Per environment and sub-assembly, ``E_x``
+  and ``E_s`` are multiplied by ``exp(spread * N(0, 1))`` (log-normal) factors; the five
+  transmission factors of its cells are multiplied by per-direction log-normal factors
+  and renormalised to sum one (fixed zeros stay zero). Optional bounds clip the factors
+  so the ground truth stays reachable by the agents. The ground-truth parameters are
+  returned for evaluation.
+- ``cross_fidelity``: a uniform-discretization model of the same vehicle (optionally a
+  seeded variant) is simulated as the reference for the optimized model; sensors are
+  matched by name. Deterministic per (vehicle seed, scenario), so results are cached.
+- ``file``: measured pulses read with :func:`marlcrash.pulse.io.read_pulse` (CSV or
+  ISO-MME), CFC-filtered, time-zero aligned, resampled to the output rate and integrated
+  to velocity (:func:`marlcrash.pulse.signal.prepare_velocity`), starting at the impact
+  speed of the file's scenario. Loaded once, drawn per episode by weight.
+
+One :class:`ReferenceSampler` draws a reference per episode (:meth:`ReferenceSampler.sample`)
+from a :class:`ReferenceConfig`; the scenario distribution (names and weights) is
+passed in by the environment, except for ``file`` whose entries name their own scenario.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+import torch
+
+from marlcrash.cells.model import TRANSMISSION, CellModel
+from marlcrash.config import config_dir, require
+from marlcrash.errors import ConfigError, PulseError
+from marlcrash.pulse.io import read_pulse
+from marlcrash.pulse.signal import prepare_velocity
+from marlcrash.sim.scenario import CrashScenario, get_scenario
+from marlcrash.sim.surrogate import SimConfig, Surrogate
+
+
+@dataclass
+class TwinConfig:
+    """Spreads of the hidden twin perturbation (log-normal sigmas, per sub-assembly)."""
+
+    e_x_spread: float = 0.2
+    e_s_spread: float = 0.2
+    transmission_spread: float = 0.2
+
+    def validate(self) -> None:
+        for k in ("e_x_spread", "e_s_spread", "transmission_spread"):
+            v = getattr(self, k)
+            require(np.isfinite(v) and 0.0 <= v <= 2.0, k, f"expected a log-normal sigma in [0, 2], got {v}")
+
+
+@dataclass
+class CrossFidelityConfig:
+    """The fine reference model: discretization method and vehicle variants."""
+
+    method: Literal["uniform", "optimized"] = "uniform"
+    target_cell_volume: float | None = None
+    vehicle_seeds: list[int | None] = field(default_factory=lambda: [None])
+
+    def validate(self) -> None:
+        require(self.target_cell_volume is None or self.target_cell_volume > 0, "target_cell_volume",
+                f"expected > 0 m^3 or null, got {self.target_cell_volume}")  # fmt: skip
+        require(bool(self.vehicle_seeds), "vehicle_seeds", "expected at least one vehicle seed (null = nominal car)")
+
+
+@dataclass
+class FileReference:
+    """One measured test: file, its load case, and how its channels map to sensors."""
+
+    path: str = ""
+    scenario: str = ""
+    channels: dict[str, str] = field(default_factory=dict)
+    unit: str = "g"
+    time_unit: str = "s"
+    sign: float = 1.0
+    cfc: int | None = 60
+    time_zero: Literal["threshold", "file"] = "threshold"
+    threshold_g: float = 0.5
+    weight: float = 1.0
+
+    def validate(self) -> None:
+        require(bool(self.path), "path", "expected the path of a CSV file or ISO-MME test")
+        require(bool(self.scenario), "scenario", "expected the registered scenario of the test")
+        require(bool(self.channels), "channels", "expected a mapping sensor name -> channel name")
+        require(self.sign in (1.0, -1.0), "sign", f"expected +1 or -1, got {self.sign}")
+        require(self.weight > 0, "weight", f"expected > 0, got {self.weight}")
+        require(self.threshold_g > 0, "threshold_g", f"expected > 0 g, got {self.threshold_g}")
+
+
+@dataclass
+class ReferenceConfig:
+    """Which reference the environment calibrates against (module docstring)."""
+
+    kind: Literal["twin", "cross_fidelity", "file"] = "twin"
+    twin: TwinConfig = field(default_factory=TwinConfig)
+    cross_fidelity: CrossFidelityConfig = field(default_factory=CrossFidelityConfig)
+    files: list[FileReference] = field(default_factory=list)
+
+    def validate(self) -> None:
+        require(self.kind != "file" or bool(self.files), "files", "kind 'file' needs at least one entry in files")
+
+
+@dataclass
+class ReferenceBatch:
+    """References for ``B`` episodes on a common grid of ``T`` samples and ``K`` sensors.
+
+    Attributes:
+        scenario: ``[B]`` scenario names.
+        speed, overlap, side: ``[B]`` float64 impact speed [m/s], overlap [-], side (+1 left, -1 right).
+        velocity: ``[B, K, T]`` float64 reference velocity [m/s] (forward speed).
+        acceleration: ``[B, K, T]`` float64 reference acceleration [m/s^2].
+        true_params: ``[B, n_cells, 7]`` ground truth of a twin, else ``None``.
+        source: ``[B]`` a readable origin (``twin``, ``uniform:seed=None``, a file path).
+    """
+
+    scenario: list[str]
+    speed: torch.Tensor
+    overlap: torch.Tensor
+    side: torch.Tensor
+    velocity: torch.Tensor
+    acceleration: torch.Tensor
+    true_params: torch.Tensor | None
+    source: list[str]
+
+
+def perturb_twin(
+    params: torch.Tensor,
+    subassembly: torch.Tensor,
+    feasible: torch.Tensor,
+    noise: torch.Tensor,
+    config: TwinConfig,
+    bounds: tuple[float, float] | None = None,
+) -> torch.Tensor:
+    """Apply per-sub-assembly twin perturbations to initial parameters.
+
+    Args:
+        params: ``[n_cells, 7]`` initial parameters.
+        subassembly: ``[n_cells]`` int64 sub-assembly index (-1: untouched, e.g. null cells).
+        feasible: ``[n_cells, 5]`` bool feasible transmission factors.
+        noise: ``[B, S, 7]`` standard normal draws, ``S`` sub-assemblies.
+        config: spreads.
+        bounds: optional ``(lo, hi)`` on the ``E_x``/``E_s`` factors.
+
+    Returns:
+        ``[B, n_cells, 7]`` perturbed parameters; transmission factors stay feasible.
+    """
+    sig = torch.tensor([config.e_x_spread, config.e_s_spread] + [config.transmission_spread] * 5, dtype=noise.dtype)
+    factor = torch.exp(noise * sig)  # [B, S, 7]
+    if bounds is not None:
+        factor[..., :2] = factor[..., :2].clamp(bounds[0], bounds[1])
+    touched = subassembly >= 0
+    per_cell = torch.where(touched[None, :, None], factor[:, subassembly.clamp_min(0)], torch.ones_like(factor[:, :1]))
+    out = params[None].to(noise.dtype) * per_cell
+    f = out[..., TRANSMISSION] * feasible
+    total = f.sum(-1, keepdim=True)
+    f = torch.where(total > 0, f / torch.where(total > 0, total, torch.ones_like(total)), params[None, :, TRANSMISSION])
+    out[..., TRANSMISSION] = f
+    return out
+
+
+def _check_grid(scenarios: dict[str, CrashScenario]) -> tuple[float, float]:
+    first = next(iter(scenarios.values()))
+    for name, sc in scenarios.items():
+        if abs(sc.duration - first.duration) > 1e-12 or abs(sc.output_rate - first.output_rate) > 1e-9:
+            raise ConfigError(
+                f"scenario {name!r} has duration {sc.duration} s at {sc.output_rate} Hz, but {first.name!r} has "
+                f"{first.duration} s at {first.output_rate} Hz; all scenarios of an environment need one output grid",
+                key="scenarios",
+            )
+    return first.duration, first.output_rate
+
+
+class ReferenceSampler:
+    """Draws one reference per episode, batched.
+
+    Args:
+        cells: the model being calibrated.
+        surrogate: its simulator (used for twins; its :class:`SimConfig` for cross-fidelity).
+        sensors: ``[K]`` sensor names, in the order of the reference's sensor axis.
+        scenarios: scenario name -> weight (ignored for ``kind: file``).
+        config: the reference settings.
+        vehicle: the vehicle name or path (cross-fidelity builds its fine model from it).
+        bounds: optional ``(lo, hi)`` factor bounds of ``E_x``, ``E_s`` for twins.
+        backend: simulator backend for references.
+
+    Raises:
+        ConfigError: unknown scenarios, mixed output grids, unknown sensors or channels.
+        PulseError: unreadable or too short reference files.
+    """
+
+    def __init__(
+        self,
+        cells: CellModel,
+        surrogate: Surrogate,
+        sensors: list[str],
+        scenarios: dict[str, float],
+        config: ReferenceConfig,
+        vehicle: str = "b_segment",
+        bounds: tuple[float, float] | None = None,
+        backend: str = "auto",
+    ):
+        self.cells, self.sim, self.sensors, self.config = cells, surrogate, list(sensors), config
+        self.vehicle, self.bounds, self.backend = vehicle, bounds, backend
+        unknown = [s for s in self.sensors if s not in cells.sensor_names]
+        if unknown:
+            raise ConfigError(f"unknown sensors {unknown}; the cell model has {cells.sensor_names}", key="sensors")
+        if config.kind == "file":
+            names = [f.scenario for f in config.files]
+            weights = [f.weight for f in config.files]
+        else:
+            names, weights = list(scenarios), list(scenarios.values())
+        if not names:
+            raise ConfigError("expected at least one scenario name with a weight", key="scenarios")
+        if any(not (np.isfinite(w) and w > 0) for w in weights):
+            raise ConfigError(f"scenario weights must be finite and > 0, got {weights}", key="scenarios")
+        self.scenarios = {n: get_scenario(n) for n in dict.fromkeys(names)}
+        self.duration, self.output_rate = _check_grid(self.scenarios)
+        self.choices = names
+        self.weights = np.asarray(weights, dtype=np.float64) / np.sum(weights)
+        self.n_outputs = round(self.duration * self.output_rate) + 1
+        self._sub = torch.as_tensor(np.where(cells.is_null | cells.is_rigid, -1, cells.subassembly).astype(np.int64))
+        self._params = torch.as_tensor(cells.params, dtype=torch.float64)
+        self._feasible = torch.as_tensor(cells.feasible)
+        self._fine: dict[int | None, tuple[CellModel, Surrogate]] = {}
+        self._cache: dict[tuple[int | None, str], tuple[np.ndarray, np.ndarray]] = {}
+        self._files = [self._load_file(i, f) for i, f in enumerate(config.files)] if config.kind == "file" else []
+
+    @property
+    def n_subassemblies(self) -> int:
+        return len(self.cells.subassembly_names)
+
+    # ----------------------------------------------------------------------------------- sampling
+    def sample(self, rng: np.random.Generator, n: int) -> ReferenceBatch:
+        """Draw ``n`` references (scenario by weight, then the reference) with ``rng``."""
+        pick = rng.choice(len(self.choices), size=n, p=self.weights)
+        names = [self.choices[i] for i in pick]
+        scs = [self.scenarios[s] for s in names]
+        speed = torch.tensor([s.speed for s in scs], dtype=torch.float64)
+        overlap = torch.tensor([s.overlap for s in scs], dtype=torch.float64)
+        side = torch.tensor([s.side_sign for s in scs], dtype=torch.float64)
+        kind = self.config.kind
+        truth = None
+        if kind == "twin":
+            noise = torch.as_tensor(rng.standard_normal((n, self.n_subassemblies, 7)))
+            truth = perturb_twin(self._params, self._sub, self._feasible, noise, self.config.twin, self.bounds)
+            with torch.no_grad():
+                res = self.sim.run(truth, speed=speed, overlap=overlap, side=side, duration=self.duration,
+                                   sensors=self.sensors, record_cells="none", backend=self.backend)  # fmt: skip
+            vel, acc = res.velocity.to(torch.float64), res.acceleration.to(torch.float64)
+            source = ["twin"] * n
+        elif kind == "cross_fidelity":
+            seeds = self.config.cross_fidelity.vehicle_seeds
+            seed_pick = rng.integers(0, len(seeds), size=n)
+            pairs = [self._fine_reference(seeds[k], s) for k, s in zip(seed_pick, names, strict=True)]
+            vel = torch.as_tensor(np.stack([p[0] for p in pairs]))
+            acc = torch.as_tensor(np.stack([p[1] for p in pairs]))
+            source = [f"{self.config.cross_fidelity.method}:seed={seeds[k]}" for k in seed_pick]
+        else:
+            vel = torch.as_tensor(np.stack([self._files[i][0] for i in pick]))
+            acc = torch.as_tensor(np.stack([self._files[i][1] for i in pick]))
+            source = [self.config.files[i].path for i in pick]
+        return ReferenceBatch(names, speed, overlap, side, vel, acc, truth, source)
+
+    # ------------------------------------------------------------------------------ cross-fidelity
+    def fine_model(self, seed: int | None = None) -> tuple[CellModel, Surrogate]:
+        """The cross-fidelity reference model of a vehicle variant and its simulator (built once)."""
+        if seed not in self._fine:
+            from marlcrash.cells.discretize import discretize, load_discretization_config
+            from marlcrash.vehicle.registry import load_vehicle
+
+            cfg = self.config.cross_fidelity
+            over = {} if cfg.target_cell_volume is None else {"target_cell_volume": cfg.target_cell_volume}
+            fine = discretize(load_vehicle(self.vehicle, seed=seed), load_discretization_config(overrides=over),
+                              method=cfg.method)  # fmt: skip
+            missing = [s for s in self.sensors if s not in fine.sensor_names]
+            if missing:
+                raise ConfigError(f"the {cfg.method} reference model lacks sensors {missing}", key="sensors")
+            sim_cfg: SimConfig = self.sim.config
+            self._fine[seed] = (fine, Surrogate(fine, sim_cfg, output_dt=1.0 / self.output_rate))
+        return self._fine[seed]
+
+    def _fine_reference(self, seed: int | None, scenario: str) -> tuple[np.ndarray, np.ndarray]:
+        key = (seed, scenario)
+        if key not in self._cache:
+            fine, sim = self.fine_model(seed)
+            with torch.no_grad():
+                res = sim.run(torch.as_tensor(fine.params)[None], self.scenarios[scenario], duration=self.duration,
+                              sensors=self.sensors, record_cells="none", backend=self.backend)  # fmt: skip
+            self._cache[key] = (res.velocity[0].double().numpy(), res.acceleration[0].double().numpy())
+        return self._cache[key]
+
+    # ------------------------------------------------------------------------------------- files
+    def _load_file(self, i: int, spec: FileReference) -> tuple[np.ndarray, np.ndarray]:
+        key = f"reference.files[{i}]"
+        missing = [s for s in self.sensors if s not in spec.channels]
+        if missing:
+            raise ConfigError(f"no channel given for sensors {missing}; expected one per sensor {self.sensors}",
+                              key=f"{key}.channels")  # fmt: skip
+        path = Path(spec.path)
+        if not path.is_absolute():
+            path = config_dir() / path
+        channels = [spec.channels[s] for s in self.sensors]
+        unique = list(dict.fromkeys(channels))
+        pulse = read_pulse(path, acc_col=unique, unit=spec.unit, time_unit=spec.time_unit, sign=spec.sign)
+        if pulse.n_channels != len(unique):
+            raise PulseError(f"{path.name}: asked for channels {unique}, read {list(pulse.channels)}")
+        pulse = pulse.select([unique.index(c) for c in channels])
+        sc = self.scenarios[spec.scenario]
+        _, vel = prepare_velocity(pulse, cfc=spec.cfc, rate_hz=sc.output_rate, duration=sc.duration,
+                                     time_zero=spec.time_zero, threshold_g=spec.threshold_g, v0=sc.speed)  # fmt: skip
+        if vel.shape[1] != self.n_outputs:
+            raise PulseError(
+                f"{path.name}: expected {self.n_outputs} samples ({sc.duration} s at {sc.output_rate} Hz) after time "
+                f"zero, got {vel.shape[1]}; the record is too short for scenario {sc.name!r}"
+            )
+        acc = np.gradient(vel, 1.0 / sc.output_rate, axis=1)
+        return vel, acc

@@ -1,0 +1,111 @@
+"""Agents (ownership, splits, merges) and the impact-region masking rule."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from marlcrash.envs.agents import AgentsConfig, AgentSpec, build_agents
+from marlcrash.envs.core import build_cells, load_env_config
+from marlcrash.envs.masking import ImpactRegions, MaskingConfig
+from marlcrash.errors import ConfigError
+from marlcrash.sim import get_scenario
+
+SPLIT = ["bumper_beam", "subframe", "cooling_module", "dash_firewall", "hood"]
+
+
+@pytest.fixture(scope="session")
+def cells():
+    return build_cells("b_segment", None, "optimized")
+
+
+@pytest.fixture(scope="session")
+def layout(cells):
+    return build_agents(cells, AgentsConfig(split_lr=SPLIT))
+
+
+def test_every_deformable_cell_owned_exactly_once(cells, layout):
+    deform = ~cells.is_null & ~cells.is_rigid
+    owned = layout.cells[layout.valid].numpy()
+    assert np.sort(owned).tolist() == np.flatnonzero(deform).tolist()
+    assert (layout.agent_of_cell.numpy()[~deform] == -1).all()
+    a, s = layout.agent_of_cell[deform], layout.slot_of_cell[deform]
+    assert torch.equal(layout.cells[a, s], torch.as_tensor(np.flatnonzero(deform)))
+    assert "compartment" not in layout.names
+    for side in ("left", "right"):
+        assert f"front_rail_{side}" in layout.names and f"bumper_beam_{side}" in layout.names
+    y = cells.centroid[:, 1]
+    left = layout.cells[layout.index("hood_left")][layout.valid[layout.index("hood_left")]]
+    assert (y[left.numpy()] >= 0).all()
+    assert layout.count.sum() == deform.sum()
+
+
+def test_merge_and_custom_agents(cells):
+    cfg = AgentsConfig(merge={"wheels": ["wheel_left", "wheel_right"]},
+                       custom=[AgentSpec("hood_front", ["hood"], "any")])  # fmt: skip
+    lay = build_agents(cells, cfg)
+    assert lay.names[:2] == ["hood_front", "wheels"]
+    assert int(lay.count[1]) == len(cells.cells_of("wheel_left")) + len(cells.cells_of("wheel_right"))
+    assert "wheel_left" not in lay.names and "hood" not in lay.names
+
+
+def test_bad_layouts_are_config_errors_naming_the_cell(cells):
+    with pytest.raises(ConfigError, match=r"cell \d+ of sub-assembly 'hood'.*owned by no agent"):
+        others = [s for s in cells.subassembly_names[:-1] if s != "hood"]
+        layout = AgentsConfig(custom=[AgentSpec("hood_l", ["hood"], "left")], rest="none", merge={"others": others})
+        build_agents(cells, layout)
+    with pytest.raises(ConfigError, match=r"sub-assembly 'hood' is owned by several agents"):
+        build_agents(cells, AgentsConfig(split_lr=["hood"], merge={"top": ["hood", "dash_firewall"]}))
+    with pytest.raises(ConfigError, match="unknown sub-assembly 'nose'"):
+        build_agents(cells, AgentsConfig(split_lr=["nose"]))
+    with pytest.raises(ConfigError, match="owns no deformable cell"):
+        build_agents(cells, AgentsConfig(custom=[AgentSpec("w", ["wheel_left"], "right")]))
+    with pytest.raises(ConfigError, match=r"agents\.custom"):
+        load_env_config(overrides={"agents.custom": [{"name": "x", "subassemblies": []}]})
+
+
+def _active(cells, layout, mode, name, **kw):
+    sc = get_scenario(name)
+    reg = ImpactRegions(cells, layout, MaskingConfig(mode=mode, **kw))
+    t = lambda v: torch.tensor([v], dtype=torch.float64)  # noqa: E731
+    act = reg.active(t(sc.overlap), t(sc.side_sign), t(sc.speed))[0]
+    return {n for n, a in zip(layout.names, act.tolist(), strict=True) if a}
+
+
+@pytest.mark.parametrize("mode", ["primary", "primary_secondary"])
+def test_small_overlap_left_leaves_right_front_inactive(cells, layout, mode):
+    on = _active(cells, layout, mode, "small_overlap_left")
+    for agent in ("crash_box_right", "front_rail_right", "bumper_beam_right", "upper_load_path_right"):
+        assert agent not in on
+    for agent in ("crash_box_left", "front_rail_left", "bumper_beam_left"):
+        assert agent in on
+    mirror = _active(cells, layout, mode, "small_overlap_right")
+    assert "crash_box_right" in mirror and "crash_box_left" not in mirror
+
+
+def test_full_width_activates_all_front_agents_and_modes_nest(cells, layout):
+    assert _active(cells, layout, "primary_secondary", "full_width_40") == set(layout.names)
+    assert _active(cells, layout, "none", "small_overlap_left") == set(layout.names)
+    for sc in ("offset40_left", "small_overlap_left", "offset40_right"):
+        prim = _active(cells, layout, "primary", sc)
+        both = _active(cells, layout, "primary_secondary", sc)
+        assert prim <= both and len(prim) < len(layout.names)
+
+
+def test_secondary_region_definition(cells, layout):
+    cfg = MaskingConfig(secondary_hops=1, secondary_depth=0.3)
+    reg = ImpactRegions(cells, layout, cfg)
+    t = lambda v: torch.tensor([v], dtype=torch.float64)  # noqa: E731
+    prim, sec = (r[0].numpy() for r in reg.regions(t(0.25), t(1.0), t(17.8)))
+    assert not (prim & sec).any()
+    # independent re-derivation: one hop along any link from a primary cell, within 0.3 m of the struck front
+    hop = np.zeros_like(prim)
+    hop[cells.link_dst[prim[cells.link_src]]] = True
+    front = cells.lo[prim, 0].min()
+    expect = hop & ~prim & (cells.centroid[:, 0] - front <= 0.3) & ~cells.is_null & ~cells.is_rigid
+    assert np.array_equal(sec, expect) and sec.any()
+    # the struck band is y >= W/2 - 0.25 W on the left; every primary cell reaches into it
+    assert (cells.hi[prim, 1] > cells.vehicle_width / 2 - 0.25 * cells.vehicle_width).all()
+    none = ImpactRegions(cells, layout, MaskingConfig(secondary_hops=0)).regions(t(0.25), t(1.0), t(17.8))[1]
+    assert not none.any()

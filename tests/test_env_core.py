@@ -1,0 +1,229 @@
+"""The batched calibration core: action application, feasibility, masking, rewards, errors."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from marlcrash.envs.core import (
+    ActionError,
+    CalibrationCore,
+    apply_increments,
+    build_cells,
+    fast_metrics,
+    load_env_config,
+)
+from marlcrash.errors import ConfigError, MarlcrashError
+from marlcrash.metrics import compute_metrics
+from marlcrash.reward import Reward, load_reward_config
+
+
+@pytest.fixture(scope="session")
+def cells():
+    return build_cells("b_segment", None, "optimized")
+
+
+def make(cells, B=2, **over):
+    over.setdefault("termination.max_iterations", 5)
+    return CalibrationCore(load_env_config(overrides=over), B, cells)
+
+
+def feasibility(core):
+    p, init = core.params, core.init
+    deform = torch.as_tensor(~core.cells.is_null & ~core.cells.is_rigid)
+    f = p[:, deform, 2:]
+    lo, hi = core.config.behaviour_bounds
+    e0 = init[deform, :2]
+    assert torch.allclose(f.sum(-1), torch.ones((), dtype=torch.float64), atol=1e-12)
+    assert (f >= 0).all()
+    assert (f[:, ~core.feasible[deform]] == 0).all()
+    e = p[:, deform, :2]
+    assert (e >= lo * e0 * (1 - 1e-12)).all() and (e <= hi * e0 * (1 + 1e-12)).all()
+    assert torch.equal(p[:, ~deform], init[~deform].expand(p.shape[0], -1, -1))
+
+
+@pytest.mark.parametrize(("granularity", "steps"), [("subassembly", 100), ("cell", 20)])
+def test_feasibility_after_10000_random_actions(cells, granularity, steps):
+    # a fresh core holds the initial parameters with every agent active (mode none): no reset, no simulation
+    core = make(cells, 100, granularity=granularity, **{"masking.mode": "none"})
+    g = torch.Generator().manual_seed(0)
+    core.saturated = torch.rand(100, cells.n_cells, generator=g) < 0.3
+    for _ in range(steps):  # 100 envs x 100 steps = 10,000 random actions (2,000 per-cell ones)
+        core.apply_actions(torch.rand(100, core.A, core.act_dim, generator=g) * 2.4 - 1.2)
+    feasibility(core)
+    assert (core.params[..., :2] != core.init[..., :2]).any()
+    small = make(cells, 3, granularity=granularity)
+    small.reset(seed=1)
+    for _ in range(3):  # a few full steps
+        small.step(torch.rand(3, small.A, small.act_dim, generator=g) * 2 - 1)
+        feasibility(small)
+
+
+def test_zero_action_and_inactive_agents_change_nothing(cells):
+    core = make(cells, 4, scenarios={"small_overlap_left": 1.0})
+    core.reset(seed=2)
+    inactive = ~core.active
+    assert inactive.any(dim=1).all()
+    for name in ("crash_box_right", "front_rail_right"):
+        assert not core.active[:, core.layout.index(name)].any()
+    p0, v0 = core.params.clone(), core.est_velocity.clone()
+    g = torch.Generator().manual_seed(1)
+    act = (torch.rand(4, core.A, 7, generator=g) * 2 - 1) * inactive[..., None]
+    core.step(act)
+    assert torch.equal(core.params, p0)
+    assert torch.equal(core.est_velocity, v0)
+    assert torch.all(core.reward == 0)
+    core.step(torch.zeros(4, core.A, 7))
+    assert torch.equal(core.params, p0)
+    act = (torch.rand(4, core.A, 7, generator=g) * 2 - 1) * core.active[..., None]
+    core.step(act)
+    assert not torch.equal(core.params, p0)
+
+
+def test_subassembly_action_scales_all_its_cells(cells):
+    core = make(cells, 1, **{"masking.mode": "none", "masking.saturation_preference": False})
+    core.reset(seed=0)
+    a = core.layout.index("front_rail_left")
+    act = torch.zeros(1, core.A, 7)
+    act[0, a, 0] = 0.5  # E_x of every front_rail_left cell times exp(0.5 * max_step)
+    act[0, a, 2] = 1.0  # f_x up, then renormalised
+    before = core.params.clone()
+    core.apply_actions(act)
+    own = core.layout.cells[a][core.layout.valid[a]]
+    ratio = core.params[0, own, 0] / before[0, own, 0]
+    torch.testing.assert_close(ratio, torch.full_like(ratio, float(np.exp(0.05))))
+    others = torch.ones(cells.n_cells, dtype=torch.bool)
+    others[own] = False
+    assert torch.equal(core.params[0, others], before[0, others])
+    fx_new, fx_old = core.params[0, own, 2], before[0, own, 2]
+    multi = core.feasible[own].sum(-1) > 1
+    assert (fx_new[multi & (fx_old > 0)] > fx_old[multi & (fx_old > 0)]).all()
+
+
+def test_cell_granularity_moves_one_cell_and_saturation_damps_behaviour(cells):
+    core = make(cells, 1, granularity="cell", **{"masking.mode": "none", "masking.saturation_damping": 0.25})
+    core.reset(seed=0)
+    assert core.act_dim == 7 * core.M
+    a = core.layout.index("crash_box_left")
+    c0, c1 = (int(c) for c in core.layout.cells[a, :2])
+    core.saturated[:] = False
+    core.saturated[0, c1] = True
+    mask = core.action_mask()
+    assert mask.shape == (1, core.A, core.act_dim)
+    assert not mask[0, a, 7 * int(core.layout.count[a]) :].any()
+    act = torch.zeros(1, core.A, core.act_dim)
+    act[0, a, 1] = 1.0  # E_s of slot 0
+    act[0, a, 7 + 1] = 1.0  # E_s of slot 1 (saturated: damped)
+    before = core.params.clone()
+    core.apply_actions(act)
+    changed = (core.params != before).any(-1)[0]
+    assert set(torch.nonzero(changed).flatten().tolist()) == {c0, c1}
+    r0 = core.params[0, c0, 1] / before[0, c0, 1]
+    r1 = core.params[0, c1, 1] / before[0, c1, 1]
+    torch.testing.assert_close(r0, torch.tensor(np.exp(0.1), dtype=torch.float64))
+    torch.testing.assert_close(r1, torch.tensor(np.exp(0.025), dtype=torch.float64))
+
+
+def test_apply_increments_revives_zero_feasible_factors():
+    init = torch.tensor([[1.0, 2.0, 1.0, 0.0, 0.0, 0.0, 0.0]], dtype=torch.float64)
+    feas = torch.tensor([[True, True, False, False, False]])
+    inc = torch.tensor([[[0.0, 0.0, 0.0, 1.0, 1.0, 0.0, 0.0]]], dtype=torch.float64)
+    out = apply_increments(init[None], inc, init, feas, (0.5, 2.0), 0.01)[0, 0]
+    g = 0.01 * (np.e - 1)  # (0 + floor) * e - floor; f_yn infeasible stays zero
+    torch.testing.assert_close(out[2:], torch.tensor([1 / (1 + g), g / (1 + g), 0, 0, 0], dtype=torch.float64))
+
+
+def test_observations_state_and_reward(cells):
+    core = make(cells, 3)
+    core.reset(seed=4)
+    obs, state = core.observations()
+    assert obs.shape == (3, core.A, core.obs_dim) and state.shape == (3, core.state_dim)
+    assert obs.dtype == torch.float32
+    kt = core.K * core.T
+    diff = (core.ref_velocity - core.est_velocity).reshape(3, -1).float()
+    torch.testing.assert_close(obs[:, 5, :kt], diff)
+    torch.testing.assert_close(state[:, :kt], diff)
+    assert torch.equal(obs[:, :, kt : kt + 7], torch.zeros(3, core.A, 7))  # params at their initial values
+    assert torch.equal(obs[:, :, -core.A :], torch.eye(core.A).expand(3, -1, -1))
+    energy = obs[:, :, kt + 7 : kt + 7 + core.M]
+    assert (energy >= 0).all() and (energy > 0).any()
+    prev = core.metrics
+    g = torch.Generator().manual_seed(3)
+    core.step(torch.rand(3, core.A, 7, generator=g) * 2 - 1)
+    rw = Reward(load_reward_config("log_ratio"))
+    ref = compute_metrics(core.est_velocity, core.ref_velocity, dt=core.dt)
+    for a, b in zip(core.metrics, ref, strict=True):
+        torch.testing.assert_close(a, b, rtol=1e-9, atol=1e-12)
+    torch.testing.assert_close(core.reward, rw(ref, prev))
+    obs, _ = core.observations()
+    assert obs[:, :, kt : kt + 7].abs().sum() > 0
+
+
+def test_fast_metrics_match_marlcrash_metrics():
+    g = torch.Generator().manual_seed(0)
+    q = torch.randn(4, 3, 60, generator=g, dtype=torch.float64).cumsum(-1)
+    p = torch.randn(4, 3, 60, generator=g, dtype=torch.float64).cumsum(-1)
+    cfg = load_reward_config("paper_factor", overrides={"metrics.dfd_time_scale": 300.0})
+    fast = fast_metrics(q, p, 5e-4, Reward(cfg))
+    slow = compute_metrics(q, p, dt=5e-4, config=cfg.metrics)
+    for a, b in zip(fast, slow, strict=True):
+        torch.testing.assert_close(a, b, rtol=1e-12, atol=1e-12)
+
+
+def test_termination_and_truncation(cells):
+    core = make(cells, 2, **{"termination.max_iterations": 2, "reference.twin.e_x_spread": 0.0,
+                             "reference.twin.e_s_spread": 0.0, "reference.twin.transmission_spread": 0.0})  # fmt: skip
+    core.reset(seed=0)
+    assert torch.allclose(core.metrics.rmse, torch.zeros(()).double())  # the twin without spread is the model
+    core.step(torch.zeros(2, core.A, 7))
+    assert core.success.all() and core.terminated.all() and not core.truncated.any()
+    core = make(cells, 2, **{"termination.max_iterations": 2, "termination.failure_dfd": None,
+                             "termination.failure_rmse": None, "termination.failure_area": None})  # fmt: skip
+    core.reset(seed=0)
+    for i in range(2):
+        core.step(torch.zeros(2, core.A, 7))
+        assert core.truncated.all() == (i == 1)
+
+
+def test_seeding_is_deterministic_and_leaves_global_rng_alone(cells):
+    torch.manual_seed(123)
+    np.random.seed(123)  # noqa: NPY002 - the legacy global RNG is what must stay untouched
+    t_state, n_state = torch.get_rng_state(), np.random.get_state()[1].copy()  # noqa: NPY002
+    a, b = make(cells, 3), make(cells, 3)
+    a.reset(seed=9)
+    b.reset(seed=9)
+    act = torch.linspace(-1, 1, 3 * a.A * 7).reshape(3, a.A, 7)
+    a.step(act)
+    b.step(act)
+    assert a.scenario == b.scenario
+    assert torch.equal(a.observations()[0], b.observations()[0]) and torch.equal(a.reward, b.reward)
+    assert torch.equal(torch.get_rng_state(), t_state) and np.array_equal(np.random.get_state()[1], n_state)  # noqa: NPY002
+    a.reset(seed=10)
+    assert not torch.equal(a.ref_velocity, b.ref_velocity)
+    # partial reset leaves the other rows alone
+    keep = b.params[1:].clone()
+    b.reset(mask=torch.tensor([True, False, False]))
+    assert torch.equal(b.params[1:], keep) and int(b.iteration[0]) == 0 and int(b.iteration[1]) == 1
+
+
+def test_bad_input_raises_clear_errors(cells):
+    core = make(cells, 2)
+    core.reset(seed=0)
+    with pytest.raises(ActionError, match=r"shape \[B=2, n_agents=21, act_dim=7\]"):
+        core.step(torch.zeros(2, core.A, 6))
+    with pytest.raises(ActionError, match="floating point"):
+        core.step(torch.zeros(2, core.A, 7, dtype=torch.int64))
+    bad = torch.zeros(2, core.A, 7)
+    bad[1, 3, 2] = float("nan")
+    with pytest.raises(ActionError, match=r"actions\[1, 3, 2\].*nan"):
+        core.step(bad)
+    assert issubclass(ActionError, MarlcrashError) and issubclass(ActionError, ValueError)
+    with pytest.raises(ConfigError, match="unknown scenario 'moon_landing'"):
+        make(cells, 1, scenarios={"moon_landing": 1.0})
+    with pytest.raises(ConfigError, match="behaviour_bounds"):
+        load_env_config(overrides={"behaviour_bounds": [2.0, 4.0]})
+    with pytest.raises(ConfigError, match="unknown env config"):
+        load_env_config("nope")
+    with pytest.raises(ConfigError, match="granularity"):
+        load_env_config(overrides={"granularity": "part"})

@@ -1,0 +1,120 @@
+"""The two front doors: PettingZoo ParallelEnv and native batched TorchRL EnvBase."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+import torch
+from pettingzoo.test import parallel_api_test, parallel_seed_test
+from tensordict import TensorDict
+from torchrl.envs import PettingZooWrapper
+from torchrl.envs.utils import MarlGroupMapType, check_env_specs
+
+from marlcrash.envs.core import ActionError, build_cells, load_env_config
+from marlcrash.envs.pettingzoo_env import CalibrationParallelEnv
+from marlcrash.envs.torchrl_env import CalibrationTorchEnv
+
+
+@pytest.fixture(scope="session")
+def cells():
+    return build_cells("b_segment", None, "optimized")
+
+
+def cfg(**over):
+    over.setdefault("termination.max_iterations", 4)
+    return load_env_config(overrides=over)
+
+
+def test_parallel_api_and_seed_tests(cells):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        parallel_api_test(CalibrationParallelEnv(cfg(), cells), num_cycles=20)
+        parallel_seed_test(lambda: CalibrationParallelEnv(cfg(), cells), num_cycles=20)
+
+
+def test_reset_returns_every_agent_but_only_active_ones_live(cells):
+    env = CalibrationParallelEnv(cfg(scenarios={"small_overlap_left": 1.0}), cells)
+    obs, infos = env.reset(seed=0)
+    assert set(obs) == set(infos) == set(env.possible_agents)
+    assert "crash_box_right" not in env.agents and "crash_box_left" in env.agents
+    assert env.observation_space("hood_left") is env.observation_space("hood_left")
+    assert obs["hood_left"].shape == env.observation_space("hood_left").shape
+    assert infos["hood_left"]["rmse"].shape == (3,)
+    act = {a: env.action_space(a).sample() for a in env.possible_agents}
+    obs, rew, _, _, _ = env.step(act)  # actions of inactive agents are ignored
+    assert set(obs) == set(rew) == set(env.agents)
+    assert len(set(rew.values())) == 1
+    with pytest.raises(ActionError, match="unknown agent 'nose'"):
+        env.step({"nose": np.zeros(7, np.float32)})
+    with pytest.raises(ActionError, match=r"shape \[7\]"):
+        env.step({"crash_box_left": np.zeros(3, np.float32)})
+    with pytest.raises(ActionError, match="floating point"):
+        env.step({"crash_box_left": np.zeros(7, np.int64)})
+    with pytest.raises(ActionError, match="finite"):
+        env.step({"crash_box_left": np.full(7, np.nan, np.float32)})
+    assert env.state().shape == env.state_space.shape
+
+
+@pytest.mark.parametrize("granularity", ["subassembly", "cell"])
+def test_native_torchrl_env_specs(cells, granularity):
+    env = CalibrationTorchEnv(cfg(granularity=granularity), batch_size=3, cells=cells)
+    check_env_specs(env, seed=0)
+    td = env.reset()
+    assert td["agents", "observation"].shape == (3, env.core.A, env.core.obs_dim)
+    assert td["agents", "mask"].dtype == torch.bool and td["agents", "mask"].shape == (3, env.core.A)
+    assert td["done"].shape == (3, 1) and td["state"].shape == (3, env.core.state_dim)
+    td = env.rand_step(td)
+    assert td["next", "reward"].shape == (3, 1)
+    roll = env.rollout(6, break_when_any_done=False)  # auto-resets rows that finished (max 4 iterations)
+    assert roll.shape == (3, 6) and roll["next", "truncated"].any()
+
+
+def test_pettingzoo_wrapper_specs(cells):
+    env = PettingZooWrapper(CalibrationParallelEnv(cfg(), cells), use_mask=True, done_on_any=False)
+    check_env_specs(env, seed=0)
+
+
+def test_both_doors_give_identical_numbers(cells):
+    config = cfg(scenarios={"offset40_right": 1.0, "small_overlap_left": 1.0, "full_width_40": 1.0})
+    native = CalibrationTorchEnv(config, batch_size=1, cells=cells)
+    wrapped = PettingZooWrapper(CalibrationParallelEnv(config, cells), use_mask=True, done_on_any=False,
+                                group_map=MarlGroupMapType.ALL_IN_ONE_GROUP)  # fmt: skip
+    group = next(iter(wrapped.group_map))
+    assert wrapped.group_map[group] == native.agent_names
+    for seed in (11, 12):
+        a = native.reset(seed=seed)
+        b = wrapped.reset(seed=seed)
+        assert torch.equal(a["agents", "observation"][0], b[group, "observation"])
+        assert torch.equal(a["agents", "mask"][0], b[group, "mask"])
+        g = torch.Generator().manual_seed(seed)
+        for _ in range(4):
+            act = torch.rand(1, native.core.A, 7, generator=g) * 2 - 1
+            a = native.step(a.set(("agents", "action"), act))["next"]
+            b = wrapped.step(b.set((group, "action"), act[0]))["next"]
+            live = a["agents", "mask"][0]
+            assert torch.equal(a["agents", "observation"][0][live], b[group, "observation"][live])
+            # the wrapper zero-fills agents absent from the episode and clears its mask once all are done
+            assert torch.equal(b[group, "mask"], live & ~a["done"][0])
+            assert torch.equal(b[group, "reward"][live, 0], a["reward"][0].expand(int(live.sum())))
+            for k in ("done", "terminated", "truncated"):
+                assert torch.equal(a[k][0], b[k]), k
+            torch.testing.assert_close(b[group, "info", "rmse"][live][0], a["metrics", "rmse"][0].float())
+            if bool(a["done"]):
+                break
+            a, b = a.clone(), b.clone()
+
+
+def test_native_seed_and_partial_reset(cells):
+    env = CalibrationTorchEnv(cfg(), batch_size=2, cells=cells)
+    env.set_seed(5)
+    first = env.reset()
+    env.set_seed(5)
+    again = env.reset()
+    assert torch.equal(first["agents", "observation"], again["agents", "observation"])
+    td = env.rand_step(again)
+    before = env.core.params[1].clone()
+    env.reset(TensorDict({"_reset": torch.tensor([[True], [False]])}, batch_size=[2]))
+    assert torch.equal(env.core.params[1], before) and int(env.core.iteration[0]) == 0
+    assert td["next", "reward"].dtype == torch.float32

@@ -1,0 +1,145 @@
+"""Reference pulses: twin, cross-fidelity and measured files (marlcrash.references)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from marlcrash.envs.core import build_cells
+from marlcrash.errors import ConfigError, PulseError
+from marlcrash.references import FileReference, ReferenceConfig, ReferenceSampler, TwinConfig, perturb_twin
+from marlcrash.sim import Surrogate, get_scenario
+
+DATA = Path(__file__).resolve().parent / "data"
+
+
+@pytest.fixture(scope="session")
+def cells():
+    return build_cells("b_segment", None, "optimized")
+
+
+@pytest.fixture(scope="session")
+def sim(cells):
+    return Surrogate(cells)
+
+
+def sampler(cells, sim, kind="twin", scenarios=None, **kw):
+    cfg = ReferenceConfig(kind=kind, **kw)
+    return ReferenceSampler(cells, sim, list(cells.sensor_names), scenarios or {"full_width_40": 1.0}, cfg)
+
+
+def test_twin_without_spread_is_the_model_itself(cells, sim):
+    s = sampler(cells, sim, twin=TwinConfig(0.0, 0.0, 0.0))
+    ref = s.sample(np.random.default_rng(0), 2)
+    direct = sim.run(torch.as_tensor(cells.params)[None], get_scenario("full_width_40"), record_cells="none")
+    torch.testing.assert_close(ref.velocity, direct.velocity.expand(2, -1, -1).double(), rtol=0, atol=1e-12)
+    torch.testing.assert_close(ref.true_params, torch.as_tensor(cells.params)[None].expand(2, -1, -1))
+    assert ref.velocity[:, :, 0].allclose(torch.tensor(40 / 3.6, dtype=torch.float64))
+
+
+def test_twin_perturbation_is_per_subassembly_feasible_and_seeded(cells, sim):
+    s = sampler(cells, sim, scenarios={"offset40_left": 1.0, "small_overlap_right": 2.0})
+    a = s.sample(np.random.default_rng(5), 3)
+    b = s.sample(np.random.default_rng(5), 3)
+    torch.testing.assert_close(a.true_params, b.true_params, rtol=0, atol=0)
+    torch.testing.assert_close(a.velocity, b.velocity, rtol=0, atol=0)
+    c = s.sample(np.random.default_rng(6), 3)
+    assert not torch.equal(a.true_params, c.true_params)
+    p0 = torch.as_tensor(cells.params)
+    truth = a.true_params
+    deform = torch.as_tensor(~cells.is_null & ~cells.is_rigid)
+    ratio = truth[:, :, :2] / torch.where(p0[:, :2] > 0, p0[:, :2], 1.0)
+    for k, _name in enumerate(cells.subassembly_names[:-1]):  # one factor per sub-assembly and env
+        idx = torch.as_tensor(np.flatnonzero((cells.subassembly == k) & ~cells.is_null))
+        r = ratio[:, idx]
+        torch.testing.assert_close(r, r[:, :1].expand_as(r), rtol=1e-10, atol=0)
+    assert not torch.allclose(ratio[:, deform], torch.ones(()).double())
+    f = truth[:, deform][..., 2:]
+    torch.testing.assert_close(f.sum(-1), torch.ones(f.shape[:-1], dtype=torch.float64))
+    assert (f[:, ~torch.as_tensor(cells.feasible)[deform]] == 0).all()
+    torch.testing.assert_close(truth[:, ~deform], p0[~deform].expand(3, -1, -1))
+    # the reference is the simulation of the ground truth under the drawn scenarios
+    sc = [get_scenario(n) for n in a.scenario]
+    f64 = torch.float64
+    again = sim.run(truth, speed=torch.tensor([x.speed for x in sc], dtype=f64), record_cells="none",
+                    overlap=torch.tensor([x.overlap for x in sc], dtype=f64),
+                    side=torch.tensor([x.side_sign for x in sc], dtype=f64))  # fmt: skip
+    torch.testing.assert_close(a.velocity, again.velocity.double(), rtol=0, atol=1e-12)
+
+
+def test_perturb_twin_bounds_clip_the_behaviour_factors(cells):
+    p0 = torch.as_tensor(cells.params)
+    sub = torch.as_tensor(np.where(cells.is_null | cells.is_rigid, -1, cells.subassembly))
+    noise = torch.full((1, len(cells.subassembly_names), 7), 10.0, dtype=torch.float64)
+    out = perturb_twin(p0, sub, torch.as_tensor(cells.feasible), noise, TwinConfig(1.0, 1.0, 0.0), bounds=(0.5, 2.0))
+    active = p0[:, 0] > 0
+    torch.testing.assert_close(out[0, active, :2], 2.0 * p0[active, :2])
+
+
+def test_file_reference_csv_and_mme_match_the_analytic_half_sine(cells, sim):
+    for path, chan in (("halfsine_40kmh.csv", "tunnel_acx"), ("HS40", "10TUNN0000ACXP")):
+        spec = FileReference(
+            path=str(DATA / path), scenario="full_width_40", channels=dict.fromkeys(cells.sensor_names, chan)
+        )
+        s = sampler(cells, sim, kind="file", files=[spec])
+        ref = s.sample(np.random.default_rng(0), 2)
+        v = ref.velocity
+        assert v.shape == (2, 3, 301)
+        v0 = 40 / 3.6
+        assert torch.allclose(v[:, :, 0], torch.tensor(v0, dtype=torch.float64))
+        # 80 ms half-sine of 40 km/h delta-v: after the pulse the velocity is v0 - 11.111 m/s
+        assert abs(float(v[0, 0, 240]) - (v0 - 40 / 3.6)) < 0.1
+        # mid-pulse against the analytic integral, allowing the time-zero shift of the 0.5 g trigger
+        t = np.arange(301) / 2000.0
+        amp = (40 / 3.6) * np.pi / (2 * 0.080)
+        t_trig = np.arcsin(0.5 * 9.80665 / amp) * 0.080 / np.pi
+        tt = np.clip(t + t_trig, 0, 0.080)
+        analytic = (
+            v0
+            - (40 / 3.6) / 2 * (1 - np.cos(np.pi * tt / 0.080))
+            + (40 / 3.6) / 2 * (1 - np.cos(np.pi * t_trig / 0.080))
+        )
+        assert np.max(np.abs(v[0, 0].numpy() - analytic)) < 0.15
+
+
+def test_file_reference_errors(cells, sim, tmp_path):
+    spec = FileReference(
+        path=str(DATA / "halfsine_40kmh.csv"), scenario="full_width_40", channels={"tunnel": "tunnel_acx"}
+    )
+    with pytest.raises(ConfigError, match="no channel given for sensors"):
+        sampler(cells, sim, kind="file", files=[spec])
+    short = tmp_path / "short.csv"
+    lines = (DATA / "halfsine_40kmh.csv").read_text().splitlines()
+    short.write_text("\n".join(lines[:400]) + "\n")  # 40 ms of a 150 ms window
+    spec = FileReference(
+        path=str(short), scenario="full_width_40", channels=dict.fromkeys(cells.sensor_names, "tunnel_acx")
+    )
+    with pytest.raises(PulseError):
+        sampler(cells, sim, kind="file", files=[spec])
+
+
+def test_sampler_config_errors(cells, sim):
+    with pytest.raises(ConfigError, match="unknown scenario"):
+        sampler(cells, sim, scenarios={"no_such_crash": 1.0})
+    with pytest.raises(ConfigError, match="weights"):
+        sampler(cells, sim, scenarios={"full_width_40": 0.0})
+    with pytest.raises(ConfigError, match="unknown sensors"):
+        ReferenceSampler(cells, sim, ["nope"], {"full_width_40": 1.0}, ReferenceConfig())
+
+
+def test_cross_fidelity_reference_uses_the_uniform_model(cells, sim):
+    s = sampler(cells, sim, kind="cross_fidelity", scenarios={"full_width_40": 1.0, "offset40_left": 1.0})
+    ref = s.sample(np.random.default_rng(1), 4)
+    fine, _ = s.fine_model(None)
+    assert fine.method == "uniform" and fine.n_cells > 5 * cells.n_cells
+    assert ref.true_params is None and ref.velocity.shape == (4, 3, 301)
+    assert torch.allclose(ref.velocity[:, :, 0], ref.speed[:, None].expand(4, 3))
+    own = sim.run(torch.as_tensor(cells.params)[None], get_scenario("full_width_40"), record_cells="none")
+    row = ref.scenario.index("full_width_40")
+    assert (ref.velocity[row] - own.velocity[0]).abs().max() > 0.1  # a genuinely different model
+    # cached and deterministic per scenario
+    again = s.sample(np.random.default_rng(1), 4)
+    torch.testing.assert_close(ref.velocity, again.velocity, rtol=0, atol=0)
