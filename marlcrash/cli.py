@@ -190,6 +190,17 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_bench(args: argparse.Namespace) -> int:
+    from marlcrash.sim.bench import format_benchmark, run_benchmark
+
+    result = run_benchmark(batch_sizes=tuple(args.batch_sizes), include_uniform=not args.skip_uniform)
+    if args.json:
+        _print_json(result)
+    else:
+        print(format_benchmark(result))
+    return 0
+
+
 def cmd_pulse(args: argparse.Namespace) -> int:
     from marlcrash.pulse.io import plot_pulse, pulse_summary, read_pulse
     from marlcrash.pulse.signal import filter_pulse
@@ -258,6 +269,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--csv", metavar="FILE.csv", help="write time, per-sensor acceleration and velocity, crush")
     p.add_argument("--plot", metavar="FILE.png", help="plot pulses per sensor and energy per sub-assembly")
     p.set_defaults(func=cmd_simulate)
+
+    p = sub.add_parser("bench", help="simulations per second of the default car's surrogate, with a roofline")
+    p.add_argument(
+        "--batch-sizes", type=int, nargs="+", default=[1, 64, 1024], metavar="B", help="batch sizes (default 1 64 1024)"
+    )
+    p.add_argument("--skip-uniform", action="store_true", help="skip the uniform-discretization model at B = 64")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=cmd_bench)
 
     p = sub.add_parser("pulse", help="read a measured crash pulse (CSV or ISO-MME), CFC-filter and integrate it")
     p.add_argument("file", help="CSV file with a header row, an ISO-MME .mme file or test folder")

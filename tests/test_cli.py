@@ -130,3 +130,13 @@ def test_simulate_overrides_and_errors():
     assert proc.returncode == 2 and "speed_kmh" in proc.stderr
     proc = run_cli("simulate", "--scenario", "moon_landing", check=False)
     assert proc.returncode == 2 and "full_width_40" in proc.stderr  # lists the registered ones
+
+
+@pytest.mark.slow
+def test_bench_json_keys():
+    out = json.loads(run_cli("bench", "--batch-sizes", "1", "4", "--skip-uniform", "--json").stdout)
+    for key in ("sims_per_s_optimized", "n_cells_optimized", "overhead_share", "roofline_sims_per_s"):
+        assert key in out, key
+    assert set(out["sims_per_s_optimized"]) == {"1", "4"}
+    assert all(v > 0 for v in out["sims_per_s_optimized"].values())
+    assert 0.0 <= out["overhead_share"]["4"] < 1.0

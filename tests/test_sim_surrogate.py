@@ -86,7 +86,8 @@ def test_energy_balance_fixtures(make):
 
 def test_energy_balance_random_parameter_sets_torch():
     cells = block()
-    p = _random_params(cells, 64, seed=1)
+    # the torch path is the slow reference: 16 sets here, 224 on the fast path below, 1000 on the default car
+    p = _random_params(cells, 16, seed=1)
     out = Surrogate(cells).run(p, get_scenario("offset40_left"), backend="torch", record_cells="final")
     err = balance_error(out.kinetic, out.stored, out.absorbed, out.initial)
     assert torch.isfinite(err).all() and float(err.max()) < 5e-3
@@ -170,13 +171,13 @@ def test_gradients_finite_nonzero_for_impact_region():
 def test_same_inputs_same_numbers_and_batch_rows_independent():
     cells = block()
     sim = Surrogate(cells)
-    p = _random_params(cells, 64, seed=4)
     sc = get_scenario("offset40_right", {"duration": 0.04})
-    for backend in ("torch", "numba"):
+    for backend, batch in (("torch", 16), ("numba", 64)):  # the torch reference path is slow: a smaller batch
+        p = _random_params(cells, batch, seed=4)
         a = sim.run(p, sc, backend=backend, record_cells="none")
         b = sim.run(p, sc, backend=backend, record_cells="none")
         assert torch.equal(a.acceleration, b.acceleration)
-        for i in (0, 17, 63):
+        for i in (0, batch // 2 + 1, batch - 1):
             one = sim.run(p[i : i + 1], sc, backend=backend, record_cells="none")
             torch.testing.assert_close(one.acceleration[0], a.acceleration[i], rtol=1e-6, atol=1e-6)
             torch.testing.assert_close(one.velocity[0], a.velocity[i], rtol=1e-6, atol=1e-9)

@@ -1,13 +1,28 @@
-"""Compiled no-grad fast path of the surrogate: one fused numba loop, parallel over the batch.
+"""Compiled no-grad fast path of the surrogate: one fused numba loop, parallel over batch chunks.
 
-It performs exactly the operations of :meth:`Surrogate._run_torch` (the tested,
-differentiable reference) in the same order per element; only summation order
-of the scatters differs, so results agree to rounding (tested to 1e-6). Element
-properties are computed by the torch code (:meth:`Surrogate.link_props`,
-:meth:`Surrogate.scenario_tensors`) and passed in as arrays.
+It performs the operations of :meth:`Surrogate._run_torch` (the tested, differentiable
+reference) in the same order per element; only the summation order of scatters and of the
+energy ledgers differs, so results agree to rounding (tested to 1e-6 relative).
+
+Memory layout (what makes it fast): the batch is cut into chunks of ``lanes`` simulations
+and every array is batch-innermost, ``[chunk, rows, lanes]``, so the inner loop over lanes is
+one SIMD vector. A chunk's link data (six property fields and the state) is stored link by
+link, ``[L, fields, lanes]``: one sequential stream per step that fits the 1 MiB L2 of a core
+(``lanes`` is chosen for that, see :func:`default_lanes`). Chunks run in parallel (``prange``).
+
+Energy ledgers without per-link work arrays: with ``r = v0 dt - ds`` the rearward increment
+of a node in the frame moving at the impact speed, a link's work ``fbar (ds_dst - ds_src)``
+equals ``fbar (r_src - r_dst)``. Summed over links this needs only node sums of the link
+forces by source (``Fs``) and by destination (``Fd``): the total link work per step is
+``-sum_i ds_i (flink_prev_i + flink_i) / 2`` with ``flink = Fs - Fd``, the input a cell
+receives is ``sum Fdbar_c r_c`` and what it passes on is ``H_a = sum_{src=a} fbar r_dst``
+(the only per-link term, accumulated only when per-cell energies are requested).
+Node-level ledgers are kept in float64 even for a float32 simulation.
 """
 
 from __future__ import annotations
+
+import time
 
 import numba
 import numpy as np
@@ -16,30 +31,80 @@ import torch
 from marlcrash.sim.surrogate import LinkProps, SimResult, Surrogate, WallProps
 
 _MODES = {"none": 0, "final": 1, "series": 2}
+_BIG = 1e30  # yield force of a bottomed-out link [N] (as in the torch path)
+_HUGE = 1e300  # stands in for an infinite saturation energy (cells without links) [J]
+
+# Per-link property fields, [chunk, L, N_PROP, lanes].
+P_YC, P_K0, P_KD, P_IK0, P_IKD, P_DAMP = range(6)
+N_PROP = 6
+# Per-node property fields, [chunk, n, N_NODE, lanes].
+W_ES, W_K, W_C, W_GAP, W_COV = range(5)
+N_NODE = 5
+
+KERNEL_SECONDS = [0.0]
+"""Cumulative wall time spent inside the compiled kernel [s] (for overhead accounting in benchmarks)."""
+
+L2_BYTES = 1 << 20
+"""Per-core L2 size the chunk width is chosen for [bytes]."""
+
+_FASTMATH = {"nsz", "arcp", "contract", "reassoc", "afn"}  # no nnan/ninf: BIG and saturation tests use huge values
 
 
-CHUNK = 16
-"""Simulations advanced together in SIMD lanes (two AVX-512 registers of float64)."""
+def default_lanes(n_links: int, itemsize: int, mode: int) -> int:
+    """Simulations per chunk: the widest power of two (<= 16) whose link data fits in L2."""
+    fields = N_PROP + 2 + (1 if mode else 0)  # properties + f_el, opening (+ f_prev for per-cell ledgers)
+    lanes = 16
+    while lanes > 4 and n_links * fields * lanes * itemsize > 0.8 * L2_BYTES:
+        lanes //= 2
+    return lanes
 
 
-@numba.njit(cache=True, fastmath=True, parallel=True)
+@numba.njit(cache=True, fastmath=_FASTMATH, inline="always")
+def _plain(P, ll, j, dd, sat, tr, f_el, plastic, a, st_l, cst):
+    """One plain link update in lane ``j``: return-mapped force, plastic work, stored energy; returns f_tot."""
+    half, zero, big, inv_dt = cst[0], cst[1], cst[5], cst[3]
+    yc = P[ll, P_YC, j]
+    k = P[ll, P_K0, j] + sat * (P[ll, P_KD, j] - P[ll, P_K0, j])
+    ik = P[ll, P_IK0, j] + sat * (P[ll, P_IKD, j] - P[ll, P_IK0, j])
+    yu = yc + sat * (big - yc)
+    yl = tr * yc + sat * (big - tr * yc)
+    f_tr = f_el[ll, j] + k * dd
+    f_new = min(max(f_tr, -yl), yu)
+    plastic[a, j] += f_new * (f_tr - f_new) * ik
+    f_el[ll, j] = f_new
+    st_l[j] += half * f_new * f_new * ik
+    return f_new + (P[ll, P_DAMP, j] * dd * inv_dt if f_tr == f_new else zero)
+
+
+@numba.njit(cache=True, fastmath=_FASTMATH, inline="always")
+def _gap(P, ll, j, dd, sat, f_el, o, plastic, a, st_l, cst):
+    """One gap (contact) link update in lane ``j``; returns f_tot."""
+    half, zero, big, inv_dt = cst[0], cst[1], cst[5], cst[3]
+    yc = P[ll, P_YC, j]
+    k = P[ll, P_K0, j] + sat * (P[ll, P_KD, j] - P[ll, P_K0, j])
+    ik = P[ll, P_IK0, j] + sat * (P[ll, P_IKD, j] - P[ll, P_IK0, j])
+    yu = yc + sat * (big - yc)
+    z = f_el[ll, j] * ik - o[ll, j] + dd
+    zp = max(z, zero)
+    f_tr = k * zp
+    o[ll, j] = max(-z, zero)
+    f_new = min(f_tr, yu)
+    plastic[a, j] += f_new * (f_tr - f_new) * ik
+    f_el[ll, j] = f_new
+    st_l[j] += half * f_new * f_new * ik
+    return f_new + (P[ll, P_DAMP, j] * dd * inv_dt if (f_tr == f_new and z > zero) else zero)
+
+
+@numba.njit(cache=True, fastmath=_FASTMATH, parallel=True)
 def _simulate(
-    yc,
-    yt,
-    k0,
-    kd,
-    ik0,
-    ikd,
-    damp,
-    e_s,
-    wk,
-    wc,
-    wgap,
-    covered,
+    cst,
+    lp,
+    npr,
     speed,
     src,
     dst,
-    is_gap,
+    n_plain,
+    tratio,
     gap0,
     mass,
     mass_ke,
@@ -63,162 +128,194 @@ def _simulate(
     ctr_o,
     plastic_o,
 ):
-    """Chunked kernel: batch arrays are ``[n_chunks, rows, CHUNK]``, lanes innermost."""
-    n_chunks, L, CH = yc.shape
+    """Advance all chunks; links ``0 .. n_plain-1`` are plain links, the rest gap (contact) links.
+
+    Args:
+        lp: ``[C, L, N_PROP, lanes]`` link properties (dtype of the simulation).
+        npr: ``[C, n, N_NODE, lanes]`` node properties (saturation energy, wall contact).
+        speed: ``[C, lanes]`` impact speeds [m/s].
+        src, dst, tratio, gap0: ``[L]`` link ends, tensile/compressive yield ratio, initial gap [m].
+        mass, mass_ke: ``[n]`` scaled mass and kinetic-energy mass [kg].
+        Outputs are ``[C, lanes, ...]`` float64 arrays (see :func:`run_numba`).
+    """
+    n_chunks, L, _, CH = lp.shape
     n = mass.shape[0]
     K = sidx.shape[0]
-    inv_dt = 1.0 / dt
+    half, zero, one, dtf = cst[0], cst[1], cst[2], cst[4]
+    n_steps = (n_out - 1) * sub
     for ch in numba.prange(n_chunks):
-        s = np.zeros((n, CH))
-        v = np.zeros((n, CH))
-        ds = np.zeros((n, CH))
-        force = np.zeros((n, CH))
-        fw_prev = np.zeros((n, CH))
-        plastic = np.zeros((n, CH))
-        satc = np.zeros((n, CH))
+        P = lp[ch]
+        NP = npr[ch]
+        # node state [n, lanes]
+        s = np.zeros((n, CH), lp.dtype)
+        v = np.zeros((n, CH), lp.dtype)
+        ds = np.zeros((n, CH), lp.dtype)
+        fs = np.zeros((n, CH), lp.dtype)  # link forces summed by source node
+        fd = np.zeros((n, CH), lp.dtype)  # ... and by destination node
+        plastic = np.zeros((n, CH), lp.dtype)
+        satc = np.zeros((n, CH), lp.dtype)
+        fw_prev = np.zeros((n, CH), lp.dtype)
+        acc = np.zeros((n, CH), lp.dtype)
+        # float64 node ledgers
+        fs_prev = np.zeros((n, CH))
+        fd_prev = np.zeros((n, CH))
         w_work = np.zeros((n, CH))
         w_in = np.zeros((n, CH))
+        a_out = np.zeros((n, CH))  # sum Fsbar r_src
+        p_in = np.zeros((n, CH))  # sum Fdbar r_dst
+        h_out = np.zeros((n, CH))  # sum_{src} fbar r_dst (per-cell modes only)
         stored_w = np.zeros((n, CH))
-        f_el = np.zeros((L, CH))
-        o = np.zeros((L, CH))
-        f_prev = np.zeros((L, CH))
-        work = np.zeros((L, CH))
-        passed = np.zeros((L, CH))
-        ftmp = np.zeros(CH)
-        ptmp = np.zeros(CH)
+        st_cell = np.zeros((n, CH))
+        # link state [L, lanes]
+        f_el = np.zeros((L, CH), lp.dtype)
+        o = np.zeros((L, CH), lp.dtype)
+        f_prev = np.zeros((L, CH), lp.dtype)
+        st_l = np.zeros(CH, lp.dtype)
+        w_link = np.zeros(CH)
         pmax = np.zeros(CH)
-        a_ke, a_st, a_w, a_p = np.zeros(CH), np.zeros(CH), np.zeros(CH), np.zeros(CH)
-        stored_l = np.zeros((L, CH))
+        ww = np.zeros(CH)
+        a_ke = np.zeros(CH)
+        a_st = np.zeros(CH)
+        a_w = np.zeros(CH)
+        a_p = np.zeros(CH)
         sp = speed[ch]
-        step_in = sp * dt
-        for l in range(L):
+        step_in = np.empty(CH, lp.dtype)
+        for j in range(CH):
+            step_in[j] = sp[j] * dtf
+        for ll in range(n_plain, L):
             for j in range(CH):
-                o[l, j] = gap0[l]
+                o[ll, j] = gap0[ll]
         for i in range(n):
             for j in range(CH):
                 v[i, j] = sp[j]
         for j in range(CH):
             e0 = 0.0
             for i in range(n):
-                e0 += 0.5 * mass_ke[i] * sp[j] * sp[j]
+                e0 += 0.5 * mass_ke[i] * float(sp[j]) * float(sp[j])
             for q in range(K):
                 vel_o[ch, j, q, 0] = sp[j]
             vc_o[ch, j, 0] = sp[j]
             ke_o[ch, j, 0] = e0
-        n_steps = (n_out - 1) * sub
         for step in range(1, n_steps + 1):
-            for i in range(n):
-                es = e_s[ch, i]
-                for j in range(CH):
-                    ds[i, j] = dt * v[i, j]
-                    s[i, j] += ds[i, j]
-                    force[i, j] = 0.0
-                    satc[i, j] = 1.0 if plastic[i, j] >= es[j] else 0.0
-            for l in range(L):
-                a = src[l]
-                c = dst[l]
-                if is_gap[l]:
-                    for j in range(CH):
-                        dd = ds[c, j] - ds[a, j]
-                        sat = satc[a, j]
-                        ik = ik0[ch, l, j] + sat * (ikd[ch, l, j] - ik0[ch, l, j])
-                        yu = yc[ch, l, j] + sat * (1e30 - yc[ch, l, j])
-                        z = f_el[l, j] * ik - o[l, j] + dd
-                        f_tr = (k0[ch, l, j] + sat * (kd[ch, l, j] - k0[ch, l, j])) * max(z, 0.0)
-                        o[l, j] = max(-z, 0.0)
-                        f_new = min(f_tr, yu)
-                        ptmp[j] = f_new * (f_tr - f_new) * ik
-                        f_tot = f_new + (damp[ch, l, j] * dd * inv_dt if (f_tr == f_new and z > 0.0) else 0.0)
-                        fbar = 0.5 * (f_prev[l, j] + f_tot)
-                        work[l, j] += fbar * dd
-                        passed[l, j] += fbar * (step_in[j] - ds[c, j])
-                        f_el[l, j] = f_new
-                        f_prev[l, j] = f_tot
-                        ftmp[j] = f_tot
-                else:
-                    for j in range(CH):
-                        dd = ds[c, j] - ds[a, j]
-                        sat = satc[a, j]
-                        ik = ik0[ch, l, j] + sat * (ikd[ch, l, j] - ik0[ch, l, j])
-                        yu = yc[ch, l, j] + sat * (1e30 - yc[ch, l, j])
-                        yl = yt[ch, l, j] + sat * (1e30 - yt[ch, l, j])
-                        f_tr = f_el[l, j] + (k0[ch, l, j] + sat * (kd[ch, l, j] - k0[ch, l, j])) * dd
-                        f_new = min(max(f_tr, -yl), yu)
-                        ptmp[j] = f_new * (f_tr - f_new) * ik
-                        f_tot = f_new + (damp[ch, l, j] * dd * inv_dt if f_tr == f_new else 0.0)
-                        fbar = 0.5 * (f_prev[l, j] + f_tot)
-                        work[l, j] += fbar * dd
-                        passed[l, j] += fbar * (step_in[j] - ds[c, j])
-                        f_el[l, j] = f_new
-                        f_prev[l, j] = f_tot
-                        ftmp[j] = f_tot
-                for j in range(CH):
-                    force[a, j] += ftmp[j]
-                for j in range(CH):
-                    force[c, j] -= ftmp[j]
-                for j in range(CH):
-                    plastic[a, j] += ptmp[j]
             record = step % sub == 0
             t = step // sub
+            for i in range(n):
+                for j in range(CH):
+                    d = dtf * v[i, j]
+                    ds[i, j] = d
+                    s[i, j] += d
+                    fs[i, j] = zero
+                    fd[i, j] = zero
+                    satc[i, j] = one if plastic[i, j] >= NP[i, W_ES, j] else zero
+            for j in range(CH):
+                st_l[j] = zero
+            # plain links: elastic-plastic, tension at tratio * crush strength
+            for ll in range(n_plain):
+                a = src[ll]
+                c = dst[ll]
+                tr = tratio[ll]
+                if mode:
+                    for j in range(CH):
+                        f_tot = _plain(P, ll, j, ds[c, j] - ds[a, j], satc[a, j], tr, f_el, plastic, a, st_l, cst)
+                        fs[a, j] += f_tot
+                        fd[c, j] += f_tot
+                        h_out[a, j] += 0.5 * (float(f_prev[ll, j]) + float(f_tot)) * float(step_in[j] - ds[c, j])
+                        f_prev[ll, j] = f_tot
+                else:
+                    for j in range(CH):
+                        f_tot = _plain(P, ll, j, ds[c, j] - ds[a, j], satc[a, j], tr, f_el, plastic, a, st_l, cst)
+                        fs[a, j] += f_tot
+                        fd[c, j] += f_tot
+            # gap (contact) links: compression only once the gap has closed
+            for ll in range(n_plain, L):
+                a = src[ll]
+                c = dst[ll]
+                if mode:
+                    for j in range(CH):
+                        f_tot = _gap(P, ll, j, ds[c, j] - ds[a, j], satc[a, j], f_el, o, plastic, a, st_l, cst)
+                        fs[a, j] += f_tot
+                        fd[c, j] += f_tot
+                        h_out[a, j] += 0.5 * (float(f_prev[ll, j]) + float(f_tot)) * float(step_in[j] - ds[c, j])
+                        f_prev[ll, j] = f_tot
+                else:
+                    for j in range(CH):
+                        f_tot = _gap(P, ll, j, ds[c, j] - ds[a, j], satc[a, j], f_el, o, plastic, a, st_l, cst)
+                        fs[a, j] += f_tot
+                        fd[c, j] += f_tot
             for j in range(CH):
                 pmax[j] = 0.0
+                w_link[j] = 0.0
             for i in range(n):
-                wki, wci, wgi, cov, mi, mk = wk[ch, i], wc[ch, i], wgap[ch, i], covered[ch, i], mass[i], mass_ke[i]
+                mi = mass[i]
+                mk = mass_ke[i]
                 for j in range(CH):
-                    pen = s[i, j] - wgi[j]
-                    inc = cov[j] and pen > 0.0
-                    fw = max(wki[j] * pen + wci[j] * v[i, j], 0.0) if inc else 0.0
-                    stored_w[i, j] = 0.5 * wki[j] * pen * pen if inc else 0.0
-                    fwbar = 0.5 * (fw_prev[i, j] + fw)
-                    w_work[i, j] += fwbar * ds[i, j]
-                    w_in[i, j] += fwbar * step_in[j]
+                    pen = s[i, j] - NP[i, W_GAP, j]
+                    inc = NP[i, W_COV, j] > zero and pen > zero
+                    fw = max(NP[i, W_K, j] * pen + NP[i, W_C, j] * v[i, j], zero) if inc else zero
+                    stored_w[i, j] = 0.5 * float(NP[i, W_K, j]) * float(pen) * float(pen) if inc else 0.0
+                    fwbar = 0.5 * (float(fw_prev[i, j]) + float(fw))
+                    dsi = float(ds[i, j])
+                    r = float(step_in[j]) - dsi
+                    w_work[i, j] += fwbar * dsi
+                    w_in[i, j] += fwbar * float(step_in[j])
                     fw_prev[i, j] = fw
-                    acc = (force[i, j] - fw) / mi
-                    v_new = v[i, j] + dt * acc
-                    force[i, j] = acc  # keep the acceleration for the record
-                    ds[i, j] = 0.5 * mk * v[i, j] * v_new  # and the leapfrog kinetic energy
+                    fsi = float(fs[i, j])
+                    fdi = float(fd[i, j])
+                    fsb = 0.5 * (fs_prev[i, j] + fsi)
+                    fdb = 0.5 * (fd_prev[i, j] + fdi)
+                    w_link[j] += (fdb - fsb) * dsi
+                    a_out[i, j] += fsb * r
+                    p_in[i, j] += fdb * r
+                    fs_prev[i, j] = fsi
+                    fd_prev[i, j] = fdi
+                    a_i = (fs[i, j] - fd[i, j] - fw) / mi
+                    v_new = v[i, j] + dtf * a_i
+                    acc[i, j] = a_i
+                    ds[i, j] = half * mk * v[i, j] * v_new  # reused: leapfrog kinetic energy
                     v[i, j] = v_new
-                    pmax[j] = max(pmax[j], pen if inc else 0.0)
+                    pmax[j] = max(pmax[j], float(pen) if inc else 0.0)
+            for j in range(CH):
+                a_w[j] += w_link[j]
             if record:
                 for j in range(CH):
                     for q in range(K):
-                        acc_o[ch, j, q, t] = force[sidx[q], j]
-                        vel_o[ch, j, q, t] = v[sidx[q], j] - 0.5 * dt * force[sidx[q], j]
+                        acc_o[ch, j, q, t] = acc[sidx[q], j]
+                        vel_o[ch, j, q, t] = v[sidx[q], j] - 0.5 * dt * acc[sidx[q], j]
                     s_o[ch, j, t] = s[comp, j]
-                    vc_o[ch, j, t] = v[comp, j] - 0.5 * dt * force[comp, j]
+                    vc_o[ch, j, t] = v[comp, j] - 0.5 * dt * acc[comp, j]
                     pen_o[ch, j, t] = pmax[j]
                     a_ke[j] = 0.0
-                    a_st[j] = 0.0
-                    a_w[j] = 0.0
+                    a_st[j] = float(st_l[j])
                     a_p[j] = 0.0
+                    ww[j] = 0.0
                 for i in range(n):
                     for j in range(CH):
                         a_ke[j] += ds[i, j]
                         a_st[j] += stored_w[i, j]
-                        a_w[j] += w_work[i, j]
+                        ww[j] += w_work[i, j]
                         a_p[j] += plastic[i, j]
-                for l in range(L):
-                    a = src[l]
-                    for j in range(CH):
-                        ik = ik0[ch, l, j] + satc[a, j] * (ikd[ch, l, j] - ik0[ch, l, j])
-                        stored_l[l, j] = 0.5 * f_el[l, j] * f_el[l, j] * ik
-                        a_st[j] += stored_l[l, j]
-                        a_w[j] += work[l, j]
                 for j in range(CH):
                     ke_o[ch, j, t] = a_ke[j]
                     st_o[ch, j, t] = a_st[j]
-                    ab_o[ch, j, t] = a_w[j] - a_st[j]
+                    ab_o[ch, j, t] = a_w[j] + ww[j] - a_st[j]
                     pl_o[ch, j, t] = a_p[j]
                 if mode == 2 or (mode == 1 and t == n_out - 1):
                     tt = t if mode == 2 else 0
+                    for i in range(n):
+                        for j in range(CH):
+                            st_cell[i, j] = 0.0
+                    for ll in range(L):
+                        a = src[ll]
+                        for j in range(CH):
+                            ik = P[ll, P_IK0, j] + satc[a, j] * (P[ll, P_IKD, j] - P[ll, P_IK0, j])
+                            st_cell[a, j] += 0.5 * float(f_el[ll, j]) * float(f_el[ll, j]) * float(ik)
                     for j in range(CH):
                         for i in range(n):
-                            cin_o[ch, j, i, tt] = w_in[i, j]
-                            cab_o[ch, j, i, tt] = w_work[i, j] - stored_w[i, j]
-                        for l in range(L):
-                            cin_o[ch, j, dst[l], tt] += passed[l, j]
-                            cab_o[ch, j, src[l], tt] += work[l, j] - stored_l[l, j]
-                            ctr_o[ch, j, src[l], tt] += passed[l, j]
+                            cin_o[ch, j, i, tt] = w_in[i, j] + p_in[i, j]
+                            cab_o[ch, j, i, tt] = (
+                                w_work[i, j] - stored_w[i, j] + a_out[i, j] - h_out[i, j] - st_cell[i, j]
+                            )
+                            ctr_o[ch, j, i, tt] = h_out[i, j]
         for i in range(n):
             for j in range(CH):
                 plastic_o[ch, j, i] = plastic[i, j]
@@ -227,54 +324,68 @@ def _simulate(
 def run_numba(
     sim: Surrogate, props: LinkProps, wall: WallProps, n_out: int, sensor_idx, record_cells: str
 ) -> SimResult:
-    """Run the fused kernel (no gradients); same inputs and result layout as the torch path."""
-    names, sidx = sensor_idx
-    B, n = props.k.shape[0], sim.n
-    chunk = min(CHUNK, B)  # small batches are not padded to a full chunk of lanes
-    n_chunks = -(-B // chunk)
-    pad = n_chunks * chunk - B
+    """Run the fused kernel (no gradients); same inputs and result layout as the torch path.
 
-    def lanes(x: torch.Tensor) -> np.ndarray:
-        """``[B, rows]`` -> ``[n_chunks, rows, chunk]`` (padding repeats the last row)."""
-        x = x.detach().to(torch.float64)
-        if pad:
-            x = torch.cat([x, x[-1:].expand(pad, *x.shape[1:])])
-        x = x.reshape(n_chunks, chunk, *x.shape[1:])
-        return np.ascontiguousarray(x.movedim(1, -1).numpy())
+    Args:
+        sim: the surrogate (static arrays, dtype, time step).
+        props: ``[B, L]`` link and ``[B, n]`` saturation properties from :meth:`Surrogate.link_props`.
+        wall: ``[B, n]`` contact properties from :meth:`Surrogate.scenario_tensors`.
+        n_out: output samples including t = 0.
+        sensor_idx: ``(names, [K] cell indices)``.
+        record_cells: ``none``, ``final`` or ``series``.
+    """
+    names, sidx = sensor_idx
+    B, n, L = props.k.shape[0], sim.n, sim.L
+    npdt = np.float32 if sim.dtype == torch.float32 else np.float64
+    tdt = torch.float32 if npdt is np.float32 else torch.float64
+    mode = _MODES[record_cells]
+    lanes = min(default_lanes(L, np.dtype(npdt).itemsize, mode), B)
+    n_chunks = -(-B // lanes)
+    Bp = n_chunks * lanes
+    order = sim.link_order
+
+    with torch.no_grad():
+        k = props.k.detach()
+        kd = props.k_dense.detach()
+        lp = torch.stack([props.yield_c.detach(), k, kd, 1.0 / k, 1.0 / kd, props.damping.detach()], dim=1)
+        lp = lp[:, :, order].to(tdt)  # [B, N_PROP, L]
+        e_s = props.e_s.detach().clamp(max=min(_HUGE, torch.finfo(props.e_s.dtype).max))
+        npr = torch.stack([e_s, wall.k, wall.damping, wall.gap, wall.covered.to(e_s.dtype)], dim=1).to(tdt)
+        sp = wall.speed.detach().to(tdt)
+        if Bp > B:  # pad the last chunk by repeating the last row
+            lp = torch.cat([lp, lp[-1:].expand(Bp - B, -1, -1)])
+            npr = torch.cat([npr, npr[-1:].expand(Bp - B, -1, -1)])
+            sp = torch.cat([sp, sp[-1:].expand(Bp - B)])
+        # [Bp, F, rows] -> [chunks, rows, F, lanes]
+        lp_a = np.ascontiguousarray(lp.reshape(n_chunks, lanes, N_PROP, L).permute(0, 3, 2, 1).numpy())
+        np_a = np.ascontiguousarray(npr.reshape(n_chunks, lanes, N_NODE, n).permute(0, 3, 2, 1).numpy())
+        sp_a = np.ascontiguousarray(sp.reshape(n_chunks, lanes).numpy())
 
     K = len(names)
-    mode = _MODES[record_cells]
     tc = {0: 0, 1: 1, 2: n_out}[mode]
-    Bp = n_chunks * chunk
-    z = lambda *shape: np.zeros((n_chunks, chunk, *shape))  # noqa: E731
+    z = lambda *shape: np.zeros((n_chunks, lanes, *shape))  # noqa: E731
     acc, vel = z(K, n_out), z(K, n_out)
     s_o, vc, pen, ke, st, ab, pl = (z(n_out) for _ in range(7))
     cin, cab, ctr = (z(n, tc) for _ in range(3))
     plastic = z(n)
-    k, kd = props.k.detach(), props.k_dense.detach()
+    dt = sim.dt
+    t0 = time.perf_counter()
+    cst = np.array([0.5, 0.0, 1.0, 1.0 / dt, dt, _BIG], dtype=npdt)
     _simulate(
-        lanes(props.yield_c),
-        lanes(props.yield_t),
-        lanes(k),
-        lanes(kd),
-        lanes(1.0 / k),
-        lanes(1.0 / kd),
-        lanes(props.damping),
-        lanes(props.e_s),
-        lanes(wall.k),
-        lanes(wall.damping),
-        lanes(wall.gap),
-        lanes(wall.covered.to(torch.float64)) > 0.5,
-        lanes(wall.speed[:, None])[:, 0],
-        sim.src.numpy(),
-        sim.dst.numpy(),
-        sim.is_gap.numpy(),
-        sim.gap.to(torch.float64).numpy(),
-        sim.mass.to(torch.float64).numpy(),
-        sim.mass_ke.to(torch.float64).numpy(),
+        cst,
+        lp_a,
+        np_a,
+        sp_a,
+        sim.src.numpy()[order],
+        sim.dst.numpy()[order],
+        int(sim.n_plain),
+        sim.tension_ratio_np[order].astype(npdt),
+        sim.gap.to(torch.float64).numpy()[order].astype(npdt),
+        sim.mass.to(torch.float64).numpy().astype(npdt),
+        sim.mass_ke.to(torch.float64).numpy().astype(npdt),
         sidx.numpy(),
         sim.comp,
-        sim.dt,
+        dt,
         sim.config.substeps,
         n_out,
         mode,
@@ -292,6 +403,7 @@ def run_numba(
         ctr,
         plastic,
     )
+    KERNEL_SECONDS[0] += time.perf_counter() - t0
 
     def T(a: np.ndarray) -> torch.Tensor:
         return torch.from_numpy(a.reshape(Bp, *a.shape[2:])[:B]).to(sim.dtype)

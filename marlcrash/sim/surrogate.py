@@ -297,6 +297,10 @@ class Surrogate:
         self.lo_x = t(cells.lo[:, 0])
         self.lo_y, self.hi_y = t(cells.lo[:, 1]), t(cells.hi[:, 1])
         self.width = float(cells.vehicle_width)
+        # Fast-path layout: plain links first, then gap links, each sorted by (src, dst).
+        self.link_order = np.lexsort((dst, src, cells.link_gap > 0))
+        self.n_plain = int((cells.link_gap <= 0).sum())
+        self.tension_ratio_np = np.where(cells.link_dir == 0, cfg.tension_ratio, 1.0)
 
     # ------------------------------------------------------------------ inputs
     def check_params(self, params: torch.Tensor | np.ndarray) -> torch.Tensor:
