@@ -33,11 +33,12 @@ from typing import Literal
 import numpy as np
 import torch
 
-from marlcrash.cells.model import TRANSMISSION, CellModel
+from marlcrash.cells.model import CellModel
+from marlcrash.cells.parameterization import apply_increments
 from marlcrash.config import config_dir, require
 from marlcrash.errors import ConfigError, PulseError
 from marlcrash.pulse.io import read_pulse
-from marlcrash.pulse.signal import prepare_velocity
+from marlcrash.pulse.signal import compared_velocity, prepare_velocity
 from marlcrash.sim.scenario import CrashScenario, get_scenario
 from marlcrash.sim.surrogate import SimConfig, Surrogate
 
@@ -102,9 +103,15 @@ class ReferenceConfig:
     twin: TwinConfig = field(default_factory=TwinConfig)
     cross_fidelity: CrossFidelityConfig = field(default_factory=CrossFidelityConfig)
     files: list[FileReference] = field(default_factory=list)
+    compare_cfc: int | None = 60
 
     def validate(self) -> None:
         require(self.kind != "file" or bool(self.files), "files", "kind 'file' needs at least one entry in files")
+        require(
+            self.compare_cfc in (None, 60, 180, 600, 1000),
+            "compare_cfc",
+            f"expected a CFC class (60, 180, 600, 1000) or null, got {self.compare_cfc!r}",
+        )
 
 
 @dataclass
@@ -114,10 +121,14 @@ class ReferenceBatch:
     Attributes:
         scenario: ``[B]`` scenario names.
         speed, overlap, side: ``[B]`` float64 impact speed [m/s], overlap [-], side (+1 left, -1 right).
-        velocity: ``[B, K, T]`` float64 reference velocity [m/s] (forward speed).
+        velocity: ``[B, K, T]`` float64 reference velocity [m/s] (forward speed) as compared:
+            the integral of the CFC-filtered acceleration (``ReferenceConfig.compare_cfc``).
         acceleration: ``[B, K, T]`` float64 reference acceleration [m/s^2].
         true_params: ``[B, n_cells, 7]`` ground truth of a twin, else ``None``.
         source: ``[B]`` a readable origin (``twin``, ``uniform:seed=None``, a file path).
+        raw_velocity: ``[B, K, T]`` unfiltered simulated velocity of simulated references (so a
+            shorter comparison window can be filtered alike); ``None`` for measured files,
+            which are filtered when read.
     """
 
     scenario: list[str]
@@ -128,6 +139,7 @@ class ReferenceBatch:
     acceleration: torch.Tensor
     true_params: torch.Tensor | None
     source: list[str]
+    raw_velocity: torch.Tensor | None = None
 
 
 def perturb_twin(
@@ -137,32 +149,32 @@ def perturb_twin(
     noise: torch.Tensor,
     config: TwinConfig,
     bounds: tuple[float, float] | None = None,
+    floor: float = 0.01,
 ) -> torch.Tensor:
     """Apply per-sub-assembly twin perturbations to initial parameters.
+
+    The perturbation is a log-scale increment per sub-assembly and parameter,
+    ``spread * noise``, mapped by :func:`~marlcrash.cells.parameterization.apply_increments`
+    -- the calibrators' own parameter space -- so the hidden truth is exactly reachable.
 
     Args:
         params: ``[n_cells, 7]`` initial parameters.
         subassembly: ``[n_cells]`` int64 sub-assembly index (-1: untouched, e.g. null cells).
         feasible: ``[n_cells, 5]`` bool feasible transmission factors.
         noise: ``[B, S, 7]`` standard normal draws, ``S`` sub-assemblies.
-        config: spreads.
-        bounds: optional ``(lo, hi)`` on the ``E_x``/``E_s`` factors.
+        config: spreads (log-normal sigmas).
+        bounds: optional ``(lo, hi)`` on the ``E_x``/``E_s`` factors (default: unbounded).
+        floor: transmission shift of the parameter space (the environment's ``transmission_floor``).
 
     Returns:
         ``[B, n_cells, 7]`` perturbed parameters; transmission factors stay feasible.
     """
     sig = torch.tensor([config.e_x_spread, config.e_s_spread] + [config.transmission_spread] * 5, dtype=noise.dtype)
-    factor = torch.exp(noise * sig)  # [B, S, 7]
-    if bounds is not None:
-        factor[..., :2] = factor[..., :2].clamp(bounds[0], bounds[1])
-    touched = subassembly >= 0
-    per_cell = torch.where(touched[None, :, None], factor[:, subassembly.clamp_min(0)], torch.ones_like(factor[:, :1]))
-    out = params[None].to(noise.dtype) * per_cell
-    f = out[..., TRANSMISSION] * feasible
-    total = f.sum(-1, keepdim=True)
-    f = torch.where(total > 0, f / torch.where(total > 0, total, torch.ones_like(total)), params[None, :, TRANSMISSION])
-    out[..., TRANSMISSION] = f
-    return out
+    touched = (subassembly >= 0)[None, :, None]
+    inc = torch.where(touched, (noise * sig)[:, subassembly.clamp_min(0)], torch.zeros((), dtype=noise.dtype))
+    p0 = params.to(noise.dtype)
+    lo, hi = bounds if bounds is not None else (1e-12, 1e12)
+    return apply_increments(p0[None].expand_as(inc), inc, p0, feasible, (lo, hi), floor)
 
 
 def _check_grid(scenarios: dict[str, CrashScenario]) -> tuple[float, float]:
@@ -188,6 +200,7 @@ class ReferenceSampler:
         config: the reference settings.
         vehicle: the vehicle name or path (cross-fidelity builds its fine model from it).
         bounds: optional ``(lo, hi)`` factor bounds of ``E_x``, ``E_s`` for twins.
+        floor: transmission shift of the parameter space (:mod:`marlcrash.cells.parameterization`).
         backend: simulator backend for references.
 
     Raises:
@@ -204,10 +217,11 @@ class ReferenceSampler:
         config: ReferenceConfig,
         vehicle: str = "b_segment",
         bounds: tuple[float, float] | None = None,
+        floor: float = 0.01,
         backend: str = "auto",
     ):
         self.cells, self.sim, self.sensors, self.config = cells, surrogate, list(sensors), config
-        self.vehicle, self.bounds, self.backend = vehicle, bounds, backend
+        self.vehicle, self.bounds, self.floor, self.backend = vehicle, bounds, floor, backend
         unknown = [s for s in self.sensors if s not in cells.sensor_names]
         if unknown:
             raise ConfigError(f"unknown sensors {unknown}; the cell model has {cells.sensor_names}", key="sensors")
@@ -249,24 +263,33 @@ class ReferenceSampler:
         truth = None
         if kind == "twin":
             noise = torch.as_tensor(rng.standard_normal((n, self.n_subassemblies, 7)))
-            truth = perturb_twin(self._params, self._sub, self._feasible, noise, self.config.twin, self.bounds)
+            truth = perturb_twin(
+                self._params, self._sub, self._feasible, noise, self.config.twin, self.bounds, self.floor
+            )
             with torch.no_grad():
                 res = self.sim.run(truth, speed=speed, overlap=overlap, side=side, duration=self.duration,
                                    sensors=self.sensors, record_cells="none", backend=self.backend)  # fmt: skip
-            vel, acc = res.velocity.to(torch.float64), res.acceleration.to(torch.float64)
+            raw, acc = res.velocity.to(torch.float64), res.acceleration.to(torch.float64)
             source = ["twin"] * n
         elif kind == "cross_fidelity":
             seeds = self.config.cross_fidelity.vehicle_seeds
             seed_pick = rng.integers(0, len(seeds), size=n)
             pairs = [self._fine_reference(seeds[k], s) for k, s in zip(seed_pick, names, strict=True)]
-            vel = torch.as_tensor(np.stack([p[0] for p in pairs]))
+            raw = torch.as_tensor(np.stack([p[0] for p in pairs]))
             acc = torch.as_tensor(np.stack([p[1] for p in pairs]))
             source = [f"{self.config.cross_fidelity.method}:seed={seeds[k]}" for k in seed_pick]
         else:
+            raw = None
             vel = torch.as_tensor(np.stack([self._files[i][0] for i in pick]))
             acc = torch.as_tensor(np.stack([self._files[i][1] for i in pick]))
             source = [self.config.files[i].path for i in pick]
-        return ReferenceBatch(names, speed, overlap, side, vel, acc, truth, source)
+        if raw is not None:
+            vel = self.compared(raw)
+        return ReferenceBatch(names, speed, overlap, side, vel, acc, truth, source, raw)
+
+    def compared(self, velocity: torch.Tensor) -> torch.Tensor:
+        """Simulated ``[..., T]`` velocity as it is compared: integral of the CFC-filtered acceleration."""
+        return compared_velocity(velocity.to(torch.float64), 1.0 / self.output_rate, self.config.compare_cfc)
 
     # ------------------------------------------------------------------------------ cross-fidelity
     def fine_model(self, seed: int | None = None) -> tuple[CellModel, Surrogate]:

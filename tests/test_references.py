@@ -8,8 +8,11 @@ import numpy as np
 import pytest
 import torch
 
+from marlcrash.cells.parameterization import apply_increments
 from marlcrash.envs.core import build_cells
 from marlcrash.errors import ConfigError, PulseError
+from marlcrash.pulse.cfc import cfc_filter
+from marlcrash.pulse.signal import compared_velocity
 from marlcrash.references import FileReference, ReferenceConfig, ReferenceSampler, TwinConfig, perturb_twin
 from marlcrash.sim import Surrogate, get_scenario
 
@@ -35,9 +38,38 @@ def test_twin_without_spread_is_the_model_itself(cells, sim):
     s = sampler(cells, sim, twin=TwinConfig(0.0, 0.0, 0.0))
     ref = s.sample(np.random.default_rng(0), 2)
     direct = sim.run(torch.as_tensor(cells.params)[None], get_scenario("full_width_40"), record_cells="none")
-    torch.testing.assert_close(ref.velocity, direct.velocity.expand(2, -1, -1).double(), rtol=0, atol=1e-12)
+    compared = compared_velocity(direct.velocity.double(), 5e-4, 60)  # integral of the CFC60 acceleration
+    torch.testing.assert_close(ref.velocity, compared.expand(2, -1, -1), rtol=0, atol=1e-12)
     torch.testing.assert_close(ref.true_params, torch.as_tensor(cells.params)[None].expand(2, -1, -1))
     assert ref.velocity[:, :, 0].allclose(torch.tensor(40 / 3.6, dtype=torch.float64))
+
+
+def test_compared_signal_is_the_integral_of_the_cfc60_acceleration(cells, sim):
+    """DESIGN 1.5: the compared velocity integrates the CFC-filtered acceleration; raw on request."""
+    raw = sampler(cells, sim, twin=TwinConfig(0.0, 0.0, 0.0), compare_cfc=None).sample(np.random.default_rng(0), 1)
+    cfc = sampler(cells, sim, twin=TwinConfig(0.0, 0.0, 0.0)).sample(np.random.default_rng(0), 1)
+    dt = 5e-4
+    acc = torch.gradient(raw.velocity, spacing=dt, dim=-1)[0]
+    filtered = torch.as_tensor(cfc_filter(acc.numpy(), dt, 60).copy())
+    expected = raw.velocity[..., :1] + torch.cat(
+        [torch.zeros_like(acc[..., :1]), torch.cumsum(0.5 * (filtered[..., 1:] + filtered[..., :-1]) * dt, -1)], -1
+    )
+    torch.testing.assert_close(cfc.velocity, expected, rtol=0, atol=1e-9)
+    assert not torch.allclose(cfc.velocity, raw.velocity, atol=1e-3)  # the filter does act on the up-front sensors
+
+
+def test_twin_truth_is_reachable_in_the_calibration_parameter_space(cells):
+    """The hidden truth is apply_increments of per-sub-assembly log increments (the agents' own space)."""
+    p0 = torch.as_tensor(cells.params)
+    sub = torch.as_tensor(np.where(cells.is_null | cells.is_rigid, -1, cells.subassembly))
+    feasible = torch.as_tensor(cells.feasible)
+    noise = torch.randn(2, len(cells.subassembly_names), 7, generator=torch.Generator().manual_seed(0)).double()
+    cfg = TwinConfig(0.3, 0.2, 0.25)
+    truth = perturb_twin(p0, sub, feasible, noise, cfg, (0.25, 4.0), floor=0.01)
+    sig = torch.tensor([0.3, 0.2] + [0.25] * 5, dtype=torch.float64)
+    inc = torch.where((sub >= 0)[None, :, None], (noise * sig)[:, sub.clamp_min(0)], torch.zeros(()).double())
+    again = apply_increments(p0[None].expand(2, -1, -1), inc, p0, feasible, (0.25, 4.0), 0.01)
+    torch.testing.assert_close(truth, again, rtol=0, atol=0)
 
 
 def test_twin_perturbation_is_per_subassembly_feasible_and_seeded(cells, sim):
@@ -67,7 +99,7 @@ def test_twin_perturbation_is_per_subassembly_feasible_and_seeded(cells, sim):
     again = sim.run(truth, speed=torch.tensor([x.speed for x in sc], dtype=f64), record_cells="none",
                     overlap=torch.tensor([x.overlap for x in sc], dtype=f64),
                     side=torch.tensor([x.side_sign for x in sc], dtype=f64))  # fmt: skip
-    torch.testing.assert_close(a.velocity, again.velocity.double(), rtol=0, atol=1e-12)
+    torch.testing.assert_close(a.velocity, s.compared(again.velocity), rtol=0, atol=1e-12)
 
 
 def test_perturb_twin_bounds_clip_the_behaviour_factors(cells):

@@ -21,10 +21,9 @@ Actions: ``subassembly`` granularity, ``act_dim = 7`` log-scale increments appli
 all the agent's cells; ``cell`` granularity, ``act_dim = 7 * max_cells``: per cell (in
 the agent's slot order) 7 increments, padded, with :meth:`CalibrationCore.action_mask`.
 
-Parameter update (:func:`apply_increments`): ``E <- clip(E * exp(d), lo * E0, hi * E0)``;
-transmission factors ``g = ((f + floor) * exp(d) - floor)^+`` on feasible entries (zero
-elsewhere), renormalised to sum one. The shift ``floor`` lets a feasible factor that is
-currently zero grow again; a zero increment leaves the cell unchanged (bit-exact).
+Parameter update: :func:`marlcrash.cells.parameterization.apply_increments`, the one
+mapping from log-scale increments to feasible parameters that agents, baselines and the
+twin reference share.
 
 Observation per agent, ``[B, n_agents, obs_dim]`` float32, concatenated:
 
@@ -54,6 +53,7 @@ import numpy as np
 import torch
 
 from marlcrash.cells.model import CellModel
+from marlcrash.cells.parameterization import apply_increments
 from marlcrash.config import config_dir, load_config, require
 from marlcrash.envs.agents import AgentsConfig, build_agents
 from marlcrash.envs.masking import ImpactRegions, MaskingConfig
@@ -140,39 +140,6 @@ def build_cells(vehicle: str, seed: int | None, method: str) -> CellModel:
     from marlcrash.vehicle.registry import load_vehicle
 
     return discretize(load_vehicle(vehicle, seed=seed), method=method)
-
-
-# ------------------------------------------------------------------------------------- parameter update
-def apply_increments(
-    params: torch.Tensor,
-    inc: torch.Tensor,
-    init: torch.Tensor,
-    feasible: torch.Tensor,
-    bounds: tuple[float, float],
-    floor: float,
-) -> torch.Tensor:
-    """Apply per-cell log increments to parameters, keeping them feasible.
-
-    Args:
-        params: ``[B, n_cells, 7]`` current parameters.
-        inc: ``[B, n_cells, 7]`` log increments (zero: unchanged).
-        init: ``[n_cells, 7]`` initial parameters (bounds of ``E_x``, ``E_s``).
-        feasible: ``[n_cells, 5]`` bool feasible transmission factors.
-        bounds: ``(lo, hi)``: ``E`` stays within ``[lo, hi] * E0``.
-        floor: shift of the multiplicative transmission update (module docstring).
-
-    Returns:
-        ``[B, n_cells, 7]`` new parameters: ``E`` in bounds, factors ``>= 0``, zero where
-        infeasible, summing to one (cells with a non-zero increment; others untouched).
-    """
-    e0 = init[None, :, :2]
-    e = (params[..., :2] * torch.exp(inc[..., :2])).clamp(min=bounds[0] * e0, max=bounds[1] * e0)
-    f = params[..., 2:]
-    g = (((f + floor) * torch.exp(inc[..., 2:])) - floor).clamp_min(0.0) * feasible
-    total = g.sum(-1, keepdim=True)
-    changed = (inc[..., 2:] != 0).any(-1, keepdim=True) & (total > 0)
-    f_new = torch.where(changed, g / torch.where(total > 0, total, torch.ones_like(total)), f)
-    return torch.cat([e, f_new], dim=-1)
 
 
 # ------------------------------------------------------------------------------------- fast metrics
@@ -291,7 +258,8 @@ class CalibrationCore:
         self.sim = Surrogate(self.cells, sim_cfg, output_dt=1.0 / rate)
         self.sampler = ReferenceSampler(
             self.cells, self.sim, self.sensors, cfg.scenarios, cfg.reference, vehicle=cfg.vehicle,
-            bounds=(cfg.behaviour_bounds[0], cfg.behaviour_bounds[1]), backend=cfg.sim_backend,
+            bounds=(cfg.behaviour_bounds[0], cfg.behaviour_bounds[1]), floor=cfg.transmission_floor,
+            backend=cfg.sim_backend,
         )  # fmt: skip
         self.duration, self.dt = self.sampler.duration, 1.0 / self.sampler.output_rate
         self.T, self.K = self.sampler.n_outputs, len(self.sensors)
@@ -352,7 +320,7 @@ class CalibrationCore:
             res = self.sim.run(self.params[rows], speed=self.speed[rows], overlap=self.overlap[rows],
                                side=self.side[rows], duration=self.duration, sensors=self.sensors,
                                record_cells="final", backend=self.config.sim_backend)  # fmt: skip
-        est = res.velocity.to(torch.float64)
+        est = self.sampler.compared(res.velocity)
         self.est_velocity[rows] = est
         e_s = self.params[rows][..., 1]
         absorbed = res.cell_absorbed[..., -1].to(torch.float64)

@@ -18,6 +18,7 @@ from marlcrash.pulse.io import (
 from marlcrash.pulse.signal import (
     SURROGATE_RATE_HZ,
     Pulse,
+    compared_velocity,
     filter_pulse,
     find_time_zero,
     from_rearward_x,
@@ -36,6 +37,7 @@ __all__ = [
     "cfc_filter",
     "cfc_filter_torch",
     "cfc_matrix",
+    "compared_velocity",
     "f_h",
     "filter_pulse",
     "find_time_zero",

@@ -33,7 +33,7 @@ import numpy as np
 import torch
 
 from marlcrash.errors import PulseError
-from marlcrash.pulse.cfc import DEFAULT_PAD_TIME, cfc_filter, check_cfc
+from marlcrash.pulse.cfc import DEFAULT_PAD_TIME, cfc_filter, cfc_filter_torch, check_cfc
 from marlcrash.units import G0
 
 SURROGATE_RATE_HZ = 2000.0
@@ -172,6 +172,28 @@ def integrate_torch(acc: torch.Tensor, dt: float, v0: float | torch.Tensor = 0.0
     zero = torch.zeros_like(acc[..., :1])
     v0 = torch.as_tensor(v0, dtype=acc.dtype, device=acc.device)
     return torch.cat([zero, torch.cumsum(inc, dim=-1)], dim=-1) + v0.unsqueeze(-1)
+
+
+def compared_velocity(velocity: torch.Tensor, dt: float, cfc: int | None = 60) -> torch.Tensor:
+    """The signal calibration compares (DESIGN 1.5): the integral of the CFC-filtered acceleration.
+
+    The acceleration is the central-difference derivative of the sampled velocity (the mean
+    deceleration around each sample, what an anti-aliased accelerometer records), filtered
+    with the phase-less CFC filter and integrated from the initial velocity. Batched and
+    differentiable.
+
+    Args:
+        velocity: ``[..., T]`` velocities [m/s] on a uniform grid (e.g. ``SimResult.velocity``).
+        dt: sampling interval [s].
+        cfc: channel frequency class; ``None`` returns ``velocity`` unchanged.
+
+    Returns:
+        ``[..., T]`` velocity [m/s] with the same initial value.
+    """
+    if cfc is None:
+        return velocity
+    acc = torch.gradient(velocity, spacing=dt, dim=-1)[0]
+    return integrate_torch(cfc_filter_torch(acc, dt, cfc), dt, v0=velocity[..., 0])
 
 
 def filter_pulse(pulse: Pulse, cfc: int = 60, pad_time: float = DEFAULT_PAD_TIME) -> Pulse:

@@ -1,0 +1,46 @@
+"""The calibration parameter space of a cell model: log-scale increments to feasible parameters.
+
+Agents, baselines and the twin reference all move through this one mapping, so a hidden
+twin perturbation is exactly reachable by the calibrators:
+
+- behaviour: ``E <- clip(E * exp(d), lo * E0, hi * E0)`` for ``E_x`` and ``E_s``;
+- transmission: ``g = ((f + floor) * exp(d) - floor)^+`` on feasible entries (zero elsewhere),
+  renormalised to sum one. The shift ``floor`` lets a feasible factor that is currently zero
+  grow again; a zero increment leaves the cell unchanged (bit-exact).
+"""
+
+from __future__ import annotations
+
+import torch
+
+
+def apply_increments(
+    params: torch.Tensor,
+    inc: torch.Tensor,
+    init: torch.Tensor,
+    feasible: torch.Tensor,
+    bounds: tuple[float, float],
+    floor: float,
+) -> torch.Tensor:
+    """Apply per-cell log increments to parameters, keeping them feasible.
+
+    Args:
+        params: ``[B, n_cells, 7]`` current parameters.
+        inc: ``[B, n_cells, 7]`` log increments (zero: unchanged).
+        init: ``[n_cells, 7]`` initial parameters (bounds of ``E_x``, ``E_s``).
+        feasible: ``[n_cells, 5]`` bool feasible transmission factors.
+        bounds: ``(lo, hi)``: ``E`` stays within ``[lo, hi] * E0``.
+        floor: shift of the multiplicative transmission update (module docstring).
+
+    Returns:
+        ``[B, n_cells, 7]`` new parameters: ``E`` in bounds, factors ``>= 0``, zero where
+        infeasible, summing to one (cells with a non-zero increment; others untouched).
+    """
+    e0 = init[None, :, :2]
+    e = (params[..., :2] * torch.exp(inc[..., :2])).clamp(min=bounds[0] * e0, max=bounds[1] * e0)
+    f = params[..., 2:]
+    g = (((f + floor) * torch.exp(inc[..., 2:])) - floor).clamp_min(0.0) * feasible
+    total = g.sum(-1, keepdim=True)
+    changed = (inc[..., 2:] != 0).any(-1, keepdim=True) & (total > 0)
+    f_new = torch.where(changed, g / torch.where(total > 0, total, torch.ones_like(total)), f)
+    return torch.cat([e, f_new], dim=-1)

@@ -1,0 +1,188 @@
+"""The calibration problem: same numbers as a direct simulation, twin ground truth, gradients, errors."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from marlcrash.calibrate import ProblemConfig, Progress, SmoothLoss, build_problem
+from marlcrash.cells.parameterization import apply_increments
+from marlcrash.config import from_dict
+from marlcrash.envs.core import build_cells, load_env_config
+from marlcrash.errors import ConfigError, ModelError
+from marlcrash.metrics import Metrics, compute_metrics
+from marlcrash.pulse.signal import compared_velocity
+from marlcrash.references import ReferenceSampler
+from marlcrash.sim.scenario import get_scenario
+
+DURATION = 0.02  # a short window keeps every simulation cheap [s]
+
+
+@pytest.fixture(scope="module")
+def cells():
+    return build_cells("b_segment", None, "optimized")
+
+
+def make(cells, **over):
+    over.setdefault("duration", DURATION)
+    return build_problem(from_dict(ProblemConfig, over), cells=cells)
+
+
+@pytest.fixture(scope="module")
+def problem(cells):
+    return make(cells)
+
+
+@pytest.fixture(scope="module")
+def exact_twin(cells):
+    """A twin whose truth lies exactly in the search space (no transmission perturbation)."""
+    return make(cells, env_overrides={"reference.twin.transmission_spread": 0.0}, reference_seed=3)
+
+
+def random_x(problem, n, seed=0, scale=0.2):
+    g = torch.Generator().manual_seed(seed)
+    return problem.clip((torch.rand(n, problem.n_agents, 7, generator=g, dtype=torch.float64) * 2 - 1) * scale)
+
+
+def test_evaluate_equals_direct_simulation_and_metrics(problem, cells):
+    x = random_x(problem, 3)
+    before = problem.n_simulations
+    m = problem.evaluate(x)
+    assert problem.n_simulations - before == 3
+    # independent path: the env's update rule by hand, the scenario object, the torch metrics
+    env = load_env_config("default")
+    inc = x[:, problem.layout.agent_of_cell.clamp_min(0)] * problem.layout.owned[None, :, None]
+    init = torch.as_tensor(cells.params, dtype=torch.float64)
+    params = apply_increments(init.expand(3, -1, -1), inc, init, torch.as_tensor(cells.feasible),
+                              tuple(env.behaviour_bounds), env.transmission_floor)  # fmt: skip
+    sc = get_scenario("full_width_40")
+    sampler = ReferenceSampler(cells, problem.sim, problem.sensors, {"full_width_40": 1.0}, env.reference,
+                               bounds=tuple(env.behaviour_bounds), floor=env.transmission_floor)  # fmt: skip
+    raw_ref = sampler.sample(np.random.default_rng(0), 1).raw_velocity[0, :, : problem.T]
+    with torch.no_grad():
+        v = problem.sim.run(params, sc, duration=DURATION, sensors=problem.sensors, record_cells="none",
+                            backend=problem.sim_backend).velocity  # fmt: skip
+    # both compared as the integral of the CFC60 acceleration over the same window (DESIGN 1.5)
+    cfc = env.reference.compare_cfc
+    ref = compared_velocity(raw_ref.double(), sc.output_dt, cfc)
+    direct = compute_metrics(compared_velocity(v.double(), sc.output_dt, cfc), ref, dt=sc.output_dt)
+    for got, want in zip(m, direct, strict=True):
+        torch.testing.assert_close(got, want, rtol=0, atol=1e-9)
+    assert m.area.shape == (3, len(problem.sensors))
+
+
+def test_params_are_the_env_update_and_feasible(problem, cells):
+    init = torch.as_tensor(cells.params, dtype=torch.float64)
+    assert torch.equal(problem.params(problem.zeros(2)), init.expand(2, -1, -1))
+    p = problem.params(random_x(problem, 4, scale=1.0))
+    deform = torch.as_tensor(~cells.is_null & ~cells.is_rigid)
+    f = p[:, deform, 2:]
+    torch.testing.assert_close(f.sum(-1), torch.ones_like(f[..., 0]), rtol=0, atol=1e-12)
+    assert (f >= 0).all() and (f[:, ~torch.as_tensor(cells.feasible)[deform]] == 0).all()
+    lo, hi = problem.bounds
+    e, e0 = p[:, deform, :2], init[deform, :2]
+    assert (e >= lo * e0 * (1 - 1e-12)).all() and (e <= hi * e0 * (1 + 1e-12)).all()
+    # gradient path gives the same values
+    xg = random_x(problem, 2, seed=5).requires_grad_(True)
+    torch.testing.assert_close(problem.params(xg).detach(), problem.params(xg.detach()), rtol=0, atol=0)
+
+
+def test_box_and_free_coordinates(problem):
+    x = problem.clip(torch.full((1, problem.n_agents, 7), 10.0, dtype=torch.float64))
+    top = min(1.0, float(np.log(problem.bounds[1])))  # box_radius 1 and the behaviour bound
+    assert torch.allclose(x[0, :, :2][problem.free[:, :2]], torch.tensor(top, dtype=torch.float64))
+    assert torch.allclose(x[0, :, 2:][problem.free[:, 2:]], torch.tensor(1.0, dtype=torch.float64))
+    assert (x[0][~problem.free] == 0).all()
+    assert problem.n_free == int(problem.free.sum()) and problem.n_free > 2 * problem.n_agents
+    z = torch.arange(problem.n_free, dtype=torch.float64)[None]
+    assert torch.equal(problem.flat(problem.unflat(z)), z)
+
+
+def test_twin_truth_has_zero_metrics_and_zero_param_error(exact_twin):
+    p = exact_twin
+    x = torch.stack([p.zeros(1)[0], p.true_x])
+    m = p.evaluate(x)
+    for t in m:
+        assert float(t[1].abs().max()) < 1e-9
+        assert float(t[0].min()) > 1e-4  # the initial parameters do not fit the twin
+    assert p.success(m).tolist() == [False, True]
+    err = p.param_error(x)
+    assert float(err[1].abs().max()) < 1e-12
+    assert float(err[0, :, :2].max()) > 0.05
+    assert set(p.param_error_table(p.true_x)) == set(p.subassembly_names)
+
+
+def test_twin_with_transmission_spread_is_matched_in_behaviour(problem):
+    """E_x, E_s of the truth are exact; transmission factors only to O(floor * spread) (documented)."""
+    err = problem.param_error(problem.true_x[None])[0]
+    assert float(err[:, :2].max()) < 1e-12
+    assert float(err[:, 2].max()) < 0.02
+    init_err = problem.param_error(problem.zeros(1))[0]
+    assert float(init_err[:, 2].max()) > 5 * float(err[:, 2].max())
+    s = problem.score(problem.evaluate(torch.stack([problem.zeros(1)[0], problem.true_x])))
+    assert float(s[1]) > float(s[0])
+
+
+def test_loss_gradient_is_finite_and_nonzero_at_the_start(problem):
+    x = problem.zeros(2).requires_grad_(True)
+    before = problem.n_simulations
+    loss, m = problem.loss(x, SmoothLoss())
+    assert problem.n_simulations - before == 2
+    loss.sum().backward()
+    g = x.grad
+    assert torch.isfinite(g).all()
+    assert float(g[:, :, :2].abs().max()) > 0
+    assert float(g[:, :, 2:].abs().max()) > 0  # transmission coordinates too, also at x = 0
+    assert (g[:, ~problem.free] == 0).all()
+    # torch path against the numba path: round-off, amplified a little by the filter's derivative
+    torch.testing.assert_close(m.rmse, problem.evaluate(problem.zeros(2)).rmse, rtol=0, atol=1e-8)
+
+
+def test_loss_is_zero_at_exact_truth(exact_twin):
+    loss, _ = exact_twin.loss(exact_twin.true_x[None], SmoothLoss())
+    assert float(loss[0]) < 1e-6  # torch path against a numba reference: round-off only
+
+
+def test_bad_candidates_are_named(problem):
+    with pytest.raises(ModelError, match="n_agents"):
+        problem.evaluate(torch.zeros(2, problem.n_agents + 1, 7, dtype=torch.float64))
+    x = problem.zeros(1)
+    x[0, 2, 1] = float("nan")
+    with pytest.raises(ModelError, match=rf"{problem.agent_names[2]}.*E_s"):
+        problem.evaluate(x)
+
+
+@pytest.mark.parametrize(
+    ("over", "key"),
+    [
+        ({"box_radius": -1.0}, "box_radius"),
+        ({"duration": 0.0123}, "problem.duration"),
+        ({"duration": 0.5}, "problem.duration"),
+        ({"success": {"area": -1.0}}, "success.area"),
+        ({"reference": "file"}, "reference"),
+        ({"scenario": "moon_landing"}, "scenario"),
+        ({"fit": "nope"}, "name"),
+        ({"bogus": 1}, "bogus"),
+    ],
+)
+def test_bad_problem_configs_name_the_key(cells, over, key):
+    with pytest.raises(ConfigError) as e:
+        build_problem(from_dict(ProblemConfig, over), cells=cells)
+    assert e.value.key is not None and key in e.value.key
+
+
+def test_progress_counts_exactly():
+    p = Progress(10)
+    x = torch.zeros(4, 2, 7)
+    m = Metrics(*(torch.ones(4, 3) for _ in range(3)))
+    assert p.grant(4) == 4
+    p.record(x, m, torch.tensor([0.0, 1.0, 3.0, 2.0]), torch.tensor([False, False, True, True]))
+    assert p.sims_to_success == 3 and p.best_score == 3.0 and p.used == 4
+    p.record(x, m, torch.tensor([float("nan"), 1.0, 2.0, 0.0]), torch.zeros(4, dtype=torch.bool))
+    assert p.grant(4) == 2 and p.best_score == 3.0
+    with pytest.raises(RuntimeError, match="exceeds"):
+        p.record(x, m, torch.zeros(4), torch.zeros(4, dtype=torch.bool))
+    assert p.history_array()[:, 1].tolist() == [3.0, 3.0]
+    with pytest.raises(ConfigError, match="budget"):
+        Progress(0)
