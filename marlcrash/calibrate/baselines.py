@@ -1,0 +1,446 @@
+"""Optimizer baselines on a simulation budget (DESIGN 6): random search, CMA-ES, gradient descent.
+
+All three search the agents' space of a :class:`~marlcrash.calibrate.problem.CalibrationProblem`
+(``x [n_agents, 7]`` log-scale factors, only its free coordinates), charge every simulated
+candidate to one :class:`~marlcrash.calibrate.budget.Progress`, rank candidates by the
+problem's fit score, and return a :class:`CalibrationResult` with the same fields. The
+first candidate of every run is the initial parameters (``x = 0``), so ``initial_metrics``
+and the first history row are measured, not assumed.
+
+- :func:`random_search`: batches drawn uniformly in a box around the best point so far
+  (``recenter``), the box shrinking by ``shrink`` after a batch without improvement; with
+  ``recenter: false`` and ``shrink: 1`` it is pure uniform sampling of the search box.
+- :func:`cmaes`: the ``cma`` package's ask/tell loop, one generation simulated as one batch,
+  box bounds by its ``BoundTransform``; normal draws come from the run's numpy Generator
+  (``cma``'s own seeding of the global RNG is switched off, and the global state is restored).
+- :func:`gradient_descent`: projected Adam on the free log-scales of ``batch_size`` starting
+  points at once (the first at ``x = 0``, the others uniform within ``start_radius``), loss
+  :class:`~marlcrash.calibrate.problem.SmoothLoss` through the differentiable torch simulator.
+  Cost: one simulation per candidate per step (the forward pass; its backward pass is not
+  charged separately). The metrics of each step's forward pass rank the candidates.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import shutil
+import tempfile
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from marlcrash.calibrate.budget import Progress
+from marlcrash.calibrate.problem import CalibrationProblem, ProblemConfig, SmoothLoss
+from marlcrash.config import from_dict, require
+from marlcrash.errors import ConfigError
+from marlcrash.metrics import Metrics
+
+# ----------------------------------------------------------------------------------------- configs
+
+
+@dataclass
+class RandomSearchConfig:
+    """Random search settings; values in ``configs/train/baseline/random_search.yaml``."""
+
+    batch_size: int = 64
+    recenter: bool = True
+    radius: float = 0.5
+    shrink: float = 0.7
+    min_radius: float = 0.02
+
+    def validate(self) -> None:
+        require(self.batch_size >= 1, "batch_size", f"expected >= 1 candidates per batch, got {self.batch_size}")
+        require(0 < self.radius <= 1, "radius", f"expected a fraction of the box in (0, 1], got {self.radius}")
+        require(0 < self.shrink <= 1, "shrink", f"expected a factor in (0, 1], got {self.shrink}")
+        require(0 < self.min_radius <= self.radius, "min_radius",
+                f"expected 0 < min_radius <= radius ({self.radius}), got {self.min_radius}")  # fmt: skip
+
+
+@dataclass
+class CMAESConfig:
+    """CMA-ES settings; values in ``configs/train/baseline/cmaes.yaml``."""
+
+    popsize: int = 32
+    sigma0: float = 0.2
+    diagonal: bool = False
+    restarts: bool = True
+
+    def validate(self) -> None:
+        require(self.popsize >= 2, "popsize", f"expected a population >= 2, got {self.popsize}")
+        require(np.isfinite(self.sigma0) and self.sigma0 > 0, "sigma0", f"expected a step > 0, got {self.sigma0}")
+
+
+@dataclass
+class GradientConfig:
+    """Gradient descent settings; values in ``configs/train/baseline/gradient.yaml``."""
+
+    batch_size: int = 4
+    lr: float = 0.03
+    beta1: float = 0.9
+    beta2: float = 0.999
+    start_radius: float = 0.1
+    threads: int = 1
+    loss: SmoothLoss = field(default_factory=SmoothLoss)
+
+    def validate(self) -> None:
+        require(self.batch_size >= 1, "batch_size", f"expected >= 1 starting points, got {self.batch_size}")
+        require(np.isfinite(self.lr) and self.lr > 0, "lr", f"expected a learning rate > 0, got {self.lr}")
+        for k in ("beta1", "beta2"):
+            require(0 <= getattr(self, k) < 1, k, f"expected a decay in [0, 1), got {getattr(self, k)}")
+        require(self.start_radius >= 0, "start_radius", f"expected >= 0, got {self.start_radius}")
+        require(self.threads >= 0, "threads", f"expected a thread count >= 0 (0: torch's setting), got {self.threads}")
+
+
+# ----------------------------------------------------------------------------------------- results
+
+
+@dataclass
+class CalibrationResult:
+    """Outcome of one calibration run (any method), ``K`` sensors.
+
+    Attributes:
+        method: the baseline's name.
+        best_x: ``[n_agents, 7]`` best candidate; ``best_params``: ``[n_cells, 7]`` its cell parameters.
+        sensor_names: ``[K]``.
+        initial_metrics, final_metrics: per-sensor :class:`Metrics` ``[K]`` at ``x = 0`` and at ``best_x``.
+        initial_score, best_score: fit scores (higher is better).
+        history: ``[H, 3]`` simulations used, best score so far, best score of the batch.
+        simulations: simulations used; ``wall_time_s``: [s].
+        sims_to_success: simulations until the first candidate passing the success test, else ``None``.
+        param_error, initial_param_error: ``{sub-assembly: {E_x, E_s, transmission}}`` relative errors
+            of ``best_x`` and of ``x = 0`` against a twin's truth (``None`` for other references).
+    """
+
+    method: str
+    best_x: torch.Tensor
+    best_params: torch.Tensor
+    sensor_names: list[str]
+    initial_metrics: Metrics
+    final_metrics: Metrics
+    initial_score: float
+    best_score: float
+    history: np.ndarray
+    simulations: int
+    wall_time_s: float
+    sims_to_success: int | None
+    param_error: dict[str, dict[str, float]] | None = None
+    initial_param_error: dict[str, dict[str, float]] | None = None
+
+    @staticmethod
+    def _per_sensor(m: Metrics, names: list[str]) -> dict[str, dict[str, float]]:
+        return {
+            s: {"area": float(m.area[k]), "dfd": float(m.dfd[k]), "rmse": float(m.rmse[k])} for k, s in enumerate(names)
+        }
+
+    def summary(self) -> dict[str, Any]:
+        """JSON-ready summary: metrics per sensor ``{area, dfd, rmse}`` (SI), budget use, errors."""
+        out: dict[str, Any] = {
+            "method": self.method,
+            "final_metrics": self._per_sensor(self.final_metrics, self.sensor_names),
+            "initial_metrics": self._per_sensor(self.initial_metrics, self.sensor_names),
+            "initial_score": self.initial_score,
+            "best_score": self.best_score,
+            "simulations": self.simulations,
+            "sims_to_success": self.sims_to_success,
+            "wall_time_s": self.wall_time_s,
+        }
+        if self.param_error is not None:
+            out["param_error"] = self.param_error
+            out["initial_param_error"] = self.initial_param_error
+        return out
+
+
+def _evaluate(problem: CalibrationProblem, progress: Progress, x: torch.Tensor) -> torch.Tensor:
+    """Simulate and record a batch ``x [N, n_agents, 7]`` (``N`` already granted); return its ``[N]`` scores."""
+    m = problem.evaluate(x)
+    s = problem.score(m)
+    progress.record(x, m, s, problem.success(m))
+    return s
+
+
+def _finish(method: str, problem: CalibrationProblem, progress: Progress, initial: Metrics) -> CalibrationResult:
+    best_x = progress.best_x
+    x0 = problem.zeros(1)
+    truth = problem.true_params is not None
+    return CalibrationResult(
+        method=method,
+        best_x=best_x,
+        best_params=problem.params(best_x[None])[0].detach(),
+        sensor_names=list(problem.sensors),
+        initial_metrics=initial,
+        final_metrics=progress.best_metrics,
+        initial_score=float(problem.score(Metrics(*(m[None] for m in initial)))[0]),
+        best_score=progress.best_score,
+        history=progress.history_array(),
+        simulations=progress.used,
+        wall_time_s=progress.wall_time,
+        sims_to_success=progress.sims_to_success,
+        param_error=problem.param_error_table(best_x) if truth else None,
+        initial_param_error=problem.param_error_table(x0[0]) if truth else None,
+    )
+
+
+def _start(problem: CalibrationProblem, progress: Progress) -> Metrics:
+    """Evaluate the initial point (one simulation) and return its per-sensor metrics ``[K]``."""
+    x0 = problem.zeros(1)
+    m = problem.evaluate(x0)
+    progress.record(x0, m, problem.score(m), problem.success(m))
+    return Metrics(*(t[0] for t in m))
+
+
+# ------------------------------------------------------------------------------------- the methods
+
+
+def random_search(
+    problem: CalibrationProblem, budget: int, config: RandomSearchConfig, seed: int, stop_on_success: bool = False
+) -> CalibrationResult:
+    """Batched random search (module docstring) with a seeded numpy Generator."""
+    rng = np.random.default_rng(seed)
+    progress = Progress(budget, stop_on_success)
+    initial = _start(problem, progress)
+    lo, hi = problem.flat(problem.lower[None])[0].numpy(), problem.flat(problem.upper[None])[0].numpy()
+    half = 0.5 * (hi - lo)
+    centre = np.zeros_like(lo)
+    radius = config.radius if config.recenter else 1.0
+    while not progress.done:
+        n = progress.grant(config.batch_size)
+        u = rng.uniform(-1.0, 1.0, size=(n, lo.size))
+        z = np.clip(centre + radius * half * u, lo, hi) if config.recenter else lo + (u + 1.0) * half
+        before = progress.best_score
+        _evaluate(problem, progress, problem.unflat(torch.as_tensor(z)))
+        if config.recenter:
+            if progress.best_score > before:
+                centre = problem.flat(progress.best_x[None])[0].numpy()
+            else:
+                radius = max(config.min_radius, radius * config.shrink)
+    return _finish("random_search", problem, progress, initial)
+
+
+def cmaes(
+    problem: CalibrationProblem, budget: int, config: CMAESConfig, seed: int, stop_on_success: bool = False
+) -> CalibrationResult:
+    """CMA-ES (``cma`` package) with one batched simulation per generation (module docstring)."""
+    import cma
+
+    rng = np.random.default_rng(seed)
+    progress = Progress(budget, stop_on_success)
+    initial = _start(problem, progress)
+    lo, hi = problem.flat(problem.lower[None])[0].numpy(), problem.flat(problem.upper[None])[0].numpy()
+    opts = {
+        "popsize": config.popsize,
+        "bounds": [lo.tolist(), hi.tolist()],
+        "seed": np.nan,  # never seed numpy's global RNG; draws come from `randn` below
+        "randn": lambda *shape: rng.standard_normal(shape),
+        "verbose": -9,
+        "verb_disp": 0,
+        "verb_log": 0,
+        "CMA_diagonal": bool(config.diagonal),
+        "tolfun": 0.0,
+        "tolflatfitness": 1000,
+        "tolx": 1e-12,
+    }
+    global_state = np.random.get_state()  # noqa: NPY002 -- restored below: cma must not disturb the global RNG
+    try:
+        es = cma.CMAEvolutionStrategy(np.zeros(lo.size), config.sigma0, opts)
+        while not progress.done:
+            if es.stop():
+                if not config.restarts:
+                    break
+                es = cma.CMAEvolutionStrategy(problem.flat(progress.best_x[None])[0].numpy(), config.sigma0, opts)
+            n = progress.grant(config.popsize)
+            pop = np.asarray(es.ask())
+            s = _evaluate(problem, progress, problem.unflat(torch.as_tensor(pop[:n])))
+            if n == config.popsize:
+                f = -s.numpy()
+                es.tell(list(pop), np.where(np.isfinite(f), f, 1e30).tolist())
+    finally:
+        np.random.set_state(global_state)  # noqa: NPY002
+    return _finish("cmaes", problem, progress, initial)
+
+
+def gradient_descent(
+    problem: CalibrationProblem, budget: int, config: GradientConfig, seed: int, stop_on_success: bool = False
+) -> CalibrationResult:
+    """Projected Adam through the differentiable surrogate (module docstring), seeded torch Generator."""
+    gen = torch.Generator().manual_seed(seed)
+    progress = Progress(budget, stop_on_success)
+    lo, hi = problem.flat(problem.lower[None])[0], problem.flat(problem.upper[None])[0]
+    B = config.batch_size
+    z0 = (torch.rand(B, lo.numel(), generator=gen, dtype=torch.float64) * 2 - 1) * config.start_radius
+    z0[0] = 0.0
+    z = torch.minimum(torch.maximum(z0, lo), hi).requires_grad_(True)
+    opt = torch.optim.Adam([z], lr=config.lr, betas=(config.beta1, config.beta2))
+    initial = None
+    threads = torch.get_num_threads()
+    if config.threads:
+        # [B, n_links] tensors are too small for intra-op threads; on a busy machine their spin-waits cost 10-50x
+        torch.set_num_threads(config.threads)
+    try:
+        initial = _adam_loop(problem, progress, z, lo, hi, opt, config)
+    finally:
+        torch.set_num_threads(threads)
+    return _finish("gradient", problem, progress, initial)
+
+
+def _adam_loop(
+    problem: CalibrationProblem,
+    progress: Progress,
+    z: torch.Tensor,
+    lo: torch.Tensor,
+    hi: torch.Tensor,
+    opt: torch.optim.Optimizer,
+    config: GradientConfig,
+) -> Metrics:
+    """Projected Adam steps on the free coordinates ``z [B, n_free]`` until the budget is spent."""
+    B = z.shape[0]
+    initial = None
+    while not progress.done:
+        n = progress.grant(B)
+        opt.zero_grad()
+        x = problem.unflat(z[:n])  # differentiable scatter into [n, n_agents, 7]
+        loss, m = problem.loss(x, config.loss)
+        progress.record(x.detach(), m, problem.score(m), problem.success(m))
+        if initial is None:
+            initial = Metrics(*(t[0] for t in m))
+        if progress.done:
+            break
+        loss.sum().backward()
+        opt.step()
+        with torch.no_grad():
+            z.copy_(torch.minimum(torch.maximum(z, lo), hi))
+    return initial
+
+
+BASELINES: dict[str, tuple[type, Callable[..., CalibrationResult]]] = {
+    "random_search": (RandomSearchConfig, random_search),
+    "cmaes": (CMAESConfig, cmaes),
+    "gradient": (GradientConfig, gradient_descent),
+}
+"""Baselines by name: (settings schema, function)."""
+
+
+# ---------------------------------------------------------------------------------------- run config
+
+
+@dataclass
+class BaselineRunConfig:
+    """One baseline run (``configs/train/baseline.yaml``, every key commented there)."""
+
+    method: str = "cmaes"
+    budget: int = 2000
+    seed: int = 0
+    stop_on_success: bool = False
+    out_dir: str = "runs"
+    name: str = "run"
+    plot: bool = True
+    problem: ProblemConfig = field(default_factory=ProblemConfig)
+    random_search: RandomSearchConfig = field(default_factory=RandomSearchConfig)
+    cmaes: CMAESConfig = field(default_factory=CMAESConfig)
+    gradient: GradientConfig = field(default_factory=GradientConfig)
+
+    def validate(self) -> None:
+        require(
+            self.method in BASELINES, "method", f"unknown method {self.method!r}; expected one of {sorted(BASELINES)}"
+        )
+        require(self.budget >= 1, "budget", f"expected a simulation budget >= 1, got {self.budget}")
+        require(bool(self.name) and "/" not in self.name and self.name not in (".", ".."), "name",
+                f"expected a run folder name without '/', got {self.name!r}")  # fmt: skip
+        require(bool(self.out_dir), "out_dir", "expected an output folder")
+
+    @property
+    def method_config(self) -> Any:
+        """The settings of the selected method."""
+        return getattr(self, self.method)
+
+
+def load_run_config(data: dict[str, Any], source: str | None = None) -> BaselineRunConfig:
+    """Validate a run config mapping (e.g. Hydra's, without its ``hydra`` node).
+
+    Raises:
+        ConfigError: unknown key, wrong type or bad value, naming the dotted key.
+    """
+    data = {k: v for k, v in data.items() if k != "hydra"}
+    return from_dict(BaselineRunConfig, data, path=source)
+
+
+def run_baseline(config: BaselineRunConfig, problem: CalibrationProblem) -> CalibrationResult:
+    """Run the configured method on ``problem`` with the configured budget and seed."""
+    _, fn = BASELINES[config.method]
+    return fn(problem, config.budget, config.method_config, config.seed, config.stop_on_success)
+
+
+# --------------------------------------------------------------------------------------- run folder
+
+
+def write_history_csv(result: CalibrationResult, path: Path) -> None:
+    """``iteration, simulations, best_score, batch_best_score`` per recorded batch."""
+    with open(path, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["iteration", "simulations", "best_score", "batch_best_score"])
+        for i, (sims, best, batch) in enumerate(result.history):
+            w.writerow([i, int(sims), repr(float(best)), repr(float(batch))])
+
+
+def plot_velocities(problem: CalibrationProblem, result: CalibrationResult, path: Path) -> None:
+    """Reference vs initial vs calibrated velocity per sensor (re-simulated, not charged to the budget)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    with torch.no_grad():
+        v = problem.simulate(torch.stack([problem.zeros(1)[0], result.best_x]), count=False).velocity.double()
+    t = np.arange(problem.T) * problem.dt * 1e3
+    K = len(problem.sensors)
+    fig, axes = plt.subplots(1, K, figsize=(4.5 * K, 3.6), squeeze=False, sharey=True)
+    for k, ax in enumerate(axes[0]):
+        ax.plot(t, problem.ref_velocity[k].numpy(), "k-", lw=2, label="reference")
+        ax.plot(t, v[0, k].numpy(), "C0--", label="initial")
+        ax.plot(t, v[1, k].numpy(), "C3-", label=f"calibrated ({result.method})")
+        ax.set_title(problem.sensors[k])
+        ax.set_xlabel("time [ms]")
+        ax.grid(alpha=0.3)
+    axes[0, 0].set_ylabel("velocity [m/s]")
+    axes[0, 0].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def write_run(config: BaselineRunConfig, problem: CalibrationProblem, result: CalibrationResult) -> Path:
+    """Write ``<out_dir>/<method>/<name>/``: ``summary.json``, ``history.csv``, ``velocity.png``, ``config.json``.
+
+    The folder is assembled in a temporary sibling and renamed into place, so a failed run
+    leaves nothing half-written.
+
+    Raises:
+        ConfigError: the run folder exists already.
+    """
+    final = Path(config.out_dir) / config.method / config.name
+    if final.exists():
+        raise ConfigError(f"run folder {final} exists already; choose another name", key="name")
+    final.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{config.name}.", dir=final.parent))
+    try:
+        summary = result.summary()
+        summary.update(
+            {"seed": config.seed, "budget": config.budget, "scenario": problem.scenario.name,
+             "reference": problem.reference.source[0], "agents": problem.agent_names, "n_free": problem.n_free}
+        )  # fmt: skip
+        (tmp / "summary.json").write_text(json.dumps(summary, indent=2))
+        (tmp / "config.json").write_text(json.dumps(asdict(config), indent=2))
+        write_history_csv(result, tmp / "history.csv")
+        torch.save({"best_x": result.best_x, "best_params": result.best_params}, tmp / "best.pt")
+        if config.plot:
+            plot_velocities(problem, result, tmp / "velocity.png")
+        os.replace(tmp, final)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return final

@@ -1,0 +1,120 @@
+"""Simulation budget and best-so-far bookkeeping shared by all calibrators (DESIGN 6).
+
+Every simulated candidate costs one simulation, whatever the method: a random-search
+batch of 64 costs 64, a CMA-ES generation costs its population, a gradient step of a
+batch of 4 starting points costs 4 (forward and backward pass together count as one
+simulation per candidate). A :class:`Progress` hands out simulations (:meth:`Progress.grant`)
+so that an optimizer stops exactly at its budget, and records after every batch the
+best fit score reached per simulation count, the best candidate, and the simulation
+count at which a candidate first passed the success test.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from marlcrash.errors import ConfigError
+from marlcrash.metrics import Metrics
+
+
+@dataclass
+class HistoryRow:
+    """One line of the best-score log: after ``simulations`` simulations and ``iteration`` batches."""
+
+    iteration: int
+    simulations: int
+    batch_best: float
+    best: float
+    success: bool
+
+
+@dataclass
+class Progress:
+    """Budget plus best-so-far record of one calibration run.
+
+    Scores are "higher is better" (the reward form's score, see
+    :meth:`marlcrash.calibrate.problem.CalibrationProblem.score`).
+
+    Args:
+        budget: the number of simulations the run may use (>= 1).
+        stop_on_success: end the run (``done``) as soon as a candidate passes the success test.
+
+    Attributes:
+        used: simulations charged so far.
+        best_score: best score seen (``-inf`` before the first record).
+        best_x: ``[n_agents, 7]`` the best candidate (``None`` before the first record).
+        best_metrics: per-sensor :class:`Metrics` ``[K]`` of the best candidate.
+        sims_to_success: simulation count (1-based, counting every candidate evaluated before it)
+            at which the first successful candidate was evaluated; ``None`` if none yet.
+        history: one :class:`HistoryRow` per recorded batch.
+    """
+
+    budget: int
+    stop_on_success: bool = False
+    used: int = 0
+    best_score: float = float("-inf")
+    best_x: torch.Tensor | None = None
+    best_metrics: Metrics | None = None
+    sims_to_success: int | None = None
+    history: list[HistoryRow] = field(default_factory=list)
+    started: float = field(default_factory=time.perf_counter)
+
+    def __post_init__(self) -> None:
+        if isinstance(self.budget, bool) or not isinstance(self.budget, int) or self.budget < 1:
+            raise ConfigError(f"expected a simulation budget >= 1, got {self.budget!r}", key="budget")
+
+    @property
+    def remaining(self) -> int:
+        """Simulations left."""
+        return self.budget - self.used
+
+    @property
+    def done(self) -> bool:
+        """Budget spent, or success reached with ``stop_on_success``."""
+        return self.remaining <= 0 or (self.stop_on_success and self.sims_to_success is not None)
+
+    @property
+    def wall_time(self) -> float:
+        """Seconds since the run started [s]."""
+        return time.perf_counter() - self.started
+
+    def grant(self, n: int) -> int:
+        """How many of ``n`` requested candidates may be simulated (``min(n, remaining)``, >= 0)."""
+        return max(0, min(int(n), self.remaining))
+
+    def record(self, x: torch.Tensor, metrics: Metrics, score: torch.Tensor, success: torch.Tensor) -> None:
+        """Charge and record one evaluated batch.
+
+        Args:
+            x: ``[N, n_agents, 7]`` candidates.
+            metrics: per-sensor metrics, each ``[N, K]``.
+            score: ``[N]`` fit scores (higher is better).
+            success: ``[N]`` bool, candidate passes the success test.
+
+        Raises:
+            RuntimeError: the batch would exceed the budget (an optimizer skipped :meth:`grant`).
+        """
+        n = int(score.shape[0])
+        if n > self.remaining:
+            raise RuntimeError(f"batch of {n} simulations exceeds the remaining budget of {self.remaining}")
+        s = score.detach().to(torch.float64)
+        s = torch.where(torch.isfinite(s), s, torch.full_like(s, float("-inf")))  # a NaN never wins
+        k = int(torch.argmax(s))
+        if self.sims_to_success is None and bool(success.any()):
+            self.sims_to_success = self.used + int(torch.nonzero(success)[0, 0]) + 1
+        self.used += n
+        if float(s[k]) > self.best_score or self.best_x is None:
+            self.best_score = float(s[k])
+            self.best_x = x[k].detach().clone()
+            self.best_metrics = Metrics(*(m[k].detach().clone() for m in metrics))
+        self.history.append(
+            HistoryRow(len(self.history), self.used, float(s[k]), self.best_score, self.sims_to_success is not None)
+        )
+
+    def history_array(self) -> np.ndarray:
+        """``[H, 3]`` float64: simulations, best score so far, batch best score, per recorded batch."""
+        return np.array([[h.simulations, h.best, h.batch_best] for h in self.history], dtype=np.float64)

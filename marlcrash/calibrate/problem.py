@@ -1,0 +1,512 @@
+"""The calibration problem that optimizers and agents share (DESIGN 6).
+
+A :class:`CalibrationProblem` fixes one cell model, one agent layout, one scenario and
+one reference pulse, and exposes the search space the environments act in:
+``x [N, n_agents, 7]`` log-scale factors per agent (sub-assembly granularity), mapped to
+feasible cell parameters by :func:`marlcrash.cells.parameterization.apply_increments` applied once to
+the initial parameters: ``E <- clip(E0 * exp(x_E), lo * E0, hi * E0)``; transmission factors
+``((f0 + floor) * exp(x_f) - floor)^+`` on feasible entries, renormalised to sum one. An
+agent at ``x`` is exactly where the environment's agent stands after increments summing
+to ``x`` that never hit a bound.
+
+What it offers:
+
+- :meth:`CalibrationProblem.evaluate`: per-sensor metrics ``[N, K]`` of ``N`` candidates from
+  ONE batched no-grad simulation (numba path); every candidate counts one simulation
+  (:attr:`CalibrationProblem.n_simulations`).
+- :meth:`CalibrationProblem.loss`: a differentiable smooth fit loss through the torch
+  simulator (forward plus backward count one simulation per candidate).
+- :meth:`CalibrationProblem.score` (higher is better, the reward form's score of the
+  sensor-reduced metrics) ranks candidates; :meth:`CalibrationProblem.success` is the
+  termination test of DESIGN 1.5 (every sensor below every threshold).
+- :meth:`CalibrationProblem.param_error`: relative error of the recovered per-sub-assembly
+  parameters against a twin's hidden truth; :attr:`CalibrationProblem.true_x` is the
+  search-space point that represents that truth.
+
+The twin truth (:func:`marlcrash.references.perturb_twin`) scales transmission factors
+multiplicatively, the search space shifts them by ``floor`` first, so with a transmission
+spread the truth is representable only approximately: ``true_x`` matches ``E_x``, ``E_s``
+exactly and the transmission factors to ``O(floor * spread)``. With ``transmission_spread:
+0`` it is exact (zero metrics, zero parameter error).
+
+The search box: ``|x| <= box_radius`` per coordinate, and for ``E_x``, ``E_s`` also within
+the environment's behaviour bounds (``log lo <= x <= log hi``). Coordinates that cannot
+change anything are fixed at zero (:attr:`CalibrationProblem.free`): agents inactive in the
+scenario (impact-region rule, when ``masking`` is on) and transmission directions
+infeasible in every cell of an agent.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+import torch
+
+from marlcrash.cells.model import PARAM_NAMES, CellModel
+from marlcrash.cells.parameterization import apply_increments
+from marlcrash.config import require
+from marlcrash.envs.agents import AgentLayout, build_agents
+from marlcrash.envs.core import build_cells, fast_metrics, load_env_config
+from marlcrash.envs.masking import ImpactRegions
+from marlcrash.errors import ConfigError, ModelError
+from marlcrash.metrics import Metrics, area_between, compute_metrics, rmse
+from marlcrash.pulse.signal import compared_velocity
+from marlcrash.references import ReferenceBatch, ReferenceSampler
+from marlcrash.reward import Reward, TerminationConfig, load_reward_config, termination
+from marlcrash.sim.scenario import CrashScenario, get_scenario
+from marlcrash.sim.surrogate import SimResult, Surrogate, load_sim_config
+
+
+@dataclass
+class SuccessConfig:
+    """Success thresholds per sensor (DESIGN 1.5); ``None`` skips a metric.
+
+    Attributes:
+        area: area between the velocity curves [m].
+        dfd: discrete Frechet distance [m/s] (time in s, as in the paper).
+        rmse: velocity RMSE [m/s].
+    """
+
+    area: float | None = 0.0015
+    dfd: float | None = 0.335
+    rmse: float | None = 0.1511
+
+    def validate(self) -> None:
+        for k in ("area", "dfd", "rmse"):
+            v = getattr(self, k)
+            require(v is None or (np.isfinite(v) and v > 0), k, f"expected a threshold > 0 or null, got {v}")
+        require(any(getattr(self, k) is not None for k in ("area", "dfd", "rmse")), "area",
+                "at least one of area, dfd, rmse needs a threshold")  # fmt: skip
+
+
+@dataclass
+class ProblemConfig:
+    """What is calibrated against what; values in ``configs/train/baseline.yaml`` (``problem:``).
+
+    Attributes:
+        env: env config (``configs/env/<name>.yaml``) supplying vehicle, agents, bounds, floor,
+            masking and reference settings, so baselines search the environments' space.
+        env_overrides: dotted-key overrides of that env config.
+        scenario: registered scenario name.
+        reference: ``twin`` or ``cross_fidelity`` (replaces the env's ``reference.kind``).
+        reference_seed: seed of the reference draw (the twin's hidden perturbation).
+        duration: simulated window [s]; ``None`` uses the scenario's.
+        box_radius: half-width of the search box in log-scale [-].
+        masking: fix agents inactive in the scenario (impact-region rule) at zero.
+        fit: reward config (``configs/reward/<name>.yaml``) whose score ranks candidates.
+        success: thresholds of the success test.
+        sim_backend: no-grad simulator of :meth:`CalibrationProblem.evaluate`.
+        metrics_backend: ``numba`` (compiled Frechet kernel) or ``torch`` (reference).
+    """
+
+    env: str = "default"
+    env_overrides: dict[str, Any] = field(default_factory=dict)
+    scenario: str = "full_width_40"
+    reference: Literal["twin", "cross_fidelity"] = "twin"
+    reference_seed: int = 0
+    duration: float | None = None
+    box_radius: float = 1.0
+    masking: bool = True
+    fit: str = "log_ratio"
+    success: SuccessConfig = field(default_factory=SuccessConfig)
+    sim_backend: Literal["numba", "torch"] = "numba"
+    metrics_backend: Literal["numba", "torch"] = "numba"
+
+    def validate(self) -> None:
+        require(self.duration is None or (np.isfinite(self.duration) and self.duration > 0), "duration",
+                f"expected a window > 0 s or null, got {self.duration}")  # fmt: skip
+        require(np.isfinite(self.box_radius) and 0 < self.box_radius <= 5.0, "box_radius",
+                f"expected a log-scale half-width in (0, 5], got {self.box_radius}")  # fmt: skip
+
+
+@dataclass
+class SmoothLoss:
+    """The differentiable fit loss ``mean_k(w_area A_k / area_scale + w_rmse RMSE_k / rmse_scale)``.
+
+    The discrete Frechet distance is left out: it is only sub-differentiable (one
+    bottleneck pair carries its gradient) and needs the ``[N, T, T]`` table.
+    """
+
+    w_area: float = 1.0
+    w_rmse: float = 1.0
+    area_scale: float = 0.02
+    rmse_scale: float = 0.25
+
+    def validate(self) -> None:
+        for k in ("w_area", "w_rmse"):
+            require(getattr(self, k) >= 0, k, f"expected a weight >= 0, got {getattr(self, k)}")
+        require(self.w_area + self.w_rmse > 0, "w_area", "at least one of w_area, w_rmse must be > 0")
+        for k in ("area_scale", "rmse_scale"):
+            require(getattr(self, k) > 0, k, f"expected a scale > 0, got {getattr(self, k)}")
+
+
+class CalibrationProblem:
+    """One calibration task in the agents' search space (module docstring).
+
+    Args:
+        cells: the cell model calibrated.
+        layout: its agents (each owns cells; ``x`` has one 7-vector per agent).
+        surrogate: the simulator of ``cells``.
+        scenario: the load case.
+        reference: a :class:`ReferenceBatch` with one row (``[1, K, T0]``, ``T0 >= T``).
+        sensors: ``[K]`` sensor names in the reference's order.
+        bounds: ``(lo, hi)`` factors of the initial ``E_x``, ``E_s``.
+        floor: transmission update shift (``EnvConfig.transmission_floor``).
+        fit: the reward whose score ranks candidates (its metric settings are used).
+        success: success thresholds.
+        duration: window [s] (``None``: the scenario's); the reference is cut to it.
+        active: ``[n_agents]`` bool agents that may act (``None``: all).
+        box_radius: search box half-width [-].
+        sim_backend, metrics_backend: engines of :meth:`evaluate`.
+        compare_cfc: CFC class of the compared signal (the integral of the filtered acceleration;
+            ``ReferenceConfig.compare_cfc``), ``None`` for raw velocity.
+
+    Raises:
+        ConfigError: reference with more than one row or shorter than the window.
+    """
+
+    def __init__(
+        self,
+        cells: CellModel,
+        layout: AgentLayout,
+        surrogate: Surrogate,
+        scenario: CrashScenario,
+        reference: ReferenceBatch,
+        sensors: list[str],
+        *,
+        bounds: tuple[float, float],
+        floor: float,
+        fit: Reward,
+        success: SuccessConfig,
+        duration: float | None = None,
+        active: torch.Tensor | None = None,
+        box_radius: float = 1.0,
+        sim_backend: str = "numba",
+        metrics_backend: str = "numba",
+        compare_cfc: int | None = 60,
+    ):
+        self.cells, self.layout, self.sim, self.scenario = cells, layout, surrogate, scenario
+        self.sensors = list(sensors)
+        self.bounds, self.floor, self.fit = (float(bounds[0]), float(bounds[1])), float(floor), fit
+        self.sim_backend, self.metrics_backend = sim_backend, metrics_backend
+        self.duration = float(duration if duration is not None else scenario.duration)
+        self.dt = scenario.output_dt
+        self.T = round(self.duration / self.dt) + 1
+        if reference.velocity.shape[0] != 1:
+            raise ConfigError(f"expected a reference batch of one row, got {reference.velocity.shape[0]}", "reference")
+        if reference.velocity.shape[-1] < self.T:
+            raise ConfigError(
+                f"the reference has {reference.velocity.shape[-1]} samples, "
+                f"the window {self.duration} s needs {self.T}",
+                key="duration",
+            )
+        self.reference = reference
+        self.compare_cfc = compare_cfc
+        if reference.raw_velocity is not None:  # filter the simulated reference over this window, as the estimates
+            self.ref_velocity = self.compared(reference.raw_velocity[0, :, : self.T])  # [K, T]
+        else:  # a measured pulse, filtered when read
+            self.ref_velocity = reference.velocity[0, :, : self.T].to(torch.float64)
+        self.speed, self.overlap, self.side = (
+            t[:1].to(torch.float64) for t in (reference.speed, reference.overlap, reference.side)
+        )
+        self.success_cfg = TerminationConfig(
+            success_area=success.area, success_dfd=success.dfd, success_rmse=success.rmse, max_iterations=1
+        )
+        self.n_simulations = 0
+
+        f64 = torch.float64
+        self.init = torch.as_tensor(cells.params, dtype=f64)  # [n, 7]
+        self.feasible = torch.as_tensor(cells.feasible)  # [n, 5]
+        self._agent_of = layout.agent_of_cell.clamp_min(0)
+        self._owned = layout.owned[:, None].to(f64)  # [n, 1]
+        A = layout.n_agents
+        self.active = torch.ones(A, dtype=torch.bool) if active is None else torch.as_tensor(active, dtype=torch.bool)
+        # a transmission direction is free for an agent if some owned cell may transmit that way
+        feas_agent = torch.zeros(A, 5, dtype=f64).index_add_(
+            0, self._agent_of, (self.feasible & layout.owned[:, None]).to(f64)
+        )
+        self.free = torch.cat([torch.ones(A, 2, dtype=torch.bool), feas_agent > 0], dim=1) & self.active[:, None]
+        r = float(box_radius)
+        lo_e, hi_e = max(-r, float(np.log(self.bounds[0]))), min(r, float(np.log(self.bounds[1])))
+        lower = torch.tensor([lo_e, lo_e] + [-r] * 5, dtype=f64).expand(A, 7)
+        upper = torch.tensor([hi_e, hi_e] + [r] * 5, dtype=f64).expand(A, 7)
+        self.lower = torch.where(self.free, lower, 0.0)  # [A, 7]
+        self.upper = torch.where(self.free, upper, 0.0)  # [A, 7]
+
+        deform = ~cells.is_null & ~cells.is_rigid & (cells.subassembly >= 0)
+        subs = np.unique(cells.subassembly[deform])
+        self.subassembly_names = [cells.subassembly_names[s] for s in subs]
+        sub_index = np.full(cells.n_cells, -1, dtype=np.int64)
+        sub_index[deform] = np.searchsorted(subs, cells.subassembly[deform])
+        self._sub_index = torch.as_tensor(sub_index)
+        self._deform = torch.as_tensor(deform)
+        self.true_params = None if reference.true_params is None else reference.true_params[0].to(f64)
+        self.true_x = None if self.true_params is None else self._fit_true_x(self.true_params)
+
+    # ------------------------------------------------------------------------------- search space
+    @property
+    def n_agents(self) -> int:
+        return self.layout.n_agents
+
+    @property
+    def agent_names(self) -> list[str]:
+        return list(self.layout.names)
+
+    @property
+    def n_free(self) -> int:
+        """Number of free coordinates of ``x``."""
+        return int(self.free.sum())
+
+    def zeros(self, n: int = 1) -> torch.Tensor:
+        """``[n, n_agents, 7]`` the initial parameters' point (all factors one)."""
+        return torch.zeros(n, self.n_agents, 7, dtype=torch.float64)
+
+    def check_x(self, x: torch.Tensor | np.ndarray) -> torch.Tensor:
+        """Validate candidates; return ``[N, n_agents, 7]`` float64 (a single ``[n_agents, 7]`` gets ``N = 1``).
+
+        Raises:
+            ModelError: wrong shape or non-finite entries (named by index).
+        """
+        x = torch.as_tensor(x)
+        if x.ndim == 2:
+            x = x[None]
+        if x.ndim != 3 or tuple(x.shape[1:]) != (self.n_agents, 7) or not x.is_floating_point():
+            raise ModelError(
+                f"candidates must be float [N, n_agents={self.n_agents}, 7] log-scale factors, got "
+                f"{list(x.shape)} {x.dtype}"
+            )
+        bad = ~torch.isfinite(x)
+        if bool(bad.any()):
+            n, a, j = (int(i) for i in torch.nonzero(bad)[0])
+            raise ModelError(
+                f"candidate {n}: x[{a}, {j}] (agent {self.agent_names[a]!r}, {PARAM_NAMES[j]}) is not finite"
+            )
+        return x.to(torch.float64)
+
+    def clip(self, x: torch.Tensor) -> torch.Tensor:
+        """Project ``[N, n_agents, 7]`` onto the search box (non-free coordinates to zero)."""
+        return torch.minimum(torch.maximum(x, self.lower), self.upper)
+
+    def flat(self, x: torch.Tensor) -> torch.Tensor:
+        """Free coordinates ``[N, n_free]`` of ``x [N, n_agents, 7]``."""
+        return x[:, self.free]
+
+    def unflat(self, z: torch.Tensor) -> torch.Tensor:
+        """``[N, n_agents, 7]`` from free coordinates ``z [N, n_free]`` (others zero)."""
+        z = torch.as_tensor(z, dtype=torch.float64)
+        x = self.zeros(z.shape[0])
+        x[:, self.free] = z
+        return x
+
+    def params(self, x: torch.Tensor) -> torch.Tensor:
+        """Cell parameters ``[N, n_cells, 7]`` of candidates ``x [N, n_agents, 7]`` (differentiable).
+
+        Values are exactly :func:`~marlcrash.cells.parameterization.apply_increments` of the initial parameters.
+        That function keeps a cell's transmission factors bit-identical where the increment is zero
+        (a ``where`` with no gradient), so the gradient is taken from its renormalised branch,
+        which equals it in value: ``x = 0`` gets a non-zero gradient too.
+        """
+        x = x * self.free  # fixed coordinates never act
+        inc = x[:, self._agent_of] * self._owned  # [N, n, 7]
+        init = self.init.expand(x.shape[0], -1, -1)
+        p = apply_increments(init, inc, self.init, self.feasible, self.bounds, self.floor)
+        if not x.requires_grad:
+            return p
+        g = ((init[..., 2:] + self.floor) * torch.exp(inc[..., 2:]) - self.floor).clamp_min(0.0) * self.feasible
+        total = g.sum(-1, keepdim=True)
+        smooth = torch.where(total > 0, g / torch.where(total > 0, total, torch.ones_like(total)), init[..., 2:])
+        f = smooth + (p[..., 2:] - smooth).detach()
+        return torch.cat([p[..., :2], f], dim=-1)
+
+    # -------------------------------------------------------------------------------- simulation
+    def simulate(self, x: torch.Tensor, *, count: bool = True, backend: str | None = None) -> SimResult:
+        """Simulate candidates ``x [N, n_agents, 7]`` over the window; ``count`` charges ``N`` simulations.
+
+        Without gradients (``x`` not requiring grad) it uses :attr:`sim_backend`; ``count=False`` is
+        for reporting (re-simulating a known candidate for plots), never for search.
+        """
+        x = self.check_x(x) if not x.requires_grad else x
+        p = self.params(x)
+        n = p.shape[0]
+        res = self.sim.run(
+            p,
+            speed=self.speed.expand(n),
+            overlap=self.overlap.expand(n),
+            side=self.side.expand(n),
+            duration=self.duration,
+            sensors=self.sensors,
+            record_cells="none",
+            backend=backend or ("torch" if x.requires_grad else self.sim_backend),
+        )
+        if count:
+            self.n_simulations += n
+        return res
+
+    def compared(self, velocity: torch.Tensor) -> torch.Tensor:
+        """Simulated velocities ``[..., K, T]`` as compared (:func:`~marlcrash.pulse.signal.compared_velocity`)."""
+        return compared_velocity(velocity.to(torch.float64), self.dt, self.compare_cfc)
+
+    def metrics(self, velocity: torch.Tensor) -> Metrics:
+        """Per-sensor metrics ``[N, K]`` of simulated velocities ``[N, K, T]`` against the reference (no grad)."""
+        v = self.compared(velocity.detach())
+        if self.metrics_backend == "numba":
+            return fast_metrics(v, self.ref_velocity, self.dt, self.fit)
+        return compute_metrics(v, self.ref_velocity, dt=self.dt, config=self.fit.cfg.metrics)
+
+    def evaluate(self, x: torch.Tensor | np.ndarray) -> Metrics:
+        """Metrics ``[N, K]`` of ``N`` candidates ``[N, n_agents, 7]`` from one batched no-grad simulation."""
+        x = self.check_x(x)
+        with torch.no_grad():
+            res = self.simulate(x)
+        return self.metrics(res.velocity)
+
+    def score(self, metrics: Metrics) -> torch.Tensor:
+        """``[N]`` fit score of per-sensor metrics ``[N, K]``: the reward form's score, higher is better."""
+        return self.fit.score(metrics).to(torch.float64)
+
+    def success(self, metrics: Metrics) -> torch.Tensor:
+        """``[N]`` bool: every sensor below every success threshold."""
+        return termination(metrics, self.success_cfg, 0).success
+
+    def loss(self, x: torch.Tensor, weights: SmoothLoss) -> tuple[torch.Tensor, Metrics]:
+        """Differentiable loss ``[N]`` through the torch simulator, and the candidates' metrics ``[N, K]``.
+
+        Counts ``N`` simulations (forward and backward of a candidate together count one).
+
+        Args:
+            x: ``[N, n_agents, 7]`` candidates (usually ``requires_grad``).
+            weights: the loss weights and scales.
+        """
+        if not x.requires_grad:
+            x = self.check_x(x)
+        res = self.simulate(x, backend="torch")
+        v = self.compared(res.velocity)
+        ref = self.ref_velocity.expand_as(v)
+        area = area_between(v, ref, dt=self.dt, method=self.fit.cfg.metrics.area_method)
+        loss = (weights.w_area * area / weights.area_scale + weights.w_rmse * rmse(v, ref) / weights.rmse_scale).mean(
+            -1
+        )
+        return loss, self.metrics(res.velocity)
+
+    # ------------------------------------------------------------------------------- ground truth
+    def subassembly_params(self, params: torch.Tensor) -> torch.Tensor:
+        """Per-sub-assembly aggregates ``[N, S, 7]`` of cell parameters ``[N, n_cells, 7]``.
+
+        ``E_x``, ``E_s``: sums over the sub-assembly's deformable cells [J]; transmission
+        factors: means over its cells [-].
+        """
+        w = self._deform.to(params.dtype)[None, :, None]
+        S = len(self.subassembly_names)
+        idx = self._sub_index.clamp_min(0)
+        tot = params.new_zeros(params.shape[0], S, 7).index_add_(1, idx, params * w)
+        count = params.new_zeros(S).index_add_(0, idx, self._deform.to(params.dtype))
+        return torch.cat([tot[..., :2], tot[..., 2:] / count[None, :, None]], dim=-1)
+
+    def param_error(self, x: torch.Tensor) -> torch.Tensor:
+        """Relative error ``[N, S, 3]`` of the recovered sub-assembly parameters against the twin truth.
+
+        Columns: ``E_x`` and ``E_s``: ``|sum_rec - sum_true| / sum_true``; transmission:
+        ``sum_d |mean f_rec - mean f_true| / sum_d mean f_true`` (relative L1 of the mean factors).
+
+        Raises:
+            ConfigError: the reference has no ground truth (not a twin).
+        """
+        if self.true_params is None:
+            raise ConfigError("param_error needs a twin reference with ground truth", key="problem.reference")
+        rec = self.subassembly_params(self.params(self.check_x(x)).detach())
+        true = self.subassembly_params(self.true_params[None])
+        e = (rec[..., :2] - true[..., :2]).abs() / true[..., :2]
+        t = (rec[..., 2:] - true[..., 2:]).abs().sum(-1) / true[..., 2:].sum(-1)
+        return torch.cat([e, t[..., None]], dim=-1)
+
+    def param_error_table(self, x: torch.Tensor) -> dict[str, dict[str, float]]:
+        """``{sub-assembly: {E_x, E_s, transmission}}`` relative errors of one candidate ``[n_agents, 7]``."""
+        err = self.param_error(x)[0]
+        keys = ("E_x", "E_s", "transmission")
+        return {s: {k: float(err[i, j]) for j, k in enumerate(keys)} for i, s in enumerate(self.subassembly_names)}
+
+    def _fit_true_x(self, truth: torch.Tensor, sweeps: int = 200, refine_iters: int = 200) -> torch.Tensor:
+        """The point ``[n_agents, 7]`` representing the twin truth ``[n_cells, 7]`` (module docstring).
+
+        ``E``: mean log ratio over the agent's cells (exact: the twin scales a sub-assembly
+        uniformly). Transmission: the twin's ``log(f/f0) = log(phi_d) - log(Z_cell)`` is fitted
+        as ``x[a, d] - z[c]`` by alternating least squares, each agent's ``x`` centred, then refined
+        by L-BFGS on the squared mismatch of the mapped factors (no simulation involved).
+        """
+        f64 = torch.float64
+        A, agent, owned = self.n_agents, self._agent_of, self.layout.owned
+        cnt = torch.zeros(A, dtype=f64).index_add_(0, agent, owned.to(f64)).clamp_min(1.0)
+        le = torch.where(owned[:, None], torch.log(truth[:, :2] / self.init[:, :2]), 0.0)
+        x_e = torch.zeros(A, 2, dtype=f64).index_add_(0, agent, le) / cnt[:, None]
+        f0, ft = self.init[:, 2:], truth[:, 2:]
+        w = (self.feasible & (f0 > 0) & (ft > 0) & owned[:, None]).to(f64)  # [n, 5]
+        L = torch.where(w > 0, torch.log(torch.where(w > 0, ft / torch.where(w > 0, f0, 1.0), 1.0)), 0.0)
+        wa = torch.zeros(A, 5, dtype=f64).index_add_(0, agent, w).clamp_min(1e-300)
+        x_t = torch.zeros(A, 5, dtype=f64)
+        wc = w.sum(1).clamp_min(1e-300)
+        for _ in range(sweeps):  # alternating least squares, vectorized over cells and agents
+            z = ((x_t[agent] - L) * w).sum(1) / wc  # [n]
+            x_t = torch.zeros(A, 5, dtype=f64).index_add_(0, agent, (L + z[:, None]) * w) / wa
+        used = (wa >= 1).to(f64)
+        x_t = (x_t - (x_t * used).sum(1, keepdim=True) / used.sum(1, keepdim=True).clamp_min(1.0)) * used
+        x = (torch.cat([x_e, x_t], dim=1) * self.free)[None].requires_grad_(True)
+        # refine in parameter space: the floor makes the twin's factors representable only approximately
+        own = self.layout.owned
+        opt = torch.optim.LBFGS([x], max_iter=refine_iters, line_search_fn="strong_wolfe")
+
+        def mismatch() -> torch.Tensor:
+            opt.zero_grad()
+            loss = ((self.params(x)[0, own, 2:] - truth[own, 2:]) ** 2).sum()
+            loss.backward()
+            return loss
+
+        if float(w.sum()) > 0 and float((self.params(x.detach())[0, own, 2:] - truth[own, 2:]).abs().max()) > 0:
+            opt.step(mismatch)
+        return (x.detach()[0] * self.free).clamp(min=self.lower, max=self.upper)
+
+
+def build_problem(config: ProblemConfig, cells: CellModel | None = None) -> CalibrationProblem:
+    """Build the calibration problem of a config: cells, agents, simulator, reference.
+
+    Args:
+        config: the problem settings.
+        cells: the cell model (``None``: the env config's vehicle, discretized once per process).
+
+    Raises:
+        ConfigError: invalid env, scenario, window, reward or reference settings (key named).
+    """
+    over = dict(config.env_overrides)
+    over["reference.kind"] = config.reference
+    over["scenarios"] = {config.scenario: 1.0}
+    env = load_env_config(config.env, over)
+    if cells is None:
+        cells = build_cells(env.vehicle, env.vehicle_seed, env.discretization)
+    scenario = get_scenario(config.scenario)
+    if config.duration is not None:
+        steps = config.duration * scenario.output_rate
+        if abs(steps - round(steps)) > 1e-6 * max(1.0, steps) or config.duration > scenario.duration + 1e-12:
+            raise ConfigError(
+                f"expected a whole number of {scenario.output_dt} s output steps, at most the scenario's "
+                f"{scenario.duration} s, got {config.duration}",
+                key="problem.duration",
+            )
+    sensors = list(env.sensors) or list(cells.sensor_names)
+    layout = build_agents(cells, env.agents)
+    sim = Surrogate(cells, load_sim_config(), output_dt=scenario.output_dt)
+    bounds = (env.behaviour_bounds[0], env.behaviour_bounds[1])
+    sampler = ReferenceSampler(cells, sim, sensors, env.scenarios, env.reference, vehicle=env.vehicle,
+                               bounds=bounds, floor=env.transmission_floor, backend=config.sim_backend)  # fmt: skip
+    reference = sampler.sample(np.random.default_rng(config.reference_seed), 1)
+    fit_cfg = load_reward_config(config.fit)
+    active = None
+    if config.masking:
+        regions = ImpactRegions(cells, layout, env.masking)
+        active = regions.active(reference.overlap, reference.side, reference.speed)[0]
+    return CalibrationProblem(
+        cells, layout, sim, scenario, reference, sensors, bounds=bounds, floor=env.transmission_floor,
+        fit=Reward(fit_cfg), success=config.success, duration=config.duration, active=active,
+        box_radius=config.box_radius, sim_backend=config.sim_backend, metrics_backend=config.metrics_backend,
+        compare_cfc=env.reference.compare_cfc,
+    )  # fmt: skip

@@ -1,0 +1,50 @@
+"""Smoke runs of train/baseline.py in a subprocess with tiny overrides (as TorchRL tests its scripts)."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+SCRIPT = REPO / "train" / "baseline.py"
+TINY = ["budget=32", "problem.duration=0.01", "gradient.batch_size=4", "cmaes.popsize=8", "random_search.batch_size=8"]
+
+
+def run(*args: str, cwd: Path) -> subprocess.CompletedProcess:
+    env = dict(os.environ, HYDRA_FULL_ERROR="0")
+    return subprocess.run([sys.executable, str(SCRIPT), *args], cwd=cwd, env=env, capture_output=True, text=True,
+                          timeout=300)  # fmt: skip
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("method", ["random_search", "cmaes", "gradient"])
+def test_script_writes_a_run_folder(tmp_path, method):
+    out = tmp_path / "runs"
+    p = run(f"method={method}", *TINY, f"out_dir={out}", "name=smoke", "seed=1", cwd=tmp_path)
+    assert p.returncode == 0, p.stderr[-3000:]
+    folder = out / method / "smoke"
+    summary = json.loads((folder / "summary.json").read_text())
+    for key in ("final_metrics", "initial_metrics", "simulations", "sims_to_success", "wall_time_s", "param_error"):
+        assert key in summary
+    assert summary["simulations"] == 32
+    assert set(summary["final_metrics"]) == {"upfront_left", "upfront_right", "tunnel"}
+    assert set(next(iter(summary["final_metrics"].values()))) == {"area", "dfd", "rmse"}
+    assert all(set(v) == {"E_x", "E_s", "transmission"} for v in summary["param_error"].values())
+    with open(folder / "history.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert int(rows[-1]["simulations"]) == 32 and float(rows[-1]["best_score"]) == summary["best_score"]
+    assert (folder / "velocity.png").stat().st_size > 1000
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["runs"]  # Hydra wrote nothing else
+
+
+def test_script_rejects_bad_config_before_running(tmp_path):
+    p = run("method=gradient", "gradient.lr=-0.5", f"out_dir={tmp_path / 'runs'}", "name=bad", cwd=tmp_path)
+    assert p.returncode != 0
+    assert "gradient.lr" in p.stderr and "learning rate" in p.stderr
+    assert not (tmp_path / "runs").exists()

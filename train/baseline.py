@@ -1,0 +1,32 @@
+"""Optimizer baselines on a simulation budget (DESIGN 6).
+
+    python train/baseline.py method=cmaes budget=2000 seed=1
+    python train/baseline.py method=gradient problem.duration=0.05 gradient.lr=0.01 name=try1
+
+Writes ``<out_dir>/<method>/<name>/``: summary.json, history.csv, config.json, best.pt, velocity.png.
+"""
+
+from __future__ import annotations
+
+import json
+
+import hydra
+from omegaconf import DictConfig, OmegaConf
+
+from marlcrash.calibrate import build_problem, load_run_config, run_baseline, write_run
+
+
+@hydra.main(version_base=None, config_path="../configs/train", config_name="baseline")
+def main(cfg: DictConfig) -> None:
+    config = load_run_config(OmegaConf.to_container(cfg, resolve=True), source="configs/train/baseline.yaml")
+    problem = build_problem(config.problem)
+    result = run_baseline(config, problem)
+    folder = write_run(config, problem, result)
+    s = result.summary()
+    print(json.dumps({"run": str(folder), "simulations": s["simulations"], "sims_to_success": s["sims_to_success"],
+                      "initial_score": s["initial_score"], "best_score": s["best_score"],
+                      "wall_time_s": round(s["wall_time_s"], 2)}))  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()
