@@ -35,8 +35,8 @@ _BIG = 1e30  # yield force of a bottomed-out link [N] (as in the torch path)
 _HUGE = 1e300  # stands in for an infinite saturation energy (cells without links) [J]
 
 # Per-link property fields, [chunk, L, N_PROP, lanes].
-P_YC, P_K0, P_KD, P_IK0, P_IKD, P_DAMP = range(6)
-N_PROP = 6
+P_YC, P_K0, P_KD, P_IK0, P_IKD, P_DAMP, P_Q0, P_QD = range(8)
+N_PROP = 8
 # Per-node property fields, [chunk, n, N_NODE, lanes].
 W_ES, W_K, W_C, W_GAP, W_COV = range(5)
 N_NODE = 5
@@ -52,7 +52,7 @@ _FASTMATH = {"nsz", "arcp", "contract", "reassoc", "afn"}  # no nnan/ninf: BIG a
 
 def default_lanes(n_links: int, itemsize: int, mode: int) -> int:
     """Simulations per chunk: the widest power of two (<= 16) whose link data fits in L2."""
-    fields = N_PROP + 2 + (1 if mode else 0)  # properties + f_el, opening (+ f_prev for per-cell ledgers)
+    fields = N_PROP + 3 + (1 if mode else 0)  # properties + f_el, opening, yielded (+ f_prev for per-cell ledgers)
     lanes = 16
     while lanes > 4 and n_links * fields * lanes * itemsize > 0.8 * L2_BYTES:
         lanes //= 2
@@ -60,7 +60,23 @@ def default_lanes(n_links: int, itemsize: int, mode: int) -> int:
 
 
 @numba.njit(cache=True, fastmath=_FASTMATH, inline="always")
-def _plain(P, ll, j, dd, sat, tr, f_el, plastic, a, st_l, cst):
+def _relieve(P, ll, j, sat, f0, f_tr, f_ret, yd, cst):
+    """Springback relief of one link (see :mod:`marlcrash.sim.surrogate`): the force after it.
+
+    A link that has yielded (``yd``, set here) and unloads (``|f_ret| < |f0|``, same sign) has its
+    force scaled by its relaxation factor ``q <= 1``; ``cst[6]`` is 1 when the relief is on, 0 when
+    off (then the result is ``f_ret`` exactly).
+    """
+    zero = cst[1]
+    y = max(yd[ll, j], cst[6] if f_tr != f_ret else zero)
+    yd[ll, j] = y
+    q = P[ll, P_Q0, j] + sat * (P[ll, P_QD, j] - P[ll, P_Q0, j])
+    unload = y > zero and f_ret * f0 > zero and abs(f_ret) < abs(f0)
+    return f_ret * q if unload else f_ret
+
+
+@numba.njit(cache=True, fastmath=_FASTMATH, inline="always")
+def _plain(P, ll, j, dd, sat, tr, f_el, yd, plastic, a, st_l, cst):
     """One plain link update in lane ``j``: return-mapped force, plastic work, stored energy; returns f_tot."""
     half, zero, big, inv_dt = cst[0], cst[1], cst[5], cst[3]
     yc = P[ll, P_YC, j]
@@ -68,31 +84,35 @@ def _plain(P, ll, j, dd, sat, tr, f_el, plastic, a, st_l, cst):
     ik = P[ll, P_IK0, j] + sat * (P[ll, P_IKD, j] - P[ll, P_IK0, j])
     yu = yc + sat * (big - yc)
     yl = tr * yc + sat * (big - tr * yc)
-    f_tr = f_el[ll, j] + k * dd
-    f_new = min(max(f_tr, -yl), yu)
-    plastic[a, j] += f_new * (f_tr - f_new) * ik
+    f0 = f_el[ll, j]
+    f_tr = f0 + k * dd
+    f_ret = min(max(f_tr, -yl), yu)
+    f_new = _relieve(P, ll, j, sat, f0, f_tr, f_ret, yd, cst)
+    plastic[a, j] += (f_ret * (f_tr - f_ret) + half * (f_ret * f_ret - f_new * f_new)) * ik
     f_el[ll, j] = f_new
     st_l[j] += half * f_new * f_new * ik
-    return f_new + (P[ll, P_DAMP, j] * dd * inv_dt if f_tr == f_new else zero)
+    return f_new + (P[ll, P_DAMP, j] * dd * inv_dt if f_tr == f_ret else zero)
 
 
 @numba.njit(cache=True, fastmath=_FASTMATH, inline="always")
-def _gap(P, ll, j, dd, sat, f_el, o, plastic, a, st_l, cst):
+def _gap(P, ll, j, dd, sat, f_el, o, yd, plastic, a, st_l, cst):
     """One gap (contact) link update in lane ``j``; returns f_tot."""
     half, zero, big, inv_dt = cst[0], cst[1], cst[5], cst[3]
     yc = P[ll, P_YC, j]
     k = P[ll, P_K0, j] + sat * (P[ll, P_KD, j] - P[ll, P_K0, j])
     ik = P[ll, P_IK0, j] + sat * (P[ll, P_IKD, j] - P[ll, P_IK0, j])
     yu = yc + sat * (big - yc)
-    z = f_el[ll, j] * ik - o[ll, j] + dd
+    f0 = f_el[ll, j]
+    z = f0 * ik - o[ll, j] + dd
     zp = max(z, zero)
     f_tr = k * zp
     o[ll, j] = max(-z, zero)
-    f_new = min(f_tr, yu)
-    plastic[a, j] += f_new * (f_tr - f_new) * ik
+    f_ret = min(f_tr, yu)
+    f_new = _relieve(P, ll, j, sat, f0, f_tr, f_ret, yd, cst)
+    plastic[a, j] += (f_ret * (f_tr - f_ret) + half * (f_ret * f_ret - f_new * f_new)) * ik
     f_el[ll, j] = f_new
     st_l[j] += half * f_new * f_new * ik
-    return f_new + (P[ll, P_DAMP, j] * dd * inv_dt if (f_tr == f_new and z > zero) else zero)
+    return f_new + (P[ll, P_DAMP, j] * dd * inv_dt if (f_tr == f_ret and z > zero) else zero)
 
 
 @numba.njit(cache=True, fastmath=_FASTMATH, parallel=True)
@@ -169,6 +189,7 @@ def _simulate(
         # link state [L, lanes]
         f_el = np.zeros((L, CH), lp.dtype)
         o = np.zeros((L, CH), lp.dtype)
+        yd = np.zeros((L, CH), lp.dtype)  # 1 once the link has yielded (springback relief)
         f_prev = np.zeros((L, CH), lp.dtype)
         st_l = np.zeros(CH, lp.dtype)
         w_link = np.zeros(CH)
@@ -216,14 +237,14 @@ def _simulate(
                 tr = tratio[ll]
                 if mode:
                     for j in range(CH):
-                        f_tot = _plain(P, ll, j, ds[c, j] - ds[a, j], satc[a, j], tr, f_el, plastic, a, st_l, cst)
+                        f_tot = _plain(P, ll, j, ds[c, j] - ds[a, j], satc[a, j], tr, f_el, yd, plastic, a, st_l, cst)
                         fs[a, j] += f_tot
                         fd[c, j] += f_tot
                         h_out[a, j] += 0.5 * (float(f_prev[ll, j]) + float(f_tot)) * float(step_in[j] - ds[c, j])
                         f_prev[ll, j] = f_tot
                 else:
                     for j in range(CH):
-                        f_tot = _plain(P, ll, j, ds[c, j] - ds[a, j], satc[a, j], tr, f_el, plastic, a, st_l, cst)
+                        f_tot = _plain(P, ll, j, ds[c, j] - ds[a, j], satc[a, j], tr, f_el, yd, plastic, a, st_l, cst)
                         fs[a, j] += f_tot
                         fd[c, j] += f_tot
             # gap (contact) links: compression only once the gap has closed
@@ -232,14 +253,14 @@ def _simulate(
                 c = dst[ll]
                 if mode:
                     for j in range(CH):
-                        f_tot = _gap(P, ll, j, ds[c, j] - ds[a, j], satc[a, j], f_el, o, plastic, a, st_l, cst)
+                        f_tot = _gap(P, ll, j, ds[c, j] - ds[a, j], satc[a, j], f_el, o, yd, plastic, a, st_l, cst)
                         fs[a, j] += f_tot
                         fd[c, j] += f_tot
                         h_out[a, j] += 0.5 * (float(f_prev[ll, j]) + float(f_tot)) * float(step_in[j] - ds[c, j])
                         f_prev[ll, j] = f_tot
                 else:
                     for j in range(CH):
-                        f_tot = _gap(P, ll, j, ds[c, j] - ds[a, j], satc[a, j], f_el, o, plastic, a, st_l, cst)
+                        f_tot = _gap(P, ll, j, ds[c, j] - ds[a, j], satc[a, j], f_el, o, yd, plastic, a, st_l, cst)
                         fs[a, j] += f_tot
                         fd[c, j] += f_tot
             for j in range(CH):
@@ -347,7 +368,8 @@ def run_numba(
     with torch.no_grad():
         k = props.k.detach()
         kd = props.k_dense.detach()
-        lp = torch.stack([props.yield_c.detach(), k, kd, 1.0 / k, 1.0 / kd, props.damping.detach()], dim=1)
+        q, qd = props.relax.detach(), props.relax_dense.detach()
+        lp = torch.stack([props.yield_c.detach(), k, kd, 1.0 / k, 1.0 / kd, props.damping.detach(), q, qd], dim=1)
         lp = lp[:, :, order].to(tdt)  # [B, N_PROP, L]
         e_s = props.e_s.detach().clamp(max=min(_HUGE, torch.finfo(props.e_s.dtype).max))
         npr = torch.stack([e_s, wall.k, wall.damping, wall.gap, wall.covered.to(e_s.dtype)], dim=1).to(tdt)
@@ -370,7 +392,8 @@ def run_numba(
     plastic = z(n)
     dt = sim.dt
     t0 = time.perf_counter()
-    cst = np.array([0.5, 0.0, 1.0, 1.0 / dt, dt, _BIG], dtype=npdt)
+    relief = 1.0 if sim.config.springback_relief else 0.0
+    cst = np.array([0.5, 0.0, 1.0, 1.0 / dt, dt, _BIG, relief], dtype=npdt)
     _simulate(
         cst,
         lp_a,

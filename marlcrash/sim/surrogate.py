@@ -46,6 +46,18 @@ force is ``F^2 / 2 k_eff``, which is released as rebound. ``substeps`` and
 ``mass_floor`` in ``configs/sim.yaml`` are chosen so the capped stiffness lets the
 load paths reach their crush forces within a few mm and the rebound stays in the
 5-20 % of real rigid-wall tests (tested in ``tests/test_sim_default_car.py``).
+
+Springback relief (``springback_relief``, off by default): the excess elastic energy
+``F^2 / 2 k_eff - F^2 / 2 k_raw`` of a capped link is a numerical artefact; the real element
+would unload along its own stiff slope. Once a link has yielded, every step in which it
+unloads (``|f|`` falls, same sign) scales its force by ``q = 1 - (1 - exp(-dt / tau)) x`` with
+``x = k_raw / (k_raw + k_cap) = 1 - k_eff / k_raw`` the excess share of its force (0 where the
+cap does not bind); ``tau = springback_tau``. This only ever reduces ``|f|`` and its derivative
+by the displacement stays ``q k_eff <= k_eff``: no stiffness is added, the explicit step stays
+stable and the map stays contractive (a stiff real unloading slope, tried first, made the
+trajectories chaotic: 1e-12 parameter changes moved the stop time). The released elastic energy
+``(f^2 - (q f)^2) / 2 k_eff`` is booked as plastic work of the source cell (it counts toward
+``E_s``); the balance closes as before because the work is integrated with the forces applied.
 """
 
 from __future__ import annotations
@@ -82,6 +94,8 @@ class SimConfig:
     contact_damping_ratio: float = 0.7
     wall_stiffness: float = 1e10
     wall_damping_ratio: float = 0.7
+    springback_relief: bool = False
+    springback_tau: float = 2e-3
     dtype: Literal["float64", "float32"] = "float64"
     backend: Literal["torch", "numba", "auto"] = "auto"
 
@@ -127,6 +141,13 @@ class SimConfig:
             "wall_damping_ratio",
             f"wall_damping_ratio must be in [0, 1], got {self.wall_damping_ratio}",
         )
+
+        require(
+            isinstance(self.springback_relief, bool),
+            "springback_relief",
+            f"springback_relief must be true or false, got {self.springback_relief!r}",
+        )
+        require(self.springback_tau > 0.0, "springback_tau", f"springback_tau must be > 0 s, got {self.springback_tau}")
 
     @property
     def torch_dtype(self) -> torch.dtype:
@@ -204,6 +225,8 @@ class LinkProps:
     k: torch.Tensor  # [B, L] effective elastic stiffness [N/m]
     k_dense: torch.Tensor  # [B, L] effective stiffness once the source cell bottomed out [N/m]
     damping: torch.Tensor  # [B, L] viscous coefficient while elastic [N s/m]
+    relax: torch.Tensor  # [B, L] per-step force factor of a yielded link while unloading (springback relief) [-]
+    relax_dense: torch.Tensor  # [B, L] ... once the source cell bottomed out [-]
     e_s: torch.Tensor  # [B, n] saturation energy per cell (inf for cells without links) [J]
 
 
@@ -364,7 +387,12 @@ class Surrogate:
         zeta = torch.where(self.is_gap, cfg.contact_damping_ratio, cfg.link_damping_ratio).to(self.dtype)
         damping = 2.0 * zeta * torch.sqrt(k * self.m_pair)
         e_s_cell = torch.where(self.has_links, e_s, torch.full_like(e_s, float("inf")))
-        return LinkProps(yield_c, yield_t, k, k_dense, damping, e_s_cell)
+        # Springback relief (module doc): the excess share k_raw / (k_raw + cap) = 1 - k_eff / k_raw of a
+        # yielded link's force decays by exp(-dt / tau) per unloading step.
+        a = (1.0 - np.exp(-self.dt / cfg.springback_tau)) if cfg.springback_relief else 0.0
+        relax = 1.0 - a * k_raw / (k_raw + cap)
+        relax_dense = 1.0 - a * kd_raw / (kd_raw + cap)
+        return LinkProps(yield_c, yield_t, k, k_dense, damping, relax, relax_dense, e_s_cell)
 
     def scenario_tensors(
         self,
@@ -485,6 +513,8 @@ class Surrogate:
         s = zn.clone()
         f_el, o, f_prev, fw_prev = zl.clone(), self.gap.expand(B, -1).clone(), zl.clone(), zn.clone()
         plastic = zn.clone()
+        relief = self.config.springback_relief
+        yielded = torch.zeros((B, self.L), dtype=torch.bool)  # [B, L] link has yielded (springback relief)
         work, passed, w_work, w_in = zl.clone(), zl.clone(), zn.clone(), zn.clone()
         stored_l, stored_w = zl.clone(), zn.clone()
         e0 = 0.5 * (m_ke * v * v).sum(dim=1)
@@ -523,9 +553,17 @@ class Surrogate:
             z = f_el / k - o + dd
             f_tr = k * torch.where(is_gap, z.clamp_min(0.0), z)
             o = torch.where(is_gap, (-z).clamp_min(0.0), zl)
-            f_new = torch.minimum(torch.maximum(f_tr, -yt), yc)
-            plastic = plastic.index_add(1, src, f_new * (f_tr - f_new) / k)
-            elastic = (f_tr == f_new) & (~is_gap | (z > 0))
+            f_ret = torch.minimum(torch.maximum(f_tr, -yt), yc)
+            elastic = (f_tr == f_ret) & (~is_gap | (z > 0))
+            w_pl = f_ret * (f_tr - f_ret) / k
+            if relief:
+                yielded = yielded | (f_tr != f_ret)
+                unload = yielded & (f_ret * f_el > 0.0) & (f_ret.abs() < f_el.abs())
+                f_new = torch.where(unload, f_ret * torch.where(sat, props.relax_dense, props.relax), f_ret)
+                w_pl = w_pl + 0.5 * (f_ret * f_ret - f_new * f_new) / k
+            else:
+                f_new = f_ret
+            plastic = plastic.index_add(1, src, w_pl)
             f_tot = f_new + torch.where(elastic, props.damping * dd / dt, zl)
             pen = s - wall.gap
             in_contact = wall.covered & (pen > 0)
