@@ -27,6 +27,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Literal, NamedTuple
 
+import numba
+import numpy as np
 import torch
 
 from marlcrash.config import require
@@ -303,6 +305,81 @@ def discrete_frechet_ragged(qs: Sequence[torch.Tensor], ps: Sequence[torch.Tenso
     return discrete_frechet_points(stack(qs), stack(ps))
 
 
+# ------------------------------------------------------------------ compiled Frechet rows
+_DFD_BLOCK = 32  # rows per kernel block: the inner loop runs across rows, so it vectorizes
+
+
+@numba.njit(cache=True, parallel=True)
+def _dfd_rows(q: np.ndarray, p: np.ndarray, dt: float, ts: float, vs: float) -> np.ndarray:  # pragma: no cover
+    """Discrete Frechet distances of ``R`` pairs of curves ``(i dt ts, q[r, i] vs)``, ``(j dt ts, p[r, j] vs)``.
+
+    Squared distances are propagated (max/min commute with the final square root); each block
+    of rows keeps two ``[m, block]`` rows of the coupling table and loops innermost over rows.
+    """
+    n_rows, n = q.shape
+    m = p.shape[1]
+    out = np.empty(n_rows)
+    n_blocks = (n_rows + _DFD_BLOCK - 1) // _DFD_BLOCK
+    for b in numba.prange(n_blocks):
+        r0 = b * _DFD_BLOCK
+        w = min(n_rows, r0 + _DFD_BLOCK) - r0
+        qt = np.ascontiguousarray(q[r0 : r0 + w].T * vs)  # [n, w]
+        pt = np.ascontiguousarray(p[r0 : r0 + w].T * vs)  # [m, w]
+        prev = np.empty((m, w))
+        cur = np.empty((m, w))
+        for i in range(n):
+            for j in range(m):
+                tt = ((i - j) * dt * ts) ** 2
+                if i == 0 and j == 0:
+                    for k in range(w):
+                        dv = qt[i, k] - pt[j, k]
+                        cur[j, k] = tt + dv * dv
+                elif i == 0:
+                    for k in range(w):
+                        dv = qt[i, k] - pt[j, k]
+                        cur[j, k] = max(cur[j - 1, k], tt + dv * dv)
+                elif j == 0:
+                    for k in range(w):
+                        dv = qt[i, k] - pt[j, k]
+                        cur[j, k] = max(prev[j, k], tt + dv * dv)
+                else:
+                    for k in range(w):
+                        dv = qt[i, k] - pt[j, k]
+                        cur[j, k] = max(min(min(prev[j, k], prev[j - 1, k]), cur[j - 1, k]), tt + dv * dv)
+            prev, cur = cur, prev
+        for k in range(w):
+            out[r0 + k] = math.sqrt(prev[m - 1, k])
+    return out
+
+
+def discrete_frechet_uniform_numba(
+    q: torch.Tensor, p: torch.Tensor, dt: float, time_scale: float = 1.0, value_scale: float = 1.0
+) -> torch.Tensor:
+    """:func:`discrete_frechet` of curves on the common grid ``i * dt``, no-grad, in a compiled kernel.
+
+    The same recursion row by row with ``O(T)`` memory instead of the ``[..., T, T]`` table
+    (at ``B = 256`` and 3 sensors: milliseconds and kilobytes instead of seconds and 0.5 GB).
+
+    Args:
+        q, p: ``[..., T]`` values (broadcast), float64 on the CPU.
+        dt: sample step [s].
+        time_scale, value_scale: as in :func:`discrete_frechet`.
+
+    Returns:
+        ``[...]`` float64 distances.
+    """
+    q, p = torch.broadcast_tensors(q.detach().double().cpu(), p.detach().double().cpu())
+    shape = q.shape[:-1]
+    rows = _dfd_rows(
+        np.ascontiguousarray(q.reshape(-1, q.shape[-1]).numpy()),
+        np.ascontiguousarray(p.reshape(-1, p.shape[-1]).numpy()),
+        float(dt),
+        float(time_scale),
+        float(value_scale),
+    )
+    return torch.from_numpy(rows).reshape(shape)
+
+
 def compute_metrics(
     q: torch.Tensor,
     p: torch.Tensor,
@@ -310,6 +387,7 @@ def compute_metrics(
     *,
     dt: float | None = None,
     config: MetricsConfig | None = None,
+    backend: Literal["torch", "numba"] = "torch",
 ) -> Metrics:
     """All three metrics of ``q`` against ``p`` on common samples.
 
@@ -319,6 +397,8 @@ def compute_metrics(
         time: ``[T]`` sample times [s]; or ``dt``.
         dt: uniform sampling interval [s].
         config: area method and Frechet scaling (default: exact area, unscaled SI).
+        backend: ``torch`` (differentiable, any device) or ``numba`` (the Frechet distance in a
+            compiled kernel: no gradient, CPU, uniform ``dt``; same numbers to round-off).
 
     Returns:
         :class:`Metrics` of ``[...]`` tensors.
@@ -326,6 +406,11 @@ def compute_metrics(
     cfg = config or MetricsConfig()
     q, p = torch.broadcast_tensors(q, p)
     area = area_between(q, p, time, dt=dt, method=cfg.area_method)
+    if backend == "numba":
+        if dt is None:
+            raise PulseError("the numba metrics backend needs a uniform step dt")
+        dfd = discrete_frechet_uniform_numba(q, p, dt, cfg.dfd_time_scale, cfg.dfd_value_scale).to(q.dtype)
+        return Metrics(area=area, dfd=dfd, rmse=rmse(q, p))
     if time is None:
         dfd = discrete_frechet(q, p, dt=dt, time_scale=cfg.dfd_time_scale, value_scale=cfg.dfd_value_scale)
     else:

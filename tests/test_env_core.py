@@ -11,7 +11,6 @@ from marlcrash.envs.core import (
     CalibrationCore,
     apply_increments,
     build_cells,
-    fast_metrics,
     load_env_config,
 )
 from marlcrash.errors import ConfigError, MarlcrashError
@@ -158,17 +157,6 @@ def test_observations_state_and_reward(cells):
     torch.testing.assert_close(core.reward, rw(ref, prev))
     obs, _ = core.observations()
     assert obs[:, :, kt : kt + 7].abs().sum() > 0
-
-
-def test_fast_metrics_match_marlcrash_metrics():
-    g = torch.Generator().manual_seed(0)
-    q = torch.randn(4, 3, 60, generator=g, dtype=torch.float64).cumsum(-1)
-    p = torch.randn(4, 3, 60, generator=g, dtype=torch.float64).cumsum(-1)
-    cfg = load_reward_config("paper_factor", overrides={"metrics.dfd_time_scale": 300.0})
-    fast = fast_metrics(q, p, 5e-4, Reward(cfg))
-    slow = compute_metrics(q, p, dt=5e-4, config=cfg.metrics)
-    for a, b in zip(fast, slow, strict=True):
-        torch.testing.assert_close(a, b, rtol=1e-12, atol=1e-12)
 
 
 def test_termination_and_truncation(cells):

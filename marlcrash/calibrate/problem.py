@@ -48,7 +48,7 @@ from marlcrash.cells.model import PARAM_NAMES, CellModel
 from marlcrash.cells.parameterization import apply_increments
 from marlcrash.config import require
 from marlcrash.envs.agents import AgentLayout, build_agents
-from marlcrash.envs.core import build_cells, fast_metrics, load_env_config
+from marlcrash.envs.core import build_cells, load_env_config
 from marlcrash.envs.masking import ImpactRegions
 from marlcrash.errors import ConfigError, ModelError
 from marlcrash.metrics import Metrics, area_between, compute_metrics, rmse
@@ -351,9 +351,9 @@ class CalibrationProblem:
     def metrics(self, velocity: torch.Tensor) -> Metrics:
         """Per-sensor metrics ``[N, K]`` of simulated velocities ``[N, K, T]`` against the reference (no grad)."""
         v = self.compared(velocity.detach())
-        if self.metrics_backend == "numba":
-            return fast_metrics(v, self.ref_velocity, self.dt, self.fit)
-        return compute_metrics(v, self.ref_velocity, dt=self.dt, config=self.fit.cfg.metrics)
+        return compute_metrics(
+            v, self.ref_velocity, dt=self.dt, config=self.fit.cfg.metrics, backend=self.metrics_backend
+        )
 
     def evaluate(self, x: torch.Tensor | np.ndarray) -> Metrics:
         """Metrics ``[N, K]`` of ``N`` candidates ``[N, n_agents, 7]`` from one batched no-grad simulation."""

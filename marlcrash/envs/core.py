@@ -48,7 +48,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
-import numba
 import numpy as np
 import torch
 
@@ -58,7 +57,7 @@ from marlcrash.config import config_dir, load_config, require
 from marlcrash.envs.agents import AgentsConfig, build_agents
 from marlcrash.envs.masking import ImpactRegions, MaskingConfig
 from marlcrash.errors import ConfigError, MarlcrashError
-from marlcrash.metrics import Metrics, area_between, compute_metrics, rmse
+from marlcrash.metrics import Metrics, compute_metrics
 from marlcrash.references import ReferenceConfig, ReferenceSampler
 from marlcrash.reward import Reward, TerminationConfig, load_reward_config
 from marlcrash.sim.surrogate import SimConfig, Surrogate, load_sim_config
@@ -140,80 +139,6 @@ def build_cells(vehicle: str, seed: int | None, method: str) -> CellModel:
     from marlcrash.vehicle.registry import load_vehicle
 
     return discretize(load_vehicle(vehicle, seed=seed), method=method)
-
-
-# ------------------------------------------------------------------------------------- fast metrics
-_DFD_BLOCK = 32  # rows per kernel block: the inner loop runs across rows, so it vectorizes
-
-
-@numba.njit(cache=True, parallel=True)
-def _dfd_rows(q: np.ndarray, p: np.ndarray, dt: float, ts: float, vs: float) -> np.ndarray:  # pragma: no cover
-    """Discrete Frechet distances of ``R`` pairs of curves ``(i dt ts, q[r, i] vs)``, ``(j dt ts, p[r, j] vs)``.
-
-    Squared distances are propagated (max/min commute with the final square root); each block
-    of rows keeps two ``[m, block]`` rows of the coupling table and loops innermost over rows.
-    """
-    n_rows, n = q.shape
-    m = p.shape[1]
-    out = np.empty(n_rows)
-    n_blocks = (n_rows + _DFD_BLOCK - 1) // _DFD_BLOCK
-    for b in numba.prange(n_blocks):
-        r0 = b * _DFD_BLOCK
-        w = min(n_rows, r0 + _DFD_BLOCK) - r0
-        qt = np.ascontiguousarray(q[r0 : r0 + w].T * vs)  # [n, w]
-        pt = np.ascontiguousarray(p[r0 : r0 + w].T * vs)  # [m, w]
-        prev = np.empty((m, w))
-        cur = np.empty((m, w))
-        for i in range(n):
-            for j in range(m):
-                tt = ((i - j) * dt * ts) ** 2
-                if i == 0 and j == 0:
-                    for k in range(w):
-                        dv = qt[i, k] - pt[j, k]
-                        cur[j, k] = tt + dv * dv
-                elif i == 0:
-                    for k in range(w):
-                        dv = qt[i, k] - pt[j, k]
-                        cur[j, k] = max(cur[j - 1, k], tt + dv * dv)
-                elif j == 0:
-                    for k in range(w):
-                        dv = qt[i, k] - pt[j, k]
-                        cur[j, k] = max(prev[j, k], tt + dv * dv)
-                else:
-                    for k in range(w):
-                        dv = qt[i, k] - pt[j, k]
-                        cur[j, k] = max(min(min(prev[j, k], prev[j - 1, k]), cur[j - 1, k]), tt + dv * dv)
-            prev, cur = cur, prev
-        for k in range(w):
-            out[r0 + k] = math.sqrt(prev[m - 1, k])
-    return out
-
-
-def fast_metrics(q: torch.Tensor, p: torch.Tensor, dt: float, reward: Reward) -> Metrics:
-    """The metrics of :func:`marlcrash.metrics.compute_metrics` for uniform samples, no-grad and fast.
-
-    Area and RMSE come from :mod:`marlcrash.metrics`; the discrete Frechet distance is the
-    same recursion (Eiter and Mannila) on both curves' points ``(t * time_scale, v * value_scale)``
-    evaluated row by row in a compiled kernel with ``O(T)`` memory instead of the ``[N, T, T]`` table.
-
-    Args:
-        q, p: ``[..., T]`` estimate and reference on the grid ``i * dt``.
-        dt: sample step [s].
-        reward: supplies the metric settings.
-
-    Returns:
-        :class:`Metrics` of ``[...]`` float64 tensors.
-    """
-    cfg = reward.cfg.metrics
-    q, p = torch.broadcast_tensors(q.double(), p.double())
-    shape = q.shape[:-1]
-    dfd = _dfd_rows(q.reshape(-1, q.shape[-1]).numpy(), p.reshape(-1, p.shape[-1]).numpy(), float(dt),
-                    float(cfg.dfd_time_scale), float(cfg.dfd_value_scale))  # fmt: skip
-    return Metrics(
-        area=area_between(q, p, dt=dt, method=cfg.area_method),
-        dfd=torch.from_numpy(dfd).reshape(shape),
-        rmse=rmse(q, p),
-    )
 
 
 # ------------------------------------------------------------------------------------------ the core
@@ -327,10 +252,9 @@ class CalibrationCore:
         self.energy_fraction[rows] = torch.where(e_s > 0, absorbed / torch.where(e_s > 0, e_s, 1.0), 0.0)
         self.saturated[rows] = res.saturated
         ref = self.ref_velocity[rows]
-        if self.config.metrics_backend == "numba":
-            m = fast_metrics(est, ref, self.dt, self.reward_fn)
-        else:
-            m = compute_metrics(est, ref, dt=self.dt, config=self.reward_fn.cfg.metrics)
+        m = compute_metrics(
+            est, ref, dt=self.dt, config=self.reward_fn.cfg.metrics, backend=self.config.metrics_backend
+        )
         return m
 
     # -------------------------------------------------------------------------------------- reset
