@@ -1,0 +1,80 @@
+"""Atomic checkpoints of training runs, and the random-generator state they must carry (DESIGN 8).
+
+A checkpoint is one ``torch.save`` file holding everything a resumed run needs to
+continue *bit-for-bit* like an uninterrupted one: network and optimizer state, the
+iteration and budget counters, the logger position, and every random generator that
+the next iteration draws from (torch's global generator -- action sampling and
+minibatch order -- and the environment core's own numpy generator -- scenarios and
+twin references). Every training iteration starts from freshly reset episodes
+(:func:`marlcrash.calibrate.marl.collect`), so no half-finished episode has to be saved.
+
+Writes are atomic: the file is written to a temporary sibling, flushed, and moved into
+place with :func:`os.replace`, so a run killed at any moment leaves either the previous
+checkpoint or the new one, never a torn file.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from marlcrash.errors import ConfigError
+
+CHECKPOINT_FILE = "checkpoint.pt"
+"""Name of the latest checkpoint inside a run folder."""
+
+
+def rng_state(env_rng: np.random.Generator) -> dict[str, Any]:
+    """Snapshot of torch's global CPU generator and the environment's numpy generator."""
+    return {"torch": torch.get_rng_state(), "env": env_rng.bit_generator.state}
+
+
+def restore_rng(state: dict[str, Any], env_rng: np.random.Generator) -> None:
+    """Restore a :func:`rng_state` snapshot in place (the env generator object is kept)."""
+    torch.set_rng_state(state["torch"])
+    env_rng.bit_generator.state = state["env"]
+
+
+def save_checkpoint(path: str | Path, state: dict[str, Any]) -> Path:
+    """Write ``state`` to ``path`` atomically (temporary sibling, fsync, :func:`os.replace`).
+
+    Args:
+        path: destination file.
+        state: anything ``torch.save`` accepts (state dicts, tensors, plain data).
+
+    Returns:
+        The path written.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            torch.save(state, fh)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def load_checkpoint(path: str | Path) -> dict[str, Any]:
+    """Read a checkpoint written by :func:`save_checkpoint`.
+
+    Raises:
+        ConfigError: the file is missing or unreadable (key ``resume``).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"no checkpoint at {path}; expected a run folder with {CHECKPOINT_FILE}", key="resume")
+    try:
+        return torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as e:  # a torn or foreign file: say which and why
+        raise ConfigError(f"cannot read checkpoint {path}: {e}", key="resume") from None

@@ -1,0 +1,378 @@
+"""Evaluation of a trained calibration policy on one twin reference (DESIGN 6; paper Table 3).
+
+:func:`evaluate_policy` runs the policy *deterministically* (the mean action of its
+TanhNormal) for ``eval.iterations`` calibration steps on a single environment reset with a
+fixed seed in the evaluation scenario (default: the twin reference at ``full_width_40``,
+seed 0 -- the same twin the baselines calibrate with ``reference_seed: 0``), and records the
+per-sensor metrics and the parameters after every iteration. The reported calibration is the
+``best`` iterate by the reward form's score (a calibration engineer keeps the best fit seen)
+or the ``last`` one (``eval.select``); ``summary.json`` says which (``selected_iteration``).
+
+:func:`evaluate_run` writes into a run folder:
+
+- ``summary.json``: ``final_metrics`` (selected iterate) and ``initial_metrics`` per sensor
+  ``{area, dfd, rmse}`` [m, m/s, m/s], ``last_metrics``, ``selected_iteration``, ``passed``
+  against the thresholds (paper Table 3, best iteration I5), ``env_steps``, ``simulations``,
+  ``wall_time_s``, ``env_steps_per_s``, ``param_error`` and ``initial_param_error`` per
+  sub-assembly ``{E_x, E_s, transmission}`` (relative errors against the twin's truth);
+- ``eval_metrics.csv`` and ``eval_metrics.md``: the three metrics and the paper's reward factor
+  ``1/A + 1/DFD + 1/RMSE`` per iteration and sensor (Table 3's layout);
+- ``calibrated.npz``: initial, selected, true and per-iteration cell parameters ``[n_cells, 7]``;
+- ``pulses.png`` (reference vs initial vs calibrated acceleration and velocity per sensor) and
+  ``learning_curves.png`` (from ``log.csv``).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import torch
+from tensordict.nn import TensorDictModuleBase
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+from marlcrash.calibrate.checkpoint import CHECKPOINT_FILE, load_checkpoint
+from marlcrash.calibrate.logging import LOG_FILE, read_log
+from marlcrash.calibrate.marl import TrainConfig, load_run_config, make_env, make_env_config, make_policy
+from marlcrash.calibrate.problem import CalibrationProblem, ProblemConfig, build_problem
+from marlcrash.errors import ConfigError
+from marlcrash.metrics import Metrics
+from marlcrash.reward import paper_factor
+from marlcrash.units import G0
+
+if TYPE_CHECKING:
+    from marlcrash.calibrate.marl import Trainer
+
+SUMMARY_FILE = "summary.json"
+"""Name of the evaluation summary inside a run folder."""
+
+
+@dataclass
+class EvalResult:
+    """Deterministic calibration of one reference by a policy, ``I`` iterations, ``K`` sensors.
+
+    Attributes:
+        sensors: ``[K]`` sensor names.
+        metrics: per-iteration :class:`Metrics`, each ``[I + 1, K]`` (row 0: initial parameters).
+        scores: ``[I + 1]`` reward-form scores (higher is better).
+        params: ``[I + 1, n_cells, 7]`` cell parameters after each iteration (row 0: initial).
+        selected: index of the reported iterate (``best`` score or ``last``).
+        select: ``best`` or ``last``.
+        true_params: ``[n_cells, 7]`` the twin's hidden truth (``None`` for other references).
+        ref_velocity: ``[K, T]`` the reference velocity [m/s].
+        scenario: the evaluation scenario's name; ``seed``: its reset seed.
+    """
+
+    sensors: list[str]
+    metrics: Metrics
+    scores: torch.Tensor
+    params: torch.Tensor
+    selected: int
+    select: str
+    true_params: torch.Tensor | None
+    ref_velocity: torch.Tensor
+    scenario: str
+    seed: int
+
+    @property
+    def iterations(self) -> int:
+        """Calibration steps taken (``I``)."""
+        return self.params.shape[0] - 1
+
+    def per_sensor(self, i: int) -> dict[str, dict[str, float]]:
+        """``{sensor: {area, dfd, rmse}}`` of iterate ``i``."""
+        m = self.metrics
+        return {s: {"area": float(m.area[i, k]), "dfd": float(m.dfd[i, k]), "rmse": float(m.rmse[i, k])}
+                for k, s in enumerate(self.sensors)}  # fmt: skip
+
+
+def evaluation_overrides(config: TrainConfig) -> dict[str, Any]:
+    """Env overrides of the evaluation: one scenario, twin reference, ``eval.iterations`` steps."""
+    return {
+        "scenarios": {config.eval.scenario: 1.0},
+        "reference.kind": "twin",
+        "termination.max_iterations": config.eval.iterations,
+    }
+
+
+def evaluate_policy(policy: TensorDictModuleBase, config: TrainConfig) -> EvalResult:
+    """Run the policy's mean action for ``eval.iterations`` steps on the evaluation reference (module docstring).
+
+    Stops early if the environment's own termination (success or failure) ends the episode.
+    """
+    ev = config.eval
+    env = make_env(config, n_envs=1, overrides=evaluation_overrides(config))
+    core = env.core
+    metrics, params = [], []
+    with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+        td = env.reset(seed=ev.reference_seed)
+        metrics.append(Metrics(*(m[0].clone() for m in core.metrics)))
+        params.append(core.params[0].clone())
+        for _ in range(ev.iterations):
+            td = env.step(policy(td))
+            metrics.append(Metrics(*(m[0].clone() for m in core.metrics)))
+            params.append(core.params[0].clone())
+            if bool(td.get(("next", "done")).any()):
+                break
+            td = td.get("next")
+    m = Metrics(*(torch.stack([x[j] for x in metrics]) for j in range(3)))
+    scores = core.reward_fn.score(m).to(torch.float64)
+    scores = torch.where(torch.isfinite(scores), scores, torch.full_like(scores, -torch.inf))
+    selected = int(torch.argmax(scores)) if ev.select == "best" else len(params) - 1
+    truth = None if core.true_params is None else core.true_params[0].clone()
+    return EvalResult(
+        sensors=list(core.sensors), metrics=m, scores=scores, params=torch.stack(params), selected=selected,
+        select=ev.select, true_params=truth, ref_velocity=core.ref_velocity[0].clone(), scenario=ev.scenario,
+        seed=ev.reference_seed,
+    )  # fmt: skip
+
+
+def evaluation_problem(config: TrainConfig) -> CalibrationProblem:
+    """The baselines' :class:`CalibrationProblem` of the same twin (simulator, truth, sub-assembly sums)."""
+    env_cfg = make_env_config(config)
+    pc = ProblemConfig(env=config.env, env_overrides=dict(config.env_overrides), scenario=config.eval.scenario,
+                       reference="twin", reference_seed=config.eval.reference_seed, fit=env_cfg.reward,
+                       success=config.eval.thresholds)  # fmt: skip
+    return build_problem(pc)
+
+
+# ----------------------------------------------------------------------------------------- metrics
+def param_errors(problem: CalibrationProblem, params: torch.Tensor, truth: torch.Tensor) -> dict[str, dict[str, float]]:
+    """``{sub-assembly: {E_x, E_s, transmission}}`` relative errors of cell parameters ``[n_cells, 7]``.
+
+    The definition of :meth:`CalibrationProblem.param_error`: sums of ``E_x``, ``E_s`` over the
+    sub-assembly's deformable cells, relative L1 error of its mean transmission factors.
+    """
+    rec = problem.subassembly_params(params[None].to(torch.float64))[0]
+    true = problem.subassembly_params(truth[None].to(torch.float64))[0]
+    e = (rec[:, :2] - true[:, :2]).abs() / true[:, :2]
+    t = (rec[:, 2:] - true[:, 2:]).abs().sum(-1) / true[:, 2:].sum(-1)
+    return {s: {"E_x": float(e[i, 0]), "E_s": float(e[i, 1]), "transmission": float(t[i])}
+            for i, s in enumerate(problem.subassembly_names)}  # fmt: skip
+
+
+def metrics_rows(result: EvalResult) -> list[dict[str, Any]]:
+    """One row per iteration and sensor (plus ``mean`` over sensors): area, dfd, rmse, paper factor."""
+    rows = []
+    m = result.metrics
+    for i in range(result.iterations + 1):
+        names = [*result.sensors, "mean"]
+        for k, s in enumerate(names):
+            if s == "mean":
+                a, d, r = (float(x[i].mean()) for x in m)
+            else:
+                a, d, r = float(m.area[i, k]), float(m.dfd[i, k]), float(m.rmse[i, k])
+            f = float(paper_factor(a, d, r))
+            rows.append({"iteration": i, "sensor": s, "area": a, "dfd": d, "rmse": r, "factor": f,
+                         "score": float(result.scores[i]), "selected": i == result.selected})  # fmt: skip
+    return rows
+
+
+def write_metrics_tables(result: EvalResult, csv_path: Path, md_path: Path) -> None:
+    """Per-iteration metrics as CSV (long format) and Markdown (one Table-3-like block per sensor)."""
+    rows = metrics_rows(result)
+    with open(csv_path, "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    n = result.iterations + 1
+    head = "| | " + " | ".join(f"I{i}{'*' if i == result.selected else ''}" for i in range(n)) + " |"
+    sep = "|---|" + "---|" * n
+    lines = [
+        f"# Calibration metrics per iteration ({result.scenario}, twin seed {result.seed})",
+        "",
+        "I0 = initial parameters; * = the reported iterate "
+        f"({result.select}). A [m], DFD [m/s, time in s], RMSE [m/s]; factor = 1/A + 1/DFD + 1/RMSE.",
+    ]
+    fmt = {"area": "{:.4f}", "dfd": "{:.3f}", "rmse": "{:.4f}", "factor": "{:.2f}"}
+    label = {"area": "A", "dfd": "DFD", "rmse": "RMSE", "factor": "factor"}
+    for s in [*result.sensors, "mean"]:
+        sub = [r for r in rows if r["sensor"] == s]
+        lines += ["", f"## {s}", "", head, sep]
+        for key in ("area", "dfd", "rmse", "factor"):
+            lines.append(f"| {label[key]} | " + " | ".join(fmt[key].format(r[key]) for r in sub) + " |")
+    md_path.write_text("\n".join(lines) + "\n")
+
+
+# ------------------------------------------------------------------------------------------- plots
+def plot_pulses(problem: CalibrationProblem, result: EvalResult, path: Path) -> None:
+    """Reference vs initial vs calibrated acceleration [g] and velocity [m/s] per sensor (re-simulated)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    p = torch.stack([result.params[0], result.params[result.selected]])
+    with torch.no_grad():
+        res = problem.sim.run(p, speed=problem.speed.expand(2), overlap=problem.overlap.expand(2),
+                              side=problem.side.expand(2), duration=problem.duration, sensors=problem.sensors,
+                              record_cells="none")  # fmt: skip
+    ref = problem.reference
+    T = problem.T
+    t = np.arange(T) * problem.dt * 1e3
+    K = len(problem.sensors)
+    fig, axes = plt.subplots(2, K, figsize=(4.6 * K, 6.4), squeeze=False, sharex=True)
+    for k in range(K):
+        series = (
+            (ref.acceleration[0, k, :T] / G0, res.acceleration[0, k] / G0, res.acceleration[1, k] / G0),
+            (ref.velocity[0, k, :T], res.velocity[0, k], res.velocity[1, k]),
+        )
+        for row, (r, a0, a1) in enumerate(series):
+            ax = axes[row, k]
+            ax.plot(t, r.double().numpy(), "k-", lw=2, label="reference (twin)")
+            ax.plot(t, a0.double().numpy(), "C0--", label="initial")
+            ax.plot(t, a1.double().numpy(), "C3-", label=f"calibrated (I{result.selected})")
+            ax.grid(alpha=0.3)
+        axes[0, k].set_title(problem.sensors[k])
+        axes[1, k].set_xlabel("time [ms]")
+    axes[0, 0].set_ylabel("acceleration [g]")
+    axes[1, 0].set_ylabel("velocity [m/s]")
+    axes[0, 0].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_learning_curves(log_rows: list[dict[str, float]], result: EvalResult, path: Path) -> None:
+    """Training reward/return and batch-final metrics vs env steps, and the evaluation's metrics per iteration."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 3, figsize=(14, 3.8))
+    if log_rows:
+        x = np.array([r["env_steps"] for r in log_rows])
+        axes[0].plot(x, [r["return_mean"] for r in log_rows], "C0-", label="episode return")
+        axes[0].plot(x, [r["reward_mean"] for r in log_rows], "C1-", label="step reward")
+        for key, c in (("area", "C0"), ("dfd", "C1"), ("rmse", "C2")):
+            axes[1].semilogy(x, [r[f"{key}_final"] for r in log_rows], f"{c}-", label=f"{key} (episode end)")
+            axes[1].semilogy(x, [r[f"{key}_initial"] for r in log_rows], f"{c}:", alpha=0.6)
+    axes[0].set_xlabel("env steps")
+    axes[0].set_title("training reward")
+    axes[0].legend(fontsize=8)
+    axes[1].set_xlabel("env steps")
+    axes[1].set_title("training batch metrics (dotted: episode start)")
+    axes[1].legend(fontsize=8)
+    it = np.arange(result.iterations + 1)
+    for key, c in (("area", "C0"), ("dfd", "C1"), ("rmse", "C2")):
+        axes[2].semilogy(it, getattr(result.metrics, key).double().mean(-1).numpy(), f"{c}-o", ms=3, label=key)
+    axes[2].axvline(result.selected, color="k", ls=":", lw=1)
+    axes[2].set_xlabel("calibration iteration")
+    axes[2].set_title(f"evaluation ({result.scenario}), sensor mean")
+    axes[2].legend(fontsize=8)
+    for ax in axes:
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+# --------------------------------------------------------------------------------------- run folder
+def _atomic_write(path: Path, text: str) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+def update_summary(run_dir: str | Path, **entries: Any) -> dict[str, Any]:
+    """Add entries to a run's ``summary.json`` (rewritten atomically); return the new summary."""
+    path = Path(run_dir) / SUMMARY_FILE
+    summary = json.loads(path.read_text())
+    summary.update(entries)
+    _atomic_write(path, json.dumps(summary, indent=2))
+    return summary
+
+
+def evaluate_run(run_dir: str | Path, trainer: Trainer | None = None, iterations: int | None = None) -> dict[str, Any]:
+    """Evaluate a run folder's latest checkpoint (or a live trainer) and write the files of the module docstring.
+
+    Args:
+        run_dir: the run folder (``config.yaml``, ``checkpoint.pt``, ``log.csv``).
+        trainer: the trainer that just finished (its networks and counters are used as they are).
+        iterations: override ``eval.iterations``.
+
+    Returns:
+        The summary written to ``summary.json``.
+
+    Raises:
+        ConfigError: no run config or checkpoint in ``run_dir``.
+    """
+    t0 = time.perf_counter()
+    run_dir = Path(run_dir)
+    config = trainer.config if trainer is not None else load_run_config(run_dir)
+    if iterations is not None:
+        if iterations < 1:
+            raise ConfigError(f"expected >= 1 calibration steps, got {iterations}", key="iterations")
+        config.eval.iterations = iterations
+    if trainer is not None:
+        policy, counters = trainer.policy, trainer.state_dict()
+    else:
+        state = load_checkpoint(run_dir / CHECKPOINT_FILE)
+        torch.manual_seed(config.seed)
+        policy = make_policy(make_env(config, n_envs=1), config.algorithm)
+        policy.load_state_dict(state["policy"])
+        counters = state
+    result = evaluate_policy(policy, config)
+    problem = evaluation_problem(config)
+    if not torch.allclose(problem.ref_velocity, result.ref_velocity, rtol=0, atol=1e-9):
+        raise ConfigError("the evaluation env and the baselines' problem drew different twin references", key="eval")
+    log_path = run_dir / LOG_FILE
+    log_rows = read_log(log_path) if log_path.is_file() else []
+    th = config.eval.thresholds
+    final = result.per_sensor(result.selected)
+    passed = {s: all(lim is None or v[k] < lim for k, lim in (("area", th.area), ("dfd", th.dfd), ("rmse", th.rmse)))
+              for s, v in final.items()}  # fmt: skip
+    train_time = float(counters["wall_time_s"])
+    steps = int(counters["env_steps"])
+    collect_rates = [r["env_steps_per_s"] for r in log_rows]
+    summary: dict[str, Any] = {
+        "algorithm": config.algorithm.name,
+        "seed": config.seed,
+        "scenario": result.scenario,
+        "reference": "twin",
+        "reference_seed": result.seed,
+        "select": result.select,
+        "selected_iteration": result.selected,
+        "eval_iterations": result.iterations,
+        "final_metrics": final,
+        "initial_metrics": result.per_sensor(0),
+        "last_metrics": result.per_sensor(result.iterations),
+        "thresholds": {"area": th.area, "dfd": th.dfd, "rmse": th.rmse},
+        "passed": passed,
+        "all_passed": all(passed.values()),
+        "initial_passed": all(
+            all(lim is None or v[k] < lim for k, lim in (("area", th.area), ("dfd", th.dfd), ("rmse", th.rmse)))
+            for v in result.per_sensor(0).values()
+        ),
+        "iterations_trained": int(counters["iteration"]),
+        "env_steps": steps,
+        "simulations": int(counters["simulations"]),
+        "train_wall_time_s": train_time,
+        "env_steps_per_s": steps / train_time if train_time > 0 else None,
+        "collect_env_steps_per_s": float(np.median(collect_rates)) if collect_rates else None,
+    }
+    if result.true_params is not None:
+        summary["param_error"] = param_errors(problem, result.params[result.selected], result.true_params)
+        summary["initial_param_error"] = param_errors(problem, result.params[0], result.true_params)
+    write_metrics_tables(result, run_dir / "eval_metrics.csv", run_dir / "eval_metrics.md")
+    arrays = {"initial": result.params[0].numpy(), "calibrated": result.params[result.selected].numpy(),
+              "per_iteration": result.params.numpy(), "selected_iteration": np.array(result.selected)}  # fmt: skip
+    if result.true_params is not None:
+        arrays["true"] = result.true_params.numpy()
+    tmp = run_dir / ".calibrated.tmp.npz"
+    np.savez(tmp, **arrays)
+    os.replace(tmp, run_dir / "calibrated.npz")
+    if config.eval.plots:
+        plot_pulses(problem, result, run_dir / "pulses.png")
+        plot_learning_curves(log_rows, result, run_dir / "learning_curves.png")
+    summary["eval_wall_time_s"] = time.perf_counter() - t0
+    summary["wall_time_s"] = train_time + summary["eval_wall_time_s"]
+    _atomic_write(run_dir / SUMMARY_FILE, json.dumps(summary, indent=2))
+    return summary

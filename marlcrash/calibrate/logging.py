@@ -1,0 +1,148 @@
+"""Training logs: one CSV file per run by default, TensorBoard on request (DESIGN 6).
+
+A logger receives one row of scalars per training iteration (:meth:`RunLogger.log`).
+The CSV file is the source of truth (learning curves are plotted from it); its
+:attr:`CSVLogger.position` (rows written) is stored in checkpoints so that a resumed
+run first cuts the rows written after the checkpoint (:meth:`CSVLogger.truncate`) and
+its log reads exactly like an uninterrupted run's.
+
+TensorBoard (``logger: tensorboard``) writes event files *in addition* to the CSV; it
+needs the ``tensorboard`` extra (``pip install -e ".[tensorboard]"``) and is imported
+only when asked for.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+from pathlib import Path
+from typing import Any
+
+from marlcrash.errors import ConfigError
+
+LOG_FILE = "log.csv"
+"""Name of the CSV log inside a run folder."""
+
+LOGGERS: tuple[str, ...] = ("csv", "tensorboard")
+"""Logger names accepted by :func:`make_logger`."""
+
+
+class CSVLogger:
+    """Appends one row of scalars per iteration to ``<run_dir>/log.csv``.
+
+    The columns are fixed by the first row written (later rows must have the same keys);
+    values are written with ``repr`` so a float read back is the float written.
+
+    Args:
+        run_dir: the run folder (created if missing).
+    """
+
+    def __init__(self, run_dir: str | Path):
+        self.path = Path(run_dir) / LOG_FILE
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.columns: list[str] | None = None
+        self.position = 0
+        if self.path.is_file():
+            rows = read_log(self.path)
+            self.position = len(rows)
+            if rows:
+                self.columns = list(rows[0])
+
+    def log(self, row: dict[str, float]) -> None:
+        """Append one row ``{column: value}``; the first row fixes the columns.
+
+        Raises:
+            ValueError: the row's keys differ from the columns of the file.
+        """
+        if self.columns is None:
+            self.columns = list(row)
+            with open(self.path, "w", newline="") as fh:
+                csv.writer(fh).writerow(self.columns)
+        if list(row) != self.columns:
+            raise ValueError(f"log row keys {sorted(row)} differ from the columns of {self.path}: {self.columns}")
+        with open(self.path, "a", newline="") as fh:
+            csv.writer(fh).writerow([_fmt(row[c]) for c in self.columns])
+            fh.flush()
+            os.fsync(fh.fileno())
+        self.position += 1
+
+    def truncate(self, position: int) -> None:
+        """Keep only the first ``position`` rows (rows written after a checkpoint are cut on resume)."""
+        if not self.path.is_file():
+            self.position = 0
+            return
+        with open(self.path, newline="") as fh:
+            lines = list(csv.reader(fh))
+        keep = lines[: position + 1]
+        tmp = self.path.with_suffix(".csv.tmp")
+        with open(tmp, "w", newline="") as fh:
+            csv.writer(fh).writerows(keep)
+        os.replace(tmp, self.path)
+        self.position = max(0, len(keep) - 1)
+        self.columns = keep[0] if keep else None
+
+    def close(self) -> None:
+        """Nothing to release (every row is flushed as written)."""
+
+
+class TensorBoardLogger(CSVLogger):
+    """The CSV log plus TensorBoard event files in ``<run_dir>/tensorboard/``.
+
+    Raises:
+        ConfigError: the ``tensorboard`` package is not installed.
+    """
+
+    def __init__(self, run_dir: str | Path):
+        super().__init__(run_dir)
+        try:
+            from torch.utils.tensorboard import SummaryWriter
+        except ImportError:
+            raise ConfigError(
+                "TensorBoard logging needs the 'tensorboard' extra: pip install -e \".[tensorboard]\" "
+                "(or choose logger: csv)",
+                key="logger",
+            ) from None
+        self.writer = SummaryWriter(log_dir=str(Path(run_dir) / "tensorboard"), purge_step=self.position)
+
+    def log(self, row: dict[str, float]) -> None:
+        """Append the CSV row and write each value as a scalar at step ``iteration``."""
+        step = int(row.get("iteration", self.position))
+        super().log(row)
+        for k, v in row.items():
+            if k != "iteration":
+                self.writer.add_scalar(k, float(v), step)
+        self.writer.flush()
+
+    def close(self) -> None:
+        """Close the event file."""
+        self.writer.close()
+
+
+RunLogger = CSVLogger
+"""The logger interface (:class:`TensorBoardLogger` extends it)."""
+
+
+def make_logger(kind: str, run_dir: str | Path) -> CSVLogger:
+    """A logger by name: ``csv`` or ``tensorboard`` (CSV plus event files).
+
+    Raises:
+        ConfigError: unknown name, or TensorBoard asked for but not installed.
+    """
+    if kind == "csv":
+        return CSVLogger(run_dir)
+    if kind == "tensorboard":
+        return TensorBoardLogger(run_dir)
+    raise ConfigError(f"unknown logger {kind!r}; expected one of {list(LOGGERS)}", key="logger")
+
+
+def read_log(path: str | Path) -> list[dict[str, float]]:
+    """Rows of a CSV log as ``{column: float}`` dicts (empty if the file has no rows)."""
+    with open(path, newline="") as fh:
+        reader = csv.DictReader(fh)
+        return [{k: float(v) for k, v in row.items()} for row in reader]
+
+
+def _fmt(value: Any) -> str:
+    v = float(value)
+    return repr(v) if math.isfinite(v) else str(v)

@@ -1,0 +1,744 @@
+"""Multi-agent PPO calibration with TorchRL: MAPPO, IPPO and single-agent PPO on the joint action (DESIGN 6).
+
+The pieces, each a small function, in the order a training iteration uses them:
+
+- :func:`make_env`: the native batched :class:`~marlcrash.envs.torchrl_env.CalibrationTorchEnv`
+  (``B = n_envs`` episodes of ``episode_length`` calibration steps); for ``ppo_single`` wrapped in
+  :class:`JointActionEnv` (one agent that observes the global ``"state"`` and acts on the
+  concatenation of all agents' actions).
+- :func:`make_policy`: TorchRL ``MultiAgentMLP`` (decentralised, shared or per-agent parameters)
+  -> ``NormalParamExtractor`` -> ``ProbabilisticActor`` with a ``TanhNormal`` on ``[-1, 1]``;
+  the mean head starts near zero, so the untrained policy's mean action leaves the car unchanged.
+- :func:`make_critic`: MAPPO and ``ppo_single``: a centralised critic, one MLP on the global
+  ``"state"`` whose value is broadcast to every agent (the reward is a team reward, so one
+  value serves all); IPPO: a decentralised ``MultiAgentMLP`` on each agent's own observation.
+- :func:`make_loss`: ``ClipPPOLoss`` with multi-agent keys and ``loss_mask_key = ("agents", "mask")``:
+  inactive agents' actions (impact-region rule) are excluded from the policy, entropy and critic
+  losses; :func:`make_advantage`: ``GAE`` on the agent-level keys.
+- :func:`collect`: one rollout of ``episode_length`` steps from freshly reset episodes (finished
+  episodes are reset in place); every iteration starts from a reset, so a checkpoint never has
+  to hold a half-finished episode. :func:`expand_team`: copies the team reward and end flags to
+  the agent dimension (``[B, L, n_agents, 1]``) for GAE and the loss.
+- :func:`update`: GAE, masked advantage standardisation, ``epochs`` passes over shuffled
+  minibatches, gradient clipping.
+- :func:`train`: the loop with seeding, learning-rate and entropy schedules, CSV/TensorBoard
+  logging, a tqdm bar, atomic checkpoints and resume; then the evaluation
+  (:func:`marlcrash.calibrate.evaluate.evaluate_run`).
+
+Budget accounting is the baselines' (:mod:`marlcrash.calibrate.budget`): every simulated
+candidate parameter set costs one simulation -- one per environment step and one per episode
+reset (the initial parameters' simulation); the reference pulses themselves are not charged.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import torch
+import yaml
+from tensordict import TensorDict, TensorDictBase
+from tensordict.nn import NormalParamExtractor, TensorDictModule
+from torch import nn
+from torchrl.data import Bounded, Categorical, Composite, Unbounded
+from torchrl.envs import EnvBase
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+from torchrl.modules import MLP, MultiAgentMLP, ProbabilisticActor, TanhNormal
+from torchrl.objectives import ClipPPOLoss
+from torchrl.objectives.value import GAE
+
+from marlcrash.calibrate.checkpoint import CHECKPOINT_FILE, load_checkpoint, restore_rng, rng_state, save_checkpoint
+from marlcrash.calibrate.logging import LOGGERS, CSVLogger, make_logger
+from marlcrash.calibrate.problem import SuccessConfig
+from marlcrash.config import config_dir, from_dict, load_config, require
+from marlcrash.envs.core import EnvConfig, load_env_config
+from marlcrash.envs.torchrl_env import GROUP, CalibrationTorchEnv
+from marlcrash.errors import ConfigError
+
+ALGORITHMS: tuple[str, ...] = ("mappo", "ippo", "ppo_single")
+"""Registered algorithms; each has ``configs/train/algorithm/<name>.yaml``."""
+
+CONFIG_FILE = "config.yaml"
+"""The resolved run config inside a run folder."""
+
+CI_ENV = "MARLCRASH_CI"
+"""Environment variable that shrinks a run to its ``ci`` overrides (a 1-2 minute smoke run)."""
+
+_ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU}
+
+
+# ---------------------------------------------------------------------------------------- configs
+@dataclass
+class AlgorithmConfig:
+    """PPO variant and its hyperparameters; values in ``configs/train/algorithm/<name>.yaml``."""
+
+    name: str = "mappo"
+    centralised_critic: bool = True
+    share_policy_params: bool = True
+    share_critic_params: bool = True
+    hidden: list[int] = field(default_factory=lambda: [256, 256])
+    activation: Literal["tanh", "relu", "elu"] = "tanh"
+    init_std: float = 0.3
+    min_std: float = 1e-3
+    mean_init_gain: float = 0.01
+    lr: float = 3e-4
+    lr_final: float = 3e-4
+    entropy_coef: float = 0.0
+    entropy_coef_final: float = 0.0
+    clip_epsilon: float = 0.2
+    gamma: float = 0.9
+    lmbda: float = 0.9
+    epochs: int = 4
+    minibatch_size: int = 128
+    max_grad_norm: float = 1.0
+    critic_coef: float = 1.0
+    normalize_advantage: bool = True
+
+    def validate(self) -> None:
+        require(self.name in ALGORITHMS, "name", f"unknown algorithm {self.name!r}; expected one of {list(ALGORITHMS)}")
+        require(self.name != "ippo" or not self.centralised_critic, "centralised_critic",
+                "ippo has a decentralised critic by definition; expected false")  # fmt: skip
+        require(self.name == "ippo" or self.centralised_critic, "centralised_critic",
+                f"{self.name} uses the centralised critic on the global state; expected true")  # fmt: skip
+        require(bool(self.hidden) and all(h >= 1 for h in self.hidden), "hidden",
+                f"expected a non-empty list of layer widths >= 1, got {self.hidden}")  # fmt: skip
+        for k in ("lr", "lr_final"):
+            v = getattr(self, k)
+            require(math.isfinite(v) and v > 0, k, f"expected a learning rate > 0, got {v}")
+        for k in ("entropy_coef", "entropy_coef_final", "critic_coef"):
+            v = getattr(self, k)
+            require(math.isfinite(v) and v >= 0, k, f"expected a coefficient >= 0, got {v}")
+        require(0 < self.min_std < self.init_std, "init_std",
+                f"expected 0 < min_std ({self.min_std}) < init_std ({self.init_std})")  # fmt: skip
+        require(self.mean_init_gain > 0, "mean_init_gain", f"expected a factor > 0, got {self.mean_init_gain}")
+        require(0 < self.clip_epsilon < 1, "clip_epsilon", f"expected a ratio clip in (0, 1), got {self.clip_epsilon}")
+        for k in ("gamma", "lmbda"):
+            v = getattr(self, k)
+            require(0 <= v <= 1, k, f"expected a discount in [0, 1], got {v}")
+        require(self.epochs >= 1, "epochs", f"expected >= 1 passes over each batch, got {self.epochs}")
+        require(self.minibatch_size >= 1, "minibatch_size", f"expected >= 1 env steps, got {self.minibatch_size}")
+        require(self.max_grad_norm > 0, "max_grad_norm", f"expected > 0, got {self.max_grad_norm}")
+
+
+@dataclass
+class EvalConfig:
+    """The end-of-run evaluation (deterministic policy on one twin reference); see ``configs/train/train.yaml``."""
+
+    scenario: str = "full_width_40"
+    reference_seed: int = 0
+    iterations: int = 20
+    select: Literal["best", "last"] = "best"
+    plots: bool = True
+    thresholds: SuccessConfig = field(default_factory=SuccessConfig)
+
+    def validate(self) -> None:
+        require(self.iterations >= 1, "iterations", f"expected >= 1 calibration steps, got {self.iterations}")
+
+
+@dataclass
+class TrainConfig:
+    """One training run; values and their meaning in ``configs/train/train.yaml``."""
+
+    algorithm: AlgorithmConfig = field(default_factory=AlgorithmConfig)
+    env: str = "default"
+    env_overrides: dict[str, Any] = field(default_factory=dict)
+    n_envs: int = 64
+    episode_length: int = 8
+    iterations: int = 30
+    time_limit_s: float | None = None
+    seed: int = 0
+    device: str = "cpu"
+    threads: int = 0
+    logger: str = "csv"
+    checkpoint_every: int = 1
+    progress_bar: bool = True
+    out_dir: str = "runs"
+    name: str = "run"
+    resume: bool | str = False
+    eval: EvalConfig = field(default_factory=EvalConfig)
+    ci: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def frames_per_batch(self) -> int:
+        """Environment steps per iteration, ``n_envs * episode_length``."""
+        return self.n_envs * self.episode_length
+
+    def validate(self) -> None:
+        require(self.n_envs >= 1, "n_envs", f"expected >= 1 parallel episodes, got {self.n_envs}")
+        require(self.episode_length >= 1, "episode_length", f"expected >= 1 steps, got {self.episode_length}")
+        require(self.iterations >= 1, "iterations", f"expected >= 1 training iterations, got {self.iterations}")
+        require(self.time_limit_s is None or self.time_limit_s > 0, "time_limit_s",
+                f"expected a limit > 0 s or null, got {self.time_limit_s}")  # fmt: skip
+        require(self.threads >= 0, "threads", f"expected >= 0 (0: torch's default), got {self.threads}")
+        require(self.logger in LOGGERS, "logger", f"unknown logger {self.logger!r}; expected one of {list(LOGGERS)}")
+        require(
+            self.checkpoint_every >= 1, "checkpoint_every", f"expected >= 1 iterations, got {self.checkpoint_every}"
+        )
+        require(bool(self.name) and "/" not in self.name and self.name not in (".", ".."), "name",
+                f"expected a run folder name without '/', got {self.name!r}")  # fmt: skip
+        require(bool(self.out_dir), "out_dir", "expected an output folder")
+        try:
+            dev = torch.device(self.device)
+        except RuntimeError:
+            raise ConfigError(
+                f"expected a torch device such as 'cpu' or 'cuda:0', got {self.device!r}", "device"
+            ) from None
+        require(dev.type == "cpu" or (dev.type == "cuda" and torch.cuda.is_available()), "device",
+                f"device {self.device!r} is not available here; expected 'cpu'")  # fmt: skip
+        mb = self.algorithm.minibatch_size
+        require(self.frames_per_batch % mb == 0, "algorithm.minibatch_size",
+                f"expected a divisor of the batch n_envs * episode_length = {self.n_envs} * {self.episode_length} "
+                f"= {self.frames_per_batch} env steps, got {mb}")  # fmt: skip
+
+
+def algorithm_config_path(name: str) -> Path:
+    """``configs/train/algorithm/<name>.yaml``."""
+    return config_dir() / "train" / "algorithm" / f"{name}.yaml"
+
+
+def load_algorithm_config(name: str, overrides: dict[str, Any] | None = None) -> AlgorithmConfig:
+    """Load a registered algorithm's settings by name.
+
+    Raises:
+        ConfigError: unknown name (the registered ones listed) or an invalid file.
+    """
+    path = algorithm_config_path(name)
+    if name not in ALGORITHMS or not path.is_file():
+        raise ConfigError(f"unknown algorithm {name!r}; expected one of {list(ALGORITHMS)}", key="algorithm")
+    return load_config(AlgorithmConfig, path, overrides)
+
+
+def _set_dotted(data: dict[str, Any], dotted: str, value: Any) -> None:
+    node = data
+    parts = dotted.split(".")
+    for p in parts[:-1]:
+        node = node.setdefault(p, {})
+        if not isinstance(node, dict):
+            raise ConfigError("cannot override inside a non-mapping value", key=f"ci.{dotted}")
+    node[parts[-1]] = value
+
+
+def load_train_config(data: dict[str, Any], source: str | None = None, ci: bool | None = None) -> TrainConfig:
+    """Validate a training config mapping (e.g. Hydra's, without its ``hydra`` node).
+
+    Args:
+        data: the mapping; its ``ci`` entry holds dotted-key overrides.
+        source: file name for messages.
+        ci: apply the ``ci`` overrides; ``None`` reads ``$MARLCRASH_CI`` (``1``: apply).
+
+    Raises:
+        ConfigError: unknown key, wrong type or bad value, naming the dotted key -- before any training.
+    """
+    data = {k: v for k, v in data.items() if k != "hydra"}
+    if ci is None:
+        ci = os.environ.get(CI_ENV, "") not in ("", "0")
+    if ci:
+        over = data.get("ci") or {}
+        if not isinstance(over, dict):
+            raise ConfigError(f"expected a mapping of dotted overrides, got {over!r}", key="ci", path=source)
+        for k, v in over.items():
+            _set_dotted(data, k, v)
+    return from_dict(TrainConfig, data, path=source)
+
+
+def make_env_config(config: TrainConfig, overrides: dict[str, Any] | None = None) -> EnvConfig:
+    """The env config of a run: ``config.env`` with ``env_overrides``, episode length and seed, then ``overrides``."""
+    over = dict(config.env_overrides)
+    over["termination.max_iterations"] = config.episode_length
+    over["seed"] = config.seed
+    over.update(overrides or {})
+    try:
+        return load_env_config(config.env, over)
+    except ConfigError as e:  # a key overridden here is named inside the training config, others in the env file
+        k = e.key or ""
+        if any(k == o or k.startswith(o + ".") or o.startswith(k + ".") for o in config.env_overrides):
+            raise ConfigError(e.reason, key=f"env_overrides.{k}", path=e.path) from None
+        raise
+
+
+# -------------------------------------------------------------------------------- joint-action env
+class JointActionEnv(EnvBase):
+    """Single-agent view of a :class:`CalibrationTorchEnv` for ``ppo_single`` (same core, same budget).
+
+    One agent in the group ``"agents"``: observation ``[B, 1, state_dim]`` (the global state),
+    action ``[B, 1, n_agents * act_dim]`` (all agents' actions concatenated; the env ignores
+    the parts of inactive agents), mask ``[B, 1]`` (some agent active). Reward, end flags,
+    ``"state"`` and ``"metrics"`` pass through unchanged.
+
+    Args:
+        base: the multi-agent env.
+    """
+
+    batch_locked = True
+
+    def __init__(self, base: CalibrationTorchEnv):
+        super().__init__(device=base.device, batch_size=base.batch_size)
+        self.base = base
+        c = base.core
+        B = c.B
+        self._joint = c.A * c.act_dim
+        group = Composite(
+            {
+                "observation": Unbounded(shape=(B, 1, c.state_dim), dtype=torch.float32),
+                "mask": Categorical(n=2, shape=(B, 1), dtype=torch.bool),
+            },
+            shape=(B, 1),
+        )
+        obs = base.observation_spec.clone()
+        del obs[GROUP]
+        obs[GROUP] = group
+        self.observation_spec = obs
+        self.action_spec = Composite(
+            {GROUP: Composite({"action": Bounded(-1.0, 1.0, shape=(B, 1, self._joint))}, shape=(B, 1))}, shape=(B,)
+        )
+        self.reward_spec = base.reward_spec.clone()
+        self.done_spec = base.done_spec.clone()
+
+    @property
+    def core(self):
+        """The shared :class:`~marlcrash.envs.core.CalibrationCore`."""
+        return self.base.core
+
+    def _convert(self, td: TensorDictBase) -> TensorDictBase:
+        c = self.core
+        group = TensorDict(
+            {"observation": td.get("state")[:, None], "mask": c.active.any(-1, keepdim=True)}, batch_size=(c.B, 1)
+        )
+        td.set(GROUP, group)
+        return td
+
+    def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
+        return self._convert(self.base._reset(tensordict, **kwargs))
+
+    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        c = self.core
+        a = tensordict.get((GROUP, "action")).reshape(c.B, c.A, c.act_dim)
+        inner = TensorDict({GROUP: TensorDict({"action": a}, batch_size=(c.B, c.A))}, batch_size=self.batch_size)
+        return self._convert(self.base._step(inner))
+
+    def _set_seed(self, seed: int | None) -> None:
+        self.base._set_seed(seed)
+
+
+def make_env(config: TrainConfig, n_envs: int | None = None, overrides: dict[str, Any] | None = None) -> EnvBase:
+    """The training (or evaluation) environment of a run, ``ppo_single`` wrapped in :class:`JointActionEnv`."""
+    env_cfg = make_env_config(config, overrides)
+    env = CalibrationTorchEnv(env_cfg, batch_size=n_envs or config.n_envs)
+    return JointActionEnv(env) if config.algorithm.name == "ppo_single" else env
+
+
+def env_dims(env: EnvBase) -> tuple[int, int, int, int]:
+    """``(n_agents, obs_dim, act_dim, state_dim)`` of an env's agent group."""
+    obs = env.observation_spec[GROUP, "observation"].shape
+    act = env.action_spec[GROUP, "action"].shape
+    return int(obs[-2]), int(obs[-1]), int(act[-1]), int(env.observation_spec["state"].shape[-1])
+
+
+# ---------------------------------------------------------------------------------------- networks
+class StateValue(nn.Module):
+    """Centralised critic: an MLP on the global state ``[*, state_dim]``, value broadcast to ``[*, n_agents, 1]``."""
+
+    def __init__(self, state_dim: int, n_agents: int, hidden: list[int], activation: type[nn.Module]):
+        super().__init__()
+        self.n_agents = n_agents
+        self.mlp = MLP(in_features=state_dim, out_features=1, num_cells=list(hidden), activation_class=activation)
+
+    def forward(self, state: torch.Tensor) -> torch.Tensor:
+        v = self.mlp(state)
+        return v.unsqueeze(-2).expand(*v.shape[:-1], self.n_agents, 1)
+
+
+def make_policy(env: EnvBase, algo: AlgorithmConfig) -> ProbabilisticActor:
+    """TanhNormal policy on ``("agents", "observation")`` writing ``("agents", "action")`` and its log-prob."""
+    A, obs_dim, act_dim, _ = env_dims(env)
+    net = MultiAgentMLP(
+        n_agent_inputs=obs_dim, n_agent_outputs=2 * act_dim, n_agents=A, centralized=False,
+        share_params=algo.share_policy_params, depth=len(algo.hidden), num_cells=list(algo.hidden),
+        activation_class=_ACTIVATIONS[algo.activation],
+    )  # fmt: skip
+    last = str(max(int(k) for k in net.params.keys()))  # noqa: SIM118 -- TensorDictParams is not iterable by key
+    with torch.no_grad():  # mean and log-scale heads start near zero: mean action 0, std = init_std
+        net.params[last, "weight"].mul_(algo.mean_init_gain)
+        net.params[last, "bias"].zero_()
+    extractor = NormalParamExtractor(scale_mapping=f"biased_softplus_{algo.init_std}", scale_lb=algo.min_std)
+    module = TensorDictModule(
+        nn.Sequential(net, extractor), in_keys=[(GROUP, "observation")], out_keys=[(GROUP, "loc"), (GROUP, "scale")]
+    )
+    return ProbabilisticActor(
+        module, in_keys=[(GROUP, "loc"), (GROUP, "scale")], out_keys=[(GROUP, "action")],
+        distribution_class=TanhNormal, distribution_kwargs={"low": -1.0, "high": 1.0},
+        return_log_prob=True, log_prob_key=(GROUP, "action_log_prob"),
+    )  # fmt: skip
+
+
+def make_critic(env: EnvBase, algo: AlgorithmConfig) -> TensorDictModule:
+    """Value network writing ``("agents", "state_value")`` ``[*, n_agents, 1]`` (module docstring)."""
+    A, obs_dim, _, state_dim = env_dims(env)
+    act = _ACTIVATIONS[algo.activation]
+    if algo.centralised_critic:
+        return TensorDictModule(StateValue(state_dim, A, algo.hidden, act), in_keys=["state"],
+                                out_keys=[(GROUP, "state_value")])  # fmt: skip
+    net = MultiAgentMLP(
+        n_agent_inputs=obs_dim, n_agent_outputs=1, n_agents=A, centralized=False,
+        share_params=algo.share_critic_params, depth=len(algo.hidden), num_cells=list(algo.hidden),
+        activation_class=act,
+    )  # fmt: skip
+    return TensorDictModule(net, in_keys=[(GROUP, "observation")], out_keys=[(GROUP, "state_value")])
+
+
+_AGENT_KEYS = {
+    "action": (GROUP, "action"),
+    "sample_log_prob": (GROUP, "action_log_prob"),
+    "value": (GROUP, "state_value"),
+    "reward": (GROUP, "reward"),
+    "done": (GROUP, "done"),
+    "terminated": (GROUP, "terminated"),
+    "advantage": (GROUP, "advantage"),
+    "value_target": (GROUP, "value_target"),
+}
+
+
+def make_loss(policy: ProbabilisticActor, critic: TensorDictModule, algo: AlgorithmConfig) -> ClipPPOLoss:
+    """``ClipPPOLoss`` on the agent-level keys, inactive agents masked out via ``("agents", "mask")``."""
+    loss = ClipPPOLoss(
+        actor_network=policy, critic_network=critic, clip_epsilon=algo.clip_epsilon, entropy_bonus=True,
+        entropy_coeff=algo.entropy_coef, critic_coeff=algo.critic_coef, normalize_advantage=False,
+    )  # fmt: skip
+    loss.set_keys(**_AGENT_KEYS)
+    loss.loss_mask_key = (GROUP, "mask")
+    return loss
+
+
+def make_advantage(critic: TensorDictModule, algo: AlgorithmConfig) -> GAE:
+    """``GAE`` over the time dimension of ``[B, L]`` batches, on the agent-level reward and flags."""
+    gae = GAE(gamma=algo.gamma, lmbda=algo.lmbda, value_network=critic, average_gae=False)
+    gae.set_keys(**{k: v for k, v in _AGENT_KEYS.items() if k not in ("action", "sample_log_prob")})
+    return gae
+
+
+# ------------------------------------------------------------------------------------ the iteration
+def collect(env: EnvBase, policy: ProbabilisticActor, steps: int) -> tuple[TensorDictBase, int]:
+    """Roll out ``steps`` steps from freshly reset episodes, sampling from the policy.
+
+    Episodes that end before the last step are reset in place (their rows restart); no reset
+    follows the last step, so the next iteration's reset is the only one.
+
+    Returns:
+        ``[B, steps]`` transitions (root keys at ``t``, ``"next"`` at ``t + 1``) and the number
+        of episode resets (each costs one simulation of the initial parameters).
+    """
+    out = []
+    with torch.no_grad(), set_exploration_type(ExplorationType.RANDOM):
+        td = env.reset()
+        resets = env.batch_size.numel()
+        for t in range(steps):
+            td = policy(td)
+            if t < steps - 1:
+                data, td = env.step_and_maybe_reset(td)
+                resets += int(data.get(("next", "done")).sum())
+            else:
+                data = env.step(td)
+            out.append(data)
+    return torch.stack(out, dim=1), resets
+
+
+def expand_team(data: TensorDictBase) -> TensorDictBase:
+    """Copy the team ``reward``, ``done``, ``terminated`` ``[B, L, 1]`` to ``("next", "agents", k)`` ``[B, L, A, 1]``.
+
+    GAE and the loss read agent-level keys; inactive agents get the team reward too (DESIGN 5).
+    """
+    A = data.get((GROUP, "mask")).shape[-1]
+    for k in ("reward", "done", "terminated"):
+        v = data.get(("next", k))
+        data.set(("next", GROUP, k), v.unsqueeze(-2).expand(*v.shape[:-1], A, 1).clone())
+    return data
+
+
+def masked_standardize(x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """Standardise ``x [..., A, 1]`` over the entries where ``mask [..., A]`` is true (others left as they are)."""
+    m = mask.unsqueeze(-1).expand_as(x)
+    n = m.sum().clamp_min(1)
+    mean = (x * m).sum() / n
+    var = (((x - mean) ** 2) * m).sum() / n
+    return torch.where(m, (x - mean) / var.sqrt().clamp_min(1e-6), x)
+
+
+def update(
+    data: TensorDictBase,
+    loss: ClipPPOLoss,
+    gae: GAE,
+    optimizer: torch.optim.Optimizer,
+    algo: AlgorithmConfig,
+) -> dict[str, float]:
+    """One PPO update on a ``[B, L]`` batch: GAE, masked advantage standardisation, epochs of minibatches.
+
+    Returns:
+        Means over minibatches of the loss terms and diagnostics (``loss_objective``, ``loss_critic``,
+        ``loss_entropy``, ``entropy``, ``kl_approx``, ``grad_norm``).
+    """
+    with torch.no_grad():
+        gae(data)
+    if algo.normalize_advantage:
+        adv = data.get((GROUP, "advantage"))
+        data.set((GROUP, "advantage"), masked_standardize(adv, data.get((GROUP, "mask"))))
+    flat = data.reshape(-1)
+    n = flat.batch_size[0]
+    params = [p for g in optimizer.param_groups for p in g["params"]]
+    sums: dict[str, float] = {}
+    count = 0
+    for _ in range(algo.epochs):
+        for idx in torch.randperm(n).split(algo.minibatch_size):
+            out = loss(flat[idx])
+            total = out["loss_objective"] + out["loss_critic"] + out["loss_entropy"]
+            optimizer.zero_grad()
+            total.backward()
+            gn = torch.nn.utils.clip_grad_norm_(params, algo.max_grad_norm)
+            optimizer.step()
+            for k in ("loss_objective", "loss_critic", "loss_entropy", "entropy", "kl_approx"):
+                sums[k] = sums.get(k, 0.0) + float(out[k].detach())
+            sums["grad_norm"] = sums.get("grad_norm", 0.0) + float(gn)
+            count += 1
+    return {k: v / count for k, v in sums.items()}
+
+
+def schedule(start: float, end: float, iteration: int, iterations: int) -> float:
+    """Linear schedule from ``start`` (iteration 0) to ``end`` (the last iteration)."""
+    frac = iteration / max(1, iterations - 1)
+    return start + (end - start) * min(1.0, frac)
+
+
+def batch_stats(data: TensorDictBase) -> dict[str, float]:
+    """Fit statistics of a ``[B, L]`` batch: mean team reward and return, initial and final metrics (sensor means)."""
+    reward = data.get(("next", "reward"))
+    out = {"reward_mean": float(reward.mean()), "return_mean": float(reward.sum(1).mean())}
+    for k in ("area", "dfd", "rmse"):
+        out[f"{k}_initial"] = float(data.get(("metrics", k))[:, 0].mean())
+        out[f"{k}_final"] = float(data.get(("next", "metrics", k))[:, -1].mean())
+    return out
+
+
+# -------------------------------------------------------------------------------------- run folder
+def run_dir_of(config: TrainConfig) -> Path:
+    """``<out_dir>/<algorithm>/<name>/``."""
+    return Path(config.out_dir) / config.algorithm.name / config.name
+
+
+def find_resume_dir(config: TrainConfig) -> Path:
+    """The run folder to resume: ``resume`` as a path, or (``resume: true``) the named run if it has a
+    checkpoint, else the newest run of the algorithm with one.
+
+    Raises:
+        ConfigError: no such run folder or no checkpoint in it.
+    """
+    if isinstance(config.resume, str):
+        path = Path(config.resume)
+        if not (path / CHECKPOINT_FILE).is_file():
+            raise ConfigError(f"expected a run folder with {CHECKPOINT_FILE}, found none in {path}", key="resume")
+        return path
+    named = run_dir_of(config)
+    if (named / CHECKPOINT_FILE).is_file():
+        return named
+    parent = Path(config.out_dir) / config.algorithm.name
+    runs = sorted(parent.glob(f"*/{CHECKPOINT_FILE}"), key=lambda p: p.stat().st_mtime) if parent.is_dir() else []
+    if not runs:
+        raise ConfigError(f"resume=true but no run with {CHECKPOINT_FILE} under {parent}", key="resume")
+    return runs[-1].parent
+
+
+def save_run_config(config: TrainConfig, run_dir: Path) -> None:
+    """Write the resolved config as ``config.yaml`` (atomically)."""
+    run_dir.mkdir(parents=True, exist_ok=True)
+    tmp = run_dir / f".{CONFIG_FILE}.tmp"
+    tmp.write_text(yaml.safe_dump(dataclasses.asdict(config), sort_keys=False))
+    os.replace(tmp, run_dir / CONFIG_FILE)
+
+
+def load_run_config(run_dir: str | Path) -> TrainConfig:
+    """The resolved config saved in a run folder (the ``ci`` overrides were applied when it was saved)."""
+    path = Path(run_dir) / CONFIG_FILE
+    if not path.is_file():
+        raise ConfigError(f"expected a run folder with {CONFIG_FILE}, found none in {run_dir}", key="run")
+    data = yaml.safe_load(path.read_text())
+    return load_train_config(data, source=str(path), ci=False)
+
+
+# ------------------------------------------------------------------------------------- the trainer
+@dataclass
+class TrainResult:
+    """Outcome of :func:`train`: the run folder, counters, and the summary written there (if evaluated)."""
+
+    run_dir: Path
+    iterations: int
+    env_steps: int
+    simulations: int
+    wall_time_s: float
+    summary: dict[str, Any] | None
+
+
+@dataclass
+class Trainer:
+    """Everything one run holds: config, env, networks, loss, optimizer, logger and counters."""
+
+    config: TrainConfig
+    run_dir: Path
+    env: EnvBase
+    policy: ProbabilisticActor
+    critic: TensorDictModule
+    loss: ClipPPOLoss
+    gae: GAE
+    optimizer: torch.optim.Optimizer
+    logger: CSVLogger
+    iteration: int = 0
+    env_steps: int = 0
+    simulations: int = 0
+    wall_time_s: float = 0.0
+
+    def state_dict(self) -> dict[str, Any]:
+        """Checkpoint contents (:mod:`marlcrash.calibrate.checkpoint`)."""
+        return {
+            "iteration": self.iteration,
+            "env_steps": self.env_steps,
+            "simulations": self.simulations,
+            "wall_time_s": self.wall_time_s,
+            "policy": self.policy.state_dict(),
+            "critic": self.critic.state_dict(),
+            "optimizer": self.optimizer.state_dict(),
+            "rng": rng_state(self.env.core.rng),
+            "log_position": self.logger.position,
+            "config": dataclasses.asdict(self.config),
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Restore a checkpoint; the CSV log is cut back to the checkpoint's position."""
+        self.policy.load_state_dict(state["policy"])
+        self.critic.load_state_dict(state["critic"])
+        self.optimizer.load_state_dict(state["optimizer"])
+        restore_rng(state["rng"], self.env.core.rng)
+        self.iteration = int(state["iteration"])
+        self.env_steps = int(state["env_steps"])
+        self.simulations = int(state["simulations"])
+        self.wall_time_s = float(state["wall_time_s"])
+        self.logger.truncate(int(state["log_position"]))
+
+    def checkpoint(self) -> Path:
+        """Write ``checkpoint.pt`` atomically."""
+        return save_checkpoint(self.run_dir / CHECKPOINT_FILE, self.state_dict())
+
+
+def build_trainer(config: TrainConfig, run_dir: Path) -> Trainer:
+    """Seed, then build env, networks, loss, advantage, optimizer and logger of a run (no training)."""
+    if config.threads:
+        torch.set_num_threads(config.threads)
+    torch.manual_seed(config.seed)
+    env = make_env(config)
+    env.set_seed(config.seed)
+    algo = config.algorithm
+    policy, critic = make_policy(env, algo), make_critic(env, algo)
+    loss = make_loss(policy, critic, algo)
+    gae = make_advantage(critic, algo)
+    optimizer = torch.optim.Adam(loss.parameters(), lr=algo.lr)
+    logger = make_logger(config.logger, run_dir)
+    return Trainer(config, run_dir, env, policy, critic, loss, gae, optimizer, logger)
+
+
+def train_iteration(tr: Trainer) -> dict[str, float]:
+    """Collect one batch, update, advance the counters; return the log row."""
+    cfg, algo = tr.config, tr.config.algorithm
+    t0 = time.perf_counter()
+    lr = schedule(algo.lr, algo.lr_final, tr.iteration, cfg.iterations)
+    ent = schedule(algo.entropy_coef, algo.entropy_coef_final, tr.iteration, cfg.iterations)
+    for g in tr.optimizer.param_groups:
+        g["lr"] = lr
+    tr.loss.entropy_coeff.fill_(ent)
+    data, resets = collect(tr.env, tr.policy, cfg.episode_length)
+    t_collect = time.perf_counter() - t0
+    stats = batch_stats(data)
+    losses = update(expand_team(data), tr.loss, tr.gae, tr.optimizer, algo)
+    steps = cfg.frames_per_batch
+    tr.iteration += 1
+    tr.env_steps += steps
+    tr.simulations += steps + resets
+    dt = time.perf_counter() - t0
+    tr.wall_time_s += dt
+    return {
+        "iteration": tr.iteration,
+        "env_steps": tr.env_steps,
+        "simulations": tr.simulations,
+        "wall_time_s": tr.wall_time_s,
+        "env_steps_per_s": steps / t_collect,
+        "lr": lr,
+        "entropy_coef": ent,
+        **stats,
+        **losses,
+    }
+
+
+def train(config: TrainConfig, *, stop_at: int | None = None, evaluate: bool = True) -> TrainResult:
+    """Train (or resume) one run, checkpointing atomically, then evaluate it.
+
+    Args:
+        config: the run config; ``resume`` true or a run folder continues that run with ITS saved config.
+        stop_at: stop after this iteration as if the process were killed there (after its checkpoint);
+            no evaluation. For resume tests and staged runs.
+        evaluate: run the end-of-run evaluation (:func:`marlcrash.calibrate.evaluate.evaluate_run`).
+
+    Returns:
+        A :class:`TrainResult`.
+
+    Raises:
+        ConfigError: the run folder exists (fresh run) or cannot be resumed.
+    """
+    from tqdm import tqdm
+
+    resume = config.resume
+    if resume is not False:
+        run_dir = find_resume_dir(config)
+        config = load_run_config(run_dir)
+        state = load_checkpoint(run_dir / CHECKPOINT_FILE)
+    else:
+        run_dir = run_dir_of(config)
+        if run_dir.exists():
+            raise ConfigError(f"run folder {run_dir} exists already; choose another name or resume=true", key="name")
+        save_run_config(config, run_dir)
+        state = None
+    tr = build_trainer(config, run_dir)
+    if state is not None:
+        tr.load_state_dict(state)
+    start = time.perf_counter() - tr.wall_time_s
+    bar = tqdm(total=config.iterations, initial=tr.iteration, disable=not config.progress_bar, unit="it",
+               desc=f"{config.algorithm.name}")  # fmt: skip
+    last_dt = 0.0
+    try:
+        while tr.iteration < config.iterations:
+            if stop_at is not None and tr.iteration >= stop_at:
+                bar.close()
+                tr.logger.close()
+                return TrainResult(run_dir, tr.iteration, tr.env_steps, tr.simulations, tr.wall_time_s, None)
+            limit = config.time_limit_s
+            if limit is not None and tr.iteration > 0 and (time.perf_counter() - start) + last_dt > limit:
+                break
+            t0 = time.perf_counter()
+            row = train_iteration(tr)
+            tr.logger.log(row)
+            if tr.iteration % config.checkpoint_every == 0 or tr.iteration == config.iterations:
+                tr.checkpoint()
+            last_dt = time.perf_counter() - t0
+            bar.update(1)
+            bar.set_postfix(R=f"{row['reward_mean']:+.3f}", A=f"{row['area_final']:.4f}",
+                            DFD=f"{row['dfd_final']:.3f}", RMSE=f"{row['rmse_final']:.3f}",
+                            sps=f"{row['env_steps_per_s']:.0f}")  # fmt: skip
+    finally:
+        bar.close()
+        tr.logger.close()
+    tr.checkpoint()
+    summary = None
+    if evaluate:
+        from marlcrash.calibrate.evaluate import evaluate_run
+
+        summary = evaluate_run(run_dir, trainer=tr)
+    return TrainResult(run_dir, tr.iteration, tr.env_steps, tr.simulations, tr.wall_time_s, summary)

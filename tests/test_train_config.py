@@ -1,0 +1,151 @@
+"""Training configs: the algorithm registry, schemas, and bad values failing before any training."""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib.util
+from pathlib import Path
+
+import pytest
+import yaml
+
+from marlcrash.calibrate.logging import make_logger
+from marlcrash.calibrate.marl import (
+    ALGORITHMS,
+    TrainConfig,
+    load_algorithm_config,
+    load_train_config,
+    make_env_config,
+)
+from marlcrash.config import config_dir
+from marlcrash.errors import ConfigError
+
+ALGO_DIR = config_dir() / "train" / "algorithm"
+
+
+def composed(overrides: list[str] | None = None) -> dict:
+    """configs/train/train.yaml composed by Hydra exactly as train/train.py sees it."""
+    from hydra import compose, initialize_config_dir
+    from omegaconf import OmegaConf
+
+    with initialize_config_dir(config_dir=str(config_dir() / "train"), version_base=None):
+        cfg = compose(config_name="train", overrides=overrides or [])
+    return OmegaConf.to_container(cfg, resolve=True)
+
+
+def test_every_algorithm_file_is_registered():
+    files = sorted(p.stem for p in ALGO_DIR.glob("*.yaml"))
+    assert files == sorted(ALGORITHMS)
+
+
+@pytest.mark.parametrize("name", ALGORITHMS)
+def test_algorithm_files_load_and_name_themselves(name):
+    algo = load_algorithm_config(name)
+    assert algo.name == name
+    assert algo.centralised_critic == (name != "ippo")
+
+
+@pytest.mark.parametrize("name", ALGORITHMS)
+def test_train_yaml_composes_for_every_algorithm(name):
+    cfg = load_train_config(composed([f"algorithm={name}"]), ci=False)
+    assert isinstance(cfg, TrainConfig)
+    assert cfg.algorithm.name == name
+    assert cfg.frames_per_batch % cfg.algorithm.minibatch_size == 0
+    env = make_env_config(cfg)
+    assert env.termination.max_iterations == cfg.episode_length
+    assert env.seed == cfg.seed
+
+
+def test_every_yaml_key_has_a_comment():
+    for path in [config_dir() / "train" / "train.yaml", *ALGO_DIR.glob("*.yaml")]:
+        for i, line in enumerate(path.read_text().splitlines(), 1):
+            s = line.strip()
+            if s and not s.startswith("#") and not s.startswith("- ") and ":" in s:
+                assert "  # " in line, f"{path.name} line {i} has no comment: {line!r}"
+
+
+def test_ci_overrides_shrink_the_run():
+    data = composed()
+    full = load_train_config(data, ci=False)
+    ci = load_train_config(data, ci=True)
+    assert ci.n_envs < full.n_envs and ci.iterations < full.iterations
+    assert ci.frames_per_batch % ci.algorithm.minibatch_size == 0
+    assert ci.eval.iterations == data["ci"]["eval.iterations"]
+
+
+def test_ci_reads_the_environment(monkeypatch):
+    data = composed()
+    monkeypatch.setenv("MARLCRASH_CI", "1")
+    assert load_train_config(data).iterations == data["ci"]["iterations"]
+    monkeypatch.setenv("MARLCRASH_CI", "0")
+    assert load_train_config(data).iterations == data["iterations"]
+
+
+@pytest.mark.parametrize(
+    ("overrides", "key", "words"),
+    [
+        (["algorithm.lr=-0.001"], "algorithm.lr", "learning rate > 0"),
+        (["algorithm.name=sac"], "algorithm.name", "unknown algorithm 'sac'"),
+        (["algorithm.minibatch_size=7"], "algorithm.minibatch_size", "divisor of the batch"),
+        (["n_envs=0"], "n_envs", ">= 1"),
+        (["logger=wandb"], "logger", "unknown logger"),
+        (["algorithm.gamma=1.5"], "algorithm.gamma", "[0, 1]"),
+        (["algorithm.centralised_critic=false"], "algorithm.centralised_critic", "centralised critic"),
+        (["+algorithm.learning_rate=0.1"], "algorithm.learning_rate", "unknown key"),
+        (["eval.iterations=0"], "eval.iterations", ">= 1"),
+        (["time_limit_s=-5"], "time_limit_s", "> 0 s"),
+    ],
+)
+def test_bad_values_name_the_key(overrides, key, words):
+    with pytest.raises(ConfigError) as e:
+        load_train_config(composed(overrides), ci=False)
+    assert e.value.key == key
+    assert words in str(e.value)
+
+
+def test_unavailable_device_is_refused():
+    import torch
+
+    if torch.cuda.is_available():
+        pytest.skip("a GPU is present")
+    with pytest.raises(ConfigError) as e:
+        load_train_config(composed(["device=cuda"]), ci=False)
+    assert e.value.key == "device"
+    with pytest.raises(ConfigError, match="torch device"):
+        load_train_config(composed(["device=gpu0"]), ci=False)
+
+
+def test_bad_env_override_names_the_training_key():
+    cfg = load_train_config(composed(["env_overrides.max_step=-1"]), ci=False)
+    with pytest.raises(ConfigError) as e:
+        make_env_config(cfg)
+    assert e.value.key == "env_overrides.max_step"
+
+
+def test_unknown_algorithm_file():
+    with pytest.raises(ConfigError, match="unknown algorithm 'dqn'"):
+        load_algorithm_config("dqn")
+
+
+def test_tensorboard_logger_needs_its_extra(tmp_path):
+    if importlib.util.find_spec("tensorboard") is not None:
+        logger = make_logger("tensorboard", tmp_path)
+        logger.log({"iteration": 1.0, "x": 2.0})
+        logger.close()
+        assert list((tmp_path / "tensorboard").iterdir())
+        return
+    with pytest.raises(ConfigError) as e:
+        make_logger("tensorboard", tmp_path)
+    assert e.value.key == "logger"
+    assert "tensorboard" in str(e.value) and "pip install" in str(e.value)
+
+
+def test_saved_run_config_round_trips(tmp_path):
+    from marlcrash.calibrate.marl import load_run_config, save_run_config
+
+    cfg = load_train_config(composed(["algorithm=ippo", "seed=3"]), ci=False)
+    save_run_config(cfg, tmp_path)
+    back = load_run_config(tmp_path)
+    assert dataclasses.asdict(back) == dataclasses.asdict(cfg)
+    assert yaml.safe_load((tmp_path / "config.yaml").read_text())["algorithm"]["name"] == "ippo"
+    assert not list(Path(tmp_path).glob(".*tmp"))

@@ -1,0 +1,292 @@
+"""MAPPO / IPPO / joint-action PPO building blocks, the agent mask in the loss, resume and evaluation.
+
+Runs on a shortened copy of configs/ (every scenario simulated for 30 ms instead of 150 ms)
+so that tiny training runs take seconds.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import yaml
+
+from marlcrash.calibrate.checkpoint import load_checkpoint, save_checkpoint
+from marlcrash.calibrate.logging import CSVLogger, read_log
+from marlcrash.calibrate.marl import (
+    JointActionEnv,
+    collect,
+    expand_team,
+    load_algorithm_config,
+    load_train_config,
+    make_advantage,
+    make_critic,
+    make_env,
+    make_loss,
+    make_policy,
+    masked_standardize,
+    train,
+)
+from marlcrash.config import config_dir
+from marlcrash.errors import ConfigError
+
+SHORT_DURATION = 0.03  # [s] simulated window of the shortened scenarios
+
+
+@pytest.fixture(scope="module")
+def short_configs(tmp_path_factory) -> Path:
+    """A copy of configs/ whose scenarios last SHORT_DURATION s."""
+    dst = tmp_path_factory.mktemp("configs") / "configs"
+    shutil.copytree(config_dir(), dst)
+    for p in (dst / "scenarios").glob("*.yaml"):
+        data = yaml.safe_load(p.read_text())
+        data["duration"] = SHORT_DURATION
+        p.write_text(yaml.safe_dump(data))
+    return dst
+
+
+@pytest.fixture
+def short(short_configs, monkeypatch) -> Path:
+    monkeypatch.setenv("MARLCRASH_CONFIGS", str(short_configs))
+    return short_configs
+
+
+def tiny(tmp_path: Path, algorithm: str = "mappo", **kw):
+    """A training config of a few seconds: 4 envs, 2 steps, 4 iterations, small networks."""
+    algo = dataclasses.asdict(load_algorithm_config(algorithm))
+    algo.update(hidden=[16, 16], minibatch_size=4, epochs=2)
+    data = {
+        "algorithm": algo,
+        "env": "default",
+        "env_overrides": {},
+        "n_envs": 4,
+        "episode_length": 2,
+        "iterations": 4,
+        "time_limit_s": None,
+        "seed": 0,
+        "logger": "csv",
+        "checkpoint_every": 1,
+        "progress_bar": False,
+        "out_dir": str(tmp_path / "runs"),
+        "name": "straight",
+        "eval": {"iterations": 2, "plots": False},
+    }
+    for k, v in kw.items():
+        node, parts = data, k.split(".")
+        for p in parts[:-1]:
+            node = node.setdefault(p, {})
+        node[parts[-1]] = v
+    return load_train_config(data, ci=False)
+
+
+def test_policy_and_critics_shapes(short, tmp_path):
+    for name in ("mappo", "ippo", "ppo_single"):
+        cfg = tiny(tmp_path, name)
+        env = make_env(cfg)
+        policy, critic = make_policy(env, cfg.algorithm), make_critic(env, cfg.algorithm)
+        td = critic(policy(env.reset()))
+        A = env.observation_spec["agents", "observation"].shape[-2]
+        act = td["agents", "action"]
+        assert act.shape == env.action_spec["agents", "action"].shape
+        assert td["agents", "state_value"].shape == (4, A, 1)
+        assert bool((act.abs() <= 1).all())
+        assert td["agents", "action_log_prob"].shape == (4, A)
+        if name == "ppo_single":
+            assert A == 1 and act.shape[-1] == env.core.A * env.core.act_dim
+        if cfg.algorithm.centralised_critic:  # one team value for all agents
+            v = td["agents", "state_value"]
+            assert torch.equal(v, v[:, :1].expand_as(v))
+
+
+def test_untrained_mean_action_is_near_zero(short, tmp_path):
+    from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+    cfg = tiny(tmp_path)
+    env = make_env(cfg)
+    policy = make_policy(env, cfg.algorithm)
+    with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+        a = policy(env.reset())["agents", "action"]
+    assert float(a.abs().max()) < 0.05  # mean_init_gain 0.01: the first deterministic step barely moves
+
+
+def test_joint_action_env_is_the_multi_agent_env(short, tmp_path):
+    from torchrl.envs.utils import check_env_specs
+
+    cfg = tiny(tmp_path, "ppo_single")
+    joint = make_env(cfg)
+    assert isinstance(joint, JointActionEnv)
+    check_env_specs(joint, seed=3)
+    multi = make_env(tiny(tmp_path, "mappo"))
+    joint.set_seed(5)
+    multi.set_seed(5)
+    tj, tm = joint.reset(), multi.reset()
+    c = multi.core
+    a = torch.rand(4, c.A, c.act_dim, generator=torch.Generator().manual_seed(0)) * 2 - 1
+    tm["agents", "action"] = a
+    tj["agents", "action"] = a.reshape(4, 1, -1)
+    nj, nm = joint.step(tj)["next"], multi.step(tm)["next"]
+    assert torch.equal(joint.core.params, multi.core.params)
+    assert torch.equal(nj["reward"], nm["reward"])
+    assert torch.equal(nj["agents", "observation"][:, 0], nm["state"])
+    assert torch.equal(nj["agents", "mask"][:, 0], nm["agents", "mask"].any(-1))
+
+
+def test_expand_team_and_masked_standardize(short, tmp_path):
+    cfg = tiny(tmp_path)
+    env = make_env(cfg)
+    data, resets = collect(env, make_policy(env, cfg.algorithm), 3)
+    assert data.batch_size == (4, 3) and resets >= 4
+    expand_team(data)
+    A = env.core.A
+    r = data["next", "agents", "reward"]
+    assert r.shape == (4, 3, A, 1)
+    assert torch.equal(r, data["next", "reward"][:, :, None].expand(4, 3, A, 1))
+    assert data["next", "agents", "done"].shape == (4, 3, A, 1)
+    x = torch.randn(4, 3, A, 1, dtype=torch.float64)
+    mask = torch.rand(4, 3, A) > 0.3
+    y = masked_standardize(x, mask)
+    sel = y[mask.unsqueeze(-1)]
+    assert abs(float(sel.mean())) < 1e-9 and abs(float(sel.std(unbiased=False)) - 1) < 1e-9
+    assert torch.equal(y[~mask.unsqueeze(-1)], x[~mask.unsqueeze(-1)])
+
+
+@pytest.mark.parametrize("name", ["mappo", "ippo"])
+def test_inactive_agents_are_masked_out_of_the_loss(short, tmp_path, name):
+    # offset crashes on one side leave agents inactive (impact-region rule)
+    cfg = tiny(tmp_path, name, env_overrides={"scenarios": {"small_overlap_left": 1.0}})
+    torch.manual_seed(0)
+    env = make_env(cfg)
+    policy, critic = make_policy(env, cfg.algorithm), make_critic(env, cfg.algorithm)
+    loss, gae = make_loss(policy, critic, cfg.algorithm), make_advantage(critic, cfg.algorithm)
+    assert loss.loss_mask_key == ("agents", "mask")
+    data, _ = collect(env, policy, 2)
+    expand_team(data)
+    with torch.no_grad():
+        gae(data)
+    flat = data.reshape(-1)
+    mask = flat["agents", "mask"]
+    assert bool((~mask).any()) and bool(mask.any())
+    torch.manual_seed(1)  # TanhNormal's entropy is a Monte-Carlo estimate: same draws for every call
+    base = loss(flat.clone())
+
+    def perturbed(where: torch.Tensor) -> dict:
+        td = flat.clone()
+        adv = td["agents", "advantage"].clone()
+        adv[where] = 1e3
+        td["agents", "advantage"] = adv
+        vt = td["agents", "value_target"].clone()
+        vt[where] = 1e3
+        td["agents", "value_target"] = vt
+        torch.manual_seed(1)
+        return loss(td)
+
+    inactive = perturbed(~mask)
+    for k in ("loss_objective", "loss_critic", "loss_entropy"):
+        assert torch.equal(inactive[k], base[k]), k  # inactive agents' entries change nothing
+    active = perturbed(mask)
+    assert not torch.allclose(active["loss_objective"], base["loss_objective"])
+    assert not torch.allclose(active["loss_critic"], base["loss_critic"])
+
+
+def test_checkpoint_is_atomic(tmp_path):
+    path = tmp_path / "checkpoint.pt"
+    save_checkpoint(path, {"a": torch.arange(3)})
+    with pytest.raises(Exception):  # noqa: B017 -- pickling a lambda fails inside torch.save
+        save_checkpoint(path, {"a": lambda: 0})
+    assert torch.equal(load_checkpoint(path)["a"], torch.arange(3))  # old checkpoint intact
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["checkpoint.pt"]  # no temp file left
+    (tmp_path / "torn.pt").write_bytes(b"not a checkpoint")
+    with pytest.raises(ConfigError, match="cannot read checkpoint"):
+        load_checkpoint(tmp_path / "torn.pt")
+    with pytest.raises(ConfigError, match="no checkpoint"):
+        load_checkpoint(tmp_path / "missing.pt")
+
+
+def test_csv_logger_truncates_to_a_checkpoint(tmp_path):
+    log = CSVLogger(tmp_path)
+    for i in range(5):
+        log.log({"iteration": float(i + 1), "x": i * 0.1})
+    assert log.position == 5
+    again = CSVLogger(tmp_path)
+    assert again.position == 5
+    again.truncate(3)
+    rows = read_log(tmp_path / "log.csv")
+    assert [r["iteration"] for r in rows] == [1.0, 2.0, 3.0]
+    assert rows[2]["x"] == 0.2  # repr round trip: the float written is the float read
+    with pytest.raises(ValueError, match="differ from the columns"):
+        again.log({"iteration": 4.0})
+
+
+def _comparable_log(run: Path) -> list[dict]:
+    drop = ("wall_time_s", "env_steps_per_s")
+    return [{k: v for k, v in r.items() if k not in drop} for r in read_log(run / "log.csv")]
+
+
+def test_resume_reaches_the_same_result_as_a_straight_run(short, tmp_path):
+    straight = train(tiny(tmp_path, name="straight"))
+    torch.manual_seed(123)  # a resumed process starts with other global RNG state
+    part = train(tiny(tmp_path, name="killed"), stop_at=2, evaluate=False)
+    assert part.iterations == 2 and part.summary is None
+    with open(part.run_dir / "log.csv", "a") as fh:  # a row logged after the checkpoint, before the "kill"
+        fh.write(",".join(["9"] * len(read_log(part.run_dir / "log.csv")[0])) + "\n")
+    resumed = train(tiny(tmp_path, name="killed", resume=str(part.run_dir)))
+    assert resumed.iterations == straight.iterations == 4
+    assert resumed.env_steps == straight.env_steps and resumed.simulations == straight.simulations
+    a, b = straight.summary, resumed.summary
+    assert a["final_metrics"] == b["final_metrics"]
+    assert a["selected_iteration"] == b["selected_iteration"]
+    assert a["param_error"] == b["param_error"]
+    pa, pb = np.load(straight.run_dir / "calibrated.npz"), np.load(resumed.run_dir / "calibrated.npz")
+    np.testing.assert_array_equal(pa["per_iteration"], pb["per_iteration"])
+    assert _comparable_log(straight.run_dir) == _comparable_log(resumed.run_dir)
+    sa = load_checkpoint(straight.run_dir / "checkpoint.pt")["policy"]
+    sb = load_checkpoint(resumed.run_dir / "checkpoint.pt")["policy"]
+    for k in sa:
+        assert torch.equal(sa[k], sb[k]), k
+
+
+def test_resume_true_finds_the_run_and_fresh_runs_refuse_to_overwrite(short, tmp_path):
+    part = train(tiny(tmp_path, name="r1", iterations=2), stop_at=1, evaluate=False)
+    with pytest.raises(ConfigError, match="exists already"):
+        train(tiny(tmp_path, name="r1", iterations=2))
+    done = train(tiny(tmp_path, name="other", iterations=2, resume=True), evaluate=False)
+    assert done.run_dir == part.run_dir and done.iterations == 2
+    with pytest.raises(ConfigError, match=r"no run with checkpoint\.pt"):
+        train(tiny(tmp_path / "empty", resume=True))
+
+
+def test_summary_and_evaluation_of_a_checkpoint(short, tmp_path):
+    from marlcrash.calibrate.evaluate import evaluate_run
+
+    res = train(tiny(tmp_path, "ippo", iterations=2, **{"eval.plots": True}))
+    s = json.loads((res.run_dir / "summary.json").read_text())
+    assert s == res.summary
+    sensors = list(s["final_metrics"])
+    assert sensors and set(s["initial_metrics"]) == set(sensors)
+    for v in (*s["final_metrics"].values(), *s["initial_metrics"].values()):
+        assert set(v) == {"area", "dfd", "rmse"} and all(np.isfinite(x) and x >= 0 for x in v.values())
+    assert s["env_steps"] == 2 * 4 * 2 and s["simulations"] >= s["env_steps"] + 2 * 4
+    assert s["wall_time_s"] > 0 and s["param_error"]
+    for errs in s["param_error"].values():
+        assert set(errs) == {"E_x", "E_s", "transmission"}
+    # the reported iterate is the best by score, never worse than the initial parameters
+    rows = [r for r in _read_csv(res.run_dir / "eval_metrics.csv") if r["sensor"] == "mean"]
+    scores = [float(r["score"]) for r in rows]
+    assert s["selected_iteration"] == int(np.argmax(scores))
+    assert "| A |" in (res.run_dir / "eval_metrics.md").read_text()
+    for f in ("pulses.png", "learning_curves.png", "calibrated.npz"):
+        assert (res.run_dir / f).stat().st_size > 0
+    again = evaluate_run(res.run_dir)  # from the checkpoint alone: same deterministic numbers
+    assert again["final_metrics"] == s["final_metrics"]
+
+
+def _read_csv(path: Path) -> list[dict]:
+    import csv
+
+    with open(path, newline="") as fh:
+        return list(csv.DictReader(fh))

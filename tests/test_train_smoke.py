@@ -1,0 +1,95 @@
+"""train/train.py and train/evaluate.py smoke-run in a subprocess with tiny overrides (TorchRL's practice)."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+
+from marlcrash.calibrate.marl import ALGORITHMS
+from marlcrash.config import config_dir
+
+REPO = Path(__file__).resolve().parents[1]
+TINY = [
+    "n_envs=4",
+    "episode_length=2",
+    "iterations=2",
+    "algorithm.minibatch_size=4",
+    "algorithm.hidden=[16,16]",
+    "eval.iterations=2",
+    "progress_bar=false",
+]
+
+
+@pytest.fixture(scope="module")
+def short_configs(tmp_path_factory) -> Path:
+    """A copy of configs/ whose scenarios last 30 ms (the training scripts read it via $MARLCRASH_CONFIGS)."""
+    dst = tmp_path_factory.mktemp("configs") / "configs"
+    shutil.copytree(config_dir(), dst)
+    for p in (dst / "scenarios").glob("*.yaml"):
+        data = yaml.safe_load(p.read_text())
+        data["duration"] = 0.03
+        p.write_text(yaml.safe_dump(data))
+    return dst
+
+
+def run(script: str, args: list[str], configs: Path, cwd: Path) -> subprocess.CompletedProcess:
+    env = {**os.environ, "MARLCRASH_CONFIGS": str(configs)}
+    env.pop("MARLCRASH_CI", None)
+    return subprocess.run([sys.executable, str(REPO / "train" / script), *args], cwd=cwd, env=env,
+                          capture_output=True, text=True, timeout=600)  # fmt: skip
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("algorithm", ALGORITHMS)
+def test_train_script_writes_a_summary(algorithm, short_configs, tmp_path):
+    p = run("train.py", [f"algorithm={algorithm}", "name=smoke", *TINY], short_configs, tmp_path)
+    assert p.returncode == 0, p.stderr[-3000:]
+    run_dir = tmp_path / "runs" / algorithm / "smoke"
+    s = json.loads((run_dir / "summary.json").read_text())
+    assert s["algorithm"] == algorithm
+    assert s["env_steps"] == 2 * 4 * 2
+    assert s["iterations_trained"] == 2
+    for key in ("final_metrics", "initial_metrics", "simulations", "wall_time_s", "param_error"):
+        assert key in s, key
+    assert set(next(iter(s["final_metrics"].values()))) == {"area", "dfd", "rmse"}
+    for f in ("config.yaml", "log.csv", "checkpoint.pt", "eval_metrics.md", "pulses.png", "learning_curves.png"):
+        assert (run_dir / f).is_file(), f
+    out = json.loads(p.stdout[p.stdout.index("{") :])
+    assert out["run"] == str(Path("runs") / algorithm / "smoke")
+
+    e = run("evaluate.py", [f"run={run_dir}"], short_configs, tmp_path)
+    assert e.returncode == 0, e.stderr[-3000:]
+    assert json.loads(e.stdout)["final_metrics"] == s["final_metrics"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    ("override", "key"),
+    [("algorithm.lr=-1", "algorithm.lr"), ("algorithm.minibatch_size=3", "algorithm.minibatch_size")],
+)
+def test_bad_config_fails_before_training(override, key, short_configs, tmp_path):
+    p = run("train.py", [*TINY, override], short_configs, tmp_path)
+    assert p.returncode == 2
+    assert f"key '{key}'" in p.stderr
+    assert not (tmp_path / "runs").exists()  # nothing was started, nothing written
+
+
+@pytest.mark.slow
+def test_unknown_algorithm_lists_the_registered_ones(short_configs, tmp_path):
+    p = run("train.py", ["algorithm=sac", *TINY], short_configs, tmp_path)
+    assert p.returncode != 0
+    assert "algorithm" in p.stderr and "mappo" in p.stderr
+    assert not (tmp_path / "runs").exists()
+
+
+@pytest.mark.slow
+def test_evaluate_script_reports_a_missing_run(short_configs, tmp_path):
+    p = run("evaluate.py", [f"run={tmp_path / 'nope'}"], short_configs, tmp_path)
+    assert p.returncode == 2 and "config.yaml" in p.stderr
