@@ -45,6 +45,7 @@ def test_script_writes_a_run_folder(tmp_path, method):
 
 def test_script_rejects_bad_config_before_running(tmp_path):
     p = run("method=gradient", "gradient.lr=-0.5", f"out_dir={tmp_path / 'runs'}", "name=bad", cwd=tmp_path)
-    assert p.returncode != 0
+    assert p.returncode == 2
     assert "gradient.lr" in p.stderr and "learning rate" in p.stderr
+    assert "Traceback" not in p.stderr
     assert not (tmp_path / "runs").exists()

@@ -9,18 +9,24 @@ Writes ``<out_dir>/<method>/<name>/``: summary.json, history.csv, config.json, b
 from __future__ import annotations
 
 import json
+import sys
 
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
 from marlcrash.calibrate import build_problem, load_run_config, run_baseline, write_run
+from marlcrash.errors import MarlcrashError
 
 
 @hydra.main(version_base=None, config_path="../configs/train", config_name="baseline")
 def main(cfg: DictConfig) -> None:
-    config = load_run_config(OmegaConf.to_container(cfg, resolve=True), source="configs/train/baseline.yaml")
-    problem = build_problem(config.problem)
-    result = run_baseline(config, problem)
+    try:
+        config = load_run_config(OmegaConf.to_container(cfg, resolve=True), source="configs/train/baseline.yaml")
+        problem = build_problem(config.problem)
+        result = run_baseline(config, problem)
+    except MarlcrashError as e:  # bad config or input: a message, not a traceback
+        print(f"error: {e}", file=sys.stderr)
+        sys.exit(2)
     folder = write_run(config, problem, result)
     s = result.summary()
     print(json.dumps({"run": str(folder), "simulations": s["simulations"], "sims_to_success": s["sims_to_success"],

@@ -25,7 +25,7 @@ from marlcrash.cells.params import behaviour_params
 from marlcrash.cells.roi import Roi, region_of_interest
 from marlcrash.cells.sections import grid_sections
 from marlcrash.cells.transmission import aggregate_links, extract_faces, transmission_factors
-from marlcrash.config import config_dir, from_dict, load_config, require
+from marlcrash.config import config_dir, load_config, require
 from marlcrash.errors import ConfigError, ModelError
 from marlcrash.vehicle.model import COMPARTMENT, VehicleModel
 
@@ -167,11 +167,6 @@ class DiscretizationConfig:
 def load_discretization_config(path=None, overrides: dict | None = None) -> DiscretizationConfig:
     """Load ``configs/cells.yaml`` (or ``path``) with optional dotted-key overrides."""
     return load_config(DiscretizationConfig, path or (config_dir() / "cells.yaml"), overrides)
-
-
-def config_from_dict(data: dict) -> DiscretizationConfig:
-    """Build a config from a mapping (missing keys keep the schema defaults)."""
-    return from_dict(DiscretizationConfig, data)
 
 
 # ----------------------------------------------------------------------------- labelling

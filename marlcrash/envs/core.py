@@ -240,7 +240,7 @@ class CalibrationCore:
         self.rng = np.random.default_rng(seed)
 
     # --------------------------------------------------------------------------------- simulation
-    def _simulate(self, rows: torch.Tensor | slice) -> None:
+    def _simulate(self, rows: torch.Tensor | slice) -> Metrics:
         with torch.no_grad():
             res = self.sim.run(self.params[rows], speed=self.speed[rows], overlap=self.overlap[rows],
                                side=self.side[rows], duration=self.duration, sensors=self.sensors,

@@ -932,10 +932,6 @@ def _read_part(block: _Block, opts: set[str], t: _Tables, params: _Params) -> No
             break  # cards after an inertia part are read past; one part per *PART_INERTIA block
 
 
-def _section_blocks(block: _Block) -> tuple[list[int], bool]:
-    return block.rows.tolist(), "TITLE" in _split_options(block.keyword, block.keyword.split("_")[0] + "_")
-
-
 def _add_section(block: _Block, t: _Tables, secid: int | None, sec: _Section, row: int) -> None:
     if secid is None or secid <= 0:
         raise block.err(f"*{block.keyword} expects a positive SECID in columns 1-10, got {secid!r}", row)

@@ -195,11 +195,6 @@ class VehicleModel:
         p = self.coords[self.beam_nodes]
         return np.linalg.norm(p[:, 1] - p[:, 0], axis=1)
 
-    def material_of_parts(self, part_ids: np.ndarray) -> np.ndarray:
-        """Material ids ``[n]`` for an array of part ids."""
-        lut = {pid: p.material_id for pid, p in self.parts.items()}
-        return np.array([lut[int(p)] for p in part_ids], dtype=np.int64)
-
     def _density_of_parts(self, part_ids: np.ndarray) -> np.ndarray:
         if part_ids.size == 0:
             return np.zeros(0)
