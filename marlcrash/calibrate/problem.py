@@ -415,8 +415,15 @@ class CalibrationProblem:
         """
         if self.true_params is None:
             raise ConfigError("param_error needs a twin reference with ground truth", key="problem.reference")
-        rec = self.subassembly_params(self.params(self.check_x(x)).detach())
-        true = self.subassembly_params(self.true_params[None])
+        return self.params_error(self.params(self.check_x(x)).detach(), self.true_params)
+
+    def params_error(self, params: torch.Tensor, truth: torch.Tensor) -> torch.Tensor:
+        """Relative error ``[N, S, 3]`` of cell parameters ``[N, n_cells, 7]`` against ``truth`` ``[n_cells, 7]``.
+
+        The definition behind :meth:`param_error`, for parameters reached by any calibrator.
+        """
+        rec = self.subassembly_params(params.to(torch.float64))
+        true = self.subassembly_params(truth.to(torch.float64)[None])
         e = (rec[..., :2] - true[..., :2]).abs() / true[..., :2]
         t = (rec[..., 2:] - true[..., 2:]).abs().sum(-1) / true[..., 2:].sum(-1)
         return torch.cat([e, t[..., None]], dim=-1)
