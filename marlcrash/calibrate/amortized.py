@@ -1,0 +1,464 @@
+"""Amortized calibration, measured (DESIGN 6): a trained policy against optimizers started from scratch.
+
+A policy trained on many randomized twin references should calibrate an *unseen* reference in a
+few iterations, where an optimizer starts from scratch every time. :func:`amortized_comparison`
+measures that on held-out twin references (``reference_seeds``; each must differ from the run's
+evaluation seed ``eval.reference_seed`` and from its training seed, whose generator draws the
+training references):
+
+- the trained policy alone (:func:`~marlcrash.calibrate.evaluate.evaluate_policy`, the mean action)
+  for ``iterations`` calibration steps; it uses ``iterations + 1`` simulations (the reset simulates the
+  initial parameters, then one per step), the same accounting as the baselines, whose first candidate
+  is the initial point. Rows ``policy_best`` (best iterate by fit score) and ``policy_last``;
+- every optimizer of ``budgets`` (:data:`~marlcrash.calibrate.baselines.BASELINES`: CMA-ES, random
+  search, gradient descent) on the SAME reference (:func:`~marlcrash.calibrate.evaluate.evaluation_problem`
+  with that seed; the reference pulses are checked to agree), one fresh run per budget. A budget is a
+  multiple of the policy's nominal simulation count ``iterations + 1``. Each row reports the best
+  candidate's metrics and ``sims_to_policy``: the simulations after which the optimizer's best score
+  first reached the policy's target score (``target``: its best or last iterate), resolved to the
+  optimizer's batch (a CMA-ES generation, a random-search batch, a gradient step), ``None`` if never.
+
+Metrics in the tables are sensor means (area [m], DFD [m/s], RMSE [m/s]); ``score`` is the reward
+form's fit score (higher is better); ``passed``: every sensor below every success threshold
+(``eval.thresholds`` of the run); ``param_error``: mean relative error of the per-sub-assembly
+``E_x``, ``E_s`` and transmission factors against the twin's truth.
+
+:func:`write_comparison` writes ``amortized.csv`` (one row per reference and method/budget),
+``amortized.md`` (per-reference and aggregated tables: mean and standard deviation over
+references) and ``amortized.json`` atomically into a folder (by default the run folder).
+"""
+
+from __future__ import annotations
+
+import copy
+import csv
+import io
+import json
+import math
+import os
+import time
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import torch
+from tensordict.nn import TensorDictModuleBase
+
+from marlcrash.calibrate.baselines import (
+    BASELINES,
+    CalibrationResult,
+    CMAESConfig,
+    GradientConfig,
+    RandomSearchConfig,
+)
+from marlcrash.calibrate.checkpoint import CHECKPOINT_FILE, load_checkpoint
+from marlcrash.calibrate.evaluate import EvalResult, evaluate_policy, evaluation_problem, param_errors
+from marlcrash.calibrate.marl import TrainConfig, load_run_config, make_env, make_policy
+from marlcrash.calibrate.problem import CalibrationProblem
+from marlcrash.config import from_dict, require
+from marlcrash.errors import ConfigError
+from marlcrash.metrics import Metrics
+
+POLICY_METHODS = ("policy_best", "policy_last")
+"""Row names of the policy: its best iterate by fit score and its last iterate."""
+
+FILES = ("amortized.csv", "amortized.md", "amortized.json")
+"""What :func:`write_comparison` writes."""
+
+COLUMNS = (
+    "reference_seed", "method", "multiplier", "budget", "simulations", "iteration", "area", "dfd", "rmse", "score",
+    "initial_score", "passed", "param_error", "initial_param_error", "sims_to_policy", "wall_time_s",
+)  # fmt: skip
+"""Columns of ``amortized.csv``, in order."""
+
+
+# ------------------------------------------------------------------------------------------- config
+@dataclass
+class AmortizedConfig:
+    """One comparison; values and their meaning in ``configs/train/amortized.yaml``.
+
+    Attributes:
+        run: the trained run folder (``config.yaml``, ``checkpoint.pt``); ``None`` only when a policy is passed.
+        reference_seeds: held-out twin seeds (not the run's evaluation or training seed).
+        scenario: evaluation scenario (registered name).
+        iterations: policy calibration steps; ``None`` = the run's ``eval.iterations``.
+        target: the policy iterate whose score the optimizers must reach: ``best`` or ``last``.
+        budgets: per optimizer, budgets as multiples of the policy's nominal simulation count ``iterations + 1``.
+        seed: the optimizers' seed.
+        out_dir: folder of the output files; ``None`` = the run folder.
+        random_search, cmaes, gradient: the optimizers' settings (``configs/train/baseline/``).
+    """
+
+    run: str | None = None
+    reference_seeds: list[int] = field(default_factory=lambda: [101, 102, 103])
+    scenario: str = "full_width_40"
+    iterations: int | None = None
+    target: Literal["best", "last"] = "best"
+    budgets: dict[str, list[float]] = field(default_factory=lambda: {"cmaes": [1.0, 10.0, 100.0]})
+    seed: int = 0
+    out_dir: str | None = None
+    random_search: RandomSearchConfig = field(default_factory=RandomSearchConfig)
+    cmaes: CMAESConfig = field(default_factory=CMAESConfig)
+    gradient: GradientConfig = field(default_factory=GradientConfig)
+
+    def validate(self) -> None:
+        require(len(self.reference_seeds) >= 1, "reference_seeds", "expected at least one held-out reference seed")
+        require(len(set(self.reference_seeds)) == len(self.reference_seeds), "reference_seeds",
+                f"expected distinct seeds, got {self.reference_seeds}")  # fmt: skip
+        for i, s in enumerate(self.reference_seeds):
+            require(s >= 0, f"reference_seeds[{i}]", f"expected a seed >= 0, got {s}")
+        require(self.iterations is None or self.iterations >= 1, "iterations",
+                f"expected >= 1 calibration steps or null, got {self.iterations}")  # fmt: skip
+        for name, mults in self.budgets.items():
+            require(name in BASELINES, f"budgets.{name}",
+                    f"unknown optimizer {name!r}; expected one of {sorted(BASELINES)}")  # fmt: skip
+            for i, m in enumerate(mults):
+                require(math.isfinite(m) and m > 0, f"budgets.{name}[{i}]",
+                        f"expected a budget multiple > 0 of the policy's simulations, got {m}")  # fmt: skip
+
+    def budget(self, multiplier: float, policy_sims: int) -> int:
+        """Simulations of a budget: ``max(1, round(multiplier * policy_sims))``."""
+        return max(1, round(multiplier * policy_sims))
+
+
+def load_amortized_config(data: dict[str, Any], source: str | None = None) -> AmortizedConfig:
+    """Validate a comparison config mapping (e.g. Hydra's, without its ``hydra`` node).
+
+    Raises:
+        ConfigError: unknown key, wrong type or bad value, naming the dotted key.
+    """
+    data = {k: v for k, v in data.items() if k != "hydra"}
+    return from_dict(AmortizedConfig, data, path=source)
+
+
+# ------------------------------------------------------------------------------------------ policy
+def load_policy(run_dir: str | Path) -> tuple[TensorDictModuleBase, TrainConfig]:
+    """The trained policy of a run folder (its latest checkpoint) and the run's config.
+
+    Raises:
+        ConfigError: (key ``run``) no such folder, or no ``config.yaml`` / ``checkpoint.pt`` in it.
+    """
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        raise ConfigError(f"expected a training run folder, {run_dir} does not exist", key="run")
+    config = load_run_config(run_dir)
+    if not (run_dir / CHECKPOINT_FILE).is_file():
+        raise ConfigError(f"expected a run folder with {CHECKPOINT_FILE}, found none in {run_dir}", key="run")
+    state = load_checkpoint(run_dir / CHECKPOINT_FILE)
+    torch.manual_seed(config.seed)  # the networks' initial draw, overwritten by the checkpoint
+    policy = make_policy(make_env(config, n_envs=1), config.algorithm)
+    policy.load_state_dict(state["policy"])
+    return policy, config
+
+
+def held_out_config(train_config: TrainConfig, seed: int, scenario: str, iterations: int) -> TrainConfig:
+    """A copy of the run's config whose evaluation is reference ``seed`` of ``scenario`` for ``iterations`` steps."""
+    cfg = copy.deepcopy(train_config)
+    cfg.eval.reference_seed = seed
+    cfg.eval.scenario = scenario
+    cfg.eval.iterations = iterations
+    cfg.eval.select = "best"
+    return cfg
+
+
+# -------------------------------------------------------------------------------------------- rows
+def _mean_param_error(table: dict[str, dict[str, float]] | None) -> float | None:
+    """Mean of all ``{sub-assembly: {E_x, E_s, transmission}}`` relative errors."""
+    if table is None:
+        return None
+    return float(np.mean([v for sub in table.values() for v in sub.values()]))
+
+
+def _sensor_mean(m: Metrics) -> dict[str, float]:
+    """Sensor means of per-sensor metrics ``[K]``."""
+    return {"area": float(m.area.mean()), "dfd": float(m.dfd.mean()), "rmse": float(m.rmse.mean())}
+
+
+def policy_rows(problem: CalibrationProblem, result: EvalResult, seed: int, wall_time_s: float) -> list[dict]:
+    """Rows ``policy_best`` and ``policy_last`` of one reference (scores by the problem's fit, as the baselines)."""
+    scores = problem.score(result.metrics)  # [I + 1]
+    scores = torch.where(torch.isfinite(scores), scores, torch.full_like(scores, -torch.inf))
+    passed = problem.success(result.metrics)  # [I + 1]
+    sims = result.iterations + 1
+    rows = []
+    for method, i in (("policy_best", int(torch.argmax(scores))), ("policy_last", result.iterations)):
+        m = Metrics(*(t[i] for t in result.metrics))
+        err = init_err = None
+        if result.true_params is not None:
+            err = _mean_param_error(param_errors(problem, result.params[i], result.true_params))
+            init_err = _mean_param_error(param_errors(problem, result.params[0], result.true_params))
+        rows.append({
+            "reference_seed": seed, "method": method, "multiplier": None, "budget": sims, "simulations": sims,
+            "iteration": i, **_sensor_mean(m), "score": float(scores[i]), "initial_score": float(scores[0]),
+            "passed": bool(passed[i]), "param_error": err, "initial_param_error": init_err, "sims_to_policy": None,
+            "wall_time_s": wall_time_s,
+        })  # fmt: skip
+    return rows
+
+
+def sims_to_reach(history: np.ndarray, target: float) -> int | None:
+    """Simulations after which the best score so far first reached ``target`` (``None``: never).
+
+    Args:
+        history: ``[H, 3]`` simulations, best score so far, batch best score (:attr:`CalibrationResult.history`).
+        target: the score to reach (higher is better).
+    """
+    hit = np.nonzero(history[:, 1] >= target)[0]
+    return int(history[hit[0], 0]) if hit.size else None
+
+
+def baseline_row(
+    problem: CalibrationProblem, result: CalibrationResult, seed: int, multiplier: float, budget: int, target: float
+) -> dict:
+    """One optimizer run on one reference as a table row (``passed``: its best candidate passes)."""
+    passed = bool(problem.success(Metrics(*(m[None] for m in result.final_metrics)))[0])
+    return {
+        "reference_seed": seed, "method": result.method, "multiplier": multiplier, "budget": budget,
+        "simulations": result.simulations, "iteration": None, **_sensor_mean(result.final_metrics),
+        "score": result.best_score, "initial_score": result.initial_score,
+        "passed": passed, "param_error": _mean_param_error(result.param_error),
+        "initial_param_error": _mean_param_error(result.initial_param_error),
+        "sims_to_policy": sims_to_reach(result.history, target), "wall_time_s": result.wall_time_s,
+    }  # fmt: skip
+
+
+# ------------------------------------------------------------------------------------- comparison
+@dataclass
+class Comparison:
+    """Outcome of :func:`amortized_comparison`.
+
+    Attributes:
+        rows: one dict per reference and method/budget (keys :data:`COLUMNS`).
+        aggregate: one dict per method/budget: means and standard deviations over references.
+        meta: run folder, scenario, iterations, policy simulations, target, seeds, optimizer settings.
+    """
+
+    rows: list[dict[str, Any]]
+    aggregate: list[dict[str, Any]]
+    meta: dict[str, Any]
+
+
+def amortized_comparison(
+    config: AmortizedConfig,
+    policy: TensorDictModuleBase | None = None,
+    train_config: TrainConfig | None = None,
+    progress: Any = None,
+) -> Comparison:
+    """Compare the trained policy with optimizers from scratch on held-out twin references (module docstring).
+
+    Args:
+        config: the comparison settings (``config.run`` names the run folder unless ``policy`` is given).
+        policy: a trained policy (e.g. ``Trainer.policy``); requires ``train_config``.
+        train_config: the config it was trained with.
+        progress: optional callable ``progress(message: str)`` told about each finished piece.
+
+    Returns:
+        A :class:`Comparison`.
+
+    Raises:
+        ConfigError: no run folder (key ``run``), a reference seed that is not held out (key
+            ``reference_seeds[i]``), or a policy without its training config.
+    """
+    if policy is None:
+        if config.run is None:
+            raise ConfigError("expected a training run folder (or a policy and its training config)", key="run")
+        policy, train_config = load_policy(config.run)
+    elif train_config is None:
+        raise ConfigError("a policy needs the training config it was trained with", key="train_config")
+    for i, s in enumerate(config.reference_seeds):
+        if s == train_config.eval.reference_seed:
+            raise ConfigError(f"seed {s} is the run's evaluation reference (eval.reference_seed), not held out",
+                              key=f"reference_seeds[{i}]")  # fmt: skip
+        if s == train_config.seed:
+            raise ConfigError(f"seed {s} is the run's training seed (its reference generator), not held out",
+                              key=f"reference_seeds[{i}]")  # fmt: skip
+    iterations = config.iterations if config.iterations is not None else train_config.eval.iterations
+    nominal = iterations + 1
+    say = progress or (lambda _msg: None)
+    rows: list[dict[str, Any]] = []
+    for seed in config.reference_seeds:
+        cfg = held_out_config(train_config, seed, config.scenario, iterations)
+        t0 = time.perf_counter()
+        result = evaluate_policy(policy, cfg)
+        t_policy = time.perf_counter() - t0
+        problem = evaluation_problem(cfg)
+        if problem.ref_velocity.shape != result.ref_velocity.shape or not torch.allclose(
+            problem.ref_velocity, result.ref_velocity, rtol=0, atol=1e-9
+        ):
+            raise ConfigError(f"the policy's env and the optimizers' problem drew different references for seed "
+                              f"{seed}", key="reference_seeds")  # fmt: skip
+        pol = policy_rows(problem, result, seed, t_policy)
+        rows += pol
+        say(f"seed {seed}: policy best score {pol[0]['score']:.4f} in {pol[0]['simulations']} simulations")
+        target = pol[0 if config.target == "best" else 1]["score"]
+        for name, mults in config.budgets.items():
+            _, fn = BASELINES[name]
+            for m in mults:
+                b = config.budget(m, nominal)
+                res = fn(problem, b, getattr(config, name), config.seed, False)
+                rows.append(baseline_row(problem, res, seed, m, b, target))
+                say(f"seed {seed}: {name} budget {b}: best score {res.best_score:.4f} ({res.wall_time_s:.1f} s)")
+    meta = {
+        "run": None if config.run is None else str(config.run),
+        "algorithm": train_config.algorithm.name,
+        "scenario": config.scenario,
+        "iterations": iterations,
+        "policy_simulations": nominal,
+        "target": config.target,
+        "reference_seeds": list(config.reference_seeds),
+        "eval_reference_seed": train_config.eval.reference_seed,
+        "train_seed": train_config.seed,
+        "optimizer_seed": config.seed,
+        "budgets": {k: list(v) for k, v in config.budgets.items()},
+        "optimizers": {k: asdict(getattr(config, k)) for k in config.budgets},
+        "thresholds": asdict(train_config.eval.thresholds),
+    }
+    return Comparison(rows=rows, aggregate=aggregate(rows), meta=meta)
+
+
+def aggregate(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Per method and budget multiple: means and standard deviations (ddof 0) over references.
+
+    Also ``passed`` (references passing), ``reached`` (references where the optimizer reached the
+    policy's target score), ``beats_policy`` (references where its best score is at least the
+    policy's best score) and the median ``sims_to_policy`` over the references that reached it.
+    """
+    best = {r["reference_seed"]: r["score"] for r in rows if r["method"] == "policy_best"}
+    groups: dict[tuple[str, Any], list[dict[str, Any]]] = {}
+    for r in rows:
+        groups.setdefault((r["method"], r["multiplier"]), []).append(r)
+    out = []
+    for (method, mult), g in groups.items():
+        a: dict[str, Any] = {"method": method, "multiplier": mult, "references": len(g)}
+        for k in ("budget", "simulations", "area", "dfd", "rmse", "score", "param_error", "wall_time_s"):
+            v = np.array([r[k] for r in g if r[k] is not None], dtype=np.float64)
+            a[f"{k}_mean"] = float(v.mean()) if v.size else None
+            a[f"{k}_std"] = float(v.std()) if v.size else None
+        a["passed"] = sum(bool(r["passed"]) for r in g)
+        if method in POLICY_METHODS:
+            a["reached"] = a["beats_policy"] = a["sims_to_policy_median"] = None
+        else:
+            hit = [r["sims_to_policy"] for r in g if r["sims_to_policy"] is not None]
+            a["reached"] = len(hit)
+            a["sims_to_policy_median"] = float(np.median(hit)) if hit else None
+            a["beats_policy"] = sum(r["score"] >= best[r["reference_seed"]] for r in g)
+        out.append(a)
+    return out
+
+
+# ----------------------------------------------------------------------------------------- writing
+def _fmt(v: Any, spec: str = ".4g") -> str:
+    if v is None:
+        return "-"
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    if isinstance(v, float):
+        return format(v, spec)
+    return str(v)
+
+
+def _label(method: str, mult: Any) -> str:
+    return method if mult is None else f"{method} {_fmt(mult, 'g')}x"
+
+
+def markdown(comparison: Comparison, command: str | None = None, date: str | None = None) -> str:
+    """The Markdown report: settings, aggregated table (mean ± std over references), per-reference table."""
+    meta = comparison.meta
+    n = len(meta["reference_seeds"])
+    lines = [
+        f"# Amortized calibration: trained {meta['algorithm']} policy vs optimizers from scratch",
+        "",
+        f"- date: {date or datetime.now(UTC).strftime('%Y-%m-%d %H:%M UTC')}",
+    ]
+    if command:
+        lines.append(f"- command: `{command}`")
+    lines += [
+        f"- run: `{meta['run']}`; scenario `{meta['scenario']}`; held-out twin seeds {meta['reference_seeds']} "
+        f"(evaluation seed {meta['eval_reference_seed']}, training seed {meta['train_seed']})",
+        f"- policy: {meta['iterations']} deterministic steps = {meta['policy_simulations']} simulations "
+        "(initial + one per step); optimizers: one fresh run per budget, budgets as multiples of that count, "
+        f"seed {meta['optimizer_seed']}",
+        "- metrics: sensor means of the best candidate (area [m], DFD [m/s], RMSE [m/s]); score: fit score, "
+        "higher is better; param err: mean relative error of the sub-assembly parameters vs the twin truth",
+        f"- sims to policy: simulations until the optimizer's best score reached the policy's {meta['target']} "
+        "score, resolved to the optimizer's batch (CMA-ES generation, random-search batch, gradient step); "
+        "- = never within the budget",
+        "",
+        f"## Aggregate over {n} references (mean ± std)",
+        "",
+        "| method | budget | area | DFD | RMSE | score | param err | passed | reached policy | median sims to policy "
+        "| beats policy best | wall [s] |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+
+    def pm(a: dict[str, Any], k: str, spec: str = ".4g") -> str:
+        return f"{_fmt(a[f'{k}_mean'], spec)} ± {_fmt(a[f'{k}_std'], spec)}"
+
+    def of_n(v: int | None) -> str:
+        return "-" if v is None else f"{v}/{n}"
+
+    for a in comparison.aggregate:
+        budget = _fmt(a["budget_mean"], ".0f")
+        lines.append(
+            f"| {_label(a['method'], a['multiplier'])} | {budget} | {pm(a, 'area')} | {pm(a, 'dfd')} | "
+            f"{pm(a, 'rmse')} | {pm(a, 'score')} | {pm(a, 'param_error', '.3f')} | {a['passed']}/{n} | "
+            f"{of_n(a['reached'])} | {_fmt(a['sims_to_policy_median'], '.0f')} | "
+            f"{of_n(a['beats_policy'])} | {pm(a, 'wall_time_s', '.1f')} |"
+        )
+    lines += [
+        "",
+        "## Per reference",
+        "",
+        "| seed | method | simulations | area | DFD | RMSE | score | initial score | param err | passed "
+        "| sims to policy | wall [s] |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in comparison.rows:
+        lines.append(
+            f"| {r['reference_seed']} | {_label(r['method'], r['multiplier'])} | {r['simulations']} | "
+            f"{_fmt(r['area'])} | {_fmt(r['dfd'])} | {_fmt(r['rmse'])} | {_fmt(r['score'])} | "
+            f"{_fmt(r['initial_score'])} | {_fmt(r['param_error'], '.3f')} | {_fmt(r['passed'])} | "
+            f"{_fmt(r['sims_to_policy'])} | {_fmt(r['wall_time_s'], '.1f')} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def csv_text(comparison: Comparison) -> str:
+    """The rows as CSV (columns :data:`COLUMNS`; ``None`` as an empty field)."""
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=list(COLUMNS), lineterminator="\n")
+    w.writeheader()
+    for r in comparison.rows:
+        w.writerow({k: ("" if r[k] is None else r[k]) for k in COLUMNS})
+    return buf.getvalue()
+
+
+def _atomic_write(path: Path, text: str) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    try:
+        tmp.write_text(text)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def write_comparison(comparison: Comparison, out_dir: str | Path, command: str | None = None) -> dict[str, Path]:
+    """Write :data:`FILES` into ``out_dir`` atomically (each file replaced whole); return their paths.
+
+    Raises:
+        ConfigError: (key ``out_dir``) the folder does not exist.
+    """
+    out = Path(out_dir)
+    if not out.is_dir():
+        raise ConfigError(f"expected an existing output folder, {out} is none", key="out_dir")
+    date = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
+    payload = {"date": date, "command": command, "meta": comparison.meta, "aggregate": comparison.aggregate,
+               "rows": comparison.rows}  # fmt: skip
+    paths = {name: out / name for name in FILES}
+    _atomic_write(paths["amortized.csv"], csv_text(comparison))
+    _atomic_write(paths["amortized.md"], markdown(comparison, command, date))
+    _atomic_write(paths["amortized.json"], json.dumps(payload, indent=2))
+    return paths

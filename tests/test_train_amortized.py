@@ -1,0 +1,227 @@
+"""Amortized calibration comparison: a tiny trained MAPPO policy vs optimizers from scratch on held-out twins.
+
+Runs on the shortened copy of configs/ of test_train_marl.py (every scenario simulated for 30 ms),
+with a 2-iteration training run and budgets of a few simulations.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from test_train_marl import short_configs, tiny  # noqa: F401 -- fixture and helper shared with the MARL tests
+
+from marlcrash.calibrate.amortized import (
+    COLUMNS,
+    FILES,
+    AmortizedConfig,
+    amortized_comparison,
+    held_out_config,
+    load_amortized_config,
+    load_policy,
+    sims_to_reach,
+    write_comparison,
+)
+from marlcrash.calibrate.evaluate import evaluation_problem
+from marlcrash.calibrate.marl import train
+from marlcrash.errors import ConfigError
+from marlcrash.metrics import compute_metrics
+
+REPO = Path(__file__).resolve().parents[1]
+SEEDS = [101, 102]
+ITERATIONS = 2  # policy steps: 3 simulations per reference
+
+
+@pytest.fixture(scope="module")
+def short_env(short_configs):  # noqa: F811 -- the imported fixture
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("MARLCRASH_CONFIGS", str(short_configs))
+        yield short_configs
+
+
+@pytest.fixture(scope="module")
+def run_dir(short_env, tmp_path_factory) -> Path:
+    """A 2-iteration MAPPO run (tiny networks, 4 envs, 2 steps), checkpoint only."""
+    cfg = tiny(tmp_path_factory.mktemp("amortized"), iterations=2, name="src")
+    return train(cfg, evaluate=False).run_dir
+
+
+def small_config(run: Path, **kw) -> AmortizedConfig:
+    data = {
+        "run": str(run),
+        "reference_seeds": SEEDS,
+        "iterations": ITERATIONS,
+        "budgets": {"cmaes": [1, 2], "random_search": [1], "gradient": [1]},
+        "cmaes": {"popsize": 4, "sigma0": 0.2},
+        "random_search": {"batch_size": 2},
+        "gradient": {"batch_size": 2},
+    }
+    data.update(kw)
+    return load_amortized_config(data)
+
+
+@pytest.fixture(scope="module")
+def comparison(run_dir):
+    return amortized_comparison(small_config(run_dir))
+
+
+def test_table_shape_and_keys(comparison, run_dir, tmp_path):
+    rows = comparison.rows
+    # per reference: policy best + last, cmaes 1x and 2x, random search 1x, gradient 1x
+    assert len(rows) == len(SEEDS) * 6
+    assert all(tuple(r) == COLUMNS for r in rows)
+    assert [r["reference_seed"] for r in rows] == [s for s in SEEDS for _ in range(6)]
+    methods = [r["method"] for r in rows[:6]]
+    assert methods == ["policy_best", "policy_last", "cmaes", "cmaes", "random_search", "gradient"]
+    assert len(comparison.aggregate) == 6
+    agg = {(a["method"], a["multiplier"]): a for a in comparison.aggregate}
+    for (method, mult), a in agg.items():
+        group = [r for r in rows if r["method"] == method and r["multiplier"] == mult]
+        scores = np.array([r["score"] for r in group])
+        assert a["references"] == len(SEEDS)
+        assert a["score_mean"] == pytest.approx(scores.mean()) and a["score_std"] == pytest.approx(scores.std())
+    for r in rows:
+        assert all(np.isfinite(r[k]) for k in ("area", "dfd", "rmse", "score", "param_error"))
+        assert r["score"] >= r["initial_score"] - 1e-12 or r["method"] == "policy_last"
+    paths = write_comparison(comparison, tmp_path, command="python train/amortized.py run=x")
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(FILES)  # no temporary file left behind
+    back = list(csv.DictReader(paths["amortized.csv"].open()))
+    assert len(back) == len(rows) and tuple(back[0]) == COLUMNS
+    assert float(back[2]["score"]) == pytest.approx(rows[2]["score"])
+    md = paths["amortized.md"].read_text()
+    assert "## Aggregate over 2 references" in md and "| 101 | cmaes 2x |" in md and "python train/amortized.py" in md
+    data = json.loads(paths["amortized.json"].read_text())
+    assert data["meta"]["policy_simulations"] == ITERATIONS + 1 and len(data["rows"]) == len(rows)
+    with pytest.raises(ConfigError, match="out_dir"):
+        write_comparison(comparison, tmp_path / "missing")
+
+
+def test_budgets_are_respected(comparison):
+    nominal = ITERATIONS + 1
+    for r in comparison.rows:
+        if r["method"].startswith("policy"):
+            assert r["simulations"] == nominal  # no early termination on a 30 ms twin with a 2-iteration policy
+            assert r["sims_to_policy"] is None
+        else:
+            assert r["budget"] == round(r["multiplier"] * nominal)
+            assert r["simulations"] == r["budget"]  # every optimizer spends exactly its budget
+            reached = r["sims_to_policy"]
+            best = next(p for p in comparison.rows if p["method"] == "policy_best" and
+                        p["reference_seed"] == r["reference_seed"])  # fmt: skip
+            if r["score"] >= best["score"]:
+                assert reached is not None and 1 <= reached <= r["simulations"]
+            else:
+                assert reached is None
+
+
+def test_sims_to_reach_reads_the_best_so_far_column():
+    h = np.array([[1, -1.0, -1.0], [5, -0.5, -0.5], [9, -0.5, -0.7], [13, 0.2, 0.2]])
+    assert sims_to_reach(h, -0.5) == 5
+    assert sims_to_reach(h, 0.0) == 13
+    assert sims_to_reach(h, 0.3) is None
+    assert sims_to_reach(h, -2.0) == 1
+
+
+def test_policy_rows_match_an_independent_resimulation(comparison, run_dir):
+    """Re-simulate the policy's selected parameters and recompute the metrics with the torch reference engine."""
+    policy, cfg = load_policy(run_dir)
+    from marlcrash.calibrate.evaluate import evaluate_policy
+
+    seed = SEEDS[0]
+    hc = held_out_config(cfg, seed, "full_width_40", ITERATIONS)
+    result = evaluate_policy(policy, hc)
+    problem = evaluation_problem(hc)
+    row = next(r for r in comparison.rows if r["method"] == "policy_best" and r["reference_seed"] == seed)
+    p = result.params[row["iteration"]][None]
+    with torch.no_grad():
+        res = problem.sim.run(p, speed=problem.speed, overlap=problem.overlap, side=problem.side,
+                              duration=problem.duration, sensors=problem.sensors, record_cells="none")  # fmt: skip
+    m = compute_metrics(problem.compared(res.velocity), problem.ref_velocity, dt=problem.dt,
+                        config=problem.fit.cfg.metrics, backend="torch")  # fmt: skip
+    assert float(m.area.mean()) == pytest.approx(row["area"], rel=1e-6, abs=1e-12)
+    assert float(m.rmse.mean()) == pytest.approx(row["rmse"], rel=1e-6, abs=1e-12)
+    assert float(m.dfd.mean()) == pytest.approx(row["dfd"], rel=1e-6, abs=1e-12)
+    assert float(problem.score(m)[0]) == pytest.approx(row["score"], rel=1e-6, abs=1e-9)
+
+
+def test_held_out_references_differ_from_the_evaluation_reference(run_dir):
+    _, cfg = load_policy(run_dir)
+    assert cfg.eval.reference_seed == 0 and cfg.seed == 0
+    refs = {s: evaluation_problem(held_out_config(cfg, s, "full_width_40", 1)) for s in [0, *SEEDS]}
+    for s in SEEDS:
+        assert not torch.allclose(refs[s].ref_velocity, refs[0].ref_velocity, atol=1e-3)
+        assert not torch.allclose(refs[s].true_params, refs[0].true_params)
+    assert not torch.allclose(refs[SEEDS[0]].ref_velocity, refs[SEEDS[1]].ref_velocity, atol=1e-3)
+    for bad in (0, cfg.seed):  # the evaluation seed, the training seed
+        with pytest.raises(ConfigError, match=r"reference_seeds\[1\]"):
+            amortized_comparison(small_config(run_dir, reference_seeds=[101, bad]))
+
+
+def test_deterministic_and_independent_of_the_other_runs(comparison, run_dir):
+    """One seed and one optimizer alone give exactly the rows of the full comparison (fresh, seeded runs)."""
+    again = amortized_comparison(small_config(run_dir, reference_seeds=[SEEDS[1]], budgets={"cmaes": [1, 2]}))
+
+    def strip(rows):
+        return [{k: v for k, v in r.items() if k != "wall_time_s"} for r in rows]
+
+    expected = [r for r in comparison.rows if r["reference_seed"] == SEEDS[1] and r["method"] not in
+                ("random_search", "gradient")]  # fmt: skip
+    assert len(again.rows) == 4
+    assert strip(again.rows) == strip(expected)
+
+
+def test_bad_configs_name_the_key(run_dir, tmp_path):
+    with pytest.raises(ConfigError, match="key 'run'"):
+        amortized_comparison(small_config(tmp_path / "no_such_run"))
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(ConfigError, match="key 'run'"):
+        amortized_comparison(small_config(tmp_path / "empty"))
+    with pytest.raises(ConfigError, match="key 'run'"):
+        amortized_comparison(load_amortized_config({"run": None}))
+    for mults, key in (([1, 0], r"budgets\.cmaes\[1\]"), ([-2.0], r"budgets\.cmaes\[0\]")):
+        with pytest.raises(ConfigError, match=key):
+            small_config(run_dir, budgets={"cmaes": mults})
+    with pytest.raises(ConfigError, match=r"budgets\.lbfgs.*unknown optimizer"):
+        small_config(run_dir, budgets={"lbfgs": [1]})
+    with pytest.raises(ConfigError, match="iterations"):
+        small_config(run_dir, iterations=0)
+    with pytest.raises(ConfigError, match="reference_seeds"):
+        small_config(run_dir, reference_seeds=[101, 101])
+    with pytest.raises(ConfigError, match=r"cmaes\.popsize"):
+        small_config(run_dir, cmaes={"popsize": 1})
+    with pytest.raises(ConfigError, match="key 'speed'"):
+        small_config(run_dir, speed=3)
+
+
+def test_the_yaml_config_loads_through_hydra():
+    from hydra import compose, initialize_config_dir
+
+    with initialize_config_dir(config_dir=str(REPO / "configs" / "train"), version_base=None):
+        cfg = compose("amortized", overrides=["run=runs/mappo/x"])
+    from omegaconf import OmegaConf
+
+    config = load_amortized_config(OmegaConf.to_container(cfg, resolve=True), source="amortized.yaml")
+    assert config.run == "runs/mappo/x" and config.scenario == "full_width_40"
+    assert set(config.budgets) <= {"cmaes", "random_search", "gradient"}
+    assert config.cmaes.popsize >= 2 and config.gradient.batch_size >= 1
+    assert not {0} & set(config.reference_seeds)  # held out from the default evaluation seed
+
+
+@pytest.mark.slow
+def test_script_smoke(run_dir, short_env, tmp_path):
+    env = {**os.environ, "MARLCRASH_CONFIGS": str(short_env)}
+    cmd = [sys.executable, str(REPO / "train" / "amortized.py"), f"run={run_dir}", "reference_seeds=[101]",
+           "iterations=1", "budgets={cmaes: [1]}", "cmaes.popsize=2", f"out_dir={tmp_path}"]  # fmt: skip
+    out = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=REPO, timeout=300)
+    assert out.returncode == 0, out.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(FILES)
+    bad = subprocess.run([*cmd[:2], f"run={tmp_path / 'nope'}"], capture_output=True, text=True, env=env, cwd=REPO,
+                         timeout=300)  # fmt: skip
+    assert bad.returncode == 2 and "key 'run'" in bad.stderr

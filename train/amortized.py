@@ -1,0 +1,39 @@
+"""Amortized calibration, measured (DESIGN 6): a trained policy vs optimizers from scratch on held-out twins.
+
+    python train/amortized.py run=runs/mappo/<name>
+    python train/amortized.py run=runs/mappo/<name> reference_seeds=[101,102,103,104] iterations=24
+    python train/amortized.py run=runs/mappo/<name> budgets='{cmaes: [1, 10, 100]}' out_dir=/tmp/cmp
+
+Writes ``amortized.csv``, ``amortized.md`` and ``amortized.json`` into the run folder (or ``out_dir``).
+"""
+
+from __future__ import annotations
+
+import json
+import shlex
+import sys
+from pathlib import Path
+
+import hydra
+from omegaconf import DictConfig, OmegaConf
+
+from marlcrash.calibrate.amortized import amortized_comparison, load_amortized_config, write_comparison
+from marlcrash.errors import MarlcrashError
+
+
+@hydra.main(version_base=None, config_path="../configs/train", config_name="amortized")
+def main(cfg: DictConfig) -> None:
+    command = "python train/amortized.py " + " ".join(shlex.quote(a) for a in sys.argv[1:])
+    try:
+        config = load_amortized_config(OmegaConf.to_container(cfg, resolve=True), source="configs/train/amortized.yaml")
+        comparison = amortized_comparison(config, progress=lambda msg: print(msg, flush=True))
+        paths = write_comparison(comparison, config.out_dir or config.run or ".", command=command.strip())
+    except MarlcrashError as e:
+        print(f"error: {e}", file=sys.stderr)
+        sys.exit(2)
+    print(Path(paths["amortized.md"]).read_text())
+    print(json.dumps({k: str(v) for k, v in paths.items()}))
+
+
+if __name__ == "__main__":
+    main()
