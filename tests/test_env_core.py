@@ -215,3 +215,10 @@ def test_bad_input_raises_clear_errors(cells):
         load_env_config("nope")
     with pytest.raises(ConfigError, match="granularity"):
         load_env_config(overrides={"granularity": "part"})
+
+
+def test_errors_found_while_building_name_the_yaml_file(cells):
+    """A bad agent split is found when the core is built; the message names the env YAML and the key."""
+    cfg = load_env_config("default", overrides={"agents.merge": {"front": ["nose_cone"]}})
+    with pytest.raises(ConfigError, match=r"default\.yaml.*unknown sub-assembly 'nose_cone'"):
+        CalibrationCore(cfg, batch_size=1, cells=cells)

@@ -129,7 +129,9 @@ def load_env_config(name_or_path: str | Path = "default", overrides: dict | None
         if not path.is_file():
             known = sorted(p.stem for p in (config_dir() / "env").glob("*.yaml"))
             raise ConfigError(f"unknown env config {str(name_or_path)!r}; registered: {known}", key="env")
-    return load_config(EnvConfig, path, overrides)
+    config = load_config(EnvConfig, path, overrides)
+    config._source = str(path)  # for errors found later, when the environment is built from it
+    return config
 
 
 @functools.lru_cache(maxsize=4)
@@ -162,6 +164,15 @@ class CalibrationCore:
         cells: CellModel | None = None,
         sim_config: SimConfig | None = None,
     ):
+        try:
+            self._build(config, batch_size, cells, sim_config)
+        except ConfigError as e:  # name the YAML file the bad key came from
+            source = getattr(config, "_source", None)
+            if e.path is None and source is not None:
+                raise ConfigError(e.reason, key=e.key, path=source) from None
+            raise
+
+    def _build(self, config: EnvConfig, batch_size: int, cells: CellModel | None, sim_config: SimConfig | None) -> None:
         if not isinstance(batch_size, int) or batch_size < 1:
             raise ConfigError(f"batch_size must be a positive integer, got {batch_size!r}", key="batch_size")
         self.config = cfg = config
