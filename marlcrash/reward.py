@@ -112,7 +112,8 @@ class WeightedSumParams:
 class RewardForm(ABC):
     """A reward form: ``score`` of one iteration's metrics, and the reward from two iterations.
 
-    Subclasses set ``name``, ``params_cls`` and implement :meth:`score` and :meth:`reward`.
+    Subclasses set ``name``, ``params_cls`` and implement :meth:`score`; the reward is the
+    improvement of the score (DESIGN 1.5) unless a form overrides :meth:`reward`.
     Metrics passed here are already combined over sensors (``[*batch]``).
     """
 
@@ -126,9 +127,10 @@ class RewardForm(ABC):
     def score(self, m: Metrics) -> torch.Tensor:
         """A quality of one iteration's fit, higher is better, ``[*batch]``."""
 
-    @abstractmethod
     def reward(self, m: Metrics, prev: Metrics | None) -> torch.Tensor:
-        """Reward ``[*batch]`` for reaching ``m`` from ``prev`` (``None`` at the first step: zero)."""
+        """Reward ``[*batch]`` for reaching ``m`` from ``prev``: ``score(m) - score(prev)`` (zero at the first step)."""
+        s = self.score(m)
+        return torch.zeros_like(s) if prev is None else s - self.score(prev)
 
 
 class PaperFactor(RewardForm):
@@ -143,11 +145,6 @@ class PaperFactor(RewardForm):
         lo = f.min_metric
         return paper_factor(m.area.clamp_min(lo), m.dfd.clamp_min(lo), m.rmse.clamp_min(lo), f.a, f.b, f.c)
 
-    def reward(self, m: Metrics, prev: Metrics | None) -> torch.Tensor:
-        """``F(t) - F(t-1)``; zero without a previous iteration."""
-        s = self.score(m)
-        return torch.zeros_like(s) if prev is None else s - self.score(prev)
-
 
 class LogRatio(RewardForm):
     """``r = log(S(t-1) / S(t))`` of the weighted, normalised metric sum ``S``."""
@@ -158,11 +155,6 @@ class LogRatio(RewardForm):
     def score(self, m: Metrics) -> torch.Tensor:
         """``-log(S + eps)``."""
         return -torch.log(self.params.weighted_sum(m) + self.params.eps)
-
-    def reward(self, m: Metrics, prev: Metrics | None) -> torch.Tensor:
-        """``log((S(t-1) + eps) / (S(t) + eps))``; zero without a previous iteration."""
-        s = self.score(m)
-        return torch.zeros_like(s) if prev is None else s - self.score(prev)
 
 
 class NegWeightedSum(RewardForm):

@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from marlcrash.vehicle import shapes
 from marlcrash.vehicle.materials import Material, complete_material
 from marlcrash.vehicle.model import COMPARTMENT, Part, VehicleModel, empty_float, empty_int
 
@@ -64,30 +65,8 @@ def box_shell(lo, hi, n=2):
 
 
 def hex_block(lo, hi, n=(2, 2, 2)):
-    """Solid brick block: ``(nodes, hexes [H, 8])`` in LS-DYNA node order."""
-    axes = [np.linspace(lo[a], hi[a], n[a] + 1) for a in range(3)]
-    X, Y, Z = np.meshgrid(*axes, indexing="ij")
-    nodes = np.column_stack([X.ravel(), Y.ravel(), Z.ravel()])
-    shape = (n[0] + 1, n[1] + 1, n[2] + 1)
-    i, j, k = (a.ravel() for a in np.meshgrid(*(np.arange(m) for m in n), indexing="ij"))
-
-    def idx(di, dj, dk):
-        return np.ravel_multi_index((i + di, j + dj, k + dk), shape)
-
-    hexes = np.stack(
-        [
-            idx(0, 0, 0),
-            idx(1, 0, 0),
-            idx(1, 1, 0),
-            idx(0, 1, 0),
-            idx(0, 0, 1),
-            idx(1, 0, 1),
-            idx(1, 1, 1),
-            idx(0, 1, 1),
-        ],
-        axis=1,
-    )
-    return nodes, hexes
+    """Solid brick block: ``(nodes, hexes [H, 8])`` in LS-DYNA node order, ``n`` elements per axis."""
+    return shapes.hex_block(lo, hi, counts=n)
 
 
 def _merge(meshes):

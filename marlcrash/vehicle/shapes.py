@@ -159,17 +159,22 @@ def closed_box(lo, hi, size: float) -> tuple[np.ndarray, np.ndarray]:
     return rect_tube(start, "x", ext[0], ext[1], ext[2], size, cap_start=True, cap_end=True)
 
 
-def hex_block(lo, hi, size: float) -> tuple[np.ndarray, np.ndarray]:
+def hex_block(lo, hi, size: float | None = None, counts=None) -> tuple[np.ndarray, np.ndarray]:
     """A structured block of 8-node hexahedra filling the box ``[lo, hi]``.
 
     Node order per hex is LS-DYNA's: bottom face ``n1..n4`` counter-clockwise seen from +z,
     top face ``n5..n8`` above them (positive Jacobian).
 
+    Args:
+        lo, hi: ``[3]`` box corners [m].
+        size: largest element edge [m]; or
+        counts: ``(nx, ny, nz)`` elements per axis.
+
     Returns:
         ``coords [N, 3]``, ``hexes [H, 8]``.
     """
     lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
-    n = [divisions(float(hi[k] - lo[k]), size) for k in range(3)]
+    n = [int(c) for c in counts] if counts is not None else [divisions(float(hi[k] - lo[k]), size) for k in range(3)]
     axes = [np.linspace(lo[k], hi[k], n[k] + 1) for k in range(3)]
     gx, gy, gz = np.meshgrid(*axes, indexing="ij")
     coords = np.stack([gx.ravel(), gy.ravel(), gz.ravel()], axis=1)
