@@ -50,9 +50,15 @@ L2_BYTES = 1 << 20
 _FASTMATH = {"nsz", "arcp", "contract", "reassoc", "afn"}  # no nnan/ninf: BIG and saturation tests use huge values
 
 
-def default_lanes(n_links: int, itemsize: int, mode: int) -> int:
+def n_prop(relief: bool) -> int:
+    """Link property fields the kernel reads: the relaxation factors only with springback relief."""
+    return N_PROP if relief else P_Q0
+
+
+def default_lanes(n_links: int, itemsize: int, mode: int, relief: bool = False) -> int:
     """Simulations per chunk: the widest power of two (<= 16) whose link data fits in L2."""
-    fields = N_PROP + 3 + (1 if mode else 0)  # properties + f_el, opening, yielded (+ f_prev for per-cell ledgers)
+    # properties + f_el, opening (+ yielded with relief) (+ f_prev for per-cell ledgers)
+    fields = n_prop(relief) + 2 + (1 if relief else 0) + (1 if mode else 0)
     lanes = 16
     while lanes > 4 and n_links * fields * lanes * itemsize > 0.8 * L2_BYTES:
         lanes //= 2
@@ -60,59 +66,66 @@ def default_lanes(n_links: int, itemsize: int, mode: int) -> int:
 
 
 @numba.njit(cache=True, fastmath=_FASTMATH, inline="always")
-def _relieve(P, ll, j, sat, f0, f_tr, f_ret, yd, cst):
-    """Springback relief of one link (see :mod:`marlcrash.sim.surrogate`): the force after it.
+def _link(P, ll, j, dd, sat, tr, gap, relief, f_el, o, yd, plastic, a, st_l, cst):
+    """One link update in lane ``j``: return-mapped force, plastic work, stored energy; returns f_tot.
 
-    A link that has yielded (``yd``, set here) and unloads (``|f_ret| < |f0|``, same sign) has its
-    force scaled by its relaxation factor ``q <= 1``; ``cst[6]`` is 1 when the relief is on, 0 when
-    off (then the result is ``f_ret`` exactly).
+    ``gap`` and ``relief`` are compile-time constants at every call site (the link loops are
+    specialised per link kind and per springback-relief setting, so neither costs a branch per lane).
+    Plain links are elastic-plastic with tension at ``tr`` times the crush strength; gap (contact)
+    links carry compression only once their opening ``o`` has closed. Springback relief (module doc of
+    :mod:`marlcrash.sim.surrogate`): a link that has yielded (``yd``) and unloads (``|f_ret| < |f0|``,
+    same sign) has its force scaled by its relaxation factor ``q <= 1``.
     """
-    zero = cst[1]
-    y = max(yd[ll, j], cst[6] if f_tr != f_ret else zero)
-    yd[ll, j] = y
-    q = P[ll, P_Q0, j] + sat * (P[ll, P_QD, j] - P[ll, P_Q0, j])
-    unload = y > zero and f_ret * f0 > zero and abs(f_ret) < abs(f0)
-    return f_ret * q if unload else f_ret
-
-
-@numba.njit(cache=True, fastmath=_FASTMATH, inline="always")
-def _plain(P, ll, j, dd, sat, tr, f_el, yd, plastic, a, st_l, cst):
-    """One plain link update in lane ``j``: return-mapped force, plastic work, stored energy; returns f_tot."""
     half, zero, big, inv_dt = cst[0], cst[1], cst[5], cst[3]
     yc = P[ll, P_YC, j]
     k = P[ll, P_K0, j] + sat * (P[ll, P_KD, j] - P[ll, P_K0, j])
     ik = P[ll, P_IK0, j] + sat * (P[ll, P_IKD, j] - P[ll, P_IK0, j])
-    yu = yc + sat * (big - yc)
-    yl = tr * yc + sat * (big - tr * yc)
+    yu = yc + sat * (big - yc) if yc > zero else zero  # zero-share links stay absent after saturation
     f0 = f_el[ll, j]
-    f_tr = f0 + k * dd
-    f_ret = min(max(f_tr, -yl), yu)
-    f_new = _relieve(P, ll, j, sat, f0, f_tr, f_ret, yd, cst)
+    if gap:
+        z = f0 * ik - o[ll, j] + dd
+        f_tr = k * max(z, zero)
+        o[ll, j] = max(-z, zero)
+        f_ret = min(f_tr, yu)
+        elastic = f_tr == f_ret and z > zero
+    else:
+        yl = tr * yc + sat * (big - tr * yc) if yc > zero else zero
+        f_tr = f0 + k * dd
+        f_ret = min(max(f_tr, -yl), yu)
+        elastic = f_tr == f_ret
+    f_new = f_ret
+    if relief:
+        y = max(yd[ll, j], cst[2] if f_tr != f_ret else zero)
+        yd[ll, j] = y
+        if y > zero and f_ret * f0 > zero and abs(f_ret) < abs(f0):
+            f_new = f_ret * (P[ll, P_Q0, j] + sat * (P[ll, P_QD, j] - P[ll, P_Q0, j]))
     plastic[a, j] += (f_ret * (f_tr - f_ret) + half * (f_ret * f_ret - f_new * f_new)) * ik
     f_el[ll, j] = f_new
     st_l[j] += half * f_new * f_new * ik
-    return f_new + (P[ll, P_DAMP, j] * dd * inv_dt if f_tr == f_ret else zero)
+    return f_new + (P[ll, P_DAMP, j] * dd * inv_dt if elastic else zero)
 
 
 @numba.njit(cache=True, fastmath=_FASTMATH, inline="always")
-def _gap(P, ll, j, dd, sat, f_el, o, yd, plastic, a, st_l, cst):
-    """One gap (contact) link update in lane ``j``; returns f_tot."""
-    half, zero, big, inv_dt = cst[0], cst[1], cst[5], cst[3]
-    yc = P[ll, P_YC, j]
-    k = P[ll, P_K0, j] + sat * (P[ll, P_KD, j] - P[ll, P_K0, j])
-    ik = P[ll, P_IK0, j] + sat * (P[ll, P_IKD, j] - P[ll, P_IK0, j])
-    yu = yc + sat * (big - yc)
-    f0 = f_el[ll, j]
-    z = f0 * ik - o[ll, j] + dd
-    zp = max(z, zero)
-    f_tr = k * zp
-    o[ll, j] = max(-z, zero)
-    f_ret = min(f_tr, yu)
-    f_new = _relieve(P, ll, j, sat, f0, f_tr, f_ret, yd, cst)
-    plastic[a, j] += (f_ret * (f_tr - f_ret) + half * (f_ret * f_ret - f_new * f_new)) * ik
-    f_el[ll, j] = f_new
-    st_l[j] += half * f_new * f_new * ik
-    return f_new + (P[ll, P_DAMP, j] * dd * inv_dt if (f_tr == f_ret and z > zero) else zero)
+def _links(P, lo, hi, gap, relief, ledger, src, dst, tratio, ds, satc, f_el, o, yd, plastic, st_l, fs, fd, h_out,
+           f_prev, step_in, cst):  # fmt: skip
+    """Update links ``lo .. hi-1`` (all of one kind) in every lane and scatter their forces to the nodes.
+
+    ``gap`` and ``relief`` are literal booleans at the call sites; ``ledger`` adds the per-link term of
+    the per-cell energies (``h_out``, needs ``f_prev``).
+    """
+    CH = ds.shape[1]
+    for ll in range(lo, hi):
+        a = src[ll]
+        c = dst[ll]
+        tr = tratio[ll]
+        for j in range(CH):
+            f_tot = _link(P, ll, j, ds[c, j] - ds[a, j], satc[a, j], tr, gap, relief, f_el, o, yd, plastic, a, st_l,
+                          cst)  # fmt: skip
+            fs[a, j] += f_tot
+            fd[c, j] += f_tot
+            if ledger:
+                h_out[a, j] += 0.5 * (float(f_prev[ll, j]) + float(f_tot)) * float(step_in[j] - ds[c, j])
+                f_prev[ll, j] = f_tot
 
 
 @numba.njit(cache=True, fastmath=_FASTMATH, parallel=True)
@@ -134,6 +147,7 @@ def _simulate(
     sub,
     n_out,
     mode,
+    relief,
     acc_o,
     vel_o,
     s_o,
@@ -151,7 +165,8 @@ def _simulate(
     """Advance all chunks; links ``0 .. n_plain-1`` are plain links, the rest gap (contact) links.
 
     Args:
-        lp: ``[C, L, N_PROP, lanes]`` link properties (dtype of the simulation).
+        lp: ``[C, L, nprop, lanes]`` link properties (dtype of the simulation; the relaxation factors only with
+            springback relief, see :func:`n_prop`).
         npr: ``[C, n, N_NODE, lanes]`` node properties (saturation energy, wall contact).
         speed: ``[C, lanes]`` impact speeds [m/s].
         src, dst, tratio, gap0: ``[L]`` link ends, tensile/compressive yield ratio, initial gap [m].
@@ -189,8 +204,8 @@ def _simulate(
         # link state [L, lanes]
         f_el = np.zeros((L, CH), lp.dtype)
         o = np.zeros((L, CH), lp.dtype)
-        yd = np.zeros((L, CH), lp.dtype)  # 1 once the link has yielded (springback relief)
-        f_prev = np.zeros((L, CH), lp.dtype)
+        yd = np.zeros((L if relief else 0, CH), lp.dtype)  # 1 once the link has yielded (springback relief)
+        f_prev = np.zeros((L if mode else 0, CH), lp.dtype)
         st_l = np.zeros(CH, lp.dtype)
         w_link = np.zeros(CH)
         pmax = np.zeros(CH)
@@ -230,39 +245,18 @@ def _simulate(
                     satc[i, j] = one if plastic[i, j] >= NP[i, W_ES, j] else zero
             for j in range(CH):
                 st_l[j] = zero
-            # plain links: elastic-plastic, tension at tratio * crush strength
-            for ll in range(n_plain):
-                a = src[ll]
-                c = dst[ll]
-                tr = tratio[ll]
-                if mode:
-                    for j in range(CH):
-                        f_tot = _plain(P, ll, j, ds[c, j] - ds[a, j], satc[a, j], tr, f_el, yd, plastic, a, st_l, cst)
-                        fs[a, j] += f_tot
-                        fd[c, j] += f_tot
-                        h_out[a, j] += 0.5 * (float(f_prev[ll, j]) + float(f_tot)) * float(step_in[j] - ds[c, j])
-                        f_prev[ll, j] = f_tot
-                else:
-                    for j in range(CH):
-                        f_tot = _plain(P, ll, j, ds[c, j] - ds[a, j], satc[a, j], tr, f_el, yd, plastic, a, st_l, cst)
-                        fs[a, j] += f_tot
-                        fd[c, j] += f_tot
-            # gap (contact) links: compression only once the gap has closed
-            for ll in range(n_plain, L):
-                a = src[ll]
-                c = dst[ll]
-                if mode:
-                    for j in range(CH):
-                        f_tot = _gap(P, ll, j, ds[c, j] - ds[a, j], satc[a, j], f_el, o, yd, plastic, a, st_l, cst)
-                        fs[a, j] += f_tot
-                        fd[c, j] += f_tot
-                        h_out[a, j] += 0.5 * (float(f_prev[ll, j]) + float(f_tot)) * float(step_in[j] - ds[c, j])
-                        f_prev[ll, j] = f_tot
-                else:
-                    for j in range(CH):
-                        f_tot = _gap(P, ll, j, ds[c, j] - ds[a, j], satc[a, j], f_el, o, yd, plastic, a, st_l, cst)
-                        fs[a, j] += f_tot
-                        fd[c, j] += f_tot
+            # plain links (elastic-plastic), then gap (contact) links; one specialised loop per kind
+            led = mode > 0
+            if relief:
+                _links(P, 0, n_plain, False, True, led, src, dst, tratio, ds, satc, f_el, o, yd, plastic, st_l, fs, fd,
+                       h_out, f_prev, step_in, cst)  # fmt: skip
+                _links(P, n_plain, L, True, True, led, src, dst, tratio, ds, satc, f_el, o, yd, plastic, st_l, fs, fd,
+                       h_out, f_prev, step_in, cst)  # fmt: skip
+            else:
+                _links(P, 0, n_plain, False, False, led, src, dst, tratio, ds, satc, f_el, o, yd, plastic, st_l, fs,
+                       fd, h_out, f_prev, step_in, cst)  # fmt: skip
+                _links(P, n_plain, L, True, False, led, src, dst, tratio, ds, satc, f_el, o, yd, plastic, st_l, fs,
+                       fd, h_out, f_prev, step_in, cst)  # fmt: skip
             for j in range(CH):
                 pmax[j] = 0.0
                 w_link[j] = 0.0
@@ -356,21 +350,30 @@ def run_numba(
         record_cells: ``none``, ``final`` or ``series``.
     """
     names, sidx = sensor_idx
-    B, n, L = props.k.shape[0], sim.n, sim.L
+    B, n = props.k.shape[0], sim.n
     npdt = np.float32 if sim.dtype == torch.float32 else np.float64
     tdt = torch.float32 if npdt is np.float32 else torch.float64
     mode = _MODES[record_cells]
-    lanes = min(default_lanes(L, np.dtype(npdt).itemsize, mode), B)
+    relief = bool(sim.config.springback_relief)
+    nprop = n_prop(relief)
+    # Links whose transmission share is zero in every row carry no force, before or after saturation
+    # (crush strength 0): leaving them out changes no number.
+    with torch.no_grad():
+        live = (props.yield_c.detach() != 0).any(dim=0).numpy()
+    order = sim.link_order[live[sim.link_order]]
+    L = len(order)
+    n_plain = int((~sim.is_gap.numpy()[order]).sum())
+    lanes = min(default_lanes(L, np.dtype(npdt).itemsize, mode, relief), B)
     n_chunks = -(-B // lanes)
     Bp = n_chunks * lanes
-    order = sim.link_order
 
     with torch.no_grad():
         k = props.k.detach()
         kd = props.k_dense.detach()
-        q, qd = props.relax.detach(), props.relax_dense.detach()
-        lp = torch.stack([props.yield_c.detach(), k, kd, 1.0 / k, 1.0 / kd, props.damping.detach(), q, qd], dim=1)
-        lp = lp[:, :, order].to(tdt)  # [B, N_PROP, L]
+        fields = [props.yield_c.detach(), k, kd, 1.0 / k, 1.0 / kd, props.damping.detach()]
+        if relief:
+            fields += [props.relax.detach(), props.relax_dense.detach()]
+        lp = torch.stack(fields, dim=1)[:, :, order].to(tdt)  # [B, nprop, L]
         e_s = props.e_s.detach().clamp(max=min(_HUGE, torch.finfo(props.e_s.dtype).max))
         npr = torch.stack([e_s, wall.k, wall.damping, wall.gap, wall.covered.to(e_s.dtype)], dim=1).to(tdt)
         sp = wall.speed.detach().to(tdt)
@@ -379,7 +382,7 @@ def run_numba(
             npr = torch.cat([npr, npr[-1:].expand(Bp - B, -1, -1)])
             sp = torch.cat([sp, sp[-1:].expand(Bp - B)])
         # [Bp, F, rows] -> [chunks, rows, F, lanes]
-        lp_a = np.ascontiguousarray(lp.reshape(n_chunks, lanes, N_PROP, L).permute(0, 3, 2, 1).numpy())
+        lp_a = np.ascontiguousarray(lp.reshape(n_chunks, lanes, nprop, L).permute(0, 3, 2, 1).numpy())
         np_a = np.ascontiguousarray(npr.reshape(n_chunks, lanes, N_NODE, n).permute(0, 3, 2, 1).numpy())
         sp_a = np.ascontiguousarray(sp.reshape(n_chunks, lanes).numpy())
 
@@ -392,8 +395,7 @@ def run_numba(
     plastic = z(n)
     dt = sim.dt
     t0 = time.perf_counter()
-    relief = 1.0 if sim.config.springback_relief else 0.0
-    cst = np.array([0.5, 0.0, 1.0, 1.0 / dt, dt, _BIG, relief], dtype=npdt)
+    cst = np.array([0.5, 0.0, 1.0, 1.0 / dt, dt, _BIG], dtype=npdt)
     _simulate(
         cst,
         lp_a,
@@ -401,7 +403,7 @@ def run_numba(
         sp_a,
         sim.src.numpy()[order],
         sim.dst.numpy()[order],
-        int(sim.n_plain),
+        n_plain,
         sim.tension_ratio_np[order].astype(npdt),
         sim.gap.to(torch.float64).numpy()[order].astype(npdt),
         sim.mass.to(torch.float64).numpy().astype(npdt),
@@ -412,6 +414,7 @@ def run_numba(
         sim.config.substeps,
         n_out,
         mode,
+        relief,
         acc,
         vel,
         s_o,

@@ -548,8 +548,10 @@ class Surrogate:
             dd = ds[:, dst] - ds[:, src]
             sat = (plastic >= props.e_s)[:, src]
             k = torch.where(sat, props.k_dense, props.k)
-            yc = torch.where(sat, torch.full_like(k, _BIG), props.yield_c)
-            yt = torch.where(sat & ~is_gap, torch.full_like(k, _BIG), props.yield_t)
+            # A link with a zero transmission share is absent: it stays at zero force after saturation too.
+            dense = sat & (props.yield_c > 0)
+            yc = torch.where(dense, torch.full_like(k, _BIG), props.yield_c)
+            yt = torch.where(dense & ~is_gap, torch.full_like(k, _BIG), props.yield_t)
             z = f_el / k - o + dd
             f_tr = k * torch.where(is_gap, z.clamp_min(0.0), z)
             o = torch.where(is_gap, (-z).clamp_min(0.0), zl)
