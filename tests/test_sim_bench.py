@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from marlcrash.sim.bench import run_benchmark
+from marlcrash.sim.bench import format_substep_study, run_benchmark, substep_study
 
 
 @pytest.mark.slow
@@ -17,7 +17,26 @@ def test_run_benchmark_small_batches_reports_consistent_ratios():
     for b, rate in res["sims_per_s_optimized"].items():
         assert rate > 0
         # link updates are rate x steps x links, measured from the same timing
-        assert res["link_updates_per_s"][b] == pytest.approx(rate * res["steps_per_sim"] * res["n_links_optimized"])
+        assert res["link_updates_per_s"][b] == pytest.approx(rate * res["steps_per_sim"] * res["n_links_live"])
         assert 0.0 <= res["overhead_share"][b] < 1.0
     assert res["roofline_ratio"] == pytest.approx(res["sims_per_s_optimized"]["4"] / res["roofline_sims_per_s"])
     assert res["sims_per_s_uniform_b64"] is None
+    assert 0 < res["n_links_live"] < res["n_links_optimized"]  # the default car has zero-share links
+
+
+@pytest.mark.slow
+def test_substep_study_grades_variants_and_names_the_fewest_passing_steps():
+    res = substep_study(variants=((1, False), (8, False)), batch=4)
+    one, eight = res["rows"]
+    assert (one["steps_per_sim"], eight["steps_per_sim"]) == (300, 2400)
+    # the configured 8 substeps pass every DESIGN 4 check (tests/test_sim_default_car.py grades the same cases)
+    assert eight["passed"] and eight["failed"] == []
+    # one 0.5 ms step per output sample: the stability cap softens the links, the stored elastic energy
+    # comes back as rebound far above the 5-20 % of rigid-wall tests
+    assert not one["passed"] and "full_width_40 rebound in [0.05, 0.2]" in one["failed"]
+    assert one["figures"]["rebound"] > 0.2
+    assert res["needed"] is eight
+    for r in res["rows"]:
+        assert r["sims_per_s"] > 0 and r["roofline_sims_per_s"] > 0
+    text = format_substep_study(res)
+    assert "fewest steps that pass every check: 2400" in text

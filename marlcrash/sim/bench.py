@@ -75,27 +75,37 @@ def _best(fn, repeats: int) -> float:
     return best
 
 
-def measure_roofline(sim: Surrogate, batch: int, n_steps: int, repeats: int = 1) -> float:
+def measure_roofline(sim: Surrogate, batch: int, n_steps: int, repeats: int = 1, n_links: int | None = None) -> float:
     """Roofline of this machine in complete simulations per second at ``batch`` (see module doc).
 
     Args:
-        sim: the surrogate whose link count, node count, dtype and chunk width are used.
+        sim: the surrogate whose node count, dtype, springback setting and link ends are used.
         batch: simulations ``B``.
         n_steps: explicit steps per simulation.
         repeats: timed runs (best is kept).
+        n_links: links streamed per step (default: all of ``sim``; the fast path streams only the links
+            with a non-zero transmission share, :func:`live_links`).
     """
     npdt = np.float32 if sim.dtype == torch.float32 else np.float64
-    lanes = min(kernels.default_lanes(sim.L, np.dtype(npdt).itemsize, 1), batch)
+    L = sim.L if n_links is None else int(n_links)
+    nprop = kernels.n_prop(bool(sim.config.springback_relief))
+    lanes = min(kernels.default_lanes(L, np.dtype(npdt).itemsize, 1, bool(sim.config.springback_relief)), batch)
     n_chunks = -(-batch // lanes)
     rng = np.random.default_rng(0)
-    lp = rng.uniform(1e3, 1e5, (n_chunks, sim.L, kernels.N_PROP, lanes)).astype(npdt)
+    lp = rng.uniform(1e3, 1e5, (n_chunks, L, nprop, lanes)).astype(npdt)
     lp[:, :, kernels.P_IK0] = 1.0 / lp[:, :, kernels.P_K0]
-    src = sim.src.numpy()[sim.link_order]
-    dst = sim.dst.numpy()[sim.link_order]
+    src = sim.src.numpy()[sim.link_order][:L]
+    dst = sim.dst.numpy()[sim.link_order][:L]
     cst = np.array([0.5, 0.0, 1.0, 1.0 / sim.dt, sim.dt, kernels._BIG], dtype=npdt)
     _roofline(lp[:1], src, dst, sim.n, 2, cst)  # compile or load the cache
     t = _best(lambda: _roofline(lp, src, dst, sim.n, n_steps, cst), repeats)
     return n_chunks * lanes / t
+
+
+def live_links(sim: Surrogate, params: torch.Tensor) -> int:
+    """Links the fast path streams for ``params [B, n, 7]``: those with a non-zero share in some row."""
+    with torch.no_grad():
+        return int((sim.link_props(sim.check_params(params)).yield_c != 0).any(dim=0).sum())
 
 
 def run_benchmark(
@@ -115,7 +125,8 @@ def run_benchmark(
     Returns:
         A JSON-serialisable dict: ``sims_per_s_optimized`` (keyed by ``str(B)``),
         ``sims_per_s_uniform_b64`` (or ``None``), ``n_cells_optimized``, ``n_cells_uniform``,
-        ``n_links_optimized``, ``steps_per_sim``, ``substeps``, ``dtype``, ``threads``,
+        ``n_links_optimized``, ``n_links_live`` (links with a non-zero share, the ones streamed),
+        ``steps_per_sim``, ``substeps``, ``dtype``, ``threads``,
         ``link_updates_per_s`` (keyed by ``str(B)``), ``overhead_share`` (keyed by ``str(B)``:
         share of wall time outside the compiled kernel), ``roofline_sims_per_s`` (at the largest
         ``B``), ``roofline_ratio`` (achieved / roofline at the largest ``B``), ``target_sims_per_s``
@@ -132,6 +143,7 @@ def run_benchmark(
     steps = (scenario.n_outputs - 1) * cfg.substeps
     base = torch.as_tensor(cells.params)[None]
     sim.run(base, scenario, backend="numba", record_cells="final")  # compile or load the cache
+    live = live_links(sim, base)
 
     rates: dict[str, float] = {}
     overhead: dict[str, float] = {}
@@ -148,10 +160,10 @@ def run_benchmark(
                 best, share = t, max(0.0, 1.0 - (kernels.KERNEL_SECONDS[0] - k0) / t)
         rates[str(B)] = B / best
         overhead[str(B)] = share
-        updates[str(B)] = B * steps * cells.n_links / best
+        updates[str(B)] = B * steps * live / best
 
     bmax = max(batch_sizes)
-    roof = measure_roofline(sim, bmax, steps, repeats=1)
+    roof = measure_roofline(sim, bmax, steps, repeats=1, n_links=live)
 
     uniform_rate, n_uniform = None, None
     if include_uniform:
@@ -170,6 +182,7 @@ def run_benchmark(
         "n_cells_optimized": cells.n_cells,
         "n_cells_uniform": n_uniform,
         "n_links_optimized": cells.n_links,
+        "n_links_live": live,
         "steps_per_sim": steps,
         "substeps": cfg.substeps,
         "dtype": cfg.dtype,
@@ -188,8 +201,9 @@ def run_benchmark(
 def format_benchmark(res: dict) -> str:
     """Render :func:`run_benchmark`'s result as the lines ``marlcrash bench`` prints."""
     lines = [
-        f"default car: {res['n_cells_optimized']} cells, {res['n_links_optimized']} links; {res['steps_per_sim']} "
-        f"steps per simulation ({res['substeps']} per output step), {res['dtype']}, {res['threads']} threads"
+        f"default car: {res['n_cells_optimized']} cells, {res['n_links_optimized']} links "
+        f"({res['n_links_live']} with a non-zero share); {res['steps_per_sim']} steps per simulation "
+        f"({res['substeps']} per output step), {res['dtype']}, {res['threads']} threads"
     ]
     for b, rate in res["sims_per_s_optimized"].items():
         lines.append(
@@ -203,4 +217,168 @@ def format_benchmark(res: dict) -> str:
         if res["optimized_over_uniform_b64"] is not None:
             lines.append(f"optimized / uniform at B=64: {res['optimized_over_uniform_b64']:.1f}x")
     lines.append(f"largest B vs the {res['target_sims_per_s']:.0f} sims/s target: {res['target_ratio']:.3f}x")
+    return "\n".join(lines)
+
+
+# ------------------------------------------------------------------------------------------ step count
+PLAUSIBILITY = {
+    "peak_g": (20.0, 45.0),
+    "crush_m": (0.35, 0.70),
+    "t_zero_ms": (50.0, 110.0),
+    "rebound": (0.05, 0.20),
+}
+"""DESIGN 4 ranges for the default car at 40 km/h, full width (as tested in ``tests/test_sim_default_car.py``)."""
+
+PARTIAL = ("offset40_left", "offset40_right", "small_overlap_left", "small_overlap_right")
+"""Partial-overlap scenarios that must give a lower peak and a longer pulse than full width at 40 km/h."""
+
+
+def plausibility_checks(sim: Surrogate, params: torch.Tensor | None = None) -> dict:
+    """Run the default-car plausibility cases of DESIGN 4 with ``sim`` and grade them.
+
+    One batch: full width at 40 km/h, the four partial-overlap scenarios at 40 km/h, and full width
+    at 56 km/h. Criteria (those of ``tests/test_sim_default_car.py``): :data:`PLAUSIBILITY` ranges at full
+    width 40 (tunnel CFC60 peak, maximum dynamic crush, time to zero velocity, rebound fraction);
+    every partial overlap a lower peak and a time to zero velocity at least 10 % longer; 56 km/h
+    at least 1.2x the crush of 40 km/h; up-front sensor peaks 10-150 g and earlier than the tunnel
+    peak; energy balance within 0.5 % at every output step.
+
+    Returns:
+        A JSON-ready dict: ``figures`` (scenario -> crash figures), ``checks`` (criterion -> bool) and
+        ``passed`` (all checks).
+    """
+    from marlcrash.pulse.simulation import crash_summary
+
+    kmh40 = {"speed_kmh": 40.0}
+    scs = [get_scenario("full_width_40")] + [get_scenario(n, kmh40) for n in PARTIAL] + [get_scenario("full_width_56")]
+    p = torch.as_tensor(sim.cells.params if params is None else params)
+    p = p.reshape(1, sim.n, -1).repeat(len(scs), 1, 1)
+    res = sim.run(
+        p,
+        speed=torch.tensor([s.speed for s in scs]),
+        overlap=torch.tensor([s.overlap for s in scs]),
+        side=torch.tensor([s.side_sign for s in scs]),
+        duration=scs[0].duration,
+        record_cells="final",
+        backend="numba",
+    )
+    figures = {}
+    for i, sc in enumerate(scs):
+        f = crash_summary(res, sim.cells, sc, row=i)
+        t0 = f["time_to_zero_velocity_ms"]
+        figures[f"{sc.name}@{sc.speed_kmh:g}"] = {
+            "peak_g": f["peak_decel_g"],
+            "t_peak_ms": f["t_peak_ms"],
+            "t_zero_ms": float("inf") if t0 is None else t0,
+            "crush_m": f["max_crush_m"],
+            "rebound": f["rebound_fraction"],
+            "balance": f["energy_balance_max_rel_error"],
+            "sensors": f["sensors"],
+        }
+    fw = figures["full_width_40@40"]
+    checks = {f"full_width_40 {k} in [{lo:g}, {hi:g}]": lo <= fw[k] <= hi for k, (lo, hi) in PLAUSIBILITY.items()}
+    for name in PARTIAL:
+        o = figures[f"{name}@40"]
+        checks[f"{name} softer and longer"] = o["peak_g"] < fw["peak_g"] and o["t_zero_ms"] > 1.1 * fw["t_zero_ms"]
+    checks["56 km/h crushes 1.2x more"] = figures["full_width_56@56"]["crush_m"] > 1.2 * fw["crush_m"]
+    sensors = fw["sensors"]
+    for name, s in sensors.items():
+        if name.startswith("upfront"):
+            checks[f"{name} peak 10-150 g, before the tunnel"] = (
+                10.0 <= s["peak_g"] <= 150.0 and s["t_peak_ms"] < sensors["tunnel"]["t_peak_ms"]
+            )
+    checks["energy balance < 0.5 %"] = max(f["balance"] for f in figures.values()) < 5e-3
+    return {"figures": figures, "checks": checks, "passed": all(checks.values())}
+
+
+def substep_study(
+    variants: tuple[tuple[int, bool], ...] = (
+        (1, False),
+        (1, True),
+        (2, False),
+        (2, True),
+        (4, False),
+        (4, True),
+        (8, False),
+    ),
+    batch: int = 256,
+    repeats: int = 1,
+) -> dict:
+    """How many explicit steps plausible physics needs, and what the machine allows at each count.
+
+    For every ``(substeps, springback_relief)`` variant it grades the DESIGN 4 plausibility cases
+    (:func:`plausibility_checks`), times the fast path at ``batch`` (``full_width_56``, per-cell energies
+    at the final step, as the environments run it) and measures the roofline (:func:`measure_roofline`,
+    same step count) in the same run. The smallest step count that passes every check bounds what
+    any kernel of this explicit scheme can reach: its roofline.
+
+    Returns:
+        A JSON-ready dict: ``rows`` (one per variant: ``substeps``, ``springback_relief``,
+        ``steps_per_sim``, ``passed``, ``failed`` (names of failed checks), ``figures`` (full width 40),
+        ``sims_per_s``, ``roofline_sims_per_s``), ``needed`` (the first passing row or ``None``),
+        ``target_sims_per_s``.
+    """
+    rows = []
+    scenario = get_scenario(SCENARIO)
+    for sub, relief in variants:
+        sim = Surrogate(
+            load_sim_cells(), load_sim_config(overrides={"substeps": int(sub), "springback_relief": bool(relief)})
+        )
+        grade = plausibility_checks(sim)
+        p = torch.as_tensor(sim.cells.params)[None].repeat(batch, 1, 1)
+        sim.run(p[:1], scenario, backend="numba", record_cells="final")  # compile or load the cache
+        t = _best(lambda: sim.run(p, scenario, backend="numba", record_cells="final"), repeats)  # noqa: B023
+        steps = (scenario.n_outputs - 1) * sim.config.substeps
+        roof = measure_roofline(sim, batch, steps, n_links=live_links(sim, p[:1]))
+        fw = grade["figures"]["full_width_40@40"]
+        rows.append(
+            {
+                "substeps": int(sub),
+                "springback_relief": bool(relief),
+                "steps_per_sim": steps,
+                "passed": grade["passed"],
+                "failed": [k for k, ok in grade["checks"].items() if not ok],
+                "figures": {k: fw[k] for k in ("peak_g", "crush_m", "t_zero_ms", "rebound")},
+                "sims_per_s": batch / t,
+                "roofline_sims_per_s": roof,
+            }
+        )
+    passing = [r for r in rows if r["passed"]]
+    needed = min(passing, key=lambda r: r["steps_per_sim"]) if passing else None
+    return {"batch": batch, "rows": rows, "needed": needed, "target_sims_per_s": 1000.0}
+
+
+def load_sim_cells():
+    """The default car's optimized CellModel (cached per process)."""
+    from marlcrash.envs.core import build_cells
+    from marlcrash.vehicle.registry import DEFAULT_VEHICLE
+
+    return build_cells(DEFAULT_VEHICLE, None, "optimized")
+
+
+def format_substep_study(res: dict) -> str:
+    """Render :func:`substep_study` as a table plus the conclusion."""
+    lines = [
+        f"{'substeps':>8} {'relief':>6} {'steps':>6} {'peak g':>7} {'crush m':>8} {'t0 ms':>6} {'rebound':>8} "
+        f"{'sims/s':>8} {'roofline':>9}  plausibility",
+    ]
+    for r in res["rows"]:
+        f = r["figures"]
+        verdict = "all checks pass" if r["passed"] else "fails: " + "; ".join(r["failed"])
+        lines.append(
+            f"{r['substeps']:>8} {('on' if r['springback_relief'] else 'off'):>6} {r['steps_per_sim']:>6} "
+            f"{f['peak_g']:>7.1f} {f['crush_m']:>8.3f} {f['t_zero_ms']:>6.1f} {f['rebound']:>8.3f} "
+            f"{r['sims_per_s']:>8.1f} {r['roofline_sims_per_s']:>9.1f}  {verdict}"
+        )
+    need = res["needed"]
+    if need is None:
+        lines.append("no variant passes every plausibility check")
+    else:
+        lines.append(
+            f"fewest steps that pass every check: {need['steps_per_sim']} ({need['substeps']} substeps); the "
+            f"roofline there is {need['roofline_sims_per_s']:.1f} sims/s = "
+            f"{need['roofline_sims_per_s'] / res['target_sims_per_s']:.3f}x the {res['target_sims_per_s']:.0f} sims/s "
+            f"target; the kernel reaches {need['sims_per_s'] / need['roofline_sims_per_s']:.2f} of it "
+            f"(B={res['batch']})"
+        )
     return "\n".join(lines)
