@@ -22,6 +22,12 @@ surrogate's sign convention (forward speed, starting at the impact speed). Three
 One :class:`ReferenceSampler` draws a reference per episode (:meth:`ReferenceSampler.sample`)
 from a :class:`ReferenceConfig`; the scenario distribution (names and weights) is
 passed in by the environment, except for ``file`` whose entries name their own scenario.
+
+Pinned reference (``pin_seed``, :meth:`ReferenceSampler.pinned`): every episode gets the same
+reference, the first draw of ``numpy.random.default_rng(pin_seed)`` -- exactly the draw that
+:func:`marlcrash.calibrate.problem.build_problem` makes for ``reference_seed = pin_seed`` when
+the scenario distribution is that problem's single scenario. Calibrating ONE reference, as the
+paper does, is then RL training on that reference.
 """
 
 from __future__ import annotations
@@ -104,9 +110,12 @@ class ReferenceConfig:
     cross_fidelity: CrossFidelityConfig = field(default_factory=CrossFidelityConfig)
     files: list[FileReference] = field(default_factory=list)
     compare_cfc: int | None = 60
+    pin_seed: int | None = None
 
     def validate(self) -> None:
         require(self.kind != "file" or bool(self.files), "files", "kind 'file' needs at least one entry in files")
+        require(self.pin_seed is None or self.pin_seed >= 0, "pin_seed",
+                f"expected a reference seed >= 0 or null, got {self.pin_seed}")  # fmt: skip
         require(
             self.compare_cfc in (None, 60, 180, 600, 1000),
             "compare_cfc",
@@ -140,6 +149,16 @@ class ReferenceBatch:
     true_params: torch.Tensor | None
     source: list[str]
     raw_velocity: torch.Tensor | None = None
+
+    def repeat(self, n: int) -> ReferenceBatch:
+        """The first row repeated ``n`` times (every tensor ``[n, ...]``; copies, not views)."""
+
+        def rows(t: torch.Tensor | None) -> torch.Tensor | None:
+            return None if t is None else t[:1].repeat(n, *([1] * (t.ndim - 1)))
+
+        return ReferenceBatch([self.scenario[0]] * n, rows(self.speed), rows(self.overlap), rows(self.side),
+                              rows(self.velocity), rows(self.acceleration), rows(self.true_params),
+                              [self.source[0]] * n, rows(self.raw_velocity))  # fmt: skip
 
 
 def perturb_twin(
@@ -245,6 +264,7 @@ class ReferenceSampler:
         self._fine: dict[int | None, tuple[CellModel, Surrogate]] = {}
         self._cache: dict[tuple[int | None, str], tuple[np.ndarray, np.ndarray]] = {}
         self._files = [self._load_file(i, f) for i, f in enumerate(config.files)] if config.kind == "file" else []
+        self._pinned: dict[int, ReferenceBatch] = {}
 
     @property
     def n_subassemblies(self) -> int:
@@ -286,6 +306,15 @@ class ReferenceSampler:
         if raw is not None:
             vel = self.compared(raw)
         return ReferenceBatch(names, speed, overlap, side, vel, acc, truth, source, raw)
+
+    def pinned(self, seed: int, n: int) -> ReferenceBatch:
+        """The pinned reference of ``seed`` for ``n`` episodes (module docstring); drawn once, then cached.
+
+        It is ``sample(numpy.random.default_rng(seed), 1)`` repeated ``n`` times; no other generator is used.
+        """
+        if seed not in self._pinned:
+            self._pinned[seed] = self.sample(np.random.default_rng(seed), 1)
+        return self._pinned[seed].repeat(n)
 
     def compared(self, velocity: torch.Tensor) -> torch.Tensor:
         """Simulated ``[..., T]`` velocity as it is compared: integral of the CFC-filtered acceleration."""

@@ -28,6 +28,9 @@ The pieces, each a small function, in the order a training iteration uses them:
 Budget accounting is the baselines' (:mod:`marlcrash.calibrate.budget`): every simulated
 candidate parameter set costs one simulation -- one per environment step and one per episode
 reset (the initial parameters' simulation); the reference pulses themselves are not charged.
+:class:`ProgressHook` keeps the baselines' best-so-far record (:class:`~marlcrash.calibrate.budget.Progress`)
+of a training run from the candidates the environment simulates anyway (no second simulation,
+no change to the training numbers): the calibrated result of RL training on one pinned reference.
 """
 
 from __future__ import annotations
@@ -36,6 +39,7 @@ import dataclasses
 import math
 import os
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -52,6 +56,7 @@ from torchrl.modules import MLP, MultiAgentMLP, ProbabilisticActor, TanhNormal
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
+from marlcrash.calibrate.budget import Progress
 from marlcrash.calibrate.checkpoint import CHECKPOINT_FILE, load_checkpoint, restore_rng, rng_state, save_checkpoint
 from marlcrash.calibrate.logging import LOGGERS, CSVLogger, make_logger
 from marlcrash.calibrate.problem import SuccessConfig
@@ -59,6 +64,7 @@ from marlcrash.config import config_dir, from_dict, load_config, require
 from marlcrash.envs.core import EnvConfig, load_env_config
 from marlcrash.envs.torchrl_env import GROUP, CalibrationTorchEnv
 from marlcrash.errors import ConfigError
+from marlcrash.metrics import Metrics
 
 ALGORITHMS: tuple[str, ...] = ("mappo", "ippo", "ppo_single")
 """Registered algorithms; each has ``configs/train/algorithm/<name>.yaml``."""
@@ -337,6 +343,61 @@ def env_dims(env: EnvBase) -> tuple[int, int, int, int]:
     obs = env.observation_spec[GROUP, "observation"].shape
     act = env.action_spec[GROUP, "action"].shape
     return int(obs[-2]), int(obs[-1]), int(act[-1]), int(env.observation_spec["state"].shape[-1])
+
+
+# ------------------------------------------------------------------------------------ best so far
+class ProgressHook:
+    """Best-so-far record of a training run in the baselines' terms, from what the env simulated anyway.
+
+    Attach it with :meth:`attach`: the core calls it after every simulation (episode resets and
+    env steps, in simulation order, rows in batch order) with the simulated cell parameters
+    ``[n, n_cells, 7]`` and their per-sensor metrics ``[n, K]``; it ranks them with ``score``
+    and tests them with ``success`` (e.g. :meth:`CalibrationProblem.score
+    <marlcrash.calibrate.problem.CalibrationProblem.score>` and ``.success``) and records them in
+    ``progress``. Candidates beyond the progress's budget are counted in :attr:`seen` but not
+    recorded, so the record is that of a run stopped exactly at its budget. The best "candidate"
+    (``progress.best_x``) is a cell-parameter set ``[n_cells, 7]``: an agent's cells need not move
+    together (saturation damping, bounds), so it is not a point of the problem's search space.
+
+    Args:
+        progress: budget and best-so-far record.
+        score: ``[N]`` fit scores (higher is better) of metrics ``[N, K]``.
+        success: ``[N]`` bool success test of metrics ``[N, K]``.
+
+    Attributes:
+        seen: simulations reported by the core since :meth:`attach` (equals the trainer's count).
+    """
+
+    def __init__(
+        self,
+        progress: Progress,
+        score: Callable[[Metrics], torch.Tensor],
+        success: Callable[[Metrics], torch.Tensor],
+    ):
+        self.progress, self.score, self.success = progress, score, success
+        self.seen = 0
+        self._core: Any = None
+
+    def __call__(self, params: torch.Tensor, metrics: Metrics) -> None:
+        n_all = int(params.shape[0])
+        self.seen += n_all
+        n = self.progress.grant(n_all)
+        if n == 0:
+            return
+        m = Metrics(*(t[:n] for t in metrics))
+        self.progress.record(params[:n], m, self.score(m), self.success(m))
+
+    def attach(self, env: EnvBase) -> ProgressHook:
+        """Register with the env's core (``env.core``, also through :class:`JointActionEnv`); returns ``self``."""
+        self._core = env.core
+        self._core.simulation_hooks.append(self)
+        return self
+
+    def detach(self) -> None:
+        """Unregister from the core it was attached to."""
+        if self._core is not None and self in self._core.simulation_hooks:
+            self._core.simulation_hooks.remove(self)
+        self._core = None
 
 
 # ---------------------------------------------------------------------------------------- networks

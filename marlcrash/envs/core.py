@@ -11,6 +11,10 @@ Episode (per environment row):
   (:class:`~marlcrash.references.ReferenceSampler`), resets the parameters to the
   model's initial ones, fixes the active agents by the impact-region rule
   (:mod:`marlcrash.envs.masking`) and simulates once for the first observation.
+  With ``reference.pin_seed`` set, every episode gets the same reference
+  (:meth:`~marlcrash.references.ReferenceSampler.pinned`: the one
+  :func:`~marlcrash.calibrate.problem.build_problem` builds for ``reference_seed = pin_seed``
+  when ``scenarios`` is that problem's single scenario); the core's generator is not used for it.
 - :meth:`CalibrationCore.step` maps actions ``[B, n_agents, act_dim]`` in ``[-1, 1]`` to
   per-cell log increments (``* max_step``; zero for inactive agents; behaviour changes
   of saturated cells damped when the saturation preference is on), applies them
@@ -38,12 +42,18 @@ Observation per agent, ``[B, n_agents, obs_dim]`` float32, concatenated:
 
 Global state ``[B, state_dim]``: the state vector, every agent's 7 mean log-ratios and
 its mean absorbed-energy fraction.
+
+Observers (:attr:`CalibrationCore.simulation_hooks`): callables ``hook(params, metrics)`` told
+about every simulated candidate right after its simulation, in simulation order -- ``params
+[n, n_cells, 7]`` and its per-sensor ``metrics [n, K]`` (e.g. best-so-far bookkeeping of a
+calibration run, :class:`marlcrash.calibrate.marl.ProgressHook`). They get copies and change nothing.
 """
 
 from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -244,6 +254,7 @@ class CalibrationCore:
         self.scenario: list[str] = [""] * B
         self.true_params: torch.Tensor | None = None
         self.rng = np.random.default_rng(cfg.seed)
+        self.simulation_hooks: list[Callable[[torch.Tensor, Metrics], None]] = []
 
     # ------------------------------------------------------------------------------------ seeding
     def seed(self, seed: int | None) -> None:
@@ -266,6 +277,8 @@ class CalibrationCore:
         m = compute_metrics(
             est, ref, dt=self.dt, config=self.reward_fn.cfg.metrics, backend=self.config.metrics_backend
         )
+        for hook in self.simulation_hooks:
+            hook(self.params[rows].clone(), Metrics(*(t.clone() for t in m)))
         return m
 
     # -------------------------------------------------------------------------------------- reset
@@ -273,7 +286,8 @@ class CalibrationCore:
         """Start new episodes in the rows of ``mask`` (``[B]`` bool; all rows if ``None``).
 
         Draws scenario and reference per row with the core's generator (re-seeded first when
-        ``seed`` is given), resets parameters, fixes the active agents and simulates once.
+        ``seed`` is given; with ``reference.pin_seed`` every row gets the pinned reference instead),
+        resets parameters, fixes the active agents and simulates once.
         """
         if seed is not None:
             self.seed(seed)
@@ -286,7 +300,9 @@ class CalibrationCore:
             rows = torch.nonzero(mask).flatten()
         if rows.numel() == 0:
             return
-        ref = self.sampler.sample(self.rng, int(rows.numel()))
+        pin = self.config.reference.pin_seed
+        n = int(rows.numel())
+        ref = self.sampler.sample(self.rng, n) if pin is None else self.sampler.pinned(pin, n)
         for i, r in enumerate(rows.tolist()):  # scenario names: per-row Python strings
             self.scenario[r] = ref.scenario[i]
         self.speed[rows], self.overlap[rows], self.side[rows] = ref.speed, ref.overlap, ref.side

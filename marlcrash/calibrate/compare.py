@@ -1,0 +1,665 @@
+"""The results table of issue 5: MAPPO, IPPO, single-agent PPO, random search, CMA-ES, gradient descent (DESIGN 6).
+
+Protocol (the paper's: calibration of ONE reference per run):
+
+- References: the twin of ``scenario`` (default ``full_width_40``) with reference seed ``s`` for every
+  ``s`` in ``seeds`` (default 0, 1, 2); a method's own random seed is the same ``s``. The optimizers
+  get it from :func:`~marlcrash.calibrate.problem.build_problem` (``reference_seed = s``); the PPO
+  methods train on an environment pinned to it (``reference.pin_seed = s``, scenario distribution
+  ``{scenario: 1}``: :meth:`~marlcrash.references.ReferenceSampler.pinned`), and the two reference
+  pulses are checked to be bit-identical before a PPO run starts.
+- RL calibration is training on that reference: every episode starts from the initial parameters
+  and its candidates are simulated by the environment; the calibrated result of a PPO run is the
+  best candidate any of its simulations produced (:class:`~marlcrash.calibrate.marl.ProgressHook`),
+  as for the optimizers (their best candidate, :class:`~marlcrash.calibrate.budget.Progress`).
+- Budget: ``budget`` simulations per run, every simulated candidate counts one. PPO: one per env
+  step of one episode and one per episode reset (the initial parameters' simulation), as
+  ``Trainer.simulations`` counts; training stops before an iteration whose nominal cost
+  ``n_envs * (episode_length + 1)`` exceeds what is left (the learning-rate and entropy schedules
+  span ``budget // cost`` iterations); candidates of rare extra in-place resets beyond the budget are
+  not counted for the result. Optimizers stop exactly at the budget.
+- Wall cap: a run stops before a batch (an optimizer batch, a PPO iteration) that would end after
+  ``max_wall_s``, judged by the previous batch's duration; such a run is kept, with the simulations
+  it used and ``stop = wall_cap`` ("stopped by wall cap" in the table). Gradient descent through the
+  torch simulator (~4 s per simulation at 150 ms) is the method that hits it.
+- Success: the paper's thresholds (:class:`~marlcrash.calibrate.problem.SuccessConfig`: every sensor
+  A < 0.0015 m, DFD < 0.335 m/s, RMSE < 0.1511 m/s), the same test for all methods;
+  ``sims_to_success``: the simulation count at which a candidate first passed it.
+- Ranking: the fit score of the env's reward form (``CalibrationProblem.score``, higher is better)
+  for every method; the winner of a reference is the method whose best candidate scores highest.
+
+:func:`run_comparison` runs methods x seeds, each run independent; after every finished run it
+rewrites ``compare.json`` (config, rows, per-sensor metrics and best-so-far histories),
+``compare.csv`` (:data:`COLUMNS`, one row per method and seed) and ``compare.md`` (per method: mean
+± std over seeds, passed k/n, median sims to success; per reference: the winner) atomically, so a
+crash or kill loses nothing finished, and ``resume`` skips finished method/seed pairs.
+"""
+
+from __future__ import annotations
+
+import copy
+import csv
+import io
+import json
+import math
+import shutil
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from marlcrash.calibrate.amortized import _atomic_write, _fmt, _mean_param_error
+from marlcrash.calibrate.baselines import BASELINES, CMAESConfig, GradientConfig, RandomSearchConfig
+from marlcrash.calibrate.budget import Progress
+from marlcrash.calibrate.evaluate import param_errors
+from marlcrash.calibrate.marl import (
+    ALGORITHMS,
+    AlgorithmConfig,
+    ProgressHook,
+    TrainConfig,
+    build_trainer,
+    train_iteration,
+)
+from marlcrash.calibrate.problem import CalibrationProblem, ProblemConfig, SmoothLoss, SuccessConfig, build_problem
+from marlcrash.config import from_dict, require
+from marlcrash.envs.core import load_env_config
+from marlcrash.errors import ConfigError
+from marlcrash.metrics import Metrics
+
+METHODS: tuple[str, ...] = (*ALGORITHMS, *BASELINES)
+"""Comparable methods: the PPO variants (:data:`~marlcrash.calibrate.marl.ALGORITHMS`) and the optimizers."""
+
+FILES = ("compare.json", "compare.csv", "compare.md")
+"""What :func:`write_results` writes into the run folder."""
+
+COLUMNS = (
+    "method", "seed", "budget", "simulations", "stop", "area_mean", "area_worst", "dfd_mean", "dfd_worst",
+    "rmse_mean", "rmse_worst", "score", "initial_score", "passed", "sims_to_success", "param_error",
+    "initial_param_error", "wall_time_s", "iterations", "env_steps", "trained_simulations",
+)  # fmt: skip
+"""Columns of ``compare.csv``, in order (empty field: not applicable or never reached)."""
+
+_PROTECTED_PPO_KEYS = ("scenarios", "reference", "seed", "termination.max_iterations")
+"""Env keys the protocol sets for the PPO runs (a ``ppo.env_overrides`` entry may not change them)."""
+
+
+# ------------------------------------------------------------------------------------------- config
+@dataclass
+class PPOBudgetConfig:
+    """How the PPO methods spend the budget; values in ``configs/train/compare.yaml`` (``ppo:``).
+
+    Attributes:
+        n_envs: parallel episodes per iteration.
+        episode_length: calibration steps per episode.
+        threads: torch intra-op threads during a PPO run (0: keep torch's setting).
+        env_overrides: env overrides of the PPO runs only (observation scales, ``max_step``), on top of
+            the comparison's ``env_overrides``.
+    """
+
+    n_envs: int = 8
+    episode_length: int = 8
+    threads: int = 0
+    env_overrides: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def iteration_cost(self) -> int:
+        """Nominal simulations of one iteration: ``n_envs`` resets plus ``n_envs * episode_length`` steps."""
+        return self.n_envs * (self.episode_length + 1)
+
+    def validate(self) -> None:
+        require(self.n_envs >= 1, "n_envs", f"expected >= 1 parallel episodes, got {self.n_envs}")
+        require(self.episode_length >= 1, "episode_length", f"expected >= 1 steps, got {self.episode_length}")
+        require(self.threads >= 0, "threads", f"expected >= 0 (0: torch's setting), got {self.threads}")
+        for k in self.env_overrides:
+            for p in _PROTECTED_PPO_KEYS:
+                require(not (k == p or k.startswith(p + ".")), f"env_overrides.{k}",
+                        f"the protocol sets {p} for the pinned PPO runs; put shared env settings in the "
+                        "top-level env_overrides")  # fmt: skip
+
+
+@dataclass
+class CompareConfig:
+    """One comparison; values and their meaning in ``configs/train/compare.yaml``."""
+
+    methods: list[str] = field(default_factory=lambda: list(METHODS))
+    seeds: list[int] = field(default_factory=lambda: [0, 1, 2])
+    budget: int = 2000
+    max_wall_s: float | None = 300.0
+    scenario: str = "full_width_40"
+    env: str = "default"
+    env_overrides: dict[str, Any] = field(default_factory=dict)
+    box_radius: float = 1.0
+    masking: bool = True
+    success: SuccessConfig = field(default_factory=SuccessConfig)
+    out_dir: str = "runs"
+    name: str = "compare"
+    resume: bool = False
+    ppo: PPOBudgetConfig = field(default_factory=PPOBudgetConfig)
+    mappo: AlgorithmConfig = field(default_factory=lambda: AlgorithmConfig(name="mappo"))
+    ippo: AlgorithmConfig = field(default_factory=lambda: AlgorithmConfig(name="ippo", centralised_critic=False))
+    ppo_single: AlgorithmConfig = field(default_factory=lambda: AlgorithmConfig(name="ppo_single"))
+    random_search: RandomSearchConfig = field(default_factory=RandomSearchConfig)
+    cmaes: CMAESConfig = field(default_factory=CMAESConfig)
+    gradient: GradientConfig = field(default_factory=GradientConfig)
+
+    def validate(self) -> None:
+        require(len(self.methods) >= 1, "methods", f"expected at least one of {list(METHODS)}")
+        for i, m in enumerate(self.methods):
+            require(m in METHODS, f"methods[{i}]", f"unknown method {m!r}; expected one of {list(METHODS)}")
+        require(len(set(self.methods)) == len(self.methods), "methods",
+                f"expected distinct methods, got {self.methods}")  # fmt: skip
+        require(len(self.seeds) >= 1, "seeds", "expected at least one reference seed, e.g. [0, 1, 2]")
+        for i, s in enumerate(self.seeds):
+            require(s >= 0, f"seeds[{i}]", f"expected a seed >= 0, got {s}")
+        require(len(set(self.seeds)) == len(self.seeds), "seeds", f"expected distinct seeds, got {self.seeds}")
+        require(self.budget >= 1, "budget", f"expected a simulation budget >= 1, got {self.budget}")
+        require(self.max_wall_s is None or (math.isfinite(self.max_wall_s) and self.max_wall_s > 0), "max_wall_s",
+                f"expected a wall-time cap > 0 s per run or null, got {self.max_wall_s}")  # fmt: skip
+        require(np.isfinite(self.box_radius) and 0 < self.box_radius <= 5.0, "box_radius",
+                f"expected a log-scale half-width in (0, 5], got {self.box_radius}")  # fmt: skip
+        require(bool(self.name) and "/" not in self.name and self.name not in (".", ".."), "name",
+                f"expected a run folder name without '/', got {self.name!r}")  # fmt: skip
+        require(bool(self.out_dir), "out_dir", "expected an output folder")
+        ppo = [m for m in self.methods if m in ALGORITHMS]
+        for m in ppo:
+            algo: AlgorithmConfig = getattr(self, m)
+            require(algo.name == m, f"{m}.name", f"expected the {m} settings (name {m!r}), got name {algo.name!r}")
+            frames = self.ppo.n_envs * self.ppo.episode_length
+            require(frames % algo.minibatch_size == 0, f"{m}.minibatch_size",
+                    f"expected a divisor of ppo.n_envs * ppo.episode_length = {frames} env steps, "
+                    f"got {algo.minibatch_size}")  # fmt: skip
+        if ppo:
+            cost = self.ppo.iteration_cost
+            require(self.budget >= cost, "budget",
+                    f"the PPO methods {ppo} need at least one iteration of ppo.n_envs * (ppo.episode_length + 1) = "
+                    f"{cost} simulations, got a budget of {self.budget}")  # fmt: skip
+
+    @property
+    def run_dir(self) -> Path:
+        """``<out_dir>/compare/<name>/``."""
+        return Path(self.out_dir) / "compare" / self.name
+
+
+def load_compare_config(data: dict[str, Any], source: str | None = None) -> CompareConfig:
+    """Validate a comparison config mapping (e.g. Hydra's, without its ``hydra`` node).
+
+    Also loads the env config with ``env_overrides`` (and the PPO ones), so a bad env key fails here.
+
+    Raises:
+        ConfigError: unknown key, wrong type or bad value, naming the dotted key -- before any run.
+    """
+    data = {k: v for k, v in data.items() if k != "hydra"}
+    config = from_dict(CompareConfig, data, path=source)
+    for key, over in (("env_overrides", config.env_overrides),
+                      ("ppo.env_overrides", {**config.env_overrides, **config.ppo.env_overrides})):  # fmt: skip
+        try:
+            load_env_config(config.env, over)
+        except ConfigError as e:
+            raise ConfigError(e.reason, key=f"{key}.{e.key}" if e.key else key, path=source) from None
+    return config
+
+
+# ------------------------------------------------------------------------------------------ problem
+def problem_config(config: CompareConfig, seed: int) -> ProblemConfig:
+    """The optimizers' problem of reference ``seed``: twin of ``scenario``, ranked by the env's reward form."""
+    env = load_env_config(config.env, config.env_overrides)
+    return ProblemConfig(env=config.env, env_overrides=dict(config.env_overrides), scenario=config.scenario,
+                         reference="twin", reference_seed=seed, box_radius=config.box_radius,
+                         masking=config.masking, fit=env.reward, success=copy.deepcopy(config.success),
+                         metrics_backend=env.metrics_backend)  # fmt: skip
+
+
+def evaluate_params(problem: CalibrationProblem, params: torch.Tensor) -> Metrics:
+    """Per-sensor metrics ``[N, K]`` of cell parameters ``[N, n_cells, 7]`` on the problem's reference.
+
+    One no-grad simulation on the problem's backend, not charged to its simulation count (for
+    checking and reporting a candidate found by a PPO run, whose parameters are cell parameters).
+    """
+    p = params.to(torch.float64)
+    n = p.shape[0]
+    with torch.no_grad():
+        res = problem.sim.run(p, speed=problem.speed.expand(n), overlap=problem.overlap.expand(n),
+                              side=problem.side.expand(n), duration=problem.duration, sensors=problem.sensors,
+                              record_cells="none", backend=problem.sim_backend)  # fmt: skip
+    return problem.metrics(res.velocity)
+
+
+# ------------------------------------------------------------------------------------------- runs
+class _WallCap(Exception):
+    """Raised inside an optimizer to stop it before a batch that would end after the wall cap."""
+
+
+class _Recorder:
+    """A :class:`CalibrationProblem` as an optimizer sees it, with a wall clock and its own record.
+
+    Every batch the optimizer evaluates (``evaluate``, or ``loss`` for gradient descent) is recorded
+    into ``progress`` exactly as the optimizer records it; before a batch that would end after
+    ``max_wall_s`` (judged by the time since the previous batch started: forward, backward and
+    optimizer step) it raises :class:`_WallCap`, so a stopped run's record survives it.
+    """
+
+    def __init__(self, problem: CalibrationProblem, progress: Progress, max_wall_s: float | None):
+        self._problem, self.progress, self.max_wall_s = problem, progress, max_wall_s
+        self._last_start: float | None = None
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._problem, name)
+
+    def _gate(self) -> None:
+        now = time.perf_counter()
+        last = self._last_start
+        if self.max_wall_s is not None and last is not None and self.progress.wall_time + now - last > self.max_wall_s:
+            raise _WallCap
+        self._last_start = now
+
+    def _record(self, x: torch.Tensor, m: Metrics) -> None:
+        p = self._problem
+        self.progress.record(x.detach(), m, p.score(m), p.success(m))
+
+    def evaluate(self, x: torch.Tensor | np.ndarray) -> Metrics:
+        self._gate()
+        m = self._problem.evaluate(x)
+        self._record(self._problem.check_x(x), m)
+        return m
+
+    def loss(self, x: torch.Tensor, weights: SmoothLoss) -> tuple[torch.Tensor, Metrics]:
+        self._gate()
+        loss, m = self._problem.loss(x, weights)
+        self._record(x, m)
+        return loss, m
+
+
+@dataclass
+class RunOutcome:
+    """One method on one reference: its best-so-far record and what it cost.
+
+    Attributes:
+        method, seed: the run.
+        progress: budget and best-so-far record (``best_x``: ``[n_agents, 7]`` for optimizers).
+        best_params: ``[n_cells, 7]`` cell parameters of the best candidate.
+        stop: ``budget`` (spent, or the next batch would not fit) or ``wall_cap``.
+        wall_time_s: [s].
+        extra: PPO counters (``iterations``, ``env_steps``, ``trained_simulations``).
+    """
+
+    method: str
+    seed: int
+    progress: Progress
+    best_params: torch.Tensor
+    stop: str
+    wall_time_s: float
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+def run_optimizer(config: CompareConfig, method: str, seed: int, problem: CalibrationProblem) -> RunOutcome:
+    """One optimizer run (``random_search``, ``cmaes``, ``gradient``) with the wall cap."""
+    t0 = time.perf_counter()
+    rec = _Recorder(problem, Progress(config.budget), config.max_wall_s)
+    _, fn = BASELINES[method]
+    stop = "budget"
+    try:
+        result = fn(rec, config.budget, getattr(config, method), seed, False)
+    except _WallCap:
+        stop = "wall_cap"
+    else:  # the recorder saw exactly what the optimizer recorded
+        if result.simulations != rec.progress.used or result.best_score != rec.progress.best_score:
+            raise RuntimeError(f"{method}: the record ({rec.progress.used} simulations, best "
+                               f"{rec.progress.best_score}) disagrees with the optimizer's ({result.simulations}, "
+                               f"{result.best_score})")  # fmt: skip
+    prog = rec.progress
+    best = problem.params(prog.best_x[None])[0].detach()
+    return RunOutcome(method, seed, prog, best, stop, time.perf_counter() - t0)
+
+
+def ppo_train_config(config: CompareConfig, method: str, seed: int, run_root: Path) -> TrainConfig:
+    """The training config of a PPO method on pinned reference ``seed`` (module docstring)."""
+    over = {**config.env_overrides, **config.ppo.env_overrides, "scenarios": {config.scenario: 1.0},
+            "reference.kind": "twin", "reference.pin_seed": seed}  # fmt: skip
+    p = config.ppo
+    tc = TrainConfig(
+        algorithm=copy.deepcopy(getattr(config, method)), env=config.env, env_overrides=over, n_envs=p.n_envs,
+        episode_length=p.episode_length, iterations=max(1, config.budget // p.iteration_cost), time_limit_s=None,
+        seed=seed, threads=p.threads, logger="csv", checkpoint_every=1, progress_bar=False,
+        out_dir=str(run_root / "ppo"), name=f"seed{seed}",
+    )  # fmt: skip
+    tc.validate()
+    tc.algorithm.validate()
+    return tc
+
+
+def run_ppo(config: CompareConfig, method: str, seed: int, problem: CalibrationProblem, run_root: Path) -> RunOutcome:
+    """One PPO run: training on the pinned reference, best candidate of all its simulations.
+
+    Its training log goes to ``<run folder>/ppo/<method>/seed<s>/log.csv`` (replaced if a killed
+    run left one).
+
+    Raises:
+        ConfigError: the pinned env's reference differs from the problem's (settings that change the
+            reference in ``ppo.env_overrides``).
+    """
+    t0 = time.perf_counter()
+    tc = ppo_train_config(config, method, seed, run_root)
+    log_dir = run_root / "ppo" / method / f"seed{seed}"
+    shutil.rmtree(log_dir, ignore_errors=True)
+    threads = torch.get_num_threads()
+    tr = build_trainer(tc, log_dir)
+    pinned = tr.env.core.sampler.pinned(seed, 1)  # what every reset of the run uses (drawn once, cached)
+    if not torch.equal(pinned.velocity[0], problem.ref_velocity):
+        torch.set_num_threads(threads)
+        tr.logger.close()
+        raise ConfigError(f"the pinned env of {method} and the optimizers' problem drew different references "
+                          f"for seed {seed}", key="ppo.env_overrides")  # fmt: skip
+    progress = Progress(config.budget)
+    hook = ProgressHook(progress, problem.score, problem.success).attach(tr.env)
+    cost = config.ppo.iteration_cost
+    stop, last_dt = "budget", 0.0
+    try:
+        while tr.iteration < tc.iterations and progress.remaining >= cost:
+            elapsed = time.perf_counter() - t0
+            if config.max_wall_s is not None and tr.iteration > 0 and elapsed + last_dt > config.max_wall_s:
+                stop = "wall_cap"
+                break
+            t_it = time.perf_counter()
+            tr.logger.log(train_iteration(tr))
+            last_dt = time.perf_counter() - t_it
+    finally:
+        hook.detach()
+        tr.logger.close()
+        torch.set_num_threads(threads)
+    if hook.seen != tr.simulations:
+        raise RuntimeError(f"{method}: the env reported {hook.seen} simulations, the trainer counted {tr.simulations}")
+    extra = {"iterations": tr.iteration, "env_steps": tr.env_steps, "trained_simulations": tr.simulations}
+    return RunOutcome(method, seed, progress, progress.best_x.clone(), stop, time.perf_counter() - t0, extra)
+
+
+def run_method(
+    config: CompareConfig, method: str, seed: int, problem: CalibrationProblem, run_root: Path
+) -> RunOutcome:
+    """Run one method on reference ``seed`` (its own seed is ``seed`` too)."""
+    if method in ALGORITHMS:
+        return run_ppo(config, method, seed, problem, run_root)
+    return run_optimizer(config, method, seed, problem)
+
+
+# ------------------------------------------------------------------------------------------- rows
+def _per_sensor(m: Metrics, sensors: list[str]) -> dict[str, dict[str, float]]:
+    return {s: {"area": float(m.area[k]), "dfd": float(m.dfd[k]), "rmse": float(m.rmse[k])}
+            for k, s in enumerate(sensors)}  # fmt: skip
+
+
+def initial_score(problem: CalibrationProblem) -> float:
+    """Fit score of the initial parameters (every method's first candidate), re-simulated without charge."""
+    return float(problem.score(evaluate_params(problem, problem.init[None]))[0])
+
+
+def outcome_row(
+    config: CompareConfig, problem: CalibrationProblem, out: RunOutcome, initial: float | None = None
+) -> dict[str, Any]:
+    """A table row (keys :data:`COLUMNS`) plus ``metrics`` per sensor and the best-so-far ``history``.
+
+    Args:
+        config: the comparison.
+        problem: the run's reference problem.
+        out: the run.
+        initial: the initial parameters' score (:func:`initial_score`; computed if ``None``).
+    """
+    prog = out.progress
+    m = prog.best_metrics
+    passed = bool(problem.success(Metrics(*(t[None] for t in m)))[0])
+    err = init_err = None
+    if problem.true_params is not None:
+        err = _mean_param_error(param_errors(problem, out.best_params, problem.true_params))
+        init_err = _mean_param_error(param_errors(problem, problem.init, problem.true_params))
+    row: dict[str, Any] = {"method": out.method, "seed": out.seed, "budget": config.budget,
+                           "simulations": prog.used, "stop": out.stop}  # fmt: skip
+    for k in ("area", "dfd", "rmse"):
+        v = getattr(m, k)
+        row[f"{k}_mean"], row[f"{k}_worst"] = float(v.mean()), float(v.max())
+    row.update({
+        "score": prog.best_score, "initial_score": initial_score(problem) if initial is None else initial,
+        "passed": passed,
+        "sims_to_success": prog.sims_to_success, "param_error": err, "initial_param_error": init_err,
+        "wall_time_s": out.wall_time_s, "iterations": out.extra.get("iterations"),
+        "env_steps": out.extra.get("env_steps"), "trained_simulations": out.extra.get("trained_simulations"),
+        "metrics": _per_sensor(m, problem.sensors),
+        "history": [[h.simulations, h.best] for h in prog.history],
+    })  # fmt: skip
+    return row
+
+
+# ----------------------------------------------------------------------------------------- tables
+def aggregate(rows: list[dict[str, Any]], methods: list[str]) -> list[dict[str, Any]]:
+    """Per method (in ``methods`` order): mean and std (ddof 0) over seeds, passed, median sims to success.
+
+    ``wall_capped``: runs stopped by the wall cap; ``sims_to_success_median`` over the seeds that passed.
+    """
+    out = []
+    for method in methods:
+        g = [r for r in rows if r["method"] == method]
+        if not g:
+            continue
+        a: dict[str, Any] = {"method": method, "seeds": len(g)}
+        for k in ("simulations", "area_mean", "area_worst", "dfd_mean", "dfd_worst", "rmse_mean", "rmse_worst",
+                  "score", "param_error", "wall_time_s"):  # fmt: skip
+            v = np.array([r[k] for r in g if r[k] is not None], dtype=np.float64)
+            a[f"{k}_mean"] = float(v.mean()) if v.size else None
+            a[f"{k}_std"] = float(v.std()) if v.size else None
+        a["passed"] = sum(bool(r["passed"]) for r in g)
+        hit = [r["sims_to_success"] for r in g if r["sims_to_success"] is not None]
+        a["sims_to_success_median"] = float(np.median(hit)) if hit else None
+        a["wall_capped"] = sum(r["stop"] == "wall_cap" for r in g)
+        out.append(a)
+    return out
+
+
+def winners(rows: list[dict[str, Any]], seeds: list[int]) -> list[dict[str, Any]]:
+    """Per reference seed: every method's best score and the winner (highest score; ties name all)."""
+    out = []
+    for s in seeds:
+        g = [r for r in rows if r["seed"] == s]
+        if not g:
+            continue
+        best = max(r["score"] for r in g)
+        out.append({"seed": s, "scores": {r["method"]: r["score"] for r in g},
+                    "winner": [r["method"] for r in g if r["score"] == best], "score": best})  # fmt: skip
+    return out
+
+
+def _present(config: CompareConfig, rows: list[dict[str, Any]]) -> tuple[list[str], list[int]]:
+    """Methods and seeds that have rows: the config's order first, then others (rows of a resumed run)."""
+    methods = [m for m in [*config.methods, *METHODS] if any(r["method"] == m for r in rows)]
+    seeds = [*config.seeds, *sorted({r["seed"] for r in rows} - set(config.seeds))]
+    return list(dict.fromkeys(methods)), [s for s in seeds if any(r["seed"] == s for r in rows)]
+
+
+def markdown(config: CompareConfig, rows: list[dict[str, Any]], command: str | None, date: str) -> str:
+    """``compare.md``: protocol, per-method table (mean ± std over seeds), winner per reference, per-run table."""
+    methods, seeds = _present(config, rows)
+    agg = aggregate(rows, methods)
+    win = winners(rows, seeds)
+    th = config.success
+    lines = [
+        "# Calibration of one reference: MAPPO, IPPO, single-agent PPO, random search, CMA-ES, gradient descent",
+        "",
+        f"- date: {date}",
+    ]
+    if command:
+        lines.append(f"- command: `{command}`")
+    lines += [
+        f"- references: twin of `{config.scenario}` with seeds {config.seeds}; each method's own seed = the "
+        "reference seed; PPO methods train on the pinned reference (RL calibration = training on it)",
+        f"- budget: {config.budget} simulations per run (every simulated candidate counts one; PPO: one per env "
+        f"step and one per episode reset, {config.ppo.n_envs} envs x {config.ppo.episode_length} steps per "
+        f"iteration); wall cap {_fmt(config.max_wall_s, 'g')} s per run",
+        f"- result of a run: its best candidate by fit score; success = every sensor A < {th.area} m, "
+        f"DFD < {th.dfd} m/s, RMSE < {th.rmse} m/s (the paper's best Table 3 row)",
+        "- area [m], DFD [m/s], RMSE [m/s] of the best candidate: mean over sensors and worst sensor; score: fit "
+        "score, higher is better; param err: mean relative error of the sub-assembly parameters vs the twin truth",
+        "",
+    ]
+    n = len(seeds)
+
+    def pm(a: dict[str, Any], k: str, spec: str = ".4g") -> str:
+        return f"{_fmt(a[f'{k}_mean'], spec)} ± {_fmt(a[f'{k}_std'], spec)}"
+
+    lines += [
+        f"## Per method (mean ± std over {n} reference{'s' if n != 1 else ''})",
+        "",
+        "| method | passed | median sims to success | simulations | area mean | area worst | DFD mean | DFD worst "
+        "| RMSE mean | RMSE worst | score | param err | wall [s] | note |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for a in agg:
+        note = f"stopped by wall cap ({a['wall_capped']}/{a['seeds']})" if a["wall_capped"] else ""
+        if a["seeds"] < n:
+            note = (note + "; " if note else "") + f"{a['seeds']}/{n} references run"
+        lines.append(
+            f"| {a['method']} | {a['passed']}/{a['seeds']} | {_fmt(a['sims_to_success_median'], '.0f')} | "
+            f"{pm(a, 'simulations', '.0f')} | {pm(a, 'area_mean')} | {pm(a, 'area_worst')} | {pm(a, 'dfd_mean')} | "
+            f"{pm(a, 'dfd_worst')} | {pm(a, 'rmse_mean')} | {pm(a, 'rmse_worst')} | {pm(a, 'score')} | "
+            f"{pm(a, 'param_error', '.3f')} | {pm(a, 'wall_time_s', '.1f')} | {note} |"
+        )
+    lines += [
+        "",
+        "## Winner per reference (highest fit score of the best candidate)",
+        "",
+        "| reference seed | " + " | ".join(methods) + " | winner |",
+        "|---|" + "---|" * len(methods) + "---|",
+    ]
+    for w in win:
+        cells = [_fmt(w["scores"].get(m), ".4f") for m in methods]
+        lines.append(f"| {w['seed']} | " + " | ".join(cells) + f" | {', '.join(w['winner'])} |")
+    tally: dict[str, int] = {}
+    for w in win:
+        for m in w["winner"]:
+            tally[m] = tally.get(m, 0) + 1
+    if win:
+        wins = ", ".join(f"{m} on {k}/{len(win)}" for m, k in sorted(tally.items(), key=lambda t: -t[1]))
+        lines += ["", f"Wins: {wins} references."]
+    lines += [
+        "",
+        "## Per run",
+        "",
+        "| seed | method | simulations | stop | area mean | DFD mean | RMSE mean | area worst | DFD worst "
+        "| RMSE worst | score | initial score | passed | sims to success | param err | wall [s] |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in sorted(rows, key=lambda r: (seeds.index(r["seed"]), methods.index(r["method"]))):
+        stop = "stopped by wall cap" if r["stop"] == "wall_cap" else r["stop"]
+        lines.append(
+            f"| {r['seed']} | {r['method']} | {r['simulations']} | {stop} | {_fmt(r['area_mean'])} | "
+            f"{_fmt(r['dfd_mean'])} | {_fmt(r['rmse_mean'])} | {_fmt(r['area_worst'])} | {_fmt(r['dfd_worst'])} | "
+            f"{_fmt(r['rmse_worst'])} | {_fmt(r['score'])} | {_fmt(r['initial_score'])} | {_fmt(r['passed'])} | "
+            f"{_fmt(r['sims_to_success'])} | {_fmt(r['param_error'], '.3f')} | {_fmt(r['wall_time_s'], '.1f')} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def csv_text(rows: list[dict[str, Any]]) -> str:
+    """The rows as CSV (columns :data:`COLUMNS`; ``None`` as an empty field)."""
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=list(COLUMNS), lineterminator="\n", extrasaction="ignore")
+    w.writeheader()
+    for r in rows:
+        w.writerow({k: ("" if r[k] is None else r[k]) for k in COLUMNS})
+    return buf.getvalue()
+
+
+def write_results(config: CompareConfig, rows: list[dict[str, Any]], run_dir: Path, command: str | None) -> None:
+    """Rewrite :data:`FILES` in ``run_dir`` atomically (each file replaced whole)."""
+    date = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
+    methods, seeds = _present(config, rows)
+    payload = {"date": date, "command": command, "config": asdict(config), "rows": rows,
+               "aggregate": aggregate(rows, methods), "winners": winners(rows, seeds)}  # fmt: skip
+    _atomic_write(run_dir / "compare.json", json.dumps(payload, indent=2))
+    _atomic_write(run_dir / "compare.csv", csv_text(rows))
+    _atomic_write(run_dir / "compare.md", markdown(config, rows, command, date))
+
+
+# ------------------------------------------------------------------------------------------- driver
+_RESUMABLE_DIFF_OK = ("methods", "seeds", "resume")
+"""Settings a resumed comparison may change (the others define the protocol of the rows already there)."""
+
+
+def _first_difference(a: Any, b: Any, key: str = "") -> str | None:
+    if isinstance(a, dict) and isinstance(b, dict):
+        for k in sorted(set(a) | set(b)):
+            d = _first_difference(a.get(k), b.get(k), f"{key}.{k}" if key else str(k))
+            if d is not None:
+                return d
+        return None
+    return None if a == b else key
+
+
+def _start_run_dir(config: CompareConfig) -> tuple[Path, list[dict[str, Any]]]:
+    """The run folder and the rows already finished in it (resume), after checking the settings agree."""
+    run_dir = config.run_dir
+    path = run_dir / "compare.json"
+    if not config.resume:
+        if path.exists():
+            raise ConfigError(f"{path} exists already; choose another name or resume=true", key="name")
+        run_dir.mkdir(parents=True, exist_ok=True)
+        return run_dir, []
+    if not path.is_file():
+        raise ConfigError(f"resume=true but {path} does not exist", key="resume")
+    saved = json.loads(path.read_text())
+    old, new = saved["config"], asdict(config)
+    for k in _RESUMABLE_DIFF_OK:
+        old.pop(k, None)
+        new.pop(k, None)
+    diff = _first_difference(old, new)
+    if diff is not None:
+        raise ConfigError(f"resume: {run_dir} was run with {diff} = {_lookup(saved['config'], diff)!r}, this config "
+                          f"has {_lookup(asdict(config), diff)!r}; the finished rows would not compare",
+                          key=diff)  # fmt: skip
+    return run_dir, list(saved["rows"])
+
+
+def _lookup(d: dict[str, Any], dotted: str) -> Any:
+    for p in dotted.split("."):
+        if not isinstance(d, dict):
+            return None
+        d = d.get(p)
+    return d
+
+
+def run_comparison(
+    config: CompareConfig, command: str | None = None, progress: Callable[[str], None] | None = None
+) -> tuple[Path, list[dict[str, Any]]]:
+    """Run every method on every reference seed and write the results after each run (module docstring).
+
+    Args:
+        config: the comparison.
+        command: the command line, recorded in the files.
+        progress: optional callable told about each finished run.
+
+    Returns:
+        The run folder and all rows (finished earlier and now).
+
+    Raises:
+        ConfigError: the run folder exists (without ``resume``), or ``resume`` with other protocol settings.
+    """
+    say = progress or (lambda _msg: None)
+    run_dir, rows = _start_run_dir(config)
+    done = {(r["method"], r["seed"]) for r in rows}
+    write_results(config, rows, run_dir, command)
+    for seed in config.seeds:
+        todo = [m for m in config.methods if (m, seed) not in done]
+        if not todo:
+            continue
+        problem = build_problem(problem_config(config, seed))
+        initial = initial_score(problem)
+        for method in todo:
+            out = run_method(config, method, seed, problem, run_dir)
+            row = outcome_row(config, problem, out, initial)
+            rows.append(row)
+            write_results(config, rows, run_dir, command)
+            say(f"seed {seed} {method}: score {row['score']:.4f} (initial {row['initial_score']:.4f}), "
+                f"{row['simulations']} simulations, passed {row['passed']}, stop {row['stop']}, "
+                f"{row['wall_time_s']:.1f} s")  # fmt: skip
+    return run_dir, rows

@@ -1,0 +1,338 @@
+"""The issue-5 results table: pinned references, best-so-far of PPO runs, wall cap, resume, the script.
+
+Runs on a shortened copy of configs/ (every scenario simulated for 30 ms instead of 150 ms).
+"""
+
+from __future__ import annotations
+
+import copy
+import csv
+import dataclasses
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import yaml
+
+from marlcrash.calibrate.budget import Progress
+from marlcrash.calibrate.compare import (
+    COLUMNS,
+    METHODS,
+    CompareConfig,
+    evaluate_params,
+    load_compare_config,
+    outcome_row,
+    ppo_train_config,
+    problem_config,
+    run_comparison,
+    run_optimizer,
+    run_ppo,
+)
+from marlcrash.calibrate.logging import read_log
+from marlcrash.calibrate.marl import ProgressHook, build_trainer, train_iteration
+from marlcrash.calibrate.problem import build_problem
+from marlcrash.config import config_dir
+from marlcrash.envs.core import CalibrationCore, load_env_config
+from marlcrash.errors import ConfigError
+from marlcrash.metrics import Metrics
+
+REPO = Path(__file__).resolve().parents[1]
+SHORT_DURATION = 0.03  # [s] simulated window of the shortened scenarios
+
+
+@pytest.fixture(scope="module")
+def short_configs(tmp_path_factory) -> Path:
+    """A copy of configs/ whose scenarios last SHORT_DURATION s."""
+    dst = tmp_path_factory.mktemp("configs") / "configs"
+    shutil.copytree(config_dir(), dst)
+    for p in (dst / "scenarios").glob("*.yaml"):
+        data = yaml.safe_load(p.read_text())
+        data["duration"] = SHORT_DURATION
+        p.write_text(yaml.safe_dump(data))
+    return dst
+
+
+@pytest.fixture(scope="module")
+def short(short_configs) -> Path:
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("MARLCRASH_CONFIGS", str(short_configs))
+        yield short_configs
+
+
+@pytest.fixture(scope="module")
+def problem0(short, tmp_path_factory):
+    """The optimizers' problem of reference seed 0 (built once: its twin-truth fit takes seconds)."""
+    return build_problem(problem_config(tiny(tmp_path_factory.mktemp("p")), 0))
+
+
+def tiny(tmp_path: Path, **kw) -> CompareConfig:
+    """A comparison of seconds: budget 24, 2 envs x 3 steps per PPO iteration, small networks and batches."""
+    data = yaml.safe_load((REPO / "configs" / "train" / "compare.yaml").read_text())
+    for k in ("defaults", "hydra", "name"):
+        data.pop(k)
+    for m in ("mappo", "ippo", "ppo_single"):
+        algo = yaml.safe_load((REPO / "configs" / "train" / "algorithm" / f"{m}.yaml").read_text())
+        data[m] = {**algo, "hidden": [16, 16], "minibatch_size": 3, "epochs": 2}
+    for m in ("random_search", "cmaes", "gradient"):
+        data[m] = yaml.safe_load((REPO / "configs" / "train" / "baseline" / f"{m}.yaml").read_text())
+    data["random_search"]["batch_size"] = 8
+    data["cmaes"]["popsize"] = 8
+    data["gradient"]["batch_size"] = 2
+    data.update(budget=24, seeds=[0], out_dir=str(tmp_path / "runs"), name="t", max_wall_s=None)
+    data["ppo"].update(n_envs=2, episode_length=3)
+    for k, v in kw.items():
+        node, parts = data, k.split(".")
+        for p in parts[:-1]:
+            node = node[p]
+        node[parts[-1]] = v
+    return load_compare_config(data, source="test")
+
+
+# ------------------------------------------------------------------------------------- pinned env
+@pytest.mark.parametrize("seed", [0, 3])
+def test_pinned_env_reference_is_the_problems_bit_for_bit(short, problem0, tmp_path, seed):
+    problem = problem0 if seed == 0 else build_problem(problem_config(tiny(tmp_path, seeds=[seed]), seed))
+    env_cfg = load_env_config("default", {"scenarios": {"full_width_40": 1.0}, "reference.pin_seed": seed})
+    core = CalibrationCore(env_cfg, batch_size=3)
+    for reset_seed in (None, 99):  # the core's own generator plays no part
+        core.reset(seed=reset_seed)
+        for b in range(3):
+            assert torch.equal(core.ref_velocity[b], problem.ref_velocity)
+            assert torch.equal(core.true_params[b], problem.true_params)
+            assert core.scenario[b] == "full_width_40"
+        assert torch.equal(core.speed, problem.speed.expand(3))
+    core.reset(mask=torch.tensor([False, True, False]))  # partial resets get it too
+    assert torch.equal(core.ref_velocity[1], problem.ref_velocity)
+    # the env's metrics of the initial parameters are the problem's (batched vs single simulation: round-off)
+    m0 = problem.evaluate(problem.zeros(1))
+    for got, want in zip(core.metrics, m0, strict=True):
+        torch.testing.assert_close(got, want.expand_as(got), rtol=0, atol=1e-9)
+
+
+def test_unpinned_env_still_draws_a_reference_per_episode(short):
+    cfg = load_env_config("default", {"scenarios": {"full_width_40": 1.0}})
+    assert cfg.reference.pin_seed is None  # the default: configs/env/default.yaml says null
+    core = CalibrationCore(cfg, batch_size=2)
+    core.reset(seed=0)
+    assert not torch.equal(core.ref_velocity[0], core.ref_velocity[1])
+    first = core.ref_velocity.clone()
+    core.reset()
+    assert not torch.equal(core.ref_velocity, first)
+
+
+def test_pin_seed_is_validated(short):
+    with pytest.raises(ConfigError) as e:
+        load_env_config("default", {"reference.pin_seed": -1})
+    assert e.value.key == "reference.pin_seed" and "seed >= 0" in str(e.value)
+    with pytest.raises(ConfigError) as e:
+        load_env_config("default", {"reference.pin_seed": "zero"})
+    assert e.value.key == "reference.pin_seed"
+
+
+# ------------------------------------------------------------------------------------ best so far
+def _train(cfg: CompareConfig, method: str, tmp: Path, hooks: list) -> tuple:
+    tc = ppo_train_config(cfg, method, 0, tmp)
+    tr = build_trainer(tc, tmp / "log")
+    for h in hooks:
+        if isinstance(h, ProgressHook):
+            h.attach(tr.env)
+        else:
+            tr.env.core.simulation_hooks.append(h)
+    rows = [train_iteration(tr) for _ in range(2)]
+    return tr, rows
+
+
+@pytest.mark.parametrize("method", ["mappo", "ppo_single"])
+def test_progress_hook_records_the_best_candidate_without_changing_training(short, problem0, tmp_path, method):
+    cfg, problem = tiny(tmp_path), problem0
+    seen: list[tuple[torch.Tensor, Metrics]] = []
+    progress = Progress(20)  # more than the 2 iterations x 2 envs x (3 steps + 1 reset) = 16 simulations
+    hook = ProgressHook(progress, problem.score, problem.success)
+    with_hook, rows_hook = _train(cfg, method, tmp_path / "a", [hook, lambda p, m: seen.append((p, m))])
+    plain, rows_plain = _train(cfg, method, tmp_path / "b", [])
+    # training numbers unchanged: same log rows (wall times apart) and the same networks
+    drop = ("wall_time_s", "env_steps_per_s")
+    assert [{k: v for k, v in r.items() if k not in drop} for r in rows_hook] == [
+        {k: v for k, v in r.items() if k not in drop} for r in rows_plain
+    ]
+    for a, b in zip(with_hook.policy.parameters(), plain.policy.parameters(), strict=True):
+        assert torch.equal(a, b)
+    # the hook saw every simulation the trainer charged, in batches of resets and steps
+    assert hook.seen == with_hook.simulations == sum(p.shape[0] for p, _ in seen) == 16
+    # independent reference: rank every candidate the env simulated
+    params = torch.cat([p for p, _ in seen])
+    metrics = Metrics(*(torch.cat([m[j] for _, m in seen]) for j in range(3)))
+    scores = problem.score(metrics)
+    k = int(torch.argmax(scores))
+    assert progress.used == 16 and progress.best_score == float(scores[k])
+    assert torch.equal(progress.best_x, params[k])
+    # the recorded metrics are those of a fresh simulation of the best parameters on the problem's reference
+    # (the env simulated it in a batch of n_envs rows, this in a batch of one: round-off only)
+    fresh = evaluate_params(problem, progress.best_x[None])
+    for got, want in zip(progress.best_metrics, fresh, strict=True):
+        torch.testing.assert_close(got, want[0], rtol=0, atol=1e-9)
+    best = progress.history_array()[:, 1]
+    assert np.all(np.diff(best) >= 0) and best[-1] == progress.best_score
+
+
+def test_progress_hook_success_count_and_budget_truncation(short, problem0, tmp_path):
+    cfg, problem = tiny(tmp_path), problem0
+    seen: list[tuple[torch.Tensor, Metrics]] = []
+    tr, _ = _train(cfg, "ippo", tmp_path / "a", [lambda p, m: seen.append((p, m))])
+    metrics = Metrics(*(torch.cat([m[j] for _, m in seen]) for j in range(3)))
+    area = metrics.area.max(-1).values  # worst-sensor area of every candidate, in simulation order
+    limit = float(area.median())
+    first_pass = int(torch.nonzero(area < limit)[0, 0]) + 1
+
+    def success(m: Metrics) -> torch.Tensor:
+        return m.area.max(-1).values < limit
+
+    # replay the same candidates (the hook is a plain callable) into budgets that cut the run short
+    for budget in (first_pass - 1, first_pass, 16):
+        if budget < 1:
+            continue
+        progress = Progress(budget)
+        hook = ProgressHook(progress, problem.score, success)
+        for p, m in seen:
+            hook(p, m)
+        assert hook.seen == 16 and progress.used == budget
+        assert progress.sims_to_success == (first_pass if budget >= first_pass else None)
+        assert progress.best_score == float(problem.score(Metrics(*(t[:budget] for t in metrics))).max())
+    assert tr.simulations == 16
+
+
+# ---------------------------------------------------------------------------- runs, rows, wall cap
+def test_optimizer_run_stopped_by_the_wall_cap_is_kept_and_flagged(short, problem0, tmp_path):
+    cfg, problem = tiny(tmp_path, max_wall_s=1e-6), problem0
+    out = run_optimizer(cfg, "random_search", 0, problem)
+    assert out.stop == "wall_cap" and out.progress.used == 1  # the initial point, then the cap
+    row = outcome_row(cfg, problem, out)
+    assert row["simulations"] == 1 and row["stop"] == "wall_cap"
+    assert row["score"] == pytest.approx(row["initial_score"], abs=1e-12)
+    full = run_optimizer(tiny(tmp_path), "cmaes", 0, problem)
+    assert full.stop == "budget" and full.progress.used == 24
+    # the row's metrics are those of its best parameters
+    fresh = evaluate_params(problem, full.best_params[None])
+    assert float(fresh.area.mean()) == pytest.approx(outcome_row(cfg, problem, full)["area_mean"], abs=1e-12)
+
+
+def test_ppo_run_keeps_the_budget_and_reports_its_best(short, problem0, tmp_path):
+    cfg, problem = tiny(tmp_path, budget=20), problem0  # 2 x (3 + 1) = 8 per iteration: 2 iterations, 16 sims
+    out = run_ppo(cfg, "mappo", 0, problem, tmp_path / "run")
+    assert out.stop == "budget" and out.extra == {"iterations": 2, "env_steps": 12, "trained_simulations": 16}
+    assert out.progress.used == 16 <= cfg.budget
+    assert len(read_log(tmp_path / "run" / "ppo" / "mappo" / "seed0" / "log.csv")) == 2
+    row = outcome_row(cfg, problem, out)
+    assert row["score"] >= row["initial_score"]  # the initial parameters are candidates too
+    assert row["param_error"] is not None and row["iterations"] == 2
+
+
+def test_comparison_resumes_and_refuses_changed_protocols(short, tmp_path):
+    cfg = tiny(tmp_path, methods=["random_search"], seeds=[0])
+    run_dir, rows = run_comparison(cfg)
+    assert [(r["method"], r["seed"]) for r in rows] == [("random_search", 0)]
+    with pytest.raises(ConfigError) as e:  # a fresh run never overwrites
+        run_comparison(cfg)
+    assert e.value.key == "name"
+    more = tiny(tmp_path, methods=["random_search", "cmaes"], seeds=[0], resume=True)
+    _, rows2 = run_comparison(more)
+    assert [(r["method"], r["seed"]) for r in rows2] == [("random_search", 0), ("cmaes", 0)]
+    assert rows2[0] == json.loads(json.dumps(rows[0]))  # the finished row was kept, not rerun
+    with pytest.raises(ConfigError) as e:
+        run_comparison(tiny(tmp_path, methods=["cmaes"], budget=32, resume=True))
+    assert e.value.key == "budget" and "24" in str(e.value)
+    data = json.loads((run_dir / "compare.json").read_text())
+    assert len(data["rows"]) == 2 and data["config"]["budget"] == 24
+
+
+# --------------------------------------------------------------------------------------- config
+@pytest.mark.parametrize(
+    ("override", "key", "words"),
+    [
+        ({"methods": ["mappo", "sgd"]}, "methods[1]", "unknown method 'sgd'"),
+        ({"methods": []}, "methods", "at least one"),
+        ({"budget": 0}, "budget", ">= 1"),
+        ({"seeds": []}, "seeds", "at least one reference seed"),
+        ({"seeds": [0, 0]}, "seeds", "distinct"),
+        ({"max_wall_s": -1.0}, "max_wall_s", "> 0"),
+        ({"budget": 7}, "budget", "at least one iteration"),
+        ({"mappo.minibatch_size": 4}, "mappo.minibatch_size", "divisor"),
+        ({"ppo.env_overrides": {"reference.pin_seed": 3}}, "ppo.env_overrides.reference.pin_seed", "protocol"),
+        ({"env_overrides": {"max_step": 9.0}}, "env_overrides.max_step", "log increment"),
+    ],
+)
+def test_bad_config_fails_naming_the_key(short, tmp_path, override, key, words):
+    with pytest.raises(ConfigError) as e:
+        tiny(tmp_path, **override)
+    assert e.value.key == key and words in str(e.value)
+    assert not (tmp_path / "runs").exists()
+
+
+def test_config_file_registers_every_method(short, tmp_path):
+    cfg = tiny(tmp_path)
+    assert tuple(cfg.methods) == METHODS and cfg.seeds == [0] and cfg.success.area == 0.0015
+    for m in ("mappo", "ippo", "ppo_single"):
+        assert getattr(cfg, m).name == m
+    full = yaml.safe_load((REPO / "configs" / "train" / "compare.yaml").read_text())
+    assert full["seeds"] == [0, 1, 2] and full["methods"] == list(METHODS)
+    assert dataclasses.asdict(copy.deepcopy(cfg)) == dataclasses.asdict(cfg)
+
+
+# --------------------------------------------------------------------------------------- script
+def _script(args: list[str], configs: Path, cwd: Path) -> subprocess.CompletedProcess:
+    env = {**os.environ, "MARLCRASH_CONFIGS": str(configs), "HYDRA_FULL_ERROR": "0"}
+    return subprocess.run([sys.executable, str(REPO / "train" / "compare.py"), *args], cwd=cwd, env=env,
+                          capture_output=True, text=True, timeout=600)  # fmt: skip
+
+
+TINY_ARGS = [
+    "budget=24",
+    "seeds=[0,1]",
+    "max_wall_s=null",
+    "ppo.n_envs=2",
+    "ppo.episode_length=3",
+    *(f"{m}.{k}" for m in ("mappo", "ippo", "ppo_single") for k in ("minibatch_size=3", "hidden=[16,16]")),
+    "gradient.batch_size=2",
+    "cmaes.popsize=8",
+    "random_search.batch_size=8",
+    "name=smoke",
+]
+
+
+@pytest.mark.slow
+def test_script_runs_all_six_methods(short_configs, tmp_path):
+    p = _script(TINY_ARGS, short_configs, tmp_path)
+    assert p.returncode == 0, p.stderr[-3000:]
+    run_dir = tmp_path / "runs" / "compare" / "smoke"
+    assert sorted(x.name for x in tmp_path.iterdir()) == ["runs"]  # Hydra wrote nothing else
+    with open(run_dir / "compare.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert list(rows[0]) == list(COLUMNS)
+    assert sorted((r["method"], int(r["seed"])) for r in rows) == sorted((m, s) for m in METHODS for s in (0, 1))
+    for r in rows:
+        assert 1 <= int(r["simulations"]) <= 24 and r["stop"] == "budget"
+        assert float(r["score"]) >= float(r["initial_score"]) - 1e-12
+        assert r["passed"] in ("True", "False") and float(r["param_error"]) >= 0
+    data = json.loads((run_dir / "compare.json").read_text())
+    assert len(data["rows"]) == 12 and {w["seed"] for w in data["winners"]} == {0, 1}
+    assert all(set(r["metrics"]) == {"upfront_left", "upfront_right", "tunnel"} for r in data["rows"])
+    md = (run_dir / "compare.md").read_text()
+    for m in METHODS:
+        assert f"| {m} | " in md
+    assert "## Winner per reference" in md and "Wins:" in md
+    for m in ("mappo", "ippo", "ppo_single"):
+        assert (run_dir / "ppo" / m / "seed1" / "log.csv").is_file()
+
+
+@pytest.mark.slow
+def test_script_rejects_bad_config_before_running(short_configs, tmp_path):
+    p = _script(["methods=[mappo,sgd]", "name=bad"], short_configs, tmp_path)
+    assert p.returncode == 2
+    assert "methods[1]" in p.stderr and "unknown method 'sgd'" in p.stderr and "Traceback" not in p.stderr
+    assert not (tmp_path / "runs").exists()

@@ -1,0 +1,38 @@
+"""The results table of issue 5: MAPPO, IPPO, single-agent PPO, random search, CMA-ES, gradient descent.
+
+    python train/compare.py                                       # 6 methods x seeds 0, 1, 2, budget 2000
+    python train/compare.py methods=[cmaes,mappo] seeds=[0] budget=500 name=try1
+    python train/compare.py name=try1 resume=true                 # after a kill: skip finished method/seed pairs
+
+Writes ``<out_dir>/compare/<name>/``: compare.json, compare.csv, compare.md (rewritten after every run),
+and the PPO runs' training logs under ppo/<method>/seed<s>/.
+"""
+
+from __future__ import annotations
+
+import json
+import shlex
+import sys
+
+import hydra
+from omegaconf import DictConfig, OmegaConf
+
+from marlcrash.calibrate.compare import load_compare_config, run_comparison
+from marlcrash.errors import MarlcrashError
+
+
+@hydra.main(version_base=None, config_path="../configs/train", config_name="compare")
+def main(cfg: DictConfig) -> None:
+    command = ("python train/compare.py " + " ".join(shlex.quote(a) for a in sys.argv[1:])).strip()
+    try:
+        config = load_compare_config(OmegaConf.to_container(cfg, resolve=True), source="configs/train/compare.yaml")
+        run_dir, rows = run_comparison(config, command=command, progress=lambda msg: print(msg, flush=True))
+    except MarlcrashError as e:  # bad config or input: a message, not a traceback
+        print(f"error: {e}", file=sys.stderr)
+        sys.exit(2)
+    print((run_dir / "compare.md").read_text())
+    print(json.dumps({"run": str(run_dir), "rows": len(rows)}))
+
+
+if __name__ == "__main__":
+    main()
