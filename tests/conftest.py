@@ -17,3 +17,24 @@ def lsopt_deck() -> Path:
     if not LSOPT_DECK.is_file():
         pytest.skip("../shared/data/lsopt_small_car5.k not available")
     return LSOPT_DECK
+
+
+SHORT_DURATION = 0.03  # [s] simulated window of the shortened scenarios
+
+
+@pytest.fixture(scope="session")
+def short_configs(tmp_path_factory) -> Path:
+    """A copy of configs/ whose scenarios last SHORT_DURATION s (scripts read it via $MARLCRASH_CONFIGS)."""
+    import shutil
+
+    import yaml
+
+    from marlcrash.config import config_dir
+
+    dst = tmp_path_factory.mktemp("configs") / "configs"
+    shutil.copytree(config_dir(), dst)
+    for p in (dst / "scenarios").glob("*.yaml"):
+        data = yaml.safe_load(p.read_text())
+        data["duration"] = SHORT_DURATION
+        p.write_text(yaml.safe_dump(data))
+    return dst

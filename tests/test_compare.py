@@ -10,7 +10,6 @@ import csv
 import dataclasses
 import json
 import os
-import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -37,25 +36,11 @@ from marlcrash.calibrate.compare import (
 from marlcrash.calibrate.logging import read_log
 from marlcrash.calibrate.marl import ProgressHook, build_trainer, train_iteration
 from marlcrash.calibrate.problem import build_problem
-from marlcrash.config import config_dir
 from marlcrash.envs.core import CalibrationCore, load_env_config
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics
 
 REPO = Path(__file__).resolve().parents[1]
-SHORT_DURATION = 0.03  # [s] simulated window of the shortened scenarios
-
-
-@pytest.fixture(scope="module")
-def short_configs(tmp_path_factory) -> Path:
-    """A copy of configs/ whose scenarios last SHORT_DURATION s."""
-    dst = tmp_path_factory.mktemp("configs") / "configs"
-    shutil.copytree(config_dir(), dst)
-    for p in (dst / "scenarios").glob("*.yaml"):
-        data = yaml.safe_load(p.read_text())
-        data["duration"] = SHORT_DURATION
-        p.write_text(yaml.safe_dump(data))
-    return dst
 
 
 @pytest.fixture(scope="module")

@@ -8,13 +8,11 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import shutil
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
-import yaml
 
 from marlcrash.calibrate.checkpoint import load_checkpoint, save_checkpoint
 from marlcrash.calibrate.logging import CSVLogger, read_log
@@ -32,22 +30,7 @@ from marlcrash.calibrate.marl import (
     masked_standardize,
     train,
 )
-from marlcrash.config import config_dir
 from marlcrash.errors import ConfigError
-
-SHORT_DURATION = 0.03  # [s] simulated window of the shortened scenarios
-
-
-@pytest.fixture(scope="module")
-def short_configs(tmp_path_factory) -> Path:
-    """A copy of configs/ whose scenarios last SHORT_DURATION s."""
-    dst = tmp_path_factory.mktemp("configs") / "configs"
-    shutil.copytree(config_dir(), dst)
-    for p in (dst / "scenarios").glob("*.yaml"):
-        data = yaml.safe_load(p.read_text())
-        data["duration"] = SHORT_DURATION
-        p.write_text(yaml.safe_dump(data))
-    return dst
 
 
 @pytest.fixture

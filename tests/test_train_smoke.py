@@ -4,16 +4,13 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
-import yaml
 
 from marlcrash.calibrate.marl import ALGORITHMS
-from marlcrash.config import config_dir
 
 REPO = Path(__file__).resolve().parents[1]
 TINY = [
@@ -25,18 +22,6 @@ TINY = [
     "eval.iterations=2",
     "progress_bar=false",
 ]
-
-
-@pytest.fixture(scope="module")
-def short_configs(tmp_path_factory) -> Path:
-    """A copy of configs/ whose scenarios last 30 ms (the training scripts read it via $MARLCRASH_CONFIGS)."""
-    dst = tmp_path_factory.mktemp("configs") / "configs"
-    shutil.copytree(config_dir(), dst)
-    for p in (dst / "scenarios").glob("*.yaml"):
-        data = yaml.safe_load(p.read_text())
-        data["duration"] = 0.03
-        p.write_text(yaml.safe_dump(data))
-    return dst
 
 
 def run(script: str, args: list[str], configs: Path, cwd: Path) -> subprocess.CompletedProcess:
