@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from test_train_marl import short_configs, tiny  # noqa: F401 -- fixture and helper shared with the MARL tests
+from test_train_marl import tiny  # helper shared with the MARL tests (short_configs comes from conftest)
 
 from marlcrash.calibrate.amortized import (
     COLUMNS,
@@ -40,7 +40,7 @@ ITERATIONS = 2  # policy steps: 3 simulations per reference
 
 
 @pytest.fixture(scope="module")
-def short_env(short_configs):  # noqa: F811 -- the imported fixture
+def short_env(short_configs):
     with pytest.MonkeyPatch.context() as mp:
         mp.setenv("MARLCRASH_CONFIGS", str(short_configs))
         yield short_configs
