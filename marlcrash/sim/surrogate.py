@@ -322,7 +322,6 @@ class Surrogate:
         self.width = float(cells.vehicle_width)
         # Fast-path layout: plain links first, then gap links, each sorted by (src, dst).
         self.link_order = np.lexsort((dst, src, cells.link_gap > 0))
-        self.n_plain = int((cells.link_gap <= 0).sum())
         self.tension_ratio_np = np.where(cells.link_dir == 0, cfg.tension_ratio, 1.0)
 
     # ------------------------------------------------------------------ inputs
