@@ -134,6 +134,10 @@ class ReferenceBatch:
             the integral of the CFC-filtered acceleration (``ReferenceConfig.compare_cfc``).
         acceleration: ``[B, K, T]`` float64 reference acceleration [m/s^2].
         true_params: ``[B, n_cells, 7]`` ground truth of a twin, else ``None``.
+        true_increments: ``[B, S, 7]`` the twin's log-scale increments per sub-assembly (index of
+            ``CellModel.subassembly_names``) that :func:`perturb_twin` applied, else ``None``: a
+            calibrator whose agents each own cells of one sub-assembly reaches the truth exactly
+            at these coordinates.
         source: ``[B]`` a readable origin (``twin``, ``uniform:seed=None``, a file path).
         raw_velocity: ``[B, K, T]`` unfiltered simulated velocity of simulated references (so a
             shorter comparison window can be filtered alike); ``None`` for measured files,
@@ -149,6 +153,7 @@ class ReferenceBatch:
     true_params: torch.Tensor | None
     source: list[str]
     raw_velocity: torch.Tensor | None = None
+    true_increments: torch.Tensor | None = None
 
     def repeat(self, n: int) -> ReferenceBatch:
         """The first row repeated ``n`` times (every tensor ``[n, ...]``; copies, not views)."""
@@ -158,7 +163,13 @@ class ReferenceBatch:
 
         return ReferenceBatch([self.scenario[0]] * n, rows(self.speed), rows(self.overlap), rows(self.side),
                               rows(self.velocity), rows(self.acceleration), rows(self.true_params),
-                              [self.source[0]] * n, rows(self.raw_velocity))  # fmt: skip
+                              [self.source[0]] * n, rows(self.raw_velocity), rows(self.true_increments))  # fmt: skip
+
+
+def twin_increments(noise: torch.Tensor, config: TwinConfig) -> torch.Tensor:
+    """The twin's log-scale increments ``[B, S, 7]``: standard normal ``noise`` times the spreads."""
+    sig = torch.tensor([config.e_x_spread, config.e_s_spread] + [config.transmission_spread] * 5, dtype=noise.dtype)
+    return noise * sig
 
 
 def perturb_twin(
@@ -188,9 +199,8 @@ def perturb_twin(
     Returns:
         ``[B, n_cells, 7]`` perturbed parameters; transmission factors stay feasible.
     """
-    sig = torch.tensor([config.e_x_spread, config.e_s_spread] + [config.transmission_spread] * 5, dtype=noise.dtype)
     touched = (subassembly >= 0)[None, :, None]
-    inc = torch.where(touched, (noise * sig)[:, subassembly.clamp_min(0)], torch.zeros((), dtype=noise.dtype))
+    inc = torch.where(touched, twin_increments(noise, config)[:, subassembly.clamp_min(0)], noise.new_zeros(()))
     p0 = params.to(noise.dtype)
     lo, hi = bounds if bounds is not None else (1e-12, 1e12)
     return apply_increments(p0[None].expand_as(inc), inc, p0, feasible, (lo, hi), floor)
@@ -280,7 +290,7 @@ class ReferenceSampler:
         overlap = torch.tensor([s.overlap for s in scs], dtype=torch.float64)
         side = torch.tensor([s.side_sign for s in scs], dtype=torch.float64)
         kind = self.config.kind
-        truth = None
+        truth = increments = None
         if kind == "twin":
             noise = torch.as_tensor(rng.standard_normal((n, self.n_subassemblies, 7)))
             truth = perturb_twin(
@@ -291,6 +301,7 @@ class ReferenceSampler:
                                    sensors=self.sensors, record_cells="none", backend=self.backend)  # fmt: skip
             raw, acc = res.velocity.to(torch.float64), res.acceleration.to(torch.float64)
             source = ["twin"] * n
+            increments = twin_increments(noise, self.config.twin)
         elif kind == "cross_fidelity":
             seeds = self.config.cross_fidelity.vehicle_seeds
             seed_pick = rng.integers(0, len(seeds), size=n)
@@ -305,7 +316,7 @@ class ReferenceSampler:
             source = [self.config.files[i].path for i in pick]
         if raw is not None:
             vel = self.compared(raw)
-        return ReferenceBatch(names, speed, overlap, side, vel, acc, truth, source, raw)
+        return ReferenceBatch(names, speed, overlap, side, vel, acc, truth, source, raw, increments)
 
     def pinned(self, seed: int, n: int) -> ReferenceBatch:
         """The pinned reference of ``seed`` for ``n`` episodes (module docstring); drawn once, then cached.

@@ -23,11 +23,13 @@ What it offers:
   parameters against a twin's hidden truth; :attr:`CalibrationProblem.true_x` is the
   search-space point that represents that truth.
 
-The twin truth (:func:`marlcrash.references.perturb_twin`) scales transmission factors
-multiplicatively, the search space shifts them by ``floor`` first, so with a transmission
-spread the truth is representable only approximately: ``true_x`` matches ``E_x``, ``E_s``
-exactly and the transmission factors to ``O(floor * spread)``. With ``transmission_spread:
-0`` it is exact (zero metrics, zero parameter error).
+The twin truth (:func:`marlcrash.references.perturb_twin`) is one increment per sub-assembly
+through the same mapping, so when every agent owns cells of a single sub-assembly (the default
+layout: sub-assemblies, some split left/right) ``true_x`` is the twin's own increments
+(:attr:`marlcrash.references.ReferenceBatch.true_increments`) and its parameters equal the
+truth bit for bit: zero metrics, zero parameter error. Agents that merge sub-assemblies
+cannot follow per-sub-assembly increments; then ``true_x`` is a least-squares fit in
+parameter space and the truth is representable only approximately.
 
 The search box: ``|x| <= box_radius`` per coordinate, and for ``E_x``, ``E_s`` also within
 the environment's behaviour bounds (``log lo <= x <= log hi``). Coordinates that cannot
@@ -243,7 +245,7 @@ class CalibrationProblem:
         self._sub_index = torch.as_tensor(sub_index)
         self._deform = torch.as_tensor(deform)
         self.true_params = None if reference.true_params is None else reference.true_params[0].to(f64)
-        self.true_x = None if self.true_params is None else self._fit_true_x(self.true_params)
+        self.true_x = None if self.true_params is None else self._true_x(reference)
 
     # ------------------------------------------------------------------------------- search space
     @property
@@ -433,6 +435,16 @@ class CalibrationProblem:
         err = self.param_error(x)[0]
         keys = ("E_x", "E_s", "transmission")
         return {s: {k: float(err[i, j]) for j, k in enumerate(keys)} for i, s in enumerate(self.subassembly_names)}
+
+    def _true_x(self, reference: ReferenceBatch) -> torch.Tensor:
+        """The point ``[n_agents, 7]`` representing the twin truth (module docstring)."""
+        inc = reference.true_increments
+        names = list(self.cells.subassembly_names)
+        if inc is None or any(len(subs) != 1 for subs in self.layout.subassemblies):
+            return self._fit_true_x(self.true_params)
+        sub = torch.tensor([names.index(subs[0]) for subs in self.layout.subassemblies], dtype=torch.int64)
+        x = inc[0, sub].to(torch.float64) * self.free
+        return x.clamp(min=self.lower, max=self.upper)
 
     def _fit_true_x(self, truth: torch.Tensor, sweeps: int = 200, refine_iters: int = 200) -> torch.Tensor:
         """The point ``[n_agents, 7]`` representing the twin truth ``[n_cells, 7]`` (module docstring).
