@@ -15,6 +15,7 @@ from marlcrash.calibrate.baselines import (
     write_run,
 )
 from marlcrash.calibrate.budget import HistoryRow, Progress
+from marlcrash.calibrate.landscape import truth_neighbourhood
 from marlcrash.calibrate.problem import (
     CalibrationProblem,
     ProblemConfig,
@@ -42,5 +43,6 @@ __all__ = [
     "load_run_config",
     "random_search",
     "run_baseline",
+    "truth_neighbourhood",
     "write_run",
 ]

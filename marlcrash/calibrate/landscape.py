@@ -1,0 +1,147 @@
+"""How precisely a calibration must recover the twin truth: the fit landscape around it.
+
+A twin reference (:mod:`marlcrash.references`) has a known truth :attr:`CalibrationProblem.true_x`
+with zero metrics. :func:`truth_neighbourhood` evaluates random points at a log-scale distance
+``r`` from it (every free coordinate of a parameter group moved by ``r * N(0, 1)``, so ``r`` is the
+rms log error per coordinate: ``r = 0.01`` is about 1 % per parameter) and reports, per group and
+radius, the median over draws of the worst sensor's metrics and the share of draws that pass the
+success test. Two figures answer whether a threshold is reachable:
+
+- ``radius_needed``: the largest radius whose median passes every threshold, i.e. the parameter
+  precision a calibrator needs to pass (``None``: not even the smallest radius passes).
+- ``slope``: ``d log A / d log r`` of the median worst-sensor area between successive radii. A
+  smooth landscape has slope 1 (the error is linear in the parameter error); a slope near 0 at
+  small radii means the pulse jumps (discrete events such as a cell bottoming out one explicit
+  step earlier), so no calibrator gets below that floor by refining its parameters.
+
+Every candidate counts one simulation of the problem; one batched simulation per group.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import torch
+
+from marlcrash.calibrate.problem import CalibrationProblem
+from marlcrash.errors import ConfigError
+
+GROUPS: dict[str, slice] = {"E_x": slice(0, 1), "E_s": slice(1, 2), "transmission": slice(2, 7), "all": slice(0, 7)}
+DEFAULT_RADII = (1e-6, 1e-5, 1e-4, 1e-3, 3e-3, 1e-2, 3e-2, 0.1)
+
+
+def neighbourhood_points(
+    problem: CalibrationProblem, radii: list[float], group: str, draws: int, seed: int = 0
+) -> torch.Tensor:
+    """Candidates ``[len(radii) * draws, n_agents, 7]`` around the truth, radius-major.
+
+    Row ``i * draws + j`` is ``true_x + radii[i] * d_j`` clipped to the search box, with the same
+    standard normal directions ``d_j`` (non-zero only on the group's free coordinates) at every
+    radius, so the radii compare like with like.
+    """
+    if problem.true_x is None:
+        raise ConfigError("the landscape study needs a twin reference with ground truth", key="problem.reference")
+    if group not in GROUPS:
+        raise ConfigError(f"unknown parameter group {group!r}; expected one of {list(GROUPS)}", key="groups")
+    g = torch.Generator().manual_seed(seed)
+    d = torch.randn(draws, problem.n_agents, 7, generator=g, dtype=torch.float64)
+    mask = torch.zeros(7, dtype=torch.bool)
+    mask[GROUPS[group]] = True
+    d = d * (problem.free & mask)
+    r = torch.as_tensor(radii, dtype=torch.float64)[:, None, None, None]
+    return problem.clip((problem.true_x + r * d[None]).reshape(-1, problem.n_agents, 7))
+
+
+def loglog_slopes(radii: list[float], values: list[float]) -> list[float | None]:
+    """``d log v / d log r`` between successive radii (``None`` where a value is not positive)."""
+    out: list[float | None] = []
+    for i in range(len(radii) - 1):
+        (r0, v0), (r1, v1) = (radii[i], values[i]), (radii[i + 1], values[i + 1])
+        out.append(math.log(v1 / v0) / math.log(r1 / r0) if v0 > 0 and v1 > 0 else None)
+    return out
+
+
+def truth_neighbourhood(
+    problem: CalibrationProblem,
+    radii: list[float] | tuple[float, ...] = DEFAULT_RADII,
+    groups: list[str] | tuple[str, ...] = tuple(GROUPS),
+    draws: int = 8,
+    seed: int = 0,
+) -> dict[str, Any]:
+    """The fit landscape around the twin truth (module docstring).
+
+    Args:
+        problem: a twin calibration problem (:func:`~marlcrash.calibrate.problem.build_problem`).
+        radii: increasing log-scale radii ``> 0`` (rms per coordinate).
+        groups: parameter groups to move: ``E_x``, ``E_s``, ``transmission``, ``all``.
+        draws: random directions per radius.
+        seed: seed of the directions.
+
+    Returns:
+        ``{"sensors", "thresholds", "radii", "draws", "at_truth": {metric: [K]}, "groups": {group:
+        {"area", "dfd", "rmse": [R] medians of the worst sensor, "area_per_sensor": [R][K] medians,
+        "pass_share": [R], "slope": [R - 1], "radius_needed"}}}``.
+
+    Raises:
+        ConfigError: no ground truth, an unknown group, radii not increasing and positive, draws < 1.
+    """
+    radii = [float(r) for r in radii]
+    if not radii or any(not (np.isfinite(r) and r > 0) for r in radii) or sorted(set(radii)) != radii:
+        raise ConfigError(f"expected strictly increasing radii > 0, got {radii}", key="radii")
+    if int(draws) < 1:
+        raise ConfigError(f"expected draws >= 1, got {draws}", key="draws")
+    draws = int(draws)
+    thresholds = {
+        "area": problem.success_cfg.success_area,
+        "dfd": problem.success_cfg.success_dfd,
+        "rmse": problem.success_cfg.success_rmse,
+    }
+    out: dict[str, Any] = {"sensors": list(problem.sensors), "thresholds": thresholds, "radii": radii,
+                           "draws": draws, "groups": {}}  # fmt: skip
+    for group in groups:
+        x = neighbourhood_points(problem, radii, group, draws, seed)
+        if "at_truth" not in out:
+            x = torch.cat([problem.true_x[None], x])
+        m = problem.evaluate(x)
+        passed = problem.success(m)
+        if "at_truth" not in out:
+            out["at_truth"] = {k: getattr(m, k)[0].tolist() for k in ("area", "dfd", "rmse")}
+            m = type(m)(*(t[1:] for t in m))
+            passed = passed[1:]
+        R, K = len(radii), len(problem.sensors)
+        worst = {k: getattr(m, k).reshape(R, draws, K).amax(-1).median(dim=1).values.tolist() for k in thresholds}
+        per_sensor = m.area.reshape(R, draws, K).median(dim=1).values.tolist()
+        share = passed.reshape(R, draws).to(torch.float64).mean(1).tolist()
+        ok = [all(t is None or worst[k][i] < t for k, t in thresholds.items()) for i in range(R)]
+        needed = None
+        for i in range(R):
+            if not ok[i]:
+                break
+            needed = radii[i]
+        out["groups"][group] = {**worst, "area_per_sensor": per_sensor, "pass_share": share,
+                                "slope": loglog_slopes(radii, worst["area"]), "radius_needed": needed}  # fmt: skip
+    return out
+
+
+def format_landscape(res: dict[str, Any]) -> str:
+    """A readable table of :func:`truth_neighbourhood`'s result."""
+    th = res["thresholds"]
+    lines = [
+        f"sensors: {', '.join(res['sensors'])}; thresholds: area {th['area']} m, dfd {th['dfd']} m/s, "
+        f"rmse {th['rmse']} m/s; {res['draws']} random directions per radius",
+        "at the truth: worst area {:.2e} m, dfd {:.2e} m/s, rmse {:.2e} m/s".format(
+            *(max(res["at_truth"][k]) for k in ("area", "dfd", "rmse"))
+        ),
+    ]
+    for group, g in res["groups"].items():
+        lines += ["", f"group {group}: radius needed to pass (median) = {g['radius_needed']}",
+                  f"{'radius':>8} {'worst A [m]':>12} {'slope':>6} {'worst DFD':>10} {'worst RMSE':>10} {'pass':>5}  "
+                  "median A per sensor [m]"]  # fmt: skip
+        for i, r in enumerate(res["radii"]):
+            slope = "" if i == 0 or g["slope"][i - 1] is None else f"{g['slope'][i - 1]:.2f}"
+            per = " ".join(f"{a:.1e}" for a in g["area_per_sensor"][i])
+            lines.append(f"{r:8.0e} {g['area'][i]:12.2e} {slope:>6} {g['dfd'][i]:10.3f} {g['rmse'][i]:10.4f} "
+                         f"{g['pass_share'][i]:5.2f}  {per}")  # fmt: skip
+    return "\n".join(lines)

@@ -1,0 +1,109 @@
+"""The landscape study around the twin truth: its bookkeeping on a linear toy, the real problem, the script."""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+
+import pytest
+import torch
+from conftest import REPO, SHORT_DURATION
+
+from marlcrash.calibrate import ProblemConfig, build_problem
+from marlcrash.calibrate.landscape import loglog_slopes, neighbourhood_points, truth_neighbourhood
+from marlcrash.errors import ConfigError
+from marlcrash.metrics import Metrics
+from marlcrash.reward import TerminationConfig
+
+
+class LinearToy:
+    """A problem whose metrics are exactly ``gain * rms(x - truth)`` on one sensor: slope 1 everywhere."""
+
+    def __init__(self, gain: float = 10.0, truth: bool = True):
+        self.n_agents, self.sensors, self.gain = 3, ["only"], gain
+        self.free = torch.ones(3, 7, dtype=torch.bool)
+        self.free[2, 4:] = False
+        self.true_x = torch.full((3, 7), 0.1, dtype=torch.float64) * self.free if truth else None
+        self.success_cfg = TerminationConfig(success_area=0.05, success_dfd=None, success_rmse=None)
+
+    def clip(self, x):
+        return torch.where(self.free, x.clamp(-1.0, 1.0), 0.0)
+
+    def evaluate(self, x):
+        d = (x - self.true_x)[:, self.free]
+        a = self.gain * d.pow(2).mean(-1).sqrt()[:, None]
+        return Metrics(a, a, a)
+
+    def success(self, m):
+        return (m.area < self.success_cfg.success_area).all(-1)
+
+
+def test_slopes_of_power_laws():
+    radii = [1e-4, 1e-3, 1e-2, 0.1]
+    for p in (0.0, 1.0, 2.5):
+        got = loglog_slopes(radii, [3.0 * r**p for r in radii])
+        assert got == pytest.approx([p] * 3, abs=1e-12)
+    assert loglog_slopes([1.0, 2.0, 4.0], [0.0, 1.0, 2.0]) == [None, pytest.approx(1.0)]
+
+
+def test_points_move_only_the_group_and_keep_their_directions():
+    toy = LinearToy()
+    radii = [1e-3, 1e-2]
+    x = neighbourhood_points(toy, radii, "E_s", draws=4, seed=1)
+    d = (x - toy.true_x).reshape(2, 4, 3, 7)
+    assert (d[..., [0, 2, 3, 4, 5, 6]] == 0).all() and (d[..., 1] != 0).all()
+    torch.testing.assert_close(d[0] / radii[0], d[1] / radii[1], rtol=1e-9, atol=0)
+    t = neighbourhood_points(toy, radii, "transmission", draws=4, seed=1).reshape(2, 4, 3, 7) - toy.true_x
+    assert (t[..., :2] == 0).all() and (t[:, :, 2, 4:] == 0).all()  # fixed coordinates never move
+
+
+def test_linear_toy_gives_slope_one_and_the_radius_it_needs():
+    toy = LinearToy(gain=10.0)
+    radii = [1e-4, 1e-3, 1e-2, 1e-1]
+    res = truth_neighbourhood(toy, radii, groups=["all"], draws=64, seed=0)
+    g = res["groups"]["all"]
+    assert res["at_truth"]["area"] == [0.0]
+    assert g["slope"] == pytest.approx([1.0] * 3, abs=1e-9)
+    # the rms of 64 x 18 standard normals is close to 1: the median area is gain * r within a few %
+    for r, a in zip(radii, g["area"], strict=True):
+        assert a == pytest.approx(10.0 * r, rel=0.1)
+    assert g["radius_needed"] == 1e-3  # about 0.01 passes the 0.05 threshold, about 0.1 does not
+    assert g["pass_share"][0] == 1.0 and g["pass_share"][-1] == 0.0
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "key"),
+    [({"radii": [1e-3, 1e-4]}, "radii"), ({"radii": [0.0, 1e-3]}, "radii"), ({"draws": 0}, "draws"),
+     ({"groups": ["stiffness"]}, "groups")],
+)  # fmt: skip
+def test_bad_arguments_name_the_key(kwargs, key):
+    with pytest.raises(ConfigError, match=key):
+        truth_neighbourhood(LinearToy(), **kwargs)
+
+
+def test_no_ground_truth_is_refused():
+    with pytest.raises(ConfigError, match="twin"):
+        truth_neighbourhood(LinearToy(truth=False), [1e-3])
+
+
+def test_real_problem_is_exact_at_the_truth_and_worsens_away_from_it():
+    problem = build_problem(ProblemConfig(duration=SHORT_DURATION))
+    before = problem.n_simulations
+    res = truth_neighbourhood(problem, [1e-6, 1e-1], groups=["all"], draws=2)
+    assert problem.n_simulations - before == 1 + 2 * 2
+    assert max(max(v) for v in res["at_truth"].values()) < 1e-12
+    area = res["groups"]["all"]["area"]
+    assert 0 < area[0] < 1e-4 < area[1]
+
+
+def test_script_prints_json():
+    cmd = [sys.executable, str(REPO / "benchmarks" / "bench_landscape.py"), "--draws", "1",
+           "--duration", str(SHORT_DURATION), "--json"]  # fmt: skip
+    out = subprocess.run(cmd, capture_output=True, text=True, timeout=600, cwd=REPO)
+    assert out.returncode == 0, out.stderr
+    res = json.loads(out.stdout)
+    assert set(res["groups"]) == {"E_x", "E_s", "transmission", "all"}
+    assert res["simulations"] == 1 + 4 * len(res["radii"])
+    assert all(math.isfinite(a) for g in res["groups"].values() for a in g["area"])
