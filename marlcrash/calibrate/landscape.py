@@ -32,6 +32,14 @@ GROUPS: dict[str, slice] = {"E_x": slice(0, 1), "E_s": slice(1, 2), "transmissio
 DEFAULT_RADII = (1e-6, 1e-5, 1e-4, 1e-3, 3e-3, 1e-2, 3e-2, 0.1)
 
 
+def _check(problem: CalibrationProblem, groups: list[str] | tuple[str, ...]) -> None:
+    if problem.true_x is None:
+        raise ConfigError("the landscape study needs a twin reference with ground truth", key="problem.reference")
+    for group in groups:
+        if group not in GROUPS:
+            raise ConfigError(f"unknown parameter group {group!r}; expected one of {list(GROUPS)}", key="groups")
+
+
 def neighbourhood_points(
     problem: CalibrationProblem, radii: list[float], group: str, draws: int, seed: int = 0
 ) -> torch.Tensor:
@@ -41,10 +49,7 @@ def neighbourhood_points(
     standard normal directions ``d_j`` (non-zero only on the group's free coordinates) at every
     radius, so the radii compare like with like.
     """
-    if problem.true_x is None:
-        raise ConfigError("the landscape study needs a twin reference with ground truth", key="problem.reference")
-    if group not in GROUPS:
-        raise ConfigError(f"unknown parameter group {group!r}; expected one of {list(GROUPS)}", key="groups")
+    _check(problem, [group])
     g = torch.Generator().manual_seed(seed)
     d = torch.randn(draws, problem.n_agents, 7, generator=g, dtype=torch.float64)
     mask = torch.zeros(7, dtype=torch.bool)
@@ -98,19 +103,14 @@ def truth_neighbourhood(
         "dfd": problem.success_cfg.success_dfd,
         "rmse": problem.success_cfg.success_rmse,
     }
-    out: dict[str, Any] = {"sensors": list(problem.sensors), "thresholds": thresholds, "radii": radii,
-                           "draws": draws, "groups": {}}  # fmt: skip
+    _check(problem, groups)  # before simulating anything
+    m0 = problem.evaluate(problem.true_x[None])
+    out: dict[str, Any] = {"sensors": list(problem.sensors), "thresholds": thresholds, "radii": radii, "draws": draws,
+                           "at_truth": {k: getattr(m0, k)[0].tolist() for k in thresholds}, "groups": {}}  # fmt: skip
+    R, K = len(radii), len(problem.sensors)
     for group in groups:
-        x = neighbourhood_points(problem, radii, group, draws, seed)
-        if "at_truth" not in out:
-            x = torch.cat([problem.true_x[None], x])
-        m = problem.evaluate(x)
+        m = problem.evaluate(neighbourhood_points(problem, radii, group, draws, seed))
         passed = problem.success(m)
-        if "at_truth" not in out:
-            out["at_truth"] = {k: getattr(m, k)[0].tolist() for k in ("area", "dfd", "rmse")}
-            m = type(m)(*(t[1:] for t in m))
-            passed = passed[1:]
-        R, K = len(radii), len(problem.sensors)
         worst = {k: getattr(m, k).reshape(R, draws, K).amax(-1).median(dim=1).values.tolist() for k in thresholds}
         per_sensor = m.area.reshape(R, draws, K).median(dim=1).values.tolist()
         share = passed.reshape(R, draws).to(torch.float64).mean(1).tolist()
