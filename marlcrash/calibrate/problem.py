@@ -29,7 +29,10 @@ layout: sub-assemblies, some split left/right) ``true_x`` is the twin's own incr
 (:attr:`marlcrash.references.ReferenceBatch.true_increments`) and its parameters equal the
 truth bit for bit: zero metrics, zero parameter error. Agents that merge sub-assemblies
 cannot follow per-sub-assembly increments; then ``true_x`` is a least-squares fit in
-parameter space and the truth is representable only approximately.
+parameter space and the truth is representable only approximately. With ``masking`` on, the
+coordinates of agents the impact-region rule leaves inactive stay at zero in ``true_x`` too, so
+the twin's perturbation of their cells is out of reach by design (all agents are active at full
+width).
 
 The search box: ``|x| <= box_radius`` per coordinate, and for ``E_x``, ``E_s`` also within
 the environment's behaviour bounds (``log lo <= x <= log hi``). Coordinates that cannot
