@@ -94,6 +94,9 @@ def test_box_and_free_coordinates(problem):
     assert torch.allclose(x[0, :, :2][problem.free[:, :2]], torch.tensor(top, dtype=torch.float64))
     assert torch.allclose(x[0, :, 2:][problem.free[:, 2:]], torch.tensor(1.0, dtype=torch.float64))
     assert (x[0][~problem.free] == 0).all()
+    lo, hi = problem.flat_box()
+    assert torch.equal(hi, problem.flat(x)[0])
+    assert torch.equal(lo, problem.flat(problem.clip(-x.abs() - 10.0))[0])
     assert problem.n_free == int(problem.free.sum()) and problem.n_free > 2 * problem.n_agents
     z = torch.arange(problem.n_free, dtype=torch.float64)[None]
     assert torch.equal(problem.flat(problem.unflat(z)), z)

@@ -204,7 +204,7 @@ def random_search(
     rng = np.random.default_rng(seed)
     progress = Progress(budget, stop_on_success)
     initial = _start(problem, progress)
-    lo, hi = problem.flat(problem.lower[None])[0].numpy(), problem.flat(problem.upper[None])[0].numpy()
+    lo, hi = (b.numpy() for b in problem.flat_box())
     half = 0.5 * (hi - lo)
     centre = np.zeros_like(lo)
     radius = config.radius if config.recenter else 1.0
@@ -231,7 +231,7 @@ def cmaes(
     rng = np.random.default_rng(seed)
     progress = Progress(budget, stop_on_success)
     initial = _start(problem, progress)
-    lo, hi = problem.flat(problem.lower[None])[0].numpy(), problem.flat(problem.upper[None])[0].numpy()
+    lo, hi = (b.numpy() for b in problem.flat_box())
     opts = {
         "popsize": config.popsize,
         "bounds": [lo.tolist(), hi.tolist()],
@@ -270,7 +270,7 @@ def gradient_descent(
     """Projected Adam through the differentiable surrogate (module docstring), seeded torch Generator."""
     gen = torch.Generator().manual_seed(seed)
     progress = Progress(budget, stop_on_success)
-    lo, hi = problem.flat(problem.lower[None])[0], problem.flat(problem.upper[None])[0]
+    lo, hi = problem.flat_box()
     B = config.batch_size
     z0 = (torch.rand(B, lo.numel(), generator=gen, dtype=torch.float64) * 2 - 1) * config.start_radius
     z0[0] = 0.0

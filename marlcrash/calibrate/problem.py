@@ -298,6 +298,10 @@ class CalibrationProblem:
         """Free coordinates ``[N, n_free]`` of ``x [N, n_agents, 7]``."""
         return x[:, self.free]
 
+    def flat_box(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """Lower and upper bounds ``[n_free]`` of the free coordinates (the search box of :meth:`clip`)."""
+        return self.flat(self.lower[None])[0], self.flat(self.upper[None])[0]
+
     def unflat(self, z: torch.Tensor) -> torch.Tensor:
         """``[N, n_agents, 7]`` from free coordinates ``z [N, n_free]`` (others zero)."""
         z = torch.as_tensor(z, dtype=torch.float64)
