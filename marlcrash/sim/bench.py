@@ -47,13 +47,13 @@ def _roofline(lp, src, dst, n, n_steps, cst):
                 c = dst[ll]
                 for j in range(CH):
                     dd = ds[c, j] - ds[a, j]
-                    y = P[ll, kernels.P_YC, j]
-                    ft = f[ll, j] + P[ll, kernels.P_K0, j] * dd
+                    y = P[ll, kernels.H_YU, j]
+                    ft = f[ll, j] + P[ll, kernels.H_K, j] * dd
                     fn = min(max(ft, -y), y)
-                    plastic[a, j] += fn * (ft - fn) * P[ll, kernels.P_IK0, j]
+                    plastic[a, j] += fn * (ft - fn) * P[ll, kernels.H_IK, j]
                     f[ll, j] = fn
-                    st[j] += half * fn * fn * P[ll, kernels.P_IK0, j]
-                    ftot = fn + (P[ll, kernels.P_DAMP, j] * dd * inv_dt if ft == fn else zero)
+                    st[j] += half * fn * fn * P[ll, kernels.H_IK, j]
+                    ftot = fn + (P[ll, kernels.H_DAMP, j] * dd * inv_dt if ft == fn else zero)
                     fs[a, j] += ftot
                     fd[c, j] += ftot
             for i in range(n):
@@ -88,12 +88,12 @@ def measure_roofline(sim: Surrogate, batch: int, n_steps: int, repeats: int = 1,
     """
     npdt = np.float32 if sim.dtype == torch.float32 else np.float64
     L = sim.L if n_links is None else int(n_links)
-    nprop = kernels.n_prop(bool(sim.config.springback_relief))
-    lanes = min(kernels.default_lanes(L, np.dtype(npdt).itemsize, 1, bool(sim.config.springback_relief)), batch)
+    nprop = kernels.n_hot(bool(sim.config.springback_relief))
+    lanes = kernels.default_lanes(batch, numba.get_num_threads())
     n_chunks = -(-batch // lanes)
     rng = np.random.default_rng(0)
     lp = rng.uniform(1e3, 1e5, (n_chunks, L, nprop, lanes)).astype(npdt)
-    lp[:, :, kernels.P_IK0] = 1.0 / lp[:, :, kernels.P_K0]
+    lp[:, :, kernels.H_IK] = 1.0 / lp[:, :, kernels.H_K]
     src = sim.src.numpy()[sim.link_order][:L]
     dst = sim.dst.numpy()[sim.link_order][:L]
     cst = np.array([0.5, 0.0, 1.0, 1.0 / sim.dt, sim.dt, kernels._BIG], dtype=npdt)

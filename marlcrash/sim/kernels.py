@@ -6,9 +6,13 @@ energy ledgers differs, so results agree to rounding (tested to 1e-6 relative).
 
 Memory layout (what makes it fast): the batch is cut into chunks of ``lanes`` simulations
 and every array is batch-innermost, ``[chunk, rows, lanes]``, so the inner loop over lanes is
-one SIMD vector. A chunk's link data (six property fields and the state) is stored link by
-link, ``[L, fields, lanes]``: one sequential stream per step that fits the 1 MiB L2 of a core
-(``lanes`` is chosen for that, see :func:`default_lanes`). Chunks run in parallel (``prange``).
+SIMD vectors. A chunk's link data is stored link by link, ``[L, fields, lanes]``: one sequential
+stream per step. Only the *current* properties are streamed (``H_*`` fields: yield forces, stiffness,
+compliance, damping): saturation is monotone, so when a cell bottoms out in a lane its out-links are
+rewritten once to their dense values (:func:`_bottom_out`, from the cold ``C_*`` fields) instead of
+interpolating between intact and dense values in every step. Link stored energy is summed at output
+steps only. ``lanes`` balances vector width against keeping both cores busy (:func:`default_lanes`);
+chunks run in parallel (``prange``).
 
 Energy ledgers without per-link work arrays: with ``r = v0 dt - ds`` the rearward increment
 of a node in the frame moving at the impact speed, a link's work ``fbar (ds_dst - ds_src)``
@@ -34,9 +38,14 @@ _MODES = {"none": 0, "final": 1, "series": 2}
 _BIG = 1e30  # yield force of a bottomed-out link [N] (as in the torch path)
 _HUGE = 1e300  # stands in for an infinite saturation energy (cells without links) [J]
 
-# Per-link property fields, [chunk, L, N_PROP, lanes].
-P_YC, P_K0, P_KD, P_IK0, P_IKD, P_DAMP, P_Q0, P_QD = range(8)
-N_PROP = 8
+# Per-link fields read every step ("hot"), [chunk, L, N_HOT, lanes]: the element's *current* properties.
+# They start at the intact values and are rewritten once, lane by lane, when the source cell bottoms out
+# (saturation is monotone), so the link loop does no interpolation and reads no dense-state fields.
+H_YU, H_YL, H_K, H_IK, H_DAMP, H_Q = range(6)
+N_HOT = 6
+# Fields read only when the source cell bottoms out ("cold"), [chunk, L, N_COLD, lanes].
+C_KD, C_IKD, C_QD = range(3)
+N_COLD = 3
 # Per-node property fields, [chunk, n, N_NODE, lanes].
 W_ES, W_K, W_C, W_GAP, W_COV = range(5)
 N_NODE = 5
@@ -44,43 +53,55 @@ N_NODE = 5
 KERNEL_SECONDS = [0.0]
 """Cumulative wall time spent inside the compiled kernel [s] (for overhead accounting in benchmarks)."""
 
-L2_BYTES = 1 << 20
-"""Per-core L2 size the chunk width is chosen for [bytes]."""
+LANE_EFFICIENCY = {1: 0.56, 2: 0.72, 4: 0.92, 8: 0.98, 16: 1.0}
+"""Per-simulation throughput of a chunk of this many lanes relative to 16 lanes, measured on the default car
+(float64, per-cell energies at the final step, B = 128, 2 threads; 32 lanes were no faster than 16)."""
 
 _FASTMATH = {"nsz", "arcp", "contract", "reassoc", "afn"}  # no nnan/ninf: BIG and saturation tests use huge values
 
 
-def n_prop(relief: bool) -> int:
-    """Link property fields the kernel reads: the relaxation factors only with springback relief."""
-    return N_PROP if relief else P_Q0
+def n_hot(relief: bool) -> int:
+    """Hot link fields the kernel reads: the relaxation factor only with springback relief."""
+    return N_HOT if relief else H_Q
 
 
-def default_lanes(n_links: int, itemsize: int, mode: int, relief: bool = False) -> int:
-    """Simulations per chunk: the widest power of two (<= 16) whose link data fits in L2."""
-    # properties + f_el, opening (+ yielded with relief) (+ f_prev for per-cell ledgers)
-    fields = n_prop(relief) + 2 + (1 if relief else 0) + (1 if mode else 0)
-    lanes = 16
-    while lanes > 4 and n_links * fields * lanes * itemsize > 0.8 * L2_BYTES:
-        lanes //= 2
-    return lanes
+def n_cold(relief: bool) -> int:
+    """Cold link fields: the bottomed-out relaxation factor only with springback relief."""
+    return N_COLD if relief else C_QD
+
+
+def default_lanes(batch: int, threads: int) -> int:
+    """Simulations per chunk: the width that minimises the estimated wall time of ``batch`` simulations.
+
+    Chunks run in parallel, ``threads`` at a time; a chunk of ``w`` lanes costs ``w / LANE_EFFICIENCY[w]``
+    and the last chunk is padded. Wide chunks vectorise best, narrow ones keep both cores busy at small
+    ``batch`` (e.g. 24 simulations: 6 chunks of 4 beat 2 chunks of 16, one of them half padding).
+    """
+    best, best_cost = 1, float("inf")
+    for w, eff in LANE_EFFICIENCY.items():
+        chunks = -(-batch // w)
+        rounds = -(-chunks // max(threads, 1))
+        cost = rounds * w / eff
+        if cost < best_cost - 1e-12:
+            best, best_cost = w, cost
+    return best
 
 
 @numba.njit(cache=True, fastmath=_FASTMATH, inline="always")
-def _link(P, ll, j, dd, sat, tr, gap, relief, f_el, o, yd, plastic, a, st_l, cst):
-    """One link update in lane ``j``: return-mapped force, plastic work, stored energy; returns f_tot.
+def _link(P, ll, j, dd, gap, relief, f_el, o, yd, plastic, a, cst):
+    """One link update in lane ``j``: return-mapped force and plastic work; returns f_tot.
 
     ``gap`` and ``relief`` are compile-time constants at every call site (the link loops are
     specialised per link kind and per springback-relief setting, so neither costs a branch per lane).
-    Plain links are elastic-plastic with tension at ``tr`` times the crush strength; gap (contact)
-    links carry compression only once their opening ``o`` has closed. Springback relief (module doc of
+    Plain links are elastic-plastic with tension up to ``P[H_YL]``; gap (contact) links carry compression
+    only once their opening ``o`` has closed. Springback relief (module doc of
     :mod:`marlcrash.sim.surrogate`): a link that has yielded (``yd``) and unloads (``|f_ret| < |f0|``,
     same sign) has its force scaled by its relaxation factor ``q <= 1``.
     """
-    half, zero, big, inv_dt = cst[0], cst[1], cst[5], cst[3]
-    yc = P[ll, P_YC, j]
-    k = P[ll, P_K0, j] + sat * (P[ll, P_KD, j] - P[ll, P_K0, j])
-    ik = P[ll, P_IK0, j] + sat * (P[ll, P_IKD, j] - P[ll, P_IK0, j])
-    yu = yc + sat * (big - yc) if yc > zero else zero  # zero-share links stay absent after saturation
+    half, zero, inv_dt = cst[0], cst[1], cst[3]
+    k = P[ll, H_K, j]
+    ik = P[ll, H_IK, j]
+    yu = P[ll, H_YU, j]
     f0 = f_el[ll, j]
     if gap:
         z = f0 * ik - o[ll, j] + dd
@@ -89,25 +110,24 @@ def _link(P, ll, j, dd, sat, tr, gap, relief, f_el, o, yd, plastic, a, st_l, cst
         f_ret = min(f_tr, yu)
         elastic = f_tr == f_ret and z > zero
     else:
-        yl = tr * yc + sat * (big - tr * yc) if yc > zero else zero
         f_tr = f0 + k * dd
-        f_ret = min(max(f_tr, -yl), yu)
+        f_ret = min(max(f_tr, -P[ll, H_YL, j]), yu)
         elastic = f_tr == f_ret
     f_new = f_ret
     if relief:
         y = max(yd[ll, j], cst[2] if f_tr != f_ret else zero)
         yd[ll, j] = y
         if y > zero and f_ret * f0 > zero and abs(f_ret) < abs(f0):
-            f_new = f_ret * (P[ll, P_Q0, j] + sat * (P[ll, P_QD, j] - P[ll, P_Q0, j]))
-    plastic[a, j] += (f_ret * (f_tr - f_ret) + half * (f_ret * f_ret - f_new * f_new)) * ik
+            f_new = f_ret * P[ll, H_Q, j]
+        plastic[a, j] += (f_ret * (f_tr - f_ret) + half * (f_ret * f_ret - f_new * f_new)) * ik
+    else:
+        plastic[a, j] += f_ret * (f_tr - f_ret) * ik
     f_el[ll, j] = f_new
-    st_l[j] += half * f_new * f_new * ik
-    return f_new + (P[ll, P_DAMP, j] * dd * inv_dt if elastic else zero)
+    return f_new + (P[ll, H_DAMP, j] * dd * inv_dt if elastic else zero)
 
 
 @numba.njit(cache=True, fastmath=_FASTMATH, inline="always")
-def _links(P, lo, hi, gap, relief, ledger, src, dst, tratio, ds, satc, f_el, o, yd, plastic, st_l, fs, fd, h_out,
-           f_prev, step_in, cst):  # fmt: skip
+def _links(P, lo, hi, gap, relief, ledger, src, dst, ds, f_el, o, yd, plastic, fs, fd, h_out, f_prev, step_in, cst):
     """Update links ``lo .. hi-1`` (all of one kind) in every lane and scatter their forces to the nodes.
 
     ``gap`` and ``relief`` are literal booleans at the call sites; ``ledger`` adds the per-link term of
@@ -117,10 +137,8 @@ def _links(P, lo, hi, gap, relief, ledger, src, dst, tratio, ds, satc, f_el, o, 
     for ll in range(lo, hi):
         a = src[ll]
         c = dst[ll]
-        tr = tratio[ll]
         for j in range(CH):
-            f_tot = _link(P, ll, j, ds[c, j] - ds[a, j], satc[a, j], tr, gap, relief, f_el, o, yd, plastic, a, st_l,
-                          cst)  # fmt: skip
+            f_tot = _link(P, ll, j, ds[c, j] - ds[a, j], gap, relief, f_el, o, yd, plastic, a, cst)
             fs[a, j] += f_tot
             fd[c, j] += f_tot
             if ledger:
@@ -128,16 +146,43 @@ def _links(P, lo, hi, gap, relief, ledger, src, dst, tratio, ds, satc, f_el, o, 
                 f_prev[ll, j] = f_tot
 
 
+@numba.njit(cache=True, fastmath=_FASTMATH, inline="always")
+def _bottom_out(P, PC, i, j, out_ptr, out_idx, n_plain, relief, cst):
+    """Lane ``j`` of cell ``i`` has bottomed out: rewrite its out-links' hot fields to the dense state.
+
+    The expressions are those of the torch path's interpolation ``x0 + sat (x_dense - x0)`` at ``sat = 1``
+    (yield forces become ``BIG`` where the link has a share, stiffness and compliance their dense values),
+    evaluated once instead of every step.
+    """
+    one, zero, big = cst[2], cst[1], cst[5]
+    for q in range(out_ptr[i], out_ptr[i + 1]):
+        ll = out_idx[q]
+        yc = P[ll, H_YU, j]
+        if ll < n_plain:
+            yt = P[ll, H_YL, j]
+            P[ll, H_YL, j] = yt + one * (big - yt) if yc > zero else zero
+        P[ll, H_YU, j] = yc + one * (big - yc) if yc > zero else zero
+        k0 = P[ll, H_K, j]
+        P[ll, H_K, j] = k0 + one * (PC[ll, C_KD, j] - k0)
+        ik0 = P[ll, H_IK, j]
+        P[ll, H_IK, j] = ik0 + one * (PC[ll, C_IKD, j] - ik0)
+        if relief:
+            q0 = P[ll, H_Q, j]
+            P[ll, H_Q, j] = q0 + one * (PC[ll, C_QD, j] - q0)
+
+
 @numba.njit(cache=True, fastmath=_FASTMATH, parallel=True)
 def _simulate(
     cst,
     lp,
+    lc,
     npr,
     speed,
     src,
     dst,
     n_plain,
-    tratio,
+    out_ptr,
+    out_idx,
     gap0,
     mass,
     mass_ke,
@@ -165,11 +210,13 @@ def _simulate(
     """Advance all chunks; links ``0 .. n_plain-1`` are plain links, the rest gap (contact) links.
 
     Args:
-        lp: ``[C, L, nprop, lanes]`` link properties (dtype of the simulation; the relaxation factors only with
-            springback relief, see :func:`n_prop`).
+        lp: ``[C, L, n_hot, lanes]`` current link properties (dtype of the simulation; rewritten in place when
+            a source cell bottoms out, see :func:`_bottom_out`).
+        lc: ``[C, L, n_cold, lanes]`` dense (bottomed-out) stiffness, compliance (and relaxation factor).
         npr: ``[C, n, N_NODE, lanes]`` node properties (saturation energy, wall contact).
         speed: ``[C, lanes]`` impact speeds [m/s].
-        src, dst, tratio, gap0: ``[L]`` link ends, tensile/compressive yield ratio, initial gap [m].
+        src, dst, gap0: ``[L]`` link ends and initial gap [m].
+        out_ptr, out_idx: the links by source cell (CSR: links ``out_idx[out_ptr[i]:out_ptr[i + 1]]`` start at i).
         mass, mass_ke: ``[n]`` scaled mass and kinetic-energy mass [kg].
         Outputs are ``[C, lanes, ...]`` float64 arrays (see :func:`run_numba`).
     """
@@ -180,6 +227,7 @@ def _simulate(
     n_steps = (n_out - 1) * sub
     for ch in numba.prange(n_chunks):
         P = lp[ch]
+        PC = lc[ch]
         NP = npr[ch]
         # node state [n, lanes]
         s = np.zeros((n, CH), lp.dtype)
@@ -188,9 +236,15 @@ def _simulate(
         fs = np.zeros((n, CH), lp.dtype)  # link forces summed by source node
         fd = np.zeros((n, CH), lp.dtype)  # ... and by destination node
         plastic = np.zeros((n, CH), lp.dtype)
-        satc = np.zeros((n, CH), lp.dtype)
+        sat = np.zeros((n, CH), lp.dtype)  # cell bottomed out (its out-links hold their dense properties)
         fw_prev = np.zeros((n, CH), lp.dtype)
         acc = np.zeros((n, CH), lp.dtype)
+        # cells the barrier covers in some lane of this chunk: the only ones that need the contact terms
+        wall_node = np.zeros(n, np.bool_)
+        for i in range(n):
+            for j in range(CH):
+                if NP[i, W_COV, j] > zero:
+                    wall_node[i] = True
         # float64 node ledgers
         fs_prev = np.zeros((n, CH))
         fd_prev = np.zeros((n, CH))
@@ -242,38 +296,53 @@ def _simulate(
                     s[i, j] += d
                     fs[i, j] = zero
                     fd[i, j] = zero
-                    satc[i, j] = one if plastic[i, j] >= NP[i, W_ES, j] else zero
-            for j in range(CH):
-                st_l[j] = zero
+            # saturation is monotone: a cell's out-links switch to their dense properties once
+            for i in range(n):
+                new = zero
+                for j in range(CH):
+                    new += (one if plastic[i, j] >= NP[i, W_ES, j] else zero) - sat[i, j]
+                if new > zero:
+                    for j in range(CH):
+                        if sat[i, j] == zero and plastic[i, j] >= NP[i, W_ES, j]:
+                            sat[i, j] = one
+                            _bottom_out(P, PC, i, j, out_ptr, out_idx, n_plain, relief, cst)
             # plain links (elastic-plastic), then gap (contact) links; one specialised loop per kind
             led = mode > 0
             if relief:
-                _links(P, 0, n_plain, False, True, led, src, dst, tratio, ds, satc, f_el, o, yd, plastic, st_l, fs, fd,
-                       h_out, f_prev, step_in, cst)  # fmt: skip
-                _links(P, n_plain, L, True, True, led, src, dst, tratio, ds, satc, f_el, o, yd, plastic, st_l, fs, fd,
-                       h_out, f_prev, step_in, cst)  # fmt: skip
+                _links(P, 0, n_plain, False, True, led, src, dst, ds, f_el, o, yd, plastic, fs, fd, h_out, f_prev,
+                       step_in, cst)  # fmt: skip
+                _links(P, n_plain, L, True, True, led, src, dst, ds, f_el, o, yd, plastic, fs, fd, h_out, f_prev,
+                       step_in, cst)  # fmt: skip
             else:
-                _links(P, 0, n_plain, False, False, led, src, dst, tratio, ds, satc, f_el, o, yd, plastic, st_l, fs,
-                       fd, h_out, f_prev, step_in, cst)  # fmt: skip
-                _links(P, n_plain, L, True, False, led, src, dst, tratio, ds, satc, f_el, o, yd, plastic, st_l, fs,
-                       fd, h_out, f_prev, step_in, cst)  # fmt: skip
+                _links(P, 0, n_plain, False, False, led, src, dst, ds, f_el, o, yd, plastic, fs, fd, h_out, f_prev,
+                       step_in, cst)  # fmt: skip
+                _links(P, n_plain, L, True, False, led, src, dst, ds, f_el, o, yd, plastic, fs, fd, h_out, f_prev,
+                       step_in, cst)  # fmt: skip
             for j in range(CH):
                 pmax[j] = 0.0
                 w_link[j] = 0.0
             for i in range(n):
                 mi = mass[i]
                 mk = mass_ke[i]
+                if wall_node[i]:
+                    for j in range(CH):
+                        pen = s[i, j] - NP[i, W_GAP, j]
+                        inc = NP[i, W_COV, j] > zero and pen > zero
+                        fw = max(NP[i, W_K, j] * pen + NP[i, W_C, j] * v[i, j], zero) if inc else zero
+                        stored_w[i, j] = 0.5 * float(NP[i, W_K, j]) * float(pen) * float(pen) if inc else 0.0
+                        fwbar = 0.5 * (float(fw_prev[i, j]) + float(fw))
+                        dsi = float(ds[i, j])
+                        w_work[i, j] += fwbar * dsi
+                        w_in[i, j] += fwbar * float(step_in[j])
+                        fw_prev[i, j] = fw
+                        pmax[j] = max(pmax[j], float(pen) if inc else 0.0)
+                        acc[i, j] = (fs[i, j] - fd[i, j] - fw) / mi
+                else:
+                    for j in range(CH):
+                        acc[i, j] = (fs[i, j] - fd[i, j]) / mi
                 for j in range(CH):
-                    pen = s[i, j] - NP[i, W_GAP, j]
-                    inc = NP[i, W_COV, j] > zero and pen > zero
-                    fw = max(NP[i, W_K, j] * pen + NP[i, W_C, j] * v[i, j], zero) if inc else zero
-                    stored_w[i, j] = 0.5 * float(NP[i, W_K, j]) * float(pen) * float(pen) if inc else 0.0
-                    fwbar = 0.5 * (float(fw_prev[i, j]) + float(fw))
                     dsi = float(ds[i, j])
                     r = float(step_in[j]) - dsi
-                    w_work[i, j] += fwbar * dsi
-                    w_in[i, j] += fwbar * float(step_in[j])
-                    fw_prev[i, j] = fw
                     fsi = float(fs[i, j])
                     fdi = float(fd[i, j])
                     fsb = 0.5 * (fs_prev[i, j] + fsi)
@@ -283,15 +352,18 @@ def _simulate(
                     p_in[i, j] += fdb * r
                     fs_prev[i, j] = fsi
                     fd_prev[i, j] = fdi
-                    a_i = (fs[i, j] - fd[i, j] - fw) / mi
-                    v_new = v[i, j] + dtf * a_i
-                    acc[i, j] = a_i
+                    v_new = v[i, j] + dtf * acc[i, j]
                     ds[i, j] = half * mk * v[i, j] * v_new  # reused: leapfrog kinetic energy
                     v[i, j] = v_new
-                    pmax[j] = max(pmax[j], float(pen) if inc else 0.0)
             for j in range(CH):
                 a_w[j] += w_link[j]
             if record:
+                # elastic energy of the links (only needed at output steps)
+                for j in range(CH):
+                    st_l[j] = zero
+                for ll in range(L):
+                    for j in range(CH):
+                        st_l[j] += half * f_el[ll, j] * f_el[ll, j] * P[ll, H_IK, j]
                 for j in range(CH):
                     for q in range(K):
                         acc_o[ch, j, q, t] = acc[sidx[q], j]
@@ -322,8 +394,7 @@ def _simulate(
                     for ll in range(L):
                         a = src[ll]
                         for j in range(CH):
-                            ik = P[ll, P_IK0, j] + satc[a, j] * (P[ll, P_IKD, j] - P[ll, P_IK0, j])
-                            st_cell[a, j] += 0.5 * float(f_el[ll, j]) * float(f_el[ll, j]) * float(ik)
+                            st_cell[a, j] += 0.5 * float(f_el[ll, j]) * float(f_el[ll, j]) * float(P[ll, H_IK, j])
                     for j in range(CH):
                         for i in range(n):
                             cin_o[ch, j, i, tt] = w_in[i, j] + p_in[i, j]
@@ -355,7 +426,7 @@ def run_numba(
     tdt = torch.float32 if npdt is np.float32 else torch.float64
     mode = _MODES[record_cells]
     relief = bool(sim.config.springback_relief)
-    nprop = n_prop(relief)
+    nh, nc = n_hot(relief), n_cold(relief)
     # Links whose transmission share is zero in every row carry no force, before or after saturation
     # (crush strength 0): leaving them out changes no number.
     with torch.no_grad():
@@ -363,26 +434,38 @@ def run_numba(
     order = sim.link_order[live[sim.link_order]]
     L = len(order)
     n_plain = int((~sim.is_gap.numpy()[order]).sum())
-    lanes = min(default_lanes(L, np.dtype(npdt).itemsize, mode, relief), B)
+    src = sim.src.numpy()[order]
+    # links by source cell (CSR), for the one-time switch to dense properties when a cell bottoms out
+    out_idx = np.argsort(src, kind="stable").astype(np.int64)
+    out_ptr = np.zeros(n + 1, np.int64)
+    np.cumsum(np.bincount(src, minlength=n), out=out_ptr[1:])
+    lanes = default_lanes(B, numba.get_num_threads())
     n_chunks = -(-B // lanes)
     Bp = n_chunks * lanes
 
     with torch.no_grad():
         k = props.k.detach()
         kd = props.k_dense.detach()
-        fields = [props.yield_c.detach(), k, kd, 1.0 / k, 1.0 / kd, props.damping.detach()]
+        yc = props.yield_c.detach()
+        tr = torch.as_tensor(sim.tension_ratio_np, dtype=tdt)
+        hot = [yc.to(tdt), yc.to(tdt) * tr, k, 1.0 / k, props.damping.detach()]
+        cold = [kd, 1.0 / kd]
         if relief:
-            fields += [props.relax.detach(), props.relax_dense.detach()]
-        lp = torch.stack(fields, dim=1)[:, :, order].to(tdt)  # [B, nprop, L]
+            hot.append(props.relax.detach())
+            cold.append(props.relax_dense.detach())
+        lp = torch.stack([x.to(tdt) for x in hot], dim=1)[:, :, order]  # [B, nh, L]
+        lc = torch.stack([x.to(tdt) for x in cold], dim=1)[:, :, order]  # [B, nc, L]
         e_s = props.e_s.detach().clamp(max=min(_HUGE, torch.finfo(props.e_s.dtype).max))
         npr = torch.stack([e_s, wall.k, wall.damping, wall.gap, wall.covered.to(e_s.dtype)], dim=1).to(tdt)
         sp = wall.speed.detach().to(tdt)
         if Bp > B:  # pad the last chunk by repeating the last row
             lp = torch.cat([lp, lp[-1:].expand(Bp - B, -1, -1)])
+            lc = torch.cat([lc, lc[-1:].expand(Bp - B, -1, -1)])
             npr = torch.cat([npr, npr[-1:].expand(Bp - B, -1, -1)])
             sp = torch.cat([sp, sp[-1:].expand(Bp - B)])
         # [Bp, F, rows] -> [chunks, rows, F, lanes]
-        lp_a = np.ascontiguousarray(lp.reshape(n_chunks, lanes, nprop, L).permute(0, 3, 2, 1).numpy())
+        lp_a = np.ascontiguousarray(lp.reshape(n_chunks, lanes, nh, L).permute(0, 3, 2, 1).numpy())
+        lc_a = np.ascontiguousarray(lc.reshape(n_chunks, lanes, nc, L).permute(0, 3, 2, 1).numpy())
         np_a = np.ascontiguousarray(npr.reshape(n_chunks, lanes, N_NODE, n).permute(0, 3, 2, 1).numpy())
         sp_a = np.ascontiguousarray(sp.reshape(n_chunks, lanes).numpy())
 
@@ -399,12 +482,14 @@ def run_numba(
     _simulate(
         cst,
         lp_a,
+        lc_a,
         np_a,
         sp_a,
-        sim.src.numpy()[order],
+        src,
         sim.dst.numpy()[order],
         n_plain,
-        sim.tension_ratio_np[order].astype(npdt),
+        out_ptr,
+        out_idx,
         sim.gap.to(torch.float64).numpy()[order].astype(npdt),
         sim.mass.to(torch.float64).numpy().astype(npdt),
         sim.mass_ke.to(torch.float64).numpy().astype(npdt),
