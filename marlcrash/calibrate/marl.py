@@ -771,8 +771,12 @@ def train(config: TrainConfig, *, stop_at: int | None = None, evaluate: bool = T
     if state is not None:
         tr.load_state_dict(state)
     start = time.perf_counter() - tr.wall_time_s
+    # with a time limit the iteration count is only a cap: say when training will stop
+    desc = config.algorithm.name
+    if config.time_limit_s is not None:
+        desc += f" (stops by {config.time_limit_s:.0f} s)"
     bar = tqdm(total=config.iterations, initial=tr.iteration, disable=not config.progress_bar, unit="it",
-               desc=f"{config.algorithm.name}")  # fmt: skip
+               desc=desc)  # fmt: skip
     last_dt = 0.0
     try:
         while tr.iteration < config.iterations:
