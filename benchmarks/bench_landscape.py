@@ -6,7 +6,12 @@ log-scale distance ``r`` from the twin's hidden truth, per parameter group, with
 slope of the area (1: smooth, near 0: the pulse jumps) and the largest radius that still passes
 (:mod:`marlcrash.calibrate.landscape`). About 300 simulations, well under a minute on 2 cores.
 
-Usage: python benchmarks/bench_landscape.py [--scenario full_width_40] [--reference-seed 0] [--draws 8] [--json]
+With ``--cluster-radii 0 0.08 0.15 0.25`` it instead reads every sensor as the mass-weighted mean
+velocity of the cells within each radius (a sensor bracket rather than one light cell) and prints the
+median area per sensor at radii 1e-4, 1e-3 and 1e-2 (:func:`marlcrash.calibrate.landscape.cluster_sensor_study`).
+
+Usage: python benchmarks/bench_landscape.py [--scenario full_width_40] [--reference-seed 0] [--draws 8]
+       [--duration S] [--cluster-radii M [M ...]] [--json]
 """
 
 from __future__ import annotations
@@ -18,7 +23,12 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from marlcrash.calibrate.landscape import format_landscape, truth_neighbourhood
+from marlcrash.calibrate.landscape import (
+    cluster_sensor_study,
+    format_cluster_study,
+    format_landscape,
+    truth_neighbourhood,
+)
 from marlcrash.calibrate.problem import ProblemConfig, build_problem
 
 
@@ -28,14 +38,28 @@ def main() -> None:
     ap.add_argument("--reference-seed", type=int, default=0, help="seed of the twin's hidden perturbation")
     ap.add_argument("--draws", type=int, default=8, help="random directions per radius")
     ap.add_argument("--duration", type=float, default=None, help="simulated window [s] (default: the scenario's)")
+    ap.add_argument(
+        "--cluster-radii",
+        type=float,
+        nargs="+",
+        default=None,
+        metavar="M",
+        help="instead: read each sensor as the mass-weighted mean of the cells within these radii [m] "
+        "(0 = the sensor cell alone) and report the area at radii 1e-4, 1e-3, 1e-2",
+    )
     ap.add_argument("--json", action="store_true", help="print the result dict as JSON only")
     args = ap.parse_args()
     problem = build_problem(
         ProblemConfig(scenario=args.scenario, reference_seed=args.reference_seed, duration=args.duration)
     )
-    res = truth_neighbourhood(problem, draws=args.draws)
+    if args.cluster_radii is not None:
+        res = cluster_sensor_study(problem, cluster_radii=args.cluster_radii, draws=args.draws)
+        text = format_cluster_study
+    else:
+        res = truth_neighbourhood(problem, draws=args.draws)
+        text = format_landscape
     res["simulations"] = problem.n_simulations
-    print(json.dumps(res, indent=1) if args.json else format_landscape(res))
+    print(json.dumps(res, indent=1) if args.json else text(res))
 
 
 if __name__ == "__main__":

@@ -7,13 +7,20 @@ import math
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 import torch
 from conftest import REPO, SHORT_DURATION
 
 from marlcrash.calibrate import ProblemConfig, build_problem
-from marlcrash.calibrate.landscape import loglog_slopes, neighbourhood_points, truth_neighbourhood
-from marlcrash.errors import ConfigError
+from marlcrash.calibrate.landscape import (
+    cluster_sensor_study,
+    loglog_slopes,
+    neighbourhood_points,
+    sensor_clusters,
+    truth_neighbourhood,
+)
+from marlcrash.errors import ConfigError, ModelError
 from marlcrash.metrics import Metrics
 from marlcrash.reward import TerminationConfig
 
@@ -107,3 +114,62 @@ def test_script_prints_json():
     assert set(res["groups"]) == {"E_x", "E_s", "transmission", "all"}
     assert res["simulations"] == 1 + 4 * len(res["radii"])
     assert all(math.isfinite(a) for g in res["groups"].values() for a in g["area"])
+
+
+# ------------------------------------------------------------------ sensors read as clusters
+def test_sensor_clusters_hold_the_massive_cells_within_the_radius():
+    problem = build_problem(ProblemConfig(duration=SHORT_DURATION))
+    cells = problem.cells
+    names = list(cells.sensor_names)
+    for s in problem.sensors:
+        c = int(cells.sensor_cell[names.index(s)])
+        assert sensor_clusters(cells, [s], 0.0)[0].tolist() == [c]
+        members = sensor_clusters(cells, [s], 0.2)[0]
+        d = np.linalg.norm(cells.centroid[members] - cells.centroid[c], axis=1)
+        assert c in members and (d <= 0.2).all()
+        others = np.setdiff1d(np.arange(cells.n_cells), members)
+        far = np.linalg.norm(cells.centroid[others] - cells.centroid[c], axis=1) > 0.2
+        assert (far | cells.is_null[others] | (cells.mass[others] <= 0)).all()
+
+
+def test_probe_cells_record_what_the_named_sensors_record():
+    problem = build_problem(ProblemConfig(duration=SHORT_DURATION))
+    sim, cells = problem.sim, problem.cells
+    names = list(cells.sensor_names)
+    idx = [int(cells.sensor_cell[names.index(s)]) for s in problem.sensors]
+    p = problem.params(problem.zeros(2))
+    kw = {"speed": problem.speed.expand(2), "overlap": problem.overlap.expand(2), "side": problem.side.expand(2),
+          "duration": SHORT_DURATION, "record_cells": "none"}  # fmt: skip
+    named = sim.run(p, sensors=problem.sensors, **kw)
+    probed = sim.run(p, probe_cells=idx, **kw)
+    assert probed.sensor_names == [f"cell{i}" for i in idx]
+    assert torch.equal(named.velocity, probed.velocity) and torch.equal(named.acceleration, probed.acceleration)
+    with pytest.raises(ModelError, match="probe_cells"):
+        sim.run(p, probe_cells=[cells.n_cells], **kw)
+
+
+def test_cluster_study_at_radius_zero_is_the_landscape_of_the_sensors():
+    """Radius 0 reads the sensor cells alone: the same medians as the landscape study's, by another path."""
+    problem = build_problem(ProblemConfig(duration=SHORT_DURATION))
+    radii = [1e-3, 1e-1]
+    ref = truth_neighbourhood(problem, radii, groups=["all"], draws=3, seed=4)["groups"]["all"]["area_per_sensor"]
+    before = problem.n_simulations
+    res = cluster_sensor_study(problem, cluster_radii=[0.0, 0.15], radii=radii, draws=3, seed=4)
+    assert problem.n_simulations - before == 1 + 2 * 3
+    single, wide = res["clusters"]
+    assert single["cells"] == [1] * len(problem.sensors)
+    np.testing.assert_allclose(single["area_per_sensor"], ref, rtol=1e-9, atol=1e-15)
+    assert wide["cells"][0] > 1 and wide["mass_kg"][0] > single["mass_kg"][0]
+    assert all(a > 0 for row in wide["area_per_sensor"] for a in row)
+    with pytest.raises(ConfigError, match="cluster_radii"):
+        cluster_sensor_study(problem, cluster_radii=[-0.1])
+
+
+def test_script_cluster_radii_prints_json():
+    cmd = [sys.executable, str(REPO / "benchmarks" / "bench_landscape.py"), "--draws", "1",
+           "--duration", str(SHORT_DURATION), "--cluster-radii", "0", "0.1", "--json"]  # fmt: skip
+    out = subprocess.run(cmd, capture_output=True, text=True, timeout=600, cwd=REPO)
+    assert out.returncode == 0, out.stderr
+    res = json.loads(out.stdout)
+    assert [c["radius_m"] for c in res["clusters"]] == [0.0, 0.1]
+    assert res["simulations"] == 1 + len(res["radii"])

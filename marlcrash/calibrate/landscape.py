@@ -27,6 +27,7 @@ import torch
 
 from marlcrash.calibrate.problem import CalibrationProblem
 from marlcrash.errors import ConfigError
+from marlcrash.metrics import area_between
 
 GROUPS: dict[str, slice] = {"E_x": slice(0, 1), "E_s": slice(1, 2), "transmission": slice(2, 7), "all": slice(0, 7)}
 DEFAULT_RADII = (1e-6, 1e-5, 1e-4, 1e-3, 3e-3, 1e-2, 3e-2, 0.1)
@@ -38,6 +39,15 @@ def _check(problem: CalibrationProblem, groups: list[str] | tuple[str, ...]) -> 
     for group in groups:
         if group not in GROUPS:
             raise ConfigError(f"unknown parameter group {group!r}; expected one of {list(GROUPS)}", key="groups")
+
+
+def _check_radii(radii, draws) -> tuple[list[float], int]:
+    radii = [float(r) for r in radii]
+    if not radii or any(not (np.isfinite(r) and r > 0) for r in radii) or sorted(set(radii)) != radii:
+        raise ConfigError(f"expected strictly increasing radii > 0, got {radii}", key="radii")
+    if int(draws) < 1:
+        raise ConfigError(f"expected draws >= 1, got {draws}", key="draws")
+    return radii, int(draws)
 
 
 def neighbourhood_points(
@@ -92,12 +102,7 @@ def truth_neighbourhood(
     Raises:
         ConfigError: no ground truth, an unknown group, radii not increasing and positive, draws < 1.
     """
-    radii = [float(r) for r in radii]
-    if not radii or any(not (np.isfinite(r) and r > 0) for r in radii) or sorted(set(radii)) != radii:
-        raise ConfigError(f"expected strictly increasing radii > 0, got {radii}", key="radii")
-    if int(draws) < 1:
-        raise ConfigError(f"expected draws >= 1, got {draws}", key="draws")
-    draws = int(draws)
+    radii, draws = _check_radii(radii, draws)
     thresholds = {
         "area": problem.success_cfg.success_area,
         "dfd": problem.success_cfg.success_dfd,
@@ -144,4 +149,89 @@ def format_landscape(res: dict[str, Any]) -> str:
             per = " ".join(f"{a:.1e}" for a in g["area_per_sensor"][i])
             lines.append(f"{r:8.0e} {g['area'][i]:12.2e} {slope:>6} {g['dfd'][i]:10.3f} {g['rmse'][i]:10.4f} "
                          f"{g['pass_share'][i]:5.2f}  {per}")  # fmt: skip
+    return "\n".join(lines)
+
+
+# ------------------------------------------------------------------ sensor clusters
+def sensor_clusters(cells, sensors: list[str], radius: float) -> list[np.ndarray]:
+    """Per sensor, the cells with mass whose centroid lies within ``radius`` [m] of the sensor cell's.
+
+    The sensor cell itself is always a member (``radius = 0`` gives the single-cell sensor).
+    """
+    names = list(cells.sensor_names)
+    has_mass = ~cells.is_null & (cells.mass > 0)
+    out = []
+    for s in sensors:
+        c = int(cells.sensor_cell[names.index(s)])
+        near = np.linalg.norm(cells.centroid - cells.centroid[c], axis=1) <= radius
+        out.append(np.union1d(np.flatnonzero(has_mass & near), [c]))
+    return out
+
+
+def cluster_sensor_study(
+    problem: CalibrationProblem,
+    cluster_radii: list[float] | tuple[float, ...] = (0.0, 0.08, 0.15, 0.25),
+    radii: list[float] | tuple[float, ...] = (1e-4, 1e-3, 1e-2),
+    group: str = "all",
+    draws: int = 8,
+    seed: int = 0,
+) -> dict[str, Any]:
+    """Would a sensor that reads a bracket (a cluster of cells) instead of one light cell flatten the landscape?
+
+    Each sensor's velocity is replaced by the mass-weighted mean velocity of its cluster
+    (:func:`sensor_clusters`, one per ``cluster_radii`` entry [m]) for the truth and for the same
+    neighbourhood points as :func:`truth_neighbourhood` alike, then compared as the problem compares
+    (:meth:`CalibrationProblem.compared`, area of Eq. 8). One batched simulation records every cluster
+    cell (``1 + len(radii) * draws`` simulations).
+
+    Returns:
+        ``{"sensors", "radii", "draws", "group", "clusters": [{"radius_m", "cells": [K], "mass_kg": [K],
+        "area_per_sensor": [R][K] medians over the draws}]}``.
+
+    Raises:
+        ConfigError: no ground truth, an unknown group, negative cluster radii, radii not increasing and
+            positive, draws < 1.
+    """
+    _check(problem, [group])
+    radii, draws = _check_radii(radii, draws)
+    if not cluster_radii or any(not (np.isfinite(c) and c >= 0) for c in cluster_radii):
+        raise ConfigError(f"expected cluster radii >= 0 m, got {list(cluster_radii)}", key="cluster_radii")
+    cells = problem.cells
+    clusters = [sensor_clusters(cells, problem.sensors, float(c)) for c in cluster_radii]
+    probe = np.unique(np.concatenate([m for cl in clusters for m in cl]))
+    col = {int(c): i for i, c in enumerate(probe)}
+    x = torch.cat([problem.true_x[None], neighbourhood_points(problem, radii, group, draws, seed)])
+    with torch.no_grad():
+        res = problem.sim.run(problem.params(x), speed=problem.speed.expand(len(x)),
+                              overlap=problem.overlap.expand(len(x)), side=problem.side.expand(len(x)),
+                              duration=problem.duration, probe_cells=probe, record_cells="none",
+                              backend=problem.sim_backend)  # fmt: skip
+    problem.n_simulations += len(x)
+    mass = torch.as_tensor(cells.mass, dtype=torch.float64)
+    out: dict[str, Any] = {"sensors": list(problem.sensors), "radii": radii, "draws": draws, "group": group,
+                           "clusters": []}  # fmt: skip
+    for c, members in zip(cluster_radii, clusters, strict=True):
+        v = []
+        for m in members:
+            w = mass[m] / mass[m].sum()
+            v.append((res.velocity[:, [col[int(i)] for i in m]] * w[None, :, None]).sum(1))
+        vc = problem.compared(torch.stack(v, dim=1))  # [N, K, T]
+        area = area_between(vc[1:], vc[:1], dt=problem.dt).reshape(len(radii), draws, -1).median(dim=1).values
+        out["clusters"].append({"radius_m": float(c), "cells": [len(m) for m in members],
+                                "mass_kg": [float(mass[m].sum()) for m in members],
+                                "area_per_sensor": area.tolist()})  # fmt: skip
+    return out
+
+
+def format_cluster_study(res: dict[str, Any]) -> str:
+    """A readable table of :func:`cluster_sensor_study`'s result."""
+    lines = [f"sensors read as mass-weighted clusters; group {res['group']}, {res['draws']} directions per radius; "
+             f"median area [m] per sensor ({', '.join(res['sensors'])})",
+             f"{'cluster':>8} {'cells':>12} {'mass [kg]':>20}  " + "  ".join(f"{'r=' + format(r, 'g'):>26}"
+                                                                          for r in res["radii"])]  # fmt: skip
+    for c in res["clusters"]:
+        cells = "/".join(str(n) for n in c["cells"])
+        mass = "/".join(f"{m:.2f}" for m in c["mass_kg"])
+        per = "  ".join(f"{' '.join(f'{a:.1e}' for a in row):>26}" for row in c["area_per_sensor"])
+        lines.append(f"{c['radius_m']:7.2f}m {cells:>12} {mass:>20}  {per}")
     return "\n".join(lines)

@@ -451,6 +451,7 @@ class Surrogate:
         side: torch.Tensor | None = None,
         duration: float | None = None,
         sensors: list[str] | None = None,
+        probe_cells: list[int] | np.ndarray | torch.Tensor | None = None,
         record_cells: Literal["series", "final", "none"] = "series",
         backend: Literal["torch", "numba", "auto"] | None = None,
     ) -> SimResult:
@@ -462,6 +463,8 @@ class Surrogate:
             speed, overlap, side: optional ``[B]`` tensors (m/s, fraction, +1 left / -1 right).
             duration: simulated window [s] when no scenario is given (default 0.150).
             sensors: sensor names to record (default: the scenario's list, else all).
+            probe_cells: record these cells' acceleration and velocity instead of the sensors (named
+                ``cell<i>`` in the result), e.g. to study sensor placement; indices into the cell model.
             record_cells: per-cell energy series (``series``), final values only, or none.
             backend: ``torch`` (differentiable reference), ``numba`` (fast no-grad), ``auto``
                 (numba unless gradients are required); default from the config.
@@ -478,7 +481,7 @@ class Surrogate:
         dur = duration if duration is not None else (scenario.duration if scenario is not None else 0.150)
         n_out = round(dur / self.output_dt) + 1
         names = sensors if sensors is not None else (list(scenario.sensors) if scenario is not None else [])
-        sensor_idx = self._sensor_index(names)
+        sensor_idx = self._sensor_index(names) if probe_cells is None else self._probe_index(probe_cells)
         wall = self.scenario_tensors(p.shape[0], scenario, speed, overlap, side)
         props = self.link_props(p)
         backend = backend or self.config.backend
@@ -499,6 +502,12 @@ class Surrogate:
             raise ModelError(f"unknown sensors {missing}; the cell model has {all_names}")
         idx = [int(self.cells.sensor_cell[all_names.index(s)]) for s in names]
         return list(names), torch.tensor(idx, dtype=torch.int64)
+
+    def _probe_index(self, cells) -> tuple[list[str], torch.Tensor]:
+        idx = torch.as_tensor(np.asarray(cells), dtype=torch.int64).reshape(-1)
+        if idx.numel() == 0 or int(idx.min()) < 0 or int(idx.max()) >= self.n:
+            raise ModelError(f"probe_cells must be cell indices in [0, {self.n}), got {idx.tolist()}")
+        return [f"cell{int(i)}" for i in idx], idx
 
     def _run_torch(self, props: LinkProps, wall: WallProps, n_out: int, sensor_idx, record_cells) -> SimResult:
         names, sidx = sensor_idx
