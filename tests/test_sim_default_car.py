@@ -133,6 +133,25 @@ def test_energy_balance_1000_random_parameter_sets_one_numba_batch(car, sim):
     assert max_balance_error(out) < 5e-3
 
 
+def test_largest_accepted_link_damping_stays_stable_and_more_is_refused(car):
+    """Damping is explicit on top of stability-capped stiffness: the accepted range must not diverge."""
+    from marlcrash.errors import ConfigError
+    from marlcrash.sim import load_sim_config
+    from marlcrash.sim.surrogate import MAX_LINK_DAMPING_RATIO
+
+    p = _random_params(car, 16, seed=12)
+    peak = {}
+    for zeta in (0.05, MAX_LINK_DAMPING_RATIO):
+        sim = Surrogate(car, load_sim_config(overrides={"link_damping_ratio": zeta}))
+        out = sim.run(p, get_scenario("full_width_56"), backend="numba", record_cells="none")
+        assert torch.isfinite(out.acceleration).all() and max_balance_error(out) < 5e-3
+        peak[zeta] = float(out.acceleration.abs().max()) / G0
+    # stable: the spikes of light cells grow a little with damping, they do not run away (0.25: 1e30 g)
+    assert peak[MAX_LINK_DAMPING_RATIO] < 2.0 * peak[0.05]
+    with pytest.raises(ConfigError, match="link_damping_ratio"):
+        load_sim_config(overrides={"link_damping_ratio": MAX_LINK_DAMPING_RATIO + 0.01})
+
+
 # ------------------------------------------------------------------ locality
 def _hops_from_first_contact(car, sim, scenario):
     """Link-graph distance (undirected) of every cell from the cells that touch the wall at t = 0."""
