@@ -358,7 +358,9 @@ def _simulate(
             for j in range(CH):
                 a_w[j] += w_link[j]
             if record:
-                # elastic energy of the links (only needed at output steps)
+                # elastic energy of the links (only needed at output steps); a plain per-lane sum: the per-cell
+                # split below is needed only where per-cell energies are recorded (summing by cell at every output
+                # step measured 4 % slower)
                 for j in range(CH):
                     st_l[j] = zero
                 for ll in range(L):
