@@ -134,18 +134,16 @@ def test_sensor_clusters_hold_the_massive_cells_within_the_radius():
 
 def test_probe_cells_record_what_the_named_sensors_record():
     problem = build_problem(ProblemConfig(duration=SHORT_DURATION))
-    sim, cells = problem.sim, problem.cells
+    cells = problem.cells
     names = list(cells.sensor_names)
     idx = [int(cells.sensor_cell[names.index(s)]) for s in problem.sensors]
-    p = problem.params(problem.zeros(2))
-    kw = {"speed": problem.speed.expand(2), "overlap": problem.overlap.expand(2), "side": problem.side.expand(2),
-          "duration": SHORT_DURATION, "record_cells": "none"}  # fmt: skip
-    named = sim.run(p, sensors=problem.sensors, **kw)
-    probed = sim.run(p, probe_cells=idx, **kw)
+    x = problem.zeros(2)
+    named = problem.simulate(x)
+    probed = problem.simulate(x, probe_cells=idx)
     assert probed.sensor_names == [f"cell{i}" for i in idx]
     assert torch.equal(named.velocity, probed.velocity) and torch.equal(named.acceleration, probed.acceleration)
     with pytest.raises(ModelError, match="probe_cells"):
-        sim.run(p, probe_cells=[cells.n_cells], **kw)
+        problem.simulate(x, probe_cells=[cells.n_cells])
 
 
 def test_cluster_study_at_radius_zero_is_the_landscape_of_the_sensors():

@@ -202,11 +202,7 @@ def cluster_sensor_study(
     col = {int(c): i for i, c in enumerate(probe)}
     x = torch.cat([problem.true_x[None], neighbourhood_points(problem, radii, group, draws, seed)])
     with torch.no_grad():
-        res = problem.sim.run(problem.params(x), speed=problem.speed.expand(len(x)),
-                              overlap=problem.overlap.expand(len(x)), side=problem.side.expand(len(x)),
-                              duration=problem.duration, probe_cells=probe, record_cells="none",
-                              backend=problem.sim_backend)  # fmt: skip
-    problem.n_simulations += len(x)
+        res = problem.simulate(x, probe_cells=probe)
     mass = torch.as_tensor(cells.mass, dtype=torch.float64)
     out: dict[str, Any] = {"sensors": list(problem.sensors), "radii": radii, "draws": draws, "group": group,
                            "clusters": []}  # fmt: skip

@@ -330,11 +330,14 @@ class CalibrationProblem:
         return torch.cat([p[..., :2], f], dim=-1)
 
     # -------------------------------------------------------------------------------- simulation
-    def simulate(self, x: torch.Tensor, *, count: bool = True, backend: str | None = None) -> SimResult:
+    def simulate(
+        self, x: torch.Tensor, *, count: bool = True, backend: str | None = None, probe_cells=None
+    ) -> SimResult:
         """Simulate candidates ``x [N, n_agents, 7]`` over the window; ``count`` charges ``N`` simulations.
 
         Without gradients (``x`` not requiring grad) it uses :attr:`sim_backend`; ``count=False`` is
-        for reporting (re-simulating a known candidate for plots), never for search.
+        for reporting (re-simulating a known candidate for plots), never for search. ``probe_cells``
+        records those cells instead of the sensors (:meth:`~marlcrash.sim.surrogate.Surrogate.run`).
         """
         x = self.check_x(x) if not x.requires_grad else x
         p = self.params(x)
@@ -346,6 +349,7 @@ class CalibrationProblem:
             side=self.side.expand(n),
             duration=self.duration,
             sensors=self.sensors,
+            probe_cells=probe_cells,
             record_cells="none",
             backend=backend or ("torch" if x.requires_grad else self.sim_backend),
         )
