@@ -108,11 +108,9 @@ def _link(P, ll, j, dd, gap, relief, f_el, o, yd, plastic, a, cst):
         f_tr = k * max(z, zero)
         o[ll, j] = max(-z, zero)
         f_ret = min(f_tr, yu)
-        elastic = f_tr == f_ret and z > zero
     else:
         f_tr = f0 + k * dd
         f_ret = min(max(f_tr, -P[ll, H_YL, j]), yu)
-        elastic = f_tr == f_ret
     f_new = f_ret
     if relief:
         y = max(yd[ll, j], cst[2] if f_tr != f_ret else zero)
@@ -123,7 +121,10 @@ def _link(P, ll, j, dd, gap, relief, f_el, o, yd, plastic, a, cst):
     else:
         plastic[a, j] += f_ret * (f_tr - f_ret) * ik
     f_el[ll, j] = f_new
-    return f_new + (P[ll, H_DAMP, j] * dd * inv_dt if elastic else zero)
+    damp = P[ll, H_DAMP, j] * (f_ret - f0) * ik * inv_dt
+    if gap:
+        return max(f_new + damp, zero)
+    return f_new + damp
 
 
 @numba.njit(cache=True, fastmath=_FASTMATH, inline="always")
@@ -328,7 +329,9 @@ def _simulate(
                     for j in range(CH):
                         pen = s[i, j] - NP[i, W_GAP, j]
                         inc = NP[i, W_COV, j] > zero and pen > zero
-                        fw = max(NP[i, W_K, j] * pen + NP[i, W_C, j] * v[i, j], zero) if inc else zero
+                        fw = (
+                            max(NP[i, W_K, j] * pen + NP[i, W_C, j] * min(v[i, j], pen * cst[3]), zero) if inc else zero
+                        )
                         stored_w[i, j] = 0.5 * float(NP[i, W_K, j]) * float(pen) * float(pen) if inc else 0.0
                         fwbar = 0.5 * (float(fw_prev[i, j]) + float(fw))
                         dsi = float(ds[i, j])
