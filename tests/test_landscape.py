@@ -15,6 +15,7 @@ from conftest import REPO, SHORT_DURATION
 from marlcrash.calibrate import ProblemConfig, build_problem
 from marlcrash.calibrate.landscape import (
     cluster_sensor_study,
+    local_fit,
     loglog_slopes,
     neighbourhood_points,
     sensor_clusters,
@@ -171,3 +172,27 @@ def test_script_cluster_radii_prints_json():
     res = json.loads(out.stdout)
     assert [c["radius_m"] for c in res["clusters"]] == [0.0, 0.1]
     assert res["simulations"] == 1 + len(res["radii"])
+
+
+def test_local_fit_converges_near_the_truth_and_counts_its_simulations():
+    """1 % from the truth over the full 150 ms the landscape is smooth enough for Levenberg-Marquardt to pass.
+
+    Before damping acted on elastic deformation only and bottoming out happened within the step, the first
+    step from here was rejected at every damping value and the fit stalled at 2-5x the area mark.
+    """
+    problem = build_problem(ProblemConfig())
+    hist = local_fit(problem, start_radius=1e-2, iterations=2, seed=0)
+    assert len(hist) == 3
+    assert [h["simulations"] for h in hist] == [1, 1 + (problem.n_free + 6), 1 + 2 * (problem.n_free + 6)]
+    costs = [h["cost"] for h in hist]
+    assert costs[2] <= costs[1] < 0.5 * costs[0], costs
+    assert not hist[0]["passed"] and hist[-1]["passed"]
+    assert set(hist[0]["sensors"]) == set(problem.sensors)
+
+
+def test_local_fit_rejects_bad_settings():
+    problem = build_problem(ProblemConfig(duration=SHORT_DURATION))
+    for key, kw in (("iterations", {"iterations": 0}), ("fd_step", {"fd_step": -1e-5}), ("damping", {"damping": 0.0})):
+        with pytest.raises(ConfigError, match=key):
+            local_fit(problem, **kw)
+    assert problem.n_simulations == 0

@@ -27,7 +27,7 @@ import torch
 
 from marlcrash.calibrate.problem import CalibrationProblem
 from marlcrash.errors import ConfigError
-from marlcrash.metrics import area_between
+from marlcrash.metrics import Metrics, area_between
 
 GROUPS: dict[str, slice] = {"E_x": slice(0, 1), "E_s": slice(1, 2), "transmission": slice(2, 7), "all": slice(0, 7)}
 DEFAULT_RADII = (1e-6, 1e-5, 1e-4, 1e-3, 3e-3, 1e-2, 3e-2, 0.1)
@@ -231,3 +231,96 @@ def format_cluster_study(res: dict[str, Any]) -> str:
         per = "  ".join(f"{' '.join(f'{a:.1e}' for a in row):>26}" for row in c["area_per_sensor"])
         lines.append(f"{c['radius_m']:7.2f}m {cells:>12} {mass:>20}  {per}")
     return "\n".join(lines)
+
+
+def local_fit(
+    problem: CalibrationProblem,
+    *,
+    start_radius: float | None = None,
+    iterations: int = 10,
+    fd_step: float = 1e-5,
+    damping: float = 1e-2,
+    seed: int = 0,
+) -> list[dict[str, Any]]:
+    """Does a local least-squares method reach the success test? Levenberg-Marquardt on the pulse residuals.
+
+    The residual is ``(v_sim - v_ref) sqrt(dt)`` over every sensor and output sample (its squared norm is
+    the summed ``integral (dv)^2 dt``). Each iteration takes a forward finite-difference Jacobian
+    over the free coordinates (``n_free + 1`` simulations in one batch), then tries six damping values
+    ``lambda * (0.01 .. 1000)`` on ``J^T J + lambda D`` in one more batch and keeps the best step if it
+    lowers the cost (``lambda`` then shrinks 3x, else it grows 30x). ``D`` is the diagonal of ``J^T J``
+    floored at 1e-3 of its largest entry: without the floor, coordinates the pulses barely see took
+    steps to the edge of the search box and every step was rejected. Steps are clipped to the search
+    box. It checks the landscape locally: near a smooth optimum this converges in a few iterations.
+
+    Args:
+        problem: a twin calibration problem.
+        start_radius: ``None`` starts at the initial parameters (``x = 0``); a value starts at
+            ``true_x + start_radius * u`` with ``u`` uniform in ``[-1, 1]`` per free coordinate.
+        iterations: Levenberg-Marquardt iterations.
+        fd_step: finite-difference step in log-scale [-].
+        damping: initial ``lambda`` [-].
+        seed: seed of the start point's draw.
+
+    Returns:
+        One record per iterate (the start first): ``simulations`` (cumulative, counted by the
+        problem), ``cost``, ``distance`` (largest absolute log error to the truth), and per sensor
+        ``area``, ``dfd``, ``rmse``, ``passed``.
+
+    Raises:
+        ConfigError: no twin truth, or a non-positive ``iterations``, ``fd_step`` or ``damping`` (key named).
+    """
+    _check(problem, ())
+    for key, val in (("iterations", iterations), ("fd_step", fd_step), ("damping", damping)):
+        if not (np.isfinite(val) and val > 0):
+            raise ConfigError(f"expected {key} > 0, got {val}", key=key)
+    lo, hi = problem.flat_box()
+    truth = problem.flat(problem.true_x[None])[0]
+    if start_radius is None:
+        z = torch.zeros_like(truth)
+    else:
+        g = torch.Generator().manual_seed(int(seed))
+        u = 2.0 * torch.rand(truth.shape, generator=g, dtype=torch.float64) - 1.0
+        z = torch.minimum(torch.maximum(truth + float(start_radius) * u, lo), hi)
+    scale = math.sqrt(problem.dt)
+
+    def run(zs: torch.Tensor):
+        with torch.no_grad():
+            res = problem.simulate(problem.unflat(zs))
+        r = ((problem.compared(res.velocity) - problem.ref_velocity) * scale).reshape(zs.shape[0], -1)
+        return r, problem.metrics(res.velocity)
+
+    def record(row: torch.Tensor, m, i: int) -> dict[str, Any]:
+        ok = problem.success(Metrics(*(t[i : i + 1] for t in m)))[0]
+        out = {"simulations": problem.n_simulations, "cost": float((row**2).sum()),
+               "distance": float((z - truth).abs().max()), "passed": bool(ok)}  # fmt: skip
+        out["sensors"] = {
+            s: {"area": float(m.area[i, k]), "dfd": float(m.dfd[i, k]), "rmse": float(m.rmse[i, k])}
+            for k, s in enumerate(problem.sensors)
+        }
+        return out
+
+    r_all, m = run(z[None])
+    r = r_all[0]
+    history = [record(r, m, 0)]
+    lam, n = float(damping), z.numel()
+    factors = torch.tensor([0.01, 0.1, 1.0, 10.0, 100.0, 1000.0], dtype=torch.float64)
+    for _ in range(int(iterations)):
+        probe = z.repeat(n, 1) + fd_step * torch.eye(n, dtype=torch.float64)
+        r_fd, _ = run(probe)
+        jac = (r_fd - r).T / fd_step  # [residuals, n]
+        jtj, grad = jac.T @ jac, jac.T @ r
+        d = torch.diag(jtj)
+        diag = torch.diag(d.clamp_min(1e-3 * float(d.max()) + 1e-300))
+        steps = [torch.linalg.solve(jtj + lam * f * diag, -grad) for f in factors]
+        cand = torch.stack([torch.minimum(torch.maximum(z + d, lo), hi) for d in steps])
+        r_c, m_c = run(cand)
+        cost = (r_c**2).sum(1)
+        best = int(cost.argmin())
+        if float(cost[best]) < float((r**2).sum()):
+            z, r, lam = cand[best], r_c[best], lam * float(factors[best]) / 3.0
+            history.append(record(r, m_c, best))
+        else:
+            lam *= 30.0
+            history.append({**history[-1], "simulations": problem.n_simulations})
+    return history

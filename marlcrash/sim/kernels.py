@@ -9,8 +9,9 @@ and every array is batch-innermost, ``[chunk, rows, lanes]``, so the inner loop 
 SIMD vectors. A chunk's link data is stored link by link, ``[L, fields, lanes]``: one sequential
 stream per step. Only the *current* properties are streamed (``H_*`` fields: yield forces, stiffness,
 compliance, damping): saturation is monotone, so when a cell bottoms out in a lane its out-links are
-rewritten once to their dense values (:func:`_bottom_out`, from the cold ``C_*`` fields) instead of
-interpolating between intact and dense values in every step. Link stored energy is summed at output
+densified for the rest of that step (:func:`_densify`) and rewritten once to their dense values
+(:func:`_bottom_out`, from the cold ``C_*`` fields) instead of interpolating between intact and dense
+values in every step. Link stored energy is summed at output
 steps only. ``lanes`` balances vector width against keeping both cores busy (:func:`default_lanes`);
 chunks run in parallel (``prange``).
 
@@ -172,6 +173,36 @@ def _bottom_out(P, PC, i, j, out_ptr, out_idx, n_plain, relief, cst):
             P[ll, H_Q, j] = q0 + one * (PC[ll, C_QD, j] - q0)
 
 
+@numba.njit(cache=True, fastmath=_FASTMATH, inline="always")
+def _densify(P, PC, i, j, phi, out_ptr, out_idx, n_plain, dst, ds, f_el, fs, fd, ledger, h_out, f_prev, step_in, cst):
+    """Lane ``j`` of cell ``i`` bottomed out within this step, the last fraction ``phi`` of it past ``E_s``.
+
+    Each out-link's force moves ``phi`` of the way from this step's update toward the dense update
+    ``f_old + k_dense dd`` (module doc of :mod:`marlcrash.sim.surrogate`, "Saturation"), its damping
+    likewise; node sums and ledgers take the same increment. Called before :func:`_bottom_out`, so
+    ``P`` still holds the intact properties.
+    """
+    zero, inv_dt = cst[1], cst[3]
+    for q in range(out_ptr[i], out_ptr[i + 1]):
+        ll = out_idx[q]
+        yu = P[ll, H_YU, j]
+        f = f_el[ll, j]
+        if yu <= zero or (ll >= n_plain and f <= zero):  # no share, or an open contact: nothing to densify
+            continue
+        c = dst[ll]
+        dd = ds[c, j] - ds[i, j]
+        yielding = f == yu or (ll < n_plain and f == -P[ll, H_YL, j])
+        el = zero if yielding else P[ll, H_K, j] * dd  # elastic force increment of this step
+        df = phi * (PC[ll, C_KD, j] * dd - el)
+        tot = df + phi * P[ll, H_DAMP, j] * (dd - el * P[ll, H_IK, j]) * inv_dt
+        f_el[ll, j] = f + df
+        fs[i, j] += tot
+        fd[c, j] += tot
+        if ledger:
+            h_out[i, j] += 0.5 * float(tot) * float(step_in[j] - ds[c, j])
+            f_prev[ll, j] += tot
+
+
 @numba.njit(cache=True, fastmath=_FASTMATH, parallel=True)
 def _simulate(
     cst,
@@ -238,6 +269,7 @@ def _simulate(
         fd = np.zeros((n, CH), lp.dtype)  # ... and by destination node
         plastic = np.zeros((n, CH), lp.dtype)
         sat = np.zeros((n, CH), lp.dtype)  # cell bottomed out (its out-links hold their dense properties)
+        w0 = np.zeros((n, CH), lp.dtype)  # plastic work at the start of the step
         fw_prev = np.zeros((n, CH), lp.dtype)
         acc = np.zeros((n, CH), lp.dtype)
         # cells the barrier covers in some lane of this chunk: the only ones that need the contact terms
@@ -297,16 +329,7 @@ def _simulate(
                     s[i, j] += d
                     fs[i, j] = zero
                     fd[i, j] = zero
-            # saturation is monotone: a cell's out-links switch to their dense properties once
-            for i in range(n):
-                new = zero
-                for j in range(CH):
-                    new += (one if plastic[i, j] >= NP[i, W_ES, j] else zero) - sat[i, j]
-                if new > zero:
-                    for j in range(CH):
-                        if sat[i, j] == zero and plastic[i, j] >= NP[i, W_ES, j]:
-                            sat[i, j] = one
-                            _bottom_out(P, PC, i, j, out_ptr, out_idx, n_plain, relief, cst)
+                    w0[i, j] = plastic[i, j]
             # plain links (elastic-plastic), then gap (contact) links; one specialised loop per kind
             led = mode > 0
             if relief:
@@ -319,6 +342,23 @@ def _simulate(
                        step_in, cst)  # fmt: skip
                 _links(P, n_plain, L, True, False, led, src, dst, ds, f_el, o, yd, plastic, fs, fd, h_out, f_prev,
                        step_in, cst)  # fmt: skip
+            # saturation within the step: a cell whose plastic work crossed E_s densifies its out-links for the
+            # part of the step past the crossing, keeps E_s as its plastic work and switches them to their dense
+            # properties once (saturation is monotone)
+            for i in range(n):
+                new = zero
+                for j in range(CH):
+                    new += (one if plastic[i, j] >= NP[i, W_ES, j] else zero) - sat[i, j]
+                if new > zero:
+                    for j in range(CH):
+                        e_s = NP[i, W_ES, j]
+                        if sat[i, j] == zero and plastic[i, j] >= e_s:
+                            phi = (plastic[i, j] - e_s) / (plastic[i, j] - w0[i, j])
+                            _densify(P, PC, i, j, phi, out_ptr, out_idx, n_plain, dst, ds, f_el, fs, fd, led, h_out,
+                                     f_prev, step_in, cst)  # fmt: skip
+                            plastic[i, j] = e_s
+                            sat[i, j] = one
+                            _bottom_out(P, PC, i, j, out_ptr, out_idx, n_plain, relief, cst)
             for j in range(CH):
                 pmax[j] = 0.0
                 w_link[j] = 0.0
