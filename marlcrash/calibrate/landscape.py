@@ -237,6 +237,7 @@ def local_fit(
     problem: CalibrationProblem,
     *,
     start_radius: float | None = None,
+    x0: torch.Tensor | None = None,
     iterations: int = 10,
     fd_step: float = 1e-5,
     damping: float = 1e-2,
@@ -257,6 +258,8 @@ def local_fit(
         problem: a twin calibration problem.
         start_radius: ``None`` starts at the initial parameters (``x = 0``); a value starts at
             ``true_x + start_radius * u`` with ``u`` uniform in ``[-1, 1]`` per free coordinate.
+        x0: instead, start at this candidate ``[n_agents, 7]`` (e.g. another calibrator's result),
+            clipped to the search box.
         iterations: Levenberg-Marquardt iterations.
         fd_step: finite-difference step in log-scale [-].
         damping: initial ``lambda`` [-].
@@ -276,7 +279,11 @@ def local_fit(
             raise ConfigError(f"expected {key} > 0, got {val}", key=key)
     lo, hi = problem.flat_box()
     truth = problem.flat(problem.true_x[None])[0]
-    if start_radius is None:
+    if x0 is not None:
+        if start_radius is not None:
+            raise ConfigError("give either start_radius or x0, not both", key="start_radius")
+        z = problem.flat(problem.clip(problem.check_x(x0)))[0]
+    elif start_radius is None:
         z = torch.zeros_like(truth)
     else:
         g = torch.Generator().manual_seed(int(seed))
