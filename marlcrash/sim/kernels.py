@@ -269,7 +269,7 @@ def _simulate(
         fd = np.zeros((n, CH), lp.dtype)  # ... and by destination node
         plastic = np.zeros((n, CH), lp.dtype)
         sat = np.zeros((n, CH), lp.dtype)  # cell bottomed out (its out-links hold their dense properties)
-        w0 = np.zeros((n, CH), lp.dtype)  # plastic work at the start of the step
+        w0 = np.zeros((n, CH), lp.dtype)  # plastic work at the start of the step (written by the saturation scan)
         fw_prev = np.zeros((n, CH), lp.dtype)
         acc = np.zeros((n, CH), lp.dtype)
         # cells the barrier covers in some lane of this chunk: the only ones that need the contact terms
@@ -329,7 +329,6 @@ def _simulate(
                     s[i, j] += d
                     fs[i, j] = zero
                     fd[i, j] = zero
-                    w0[i, j] = plastic[i, j]
             # plain links (elastic-plastic), then gap (contact) links; one specialised loop per kind
             led = mode > 0
             if relief:
@@ -359,6 +358,8 @@ def _simulate(
                             plastic[i, j] = e_s
                             sat[i, j] = one
                             _bottom_out(P, PC, i, j, out_ptr, out_idx, n_plain, relief, cst)
+                for j in range(CH):
+                    w0[i, j] = plastic[i, j]  # the next step's starting plastic work (nothing else changes it)
             for j in range(CH):
                 pmax[j] = 0.0
                 w_link[j] = 0.0
