@@ -1,11 +1,11 @@
 """Does a local least-squares method pass the success test? Levenberg-Marquardt on the twin problem.
 
 Runs :func:`marlcrash.calibrate.landscape.local_fit` (finite-difference Jacobians in one batch of
-``n_free + 1`` simulations, six damping values per step) on the calibration problem of the landscape
+``n_free`` simulations, six damping values per step) on the calibration problem of the landscape
 study (twin reference of ``full_width_40``, seed 0 by default), from the initial parameters or from a
 random point ``--start-radius`` (log-scale, uniform per coordinate) away from the twin's truth, and
 prints per iteration the simulations used, the residual cost, the per-sensor areas and whether every
-threshold passes. About 134 simulations (2 s on 2 cores) per iteration.
+threshold passes. About 133 simulations (2 s on 2 cores) per iteration.
 
 Usage: python benchmarks/bench_local_fit.py [--start-radius R] [--iterations 10] [--duration S]
        [--scenario full_width_40] [--reference-seed 0] [--seed 0] [--json]

@@ -247,7 +247,8 @@ def local_fit(
 
     The residual is ``(v_sim - v_ref) sqrt(dt)`` over every sensor and output sample (its squared norm is
     the summed ``integral (dv)^2 dt``). Each iteration takes a forward finite-difference Jacobian
-    over the free coordinates (``n_free + 1`` simulations in one batch), then tries six damping values
+    over the free coordinates (``n_free`` simulations in one batch, the current point's residual reused;
+    steps backward at the upper bound of the box), then tries six damping values
     ``lambda * (0.01 .. 1000)`` on ``J^T J + lambda D`` in one more batch and keeps the best step if it
     lowers the cost (``lambda`` then shrinks 3x, else it grows 30x). ``D`` is the diagonal of ``J^T J``
     floored at 1e-3 of its largest entry: without the floor, coordinates the pulses barely see took
@@ -310,17 +311,17 @@ def local_fit(
     r_all, m = run(z[None])
     r = r_all[0]
     history = [record(r, m, 0)]
-    lam, n = float(damping), z.numel()
+    lam = float(damping)
     factors = torch.tensor([0.01, 0.1, 1.0, 10.0, 100.0, 1000.0], dtype=torch.float64)
     for _ in range(int(iterations)):
-        probe = z.repeat(n, 1) + fd_step * torch.eye(n, dtype=torch.float64)
-        r_fd, _ = run(probe)
-        jac = (r_fd - r).T / fd_step  # [residuals, n]
+        h = torch.where(z + fd_step > hi, -fd_step, fd_step)  # backward differences at the upper bound
+        r_fd, _ = run(z + torch.diag(h))
+        jac = (r_fd - r).T / h  # [residuals, n]
         jtj, grad = jac.T @ jac, jac.T @ r
-        d = torch.diag(jtj)
-        diag = torch.diag(d.clamp_min(1e-3 * float(d.max()) + 1e-300))
+        scale_d = torch.diag(jtj)
+        diag = torch.diag(scale_d.clamp_min(1e-3 * float(scale_d.max()) + 1e-300))
         steps = [torch.linalg.solve(jtj + lam * f * diag, -grad) for f in factors]
-        cand = torch.stack([torch.minimum(torch.maximum(z + d, lo), hi) for d in steps])
+        cand = torch.stack([torch.minimum(torch.maximum(z + step, lo), hi) for step in steps])
         r_c, m_c = run(cand)
         cost = (r_c**2).sum(1)
         best = int(cost.argmin())
