@@ -251,22 +251,24 @@ def test_float32_fast_path_closes_balance_and_matches_float64(car, sim):
 
 
 def test_sensor_velocities_respond_linearly_to_small_parameter_changes(car, sim, base):
-    """No step-quantized force jumps: 1e-5 relative changes of the energies move the pulses linearly.
+    """No step-quantized force jumps: 1e-5 and 1e-4 relative changes of the energies move the pulses linearly.
 
     The changes scale each sub-assembly's energies uniformly, as the twin reference and the agents do; the
-    reference slope comes from 1e-8 changes. With damping switched on or off in full at the step that
-    detects a contact or a yield (before the elastic-part damping), the 1e-5 response was 20-30x the linear one.
+    reference slope comes from 1e-8 changes. With damping switched on or off in full at the step that detects a
+    contact or a yield, the 1e-5 response was up to 46x the linear one; with elastic-part damping but bottoming
+    out at the step after the crossing, up to 4.6x at 1e-5 and 12x at 1e-4 (now at most 1.15x).
     """
     g = torch.Generator().manual_seed(11)
     sub = torch.as_tensor(car.subassembly).clamp_min(0)
     dirs = torch.randn((4, len(car.subassembly_names), 2), generator=g, dtype=torch.float64)[:, sub]
-    eps = (1e-8, 1e-5)
+    eps = (1e-8, 1e-5, 1e-4)
     p = base.repeat(1 + len(eps) * 4, 1, 1).clone()
     for i, (d, e) in enumerate((d, e) for d in dirs for e in eps):
         p[1 + i, :, :2] *= torch.exp(e * d)
     v = sim.run(p, get_scenario("full_width_40"), backend="numba", record_cells="none").velocity
-    slope = ((v[1:] - v[:1]).abs().amax(-1) / torch.tensor(eps * 4, dtype=v.dtype)[:, None]).reshape(4, 2, -1)
-    ratio = slope[:, 1] / slope[:, 0]  # [directions, sensors]
+    slope = (v[1:] - v[:1]).abs().amax(-1) / torch.tensor(eps * 4, dtype=v.dtype)[:, None]
+    slope = slope.reshape(4, len(eps), -1)  # [directions, eps, sensors]
+    ratio = slope[:, 1:] / slope[:, :1]
     assert bool((slope[:, 0] > 0).all())
-    assert float(ratio.median()) < 1.3, ratio
-    assert float(ratio.max()) < 10.0, ratio
+    assert float(ratio.median()) < 1.1, ratio
+    assert float(ratio.max()) < 1.5, ratio

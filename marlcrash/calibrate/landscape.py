@@ -298,10 +298,10 @@ def local_fit(
         r = ((problem.compared(res.velocity) - problem.ref_velocity) * scale).reshape(zs.shape[0], -1)
         return r, problem.metrics(res.velocity)
 
-    def record(row: torch.Tensor, m, i: int) -> dict[str, Any]:
+    def record(zi: torch.Tensor, row: torch.Tensor, m, i: int) -> dict[str, Any]:
         ok = problem.success(Metrics(*(t[i : i + 1] for t in m)))[0]
         out = {"simulations": problem.n_simulations, "cost": float((row**2).sum()),
-               "distance": float((z - truth).abs().max()), "passed": bool(ok)}  # fmt: skip
+               "distance": float((zi - truth).abs().max()), "passed": bool(ok)}  # fmt: skip
         out["sensors"] = {
             s: {"area": float(m.area[i, k]), "dfd": float(m.dfd[i, k]), "rmse": float(m.rmse[i, k])}
             for k, s in enumerate(problem.sensors)
@@ -310,7 +310,7 @@ def local_fit(
 
     r_all, m = run(z[None])
     r = r_all[0]
-    history = [record(r, m, 0)]
+    history = [record(z, r, m, 0)]
     lam = float(damping)
     factors = torch.tensor([0.01, 0.1, 1.0, 10.0, 100.0, 1000.0], dtype=torch.float64)
     for _ in range(int(iterations)):
@@ -327,7 +327,7 @@ def local_fit(
         best = int(cost.argmin())
         if float(cost[best]) < float((r**2).sum()):
             z, r, lam = cand[best], r_c[best], lam * float(factors[best]) / 3.0
-            history.append(record(r, m_c, best))
+            history.append(record(z, r, m_c, best))
         else:
             lam *= 30.0
             history.append({**history[-1], "simulations": problem.n_simulations})
