@@ -42,6 +42,15 @@ class Metrics(NamedTuple):
     dfd: torch.Tensor
     rmse: torch.Tensor
 
+    def per_sensor(self, names: list[str]) -> dict[str, dict[str, float]]:
+        """``{sensor: {"area", "dfd", "rmse"}}`` of per-sensor metrics ``[K]`` (the summary.json form)."""
+        if self.area.dim() != 1 or self.area.shape[0] != len(names):
+            raise ValueError(f"expected metrics of {len(names)} sensors [K], got shape {tuple(self.area.shape)}")
+        return {
+            s: {"area": float(self.area[k]), "dfd": float(self.dfd[k]), "rmse": float(self.rmse[k])}
+            for k, s in enumerate(names)
+        }
+
 
 @dataclass
 class MetricsConfig:

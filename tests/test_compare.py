@@ -64,7 +64,7 @@ def tiny(tmp_path: Path, **kw) -> CompareConfig:
     for m in ("mappo", "ippo", "ppo_single"):
         algo = yaml.safe_load((REPO / "configs" / "train" / "algorithm" / f"{m}.yaml").read_text())
         data[m] = {**algo, "hidden": [16, 16], "minibatch_size": 3, "epochs": 2}
-    for m in ("random_search", "cmaes", "gradient"):
+    for m in ("random_search", "cmaes", "gradient", "lm"):
         data[m] = yaml.safe_load((REPO / "configs" / "train" / "baseline" / f"{m}.yaml").read_text())
     data["random_search"]["batch_size"] = 8
     data["cmaes"]["popsize"] = 8
@@ -207,6 +207,17 @@ def test_optimizer_run_stopped_by_the_wall_cap_is_kept_and_flagged(short, proble
     assert float(fresh.area.mean()) == pytest.approx(outcome_row(cfg, problem, full)["area_mean"], abs=1e-12)
 
 
+def test_lm_run_is_recorded_through_its_residual_batches(short, problem0, tmp_path):
+    """LM evaluates candidates through ``residuals``: the recorder sees each batch as LM records it."""
+    problem = problem0
+    budget = 1 + 2 * (problem.n_free + 6) + 3
+    out = run_optimizer(tiny(tmp_path, budget=budget), "lm", 0, problem)  # raises if the two records disagree
+    assert out.stop == "budget" and out.progress.used == budget - 3  # 3 left: not enough for an iteration
+    assert out.progress.best_score > float(out.progress.history[0].best)
+    capped = run_optimizer(tiny(tmp_path, budget=budget, max_wall_s=1e-6), "lm", 0, problem)
+    assert capped.stop == "wall_cap" and capped.progress.used == 1
+
+
 def test_ppo_run_keeps_the_budget_and_reports_its_best(short, problem0, tmp_path):
     cfg, problem = tiny(tmp_path, budget=20), problem0  # 2 x (3 + 1) = 8 per iteration: 2 iterations, 16 sims
     out = run_ppo(cfg, "mappo", 0, problem, tmp_path / "run")
@@ -232,6 +243,12 @@ def test_comparison_resumes_and_refuses_changed_protocols(short, tmp_path):
     with pytest.raises(ConfigError) as e:
         run_comparison(tiny(tmp_path, methods=["cmaes"], budget=32, resume=True))
     assert e.value.key == "budget" and "24" in str(e.value)
+    # a method without finished rows may have other settings (e.g. added later); a finished one may not
+    _, rows3 = run_comparison(tiny(tmp_path, methods=["cmaes"], resume=True, **{"lm.stall": 5, "mappo.lr": 1e-3}))
+    assert rows3 == rows2
+    with pytest.raises(ConfigError) as e:
+        run_comparison(tiny(tmp_path, methods=["cmaes"], resume=True, **{"cmaes.popsize": 12}))
+    assert e.value.key == "cmaes.popsize"
     data = json.loads((run_dir / "compare.json").read_text())
     assert len(data["rows"]) == 2 and data["config"]["budget"] == 24
 
@@ -291,7 +308,7 @@ TINY_ARGS = [
 
 
 @pytest.mark.slow
-def test_script_runs_all_six_methods(short_configs, tmp_path):
+def test_script_runs_every_method(short_configs, tmp_path):
     p = _script(TINY_ARGS, short_configs, tmp_path)
     assert p.returncode == 0, p.stderr[-3000:]
     run_dir = tmp_path / "runs" / "compare" / "smoke"
@@ -305,7 +322,7 @@ def test_script_runs_all_six_methods(short_configs, tmp_path):
         assert float(r["score"]) >= float(r["initial_score"]) - 1e-12
         assert r["passed"] in ("True", "False") and float(r["param_error"]) >= 0
     data = json.loads((run_dir / "compare.json").read_text())
-    assert len(data["rows"]) == 12 and {w["seed"] for w in data["winners"]} == {0, 1}
+    assert len(data["rows"]) == 2 * len(METHODS) and {w["seed"] for w in data["winners"]} == {0, 1}
     assert all(set(r["metrics"]) == {"upfront_left", "upfront_right", "tunnel"} for r in data["rows"])
     md = (run_dir / "compare.md").read_text()
     for m in METHODS:

@@ -1,6 +1,6 @@
-"""Optimizer baselines on a simulation budget (DESIGN 6): random search, CMA-ES, gradient descent.
+"""Optimizer baselines on a simulation budget (DESIGN 6): random search, CMA-ES, gradient descent, LM.
 
-All three search the agents' space of a :class:`~marlcrash.calibrate.problem.CalibrationProblem`
+All four search the agents' space of a :class:`~marlcrash.calibrate.problem.CalibrationProblem`
 (``x [n_agents, 7]`` log-scale factors, only its free coordinates), charge every simulated
 candidate to one :class:`~marlcrash.calibrate.budget.Progress`, rank candidates by the
 problem's fit score, and return a :class:`CalibrationResult` with the same fields. The
@@ -18,11 +18,21 @@ and the first history row are measured, not assumed.
   :class:`~marlcrash.calibrate.problem.SmoothLoss` through the differentiable torch simulator.
   Cost: one simulation per candidate per step (the forward pass; its backward pass is not
   charged separately). The metrics of each step's forward pass rank the candidates.
+- :func:`levenberg_marquardt`: least squares on the velocity residuals of every sensor
+  (:mod:`~marlcrash.calibrate.leastsq`: a finite-difference Jacobian of ``n_free`` simulations
+  and six damped steps per iteration, ``n_free + 6`` simulations in two batches). It fits the
+  windows of ``windows`` in turn (``[1.0]``: the whole pulse at once), each until ``stall``
+  iterations in a row lower its cost by less than ``rtol``; then, while the budget pays for an
+  iteration, it restarts from the lowest-cost point so far plus ``restart_radius`` normal noise
+  (basin hopping: the landscape has many local minima at the 1e-2 m area scale) and keeps the
+  best candidate. It stops when the rest of the budget cannot pay for a whole iteration, so it
+  may leave up to ``n_free + 6`` simulations unspent. Deterministic for a seed (restart noise).
 """
 
 from __future__ import annotations
 
 import csv
+import itertools
 import json
 import os
 import shutil
@@ -36,6 +46,7 @@ import numpy as np
 import torch
 
 from marlcrash.calibrate.budget import Progress
+from marlcrash.calibrate.leastsq import STEP_FACTORS, damped_steps, fd_points, jacobian, next_damping
 from marlcrash.calibrate.problem import CalibrationProblem, ProblemConfig, SmoothLoss
 from marlcrash.config import from_dict, require
 from marlcrash.errors import ConfigError
@@ -97,6 +108,32 @@ class GradientConfig:
         require(self.threads >= 0, "threads", f"expected a thread count >= 0 (0: torch's setting), got {self.threads}")
 
 
+@dataclass
+class LMConfig:
+    """Levenberg-Marquardt settings; values in ``configs/train/baseline/lm.yaml``."""
+
+    windows: list[float] = field(default_factory=lambda: [1.0])
+    iterations: int = 12
+    rtol: float = 1e-3
+    stall: int = 3
+    fd_step: float = 1e-5
+    damping: float = 1e-2
+    restart_radius: float = 0.05
+
+    def validate(self) -> None:
+        w = [float(v) for v in self.windows]
+        ok = bool(w) and all(0 < v <= 1 for v in w) and all(a < b for a, b in itertools.pairwise(w)) and w[-1] == 1.0
+        require(ok, "windows", f"expected strictly increasing fractions in (0, 1] ending at 1.0, got {self.windows}")
+        require(self.iterations >= 1, "iterations", f"expected >= 1 iterations per window, got {self.iterations}")
+        require(np.isfinite(self.rtol) and 0 < self.rtol < 1, "rtol", f"expected a fraction in (0, 1), got {self.rtol}")
+        require(self.stall >= 1, "stall", f"expected >= 1 iterations, got {self.stall}")
+        require(np.isfinite(self.fd_step) and 0 < self.fd_step <= 1e-2, "fd_step",
+                f"expected a log-scale step in (0, 0.01], got {self.fd_step}")  # fmt: skip
+        require(np.isfinite(self.damping) and self.damping > 0, "damping", f"expected > 0, got {self.damping}")
+        require(np.isfinite(self.restart_radius) and self.restart_radius >= 0, "restart_radius",
+                f"expected a log-scale radius >= 0 (0: no restarts), got {self.restart_radius}")  # fmt: skip
+
+
 # ----------------------------------------------------------------------------------------- results
 
 
@@ -132,18 +169,12 @@ class CalibrationResult:
     param_error: dict[str, dict[str, float]] | None = None
     initial_param_error: dict[str, dict[str, float]] | None = None
 
-    @staticmethod
-    def _per_sensor(m: Metrics, names: list[str]) -> dict[str, dict[str, float]]:
-        return {
-            s: {"area": float(m.area[k]), "dfd": float(m.dfd[k]), "rmse": float(m.rmse[k])} for k, s in enumerate(names)
-        }
-
     def summary(self) -> dict[str, Any]:
         """JSON-ready summary: metrics per sensor ``{area, dfd, rmse}`` (SI), budget use, errors."""
         out: dict[str, Any] = {
             "method": self.method,
-            "final_metrics": self._per_sensor(self.final_metrics, self.sensor_names),
-            "initial_metrics": self._per_sensor(self.initial_metrics, self.sensor_names),
+            "final_metrics": self.final_metrics.per_sensor(self.sensor_names),
+            "initial_metrics": self.initial_metrics.per_sensor(self.sensor_names),
             "initial_score": self.initial_score,
             "best_score": self.best_score,
             "simulations": self.simulations,
@@ -317,10 +348,79 @@ def _adam_loop(
     return initial
 
 
+def levenberg_marquardt(
+    problem: CalibrationProblem, budget: int, config: LMConfig, seed: int, stop_on_success: bool = False
+) -> CalibrationResult:
+    """Levenberg-Marquardt on the velocity residuals over growing windows, then restarts (module docstring)."""
+    gen = torch.Generator().manual_seed(seed)
+    progress = Progress(budget, stop_on_success)
+    lo, hi = problem.flat_box()
+    per_iter = lo.numel() + len(STEP_FACTORS)
+    r0, m0 = _residuals(problem, progress, problem.zeros(1))
+    initial = Metrics(*(t[0] for t in m0))
+    ends = [max(2, round(float(w) * (problem.T - 1)) + 1) for w in config.windows]
+    z, r = torch.zeros_like(lo), r0[0]
+    best_z, best_r = z, r
+    schedule = ends
+    while True:
+        for end in schedule:
+            z, r = _lm_window(problem, progress, config, z, r, end)
+        if float((r**2).sum()) < float((best_r**2).sum()):
+            best_z, best_r = z, r
+        if config.restart_radius == 0 or progress.done or progress.grant(1 + per_iter) < 1 + per_iter:
+            break
+        noise = torch.randn(lo.shape, generator=gen, dtype=torch.float64)
+        z = torch.minimum(torch.maximum(best_z + config.restart_radius * noise, lo), hi)
+        r = _residuals(problem, progress, problem.unflat(z[None]))[0][0]
+        schedule = ends[-1:]
+    return _finish("lm", problem, progress, initial)
+
+
+def _residuals(problem: CalibrationProblem, progress: Progress, x: torch.Tensor) -> tuple[torch.Tensor, Metrics]:
+    """Simulate and record a batch ``x [N, n_agents, 7]`` (already granted); its residuals ``[N, K, T]`` and metrics."""
+    r, m = problem.residuals(x)
+    progress.record(x, m, problem.score(m), problem.success(m))
+    return r, m
+
+
+def _lm_window(
+    problem: CalibrationProblem, progress: Progress, config: LMConfig, z: torch.Tensor, r: torch.Tensor, end: int
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Levenberg-Marquardt iterations on the first ``end`` output samples, from ``z [n]`` with residual ``r [K, T]``.
+
+    Ends after ``config.iterations`` iterations, after ``config.stall`` successive iterations that each
+    lowered the window's cost by less than ``config.rtol`` (a rejected step lowers it by 0), or when the
+    budget cannot pay for a whole iteration. Returns the last accepted point and its full residual.
+    """
+    lo, hi = problem.flat_box()
+    n = lo.numel()
+    lam, stalled = float(config.damping), 0
+    for _ in range(config.iterations):
+        if progress.done or progress.grant(n + len(STEP_FACTORS)) < n + len(STEP_FACTORS):
+            break
+        rw = r[:, :end].reshape(-1)
+        points, h = fd_points(z, hi, config.fd_step)
+        r_fd = _residuals(problem, progress, problem.unflat(points))[0]
+        cand = damped_steps(jacobian(r_fd[:, :, :end].reshape(n, -1), rw, h), rw, z, lam, lo, hi)
+        r_c = _residuals(problem, progress, problem.unflat(cand))[0]
+        cost, c0 = (r_c[:, :, :end] ** 2).sum((1, 2)), float((rw**2).sum())
+        b = int(cost.argmin())
+        if float(cost[b]) < c0:
+            rel = 1.0 - float(cost[b]) / c0
+            z, r, lam = cand[b], r_c[b], next_damping(lam, STEP_FACTORS[b])
+        else:
+            rel, lam = 0.0, next_damping(lam, None)
+        stalled = stalled + 1 if rel < config.rtol else 0
+        if stalled >= config.stall:
+            break
+    return z, r
+
+
 BASELINES: dict[str, tuple[type, Callable[..., CalibrationResult]]] = {
     "random_search": (RandomSearchConfig, random_search),
     "cmaes": (CMAESConfig, cmaes),
     "gradient": (GradientConfig, gradient_descent),
+    "lm": (LMConfig, levenberg_marquardt),
 }
 """Baselines by name: (settings schema, function)."""
 
@@ -343,6 +443,7 @@ class BaselineRunConfig:
     random_search: RandomSearchConfig = field(default_factory=RandomSearchConfig)
     cmaes: CMAESConfig = field(default_factory=CMAESConfig)
     gradient: GradientConfig = field(default_factory=GradientConfig)
+    lm: LMConfig = field(default_factory=LMConfig)
 
     def validate(self) -> None:
         require(

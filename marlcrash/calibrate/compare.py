@@ -1,4 +1,4 @@
-"""The results table of issue 5: MAPPO, IPPO, single-agent PPO, random search, CMA-ES, gradient descent (DESIGN 6).
+"""The results table of issue 5: MAPPO, IPPO, single-agent PPO, random search, CMA-ES, gradient descent, LM (DESIGN 6).
 
 Protocol (the paper's: calibration of ONE reference per run):
 
@@ -54,7 +54,7 @@ import numpy as np
 import torch
 
 from marlcrash.calibrate.amortized import _atomic_write, _fmt, _mean_param_error
-from marlcrash.calibrate.baselines import BASELINES, CMAESConfig, GradientConfig, RandomSearchConfig
+from marlcrash.calibrate.baselines import BASELINES, CMAESConfig, GradientConfig, LMConfig, RandomSearchConfig
 from marlcrash.calibrate.budget import Progress
 from marlcrash.calibrate.evaluate import param_errors
 from marlcrash.calibrate.marl import (
@@ -146,6 +146,7 @@ class CompareConfig:
     random_search: RandomSearchConfig = field(default_factory=RandomSearchConfig)
     cmaes: CMAESConfig = field(default_factory=CMAESConfig)
     gradient: GradientConfig = field(default_factory=GradientConfig)
+    lm: LMConfig = field(default_factory=LMConfig)
 
     def validate(self) -> None:
         require(len(self.methods) >= 1, "methods", f"expected at least one of {list(METHODS)}")
@@ -237,10 +238,11 @@ class _WallCap(Exception):
 class _Recorder:
     """A :class:`CalibrationProblem` as an optimizer sees it, with a wall clock and its own record.
 
-    Every batch the optimizer evaluates (``evaluate``, or ``loss`` for gradient descent) is recorded
-    into ``progress`` exactly as the optimizer records it; before a batch that would end after
-    ``max_wall_s`` (judged by the time since the previous batch started: forward, backward and
-    optimizer step) it raises :class:`_WallCap`, so a stopped run's record survives it.
+    Every batch the optimizer evaluates (``evaluate``, ``loss`` for gradient descent, ``residuals`` for
+    Levenberg-Marquardt) is recorded into ``progress`` exactly as the optimizer records it; before a
+    batch that would end after ``max_wall_s`` (judged by the time since the previous batch started:
+    forward, backward and optimizer step) it raises :class:`_WallCap`, so a stopped run's record
+    survives it.
     """
 
     def __init__(self, problem: CalibrationProblem, progress: Progress, max_wall_s: float | None):
@@ -273,6 +275,12 @@ class _Recorder:
         self._record(x, m)
         return loss, m
 
+    def residuals(self, x: torch.Tensor | np.ndarray) -> tuple[torch.Tensor, Metrics]:
+        self._gate()
+        r, m = self._problem.residuals(x)
+        self._record(self._problem.check_x(x), m)
+        return r, m
+
 
 @dataclass
 class RunOutcome:
@@ -297,7 +305,7 @@ class RunOutcome:
 
 
 def run_optimizer(config: CompareConfig, method: str, seed: int, problem: CalibrationProblem) -> RunOutcome:
-    """One optimizer run (``random_search``, ``cmaes``, ``gradient``) with the wall cap."""
+    """One optimizer run (``random_search``, ``cmaes``, ``gradient``, ``lm``) with the wall cap."""
     t0 = time.perf_counter()
     rec = _Recorder(problem, Progress(config.budget), config.max_wall_s)
     _, fn = BASELINES[method]
@@ -387,11 +395,6 @@ def run_method(
 
 
 # ------------------------------------------------------------------------------------------- rows
-def _per_sensor(m: Metrics, sensors: list[str]) -> dict[str, dict[str, float]]:
-    return {s: {"area": float(m.area[k]), "dfd": float(m.dfd[k]), "rmse": float(m.rmse[k])}
-            for k, s in enumerate(sensors)}  # fmt: skip
-
-
 def initial_score(problem: CalibrationProblem) -> float:
     """Fit score of the initial parameters (every method's first candidate), re-simulated without charge."""
     return float(problem.score(evaluate_params(problem, problem.init[None]))[0])
@@ -426,7 +429,7 @@ def outcome_row(
         "sims_to_success": prog.sims_to_success, "param_error": err, "initial_param_error": init_err,
         "wall_time_s": out.wall_time_s, "iterations": out.extra.get("iterations"),
         "env_steps": out.extra.get("env_steps"), "trained_simulations": out.extra.get("trained_simulations"),
-        "metrics": _per_sensor(m, problem.sensors),
+        "metrics": m.per_sensor(problem.sensors),
         "history": [[h.simulations, h.best] for h in prog.history],
     })  # fmt: skip
     return row
@@ -484,7 +487,8 @@ def markdown(config: CompareConfig, rows: list[dict[str, Any]], command: str | N
     win = winners(rows, seeds)
     th = config.success
     lines = [
-        "# Calibration of one reference: MAPPO, IPPO, single-agent PPO, random search, CMA-ES, gradient descent",
+        "# Calibration of one reference: MAPPO, IPPO, single-agent PPO, random search, CMA-ES, gradient descent, "
+        "Levenberg-Marquardt",
         "",
         f"- date: {date}",
     ]
@@ -583,7 +587,8 @@ def write_results(config: CompareConfig, rows: list[dict[str, Any]], run_dir: Pa
 
 # ------------------------------------------------------------------------------------------- driver
 _RESUMABLE_DIFF_OK = ("methods", "seeds", "resume")
-"""Settings a resumed comparison may change (the others define the protocol of the rows already there)."""
+"""Settings a resumed comparison may change (the others define the protocol of the rows already there), besides
+the settings of methods that have no finished row yet (e.g. a method added to an earlier comparison)."""
 
 
 def _first_difference(a: Any, b: Any, key: str = "") -> str | None:
@@ -609,7 +614,9 @@ def _start_run_dir(config: CompareConfig) -> tuple[Path, list[dict[str, Any]]]:
         raise ConfigError(f"resume=true but {path} does not exist", key="resume")
     saved = json.loads(path.read_text())
     old, new = saved["config"], asdict(config)
-    for k in _RESUMABLE_DIFF_OK:
+    done = {r["method"] for r in saved["rows"]}
+    # a method's own settings only define its own rows: those of methods without finished rows may differ
+    for k in (*_RESUMABLE_DIFF_OK, *(m for m in METHODS if m not in done)):
         old.pop(k, None)
         new.pop(k, None)
     diff = _first_difference(old, new)

@@ -87,9 +87,7 @@ class EvalResult:
 
     def per_sensor(self, i: int) -> dict[str, dict[str, float]]:
         """``{sensor: {area, dfd, rmse}}`` of iterate ``i``."""
-        m = self.metrics
-        return {s: {"area": float(m.area[i, k]), "dfd": float(m.dfd[i, k]), "rmse": float(m.rmse[i, k])}
-                for k, s in enumerate(self.sensors)}  # fmt: skip
+        return Metrics(*(t[i] for t in self.metrics)).per_sensor(self.sensors)
 
 
 def evaluation_overrides(config: TrainConfig) -> dict[str, Any]:

@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from marlcrash.calibrate.leastsq import STEP_FACTORS, damped_steps, fd_points, jacobian, next_damping
 from marlcrash.calibrate.problem import CalibrationProblem
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics, area_between
@@ -290,45 +291,33 @@ def local_fit(
         g = torch.Generator().manual_seed(int(seed))
         u = 2.0 * torch.rand(truth.shape, generator=g, dtype=torch.float64) - 1.0
         z = torch.minimum(torch.maximum(truth + float(start_radius) * u, lo), hi)
-    scale = math.sqrt(problem.dt)
 
     def run(zs: torch.Tensor):
-        with torch.no_grad():
-            res = problem.simulate(problem.unflat(zs))
-        r = ((problem.compared(res.velocity) - problem.ref_velocity) * scale).reshape(zs.shape[0], -1)
-        return r, problem.metrics(res.velocity)
+        r, m = problem.residuals(problem.unflat(zs))
+        return r.reshape(zs.shape[0], -1), m
 
     def record(zi: torch.Tensor, row: torch.Tensor, m, i: int) -> dict[str, Any]:
         ok = problem.success(Metrics(*(t[i : i + 1] for t in m)))[0]
         out = {"simulations": problem.n_simulations, "cost": float((row**2).sum()),
                "distance": float((zi - truth).abs().max()), "passed": bool(ok)}  # fmt: skip
-        out["sensors"] = {
-            s: {"area": float(m.area[i, k]), "dfd": float(m.dfd[i, k]), "rmse": float(m.rmse[i, k])}
-            for k, s in enumerate(problem.sensors)
-        }
+        out["sensors"] = Metrics(*(t[i] for t in m)).per_sensor(problem.sensors)
         return out
 
     r_all, m = run(z[None])
     r = r_all[0]
     history = [record(z, r, m, 0)]
     lam = float(damping)
-    factors = torch.tensor([0.01, 0.1, 1.0, 10.0, 100.0, 1000.0], dtype=torch.float64)
     for _ in range(int(iterations)):
-        h = torch.where(z + fd_step > hi, -fd_step, fd_step)  # backward differences at the upper bound
-        r_fd, _ = run(z + torch.diag(h))
-        jac = (r_fd - r).T / h  # [residuals, n]
-        jtj, grad = jac.T @ jac, jac.T @ r
-        scale_d = torch.diag(jtj)
-        diag = torch.diag(scale_d.clamp_min(1e-3 * float(scale_d.max()) + 1e-300))
-        steps = [torch.linalg.solve(jtj + lam * f * diag, -grad) for f in factors]
-        cand = torch.stack([torch.minimum(torch.maximum(z + step, lo), hi) for step in steps])
+        points, h = fd_points(z, hi, fd_step)
+        r_fd, _ = run(points)
+        cand = damped_steps(jacobian(r_fd, r, h), r, z, lam, lo, hi)
         r_c, m_c = run(cand)
         cost = (r_c**2).sum(1)
         best = int(cost.argmin())
         if float(cost[best]) < float((r**2).sum()):
-            z, r, lam = cand[best], r_c[best], lam * float(factors[best]) / 3.0
+            z, r, lam = cand[best], r_c[best], next_damping(lam, STEP_FACTORS[best])
             history.append(record(z, r, m_c, best))
         else:
-            lam *= 30.0
+            lam = next_damping(lam, None)
             history.append({**history[-1], "simulations": problem.n_simulations})
     return history

@@ -363,10 +363,26 @@ class CalibrationProblem:
 
     def metrics(self, velocity: torch.Tensor) -> Metrics:
         """Per-sensor metrics ``[N, K]`` of simulated velocities ``[N, K, T]`` against the reference (no grad)."""
-        v = self.compared(velocity.detach())
+        return self._compared_metrics(self.compared(velocity.detach()))
+
+    def _compared_metrics(self, v: torch.Tensor) -> Metrics:
         return compute_metrics(
             v, self.ref_velocity, dt=self.dt, config=self.fit.cfg.metrics, backend=self.metrics_backend
         )
+
+    def residuals(self, x: torch.Tensor | np.ndarray) -> tuple[torch.Tensor, Metrics]:
+        """Velocity residuals and metrics of ``N`` candidates from one batched no-grad simulation (counts ``N``).
+
+        Returns:
+            ``r [N, K, T]``: compared minus reference velocity times ``sqrt(dt)`` [m/s^0.5], so that
+            ``(r**2).sum((1, 2))`` is the summed ``integral (v - v_ref)^2 dt`` over the sensors [m^2/s],
+            the least-squares cost of :mod:`~marlcrash.calibrate.leastsq`; and the metrics ``[N, K]``.
+        """
+        x = self.check_x(x)
+        with torch.no_grad():
+            res = self.simulate(x)
+        v = self.compared(res.velocity)
+        return (v - self.ref_velocity) * float(np.sqrt(self.dt)), self._compared_metrics(v)
 
     def evaluate(self, x: torch.Tensor | np.ndarray) -> Metrics:
         """Metrics ``[N, K]`` of ``N`` candidates ``[N, n_agents, 7]`` from one batched no-grad simulation."""

@@ -1,0 +1,63 @@
+"""Levenberg-Marquardt steps on pulse residuals, shared by the ``lm`` baseline and ``local_fit``.
+
+The residual of a candidate is its compared velocity minus the reference's, times ``sqrt(dt)``
+(:meth:`~marlcrash.calibrate.problem.CalibrationProblem.residuals`), over every sensor and the
+output samples of a window, so the cost ``|r|^2`` is the summed ``integral (v - v_ref)^2 dt``.
+One iteration:
+
+1. :func:`fd_points`: a forward finite-difference Jacobian over the ``n`` free log-scale
+   coordinates, ``n`` simulations in one batch (backward at the upper bound of the box; the
+   current point's residual is reused).
+2. :func:`damped_steps`: candidates ``z + s(lambda f)`` for the damping factors ``f`` of
+   ``STEP_FACTORS`` in one more batch, ``s`` solving ``(J^T J + lambda f D) s = -J^T r``, clipped
+   to the box. ``D`` is the diagonal of ``J^T J`` floored at ``DIAG_FLOOR`` of its largest entry:
+   without the floor, coordinates the pulses barely see took steps to the edge of the box and
+   every step was rejected.
+3. :func:`next_damping`: the best candidate is kept if it lowers the cost and ``lambda`` becomes
+   ``lambda f / 3``; otherwise ``lambda`` grows 30x.
+"""
+
+from __future__ import annotations
+
+import torch
+
+STEP_FACTORS: tuple[float, ...] = (0.01, 0.1, 1.0, 10.0, 100.0, 1000.0)
+"""Damping factors tried per iteration, one batch [-]."""
+DIAG_FLOOR = 1e-3
+"""Floor of the scaling diagonal ``D`` relative to its largest entry [-]."""
+
+
+def fd_points(z: torch.Tensor, hi: torch.Tensor, fd_step: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """Finite-difference points ``[n, n]`` around ``z [n]`` and their signed steps ``h [n]``.
+
+    Row ``i`` is ``z + h_i e_i``; ``h_i = fd_step``, or ``-fd_step`` where that would leave the box.
+    """
+    h = torch.where(z + fd_step > hi, -fd_step, fd_step)
+    return z + torch.diag(h), h
+
+
+def jacobian(r_fd: torch.Tensor, r: torch.Tensor, h: torch.Tensor) -> torch.Tensor:
+    """``[m, n]`` Jacobian from the residuals ``r_fd [n, m]`` of :func:`fd_points` and ``r [m]`` at ``z``."""
+    return (r_fd - r).T / h
+
+
+def damped_steps(
+    jac: torch.Tensor,
+    r: torch.Tensor,
+    z: torch.Tensor,
+    lam: float,
+    lo: torch.Tensor,
+    hi: torch.Tensor,
+    factors: tuple[float, ...] = STEP_FACTORS,
+) -> torch.Tensor:
+    """Candidates ``[len(factors), n]``: ``z`` plus the damped Gauss-Newton step per factor, clipped to the box."""
+    jtj, grad = jac.T @ jac, jac.T @ r
+    d = torch.diagonal(jtj)
+    diag = torch.diag(d.clamp_min(DIAG_FLOOR * float(d.max()) + 1e-300))
+    steps = [torch.linalg.solve(jtj + lam * f * diag, -grad) for f in factors]
+    return torch.stack([torch.minimum(torch.maximum(z + s, lo), hi) for s in steps])
+
+
+def next_damping(lam: float, accepted_factor: float | None) -> float:
+    """``lambda`` after an iteration: ``lambda f / 3`` if the step with factor ``f`` was kept, else ``30 lambda``."""
+    return lam * accepted_factor / 3.0 if accepted_factor is not None else lam * 30.0
