@@ -10,6 +10,7 @@ import csv
 import dataclasses
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -251,6 +252,10 @@ def test_comparison_resumes_and_refuses_changed_protocols(short, tmp_path):
     assert e.value.key == "cmaes.popsize"
     data = json.loads((run_dir / "compare.json").read_text())
     assert len(data["rows"]) == 2 and data["config"]["budget"] == 24
+    moved = tmp_path / "moved"
+    shutil.copytree(tmp_path / "runs", moved)  # a run folder moved elsewhere resumes there
+    _, rows4 = run_comparison(tiny(tmp_path, methods=["cmaes"], resume=True, out_dir=str(moved)))
+    assert rows4 == rows2
 
 
 # --------------------------------------------------------------------------------------- config

@@ -586,8 +586,9 @@ def write_results(config: CompareConfig, rows: list[dict[str, Any]], run_dir: Pa
 
 
 # ------------------------------------------------------------------------------------------- driver
-_RESUMABLE_DIFF_OK = ("methods", "seeds", "resume")
-"""Settings a resumed comparison may change (the others define the protocol of the rows already there), besides
+_RESUMABLE_DIFF_OK = ("methods", "seeds", "resume", "out_dir")
+"""Settings a resumed comparison may change (the others define the protocol of the rows already there; ``out_dir``
+may differ when the run folder was moved), besides
 the settings of methods that have no finished row yet (e.g. a method added to an earlier comparison)."""
 
 
