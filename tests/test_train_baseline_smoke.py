@@ -23,22 +23,26 @@ def run(*args: str, cwd: Path) -> subprocess.CompletedProcess:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("method", ["random_search", "cmaes", "gradient"])
-def test_script_writes_a_run_folder(tmp_path, method):
+@pytest.mark.parametrize(
+    ("method", "budget", "spent"),
+    # lm: one iteration costs n_free + 6 = 133 simulations, the last 5 cannot pay for a second
+    [("random_search", 32, 32), ("cmaes", 32, 32), ("gradient", 32, 32), ("lm", 139, 134)],
+)
+def test_script_writes_a_run_folder(tmp_path, method, budget, spent):
     out = tmp_path / "runs"
-    p = run(f"method={method}", *TINY, f"out_dir={out}", "name=smoke", "seed=1", cwd=tmp_path)
+    p = run(f"method={method}", *TINY, f"budget={budget}", f"out_dir={out}", "name=smoke", "seed=1", cwd=tmp_path)
     assert p.returncode == 0, p.stderr[-3000:]
     folder = out / method / "smoke"
     summary = json.loads((folder / "summary.json").read_text())
     for key in ("final_metrics", "initial_metrics", "simulations", "sims_to_success", "wall_time_s", "param_error"):
         assert key in summary
-    assert summary["simulations"] == 32
+    assert summary["simulations"] == spent
     assert set(summary["final_metrics"]) == {"upfront_left", "upfront_right", "tunnel"}
     assert set(next(iter(summary["final_metrics"].values()))) == {"area", "dfd", "rmse"}
     assert all(set(v) == {"E_x", "E_s", "transmission"} for v in summary["param_error"].values())
     with open(folder / "history.csv") as fh:
         rows = list(csv.DictReader(fh))
-    assert int(rows[-1]["simulations"]) == 32 and float(rows[-1]["best_score"]) == summary["best_score"]
+    assert int(rows[-1]["simulations"]) == spent and float(rows[-1]["best_score"]) == summary["best_score"]
     assert (folder / "velocity.png").stat().st_size > 1000
     assert sorted(p.name for p in tmp_path.iterdir()) == ["runs"]  # Hydra wrote nothing else
 
