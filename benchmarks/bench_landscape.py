@@ -10,23 +10,33 @@ With ``--cluster-radii 0 0.08 0.15 0.25`` it instead reads every sensor as the m
 velocity of the cells within each radius (a sensor bracket rather than one light cell) and prints the
 median area per sensor at radii 1e-4, 1e-3 and 1e-2 (:func:`marlcrash.calibrate.landscape.cluster_sensor_study`).
 
+With ``--spectrum`` it instead prints the singular values of the residual Jacobian at the truth
+(:func:`marlcrash.calibrate.landscape.sensitivity_spectrum`, 128 simulations): how many parameter
+directions the sensors see; ``--candidate runs/lm/<name>/best.pt`` adds how that calibration's
+parameter error splits over those directions.
+
 Usage: python benchmarks/bench_landscape.py [--scenario full_width_40] [--reference-seed 0] [--draws 8]
-       [--duration S] [--cluster-radii M [M ...]] [--json]
+       [--duration S] [--cluster-radii M [M ...] | --spectrum [--candidate FILE.pt]] [--json]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import pickle
 import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+import torch
+
 from marlcrash.calibrate.landscape import (
     cluster_sensor_study,
     format_cluster_study,
     format_landscape,
+    format_spectrum,
+    sensitivity_spectrum,
     truth_neighbourhood,
 )
 from marlcrash.calibrate.problem import ProblemConfig, build_problem
@@ -47,12 +57,28 @@ def main() -> None:
         help="instead: read each sensor as the mass-weighted mean of the cells within these radii [m] "
         "(0 = the sensor cell alone) and report the area at radii 1e-4, 1e-3, 1e-2",
     )
+    ap.add_argument("--spectrum", action="store_true", help="instead: singular values of the residual Jacobian")
+    ap.add_argument("--candidate", type=Path, default=None,
+                    help="with --spectrum: a baseline run's best.pt (or a saved [n_agents, 7] tensor)")  # fmt: skip
     ap.add_argument("--json", action="store_true", help="print the result dict as JSON only")
     args = ap.parse_args()
+    if args.candidate is not None and not args.spectrum:
+        ap.error("--candidate needs --spectrum")
     problem = build_problem(
         ProblemConfig(scenario=args.scenario, reference_seed=args.reference_seed, duration=args.duration)
     )
-    if args.cluster_radii is not None:
+    if args.spectrum:
+        cand = None
+        if args.candidate is not None:
+            try:
+                data = torch.load(args.candidate, weights_only=True)
+            except (OSError, RuntimeError, pickle.UnpicklingError) as e:
+                sys.exit(f"error: {args.candidate}: cannot read a saved tensor ({e})")
+            cand = data["best_x"] if isinstance(data, dict) and "best_x" in data else data
+            if not isinstance(cand, torch.Tensor) or tuple(cand.shape) != (problem.n_agents, 7):
+                sys.exit(f"error: {args.candidate}: expected best_x or a tensor of shape [{problem.n_agents}, 7]")
+        res, text = sensitivity_spectrum(problem, candidate=cand), format_spectrum
+    elif args.cluster_radii is not None:
         res = cluster_sensor_study(problem, cluster_radii=args.cluster_radii, draws=args.draws)
         text = format_cluster_study
     else:

@@ -18,6 +18,7 @@ from marlcrash.calibrate.landscape import (
     local_fit,
     loglog_slopes,
     neighbourhood_points,
+    sensitivity_spectrum,
     sensor_clusters,
     truth_neighbourhood,
 )
@@ -117,6 +118,32 @@ def test_script_prints_json():
     assert all(math.isfinite(a) for g in res["groups"].values() for a in g["area"])
 
 
+def test_script_spectrum_reads_a_baseline_result(tmp_path):
+    problem = build_problem(ProblemConfig(duration=0.01))
+    best = problem.clip(problem.true_x[None] + 0.01)[0]
+    torch.save({"best_x": best, "best_params": torch.zeros(1)}, tmp_path / "best.pt")
+    script = str(REPO / "benchmarks" / "bench_landscape.py")
+    cmd = [
+        sys.executable,
+        script,
+        "--duration",
+        "0.01",
+        "--spectrum",
+        "--candidate",
+        str(tmp_path / "best.pt"),
+        "--json",
+    ]
+    out = subprocess.run(cmd, capture_output=True, text=True, timeout=600, cwd=REPO)
+    assert out.returncode == 0, out.stderr
+    res = json.loads(out.stdout)
+    assert res["n_free"] == problem.n_free and res["simulations"] == problem.n_free + 2
+    assert sum(res["candidate"]["error_share"].values()) == pytest.approx(1.0)
+    torch.save(torch.zeros(3, 7), tmp_path / "wrong.pt")
+    bad = subprocess.run([*cmd[:5], "--candidate", str(tmp_path / "wrong.pt")], capture_output=True, text=True,
+                         timeout=600, cwd=REPO)  # fmt: skip
+    assert bad.returncode != 0 and "wrong.pt" in bad.stderr and "Traceback" not in bad.stderr
+
+
 # ------------------------------------------------------------------ sensors read as clusters
 def test_sensor_clusters_hold_the_massive_cells_within_the_radius():
     problem = build_problem(ProblemConfig(duration=SHORT_DURATION))
@@ -196,3 +223,78 @@ def test_local_fit_rejects_bad_settings():
         with pytest.raises(ConfigError, match=key):
             local_fit(problem, **kw)
     assert problem.n_simulations == 0
+
+
+class LinearResidualToy:
+    """Residuals exactly ``A (z - z_true)`` over 14 free coordinates; ``A`` has known singular values."""
+
+    def __init__(self, singular: np.ndarray, blind: int | None = None, seed: int = 0):
+        rng = np.random.default_rng(seed)
+        u, _ = np.linalg.qr(rng.standard_normal((40, 14)))
+        v, _ = np.linalg.qr(rng.standard_normal((14, 14)))
+        self.A = torch.as_tensor(u @ np.diag(singular) @ v.T)
+        if blind is not None:
+            self.A[:, blind] = 0.0
+        self.v = torch.as_tensor(v)
+        self.n_agents, self.free = 2, torch.ones(2, 7, dtype=torch.bool)
+        self.true_x = torch.full((2, 7), 0.05, dtype=torch.float64)
+        self.n_simulations = 0
+
+    def check_x(self, x):
+        x = torch.as_tensor(x, dtype=torch.float64)
+        return x[None] if x.dim() == 2 else x
+
+    def clip(self, x):
+        return x.clamp(-1.0, 1.0)
+
+    def flat_box(self):
+        return -torch.ones(14, dtype=torch.float64), torch.ones(14, dtype=torch.float64)
+
+    def flat(self, x):
+        return x[:, self.free]
+
+    def unflat(self, z):
+        return z.reshape(-1, 2, 7)
+
+    def residuals(self, x):
+        z = self.flat(x) - self.true_x.reshape(1, -1)
+        self.n_simulations += z.shape[0]
+        return (z @ self.A.T)[:, None, :], None
+
+
+def test_spectrum_equals_the_svd_of_a_linear_toy():
+    singular = np.array([3.0, 1.0, 0.5, 0.2, 0.05, 0.035, 0.012, 4e-3, 2e-3, 8e-4, 5e-4, 2e-4, 5e-5, 1e-5])
+    toy = LinearResidualToy(singular)
+    d = 0.01 * toy.v[:, 4] + 0.02 * toy.v[:, 9]  # relative singular values 0.05/3 and 8e-4/3
+    cand = toy.true_x + toy.unflat(d[None])[0]
+    res = sensitivity_spectrum(toy, candidate=cand)
+    np.testing.assert_allclose(res["singular_values"], singular, rtol=1e-6)
+    assert res["above"] == {"0.1": 3, "0.01": 6, "0.001": 8, "0.0001": 11} and res["blind_coordinates"] == 0
+    assert res["simulations"] == 1 + 14 + 1 and res["n_residuals"] == 40
+    c = res["candidate"]
+    share = c["error_share"]
+    assert list(share) == [">0.1", "0.01-0.1", "0.001-0.01", "0.0001-0.001", "<0.0001"]
+    assert share["0.01-0.1"] == pytest.approx(0.2, abs=1e-9) and share["0.0001-0.001"] == pytest.approx(0.8, abs=1e-9)
+    assert c["residual"] == pytest.approx(c["linear_residual"], rel=1e-6) and c["residual_at_x"] == 0.0
+
+
+def test_spectrum_counts_blind_coordinates_and_checks_its_arguments():
+    toy = LinearResidualToy(np.linspace(1.0, 0.1, 14), blind=3)
+    res = sensitivity_spectrum(toy)
+    assert res["blind_coordinates"] == 1 and res["relative"][-1] < 1e-12
+    with pytest.raises(ConfigError) as e:
+        sensitivity_spectrum(toy, bands=(1e-2, 1e-1))
+    assert e.value.key == "bands"
+    with pytest.raises(ConfigError) as e:
+        sensitivity_spectrum(toy, fd_step=0.0)
+    assert e.value.key == "fd_step"
+
+
+def test_spectrum_of_the_real_problem_sees_few_directions_in_a_short_window():
+    """Over the first 10 ms the load has not reached the rear cells: their coordinates are blind."""
+    problem = build_problem(ProblemConfig(duration=0.01))
+    res = sensitivity_spectrum(problem)
+    assert res["simulations"] == problem.n_free + 1
+    assert 0 < res["blind_coordinates"] < problem.n_free
+    assert res["above"]["0.0001"] <= problem.n_free - res["blind_coordinates"]
+    assert res["relative"][0] == 1.0 and all(a >= b for a, b in zip(res["relative"], res["relative"][1:], strict=False))

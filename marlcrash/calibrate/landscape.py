@@ -19,6 +19,7 @@ Every candidate counts one simulation of the problem; one batched simulation per
 
 from __future__ import annotations
 
+import itertools
 import math
 from typing import Any
 
@@ -321,3 +322,118 @@ def local_fit(
             lam = next_damping(lam, None)
             history.append({**history[-1], "simulations": problem.n_simulations})
     return history
+
+
+SPECTRUM_BANDS: tuple[float, ...] = (1e-1, 1e-2, 1e-3, 1e-4)
+"""Relative singular-value thresholds of :func:`sensitivity_spectrum`'s bands [-]."""
+
+
+def _band_labels(bands: tuple[float, ...]) -> list[str]:
+    edges = [f"{b:g}" for b in bands]
+    return [f">{edges[0]}", *(f"{lo}-{hi}" for hi, lo in itertools.pairwise(edges)), f"<{edges[-1]}"]
+
+
+def sensitivity_spectrum(
+    problem: CalibrationProblem,
+    *,
+    x: torch.Tensor | None = None,
+    candidate: torch.Tensor | None = None,
+    fd_step: float = 1e-5,
+    bands: tuple[float, ...] = SPECTRUM_BANDS,
+) -> dict[str, Any]:
+    """What the sensors see of the parameters: the singular values of the residual Jacobian at a point.
+
+    The Jacobian of the velocity residuals (:meth:`CalibrationProblem.residuals`: every sensor and
+    output sample) over the ``n_free`` free log-scale coordinates, by forward finite differences
+    (:mod:`~marlcrash.calibrate.leastsq`, ``n_free + 1`` simulations). A singular value ``s_i`` is how
+    much the pulses change per unit log-scale change along its direction ``v_i``; a parameter error
+    along directions whose ``s_i / s_max`` is small barely moves the pulses, so no calibrator can
+    tell those directions apart from these pulses (locally).
+
+    Args:
+        problem: the calibration problem.
+        x: ``[n_agents, 7]`` the point (``None``: the twin truth ``true_x``).
+        candidate: optionally another ``[n_agents, 7]`` point (e.g. a calibration result): how its
+            difference ``d`` from ``x`` splits over the bands, and whether the linear model holds there.
+        fd_step: finite-difference step in log-scale [-].
+        bands: decreasing relative singular-value thresholds.
+
+    Returns:
+        ``n_free``, ``n_residuals``, ``singular_values`` (descending, [m/s^0.5] per unit log-scale),
+        ``relative`` (``s / s_max``), ``above`` (``{threshold: count}``), ``blind_coordinates`` (free
+        coordinates whose Jacobian column is exactly zero: the load does not reach them in the
+        window), ``simulations``; with ``candidate`` also ``candidate``: ``distance_rms`` (rms of
+        ``d``), ``error_share`` (share of ``|d|^2`` per band, keyed as ``band_labels``),
+        ``linear_residual`` ``|J d|``, ``residual`` (the actual ``|r(candidate)|``) and
+        ``residual_at_x`` (``|r(x)|``); and ``band_labels``.
+
+    Raises:
+        ConfigError: no truth and no ``x``, a non-positive ``fd_step``, or bands not decreasing in (0, 1).
+    """
+    if x is None:
+        _check(problem, ())
+        x = problem.true_x
+    if not (np.isfinite(fd_step) and fd_step > 0):
+        raise ConfigError(f"expected fd_step > 0, got {fd_step}", key="fd_step")
+    b = [float(v) for v in bands]
+    if not b or any(not 0 < v < 1 for v in b) or any(a <= c for a, c in itertools.pairwise(b)):
+        raise ConfigError(f"expected decreasing thresholds in (0, 1), got {bands}", key="bands")
+    before = problem.n_simulations
+    hi = problem.flat_box()[1]
+    z = problem.flat(problem.clip(problem.check_x(x)))[0]
+    r0 = problem.residuals(problem.unflat(z[None]))[0].reshape(-1)
+    points, h = fd_points(z, hi, fd_step)
+    r_fd = problem.residuals(problem.unflat(points))[0].reshape(len(h), -1)
+    jac = jacobian(r_fd, r0, h)
+    _, s, vt = torch.linalg.svd(jac, full_matrices=False)
+    rel = s / s[0] if float(s[0]) > 0 else torch.zeros_like(s)
+    labels = _band_labels(tuple(b))
+    out: dict[str, Any] = {
+        "n_free": int(z.numel()),
+        "n_residuals": int(r0.numel()),
+        "singular_values": s.tolist(),
+        "relative": rel.tolist(),
+        "above": {f"{v:g}": int((rel > v).sum()) for v in b},
+        "blind_coordinates": int((jac.abs().sum(0) == 0).sum()),
+        "band_labels": labels,
+    }
+    if candidate is not None:
+        zc = problem.flat(problem.clip(problem.check_x(candidate)))[0]
+        d = zc - z
+        c2 = (vt @ d) ** 2
+        edges = [float("inf"), *b, 0.0]
+        share = [float(c2[(rel <= hi_) & (rel > lo_)].sum() / c2.sum().clamp_min(1e-300))
+                 for hi_, lo_ in itertools.pairwise(edges)]  # fmt: skip
+        share[-1] += float(c2[rel <= 0].sum() / c2.sum().clamp_min(1e-300))
+        out["candidate"] = {
+            "distance_rms": float(d.pow(2).mean().sqrt()),
+            "error_share": dict(zip(labels, share, strict=True)),
+            "linear_residual": float((jac @ d).norm()),
+            "residual": float(problem.residuals(problem.unflat(zc[None]))[0].norm()),
+            "residual_at_x": float(r0.norm()),
+        }
+    out["simulations"] = problem.n_simulations - before
+    return out
+
+
+def format_spectrum(res: dict[str, Any]) -> str:
+    """A few lines of text for :func:`sensitivity_spectrum`'s result."""
+    n = res["n_free"]
+    above = ", ".join(f"{cnt} above {thr}" for thr, cnt in res["above"].items())
+    rel = res["relative"]
+    every = max(1, len(rel) // 16)
+    lines = [
+        f"residual Jacobian: {res['n_residuals']} residuals x {n} free coordinates ({res['simulations']} simulations)",
+        f"singular values relative to the largest: {above} (of {n}); "
+        f"{res['blind_coordinates']} coordinates the load never reaches in the window",
+        f"sampled (every {every}): " + " ".join(f"{v:.1e}" for v in rel[::every]),
+    ]
+    c = res.get("candidate")
+    if c is not None:
+        share = "  ".join(f"{k}: {v:.3f}" for k, v in c["error_share"].items())
+        lines += [
+            f"candidate: rms log-scale distance {c['distance_rms']:.3g}; share of its squared error per band: {share}",
+            f"residual norm: {c['residual']:.3e} actual, {c['linear_residual']:.3e} linearized "
+            f"(at the point: {c['residual_at_x']:.3e})",
+        ]
+    return "\n".join(lines)
