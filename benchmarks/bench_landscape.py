@@ -64,6 +64,8 @@ def main() -> None:
     args = ap.parse_args()
     if args.candidate is not None and not args.spectrum:
         ap.error("--candidate needs --spectrum")
+    if args.spectrum and args.cluster_radii is not None:
+        ap.error("--spectrum and --cluster-radii are separate studies; give one")
     problem = build_problem(
         ProblemConfig(scenario=args.scenario, reference_seed=args.reference_seed, duration=args.duration)
     )
@@ -77,6 +79,7 @@ def main() -> None:
             cand = data["best_x"] if isinstance(data, dict) and "best_x" in data else data
             if not isinstance(cand, torch.Tensor) or tuple(cand.shape) != (problem.n_agents, 7):
                 sys.exit(f"error: {args.candidate}: expected best_x or a tensor of shape [{problem.n_agents}, 7]")
+            cand = cand.to(torch.float64)
         res, text = sensitivity_spectrum(problem, candidate=cand), format_spectrum
     elif args.cluster_radii is not None:
         res = cluster_sensor_study(problem, cluster_radii=args.cluster_radii, draws=args.draws)

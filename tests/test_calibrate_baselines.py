@@ -94,8 +94,12 @@ def test_lm_is_seeded_and_its_restarts_use_the_seed(problem):
 
 
 def test_lm_without_restarts_stops_when_the_window_stalls(problem):
-    res = BASELINES["lm"][1](problem, 20_000, LMConfig(restart_radius=0.0, iterations=50), 0)
-    assert res.simulations < 20_000 and (res.simulations - 1) % (problem.n_free + 6) == 0
+    per_iter = problem.n_free + 6
+    capped = BASELINES["lm"][1](problem, 20_000, LMConfig(restart_radius=0.0, iterations=8, stall=8), 0)
+    assert capped.simulations == 1 + 8 * per_iter  # no restarts: the window's iteration cap ends the run
+    # an iteration lowering the cost by less than half counts as stalled here: two in a row end it early
+    stalled = BASELINES["lm"][1](problem, 20_000, LMConfig(restart_radius=0.0, iterations=8, rtol=0.5, stall=2), 0)
+    assert (stalled.simulations - 1) % per_iter == 0 and stalled.simulations < capped.simulations
 
 
 def test_lm_recovers_a_near_twin_truth_and_fits_windows_in_turn(problem):

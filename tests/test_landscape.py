@@ -273,9 +273,19 @@ def test_spectrum_equals_the_svd_of_a_linear_toy():
     assert res["simulations"] == 1 + 14 + 1 and res["n_residuals"] == 40
     c = res["candidate"]
     share = c["error_share"]
-    assert list(share) == [">0.1", "0.01-0.1", "0.001-0.01", "0.0001-0.001", "<0.0001"]
+    assert list(share) == [">0.1", "0.01-0.1", "0.001-0.01", "0.0001-0.001", "<=0.0001"]
     assert share["0.01-0.1"] == pytest.approx(0.2, abs=1e-9) and share["0.0001-0.001"] == pytest.approx(0.8, abs=1e-9)
     assert c["residual"] == pytest.approx(c["linear_residual"], rel=1e-6) and c["residual_at_x"] == 0.0
+
+
+def test_spectrum_with_fewer_residuals_than_coordinates_puts_null_space_errors_in_the_last_band():
+    toy = LinearResidualToy(np.linspace(1.0, 0.1, 14))
+    toy.A = toy.A[:10]  # 10 residuals, 14 coordinates: a 4-dimensional null space
+    _, _, vt = np.linalg.svd(toy.A.numpy())
+    d = torch.as_tensor(vt[-1])  # in the null space
+    res = sensitivity_spectrum(toy, candidate=toy.true_x + toy.unflat(0.05 * d[None])[0])
+    assert len(res["singular_values"]) == 14 and res["singular_values"][-4:] == [0.0] * 4
+    assert res["candidate"]["error_share"]["<=0.0001"] == pytest.approx(1.0, abs=1e-6)
 
 
 def test_spectrum_counts_blind_coordinates_and_checks_its_arguments():

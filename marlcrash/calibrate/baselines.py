@@ -21,12 +21,14 @@ and the first history row are measured, not assumed.
 - :func:`levenberg_marquardt`: least squares on the velocity residuals of every sensor
   (:mod:`~marlcrash.calibrate.leastsq`: a finite-difference Jacobian of ``n_free`` simulations
   and six damped steps per iteration, ``n_free + 6`` simulations in two batches). It fits the
-  windows of ``windows`` in turn (``[1.0]``: the whole pulse at once), each until ``stall``
-  iterations in a row lower its cost by less than ``rtol``; then, while the budget pays for an
-  iteration, it restarts from the lowest-cost point so far plus ``restart_radius`` normal noise
-  (basin hopping: the landscape has many local minima at the 1e-2 m area scale) and keeps the
-  best candidate. It stops when the rest of the budget cannot pay for a whole iteration, so it
-  may leave up to ``n_free + 6`` simulations unspent. Deterministic for a seed (restart noise).
+  windows of ``windows`` in turn (``[1.0]``: the whole pulse at once), each for at most
+  ``iterations`` iterations and until ``stall`` iterations in a row lower its cost by less than
+  ``rtol``; then, while the budget pays for an iteration, it restarts from the lowest-cost point
+  so far plus ``restart_radius`` normal noise (basin hopping: the landscape has many local minima
+  at the 1e-2 m area scale) and keeps the best candidate. With restarts it stops when the rest of
+  the budget cannot pay for a whole iteration, leaving up to ``n_free + 6`` simulations unspent;
+  with ``restart_radius: 0`` it stops after the last window, possibly far below the budget.
+  Deterministic for a seed (restart noise).
 """
 
 from __future__ import annotations
@@ -34,6 +36,7 @@ from __future__ import annotations
 import csv
 import itertools
 import json
+import math
 import os
 import shutil
 import tempfile
@@ -403,7 +406,7 @@ def _lm_window(
         r_fd = _residuals(problem, progress, problem.unflat(points))[0]
         cand = damped_steps(jacobian(r_fd[:, :, :end].reshape(n, -1), rw, h), rw, z, lam, lo, hi)
         r_c = _residuals(problem, progress, problem.unflat(cand))[0]
-        cost, c0 = (r_c[:, :, :end] ** 2).sum((1, 2)), float((rw**2).sum())
+        cost, c0 = torch.nan_to_num((r_c[:, :, :end] ** 2).sum((1, 2)), nan=math.inf), float((rw**2).sum())
         b = int(cost.argmin())
         if float(cost[b]) < c0:
             rel = 1.0 - float(cost[b]) / c0

@@ -313,7 +313,7 @@ def local_fit(
         r_fd, _ = run(points)
         cand = damped_steps(jacobian(r_fd, r, h), r, z, lam, lo, hi)
         r_c, m_c = run(cand)
-        cost = (r_c**2).sum(1)
+        cost = torch.nan_to_num((r_c**2).sum(1), nan=math.inf)  # a diverged candidate never wins
         best = int(cost.argmin())
         if float(cost[best]) < float((r**2).sum()):
             z, r, lam = cand[best], r_c[best], next_damping(lam, STEP_FACTORS[best])
@@ -330,7 +330,7 @@ SPECTRUM_BANDS: tuple[float, ...] = (1e-1, 1e-2, 1e-3, 1e-4)
 
 def _band_labels(bands: tuple[float, ...]) -> list[str]:
     edges = [f"{b:g}" for b in bands]
-    return [f">{edges[0]}", *(f"{lo}-{hi}" for hi, lo in itertools.pairwise(edges)), f"<{edges[-1]}"]
+    return [f">{edges[0]}", *(f"{lo}-{hi}" for hi, lo in itertools.pairwise(edges)), f"<={edges[-1]}"]
 
 
 def sensitivity_spectrum(
@@ -359,7 +359,8 @@ def sensitivity_spectrum(
         bands: decreasing relative singular-value thresholds.
 
     Returns:
-        ``n_free``, ``n_residuals``, ``singular_values`` (descending, [m/s^0.5] per unit log-scale),
+        ``n_free``, ``n_residuals``, ``singular_values`` (``n_free`` of them, descending, zeros where the
+        residuals are fewer than the coordinates; [m/s^0.5] per unit log-scale),
         ``relative`` (``s / s_max``), ``above`` (``{threshold: count}``), ``blind_coordinates`` (free
         coordinates whose Jacobian column is exactly zero: the load does not reach them in the
         window), ``simulations``; with ``candidate`` also ``candidate``: ``distance_rms`` (rms of
@@ -385,7 +386,8 @@ def sensitivity_spectrum(
     points, h = fd_points(z, hi, fd_step)
     r_fd = problem.residuals(problem.unflat(points))[0].reshape(len(h), -1)
     jac = jacobian(r_fd, r0, h)
-    _, s, vt = torch.linalg.svd(jac, full_matrices=False)
+    _, s, vt = torch.linalg.svd(jac, full_matrices=True)  # vt [n, n]: with fewer residuals than n, the rest is null
+    s = torch.cat([s, s.new_zeros(vt.shape[0] - s.numel())])
     rel = s / s[0] if float(s[0]) > 0 else torch.zeros_like(s)
     labels = _band_labels(tuple(b))
     out: dict[str, Any] = {
@@ -402,9 +404,9 @@ def sensitivity_spectrum(
         d = zc - z
         c2 = (vt @ d) ** 2
         edges = [float("inf"), *b, 0.0]
-        share = [float(c2[(rel <= hi_) & (rel > lo_)].sum() / c2.sum().clamp_min(1e-300))
-                 for hi_, lo_ in itertools.pairwise(edges)]  # fmt: skip
-        share[-1] += float(c2[rel <= 0].sum() / c2.sum().clamp_min(1e-300))
+        total = c2.sum().clamp_min(1e-300)
+        share = [float(c2[(rel <= hi_) & (rel > lo_)].sum() / total) for hi_, lo_ in itertools.pairwise(edges)]
+        share[-1] += float(c2[rel <= 0].sum() / total)
         out["candidate"] = {
             "distance_rms": float(d.pow(2).mean().sqrt()),
             "error_share": dict(zip(labels, share, strict=True)),
