@@ -36,7 +36,6 @@ from __future__ import annotations
 import csv
 import itertools
 import json
-import math
 import os
 import shutil
 import tempfile
@@ -49,7 +48,7 @@ import numpy as np
 import torch
 
 from marlcrash.calibrate.budget import Progress
-from marlcrash.calibrate.leastsq import STEP_FACTORS, damped_steps, fd_points, jacobian, next_damping
+from marlcrash.calibrate.leastsq import STEP_FACTORS, lm_iteration
 from marlcrash.calibrate.problem import CalibrationProblem, ProblemConfig, SmoothLoss
 from marlcrash.config import from_dict, require
 from marlcrash.errors import ConfigError
@@ -398,22 +397,19 @@ def _lm_window(
     lo, hi = problem.flat_box()
     n = lo.numel()
     lam, stalled = float(config.damping), 0
+
+    def run(zs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:  # window residuals, full residuals
+        full = _residuals(problem, progress, problem.unflat(zs))[0]
+        return full[:, :, :end].reshape(zs.shape[0], -1), full
+
     for _ in range(config.iterations):
         if progress.done or progress.grant(n + len(STEP_FACTORS)) < n + len(STEP_FACTORS):
             break
-        rw = r[:, :end].reshape(-1)
-        points, h = fd_points(z, hi, config.fd_step)
-        r_fd = _residuals(problem, progress, problem.unflat(points))[0]
-        cand = damped_steps(jacobian(r_fd[:, :, :end].reshape(n, -1), rw, h), rw, z, lam, lo, hi)
-        r_c = _residuals(problem, progress, problem.unflat(cand))[0]
-        cost, c0 = torch.nan_to_num((r_c[:, :, :end] ** 2).sum((1, 2)), nan=math.inf), float((rw**2).sum())
-        b = int(cost.argmin())
-        if float(cost[b]) < c0:
-            rel = 1.0 - float(cost[b]) / c0
-            z, r, lam = cand[b], r_c[b], next_damping(lam, STEP_FACTORS[b])
-        else:
-            rel, lam = 0.0, next_damping(lam, None)
-        stalled = stalled + 1 if rel < config.rtol else 0
+        step = lm_iteration(run, z, r[:, :end].reshape(-1), lam, lo, hi, config.fd_step)
+        lam = step.lam
+        if step.accepted is not None:
+            z, r = step.z, step.aux[step.accepted]
+        stalled = stalled + 1 if step.rel < config.rtol else 0
         if stalled >= config.stall:
             break
     return z, r

@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from marlcrash.calibrate.leastsq import STEP_FACTORS, damped_steps, fd_points, jacobian, next_damping
+from marlcrash.calibrate.leastsq import fd_points, jacobian, lm_iteration
 from marlcrash.calibrate.problem import CalibrationProblem
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics, area_between
@@ -309,17 +309,11 @@ def local_fit(
     history = [record(z, r, m, 0)]
     lam = float(damping)
     for _ in range(int(iterations)):
-        points, h = fd_points(z, hi, fd_step)
-        r_fd, _ = run(points)
-        cand = damped_steps(jacobian(r_fd, r, h), r, z, lam, lo, hi)
-        r_c, m_c = run(cand)
-        cost = torch.nan_to_num((r_c**2).sum(1), nan=math.inf)  # a diverged candidate never wins
-        best = int(cost.argmin())
-        if float(cost[best]) < float((r**2).sum()):
-            z, r, lam = cand[best], r_c[best], next_damping(lam, STEP_FACTORS[best])
-            history.append(record(z, r, m_c, best))
+        step = lm_iteration(run, z, r, lam, lo, hi, fd_step)
+        z, r, lam = step.z, step.r, step.lam
+        if step.accepted is not None:
+            history.append(record(z, r, step.aux, step.accepted))
         else:
-            lam = next_damping(lam, None)
             history.append({**history[-1], "simulations": problem.n_simulations})
     return history
 

@@ -15,9 +15,16 @@ One iteration:
    every step was rejected.
 3. :func:`next_damping`: the best candidate is kept if it lowers the cost and ``lambda`` becomes
    ``lambda f / 3``; otherwise ``lambda`` grows 30x.
+
+:func:`lm_iteration` runs the three; a candidate with a NaN residual never wins.
 """
 
 from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
 
 import torch
 
@@ -61,3 +68,43 @@ def damped_steps(
 def next_damping(lam: float, accepted_factor: float | None) -> float:
     """``lambda`` after an iteration: ``lambda f / 3`` if the step with factor ``f`` was kept, else ``30 lambda``."""
     return lam * accepted_factor / 3.0 if accepted_factor is not None else lam * 30.0
+
+
+@dataclass
+class LMStep:
+    """Outcome of :func:`lm_iteration`: the point ``z``, its residual ``r`` and ``lam`` to go on with;
+    ``rel``, the relative cost decrease (0 when rejected); ``accepted``, the index of the kept candidate
+    (``None``: rejected, ``z`` and ``r`` unchanged); ``aux``, what ``run`` returned with the candidates."""
+
+    z: torch.Tensor
+    r: torch.Tensor
+    lam: float
+    rel: float
+    accepted: int | None
+    aux: Any
+
+
+def lm_iteration(
+    run: Callable[[torch.Tensor], tuple[torch.Tensor, Any]],
+    z: torch.Tensor,
+    r: torch.Tensor,
+    lam: float,
+    lo: torch.Tensor,
+    hi: torch.Tensor,
+    fd_step: float,
+) -> LMStep:
+    """One Levenberg-Marquardt iteration from ``z [n]`` with residual ``r [m]`` (module docstring).
+
+    ``run(zs [N, n])`` simulates a batch and returns its residuals ``[N, m]`` and anything else
+    (``aux``); it is called twice, for the ``n`` finite-difference points and the ``len(STEP_FACTORS)``
+    candidates.
+    """
+    points, h = fd_points(z, hi, fd_step)
+    r_fd, _ = run(points)
+    cand = damped_steps(jacobian(r_fd, r, h), r, z, lam, lo, hi)
+    r_c, aux = run(cand)
+    cost = torch.nan_to_num((r_c**2).sum(1), nan=math.inf)
+    b, c0 = int(cost.argmin()), float((r**2).sum())
+    if float(cost[b]) < c0:
+        return LMStep(cand[b], r_c[b], next_damping(lam, STEP_FACTORS[b]), 1.0 - float(cost[b]) / c0, b, aux)
+    return LMStep(z, r, next_damping(lam, None), 0.0, None, aux)
