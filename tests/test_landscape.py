@@ -292,6 +292,12 @@ def test_spectrum_counts_blind_coordinates_and_checks_its_arguments():
     toy = LinearResidualToy(np.linspace(1.0, 0.1, 14), blind=3)
     res = sensitivity_spectrum(toy)
     assert res["blind_coordinates"] == 1 and res["relative"][-1] < 1e-12
+    # a column of rounding size counts as blind (the compared signal's filter is a matrix product whose
+    # rounding depends on the batch layout); a weak but real response does not
+    scale = float(torch.linalg.vector_norm(toy.A, dim=0).max())
+    toy.A[:, 5] *= 1e-11 * scale / float(torch.linalg.vector_norm(toy.A[:, 5]))
+    toy.A[:, 6] *= 1e-6 * scale / float(torch.linalg.vector_norm(toy.A[:, 6]))
+    assert sensitivity_spectrum(toy)["blind_coordinates"] == 2
     with pytest.raises(ConfigError) as e:
         sensitivity_spectrum(toy, bands=(1e-2, 1e-1))
     assert e.value.key == "bands"

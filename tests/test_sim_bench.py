@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from marlcrash.sim.bench import format_substep_study, run_benchmark, substep_study
+from marlcrash.sim.bench import format_lane_study, format_substep_study, lane_study, run_benchmark, substep_study
 
 
 @pytest.mark.slow
@@ -48,10 +48,38 @@ def test_substep_study_grades_variants_and_names_the_fewest_passing_steps():
 def test_default_lanes_balances_vector_width_and_cores():
     from marlcrash.sim.kernels import default_lanes
 
-    # large batches: the widest chunks (best vectorised), every core still has several
-    assert default_lanes(1024, 2) == default_lanes(128, 2) == 16
-    # 24 simulations on 2 cores: 2 chunks of 16 would pad 8 lanes and 3 chunks of 8 leave a core idle
-    # for a round; 6 chunks of 4 keep both busy (measured fastest on the default car: 56 vs 53 vs 42 sims/s)
+    # large batches: the fastest width per simulation (32 lanes); 64 would leave fewer chunks to share out
+    assert default_lanes(1024, 2) == default_lanes(128, 2) == 32
+    # the main job's 48 episodes: 2 chunks of 32 (one padded by 16) still beat 6 of 8 and 3 of 16
+    # (measured on the default car, interleaved: 97 vs 94 vs 74 sims/s)
+    assert default_lanes(48, 2) == 32
+    # 24 simulations on 2 cores: one chunk of 32 leaves a core idle, 3 chunks of 8 leave one idle for a round;
+    # 6 chunks of 4 keep both busy (measured: 77 vs 57 sims/s at 32 lanes, 74 at 8 and 16)
     assert default_lanes(24, 2) == 4
     # one simulation: one lane, never padding to a vector
     assert default_lanes(1, 2) == 1
+    # a large model: chunks beyond the cache budget are left out (the uniform model, 6891 cells and 11462
+    # links, ran 1.49x as fast at 8 lanes as at 32, and 1.09x as fast as at 4)
+    from marlcrash.sim.kernels import CHUNK_BYTES, chunk_bytes_per_lane
+
+    uniform = chunk_bytes_per_lane(11462, 6891)
+    assert 8 * uniform <= CHUNK_BYTES < 16 * uniform
+    assert default_lanes(64, 2, uniform) == 8
+    assert default_lanes(64, 2, chunk_bytes_per_lane(2138, 518)) == 32  # the default car is not capped
+    assert default_lanes(64, 2, 10 * CHUNK_BYTES) == 1  # nothing fits: one lane, never an empty choice
+
+
+@pytest.mark.slow
+def test_lane_study_times_each_width_without_padding_and_names_the_fastest():
+    res = lane_study(widths=(1, 4), batch=2, repeats=1)
+    one, four = res["rows"]
+    # each width runs at least one full chunk per thread: no padded lanes, no idle core
+    assert (one["batch"], four["batch"]) == (2, 2 * res["threads"] * 4 // 2)
+    assert max(r["efficiency"] for r in res["rows"]) == 1.0
+    assert res["best_width"] in (1, 4)
+    for r in res["rows"]:
+        assert r["sims_per_s"] > 0 and 0 < r["efficiency"] <= 1.0
+    text = format_lane_study(res)
+    assert "fastest width" in text and text.count("\n") == 4
+    with pytest.raises(ValueError, match="chunk widths must be >= 1"):
+        lane_study(widths=(0,), batch=1, repeats=1)

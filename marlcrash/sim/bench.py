@@ -31,7 +31,7 @@ SCENARIO = "full_width_56"
 def _roofline(lp, src, dst, n, n_steps, cst):
     """Link-update roofline: ``lp [C, L, N_PROP, lanes]``; elastic-plastic update + scatter, no model logic."""
     n_chunks, L, _, CH = lp.shape
-    half, zero, inv_dt = cst[0], cst[1], cst[3]
+    half, zero = cst[0], cst[1]
     total = np.zeros(n_chunks)
     for ch in numba.prange(n_chunks):
         P = lp[ch]
@@ -51,9 +51,9 @@ def _roofline(lp, src, dst, n, n_steps, cst):
                     ft = f[ll, j] + P[ll, kernels.H_K, j] * dd
                     fn = min(max(ft, -y), y)
                     plastic[a, j] += fn * (ft - fn) * P[ll, kernels.H_IK, j]
+                    ftot = fn + P[ll, kernels.H_DC, j] * (fn - f[ll, j])
                     f[ll, j] = fn
                     st[j] += half * fn * fn * P[ll, kernels.H_IK, j]
-                    ftot = fn + (P[ll, kernels.H_DAMP, j] * dd * inv_dt if ft == fn else zero)
                     fs[a, j] += ftot
                     fd[c, j] += ftot
             for i in range(n):
@@ -89,11 +89,13 @@ def measure_roofline(sim: Surrogate, batch: int, n_steps: int, repeats: int = 1,
     npdt = np.float32 if sim.dtype == torch.float32 else np.float64
     L = sim.L if n_links is None else int(n_links)
     nprop = kernels.n_hot(bool(sim.config.springback_relief))
-    lanes = kernels.default_lanes(batch, numba.get_num_threads())
+    per_lane = kernels.chunk_bytes_per_lane(L, sim.n, np.dtype(npdt).itemsize)
+    lanes = kernels.default_lanes(batch, numba.get_num_threads(), per_lane)
     n_chunks = -(-batch // lanes)
     rng = np.random.default_rng(0)
     lp = rng.uniform(1e3, 1e5, (n_chunks, L, nprop, lanes)).astype(npdt)
     lp[:, :, kernels.H_IK] = 1.0 / lp[:, :, kernels.H_K]
+    lp[:, :, kernels.H_DC] = rng.uniform(0.0, 0.1, lp[:, :, kernels.H_DC].shape)  # c / (k dt): a fraction
     src = sim.src.numpy()[sim.link_order][:L]
     dst = sim.dst.numpy()[sim.link_order][:L]
     cst = np.array([0.5, 0.0, 1.0, 1.0 / sim.dt, sim.dt, kernels._BIG], dtype=npdt)
@@ -217,6 +219,74 @@ def format_benchmark(res: dict) -> str:
         if res["optimized_over_uniform_b64"] is not None:
             lines.append(f"optimized / uniform at B=64: {res['optimized_over_uniform_b64']:.1f}x")
     lines.append(f"largest B vs the {res['target_sims_per_s']:.0f} sims/s target: {res['target_ratio']:.3f}x")
+    return "\n".join(lines)
+
+
+# ------------------------------------------------------------------------------------------ chunk width
+def lane_study(
+    widths: tuple[int, ...] = (1, 2, 4, 8, 16, 32, 64, 128),
+    batch: int = 128,
+    repeats: int = 3,
+    sim_overrides: dict | None = None,
+) -> dict:
+    """Throughput per simulation of the fast path at each chunk width, measured in one run.
+
+    What :data:`marlcrash.sim.kernels.LANE_EFFICIENCY` holds: the default car, the ``full_width_56``
+    window, per-cell energies at the final step. Each width runs ``max(batch, threads * width)``
+    simulations, so no width pads a chunk or leaves a core idle; the widths are timed in turn,
+    ``repeats`` rounds, and each keeps its best time (timings on a shared machine drift; ratios
+    taken within a round do not).
+
+    Returns:
+        ``rows`` (``width``, ``batch``, ``sims_per_s``, ``efficiency`` relative to the fastest width),
+        ``best_width``, ``threads``, ``dtype``.
+    """
+    cfg = load_sim_config(overrides=sim_overrides)
+    cells = load_sim_cells()
+    sim = Surrogate(cells, cfg)
+    base = torch.as_tensor(cells.params)[None]
+    scenario = get_scenario(SCENARIO)
+    threads = numba.get_num_threads()
+    names = sim._sensor_index(list(scenario.sensors))
+    cases = []
+    for w in widths:
+        if w < 1:
+            raise ValueError(f"chunk widths must be >= 1, got {w}")
+        B = max(batch, threads * w)
+        p = sim.check_params(base.repeat(B, 1, 1))
+        cases.append((w, B, sim.link_props(p), sim.scenario_tensors(B, scenario)))
+    kernels.run_numba(sim, *cases[0][2:], scenario.n_outputs, names, "final", lanes=1)  # compile or load the cache
+    best = {w: float("inf") for w in widths}
+    for _ in range(max(repeats, 1)):
+        for w, B, props, wall in cases:
+            t0 = time.perf_counter()
+            kernels.run_numba(sim, props, wall, scenario.n_outputs, names, "final", lanes=w)
+            best[w] = min(best[w], (time.perf_counter() - t0) / B)
+    fastest = min(best.values())
+    rows = [
+        {"width": w, "batch": B, "sims_per_s": 1.0 / best[w], "efficiency": fastest / best[w]} for w, B, _, _ in cases
+    ]
+    return {
+        "rows": rows,
+        "best_width": min(best, key=best.get),
+        "threads": threads,
+        "dtype": cfg.dtype,
+        "lane_efficiency_in_use": {str(w): e for w, e in kernels.LANE_EFFICIENCY.items()},
+    }
+
+
+def format_lane_study(res: dict) -> str:
+    """The table :func:`lane_study` measured, next to the efficiencies the kernel uses."""
+    used = res["lane_efficiency_in_use"]
+    lines = [f"chunk width study: default car, {res['dtype']}, {res['threads']} threads (best of the rounds)"]
+    lines.append(f"{'width':>5} {'batch':>6} {'sims/s':>8} {'efficiency':>10} {'in use':>7}")
+    for r in res["rows"]:
+        u = used.get(str(r["width"]))
+        lines.append(
+            f"{r['width']:>5} {r['batch']:>6} {r['sims_per_s']:>8.1f} {r['efficiency']:>10.2f} "
+            f"{'-' if u is None else f'{u:.2f}':>7}"
+        )
+    lines.append(f"fastest width: {res['best_width']}")
     return "\n".join(lines)
 
 

@@ -7,13 +7,18 @@ energy ledgers differs, so results agree to rounding (tested to 1e-6 relative).
 Memory layout (what makes it fast): the batch is cut into chunks of ``lanes`` simulations
 and every array is batch-innermost, ``[chunk, rows, lanes]``, so the inner loop over lanes is
 SIMD vectors. A chunk's link data is stored link by link, ``[L, fields, lanes]``: one sequential
-stream per step. Only the *current* properties are streamed (``H_*`` fields: yield forces, stiffness,
-compliance, damping): saturation is monotone, so when a cell bottoms out in a lane its out-links are
-densified for the rest of that step (:func:`_densify`) and rewritten once to their dense values
-(:func:`_bottom_out`, from the cold ``C_*`` fields) instead of interpolating between intact and dense
-values in every step. Link stored energy is summed at output
-steps only. ``lanes`` balances vector width against keeping both cores busy (:func:`default_lanes`);
-chunks run in parallel (``prange``).
+stream per step. Only the *current* properties are streamed (``H_*`` fields: compressive yield force,
+stiffness, compliance, damping factor; the tensile yield force is a per-link ratio of the compressive one):
+saturation is monotone, so when a cell bottoms out in a lane its out-links are densified for the rest of
+that step (:func:`_densify`) and rewritten once to their dense values (:func:`_bottom_out`, from the cold
+``C_*`` fields) instead of interpolating between intact and dense values in every step. Link stored
+energy is summed at output steps only. ``lanes`` balances vector width against keeping both cores busy
+and a chunk within the cache (:func:`default_lanes`); chunks run in parallel (``prange``).
+
+Chunk width matters more than any other choice here: on the default car 32 lanes run 1.66x as fast per
+simulation as 16 (``benchmarks/bench_lanes.py``). That holds since the link loop reads four property
+streams and no per-link scalar inside the lane loop; the layout before (a separate tensile-yield stream,
+damping times compliance times ``1 / dt`` per link-step) ran no faster at 32 lanes than at 16.
 
 Energy ledgers without per-link work arrays: with ``r = v0 dt - ds`` the rearward increment
 of a node in the frame moving at the impact speed, a link's work ``fbar (ds_dst - ds_src)``
@@ -39,11 +44,14 @@ _MODES = {"none": 0, "final": 1, "series": 2}
 _BIG = 1e30  # yield force of a bottomed-out link [N] (as in the torch path)
 _HUGE = 1e300  # stands in for an infinite saturation energy (cells without links) [J]
 
-# Per-link fields read every step ("hot"), [chunk, L, N_HOT, lanes]: the element's *current* properties.
-# They start at the intact values and are rewritten once, lane by lane, when the source cell bottoms out
-# (saturation is monotone), so the link loop does no interpolation and reads no dense-state fields.
-H_YU, H_YL, H_K, H_IK, H_DAMP, H_Q = range(6)
-N_HOT = 6
+# Per-link fields read every step ("hot"), [chunk, L, N_HOT, lanes]: the element's *current* properties
+# (compressive yield force, stiffness, compliance ``1 / k``, damping per unit elastic force change
+# ``c / (k dt)``, relaxation factor). They start at the intact values and are rewritten once, lane by lane,
+# when the source cell bottoms out (saturation is monotone), so the link loop does no interpolation and
+# reads no dense-state fields. The tensile yield force is ``H_YU`` times the link's tension ratio (a
+# per-link scalar, the same in every lane), not a stream of its own.
+H_YU, H_K, H_IK, H_DC, H_Q = range(5)
+N_HOT = 5
 # Fields read only when the source cell bottoms out ("cold"), [chunk, L, N_COLD, lanes].
 C_KD, C_IKD, C_QD = range(3)
 N_COLD = 3
@@ -54,9 +62,16 @@ N_NODE = 5
 KERNEL_SECONDS = [0.0]
 """Cumulative wall time spent inside the compiled kernel [s] (for overhead accounting in benchmarks)."""
 
-LANE_EFFICIENCY = {1: 0.56, 2: 0.72, 4: 0.92, 8: 0.98, 16: 1.0}
-"""Per-simulation throughput of a chunk of this many lanes relative to 16 lanes, measured on the default car
-(float64, per-cell energies at the final step, B = 128, 2 threads; 32 lanes were no faster than 16)."""
+LANE_EFFICIENCY = {1: 0.23, 2: 0.35, 4: 0.48, 8: 0.59, 16: 0.60, 32: 1.0, 64: 0.81}
+"""Per-simulation throughput of a chunk of this many lanes relative to the fastest width (32), measured on the
+default car: ``python benchmarks/bench_lanes.py --widths 1 2 4 8 16 32 64 --batch 256 --repeat 4`` (float64,
+per-cell energies at the final step, 2 threads). 64 lanes vary most between runs (0.94-1.76x 16 lanes in
+interleaved runs at B = 256; 32 lanes: 1.14-1.40x): two 64-lane chunks stream about 9 MB of link data per step."""
+
+CHUNK_BYTES = 16 * 2**20
+"""Largest estimated working set of one chunk [bytes] (:func:`chunk_bytes_per_lane`): two chunks in flight, one
+per core, stay within this machine's 32 MB L3 cache. On the uniform model (6891 cells) 8 lanes (about 15 MB per
+chunk) ran 1.49x as fast as 32 lanes (about 60 MB); on the default car 32 lanes take about 6.5 MB."""
 
 _FASTMATH = {"nsz", "arcp", "contract", "reassoc", "afn"}  # no nnan/ninf: BIG and saturation tests use huge values
 
@@ -71,15 +86,25 @@ def n_cold(relief: bool) -> int:
     return N_COLD if relief else C_QD
 
 
-def default_lanes(batch: int, threads: int) -> int:
+def chunk_bytes_per_lane(n_links: int, n_cells: int, itemsize: int = 8) -> int:
+    """Estimated bytes one lane of a chunk touches per step: about 6 values per link (hot properties, force,
+    contact opening, ledger force) and 24 per cell (state, node properties, ledgers)."""
+    return itemsize * (6 * int(n_links) + 24 * int(n_cells))
+
+
+def default_lanes(batch: int, threads: int, bytes_per_lane: int = 0) -> int:
     """Simulations per chunk: the width that minimises the estimated wall time of ``batch`` simulations.
 
     Chunks run in parallel, ``threads`` at a time; a chunk of ``w`` lanes costs ``w / LANE_EFFICIENCY[w]``
     and the last chunk is padded. Wide chunks vectorise best, narrow ones keep both cores busy at small
-    ``batch`` (e.g. 24 simulations: 6 chunks of 4 beat 2 chunks of 16, one of them half padding).
+    ``batch`` (e.g. 24 simulations: 6 chunks of 4 beat one chunk of 32 on one core). Widths whose chunk
+    would exceed :data:`CHUNK_BYTES` (``w * bytes_per_lane``, see :func:`chunk_bytes_per_lane`) are left
+    out, except one lane: large models stream from memory instead of cache when chunks are wide.
     """
     best, best_cost = 1, float("inf")
     for w, eff in LANE_EFFICIENCY.items():
+        if w > 1 and w * bytes_per_lane > CHUNK_BYTES:
+            continue
         chunks = -(-batch // w)
         rounds = -(-chunks // max(threads, 1))
         cost = rounds * w / eff
@@ -89,17 +114,17 @@ def default_lanes(batch: int, threads: int) -> int:
 
 
 @numba.njit(cache=True, fastmath=_FASTMATH, inline="always")
-def _link(P, ll, j, dd, gap, relief, f_el, o, yd, plastic, a, cst):
+def _link(P, ll, j, dd, gap, relief, f_el, o, yd, plastic, a, tl, cst):
     """One link update in lane ``j``: return-mapped force and plastic work; returns f_tot.
 
     ``gap`` and ``relief`` are compile-time constants at every call site (the link loops are
     specialised per link kind and per springback-relief setting, so neither costs a branch per lane).
-    Plain links are elastic-plastic with tension up to ``P[H_YL]``; gap (contact) links carry compression
-    only once their opening ``o`` has closed. Springback relief (module doc of
+    Plain links are elastic-plastic with tension up to ``tl P[H_YU]`` (``tl`` the link's tension ratio);
+    gap (contact) links carry compression only once their opening ``o`` has closed. Springback relief (module doc of
     :mod:`marlcrash.sim.surrogate`): a link that has yielded (``yd``) and unloads (``|f_ret| < |f0|``,
     same sign) has its force scaled by its relaxation factor ``q <= 1``.
     """
-    half, zero, inv_dt = cst[0], cst[1], cst[3]
+    half, zero = cst[0], cst[1]
     k = P[ll, H_K, j]
     ik = P[ll, H_IK, j]
     yu = P[ll, H_YU, j]
@@ -111,7 +136,7 @@ def _link(P, ll, j, dd, gap, relief, f_el, o, yd, plastic, a, cst):
         f_ret = min(f_tr, yu)
     else:
         f_tr = f0 + k * dd
-        f_ret = min(max(f_tr, -P[ll, H_YL, j]), yu)
+        f_ret = min(max(f_tr, -yu * tl), yu)
     f_new = f_ret
     if relief:
         y = max(yd[ll, j], cst[2] if f_tr != f_ret else zero)
@@ -122,25 +147,29 @@ def _link(P, ll, j, dd, gap, relief, f_el, o, yd, plastic, a, cst):
     else:
         plastic[a, j] += f_ret * (f_tr - f_ret) * ik
     f_el[ll, j] = f_new
-    damp = P[ll, H_DAMP, j] * (f_ret - f0) * ik * inv_dt
+    damp = P[ll, H_DC, j] * (f_ret - f0)
     if gap:
         return max(f_new + damp, zero)
     return f_new + damp
 
 
 @numba.njit(cache=True, fastmath=_FASTMATH, inline="always")
-def _links(P, lo, hi, gap, relief, ledger, src, dst, ds, f_el, o, yd, plastic, fs, fd, h_out, f_prev, step_in, cst):
+def _links(
+    P, lo, hi, gap, relief, ledger, src, dst, ds, f_el, o, yd, plastic, fs, fd, h_out, f_prev, step_in, trl, cst
+):
     """Update links ``lo .. hi-1`` (all of one kind) in every lane and scatter their forces to the nodes.
 
     ``gap`` and ``relief`` are literal booleans at the call sites; ``ledger`` adds the per-link term of
-    the per-cell energies (``h_out``, needs ``f_prev``).
+    the per-cell energies (``h_out``, needs ``f_prev``). ``trl [L]``: tension ratios. Per-link scalars are read
+    once per link, outside the lane loop: read inside it (``trl[ll]`` in every lane) the loop ran 0.85x.
     """
     CH = ds.shape[1]
     for ll in range(lo, hi):
         a = src[ll]
         c = dst[ll]
+        tl = trl[ll]
         for j in range(CH):
-            f_tot = _link(P, ll, j, ds[c, j] - ds[a, j], gap, relief, f_el, o, yd, plastic, a, cst)
+            f_tot = _link(P, ll, j, ds[c, j] - ds[a, j], gap, relief, f_el, o, yd, plastic, a, tl, cst)
             fs[a, j] += f_tot
             fd[c, j] += f_tot
             if ledger:
@@ -149,22 +178,21 @@ def _links(P, lo, hi, gap, relief, ledger, src, dst, ds, f_el, o, yd, plastic, f
 
 
 @numba.njit(cache=True, fastmath=_FASTMATH, inline="always")
-def _bottom_out(P, PC, i, j, out_ptr, out_idx, n_plain, relief, cst):
+def _bottom_out(P, PC, i, j, out_ptr, out_idx, relief, cst):
     """Lane ``j`` of cell ``i`` has bottomed out: rewrite its out-links' hot fields to the dense state.
 
     The expressions are those of the torch path's interpolation ``x0 + sat (x_dense - x0)`` at ``sat = 1``
-    (yield forces become ``BIG`` where the link has a share, stiffness and compliance their dense values),
-    evaluated once instead of every step.
+    (the yield force becomes ``BIG`` where the link has a share, so the tensile one ``tl BIG``; stiffness and
+    compliance their dense values; the damping factor ``c / (k dt)`` follows the dense stiffness), evaluated once
+    instead of every step.
     """
     one, zero, big = cst[2], cst[1], cst[5]
     for q in range(out_ptr[i], out_ptr[i + 1]):
         ll = out_idx[q]
         yc = P[ll, H_YU, j]
-        if ll < n_plain:
-            yt = P[ll, H_YL, j]
-            P[ll, H_YL, j] = yt + one * (big - yt) if yc > zero else zero
         P[ll, H_YU, j] = yc + one * (big - yc) if yc > zero else zero
         k0 = P[ll, H_K, j]
+        P[ll, H_DC, j] = P[ll, H_DC, j] * PC[ll, C_IKD, j] * k0
         P[ll, H_K, j] = k0 + one * (PC[ll, C_KD, j] - k0)
         ik0 = P[ll, H_IK, j]
         P[ll, H_IK, j] = ik0 + one * (PC[ll, C_IKD, j] - ik0)
@@ -174,7 +202,9 @@ def _bottom_out(P, PC, i, j, out_ptr, out_idx, n_plain, relief, cst):
 
 
 @numba.njit(cache=True, fastmath=_FASTMATH, inline="always")
-def _densify(P, PC, i, j, phi, out_ptr, out_idx, n_plain, dst, ds, f_el, fs, fd, ledger, h_out, f_prev, step_in, cst):
+def _densify(
+    P, PC, i, j, phi, out_ptr, out_idx, n_plain, dst, ds, f_el, fs, fd, ledger, h_out, f_prev, step_in, trl, cst
+):
     """Lane ``j`` of cell ``i`` bottomed out within this step, the last fraction ``phi`` of it past ``E_s``.
 
     Each out-link's force moves ``phi`` of the way from this step's update toward the dense update
@@ -182,7 +212,7 @@ def _densify(P, PC, i, j, phi, out_ptr, out_idx, n_plain, dst, ds, f_el, fs, fd,
     likewise; node sums and ledgers take the same increment. Called before :func:`_bottom_out`, so
     ``P`` still holds the intact properties.
     """
-    zero, inv_dt = cst[1], cst[3]
+    zero = cst[1]
     for q in range(out_ptr[i], out_ptr[i + 1]):
         ll = out_idx[q]
         yu = P[ll, H_YU, j]
@@ -191,10 +221,11 @@ def _densify(P, PC, i, j, phi, out_ptr, out_idx, n_plain, dst, ds, f_el, fs, fd,
             continue
         c = dst[ll]
         dd = ds[c, j] - ds[i, j]
-        yielding = f == yu or (ll < n_plain and f == -P[ll, H_YL, j])
-        el = zero if yielding else P[ll, H_K, j] * dd  # elastic force increment of this step
+        yielding = f == yu or (ll < n_plain and f == -yu * trl[ll])
+        k = P[ll, H_K, j]
+        el = zero if yielding else k * dd  # elastic force increment of this step
         df = phi * (PC[ll, C_KD, j] * dd - el)
-        tot = df + phi * P[ll, H_DAMP, j] * (dd - el * P[ll, H_IK, j]) * inv_dt
+        tot = df + phi * P[ll, H_DC, j] * (k * dd - el)
         f_el[ll, j] = f + df
         fs[i, j] += tot
         fd[c, j] += tot
@@ -216,6 +247,7 @@ def _simulate(
     out_ptr,
     out_idx,
     gap0,
+    trl,
     mass,
     mass_ke,
     sidx,
@@ -247,7 +279,7 @@ def _simulate(
         lc: ``[C, L, n_cold, lanes]`` dense (bottomed-out) stiffness, compliance (and relaxation factor).
         npr: ``[C, n, N_NODE, lanes]`` node properties (saturation energy, wall contact).
         speed: ``[C, lanes]`` impact speeds [m/s].
-        src, dst, gap0: ``[L]`` link ends and initial gap [m].
+        src, dst, gap0, trl: ``[L]`` link ends, initial gap [m] and tension ratio [-].
         out_ptr, out_idx: the links by source cell (CSR: links ``out_idx[out_ptr[i]:out_ptr[i + 1]]`` start at i).
         mass, mass_ke: ``[n]`` scaled mass and kinetic-energy mass [kg].
         Outputs are ``[C, lanes, ...]`` float64 arrays (see :func:`run_numba`).
@@ -333,14 +365,14 @@ def _simulate(
             led = mode > 0
             if relief:
                 _links(P, 0, n_plain, False, True, led, src, dst, ds, f_el, o, yd, plastic, fs, fd, h_out, f_prev,
-                       step_in, cst)  # fmt: skip
+                       step_in, trl, cst)  # fmt: skip
                 _links(P, n_plain, L, True, True, led, src, dst, ds, f_el, o, yd, plastic, fs, fd, h_out, f_prev,
-                       step_in, cst)  # fmt: skip
+                       step_in, trl, cst)  # fmt: skip
             else:
                 _links(P, 0, n_plain, False, False, led, src, dst, ds, f_el, o, yd, plastic, fs, fd, h_out, f_prev,
-                       step_in, cst)  # fmt: skip
+                       step_in, trl, cst)  # fmt: skip
                 _links(P, n_plain, L, True, False, led, src, dst, ds, f_el, o, yd, plastic, fs, fd, h_out, f_prev,
-                       step_in, cst)  # fmt: skip
+                       step_in, trl, cst)  # fmt: skip
             # saturation within the step: a cell whose plastic work crossed E_s densifies its out-links for the
             # part of the step past the crossing, keeps E_s as its plastic work and switches them to their dense
             # properties once (saturation is monotone)
@@ -354,10 +386,10 @@ def _simulate(
                         if sat[i, j] == zero and plastic[i, j] >= e_s:
                             phi = (plastic[i, j] - e_s) / (plastic[i, j] - w0[i, j])
                             _densify(P, PC, i, j, phi, out_ptr, out_idx, n_plain, dst, ds, f_el, fs, fd, led, h_out,
-                                     f_prev, step_in, cst)  # fmt: skip
+                                     f_prev, step_in, trl, cst)  # fmt: skip
                             plastic[i, j] = e_s
                             sat[i, j] = one
-                            _bottom_out(P, PC, i, j, out_ptr, out_idx, n_plain, relief, cst)
+                            _bottom_out(P, PC, i, j, out_ptr, out_idx, relief, cst)
                 for j in range(CH):
                     w0[i, j] = plastic[i, j]  # the next step's starting plastic work (nothing else changes it)
             for j in range(CH):
@@ -454,7 +486,13 @@ def _simulate(
 
 
 def run_numba(
-    sim: Surrogate, props: LinkProps, wall: WallProps, n_out: int, sensor_idx, record_cells: str
+    sim: Surrogate,
+    props: LinkProps,
+    wall: WallProps,
+    n_out: int,
+    sensor_idx,
+    record_cells: str,
+    lanes: int | None = None,
 ) -> SimResult:
     """Run the fused kernel (no gradients); same inputs and result layout as the torch path.
 
@@ -465,6 +503,7 @@ def run_numba(
         n_out: output samples including t = 0.
         sensor_idx: ``(names, [K] cell indices)``.
         record_cells: ``none``, ``final`` or ``series``.
+        lanes: simulations per chunk (default :func:`default_lanes`; results do not depend on it).
     """
     names, sidx = sensor_idx
     B, n = props.k.shape[0], sim.n
@@ -485,7 +524,12 @@ def run_numba(
     out_idx = np.argsort(src, kind="stable").astype(np.int64)
     out_ptr = np.zeros(n + 1, np.int64)
     np.cumsum(np.bincount(src, minlength=n), out=out_ptr[1:])
-    lanes = default_lanes(B, numba.get_num_threads())
+    if lanes is None:
+        per_lane = chunk_bytes_per_lane(L, n, np.dtype(npdt).itemsize)
+        lanes = default_lanes(B, numba.get_num_threads(), per_lane)
+    lanes = int(lanes)
+    if lanes < 1:
+        raise ValueError(f"lanes must be >= 1, got {lanes}")
     n_chunks = -(-B // lanes)
     Bp = n_chunks * lanes
 
@@ -493,8 +537,7 @@ def run_numba(
         k = props.k.detach()
         kd = props.k_dense.detach()
         yc = props.yield_c.detach()
-        tr = torch.as_tensor(sim.tension_ratio_np, dtype=tdt)
-        hot = [yc.to(tdt), yc.to(tdt) * tr, k, 1.0 / k, props.damping.detach()]
+        hot = [yc.to(tdt), k, 1.0 / k, props.damping.detach() / k / sim.dt]
         cold = [kd, 1.0 / kd]
         if relief:
             hot.append(props.relax.detach())
@@ -537,6 +580,7 @@ def run_numba(
         out_ptr,
         out_idx,
         sim.gap.to(torch.float64).numpy()[order].astype(npdt),
+        sim.tension_ratio_np[order].astype(npdt),
         sim.mass.to(torch.float64).numpy().astype(npdt),
         sim.mass_ke.to(torch.float64).numpy().astype(npdt),
         sidx.numpy(),
