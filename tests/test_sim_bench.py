@@ -48,7 +48,7 @@ def test_substep_study_grades_variants_and_names_the_fewest_passing_steps():
 def test_default_lanes_balances_vector_width_and_cores():
     from marlcrash.sim.kernels import default_lanes
 
-    # large batches: the fastest width per simulation (32 lanes); 64 would leave fewer chunks to share out
+    # large batches: the fastest width per simulation (32 lanes); 64 measured slower per simulation (0.81)
     assert default_lanes(1024, 2) == default_lanes(128, 2) == 32
     # the main job's 48 episodes: 2 chunks of 32 (one padded by 16) still beat 6 of 8 and 3 of 16
     # (measured on the default car, interleaved: 97 vs 94 vs 74 sims/s)
@@ -74,7 +74,7 @@ def test_lane_study_times_each_width_without_padding_and_names_the_fastest():
     res = lane_study(widths=(1, 4), batch=2, repeats=1)
     one, four = res["rows"]
     # each width runs at least one full chunk per thread: no padded lanes, no idle core
-    assert (one["batch"], four["batch"]) == (2, 2 * res["threads"] * 4 // 2)
+    assert (one["batch"], four["batch"]) == (max(2, res["threads"]), max(2, res["threads"] * 4))
     assert max(r["efficiency"] for r in res["rows"]) == 1.0
     assert res["best_width"] in (1, 4)
     for r in res["rows"]:

@@ -239,7 +239,11 @@ def lane_study(
 
     Returns:
         ``rows`` (``width``, ``batch``, ``sims_per_s``, ``efficiency`` relative to the fastest width),
-        ``best_width``, ``threads``, ``dtype``.
+        ``best_width``, ``threads``, ``dtype`` and ``lane_efficiency_in_use`` (the kernel's table, keyed
+        by ``str(width)``).
+
+    Raises:
+        ValueError: a width below 1.
     """
     cfg = load_sim_config(overrides=sim_overrides)
     cells = load_sim_cells()
