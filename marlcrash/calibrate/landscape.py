@@ -328,9 +328,11 @@ def _band_labels(bands: tuple[float, ...]) -> list[str]:
 
 
 BLIND_RTOL = 1e-8
-"""A Jacobian column whose norm is at most this fraction of the largest column's is *blind*. An untouched
-coordinate's column is rounding, not zero: the compared signal is CFC-filtered by a matrix product, whose
-rounding depends on the batch layout (about 1e-10 of the largest column over a 10 ms window)."""
+"""A Jacobian column whose norm is at most this fraction of the largest column's is *blind*. The compared
+signals are bitwise independent of the batch layout (the base point is simulated alone, the finite-difference
+points in one batch), so an untouched coordinate's column is exactly zero; the tolerance keeps the count
+robust to rounding-level differences (a matrix-product CFC filter left about 1e-10 of the largest column over
+a 10 ms window)."""
 
 
 def _blind_columns(jac: torch.Tensor) -> int:

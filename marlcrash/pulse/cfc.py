@@ -21,8 +21,14 @@ and the recursion starts in the steady state of the first padded value
 pass through unchanged, so a pulse that ends at a non-zero level keeps it.
 
 Two front ends share these coefficients: :func:`cfc_filter` (numpy, any axis,
-for file IO) and :func:`cfc_filter_torch` (a cached ``[T, T]`` matrix, batched
-and differentiable, for surrogate outputs at a fixed length).
+for file IO) and :func:`cfc_filter_torch` (batched, for surrogate outputs). The
+torch front end runs the same recursion over each record when no gradient is
+needed, so a record's filtered values do not depend on the other records of its
+batch (bit for bit); where a gradient is needed it multiplies by a cached
+``[T, T]`` matrix, the filter applied to the identity. A matrix product's
+rounding depends on the batch layout (the BLAS kernel handles the rows of a
+partial tile differently), about 1e-15 relative, so the two paths agree to
+rounding, not bitwise.
 """
 
 from __future__ import annotations
@@ -123,6 +129,11 @@ def cfc_filter(x: np.ndarray, dt: float, cfc: int = 60, *, axis: int = -1, pad_t
         raise PulseError(f"CFC filtering needs at least 3 samples along axis {axis}, got shape {x.shape}")
     if not np.all(np.isfinite(x)):
         raise PulseError("CFC filtering needs finite samples; found NaN or inf")
+    return _filtfilt(x, dt, cfc, axis, pad_time)
+
+
+def _filtfilt(x: np.ndarray, dt: float, cfc: int, axis: int, pad_time: float) -> np.ndarray:
+    """The filter of :func:`cfc_filter` on float64 ``x`` with at least 3 samples; NaN propagates per record."""
     b, a = cfc_coefficients(cfc, dt)
     padlen = min(round(pad_time / dt), x.shape[axis] - 1)
     if padlen < 0:
@@ -146,6 +157,11 @@ def cfc_matrix(n: int, dt: float, cfc: int = 60, pad_time: float = DEFAULT_PAD_T
 def cfc_filter_torch(x: torch.Tensor, dt: float, cfc: int = 60, pad_time: float = DEFAULT_PAD_TIME) -> torch.Tensor:
     """Batched, differentiable CFC filter over the last axis (same result as :func:`cfc_filter`).
 
+    Without a gradient to track (``x`` on the CPU, not requiring grad, or grad mode off) each record is
+    filtered by the recursion itself, so its result does not depend on the batch it came in, bit for bit;
+    NaN or inf in a record stays in that record. Otherwise ``x`` is multiplied by the filter's matrix
+    (:func:`cfc_matrix`), which agrees to about 1e-15 relative (module docstring).
+
     Args:
         x: ``[..., T]`` uniformly sampled signals (e.g. ``[B, n_sensors, T]``).
         dt: sampling interval [s].
@@ -155,5 +171,11 @@ def cfc_filter_torch(x: torch.Tensor, dt: float, cfc: int = 60, pad_time: float 
     Returns:
         ``[..., T]`` filtered signals, on ``x``'s device and dtype.
     """
-    m = torch.as_tensor(cfc_matrix(int(x.shape[-1]), dt, cfc, pad_time), dtype=x.dtype, device=x.device)
+    n = int(x.shape[-1])
+    if x.device.type == "cpu" and not (x.requires_grad and torch.is_grad_enabled()):
+        if n < 3:
+            raise PulseError(f"CFC filtering needs at least 3 samples, got n={n}")
+        y = _filtfilt(x.detach().numpy().astype(np.float64, copy=False), float(dt), check_cfc(cfc), -1, float(pad_time))
+        return torch.from_numpy(np.ascontiguousarray(y)).to(x.dtype)
+    m = torch.as_tensor(cfc_matrix(n, dt, cfc, pad_time), dtype=x.dtype, device=x.device)
     return x @ m.T
