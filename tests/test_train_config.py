@@ -57,7 +57,9 @@ def test_train_yaml_composes_for_every_algorithm(name):
 
 
 def test_every_yaml_key_has_a_comment():
-    for path in [config_dir() / "train" / "train.yaml", *ALGO_DIR.glob("*.yaml")]:
+    paths = sorted(config_dir().rglob("*.yaml"))
+    assert config_dir() / "train" / "evaluate.yaml" in paths and len(paths) > 20
+    for path in paths:
         for i, line in enumerate(path.read_text().splitlines(), 1):
             s = line.strip()
             if s and not s.startswith("#") and not s.startswith("- ") and ":" in s:
@@ -94,6 +96,9 @@ def test_ci_reads_the_environment(monkeypatch):
         (["+algorithm.learning_rate=0.1"], "algorithm.learning_rate", "unknown key"),
         (["eval.iterations=0"], "eval.iterations", ">= 1"),
         (["time_limit_s=-5"], "time_limit_s", "> 0 s"),
+        (["seed=-1"], "seed", "seed >= 0"),
+        (["eval.scenario=nope"], "eval.scenario", "unknown scenario 'nope'"),
+        (["eval.reference_seed=-1"], "eval.reference_seed", "seed >= 0"),
     ],
 )
 def test_bad_values_name_the_key(overrides, key, words):

@@ -243,6 +243,15 @@ def test_resume_true_finds_the_run_and_fresh_runs_refuse_to_overwrite(short, tmp
         train(tiny(tmp_path / "empty", resume=True))
 
 
+def test_a_run_that_cannot_start_leaves_no_folder(short, tmp_path):
+    """An env override the env config refuses fails while building, before training; the same name works after."""
+    with pytest.raises(ConfigError) as e:
+        train(tiny(tmp_path, name="bad", env_overrides={"max_step": -1}))
+    assert e.value.key == "env_overrides.max_step"
+    assert not (tmp_path / "runs").exists() or not any((tmp_path / "runs").rglob("bad"))
+    assert train(tiny(tmp_path, name="bad", iterations=1), evaluate=False).iterations == 1
+
+
 def test_summary_and_evaluation_of_a_checkpoint(short, tmp_path):
     from marlcrash.calibrate.evaluate import evaluate_run
 
@@ -266,6 +275,27 @@ def test_summary_and_evaluation_of_a_checkpoint(short, tmp_path):
         assert (res.run_dir / f).stat().st_size > 0
     again = evaluate_run(res.run_dir)  # from the checkpoint alone: same deterministic numbers
     assert again["final_metrics"] == s["final_metrics"]
+
+
+def test_kept_snapshots_are_evaluated_beside_the_run_results(short, tmp_path):
+    from marlcrash.calibrate.evaluate import evaluate_run
+
+    res = train(tiny(tmp_path, iterations=3, snapshot_every=2))
+    kept = sorted(p.name for p in (res.run_dir / "checkpoints").iterdir())
+    assert kept == ["iter_00002.pt"]
+    final = (res.run_dir / "summary.json").read_text()
+    early = evaluate_run(res.run_dir, checkpoint="2")
+    assert early["iterations_trained"] == 2 and early["env_steps"] == 2 * 4 * 2
+    assert early["checkpoint"].endswith("iter_00002.pt")
+    out = res.run_dir / "eval" / "iter_00002"
+    assert json.loads((out / "summary.json").read_text()) == early
+    assert (out / "calibrated.npz").is_file()
+    assert (res.run_dir / "summary.json").read_text() == final  # the run's own results stay
+    latest = evaluate_run(res.run_dir, checkpoint="latest")
+    assert latest["final_metrics"] == json.loads(final)["final_metrics"] and latest["iterations_trained"] == 3
+    with pytest.raises(ConfigError, match="iter_00002.pt") as e:
+        evaluate_run(res.run_dir, checkpoint=5)
+    assert e.value.key == "checkpoint"
 
 
 def _read_csv(path: Path) -> list[dict]:

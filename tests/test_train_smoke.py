@@ -21,6 +21,7 @@ TINY = [
     "algorithm.hidden=[16,16]",
     "eval.iterations=2",
     "progress_bar=false",
+    "snapshot_every=1",
 ]
 
 
@@ -52,6 +53,11 @@ def test_train_script_writes_a_summary(algorithm, short_configs, tmp_path):
     e = run("evaluate.py", [f"run={run_dir}"], short_configs, tmp_path)
     assert e.returncode == 0, e.stderr[-3000:]
     assert json.loads(e.stdout)["final_metrics"] == s["final_metrics"]
+    assert (run_dir / "checkpoints" / "iter_00001.pt").is_file()  # snapshot_every=1 in TINY
+    k = run("evaluate.py", [f"run={run_dir}", "checkpoint=1", "iterations=1"], short_configs, tmp_path)
+    assert k.returncode == 0, k.stderr[-3000:]
+    assert json.loads(k.stdout)["iterations_trained"] == 1
+    assert (run_dir / "eval" / "iter_00001" / "summary.json").is_file()
 
 
 @pytest.mark.slow
@@ -78,3 +84,5 @@ def test_unknown_algorithm_lists_the_registered_ones(short_configs, tmp_path):
 def test_evaluate_script_reports_a_missing_run(short_configs, tmp_path):
     p = run("evaluate.py", [f"run={tmp_path / 'nope'}"], short_configs, tmp_path)
     assert p.returncode == 2 and "config.yaml" in p.stderr
+    p = run("evaluate.py", [], short_configs, tmp_path)
+    assert p.returncode == 2 and "key 'run'" in p.stderr

@@ -1,8 +1,12 @@
-"""Evaluate a training run's latest checkpoint (DESIGN 6): deterministic policy on the twin reference.
+"""Evaluate a training run's checkpoint (DESIGN 6): deterministic policy on the twin reference.
 
-    python train/evaluate.py run=runs/mappo/<name> [iterations=30]
+    python train/evaluate.py run=runs/mappo/<name>                 # the latest checkpoint
+    python train/evaluate.py run=runs/mappo/<name> checkpoint=40   # the snapshot kept after iteration 40
+    python train/evaluate.py run=runs/mappo/<name> iterations=30
 
-Rewrites summary.json, eval_metrics.csv/.md, calibrated.npz, pulses.png, learning_curves.png in the run folder.
+The latest checkpoint rewrites summary.json, eval_metrics.csv/.md, calibrated.npz, pulses.png and
+learning_curves.png in the run folder; a kept snapshot or another checkpoint file writes them to
+``<run>/eval/<checkpoint file stem>/``. Settings: configs/train/evaluate.yaml.
 """
 
 from __future__ import annotations
@@ -10,37 +14,22 @@ from __future__ import annotations
 import json
 import sys
 
-from marlcrash.calibrate.evaluate import evaluate_run
+import hydra
+from omegaconf import DictConfig, OmegaConf
+
+from marlcrash.calibrate.evaluate import evaluate_run, load_evaluate_config
 from marlcrash.errors import MarlcrashError
 
-USAGE = "usage: python train/evaluate.py run=<run folder> [iterations=<calibration steps>]"
 
-
-def parse(argv: list[str]) -> dict[str, str]:
-    """``key=value`` arguments; only ``run`` and ``iterations`` are known."""
-    args = {}
-    for a in argv:
-        key, sep, value = a.partition("=")
-        if not sep or key not in ("run", "iterations"):
-            raise SystemExit(f"error: unexpected argument {a!r}\n{USAGE}")
-        args[key] = value
-    if "run" not in args:
-        raise SystemExit(f"error: missing run=<run folder>\n{USAGE}")
-    return args
-
-
-def main() -> None:
-    args = parse(sys.argv[1:])
+@hydra.main(version_base=None, config_path="../configs/train", config_name="evaluate")
+def main(cfg: DictConfig) -> None:
     try:
-        iterations = int(args["iterations"]) if "iterations" in args else None
-    except ValueError:
-        raise SystemExit(f"error: iterations must be an integer, got {args['iterations']!r}") from None
-    try:
-        s = evaluate_run(args["run"], iterations=iterations)
+        config = load_evaluate_config(OmegaConf.to_container(cfg, resolve=True), source="configs/train/evaluate.yaml")
+        s = evaluate_run(config.run, iterations=config.iterations, checkpoint=config.checkpoint)
     except MarlcrashError as e:
         print(f"error: {e}", file=sys.stderr)
         sys.exit(2)
-    keys = ("selected_iteration", "all_passed", "final_metrics", "initial_metrics")
+    keys = ("checkpoint", "iterations_trained", "selected_iteration", "all_passed", "final_metrics", "initial_metrics")
     print(json.dumps({k: s[k] for k in keys}, indent=1))
 
 

@@ -449,6 +449,7 @@ class BaselineRunConfig:
             self.method in BASELINES, "method", f"unknown method {self.method!r}; expected one of {sorted(BASELINES)}"
         )
         require(self.budget >= 1, "budget", f"expected a simulation budget >= 1, got {self.budget}")
+        require(self.seed >= 0, "seed", f"expected a seed >= 0, got {self.seed}")
         require(bool(self.name) and "/" not in self.name and self.name not in (".", ".."), "name",
                 f"expected a run folder name without '/', got {self.name!r}")  # fmt: skip
         require(bool(self.out_dir), "out_dir", "expected an output folder")
@@ -488,14 +489,17 @@ def write_history_csv(result: CalibrationResult, path: Path) -> None:
 
 
 def plot_velocities(problem: CalibrationProblem, result: CalibrationResult, path: Path) -> None:
-    """Reference vs initial vs calibrated velocity per sensor (re-simulated, not charged to the budget)."""
+    """Reference vs initial vs calibrated velocity per sensor as compared (re-simulated, not charged to the budget).
+
+    All three curves are the compared signal (:meth:`CalibrationProblem.compared`), the one the metrics measure.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     with torch.no_grad():
-        v = problem.simulate(torch.stack([problem.zeros(1)[0], result.best_x]), count=False).velocity.double()
+        v = problem.compared(problem.simulate(torch.stack([problem.zeros(1)[0], result.best_x]), count=False).velocity)
     t = np.arange(problem.T) * problem.dt * 1e3
     K = len(problem.sensors)
     fig, axes = plt.subplots(1, K, figsize=(4.5 * K, 3.6), squeeze=False, sharey=True)
@@ -506,7 +510,8 @@ def plot_velocities(problem: CalibrationProblem, result: CalibrationResult, path
         ax.set_title(problem.sensors[k])
         ax.set_xlabel("time [ms]")
         ax.grid(alpha=0.3)
-    axes[0, 0].set_ylabel("velocity [m/s]")
+    filt = f" (CFC{problem.compare_cfc}, as compared)" if problem.compare_cfc is not None else ""
+    axes[0, 0].set_ylabel(f"velocity [m/s]{filt}")
     axes[0, 0].legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=110)

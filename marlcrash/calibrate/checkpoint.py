@@ -27,6 +27,41 @@ from marlcrash.errors import ConfigError
 
 CHECKPOINT_FILE = "checkpoint.pt"
 """Name of the latest checkpoint inside a run folder."""
+SNAPSHOT_DIR = "checkpoints"
+"""Folder of a run that keeps a copy of the checkpoint every ``snapshot_every`` iterations."""
+
+
+def snapshot_path(run_dir: str | Path, iteration: int) -> Path:
+    """``<run_dir>/checkpoints/iter_<iteration, 5 digits>.pt``: the kept checkpoint after ``iteration``."""
+    return Path(run_dir) / SNAPSHOT_DIR / f"iter_{int(iteration):05d}.pt"
+
+
+def find_checkpoint(run_dir: str | Path, which: str | int | None = None) -> Path:
+    """The checkpoint file of a run that ``which`` names.
+
+    Args:
+        run_dir: the run folder.
+        which: ``None`` or ``"latest"``: ``checkpoint.pt``; an iteration number: its kept snapshot
+            (:func:`snapshot_path`); else a file path, as given or relative to ``run_dir``.
+
+    Raises:
+        ConfigError: no such file (key ``checkpoint``; the message lists the kept snapshots).
+    """
+    run_dir = Path(run_dir)
+    if which is None or which == "latest":
+        path = run_dir / CHECKPOINT_FILE
+    elif isinstance(which, int) or (isinstance(which, str) and which.isdigit()):
+        path = snapshot_path(run_dir, int(which))
+    else:
+        path = Path(which) if Path(which).is_file() else run_dir / which
+    if not path.is_file():
+        kept = sorted(p.name for p in (run_dir / SNAPSHOT_DIR).glob("iter_*.pt"))
+        raise ConfigError(
+            f"no checkpoint {path}; expected 'latest', an iteration with a kept snapshot "
+            f"({', '.join(kept) if kept else f'none in {run_dir / SNAPSHOT_DIR}'}) or a checkpoint file",
+            key="checkpoint",
+        )
+    return path
 
 
 def rng_state(env_rng: np.random.Generator) -> dict[str, Any]:

@@ -18,8 +18,11 @@ or the ``last`` one (``eval.select``); ``summary.json`` says which (``selected_i
 - ``eval_metrics.csv`` and ``eval_metrics.md``: the three metrics and the paper's reward factor
   ``1/A + 1/DFD + 1/RMSE`` per iteration and sensor (Table 3's layout);
 - ``calibrated.npz``: initial, selected, true and per-iteration cell parameters ``[n_cells, 7]``;
-- ``pulses.png`` (reference vs initial vs calibrated acceleration and velocity per sensor) and
-  ``learning_curves.png`` (from ``log.csv``).
+- ``pulses.png`` (reference vs initial vs calibrated acceleration and velocity per sensor, as
+  compared) and ``learning_curves.png`` (from ``log.csv``).
+
+Any kept checkpoint can be evaluated later (``python train/evaluate.py run=<run> checkpoint=<iteration>``;
+training keeps one every ``snapshot_every`` iterations); those files go into ``<run>/eval/<checkpoint>/``.
 """
 
 from __future__ import annotations
@@ -37,10 +40,11 @@ import torch
 from tensordict.nn import TensorDictModuleBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-from marlcrash.calibrate.checkpoint import CHECKPOINT_FILE, load_checkpoint
+from marlcrash.calibrate.checkpoint import find_checkpoint, load_checkpoint
 from marlcrash.calibrate.logging import LOG_FILE, read_log
 from marlcrash.calibrate.marl import TrainConfig, load_run_config, make_env, make_env_config, make_policy
 from marlcrash.calibrate.problem import CalibrationProblem, ProblemConfig, build_problem
+from marlcrash.config import from_dict, require
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics
 from marlcrash.reward import paper_factor
@@ -51,6 +55,36 @@ if TYPE_CHECKING:
 
 SUMMARY_FILE = "summary.json"
 """Name of the evaluation summary inside a run folder."""
+EVAL_DIR = "eval"
+"""Folder of a run that holds the evaluations of kept checkpoints, one sub-folder per checkpoint."""
+
+
+@dataclass
+class EvaluateRunConfig:
+    """What ``train/evaluate.py`` evaluates; values and their meaning in ``configs/train/evaluate.yaml``."""
+
+    run: str | None = None
+    checkpoint: str = "latest"
+    iterations: int | None = None
+
+    def validate(self) -> None:
+        require(bool(self.run), "run", "expected a run folder, e.g. run=runs/mappo/<name>")
+        require(bool(self.checkpoint), "checkpoint", "expected latest, an iteration or a checkpoint file")
+        require(self.iterations is None or self.iterations >= 1, "iterations",
+                f"expected >= 1 calibration steps or null, got {self.iterations}")  # fmt: skip
+
+
+def load_evaluate_config(data: dict[str, Any], source: str | None = None) -> EvaluateRunConfig:
+    """Validate an evaluation config mapping (Hydra's, without its ``hydra`` node); an integer checkpoint
+    (``checkpoint=40`` on the command line) names the snapshot kept after that iteration.
+
+    Raises:
+        ConfigError: unknown key, wrong type or bad value, naming the key.
+    """
+    data = {k: v for k, v in data.items() if k != "hydra"}
+    if isinstance(data.get("checkpoint"), int) and not isinstance(data.get("checkpoint"), bool):
+        data["checkpoint"] = str(data["checkpoint"])
+    return from_dict(EvaluateRunConfig, data, path=source)
 
 
 @dataclass
@@ -196,7 +230,14 @@ def write_metrics_tables(result: EvalResult, csv_path: Path, md_path: Path) -> N
 
 # ------------------------------------------------------------------------------------------- plots
 def plot_pulses(problem: CalibrationProblem, result: EvalResult, path: Path) -> None:
-    """Reference vs initial vs calibrated acceleration [g] and velocity [m/s] per sensor (re-simulated)."""
+    """Reference vs initial vs calibrated pulse per sensor (re-simulated), as the metrics compare them.
+
+    Velocities are the compared signals (:meth:`CalibrationProblem.compared`: the integral of the
+    CFC-filtered acceleration) for the reference and both candidates alike; accelerations [g] are their
+    time derivative. Raw simulated velocities of the light up-front cells ring by several m/s around
+    that signal, so plotting them against the compared reference would show a mismatch the metrics
+    never see.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
@@ -207,26 +248,24 @@ def plot_pulses(problem: CalibrationProblem, result: EvalResult, path: Path) -> 
         res = problem.sim.run(p, speed=problem.speed.expand(2), overlap=problem.overlap.expand(2),
                               side=problem.side.expand(2), duration=problem.duration, sensors=problem.sensors,
                               record_cells="none")  # fmt: skip
-    ref = problem.reference
+    vel = torch.cat([problem.ref_velocity[None], problem.compared(res.velocity)]).double()  # [3, K, T]
+    acc = torch.gradient(vel, spacing=problem.dt, dim=-1)[0] / G0
     T = problem.T
     t = np.arange(T) * problem.dt * 1e3
     K = len(problem.sensors)
     fig, axes = plt.subplots(2, K, figsize=(4.6 * K, 6.4), squeeze=False, sharex=True)
     for k in range(K):
-        series = (
-            (ref.acceleration[0, k, :T] / G0, res.acceleration[0, k] / G0, res.acceleration[1, k] / G0),
-            (ref.velocity[0, k, :T], res.velocity[0, k], res.velocity[1, k]),
-        )
-        for row, (r, a0, a1) in enumerate(series):
+        for row, series in enumerate((acc[:, k], vel[:, k])):
             ax = axes[row, k]
-            ax.plot(t, r.double().numpy(), "k-", lw=2, label="reference (twin)")
-            ax.plot(t, a0.double().numpy(), "C0--", label="initial")
-            ax.plot(t, a1.double().numpy(), "C3-", label=f"calibrated (I{result.selected})")
+            ax.plot(t, series[0].numpy(), "k-", lw=2, label="reference (twin)")
+            ax.plot(t, series[1].numpy(), "C0--", label="initial")
+            ax.plot(t, series[2].numpy(), "C3-", label=f"calibrated (I{result.selected})")
             ax.grid(alpha=0.3)
         axes[0, k].set_title(problem.sensors[k])
         axes[1, k].set_xlabel("time [ms]")
-    axes[0, 0].set_ylabel("acceleration [g]")
-    axes[1, 0].set_ylabel("velocity [m/s]")
+    filt = f"CFC{problem.compare_cfc}, " if problem.compare_cfc is not None else ""
+    axes[0, 0].set_ylabel(f"acceleration [g] ({filt}as compared)")
+    axes[1, 0].set_ylabel(f"velocity [m/s] ({filt}as compared)")
     axes[0, 0].legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -284,22 +323,32 @@ def update_summary(run_dir: str | Path, **entries: Any) -> dict[str, Any]:
     return summary
 
 
-def evaluate_run(run_dir: str | Path, trainer: Trainer | None = None, iterations: int | None = None) -> dict[str, Any]:
-    """Evaluate a run folder's latest checkpoint (or a live trainer) and write the files of the module docstring.
+def evaluate_run(
+    run_dir: str | Path,
+    trainer: Trainer | None = None,
+    iterations: int | None = None,
+    checkpoint: str | int | None = None,
+) -> dict[str, Any]:
+    """Evaluate a run's latest checkpoint, a kept one, or a live trainer; write the files of the module docstring.
 
     Args:
         run_dir: the run folder (``config.yaml``, ``checkpoint.pt``, ``log.csv``).
         trainer: the trainer that just finished (its networks and counters are used as they are).
         iterations: override ``eval.iterations``.
+        checkpoint: ``None`` or ``"latest"``: ``checkpoint.pt``, the files go into ``run_dir``; otherwise an
+            iteration with a kept snapshot or a checkpoint file (:func:`find_checkpoint`), and the files go
+            into ``run_dir/eval/<checkpoint file stem>/`` so the run's own results stay; the learning
+            curves then end at that checkpoint's iteration.
 
     Returns:
-        The summary written to ``summary.json``.
+        The summary written to ``summary.json`` (with ``checkpoint``: the file evaluated, ``None`` for a trainer).
 
     Raises:
-        ConfigError: no run config or checkpoint in ``run_dir``.
+        ConfigError: no run config or no such checkpoint in ``run_dir``.
     """
     t0 = time.perf_counter()
     run_dir = Path(run_dir)
+    out_dir = run_dir
     config = trainer.config if trainer is not None else load_run_config(run_dir)
     if iterations is not None:
         if iterations < 1:
@@ -308,7 +357,11 @@ def evaluate_run(run_dir: str | Path, trainer: Trainer | None = None, iterations
     if trainer is not None:
         policy, counters = trainer.policy, trainer.state_dict()
     else:
-        state = load_checkpoint(run_dir / CHECKPOINT_FILE)
+        ckpt = find_checkpoint(run_dir, checkpoint)
+        if checkpoint not in (None, "latest"):
+            out_dir = run_dir / EVAL_DIR / ckpt.stem
+            out_dir.mkdir(parents=True, exist_ok=True)
+        state = load_checkpoint(ckpt)
         torch.manual_seed(config.seed)
         policy = make_policy(make_env(config, n_envs=1), config.algorithm)
         policy.load_state_dict(state["policy"])
@@ -319,6 +372,7 @@ def evaluate_run(run_dir: str | Path, trainer: Trainer | None = None, iterations
         raise ConfigError("the evaluation env and the baselines' problem drew different twin references", key="eval")
     log_path = run_dir / LOG_FILE
     log_rows = read_log(log_path) if log_path.is_file() else []
+    log_rows = [r for r in log_rows if r["iteration"] <= int(counters["iteration"])]
     th = config.eval.thresholds
     final = result.per_sensor(result.selected)
     passed = {s: all(lim is None or v[k] < lim for k, lim in (("area", th.area), ("dfd", th.dfd), ("rmse", th.rmse)))
@@ -328,6 +382,7 @@ def evaluate_run(run_dir: str | Path, trainer: Trainer | None = None, iterations
     collect_rates = [r["env_steps_per_s"] for r in log_rows]
     summary: dict[str, Any] = {
         "algorithm": config.algorithm.name,
+        "checkpoint": None if trainer is not None else str(ckpt),
         "seed": config.seed,
         "scenario": result.scenario,
         "reference": "twin",
@@ -355,18 +410,18 @@ def evaluate_run(run_dir: str | Path, trainer: Trainer | None = None, iterations
     if result.true_params is not None:
         summary["param_error"] = param_errors(problem, result.params[result.selected], result.true_params)
         summary["initial_param_error"] = param_errors(problem, result.params[0], result.true_params)
-    write_metrics_tables(result, run_dir / "eval_metrics.csv", run_dir / "eval_metrics.md")
+    write_metrics_tables(result, out_dir / "eval_metrics.csv", out_dir / "eval_metrics.md")
     arrays = {"initial": result.params[0].numpy(), "calibrated": result.params[result.selected].numpy(),
               "per_iteration": result.params.numpy(), "selected_iteration": np.array(result.selected)}  # fmt: skip
     if result.true_params is not None:
         arrays["true"] = result.true_params.numpy()
-    tmp = run_dir / ".calibrated.tmp.npz"
+    tmp = out_dir / ".calibrated.tmp.npz"
     np.savez(tmp, **arrays)
-    os.replace(tmp, run_dir / "calibrated.npz")
+    os.replace(tmp, out_dir / "calibrated.npz")
     if config.eval.plots:
-        plot_pulses(problem, result, run_dir / "pulses.png")
-        plot_learning_curves(log_rows, result, run_dir / "learning_curves.png")
+        plot_pulses(problem, result, out_dir / "pulses.png")
+        plot_learning_curves(log_rows, result, out_dir / "learning_curves.png")
     summary["eval_wall_time_s"] = time.perf_counter() - t0
     summary["wall_time_s"] = train_time + summary["eval_wall_time_s"]
-    _atomic_write(run_dir / SUMMARY_FILE, json.dumps(summary, indent=2))
+    _atomic_write(out_dir / SUMMARY_FILE, json.dumps(summary, indent=2))
     return summary

@@ -38,6 +38,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
+import shutil
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -57,7 +58,14 @@ from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
 from marlcrash.calibrate.budget import Progress
-from marlcrash.calibrate.checkpoint import CHECKPOINT_FILE, load_checkpoint, restore_rng, rng_state, save_checkpoint
+from marlcrash.calibrate.checkpoint import (
+    CHECKPOINT_FILE,
+    load_checkpoint,
+    restore_rng,
+    rng_state,
+    save_checkpoint,
+    snapshot_path,
+)
 from marlcrash.calibrate.logging import LOGGERS, CSVLogger, make_logger
 from marlcrash.calibrate.problem import SuccessConfig
 from marlcrash.config import config_dir, from_dict, load_config, require
@@ -65,6 +73,7 @@ from marlcrash.envs.core import EnvConfig, load_env_config
 from marlcrash.envs.torchrl_env import GROUP, CalibrationTorchEnv
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics
+from marlcrash.sim.scenario import list_scenarios
 
 ALGORITHMS: tuple[str, ...] = ("mappo", "ippo", "ppo_single")
 """Registered algorithms; each has ``configs/train/algorithm/<name>.yaml``."""
@@ -144,6 +153,9 @@ class EvalConfig:
 
     def validate(self) -> None:
         require(self.iterations >= 1, "iterations", f"expected >= 1 calibration steps, got {self.iterations}")
+        require(self.scenario in list_scenarios(), "scenario",
+                f"unknown scenario {self.scenario!r}; registered: {list_scenarios()}")  # fmt: skip
+        require(self.reference_seed >= 0, "reference_seed", f"expected a seed >= 0, got {self.reference_seed}")
 
 
 @dataclass
@@ -162,6 +174,7 @@ class TrainConfig:
     threads: int = 0
     logger: str = "csv"
     checkpoint_every: int = 1
+    snapshot_every: int = 0
     progress_bar: bool = True
     out_dir: str = "runs"
     name: str = "run"
@@ -178,6 +191,7 @@ class TrainConfig:
         require(self.n_envs >= 1, "n_envs", f"expected >= 1 parallel episodes, got {self.n_envs}")
         require(self.episode_length >= 1, "episode_length", f"expected >= 1 steps, got {self.episode_length}")
         require(self.iterations >= 1, "iterations", f"expected >= 1 training iterations, got {self.iterations}")
+        require(self.seed >= 0, "seed", f"expected a seed >= 0, got {self.seed}")
         require(self.time_limit_s is None or self.time_limit_s > 0, "time_limit_s",
                 f"expected a limit > 0 s or null, got {self.time_limit_s}")  # fmt: skip
         require(self.threads >= 0, "threads", f"expected >= 0 (0: torch's default), got {self.threads}")
@@ -185,6 +199,8 @@ class TrainConfig:
         require(
             self.checkpoint_every >= 1, "checkpoint_every", f"expected >= 1 iterations, got {self.checkpoint_every}"
         )
+        require(self.snapshot_every >= 0, "snapshot_every",
+                f"expected >= 0 iterations (0: only the latest checkpoint), got {self.snapshot_every}")  # fmt: skip
         require(bool(self.name) and "/" not in self.name and self.name not in (".", ".."), "name",
                 f"expected a run folder name without '/', got {self.name!r}")  # fmt: skip
         require(bool(self.out_dir), "out_dir", "expected an output folder")
@@ -687,8 +703,13 @@ class Trainer:
         self.logger.truncate(int(state["log_position"]))
 
     def checkpoint(self) -> Path:
-        """Write ``checkpoint.pt`` atomically."""
-        return save_checkpoint(self.run_dir / CHECKPOINT_FILE, self.state_dict())
+        """Write ``checkpoint.pt`` atomically; every ``snapshot_every`` iterations also keep a copy in
+        ``checkpoints/`` (:func:`~marlcrash.calibrate.checkpoint.snapshot_path`) for later evaluation."""
+        state = self.state_dict()
+        every = self.config.snapshot_every
+        if every and self.iteration % every == 0:
+            save_checkpoint(snapshot_path(self.run_dir, self.iteration), state)
+        return save_checkpoint(self.run_dir / CHECKPOINT_FILE, state)
 
 
 def build_trainer(config: TrainConfig, run_dir: Path) -> Trainer:
@@ -767,7 +788,12 @@ def train(config: TrainConfig, *, stop_at: int | None = None, evaluate: bool = T
             raise ConfigError(f"run folder {run_dir} exists already; choose another name or resume=true", key="name")
         save_run_config(config, run_dir)
         state = None
-    tr = build_trainer(config, run_dir)
+    try:
+        tr = build_trainer(config, run_dir)
+    except Exception:
+        if resume is False:  # a fresh run that cannot start leaves no folder behind to block a rerun
+            shutil.rmtree(run_dir, ignore_errors=True)
+        raise
     if state is not None:
         tr.load_state_dict(state)
     start = time.perf_counter() - tr.wall_time_s

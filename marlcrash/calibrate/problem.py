@@ -60,7 +60,7 @@ from marlcrash.metrics import Metrics, area_between, compute_metrics, rmse
 from marlcrash.pulse.signal import compared_velocity
 from marlcrash.references import ReferenceBatch, ReferenceSampler
 from marlcrash.reward import Reward, TerminationConfig, load_reward_config, termination
-from marlcrash.sim.scenario import CrashScenario, get_scenario
+from marlcrash.sim.scenario import CrashScenario, get_scenario, list_scenarios
 from marlcrash.sim.surrogate import SimResult, Surrogate, load_sim_config
 
 
@@ -120,6 +120,9 @@ class ProblemConfig:
     metrics_backend: Literal["numba", "torch"] = "numba"
 
     def validate(self) -> None:
+        require(self.scenario in list_scenarios(), "scenario",
+                f"unknown scenario {self.scenario!r}; registered: {list_scenarios()}")  # fmt: skip
+        require(self.reference_seed >= 0, "reference_seed", f"expected a seed >= 0, got {self.reference_seed}")
         require(self.duration is None or (np.isfinite(self.duration) and self.duration > 0), "duration",
                 f"expected a window > 0 s or null, got {self.duration}")  # fmt: skip
         require(np.isfinite(self.box_radius) and 0 < self.box_radius <= 5.0, "box_radius",
