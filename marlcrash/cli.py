@@ -202,30 +202,29 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 
 def cmd_pulse(args: argparse.Namespace) -> int:
-    from marlcrash.pulse.io import plot_pulse, pulse_summary, read_pulse
-    from marlcrash.pulse.signal import filter_pulse
+    from marlcrash.pulse.io import plot_pulse, processed_pulse, pulse_summary
+    from marlcrash.pulse.signal import shift_time
 
-    summary = pulse_summary(
-        args.file,
-        time_col=args.time_col,
-        acc_col=args.acc_col,
-        unit=args.unit,
-        cfc=None if args.cfc == 0 else args.cfc,
-        sign=-1.0 if args.deceleration_positive else 1.0,
-        time_zero=args.time_zero,
-    )
-    if args.plot:
-        pulse = read_pulse(
-            args.file,
-            time_col=args.time_col,
-            acc_col=args.acc_col,
-            unit=args.unit,
-            sign=-1.0 if args.deceleration_positive else 1.0,
-        )
-        if args.cfc:
-            pulse = filter_pulse(pulse, args.cfc)
-        plot_pulse(pulse, args.plot, title=Path(args.file).name)
+    opts = {
+        "time_col": args.time_col,
+        "acc_col": args.acc_col,
+        "unit": args.unit,
+        "cfc": None if args.cfc == 0 else args.cfc,
+        "sign": -1.0 if args.deceleration_positive else 1.0,
+        "time_zero": args.time_zero,
+    }
+    summary = pulse_summary(args.file, **opts)
+    if args.plot:  # the pulse the figures describe: resampled if non-uniform, filtered, t = 0 at time zero
+        _, work, t0 = processed_pulse(args.file, **opts)
+        plot_pulse(shift_time(work, t0), args.plot, title=Path(args.file).name)
         summary["plot"] = str(args.plot)
+    if summary["delta_v_150ms_ms"] is None:
+        print(
+            f"note: delta_v_150ms_ms is null: the record ends less than 150 ms after time zero "
+            f"(t0 = {summary['t0_ms']:.2f} ms on the file's clock); if the file's t = 0 is the impact "
+            "(e.g. a `marlcrash simulate --csv` record), use --time-zero file",
+            file=sys.stderr,
+        )
     if args.json:
         _print_json(summary)
     else:

@@ -92,6 +92,33 @@ def test_pulse_json_and_plot(tmp_path):
     assert mme["delta_v_ms"] == pytest.approx(40 / 3.6, rel=0.01)
 
 
+def test_pulse_plot_of_a_non_uniform_record_and_a_short_record_note(tmp_path):
+    """--plot draws the pulse the summary describes (resampled, filtered, aligned), also for jittered time stamps;
+    a record that ends before 150 ms after time zero gets a null delta_v_150ms_ms and a note saying why."""
+    import numpy as np
+
+    rng = np.random.default_rng(0)
+    t = np.sort(np.concatenate([[0.0, 0.2], rng.uniform(0.0, 0.2, 998)]))
+    acc_g = np.where((t > 0.01) & (t < 0.09), -20.0 * np.sin(np.pi * (t - 0.01) / 0.08), 0.0)
+    nu = tmp_path / "nu.csv"
+    nu.write_text("time,acc\n" + "".join(f"{a:.9g},{b:.9g}\n" for a, b in zip(t, acc_g, strict=True)))
+    plot = tmp_path / "nu.png"
+    proc = run_cli("pulse", str(nu), "--json", "--plot", str(plot))
+    out = json.loads(proc.stdout)
+    assert plot.stat().st_size > 10_000 and out["plot"] == str(plot)
+    assert out["delta_v_150ms_ms"] is not None and "note" not in proc.stderr
+    # 20 g half-sine of 80 ms: delta-v 2 A tau / pi
+    assert out["delta_v_ms"] == pytest.approx(2 * 20 * 9.80665 * 0.08 / np.pi, rel=0.02)
+    short = tmp_path / "short.csv"
+    ts = np.append(t[t < 0.15], 0.15)  # 150 ms from the file's t = 0, like a simulated record
+    acc_s = np.append(acc_g[t < 0.15], 0.0)
+    short.write_text("time,acc\n" + "".join(f"{a:.9g},{b:.9g}\n" for a, b in zip(ts, acc_s, strict=True)))
+    proc = run_cli("pulse", str(short), "--json")
+    assert json.loads(proc.stdout)["delta_v_150ms_ms"] is None and "--time-zero file" in proc.stderr
+    proc = run_cli("pulse", str(short), "--json", "--time-zero", "file")
+    assert json.loads(proc.stdout)["delta_v_150ms_ms"] is not None and "note" not in proc.stderr
+
+
 def test_pulse_bad_file_is_a_clear_error(tmp_path):
     bad = tmp_path / "bad.csv"
     bad.write_text("t,a\n0,1\n0.001,abc\n")

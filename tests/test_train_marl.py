@@ -293,7 +293,7 @@ def test_kept_snapshots_are_evaluated_beside_the_run_results(short, tmp_path):
     assert (res.run_dir / "summary.json").read_text() == final  # the run's own results stay
     latest = evaluate_run(res.run_dir, checkpoint="latest")
     assert latest["final_metrics"] == json.loads(final)["final_metrics"] and latest["iterations_trained"] == 3
-    with pytest.raises(ConfigError, match="iter_00002.pt") as e:
+    with pytest.raises(ConfigError, match=r"iter_00002\.pt") as e:
         evaluate_run(res.run_dir, checkpoint=5)
     assert e.value.key == "checkpoint"
 

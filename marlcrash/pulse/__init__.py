@@ -8,6 +8,7 @@ pulse is negative.
 from marlcrash.pulse.cfc import CFC_CLASSES, cfc_coefficients, cfc_filter, cfc_filter_torch, cfc_matrix, f_h
 from marlcrash.pulse.io import (
     plot_pulse,
+    processed_pulse,
     pulse_summary,
     read_csv,
     read_mme,
@@ -46,6 +47,7 @@ __all__ = [
     "integrate_torch",
     "plot_pulse",
     "prepare_velocity",
+    "processed_pulse",
     "pulse_summary",
     "read_csv",
     "read_mme",

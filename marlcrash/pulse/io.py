@@ -454,10 +454,8 @@ def pulse_summary(
 ) -> dict[str, Any]:
     """Key figures of one acceleration channel of a pulse file (the ``marlcrash pulse`` command).
 
-    The channel is CFC-filtered at its recording rate (non-uniform records are first
-    resampled at their mean rate), time zero is found (:func:`~marlcrash.pulse.signal.find_time_zero`,
-    or the file's t = 0 with ``time_zero="file"``), and the filtered acceleration is
-    integrated from time zero.
+    The channel is prepared by :func:`processed_pulse` (resampled if non-uniform, CFC-filtered,
+    time zero found) and the filtered acceleration is integrated from time zero.
 
     Args:
         path: CSV file, ``.mme`` file or ISO-MME test folder.
@@ -475,7 +473,58 @@ def pulse_summary(
         filtered acceleration), ``t_peak_ms`` (after time zero), ``delta_v_ms`` (magnitude of the
         velocity change from time zero to the end of the record, m/s), ``delta_v_max_ms`` (largest
         magnitude reached), ``delta_v_150ms_ms`` (at 150 ms after time zero; ``None`` if the record
-        is shorter) and ``delta_v_kmh`` (``delta_v_ms`` in km/h).
+        ends before) and ``delta_v_kmh`` (``delta_v_ms`` in km/h).
+    """
+    p = Path(path)
+    pulse, work, t0 = processed_pulse(p, time_col=time_col, acc_col=acc_col, unit=unit, cfc=cfc, sign=sign,
+                                      time_zero=time_zero, threshold_g=threshold_g)  # fmt: skip
+    acc = work.acc[0]
+    v = work.velocity()[0]
+    v_rel = v - np.interp(t0, work.time, v)
+    after = work.time >= t0
+    i_peak = int(np.argmax(np.abs(acc)))
+    t150 = t0 + 0.150
+    dv150 = float(abs(np.interp(t150, work.time, v_rel))) if t150 <= work.time[-1] + 1e-12 else None
+    return {
+        "file": str(p),
+        "channel": pulse.channels[0],
+        "n_samples": pulse.n_samples,
+        "sample_rate_hz": float(pulse.sample_rate_hz),
+        "duration_ms": float((pulse.time[-1] - pulse.time[0]) * 1e3),
+        "cfc": cfc,
+        "t0_ms": float(t0 * 1e3),
+        "peak_g": float(abs(acc[i_peak]) / G0),
+        "t_peak_ms": float((work.time[i_peak] - t0) * 1e3),
+        "delta_v_ms": float(abs(v_rel[-1])),
+        "delta_v_max_ms": float(np.max(np.abs(v_rel[after]))),
+        "delta_v_150ms_ms": dv150,
+        "delta_v_kmh": float(abs(v_rel[-1]) * 3.6),
+    }
+
+
+def processed_pulse(
+    path: str | Path,
+    *,
+    time_col: str | None = None,
+    acc_col: str | None = None,
+    unit: str = "g",
+    cfc: int | None = 60,
+    sign: float = 1.0,
+    time_zero: str = "threshold",
+    threshold_g: float = DEFAULT_THRESHOLD_G,
+) -> tuple[Pulse, Pulse, float]:
+    """Read one acceleration channel and prepare it as :func:`pulse_summary` and ``marlcrash pulse --plot`` use it.
+
+    A non-uniform record is resampled at its mean rate, then CFC-filtered at that rate; time zero is
+    found on the filtered signal (:func:`~marlcrash.pulse.signal.find_time_zero`, or the file's t = 0
+    with ``time_zero="file"``). Arguments as :func:`pulse_summary`.
+
+    Returns:
+        ``(raw, work, t0)``: the channel as read, the uniform (filtered) one on the file's clock, and
+        time zero [s] on that clock.
+
+    Raises:
+        PulseError: unreadable file, bad channel, or time zero outside the record (naming the file).
     """
     kwargs: dict[str, Any] = {"sign": sign}
     p = Path(path)
@@ -484,7 +533,6 @@ def pulse_summary(
     if acc_col is not None:
         kwargs["acc_col"] = acc_col
     pulse = read_pulse(p, **kwargs).select(0)
-    n_raw, rate_raw = pulse.n_samples, pulse.sample_rate_hz
     work = pulse if pulse.is_uniform else resample(pulse, pulse.sample_rate_hz)
     if cfc is not None:
         work = filter_pulse(work, cfc, DEFAULT_PAD_TIME)
@@ -496,28 +544,7 @@ def pulse_summary(
         raise PulseError(f"time_zero must be 'threshold' or 'file', got {time_zero!r}")
     if not work.time[0] <= t0 < work.time[-1]:
         raise _err(f"time zero {t0} s lies outside the record [{work.time[0]}, {work.time[-1]}] s", p)
-    acc = work.acc[0]
-    v = work.velocity()[0]
-    v_rel = v - np.interp(t0, work.time, v)
-    after = work.time >= t0
-    i_peak = int(np.argmax(np.abs(acc)))
-    t150 = t0 + 0.150
-    dv150 = float(abs(np.interp(t150, work.time, v_rel))) if t150 <= work.time[-1] + 1e-12 else None
-    return {
-        "file": str(p),
-        "channel": pulse.channels[0],
-        "n_samples": n_raw,
-        "sample_rate_hz": float(rate_raw),
-        "duration_ms": float((pulse.time[-1] - pulse.time[0]) * 1e3),
-        "cfc": cfc,
-        "t0_ms": float(t0 * 1e3),
-        "peak_g": float(abs(acc[i_peak]) / G0),
-        "t_peak_ms": float((work.time[i_peak] - t0) * 1e3),
-        "delta_v_ms": float(abs(v_rel[-1])),
-        "delta_v_max_ms": float(np.max(np.abs(v_rel[after]))),
-        "delta_v_150ms_ms": dv150,
-        "delta_v_kmh": float(abs(v_rel[-1]) * 3.6),
-    }
+    return pulse, work, t0
 
 
 def plot_pulse(
