@@ -26,7 +26,8 @@ equals ``fbar (r_src - r_dst)``. Summed over links this needs only node sums of 
 forces by source (``Fs``) and by destination (``Fd``): the total link work per step is
 ``-sum_i ds_i (flink_prev_i + flink_i) / 2`` with ``flink = Fs - Fd``, the input a cell
 receives is ``sum Fdbar_c r_c`` and what it passes on is ``H_a = sum_{src=a} fbar r_dst``
-(the only per-link term, accumulated only when per-cell energies are requested).
+(the only per-link term). These per-cell sums are accumulated only when per-cell energies are
+requested: calibration records none, and skipping them ran 1.03x (0.996-1.099 over 6 interleaved rounds, B = 1024).
 Node-level ledgers are kept in float64 even for a float32 simulation.
 """
 
@@ -416,16 +417,16 @@ def _simulate(
                 else:
                     for j in range(CH):
                         acc[i, j] = (fs[i, j] - fd[i, j]) / mi
+                if led:  # per-cell ledgers: only where per-cell energies are recorded
+                    for j in range(CH):
+                        r = float(step_in[j]) - float(ds[i, j])
+                        a_out[i, j] += 0.5 * (fs_prev[i, j] + float(fs[i, j])) * r
+                        p_in[i, j] += 0.5 * (fd_prev[i, j] + float(fd[i, j])) * r
                 for j in range(CH):
                     dsi = float(ds[i, j])
-                    r = float(step_in[j]) - dsi
                     fsi = float(fs[i, j])
                     fdi = float(fd[i, j])
-                    fsb = 0.5 * (fs_prev[i, j] + fsi)
-                    fdb = 0.5 * (fd_prev[i, j] + fdi)
-                    w_link[j] += (fdb - fsb) * dsi
-                    a_out[i, j] += fsb * r
-                    p_in[i, j] += fdb * r
+                    w_link[j] += (0.5 * (fd_prev[i, j] + fdi) - 0.5 * (fs_prev[i, j] + fsi)) * dsi
                     fs_prev[i, j] = fsi
                     fd_prev[i, j] = fdi
                     v_new = v[i, j] + dtf * acc[i, j]
