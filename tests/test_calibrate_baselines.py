@@ -103,19 +103,18 @@ def test_lm_without_restarts_stops_when_the_window_stalls(problem):
 
 
 def test_lm_recovers_a_near_twin_truth_and_fits_windows_in_turn(problem):
-    """A twin whose hidden perturbation is 1 % per parameter: LM passes the paper's test within a few iterations.
-
-    The early windows alone already see the front of the car; the growing windows reach the same fit.
-    """
+    """A twin whose hidden perturbation is 2 % per parameter: LM passes the paper's test within a few iterations,
+    fitting the whole 50 ms window at once or its first 30 ms before the whole (a first window of 20 ms stalls at
+    1.1x the mark within this budget)."""
     near = build_problem(
         from_dict(ProblemConfig, {"duration": 0.05, "env_overrides": {
-            "reference.twin.e_x_spread": 0.01, "reference.twin.e_s_spread": 0.01,
-            "reference.twin.transmission_spread": 0.01}}),
+            "reference.twin.e_x_spread": 0.02, "reference.twin.e_s_spread": 0.02,
+            "reference.twin.transmission_spread": 0.02}}),
         cells=problem.cells,
     )  # fmt: skip
     assert not bool(near.success(near.evaluate(near.zeros(1)))[0])  # the initial parameters fail
     per_iter = near.n_free + 6
-    for windows in ([1.0], [0.4, 1.0]):
+    for windows in ([1.0], [0.6, 1.0]):
         res = BASELINES["lm"][1](near, 1 + 4 * per_iter, LMConfig(windows=windows), 0, stop_on_success=True)
         assert res.sims_to_success is not None, windows
         worst = max(v["area"] for v in res.summary()["final_metrics"].values())

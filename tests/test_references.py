@@ -12,7 +12,7 @@ from marlcrash.cells.parameterization import apply_increments
 from marlcrash.envs.core import build_cells
 from marlcrash.errors import ConfigError, PulseError
 from marlcrash.pulse.cfc import cfc_filter
-from marlcrash.pulse.signal import compared_velocity
+from marlcrash.pulse.signal import PRE_IMPACT_TIME, compared_velocity
 from marlcrash.references import FileReference, ReferenceConfig, ReferenceSampler, TwinConfig, perturb_twin
 from marlcrash.sim import Surrogate, get_scenario
 
@@ -41,21 +41,46 @@ def test_twin_without_spread_is_the_model_itself(cells, sim):
     compared = compared_velocity(direct.velocity.double(), 5e-4, 60)  # integral of the CFC60 acceleration
     torch.testing.assert_close(ref.velocity, compared.expand(2, -1, -1), rtol=0, atol=1e-12)
     torch.testing.assert_close(ref.true_params, torch.as_tensor(cells.params)[None].expand(2, -1, -1))
-    assert ref.velocity[:, :, 0].allclose(torch.tensor(40 / 3.6, dtype=torch.float64))
+    assert torch.equal(ref.raw_velocity[:, :, 0], torch.full_like(ref.raw_velocity[:, :, 0], 40 / 3.6))
+    # the filtered signal starts a little below the impact speed (the zero-phase filter reaches back), the tunnel least
+    v0 = ref.velocity[:, :, 0] - 40 / 3.6
+    assert float(v0[:, :2].max()) < -1.0 and float(v0[:, 2].abs().max()) < 0.01  # up-front sensors, tunnel
 
 
 def test_compared_signal_is_the_integral_of_the_cfc60_acceleration(cells, sim):
-    """DESIGN 1.5: the compared velocity integrates the CFC-filtered acceleration; raw on request."""
+    """DESIGN 1.5: the compared velocity integrates the CFC-filtered acceleration of the record led in by
+    PRE_IMPACT_TIME at the impact speed (zero acceleration before contact); raw on request."""
     raw = sampler(cells, sim, twin=TwinConfig(0.0, 0.0, 0.0), compare_cfc=None).sample(np.random.default_rng(0), 1)
     cfc = sampler(cells, sim, twin=TwinConfig(0.0, 0.0, 0.0)).sample(np.random.default_rng(0), 1)
     dt = 5e-4
-    acc = torch.gradient(raw.velocity, spacing=dt, dim=-1)[0]
+    n = round(PRE_IMPACT_TIME / dt)
+    led = torch.cat([raw.velocity[..., :1].expand(-1, -1, n), raw.velocity], -1)
+    acc = torch.gradient(led, spacing=dt, dim=-1)[0]
     filtered = torch.as_tensor(cfc_filter(acc.numpy(), dt, 60).copy())
     expected = raw.velocity[..., :1] + torch.cat(
         [torch.zeros_like(acc[..., :1]), torch.cumsum(0.5 * (filtered[..., 1:] + filtered[..., :-1]) * dt, -1)], -1
     )
-    torch.testing.assert_close(cfc.velocity, expected, rtol=0, atol=1e-9)
+    torch.testing.assert_close(cfc.velocity, expected[..., n:], rtol=0, atol=1e-9)
     assert not torch.allclose(cfc.velocity, raw.velocity, atol=1e-3)  # the filter does act on the up-front sensors
+
+
+def test_compared_signal_has_no_offset_from_the_first_contact(cells, sim):
+    """A bumper-region sensor stops within 1-2 ms of contact. Filtered without a lead-in, the filter's odd
+    reflection about that huge first deceleration left a constant velocity offset (1.1 m/s on the up-front
+    sensor of the default car while it sat at the wall); with it, the compared signal follows the raw
+    velocity once the filter's few-millisecond spread is over."""
+    raw = sampler(cells, sim, twin=TwinConfig(0.0, 0.0, 0.0), compare_cfc=None).sample(np.random.default_rng(0), 1)
+    v = raw.velocity[0]
+    window = slice(60, 120)  # 30-60 ms: the up-front cells rest against the barrier, the tunnel decelerates
+    assert float(v[0, :10].min()) < 1.0  # the up-front sensor stops within 5 ms
+    now = compared_velocity(v, 5e-4, 60)
+    before = compared_velocity(v, 5e-4, 60, pre_time=0.0)
+    offset_now = (now[:, window] - v[:, window]).mean(-1).abs()
+    offset_before = (before[:, window] - v[:, window]).mean(-1).abs()
+    assert float(offset_now.max()) < 0.01
+    assert float(offset_before[0]) > 0.1  # what the lead-in removes (up-front left: 0.26 m/s here)
+    with pytest.raises(PulseError, match="pre_time"):
+        compared_velocity(v, 5e-4, 60, pre_time=-1.0)
 
 
 def test_twin_truth_is_reachable_in_the_calibration_parameter_space(cells):
@@ -168,7 +193,7 @@ def test_cross_fidelity_reference_uses_the_uniform_model(cells, sim):
     fine, _ = s.fine_model(None)
     assert fine.method == "uniform" and fine.n_cells > 5 * cells.n_cells
     assert ref.true_params is None and ref.velocity.shape == (4, 3, 301)
-    assert torch.allclose(ref.velocity[:, :, 0], ref.speed[:, None].expand(4, 3))
+    assert torch.allclose(ref.raw_velocity[:, :, 0], ref.speed[:, None].expand(4, 3))
     own = sim.run(torch.as_tensor(cells.params)[None], get_scenario("full_width_40"), record_cells="none")
     row = ref.scenario.index("full_width_40")
     assert (ref.velocity[row] - own.velocity[0]).abs().max() > 0.1  # a genuinely different model
