@@ -202,7 +202,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 
 def cmd_pulse(args: argparse.Namespace) -> int:
-    from marlcrash.pulse.io import plot_pulse, processed_pulse, pulse_summary
+    from marlcrash.pulse.io import plot_pulse, processed_pulse, pulse_figures
     from marlcrash.pulse.signal import shift_time
 
     opts = {
@@ -213,9 +213,9 @@ def cmd_pulse(args: argparse.Namespace) -> int:
         "sign": -1.0 if args.deceleration_positive else 1.0,
         "time_zero": args.time_zero,
     }
-    summary = pulse_summary(args.file, **opts)
+    raw, work, t0 = processed_pulse(args.file, **opts)
+    summary = pulse_figures(raw, work, t0, path=args.file)
     if args.plot:  # the pulse the figures describe: resampled if non-uniform, filtered, t = 0 at time zero
-        _, work, t0 = processed_pulse(args.file, **opts)
         plot_pulse(shift_time(work, t0), args.plot, title=Path(args.file).name)
         summary["plot"] = str(args.plot)
     if summary["delta_v_150ms_ms"] is None:

@@ -9,6 +9,7 @@ from marlcrash.pulse.cfc import CFC_CLASSES, cfc_coefficients, cfc_filter, cfc_f
 from marlcrash.pulse.io import (
     plot_pulse,
     processed_pulse,
+    pulse_figures,
     pulse_summary,
     read_csv,
     read_mme,
@@ -48,6 +49,7 @@ __all__ = [
     "plot_pulse",
     "prepare_velocity",
     "processed_pulse",
+    "pulse_figures",
     "pulse_summary",
     "read_csv",
     "read_mme",

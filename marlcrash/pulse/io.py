@@ -35,14 +35,11 @@ from typing import Any
 import numpy as np
 
 from marlcrash.errors import PulseError
-from marlcrash.pulse.cfc import DEFAULT_PAD_TIME
 from marlcrash.pulse.signal import (
     DEFAULT_THRESHOLD_G,
     MIN_SAMPLES,
     Pulse,
-    filter_pulse,
-    find_time_zero,
-    resample,
+    filtered_from_time_zero,
 )
 from marlcrash.units import G0
 
@@ -441,31 +438,22 @@ def read_pulse(path: str | Path, **kwargs: Any) -> Pulse:
 # ------------------------------------------------------------------------------------- summary, plot
 
 
-def pulse_summary(
-    path: str | Path,
-    *,
-    time_col: str | None = None,
-    acc_col: str | None = None,
-    unit: str = "g",
-    cfc: int | None = 60,
-    sign: float = 1.0,
-    time_zero: str = "threshold",
-    threshold_g: float = DEFAULT_THRESHOLD_G,
-) -> dict[str, Any]:
+def pulse_summary(path: str | Path, **options: Any) -> dict[str, Any]:
     """Key figures of one acceleration channel of a pulse file (the ``marlcrash pulse`` command).
 
     The channel is prepared by :func:`processed_pulse` (resampled if non-uniform, CFC-filtered,
-    time zero found) and the filtered acceleration is integrated from time zero.
+    time zero found; ``options`` are its keyword arguments) and summarized by :func:`pulse_figures`.
+    """
+    return pulse_figures(*processed_pulse(path, **options), path=path)
+
+
+def pulse_figures(pulse: Pulse, work: Pulse, t0: float, path: str | Path = "") -> dict[str, Any]:
+    """Key figures of a channel prepared by :func:`processed_pulse` (filtered acceleration integrated from time zero).
 
     Args:
-        path: CSV file, ``.mme`` file or ISO-MME test folder.
-        time_col: CSV time column (see :func:`read_csv`).
-        acc_col: the channel (CSV column or MME channel); default the first acceleration channel.
-        unit: CSV acceleration unit, ``g`` or ``m/s2``.
-        cfc: CFC class, or ``None`` for no filtering.
-        sign: ``+1`` or ``-1`` (see the module docstring).
-        time_zero: ``"threshold"`` or ``"file"``.
-        threshold_g: time-zero threshold [g].
+        pulse, work, t0: what :func:`processed_pulse` returns (the record as read, uniform and filtered,
+            time zero on the file's clock [s]).
+        path: the file, for the ``file`` entry.
 
     Returns:
         A JSON-ready dict: ``file``, ``channel``, ``n_samples``, ``sample_rate_hz``, ``duration_ms``,
@@ -475,9 +463,6 @@ def pulse_summary(
         magnitude reached), ``delta_v_150ms_ms`` (at 150 ms after time zero; ``None`` if the record
         ends before) and ``delta_v_kmh`` (``delta_v_ms`` in km/h).
     """
-    p = Path(path)
-    pulse, work, t0 = processed_pulse(p, time_col=time_col, acc_col=acc_col, unit=unit, cfc=cfc, sign=sign,
-                                      time_zero=time_zero, threshold_g=threshold_g)  # fmt: skip
     acc = work.acc[0]
     v = work.velocity()[0]
     v_rel = v - np.interp(t0, work.time, v)
@@ -486,12 +471,12 @@ def pulse_summary(
     t150 = t0 + 0.150
     dv150 = float(abs(np.interp(t150, work.time, v_rel))) if t150 <= work.time[-1] + 1e-12 else None
     return {
-        "file": str(p),
+        "file": str(path),
         "channel": pulse.channels[0],
         "n_samples": pulse.n_samples,
         "sample_rate_hz": float(pulse.sample_rate_hz),
         "duration_ms": float((pulse.time[-1] - pulse.time[0]) * 1e3),
-        "cfc": cfc,
+        "cfc": work.cfc,
         "t0_ms": float(t0 * 1e3),
         "peak_g": float(abs(acc[i_peak]) / G0),
         "t_peak_ms": float((work.time[i_peak] - t0) * 1e3),
@@ -517,7 +502,17 @@ def processed_pulse(
 
     A non-uniform record is resampled at its mean rate, then CFC-filtered at that rate; time zero is
     found on the filtered signal (:func:`~marlcrash.pulse.signal.find_time_zero`, or the file's t = 0
-    with ``time_zero="file"``). Arguments as :func:`pulse_summary`.
+    with ``time_zero="file"``).
+
+    Args:
+        path: CSV file, ``.mme`` file or ISO-MME test folder.
+        time_col: CSV time column (see :func:`read_csv`).
+        acc_col: the channel (CSV column or MME channel); default the first acceleration channel.
+        unit: CSV acceleration unit, ``g`` or ``m/s2``.
+        cfc: CFC class, or ``None`` for no filtering.
+        sign: ``+1`` or ``-1`` (see the module docstring).
+        time_zero: ``"threshold"`` or ``"file"``.
+        threshold_g: time-zero threshold [g].
 
     Returns:
         ``(raw, work, t0)``: the channel as read, the uniform (filtered) one on the file's clock, and
@@ -533,15 +528,7 @@ def processed_pulse(
     if acc_col is not None:
         kwargs["acc_col"] = acc_col
     pulse = read_pulse(p, **kwargs).select(0)
-    work = pulse if pulse.is_uniform else resample(pulse, pulse.sample_rate_hz)
-    if cfc is not None:
-        work = filter_pulse(work, cfc, DEFAULT_PAD_TIME)
-    if time_zero == "threshold":
-        t0 = find_time_zero(work, threshold_g)
-    elif time_zero == "file":
-        t0 = 0.0
-    else:
-        raise PulseError(f"time_zero must be 'threshold' or 'file', got {time_zero!r}")
+    work, t0 = filtered_from_time_zero(pulse, cfc, time_zero, threshold_g)
     if not work.time[0] <= t0 < work.time[-1]:
         raise _err(f"time zero {t0} s lies outside the record [{work.time[0]}, {work.time[-1]}] s", p)
     return pulse, work, t0

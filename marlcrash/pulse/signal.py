@@ -306,6 +306,30 @@ def shift_time(pulse: Pulse, t0: float) -> Pulse:
     return replace(pulse, time=pulse.time - float(t0))
 
 
+def filtered_from_time_zero(
+    pulse: Pulse, cfc: int | None = 60, time_zero: str = "threshold", threshold_g: float = DEFAULT_THRESHOLD_G
+) -> tuple[Pulse, float]:
+    """A record made uniform (resampled at its mean rate if needed), CFC-filtered at that rate, and its time zero.
+
+    Args:
+        pulse: the raw (or already filtered) pulse.
+        cfc: CFC class, or ``None`` to skip filtering.
+        time_zero: ``"threshold"`` (:func:`find_time_zero` on the filtered record) or ``"file"`` (the file's t = 0).
+        threshold_g: time-zero threshold [g].
+
+    Returns:
+        ``(uniform filtered pulse on the file's clock, time zero [s] on that clock)``.
+    """
+    p = pulse if pulse.is_uniform else resample(pulse, pulse.sample_rate_hz)
+    if cfc is not None:
+        p = filter_pulse(p, cfc)
+    if time_zero == "threshold":
+        return p, find_time_zero(p, threshold_g)
+    if time_zero == "file":
+        return p, 0.0
+    raise PulseError(f"time_zero must be 'threshold' or 'file', got {time_zero!r}")
+
+
 def prepare_velocity(
     pulse: Pulse,
     *,
@@ -330,17 +354,7 @@ def prepare_velocity(
     Returns:
         ``time [T]`` from 0 at ``rate_hz`` and ``velocity [K, T]`` [m/s], ``velocity[:, 0] == v0``.
     """
-    p = pulse
-    if not p.is_uniform:
-        p = resample(p, p.sample_rate_hz)
-    if cfc is not None:
-        p = filter_pulse(p, cfc)
-    if time_zero == "threshold":
-        t0 = find_time_zero(p, threshold_g)
-    elif time_zero == "file":
-        t0 = 0.0
-    else:
-        raise PulseError(f"time_zero must be 'threshold' or 'file', got {time_zero!r}")
+    p, t0 = filtered_from_time_zero(pulse, cfc, time_zero, threshold_g)
     t_end = p.time[-1] if duration is None else t0 + float(duration)
     q = shift_time(resample(p, rate_hz, t0, t_end), t0)
     return q.time, q.velocity(v0)
