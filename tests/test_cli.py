@@ -119,6 +119,32 @@ def test_pulse_plot_of_a_non_uniform_record_and_a_short_record_note(tmp_path):
     assert json.loads(proc.stdout)["delta_v_150ms_ms"] is not None and "note" not in proc.stderr
 
 
+def test_pulse_column_unit_and_filter_options(tmp_path):
+    """--time-col/--acc-col pick columns by name, --unit m/s2 converts, --cfc changes the filter class."""
+    import numpy as np
+
+    g0 = 9.80665
+    rows = [line for line in (DATA / "halfsine_40kmh.csv").read_text().splitlines() if not line.startswith("#")]
+    data = np.array([[float(x) for x in r.split(",")] for r in rows[1:]])
+    other = tmp_path / "ms2.csv"
+    cols = zip(data[:, 0], data[:, 2] * g0, data[:, 1] * g0, strict=True)
+    body = "".join(f"{t:.6f},{a:.9g},{b:.9g}\n" for t, a, b in cols)
+    other.write_text("zeit,radsup_ms2,tunnel_ms2\n" + body)  # tunnel last, in m/s2
+
+    def summary(path, *opts):
+        return json.loads(run_cli("pulse", str(path), "--json", *opts).stdout)
+
+    opts = ("--time-col", "zeit", "--acc-col", "tunnel_ms2", "--unit", "m/s2")
+    ref = summary(DATA / "halfsine_40kmh.csv", "--acc-col", "tunnel_acx", "--cfc", "180")
+    got = summary(other, *opts, "--cfc", "180")
+    for key in ("peak_g", "t_peak_ms", "delta_v_ms", "delta_v_150ms_ms"):
+        assert got[key] == pytest.approx(ref[key], rel=1e-6, abs=1e-9), key
+    # 0.2 g of white noise: the wider filter class passes more of it, so its peak is higher
+    assert summary(other, *opts, "--cfc", "1000")["peak_g"] > got["peak_g"]
+    proc = run_cli("pulse", str(other), "--time-col", "zeit", "--acc-col", "nope", check=False)
+    assert proc.returncode == 2 and "nope" in proc.stderr and "tunnel_ms2" in proc.stderr
+
+
 def test_pulse_bad_file_is_a_clear_error(tmp_path):
     bad = tmp_path / "bad.csv"
     bad.write_text("t,a\n0,1\n0.001,abc\n")
@@ -150,6 +176,16 @@ def test_simulate_json_csv_plot(tmp_path):
     assert plot.stat().st_size > 10_000
 
 
+def test_simulate_a_keyword_deck(lsopt_deck):
+    """The DECK argument: the public LS-OPT small car, its parts as the sub-assemblies of the energy split."""
+    args = ("--param", "tbumper=3", "--param", "thood=1", "--axis-map", "x=+x,y=+z,z=+y", "--json")
+    out = json.loads(run_cli("simulate", str(lsopt_deck), *args).stdout)
+    assert out["n_cells"] > 100 and out["scenario"] == "full_width_40"
+    assert set(out["absorbed_energy_kj"]) == {"part_1", "part_2", "part_3", "part_4", "part_5", "compartment"}
+    assert out["energy_balance_max_rel_error"] < 5e-3
+    assert 0.0 < out["max_crush_m"] < 2.0 and out["peak_decel_g"] > 1.0
+
+
 def test_simulate_overrides_and_errors():
     out = json.loads(run_cli("simulate", "--speed", "56", "--overlap", "0.4", "--side", "right", "--json").stdout)
     assert (out["speed_kmh"], out["overlap"], out["side"]) == (56.0, 0.4, "right")
@@ -167,3 +203,21 @@ def test_bench_json_keys():
     assert set(out["sims_per_s_optimized"]) == {"1", "4"}
     assert all(v > 0 for v in out["sims_per_s_optimized"].values())
     assert 0.0 <= out["overhead_share"]["4"] < 1.0
+
+
+@pytest.mark.slow
+def test_bench_json_keys_with_the_uniform_model():
+    """The issue's keys with the uniform model at B = 64 (the full 1 / 64 / 1024 run is the README's benchmark)."""
+    out = json.loads(run_cli("bench", "--batch-sizes", "1", "64", "--json").stdout)
+    for key in (
+        "sims_per_s_optimized",
+        "sims_per_s_uniform_b64",
+        "n_cells_optimized",
+        "n_cells_uniform",
+        "overhead_share",
+        "roofline_sims_per_s",
+    ):
+        assert key in out, key
+    assert set(out["sims_per_s_optimized"]) == {"1", "64"}
+    assert out["sims_per_s_uniform_b64"] > 0 and out["n_cells_uniform"] > 8 * out["n_cells_optimized"]
+    assert out["roofline_sims_per_s"] > 0
