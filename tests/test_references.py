@@ -136,6 +136,30 @@ def test_perturb_twin_bounds_clip_the_behaviour_factors(cells):
     torch.testing.assert_close(out[0, active, :2], 2.0 * p0[active, :2])
 
 
+def test_file_reference_conventions_and_time_zero_alignment(cells, sim, tmp_path):
+    """The same test written another way: decelerations positive, m/s^2, time in ms, recorded 37 ms later.
+
+    With ``sign=-1, unit='m/s2', time_unit='ms'`` the reference must equal the default-convention one: the
+    sign and unit conversions are right and time zero is found from the pulse, not from the file's clock.
+    """
+    rows = [r for r in (DATA / "halfsine_40kmh.csv").read_text().splitlines() if not r.startswith("#")]
+    data = np.array([[float(x) for x in r.split(",")] for r in rows[1:]])
+    other = tmp_path / "late_decel_positive.csv"
+    t_ms = (data[:, 0] + 0.037) * 1e3
+    body = "".join(f"{t:.6f};{-a * 9.80665:.12g}\n" for t, a in zip(t_ms, data[:, 1], strict=True))
+    other.write_text("time_ms;tunnel_decel\n" + body)
+    refs = []
+    for path, chan, conv in (
+        (DATA / "halfsine_40kmh.csv", "tunnel_acx", {}),
+        (other, "tunnel_decel", {"sign": -1.0, "unit": "m/s2", "time_unit": "ms"}),
+    ):
+        spec = FileReference(
+            path=str(path), scenario="full_width_40", channels=dict.fromkeys(cells.sensor_names, chan), **conv
+        )
+        refs.append(sampler(cells, sim, kind="file", files=[spec]).sample(np.random.default_rng(0), 1).velocity)
+    torch.testing.assert_close(refs[1], refs[0], rtol=0, atol=1e-9)
+
+
 def test_file_reference_csv_and_mme_match_the_analytic_half_sine(cells, sim):
     for path, chan in (("halfsine_40kmh.csv", "tunnel_acx"), ("HS40", "10TUNN0000ACXP")):
         spec = FileReference(
