@@ -41,14 +41,15 @@ def _zero_crossing(t, v):
 
 
 # ------------------------------------------------------------------ analytic case
+@pytest.mark.parametrize("backend", ["torch", "numba"])
 @pytest.mark.parametrize("speed_kmh,force", [(40.0, 1e5), (56.0, 2e5)])
-def test_single_cell_matches_rigid_plastic_closed_form(speed_kmh, force):
+def test_single_cell_matches_rigid_plastic_closed_form(speed_kmh, force, backend):
     """Compartment M crushing one cell at force F: crush = M v^2 / 2F, stop time = M v / F."""
     M = 1000.0
     cells = single_cell(mass=10.0, compartment_mass=M, crush_force=force, crush_length=1.5, e_x=1.0)
     sim = Surrogate(cells, _cfg(link_damping_ratio=0.0))
     sc = get_scenario("full_width_40", {"speed_kmh": speed_kmh, "duration": 0.2})
-    out = sim.run(_params(cells), sc, backend="torch")
+    out = sim.run(_params(cells), sc, backend=backend)
     v = sc.speed
     assert float(out.crush.max()) == pytest.approx(M * v**2 / (2 * force), rel=0.01)
     t_stop = _zero_crossing(out.time, out.compartment_velocity[0])
