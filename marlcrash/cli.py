@@ -14,6 +14,7 @@ import warnings
 from pathlib import Path
 
 from marlcrash.errors import ConfigError, MarlcrashError
+from marlcrash.outputs import check_output_file
 
 DECK_SUFFIXES = (".k", ".key", ".dyn", ".kw")
 
@@ -52,7 +53,20 @@ def _add_vehicle_args(p: argparse.ArgumentParser, deck_required: bool) -> None:
         help="deck axes to marlcrash axes (x rearward, y left, z up), e.g. 'x=+x,y=+z,z=+y'",
     )
     p.add_argument("--subassemblies", metavar="MAP.yaml", help="YAML file mapping parts to named sub-assemblies")
-    p.add_argument("--seed", type=int, default=None, help="variant seed for a synthetic vehicle (default: nominal)")
+    p.add_argument(
+        "--seed", type=_seed, default=None, help="variant seed of a synthetic vehicle, integer >= 0 (default: nominal)"
+    )
+
+
+def _seed(text: str) -> int:
+    """argparse type of ``--seed``: an integer >= 0."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}")
+    return value
 
 
 def load_model_from_args(args: argparse.Namespace):
@@ -103,6 +117,8 @@ def cmd_inspect(args: argparse.Namespace) -> int:
 def cmd_discretize(args: argparse.Namespace) -> int:
     from marlcrash.cells import discretization_summary, format_discretization_summary, load_discretization_config
 
+    check_output_file(args.save, "--save")
+    check_output_file(args.plot, "--plot")
     model = load_model_from_args(args)
     config = load_discretization_config(args.config)
     summary, cells = discretization_summary(model, config, method=args.method)
@@ -151,6 +167,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from marlcrash.sim import Surrogate
 
     scenario = scenario_from_args(args)
+    check_output_file(args.csv, "--csv")  # before the work: a typo in an output path costs nothing
+    check_output_file(args.plot, "--plot")
     model = load_model_from_args(args)
     cells = discretize(model, load_discretization_config(args.config), method=args.method)
     sim = Surrogate(cells, output_dt=scenario.output_dt)
@@ -213,6 +231,7 @@ def cmd_pulse(args: argparse.Namespace) -> int:
         "sign": -1.0 if args.deceleration_positive else 1.0,
         "time_zero": args.time_zero,
     }
+    check_output_file(args.plot, "--plot")
     raw, work, t0 = processed_pulse(args.file, **opts)
     summary = pulse_figures(raw, work, t0, path=args.file)
     if args.plot:  # the pulse the figures describe: resampled if non-uniform, filtered, t = 0 at time zero
@@ -317,6 +336,9 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     except FileNotFoundError as e:
         print(f"error: {e.filename}: no such file", file=sys.stderr)
+        return 2
+    except OSError as e:  # a folder where a file was expected, no permission, disk full: say which path
+        print(f"error: {e.filename or ''}: {e.strerror or e}", file=sys.stderr)
         return 2
 
 

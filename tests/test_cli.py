@@ -186,6 +186,22 @@ def test_simulate_a_keyword_deck(lsopt_deck):
     assert 0.0 < out["max_crush_m"] < 2.0 and out["peak_decel_g"] > 1.0
 
 
+def test_output_paths_are_checked_before_the_work(tmp_path):
+    """A folder given as --csv/--plot, or a missing folder, fails at once, naming the option; nothing is left."""
+    (tmp_path / "adir").mkdir()
+    proc = run_cli("simulate", "--csv", str(tmp_path / "adir"), check=False)
+    assert proc.returncode == 2 and "'--csv'" in proc.stderr and "is a folder" in proc.stderr
+    proc = run_cli("simulate", "--csv", str(tmp_path / "ok.csv"), "--plot", str(tmp_path / "no" / "a.png"), check=False)
+    assert proc.returncode == 2 and "'--plot'" in proc.stderr and "does not exist" in proc.stderr
+    assert not (tmp_path / "ok.csv").exists()  # the csv was not written before the plot path failed
+    proc = run_cli("pulse", str(DATA / "halfsine_40kmh.csv"), "--plot", str(tmp_path / "adir"), check=False)
+    assert proc.returncode == 2 and "'--plot'" in proc.stderr
+    proc = run_cli("simulate", "--seed", "-1", check=False)
+    assert proc.returncode == 2 and "--seed" in proc.stderr and "integer >= 0" in proc.stderr
+    assert "Traceback" not in proc.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["adir"] and not any((tmp_path / "adir").iterdir())
+
+
 def test_simulate_overrides_and_errors():
     out = json.loads(run_cli("simulate", "--speed", "56", "--overlap", "0.4", "--side", "right", "--json").stdout)
     assert (out["speed_kmh"], out["overlap"], out["side"]) == (56.0, 0.4, "right")

@@ -242,3 +242,19 @@ def test_pulse_rejects_non_increasing_time_and_nan():
         Pulse(t[::-1], np.zeros(10), ("a",))
     with pytest.raises(PulseError, match="finite"):
         Pulse(t, np.full(10, np.nan), ("a",))
+
+
+def test_a_time_column_in_ms_gets_a_hint_and_numbers_print_plainly(tmp_path):
+    from marlcrash.pulse.io import processed_pulse
+
+    t = np.arange(0.0, 200.0, 0.1)  # 200 ms of 10 kHz samples, written in ms: read as s it is 10 Hz
+    acc = np.where((t > 10) & (t < 90), -20 * np.sin(np.pi * (t - 10) / 80), 0.0)
+    ms = tmp_path / "ms.csv"
+    ms.write_text("time,acc\n" + "".join(f"{a:.4f},{b:.6f}\n" for a, b in zip(t, acc, strict=True)))
+    with pytest.raises(PulseError, match=r"ms\.csv: CFC 60 needs a sampling rate.*time column in ms\?"):
+        processed_pulse(ms)
+    back = tmp_path / "back.csv"
+    back.write_text("time,acc\n" + "".join(f"{x},1\n" for x in (0, 0.0004, 0.0001, 0.0005, 0.0006, 0.0007, 0.0008, 9)))
+    with pytest.raises(PulseError, match=r"got 0\.0001 after 0\.0004") as info:
+        processed_pulse(back)
+    assert "np.float64" not in str(info.value)

@@ -53,3 +53,17 @@ def test_script_rejects_bad_config_before_running(tmp_path):
     assert "gradient.lr" in p.stderr and "learning rate" in p.stderr
     assert "Traceback" not in p.stderr
     assert not (tmp_path / "runs").exists()
+
+
+def test_script_refuses_an_existing_run_name_or_a_file_as_out_dir_before_simulating(tmp_path):
+    out = tmp_path / "runs"
+    (out / "cmaes" / "taken").mkdir(parents=True)
+    (out / "cmaes" / "taken" / "keep.txt").write_text("earlier results")
+    p = run("method=cmaes", "budget=100000", f"out_dir={out}", "name=taken", cwd=tmp_path)
+    assert p.returncode == 2 and "key 'name'" in p.stderr and "exists already" in p.stderr
+    assert "Traceback" not in p.stderr and "simulations" not in p.stdout  # failed before the budget was spent
+    assert (out / "cmaes" / "taken" / "keep.txt").read_text() == "earlier results"
+    afile = tmp_path / "afile"
+    afile.write_text("x")
+    p = run("method=cmaes", "budget=100000", f"out_dir={afile}", cwd=tmp_path)
+    assert p.returncode == 2 and "key 'out_dir'" in p.stderr and "is a file" in p.stderr

@@ -16,6 +16,7 @@ import hydra
 from omegaconf import DictConfig, OmegaConf
 
 from marlcrash.calibrate import build_problem, load_run_config, run_baseline, write_run
+from marlcrash.calibrate.baselines import run_folder
 from marlcrash.errors import MarlcrashError
 
 
@@ -23,12 +24,13 @@ from marlcrash.errors import MarlcrashError
 def main(cfg: DictConfig) -> None:
     try:
         config = load_run_config(OmegaConf.to_container(cfg, resolve=True), source="configs/train/baseline.yaml")
+        run_folder(config)  # an existing run name fails now, not after the budget is spent
         problem = build_problem(config.problem)
         result = run_baseline(config, problem)
+        folder = write_run(config, problem, result)
     except MarlcrashError as e:  # bad config or input: a message, not a traceback
         print(f"error: {e}", file=sys.stderr)
         sys.exit(2)
-    folder = write_run(config, problem, result)
     s = result.summary()
     print(json.dumps({"run": str(folder), "simulations": s["simulations"], "sims_to_success": s["sims_to_success"],
                       "initial_score": s["initial_score"], "best_score": s["best_score"],

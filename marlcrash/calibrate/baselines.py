@@ -53,6 +53,7 @@ from marlcrash.calibrate.problem import CalibrationProblem, ProblemConfig, Smoot
 from marlcrash.config import from_dict, require
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics
+from marlcrash.outputs import check_output_dir
 
 # ----------------------------------------------------------------------------------------- configs
 
@@ -518,6 +519,19 @@ def plot_velocities(problem: CalibrationProblem, result: CalibrationResult, path
     plt.close(fig)
 
 
+def run_folder(config: BaselineRunConfig) -> Path:
+    """``<out_dir>/<method>/<name>/``, checked so a run can fail before it simulates rather than after.
+
+    Raises:
+        ConfigError: the folder exists already (key ``name``), or ``out_dir`` is a file (key ``out_dir``).
+    """
+    check_output_dir(config.out_dir, "out_dir")
+    final = Path(config.out_dir) / config.method / config.name
+    if final.exists():
+        raise ConfigError(f"run folder {final} exists already; choose another name", key="name")
+    return final
+
+
 def write_run(config: BaselineRunConfig, problem: CalibrationProblem, result: CalibrationResult) -> Path:
     """Write ``<out_dir>/<method>/<name>/``: ``summary.json``, ``history.csv``, ``velocity.png``, ``config.json``.
 
@@ -525,11 +539,9 @@ def write_run(config: BaselineRunConfig, problem: CalibrationProblem, result: Ca
     leaves nothing half-written.
 
     Raises:
-        ConfigError: the run folder exists already.
+        ConfigError: the run folder exists already (:func:`run_folder`).
     """
-    final = Path(config.out_dir) / config.method / config.name
-    if final.exists():
-        raise ConfigError(f"run folder {final} exists already; choose another name", key="name")
+    final = run_folder(config)
     final.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{config.name}.", dir=final.parent))
     try:

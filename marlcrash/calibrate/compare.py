@@ -70,6 +70,7 @@ from marlcrash.config import from_dict, require
 from marlcrash.envs.core import load_env_config
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics
+from marlcrash.outputs import check_output_dir
 
 METHODS: tuple[str, ...] = (*ALGORITHMS, *BASELINES)
 """Comparable methods: the PPO variants (:data:`~marlcrash.calibrate.marl.ALGORITHMS`) and the optimizers."""
@@ -604,6 +605,7 @@ def _first_difference(a: Any, b: Any, key: str = "") -> str | None:
 
 def _start_run_dir(config: CompareConfig) -> tuple[Path, list[dict[str, Any]]]:
     """The run folder and the rows already finished in it (resume), after checking the settings agree."""
+    check_output_dir(config.out_dir, "out_dir")
     run_dir = config.run_dir
     path = run_dir / "compare.json"
     if not config.resume:

@@ -35,6 +35,7 @@ no change to the training numbers): the calibrated result of RL training on one 
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import os
@@ -73,6 +74,7 @@ from marlcrash.envs.core import EnvConfig, load_env_config
 from marlcrash.envs.torchrl_env import GROUP, CalibrationTorchEnv
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics
+from marlcrash.outputs import check_output_dir
 from marlcrash.sim.scenario import list_scenarios
 
 ALGORITHMS: tuple[str, ...] = ("mappo", "ippo", "ppo_single")
@@ -783,6 +785,7 @@ def train(config: TrainConfig, *, stop_at: int | None = None, evaluate: bool = T
         config = load_run_config(run_dir)
         state = load_checkpoint(run_dir / CHECKPOINT_FILE)
     else:
+        check_output_dir(config.out_dir, "out_dir")
         run_dir = run_dir_of(config)
         if run_dir.exists():
             raise ConfigError(f"run folder {run_dir} exists already; choose another name or resume=true", key="name")
@@ -793,6 +796,8 @@ def train(config: TrainConfig, *, stop_at: int | None = None, evaluate: bool = T
     except Exception:
         if resume is False:  # a fresh run that cannot start leaves no folder behind to block a rerun
             shutil.rmtree(run_dir, ignore_errors=True)
+            with contextlib.suppress(OSError):  # and no empty <out_dir>/<algorithm>/ it created
+                run_dir.parent.rmdir()
         raise
     if state is not None:
         tr.load_state_dict(state)

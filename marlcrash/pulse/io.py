@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 
 from marlcrash.errors import PulseError
+from marlcrash.outputs import atomic_output
 from marlcrash.pulse.signal import (
     DEFAULT_THRESHOLD_G,
     MIN_SAMPLES,
@@ -172,7 +173,7 @@ def read_csv(
         i = int(np.argmax(steps <= 0))
         what = "duplicated time" if steps[i] == 0 else "time goes backwards"
         raise _err(
-            f"{what}: expected time to strictly increase, got {data[i + 1, 0]!r} after {data[i, 0]!r}",
+            f"{what}: expected time to strictly increase, got {float(data[i + 1, 0])!r} after {float(data[i, 0])!r}",
             path,
             line_of[i + 1],
             header[ti],
@@ -187,9 +188,8 @@ def write_csv(pulse: Pulse, path: str | Path, *, unit: str = "g", time_col: str 
     factor = acc_unit_factor(unit)
     data = np.column_stack([pulse.time, pulse.acc.T / factor])
     header = ",".join([time_col, *pulse.channels])
-    tmp = path.with_name(path.name + ".tmp")
-    np.savetxt(tmp, data, delimiter=",", header=header, comments="", fmt="%.17g")
-    tmp.replace(path)
+    with atomic_output(path) as tmp:
+        np.savetxt(tmp, data, delimiter=",", header=header, comments="", fmt="%.17g")
     return path
 
 
@@ -528,7 +528,14 @@ def processed_pulse(
     if acc_col is not None:
         kwargs["acc_col"] = acc_col
     pulse = read_pulse(p, **kwargs).select(0)
-    work, t0 = filtered_from_time_zero(pulse, cfc, time_zero, threshold_g)
+    try:
+        work, t0 = filtered_from_time_zero(pulse, cfc, time_zero, threshold_g)
+    except PulseError as e:  # e.g. a sampling rate too low for the filter class: say which file, and a likely cause
+        span = float(pulse.time[-1] - pulse.time[0])
+        hint = f"; the record spans {span:g} s: is its time column in ms?" if span > 10.0 else ""
+        if hint or p.name not in str(e):
+            raise _err(f"{e}{hint}", p) from None
+        raise
     if not work.time[0] <= t0 < work.time[-1]:
         raise _err(f"time zero {t0} s lies outside the record [{work.time[0]}, {work.time[-1]}] s", p)
     return pulse, work, t0
@@ -576,7 +583,6 @@ def plot_pulse(
     ax_a.legend(loc="best", fontsize=8)
     fig.suptitle(title if title is not None else (Path(pulse.source).name if pulse.source else "pulse"))
     fig.tight_layout()
-    tmp = path.with_name(path.name + ".tmp.png")
-    fig.savefig(tmp, format="png")
-    tmp.replace(path)
+    with atomic_output(path) as tmp:
+        fig.savefig(tmp, format="png")
     return path

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from marlcrash.cells.model import CellModel
+from marlcrash.outputs import atomic_output
 from marlcrash.pulse.cfc import cfc_filter
 from marlcrash.sim.energy import max_balance_error
 from marlcrash.sim.scenario import CrashScenario
@@ -118,12 +119,10 @@ def write_crash_csv(result: SimResult, path: str | Path, row: int = 0) -> Path:
         cols[f"{name}_acc_g"] = result.acceleration[row, k].detach().cpu().numpy() / G0
         cols[f"{name}_vel_ms"] = result.velocity[row, k].detach().cpu().numpy()
     cols["crush_m"] = result.crush[row].detach().cpu().numpy()
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "w", newline="") as fh:
+    with atomic_output(path) as tmp, open(tmp, "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(list(cols))
         w.writerows(np.stack(list(cols.values()), axis=1).tolist())
-    tmp.replace(path)
     return path
 
 
@@ -161,8 +160,9 @@ def plot_crash(result: SimResult, cells: CellModel, path: str | Path, title: str
     fig.suptitle(title)
     fig.tight_layout()
     path = Path(path)
-    tmp = path.with_name(path.stem + ".tmp.png")
-    fig.savefig(tmp, dpi=110)
-    plt.close(fig)
-    tmp.replace(path)
+    try:
+        with atomic_output(path) as tmp:
+            fig.savefig(tmp, dpi=110)
+    finally:
+        plt.close(fig)
     return path

@@ -1,0 +1,62 @@
+"""Output files and folders: checked before the work, written whole or not at all.
+
+:func:`check_output_file` and :func:`check_output_dir` fail early, with the user's key or option in the message,
+where a path can never be written (its folder is missing, it names a folder, a file stands where a folder must
+be). :func:`atomic_output` writes through a temporary sibling that replaces the target only once it is complete
+and is removed if writing fails, so an interrupted or failed write leaves neither a partial file nor a stray one.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+from marlcrash.errors import ConfigError
+
+
+def check_output_file(path: str | Path | None, key: str) -> Path | None:
+    """Raise :class:`ConfigError` naming ``key`` unless ``path`` can be written as a file (``None`` passes).
+
+    The folder must exist (it is not created for a single output file: a typo should not create folders).
+    """
+    if path is None:
+        return None
+    p = Path(path)
+    if p.is_dir():
+        raise ConfigError(f"{p} is a folder; expected a file name", key=key)
+    if not p.parent.is_dir():
+        raise ConfigError(f"the folder of {p} does not exist", key=key)
+    return p
+
+
+def check_output_dir(path: str | Path, key: str) -> Path:
+    """Raise :class:`ConfigError` naming ``key`` if ``path`` or one of its existing ancestors is not a folder."""
+    p = Path(path)
+    for q in (p, *p.parents):
+        if q.exists():
+            if not q.is_dir():
+                why = "expected a folder" if q == p else f"so the folder {p} cannot be created"
+                raise ConfigError(f"{q} is a file; {why}", key=key)
+            break
+    return p
+
+
+@contextmanager
+def atomic_output(path: str | Path, key: str | None = None) -> Iterator[Path]:
+    """Yield a temporary path next to ``path``; on success it replaces ``path``, on failure it is removed.
+
+    The temporary name keeps ``path``'s suffix (``.name.tmp.png``), so writers that pick a format by suffix
+    (matplotlib) see the right one.
+
+    Raises:
+        ConfigError: ``path`` cannot be written (see :func:`check_output_file`), naming ``key`` or the path.
+    """
+    final = check_output_file(path, key or str(path))
+    tmp = final.with_name(f".{final.stem}.tmp{final.suffix}")
+    try:
+        yield tmp
+        os.replace(tmp, final)
+    finally:
+        tmp.unlink(missing_ok=True)

@@ -1,0 +1,43 @@
+"""Output paths: checked before the work, written whole or not at all (marlcrash.outputs)."""
+
+from __future__ import annotations
+
+import pytest
+
+from marlcrash.errors import ConfigError
+from marlcrash.outputs import atomic_output, check_output_dir, check_output_file
+
+
+def test_check_output_file_names_the_key(tmp_path):
+    assert check_output_file(None, "--csv") is None
+    assert check_output_file(tmp_path / "a.csv", "--csv") == tmp_path / "a.csv"
+    with pytest.raises(ConfigError, match=r"'--csv'.*is a folder"):
+        check_output_file(tmp_path, "--csv")
+    with pytest.raises(ConfigError, match=r"'--plot'.*does not exist"):
+        check_output_file(tmp_path / "nope" / "a.png", "--plot")
+
+
+def test_check_output_dir_refuses_a_file_on_the_way(tmp_path):
+    f = tmp_path / "afile"
+    f.write_text("x")
+    assert check_output_dir(tmp_path / "new" / "deeper", "out_dir") == tmp_path / "new" / "deeper"
+    with pytest.raises(ConfigError, match=r"'out_dir'.*afile is a file; expected a folder"):
+        check_output_dir(f, "out_dir")
+    with pytest.raises(ConfigError, match=r"afile is a file; so the folder .*runs cannot be created"):
+        check_output_dir(f / "runs", "out_dir")
+
+
+def test_atomic_output_replaces_whole_or_leaves_the_old_file(tmp_path):
+    target = tmp_path / "out.png"
+    target.write_text("old")
+    with atomic_output(target) as tmp:
+        assert tmp.parent == tmp_path and tmp.suffix == ".png" and tmp != target
+        tmp.write_text("new")
+    assert target.read_text() == "new"
+    with pytest.raises(RuntimeError), atomic_output(target) as tmp:
+        tmp.write_text("half")
+        raise RuntimeError("writer failed")
+    assert target.read_text() == "new"  # the old file stays, no temporary file is left
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.png"]
+    with pytest.raises(ConfigError, match="is a folder"), atomic_output(tmp_path, key="--plot"):
+        pass
