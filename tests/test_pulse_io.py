@@ -258,3 +258,13 @@ def test_a_time_column_in_ms_gets_a_hint_and_numbers_print_plainly(tmp_path):
     with pytest.raises(PulseError, match=r"got 0\.0001 after 0\.0004") as info:
         processed_pulse(back)
     assert "np.float64" not in str(info.value)
+
+
+def test_csv_only_options_on_an_iso_mme_test_are_reported_not_silently_dropped():
+    from marlcrash.pulse.io import processed_pulse
+
+    mme = Path(__file__).parent / "data" / "HS40"
+    with pytest.warns(UserWarning, match="HS40: ISO-MME channels carry their own time base and unit"):
+        _, work, _ = processed_pulse(mme, unit="m/s2")
+    plain = processed_pulse(mme)[1]
+    np.testing.assert_array_equal(work.acc, plain.acc)  # ignored, as the warning says

@@ -28,6 +28,7 @@ from __future__ import annotations
 import csv
 import math
 import re
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -525,6 +526,12 @@ def processed_pulse(
     p = Path(path)
     if not (p.is_dir() or p.suffix.lower() == ".mme"):
         kwargs.update(time_col=time_col, unit=unit)
+    elif time_col is not None or unit != "g":
+        warnings.warn(
+            f"{p.name}: ISO-MME channels carry their own time base and unit; time_col/unit apply to CSV files only "
+            "and are ignored",
+            stacklevel=2,
+        )
     if acc_col is not None:
         kwargs["acc_col"] = acc_col
     pulse = read_pulse(p, **kwargs).select(0)
