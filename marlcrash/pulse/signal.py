@@ -306,6 +306,17 @@ def shift_time(pulse: Pulse, t0: float) -> Pulse:
     return replace(pulse, time=pulse.time - float(t0))
 
 
+def lead_in(pulse: Pulse, pre_time: float) -> Pulse:
+    """A uniform pulse with ``pre_time`` [s] of zero acceleration put before its first sample (same rate)."""
+    dt = float(pulse.time[1] - pulse.time[0])
+    n = round(pre_time / dt)
+    if n <= 0:
+        return pulse
+    time = np.concatenate([pulse.time[0] - dt * np.arange(n, 0, -1), pulse.time])
+    acc = np.concatenate([np.zeros((pulse.acc.shape[0], n)), pulse.acc], axis=1)
+    return replace(pulse, time=time, acc=acc)
+
+
 def filtered_from_time_zero(
     pulse: Pulse, cfc: int | None = 60, time_zero: str = "threshold", threshold_g: float = DEFAULT_THRESHOLD_G
 ) -> tuple[Pulse, float]:
@@ -317,12 +328,20 @@ def filtered_from_time_zero(
         time_zero: ``"threshold"`` (:func:`find_time_zero` on the filtered record) or ``"file"`` (the file's t = 0).
         threshold_g: time-zero threshold [g].
 
+    Before filtering, the record is led in by :data:`PRE_IMPACT_TIME` of zero acceleration (the vehicle at
+    constant speed before the record began), and the filtered lead-in is kept (its times precede the
+    file's first sample): the zero-phase filter spreads the first milliseconds of the pulse backwards, and
+    a record that starts at the impact (no pre-trigger samples, e.g. a ``marlcrash simulate --csv`` record)
+    would otherwise lose that part to the filter's end reflection. A 3 ms, 20 g half-sine starting at the
+    first sample lost 35 % of its CFC 60 velocity change that way. For records with quiet pre-trigger data
+    the lead-in changes nothing material.
+
     Returns:
         ``(uniform filtered pulse on the file's clock, time zero [s] on that clock)``.
     """
     p = pulse if pulse.is_uniform else resample(pulse, pulse.sample_rate_hz)
     if cfc is not None:
-        p = filter_pulse(p, cfc)
+        p = filter_pulse(lead_in(p, PRE_IMPACT_TIME), cfc)
     if time_zero == "threshold":
         return p, find_time_zero(p, threshold_g)
     if time_zero == "file":
