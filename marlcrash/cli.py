@@ -58,6 +58,10 @@ def _add_vehicle_args(p: argparse.ArgumentParser, deck_required: bool) -> None:
     )
 
 
+CHECKED_SPEEDS_KMH = (40.0, 64.0)
+"""Impact speeds of the registered scenarios, at which the default car's pulses are checked (tests/test_sim_*)."""
+
+
 def _seed(text: str) -> int:
     """argparse type of ``--seed``: an integer >= 0."""
     try:
@@ -156,6 +160,13 @@ def scenario_from_args(args: argparse.Namespace):
     scenario = replace(scenario, **overrides)
     scenario = replace(scenario, name=f"{scenario.name}_custom", description="command-line overrides")
     scenario.validate()
+    lo, hi = CHECKED_SPEEDS_KMH
+    if not lo <= scenario.speed_kmh <= hi:
+        warnings.warn(
+            f"{scenario.speed_kmh:g} km/h lies outside the impact speeds the surrogate's plausibility is checked at "
+            f"({lo:g}-{hi:g} km/h, the registered scenarios); read its pulse with care",
+            stacklevel=2,
+        )
     return scenario
 
 

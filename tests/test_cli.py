@@ -202,6 +202,18 @@ def test_output_paths_are_checked_before_the_work(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["adir"] and not any((tmp_path / "adir").iterdir())
 
 
+def test_simulate_messages_for_out_of_range_and_empty_input(tmp_path):
+    proc = run_cli("simulate", "--speed", "200", "--json")
+    assert "warning: 200 km/h lies outside" in proc.stderr and json.loads(proc.stdout)["speed_kmh"] == 200.0
+    assert "warning" not in run_cli("simulate", "--speed", "56", "--json").stderr
+    proc = run_cli("simulate", "--overlap", "1e-6", check=False)
+    assert proc.returncode == 2 and "overlap 1e-06" in proc.stderr and "larger overlap" in proc.stderr
+    empty = tmp_path / "empty.k"
+    empty.write_text("*KEYWORD\n*END\n")
+    proc = run_cli("simulate", str(empty), check=False)
+    assert proc.returncode == 2 and "empty.k: the deck has no *NODE data" in proc.stderr
+
+
 def test_simulate_overrides_and_errors():
     out = json.loads(run_cli("simulate", "--speed", "56", "--overlap", "0.4", "--side", "right", "--json").stdout)
     assert (out["speed_kmh"], out["overlap"], out["side"]) == (56.0, 0.4, "right")

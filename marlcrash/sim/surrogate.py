@@ -463,7 +463,12 @@ class Surrogate:
         frac = barrier_fraction(self.lo_y, self.hi_y, self.width, ov, sd) * self.exposed
         covered = frac > 0
         if not bool(covered.any(dim=1).all()):
-            raise ModelError("the barrier covers no cell front in some batch rows; check overlap/side and front_area")
+            rows = torch.nonzero(~covered.any(dim=1)).flatten().tolist()
+            raise ModelError(
+                f"the barrier covers no cell front in batch rows {rows[:5]} (overlap {ov[rows[0]].item():g}, side "
+                f"{'left' if sd[rows[0]].item() > 0 else 'right'}): the overlap is narrower than the vehicle's "
+                "front cells; use a larger overlap"
+            )
         first = torch.where(covered, self.lo_x, torch.full_like(frac, float("inf"))).amin(dim=1, keepdim=True)
         gap = torch.where(covered, self.lo_x - first, torch.zeros_like(frac))
         k_raw = self.config.wall_stiffness * self.front_area * frac

@@ -1231,6 +1231,8 @@ def _check_duplicates(ids: np.ndarray, locs: _Locs, what: str) -> None:
 
 def _assemble(deck: _Deck, t: _Tables, units: str | None, main: Path) -> tuple[VehicleModel, list[str]]:
     notes: list[str] = list(deck.params.notes)
+    if not t.node_ids:  # checked first: an empty or wrong file has no materials either, and says so more plainly
+        raise DeckError("the deck has no *NODE data", main)
     # ---- units
     if units is not None:
         u = get_unit_system(units)
@@ -1246,8 +1248,6 @@ def _assemble(deck: _Deck, t: _Tables, units: str | None, main: Path) -> tuple[V
                 main,
             )
     # ---- nodes
-    if not t.node_ids:
-        raise DeckError("the deck has no *NODE data", main)
     node_ids = np.concatenate(t.node_ids)
     coords = np.concatenate(t.coords) * u.length
     _check_duplicates(node_ids, t.node_locs, "node")
