@@ -248,6 +248,18 @@ def cmd_pulse(args: argparse.Namespace) -> int:
     if args.plot:  # the pulse the figures describe: resampled if non-uniform, filtered, t = 0 at time zero
         plot_pulse(shift_time(work, t0), args.plot, title=Path(args.file).name)
         summary["plot"] = str(args.plot)
+    if args.cfc:
+        from marlcrash.pulse.cfc import f_h
+
+        settle = 2.0 / f_h(args.cfc)  # two periods of the -3 dB frequency: 20 ms for CFC 60
+        after = work.time[-1] - t0
+        if after < settle:
+            print(
+                f"note: the record ends {after * 1e3:.1f} ms after time zero, less than the {settle * 1e3:.0f} ms the "
+                f"CFC {args.cfc} filter spreads a pulse over; its peak and delta-v are unreliable (record longer, or "
+                "--cfc 0 for unfiltered figures)",
+                file=sys.stderr,
+            )
     if summary["delta_v_150ms_ms"] is None:
         print(
             f"note: delta_v_150ms_ms is null: the record ends less than 150 ms after time zero "

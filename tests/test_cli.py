@@ -145,6 +145,18 @@ def test_pulse_column_unit_and_filter_options(tmp_path):
     assert proc.returncode == 2 and "nope" in proc.stderr and "tunnel_ms2" in proc.stderr
 
 
+def test_pulse_notes_a_record_too_short_for_its_filter(tmp_path):
+    import numpy as np
+
+    t = np.arange(0.0, 3.05, 0.1) / 1e3  # the record ends with the 3 ms pulse
+    acc = -20.0 * np.sin(np.pi * np.clip(t / 0.003, 0.0, 1.0))
+    short = tmp_path / "s3.csv"
+    short.write_text("time,acc\n" + "".join(f"{a:.6f},{b:.6f}\n" for a, b in zip(t, acc, strict=True)))
+    assert "less than the 20 ms the CFC 60 filter spreads a pulse over" in run_cli("pulse", str(short)).stderr
+    assert "note: the record ends" not in run_cli("pulse", str(short), "--cfc", "0").stderr
+    assert "note: the record ends" not in run_cli("pulse", str(DATA / "halfsine_40kmh.csv")).stderr
+
+
 def test_pulse_bad_file_is_a_clear_error(tmp_path):
     bad = tmp_path / "bad.csv"
     bad.write_text("t,a\n0,1\n0.001,abc\n")
