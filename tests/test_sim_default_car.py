@@ -284,8 +284,10 @@ def test_batch_of_one_equals_row_of_64(car, sim):
         full = sim.run(p, sc, backend=backend, record_cells="none")
         for i in rows:
             one = sim.run(p[i : i + 1], sc, backend=backend, record_cells="none")
-            for f in ("acceleration", "velocity", "crush", "kinetic", "absorbed"):
+            for f in ("acceleration", "velocity", "crush"):
                 assert torch.equal(getattr(one, f)[0], getattr(full, f)[i]), (backend, i, f)
+            for f in ("kinetic", "absorbed"):  # sums over cells: torch may order a [1, n] reduction differently
+                torch.testing.assert_close(getattr(one, f)[0], getattr(full, f)[i], rtol=1e-12, atol=1e-9)
 
 
 @pytest.mark.slow
