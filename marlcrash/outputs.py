@@ -16,8 +16,8 @@ from pathlib import Path
 from marlcrash.errors import ConfigError
 
 
-def check_output_file(path: str | Path | None, key: str) -> Path | None:
-    """Raise :class:`ConfigError` naming ``key`` unless ``path`` can be written as a file (``None`` passes).
+def check_output_file(path: str | Path | None, key: str | None) -> Path | None:
+    """Raise :class:`ConfigError` (naming ``key``, if given) unless ``path`` can be written as a file (``None`` passes).
 
     The folder must exist (it is not created for a single output file: a typo should not create folders).
     """
@@ -51,9 +51,10 @@ def atomic_output(path: str | Path, key: str | None = None) -> Iterator[Path]:
     (matplotlib) see the right one.
 
     Raises:
-        ConfigError: ``path`` cannot be written (see :func:`check_output_file`), naming ``key`` or the path.
+        ConfigError: ``path`` cannot be written (see :func:`check_output_file`); the message names the path
+            (and ``key``, if given).
     """
-    final = check_output_file(path, key or str(path))
+    final = check_output_file(path, key)
     tmp = final.with_name(f".{final.stem}.tmp{final.suffix}")
     try:
         yield tmp
