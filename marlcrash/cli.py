@@ -58,10 +58,6 @@ def _add_vehicle_args(p: argparse.ArgumentParser, deck_required: bool) -> None:
     )
 
 
-CHECKED_SPEEDS_KMH = (40.0, 64.0)
-"""Impact speeds of the registered scenarios, at which the default car's pulses are checked (tests/test_sim_*)."""
-
-
 def _seed(text: str) -> int:
     """argparse type of ``--seed``: an integer >= 0."""
     try:
@@ -147,7 +143,7 @@ def scenario_from_args(args: argparse.Namespace):
     """The crash scenario named by ``--scenario`` with ``--speed/--overlap/--side`` overrides."""
     from dataclasses import replace
 
-    from marlcrash.sim.scenario import get_scenario
+    from marlcrash.sim.scenario import get_scenario, list_scenarios
 
     scenario = get_scenario(args.scenario or "full_width_40")
     overrides = {
@@ -160,7 +156,9 @@ def scenario_from_args(args: argparse.Namespace):
     scenario = replace(scenario, **overrides)
     scenario = replace(scenario, name=f"{scenario.name}_custom", description="command-line overrides")
     scenario.validate()
-    lo, hi = CHECKED_SPEEDS_KMH
+    # the registered scenarios' speeds are those the default car's pulses are checked at (tests/test_sim_*)
+    speeds = [get_scenario(name).speed_kmh for name in list_scenarios()]
+    lo, hi = min(speeds), max(speeds)
     if not lo <= scenario.speed_kmh <= hi:
         warnings.warn(
             f"{scenario.speed_kmh:g} km/h lies outside the impact speeds the surrogate's plausibility is checked at "
