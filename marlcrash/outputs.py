@@ -43,6 +43,13 @@ def check_output_dir(path: str | Path, key: str) -> Path:
     return p
 
 
+def write_text(path: str | Path, text: str) -> Path:
+    """Write ``text`` to ``path`` through :func:`atomic_output` (whole or not at all)."""
+    with atomic_output(path) as tmp:
+        tmp.write_text(text)
+    return Path(path)
+
+
 @contextmanager
 def atomic_output(path: str | Path, key: str | None = None) -> Iterator[Path]:
     """Yield a temporary path next to ``path``; on success it replaces ``path``, on failure it is removed.

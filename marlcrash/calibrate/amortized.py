@@ -35,7 +35,6 @@ import csv
 import io
 import json
 import math
-import os
 import time
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
@@ -61,6 +60,7 @@ from marlcrash.calibrate.problem import CalibrationProblem
 from marlcrash.config import from_dict, require
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics
+from marlcrash.outputs import write_text
 
 POLICY_METHODS = ("policy_best", "policy_last")
 """Row names of the policy: its best iterate by fit score and its last iterate."""
@@ -436,15 +436,6 @@ def csv_text(comparison: Comparison) -> str:
     return buf.getvalue()
 
 
-def _atomic_write(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    try:
-        tmp.write_text(text)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
-
-
 def write_comparison(comparison: Comparison, out_dir: str | Path, command: str | None = None) -> dict[str, Path]:
     """Write :data:`FILES` into ``out_dir`` atomically (each file replaced whole); return their paths.
 
@@ -458,7 +449,7 @@ def write_comparison(comparison: Comparison, out_dir: str | Path, command: str |
     payload = {"date": date, "command": command, "meta": comparison.meta, "aggregate": comparison.aggregate,
                "rows": comparison.rows}  # fmt: skip
     paths = {name: out / name for name in FILES}
-    _atomic_write(paths["amortized.csv"], csv_text(comparison))
-    _atomic_write(paths["amortized.md"], markdown(comparison, command, date))
-    _atomic_write(paths["amortized.json"], json.dumps(payload, indent=2))
+    write_text(paths["amortized.csv"], csv_text(comparison))
+    write_text(paths["amortized.md"], markdown(comparison, command, date))
+    write_text(paths["amortized.json"], json.dumps(payload, indent=2))
     return paths

@@ -53,7 +53,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from marlcrash.calibrate.amortized import _atomic_write, _fmt, _mean_param_error
+from marlcrash.calibrate.amortized import _fmt, _mean_param_error
 from marlcrash.calibrate.baselines import BASELINES, CMAESConfig, GradientConfig, LMConfig, RandomSearchConfig
 from marlcrash.calibrate.budget import Progress
 from marlcrash.calibrate.evaluate import param_errors
@@ -70,7 +70,7 @@ from marlcrash.config import from_dict, require
 from marlcrash.envs.core import load_env_config
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics
-from marlcrash.outputs import check_output_dir
+from marlcrash.outputs import check_output_dir, write_text
 
 METHODS: tuple[str, ...] = (*ALGORITHMS, *BASELINES)
 """Comparable methods: the PPO variants (:data:`~marlcrash.calibrate.marl.ALGORITHMS`) and the optimizers."""
@@ -581,9 +581,9 @@ def write_results(config: CompareConfig, rows: list[dict[str, Any]], run_dir: Pa
     methods, seeds = _present(config, rows)
     payload = {"date": date, "command": command, "config": asdict(config), "rows": rows,
                "aggregate": aggregate(rows, methods), "winners": winners(rows, seeds)}  # fmt: skip
-    _atomic_write(run_dir / "compare.json", json.dumps(payload, indent=2))
-    _atomic_write(run_dir / "compare.csv", csv_text(rows))
-    _atomic_write(run_dir / "compare.md", markdown(config, rows, command, date))
+    write_text(run_dir / "compare.json", json.dumps(payload, indent=2))
+    write_text(run_dir / "compare.csv", csv_text(rows))
+    write_text(run_dir / "compare.md", markdown(config, rows, command, date))
 
 
 # ------------------------------------------------------------------------------------------- driver

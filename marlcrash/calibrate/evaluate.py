@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import csv
 import json
-import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -47,6 +46,7 @@ from marlcrash.calibrate.problem import CalibrationProblem, ProblemConfig, build
 from marlcrash.config import from_dict, require
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics
+from marlcrash.outputs import atomic_output, write_text
 from marlcrash.reward import paper_factor
 from marlcrash.units import G0
 
@@ -308,18 +308,12 @@ def plot_learning_curves(log_rows: list[dict[str, float]], result: EvalResult, p
 
 
 # --------------------------------------------------------------------------------------- run folder
-def _atomic_write(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
-
-
 def update_summary(run_dir: str | Path, **entries: Any) -> dict[str, Any]:
     """Add entries to a run's ``summary.json`` (rewritten atomically); return the new summary."""
     path = Path(run_dir) / SUMMARY_FILE
     summary = json.loads(path.read_text())
     summary.update(entries)
-    _atomic_write(path, json.dumps(summary, indent=2))
+    write_text(path, json.dumps(summary, indent=2))
     return summary
 
 
@@ -415,13 +409,12 @@ def evaluate_run(
               "per_iteration": result.params.numpy(), "selected_iteration": np.array(result.selected)}  # fmt: skip
     if result.true_params is not None:
         arrays["true"] = result.true_params.numpy()
-    tmp = out_dir / ".calibrated.tmp.npz"
-    np.savez(tmp, **arrays)
-    os.replace(tmp, out_dir / "calibrated.npz")
+    with atomic_output(out_dir / "calibrated.npz") as tmp:
+        np.savez(tmp, **arrays)
     if config.eval.plots:
         plot_pulses(problem, result, out_dir / "pulses.png")
         plot_learning_curves(log_rows, result, out_dir / "learning_curves.png")
     summary["eval_wall_time_s"] = time.perf_counter() - t0
     summary["wall_time_s"] = train_time + summary["eval_wall_time_s"]
-    _atomic_write(out_dir / SUMMARY_FILE, json.dumps(summary, indent=2))
+    write_text(out_dir / SUMMARY_FILE, json.dumps(summary, indent=2))
     return summary

@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from marlcrash.errors import ConfigError
+from marlcrash.outputs import atomic_output
 
 LOG_FILE = "log.csv"
 """Name of the CSV log inside a run folder."""
@@ -75,10 +76,8 @@ class CSVLogger:
         with open(self.path, newline="") as fh:
             lines = list(csv.reader(fh))
         keep = lines[: position + 1]
-        tmp = self.path.with_suffix(".csv.tmp")
-        with open(tmp, "w", newline="") as fh:
+        with atomic_output(self.path) as tmp, open(tmp, "w", newline="") as fh:
             csv.writer(fh).writerows(keep)
-        os.replace(tmp, self.path)
         self.position = max(0, len(keep) - 1)
         self.columns = keep[0] if keep else None
 

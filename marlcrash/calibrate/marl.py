@@ -74,7 +74,7 @@ from marlcrash.envs.core import EnvConfig, load_env_config
 from marlcrash.envs.torchrl_env import GROUP, CalibrationTorchEnv
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics
-from marlcrash.outputs import check_output_dir
+from marlcrash.outputs import check_output_dir, write_text
 from marlcrash.sim.scenario import list_scenarios
 
 ALGORITHMS: tuple[str, ...] = ("mappo", "ippo", "ppo_single")
@@ -632,9 +632,7 @@ def find_resume_dir(config: TrainConfig) -> Path:
 def save_run_config(config: TrainConfig, run_dir: Path) -> None:
     """Write the resolved config as ``config.yaml`` (atomically)."""
     run_dir.mkdir(parents=True, exist_ok=True)
-    tmp = run_dir / f".{CONFIG_FILE}.tmp"
-    tmp.write_text(yaml.safe_dump(dataclasses.asdict(config), sort_keys=False))
-    os.replace(tmp, run_dir / CONFIG_FILE)
+    write_text(run_dir / CONFIG_FILE, yaml.safe_dump(dataclasses.asdict(config), sort_keys=False))
 
 
 def load_run_config(run_dir: str | Path) -> TrainConfig:

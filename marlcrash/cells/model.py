@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from marlcrash.errors import ModelError
+from marlcrash.outputs import atomic_output
 
 PARAM_NAMES: tuple[str, ...] = ("E_x", "E_s", "f_x", "f_y", "f_yn", "f_z", "f_zn")
 """The seven cell parameters; ``f_yn``/``f_zn`` are the paper's ``f_y'``/``f_z'``."""
@@ -209,10 +210,8 @@ class CellModel:
                 header[f.name] = v
         arrays["__header__"] = np.frombuffer(json.dumps(header).encode(), dtype=np.uint8)
         path = Path(path)
-        tmp = path.with_name(path.name + ".tmp")
-        with open(tmp, "wb") as fh:
+        with atomic_output(path) as tmp, open(tmp, "wb") as fh:
             np.savez_compressed(fh, **arrays)
-        tmp.replace(path)
 
     @classmethod
     def load(cls, path: str | Path) -> CellModel:

@@ -46,8 +46,9 @@ MIN_SAMPLES = 8
 UNIFORM_RTOL = 1e-3
 """Largest relative deviation of a time step from the mean step for a 'uniform' record."""
 PRE_IMPACT_TIME = 2.0 * DEFAULT_PAD_TIME
-"""Constant-velocity lead-in [s] put before a simulated record for filtering (:func:`compared_velocity`):
-twice the CFC filter's end padding (20 ms), longer than the CFC 60 filter's impulse response (about 10 ms)."""
+"""Constant-velocity (zero-acceleration) lead-in [s] put before a record for filtering, simulated
+(:func:`compared_velocity`) or measured (:func:`filtered_from_time_zero`): twice the CFC filter's end padding
+(20 ms), longer than the CFC 60 filter's impulse response (about 10 ms)."""
 
 
 @dataclass(frozen=True)
