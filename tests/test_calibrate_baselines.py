@@ -155,6 +155,7 @@ def test_success_counts_the_candidate_that_passed(problem):
         ({"method": "annealing"}, "method"),
         ({"budget": 0}, "budget"),
         ({"gradient": {"lr": -0.1}}, "gradient.lr"),
+        ({"gradient": {"backend": "numba"}}, "gradient.backend"),
         ({"gradient": {"loss": {"area_scale": 0.0}}}, "gradient.loss.area_scale"),
         ({"cmaes": {"popsize": 1}}, "cmaes.popsize"),
         ({"random_search": {"shrink": 1.5}}, "random_search.shrink"),

@@ -156,6 +156,23 @@ def test_loss_gradient_is_finite_and_nonzero_at_the_start(problem):
     torch.testing.assert_close(m.rmse, problem.evaluate(problem.zeros(2)).rmse, rtol=0, atol=1e-8)
 
 
+def test_loss_gradient_of_the_adjoint_equals_torch_autograd(problem):
+    """The default (compiled adjoint) and the torch autograd reference give the same loss and gradient."""
+    out = {}
+    for backend in ("adjoint", "torch"):
+        x = random_x(problem, 2, seed=5).requires_grad_(True)
+        loss, _ = problem.loss(x, SmoothLoss(), backend)
+        loss.sum().backward()
+        out[backend] = (loss.detach(), x.grad)
+    torch.testing.assert_close(out["adjoint"][0], out["torch"][0], rtol=1e-7, atol=0)
+    scale = float(out["torch"][1].abs().max())
+    torch.testing.assert_close(out["adjoint"][1], out["torch"][1], rtol=1e-6, atol=1e-9 * scale)
+    assert float(out["torch"][1].abs().max()) > 0
+    with pytest.raises(ConfigError, match="adjoint or torch") as e:
+        problem.loss(problem.zeros(1), SmoothLoss(), "numba")
+    assert e.value.key == "backend"
+
+
 def test_loss_is_zero_at_exact_truth(exact_twin):
     loss, _ = exact_twin.loss(exact_twin.true_x[None], SmoothLoss())
     assert float(loss[0]) < 1e-6  # torch path against a numba reference: round-off only

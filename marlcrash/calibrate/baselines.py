@@ -15,8 +15,9 @@ and the first history row are measured, not assumed.
   (``cma``'s own seeding of the global RNG is switched off, and the global state is restored).
 - :func:`gradient_descent`: projected Adam on the free log-scales of ``batch_size`` starting
   points at once (the first at ``x = 0``, the others uniform within ``start_radius``), loss
-  :class:`~marlcrash.calibrate.problem.SmoothLoss` through the differentiable torch simulator.
-  Cost: one simulation per candidate per step (the forward pass; its backward pass is not
+  :class:`~marlcrash.calibrate.problem.SmoothLoss` through the differentiable simulator (``backend``:
+  the compiled adjoint of :mod:`marlcrash.sim.adjoint` by default, or torch autograd, the same
+  gradients). Cost: one simulation per candidate per step (the forward pass; its backward pass is not
   charged separately). The metrics of each step's forward pass rank the candidates.
 - :func:`levenberg_marquardt`: least squares on the velocity residuals of every sensor
   (:mod:`~marlcrash.calibrate.leastsq`: a finite-difference Jacobian of ``n_free`` simulations
@@ -100,6 +101,7 @@ class GradientConfig:
     beta2: float = 0.999
     start_radius: float = 0.1
     threads: int = 1
+    backend: str = "adjoint"
     loss: SmoothLoss = field(default_factory=SmoothLoss)
 
     def validate(self) -> None:
@@ -109,6 +111,7 @@ class GradientConfig:
             require(0 <= getattr(self, k) < 1, k, f"expected a decay in [0, 1), got {getattr(self, k)}")
         require(self.start_radius >= 0, "start_radius", f"expected >= 0, got {self.start_radius}")
         require(self.threads >= 0, "threads", f"expected a thread count >= 0 (0: torch's setting), got {self.threads}")
+        require(self.backend in ("adjoint", "torch"), "backend", f"expected adjoint or torch, got {self.backend!r}")
 
 
 @dataclass
@@ -338,7 +341,7 @@ def _adam_loop(
         n = progress.grant(B)
         opt.zero_grad()
         x = problem.unflat(z[:n])  # differentiable scatter into [n, n_agents, 7]
-        loss, m = problem.loss(x, config.loss)
+        loss, m = problem.loss(x, config.loss, config.backend)
         progress.record(x.detach(), m, problem.score(m), problem.success(m))
         if initial is None:
             initial = Metrics(*(t[0] for t in m))

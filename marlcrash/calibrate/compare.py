@@ -270,9 +270,9 @@ class _Recorder:
         self._record(self._problem.check_x(x), m)
         return m
 
-    def loss(self, x: torch.Tensor, weights: SmoothLoss) -> tuple[torch.Tensor, Metrics]:
+    def loss(self, x: torch.Tensor, weights: SmoothLoss, backend: str = "adjoint") -> tuple[torch.Tensor, Metrics]:
         self._gate()
-        loss, m = self._problem.loss(x, weights)
+        loss, m = self._problem.loss(x, weights, backend)
         self._record(x, m)
         return loss, m
 

@@ -402,18 +402,22 @@ class CalibrationProblem:
         """``[N]`` bool: every sensor below every success threshold."""
         return termination(metrics, self.success_cfg, 0).success
 
-    def loss(self, x: torch.Tensor, weights: SmoothLoss) -> tuple[torch.Tensor, Metrics]:
-        """Differentiable loss ``[N]`` through the torch simulator, and the candidates' metrics ``[N, K]``.
+    def loss(self, x: torch.Tensor, weights: SmoothLoss, backend: str = "adjoint") -> tuple[torch.Tensor, Metrics]:
+        """Differentiable loss ``[N]`` through the simulator, and the candidates' metrics ``[N, K]``.
 
         Counts ``N`` simulations (forward and backward of a candidate together count one).
 
         Args:
             x: ``[N, n_agents, 7]`` candidates (usually ``requires_grad``).
             weights: the loss weights and scales.
+            backend: ``adjoint`` (compiled forward and reverse pass, :mod:`marlcrash.sim.adjoint`) or
+                ``torch`` (the autograd reference); the same gradients to rounding.
         """
+        if backend not in ("adjoint", "torch"):
+            raise ConfigError(f"expected adjoint or torch, got {backend!r}", key="backend")
         if not x.requires_grad:
             x = self.check_x(x)
-        res = self.simulate(x, backend="torch")
+        res = self.simulate(x, backend=backend)
         v = self.compared(res.velocity)
         ref = self.ref_velocity.expand_as(v)
         area = area_between(v, ref, dt=self.dt, method=self.fit.cfg.metrics.area_method)

@@ -489,7 +489,7 @@ class Surrogate:
         sensors: list[str] | None = None,
         probe_cells: list[int] | np.ndarray | torch.Tensor | None = None,
         record_cells: Literal["series", "final", "none"] = "series",
-        backend: Literal["torch", "numba", "auto"] | None = None,
+        backend: Literal["torch", "numba", "adjoint", "auto"] | None = None,
     ) -> SimResult:
         """Simulate ``B`` crashes.
 
@@ -502,12 +502,16 @@ class Surrogate:
             probe_cells: record these cells' acceleration and velocity instead of the sensors (named
                 ``cell<i>`` in the result), e.g. to study sensor placement; indices into the cell model.
             record_cells: per-cell energy series (``series``), final values only, or none.
-            backend: ``torch`` (differentiable reference), ``numba`` (fast no-grad), ``auto``
+            backend: ``torch`` (differentiable reference), ``numba`` (fast no-grad), ``adjoint`` (the
+                ``numba`` result with sensor velocities differentiable by a compiled reverse pass,
+                :mod:`marlcrash.sim.adjoint`), ``auto``
                 (numba unless gradients are required); default from the config.
 
         Returns:
             A :class:`SimResult`.
         """
+        if backend not in (None, "torch", "numba", "adjoint", "auto"):
+            raise ModelError(f"backend must be one of torch, numba, adjoint, auto; got {backend!r}")
         p = self.check_params(params)
         if scenario is not None and abs(scenario.output_dt - self.output_dt) > 1e-12:
             raise ModelError(
@@ -523,6 +527,10 @@ class Surrogate:
         backend = backend or self.config.backend
         if backend == "auto":
             backend = "torch" if (torch.is_grad_enabled() and p.requires_grad) else "numba"
+        if backend == "adjoint":
+            from marlcrash.sim.adjoint import run_adjoint
+
+            return run_adjoint(self, props, wall, n_out, sensor_idx, record_cells)
         if backend == "numba":
             from marlcrash.sim.kernels import run_numba
 

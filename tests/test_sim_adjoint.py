@@ -1,0 +1,108 @@
+"""The compiled adjoint (``backend="adjoint"``): gradients of the sensor velocities against torch autograd
+and against finite differences of the fast kernel, its forward pass, and what it refuses."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from marlcrash.cells import discretize
+from marlcrash.errors import ModelError
+from marlcrash.sim import Surrogate, get_scenario, load_sim_config
+from marlcrash.sim.adjoint import _statics, forward_velocity
+from marlcrash.vehicle.synthetic import default_vehicle
+
+SC = get_scenario("full_width_40")
+
+
+@pytest.fixture(scope="module")
+def car():
+    return discretize(default_vehicle())
+
+
+@pytest.fixture(scope="module")
+def sim(car):
+    return Surrogate(car)
+
+
+def _params(car, batch, seed, spread=0.3):
+    """Every parameter of every cell scaled by a log-normal factor (transmission factors too)."""
+    g = torch.Generator().manual_seed(seed)
+    base = torch.as_tensor(car.params, dtype=torch.float64)
+    return base[None] * torch.exp(spread * torch.randn(batch, *base.shape, generator=g, dtype=torch.float64))
+
+
+def _velocity_grad(sim, p0, duration, backend, weights, **rows):
+    p = p0.clone().requires_grad_(True)
+    res = sim.run(p, SC, duration=duration, record_cells="none", backend=backend, **rows)
+    (res.velocity * weights).sum().backward()
+    return res, p.grad
+
+
+def _assert_same_gradient(ga, gt, rtol):
+    """Per parameter column (E_x, E_s, five transmission factors): relative error of the whole column."""
+    for j in range(gt.shape[-1]):
+        ref = float(gt[..., j].norm())
+        assert ref > 0, f"column {j}: no gradient at all, the test would not see a wrong one"
+        assert float((ga[..., j] - gt[..., j]).norm()) <= rtol * ref, f"column {j}"
+
+
+@pytest.mark.parametrize("duration", [0.03, pytest.param(0.15, marks=pytest.mark.slow)])
+def test_adjoint_gradient_equals_torch_autograd(sim, car, duration):
+    """Two rows, two load cases (full width, 40 % offset at 56 km/h): crush, contact across gaps, wall
+    contact and cells bottoming out within the window are all differentiated."""
+    p0 = _params(car, 2, seed=1)
+    rows = {"speed": torch.tensor([11.11, 15.56]), "overlap": torch.tensor([1.0, 0.4]), "side": torch.ones(2)}
+    g = torch.Generator().manual_seed(2)
+    w = torch.randn(2, len(car.sensor_names), round(duration / SC.output_dt) + 1, generator=g, dtype=torch.float64)
+    rt, gt = _velocity_grad(sim, p0, duration, "torch", w, **rows)
+    ra, ga = _velocity_grad(sim, p0, duration, "adjoint", w, **rows)
+    assert bool(rt.saturated.any(dim=1).all()), "no cell bottomed out in some row: the switch is not exercised"
+    torch.testing.assert_close(ra.velocity.detach(), rt.velocity.detach(), rtol=0, atol=1e-5)
+    _assert_same_gradient(ga, gt, rtol=1e-9)
+
+
+def test_adjoint_gradient_matches_finite_differences_of_the_fast_kernel(sim, car):
+    """Independent of torch: central differences of the numba kernel along random directions."""
+    duration = 0.02
+    p0 = _params(car, 1, seed=3, spread=0.2)
+    g = torch.Generator().manual_seed(4)
+    w = torch.randn(1, len(car.sensor_names), round(duration / SC.output_dt) + 1, generator=g, dtype=torch.float64)
+    _, grad = _velocity_grad(sim, p0, duration, "adjoint", w)
+    for k in range(3):
+        d = torch.randn(p0.shape, generator=g, dtype=torch.float64) * p0  # relative direction
+        h = 1e-6
+        pair = torch.cat([p0 + h * d, p0 - h * d])
+        v = sim.run(pair, SC, duration=duration, record_cells="none", backend="numba").velocity
+        fd = float(((v[0] - v[1]) * w[0]).sum()) / (2 * h)
+        ad = float((grad * d).sum())
+        assert abs(fd - ad) <= 1e-4 * abs(ad) + 1e-9, (k, fd, ad)
+
+
+def test_adjoint_forward_is_the_fast_path_and_its_replay_is_the_torch_path(sim, car):
+    p0 = _params(car, 2, seed=5)
+    duration = 0.03
+    a = sim.run(p0, SC, duration=duration, record_cells="none", backend="adjoint")
+    b = sim.run(p0, SC, duration=duration, record_cells="none", backend="numba")
+    assert torch.equal(a.velocity, b.velocity)  # no gradient asked: exactly the fast path
+    # the replay the reverse pass differentiates performs the torch path's operations in its order
+    props = sim.link_props(sim.check_params(p0))
+    wall = sim.scenario_tensors(2, SC)
+    _, idx = sim._sensor_index(list(SC.sensors))
+    n_out = round(duration / SC.output_dt) + 1
+    replay = forward_velocity((props.yield_c, props.yield_t, props.k, props.k_dense, props.damping, props.e_s),
+                              _statics(sim, wall, n_out, idx))  # fmt: skip
+    ref = sim.run(p0, SC, duration=duration, record_cells="none", backend="torch").velocity
+    torch.testing.assert_close(replay, ref, rtol=0, atol=1e-11)
+
+
+def test_adjoint_refuses_what_it_does_not_cover(car):
+    p = torch.as_tensor(car.params)[None].clone().requires_grad_(True)
+    relief = Surrogate(car, load_sim_config(overrides={"springback_relief": True}))
+    with pytest.raises(ModelError, match="springback_relief"):
+        relief.run(p, SC, duration=0.001, backend="adjoint")
+    single = Surrogate(car, load_sim_config(overrides={"dtype": "float32"}))
+    with pytest.raises(ModelError, match="float64"):
+        single.run(p, SC, duration=0.001, backend="adjoint")
+    with pytest.raises(ModelError, match="backend must be one of"):
+        relief.run(p, SC, duration=0.001, backend="jax")
