@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
-import importlib.util
+import sys
 from pathlib import Path
 
 import pytest
@@ -132,17 +132,36 @@ def test_unknown_algorithm_file():
         load_algorithm_config("dqn")
 
 
-def test_tensorboard_logger_needs_its_extra(tmp_path):
-    if importlib.util.find_spec("tensorboard") is not None:
-        logger = make_logger("tensorboard", tmp_path)
-        logger.log({"iteration": 1.0, "x": 2.0})
-        logger.close()
-        assert list((tmp_path / "tensorboard").iterdir())
-        return
+def test_tensorboard_logger_needs_its_extra(tmp_path, monkeypatch):
+    monkeypatch.setitem(sys.modules, "torch.utils.tensorboard", None)  # as if the extra were not installed
     with pytest.raises(ConfigError) as e:
         make_logger("tensorboard", tmp_path)
     assert e.value.key == "logger"
     assert "tensorboard" in str(e.value) and "pip install" in str(e.value)
+
+
+def _tensorboard_steps(run_dir) -> list[int]:
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    acc = EventAccumulator(str(run_dir / "tensorboard"))
+    acc.Reload()
+    return [e.step for e in acc.Scalars("x")]
+
+
+@pytest.mark.parametrize("checkpoint_at", [4, 2])
+def test_tensorboard_resume_keeps_every_step_once(tmp_path, checkpoint_at):
+    """A resume cuts the rows written after the checkpoint from the CSV and from TensorBoard, then rewrites them."""
+    pytest.importorskip("tensorboard")
+    logger = make_logger("tensorboard", tmp_path)
+    for i in range(1, 5):
+        logger.log({"iteration": float(i), "x": float(i)})
+    logger.close()
+    resumed = make_logger("tensorboard", tmp_path)
+    resumed.truncate(checkpoint_at)  # what Trainer.load_state_dict does with the checkpoint's log position
+    for i in range(checkpoint_at + 1, 7):
+        resumed.log({"iteration": float(i), "x": 10.0 * i})
+    resumed.close()
+    assert _tensorboard_steps(tmp_path) == [1, 2, 3, 4, 5, 6]
 
 
 def test_saved_run_config_round_trips(tmp_path):

@@ -233,6 +233,32 @@ def test_resume_reaches_the_same_result_as_a_straight_run(short, tmp_path):
         assert torch.equal(sa[k], sb[k]), k
 
 
+def test_resuming_a_finished_run_evaluates_without_training_further(short, tmp_path):
+    """A run that the time limit stopped is finished: resume=true re-evaluates it, the same numbers."""
+    done = train(tiny(tmp_path, name="limited", time_limit_s=1e-6))  # stops after its first iteration
+    assert done.iterations == 1
+    state = load_checkpoint(done.run_dir / "checkpoint.pt")
+    state["wall_time_s"] = state["last_iteration_s"] = 0.0  # no clock could stop it now: only "finished" does
+    save_checkpoint(done.run_dir / "checkpoint.pt", state)
+    again = train(tiny(tmp_path, name="limited", resume=True))
+    assert again.iterations == 1 and again.simulations == done.simulations
+    assert again.summary["final_metrics"] == done.summary["final_metrics"]
+    assert len(read_log(done.run_dir / "log.csv")) == 1
+
+
+def test_the_time_limit_clock_is_the_runs_own_and_survives_a_kill(short, tmp_path):
+    """A run killed at iteration 2 with 999.5 of its 1000 s of training time spent stops at once when
+    resumed, as the uninterrupted run would have: the clock is the checkpointed training time, not the
+    new process's."""
+    part = train(tiny(tmp_path, name="clock", time_limit_s=1000.0), stop_at=2, evaluate=False)
+    state = load_checkpoint(part.run_dir / "checkpoint.pt")
+    state["wall_time_s"], state["last_iteration_s"] = 999.5, 1.0
+    save_checkpoint(part.run_dir / "checkpoint.pt", state)
+    resumed = train(tiny(tmp_path, name="clock", resume=str(part.run_dir)))
+    assert resumed.iterations == 2
+    assert resumed.summary is not None
+
+
 def test_resume_true_finds_the_run_and_fresh_runs_refuse_to_overwrite(short, tmp_path):
     part = train(tiny(tmp_path, name="r1", iterations=2), stop_at=1, evaluate=False)
     with pytest.raises(ConfigError, match="exists already"):

@@ -4,12 +4,15 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
 
+from marlcrash.calibrate.checkpoint import load_checkpoint
 from marlcrash.calibrate.marl import ALGORITHMS
 
 REPO = Path(__file__).resolve().parents[1]
@@ -86,3 +89,44 @@ def test_evaluate_script_reports_a_missing_run(short_configs, tmp_path):
     assert p.returncode == 2 and "config.yaml" in p.stderr
     p = run("evaluate.py", [], short_configs, tmp_path)
     assert p.returncode == 2 and "key 'run'" in p.stderr
+
+
+@pytest.mark.slow
+def test_a_killed_training_process_resumes_to_the_uninterrupted_result(short_configs, tmp_path):
+    """SIGKILL during training (after the second checkpoint), then `resume=<run>`: the same final metrics,
+    counters and log as the run that was never interrupted; command-line overrides of a resume are reported
+    as ignored."""
+    args = [*TINY, "iterations=8", "time_limit_s=null"]
+    straight = run("train.py", [*args, "name=straight"], short_configs, tmp_path)
+    assert straight.returncode == 0, straight.stderr[-3000:]
+
+    env = {**os.environ, "MARLCRASH_CONFIGS": str(short_configs)}
+    env.pop("MARLCRASH_CI", None)
+    proc = subprocess.Popen([sys.executable, str(REPO / "train" / "train.py"), *args, "name=killed"], cwd=tmp_path,
+                            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)  # fmt: skip
+    run_dir = tmp_path / "runs" / "mappo" / "killed"
+    killed_at = None
+    deadline = time.monotonic() + 300
+    try:
+        while proc.poll() is None and time.monotonic() < deadline:
+            if (run_dir / "checkpoint.pt").is_file():
+                it = load_checkpoint(run_dir / "checkpoint.pt")["iteration"]
+                if it >= 2:
+                    proc.send_signal(signal.SIGKILL)
+                    killed_at = it
+                    break
+            time.sleep(0.02)
+    finally:
+        proc.kill()
+        proc.wait()
+    assert killed_at is not None and killed_at < 8, "the process finished before it could be killed"
+    assert not (run_dir / "summary.json").exists()
+
+    resumed = run("train.py", [f"resume={run_dir}", "iterations=99"], short_configs, tmp_path)
+    assert resumed.returncode == 0, resumed.stderr[-3000:]
+    assert "ignored: iterations=99" in resumed.stderr
+    a = json.loads((tmp_path / "runs" / "mappo" / "straight" / "summary.json").read_text())
+    b = json.loads((run_dir / "summary.json").read_text())
+    for key in ("final_metrics", "initial_metrics", "selected_iteration", "param_error", "env_steps", "simulations"):
+        assert a[key] == b[key], key
+    assert b["iterations_trained"] == 8

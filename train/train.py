@@ -20,17 +20,26 @@ import json  # noqa: E402
 import sys  # noqa: E402
 
 import hydra  # noqa: E402
+from hydra.core.hydra_config import HydraConfig  # noqa: E402
 from omegaconf import DictConfig, OmegaConf  # noqa: E402
 
 from marlcrash.calibrate.evaluate import update_summary  # noqa: E402
 from marlcrash.calibrate.marl import load_train_config, train  # noqa: E402
 from marlcrash.errors import MarlcrashError  # noqa: E402
 
+RESUME_KEYS = ("resume", "name", "out_dir")
+"""Command-line keys a resume reads; every other override is ignored (the run's saved config.yaml wins)."""
+
 
 @hydra.main(version_base=None, config_path="../configs/train", config_name="train")
 def main(cfg: DictConfig) -> None:
     try:
         config = load_train_config(OmegaConf.to_container(cfg, resolve=True), source="configs/train/train.yaml")
+        if config.resume is not False:
+            ignored = [o for o in HydraConfig.get().overrides.task if o.split("=")[0].lstrip("+~") not in RESUME_KEYS]
+            if ignored:
+                print(f"warning: resume continues the run with its saved config.yaml; ignored: {' '.join(ignored)}",
+                      file=sys.stderr)  # fmt: skip
         result = train(config)
     except MarlcrashError as e:
         print(f"error: {e}", file=sys.stderr)

@@ -41,7 +41,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from marlcrash.calibrate.checkpoint import find_checkpoint, load_checkpoint
 from marlcrash.calibrate.logging import LOG_FILE, read_log
-from marlcrash.calibrate.marl import TrainConfig, load_run_config, make_env, make_env_config, make_policy
+from marlcrash.calibrate.marl import TrainConfig, act, load_run_config, make_env, make_env_config, make_policy
 from marlcrash.calibrate.problem import CalibrationProblem, ProblemConfig, build_problem
 from marlcrash.config import from_dict, require
 from marlcrash.errors import ConfigError
@@ -147,7 +147,7 @@ def evaluate_policy(policy: TensorDictModuleBase, config: TrainConfig) -> EvalRe
         metrics.append(Metrics(*(m[0].clone() for m in core.metrics)))
         params.append(core.params[0].clone())
         for _ in range(ev.iterations):
-            td = env.step(policy(td))
+            td = env.step(act(policy, td))
             metrics.append(Metrics(*(m[0].clone() for m in core.metrics)))
             params.append(core.params[0].clone())
             if bool(td.get(("next", "done")).any()):

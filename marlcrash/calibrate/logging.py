@@ -102,12 +102,26 @@ class TensorBoardLogger(CSVLogger):
                 "(or choose logger: csv)",
                 key="logger",
             ) from None
-        self.writer = SummaryWriter(log_dir=str(Path(run_dir) / "tensorboard"), purge_step=self.position)
+        self._writer_class = SummaryWriter
+        self._log_dir = str(Path(run_dir) / "tensorboard")
+        self._purge_step: int | None = None
+        self.writer = None  # opened by the first row, after a resume's truncate has set the purge step
+
+    def truncate(self, position: int) -> None:
+        """Cut the CSV rows after ``position`` and drop TensorBoard events from step ``position + 1`` on (steps are
+        iterations, 1-based) once the next row opens the event file."""
+        super().truncate(position)
+        if self.writer is not None:
+            self.writer.close()
+            self.writer = None
+        self._purge_step = self.position + 1
 
     def log(self, row: dict[str, float]) -> None:
         """Append the CSV row and write each value as a scalar at step ``iteration``."""
-        step = int(row.get("iteration", self.position))
+        step = int(row.get("iteration", self.position + 1))
         super().log(row)
+        if self.writer is None:
+            self.writer = self._writer_class(log_dir=self._log_dir, purge_step=self._purge_step)
         for k, v in row.items():
             if k != "iteration":
                 self.writer.add_scalar(k, float(v), step)
@@ -115,7 +129,9 @@ class TensorBoardLogger(CSVLogger):
 
     def close(self) -> None:
         """Close the event file."""
-        self.writer.close()
+        if self.writer is not None:
+            self.writer.close()
+            self.writer = None
 
 
 RunLogger = CSVLogger

@@ -49,7 +49,7 @@ from typing import Any, Literal
 import torch
 import yaml
 from tensordict import TensorDict, TensorDictBase
-from tensordict.nn import NormalParamExtractor, TensorDictModule
+from tensordict.nn import NormalParamExtractor, TensorDictModule, TensorDictModuleBase
 from torch import nn
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
@@ -212,8 +212,11 @@ class TrainConfig:
             raise ConfigError(
                 f"expected a torch device such as 'cpu' or 'cuda:0', got {self.device!r}", "device"
             ) from None
-        require(dev.type == "cpu" or (dev.type == "cuda" and torch.cuda.is_available()), "device",
-                f"device {self.device!r} is not available here; expected 'cpu'")  # fmt: skip
+        n_cuda = torch.cuda.device_count() if dev.type == "cuda" else 0
+        require(dev.type in ("cpu", "cuda"), "device", f"expected a cpu or cuda device, got {self.device!r}")
+        require(dev.type == "cpu" or (n_cuda > 0 and (dev.index is None or dev.index < n_cuda)), "device",
+                f"device {self.device!r} is not available here ({n_cuda} CUDA devices); expected 'cpu'"
+                + (f" or cuda:0..{n_cuda - 1}" if n_cuda else ""))  # fmt: skip
         mb = self.algorithm.minibatch_size
         require(self.frames_per_batch % mb == 0, "algorithm.minibatch_size",
                 f"expected a divisor of the batch n_envs * episode_length = {self.n_envs} * {self.episode_length} "
@@ -501,6 +504,20 @@ def make_advantage(critic: TensorDictModule, algo: AlgorithmConfig) -> GAE:
 
 
 # ------------------------------------------------------------------------------------ the iteration
+def module_device(module: torch.nn.Module) -> torch.device:
+    """The device of a module's parameters (CPU for a module without any)."""
+    return next((p.device for p in module.parameters()), torch.device("cpu"))
+
+
+def act(policy: TensorDictModuleBase, td: TensorDictBase) -> TensorDictBase:
+    """Run the policy on the env's tensordict ``td``: moved to the policy's device and back (the simulator
+    and the env stay on CPU; ``device`` only places the networks)."""
+    dev = module_device(policy)
+    if dev == td.device:
+        return policy(td)
+    return policy(td.to(dev)).to(td.device)
+
+
 def collect(env: EnvBase, policy: ProbabilisticActor, steps: int) -> tuple[TensorDictBase, int]:
     """Roll out ``steps`` steps from freshly reset episodes, sampling from the policy.
 
@@ -516,7 +533,7 @@ def collect(env: EnvBase, policy: ProbabilisticActor, steps: int) -> tuple[Tenso
         td = env.reset()
         resets = env.batch_size.numel()
         for t in range(steps):
-            td = policy(td)
+            td = act(policy, td)
             if t < steps - 1:
                 data, td = env.step_and_maybe_reset(td)
                 resets += int(data.get(("next", "done")).sum())
@@ -560,6 +577,7 @@ def update(
         Means over minibatches of the loss terms and diagnostics (``loss_objective``, ``loss_critic``,
         ``loss_entropy``, ``entropy``, ``kl_approx``, ``grad_norm``).
     """
+    data = data.to(module_device(loss))
     with torch.no_grad():
         gae(data)
     if algo.normalize_advantage:
@@ -674,6 +692,8 @@ class Trainer:
     env_steps: int = 0
     simulations: int = 0
     wall_time_s: float = 0.0
+    last_iteration_s: float = 0.0
+    finished: bool = False
 
     def state_dict(self) -> dict[str, Any]:
         """Checkpoint contents (:mod:`marlcrash.calibrate.checkpoint`)."""
@@ -682,6 +702,8 @@ class Trainer:
             "env_steps": self.env_steps,
             "simulations": self.simulations,
             "wall_time_s": self.wall_time_s,
+            "last_iteration_s": self.last_iteration_s,
+            "finished": self.finished,
             "policy": self.policy.state_dict(),
             "critic": self.critic.state_dict(),
             "optimizer": self.optimizer.state_dict(),
@@ -700,6 +722,8 @@ class Trainer:
         self.env_steps = int(state["env_steps"])
         self.simulations = int(state["simulations"])
         self.wall_time_s = float(state["wall_time_s"])
+        self.last_iteration_s = float(state.get("last_iteration_s", 0.0))
+        self.finished = bool(state.get("finished", False))  # checkpoints before this key: not known, train on
         self.logger.truncate(int(state["log_position"]))
 
     def checkpoint(self) -> Path:
@@ -720,8 +744,9 @@ def build_trainer(config: TrainConfig, run_dir: Path) -> Trainer:
     env = make_env(config)
     env.set_seed(config.seed)
     algo = config.algorithm
-    policy, critic = make_policy(env, algo), make_critic(env, algo)
-    loss = make_loss(policy, critic, algo)
+    device = torch.device(config.device)
+    policy, critic = make_policy(env, algo).to(device), make_critic(env, algo).to(device)
+    loss = make_loss(policy, critic, algo).to(device)
     gae = make_advantage(critic, algo)
     optimizer = torch.optim.Adam(loss.parameters(), lr=algo.lr)
     logger = make_logger(config.logger, run_dir)
@@ -747,6 +772,7 @@ def train_iteration(tr: Trainer) -> dict[str, float]:
     tr.simulations += steps + resets
     dt = time.perf_counter() - t0
     tr.wall_time_s += dt
+    tr.last_iteration_s = dt
     return {
         "iteration": tr.iteration,
         "env_steps": tr.env_steps,
@@ -799,33 +825,32 @@ def train(config: TrainConfig, *, stop_at: int | None = None, evaluate: bool = T
         raise
     if state is not None:
         tr.load_state_dict(state)
-    start = time.perf_counter() - tr.wall_time_s
     # with a time limit the iteration count is only a cap: say when training will stop
     desc = config.algorithm.name
     if config.time_limit_s is not None:
         desc += f" (stops by {config.time_limit_s:.0f} s)"
     bar = tqdm(total=config.iterations, initial=tr.iteration, disable=not config.progress_bar, unit="it",
                desc=desc)  # fmt: skip
-    last_dt = 0.0
     try:
-        while tr.iteration < config.iterations:
+        while not tr.finished and tr.iteration < config.iterations:
             if stop_at is not None and tr.iteration >= stop_at:
                 bar.close()
                 tr.logger.close()
                 return TrainResult(run_dir, tr.iteration, tr.env_steps, tr.simulations, tr.wall_time_s, None)
+            # The clock is the run's own training time, saved in every checkpoint, so a resumed run stops
+            # where the uninterrupted one would have (a restarted process clock would train on).
             limit = config.time_limit_s
-            if limit is not None and tr.iteration > 0 and (time.perf_counter() - start) + last_dt > limit:
+            if limit is not None and tr.iteration > 0 and tr.wall_time_s + tr.last_iteration_s > limit:
                 break
-            t0 = time.perf_counter()
             row = train_iteration(tr)
             tr.logger.log(row)
             if tr.iteration % config.checkpoint_every == 0 or tr.iteration == config.iterations:
                 tr.checkpoint()
-            last_dt = time.perf_counter() - t0
             bar.update(1)
             bar.set_postfix(R=f"{row['reward_mean']:+.3f}", A=f"{row['area_final']:.4f}",
                             DFD=f"{row['dfd_final']:.3f}", RMSE=f"{row['rmse_final']:.3f}",
                             sps=f"{row['env_steps_per_s']:.0f}")  # fmt: skip
+        tr.finished = True  # by the time limit or the iteration cap: a resume evaluates, it trains no further
     finally:
         bar.close()
         tr.logger.close()
