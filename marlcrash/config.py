@@ -145,6 +145,36 @@ def from_dict(cls: type[T], data: dict[str, Any], prefix: str = "", path: str | 
     return obj
 
 
+def missing_keys(cls: type, data: dict[str, Any], prefix: str = "") -> list[str]:
+    """Dotted keys of schema ``cls`` (recursing into nested dataclass sections given as mappings) that ``data``
+    lacks: the fields that would silently take the dataclass default."""
+    hints = typing.get_type_hints(cls)
+    out = []
+    for f in dataclasses.fields(cls):
+        key = f"{prefix}{f.name}"
+        if f.name not in data:
+            out.append(key)
+        elif dataclasses.is_dataclass(hints[f.name]) and isinstance(data[f.name], dict):
+            out += missing_keys(hints[f.name], data[f.name], key + ".")
+    return out
+
+
+def require_complete(cls: type, data: dict[str, Any], path: str | Path | None) -> None:
+    """Values live in the YAML files, not in the schemas: a config file must give every key of ``cls``.
+
+    Raises:
+        ConfigError: naming the first missing key (and how many more there are).
+    """
+    missing = missing_keys(cls, data)
+    if missing:
+        more = f" (and {len(missing) - 1} more: {', '.join(missing[1:4])}{', ...' if len(missing) > 4 else ''})"
+        raise ConfigError(
+            "missing: every value lives in the config file; add this key" + (more if len(missing) > 1 else ""),
+            key=missing[0],
+            path=path,
+        )
+
+
 def load_config(cls: type[T], path: str | Path, overrides: dict[str, Any] | None = None) -> T:
     """Load a YAML file into ``cls``, applying dotted-key ``overrides`` first."""
     data = load_yaml(path)

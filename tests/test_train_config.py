@@ -173,3 +173,40 @@ def test_saved_run_config_round_trips(tmp_path):
     assert dataclasses.asdict(back) == dataclasses.asdict(cfg)
     assert yaml.safe_load((tmp_path / "config.yaml").read_text())["algorithm"]["name"] == "ippo"
     assert not list(Path(tmp_path).glob(".*tmp"))
+
+
+@pytest.mark.parametrize(
+    ("name", "drop"),
+    [("train", "algorithm.lr"), ("train", "time_limit_s"), ("baseline", "gradient.lr"), ("compare", "budget"),
+     ("amortized", "seed")],
+)  # fmt: skip
+def test_a_key_deleted_from_a_config_file_is_named_not_defaulted(name, drop):
+    """Values live in the YAML files: every script's composed config gives every schema key, and one missing
+    fails naming it instead of falling back to a dataclass default (which may differ from the file's value)."""
+    from hydra import compose, initialize_config_dir
+    from omegaconf import OmegaConf
+
+    from marlcrash.calibrate.amortized import AmortizedConfig, load_amortized_config
+    from marlcrash.calibrate.baselines import BaselineRunConfig
+    from marlcrash.calibrate.baselines import load_run_config as load_baseline_config
+    from marlcrash.calibrate.compare import CompareConfig, load_compare_config
+    from marlcrash.config import missing_keys
+
+    schema, load = {
+        "train": (TrainConfig, load_train_config),
+        "baseline": (BaselineRunConfig, load_baseline_config),
+        "compare": (CompareConfig, load_compare_config),
+        "amortized": (AmortizedConfig, load_amortized_config),
+    }[name]
+    with initialize_config_dir(config_dir=str(config_dir() / "train"), version_base=None):
+        data = OmegaConf.to_container(compose(config_name=name), resolve=True)
+    data.pop("hydra", None)
+    assert missing_keys(schema, data) == []
+    node = data
+    *parents, last = drop.split(".")
+    for p in parents:
+        node = node[p]
+    del node[last]
+    with pytest.raises(ConfigError, match="missing") as e:
+        load(data, source=f"configs/train/{name}.yaml")
+    assert e.value.key == drop

@@ -57,7 +57,7 @@ from marlcrash.calibrate.checkpoint import CHECKPOINT_FILE, load_checkpoint
 from marlcrash.calibrate.evaluate import EvalResult, evaluate_policy, evaluation_problem, param_errors
 from marlcrash.calibrate.marl import TrainConfig, load_run_config, make_env, make_policy
 from marlcrash.calibrate.problem import CalibrationProblem
-from marlcrash.config import from_dict, require
+from marlcrash.config import from_dict, require, require_complete
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics
 from marlcrash.outputs import write_text
@@ -131,6 +131,8 @@ def load_amortized_config(data: dict[str, Any], source: str | None = None) -> Am
         ConfigError: unknown key, wrong type or bad value, naming the dotted key.
     """
     data = {k: v for k, v in data.items() if k != "hydra"}
+    if source is not None:
+        require_complete(AmortizedConfig, data, source)
     return from_dict(AmortizedConfig, data, path=source)
 
 

@@ -51,7 +51,7 @@ import torch
 from marlcrash.calibrate.budget import Progress
 from marlcrash.calibrate.leastsq import STEP_FACTORS, lm_iteration
 from marlcrash.calibrate.problem import CalibrationProblem, ProblemConfig, SmoothLoss
-from marlcrash.config import from_dict, require
+from marlcrash.config import from_dict, require, require_complete
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics
 from marlcrash.outputs import check_output_dir
@@ -471,6 +471,8 @@ def load_run_config(data: dict[str, Any], source: str | None = None) -> Baseline
         ConfigError: unknown key, wrong type or bad value, naming the dotted key.
     """
     data = {k: v for k, v in data.items() if k != "hydra"}
+    if source is not None:
+        require_complete(BaselineRunConfig, data, source)
     return from_dict(BaselineRunConfig, data, path=source)
 
 

@@ -66,7 +66,7 @@ from marlcrash.calibrate.marl import (
     train_iteration,
 )
 from marlcrash.calibrate.problem import CalibrationProblem, ProblemConfig, SmoothLoss, SuccessConfig, build_problem
-from marlcrash.config import from_dict, require
+from marlcrash.config import from_dict, require, require_complete
 from marlcrash.envs.core import load_env_config
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics
@@ -196,6 +196,8 @@ def load_compare_config(data: dict[str, Any], source: str | None = None) -> Comp
         ConfigError: unknown key, wrong type or bad value, naming the dotted key -- before any run.
     """
     data = {k: v for k, v in data.items() if k != "hydra"}
+    if source is not None:
+        require_complete(CompareConfig, data, source)
     config = from_dict(CompareConfig, data, path=source)
     for key, over in (("env_overrides", config.env_overrides),
                       ("ppo.env_overrides", {**config.env_overrides, **config.ppo.env_overrides})):  # fmt: skip

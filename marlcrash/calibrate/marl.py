@@ -69,7 +69,7 @@ from marlcrash.calibrate.checkpoint import (
 )
 from marlcrash.calibrate.logging import LOGGERS, CSVLogger, make_logger
 from marlcrash.calibrate.problem import SuccessConfig
-from marlcrash.config import config_dir, from_dict, load_config, require
+from marlcrash.config import config_dir, from_dict, load_config, require, require_complete
 from marlcrash.envs.core import EnvConfig, load_env_config
 from marlcrash.envs.torchrl_env import GROUP, CalibrationTorchEnv
 from marlcrash.errors import ConfigError
@@ -270,6 +270,8 @@ def load_train_config(data: dict[str, Any], source: str | None = None, ci: bool 
             raise ConfigError(f"expected a mapping of dotted overrides, got {over!r}", key="ci", path=source)
         for k, v in over.items():
             _set_dotted(data, k, v)
+    if source is not None:
+        require_complete(TrainConfig, data, source)
     return from_dict(TrainConfig, data, path=source)
 
 
