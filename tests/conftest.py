@@ -38,3 +38,20 @@ def short_configs(tmp_path_factory) -> Path:
         data["duration"] = SHORT_DURATION
         p.write_text(yaml.safe_dump(data))
     return dst
+
+
+@pytest.fixture(scope="session")
+def default_cells():
+    """The embedded default car's optimized cell model (discretized once per test session)."""
+    from marlcrash.cells import discretize
+    from marlcrash.vehicle.synthetic import default_vehicle
+
+    return discretize(default_vehicle())
+
+
+@pytest.fixture(scope="session")
+def default_sim(default_cells):
+    """The surrogate of :func:`default_cells` with ``configs/sim.yaml``."""
+    from marlcrash.sim import Surrogate
+
+    return Surrogate(default_cells)

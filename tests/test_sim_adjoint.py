@@ -6,23 +6,11 @@ from __future__ import annotations
 import pytest
 import torch
 
-from marlcrash.cells import discretize
 from marlcrash.errors import ModelError
 from marlcrash.sim import Surrogate, get_scenario, load_sim_config
 from marlcrash.sim.adjoint import _statics, forward_velocity
-from marlcrash.vehicle.synthetic import default_vehicle
 
 SC = get_scenario("full_width_40")
-
-
-@pytest.fixture(scope="module")
-def car():
-    return discretize(default_vehicle())
-
-
-@pytest.fixture(scope="module")
-def sim(car):
-    return Surrogate(car)
 
 
 def _params(car, batch, seed, spread=0.3):
@@ -48,9 +36,10 @@ def _assert_same_gradient(ga, gt, rtol):
 
 
 @pytest.mark.parametrize("duration", [0.03, pytest.param(0.15, marks=pytest.mark.slow)])
-def test_adjoint_gradient_equals_torch_autograd(sim, car, duration):
+def test_adjoint_gradient_equals_torch_autograd(default_sim, default_cells, duration):
     """Two rows, two load cases (full width, 40 % offset at 56 km/h): crush, contact across gaps, wall
     contact and cells bottoming out within the window are all differentiated."""
+    sim, car = default_sim, default_cells
     p0 = _params(car, 2, seed=1)
     rows = {"speed": torch.tensor([11.11, 15.56]), "overlap": torch.tensor([1.0, 0.4]), "side": torch.ones(2)}
     g = torch.Generator().manual_seed(2)
@@ -62,8 +51,9 @@ def test_adjoint_gradient_equals_torch_autograd(sim, car, duration):
     _assert_same_gradient(ga, gt, rtol=1e-9)
 
 
-def test_adjoint_gradient_matches_finite_differences_of_the_fast_kernel(sim, car):
+def test_adjoint_gradient_matches_finite_differences_of_the_fast_kernel(default_sim, default_cells):
     """Independent of torch: central differences of the numba kernel along random directions."""
+    sim, car = default_sim, default_cells
     duration = 0.02
     p0 = _params(car, 1, seed=3, spread=0.2)
     g = torch.Generator().manual_seed(4)
@@ -79,7 +69,8 @@ def test_adjoint_gradient_matches_finite_differences_of_the_fast_kernel(sim, car
         assert abs(fd - ad) <= 1e-4 * abs(ad) + 1e-9, (k, fd, ad)
 
 
-def test_adjoint_forward_is_the_fast_path_and_its_replay_is_the_torch_path(sim, car):
+def test_adjoint_forward_is_the_fast_path_and_its_replay_is_the_torch_path(default_sim, default_cells):
+    sim, car = default_sim, default_cells
     p0 = _params(car, 2, seed=5)
     duration = 0.03
     a = sim.run(p0, SC, duration=duration, record_cells="none", backend="adjoint")
@@ -96,7 +87,8 @@ def test_adjoint_forward_is_the_fast_path_and_its_replay_is_the_torch_path(sim, 
     torch.testing.assert_close(replay, ref, rtol=0, atol=1e-11)
 
 
-def test_adjoint_refuses_what_it_does_not_cover(car):
+def test_adjoint_refuses_what_it_does_not_cover(default_cells):
+    car = default_cells
     p = torch.as_tensor(car.params)[None].clone().requires_grad_(True)
     relief = Surrogate(car, load_sim_config(overrides={"springback_relief": True}))
     with pytest.raises(ModelError, match="springback_relief"):

@@ -15,14 +15,12 @@ import numpy as np
 import pytest
 import torch
 
-from marlcrash.cells import discretize
 from marlcrash.cells.parameterization import apply_increments
 from marlcrash.envs.core import load_env_config
 from marlcrash.metrics import rmse
 from marlcrash.pulse.cfc import cfc_filter
 from marlcrash.sim import Surrogate, get_scenario, max_balance_error
 from marlcrash.units import G0
-from marlcrash.vehicle.synthetic import default_vehicle
 
 KMH40 = {"speed_kmh": 40.0}
 PARTIAL = (
@@ -34,13 +32,13 @@ PARTIAL = (
 
 
 @pytest.fixture(scope="module")
-def car():
-    return discretize(default_vehicle())
+def car(default_cells):
+    return default_cells
 
 
 @pytest.fixture(scope="module")
-def sim(car):
-    return Surrogate(car)
+def sim(default_sim):
+    return default_sim
 
 
 @pytest.fixture(scope="module")

@@ -169,8 +169,20 @@ def test_inactive_agents_are_masked_out_of_the_loss(short, tmp_path, name):
         return loss(td)
 
     inactive = perturbed(~mask)
-    for k in ("loss_objective", "loss_critic", "loss_entropy"):
+    for k in ("loss_objective", "loss_critic"):
         assert torch.equal(inactive[k], base[k]), k  # inactive agents' entries change nothing
+    # the entropy term depends on the policy's distribution: move the inactive agents' observations
+    td = flat.clone()
+    obs = td["agents", "observation"].clone()
+    obs[~mask] += 3.0
+    td["agents", "observation"] = obs
+    torch.manual_seed(1)
+    moved = loss(td)
+    assert torch.equal(moved["loss_entropy"], base["loss_entropy"])
+    assert torch.equal(moved["loss_objective"], base["loss_objective"])
+    td["agents", "observation"] = flat["agents", "observation"] + 3.0 * mask[..., None]  # the active ones instead
+    torch.manual_seed(1)
+    assert not torch.equal(loss(td)["loss_entropy"], base["loss_entropy"])
     active = perturbed(mask)
     assert not torch.allclose(active["loss_objective"], base["loss_objective"])
     assert not torch.allclose(active["loss_critic"], base["loss_critic"])
