@@ -44,6 +44,12 @@ def _grad_max(a, b):
     return 1.0 if a > b else (0.5 if a == b else 0.0)
 
 
+@numba.njit(cache=True, inline="always")
+def _crossing(pn, pl, es, i):
+    """Cell ``i`` reached its saturation energy in this step (plastic work ``pl`` before, ``pn`` after)."""
+    return pn[i] >= es[i] and pl[i] < es[i]
+
+
 @numba.njit(cache=True)
 def _links(v, f_el, o, pl, yc0, yt0, k0, kd, c, es, src, dst, gap, dt, w):
     """One step's link quantities from the state at its start (the torch path's operations, in order).
@@ -83,12 +89,12 @@ def _links(v, f_el, o, pl, yc0, yt0, k0, kd, c, es, src, dst, gap, dt, w):
         el[li] = 0.0
     cross = False
     for i in range(n):
-        if pn[i] >= es[i] and pl[i] < es[i]:
+        if _crossing(pn, pl, es, i):
             cross = True
     if cross:
         for li in range(L):
             a = src[li]
-            if not (pn[a] >= es[a] and pl[a] < es[a]):
+            if not _crossing(pn, pl, es, a):
                 continue
             fr = f_ret[li]
             live = yc0[li] > 0 and (not gap[li] or fr > 0)
@@ -153,7 +159,7 @@ def _forward_one(v0, yc0, yt0, k0, kd, c, es, kw, cw, gapw, covered, m, src, dst
         pn, cross = _links(v, f_el, o, pl, yc0, yt0, k0, kd, c, es, src, dst, gap, dt, w)
         if cross:
             for i in range(n):
-                if pn[i] >= es[i] and pl[i] < es[i]:
+                if _crossing(pn, pl, es, i):
                     pn[i] = es[i]
         s_new, v_new = _nodes(v, s, w[7], kw, cw, gapw, covered, m, src, dst, dt)
         if step % sub == 0:
@@ -210,7 +216,7 @@ def _backward_one(v0, yc0, yt0, k0, kd, c, es, kw, cw, gapw, covered, m, src, ds
                 gs[i] += g_pen
         # plastic work after the step: crossing cells were set to their saturation energy
         for i in range(n):
-            crossing = cross and pn[i] >= es[i] and pl[i] < es[i]
+            crossing = cross and _crossing(pn, pl, es, i)
             g_pn[i] = 0.0 if crossing else gpl[i]
             if crossing:
                 g_es[i] += gpl[i]
