@@ -26,9 +26,15 @@ def test_run_benchmark_small_batches_reports_consistent_ratios():
 
 @pytest.mark.slow
 def test_substep_study_grades_variants_and_names_the_fewest_passing_steps():
-    res = substep_study(variants=((1, False), (7, False), (8, False)), batch=4, vehicle_seeds=(2,))
-    one, seven, eight = res["rows"]
-    assert [r["steps_per_sim"] for r in res["rows"]] == [300, 2100, 2400]
+    res = substep_study(variants=((1, False), (2, False, 2.0), (7, False), (8, False)), batch=4, vehicle_seeds=(2,))
+    one, two_scaled, seven, eight = res["rows"]
+    assert [r["steps_per_sim"] for r in res["rows"]] == [300, 600, 2100, 2400]
+    # the mass floor of a variant is applied and its cost booked: cells of 0.03-0.2 kg raised to 2 kg
+    assert two_scaled["mass_floor"] == 2.0 and seven["mass_floor"] == eight["mass_floor"] < 2.0
+    assert two_scaled["mass_added_kg"] > 3 * eight["mass_added_kg"] > 0
+    # mass scaling does not buy the larger step: 0.25 ms steps with ~900 kg moved into the crush zone
+    # still fail (rebound from the capped links, crush and the up-front spikes)
+    assert not two_scaled["passed"] and "full_width_40 rebound in [0.05, 0.2]" in two_scaled["failed"]
     # the configured 8 substeps pass every DESIGN 4 check (tests/test_sim_default_car.py grades the same cases)
     assert eight["passed"] and eight["failed"] == []
     # one 0.5 ms step per output sample: the stability cap softens the links, the stored elastic energy
@@ -43,6 +49,7 @@ def test_substep_study_grades_variants_and_names_the_fewest_passing_steps():
         assert r["sims_per_s"] > 0 and r["roofline_sims_per_s"] > 0
     text = format_substep_study(res)
     assert "fewest steps that pass every check on the default car: 2100 (7 substeps" in text
+    assert f"mass scaling up to 2 kg per cell ({two_scaled['mass_added_kg']:.0f} kg moved" in text
 
 
 def test_default_lanes_balances_vector_width_and_cores():

@@ -366,13 +366,19 @@ def plausibility_checks(sim: Surrogate, params: torch.Tensor | None = None) -> d
 
 
 def substep_study(
-    variants: tuple[tuple[int, bool], ...] = (
+    variants: tuple[tuple, ...] = (
         (1, False),
         (1, True),
+        (1, False, 1.0),
+        (1, False, 2.0),
         (2, False),
         (2, True),
+        (2, False, 1.0),
+        (2, False, 2.0),
         (4, False),
         (4, True),
+        (4, False, 1.0),
+        (4, False, 2.0),
         (6, False),
         (7, False),
         (8, False),
@@ -383,16 +389,23 @@ def substep_study(
 ) -> dict:
     """How many explicit steps plausible physics needs, and what the machine allows at each count.
 
-    For every ``(substeps, springback_relief)`` variant it grades the DESIGN 4 plausibility cases
+    For every ``(substeps, springback_relief[, mass_floor])`` variant (``mass_floor`` in kg, the
+    configured one when left out) it grades the DESIGN 4 plausibility cases
     (:func:`plausibility_checks`), times the fast path at ``batch`` (``full_width_56``, per-cell energies
     at the final step, as the environments run it) and measures the roofline (:func:`measure_roofline`,
     same step count) in the same run. The smallest step count that passes every check bounds what
     any kernel of this explicit scheme can reach: its roofline. As a robustness margin it also grades
     the seeded variants of the default vehicle (``vehicle_seeds``) with the same checks.
 
+    Higher mass floors are the mass-scaling answer to a larger step: the stability cap grows with the cell
+    mass, so the links stay stiffer, but the added mass (taken from the compartment, :class:`Surrogate`)
+    moves inertia into the crush zone. The default car's compartment can pay for floors up to about
+    2.7 kg (1324 kg over 488 deformable cells).
+
     Returns:
-        A JSON-ready dict: ``rows`` (one per variant: ``substeps``, ``springback_relief``,
-        ``steps_per_sim``, ``passed``, ``failed`` (names of failed checks), ``figures`` (full width 40),
+        A JSON-ready dict: ``rows`` (one per variant: ``substeps``, ``springback_relief``, ``mass_floor``
+        [kg], ``mass_added_kg`` (moved from the compartment to light cells), ``steps_per_sim``, ``passed``,
+        ``failed`` (names of failed checks), ``figures`` (full width 40),
         ``variants_passed`` (how many seeded vehicle variants pass every check), ``sims_per_s``,
         ``roofline_sims_per_s``), ``needed`` (the passing row with the fewest steps or ``None``),
         ``vehicle_seeds``, ``target_sims_per_s``.
@@ -403,8 +416,11 @@ def substep_study(
     rows = []
     scenario = get_scenario(SCENARIO)
     variant_cells = [build_cells(DEFAULT_VEHICLE, int(seed), "optimized") for seed in vehicle_seeds]
-    for sub, relief in variants:
-        cfg = load_sim_config(overrides={"substeps": int(sub), "springback_relief": bool(relief)})
+    for sub, relief, *floor in variants:
+        overrides = {"substeps": int(sub), "springback_relief": bool(relief)}
+        if floor:
+            overrides["mass_floor"] = float(floor[0])
+        cfg = load_sim_config(overrides=overrides)
         sim = Surrogate(load_sim_cells(), cfg)
         grade = plausibility_checks(sim)
         variants_passed = sum(plausibility_checks(Surrogate(c, cfg))["passed"] for c in variant_cells)
@@ -418,6 +434,8 @@ def substep_study(
             {
                 "substeps": int(sub),
                 "springback_relief": bool(relief),
+                "mass_floor": float(cfg.mass_floor),
+                "mass_added_kg": sim.mass_added,
                 "steps_per_sim": steps,
                 "passed": grade["passed"],
                 "failed": [k for k, ok in grade["checks"].items() if not ok],
@@ -444,7 +462,8 @@ def load_sim_cells():
 def format_substep_study(res: dict) -> str:
     """Render :func:`substep_study` as a table plus the conclusion."""
     lines = [
-        f"{'substeps':>8} {'relief':>6} {'steps':>6} {'peak g':>7} {'crush m':>8} {'t0 ms':>6} {'rebound':>8} "
+        f"{'substeps':>8} {'relief':>6} {'floor kg':>8} {'added kg':>8} {'steps':>6} {'peak g':>7} {'crush m':>8} "
+        f"{'t0 ms':>6} {'rebound':>8} "
         f"{'variants':>8} {'sims/s':>8} {'roofline':>9}  plausibility (default car)",
     ]
     n_var = len(res["vehicle_seeds"])
@@ -453,7 +472,8 @@ def format_substep_study(res: dict) -> str:
         verdict = "all checks pass" if r["passed"] else "fails: " + "; ".join(r["failed"])
         var = f"{r['variants_passed']}/{n_var}"
         lines.append(
-            f"{r['substeps']:>8} {('on' if r['springback_relief'] else 'off'):>6} {r['steps_per_sim']:>6} "
+            f"{r['substeps']:>8} {('on' if r['springback_relief'] else 'off'):>6} {r['mass_floor']:>8.2f} "
+            f"{r['mass_added_kg']:>8.0f} {r['steps_per_sim']:>6} "
             f"{f['peak_g']:>7.1f} {f['crush_m']:>8.3f} {f['t_zero_ms']:>6.1f} {f['rebound']:>8.3f} "
             f"{var:>8} {r['sims_per_s']:>8.1f} {r['roofline_sims_per_s']:>9.1f}  {verdict}"
         )
@@ -469,4 +489,11 @@ def format_substep_study(res: dict) -> str:
             f"target; the kernel reaches {need['sims_per_s'] / need['roofline_sims_per_s']:.2f} of it "
             f"(B={res['batch']})"
         )
+        fewer = [r for r in res["rows"] if r["steps_per_sim"] < need["steps_per_sim"]]
+        if fewer:
+            most = max(fewer, key=lambda r: r["mass_added_kg"])
+            lines.append(
+                f"no variant with fewer steps passes, with mass scaling up to {most['mass_floor']:g} kg per cell "
+                f"({most['mass_added_kg']:.0f} kg moved from the compartment into the crush zone) or springback relief"
+            )
     return "\n".join(lines)
