@@ -208,6 +208,36 @@ def test_optimizer_run_stopped_by_the_wall_cap_is_kept_and_flagged(short, proble
     assert float(fresh.area.mean()) == pytest.approx(outcome_row(cfg, problem, full)["area_mean"], abs=1e-12)
 
 
+def test_passed_and_sims_to_success_columns_count_runs_that_meet_the_thresholds(short, problem0, tmp_path):
+    # no method meets the paper's thresholds on the default car, so these columns are exercised with
+    # thresholds of this test: every candidate passes, one between the initial and the best worst-sensor
+    # area, and the paper's own
+    from marlcrash.calibrate.compare import aggregate, markdown
+    from marlcrash.reward import TerminationConfig
+
+    cfg = tiny(tmp_path)
+
+    def run(area: float, dfd: float, rmse: float, seed: int) -> dict:
+        problem = copy.copy(problem0)
+        problem.success_cfg = TerminationConfig(success_area=area, success_dfd=dfd, success_rmse=rmse, max_iterations=1)
+        row = outcome_row(cfg, problem, run_optimizer(cfg, "random_search", 0, problem))
+        return {**row, "seed": seed}
+
+    strict = run(0.0015, 0.335, 0.1511, 2)
+    assert not strict["passed"] and strict["sims_to_success"] is None
+    lax = run(1e9, 1e9, 1e9, 0)
+    assert lax["passed"] and lax["sims_to_success"] == 1  # the initial point, the first candidate, passes
+    best_worst = strict["area_worst"]
+    assert float(evaluate_params(problem0, problem0.init[None]).area.max()) > best_worst  # the search improved it
+    mid = run(best_worst * (1 + 1e-9), 1e9, 1e9, 1)
+    assert mid["passed"] and 1 < mid["sims_to_success"] <= strict["simulations"]
+    (a,) = aggregate([lax, mid, strict], ["random_search"])
+    assert a["passed"] == 2 and a["seeds"] == 3
+    assert a["sims_to_success_median"] == (1 + mid["sims_to_success"]) / 2  # over the runs that passed
+    md = markdown(cfg, [lax, mid, strict], None, "today")
+    assert f"| random_search | 2/3 | {a['sims_to_success_median']:.0f} | " in md
+
+
 def test_lm_run_is_recorded_through_its_residual_batches(short, problem0, tmp_path):
     """LM evaluates candidates through ``residuals``: the recorder sees each batch as LM records it."""
     problem = problem0

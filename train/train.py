@@ -7,7 +7,10 @@
     MARLCRASH_CI=1 python train/train.py                   # the 1-2 minute smoke run of CI (the `ci:` overrides)
 
 Writes ``<out_dir>/<algorithm>/<name>/``: config.yaml, log.csv, checkpoint.pt, then the evaluation:
-summary.json, eval_metrics.csv/.md, calibrated.npz, pulses.png, learning_curves.png.
+summary.json, eval_metrics.csv/.md, calibrated.npz, pulses.png, learning_curves.png. This script adds
+``process_wall_time_s`` to summary.json: the wall time of this process, imports, discretization and
+evaluation included; after a resume that is the resuming process only (``train_wall_time_s`` counts the
+training of every process, from the checkpoint).
 """
 
 from __future__ import annotations

@@ -487,9 +487,37 @@ _AGENT_KEYS = {
 }
 
 
+class MaskedClipPPOLoss(ClipPPOLoss):
+    """``ClipPPOLoss`` whose logged diagnostics ``entropy`` and ``kl_approx`` average over active agents only.
+
+    TorchRL 0.14 applies ``loss_mask_key`` to the loss terms (``loss_*``) but logs the plain mean of the
+    per-sample entropy and KL estimate, inactive agents included: with the impact-region rule the logged
+    entropy then mixes in agents whose actions are ignored. This subclass keeps both per-sample tensors
+    and reduces them with the same mask as the loss terms. The loss itself is unchanged.
+    """
+
+    def _log_weight(self, tensordict: TensorDictBase, adv_shape: torch.Size):
+        out = super()._log_weight(tensordict, adv_shape)
+        self._diagnostics["kl_approx"] = out[2].detach()
+        return out
+
+    def _get_entropy(self, dist, adv_shape: torch.Size):
+        entropy = super()._get_entropy(dist, adv_shape)
+        self._diagnostics["entropy"] = entropy.detach()
+        return entropy
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        self._diagnostics = {}
+        out = super().forward(tensordict)
+        for key, value in self._diagnostics.items():
+            out.set(key, self._reduce_loss(value, tensordict, reduction="mean"))
+        return out
+
+
 def make_loss(policy: ProbabilisticActor, critic: TensorDictModule, algo: AlgorithmConfig) -> ClipPPOLoss:
-    """``ClipPPOLoss`` on the agent-level keys, inactive agents masked out via ``("agents", "mask")``."""
-    loss = ClipPPOLoss(
+    """``ClipPPOLoss`` on the agent-level keys, inactive agents masked out via ``("agents", "mask")`` (of the
+    loss terms and of the logged ``entropy`` and ``kl_approx``: :class:`MaskedClipPPOLoss`)."""
+    loss = MaskedClipPPOLoss(
         actor_network=policy, critic_network=critic, clip_epsilon=algo.clip_epsilon, entropy_bonus=True,
         entropy_coeff=algo.entropy_coef, critic_coeff=algo.critic_coef, normalize_advantage=False,
     )  # fmt: skip
