@@ -50,6 +50,7 @@ def test_substep_study_grades_variants_and_names_the_fewest_passing_steps():
     text = format_substep_study(res)
     assert "fewest steps that pass every check on the default car: 2100 (7 substeps" in text
     assert f"mass scaling up to 2 kg per cell ({two_scaled['mass_added_kg']:.0f} kg moved" in text
+    assert "springback relief" not in text  # no variant here used it
 
 
 def test_default_lanes_balances_vector_width_and_cores():

@@ -492,8 +492,9 @@ def format_substep_study(res: dict) -> str:
         fewer = [r for r in res["rows"] if r["steps_per_sim"] < need["steps_per_sim"]]
         if fewer:
             most = max(fewer, key=lambda r: r["mass_added_kg"])
+            relief = " or springback relief" if any(r["springback_relief"] for r in fewer) else ""
             lines.append(
                 f"no variant with fewer steps passes, with mass scaling up to {most['mass_floor']:g} kg per cell "
-                f"({most['mass_added_kg']:.0f} kg moved from the compartment into the crush zone) or springback relief"
+                f"({most['mass_added_kg']:.0f} kg moved from the compartment into the crush zone){relief}"
             )
     return "\n".join(lines)
