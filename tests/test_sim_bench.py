@@ -51,6 +51,20 @@ def test_substep_study_grades_variants_and_names_the_fewest_passing_steps():
     assert "fewest steps that pass every check on the default car: 2100 (7 substeps" in text
     assert f"mass scaling up to 2 kg per cell ({two_scaled['mass_added_kg']:.0f} kg moved" in text
     assert "springback relief" not in text  # no variant here used it
+    assert f"floors up to {res['mass_floor_limit_kg']:.2f} kg" in text
+
+
+def test_mass_floor_limit_is_where_the_compartment_runs_out_of_mass(default_cells):
+    from marlcrash.errors import ModelError
+    from marlcrash.sim import Surrogate
+    from marlcrash.sim.bench import load_sim_config, mass_floor_limit
+
+    limit = mass_floor_limit(default_cells)
+    sim = Surrogate(default_cells, load_sim_config(overrides={"mass_floor": limit * (1 - 1e-6)}))
+    comp = float(default_cells.mass[default_cells.compartment])
+    assert sim.mass_added == pytest.approx(comp, rel=1e-4)  # nearly all of it moved to the light cells
+    with pytest.raises(ModelError, match="non-positive cell mass"):
+        Surrogate(default_cells, load_sim_config(overrides={"mass_floor": limit * (1 + 1e-6)}))
 
 
 def test_default_lanes_balances_vector_width_and_cores():

@@ -399,8 +399,7 @@ def substep_study(
 
     Higher mass floors are the mass-scaling answer to a larger step: the stability cap grows with the cell
     mass, so the links stay stiffer, but the added mass (taken from the compartment, :class:`Surrogate`)
-    moves inertia into the crush zone. The default car's compartment can pay for floors up to about
-    2.7 kg (1324 kg over 488 deformable cells).
+    moves inertia into the crush zone, up to the floor the compartment can pay for (:func:`mass_floor_limit`).
 
     Returns:
         A JSON-ready dict: ``rows`` (one per variant: ``substeps``, ``springback_relief``, ``mass_floor``
@@ -408,7 +407,7 @@ def substep_study(
         ``failed`` (names of failed checks), ``figures`` (full width 40),
         ``variants_passed`` (how many seeded vehicle variants pass every check), ``sims_per_s``,
         ``roofline_sims_per_s``), ``needed`` (the passing row with the fewest steps or ``None``),
-        ``vehicle_seeds``, ``target_sims_per_s``.
+        ``vehicle_seeds``, ``target_sims_per_s``, ``mass_floor_limit_kg`` (the default car's).
     """
     from marlcrash.envs.core import build_cells
     from marlcrash.vehicle.registry import DEFAULT_VEHICLE
@@ -448,7 +447,24 @@ def substep_study(
     passing = [r for r in rows if r["passed"]]
     needed = min(passing, key=lambda r: r["steps_per_sim"]) if passing else None
     return {"batch": batch, "rows": rows, "needed": needed, "vehicle_seeds": [int(v) for v in vehicle_seeds],
-            "target_sims_per_s": 1000.0}  # fmt: skip
+            "target_sims_per_s": 1000.0, "mass_floor_limit_kg": mass_floor_limit(load_sim_cells())}  # fmt: skip
+
+
+def mass_floor_limit(cells) -> float:
+    """The largest ``mass_floor`` [kg] whose added mass the rigid compartment can pay for.
+
+    :class:`Surrogate` raises every deformable (non-null, non-rigid) cell to the floor and takes the added
+    mass from the compartment; at this floor the compartment's mass reaches zero.
+    """
+    null, rigid = cells.is_null.astype(bool), cells.is_rigid.astype(bool)
+    m = np.sort(cells.mass[~null & ~rigid].astype(np.float64))
+    budget = float(cells.mass[cells.compartment])
+    # with the k lightest cells below the floor f: added = k f - sum(m[:k]); solve added = budget per k
+    for k in range(1, m.size + 1):
+        f = (budget + m[:k].sum()) / k
+        if k == m.size or f <= m[k]:
+            return float(f)
+    return float("inf")  # no deformable cells
 
 
 def load_sim_cells():
@@ -495,6 +511,7 @@ def format_substep_study(res: dict) -> str:
             relief = " or springback relief" if any(r["springback_relief"] for r in fewer) else ""
             lines.append(
                 f"no variant with fewer steps passes, with mass scaling up to {most['mass_floor']:g} kg per cell "
-                f"({most['mass_added_kg']:.0f} kg moved from the compartment into the crush zone){relief}"
+                f"({most['mass_added_kg']:.0f} kg moved from the compartment into the crush zone){relief}; "
+                f"the compartment can pay for floors up to {res['mass_floor_limit_kg']:.2f} kg"
             )
     return "\n".join(lines)
