@@ -4,7 +4,15 @@ from __future__ import annotations
 
 import pytest
 
-from marlcrash.sim.bench import format_lane_study, format_substep_study, lane_study, run_benchmark, substep_study
+from marlcrash.sim.bench import (
+    format_implicit_study,
+    format_lane_study,
+    format_substep_study,
+    implicit_study,
+    lane_study,
+    run_benchmark,
+    substep_study,
+)
 
 
 @pytest.mark.slow
@@ -105,3 +113,21 @@ def test_lane_study_times_each_width_without_padding_and_names_the_fastest():
     assert "fastest width" in text and text.count("\n") == 4
     with pytest.raises(ValueError, match="chunk widths must be >= 1"):
         lane_study(widths=(0,), batch=1, repeats=1)
+
+
+@pytest.mark.slow
+def test_implicit_study_counts_link_passes_and_grades_the_linear_scheme():
+    """One step count: Newton statistics over a short window, the linearly implicit scheme graded over 150 ms,
+    and the roofline scaled from the explicit one by the link passes per simulation."""
+    explicit = {"steps_per_sim": 2100, "roofline_sims_per_s": 300.0}
+    res = implicit_study((1,), window_s=0.002, explicit=explicit)
+    (row,) = res["rows"]
+    nw, li = row["newton"], row["linear"]
+    assert row["steps_per_sim"] == 300 and nw["steps"] == 4
+    # every force evaluation and CG iteration is one link pass; every Newton iteration at least one of each
+    assert nw["link_passes_per_step"] >= nw["force_evals_per_step"] >= nw["newton_mean"] + 1.0
+    assert row["roofline_sims_per_s"] == pytest.approx(300.0 * 2100 / 300 / nw["link_passes_per_step"])
+    assert li["link_passes_per_step"] > 2.0  # one force evaluation plus the CG iterations of its solve
+    assert not li["passed"] and "energy balance < 0.5 %" in li["failed"] and li["balance"] > 5e-3
+    text = format_implicit_study(res)
+    assert "backward Euler" in text and "linearly implicit" in text and "at 2100 steps (300.0 sims/s)" in text

@@ -307,7 +307,7 @@ PARTIAL = ("offset40_left", "offset40_right", "small_overlap_left", "small_overl
 """Partial-overlap scenarios that must give a lower peak and a longer pulse than full width at 40 km/h."""
 
 
-def plausibility_checks(sim: Surrogate, params: torch.Tensor | None = None) -> dict:
+def plausibility_checks(sim: Surrogate, params: torch.Tensor | None = None, run=None) -> dict:
     """Run the default-car plausibility cases of DESIGN 4 with ``sim`` and grade them.
 
     One batch: full width at 40 km/h, the four partial-overlap scenarios at 40 km/h, and full width
@@ -316,6 +316,9 @@ def plausibility_checks(sim: Surrogate, params: torch.Tensor | None = None) -> d
     every partial overlap a lower peak and a time to zero velocity at least 10 % longer; 56 km/h
     at least 1.2x the crush of 40 km/h; up-front sensor peaks 10-150 g and earlier than the tunnel
     peak; energy balance within 0.5 % at every output step.
+
+    ``run(sim, params, **kwargs)`` simulates the batch (default: :meth:`Surrogate.run` on the fast path; the
+    implicit study passes :func:`marlcrash.sim.implicit.run_implicit`'s result).
 
     Returns:
         A JSON-ready dict: ``figures`` (scenario -> crash figures), ``checks`` (criterion -> bool) and
@@ -327,14 +330,15 @@ def plausibility_checks(sim: Surrogate, params: torch.Tensor | None = None) -> d
     scs = [get_scenario("full_width_40")] + [get_scenario(n, kmh40) for n in PARTIAL] + [get_scenario("full_width_56")]
     p = torch.as_tensor(sim.cells.params if params is None else params)
     p = p.reshape(1, sim.n, -1).repeat(len(scs), 1, 1)
-    res = sim.run(
+    run = run or (lambda sim, p, **kw: sim.run(p, backend="numba", **kw))
+    res = run(
+        sim,
         p,
         speed=torch.tensor([s.speed for s in scs]),
         overlap=torch.tensor([s.overlap for s in scs]),
         side=torch.tensor([s.side_sign for s in scs]),
         duration=scs[0].duration,
         record_cells="final",
-        backend="numba",
     )
     figures = {}
     for i, sc in enumerate(scs):
@@ -448,6 +452,113 @@ def substep_study(
     needed = min(passing, key=lambda r: r["steps_per_sim"]) if passing else None
     return {"batch": batch, "rows": rows, "needed": needed, "vehicle_seeds": [int(v) for v in vehicle_seeds],
             "target_sims_per_s": 1000.0, "mass_floor_limit_kg": mass_floor_limit(load_sim_cells())}  # fmt: skip
+
+
+def implicit_study(
+    substeps: tuple[int, ...] = (1, 2, 4), window_s: float = 0.010, explicit: dict | None = None
+) -> dict:
+    """Issue 3's third route to a 0.25-0.5 ms step, measured: implicit integration without stability caps.
+
+    For every step count (``substeps`` per 0.5 ms output step) on the default car, with raw element stiffnesses
+    and no mass scaling (``Surrogate(..., stability_caps=False)``, ``mass_floor = 0``):
+
+    - **Backward Euler, Newton-solved** (:func:`marlcrash.sim.implicit.run_implicit`): the first ``window_s`` of
+      the full-width 40 km/h crash (the impact, where most elements switch between elastic and plastic), with
+      how many steps the Newton iteration solved within its 30 iterations, iterations per step, conjugate-gradient
+      iterations per linear solve and link passes per step (force evaluations plus CG iterations).
+    - **Linearly implicit** (one solve per step with the predictor's tangent, ``linear=True``): the DESIGN 4
+      plausibility grades of the whole 150 ms (:func:`plausibility_checks`).
+
+    ``explicit``: a row of :func:`substep_study` (``steps_per_sim``, ``roofline_sims_per_s``); the roofline of the
+    implicit scheme is that one scaled by the link passes, ``roofline * explicit_steps / (steps * passes)`` (a fused
+    pass costs the same whichever solver issues it).
+
+    Returns:
+        A JSON-ready dict: ``rows`` (``substeps``, ``steps_per_sim``, ``newton``: the stats of ``run_implicit``
+        plus ``window_s``, ``linear``: ``passed``, ``failed``, ``figures`` (full width 40), ``balance`` (largest
+        energy-balance error of the six cases), and ``roofline_sims_per_s`` when ``explicit`` is given).
+    """
+    from marlcrash.sim.implicit import run_implicit
+
+    cells = load_sim_cells()
+    p = torch.as_tensor(cells.params)[None]
+    rows = []
+    for sub in substeps:
+        cfg = load_sim_config(overrides={"substeps": int(sub), "mass_floor": 0.0})
+        sim = Surrogate(cells, cfg, stability_caps=False)
+        _, newton = run_implicit(sim, p, get_scenario("full_width_40"), duration=window_s)
+        newton["window_s"] = window_s
+        lin: dict = {}
+
+        def run(sim, params, lin=lin, **kw):
+            res, st = run_implicit(sim, params, linear=True, **kw)
+            lin.update(st)
+            return res
+
+        grade = plausibility_checks(sim, run=run)
+        fw = grade["figures"]["full_width_40@40"]
+        steps = (get_scenario(SCENARIO).n_outputs - 1) * int(sub)
+        row = {
+            "substeps": int(sub),
+            "steps_per_sim": steps,
+            "newton": newton,
+            "linear": {
+                "passed": grade["passed"],
+                "failed": [k for k, ok in grade["checks"].items() if not ok],
+                "figures": {k: fw[k] for k in ("peak_g", "crush_m", "t_zero_ms", "rebound")},
+                "balance": max(f["balance"] for f in grade["figures"].values()),
+                "link_passes_per_step": lin["link_passes_per_step"],
+            },
+        }
+        if explicit is not None:
+            scale = explicit["roofline_sims_per_s"] * explicit["steps_per_sim"] / steps
+            row["roofline_sims_per_s"] = scale / newton["link_passes_per_step"]
+            row["linear"]["roofline_sims_per_s"] = scale / lin["link_passes_per_step"]
+        rows.append(row)
+    return {"rows": rows, "explicit": explicit, "target_sims_per_s": 1000.0}
+
+
+def format_implicit_study(res: dict) -> str:
+    """Render :func:`implicit_study`."""
+    roof = res["explicit"] is not None
+    lines = [
+        "backward Euler, Newton-solved, raw stiffnesses, no mass scaling (first "
+        f"{res['rows'][0]['newton']['window_s'] * 1e3:g} ms of full_width_40):",
+        f"{'steps':>6} {'unsolved':>9} {'newton/step':>11} {'cg/solve':>9} {'passes/step':>11}"
+        + (f" {'roofline':>9}" if roof else ""),
+    ]
+    for r in res["rows"]:
+        nw = r["newton"]
+        n_steps = round(nw["window_s"] / 5e-4) * r["substeps"]
+        lines.append(
+            f"{r['steps_per_sim']:>6} {nw['unconverged_steps']:>4}/{n_steps:<4} {nw['newton_mean']:>11.1f} "
+            f"{nw['cg_iters_mean']:>9.0f} {nw['link_passes_per_step']:>11.0f}"
+            + (f" {r['roofline_sims_per_s']:>9.2f}" if roof else "")
+        )
+    lines.append("linearly implicit (one solve per step), the DESIGN 4 plausibility cases over 150 ms:")
+    lines.append(
+        f"{'steps':>6} {'peak g':>9} {'crush m':>8} {'balance':>9} {'passes/step':>11}"
+        + (f" {'roofline':>9}" if roof else "")
+        + "  plausibility"
+    )
+    for r in res["rows"]:
+        li = r["linear"]
+        f = li["figures"]
+        verdict = "all checks pass" if li["passed"] else f"fails {len(li['failed'])} checks: " + "; ".join(li["failed"])
+        lines.append(
+            f"{r['steps_per_sim']:>6} {f['peak_g']:>9.3g} {f['crush_m']:>8.3f} {li['balance']:>9.2g} "
+            f"{li['link_passes_per_step']:>11.0f}"
+            + (f" {li['roofline_sims_per_s']:>9.2f}" if roof else "")
+            + f"  {verdict}"
+        )
+    if roof:
+        ex = res["explicit"]
+        lines.append(
+            f"roofline: the explicit scheme's at {ex['steps_per_sim']} steps ({ex['roofline_sims_per_s']:.1f} sims/s) "
+            "scaled by link passes per simulation; target "
+            f"{res['target_sims_per_s']:.0f} sims/s"
+        )
+    return "\n".join(lines)
 
 
 def mass_floor_limit(cells) -> float:

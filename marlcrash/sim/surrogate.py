@@ -85,7 +85,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, fields
 from pathlib import Path
-from typing import Literal
+from typing import Literal, NamedTuple
 
 import numpy as np
 import torch
@@ -247,6 +247,23 @@ class SimResult:
         return SimResult(**out)
 
 
+class _Step(NamedTuple):
+    """One step's element forces and the link state after it (:meth:`Surrogate._step`), all ``[B, L]`` or ``[B, n]``."""
+
+    dd: torch.Tensor  # link deformation increments [m]
+    o: torch.Tensor  # gap openings [m]
+    yielded: torch.Tensor  # link has yielded (springback relief)
+    plastic: torch.Tensor  # cell plastic work [J]
+    k: torch.Tensor  # current link stiffness [N/m]
+    f_new: torch.Tensor  # elastic(-plastic) link force [N]
+    f_tot: torch.Tensor  # link force with damping [N]
+    pen: torch.Tensor  # wall penetration (negative: apart) [m]
+    in_contact: torch.Tensor  # bool, cell pushing on the wall
+    fw: torch.Tensor  # wall force [N]
+    k_t: torch.Tensor | None  # link force derivative by its deformation increment [N/m] (tangent=True)
+    kw_t: torch.Tensor | None  # wall force derivative by the cell's increment [N/m] (tangent=True)
+
+
 @dataclass
 class LinkProps:
     """Per-batch element properties derived from the parameters (all ``[B, L]`` or ``[B, n]``)."""
@@ -282,13 +299,19 @@ class Surrogate:
         cells: the cell model (validated here).
         config: integrator settings; ``None`` loads ``configs/sim.yaml``.
         output_dt: output step [s] the stability caps are computed for (2 kHz default).
+        stability_caps: combine every element's stiffness in series with its explicit stability cap (the
+            module doc). ``False`` keeps the raw stiffnesses: only the implicit study integrator
+            (:mod:`marlcrash.sim.implicit`) can run such a surrogate; :meth:`run` refuses.
 
     Raises:
         ModelError: links touching null cells or owned by the compartment, no mass.
     """
 
-    def __init__(self, cells: CellModel, config: SimConfig | None = None, output_dt: float = 5e-4):
+    def __init__(
+        self, cells: CellModel, config: SimConfig | None = None, output_dt: float = 5e-4, stability_caps: bool = True
+    ):
         cells.validate()
+        self.stability_caps = bool(stability_caps)
         self.cells = cells
         self.config = cfg = config if config is not None else load_sim_config()
         self.output_dt = float(output_dt)
@@ -408,10 +431,13 @@ class Surrogate:
         f_dst = torch.where(self.dst_rigid, torch.full_like(f_c, float("inf"))[:, self.dst], f_c[:, self.dst])
         yield_c = torch.where(self.is_gap, torch.minimum(yield_c, f_dst), yield_c)
         k_raw = k_c[:, self.src] * factor
-        cap = self.cap_link
-        k = k_raw * cap / (k_raw + cap) + _EPS_K * cap
         kd_raw = cfg.densification_factor * k_raw
-        k_dense = kd_raw * cap / (kd_raw + cap) + _EPS_K * cap
+        cap = self.cap_link
+        if self.stability_caps:
+            k = k_raw * cap / (k_raw + cap) + _EPS_K * cap
+            k_dense = kd_raw * cap / (kd_raw + cap) + _EPS_K * cap
+        else:  # 1 N/m for idle links keeps f / k finite; they carry no force (yield force 0)
+            k, k_dense = torch.where(k_raw > 0, k_raw, 1.0), torch.where(kd_raw > 0, kd_raw, 1.0)
         t_ratio = torch.where(self.is_axial, cfg.tension_ratio, 1.0).to(self.dtype)
         yield_t = torch.where(self.is_gap, torch.zeros_like(yield_c), yield_c * t_ratio)
         zeta = torch.where(self.is_gap, cfg.contact_damping_ratio, cfg.link_damping_ratio).to(self.dtype)
@@ -472,7 +498,8 @@ class Surrogate:
         first = torch.where(covered, self.lo_x, torch.full_like(frac, float("inf"))).amin(dim=1, keepdim=True)
         gap = torch.where(covered, self.lo_x - first, torch.zeros_like(frac))
         k_raw = self.config.wall_stiffness * self.front_area * frac
-        k = torch.where(covered, k_raw * self.cap_wall / (k_raw + self.cap_wall), torch.zeros_like(frac))
+        capped = k_raw * self.cap_wall / (k_raw + self.cap_wall) if self.stability_caps else k_raw
+        k = torch.where(covered, capped, torch.zeros_like(frac))
         damping = 2.0 * self.config.wall_damping_ratio * torch.sqrt(k * self.mass)
         return WallProps(k, damping, gap, covered, sp)
 
@@ -512,18 +539,14 @@ class Surrogate:
         """
         if backend not in (None, "torch", "numba", "adjoint", "auto"):
             raise ModelError(f"backend must be one of torch, numba, adjoint, auto; got {backend!r}")
-        p = self.check_params(params)
-        if scenario is not None and abs(scenario.output_dt - self.output_dt) > 1e-12:
+        if not self.stability_caps:
             raise ModelError(
-                f"scenario output step {scenario.output_dt} s differs from the surrogate's {self.output_dt} s; "
-                "build the Surrogate with output_dt=scenario.output_dt"
+                "this Surrogate was built with stability_caps=False: no explicit step is stable with the raw "
+                "stiffnesses; run it with marlcrash.sim.implicit.run_implicit"
             )
-        dur = duration if duration is not None else (scenario.duration if scenario is not None else 0.150)
-        n_out = round(dur / self.output_dt) + 1
-        names = sensors if sensors is not None else (list(scenario.sensors) if scenario is not None else [])
-        sensor_idx = self._sensor_index(names) if probe_cells is None else self._probe_index(probe_cells)
-        wall = self.scenario_tensors(p.shape[0], scenario, speed, overlap, side)
-        props = self.link_props(p)
+        p, props, wall, n_out, sensor_idx = self.prepare(
+            params, scenario, speed, overlap, side, duration, sensors, probe_cells
+        )
         backend = backend or self.config.backend
         if backend == "auto":
             backend = "torch" if (torch.is_grad_enabled() and p.requires_grad) else "numba"
@@ -536,6 +559,40 @@ class Surrogate:
 
             return run_numba(self, props, wall, n_out, sensor_idx, record_cells)
         return self._run_torch(props, wall, n_out, sensor_idx, record_cells)
+
+    def prepare(
+        self,
+        params: torch.Tensor | np.ndarray,
+        scenario: CrashScenario | None = None,
+        speed: torch.Tensor | None = None,
+        overlap: torch.Tensor | None = None,
+        side: torch.Tensor | None = None,
+        duration: float | None = None,
+        sensors: list[str] | None = None,
+        probe_cells=None,
+    ) -> tuple:
+        """Checked inputs of one batched run (the arguments of :meth:`run`).
+
+        Returns:
+            ``(params [B, n, 7], LinkProps, WallProps, n_out, (sensor names, [K] cell indices))``.
+        """
+        p = self.check_params(params)
+        if scenario is not None and abs(scenario.output_dt - self.output_dt) > 1e-12:
+            raise ModelError(
+                f"scenario output step {scenario.output_dt} s differs from the surrogate's {self.output_dt} s; "
+                "build the Surrogate with output_dt=scenario.output_dt"
+            )
+        dur = duration if duration is not None else (scenario.duration if scenario is not None else 0.150)
+        n_out = round(dur / self.output_dt) + 1
+        names = sensors if sensors is not None else (list(scenario.sensors) if scenario is not None else [])
+        sensor_idx = self._sensor_index(names) if probe_cells is None else self._probe_index(probe_cells)
+        return (
+            p,
+            self.link_props(p),
+            self.scenario_tensors(p.shape[0], scenario, speed, overlap, side),
+            n_out,
+            sensor_idx,
+        )
 
     def _sensor_index(self, names: list[str]) -> tuple[list[str], torch.Tensor]:
         all_names = list(self.cells.sensor_names)
@@ -553,11 +610,76 @@ class Surrogate:
             raise ModelError(f"probe_cells must be cell indices in [0, {self.n}), got {idx.tolist()}")
         return [f"cell{int(i)}" for i in idx], idx
 
-    def _run_torch(self, props: LinkProps, wall: WallProps, n_out: int, sensor_idx, record_cells) -> SimResult:
+    def _step(self, props, wall, f_el, o, plastic, yielded, s, ds, v_wall, tangent: bool = False) -> _Step:
+        """One step's element forces for the node increments ``ds [B, n]`` (``s`` the travel after them).
+
+        Pure: returns the updated link state instead of writing it. ``v_wall`` is the velocity the wall
+        damping sees (the explicit step's start velocity, ``ds / dt`` in the implicit study). With ``tangent``
+        it also returns each element's force derivative by its deformation increment (stiffness plus damping
+        ``/ dt`` where elastic, 0 while yielding, open or not pushing), for the implicit study's linear solve.
+        """
+        dt, src, dst, is_gap, relief = self.dt, self.src, self.dst, self.is_gap, self.config.springback_relief
+        zl = torch.zeros_like(f_el)
+        dd = ds[:, dst] - ds[:, src]
+        sat = (plastic >= props.e_s)[:, src]
+        k = torch.where(sat, props.k_dense, props.k)
+        # A link with a zero transmission share is absent: it stays at zero force after saturation too.
+        dense = sat & (props.yield_c > 0)
+        yc = torch.where(dense, torch.full_like(k, _BIG), props.yield_c)
+        yt = torch.where(dense & ~is_gap, torch.full_like(k, _BIG), props.yield_t)
+        z = f_el / k - o + dd
+        f_tr = k * torch.where(is_gap, z.clamp_min(0.0), z)
+        o = torch.where(is_gap, (-z).clamp_min(0.0), zl)
+        f_ret = torch.minimum(torch.maximum(f_tr, -yt), yc)
+        w_pl = f_ret * (f_tr - f_ret) / k
+        if relief:
+            yielded = yielded | (f_tr != f_ret)
+            unload = yielded & (f_ret * f_el > 0.0) & (f_ret.abs() < f_el.abs())
+            f_new = torch.where(unload, f_ret * torch.where(sat, props.relax_dense, props.relax), f_ret)
+            w_pl = w_pl + 0.5 * (f_ret * f_ret - f_new * f_new) / k
+        else:
+            f_new = f_ret
+        plastic_new = plastic.index_add(1, src, w_pl)
+        # damping on the elastic part of this step's deformation (module doc: continuous at every switch)
+        f_tot = f_new + props.damping * (f_ret - f_el) / (k * dt)
+        k_t = None
+        if tangent:
+            elastic = (f_tr == f_ret) & (~is_gap | ((z > 0.0) & (f_tot > 0.0)))
+            k_t = torch.where(elastic, k + props.damping / dt, zl)
+        f_tot = torch.where(is_gap, f_tot.clamp_min(0.0), f_tot)
+        # saturation within the step (module doc): the part of the step past E_s is densified
+        cross = (plastic_new >= props.e_s) & (plastic < props.e_s)  # [B, n]
+        if bool(cross.any()):
+            gain = plastic_new - plastic
+            phi = torch.where(cross, (plastic_new - props.e_s) / torch.where(cross, gain, 1.0), 0.0)[:, src]
+            live = cross[:, src] & (props.yield_c > 0) & (~is_gap | (f_new > 0))
+            yielding = (f_new == props.yield_c) | (~is_gap & (f_new == -props.yield_t))
+            el = torch.where(yielding, zl, k * dd)  # elastic force increment of this step
+            df = torch.where(live, phi * (props.k_dense * dd - el), zl)
+            dv = torch.where(live, phi * props.damping * (dd - el / k) / dt, zl)
+            f_new, f_tot = f_new + df, f_tot + df + dv
+            plastic_new = torch.where(cross, props.e_s, plastic_new)
+            k = torch.where(cross[:, src], props.k_dense, k)  # the dense elastic energy from now on
+        pen = s - wall.gap
+        in_contact = wall.covered & (pen > 0)
+        fw_raw = wall.k * pen + wall.damping * torch.minimum(v_wall, pen / dt)
+        fw = torch.where(in_contact, fw_raw.clamp_min(0.0), torch.zeros_like(pen))
+        kw_t = torch.where(in_contact & (fw_raw > 0.0), wall.k + wall.damping / dt, 0.0) if tangent else None
+        return _Step(dd, o, yielded, plastic_new, k, f_new, f_tot, pen, in_contact, fw, k_t, kw_t)
+
+    def _run_torch(
+        self, props: LinkProps, wall: WallProps, n_out: int, sensor_idx, record_cells, increment=None, theta=1.0
+    ) -> SimResult:
+        """The explicit reference path (symplectic Euler); ``increment`` swaps in the implicit study's step.
+
+        ``increment(props, wall, f_el, o, plastic, yielded, s, v, force)`` returns a step's node increments
+        ``ds``; the velocity update then applies ``(1 - theta)`` of the start and ``theta`` of the end forces
+        (:func:`marlcrash.sim.implicit.run_implicit`).
+        """
         names, sidx = sensor_idx
         B, n = props.k.shape[0], self.n
         dt, sub = self.dt, self.config.substeps
-        src, dst, is_gap = self.src, self.dst, self.is_gap
+        src, dst = self.src, self.dst
         m, m_ke = self.mass, self.mass_ke
         zl = props.k.new_zeros((B, self.L))
         zn = props.k.new_zeros((B, n))
@@ -565,7 +687,6 @@ class Surrogate:
         s = zn.clone()
         f_el, o, f_prev, fw_prev = zl.clone(), self.gap.expand(B, -1).clone(), zl.clone(), zn.clone()
         plastic = zn.clone()
-        relief = self.config.springback_relief
         yielded = torch.zeros((B, self.L), dtype=torch.bool)  # [B, L] link has yielded (springback relief)
         work, passed, w_work, w_in = zl.clone(), zl.clone(), zn.clone(), zn.clone()
         stored_l, stored_w = zl.clone(), zn.clone()
@@ -594,64 +715,41 @@ class Surrogate:
                 cells_rec["tr"].append(ct)
 
         record(zn, v, e0)
+        force = zn
         for step in range(1, (n_out - 1) * sub + 1):
-            ds = dt * v
-            s = s + ds
-            dd = ds[:, dst] - ds[:, src]
-            sat = (plastic >= props.e_s)[:, src]
-            k = torch.where(sat, props.k_dense, props.k)
-            # A link with a zero transmission share is absent: it stays at zero force after saturation too.
-            dense = sat & (props.yield_c > 0)
-            yc = torch.where(dense, torch.full_like(k, _BIG), props.yield_c)
-            yt = torch.where(dense & ~is_gap, torch.full_like(k, _BIG), props.yield_t)
-            z = f_el / k - o + dd
-            f_tr = k * torch.where(is_gap, z.clamp_min(0.0), z)
-            o = torch.where(is_gap, (-z).clamp_min(0.0), zl)
-            f_ret = torch.minimum(torch.maximum(f_tr, -yt), yc)
-            w_pl = f_ret * (f_tr - f_ret) / k
-            if relief:
-                yielded = yielded | (f_tr != f_ret)
-                unload = yielded & (f_ret * f_el > 0.0) & (f_ret.abs() < f_el.abs())
-                f_new = torch.where(unload, f_ret * torch.where(sat, props.relax_dense, props.relax), f_ret)
-                w_pl = w_pl + 0.5 * (f_ret * f_ret - f_new * f_new) / k
+            if increment is None:
+                ds, v_wall = dt * v, v
             else:
-                f_new = f_ret
-            plastic_new = plastic.index_add(1, src, w_pl)
-            # damping on the elastic part of this step's deformation (module doc: continuous at every switch)
-            f_tot = f_new + props.damping * (f_ret - f_el) / (k * dt)
-            f_tot = torch.where(is_gap, f_tot.clamp_min(0.0), f_tot)
-            # saturation within the step (module doc): the part of the step past E_s is densified
-            cross = (plastic_new >= props.e_s) & (plastic < props.e_s)  # [B, n]
-            if bool(cross.any()):
-                gain = plastic_new - plastic
-                phi = torch.where(cross, (plastic_new - props.e_s) / torch.where(cross, gain, 1.0), 0.0)[:, src]
-                live = cross[:, src] & (props.yield_c > 0) & (~is_gap | (f_new > 0))
-                yielding = (f_new == props.yield_c) | (~is_gap & (f_new == -props.yield_t))
-                el = torch.where(yielding, zl, k * dd)  # elastic force increment of this step
-                df = torch.where(live, phi * (props.k_dense * dd - el), zl)
-                dv = torch.where(live, phi * props.damping * (dd - el / k) / dt, zl)
-                f_new, f_tot = f_new + df, f_tot + df + dv
-                plastic_new = torch.where(cross, props.e_s, plastic_new)
-                k = torch.where(cross[:, src], props.k_dense, k)  # the dense elastic energy from now on
-            plastic = plastic_new
-            pen = s - wall.gap
-            in_contact = wall.covered & (pen > 0)
-            fw = torch.where(in_contact, (wall.k * pen + wall.damping * torch.minimum(v, pen / dt)).clamp_min(0.0), zn)
-            force = zn.index_add(1, src, f_tot).index_add(1, dst, -f_tot) - fw
-            acc = force / m
+                ds, u = increment(props, wall, f_el, o, plastic, yielded, s, v, force)
+                v_wall = ds / dt
+            s = s + ds
+            st = self._step(props, wall, f_el, o, plastic, yielded, s, ds, v_wall)
+            o, yielded, plastic, k = st.o, st.yielded, st.plastic, st.k
+            f_new, f_tot, fw = st.f_new, st.f_tot, st.fw
+            force_prev, force = force, zn.index_add(1, src, f_tot).index_add(1, dst, -f_tot) - fw
+            # explicit: symplectic Euler; the implicit study: theta of the end and 1 - theta of the start forces
+            if increment is None:
+                acc = force / m
+            elif u is None:
+                acc = ((1.0 - theta) * force_prev + theta * force) / m
+            else:  # linearly implicit: the velocity change of the linear solve
+                acc = u / dt
             v_new = v + dt * acc
             # Work with the same discrete forces (trapezoid): closes the leapfrog balance exactly.
             fbar = 0.5 * (f_prev + f_tot)
-            work = work + fbar * dd
+            work = work + fbar * st.dd
             passed = passed + fbar * (step_in - ds[:, dst])
             fwbar = 0.5 * (fw_prev + fw)
             w_work = w_work + fwbar * ds
             w_in = w_in + fwbar * step_in
             stored_l = 0.5 * f_new * f_new / k
-            stored_w = torch.where(in_contact, 0.5 * wall.k * pen * pen, zn)
+            stored_w = torch.where(st.in_contact, 0.5 * wall.k * st.pen * st.pen, zn)
             f_el, f_prev, fw_prev = f_new, f_tot, fw
             if step % sub == 0:
-                record(acc, 0.5 * (v + v_new), 0.5 * (m_ke * v * v_new).sum(dim=1))
+                if increment is None:  # leapfrog: mid-step velocity, kinetic energy m v v_new / 2
+                    record(acc, 0.5 * (v + v_new), 0.5 * (m_ke * v * v_new).sum(dim=1))
+                else:  # implicit study: end-of-step velocity and kinetic energy
+                    record(acc, v_new, 0.5 * (m_ke * v_new * v_new).sum(dim=1))
             v = v_new
 
         stack = lambda key: torch.stack(rec[key], dim=-1)  # noqa: E731
