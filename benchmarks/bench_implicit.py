@@ -6,7 +6,7 @@ and how the linearly implicit scheme (one linear solve per step) grades on DESIG
 The roofline column scales the explicit scheme's roofline, measured in the same run at its fewest passing
 steps, by the link passes each simulation needs (:func:`marlcrash.sim.bench.implicit_study`).
 
-Usage: python benchmarks/bench_implicit.py [--substeps 1 2 4] [--batch 256] [--json]
+Usage: python benchmarks/bench_implicit.py [--substeps 1 2 4] [--explicit-substeps 7] [--batch 256] [--json]
 """
 
 from __future__ import annotations
@@ -30,18 +30,21 @@ from marlcrash.sim.bench import (
 from marlcrash.sim.scenario import get_scenario
 from marlcrash.sim.surrogate import Surrogate, load_sim_config
 
-EXPLICIT_SUBSTEPS = 7
-"""Fewest substeps whose explicit run passes every plausibility check (``benchmarks/bench_substeps.py``)."""
-
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--substeps", type=int, nargs="+", default=[1, 2, 4], help="implicit steps per 0.5 ms output")
+    ap.add_argument(
+        "--explicit-substeps",
+        type=int,
+        default=7,
+        help="the explicit scheme's fewest passing substeps, whose roofline is scaled (benchmarks/bench_substeps.py)",
+    )
     ap.add_argument("--batch", type=int, default=256, help="simulations per timed roofline batch")
     ap.add_argument("--json", action="store_true", help="print the result dict as JSON only")
     args = ap.parse_args()
-    sim = Surrogate(load_sim_cells(), load_sim_config(overrides={"substeps": EXPLICIT_SUBSTEPS}))
-    steps = (get_scenario("full_width_56").n_outputs - 1) * EXPLICIT_SUBSTEPS
+    sim = Surrogate(load_sim_cells(), load_sim_config(overrides={"substeps": args.explicit_substeps}))
+    steps = (get_scenario("full_width_56").n_outputs - 1) * args.explicit_substeps
     p = torch.as_tensor(sim.cells.params)[None]
     roof = measure_roofline(sim, args.batch, steps, n_links=live_links(sim, p))
     res = implicit_study(tuple(args.substeps), explicit={"steps_per_sim": steps, "roofline_sims_per_s": roof})
