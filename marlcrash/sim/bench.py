@@ -529,9 +529,8 @@ def format_implicit_study(res: dict) -> str:
     ]
     for r in res["rows"]:
         nw = r["newton"]
-        n_steps = round(nw["window_s"] / 5e-4) * r["substeps"]
         lines.append(
-            f"{r['steps_per_sim']:>6} {nw['unconverged_steps']:>4}/{n_steps:<4} {nw['newton_mean']:>11.1f} "
+            f"{r['steps_per_sim']:>6} {nw['unconverged_steps']:>4}/{nw['steps']:<4} {nw['newton_mean']:>11.1f} "
             f"{nw['cg_iters_mean']:>9.0f} {nw['link_passes_per_step']:>11.0f}"
             + (f" {r['roofline_sims_per_s']:>9.2f}" if roof else "")
         )

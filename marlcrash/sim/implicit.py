@@ -132,13 +132,21 @@ def run_implicit(
         """Increments, element state, node forces and residual ``R = M u - dt ((1 - theta) F_n + theta F)``."""
         ds = dt * v + theta * dt * u
         st = sim._step(props, wall, f_el, o, plastic, yielded, s + ds, ds, ds / dt, tangent=True)
-        f = torch.zeros_like(s).index_add(1, sim.src, st.f_tot).index_add(1, sim.dst, -st.f_tot) - st.fw
         evals[0] += 1
-        return ds, st, m_t * u - dt * ((1.0 - theta) * force + theta * f)
+        return ds, st, m_t * u - dt * ((1.0 - theta) * force + theta * sim._node_force(st))
+
+    def correction(st, r, todo: list[int], first: bool) -> torch.Tensor:
+        """``du [B, n]`` solving ``(M + theta^2 dt^2 J) du = -r`` in the rows ``todo`` (0 elsewhere)."""
+        w = (st.k_t * (theta * theta * dt * dt)).numpy()
+        wall_t = (st.kw_t * (theta * theta * dt * dt)).numpy()
+        du = torch.zeros_like(r)
+        for b in todo:
+            du[b] = torch.from_numpy(solve(b, w[b], mass + wall_t[b], -r[b].numpy(), first))
+        return du
 
     def increment(props, wall, f_el, o, plastic, yielded, s, v, force):
-        # semismooth Newton on u with a backtracking line search on |R| (the element laws are monotone and
-        # piecewise linear, so full steps converge once the set of elastic / closed elements settles)
+        # semismooth Newton on u (the element laws are piecewise linear: full steps converge once the set of
+        # elastic / closed elements settles), globalised by the line search below
         tol = newton_rtol * (m_t * v.abs()).sum(dim=1)  # [B] momentum scale [kg m/s]
         u = torch.zeros_like(v)
         ds, st, r = forces(props, wall, f_el, o, plastic, yielded, s, v, force, u)
@@ -150,11 +158,7 @@ def run_implicit(
                 return ds, None
             if it == max_newton:
                 break
-            w = (st.k_t * (theta * theta * dt * dt)).numpy()
-            wall_t = (st.kw_t * (theta * theta * dt * dt)).numpy()
-            du = torch.zeros_like(u)
-            for b in torch.nonzero(todo).flatten().tolist():
-                du[b] = torch.from_numpy(solve(b, w[b], mass + wall_t[b], -r[b].numpy(), it == 0))
+            du = correction(st, r, torch.nonzero(todo).flatten().tolist(), it == 0)
             # line search along du: R is the gradient of a convex function of u (inertia plus the elements'
             # incremental potentials; their laws are monotone), so g(a) = du . R(u + a du) rises with a; keep a = 1
             # where g(1) <= 0, else bracket and find a with |g(a)| <= |g(0)| / 2 (safeguarded secant steps)
@@ -187,9 +191,7 @@ def run_implicit(
     def linear_increment(props, wall, f_el, o, plastic, yielded, s, v, force):
         # one solve with the tangent at the predictor dt v; the velocity change is the solve's
         _, st, r = forces(props, wall, f_el, o, plastic, yielded, s, v, force, torch.zeros_like(v))
-        w = (st.k_t * (theta * theta * dt * dt)).numpy()
-        wall_t = (st.kw_t * (theta * theta * dt * dt)).numpy()
-        u = torch.stack([torch.from_numpy(solve(b, w[b], mass + wall_t[b], -r[b].numpy(), True)) for b in range(B)])
+        u = correction(st, r, list(range(B)), True)
         newton_iters.append(1)
         return dt * v + theta * dt * u, u
 

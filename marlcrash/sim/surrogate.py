@@ -667,6 +667,11 @@ class Surrogate:
         kw_t = torch.where(in_contact & (fw_raw > 0.0), wall.k + wall.damping / dt, 0.0) if tangent else None
         return _Step(dd, o, yielded, plastic_new, k, f_new, f_tot, pen, in_contact, fw, k_t, kw_t)
 
+    def _node_force(self, st: _Step) -> torch.Tensor:
+        """``[B, n]`` net force on each cell of a step [N]: link forces (``+`` at the source, ``-`` at the
+        destination) less the wall force."""
+        return torch.zeros_like(st.fw).index_add(1, self.src, st.f_tot).index_add(1, self.dst, -st.f_tot) - st.fw
+
     def _run_torch(
         self, props: LinkProps, wall: WallProps, n_out: int, sensor_idx, record_cells, increment=None, theta=1.0
     ) -> SimResult:
@@ -726,7 +731,7 @@ class Surrogate:
             st = self._step(props, wall, f_el, o, plastic, yielded, s, ds, v_wall)
             o, yielded, plastic, k = st.o, st.yielded, st.plastic, st.k
             f_new, f_tot, fw = st.f_new, st.f_tot, st.fw
-            force_prev, force = force, zn.index_add(1, src, f_tot).index_add(1, dst, -f_tot) - fw
+            force_prev, force = force, self._node_force(st)
             # explicit: symplectic Euler; the implicit study: theta of the end and 1 - theta of the start forces
             if increment is None:
                 acc = force / m
