@@ -1,6 +1,7 @@
 """Surrogate throughput on the default car: a thin wrapper printing :func:`marlcrash.sim.bench.run_benchmark`.
 
 Usage: python benchmarks/bench_sim.py [--batches 1 64 1024] [--repeat 2] [--skip-uniform] [--float32] [--json]
+       python benchmarks/bench_sim.py --dtypes [--batches 1024] [--repeat 3] [--json]  (float64 vs float32 in turn)
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from marlcrash.sim.bench import format_benchmark, run_benchmark
+from marlcrash.sim.bench import dtype_study, format_benchmark, format_dtype_study, run_benchmark
 
 
 def main() -> None:
@@ -21,8 +22,13 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=2)
     ap.add_argument("--skip-uniform", action="store_true", help="do not time the uniform (fine) model")
     ap.add_argument("--float32", action="store_true", help="simulate in float32 (config dtype)")
+    ap.add_argument("--dtypes", action="store_true", help="time float64 against float32 in turn at the largest batch")
     ap.add_argument("--json", action="store_true", help="print the result dict as JSON only")
     args = ap.parse_args()
+    if args.dtypes:
+        res = dtype_study(max(args.batches), repeats=args.repeat)
+        print(json.dumps(res, indent=1) if args.json else format_dtype_study(res))
+        return
     res = run_benchmark(
         tuple(args.batches),
         repeats=args.repeat,

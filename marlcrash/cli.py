@@ -220,7 +220,11 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 def cmd_bench(args: argparse.Namespace) -> int:
     from marlcrash.sim.bench import format_benchmark, run_benchmark
 
-    result = run_benchmark(batch_sizes=tuple(args.batch_sizes), include_uniform=not args.skip_uniform)
+    result = run_benchmark(
+        batch_sizes=tuple(args.batch_sizes),
+        include_uniform=not args.skip_uniform,
+        sim_overrides={"dtype": args.dtype},
+    )
     if args.json:
         _print_json(result)
     else:
@@ -314,6 +318,12 @@ def build_parser() -> argparse.ArgumentParser:
         "--batch-sizes", type=int, nargs="+", default=[1, 64, 1024], metavar="B", help="batch sizes (default 1 64 1024)"
     )
     p.add_argument("--skip-uniform", action="store_true", help="skip the uniform-discretization model at B = 64")
+    p.add_argument(
+        "--dtype",
+        choices=["float64", "float32"],
+        default="float64",
+        help="precision of the simulations (configs/sim.yaml key dtype; default float64)",
+    )
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=cmd_bench)
 

@@ -237,9 +237,11 @@ def test_simulate_overrides_and_errors():
 
 @pytest.mark.slow
 def test_bench_json_keys():
-    out = json.loads(run_cli("bench", "--batch-sizes", "1", "4", "--skip-uniform", "--json").stdout)
+    args = ("--batch-sizes", "1", "4", "--skip-uniform", "--dtype", "float32", "--json")
+    out = json.loads(run_cli("bench", *args).stdout)
     for key in ("sims_per_s_optimized", "n_cells_optimized", "overhead_share", "roofline_sims_per_s"):
         assert key in out, key
+    assert out["dtype"] == "float32"
     assert set(out["sims_per_s_optimized"]) == {"1", "4"}
     assert all(v > 0 for v in out["sims_per_s_optimized"].values())
     assert 0.0 <= out["overhead_share"]["4"] < 1.0

@@ -5,6 +5,8 @@ from __future__ import annotations
 import pytest
 
 from marlcrash.sim.bench import (
+    dtype_study,
+    format_dtype_study,
     format_implicit_study,
     format_lane_study,
     format_substep_study,
@@ -97,6 +99,37 @@ def test_default_lanes_balances_vector_width_and_cores():
     assert default_lanes(64, 2, uniform) == 8
     assert default_lanes(64, 2, chunk_bytes_per_lane(2138, 518)) == 32  # the default car is not capped
     assert default_lanes(64, 2, 10 * CHUNK_BYTES) == 1  # nothing fits: one lane, never an empty choice
+
+
+def test_default_lanes_in_float32_fills_the_same_row_bytes():
+    """float32 doubles the lanes per vector: its fastest chunk is 64 lanes (256 bytes per row, as 32 in float64)."""
+    from marlcrash.sim.kernels import CHUNK_BYTES, chunk_bytes_per_lane, default_lanes
+
+    car32 = chunk_bytes_per_lane(2138, 518, itemsize=4)
+    assert default_lanes(1024, 2, car32, "float32") == default_lanes(128, 2, car32, "float32") == 64
+    assert default_lanes(1024, 2, chunk_bytes_per_lane(2138, 518), "float64") == 32
+    assert default_lanes(1, 2, car32, "float32") == 1
+    # the cache cap still applies: the uniform model in float32 gets 16 lanes (8 in float64)
+    uniform32 = chunk_bytes_per_lane(11462, 6891, itemsize=4)
+    assert 16 * uniform32 <= CHUNK_BYTES < 32 * uniform32
+    assert default_lanes(64, 2, uniform32, "float32") == 16
+    with pytest.raises(ValueError, match="dtype must be one of"):
+        default_lanes(64, 2, car32, "float16")
+
+
+def test_dtype_study_times_both_precisions_at_their_own_width():
+    """The interleaved float64 / float32 comparison: each precision at its default width, the speed ratio of
+    the same run, and how far float32 moves the sensor velocities and the crush (float64 ledgers keep it close)."""
+    res = dtype_study(batch=128, repeats=1)
+    assert res["lanes"] == {"float64": 32, "float32": 64}
+    assert all(r > 0 for r in res["sims_per_s"].values())
+    assert res["float32_over_float64"] == pytest.approx(res["sims_per_s"]["float32"] / res["sims_per_s"]["float64"])
+    assert 0 < res["max_velocity_diff_ms"] < 0.01  # of a 15.6 m/s impact
+    assert 0 < res["max_crush_diff_m"] < 1e-3
+    text = format_dtype_study(res)
+    assert "float32 / float64" in text and text.count("\n") == 4
+    with pytest.raises(ValueError, match="batch and repeats must be >= 1"):
+        dtype_study(batch=0)
 
 
 @pytest.mark.slow

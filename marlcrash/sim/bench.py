@@ -90,7 +90,7 @@ def measure_roofline(sim: Surrogate, batch: int, n_steps: int, repeats: int = 1,
     L = sim.L if n_links is None else int(n_links)
     nprop = kernels.n_hot(bool(sim.config.springback_relief))
     per_lane = kernels.chunk_bytes_per_lane(L, sim.n, np.dtype(npdt).itemsize)
-    lanes = kernels.default_lanes(batch, numba.get_num_threads(), per_lane)
+    lanes = kernels.default_lanes(batch, numba.get_num_threads(), per_lane, np.dtype(npdt).name)
     n_chunks = -(-batch // lanes)
     rng = np.random.default_rng(0)
     lp = rng.uniform(1e3, 1e5, (n_chunks, L, nprop, lanes)).astype(npdt)
@@ -222,6 +222,72 @@ def format_benchmark(res: dict) -> str:
     return "\n".join(lines)
 
 
+# ------------------------------------------------------------------------------------------ precision
+def dtype_study(batch: int = 1024, repeats: int = 3) -> dict:
+    """float64 against float32 on the default car, timed in turn within one run (ratios, not absolute rates).
+
+    Each precision runs ``batch`` complete ``full_width_56`` simulations at its own default chunk width
+    (:func:`marlcrash.sim.kernels.default_lanes`: 32 lanes in float64, 64 in float32) with per-cell
+    energies at the final step, as the environments call it; the two alternate for ``repeats`` rounds and
+    each keeps its best time. It also reports how far the float32 sensor velocities and crush move from
+    float64 (same parameters), the precision cost of the speed.
+
+    Returns:
+        ``batch``, ``threads``, ``lanes`` and ``sims_per_s`` (keyed by dtype), ``float32_over_float64``
+        (speed ratio), ``max_velocity_diff_ms`` [m/s] and ``max_crush_diff_m`` [m].
+
+    Raises:
+        ValueError: ``batch`` or ``repeats`` below 1.
+    """
+    if batch < 1 or repeats < 1:
+        raise ValueError(f"batch and repeats must be >= 1, got {batch} and {repeats}")
+    cells = load_sim_cells()
+    scenario = get_scenario(SCENARIO)
+    base = torch.as_tensor(cells.params)[None]
+    threads = numba.get_num_threads()
+    sims, lanes, out = {}, {}, {}
+    for name in ("float64", "float32"):
+        sim = Surrogate(cells, load_sim_config(overrides={"dtype": name}))
+        sims[name] = sim
+        out[name] = sim.run(base, scenario, backend="numba", record_cells="final")  # compile or load the cache
+        per_lane = kernels.chunk_bytes_per_lane(live_links(sim, base), sim.n, 8 if name == "float64" else 4)
+        lanes[name] = kernels.default_lanes(batch, threads, per_lane, name)
+    p = base.repeat(batch, 1, 1)
+    best = {name: float("inf") for name in sims}
+    for _ in range(repeats):
+        for name, sim in sims.items():
+            t0 = time.perf_counter()
+            sim.run(p, scenario, backend="numba", record_cells="final")
+            best[name] = min(best[name], time.perf_counter() - t0)
+    rates = {name: batch / t for name, t in best.items()}
+    a, b = out["float64"], out["float32"]
+    return {
+        "batch": batch,
+        "threads": threads,
+        "lanes": lanes,
+        "sims_per_s": rates,
+        "float32_over_float64": rates["float32"] / rates["float64"],
+        "max_velocity_diff_ms": float((a.velocity - b.velocity.double()).abs().max()),
+        "max_crush_diff_m": float((a.crush - b.crush.double()).abs().max()),
+    }
+
+
+def format_dtype_study(res: dict) -> str:
+    """The lines of :func:`dtype_study`."""
+    r, w = res["sims_per_s"], res["lanes"]
+    return "\n".join(
+        [
+            f"precision study: default car, B={res['batch']}, {res['threads']} threads "
+            "(best of the rounds, interleaved)",
+            f"float64: {r['float64']:8.1f} sims/s ({w['float64']} lanes)",
+            f"float32: {r['float32']:8.1f} sims/s ({w['float32']} lanes)",
+            f"float32 / float64: {res['float32_over_float64']:.2f}x",
+            f"float32 - float64: sensor velocity up to {res['max_velocity_diff_ms']:.1e} m/s, "
+            f"crush up to {res['max_crush_diff_m']:.1e} m",
+        ]
+    )
+
+
 # ------------------------------------------------------------------------------------------ chunk width
 def lane_study(
     widths: tuple[int, ...] = (1, 2, 4, 8, 16, 32, 64, 128),
@@ -275,7 +341,7 @@ def lane_study(
         "best_width": min(best, key=best.get),
         "threads": threads,
         "dtype": cfg.dtype,
-        "lane_efficiency_in_use": {str(w): e for w, e in kernels.LANE_EFFICIENCY.items()},
+        "lane_efficiency_in_use": {str(w): e for w, e in kernels.LANE_EFFICIENCY[cfg.dtype].items()},
     }
 
 

@@ -16,7 +16,8 @@ energy is summed at output steps only. ``lanes`` balances vector width against k
 and a chunk within the cache (:func:`default_lanes`); chunks run in parallel (``prange``).
 
 Chunk width matters more than any other choice here: on the default car 32 lanes run 1.66x as fast per
-simulation as 16 (``benchmarks/bench_lanes.py``). That holds since the link loop reads four property
+simulation as 16 in float64, and 64 lanes 1.42x as fast as 32 in float32 (``benchmarks/bench_lanes.py``): the
+fastest chunk is 256 bytes wide per row in both precisions. That holds since the link loop reads four property
 streams and no per-link scalar inside the lane loop; the layout before (a separate tensile-yield stream,
 damping times compliance times ``1 / dt`` per link-step) ran no faster at 32 lanes than at 16.
 
@@ -63,11 +64,16 @@ N_NODE = 5
 KERNEL_SECONDS = [0.0]
 """Cumulative wall time spent inside the compiled kernel [s] (for overhead accounting in benchmarks)."""
 
-LANE_EFFICIENCY = {1: 0.23, 2: 0.35, 4: 0.48, 8: 0.59, 16: 0.60, 32: 1.0, 64: 0.81}
-"""Per-simulation throughput of a chunk of this many lanes relative to the fastest width (32), measured on the
-default car: ``python benchmarks/bench_lanes.py --widths 1 2 4 8 16 32 64 --batch 256 --repeat 4`` (float64,
-per-cell energies at the final step, 2 threads). 64 lanes vary most between runs (0.94-1.76x 16 lanes in
-interleaved runs at B = 256; 32 lanes: 1.14-1.40x): two 64-lane chunks stream about 9 MB of link data per step."""
+LANE_EFFICIENCY = {
+    "float64": {1: 0.23, 2: 0.35, 4: 0.48, 8: 0.59, 16: 0.60, 32: 1.0, 64: 0.81},
+    "float32": {1: 0.12, 2: 0.17, 4: 0.24, 8: 0.31, 16: 0.36, 32: 0.70, 64: 1.0, 128: 0.69},
+}
+"""Per-simulation throughput of a chunk of this many lanes relative to the fastest width of the same dtype, measured
+on the default car: ``python benchmarks/bench_lanes.py --widths 1 2 4 8 16 32 64 128 --batch 256 --repeat 4
+[--float32]`` (per-cell energies at the final step, 2 threads). The fastest row is 256 bytes wide in both: 32
+float64 lanes, 64 float32 lanes (283 sims/s against 199 at 32 float32 lanes, and 1.7-1.9x the float64 rate at 32).
+64 float64 lanes vary most between runs (0.94-1.76x 16 lanes in interleaved runs at B = 256; 32 lanes:
+1.14-1.40x): two 64-lane chunks stream about 9 MB of link data per step."""
 
 CHUNK_BYTES = 16 * 2**20
 """Largest estimated working set of one chunk [bytes] (:func:`chunk_bytes_per_lane`): two chunks in flight, one
@@ -93,17 +99,20 @@ def chunk_bytes_per_lane(n_links: int, n_cells: int, itemsize: int = 8) -> int:
     return itemsize * (6 * int(n_links) + 24 * int(n_cells))
 
 
-def default_lanes(batch: int, threads: int, bytes_per_lane: int = 0) -> int:
+def default_lanes(batch: int, threads: int, bytes_per_lane: int = 0, dtype: str = "float64") -> int:
     """Simulations per chunk: the width that minimises the estimated wall time of ``batch`` simulations.
 
-    Chunks run in parallel, ``threads`` at a time; a chunk of ``w`` lanes costs ``w / LANE_EFFICIENCY[w]``
+    Chunks run in parallel, ``threads`` at a time; a chunk of ``w`` lanes costs ``w / LANE_EFFICIENCY[dtype][w]``
     and the last chunk is padded. Wide chunks vectorise best, narrow ones keep both cores busy at small
     ``batch`` (e.g. 24 simulations: 6 chunks of 4 beat one chunk of 32 on one core). Widths whose chunk
     would exceed :data:`CHUNK_BYTES` (``w * bytes_per_lane``, see :func:`chunk_bytes_per_lane`) are left
-    out, except one lane: large models stream from memory instead of cache when chunks are wide.
+    out, except one lane: large models stream from memory instead of cache when chunks are wide. ``dtype``
+    (``float64`` or ``float32``) selects the efficiency table.
     """
+    if dtype not in LANE_EFFICIENCY:
+        raise ValueError(f"dtype must be one of {sorted(LANE_EFFICIENCY)}, got {dtype!r}")
     best, best_cost = 1, float("inf")
-    for w, eff in LANE_EFFICIENCY.items():
+    for w, eff in LANE_EFFICIENCY[dtype].items():
         if w > 1 and w * bytes_per_lane > CHUNK_BYTES:
             continue
         chunks = -(-batch // w)
@@ -527,7 +536,7 @@ def run_numba(
     np.cumsum(np.bincount(src, minlength=n), out=out_ptr[1:])
     if lanes is None:
         per_lane = chunk_bytes_per_lane(L, n, np.dtype(npdt).itemsize)
-        lanes = default_lanes(B, numba.get_num_threads(), per_lane)
+        lanes = default_lanes(B, numba.get_num_threads(), per_lane, np.dtype(npdt).name)
     lanes = int(lanes)
     if lanes < 1:
         raise ValueError(f"lanes must be >= 1, got {lanes}")
