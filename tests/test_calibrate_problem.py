@@ -127,6 +127,17 @@ def test_twin_truth_is_exact_with_the_default_spreads(problem):
     assert float(problem.param_error(problem.true_x[None]).abs().max()) == 0.0
 
 
+def test_problem_simulates_in_the_env_configs_precision(cells):
+    """``env_overrides: {sim_dtype: float32}`` gives the problem (reference and candidates) the environments'
+    single-precision simulator, so a float32 training run is evaluated against the twin its env drew; its truth
+    still fits to float32 rounding, far inside the paper's marks."""
+    p = make(cells, env_overrides={"sim_dtype": "float32"})
+    assert p.sim.dtype == torch.float32
+    m = p.evaluate(torch.stack([p.zeros(1)[0], p.true_x]))
+    assert float(m.area[1].max()) < 1e-5 and float(m.rmse[1].max()) < 1e-3
+    assert p.success(m).tolist() == [False, True]
+
+
 def test_merged_agents_fall_back_to_a_least_squares_truth(cells):
     """An agent over two sub-assemblies cannot follow both twin increments: the fit is approximate."""
     p = make(cells, env_overrides={"agents.merge": {"left_structure": ["crash_box_left", "front_rail_left"]}})

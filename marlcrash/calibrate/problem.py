@@ -547,7 +547,7 @@ def build_problem(config: ProblemConfig, cells: CellModel | None = None) -> Cali
             )
     sensors = list(env.sensors) or list(cells.sensor_names)
     layout = build_agents(cells, env.agents)
-    sim = Surrogate(cells, load_sim_config(), output_dt=scenario.output_dt)
+    sim = Surrogate(cells, load_sim_config(overrides={"dtype": env.sim_dtype}), output_dt=scenario.output_dt)
     bounds = (env.behaviour_bounds[0], env.behaviour_bounds[1])
     sampler = ReferenceSampler(cells, sim, sensors, env.scenarios, env.reference, vehicle=env.vehicle,
                                bounds=bounds, floor=env.transmission_floor, backend=config.sim_backend)  # fmt: skip

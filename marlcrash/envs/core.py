@@ -112,6 +112,7 @@ class EnvConfig:
     observation: ObservationConfig = field(default_factory=ObservationConfig)
     metrics_backend: Literal["numba", "torch"] = "numba"
     sim_backend: Literal["numba", "torch", "auto"] = "auto"
+    sim_dtype: Literal["float64", "float32"] = "float64"
     seed: int = 0
 
     def validate(self) -> None:
@@ -161,7 +162,7 @@ class CalibrationCore:
         config: the env config (:func:`load_env_config`).
         batch_size: ``B``.
         cells: the model to calibrate; ``None`` discretizes ``config.vehicle`` (cached).
-        sim_config: simulator settings; ``None`` loads ``configs/sim.yaml``.
+        sim_config: simulator settings; ``None`` loads ``configs/sim.yaml`` with the env config's ``sim_dtype``.
 
     Raises:
         ConfigError: invalid agents, scenarios, sensors or reference settings.
@@ -194,7 +195,7 @@ class CalibrationCore:
         self.reward_fn = Reward(rcfg)
         self.layout = build_agents(self.cells, cfg.agents)
         self.regions = ImpactRegions(self.cells, self.layout, cfg.masking)
-        sim_cfg = sim_config if sim_config is not None else load_sim_config()
+        sim_cfg = sim_config if sim_config is not None else load_sim_config(overrides={"dtype": cfg.sim_dtype})
         first = next(iter(cfg.scenarios))
         from marlcrash.sim.scenario import get_scenario
 
