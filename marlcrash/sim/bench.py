@@ -89,8 +89,7 @@ def measure_roofline(sim: Surrogate, batch: int, n_steps: int, repeats: int = 1,
     npdt = np.float32 if sim.dtype == torch.float32 else np.float64
     L = sim.L if n_links is None else int(n_links)
     nprop = kernels.n_hot(bool(sim.config.springback_relief))
-    per_lane = kernels.chunk_bytes_per_lane(L, sim.n, np.dtype(npdt).itemsize)
-    lanes = kernels.default_lanes(batch, numba.get_num_threads(), per_lane, np.dtype(npdt).name)
+    lanes = kernels.lanes_for(batch, L, sim.n, np.dtype(npdt).name)
     n_chunks = -(-batch // lanes)
     rng = np.random.default_rng(0)
     lp = rng.uniform(1e3, 1e5, (n_chunks, L, nprop, lanes)).astype(npdt)
@@ -250,8 +249,7 @@ def dtype_study(batch: int = 1024, repeats: int = 3) -> dict:
         sim = Surrogate(cells, load_sim_config(overrides={"dtype": name}))
         sims[name] = sim
         out[name] = sim.run(base, scenario, backend="numba", record_cells="final")  # compile or load the cache
-        per_lane = kernels.chunk_bytes_per_lane(live_links(sim, base), sim.n, 8 if name == "float64" else 4)
-        lanes[name] = kernels.default_lanes(batch, threads, per_lane, name)
+        lanes[name] = kernels.lanes_for(batch, live_links(sim, base), sim.n, name)
     p = base.repeat(batch, 1, 1)
     best = {name: float("inf") for name in sims}
     for _ in range(repeats):

@@ -71,7 +71,8 @@ LANE_EFFICIENCY = {
 """Per-simulation throughput of a chunk of this many lanes relative to the fastest width of the same dtype, measured
 on the default car: ``python benchmarks/bench_lanes.py --widths 1 2 4 8 16 32 64 128 --batch 256 --repeat 4
 [--float32]`` (per-cell energies at the final step, 2 threads). The fastest row is 256 bytes wide in both: 32
-float64 lanes, 64 float32 lanes (283 sims/s against 199 at 32 float32 lanes, and 1.7-1.9x the float64 rate at 32).
+float64 lanes, 64 float32 lanes (283 sims/s against 199 at 32 float32 lanes; 2.03x the float64 rate at B = 1024,
+timed in turn: ``python benchmarks/bench_sim.py --dtypes``).
 64 float64 lanes vary most between runs (0.94-1.76x 16 lanes in interleaved runs at B = 256; 32 lanes:
 1.14-1.40x): two 64-lane chunks stream about 9 MB of link data per step."""
 
@@ -121,6 +122,12 @@ def default_lanes(batch: int, threads: int, bytes_per_lane: int = 0, dtype: str 
         if cost < best_cost - 1e-12:
             best, best_cost = w, cost
     return best
+
+
+def lanes_for(batch: int, n_links: int, n_cells: int, dtype: str) -> int:
+    """The chunk width :func:`run_numba` picks for ``batch`` simulations of a model of this size in ``dtype``."""
+    per_lane = chunk_bytes_per_lane(n_links, n_cells, np.dtype(dtype).itemsize)
+    return default_lanes(batch, numba.get_num_threads(), per_lane, dtype)
 
 
 @numba.njit(cache=True, fastmath=_FASTMATH, inline="always")
@@ -535,8 +542,7 @@ def run_numba(
     out_ptr = np.zeros(n + 1, np.int64)
     np.cumsum(np.bincount(src, minlength=n), out=out_ptr[1:])
     if lanes is None:
-        per_lane = chunk_bytes_per_lane(L, n, np.dtype(npdt).itemsize)
-        lanes = default_lanes(B, numba.get_num_threads(), per_lane, np.dtype(npdt).name)
+        lanes = lanes_for(B, L, n, np.dtype(npdt).name)
     lanes = int(lanes)
     if lanes < 1:
         raise ValueError(f"lanes must be >= 1, got {lanes}")
