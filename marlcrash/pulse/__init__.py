@@ -28,6 +28,7 @@ from marlcrash.pulse.signal import (
     integrate_torch,
     prepare_velocity,
     resample,
+    sampled_acceleration,
     shift_time,
 )
 
@@ -55,6 +56,7 @@ __all__ = [
     "read_mme",
     "read_pulse",
     "resample",
+    "sampled_acceleration",
     "shift_time",
     "write_csv",
     "write_mme",

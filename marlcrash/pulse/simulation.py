@@ -16,7 +16,7 @@ import numpy as np
 
 from marlcrash.cells.model import CellModel
 from marlcrash.outputs import atomic_output
-from marlcrash.pulse.cfc import cfc_filter
+from marlcrash.pulse.signal import filtered_acceleration, sampled_acceleration
 from marlcrash.sim.energy import max_balance_error
 from marlcrash.sim.scenario import CrashScenario
 from marlcrash.sim.surrogate import SimResult
@@ -61,7 +61,7 @@ def crash_summary(result: SimResult, cells: CellModel, scenario: CrashScenario, 
     v_comp = result.compartment_velocity[row].detach().cpu().numpy()
     sensors = {}
     for k, name in enumerate(result.sensor_names):
-        a = cfc_filter(result.acceleration[row, k].detach().cpu().numpy(), dt, cfc)
+        a = filtered_acceleration(result.acceleration[row, k].detach().cpu().numpy(), dt, cfc)
         v = result.velocity[row, k].detach().cpu().numpy()
         i = int(np.argmin(a))
         sensors[name] = {
@@ -71,9 +71,10 @@ def crash_summary(result: SimResult, cells: CellModel, scenario: CrashScenario, 
         }
     k_comp = compartment_sensor(result, cells)
     if k_comp is not None:
-        a_comp = cfc_filter(result.acceleration[row, k_comp].detach().cpu().numpy(), dt, cfc)
+        a_comp = filtered_acceleration(result.acceleration[row, k_comp].detach().cpu().numpy(), dt, cfc)
     else:
-        a_comp = cfc_filter(np.gradient(v_comp, dt), dt, cfc)
+        a_comp = sampled_acceleration(result.compartment_velocity[row].detach(), dt).cpu().numpy()
+        a_comp = filtered_acceleration(a_comp, dt, cfc)
     i_peak = int(np.argmin(a_comp))
     t_stop = _first_crossing_ms(t, v_comp)
     rebound = float(max(0.0, -v_comp.min())) if t_stop is not None else 0.0
@@ -139,7 +140,7 @@ def plot_crash(result: SimResult, cells: CellModel, path: str | Path, title: str
     n_panels = 3 if absorbed is not None else 2
     fig, axes = plt.subplots(n_panels, 1, figsize=(8, 3.0 * n_panels), sharex=True)
     for k, name in enumerate(result.sensor_names):
-        a = cfc_filter(result.acceleration[row, k].detach().cpu().numpy(), dt, cfc) / G0
+        a = filtered_acceleration(result.acceleration[row, k].detach().cpu().numpy(), dt, cfc) / G0
         axes[0].plot(t * 1e3, a, label=f"{name} CFC{cfc}")
         axes[1].plot(t * 1e3, result.velocity[row, k].detach().cpu().numpy(), label=name)
     axes[0].set_ylabel("acceleration [g]")

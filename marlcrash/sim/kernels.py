@@ -274,7 +274,6 @@ def _simulate(
     n_out,
     mode,
     relief,
-    acc_o,
     vel_o,
     s_o,
     vc_o,
@@ -461,7 +460,6 @@ def _simulate(
                         st_l[j] += half * f_el[ll, j] * f_el[ll, j] * P[ll, H_IK, j]
                 for j in range(CH):
                     for q in range(K):
-                        acc_o[ch, j, q, t] = acc[sidx[q], j]
                         vel_o[ch, j, q, t] = v[sidx[q], j] - 0.5 * dt * acc[sidx[q], j]
                     s_o[ch, j, t] = s[comp, j]
                     vc_o[ch, j, t] = v[comp, j] - 0.5 * dt * acc[comp, j]
@@ -577,7 +575,7 @@ def run_numba(
     K = len(names)
     tc = {0: 0, 1: 1, 2: n_out}[mode]
     z = lambda *shape: np.zeros((n_chunks, lanes, *shape))  # noqa: E731
-    acc, vel = z(K, n_out), z(K, n_out)
+    vel = z(K, n_out)
     s_o, vc, pen, ke, st, ab, pl = (z(n_out) for _ in range(7))
     cin, cab, ctr = (z(n, tc) for _ in range(3))
     plastic = z(n)
@@ -606,7 +604,6 @@ def run_numba(
         n_out,
         mode,
         relief,
-        acc,
         vel,
         s_o,
         vc,
@@ -630,7 +627,6 @@ def run_numba(
     return SimResult(
         time=torch.arange(n_out, dtype=sim.dtype) * sim.output_dt,
         sensor_names=names,
-        acceleration=T(acc),
         velocity=T(vel),
         compartment_displacement=s_t,
         compartment_velocity=T(vc),

@@ -200,8 +200,10 @@ class SimResult:
     Attributes:
         time: ``[T]`` output times [s].
         sensor_names: ``[K]`` names of the recorded sensors.
-        acceleration: ``[B, K, T]`` sensor-cell acceleration [m/s^2].
         velocity: ``[B, K, T]`` sensor-cell velocity [m/s].
+        acceleration: ``[B, K, T]`` sensor-cell acceleration [m/s^2] as an anti-aliased accelerometer
+            records it at the output rate, derived from ``velocity``
+            (:func:`~marlcrash.pulse.signal.sampled_acceleration`): its integral is the velocity change.
         compartment_displacement: ``[B, T]`` compartment travel since first contact [m].
         compartment_velocity: ``[B, T]`` compartment velocity [m/s].
         crush: ``[B, T]`` dynamic crush [m]: compartment travel since the front touched
@@ -220,7 +222,6 @@ class SimResult:
 
     time: torch.Tensor
     sensor_names: list[str]
-    acceleration: torch.Tensor
     velocity: torch.Tensor
     compartment_displacement: torch.Tensor
     compartment_velocity: torch.Tensor
@@ -235,6 +236,13 @@ class SimResult:
     cell_transmitted: torch.Tensor
     cell_plastic: torch.Tensor
     saturated: torch.Tensor
+
+    @property
+    def acceleration(self) -> torch.Tensor:
+        """``[B, K, T]`` sensor acceleration [m/s^2] (see the class doc)."""
+        from marlcrash.pulse.signal import sampled_acceleration  # the pulse package builds on this module
+
+        return sampled_acceleration(self.velocity, float(self.time[1] - self.time[0]))
 
     def __getitem__(self, idx) -> SimResult:
         """Select batch rows (``result[3]``, ``result[2:5]``), keeping the batch dimension."""
@@ -698,13 +706,12 @@ class Surrogate:
         e0 = 0.5 * (m_ke * v * v).sum(dim=1)
         step_in = wall.speed[:, None] * dt  # [B, 1] moving-frame drift per step
 
-        rec: dict[str, list[torch.Tensor]] = {k: [] for k in ("acc", "vel", "s", "vc", "pen", "ke", "st", "ab", "pl")}
+        rec: dict[str, list[torch.Tensor]] = {k: [] for k in ("vel", "s", "vc", "pen", "ke", "st", "ab", "pl")}
         cells_rec: dict[str, list[torch.Tensor]] = {"in": [], "ab": [], "tr": []}
 
-        def record(acc, vel, ke):
+        def record(vel, ke):
             pen = torch.where(wall.covered, (s - wall.gap).clamp_min(0.0), zn).amax(dim=1)
             st = stored_l.sum(dim=1) + stored_w.sum(dim=1)
-            rec["acc"].append(acc[:, sidx])
             rec["vel"].append(vel[:, sidx])
             rec["s"].append(s[:, self.comp])
             rec["vc"].append(vel[:, self.comp])
@@ -719,7 +726,7 @@ class Surrogate:
                 cells_rec["ab"].append(ca)
                 cells_rec["tr"].append(ct)
 
-        record(zn, v, e0)
+        record(v, e0)
         force = zn
         for step in range(1, (n_out - 1) * sub + 1):
             if increment is None:
@@ -752,9 +759,9 @@ class Surrogate:
             f_el, f_prev, fw_prev = f_new, f_tot, fw
             if step % sub == 0:
                 if increment is None:  # leapfrog: mid-step velocity, kinetic energy m v v_new / 2
-                    record(acc, 0.5 * (v + v_new), 0.5 * (m_ke * v * v_new).sum(dim=1))
+                    record(0.5 * (v + v_new), 0.5 * (m_ke * v * v_new).sum(dim=1))
                 else:  # implicit study: end-of-step velocity and kinetic energy
-                    record(acc, v_new, 0.5 * (m_ke * v_new * v_new).sum(dim=1))
+                    record(v_new, 0.5 * (m_ke * v_new * v_new).sum(dim=1))
             v = v_new
 
         stack = lambda key: torch.stack(rec[key], dim=-1)  # noqa: E731
@@ -769,7 +776,6 @@ class Surrogate:
         return SimResult(
             time=torch.arange(n_out, dtype=self.dtype) * self.output_dt,
             sensor_names=names,
-            acceleration=stack("acc"),
             velocity=stack("vel"),
             compartment_displacement=comp,
             compartment_velocity=stack("vc"),
