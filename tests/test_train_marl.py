@@ -15,6 +15,7 @@ import pytest
 import torch
 
 from marlcrash.calibrate.checkpoint import load_checkpoint, save_checkpoint
+from marlcrash.calibrate.evaluate import update_summary
 from marlcrash.calibrate.logging import CSVLogger, read_log
 from marlcrash.calibrate.marl import (
     JointActionEnv,
@@ -256,10 +257,14 @@ def test_resuming_a_finished_run_evaluates_without_training_further(short, tmp_p
     state = load_checkpoint(done.run_dir / "checkpoint.pt")
     state["wall_time_s"] = state["last_iteration_s"] = 0.0  # no clock could stop it now: only "finished" does
     save_checkpoint(done.run_dir / "checkpoint.pt", state)
+    update_summary(done.run_dir, process_wall_time_s=12.5)  # as train/train.py stamps it
+    ckpt = (done.run_dir / "checkpoint.pt").read_bytes()
     again = train(tiny(tmp_path, name="limited", resume=True))
     assert again.iterations == 1 and again.simulations == done.simulations
     assert again.summary["final_metrics"] == done.summary["final_metrics"]
     assert len(read_log(done.run_dir / "log.csv")) == 1
+    assert (done.run_dir / "checkpoint.pt").read_bytes() == ckpt  # the finished run's record is not rewritten
+    assert json.loads((done.run_dir / "summary.json").read_text())["process_wall_time_s"] == 12.5
 
 
 def test_the_time_limit_clock_is_the_runs_own_and_survives_a_kill(short, tmp_path):
@@ -283,6 +288,27 @@ def test_resume_true_finds_the_run_and_fresh_runs_refuse_to_overwrite(short, tmp
     assert done.run_dir == part.run_dir and done.iterations == 2
     with pytest.raises(ConfigError, match=r"no run with checkpoint\.pt"):
         train(tiny(tmp_path / "empty", resume=True))
+    # a named run without a checkpoint (killed before its first one) is not swapped for the newest run
+    (part.run_dir.parent / "killed_early").mkdir()
+    with pytest.raises(ConfigError, match=r"has no checkpoint\.pt") as e:
+        train(tiny(tmp_path, name="killed_early", resume=True))
+    assert e.value.key == "resume"
+    with pytest.raises(ConfigError, match=r"delete it \(it has no checkpoint\)"):
+        train(tiny(tmp_path, name="killed_early"))
+
+
+def test_a_fresh_run_interrupted_before_its_first_checkpoint_leaves_no_folder(short, tmp_path, monkeypatch):
+    import marlcrash.calibrate.marl as marl
+
+    def interrupted(tr):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(marl, "train_iteration", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        train(tiny(tmp_path, name="ctrl_c", iterations=2))
+    assert not any((tmp_path / "runs").rglob("ctrl_c"))
+    monkeypatch.undo()
+    assert train(tiny(tmp_path, name="ctrl_c", iterations=1), evaluate=False).iterations == 1
 
 
 def test_a_run_that_cannot_start_leaves_no_folder(short, tmp_path):

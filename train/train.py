@@ -9,8 +9,8 @@
 Writes ``<out_dir>/<algorithm>/<name>/``: config.yaml, log.csv, checkpoint.pt, then the evaluation:
 summary.json, eval_metrics.csv/.md, calibrated.npz, pulses.png, learning_curves.png. This script adds
 ``process_wall_time_s`` to summary.json: the wall time of this process, imports, discretization and
-evaluation included; after a resume that is the resuming process only (``train_wall_time_s`` counts the
-training of every process, from the checkpoint).
+evaluation included, for a run trained by one process; a resume adds none (``train_wall_time_s`` counts the
+training of every process, from the checkpoint) and keeps the one a finished run has.
 """
 
 from __future__ import annotations
@@ -48,7 +48,7 @@ def main(cfg: DictConfig) -> None:
         print(f"error: {e}", file=sys.stderr)
         sys.exit(2)
     s = result.summary or {}
-    if s:  # the whole process, imports and discretization included
+    if s and config.resume is False:  # the whole process, imports and discretization included (one process only)
         s = update_summary(result.run_dir, process_wall_time_s=time.perf_counter() - START)
     print(json.dumps({
         "run": str(result.run_dir), "iterations": result.iterations, "env_steps": result.env_steps,

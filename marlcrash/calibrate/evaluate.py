@@ -27,6 +27,7 @@ training keeps one every ``snapshot_every`` iterations); those files go into ``<
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import json
 import time
@@ -55,6 +56,8 @@ if TYPE_CHECKING:
 
 SUMMARY_FILE = "summary.json"
 """Name of the evaluation summary inside a run folder."""
+KEPT_SUMMARY_KEY = "process_wall_time_s"
+"""Summary entry written by the training script, kept when a run is evaluated again."""
 EVAL_DIR = "eval"
 """Folder of a run that holds the evaluations of kept checkpoints, one sub-folder per checkpoint."""
 
@@ -416,5 +419,11 @@ def evaluate_run(
         plot_learning_curves(log_rows, result, out_dir / "learning_curves.png")
     summary["eval_wall_time_s"] = time.perf_counter() - t0
     summary["wall_time_s"] = train_time + summary["eval_wall_time_s"]
+    old = out_dir / SUMMARY_FILE
+    if old.is_file():  # the training process's wall time (train/train.py) is not the evaluation's to drop
+        with contextlib.suppress(ValueError, OSError, AttributeError):
+            earlier = json.loads(old.read_text()).get(KEPT_SUMMARY_KEY)
+            if earlier is not None:
+                summary[KEPT_SUMMARY_KEY] = earlier
     write_text(out_dir / SUMMARY_FILE, json.dumps(summary, indent=2))
     return summary

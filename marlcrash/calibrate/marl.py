@@ -670,6 +670,12 @@ def find_resume_dir(config: TrainConfig) -> Path:
     named = run_dir_of(config)
     if (named / CHECKPOINT_FILE).is_file():
         return named
+    if named.exists():  # never fall back to another run when this one was named
+        raise ConfigError(
+            f"run folder {named} has no {CHECKPOINT_FILE} (the run stopped before its first checkpoint, "
+            f"every {config.checkpoint_every} iterations); delete the folder and start the run again",
+            key="resume",
+        )
     parent = Path(config.out_dir) / config.algorithm.name
     runs = sorted(parent.glob(f"*/{CHECKPOINT_FILE}"), key=lambda p: p.stat().st_mtime) if parent.is_dir() else []
     if not runs:
@@ -842,7 +848,8 @@ def train(config: TrainConfig, *, stop_at: int | None = None, evaluate: bool = T
         check_output_dir(config.out_dir, "out_dir")
         run_dir = run_dir_of(config)
         if run_dir.exists():
-            raise ConfigError(f"run folder {run_dir} exists already; choose another name or resume=true", key="name")
+            hint = "resume=true" if (run_dir / CHECKPOINT_FILE).is_file() else "delete it (it has no checkpoint)"
+            raise ConfigError(f"run folder {run_dir} exists already; choose another name or {hint}", key="name")
         save_run_config(config, run_dir)
         state = None
     try:
@@ -855,6 +862,7 @@ def train(config: TrainConfig, *, stop_at: int | None = None, evaluate: bool = T
         raise
     if state is not None:
         tr.load_state_dict(state)
+    was_finished = tr.finished  # a finished run's checkpoint is its record: a resume only evaluates it again
     # with a time limit the iteration count is only a cap: say when training will stop
     desc = config.algorithm.name
     if config.time_limit_s is not None:
@@ -881,10 +889,19 @@ def train(config: TrainConfig, *, stop_at: int | None = None, evaluate: bool = T
                             DFD=f"{row['dfd_final']:.3f}", RMSE=f"{row['rmse_final']:.3f}",
                             sps=f"{row['env_steps_per_s']:.0f}")  # fmt: skip
         tr.finished = True  # by the time limit or the iteration cap: a resume evaluates, it trains no further
+    except BaseException:
+        # A fresh run stopped (Ctrl-C, an error) before its first checkpoint cannot be resumed: remove its
+        # folder so that the same command can start it again.
+        if resume is False and not (run_dir / CHECKPOINT_FILE).is_file():
+            bar.close()
+            tr.logger.close()
+            shutil.rmtree(run_dir, ignore_errors=True)
+        raise
     finally:
         bar.close()
         tr.logger.close()
-    tr.checkpoint()
+    if not was_finished:
+        tr.checkpoint()
     summary = None
     if evaluate:
         from marlcrash.calibrate.evaluate import evaluate_run
