@@ -190,6 +190,10 @@ def test_bad_configs_name_the_key(run_dir, tmp_path):
             small_config(run_dir, budgets={"cmaes": mults})
     with pytest.raises(ConfigError, match=r"budgets\.lbfgs.*unknown optimizer"):
         small_config(run_dir, budgets={"lbfgs": [1]})
+    with pytest.raises(ConfigError, match=r"budgets\.lm.*unknown optimizer"):  # a baseline without settings here
+        small_config(run_dir, budgets={"lm": [1]})
+    with pytest.raises(ConfigError, match="key 'out_dir'"):  # at once, not after the work
+        small_config(run_dir, out_dir=str(tmp_path / "missing"))
     with pytest.raises(ConfigError, match="iterations"):
         small_config(run_dir, iterations=0)
     with pytest.raises(ConfigError, match="reference_seeds"):

@@ -37,7 +37,7 @@ import json
 import math
 import time
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, Literal
@@ -112,12 +112,16 @@ class AmortizedConfig:
             require(s >= 0, f"reference_seeds[{i}]", f"expected a seed >= 0, got {s}")
         require(self.iterations is None or self.iterations >= 1, "iterations",
                 f"expected >= 1 calibration steps or null, got {self.iterations}")  # fmt: skip
+        optimizers = sorted(f.name for f in fields(self) if f.name in BASELINES)  # those with settings here
         for name, mults in self.budgets.items():
-            require(name in BASELINES, f"budgets.{name}",
-                    f"unknown optimizer {name!r}; expected one of {sorted(BASELINES)}")  # fmt: skip
+            require(name in optimizers, f"budgets.{name}",
+                    f"unknown optimizer {name!r}; expected one of {optimizers}")  # fmt: skip
             for i, m in enumerate(mults):
                 require(math.isfinite(m) and m > 0, f"budgets.{name}[{i}]",
                         f"expected a budget multiple > 0 of the policy's simulations, got {m}")  # fmt: skip
+
+        require(self.out_dir is None or Path(self.out_dir).is_dir(), "out_dir",  # before any work, not at the end
+                f"expected an existing output folder, {self.out_dir} is none")  # fmt: skip
 
     def budget(self, multiplier: float, policy_sims: int) -> int:
         """Simulations of a budget: ``max(1, round(multiplier * policy_sims))``."""
