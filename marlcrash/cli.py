@@ -69,6 +69,17 @@ def _seed(text: str) -> int:
     return value
 
 
+def _positive_int(text: str) -> int:
+    """argparse type of a count: an integer >= 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}")
+    return value
+
+
 def load_model_from_args(args: argparse.Namespace):
     """Load the vehicle named by CLI arguments (deck path, YAML, registered name or default)."""
     from marlcrash.vehicle.model import AxisMap
@@ -177,7 +188,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
     scenario = scenario_from_args(args)
     check_output_file(args.csv, "--csv")  # before the work: a typo in an output path costs nothing
-    check_output_file(args.plot, "--plot")
+    check_output_file(args.plot, "--plot", suffix=".png", inputs=(args.csv,))
     model = load_model_from_args(args)
     cells = discretize(model, load_discretization_config(args.config), method=args.method)
     sim = Surrogate(cells, output_dt=scenario.output_dt)
@@ -244,7 +255,7 @@ def cmd_pulse(args: argparse.Namespace) -> int:
         "sign": -1.0 if args.deceleration_positive else 1.0,
         "time_zero": args.time_zero,
     }
-    check_output_file(args.plot, "--plot")
+    check_output_file(args.plot, "--plot", suffix=".png", inputs=(args.file,))
     raw, work, t0 = processed_pulse(args.file, **opts)
     summary = pulse_figures(raw, work, t0, path=args.file)
     if args.plot:  # the pulse the figures describe: resampled if non-uniform, filtered, t = 0 at time zero
@@ -315,7 +326,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("bench", help="simulations per second of the default car's surrogate, with a roofline")
     p.add_argument(
-        "--batch-sizes", type=int, nargs="+", default=[1, 64, 1024], metavar="B", help="batch sizes (default 1 64 1024)"
+        "--batch-sizes",
+        type=_positive_int,
+        nargs="+",
+        default=[1, 64, 1024],
+        metavar="B",
+        help="batch sizes (default 1 64 1024)",
     )
     p.add_argument("--skip-uniform", action="store_true", help="skip the uniform-discretization model at B = 64")
     p.add_argument(

@@ -16,10 +16,19 @@ from pathlib import Path
 from marlcrash.errors import ConfigError
 
 
-def check_output_file(path: str | Path | None, key: str | None) -> Path | None:
+def check_output_file(
+    path: str | Path | None,
+    key: str | None,
+    *,
+    suffix: str | None = None,
+    inputs: tuple[str | Path | None, ...] = (),
+) -> Path | None:
     """Raise :class:`ConfigError` (naming ``key``, if given) unless ``path`` can be written as a file (``None`` passes).
 
     The folder must exist (it is not created for a single output file: a typo should not create folders).
+    With ``suffix`` (e.g. ``".png"``) the name must end in it (the file is written in that format); a path
+    that is one of ``inputs`` (the files the command reads or writes otherwise) is refused, so an output
+    never replaces them.
     """
     if path is None:
         return None
@@ -28,6 +37,11 @@ def check_output_file(path: str | Path | None, key: str | None) -> Path | None:
         raise ConfigError(f"{p} is a folder; expected a file name", key=key)
     if not p.parent.is_dir():
         raise ConfigError(f"the folder of {p} does not exist", key=key)
+    for other in inputs:
+        if other is not None and p.resolve() == Path(other).resolve():
+            raise ConfigError(f"{p} is also {other!s} of this command; choose another file name", key=key)
+    if suffix is not None and p.suffix.lower() != suffix:
+        raise ConfigError(f"{p}: expected a {suffix} file name (it is written in that format)", key=key)
     return p
 
 

@@ -90,6 +90,13 @@ def test_pulse_json_and_plot(tmp_path):
     assert plot.stat().st_size > 10_000
     mme = json.loads(run_cli("pulse", str(DATA / "HS40"), "--json").stdout)
     assert mme["delta_v_ms"] == pytest.approx(40 / 3.6, rel=0.01)
+    # the plot never replaces the record it reads, and is a PNG by name
+    record = tmp_path / "record.csv"
+    record.write_bytes((DATA / "halfsine_40kmh.csv").read_bytes())
+    for target, why in ((record, "is also"), (tmp_path / "pulse.pdf", "expected a .png")):
+        proc = run_cli("pulse", str(record), "--plot", str(target), check=False)
+        assert proc.returncode == 2 and "'--plot'" in proc.stderr and why in proc.stderr, proc.stderr
+    assert record.read_bytes() == (DATA / "halfsine_40kmh.csv").read_bytes()
 
 
 def test_pulse_plot_of_a_non_uniform_record_and_a_short_record_note(tmp_path):
@@ -186,6 +193,16 @@ def test_simulate_json_csv_plot(tmp_path):
     assert header[0] == "time_s" and "tunnel_acc_g" in header and "crush_m" in header
     assert len(csv_path.read_text().splitlines()) == 1 + 301  # 150 ms at 2 kHz, t = 0 included
     assert plot.stat().st_size > 10_000
+    # Round trip: the written acceleration, read back and filtered, carries the simulated velocity change
+    # (the up-front sensors stop within 1-2 ms; an aliased point acceleration gave 7.7 of their 12.0 m/s,
+    # and counted from time zero the filter's spread before it was lost).
+    for sensor in ("upfront_left", "tunnel"):
+        back = json.loads(
+            run_cli("pulse", str(csv_path), "--acc-col", f"{sensor}_acc_g", "--time-zero", "file", "--json").stdout
+        )
+        s = out["sensors"][sensor]
+        assert back["delta_v_ms"] == pytest.approx(s["delta_v_ms"], rel=0.02), (sensor, back, s)
+        assert back["peak_g"] == pytest.approx(s["peak_g"], rel=1e-3), (sensor, back, s)
 
 
 def test_simulate_a_keyword_deck(lsopt_deck):
@@ -233,6 +250,9 @@ def test_simulate_overrides_and_errors():
     assert proc.returncode == 2 and "speed_kmh" in proc.stderr
     proc = run_cli("simulate", "--scenario", "moon_landing", check=False)
     assert proc.returncode == 2 and "full_width_40" in proc.stderr  # lists the registered ones
+    for size in ("0", "-1"):  # argparse's own message, before any simulation
+        proc = run_cli("bench", "--batch-sizes", size, check=False)
+        assert proc.returncode == 2 and "expected an integer >= 1" in proc.stderr, proc.stderr
 
 
 @pytest.mark.slow

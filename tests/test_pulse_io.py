@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 
 from marlcrash.errors import PulseError
 from marlcrash.pulse import (
@@ -178,8 +179,22 @@ BAD_CELL_ROWS = "".join(f"{i * 1e-4:.4f},{'abc' if i == 5 else -float(i)}\n" for
         ("time,acc\n0.0000,1,3\n" + GOOD_ROWS, {}, r"bad\.csv line 2: expected 2 fields as in the header, got 3"),
         ("# only a comment\n", {}, r"bad\.csv: expected a header row"),
         ("time,acc\n" + GOOD_ROWS, {"unit": "furlong"}, r"expected an acceleration unit"),
+        (GOOD_ROWS, {}, r"bad\.csv line 1: expected a header row naming the columns"),
+        ("# time,acc\n" + GOOD_ROWS, {}, r"bad\.csv line 2: expected a header row naming .*comments=''"),
     ],
-    ids=["missing-column", "non-numeric", "nan", "backwards", "duplicate", "too-few", "ragged", "empty", "unit"],
+    ids=[
+        "missing-column",
+        "non-numeric",
+        "nan",
+        "backwards",
+        "duplicate",
+        "too-few",
+        "ragged",
+        "empty",
+        "unit",
+        "no-header",
+        "commented-header",
+    ],
 )
 def test_bad_csv_raises_pulse_error_with_file_and_line(tmp_path, text, kwargs, pattern):
     with pytest.raises(PulseError, match=pattern):
@@ -288,3 +303,21 @@ def test_a_record_that_starts_at_the_impact_filters_like_one_with_pre_trigger_sa
         assert got[key] == pytest.approx(ref[key], rel=1e-6, abs=1e-6), key
     exact = 2 * 20 * G0 * 0.003 / np.pi  # unfiltered delta-v of the half-sine; the filter keeps the integral
     assert got["delta_v_ms"] == pytest.approx(exact, rel=0.03)
+
+
+def test_sampled_acceleration_is_the_derivative_with_a_resting_lead_in():
+    """Central differences: second order against the analytic derivative, zero-acceleration lead-in at t = 0."""
+    from marlcrash.pulse.signal import sampled_acceleration
+
+    dt = 5e-4
+    t = torch.arange(301, dtype=torch.float64) * dt
+    w = 2 * np.pi * 40.0
+    v = 11.0 + 2.0 * torch.sin(w * t)  # [T]
+    a = sampled_acceleration(v[None, None], dt)[0, 0]
+    exact = 2.0 * w * torch.cos(w * t)
+    inner = slice(1, -1)
+    err = (a[inner] - exact[inner]).abs().max()
+    assert err < 2.0 * w**3 * dt**2 / 6 * 1.01  # the central difference's truncation bound
+    assert float(a[0]) == pytest.approx(float(v[1] - v[0]) / (2 * dt), rel=1e-12)  # v[-1] = v[0]
+    with pytest.raises(PulseError, match="at least 2"):
+        sampled_acceleration(v[:1], dt)

@@ -51,6 +51,14 @@ _TIME_UNITS = {"s": 1.0, "ms": 1e-3}
 _TIME_NAMES = ("time", "t", "zeit", "time_s", "time [s]", "time (s)")
 
 
+def _is_number(text: str) -> bool:
+    try:
+        float(text.replace(",", "."))
+    except ValueError:
+        return False
+    return True
+
+
 def _err(reason: str, path: str | Path, line: int | None = None, column: str | None = None) -> PulseError:
     where = Path(path).name if line is None else f"{Path(path).name} line {line}"
     if column is not None:
@@ -120,6 +128,13 @@ def read_csv(
             first + 1,
         )
     header = [h.strip() for h in next(csv.reader([header_line], delimiter=delim))]
+    if all(_is_number(h) for h in header):  # reading it as names would silently drop the first sample
+        raise _err(
+            "expected a header row naming the columns (e.g. 'time,acc'), got only numbers; lines starting with "
+            "'#' are comments (numpy.savetxt comments its header: write it with comments='')",
+            path,
+            first + 1,
+        )
     for j, h in enumerate(header):
         if not h:
             raise _err(f"header column {j + 1} is empty; every column needs a name", path, first + 1)
