@@ -59,9 +59,10 @@ def crash_summary(result: SimResult, cells: CellModel, scenario: CrashScenario, 
     t = result.time.detach().cpu().numpy()
     dt = float(t[1] - t[0])
     v_comp = result.compartment_velocity[row].detach().cpu().numpy()
+    acc = filtered_acceleration(result.acceleration[row].detach().cpu().numpy(), dt, cfc)  # [K, T], all at once
     sensors = {}
     for k, name in enumerate(result.sensor_names):
-        a = filtered_acceleration(result.acceleration[row, k].detach().cpu().numpy(), dt, cfc)
+        a = acc[k]
         v = result.velocity[row, k].detach().cpu().numpy()
         i = int(np.argmin(a))
         sensors[name] = {
@@ -71,7 +72,7 @@ def crash_summary(result: SimResult, cells: CellModel, scenario: CrashScenario, 
         }
     k_comp = compartment_sensor(result, cells)
     if k_comp is not None:
-        a_comp = filtered_acceleration(result.acceleration[row, k_comp].detach().cpu().numpy(), dt, cfc)
+        a_comp = acc[k_comp]
     else:
         a_comp = sampled_acceleration(result.compartment_velocity[row].detach(), dt).cpu().numpy()
         a_comp = filtered_acceleration(a_comp, dt, cfc)
@@ -116,8 +117,9 @@ def write_crash_csv(result: SimResult, path: str | Path, row: int = 0) -> Path:
     path = Path(path)
     t = result.time.detach().cpu().numpy()
     cols = {"time_s": t}
+    acc = result.acceleration[row].detach().cpu().numpy()
     for k, name in enumerate(result.sensor_names):
-        cols[f"{name}_acc_g"] = result.acceleration[row, k].detach().cpu().numpy() / G0
+        cols[f"{name}_acc_g"] = acc[k] / G0
         cols[f"{name}_vel_ms"] = result.velocity[row, k].detach().cpu().numpy()
     cols["crush_m"] = result.crush[row].detach().cpu().numpy()
     with atomic_output(path) as tmp, open(tmp, "w", newline="") as fh:
@@ -139,8 +141,9 @@ def plot_crash(result: SimResult, cells: CellModel, path: str | Path, title: str
     absorbed = subassembly_absorbed(result, cells, row)
     n_panels = 3 if absorbed is not None else 2
     fig, axes = plt.subplots(n_panels, 1, figsize=(8, 3.0 * n_panels), sharex=True)
+    acc = filtered_acceleration(result.acceleration[row].detach().cpu().numpy(), dt, cfc) / G0
     for k, name in enumerate(result.sensor_names):
-        a = filtered_acceleration(result.acceleration[row, k].detach().cpu().numpy(), dt, cfc) / G0
+        a = acc[k]
         axes[0].plot(t * 1e3, a, label=f"{name} CFC{cfc}")
         axes[1].plot(t * 1e3, result.velocity[row, k].detach().cpu().numpy(), label=name)
     axes[0].set_ylabel("acceleration [g]")
