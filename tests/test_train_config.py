@@ -75,6 +75,20 @@ def test_ci_overrides_shrink_the_run():
     assert ci.eval.iterations == data["ci"]["eval.iterations"]
 
 
+def test_command_line_values_win_over_the_ci_block_and_ci_errors_name_it():
+    data = composed(["iterations=7", "eval.iterations=2"])
+    ci = load_train_config(data, ci=True, explicit=["iterations", "eval.iterations"])
+    assert ci.iterations == 7 and ci.eval.iterations == 2  # kept
+    assert ci.n_envs == data["ci"]["n_envs"]  # the rest of the block applies
+    data["ci"]["n_envs"] = 0
+    with pytest.raises(ConfigError, match="MARLCRASH_CI=1 applied it") as e:
+        load_train_config(data, ci=True)
+    assert e.value.key == "ci.n_envs"
+    with pytest.raises(ConfigError) as e:  # the same value from the command line is the command line's key
+        load_train_config(composed(["n_envs=0"]), ci=True, explicit=["n_envs"])
+    assert e.value.key == "n_envs"
+
+
 def test_ci_reads_the_environment(monkeypatch):
     data = composed()
     monkeypatch.setenv("MARLCRASH_CI", "1")
@@ -99,6 +113,8 @@ def test_ci_reads_the_environment(monkeypatch):
         (["seed=-1"], "seed", "seed >= 0"),
         (["eval.scenario=nope"], "eval.scenario", "unknown scenario 'nope'"),
         (["eval.reference_seed=-1"], "eval.reference_seed", "seed >= 0"),
+        (["algorithm.init_std=inf"], "algorithm.init_std", "both finite"),
+        (["algorithm.mean_init_gain=inf"], "algorithm.mean_init_gain", "finite factor > 0"),
     ],
 )
 def test_bad_values_name_the_key(overrides, key, words):

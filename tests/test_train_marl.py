@@ -348,7 +348,9 @@ def test_summary_and_evaluation_of_a_checkpoint(short, tmp_path):
 def test_kept_snapshots_are_evaluated_beside_the_run_results(short, tmp_path):
     from marlcrash.calibrate.evaluate import evaluate_run
 
-    res = train(tiny(tmp_path, iterations=3, snapshot_every=2))
+    res = train(
+        tiny(tmp_path, iterations=3, snapshot_every=2, checkpoint_every=3)
+    )  # a snapshot is due before a checkpoint
     kept = sorted(p.name for p in (res.run_dir / "checkpoints").iterdir())
     assert kept == ["iter_00002.pt"]
     final = (res.run_dir / "summary.json").read_text()
@@ -364,6 +366,18 @@ def test_kept_snapshots_are_evaluated_beside_the_run_results(short, tmp_path):
     with pytest.raises(ConfigError, match=r"iter_00002\.pt") as e:
         evaluate_run(res.run_dir, checkpoint=5)
     assert e.value.key == "checkpoint"
+    # another kind of checkpoint (a baseline's best.pt) or one of other networks: an error naming the file,
+    # and no empty eval/<stem>/ folder left behind
+    save_checkpoint(tmp_path / "best.pt", {"x": torch.zeros(3), "metrics": {}})
+    with pytest.raises(ConfigError, match=r"best\.pt is not a training checkpoint \(no policy") as e:
+        evaluate_run(res.run_dir, checkpoint=str(tmp_path / "best.pt"))
+    assert e.value.key == "checkpoint" and not (res.run_dir / "eval" / "best").exists()
+    state = load_checkpoint(res.run_dir / "checkpoint.pt")
+    state["policy"] = {k: v[..., :1] for k, v in state["policy"].items()}
+    save_checkpoint(res.run_dir / "narrow.pt", state)
+    with pytest.raises(ConfigError, match=r"narrow\.pt does not fit this run's mappo policy") as e:
+        evaluate_run(res.run_dir, checkpoint="narrow.pt")
+    assert e.value.key == "checkpoint" and not (res.run_dir / "eval" / "narrow").exists()
 
 
 def _read_csv(path: Path) -> list[dict]:

@@ -28,9 +28,11 @@ TINY = [
 ]
 
 
-def run(script: str, args: list[str], configs: Path, cwd: Path) -> subprocess.CompletedProcess:
+def run(script: str, args: list[str], configs: Path, cwd: Path, ci: bool = False) -> subprocess.CompletedProcess:
     env = {**os.environ, "MARLCRASH_CONFIGS": str(configs)}
     env.pop("MARLCRASH_CI", None)
+    if ci:
+        env["MARLCRASH_CI"] = "1"
     return subprocess.run([sys.executable, str(REPO / "train" / script), *args], cwd=cwd, env=env,
                           capture_output=True, text=True, timeout=600)  # fmt: skip
 
@@ -38,7 +40,8 @@ def run(script: str, args: list[str], configs: Path, cwd: Path) -> subprocess.Co
 @pytest.mark.slow
 @pytest.mark.parametrize("algorithm", ALGORITHMS)
 def test_train_script_writes_a_summary(algorithm, short_configs, tmp_path):
-    p = run("train.py", [f"algorithm={algorithm}", "name=smoke", *TINY], short_configs, tmp_path)
+    # mappo with MARLCRASH_CI=1: the command line's values must win over the ci: block (checked below)
+    p = run("train.py", [f"algorithm={algorithm}", "name=smoke", *TINY], short_configs, tmp_path, algorithm == "mappo")
     assert p.returncode == 0, p.stderr[-3000:]
     run_dir = tmp_path / "runs" / algorithm / "smoke"
     s = json.loads((run_dir / "summary.json").read_text())

@@ -4,7 +4,8 @@
     python train/train.py algorithm=ippo seed=1 name=ippo1
     python train/train.py algorithm=ppo_single n_envs=32 algorithm.minibatch_size=64
     python train/train.py resume=true                      # continue the newest run (or resume=runs/mappo/<name>)
-    MARLCRASH_CI=1 python train/train.py                   # the 1-2 minute smoke run of CI (the `ci:` overrides)
+    MARLCRASH_CI=1 python train/train.py                   # the 1-2 minute smoke run of CI (the `ci:` overrides;
+                                                           # keys given on the command line keep their values)
 
 Writes ``<out_dir>/<algorithm>/<name>/``: config.yaml, log.csv, checkpoint.pt, then the evaluation:
 summary.json, eval_metrics.csv/.md, calibrated.npz, pulses.png, learning_curves.png. This script adds
@@ -37,9 +38,13 @@ RESUME_KEYS = ("resume", "name", "out_dir")
 @hydra.main(version_base=None, config_path="../configs/train", config_name="train")
 def main(cfg: DictConfig) -> None:
     try:
-        config = load_train_config(OmegaConf.to_container(cfg, resolve=True), source="configs/train/train.yaml")
+        overrides = HydraConfig.get().overrides.task
+        given = [o.split("=")[0].lstrip("+~") for o in overrides]  # command-line values win over the ci: block
+        config = load_train_config(
+            OmegaConf.to_container(cfg, resolve=True), source="configs/train/train.yaml", explicit=given
+        )
         if config.resume is not False:
-            ignored = [o for o in HydraConfig.get().overrides.task if o.split("=")[0].lstrip("+~") not in RESUME_KEYS]
+            ignored = [o for o, k in zip(overrides, given, strict=True) if k not in RESUME_KEYS]
             if ignored:
                 print(f"warning: resume continues the run with its saved config.yaml; ignored: {' '.join(ignored)}",
                       file=sys.stderr)  # fmt: skip

@@ -53,9 +53,15 @@ from marlcrash.calibrate.baselines import (
     GradientConfig,
     RandomSearchConfig,
 )
-from marlcrash.calibrate.checkpoint import CHECKPOINT_FILE, load_checkpoint
-from marlcrash.calibrate.evaluate import EvalResult, evaluate_policy, evaluation_problem, param_errors
-from marlcrash.calibrate.marl import TrainConfig, load_run_config, make_env, make_policy
+from marlcrash.calibrate.checkpoint import CHECKPOINT_FILE, load_training_checkpoint
+from marlcrash.calibrate.evaluate import (
+    EvalResult,
+    evaluate_policy,
+    evaluation_problem,
+    param_errors,
+    policy_from_checkpoint,
+)
+from marlcrash.calibrate.marl import TrainConfig, load_run_config
 from marlcrash.calibrate.problem import CalibrationProblem
 from marlcrash.config import from_dict, require, require_complete
 from marlcrash.errors import ConfigError
@@ -153,11 +159,9 @@ def load_policy(run_dir: str | Path) -> tuple[TensorDictModuleBase, TrainConfig]
     config = load_run_config(run_dir)
     if not (run_dir / CHECKPOINT_FILE).is_file():
         raise ConfigError(f"expected a run folder with {CHECKPOINT_FILE}, found none in {run_dir}", key="run")
-    state = load_checkpoint(run_dir / CHECKPOINT_FILE)
-    torch.manual_seed(config.seed)  # the networks' initial draw, overwritten by the checkpoint
-    policy = make_policy(make_env(config, n_envs=1), config.algorithm)
-    policy.load_state_dict(state["policy"])
-    return policy, config
+    path = run_dir / CHECKPOINT_FILE
+    state = load_training_checkpoint(path, key="run")
+    return policy_from_checkpoint(config, state, path, key="run"), config
 
 
 def held_out_config(train_config: TrainConfig, seed: int, scenario: str, iterations: int) -> TrainConfig:

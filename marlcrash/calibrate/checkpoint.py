@@ -100,16 +100,46 @@ def save_checkpoint(path: str | Path, state: dict[str, Any]) -> Path:
     return path
 
 
-def load_checkpoint(path: str | Path) -> dict[str, Any]:
+TRAINING_KEYS = ("policy", "iteration", "env_steps", "simulations", "wall_time_s")
+"""Entries every training checkpoint holds (:meth:`marlcrash.calibrate.marl.Trainer.state_dict`)."""
+
+
+TRAINING_KEYS = ("policy", "critic", "optimizer", "rng", "iteration", "env_steps", "simulations", "wall_time_s")
+"""Entries every training checkpoint holds (:meth:`marlcrash.calibrate.marl.Trainer.state_dict`)."""
+
+
+def load_checkpoint(path: str | Path, key: str = "resume") -> dict[str, Any]:
     """Read a checkpoint written by :func:`save_checkpoint`.
 
+    Args:
+        path: the checkpoint file.
+        key: the config key that named it, for the error messages (``resume`` or ``checkpoint``).
+
     Raises:
-        ConfigError: the file is missing or unreadable (key ``resume``).
+        ConfigError: the file is missing or unreadable.
     """
     path = Path(path)
     if not path.is_file():
-        raise ConfigError(f"no checkpoint at {path}; expected a run folder with {CHECKPOINT_FILE}", key="resume")
+        raise ConfigError(f"no checkpoint at {path}; expected a run folder with {CHECKPOINT_FILE}", key=key)
     try:
         return torch.load(path, map_location="cpu", weights_only=False)
     except Exception as e:  # a torn or foreign file: say which and why
-        raise ConfigError(f"cannot read checkpoint {path}: {e}", key="resume") from None
+        raise ConfigError(f"cannot read checkpoint {path}: {e}", key=key) from None
+
+
+def load_training_checkpoint(path: str | Path, key: str = "resume") -> dict[str, Any]:
+    """:func:`load_checkpoint`, checked to be a training run's (it holds every entry of :data:`TRAINING_KEYS`).
+
+    Raises:
+        ConfigError: as :func:`load_checkpoint`, or the file is another kind of checkpoint (a baseline's
+            ``best.pt``, say): the message names the file and the entries it lacks.
+    """
+    state = load_checkpoint(path, key=key)
+    missing = [k for k in TRAINING_KEYS if not isinstance(state, dict) or k not in state]
+    if missing:
+        raise ConfigError(
+            f"{path} is not a training checkpoint (no {', '.join(missing)}); expected a {CHECKPOINT_FILE} or "
+            f"{SNAPSHOT_DIR}/iter_<n>.pt written by train/train.py",
+            key=key,
+        )
+    return state

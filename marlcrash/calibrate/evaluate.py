@@ -40,7 +40,7 @@ import torch
 from tensordict.nn import TensorDictModuleBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-from marlcrash.calibrate.checkpoint import find_checkpoint, load_checkpoint
+from marlcrash.calibrate.checkpoint import find_checkpoint, load_training_checkpoint
 from marlcrash.calibrate.logging import LOG_FILE, read_log
 from marlcrash.calibrate.marl import TrainConfig, act, load_run_config, make_env, make_env_config, make_policy
 from marlcrash.calibrate.problem import CalibrationProblem, ProblemConfig, build_problem
@@ -320,6 +320,33 @@ def update_summary(run_dir: str | Path, **entries: Any) -> dict[str, Any]:
     return summary
 
 
+def policy_from_checkpoint(config: TrainConfig, state: dict[str, Any], path: Path, key: str) -> TensorDictModuleBase:
+    """The policy network of ``config`` with the weights of a training checkpoint ``state`` read from ``path``.
+
+    Raises:
+        ConfigError: (``key``) the weights do not fit the run's networks (a checkpoint of another algorithm
+            or agent layout); the message names the file and the first mismatches.
+    """
+    torch.manual_seed(config.seed)  # the networks' initial draw, overwritten by the checkpoint
+    policy = make_policy(make_env(config, n_envs=1), config.algorithm)
+    own, saved = policy.state_dict(), state["policy"]
+    # checked here: TorchRL's MultiAgentMLP keeps its weights in a TensorDict, whose loading broadcasts a
+    # tensor of another shape into place instead of refusing it
+    problems = [f"missing {k}" for k in own if k not in saved] + [f"unexpected {k}" for k in saved if k not in own]
+    problems += [
+        f"{k} has shape {tuple(saved[k].shape)}, expected {tuple(v.shape)}"
+        for k, v in own.items()
+        if k in saved and tuple(getattr(saved[k], "shape", ())) != tuple(v.shape)
+    ]
+    if problems:
+        more = f" (and {len(problems) - 3} more)" if len(problems) > 3 else ""
+        raise ConfigError(
+            f"{path} does not fit this run's {config.algorithm.name} policy: {'; '.join(problems[:3])}{more}", key=key
+        )
+    policy.load_state_dict(saved)
+    return policy
+
+
 def evaluate_run(
     run_dir: str | Path,
     trainer: Trainer | None = None,
@@ -355,14 +382,11 @@ def evaluate_run(
         policy, counters = trainer.policy, trainer.state_dict()
     else:
         ckpt = find_checkpoint(run_dir, checkpoint)
-        if checkpoint not in (None, "latest"):
+        counters = load_training_checkpoint(ckpt, key="checkpoint")
+        policy = policy_from_checkpoint(config, counters, ckpt, key="checkpoint")
+        if checkpoint not in (None, "latest"):  # only once the checkpoint proved usable: no empty folders
             out_dir = run_dir / EVAL_DIR / ckpt.stem
             out_dir.mkdir(parents=True, exist_ok=True)
-        state = load_checkpoint(ckpt)
-        torch.manual_seed(config.seed)
-        policy = make_policy(make_env(config, n_envs=1), config.algorithm)
-        policy.load_state_dict(state["policy"])
-        counters = state
     result = evaluate_policy(policy, config)
     problem = evaluation_problem(config)
     if not torch.allclose(problem.ref_velocity, result.ref_velocity, rtol=0, atol=1e-9):

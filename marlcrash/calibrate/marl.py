@@ -41,7 +41,7 @@ import math
 import os
 import shutil
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -61,7 +61,7 @@ from torchrl.objectives.value import GAE
 from marlcrash.calibrate.budget import Progress
 from marlcrash.calibrate.checkpoint import (
     CHECKPOINT_FILE,
-    load_checkpoint,
+    load_training_checkpoint,
     restore_rng,
     rng_state,
     save_checkpoint,
@@ -130,9 +130,10 @@ class AlgorithmConfig:
         for k in ("entropy_coef", "entropy_coef_final", "critic_coef"):
             v = getattr(self, k)
             require(math.isfinite(v) and v >= 0, k, f"expected a coefficient >= 0, got {v}")
-        require(0 < self.min_std < self.init_std, "init_std",
-                f"expected 0 < min_std ({self.min_std}) < init_std ({self.init_std})")  # fmt: skip
-        require(self.mean_init_gain > 0, "mean_init_gain", f"expected a factor > 0, got {self.mean_init_gain}")
+        require(0 < self.min_std < self.init_std < math.inf, "init_std",
+                f"expected 0 < min_std ({self.min_std}) < init_std ({self.init_std}), both finite")  # fmt: skip
+        require(0 < self.mean_init_gain < math.inf, "mean_init_gain",
+                f"expected a finite factor > 0, got {self.mean_init_gain}")  # fmt: skip
         require(0 < self.clip_epsilon < 1, "clip_epsilon", f"expected a ratio clip in (0, 1), got {self.clip_epsilon}")
         for k in ("gamma", "lmbda"):
             v = getattr(self, k)
@@ -250,29 +251,41 @@ def _set_dotted(data: dict[str, Any], dotted: str, value: Any) -> None:
     node[parts[-1]] = value
 
 
-def load_train_config(data: dict[str, Any], source: str | None = None, ci: bool | None = None) -> TrainConfig:
+def load_train_config(
+    data: dict[str, Any], source: str | None = None, ci: bool | None = None, explicit: Sequence[str] = ()
+) -> TrainConfig:
     """Validate a training config mapping (e.g. Hydra's, without its ``hydra`` node).
 
     Args:
         data: the mapping; its ``ci`` entry holds dotted-key overrides.
         source: file name for messages.
         ci: apply the ``ci`` overrides; ``None`` reads ``$MARLCRASH_CI`` (``1``: apply).
+        explicit: dotted keys the user set on the command line; the ``ci`` overrides leave them as they are.
 
     Raises:
-        ConfigError: unknown key, wrong type or bad value, naming the dotted key -- before any training.
+        ConfigError: unknown key, wrong type or bad value, naming the dotted key -- before any training; a bad
+            value that came from the ``ci`` block is named ``ci.<key>``.
     """
     data = {k: v for k, v in data.items() if k != "hydra"}
     if ci is None:
         ci = os.environ.get(CI_ENV, "") not in ("", "0")
+    applied: list[str] = []
     if ci:
         over = data.get("ci") or {}
         if not isinstance(over, dict):
             raise ConfigError(f"expected a mapping of dotted overrides, got {over!r}", key="ci", path=source)
         for k, v in over.items():
-            _set_dotted(data, k, v)
-    if source is not None:
-        require_complete(TrainConfig, data, source)
-    return from_dict(TrainConfig, data, path=source)
+            if k not in explicit:
+                _set_dotted(data, k, v)
+                applied.append(k)
+    try:
+        if source is not None:
+            require_complete(TrainConfig, data, source)
+        return from_dict(TrainConfig, data, path=source)
+    except ConfigError as e:
+        if e.key in applied:
+            raise ConfigError(f"{e.reason} ({CI_ENV}=1 applied it)", key=f"ci.{e.key}", path=e.path) from None
+        raise
 
 
 def make_env_config(config: TrainConfig, overrides: dict[str, Any] | None = None) -> EnvConfig:
@@ -762,6 +775,12 @@ class Trainer:
         self.finished = bool(state.get("finished", False))  # checkpoints before this key: not known, train on
         self.logger.truncate(int(state["log_position"]))
 
+    def checkpoint_due(self) -> bool:
+        """Whether the iteration just finished is checkpointed: every ``checkpoint_every`` iterations, every
+        ``snapshot_every`` (a kept snapshot is a copy of the checkpoint written then) and at the iteration cap."""
+        c, i = self.config, self.iteration
+        return i % c.checkpoint_every == 0 or bool(c.snapshot_every and i % c.snapshot_every == 0) or i == c.iterations
+
     def checkpoint(self) -> Path:
         """Write ``checkpoint.pt`` atomically; every ``snapshot_every`` iterations also keep a copy in
         ``checkpoints/`` (:func:`~marlcrash.calibrate.checkpoint.snapshot_path`) for later evaluation."""
@@ -843,7 +862,7 @@ def train(config: TrainConfig, *, stop_at: int | None = None, evaluate: bool = T
     if resume is not False:
         run_dir = find_resume_dir(config)
         config = load_run_config(run_dir)
-        state = load_checkpoint(run_dir / CHECKPOINT_FILE)
+        state = load_training_checkpoint(run_dir / CHECKPOINT_FILE)
     else:
         check_output_dir(config.out_dir, "out_dir")
         run_dir = run_dir_of(config)
@@ -882,7 +901,7 @@ def train(config: TrainConfig, *, stop_at: int | None = None, evaluate: bool = T
                 break
             row = train_iteration(tr)
             tr.logger.log(row)
-            if tr.iteration % config.checkpoint_every == 0 or tr.iteration == config.iterations:
+            if tr.checkpoint_due():
                 tr.checkpoint()
             bar.update(1)
             bar.set_postfix(R=f"{row['reward_mean']:+.3f}", A=f"{row['area_final']:.4f}",
