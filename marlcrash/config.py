@@ -9,6 +9,7 @@ and calls the schema's ``validate()`` for cross-field checks.
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 import types
 import typing
@@ -92,6 +93,8 @@ def _check_type(value: Any, tp: Any, key: str, path: str | Path | None) -> Any:
     if tp is float:
         if isinstance(value, bool) or not isinstance(value, int | float):
             raise ConfigError(f"expected a number, got {value!r}", key=key, path=path)
+        if not math.isfinite(value):  # no setting of this project means anything by inf or nan
+            raise ConfigError(f"expected a finite number, got {value!r}", key=key, path=path)
         return float(value)
     if tp is int:
         if isinstance(value, bool) or not isinstance(value, int):

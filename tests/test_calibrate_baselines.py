@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import re
 from pathlib import Path
 
@@ -157,6 +158,8 @@ def test_success_counts_the_candidate_that_passed(problem):
         ({"gradient": {"lr": -0.1}}, "gradient.lr"),
         ({"gradient": {"backend": "numba"}}, "gradient.backend"),
         ({"gradient": {"loss": {"area_scale": 0.0}}}, "gradient.loss.area_scale"),
+        ({"gradient": {"loss": {"w_area": float("inf")}}}, "gradient.loss.w_area"),
+        ({"random_search": {"radius": float("nan")}}, "random_search.radius"),
         ({"cmaes": {"popsize": 1}}, "cmaes.popsize"),
         ({"random_search": {"shrink": 1.5}}, "random_search.shrink"),
         ({"lm": {"windows": [0.5, 0.3, 1.0]}}, "lm.windows"),
@@ -177,6 +180,13 @@ def test_bad_run_configs_fail_before_running(over, key):
     with pytest.raises(ConfigError) as e:
         load_run_config(over)
     assert e.value.key == key
+    if any(isinstance(v, float) and not math.isfinite(v) for v in _leaves(over)):
+        assert "expected a finite number" in str(e.value)
+
+
+def _leaves(d):
+    for v in d.values():
+        yield from _leaves(v) if isinstance(v, dict) else (v,)
 
 
 def test_yaml_registry_and_comments():

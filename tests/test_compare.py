@@ -288,6 +288,23 @@ def test_comparison_resumes_and_refuses_changed_protocols(short, tmp_path):
     assert rows4 == rows2
 
 
+def test_a_first_run_that_failed_before_any_row_does_not_block_its_rerun(short, tmp_path, monkeypatch):
+    import marlcrash.calibrate.compare as compare
+
+    cfg = tiny(tmp_path, methods=["random_search"], seeds=[0])
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("killed")
+
+    with monkeypatch.context() as m:
+        m.setattr(compare, "run_method", broken)
+        with pytest.raises(RuntimeError):
+            run_comparison(cfg)
+    assert json.loads((cfg.run_dir / "compare.json").read_text())["rows"] == []
+    _, rows = run_comparison(cfg)  # the same command again: nothing finished to protect
+    assert [(r["method"], r["seed"]) for r in rows] == [("random_search", 0)]
+
+
 # --------------------------------------------------------------------------------------- config
 @pytest.mark.parametrize(
     ("override", "key", "words"),
@@ -302,6 +319,7 @@ def test_comparison_resumes_and_refuses_changed_protocols(short, tmp_path):
         ({"mappo.minibatch_size": 4}, "mappo.minibatch_size", "divisor"),
         ({"ppo.env_overrides": {"reference.pin_seed": 3}}, "ppo.env_overrides.reference.pin_seed", "protocol"),
         ({"env_overrides": {"max_step": 9.0}}, "env_overrides.max_step", "log increment"),
+        ({"scenario": "nope"}, "scenario", "unknown scenario 'nope'"),
     ],
 )
 def test_bad_config_fails_naming_the_key(short, tmp_path, override, key, words):

@@ -229,3 +229,16 @@ def test_script_smoke(run_dir, short_env, tmp_path):
     bad = subprocess.run([*cmd[:2], f"run={tmp_path / 'nope'}"], capture_output=True, text=True, env=env, cwd=REPO,
                          timeout=300)  # fmt: skip
     assert bad.returncode == 2 and "key 'run'" in bad.stderr
+
+
+def test_the_documented_budget_overrides_compose():
+    """train/amortized.py's docstring: change one optimizer's budgets, drop another (Hydra merges mappings)."""
+    from hydra import compose, initialize_config_dir
+    from omegaconf import OmegaConf
+
+    from marlcrash.config import config_dir
+
+    with initialize_config_dir(str(config_dir() / "train"), version_base=None):
+        cfg = compose("amortized", overrides=["run=x", "budgets.cmaes=[1,10,100]", "~budgets.gradient"])
+    budgets = OmegaConf.to_container(cfg)["budgets"]
+    assert budgets["cmaes"] == [1, 10, 100] and "gradient" not in budgets and "random_search" in budgets

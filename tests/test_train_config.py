@@ -113,8 +113,8 @@ def test_ci_reads_the_environment(monkeypatch):
         (["seed=-1"], "seed", "seed >= 0"),
         (["eval.scenario=nope"], "eval.scenario", "unknown scenario 'nope'"),
         (["eval.reference_seed=-1"], "eval.reference_seed", "seed >= 0"),
-        (["algorithm.init_std=inf"], "algorithm.init_std", "both finite"),
-        (["algorithm.mean_init_gain=inf"], "algorithm.mean_init_gain", "finite factor > 0"),
+        (["algorithm.init_std=inf"], "algorithm.init_std", "expected a finite number"),
+        (["algorithm.mean_init_gain=nan"], "algorithm.mean_init_gain", "expected a finite number"),
     ],
 )
 def test_bad_values_name_the_key(overrides, key, words):

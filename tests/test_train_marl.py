@@ -207,6 +207,22 @@ def test_checkpoint_is_atomic(tmp_path):
         load_checkpoint(tmp_path / "missing.pt")
 
 
+def test_rng_snapshot_round_trip_and_cuda_generators():
+    from marlcrash.calibrate.checkpoint import restore_rng, rng_state
+
+    env_rng = np.random.default_rng(5)
+    snap = rng_state(env_rng)
+    a, b = torch.rand(3), env_rng.random(3)
+    restore_rng(snap, env_rng)
+    assert torch.equal(torch.rand(3), a) and np.array_equal(env_rng.random(3), b)
+    if torch.cuda.is_available():
+        pytest.skip("a GPU is present: the refusal below is for machines without one")
+    assert "cuda" not in snap  # CUDA generators only where CUDA is in use
+    with pytest.raises(ConfigError, match="2 CUDA device") as e:
+        restore_rng({**snap, "cuda": [torch.zeros(8, dtype=torch.uint8)] * 2}, env_rng)
+    assert e.value.key == "resume"
+
+
 def test_csv_logger_truncates_to_a_checkpoint(tmp_path):
     log = CSVLogger(tmp_path)
     for i in range(5):

@@ -2,7 +2,10 @@
 
     python train/amortized.py run=runs/mappo/<name>
     python train/amortized.py run=runs/mappo/<name> reference_seeds=[101,102,103,104] iterations=24
-    python train/amortized.py run=runs/mappo/<name> budgets='{cmaes: [1, 10, 100]}' out_dir=/tmp/cmp
+    python train/amortized.py run=runs/mappo/<name> 'budgets.cmaes=[1,10,100]' '~budgets.gradient' out_dir=cmp
+
+Hydra merges a mapping given on the command line into the file's ``budgets`` (``budgets='{cmaes: [1]}'`` keeps
+the other optimizers' budgets): change one with ``budgets.<optimizer>=[...]``, drop one with ``~budgets.<optimizer>``.
 
 Writes ``amortized.csv``, ``amortized.md`` and ``amortized.json`` into the run folder (or ``out_dir``).
 """

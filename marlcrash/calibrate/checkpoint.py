@@ -65,14 +65,33 @@ def find_checkpoint(run_dir: str | Path, which: str | int | None = None) -> Path
 
 
 def rng_state(env_rng: np.random.Generator) -> dict[str, Any]:
-    """Snapshot of torch's global CPU generator and the environment's numpy generator."""
-    return {"torch": torch.get_rng_state(), "env": env_rng.bit_generator.state}
+    """Snapshot of torch's global CPU generator, its CUDA generators (where CUDA is in use: a policy on the GPU
+    samples its actions there) and the environment's numpy generator."""
+    state = {"torch": torch.get_rng_state(), "env": env_rng.bit_generator.state}
+    if torch.cuda.is_available() and torch.cuda.is_initialized():
+        state["cuda"] = torch.cuda.get_rng_state_all()
+    return state
 
 
 def restore_rng(state: dict[str, Any], env_rng: np.random.Generator) -> None:
-    """Restore a :func:`rng_state` snapshot in place (the env generator object is kept)."""
+    """Restore a :func:`rng_state` snapshot in place (the env generator object is kept).
+
+    Raises:
+        ConfigError: (key ``resume``) the snapshot holds CUDA generators and this machine has none or fewer
+            devices, so the resumed run could not draw the numbers the uninterrupted one would have.
+    """
     torch.set_rng_state(state["torch"])
     env_rng.bit_generator.state = state["env"]
+    cuda = state.get("cuda")
+    if cuda:
+        if not torch.cuda.is_available() or torch.cuda.device_count() < len(cuda):
+            raise ConfigError(
+                f"the checkpoint was written with {len(cuda)} CUDA device(s) in use; this machine has "
+                f"{torch.cuda.device_count() if torch.cuda.is_available() else 0}, so the run cannot continue "
+                "bit for bit",
+                key="resume",
+            )
+        torch.cuda.set_rng_state_all(cuda)
 
 
 def save_checkpoint(path: str | Path, state: dict[str, Any]) -> Path:

@@ -71,6 +71,7 @@ from marlcrash.envs.core import load_env_config
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics
 from marlcrash.outputs import check_output_dir, write_text
+from marlcrash.sim.scenario import list_scenarios
 
 METHODS: tuple[str, ...] = (*ALGORITHMS, *BASELINES)
 """Comparable methods: the PPO variants (:data:`~marlcrash.calibrate.marl.ALGORITHMS`) and the optimizers."""
@@ -164,6 +165,8 @@ class CompareConfig:
                 f"expected a wall-time cap > 0 s per run or null, got {self.max_wall_s}")  # fmt: skip
         require(np.isfinite(self.box_radius) and 0 < self.box_radius <= 5.0, "box_radius",
                 f"expected a log-scale half-width in (0, 5], got {self.box_radius}")  # fmt: skip
+        require(self.scenario in list_scenarios(), "scenario",
+                f"unknown scenario {self.scenario!r}; registered: {list_scenarios()}")  # fmt: skip
         require(bool(self.name) and "/" not in self.name and self.name not in (".", ".."), "name",
                 f"expected a run folder name without '/', got {self.name!r}")  # fmt: skip
         require(bool(self.out_dir), "out_dir", "expected an output folder")
@@ -615,7 +618,7 @@ def _start_run_dir(config: CompareConfig) -> tuple[Path, list[dict[str, Any]]]:
     run_dir = config.run_dir
     path = run_dir / "compare.json"
     if not config.resume:
-        if path.exists():
+        if path.exists() and _saved_rows(path):  # one with no finished row (a first run that failed) is started over
             raise ConfigError(f"{path} exists already; choose another name or resume=true", key="name")
         run_dir.mkdir(parents=True, exist_ok=True)
         return run_dir, []
@@ -634,6 +637,14 @@ def _start_run_dir(config: CompareConfig) -> tuple[Path, list[dict[str, Any]]]:
                           f"has {_lookup(asdict(config), diff)!r}; the finished rows would not compare",
                           key=diff)  # fmt: skip
     return run_dir, list(saved["rows"])
+
+
+def _saved_rows(path: Path) -> list[dict[str, Any]] | None:
+    """The rows of a ``compare.json``; ``None`` where it cannot be read (kept: it is not ours to overwrite)."""
+    try:
+        return list(json.loads(path.read_text())["rows"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
 
 
 def _lookup(d: dict[str, Any], dotted: str) -> Any:
