@@ -251,6 +251,7 @@ def cmd_pulse(args: argparse.Namespace) -> int:
         "time_col": args.time_col,
         "acc_col": args.acc_col,
         "unit": args.unit,
+        "time_unit": args.time_unit,
         "cfc": None if args.cfc == 0 else args.cfc,
         "sign": -1.0 if args.deceleration_positive else 1.0,
         "time_zero": args.time_zero,
@@ -345,7 +346,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("pulse", help="read a measured crash pulse (CSV or ISO-MME), CFC-filter and integrate it")
     p.add_argument("file", help="CSV file with a header row, an ISO-MME .mme file or test folder")
-    p.add_argument("--time-col", help="CSV time column (seconds); default: the first column")
+    p.add_argument("--time-col", help="CSV time column; default: the first column named like time, else the first")
+    p.add_argument("--time-unit", choices=["s", "ms"], default="s", help="CSV time unit (default s)")
     p.add_argument("--acc-col", help="acceleration column / ISO-MME channel; default: the first acceleration")
     p.add_argument("--unit", choices=["g", "m/s2"], default="g", help="CSV acceleration unit (default g)")
     p.add_argument("--cfc", type=int, default=60, choices=[0, 60, 180, 600, 1000], help="CFC class, 0 for none")

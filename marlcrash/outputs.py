@@ -74,11 +74,16 @@ def atomic_output(path: str | Path, key: str | None = None) -> Iterator[Path]:
     Raises:
         ConfigError: ``path`` cannot be written (see :func:`check_output_file`); the message names the path
             (and ``key``, if given).
+        OSError: writing failed (disk full, no permission); its ``filename`` is ``path``, not the temporary file.
     """
     final = check_output_file(path, key)
     tmp = final.with_name(f".{final.stem}.tmp{final.suffix}")
     try:
         yield tmp
         os.replace(tmp, final)
+    except OSError as e:  # disk full, no permission: name the file the user asked for, not the temporary one
+        if e.filename is None or Path(e.filename) == tmp:
+            raise OSError(e.errno, f"cannot write {final}: {e.strerror or e}", str(final)) from e
+        raise
     finally:
         tmp.unlink(missing_ok=True)

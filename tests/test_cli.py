@@ -150,6 +150,15 @@ def test_pulse_column_unit_and_filter_options(tmp_path):
     assert summary(other, *opts, "--cfc", "1000")["peak_g"] > got["peak_g"]
     proc = run_cli("pulse", str(other), "--time-col", "zeit", "--acc-col", "nope", check=False)
     assert proc.returncode == 2 and "nope" in proc.stderr and "tunnel_ms2" in proc.stderr
+    in_ms = tmp_path / "ms.csv"  # the same record with its time in ms
+    cols = zip(data[:, 0] * 1e3, data[:, 2] * g0, data[:, 1] * g0, strict=True)
+    in_ms.write_text("zeit,radsup_ms2,tunnel_ms2\n" + "".join(f"{t:.3f},{a:.9g},{b:.9g}\n" for t, a, b in cols))
+    got_ms = summary(in_ms, *opts, "--cfc", "180", "--time-unit", "ms")
+    for key in ("peak_g", "t_peak_ms", "delta_v_ms", "delta_v_150ms_ms"):
+        assert got_ms[key] == pytest.approx(ref[key], rel=1e-6, abs=1e-9), key
+    for cfc in ("60", "0"):  # read as seconds: refused, filtered or not, with the option to use
+        proc = run_cli("pulse", str(in_ms), *opts, "--cfc", cfc, check=False)
+        assert proc.returncode == 2 and "is the time column in ms (pass --time-unit ms" in proc.stderr
 
 
 def test_pulse_notes_a_record_too_short_for_its_filter(tmp_path):

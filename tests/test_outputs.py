@@ -41,3 +41,16 @@ def test_atomic_output_replaces_whole_or_leaves_the_old_file(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out.png"]
     with pytest.raises(ConfigError, match="is a folder"), atomic_output(tmp_path, key="--plot"):
         pass
+
+
+def test_a_failed_write_names_the_file_asked_for_not_the_temporary_one(tmp_path):
+    import errno
+
+    target = tmp_path / "summary.json"
+    with (
+        pytest.raises(OSError, match=r"cannot write .*summary\.json: No space left") as e,
+        atomic_output(target) as tmp,
+    ):
+        raise OSError(errno.ENOSPC, "No space left on device", str(tmp))
+    assert e.value.filename == str(target) and e.value.errno == errno.ENOSPC
+    assert list(tmp_path.iterdir()) == []

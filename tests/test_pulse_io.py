@@ -230,8 +230,13 @@ def test_bad_mme_sample_line(tmp_path, analytic):
 def test_bad_mme_headers(tmp_path, analytic):
     ch = _mme(tmp_path, analytic)
     _edit(ch, "Unit                        :g", "Unit                        :N")
+    assert read_mme(tmp_path / "B").channels == ("radsup",)  # by default only acceleration channels are read
     with pytest.raises(PulseError, match=r"B\.001 line 4: expected an acceleration unit"):
+        read_mme(tmp_path / "B", channels="B.001")  # named, it must be one
+    _edit(ch.with_suffix(".002"), "Unit                        :g", "Unit                        :kN")
+    with pytest.raises(PulseError, match=r"B\.mme: no acceleration channel in the test \(channel units: \['N', 'kN'\]"):
         read_mme(tmp_path / "B")
+    _edit(ch.with_suffix(".002"), "Unit                        :kN", "Unit                        :g")
     _edit(ch, "Unit                        :N", "Unit                        :g")
     _edit(ch, "Number of samples           :2200", "Number of samples           :2201")
     with pytest.raises(PulseError, match=r"B\.001 line 8: 'Number of samples' says 2201, found 2200"):
@@ -266,8 +271,11 @@ def test_a_time_column_in_ms_gets_a_hint_and_numbers_print_plainly(tmp_path):
     acc = np.where((t > 10) & (t < 90), -20 * np.sin(np.pi * (t - 10) / 80), 0.0)
     ms = tmp_path / "ms.csv"
     ms.write_text("time,acc\n" + "".join(f"{a:.4f},{b:.6f}\n" for a, b in zip(t, acc, strict=True)))
-    with pytest.raises(PulseError, match=r"ms\.csv: CFC 60 needs a sampling rate.*time column in ms\?"):
-        processed_pulse(ms)
+    for cfc in (60, None):  # unfiltered too: its delta-v would be 1000x too large, silently
+        with pytest.raises(PulseError, match=r"ms\.csv: sampling rate 10 Hz .*time column in ms \(pass --time-unit ms"):
+            processed_pulse(ms, cfc=cfc)
+    work = processed_pulse(ms, time_unit="ms")[1]
+    assert work.sample_rate_hz == pytest.approx(1e4)
     back = tmp_path / "back.csv"
     back.write_text("time,acc\n" + "".join(f"{x},1\n" for x in (0, 0.0004, 0.0001, 0.0005, 0.0006, 0.0007, 0.0008, 9)))
     with pytest.raises(PulseError, match=r"got 0\.0001 after 0\.0004") as info:
@@ -321,3 +329,76 @@ def test_sampled_acceleration_is_the_derivative_with_a_resting_lead_in():
     assert float(a[0]) == pytest.approx(float(v[1] - v[0]) / (2 * dt), rel=1e-12)  # v[-1] = v[0]
     with pytest.raises(PulseError, match="at least 2"):
         sampled_acceleration(v[:1], dt)
+
+
+def test_csv_dialects_of_spreadsheets_and_lab_tools(tmp_path, analytic):
+    """Semicolons with decimal commas, a quoted header whose names hold the other delimiter, Windows-1252 text."""
+    ref = read_csv(_write_plain(tmp_path / "plain.csv", analytic))
+    rows = [(f"{t:.9f}".replace(".", ","), f"{a / 9.80665:.9f}".replace(".", ",")) for t, a in zip(
+        analytic.time, analytic.acc[0], strict=True)]  # fmt: skip
+    euro = tmp_path / "euro.csv"
+    euro.write_bytes(('"Zeit (s)";"Beschl., g in m/s²"\n' + "".join(f"{a};{b}\n" for a, b in rows)).encode("cp1252"))
+    p = read_csv(euro, unit="g")
+    assert p.channels == ("Beschl., g in m/s²",)  # not a replacement character, not split at the comma
+    np.testing.assert_allclose(p.acc, ref.acc, rtol=1e-8, atol=1e-6)
+    np.testing.assert_allclose(p.time, ref.time, atol=1e-9)
+    tab = tmp_path / "tab.csv"
+    tab.write_text("time\tacc\n" + "".join(f"{a}\t{b}\n" for a, b in rows))
+    np.testing.assert_allclose(read_csv(tab).acc, ref.acc, rtol=1e-8, atol=1e-6)
+    mixed = tmp_path / "mixed.csv"  # the header says ',', the rows ';': the first disagreeing row is named
+    mixed.write_text("time,acc\n0;1\n0.001;2\n" + "".join(f"{i * 1e-3};0\n" for i in range(2, 10)))
+    with pytest.raises(PulseError, match=r"mixed\.csv line 2: expected 2 fields as in the header, got 1"):
+        read_csv(mixed)
+
+
+def _write_plain(path: Path, pulse: Pulse) -> Path:
+    path.write_text("time,acc\n" + "".join(
+        f"{t:.9f},{a / 9.80665:.9f}\n" for t, a in zip(pulse.time, pulse.acc[0], strict=True)))  # fmt: skip
+    return path
+
+
+def test_a_gap_in_the_time_column_is_an_error_naming_its_line(tmp_path):
+    t = np.r_[np.arange(0, 0.05, 1e-4), np.arange(0.08, 0.15, 1e-4)]  # 30 ms missing
+    path = tmp_path / "gap.csv"
+    path.write_text("time,acc\n" + "".join(f"{x:.6f},-1\n" for x in t))
+    with pytest.raises(PulseError, match=r"gap\.csv line 502, column 'time': gap in the record: time jumps from "
+                                         r"0\.0499 to 0\.08, 301\.0 times"):  # fmt: skip
+        read_csv(path)
+    assert read_csv(path, max_gap=None).n_samples == t.size
+    with pytest.raises(PulseError, match="max_gap"):
+        read_csv(path, max_gap=0.5)
+
+
+def test_mme_reads_acceleration_channels_and_the_summary_takes_the_first(tmp_path, analytic):
+    """A real test holds forces and other time bases too: by default only accelerations are read, and the pulse
+    summary reads the first acceleration channel alone."""
+    from marlcrash.pulse import mme_channels
+    from marlcrash.pulse.io import pulse_summary
+    from marlcrash.pulse.signal import resample
+
+    slow = resample(analytic, 5000.0)  # another time base
+    write_mme(Pulse(analytic.time, np.stack([analytic.acc[0] / 9.80665 * 1e3, analytic.acc[0]]),
+                    ("11BELT0000FOXA", "10VEHC0000ACXP")), tmp_path / "T", "T")  # fmt: skip
+    _edit(tmp_path / "T" / "Channel" / "T.001", "Unit                        :g", "Unit                        :N")
+    write_mme(slow, tmp_path / "S", "S")
+    for f in (tmp_path / "S" / "Channel").glob("S.001"):
+        f.rename(tmp_path / "T" / "Channel" / "T.003")
+    info = mme_channels(tmp_path / "T")
+    assert [(c["code"], c["unit"], c["acceleration"]) for c in info] == [
+        ("11BELT0000FOXA", "N", False), ("10VEHC0000ACXP", "g", True), (slow.channels[0], "g", True)]  # fmt: skip
+    with pytest.raises(PulseError, match="time base"):  # the two accelerations differ in time base
+        read_mme(tmp_path / "T")
+    assert read_mme(tmp_path / "T", channels="10VEHC0000ACXP").channels == ("10VEHC0000ACXP",)
+    s = pulse_summary(tmp_path / "T")
+    assert s["channel"] == "10VEHC0000ACXP"
+    assert s["delta_v_ms"] == pytest.approx(pulse_summary(_write_plain(tmp_path / "p.csv", analytic))["delta_v_ms"])
+
+
+def test_filtering_a_record_shorter_than_the_filter_period_is_refused():
+    from marlcrash.pulse import filter_pulse
+
+    t = np.arange(50) * 1e-4  # 5 ms
+    short = Pulse(t, -20 * 9.80665 * np.sin(np.pi * t / 5e-3), ("a",))
+    with pytest.raises(PulseError, match=r"record of 5 ms is too short for CFC 60; expected at least 10 ms"):
+        filter_pulse(short, 60)
+    assert filter_pulse(short, 1000).cfc == 1000  # 0.6 ms is enough for CFC 1000

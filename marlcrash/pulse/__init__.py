@@ -7,6 +7,7 @@ pulse is negative.
 
 from marlcrash.pulse.cfc import CFC_CLASSES, cfc_coefficients, cfc_filter, cfc_filter_torch, cfc_matrix, f_h
 from marlcrash.pulse.io import (
+    mme_channels,
     plot_pulse,
     processed_pulse,
     pulse_figures,
@@ -47,6 +48,7 @@ __all__ = [
     "from_rearward_x",
     "integrate",
     "integrate_torch",
+    "mme_channels",
     "plot_pulse",
     "prepare_velocity",
     "processed_pulse",

@@ -9,7 +9,8 @@ data that records deceleration as positive.
 CSV: an optional block of ``#`` comment lines, one header row, then one row per
 sample. Time in seconds (``time_unit="ms"`` for milliseconds), acceleration in g
 (``unit="m/s2"`` for SI). Columns are chosen by name; the delimiter (``,``, ``;``
-or tab) is detected from the header.
+or tab) is the one that splits the header and the first rows alike; with ``;`` or tab a
+decimal comma (``-2,5``) is read as a decimal point. UTF-8 or Windows-1252 text.
 
 ISO-MME (ISO/TS 13499): a test folder with ``<test>.mme`` and a ``Channel``
 folder holding ``<test>.chn`` (the channel list) and one file per channel,
@@ -49,6 +50,14 @@ from marlcrash.units import G0
 _ACC_UNITS = {"g": G0, "m/s2": 1.0, "m/s^2": 1.0, "m/s**2": 1.0, "m/s²": 1.0, "m/(s*s)": 1.0, "mm/s2": 1e-3}
 _TIME_UNITS = {"s": 1.0, "ms": 1e-3}
 _TIME_NAMES = ("time", "t", "zeit", "time_s", "time [s]", "time (s)")
+MIN_GAP_S = 2.5e-3
+"""Shortest time step :func:`read_csv` calls a gap [s] (when it is also ``max_gap`` median steps long): a quarter
+period of CFC 60's 100 Hz -3 dB frequency. Jittered time stamps bridge shorter steps harmlessly; a data logger's
+dropout of tens of ms would be bridged by a straight line."""
+MIN_RECORD_RATE_HZ = 500.0
+"""Lowest sampling rate :func:`processed_pulse` accepts [Hz]. Crash accelerometers record at 10 kHz or more, and
+CFC 60 itself needs about 600 Hz; a record at a few Hz is almost always a time column in ms read as seconds
+(10 kHz in ms: 10 Hz), which would make every velocity change 1000x too large."""
 
 
 def _is_number(text: str) -> bool:
@@ -86,6 +95,7 @@ def read_csv(
     unit: str = "g",
     time_unit: str = "s",
     sign: float = 1.0,
+    max_gap: float | None = 4.0,
 ) -> Pulse:
     """Read a pulse from a CSV file with a header row.
 
@@ -97,13 +107,15 @@ def read_csv(
         unit: acceleration unit of the file, ``g`` or ``m/s2``.
         time_unit: time unit of the file, ``s`` or ``ms``.
         sign: ``+1`` or ``-1``, multiplies the acceleration (module docstring).
+        max_gap: largest sampling interval, as a multiple of the median one; a longer one that also exceeds
+            :data:`MIN_GAP_S` is a gap in the record (``None``: any spacing).
 
     Returns:
         A :class:`Pulse` with one channel per acceleration column, named by its header.
 
     Raises:
         PulseError: unreadable file, missing column, ragged row, non-numeric or non-finite
-            cell, time not strictly increasing, or too few samples.
+            cell, time not strictly increasing, a gap, or too few samples.
     """
     path = Path(path)
     factor = acc_unit_factor(unit)
@@ -111,22 +123,15 @@ def read_csv(
         raise PulseError(f"time_unit: expected one of {sorted(_TIME_UNITS)}, got {time_unit!r}")
     if sign not in (1, -1, 1.0, -1.0):
         raise PulseError(f"sign: expected +1 or -1, got {sign!r}")
-    try:
-        text = path.read_text(encoding="utf-8-sig", errors="replace")
-    except OSError as e:
-        raise _err(f"cannot read pulse file ({e.strerror})", path) from None
-    lines = text.splitlines()
+    if max_gap is not None and not (math.isfinite(max_gap) and max_gap > 1):
+        raise PulseError(f"max_gap: expected a multiple of the median sampling interval > 1 or None, got {max_gap!r}")
+    lines = _read_text_lines(path)
     first = next((i for i, s in enumerate(lines) if s.strip() and not s.lstrip().startswith("#")), None)
     if first is None:
         raise _err("expected a header row and samples, found no data", path)
     header_line = lines[first]
-    delim = max((",", ";", "\t"), key=header_line.count)
-    if header_line.count(delim) == 0:
-        raise _err(
-            f"expected a header with at least two columns separated by ',', ';' or tab, got {header_line!r}",
-            path,
-            first + 1,
-        )
+    delim = _delimiter(lines, first, path)
+    decimal_comma = delim != ","  # '0,5;-2,25': the decimal comma of European spreadsheets
     header = [h.strip() for h in next(csv.reader([header_line], delimiter=delim))]
     if all(_is_number(h) for h in header):  # reading it as names would silently drop the first sample
         raise _err(
@@ -173,7 +178,7 @@ def read_csv(
         for j in wanted:
             cell = row[j].strip()
             try:
-                v = float(cell)
+                v = float(cell.replace(",", ".") if decimal_comma else cell)
             except ValueError:
                 raise _err(f"expected a number, got {cell!r}", path, lineno, header[j]) from None
             if not math.isfinite(v):
@@ -195,8 +200,55 @@ def read_csv(
             line_of[i + 1],
             header[ti],
         )
+    median = float(np.median(steps))
+    if max_gap is not None and float(steps.max()) > max(max_gap * median, MIN_GAP_S):
+        i = int(np.argmax(steps))
+        raise _err(
+            f"gap in the record: time jumps from {float(data[i, 0])!r} to {float(data[i + 1, 0])!r}, "
+            f"{float(steps[i]) / median:.1f} times the median sampling interval ({median:g} s); resampling would "
+            f"bridge it with a straight line. Fill or cut the record, or accept gaps with max_gap=None",
+            path,
+            line_of[i + 1],
+            header[ti],
+        )
     acc = data[:, 1:].T * (factor * float(sign))
     return Pulse(time=time, acc=acc, channels=tuple(header[j] for j in ai), source=str(path))
+
+
+def _read_text_lines(path: Path) -> list[str]:
+    """The lines of a text file: UTF-8 (with or without a byte-order mark), else Windows-1252 / Latin-1, the
+    encodings lab and spreadsheet exports use (``m/s²`` in a header must not turn into a replacement character)."""
+    try:
+        raw = path.read_bytes()
+    except OSError as e:
+        raise _err(f"cannot read pulse file ({e.strerror})", path) from None
+    for encoding in ("utf-8-sig", "cp1252"):
+        try:
+            return raw.decode(encoding).splitlines()
+        except UnicodeDecodeError:
+            continue
+    return raw.decode("latin-1").splitlines()  # never fails: every byte is a character
+
+
+def _delimiter(lines: list[str], first: int, path: Path) -> str:
+    """The delimiter (``,``, ``;`` or tab) that splits the header into at least two names and the first data rows
+    into as many fields; the header alone is ambiguous (``"time (s)";"acc, g"`` holds one of each)."""
+    data = [s for s in lines[first + 1 : first + 21] if s.strip() and not s.lstrip().startswith("#")]
+    best, best_fields = None, 0
+    for d in (",", ";", "\t"):
+        n = len(next(csv.reader([lines[first]], delimiter=d)))
+        if n >= 2 and all(len(next(csv.reader([s], delimiter=d))) == n for s in data) and n > best_fields:
+            best, best_fields = d, n
+    if best is not None:
+        return best
+    n_head = {d: len(next(csv.reader([lines[first]], delimiter=d))) for d in (",", ";", "\t")}
+    if max(n_head.values()) < 2:
+        raise _err(
+            f"expected a header with at least two columns separated by ',', ';' or tab, got {lines[first]!r}",
+            path,
+            first + 1,
+        )
+    return max(n_head, key=n_head.get)  # the header's; the first row that disagrees is reported with its line
 
 
 def write_csv(pulse: Pulse, path: str | Path, *, unit: str = "g", time_col: str = "time") -> Path:
@@ -311,6 +363,43 @@ def _mme_paths(path: Path) -> tuple[Path, Path]:
     return mme, folder
 
 
+def mme_channels(path: str | Path) -> list[dict[str, Any]]:
+    """The channels of an ISO-MME test from their headers alone (no samples parsed), in file order.
+
+    Args:
+        path: the test folder or its ``<test>.mme`` file.
+
+    Returns:
+        One dict per channel file: ``file`` (path), ``code`` (channel code, ``""`` if none), ``name`` (name of
+        the channel), ``unit`` (as written) and ``acceleration`` (whether that unit is an acceleration unit).
+
+    Raises:
+        PulseError: no test, no ``Channel`` folder or no channel files (naming the path).
+    """
+    mme, folder = _mme_paths(Path(path))
+    test = mme.stem
+    _read_lines(mme)  # the test description must at least be readable
+    files = sorted(p for p in folder.iterdir() if p.is_file() and re.fullmatch(r"\d{3}", p.suffix[1:] or ""))
+    files = [p for p in files if p.stem.lower() == test.lower()]
+    if not files:
+        raise _err(f"no channel files {test}.001, {test}.002, ... in the Channel folder", mme)
+    out = []
+    for p in files:
+        h, _ = _parse_header(p, _read_lines(p)[:200])
+        code = h.get("channel code", ("", 0))[0]
+        unit = h.get("unit", ("", 0))[0]
+        out.append(
+            {
+                "file": p,
+                "code": "" if code.upper() == "NOVALUE" else code,
+                "name": h.get("name of the channel", ("", 0))[0],
+                "unit": unit,
+                "acceleration": unit.strip().lower().replace(" ", "") in _ACC_UNITS,
+            }
+        )
+    return out
+
+
 def read_mme(path: str | Path, *, channels: str | Sequence[str] | None = None, sign: float = 1.0) -> Pulse:
     """Read acceleration channels of an ISO-MME test.
 
@@ -318,7 +407,8 @@ def read_mme(path: str | Path, *, channels: str | Sequence[str] | None = None, s
         path: the test folder or its ``<test>.mme`` file.
         channels: channel(s) to read, each matched (case-insensitively) against the channel
             code (e.g. ``10VEHC0000ACXP``), the ``Name of the channel`` or the file name
-            (``<test>.001``); default: every channel.
+            (``<test>.001``); default: every acceleration channel (a test also holds forces,
+            displacements ...: :func:`mme_channels` lists them).
         sign: ``+1`` or ``-1``, multiplies the acceleration (module docstring).
 
     Returns:
@@ -332,36 +422,22 @@ def read_mme(path: str | Path, *, channels: str | Sequence[str] | None = None, s
     path = Path(path)
     if sign not in (1, -1, 1.0, -1.0):
         raise PulseError(f"sign: expected +1 or -1, got {sign!r}")
-    mme, folder = _mme_paths(path)
-    test = mme.stem
-    _read_lines(mme)  # the test description must at least be readable
-    files = sorted(p for p in folder.iterdir() if p.is_file() and re.fullmatch(r"\d{3}", p.suffix[1:] or ""))
-    files = [p for p in files if p.stem.lower() == test.lower()]
-    if not files:
-        raise _err(f"no channel files {test}.001, {test}.002, ... in the Channel folder", mme)
+    mme, _ = _mme_paths(path)
+    info = mme_channels(mme)
     if channels is None:
-        chosen = files
+        chosen = [c["file"] for c in info if c["acceleration"]]
+        if not chosen:
+            units = sorted({c["unit"] for c in info})
+            raise _err(f"no acceleration channel in the test (channel units: {units}); name one with channels=", mme)
     else:
         wanted = [channels] if isinstance(channels, str) else list(channels)
-        # headers only, to match names before parsing every sample
-        info = []
-        for p in files:
-            h, _ = _parse_header(p, _read_lines(p)[:200])
-            info.append(
-                (
-                    p,
-                    {
-                        h.get("channel code", ("", 0))[0].lower(),
-                        h.get("name of the channel", ("", 0))[0].lower(),
-                        p.name.lower(),
-                    },
-                )
-            )
         chosen = []
         for w in wanted:
-            hit = [p for p, names in info if w.lower() in names]
+            hit = [
+                c["file"] for c in info if w.lower() in (c["code"].lower(), c["name"].lower(), c["file"].name.lower())
+            ]
             if not hit:
-                known = sorted({n for _, names in info for n in names if n and n != "novalue"})
+                known = sorted({n for c in info for n in (c["code"], c["name"], c["file"].name) if n})
                 raise _err(f"channel {w!r} not found; the test has {known}", mme)
             chosen.append(hit[0])
     chans = [_read_mme_channel(p) for p in chosen]
@@ -516,6 +592,7 @@ def processed_pulse(
     time_col: str | None = None,
     acc_col: str | None = None,
     unit: str = "g",
+    time_unit: str = "s",
     cfc: int | None = 60,
     sign: float = 1.0,
     time_zero: str = "threshold",
@@ -532,6 +609,7 @@ def processed_pulse(
         time_col: CSV time column (see :func:`read_csv`).
         acc_col: the channel (CSV column or MME channel); default the first acceleration channel.
         unit: CSV acceleration unit, ``g`` or ``m/s2``.
+        time_unit: CSV time unit, ``s`` or ``ms``.
         cfc: CFC class, or ``None`` for no filtering.
         sign: ``+1`` or ``-1`` (see the module docstring).
         time_zero: ``"threshold"`` or ``"file"``.
@@ -542,28 +620,40 @@ def processed_pulse(
         time zero [s] on that clock.
 
     Raises:
-        PulseError: unreadable file, bad channel, or time zero outside the record (naming the file).
+        PulseError: unreadable file, bad channel, a sampling rate below :data:`MIN_RECORD_RATE_HZ` (a time
+            column in ms read as s, typically), or time zero outside the record (naming the file).
     """
     kwargs: dict[str, Any] = {"sign": sign}
     p = Path(path)
-    if not (p.is_dir() or p.suffix.lower() == ".mme"):
-        kwargs.update(time_col=time_col, unit=unit)
-    elif time_col is not None or unit != "g":
+    mme = p.is_dir() or p.suffix.lower() == ".mme"
+    if not mme:
+        kwargs.update(time_col=time_col, unit=unit, time_unit=time_unit)
+    elif time_col is not None or unit != "g" or time_unit != "s":
         warnings.warn(
-            f"{p.name}: ISO-MME channels carry their own time base and unit; time_col/unit apply to CSV files only "
-            "and are ignored",
+            f"{p.name}: ISO-MME channels carry their own time base and unit; time_col/unit/time_unit apply to CSV "
+            "files only and are ignored",
             stacklevel=2,
         )
     if acc_col is not None:
         kwargs["acc_col"] = acc_col
+    elif mme:  # the first acceleration channel only: others may have their own time base
+        first = next((c for c in mme_channels(p) if c["acceleration"]), None)
+        if first is not None:
+            kwargs["acc_col"] = first["file"].name
     pulse = read_pulse(p, **kwargs).select(0)
+    if pulse.sample_rate_hz < MIN_RECORD_RATE_HZ:
+        hint = " (pass --time-unit ms / time_unit='ms')" if not mme and time_unit == "s" else ""
+        raise _err(
+            f"sampling rate {pulse.sample_rate_hz:.4g} Hz (record of {pulse.time[-1] - pulse.time[0]:.4g} s): crash "
+            f"accelerometer records are sampled at {MIN_RECORD_RATE_HZ:g} Hz or more; is the time column in ms"
+            f"{hint}?",
+            p,
+        )
     try:
         work, t0 = filtered_from_time_zero(pulse, cfc, time_zero, threshold_g)
-    except PulseError as e:  # e.g. a sampling rate too low for the filter class: say which file, and a likely cause
-        span = float(pulse.time[-1] - pulse.time[0])
-        hint = f"; the record spans {span:g} s: is its time column in ms?" if span > 10.0 else ""
-        if hint or p.name not in str(e):
-            raise _err(f"{e}{hint}", p) from None
+    except PulseError as e:  # e.g. a sampling rate too low for the filter class: say which file
+        if p.name not in str(e):
+            raise _err(str(e), p) from None
         raise
     if not work.time[0] <= t0 < work.time[-1]:
         raise _err(f"time zero {t0} s lies outside the record [{work.time[0]}, {work.time[-1]}] s", p)
