@@ -83,6 +83,10 @@ def atomic_output(path: str | Path, key: str | None = None) -> Iterator[Path]:
         os.replace(tmp, final)
     except OSError as e:  # disk full, no permission: name the file the user asked for, not the temporary one
         if e.filename is None or Path(e.filename) == tmp:
+            if e.errno is None:
+                err = OSError(f"cannot write {final}: {e}")
+                err.filename = str(final)
+                raise err from e
             raise OSError(e.errno, f"cannot write {final}: {e.strerror or e}", str(final)) from e
         raise
     finally:

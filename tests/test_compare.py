@@ -303,6 +303,12 @@ def test_a_first_run_that_failed_before_any_row_does_not_block_its_rerun(short, 
     assert json.loads((cfg.run_dir / "compare.json").read_text())["rows"] == []
     _, rows = run_comparison(cfg)  # the same command again: nothing finished to protect
     assert [(r["method"], r["seed"]) for r in rows] == [("random_search", 0)]
+    other = tiny(tmp_path, methods=["random_search"], seeds=[0], name="other")
+    other.run_dir.mkdir(parents=True)
+    (other.run_dir / "compare.json").write_text("{not json")  # not ours to overwrite
+    with pytest.raises(ConfigError, match="exists already") as e:
+        run_comparison(other)
+    assert e.value.key == "name" and (other.run_dir / "compare.json").read_text() == "{not json"
 
 
 # --------------------------------------------------------------------------------------- config

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -230,13 +231,18 @@ def test_bad_mme_sample_line(tmp_path, analytic):
 def test_bad_mme_headers(tmp_path, analytic):
     ch = _mme(tmp_path, analytic)
     _edit(ch, "Unit                        :g", "Unit                        :N")
-    assert read_mme(tmp_path / "B").channels == ("radsup",)  # by default only acceleration channels are read
+    with pytest.warns(UserWarning, match=r"B\.mme: read the acceleration channels only; skipped B\.001 \(N\)"):
+        assert read_mme(tmp_path / "B").channels == ("radsup",)  # by default only acceleration channels are read
     with pytest.raises(PulseError, match=r"B\.001 line 4: expected an acceleration unit"):
         read_mme(tmp_path / "B", channels="B.001")  # named, it must be one
     _edit(ch.with_suffix(".002"), "Unit                        :g", "Unit                        :kN")
     with pytest.raises(PulseError, match=r"B\.mme: no acceleration channel in the test \(channel units: \['N', 'kN'\]"):
         read_mme(tmp_path / "B")
     _edit(ch.with_suffix(".002"), "Unit                        :kN", "Unit                        :g")
+    _edit(ch, "Unit                        :N\n", "")
+    with pytest.raises(PulseError, match=r"B\.001: missing header line 'Unit'"):  # never skipped as "not acceleration"
+        read_mme(tmp_path / "B")
+    _edit(ch, "Reference system", "Unit                        :g\nReference system")
     _edit(ch, "Unit                        :N", "Unit                        :g")
     _edit(ch, "Number of samples           :2200", "Number of samples           :2201")
     with pytest.raises(PulseError, match=r"B\.001 line 8: 'Number of samples' says 2201, found 2200"):
@@ -343,28 +349,47 @@ def test_csv_dialects_of_spreadsheets_and_lab_tools(tmp_path, analytic):
     np.testing.assert_allclose(p.acc, ref.acc, rtol=1e-8, atol=1e-6)
     np.testing.assert_allclose(p.time, ref.time, atol=1e-9)
     tab = tmp_path / "tab.csv"
-    tab.write_text("time\tacc\n" + "".join(f"{a}\t{b}\n" for a, b in rows))
+    tab.write_text("time\tacc\n" + "".join(f"{a.replace(',', '.')}\t{b.replace(',', '.')}\n" for a, b in rows))
     np.testing.assert_allclose(read_csv(tab).acc, ref.acc, rtol=1e-8, atol=1e-6)
+    thousands = tmp_path / "thousands.csv"  # tab export of an English spreadsheet: '-1,005' is not -1.005
+    thousands.write_text("time\tacc\n" + "".join(f"{i * 1e-4:.4f}\t-1,{i:03d}\n" for i in range(20)))
+    with pytest.raises(PulseError, match=r"thousands\.csv line 2, column 'acc': expected a number, got '-1,000'"):
+        read_csv(thousands, unit="m/s2")
+    stray = tmp_path / "stray.csv"  # one Latin-1 comment line in a UTF-8 file: the header stays UTF-8
+    stray.write_bytes("# Prüfung\n".encode("latin-1") + "time,acc [m/s²]\n".encode() + _plain_rows(analytic).encode())
+    assert read_csv(stray, acc_col="acc [m/s²]").channels == ("acc [m/s²]",)
+    tie = tmp_path / "tie.csv"  # one comma per row in a ';' file with integer times: ';' wins the tie
+    tie.write_text('"time (ms)";"acc, g"\n' + "".join(f"{i};-0,25\n" for i in range(20)))
+    assert read_csv(tie, time_unit="ms").acc[0, 0] == pytest.approx(-0.25 * 9.80665)
     mixed = tmp_path / "mixed.csv"  # the header says ',', the rows ';': the first disagreeing row is named
     mixed.write_text("time,acc\n0;1\n0.001;2\n" + "".join(f"{i * 1e-3};0\n" for i in range(2, 10)))
     with pytest.raises(PulseError, match=r"mixed\.csv line 2: expected 2 fields as in the header, got 1"):
         read_csv(mixed)
 
 
+def _plain_rows(pulse: Pulse) -> str:
+    return "".join(f"{t:.9f},{a / 9.80665:.9f}\n" for t, a in zip(pulse.time, pulse.acc[0], strict=True))
+
+
 def _write_plain(path: Path, pulse: Pulse) -> Path:
-    path.write_text("time,acc\n" + "".join(
-        f"{t:.9f},{a / 9.80665:.9f}\n" for t, a in zip(pulse.time, pulse.acc[0], strict=True)))  # fmt: skip
+    path.write_text("time,acc\n" + _plain_rows(pulse))
     return path
 
 
-def test_a_gap_in_the_time_column_is_an_error_naming_its_line(tmp_path):
+def test_a_gap_in_the_time_column_is_named_in_a_warning_and_bridged(tmp_path):
     t = np.r_[np.arange(0, 0.05, 1e-4), np.arange(0.08, 0.15, 1e-4)]  # 30 ms missing
     path = tmp_path / "gap.csv"
     path.write_text("time,acc\n" + "".join(f"{x:.6f},-1\n" for x in t))
-    with pytest.raises(PulseError, match=r"gap\.csv line 502, column 'time': gap in the record: time jumps from "
-                                         r"0\.0499 to 0\.08, 301\.0 times"):  # fmt: skip
-        read_csv(path)
-    assert read_csv(path, max_gap=None).n_samples == t.size
+    with pytest.warns(UserWarning, match=r"gap\.csv line 502, column 'time': 1 gap\(s\) in the record, the longest "
+                                         r"from t = 0\.0499 to 0\.08 \(301\.0 times"):  # fmt: skip
+        assert read_csv(path).n_samples == t.size
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        read_csv(path, max_gap=None)  # no check
+        jitter = tmp_path / "jitter.csv"  # steps up to 5x the median but under 2.5 ms: not a gap
+        tj = np.cumsum(np.r_[0.0, np.tile([1e-4, 1e-4, 1e-4, 5e-4], 100)])
+        jitter.write_text("time,acc\n" + "".join(f"{x:.6f},-1\n" for x in tj))
+        read_csv(jitter)
     with pytest.raises(PulseError, match="max_gap"):
         read_csv(path, max_gap=0.5)
 
@@ -386,8 +411,8 @@ def test_mme_reads_acceleration_channels_and_the_summary_takes_the_first(tmp_pat
     info = mme_channels(tmp_path / "T")
     assert [(c["code"], c["unit"], c["acceleration"]) for c in info] == [
         ("11BELT0000FOXA", "N", False), ("10VEHC0000ACXP", "g", True), (slow.channels[0], "g", True)]  # fmt: skip
-    with pytest.raises(PulseError, match="time base"):  # the two accelerations differ in time base
-        read_mme(tmp_path / "T")
+    with pytest.raises(PulseError, match="time base"), pytest.warns(UserWarning, match="skipped T.001"):
+        read_mme(tmp_path / "T")  # the two accelerations differ in time base
     assert read_mme(tmp_path / "T", channels="10VEHC0000ACXP").channels == ("10VEHC0000ACXP",)
     s = pulse_summary(tmp_path / "T")
     assert s["channel"] == "10VEHC0000ACXP"
@@ -401,4 +426,4 @@ def test_filtering_a_record_shorter_than_the_filter_period_is_refused():
     short = Pulse(t, -20 * 9.80665 * np.sin(np.pi * t / 5e-3), ("a",))
     with pytest.raises(PulseError, match=r"record of 5 ms is too short for CFC 60; expected at least 10 ms"):
         filter_pulse(short, 60)
-    assert filter_pulse(short, 1000).cfc == 1000  # 0.6 ms is enough for CFC 1000
+    assert filter_pulse(short, 600).cfc == 600  # 1 ms is enough for CFC 600

@@ -77,21 +77,21 @@ def restore_rng(state: dict[str, Any], env_rng: np.random.Generator) -> None:
     """Restore a :func:`rng_state` snapshot in place (the env generator object is kept).
 
     Raises:
-        ConfigError: (key ``resume``) the snapshot holds CUDA generators and this machine has none or fewer
-            devices, so the resumed run could not draw the numbers the uninterrupted one would have.
+        ConfigError: (key ``resume``) the snapshot holds CUDA generators and this machine has no CUDA device, so
+            the resumed run could not draw the numbers the uninterrupted one would have.
     """
     torch.set_rng_state(state["torch"])
     env_rng.bit_generator.state = state["env"]
     cuda = state.get("cuda")
     if cuda:
-        if not torch.cuda.is_available() or torch.cuda.device_count() < len(cuda):
+        if not torch.cuda.is_available():
             raise ConfigError(
-                f"the checkpoint was written with {len(cuda)} CUDA device(s) in use; this machine has "
-                f"{torch.cuda.device_count() if torch.cuda.is_available() else 0}, so the run cannot continue "
-                "bit for bit",
+                "the checkpoint was written with CUDA in use and this machine has no CUDA device, so the run "
+                "cannot continue bit for bit",
                 key="resume",
             )
-        torch.cuda.set_rng_state_all(cuda)
+        for i, s in enumerate(cuda[: torch.cuda.device_count()]):  # the devices a run uses are the first ones
+            torch.cuda.set_rng_state(s, i)
 
 
 def save_checkpoint(path: str | Path, state: dict[str, Any]) -> Path:
@@ -117,10 +117,6 @@ def save_checkpoint(path: str | Path, state: dict[str, Any]) -> Path:
         Path(tmp).unlink(missing_ok=True)
         raise
     return path
-
-
-TRAINING_KEYS = ("policy", "iteration", "env_steps", "simulations", "wall_time_s")
-"""Entries every training checkpoint holds (:meth:`marlcrash.calibrate.marl.Trainer.state_dict`)."""
 
 
 TRAINING_KEYS = ("policy", "critic", "optimizer", "rng", "iteration", "env_steps", "simulations", "wall_time_s")

@@ -618,7 +618,7 @@ def _start_run_dir(config: CompareConfig) -> tuple[Path, list[dict[str, Any]]]:
     run_dir = config.run_dir
     path = run_dir / "compare.json"
     if not config.resume:
-        if path.exists() and _saved_rows(path):  # one with no finished row (a first run that failed) is started over
+        if path.exists() and _saved_rows(path) != []:  # no finished row (a first run that failed): started over
             raise ConfigError(f"{path} exists already; choose another name or resume=true", key="name")
         run_dir.mkdir(parents=True, exist_ok=True)
         return run_dir, []

@@ -9,8 +9,9 @@ data that records deceleration as positive.
 CSV: an optional block of ``#`` comment lines, one header row, then one row per
 sample. Time in seconds (``time_unit="ms"`` for milliseconds), acceleration in g
 (``unit="m/s2"`` for SI). Columns are chosen by name; the delimiter (``,``, ``;``
-or tab) is the one that splits the header and the first rows alike; with ``;`` or tab a
-decimal comma (``-2,5``) is read as a decimal point. UTF-8 or Windows-1252 text.
+or tab) is the one that splits the header and the first rows alike; with ``;`` a decimal
+comma (``-2,5``) is read as a decimal point. UTF-8 or Windows-1252 text. A gap in the time
+column (``max_gap``) is reported as a warning: resampling bridges it with a straight line.
 
 ISO-MME (ISO/TS 13499): a test folder with ``<test>.mme`` and a ``Channel``
 folder holding ``<test>.chn`` (the channel list) and one file per channel,
@@ -51,9 +52,9 @@ _ACC_UNITS = {"g": G0, "m/s2": 1.0, "m/s^2": 1.0, "m/s**2": 1.0, "m/s²": 1.0, "
 _TIME_UNITS = {"s": 1.0, "ms": 1e-3}
 _TIME_NAMES = ("time", "t", "zeit", "time_s", "time [s]", "time (s)")
 MIN_GAP_S = 2.5e-3
-"""Shortest time step :func:`read_csv` calls a gap [s] (when it is also ``max_gap`` median steps long): a quarter
-period of CFC 60's 100 Hz -3 dB frequency. Jittered time stamps bridge shorter steps harmlessly; a data logger's
-dropout of tens of ms would be bridged by a straight line."""
+"""Shortest time step :func:`read_csv` warns about as a gap [s] (when it is also ``max_gap`` median steps long): a
+quarter period of CFC 60's 100 Hz -3 dB frequency. Jittered time stamps bridge shorter steps harmlessly; a data
+logger's dropout of tens of ms is bridged by a straight line (a table of breakpoints wants exactly that)."""
 MIN_RECORD_RATE_HZ = 500.0
 """Lowest sampling rate :func:`processed_pulse` accepts [Hz]. Crash accelerometers record at 10 kHz or more, and
 CFC 60 itself needs about 600 Hz; a record at a few Hz is almost always a time column in ms read as seconds
@@ -107,15 +108,15 @@ def read_csv(
         unit: acceleration unit of the file, ``g`` or ``m/s2``.
         time_unit: time unit of the file, ``s`` or ``ms``.
         sign: ``+1`` or ``-1``, multiplies the acceleration (module docstring).
-        max_gap: largest sampling interval, as a multiple of the median one; a longer one that also exceeds
-            :data:`MIN_GAP_S` is a gap in the record (``None``: any spacing).
+        max_gap: largest sampling interval, as a multiple of the median one, before a warning names the gap (a
+            longer one that also exceeds :data:`MIN_GAP_S`); ``None``: no check.
 
     Returns:
         A :class:`Pulse` with one channel per acceleration column, named by its header.
 
     Raises:
         PulseError: unreadable file, missing column, ragged row, non-numeric or non-finite
-            cell, time not strictly increasing, a gap, or too few samples.
+            cell, time not strictly increasing, or too few samples.
     """
     path = Path(path)
     factor = acc_unit_factor(unit)
@@ -131,7 +132,9 @@ def read_csv(
         raise _err("expected a header row and samples, found no data", path)
     header_line = lines[first]
     delim = _delimiter(lines, first, path)
-    decimal_comma = delim != ","  # '0,5;-2,25': the decimal comma of European spreadsheets
+    # '0,5;-2,25': European spreadsheets separate by ';' because the comma is their decimal mark. Not with tabs:
+    # a tab export of an English spreadsheet may hold thousands separators ('-1,005' is -1005 there).
+    decimal_comma = delim == ";"
     header = [h.strip() for h in next(csv.reader([header_line], delimiter=delim))]
     if all(_is_number(h) for h in header):  # reading it as names would silently drop the first sample
         raise _err(
@@ -203,31 +206,48 @@ def read_csv(
     median = float(np.median(steps))
     if max_gap is not None and float(steps.max()) > max(max_gap * median, MIN_GAP_S):
         i = int(np.argmax(steps))
-        raise _err(
-            f"gap in the record: time jumps from {float(data[i, 0])!r} to {float(data[i + 1, 0])!r}, "
-            f"{float(steps[i]) / median:.1f} times the median sampling interval ({median:g} s); resampling would "
-            f"bridge it with a straight line. Fill or cut the record, or accept gaps with max_gap=None",
-            path,
-            line_of[i + 1],
-            header[ti],
+        n_gaps = int(np.count_nonzero(steps > max(max_gap * median, MIN_GAP_S)))
+        warnings.warn(
+            str(
+                _err(
+                    f"{n_gaps} gap(s) in the record, the longest from t = {float(data[i, 0])!r} to "
+                    f"{float(data[i + 1, 0])!r} ({float(steps[i]) / median:.1f} times the median sampling interval "
+                    f"of {median:g} s); resampling bridges a gap with a straight line, right for a table of "
+                    "breakpoints, wrong for a recorder's dropout",
+                    path,
+                    line_of[i + 1],
+                    header[ti],
+                )
+            ),
+            stacklevel=2,
         )
     acc = data[:, 1:].T * (factor * float(sign))
     return Pulse(time=time, acc=acc, channels=tuple(header[j] for j in ai), source=str(path))
 
 
 def _read_text_lines(path: Path) -> list[str]:
-    """The lines of a text file: UTF-8 (with or without a byte-order mark), else Windows-1252 / Latin-1, the
-    encodings lab and spreadsheet exports use (``m/s²`` in a header must not turn into a replacement character)."""
+    """The lines of a text file: UTF-8 (with or without a byte-order mark); a line that is not UTF-8 is read as
+    Windows-1252 / Latin-1, the encodings lab and spreadsheet exports use (``m/s²`` in a header must not turn into a
+    replacement character)."""
     try:
         raw = path.read_bytes()
     except OSError as e:
         raise _err(f"cannot read pulse file ({e.strerror})", path) from None
-    for encoding in ("utf-8-sig", "cp1252"):
+    raw = raw.removeprefix(b"\xef\xbb\xbf")
+    try:
+        return raw.decode("utf-8").splitlines()
+    except UnicodeDecodeError:  # line by line: one Latin-1 comment must not turn a UTF-8 header into mojibake
+        return [_decode_line(b) for b in raw.splitlines()]
+
+
+def _decode_line(raw: bytes) -> str:
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError:
         try:
-            return raw.decode(encoding).splitlines()
+            return raw.decode("cp1252")
         except UnicodeDecodeError:
-            continue
-    return raw.decode("latin-1").splitlines()  # never fails: every byte is a character
+            return raw.decode("latin-1")  # never fails: every byte is a character
 
 
 def _delimiter(lines: list[str], first: int, path: Path) -> str:
@@ -235,7 +255,7 @@ def _delimiter(lines: list[str], first: int, path: Path) -> str:
     into as many fields; the header alone is ambiguous (``"time (s)";"acc, g"`` holds one of each)."""
     data = [s for s in lines[first + 1 : first + 21] if s.strip() and not s.lstrip().startswith("#")]
     best, best_fields = None, 0
-    for d in (",", ";", "\t"):
+    for d in (";", "\t", ","):  # on a tie ';' and tab win: a ';' file's decimal commas also split into fields
         n = len(next(csv.reader([lines[first]], delimiter=d)))
         if n >= 2 and all(len(next(csv.reader([s], delimiter=d))) == n for s in data) and n > best_fields:
             best, best_fields = d, n
@@ -374,7 +394,8 @@ def mme_channels(path: str | Path) -> list[dict[str, Any]]:
         the channel), ``unit`` (as written) and ``acceleration`` (whether that unit is an acceleration unit).
 
     Raises:
-        PulseError: no test, no ``Channel`` folder or no channel files (naming the path).
+        PulseError: no test, no ``Channel`` folder, no channel files, or a channel without a ``Unit`` line
+            (naming the file).
     """
     mme, folder = _mme_paths(Path(path))
     test = mme.stem
@@ -387,7 +408,9 @@ def mme_channels(path: str | Path) -> list[dict[str, Any]]:
     for p in files:
         h, _ = _parse_header(p, _read_lines(p)[:200])
         code = h.get("channel code", ("", 0))[0]
-        unit = h.get("unit", ("", 0))[0]
+        if "unit" not in h:
+            raise _err("missing header line 'Unit' (expected 'Name :value')", p)
+        unit = h["unit"][0]
         out.append(
             {
                 "file": p,
@@ -428,7 +451,15 @@ def read_mme(path: str | Path, *, channels: str | Sequence[str] | None = None, s
         chosen = [c["file"] for c in info if c["acceleration"]]
         if not chosen:
             units = sorted({c["unit"] for c in info})
-            raise _err(f"no acceleration channel in the test (channel units: {units}); name one with channels=", mme)
+            known = sorted(_ACC_UNITS)
+            raise _err(
+                f"no acceleration channel in the test (channel units: {units}; acceleration units: {known})", mme
+            )
+        skipped = [f"{c['file'].name} ({c['unit']})" for c in info if not c["acceleration"]]
+        if skipped:
+            warnings.warn(
+                f"{mme.name}: read the acceleration channels only; skipped {', '.join(skipped)}", stacklevel=2
+            )
     else:
         wanted = [channels] if isinstance(channels, str) else list(channels)
         chosen = []
@@ -642,11 +673,15 @@ def processed_pulse(
             kwargs["acc_col"] = first["file"].name
     pulse = read_pulse(p, **kwargs).select(0)
     if pulse.sample_rate_hz < MIN_RECORD_RATE_HZ:
-        hint = " (pass --time-unit ms / time_unit='ms')" if not mme and time_unit == "s" else ""
+        if mme:
+            cause = "is the channel's 'Sampling interval' in seconds?"
+        elif time_unit == "s":
+            cause = "is the time column in ms (pass --time-unit ms / time_unit='ms')?"
+        else:
+            cause = "is the time column in the unit given?"
         raise _err(
             f"sampling rate {pulse.sample_rate_hz:.4g} Hz (record of {pulse.time[-1] - pulse.time[0]:.4g} s): crash "
-            f"accelerometer records are sampled at {MIN_RECORD_RATE_HZ:g} Hz or more; is the time column in ms"
-            f"{hint}?",
+            f"accelerometer records are sampled at {MIN_RECORD_RATE_HZ:g} Hz or more; {cause}",
             p,
         )
     try:
