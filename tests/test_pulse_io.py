@@ -242,6 +242,7 @@ def test_bad_mme_headers(tmp_path, analytic):
     _edit(ch, "Unit                        :N\n", "")
     with pytest.raises(PulseError, match=r"B\.001: missing header line 'Unit'"):  # never skipped as "not acceleration"
         read_mme(tmp_path / "B")
+    assert read_mme(tmp_path / "B", channels="radsup").channels == ("radsup",)  # not needed when not read
     _edit(ch, "Reference system", "Unit                        :g\nReference system")
     _edit(ch, "Unit                        :N", "Unit                        :g")
     _edit(ch, "Number of samples           :2200", "Number of samples           :2201")
@@ -358,6 +359,9 @@ def test_csv_dialects_of_spreadsheets_and_lab_tools(tmp_path, analytic):
     stray = tmp_path / "stray.csv"  # one Latin-1 comment line in a UTF-8 file: the header stays UTF-8
     stray.write_bytes("# Prüfung\n".encode("latin-1") + "time,acc [m/s²]\n".encode() + _plain_rows(analytic).encode())
     assert read_csv(stray, acc_col="acc [m/s²]").channels == ("acc [m/s²]",)
+    names = tmp_path / "names.csv"  # commas in the names and the numbers of a ';' file split evenly at ',' too
+    names.write_text("Zeit, s;Beschl., g\n" + "".join(f"0,{i:04d};-1,50\n" for i in range(20)))
+    assert read_csv(names).channels == ("Beschl., g",)
     tie = tmp_path / "tie.csv"  # one comma per row in a ';' file with integer times: ';' wins the tie
     tie.write_text('"time (ms)";"acc, g"\n' + "".join(f"{i};-0,25\n" for i in range(20)))
     assert read_csv(tie, time_unit="ms").acc[0, 0] == pytest.approx(-0.25 * 9.80665)

@@ -254,13 +254,11 @@ def _delimiter(lines: list[str], first: int, path: Path) -> str:
     """The delimiter (``,``, ``;`` or tab) that splits the header into at least two names and the first data rows
     into as many fields; the header alone is ambiguous (``"time (s)";"acc, g"`` holds one of each)."""
     data = [s for s in lines[first + 1 : first + 21] if s.strip() and not s.lstrip().startswith("#")]
-    best, best_fields = None, 0
-    for d in (";", "\t", ","):  # on a tie ';' and tab win: a ';' file's decimal commas also split into fields
+    # ';' and tab first: a ';' file's decimal commas (and commas in its names) also split it evenly at ','
+    for d in (";", "\t", ","):
         n = len(next(csv.reader([lines[first]], delimiter=d)))
-        if n >= 2 and all(len(next(csv.reader([s], delimiter=d))) == n for s in data) and n > best_fields:
-            best, best_fields = d, n
-    if best is not None:
-        return best
+        if n >= 2 and all(len(next(csv.reader([s], delimiter=d))) == n for s in data):
+            return d
     n_head = {d: len(next(csv.reader([lines[first]], delimiter=d))) for d in (",", ";", "\t")}
     if max(n_head.values()) < 2:
         raise _err(
@@ -391,11 +389,11 @@ def mme_channels(path: str | Path) -> list[dict[str, Any]]:
 
     Returns:
         One dict per channel file: ``file`` (path), ``code`` (channel code, ``""`` if none), ``name`` (name of
-        the channel), ``unit`` (as written) and ``acceleration`` (whether that unit is an acceleration unit).
+        the channel), ``unit`` (as written; ``None`` without a ``Unit`` line) and ``acceleration`` (whether that
+        unit is an acceleration unit).
 
     Raises:
-        PulseError: no test, no ``Channel`` folder, no channel files, or a channel without a ``Unit`` line
-            (naming the file).
+        PulseError: no test, no ``Channel`` folder or no channel files (naming the path).
     """
     mme, folder = _mme_paths(Path(path))
     test = mme.stem
@@ -408,16 +406,14 @@ def mme_channels(path: str | Path) -> list[dict[str, Any]]:
     for p in files:
         h, _ = _parse_header(p, _read_lines(p)[:200])
         code = h.get("channel code", ("", 0))[0]
-        if "unit" not in h:
-            raise _err("missing header line 'Unit' (expected 'Name :value')", p)
-        unit = h["unit"][0]
+        unit = h["unit"][0] if "unit" in h else None
         out.append(
             {
                 "file": p,
                 "code": "" if code.upper() == "NOVALUE" else code,
                 "name": h.get("name of the channel", ("", 0))[0],
                 "unit": unit,
-                "acceleration": unit.strip().lower().replace(" ", "") in _ACC_UNITS,
+                "acceleration": unit is not None and unit.strip().lower().replace(" ", "") in _ACC_UNITS,
             }
         )
     return out
@@ -448,6 +444,9 @@ def read_mme(path: str | Path, *, channels: str | Sequence[str] | None = None, s
     mme, _ = _mme_paths(path)
     info = mme_channels(mme)
     if channels is None:
+        no_unit = next((c["file"] for c in info if c["unit"] is None), None)
+        if no_unit is not None:  # not known to be something else: never skipped silently
+            raise _err("missing header line 'Unit' (expected 'Name :value')", no_unit)
         chosen = [c["file"] for c in info if c["acceleration"]]
         if not chosen:
             units = sorted({c["unit"] for c in info})
