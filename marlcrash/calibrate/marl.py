@@ -130,10 +130,9 @@ class AlgorithmConfig:
         for k in ("entropy_coef", "entropy_coef_final", "critic_coef"):
             v = getattr(self, k)
             require(math.isfinite(v) and v >= 0, k, f"expected a coefficient >= 0, got {v}")
-        require(0 < self.min_std < self.init_std < math.inf, "init_std",
-                f"expected 0 < min_std ({self.min_std}) < init_std ({self.init_std}), both finite")  # fmt: skip
-        require(0 < self.mean_init_gain < math.inf, "mean_init_gain",
-                f"expected a finite factor > 0, got {self.mean_init_gain}")  # fmt: skip
+        require(0 < self.min_std < self.init_std, "init_std",
+                f"expected 0 < min_std ({self.min_std}) < init_std ({self.init_std})")  # fmt: skip
+        require(self.mean_init_gain > 0, "mean_init_gain", f"expected a factor > 0, got {self.mean_init_gain}")
         require(0 < self.clip_epsilon < 1, "clip_epsilon", f"expected a ratio clip in (0, 1), got {self.clip_epsilon}")
         for k in ("gamma", "lmbda"):
             v = getattr(self, k)

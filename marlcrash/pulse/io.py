@@ -69,11 +69,16 @@ def _is_number(text: str) -> bool:
     return True
 
 
-def _err(reason: str, path: str | Path, line: int | None = None, column: str | None = None) -> PulseError:
+def _located(reason: str, path: str | Path, line: int | None = None, column: str | None = None) -> str:
+    """``<file> line <n>, column '<name>': <reason>``, the form of every message about an input file."""
     where = Path(path).name if line is None else f"{Path(path).name} line {line}"
     if column is not None:
         where += f", column {column!r}"
-    return PulseError(f"{where}: {reason}")
+    return f"{where}: {reason}"
+
+
+def _err(reason: str, path: str | Path, line: int | None = None, column: str | None = None) -> PulseError:
+    return PulseError(_located(reason, path, line, column))
 
 
 def acc_unit_factor(unit: str, path: str | Path | None = None, line: int | None = None) -> float:
@@ -204,23 +209,15 @@ def read_csv(
             header[ti],
         )
     median = float(np.median(steps))
-    if max_gap is not None and float(steps.max()) > max(max_gap * median, MIN_GAP_S):
+    n_gaps = 0 if max_gap is None else int(np.count_nonzero(steps > max(max_gap * median, MIN_GAP_S)))
+    if n_gaps:
         i = int(np.argmax(steps))
-        n_gaps = int(np.count_nonzero(steps > max(max_gap * median, MIN_GAP_S)))
-        warnings.warn(
-            str(
-                _err(
-                    f"{n_gaps} gap(s) in the record, the longest from t = {float(data[i, 0])!r} to "
-                    f"{float(data[i + 1, 0])!r} ({float(steps[i]) / median:.1f} times the median sampling interval "
-                    f"of {median:g} s); resampling bridges a gap with a straight line, right for a table of "
-                    "breakpoints, wrong for a recorder's dropout",
-                    path,
-                    line_of[i + 1],
-                    header[ti],
-                )
-            ),
-            stacklevel=2,
+        reason = (
+            f"{n_gaps} gap(s) in the record, the longest from t = {float(data[i, 0])!r} to {float(data[i + 1, 0])!r} "
+            f"({float(steps[i]) / median:.1f} times the median sampling interval of {median:g} s); resampling "
+            "bridges a gap with a straight line, right for a table of breakpoints, wrong for a recorder's dropout"
         )
+        warnings.warn(_located(reason, path, line_of[i + 1], header[ti]), stacklevel=2)
     acc = data[:, 1:].T * (factor * float(sign))
     return Pulse(time=time, acc=acc, channels=tuple(header[j] for j in ai), source=str(path))
 
@@ -254,12 +251,11 @@ def _delimiter(lines: list[str], first: int, path: Path) -> str:
     """The delimiter (``,``, ``;`` or tab) that splits the header into at least two names and the first data rows
     into as many fields; the header alone is ambiguous (``"time (s)";"acc, g"`` holds one of each)."""
     data = [s for s in lines[first + 1 : first + 21] if s.strip() and not s.lstrip().startswith("#")]
+    n_head = {d: len(next(csv.reader([lines[first]], delimiter=d))) for d in (",", ";", "\t")}
     # ';' and tab first: a ';' file's decimal commas (and commas in its names) also split it evenly at ','
     for d in (";", "\t", ","):
-        n = len(next(csv.reader([lines[first]], delimiter=d)))
-        if n >= 2 and all(len(next(csv.reader([s], delimiter=d))) == n for s in data):
+        if n_head[d] >= 2 and all(len(next(csv.reader([s], delimiter=d))) == n_head[d] for s in data):
             return d
-    n_head = {d: len(next(csv.reader([lines[first]], delimiter=d))) for d in (",", ";", "\t")}
     if max(n_head.values()) < 2:
         raise _err(
             f"expected a header with at least two columns separated by ',', ';' or tab, got {lines[first]!r}",
