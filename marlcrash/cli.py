@@ -255,6 +255,7 @@ def cmd_pulse(args: argparse.Namespace) -> int:
         "cfc": None if args.cfc == 0 else args.cfc,
         "sign": -1.0 if args.deceleration_positive else 1.0,
         "time_zero": args.time_zero,
+        "breakpoints": args.breakpoints,
     }
     check_output_file(args.plot, "--plot", suffix=".png", inputs=(args.file,))
     raw, work, t0 = processed_pulse(args.file, **opts)
@@ -351,6 +352,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--acc-col", help="acceleration column / ISO-MME channel; default: the first acceleration")
     p.add_argument("--unit", choices=["g", "m/s2"], default="g", help="CSV acceleration unit (default g)")
     p.add_argument("--cfc", type=int, default=60, choices=[0, 60, 180, 600, 1000], help="CFC class, 0 for none")
+    p.add_argument(
+        "--breakpoints",
+        action="store_true",
+        help="the CSV rows are the corners of a piecewise linear pulse (e.g. a trapezoid), not samples: "
+        "sampled at 10 kHz between them, no gap warning",
+    )
     p.add_argument(
         "--time-zero",
         choices=["threshold", "file"],

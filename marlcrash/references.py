@@ -43,7 +43,7 @@ from marlcrash.cells.model import CellModel
 from marlcrash.cells.parameterization import apply_increments
 from marlcrash.config import config_dir, require
 from marlcrash.errors import ConfigError, PulseError
-from marlcrash.pulse.io import read_pulse
+from marlcrash.pulse.io import check_record_rate, read_pulse
 from marlcrash.pulse.signal import compared_velocity, prepare_velocity
 from marlcrash.sim.scenario import CrashScenario, get_scenario
 from marlcrash.sim.surrogate import SimConfig, Surrogate
@@ -91,12 +91,15 @@ class FileReference:
     time_zero: Literal["threshold", "file"] = "threshold"
     threshold_g: float = 0.5
     weight: float = 1.0
+    breakpoints: bool = False
 
     def validate(self) -> None:
         require(bool(self.path), "path", "expected the path of a CSV file or ISO-MME test")
         require(bool(self.scenario), "scenario", "expected the registered scenario of the test")
         require(bool(self.channels), "channels", "expected a mapping sensor name -> channel name")
         require(self.sign in (1.0, -1.0), "sign", f"expected +1 or -1, got {self.sign}")
+        require(self.unit in ("g", "m/s2"), "unit", f"expected g or m/s2, got {self.unit!r}")
+        require(self.time_unit in ("s", "ms"), "time_unit", f"expected s or ms, got {self.time_unit!r}")
         require(self.weight > 0, "weight", f"expected > 0, got {self.weight}")
         require(self.threshold_g > 0, "threshold_g", f"expected > 0 g, got {self.threshold_g}")
 
@@ -371,7 +374,9 @@ class ReferenceSampler:
             path = config_dir() / path
         channels = [spec.channels[s] for s in self.sensors]
         unique = list(dict.fromkeys(channels))
-        pulse = read_pulse(path, acc_col=unique, unit=spec.unit, time_unit=spec.time_unit, sign=spec.sign)
+        pulse = read_pulse(path, acc_col=unique, unit=spec.unit, time_unit=spec.time_unit, sign=spec.sign,
+                           breakpoints=spec.breakpoints)  # fmt: skip
+        check_record_rate(pulse, path, time_unit=spec.time_unit)
         if pulse.n_channels != len(unique):
             raise PulseError(f"{path.name}: asked for channels {unique}, read {list(pulse.channels)}")
         pulse = pulse.select([unique.index(c) for c in channels])

@@ -158,7 +158,18 @@ def test_pulse_column_unit_and_filter_options(tmp_path):
         assert got_ms[key] == pytest.approx(ref[key], rel=1e-6, abs=1e-9), key
     for cfc in ("60", "0"):  # read as seconds: refused, filtered or not, with the option to use
         proc = run_cli("pulse", str(in_ms), *opts, "--cfc", cfc, check=False)
-        assert proc.returncode == 2 and "is the time column in ms (pass --time-unit ms" in proc.stderr
+        assert proc.returncode == 2 and "is the time column in ms (--time-unit ms" in proc.stderr
+
+
+def test_pulse_reads_a_table_of_breakpoints(tmp_path):
+    corners = tmp_path / "corners.csv"  # a 20 g trapezoid given by its corners, time in ms
+    corners.write_text("time,acc\n0,0\n10,-20\n60,-20\n80,0\n200,0\n")
+    got = json.loads(run_cli("pulse", str(corners), "--breakpoints", "--time-unit", "ms", "--json").stdout)
+    assert got["sample_rate_hz"] == pytest.approx(1e4) and got["n_samples"] == 2001
+    assert got["delta_v_ms"] == pytest.approx(20 * 9.80665 * 0.065, rel=2e-3)
+    assert got["peak_g"] == pytest.approx(20.0, rel=0.02)
+    proc = run_cli("pulse", str(corners), "--breakpoints", check=False)  # ms read as s: 200 s of 20 g
+    assert proc.returncode == 2 and "the breakpoints span 200 s" in proc.stderr and "Traceback" not in proc.stderr
 
 
 def test_pulse_notes_a_record_too_short_for_its_filter(tmp_path):

@@ -279,7 +279,7 @@ def test_a_time_column_in_ms_gets_a_hint_and_numbers_print_plainly(tmp_path):
     ms = tmp_path / "ms.csv"
     ms.write_text("time,acc\n" + "".join(f"{a:.4f},{b:.6f}\n" for a, b in zip(t, acc, strict=True)))
     for cfc in (60, None):  # unfiltered too: its delta-v would be 1000x too large, silently
-        with pytest.raises(PulseError, match=r"ms\.csv: sampling rate 10 Hz .*time column in ms \(pass --time-unit ms"):
+        with pytest.raises(PulseError, match=r"ms\.csv: sampling rate 10 Hz .*time column in ms \(--time-unit ms"):
             processed_pulse(ms, cfc=cfc)
     work = processed_pulse(ms, time_unit="ms")[1]
     assert work.sample_rate_hz == pytest.approx(1e4)
@@ -431,3 +431,52 @@ def test_filtering_a_record_shorter_than_the_filter_period_is_refused():
     with pytest.raises(PulseError, match=r"record of 5 ms is too short for CFC 60; expected at least 10 ms"):
         filter_pulse(short, 60)
     assert filter_pulse(short, 600).cfc == 600  # 1 ms is enough for CFC 600
+
+
+def _trapezoid_corners(scale: float = 1.0) -> str:
+    # 20 g plateau from 10 to 60 ms, ramps of 10 and 20 ms, quiet to 200 ms: delta-v 20 g * 65 ms
+    corners = [(0.0, 0.0), (0.010, -20.0), (0.060, -20.0), (0.080, 0.0), (0.200, 0.0)]
+    return "time,acc\n" + "".join(f"{t * scale:g},{a:g}\n" for t, a in corners)
+
+
+def test_a_table_of_breakpoints_is_sampled_between_its_corners(tmp_path):
+    from marlcrash.pulse.io import BREAKPOINT_RATE_HZ, processed_pulse
+
+    path = tmp_path / "corners.csv"
+    path.write_text(_trapezoid_corners())
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # corners 120 ms apart are no recorder dropout
+        p = read_csv(path, breakpoints=True)
+    assert p.sample_rate_hz == pytest.approx(BREAKPOINT_RATE_HZ) and p.n_samples == 2001 and p.is_uniform
+    t = p.time
+    expected = -20 * G0 * np.clip(np.minimum(t / 0.010, (0.080 - t) / 0.020), 0.0, 1.0)  # independent of np.interp
+    np.testing.assert_allclose(p.acc[0], expected, rtol=0, atol=1e-9)
+    dv = 20 * G0 * (0.050 + 0.010 / 2 + 0.020 / 2)
+    work = processed_pulse(path, breakpoints=True, cfc=None)[1]
+    assert abs(work.velocity()[0, -1]) == pytest.approx(dv, rel=1e-6)
+    _, filt, _ = processed_pulse(path, breakpoints=True)  # CFC 60 keeps the area of a 65 ms pulse
+    assert abs(filt.velocity()[0, -1]) == pytest.approx(dv, rel=2e-3)
+    in_ms = tmp_path / "corners_ms.csv"
+    in_ms.write_text(_trapezoid_corners(1e3))
+    np.testing.assert_allclose(read_csv(in_ms, breakpoints=True, time_unit="ms").acc, p.acc, rtol=0, atol=1e-9)
+    with pytest.raises(PulseError, match=r"corners_ms\.csv line 6, column 'time': the breakpoints span 200 s.*"
+                                         r"--time-unit ms"):  # fmt: skip
+        read_csv(in_ms, breakpoints=True)
+    one = tmp_path / "one.csv"
+    one.write_text("time,acc\n0,-1\n")
+    with pytest.raises(PulseError, match=r"one\.csv: expected at least 2 breakpoints, got 1"):
+        read_csv(one, breakpoints=True)
+    with pytest.raises(PulseError, match="HS40: an ISO-MME channel is sampled, not a table of breakpoints"):
+        processed_pulse(Path(__file__).parent / "data" / "HS40", breakpoints=True)
+
+
+def test_a_table_of_breakpoints_read_as_samples_is_refused_with_the_option_to_use(tmp_path):
+    from marlcrash.pulse.io import processed_pulse
+
+    t = np.array([0.0, 0.005, 0.010, 0.030, 0.050, 0.060, 0.070, 0.080, 0.150])  # 9 corners: 60 Hz mean rate
+    path = tmp_path / "table.csv"
+    path.write_text("time,acc\n" + "".join(f"{x:g},{-20 * math.sin(math.pi * min(x, 0.08) / 0.08):.6f}\n" for x in t))
+    refused = r"table\.csv: sampling rate .* Hz .*--breakpoints \(breakpoints: true\)"
+    with pytest.warns(UserWarning, match=r"read it as one: --breakpoints"), pytest.raises(PulseError, match=refused):
+        processed_pulse(path)
+    assert processed_pulse(path, breakpoints=True)[1].sample_rate_hz == pytest.approx(1e4)

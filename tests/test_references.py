@@ -224,3 +224,27 @@ def test_cross_fidelity_reference_uses_the_uniform_model(cells, sim):
     # cached and deterministic per scenario
     again = s.sample(np.random.default_rng(1), 4)
     torch.testing.assert_close(ref.velocity, again.velocity, rtol=0, atol=0)
+
+
+def test_file_reference_checks_its_rate_and_reads_breakpoints(cells, sim, tmp_path):
+    channels = dict.fromkeys(cells.sensor_names, "acc")
+    corners = [(0.0, 0.0), (0.002, 0.0), (0.012, -20.0), (0.062, -20.0), (0.082, 0.0), (0.3, 0.0)]
+    table = tmp_path / "corners.csv"
+    table.write_text("time,acc\n" + "".join(f"{t:g},{a:g}\n" for t, a in corners))
+    dense = tmp_path / "dense.csv"  # the same trapezoid written out at 10 kHz
+    t = np.arange(3001) / 1e4
+    acc = np.interp(t, *zip(*corners, strict=True))
+    dense.write_text("time,acc\n" + "".join(f"{a:.4f},{b:.12g}\n" for a, b in zip(t, acc, strict=True)))
+    refs = []
+    for path, extra in ((dense, {}), (table, {"breakpoints": True})):
+        spec = FileReference(path=str(path), scenario="full_width_40", channels=channels, **extra)
+        refs.append(sampler(cells, sim, kind="file", files=[spec]).sample(np.random.default_rng(0), 1).velocity)
+    torch.testing.assert_close(refs[1], refs[0], rtol=0, atol=1e-9)
+    in_ms = tmp_path / "in_ms.csv"  # a record in ms, configured as seconds: 1000x delta-v unless refused
+    in_ms.write_text("time,acc\n" + "".join(f"{a * 1e3:.1f},{b:.12g}\n" for a, b in zip(t, acc, strict=True)))
+    spec = FileReference(path=str(in_ms), scenario="full_width_40", channels=channels)
+    with pytest.raises(PulseError, match=r"in_ms\.csv: sampling rate 10 Hz .*time_unit: ms"):
+        sampler(cells, sim, kind="file", files=[spec])
+    for key, value in (("unit", "G"), ("time_unit", "sec")):
+        with pytest.raises(ConfigError, match=key):
+            FileReference(path="x.csv", scenario="full_width_40", channels=channels, **{key: value}).validate()

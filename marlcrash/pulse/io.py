@@ -11,7 +11,10 @@ sample. Time in seconds (``time_unit="ms"`` for milliseconds), acceleration in g
 (``unit="m/s2"`` for SI). Columns are chosen by name; the delimiter (``,``, ``;``
 or tab) is the one that splits the header and the first rows alike; with ``;`` a decimal
 comma (``-2,5``) is read as a decimal point. UTF-8 or Windows-1252 text. A gap in the time
-column (``max_gap``) is reported as a warning: resampling bridges it with a straight line.
+column (``max_gap``) is reported as a warning: resampling bridges it with a straight line. A table of
+breakpoints (a pulse given by its corners, e.g. a trapezoid from a specification) is read with
+``breakpoints=True``: at least two rows, no gap warning, and sampled at :data:`BREAKPOINT_RATE_HZ` by
+linear interpolation, so it is filtered and integrated like a record.
 
 ISO-MME (ISO/TS 13499): a test folder with ``<test>.mme`` and a ``Channel``
 folder holding ``<test>.chn`` (the channel list) and one file per channel,
@@ -56,9 +59,15 @@ MIN_GAP_S = 2.5e-3
 quarter period of CFC 60's 100 Hz -3 dB frequency. Jittered time stamps bridge shorter steps harmlessly; a data
 logger's dropout of tens of ms is bridged by a straight line (a table of breakpoints wants exactly that)."""
 MIN_RECORD_RATE_HZ = 500.0
-"""Lowest sampling rate :func:`processed_pulse` accepts [Hz]. Crash accelerometers record at 10 kHz or more, and
+"""Lowest sampling rate :func:`check_record_rate` accepts [Hz]. Crash accelerometers record at 10 kHz or more, and
 CFC 60 itself needs about 600 Hz; a record at a few Hz is almost always a time column in ms read as seconds
 (10 kHz in ms: 10 Hz), which would make every velocity change 1000x too large."""
+BREAKPOINT_RATE_HZ = 10_000.0
+"""Rate a table of breakpoints (``read_csv(breakpoints=True)``) is sampled at [Hz]: a crash accelerometer's."""
+MAX_BREAKPOINT_SPAN_S = 10.0
+"""Longest table of breakpoints accepted [s]. A crash pulse lasts well under a second; a table in ms read as
+seconds spans tens of seconds (and would give 1000x the velocity change)."""
+_UNIT_HINT = "is the time column in ms (--time-unit ms; time_unit: ms)?"
 
 
 def _is_number(text: str) -> bool:
@@ -102,6 +111,7 @@ def read_csv(
     time_unit: str = "s",
     sign: float = 1.0,
     max_gap: float | None = 4.0,
+    breakpoints: bool = False,
 ) -> Pulse:
     """Read a pulse from a CSV file with a header row.
 
@@ -115,13 +125,16 @@ def read_csv(
         sign: ``+1`` or ``-1``, multiplies the acceleration (module docstring).
         max_gap: largest sampling interval, as a multiple of the median one, before a warning names the gap (a
             longer one that also exceeds :data:`MIN_GAP_S`); ``None``: no check.
+        breakpoints: the rows are the corners of a piecewise linear pulse, not samples: two rows or more, no gap
+            check, and the result is sampled at :data:`BREAKPOINT_RATE_HZ` from the first to the last row.
 
     Returns:
         A :class:`Pulse` with one channel per acceleration column, named by its header.
 
     Raises:
         PulseError: unreadable file, missing column, ragged row, non-numeric or non-finite
-            cell, time not strictly increasing, or too few samples.
+            cell, time not strictly increasing, too few samples, or a table of breakpoints longer
+            than :data:`MAX_BREAKPOINT_SPAN_S`.
     """
     path = Path(path)
     factor = acc_unit_factor(unit)
@@ -194,8 +207,10 @@ def read_csv(
             vals.append(v)
         rows.append(vals)
         line_of.append(lineno)
-    if len(rows) < MIN_SAMPLES:
-        raise _err(f"expected at least {MIN_SAMPLES} samples, got {len(rows)}", path)
+    fewest = 2 if breakpoints else MIN_SAMPLES
+    if len(rows) < fewest:
+        what = "breakpoints" if breakpoints else "samples"
+        raise _err(f"expected at least {fewest} {what}, got {len(rows)}", path)
     data = np.asarray(rows, dtype=np.float64)
     time = data[:, 0] * _TIME_UNITS[time_unit]
     steps = np.diff(time)
@@ -208,6 +223,25 @@ def read_csv(
             line_of[i + 1],
             header[ti],
         )
+    acc = data[:, 1:].T * (factor * float(sign))
+    channels = tuple(header[j] for j in ai)
+    if breakpoints:
+        span = float(time[-1] - time[0])
+        if span > MAX_BREAKPOINT_SPAN_S:
+            raise _err(
+                f"the breakpoints span {span:.4g} s; a crash pulse lasts well under {MAX_BREAKPOINT_SPAN_S:g} s: "
+                + _UNIT_HINT,
+                path,
+                line_of[-1],
+                header[ti],
+            )
+        n = int(np.floor(span * BREAKPOINT_RATE_HZ + 1e-6)) + 1
+        if n < MIN_SAMPLES:
+            raise _err(f"the breakpoints span {span:.4g} s, less than {MIN_SAMPLES} samples at "
+                       f"{BREAKPOINT_RATE_HZ:g} Hz", path, line_of[-1], header[ti])  # fmt: skip
+        grid = time[0] + np.arange(n) / BREAKPOINT_RATE_HZ
+        dense = np.stack([np.interp(grid, time, a) for a in acc])
+        return Pulse(time=grid, acc=dense, channels=channels, source=str(path))
     median = float(np.median(steps))
     n_gaps = 0 if max_gap is None else int(np.count_nonzero(steps > max(max_gap * median, MIN_GAP_S)))
     if n_gaps:
@@ -215,11 +249,11 @@ def read_csv(
         reason = (
             f"{n_gaps} gap(s) in the record, the longest from t = {float(data[i, 0])!r} to {float(data[i + 1, 0])!r} "
             f"({float(steps[i]) / median:.1f} times the median sampling interval of {median:g} s); resampling "
-            "bridges a gap with a straight line, right for a table of breakpoints, wrong for a recorder's dropout"
+            "bridges a gap with a straight line, right for a table of breakpoints (read it as one: --breakpoints, "
+            "breakpoints: true), wrong for a recorder's dropout"
         )
         warnings.warn(_located(reason, path, line_of[i + 1], header[ti]), stacklevel=2)
-    acc = data[:, 1:].T * (factor * float(sign))
-    return Pulse(time=time, acc=acc, channels=tuple(header[j] for j in ai), source=str(path))
+    return Pulse(time=time, acc=acc, channels=channels, source=str(path))
 
 
 def _read_text_lines(path: Path) -> list[str]:
@@ -548,6 +582,8 @@ def read_pulse(path: str | Path, **kwargs: Any) -> Pulse:
         if unit not in (None, "g"):
             raise PulseError(f"{path.name}: ISO-MME channels carry their own 'Unit'; do not pass unit={unit!r}")
         kwargs.pop("time_unit", None)
+        if kwargs.pop("breakpoints", False):
+            raise PulseError(f"{path.name}: an ISO-MME channel is sampled, not a table of breakpoints (CSV only)")
         return read_mme(path, **kwargs)
     if path.suffix.lower() in (".csv", ".txt"):
         return read_csv(path, **kwargs)
@@ -623,6 +659,7 @@ def processed_pulse(
     sign: float = 1.0,
     time_zero: str = "threshold",
     threshold_g: float = DEFAULT_THRESHOLD_G,
+    breakpoints: bool = False,
 ) -> tuple[Pulse, Pulse, float]:
     """Read one acceleration channel and prepare it as :func:`pulse_summary` and ``marlcrash pulse --plot`` use it.
 
@@ -640,10 +677,11 @@ def processed_pulse(
         sign: ``+1`` or ``-1`` (see the module docstring).
         time_zero: ``"threshold"`` or ``"file"``.
         threshold_g: time-zero threshold [g].
+        breakpoints: the CSV rows are the corners of a piecewise linear pulse (:func:`read_csv`).
 
     Returns:
-        ``(raw, work, t0)``: the channel as read, the uniform (filtered) one on the file's clock, and
-        time zero [s] on that clock.
+        ``(raw, work, t0)``: the channel as read (a table of breakpoints sampled at :data:`BREAKPOINT_RATE_HZ`),
+        the uniform (filtered) one on the file's clock, and time zero [s] on that clock.
 
     Raises:
         PulseError: unreadable file, bad channel, a sampling rate below :data:`MIN_RECORD_RATE_HZ` (a time
@@ -653,7 +691,9 @@ def processed_pulse(
     p = Path(path)
     mme = p.is_dir() or p.suffix.lower() == ".mme"
     if not mme:
-        kwargs.update(time_col=time_col, unit=unit, time_unit=time_unit)
+        kwargs.update(time_col=time_col, unit=unit, time_unit=time_unit, breakpoints=breakpoints)
+    elif breakpoints:
+        raise _err("an ISO-MME channel is sampled, not a table of breakpoints (CSV only)", p)
     elif time_col is not None or unit != "g" or time_unit != "s":
         warnings.warn(
             f"{p.name}: ISO-MME channels carry their own time base and unit; time_col/unit/time_unit apply to CSV "
@@ -667,18 +707,7 @@ def processed_pulse(
         if first is not None:
             kwargs["acc_col"] = first["file"].name
     pulse = read_pulse(p, **kwargs).select(0)
-    if pulse.sample_rate_hz < MIN_RECORD_RATE_HZ:
-        if mme:
-            cause = "is the channel's 'Sampling interval' in seconds?"
-        elif time_unit == "s":
-            cause = "is the time column in ms (pass --time-unit ms / time_unit='ms')?"
-        else:
-            cause = "is the time column in the unit given?"
-        raise _err(
-            f"sampling rate {pulse.sample_rate_hz:.4g} Hz (record of {pulse.time[-1] - pulse.time[0]:.4g} s): crash "
-            f"accelerometer records are sampled at {MIN_RECORD_RATE_HZ:g} Hz or more; {cause}",
-            p,
-        )
+    check_record_rate(pulse, p, time_unit=time_unit)
     try:
         work, t0 = filtered_from_time_zero(pulse, cfc, time_zero, threshold_g)
     except PulseError as e:  # e.g. a sampling rate too low for the filter class: say which file
@@ -688,6 +717,34 @@ def processed_pulse(
     if not work.time[0] <= t0 < work.time[-1]:
         raise _err(f"time zero {t0} s lies outside the record [{work.time[0]}, {work.time[-1]}] s", p)
     return pulse, work, t0
+
+
+def check_record_rate(pulse: Pulse, path: str | Path, *, time_unit: str = "s") -> None:
+    """Refuse a record sampled below :data:`MIN_RECORD_RATE_HZ` (a time column in ms read as s, typically).
+
+    Args:
+        pulse: the record as read.
+        path: its file or ISO-MME test, named in the error.
+        time_unit: the CSV time unit it was read with (chooses the hint).
+
+    Raises:
+        PulseError: naming the file, the rate and the likely cause.
+    """
+    if pulse.sample_rate_hz >= MIN_RECORD_RATE_HZ:
+        return
+    p = Path(path)
+    if p.is_dir() or p.suffix.lower() == ".mme":
+        cause = "is the channel's 'Sampling interval' in seconds?"
+    elif time_unit == "s":
+        cause = _UNIT_HINT
+    else:
+        cause = "is the time column in the unit given?"
+    raise _err(
+        f"sampling rate {pulse.sample_rate_hz:.4g} Hz (record of {pulse.time[-1] - pulse.time[0]:.4g} s): crash "
+        f"accelerometer records are sampled at {MIN_RECORD_RATE_HZ:g} Hz or more; {cause} A table of breakpoints "
+        "(the corners of a piecewise linear pulse) is read as such with --breakpoints (breakpoints: true)",
+        p,
+    )
 
 
 def plot_pulse(
