@@ -16,6 +16,7 @@ from marlcrash.calibrate.marl import (
     load_algorithm_config,
     load_train_config,
     make_env_config,
+    value_keys,
 )
 from marlcrash.config import config_dir
 from marlcrash.errors import ConfigError
@@ -87,6 +88,13 @@ def test_command_line_values_win_over_the_ci_block_and_ci_errors_name_it():
     with pytest.raises(ConfigError) as e:  # the same value from the command line is the command line's key
         load_train_config(composed(["n_envs=0"]), ci=True, explicit=["n_envs"])
     assert e.value.key == "n_envs"
+    whole = composed(["eval={iterations: 9, reference_seed: 0}"])  # a whole mapping keeps its nested keys
+    assert load_train_config(whole, ci=True, explicit=value_keys(["eval"])).eval.iterations == 9
+    ippo = composed(["algorithm=ippo"])  # a config-group choice picks a file; the ci block still sizes it
+    explicit = value_keys(["algorithm", "n_envs"])
+    assert explicit == ["n_envs"]
+    cfg = load_train_config(ippo, ci=True, explicit=explicit)
+    assert cfg.algorithm.minibatch_size == ippo["ci"]["algorithm.minibatch_size"]
 
 
 def test_ci_reads_the_environment(monkeypatch):

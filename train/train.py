@@ -28,7 +28,7 @@ from hydra.core.hydra_config import HydraConfig  # noqa: E402
 from omegaconf import DictConfig, OmegaConf  # noqa: E402
 
 from marlcrash.calibrate.evaluate import update_summary  # noqa: E402
-from marlcrash.calibrate.marl import load_train_config, train  # noqa: E402
+from marlcrash.calibrate.marl import load_train_config, train, value_keys  # noqa: E402
 from marlcrash.errors import MarlcrashError  # noqa: E402
 
 RESUME_KEYS = ("resume", "name", "out_dir")
@@ -39,9 +39,9 @@ RESUME_KEYS = ("resume", "name", "out_dir")
 def main(cfg: DictConfig) -> None:
     try:
         overrides = HydraConfig.get().overrides.task
-        given = [o.split("=")[0].lstrip("+~") for o in overrides]  # command-line values win over the ci: block
-        config = load_train_config(
-            OmegaConf.to_container(cfg, resolve=True), source="configs/train/train.yaml", explicit=given
+        given = [o.split("=")[0].lstrip("+~") for o in overrides]
+        config = load_train_config(  # command-line values win over the ci: block
+            OmegaConf.to_container(cfg, resolve=True), source="configs/train/train.yaml", explicit=value_keys(given)
         )
         if config.resume is not False:
             ignored = [o for o, k in zip(overrides, given, strict=True) if k not in RESUME_KEYS]

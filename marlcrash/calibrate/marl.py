@@ -250,6 +250,15 @@ def _set_dotted(data: dict[str, Any], dotted: str, value: Any) -> None:
     node[parts[-1]] = value
 
 
+def value_keys(keys: Sequence[str]) -> list[str]:
+    """The command-line override keys that set values, for ``load_train_config(explicit=...)``.
+
+    A key naming a config group of ``configs/train/`` (``algorithm=ippo``) picks a file; it is left out, so the
+    ``ci`` block's ``algorithm.*`` keys still apply to the file picked.
+    """
+    return [k for k in keys if not (config_dir() / "train" / k).is_dir()]
+
+
 def load_train_config(
     data: dict[str, Any], source: str | None = None, ci: bool | None = None, explicit: Sequence[str] = ()
 ) -> TrainConfig:
@@ -259,7 +268,9 @@ def load_train_config(
         data: the mapping; its ``ci`` entry holds dotted-key overrides.
         source: file name for messages.
         ci: apply the ``ci`` overrides; ``None`` reads ``$MARLCRASH_CI`` (``1``: apply).
-        explicit: dotted keys the user set on the command line; the ``ci`` overrides leave them as they are.
+        explicit: dotted keys the user set on the command line; the ``ci`` overrides leave them, and every key under
+            them, as they are (``eval='{iterations: 9}'`` keeps ``eval.iterations`` too). Not config-group choices
+            (``algorithm=ippo`` picks a file; the ``ci`` block's ``algorithm.*`` keys still apply).
 
     Raises:
         ConfigError: unknown key, wrong type or bad value, naming the dotted key -- before any training; a bad
@@ -274,7 +285,7 @@ def load_train_config(
         if not isinstance(over, dict):
             raise ConfigError(f"expected a mapping of dotted overrides, got {over!r}", key="ci", path=source)
         for k, v in over.items():
-            if k not in explicit:
+            if not any(k == e or k.startswith(e + ".") for e in explicit):
                 _set_dotted(data, k, v)
                 applied.append(k)
     try:
