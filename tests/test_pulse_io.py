@@ -352,6 +352,17 @@ def test_csv_dialects_of_spreadsheets_and_lab_tools(tmp_path, analytic):
     tab = tmp_path / "tab.csv"
     tab.write_text("time\tacc\n" + "".join(f"{a.replace(',', '.')}\t{b.replace(',', '.')}\n" for a, b in rows))
     np.testing.assert_allclose(read_csv(tab).acc, ref.acc, rtol=1e-8, atol=1e-6)
+    tab_text = "time\tacc m/s²\n" + "".join(f"{a.replace(',', '.')}\t{b.replace(',', '.')}\n" for a, b in rows)
+    for codec in ("utf-16", "utf-16-be"):  # Excel's "Unicode Text": UTF-16 with a byte-order mark, either order
+        wide = tmp_path / f"{codec}.txt"
+        wide.write_bytes(tab_text.encode(codec) if codec == "utf-16" else b"\xfe\xff" + tab_text.encode(codec))
+        p = read_csv(wide)
+        assert p.channels == ("acc m/s²",)
+        np.testing.assert_allclose(p.acc, ref.acc, rtol=1e-8, atol=1e-6)
+    broken = tmp_path / "broken.txt"
+    broken.write_bytes(b"\xff\xfe" + b"t\x00\x00\xd8")  # a lone surrogate
+    with pytest.raises(PulseError, match=r"broken\.txt: starts with a UTF-16 byte-order mark but is not UTF-16"):
+        read_csv(broken)
     thousands = tmp_path / "thousands.csv"  # tab export of an English spreadsheet: '-1,005' is not -1.005
     thousands.write_text("time\tacc\n" + "".join(f"{i * 1e-4:.4f}\t-1,{i:03d}\n" for i in range(20)))
     with pytest.raises(PulseError, match=r"thousands\.csv line 2, column 'acc': expected a number, got '-1,000'"):

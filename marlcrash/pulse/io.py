@@ -6,14 +6,13 @@ convention (SI, forward speed, frontal crash pulse negative; see
 ``+1`` for data in the SAE J211 / ISO 6487 vehicle frame (x forward), ``-1`` for
 data that records deceleration as positive.
 
-CSV: an optional block of ``#`` comment lines, one header row, then one row per
-sample. Time in seconds (``time_unit="ms"`` for milliseconds), acceleration in g
-(``unit="m/s2"`` for SI). Columns are chosen by name; the delimiter (``,``, ``;``
-or tab) is the one that splits the header and the first rows alike; with ``;`` a decimal
-comma (``-2,5``) is read as a decimal point. UTF-8 or Windows-1252 text. A gap in the time
-column (``max_gap``) is reported as a warning: resampling bridges it with a straight line. A table of
-breakpoints (a pulse given by its corners, e.g. a trapezoid from a specification) is read with
-``breakpoints=True``: at least two rows, no gap warning, and sampled at :data:`BREAKPOINT_RATE_HZ` by
+CSV: an optional block of ``#`` comment lines, one header row, then one row per sample. Time in seconds
+(``time_unit="ms"`` for milliseconds), acceleration in g (``unit="m/s2"`` for SI). Columns are chosen by name;
+the delimiter (``,``, ``;`` or tab) is the one that splits the header and the first rows alike; with ``;`` a
+decimal comma (``-2,5``) is read as a decimal point. UTF-8, Windows-1252 or UTF-16 (with its byte-order mark)
+text. A gap in the time column (``max_gap``) is reported as a warning: resampling bridges it with a straight
+line. A table of breakpoints (a pulse given by its corners, e.g. a trapezoid from a specification) is read
+with ``breakpoints=True``: at least two rows, no gap warning, and sampled at :data:`BREAKPOINT_RATE_HZ` by
 linear interpolation, so it is filtered and integrated like a record.
 
 ISO-MME (ISO/TS 13499): a test folder with ``<test>.mme`` and a ``Channel``
@@ -257,14 +256,19 @@ def read_csv(
 
 
 def _read_text_lines(path: Path) -> list[str]:
-    """The lines of a text file: UTF-8 (with or without a byte-order mark); a line that is not UTF-8 is read as
-    Windows-1252 / Latin-1, the encodings lab and spreadsheet exports use (``m/s²`` in a header must not turn into a
-    replacement character)."""
+    """The lines of a text file: UTF-8 (with or without a byte-order mark) or UTF-16 with one; a line that is not
+    UTF-8 is read as Windows-1252 / Latin-1, the encodings lab and spreadsheet exports use (``m/s²`` in a header
+    must not turn into a replacement character)."""
     try:
         raw = path.read_bytes()
     except OSError as e:
         raise _err(f"cannot read pulse file ({e.strerror})", path) from None
     raw = raw.removeprefix(b"\xef\xbb\xbf")
+    if raw.startswith((b"\xff\xfe", b"\xfe\xff")):  # UTF-16 with its byte-order mark: Excel's "Unicode Text"
+        try:
+            return raw.decode("utf-16").splitlines()
+        except UnicodeDecodeError as e:
+            raise _err(f"starts with a UTF-16 byte-order mark but is not UTF-16 text ({e.reason})", path) from None
     try:
         return raw.decode("utf-8").splitlines()
     except UnicodeDecodeError:  # line by line: one Latin-1 comment must not turn a UTF-8 header into mojibake
