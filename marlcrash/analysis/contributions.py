@@ -1,0 +1,309 @@
+"""Per-agent contributions to a calibration (DESIGN 7): which agent's parameter changes moved which metric.
+
+A calibration moves the cell parameters from ``initial`` to ``calibrated``; every agent owns some cells. The
+game: a coalition ``S`` of agents is the parameter set with the cells of the agents in ``S`` at their
+calibrated values and every other cell at its initial one; its value is every metric of every sensor
+(area [m], DFD [m/s], RMSE [m/s] against the problem's reference, as the evaluation computes them) and the fit
+score (higher is better), all from one batched simulation of the coalitions. Then:
+
+- Shapley values (:mod:`marlcrash.analysis.shapley`): exact for up to ``exact_max`` moving agents, sampled
+  orderings otherwise. They add up to the whole calibration's change of each quantity, split fairly over
+  interactions (two agents that only help together share the gain).
+- Leave-one-out (``v(all) - v(all but i)``: what agent ``i``'s changes are worth at the end) and add-one
+  (``v({i}) - v({})``: what they do alone).
+
+Agents whose cells did not move are null players: their contributions are exactly zero and they are not
+enumerated. A contribution below zero to an error metric means the agent's changes lowered that error.
+
+:func:`agent_changes` summarizes the calibration per agent and iteration (the actions' net effect on its
+cells), and :func:`run_calibration` loads a training run's evaluated calibration (``calibrated.npz``) with the
+problem it was evaluated on.
+"""
+
+from __future__ import annotations
+
+import csv
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from marlcrash.analysis.shapley import Attribution, exact_shapley, one_at_a_time, sampled_shapley
+from marlcrash.calibrate.compare import evaluate_params
+from marlcrash.calibrate.problem import CalibrationProblem
+from marlcrash.errors import ConfigError
+from marlcrash.outputs import atomic_output, write_text
+
+METRICS = ("area", "dfd", "rmse")
+
+
+@dataclass
+class Contributions:
+    """Per-agent contributions to every quantity (module docstring).
+
+    Attributes:
+        agents: ``[A]`` agent names (every agent of the layout).
+        quantities: ``[Q]`` names: ``<metric>/<sensor>`` for area, DFD and RMSE of every sensor, then ``score``.
+        players: ``[A]`` bool, agents whose cells moved (the others contribute exactly zero).
+        initial, calibrated: ``[Q]`` values with no agent's and with every agent's changes.
+        shapley: ``[A, Q]`` Shapley values.
+        shapley_stderr: ``[A, Q]`` their standard errors (zero for exact values and null players).
+        exact: whether the Shapley values were enumerated.
+        leave_one_out, add_one: ``[A, Q]`` one-at-a-time effects.
+        n_simulations: coalitions simulated.
+    """
+
+    agents: list[str]
+    quantities: list[str]
+    players: torch.Tensor
+    initial: torch.Tensor
+    calibrated: torch.Tensor
+    shapley: torch.Tensor
+    shapley_stderr: torch.Tensor
+    exact: bool
+    leave_one_out: torch.Tensor
+    add_one: torch.Tensor
+    n_simulations: int
+
+    def column(self, quantity: str) -> int:
+        """Index of a quantity by name; :class:`ValueError` listing the names if unknown."""
+        if quantity not in self.quantities:
+            raise ValueError(f"unknown quantity {quantity!r}; expected one of {self.quantities}")
+        return self.quantities.index(quantity)
+
+    def ranking(self, quantity: str = "score") -> list[tuple[str, float]]:
+        """``(agent, Shapley value)`` of the moving agents, largest improvement first (most negative error, most
+        positive score)."""
+        j = self.column(quantity)
+        sign = -1.0 if quantity == "score" else 1.0
+        rows = [(a, float(self.shapley[i, j])) for i, a in enumerate(self.agents) if bool(self.players[i])]
+        return sorted(rows, key=lambda r: sign * r[1])
+
+    def rows(self) -> list[dict[str, object]]:
+        """One row per agent and quantity: ``agent, quantity, shapley, shapley_stderr, leave_one_out, add_one``."""
+        return [
+            {"agent": a, "quantity": q, "shapley": float(self.shapley[i, j]),
+             "shapley_stderr": float(self.shapley_stderr[i, j]), "leave_one_out": float(self.leave_one_out[i, j]),
+             "add_one": float(self.add_one[i, j])}
+            for i, a in enumerate(self.agents) for j, q in enumerate(self.quantities)
+        ]  # fmt: skip
+
+    def write_csv(self, path: str | Path) -> Path:
+        """All :meth:`rows` as CSV (written atomically)."""
+        rows = self.rows()
+        with atomic_output(path) as tmp, open(tmp, "w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=list(rows[0]))
+            w.writeheader()
+            w.writerows(rows)
+        return Path(path)
+
+    def markdown(self, quantity: str = "score") -> str:
+        """A Markdown table of one quantity: the moving agents' contributions, largest improvement first."""
+        j = self.column(quantity)
+        how = "exact" if self.exact else "sampled, ± one standard error"
+        lines = [
+            f"{quantity}: {float(self.initial[j]):.6g} -> {float(self.calibrated[j]):.6g} "
+            f"(Shapley values {how}; {self.n_simulations} simulations)",
+            "",
+            "| agent | Shapley | leave-one-out | add-one |",
+            "|---|---|---|---|",
+        ]
+        for a, _ in self.ranking(quantity):
+            i = self.agents.index(a)
+            se = "" if self.exact else f" ± {float(self.shapley_stderr[i, j]):.3g}"
+            lines.append(f"| {a} | {float(self.shapley[i, j]):.4g}{se} | {float(self.leave_one_out[i, j]):.4g} "
+                         f"| {float(self.add_one[i, j]):.4g} |")  # fmt: skip
+        return "\n".join(lines) + "\n"
+
+    def write_markdown(self, path: str | Path, quantities: list[str] | None = None) -> Path:
+        """:meth:`markdown` of ``quantities`` (default: ``score`` and every sensor's area), written atomically."""
+        qs = quantities or ["score", *(q for q in self.quantities if q.startswith("area/"))]
+        return write_text(path, "\n".join(self.markdown(q) for q in qs))
+
+
+def quantity_names(sensors: list[str]) -> list[str]:
+    """``<metric>/<sensor>`` for every metric and sensor, then ``score`` (the columns of :class:`Contributions`)."""
+    return [f"{m}/{s}" for m in METRICS for s in sensors] + ["score"]
+
+
+def _check_params(problem: CalibrationProblem, name: str, p: torch.Tensor | np.ndarray) -> torch.Tensor:
+    t = torch.as_tensor(np.asarray(p), dtype=torch.float64)
+    shape = tuple(problem.init.shape)
+    if tuple(t.shape) != shape:
+        raise ValueError(f"{name}: expected cell parameters of shape {shape}, got {tuple(t.shape)}")
+    if not torch.isfinite(t).all():
+        raise ValueError(f"{name}: parameters must be finite")
+    return t
+
+
+def coalition_params(
+    problem: CalibrationProblem, initial: torch.Tensor, calibrated: torch.Tensor, members: torch.Tensor
+) -> torch.Tensor:
+    """Cell parameters ``[C, n_cells, 7]`` of coalitions ``members [C, A]`` (bool over every agent)."""
+    agent = problem.layout.agent_of_cell  # [n], -1 unowned
+    take = members[:, agent.clamp_min(0)] & (agent >= 0)[None]  # [C, n]
+    return torch.where(take[..., None], calibrated[None], initial[None])
+
+
+def agent_contributions(
+    problem: CalibrationProblem,
+    calibrated: torch.Tensor | np.ndarray,
+    initial: torch.Tensor | np.ndarray | None = None,
+    *,
+    exact_max: int = 10,
+    n_permutations: int = 64,
+    seed: int = 0,
+    batch: int = 256,
+) -> Contributions:
+    """Contributions of every agent's parameter changes to every metric and the fit score (module docstring).
+
+    Args:
+        problem: the reference, scenario, window and agents (e.g. :func:`run_calibration`'s).
+        calibrated: ``[n_cells, 7]`` calibrated cell parameters.
+        initial: ``[n_cells, 7]`` parameters before calibration (default: the problem's initial ones).
+        exact_max: enumerate all coalitions when at most this many agents moved, else sample orderings.
+        n_permutations: sampled orderings (even; antithetic pairs).
+        seed: seed of the orderings.
+        batch: coalitions per simulation batch.
+
+    Returns:
+        The :class:`Contributions`; the Shapley values of every quantity add up to ``calibrated - initial``.
+
+    Raises:
+        ValueError: parameters of the wrong shape, non-finite, or changed in cells no agent owns (then no agent
+            can be credited with the change).
+    """
+    init = problem.init if initial is None else _check_params(problem, "initial", initial)
+    cal = _check_params(problem, "calibrated", calibrated)
+    moved_cells = (cal != init).any(-1)  # [n]
+    agent = problem.layout.agent_of_cell
+    stray = moved_cells & (agent < 0)
+    if bool(stray.any()):
+        raise ValueError(f"calibrated: {int(stray.sum())} cells that no agent owns differ from the initial "
+                         "parameters; their change cannot be credited to an agent")  # fmt: skip
+    A = problem.n_agents
+    players = torch.zeros(A, dtype=torch.bool)
+    players[agent[moved_cells].unique()] = True
+    idx = torch.nonzero(players).flatten()
+    sensors = list(problem.sensors)
+    names = quantity_names(sensors)
+    counted = 0
+
+    def value(masks: torch.Tensor) -> torch.Tensor:
+        nonlocal counted
+        members = torch.zeros(masks.shape[0], A, dtype=torch.bool)
+        members[:, idx] = masks
+        m = evaluate_params(problem, coalition_params(problem, init, cal, members))
+        counted += masks.shape[0]
+        score = problem.score(m).to(torch.float64)
+        return torch.cat([m.area, m.dfd, m.rmse, score[:, None]], dim=1).to(torch.float64)
+
+    Q = len(names)
+    zeros = torch.zeros(A, Q, dtype=torch.float64)
+    n = int(idx.numel())
+    if n == 0:  # nothing moved
+        v = value(torch.zeros(1, 0, dtype=torch.bool))[0]
+        return Contributions(list(problem.agent_names), names, players, v, v.clone(), zeros, zeros.clone(), True,
+                             zeros.clone(), zeros.clone(), counted)  # fmt: skip
+    att: Attribution = (exact_shapley(value, n, batch=batch) if n <= exact_max
+                        else sampled_shapley(value, n, n_permutations, seed=seed, batch=batch))  # fmt: skip
+    loo, add, _ = one_at_a_time(value, n, batch=batch)
+
+    def spread(t: torch.Tensor | None) -> torch.Tensor:
+        out = zeros.clone()
+        if t is not None:
+            out[idx] = t
+        return out
+
+    return Contributions(
+        agents=list(problem.agent_names), quantities=names, players=players, initial=att.empty, calibrated=att.full,
+        shapley=spread(att.phi), shapley_stderr=spread(att.stderr), exact=att.stderr is None,
+        leave_one_out=spread(loo), add_one=spread(add), n_simulations=counted,
+    )  # fmt: skip
+
+
+def agent_changes(problem: CalibrationProblem, params: torch.Tensor | np.ndarray) -> dict[str, np.ndarray]:
+    """What the calibration did to each agent's cells, per iteration.
+
+    Args:
+        problem: supplies the agents and the initial parameters.
+        params: ``[I, n_cells, 7]`` cell parameters per calibration iteration (``calibrated.npz``'s
+            ``per_iteration``), or one set ``[n_cells, 7]``.
+
+    Returns:
+        ``{"E_x", "E_s"}``: ``[I, A]`` mean log factor of the agent's cells against the initial parameters
+        (``log(E / E0)``, 0.1 = +10.5 %); ``"transmission"``: ``[I, A]`` mean share of load moved to other
+        directions (half the L1 change of a cell's five factors, 0 to 1); ``"step"``: ``[I, A]`` the root mean
+        square log change of ``E_x, E_s`` from the previous iteration (0 for the first).
+    """
+    p = torch.as_tensor(np.asarray(params), dtype=torch.float64)
+    if p.dim() == 2:
+        p = p[None]
+    if p.dim() != 3 or tuple(p.shape[1:]) != tuple(problem.init.shape):
+        raise ValueError(f"params: expected [iterations, {problem.init.shape[0]}, 7], got {tuple(p.shape)}")
+    agent = problem.layout.agent_of_cell
+    owned = agent >= 0
+    A = problem.n_agents
+    count = torch.zeros(A, dtype=torch.float64).index_add_(
+        0, agent[owned], torch.ones(int(owned.sum()), dtype=torch.float64)
+    )
+    count = count.clamp_min(1.0)
+
+    def per_agent(x: torch.Tensor) -> np.ndarray:  # [I, n] -> [I, A] means over each agent's cells
+        out = torch.zeros(x.shape[0], A, dtype=torch.float64).index_add_(1, agent[owned], x[:, owned])
+        return (out / count).numpy()
+
+    init = problem.init[None]
+    log_e = torch.log(p[..., :2] / init[..., :2])  # [I, n, 2]
+    moved = 0.5 * (p[..., 2:] - init[..., 2:]).abs().sum(-1)  # [I, n]
+    step = torch.zeros_like(log_e[..., 0])
+    if p.shape[0] > 1:
+        step[1:] = torch.sqrt(0.5 * ((log_e[1:] - log_e[:-1]) ** 2).sum(-1))
+    return {"E_x": per_agent(log_e[..., 0]), "E_s": per_agent(log_e[..., 1]), "transmission": per_agent(moved),
+            "step": per_agent(step)}  # fmt: skip
+
+
+@dataclass
+class RunCalibration:
+    """A training run's evaluated calibration: its problem and the cell parameters of ``calibrated.npz``."""
+
+    problem: CalibrationProblem
+    initial: torch.Tensor
+    calibrated: torch.Tensor
+    per_iteration: torch.Tensor
+    selected_iteration: int
+    true: torch.Tensor | None
+
+
+def run_calibration(run_dir: str | Path) -> RunCalibration:
+    """Load ``<run>/calibrated.npz`` and rebuild the problem the run was evaluated on (its twin reference).
+
+    Raises:
+        ConfigError: (key ``run``) no run folder, no ``config.yaml`` or no ``calibrated.npz`` (the run was not
+            evaluated yet: ``python train/evaluate.py run=<run>``), or an unreadable one.
+    """
+    from marlcrash.calibrate.evaluate import evaluation_problem
+    from marlcrash.calibrate.marl import load_run_config
+
+    run = Path(run_dir)
+    config = load_run_config(run)
+    path = run / "calibrated.npz"
+    if not path.is_file():
+        raise ConfigError(f"no calibrated.npz in {run}: evaluate the run first (python train/evaluate.py run={run})",
+                          key="run")  # fmt: skip
+    try:
+        with np.load(path) as data:
+            arrays = {k: data[k] for k in data.files}
+    except (OSError, ValueError) as e:
+        raise ConfigError(f"cannot read {path}: {e}", key="run") from None
+    missing = [k for k in ("initial", "calibrated", "per_iteration", "selected_iteration") if k not in arrays]
+    if missing:
+        raise ConfigError(f"{path} lacks {missing}; expected the evaluation's calibrated.npz", key="run")
+    problem = evaluation_problem(config)
+    t = {k: torch.as_tensor(v, dtype=torch.float64) for k, v in arrays.items() if k != "selected_iteration"}
+    for k in ("initial", "calibrated"):
+        _check_params(problem, f"{path.name}[{k}]", t[k])
+    return RunCalibration(problem=problem, initial=t["initial"], calibrated=t["calibrated"],
+                          per_iteration=t["per_iteration"], selected_iteration=int(arrays["selected_iteration"]),
+                          true=t.get("true"))  # fmt: skip

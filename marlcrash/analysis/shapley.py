@@ -1,0 +1,161 @@
+"""Cooperative-game attribution over batched value functions: Shapley values and one-at-a-time effects.
+
+A *game* here is a batched value function ``value(masks) -> values``: ``masks [C, n]`` bool, one row per
+coalition (``True``: the player takes part), and ``values [C, Q]`` float64, ``Q`` quantities measured for each
+coalition at once (for marlcrash: every metric of every sensor, from one batched simulation). Everything
+below asks the game for coalitions in batches and never loops over players in Python.
+
+- :func:`exact_shapley`: every one of the ``2**n`` coalitions; the Shapley value of player ``i`` is
+  ``sum over S not containing i of |S|! (n - |S| - 1)! / n! * (v(S + i) - v(S))``.
+- :func:`sampled_shapley`: random orderings of the players (Castro, Gomez, Tejada 2009), drawn in antithetic
+  pairs (an ordering and its reverse); each ordering costs ``n + 1`` coalitions, shared ones are asked once.
+  Returns the standard error of every estimate.
+- :func:`one_at_a_time`: leave-one-out (``v(N) - v(N - i)``) and add-one (``v({i}) - v({})``) effects.
+
+All three satisfy, or estimate, ``sum_i phi_i = v(N) - v({})`` (efficiency; exact for the exact and sampled
+Shapley values, because every ordering's marginals telescope).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+ValueFn = Callable[[torch.Tensor], torch.Tensor]
+"""``value(masks [C, n] bool) -> [C, Q]`` float64."""
+
+MAX_EXACT_PLAYERS = 16
+"""Most players :func:`exact_shapley` enumerates (65,536 coalitions)."""
+
+
+@dataclass
+class Attribution:
+    """Per-player attributions of a game.
+
+    Attributes:
+        phi: ``[n, Q]`` the attribution of every player to every quantity.
+        stderr: ``[n, Q]`` standard error of a sampled estimate, ``None`` when exact.
+        empty, full: ``[Q]`` the values of the empty and of the grand coalition.
+        n_evaluations: coalitions the game was asked for.
+    """
+
+    phi: torch.Tensor
+    stderr: torch.Tensor | None
+    empty: torch.Tensor
+    full: torch.Tensor
+    n_evaluations: int
+
+
+def _check_players(n: int) -> None:
+    if not isinstance(n, int) or n < 1:
+        raise ValueError(f"expected a number of players >= 1, got {n!r}")
+
+
+def evaluate(value: ValueFn, masks: torch.Tensor, batch: int) -> torch.Tensor:
+    """``value`` of every row of ``masks [C, n]``, asked ``batch`` rows at a time; ``[C, Q]`` float64.
+
+    Raises:
+        ValueError: a bad batch size, or a value function that returns another number of rows or a non-2D tensor.
+    """
+    if batch < 1:
+        raise ValueError(f"expected a batch of at least 1 coalition, got {batch}")
+    out = []
+    for i in range(0, masks.shape[0], batch):
+        chunk = masks[i : i + batch]
+        v = torch.as_tensor(value(chunk), dtype=torch.float64)
+        if v.dim() != 2 or v.shape[0] != chunk.shape[0]:
+            raise ValueError(f"the value function returned shape {tuple(v.shape)} for {chunk.shape[0]} coalitions; "
+                             "expected [coalitions, quantities]")  # fmt: skip
+        out.append(v)
+    return torch.cat(out)
+
+
+def all_coalitions(n: int) -> torch.Tensor:
+    """``[2**n, n]`` bool: row ``c`` holds player ``i`` when bit ``i`` of ``c`` is set."""
+    _check_players(n)
+    c = torch.arange(2**n, dtype=torch.int64)
+    return ((c[:, None] >> torch.arange(n)) & 1).bool()
+
+
+def exact_shapley(value: ValueFn, n: int, *, batch: int = 256) -> Attribution:
+    """Shapley values from all ``2**n`` coalitions (``n <= MAX_EXACT_PLAYERS``).
+
+    Raises:
+        ValueError: ``n`` outside ``[1, MAX_EXACT_PLAYERS]``.
+    """
+    _check_players(n)
+    if n > MAX_EXACT_PLAYERS:
+        raise ValueError(f"exact Shapley values of {n} players need 2**{n} coalitions; at most {MAX_EXACT_PLAYERS} "
+                         "players are enumerated (use sampled_shapley)")  # fmt: skip
+    masks = all_coalitions(n)
+    v = evaluate(value, masks, batch)  # [2**n, Q]
+    size = masks.sum(1)  # [2**n]
+    # weight of a coalition S without i: |S|! (n - |S| - 1)! / n!
+    w = torch.tensor([math.factorial(s) * math.factorial(n - s - 1) / math.factorial(n) for s in range(n)],
+                     dtype=torch.float64)  # fmt: skip
+    idx = torch.arange(2**n)
+    phi = torch.zeros(n, v.shape[1], dtype=torch.float64)
+    for i in range(n):  # n passes over the table, each vectorized over its 2**(n-1) coalitions
+        without = idx[~masks[:, i]]
+        phi[i] = (w[size[without]][:, None] * (v[without | (1 << i)] - v[without])).sum(0)
+    return Attribution(phi=phi, stderr=None, empty=v[0], full=v[-1], n_evaluations=int(masks.shape[0]))
+
+
+def sampled_shapley(value: ValueFn, n: int, n_permutations: int, *, seed: int = 0, batch: int = 256) -> Attribution:
+    """Shapley values estimated from ``n_permutations`` random orderings (antithetic pairs).
+
+    Args:
+        value: the game.
+        n: players.
+        n_permutations: orderings, an even number >= 2 (each ordering and its reverse).
+        seed: seed of the orderings.
+        batch: coalitions per call of ``value``.
+
+    Returns:
+        The estimates and their standard errors (over the antithetic pairs' means).
+
+    Raises:
+        ValueError: fewer than 2 or an odd number of orderings.
+    """
+    _check_players(n)
+    if n_permutations < 2 or n_permutations % 2:
+        raise ValueError(f"expected an even number of orderings >= 2 (antithetic pairs), got {n_permutations}")
+    rng = np.random.default_rng(seed)
+    half = np.stack([rng.permutation(n) for _ in range(n_permutations // 2)])
+    perms = np.concatenate([half, half[:, ::-1]])  # [P, n]: pair p is rows p and p + P/2
+    P = perms.shape[0]
+    chain = np.zeros((P, n + 1, n), dtype=bool)  # prefixes: chain[p, j] holds the first j players of ordering p
+    for j in range(n):
+        chain[np.arange(P), j + 1 :, perms[:, j]] = True
+    flat = chain.reshape(-1, n)
+    unique, inverse = np.unique(flat, axis=0, return_inverse=True)
+    v = evaluate(value, torch.as_tensor(unique), batch)[torch.as_tensor(inverse.reshape(-1))]
+    v = v.reshape(P, n + 1, -1)
+    marg = v[:, 1:] - v[:, :-1]  # [P, n, Q]: marginal of the j-th player of each ordering
+    per_player = torch.zeros_like(marg)
+    per_player[torch.arange(P)[:, None], torch.as_tensor(perms.copy())] = marg  # [P, player, Q]
+    pairs = 0.5 * (per_player[: P // 2] + per_player[P // 2 :])  # [P/2, n, Q]
+    phi = pairs.mean(0)
+    m = pairs.shape[0]
+    stderr = pairs.std(0, unbiased=True) / math.sqrt(m) if m > 1 else torch.full_like(phi, float("nan"))
+    empty = v[0, 0]
+    return Attribution(phi=phi, stderr=stderr, empty=empty, full=v[0, -1], n_evaluations=int(unique.shape[0]))
+
+
+def one_at_a_time(value: ValueFn, n: int, *, batch: int = 256) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Leave-one-out and add-one effects from ``2 n + 2`` coalitions.
+
+    Returns:
+        ``(leave_one_out [n, Q], add_one [n, Q], values of (empty, full) [2, Q])``: ``v(N) - v(N - i)`` and
+        ``v({i}) - v({})``.
+    """
+    _check_players(n)
+    eye = torch.eye(n, dtype=torch.bool)
+    masks = torch.cat([torch.zeros(1, n, dtype=torch.bool), torch.ones(1, n, dtype=torch.bool), ~eye, eye])
+    v = evaluate(value, masks, batch)
+    empty, full = v[0], v[1]
+    return full - v[2 : 2 + n], v[2 + n :] - empty, torch.stack([empty, full])

@@ -1,0 +1,207 @@
+"""Per-agent contributions (marlcrash.analysis): Shapley values against a brute-force reference, and on the
+surrogate against direct simulations."""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from marlcrash.analysis import (
+    agent_changes,
+    agent_contributions,
+    coalition_params,
+    exact_shapley,
+    one_at_a_time,
+    plot_cells_by_contribution,
+    plot_contributions,
+    run_calibration,
+    sampled_shapley,
+)
+from marlcrash.analysis.shapley import MAX_EXACT_PLAYERS
+from marlcrash.calibrate.compare import evaluate_params
+from marlcrash.calibrate.problem import ProblemConfig, build_problem
+from marlcrash.errors import ConfigError
+
+# ------------------------------------------------------------------------------------------ toy games
+A_ADD = torch.tensor([0.5, -1.0, 2.0, 0.0, 0.25], dtype=torch.float64)
+
+
+def toy_game(masks: torch.Tensor) -> torch.Tensor:
+    """Two quantities: additive plus a pair synergy (players 0 and 1) plus a 3-majority bonus; and additive only."""
+    m = masks.to(torch.float64)
+    add = m @ A_ADD
+    pair = 3.0 * m[:, 0] * m[:, 1]
+    majority = 1.5 * (m.sum(1) >= 3).to(torch.float64)
+    return torch.stack([add + pair + majority, add], dim=1)
+
+
+def brute_force_shapley(value, n: int) -> np.ndarray:
+    """The textbook definition: the average marginal contribution over all n! orderings, one coalition at a time."""
+
+    def v(members: set[int]) -> np.ndarray:
+        mask = torch.zeros(1, n, dtype=torch.bool)
+        mask[0, list(members)] = True
+        return value(mask)[0].numpy()
+
+    phi = np.zeros((n, 2))
+    for order in itertools.permutations(range(n)):
+        members: set[int] = set()
+        for i in order:
+            before = v(members)
+            members.add(i)
+            phi[i] += v(members) - before
+    return phi / math.factorial(n)
+
+
+def test_exact_shapley_equals_the_brute_force_definition_and_closed_forms():
+    att = exact_shapley(toy_game, 5, batch=7)  # a batch that does not divide 32
+    np.testing.assert_allclose(att.phi.numpy(), brute_force_shapley(toy_game, 5), rtol=0, atol=1e-12)
+    # closed forms: the pair synergy is split equally, the 3-majority bonus symmetrically over the 5 players
+    expected0 = 0.5 + 3.0 / 2 + 1.5 / 5
+    assert float(att.phi[0, 0]) == pytest.approx(expected0, abs=1e-12)
+    assert float(att.phi[3, 0]) == pytest.approx(0.0 + 1.5 / 5, abs=1e-12)
+    torch.testing.assert_close(att.phi[:, 1], A_ADD, rtol=0, atol=1e-12)  # additive: each player's own term
+    torch.testing.assert_close(att.phi.sum(0), att.full - att.empty, rtol=0, atol=1e-12)  # efficiency
+    assert att.stderr is None and att.n_evaluations == 32
+
+
+def test_sampled_shapley_is_efficient_unbiased_and_exact_on_additive_games():
+    exact = exact_shapley(toy_game, 5).phi
+    est = sampled_shapley(toy_game, 5, 400, seed=3, batch=50)
+    torch.testing.assert_close(est.phi.sum(0), est.full - est.empty, rtol=0, atol=1e-12)  # every ordering telescopes
+    z = (est.phi[:, 0] - exact[:, 0]) / est.stderr[:, 0]
+    assert float(z.abs().max()) < 4.5, z
+    assert float(est.stderr[:, 0].max()) < 0.1
+    torch.testing.assert_close(est.phi[:, 1], A_ADD, rtol=0, atol=1e-12)  # no interaction: no sampling error
+    assert float(est.stderr[:, 1].max()) < 1e-12
+    assert est.n_evaluations <= 32  # shared coalitions are asked once
+    again = sampled_shapley(toy_game, 5, 400, seed=3)
+    torch.testing.assert_close(again.phi, est.phi, rtol=0, atol=0)  # seeded
+
+
+def test_one_at_a_time_effects_and_bad_arguments():
+    loo, add, ends = one_at_a_time(toy_game, 5)
+    full, empty = toy_game(torch.ones(1, 5, dtype=torch.bool))[0], toy_game(torch.zeros(1, 5, dtype=torch.bool))[0]
+    torch.testing.assert_close(ends, torch.stack([empty, full]))
+    # leaving player 0 out of the grand coalition loses its own 0.5 and the pair's 3 (majority stays): 3.5
+    assert float(loo[0, 0]) == pytest.approx(3.5, abs=1e-12)
+    assert float(add[0, 0]) == pytest.approx(0.5, abs=1e-12)
+    with pytest.raises(ValueError, match="even number of orderings"):
+        sampled_shapley(toy_game, 5, 3)
+    with pytest.raises(ValueError, match="use sampled_shapley"):
+        exact_shapley(toy_game, MAX_EXACT_PLAYERS + 1)
+    with pytest.raises(ValueError, match="expected \\[coalitions, quantities\\]"):
+        exact_shapley(lambda m: torch.zeros(m.shape[0]), 2)
+    with pytest.raises(ValueError, match="players >= 1"):
+        one_at_a_time(toy_game, 0)
+
+
+# ----------------------------------------------------------------------------------- the surrogate
+@pytest.fixture(scope="module")
+def problem():
+    return build_problem(ProblemConfig(duration=0.05))  # the twin of full_width_40 over 50 ms
+
+
+def _three_agents_at_the_truth(problem) -> tuple[torch.Tensor, list[int]]:
+    names = ["crash_box_left", "front_rail_right", "bumper_beam_left"]
+    agents = [problem.agent_names.index(a) for a in names]
+    members = torch.zeros(1, problem.n_agents, dtype=torch.bool)
+    members[0, agents] = True
+    return coalition_params(problem, problem.init, problem.true_params, members)[0], agents
+
+
+def test_contributions_on_the_surrogate_add_up_and_match_direct_simulations(problem):
+    calibrated, agents = _three_agents_at_the_truth(problem)
+    c = agent_contributions(problem, calibrated)
+    assert c.exact and c.n_simulations == 8 + 8  # 2**3 coalitions, then 2 * 3 + 2 one-at-a-time
+    assert sorted(np.flatnonzero(c.players.numpy()).tolist()) == sorted(agents)
+    others = [i for i in range(problem.n_agents) if i not in agents]
+    assert float(c.shapley[others].abs().max()) == 0.0 and float(c.leave_one_out[others].abs().max()) == 0.0
+    direct = evaluate_params(problem, torch.stack([problem.init, calibrated]))
+    K = len(problem.sensors)
+    for j, name in enumerate(("area", "dfd", "rmse")):
+        torch.testing.assert_close(c.initial[j * K : (j + 1) * K], getattr(direct, name)[0], rtol=0, atol=1e-12)
+        torch.testing.assert_close(c.calibrated[j * K : (j + 1) * K], getattr(direct, name)[1], rtol=0, atol=1e-12)
+    torch.testing.assert_close(c.shapley.sum(0), c.calibrated - c.initial, rtol=0, atol=1e-9)
+    # leave-one-out of one agent against a simulation of the calibration without that agent's cells
+    i = agents[1]
+    members = torch.zeros(1, problem.n_agents, dtype=torch.bool)
+    members[0, [a for a in agents if a != i]] = True
+    without = evaluate_params(problem, coalition_params(problem, problem.init, calibrated, members))
+    j = c.column(f"area/{problem.sensors[-1]}")
+    assert float(c.leave_one_out[i, j]) == pytest.approx(float(c.calibrated[j] - without.area[0, -1]), abs=1e-12)
+    # the sampled estimate agrees with the enumeration (three players: every ordering is one of six)
+    s = agent_contributions(problem, calibrated, exact_max=0, n_permutations=200, seed=1)
+    assert not s.exact
+    err = (s.shapley - c.shapley).abs()
+    assert bool((err <= 4.5 * s.shapley_stderr + 1e-9).all())
+    assert "| agent | Shapley |" in c.markdown("area/tunnel") and c.ranking("score")[0][0] in c.agents
+
+
+def test_contributions_refuse_changes_no_agent_owns(problem):
+    calibrated = problem.true_params.clone()
+    unowned = int(torch.nonzero(problem.layout.agent_of_cell < 0)[0])
+    calibrated[unowned, 1] += 1.0  # (a null cell's E_s is 0)
+    with pytest.raises(ValueError, match="no agent owns"):
+        agent_contributions(problem, calibrated)
+    with pytest.raises(ValueError, match="calibrated: expected cell parameters of shape"):
+        agent_contributions(problem, calibrated[:5])
+    nothing = agent_contributions(problem, problem.init)
+    assert not bool(nothing.players.any()) and float(nothing.shapley.abs().max()) == 0.0
+
+
+def test_agent_changes_reads_each_agents_factors(problem):
+    a = problem.agent_names.index("front_rail_left")
+    cells = problem.layout.agent_of_cell == a
+    p = problem.init.clone()
+    p[cells, 1] *= 1.1  # E_s of every cell of the agent +10 %
+    ch = agent_changes(problem, torch.stack([problem.init, p]))
+    assert ch["E_s"].shape == (2, problem.n_agents)
+    assert ch["E_s"][1, a] == pytest.approx(math.log(1.1), abs=1e-12)
+    assert np.abs(np.delete(ch["E_s"][1], a)).max() == 0.0 and np.abs(ch["E_x"]).max() == 0.0
+    assert ch["step"][1, a] == pytest.approx(math.log(1.1) / math.sqrt(2), abs=1e-12)
+    assert np.abs(ch["transmission"]).max() == 0.0
+    with pytest.raises(ValueError, match="params: expected"):
+        agent_changes(problem, p[:3])
+
+
+def test_plots_and_tables_are_written(problem, tmp_path):
+    calibrated, _ = _three_agents_at_the_truth(problem)
+    c = agent_contributions(problem, calibrated)
+    written = [
+        plot_contributions(c, tmp_path / "bars.png"),
+        c.write_csv(tmp_path / "c.csv"),
+        plot_cells_by_contribution(problem, c, tmp_path / "3d.png"),
+        c.write_markdown(tmp_path / "c.md"),
+    ]
+    for path in written:
+        assert path.stat().st_size > 200
+    rows = (tmp_path / "c.csv").read_text().splitlines()
+    assert len(rows) == 1 + problem.n_agents * len(c.quantities)
+
+
+def test_run_calibration_loads_an_evaluated_run(tmp_path):
+    from test_train_config import composed
+
+    from marlcrash.calibrate.marl import load_train_config, save_run_config
+
+    config = load_train_config(composed(["eval.reference_seed=2"]), ci=False)
+    save_run_config(config, tmp_path)
+    with pytest.raises(ConfigError, match=r"no calibrated\.npz") as e:
+        run_calibration(tmp_path)
+    assert e.value.key == "run"
+    problem = build_problem(ProblemConfig(reference_seed=2))
+    per_it = torch.stack([problem.init, problem.true_params])
+    arrays = {"initial": per_it[0].numpy(), "calibrated": per_it[1].numpy(), "per_iteration": per_it.numpy(),
+              "selected_iteration": np.array(1), "true": problem.true_params.numpy()}  # fmt: skip
+    np.savez(tmp_path / "calibrated.npz", **arrays)
+    rc = run_calibration(tmp_path)
+    torch.testing.assert_close(rc.problem.true_params, problem.true_params, rtol=0, atol=0)  # the same twin
+    assert rc.selected_iteration == 1 and rc.per_iteration.shape == per_it.shape
+    np.savez(tmp_path / "calibrated.npz", initial=per_it[0].numpy())
+    with pytest.raises(ConfigError, match="lacks"):
+        run_calibration(tmp_path)
