@@ -184,24 +184,31 @@ def test_plots_and_tables_are_written(problem, tmp_path):
     assert len(rows) == 1 + problem.n_agents * len(c.quantities)
 
 
-def test_run_calibration_loads_an_evaluated_run(tmp_path):
+def write_evaluated_run(run_dir, reference_seed: int = 2):
+    """A run folder as train/train.py leaves it for the analysis: config.yaml and calibrated.npz (two iterates: the
+    initial parameters and the twin's truth). Returns the problem of that twin."""
     from test_train_config import composed
 
     from marlcrash.calibrate.marl import load_train_config, save_run_config
 
-    config = load_train_config(composed(["eval.reference_seed=2"]), ci=False)
-    save_run_config(config, tmp_path)
-    with pytest.raises(ConfigError, match=r"no calibrated\.npz") as e:
-        run_calibration(tmp_path)
-    assert e.value.key == "run"
-    problem = build_problem(ProblemConfig(reference_seed=2))
+    save_run_config(load_train_config(composed([f"eval.reference_seed={reference_seed}"]), ci=False), run_dir)
+    problem = build_problem(ProblemConfig(reference_seed=reference_seed))
     per_it = torch.stack([problem.init, problem.true_params])
     arrays = {"initial": per_it[0].numpy(), "calibrated": per_it[1].numpy(), "per_iteration": per_it.numpy(),
               "selected_iteration": np.array(1), "true": problem.true_params.numpy()}  # fmt: skip
-    np.savez(tmp_path / "calibrated.npz", **arrays)
+    np.savez(run_dir / "calibrated.npz", **arrays)
+    return problem
+
+
+def test_run_calibration_loads_an_evaluated_run(tmp_path):
+    problem = write_evaluated_run(tmp_path)
     rc = run_calibration(tmp_path)
     torch.testing.assert_close(rc.problem.true_params, problem.true_params, rtol=0, atol=0)  # the same twin
-    assert rc.selected_iteration == 1 and rc.per_iteration.shape == per_it.shape
-    np.savez(tmp_path / "calibrated.npz", initial=per_it[0].numpy())
+    assert rc.selected_iteration == 1 and rc.per_iteration.shape == (2, *problem.init.shape)
+    np.savez(tmp_path / "calibrated.npz", initial=problem.init.numpy())
     with pytest.raises(ConfigError, match="lacks"):
         run_calibration(tmp_path)
+    (tmp_path / "calibrated.npz").unlink()
+    with pytest.raises(ConfigError, match=r"no calibrated\.npz") as e:
+        run_calibration(tmp_path)
+    assert e.value.key == "run"

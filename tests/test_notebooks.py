@@ -1,0 +1,60 @@
+"""The notebooks in notebooks/ run from top to bottom (DESIGN 7: thin layers over tested library code).
+
+Each notebook has one cell tagged ``parameters``; the test appends small values to it (fewer sampled orderings,
+an output folder under tmp_path) and executes every cell in a fresh kernel of this interpreter.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import nbclient  # the dev extra installs nbformat, nbclient and ipykernel
+import nbformat
+import pytest
+from test_analysis import write_evaluated_run
+
+NOTEBOOKS = sorted((Path(__file__).resolve().parents[1] / "notebooks").glob("*.ipynb"))
+SMALL = {"agent_contributions.ipynb": "N_PERMUTATIONS = 4\nRUN = None"}
+"""Small settings per notebook, appended to its parameters cell."""
+
+
+def test_there_are_notebooks_and_each_has_small_settings():
+    assert NOTEBOOKS, "notebooks/ holds no notebook"
+    assert {p.name for p in NOTEBOOKS} == set(SMALL)
+
+
+def execute(path: Path, overrides: str) -> nbformat.NotebookNode:
+    """Execute a notebook with ``overrides`` appended to its parameters cell; raises on any cell's error."""
+    nb = nbformat.read(path, as_version=4)
+    params = [c for c in nb.cells if "parameters" in c.get("metadata", {}).get("tags", [])]
+    assert len(params) == 1, "expected one cell tagged 'parameters'"
+    params[0].source += f"\n# test overrides\n{overrides}\n"
+    client = nbclient.NotebookClient(nb, timeout=600, kernel_name="python3",
+                                     resources={"metadata": {"path": str(path.parent)}})  # fmt: skip
+    client.execute()  # raises CellExecutionError naming the cell on any error
+    errors = [o for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", []) if o.output_type == "error"]
+    assert not errors
+    return nb
+
+
+def _stdout(nb: nbformat.NotebookNode) -> str:
+    return "".join(o.get("text", "") for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", []))
+
+
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.name)
+def test_notebook_executes(path, tmp_path):
+    out = tmp_path / "out"
+    nb = execute(path, f"{SMALL[path.name]}\nOUT = {str(out)!r}")
+    assert "analysing the twin's hidden perturbation" in _stdout(nb)
+    written = {p.name for p in out.iterdir()}
+    assert {"contributions.csv", "contributions.md", "contributions.png", "cells.png"} <= written
+
+
+def test_agent_contributions_notebook_analyses_a_run(tmp_path):
+    run = tmp_path / "run"
+    run.mkdir()
+    write_evaluated_run(run)
+    path = next(p for p in NOTEBOOKS if p.name == "agent_contributions.ipynb")
+    nb = execute(path, f"N_PERMUTATIONS = 4\nRUN = {str(run)!r}\nOUT = {str(tmp_path / 'out')!r}")
+    text = _stdout(nb)
+    assert f"analysing the calibration of {run} (its iterate 1)" in text and "largest per-step move" in text
