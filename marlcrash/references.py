@@ -43,7 +43,7 @@ from marlcrash.cells.model import CellModel
 from marlcrash.cells.parameterization import apply_increments
 from marlcrash.config import config_dir, require
 from marlcrash.errors import ConfigError, PulseError
-from marlcrash.pulse.io import check_record_rate, read_pulse
+from marlcrash.pulse.io import ACC_UNITS, acc_unit_key, check_record_rate, read_pulse
 from marlcrash.pulse.signal import compared_velocity, prepare_velocity
 from marlcrash.sim.scenario import CrashScenario, get_scenario
 from marlcrash.sim.surrogate import SimConfig, Surrogate
@@ -98,7 +98,7 @@ class FileReference:
         require(bool(self.scenario), "scenario", "expected the registered scenario of the test")
         require(bool(self.channels), "channels", "expected a mapping sensor name -> channel name")
         require(self.sign in (1.0, -1.0), "sign", f"expected +1 or -1, got {self.sign}")
-        require(self.unit in ("g", "m/s2"), "unit", f"expected g or m/s2, got {self.unit!r}")
+        require(acc_unit_key(self.unit) in ACC_UNITS, "unit", f"expected one of {sorted(ACC_UNITS)}, got {self.unit!r}")
         require(self.time_unit in ("s", "ms"), "time_unit", f"expected s or ms, got {self.time_unit!r}")
         require(self.weight > 0, "weight", f"expected > 0, got {self.weight}")
         require(self.threshold_g > 0, "threshold_g", f"expected > 0 g, got {self.threshold_g}")

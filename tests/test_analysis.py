@@ -21,7 +21,7 @@ from marlcrash.analysis import (
     run_calibration,
     sampled_shapley,
 )
-from marlcrash.analysis.shapley import MAX_EXACT_PLAYERS
+from marlcrash.analysis.shapley import MAX_EXACT_PLAYERS, from_table
 from marlcrash.calibrate.compare import evaluate_params
 from marlcrash.calibrate.problem import ProblemConfig, build_problem
 from marlcrash.errors import ConfigError
@@ -90,8 +90,12 @@ def test_one_at_a_time_effects_and_bad_arguments():
     # leaving player 0 out of the grand coalition loses its own 0.5 and the pair's 3 (majority stays): 3.5
     assert float(loo[0, 0]) == pytest.approx(3.5, abs=1e-12)
     assert float(add[0, 0]) == pytest.approx(0.5, abs=1e-12)
-    with pytest.raises(ValueError, match="even number of orderings"):
-        sampled_shapley(toy_game, 5, 3)
+    for bad in (3, 2):  # odd; one antithetic pair has no standard error
+        with pytest.raises(ValueError, match="even number of orderings >= 4"):
+            sampled_shapley(toy_game, 5, bad)
+    exact = exact_shapley(toy_game, 5)
+    for got, want in zip(from_table(exact.table), (loo, add), strict=True):  # the exact table holds them too
+        torch.testing.assert_close(got, want, rtol=0, atol=0)
     with pytest.raises(ValueError, match="use sampled_shapley"):
         exact_shapley(toy_game, MAX_EXACT_PLAYERS + 1)
     with pytest.raises(ValueError, match="expected \\[coalitions, quantities\\]"):
@@ -117,7 +121,7 @@ def _three_agents_at_the_truth(problem) -> tuple[torch.Tensor, list[int]]:
 def test_contributions_on_the_surrogate_add_up_and_match_direct_simulations(problem):
     calibrated, agents = _three_agents_at_the_truth(problem)
     c = agent_contributions(problem, calibrated)
-    assert c.exact and c.n_simulations == 8 + 8  # 2**3 coalitions, then 2 * 3 + 2 one-at-a-time
+    assert c.exact and c.n_simulations == 8  # 2**3 coalitions, which hold the one-at-a-time effects too
     assert sorted(np.flatnonzero(c.players.numpy()).tolist()) == sorted(agents)
     others = [i for i in range(problem.n_agents) if i not in agents]
     assert float(c.shapley[others].abs().max()) == 0.0 and float(c.leave_one_out[others].abs().max()) == 0.0
@@ -152,6 +156,13 @@ def test_contributions_refuse_changes_no_agent_owns(problem):
         agent_contributions(problem, calibrated[:5])
     nothing = agent_contributions(problem, problem.init)
     assert not bool(nothing.players.any()) and float(nothing.shapley.abs().max()) == 0.0
+    # parameters stored by a float32 run differ from the initial ones by rounding everywhere: not moves
+    three, agents = _three_agents_at_the_truth(problem)
+    rounded = agent_contributions(problem, three.float().double())
+    assert sorted(np.flatnonzero(rounded.players.numpy()).tolist()) == sorted(agents)
+    for kwargs in ({"exact_max": 17}, {"n_permutations": 2}):
+        with pytest.raises(ValueError, match=next(iter(kwargs))):
+            agent_contributions(problem, three, **kwargs)
 
 
 def test_agent_changes_reads_each_agents_factors(problem):
@@ -205,8 +216,16 @@ def test_run_calibration_loads_an_evaluated_run(tmp_path):
     rc = run_calibration(tmp_path)
     torch.testing.assert_close(rc.problem.true_params, problem.true_params, rtol=0, atol=0)  # the same twin
     assert rc.selected_iteration == 1 and rc.per_iteration.shape == (2, *problem.init.shape)
+    (tmp_path / "calibrated.npz").rename(tmp_path / "keep.npz")
     np.savez(tmp_path / "calibrated.npz", initial=problem.init.numpy())
     with pytest.raises(ConfigError, match="lacks"):
+        run_calibration(tmp_path)
+    np.savez(tmp_path / "calibrated.npz", **{k: np.zeros((2, 7)) if k in ("initial", "calibrated") else v
+                                             for k, v in np.load(tmp_path / "keep.npz").items()})  # fmt: skip
+    with pytest.raises(ConfigError, match="another vehicle or discretization") as e:
+        run_calibration(tmp_path)
+    (tmp_path / "calibrated.npz").write_bytes(b"PK\x03\x04 not a zip")
+    with pytest.raises(ConfigError, match="cannot read") as e:
         run_calibration(tmp_path)
     (tmp_path / "calibrated.npz").unlink()
     with pytest.raises(ConfigError, match=r"no calibrated\.npz") as e:

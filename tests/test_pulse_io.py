@@ -359,6 +359,9 @@ def test_csv_dialects_of_spreadsheets_and_lab_tools(tmp_path, analytic):
         p = read_csv(wide)
         assert p.channels == ("acc m/s²",)
         np.testing.assert_allclose(p.acc, ref.acc, rtol=1e-8, atol=1e-6)
+    wide32 = tmp_path / "utf32.txt"
+    wide32.write_bytes(tab_text.encode("utf-32"))  # starts with FF FE 00 00, which begins like UTF-16's mark
+    assert read_csv(wide32).channels == ("acc m/s²",)
     broken = tmp_path / "broken.txt"
     broken.write_bytes(b"\xff\xfe" + b"t\x00\x00\xd8")  # a lone surrogate
     with pytest.raises(PulseError, match=r"broken\.txt: starts with a UTF-16 byte-order mark but is not UTF-16"):
@@ -479,6 +482,24 @@ def test_a_table_of_breakpoints_is_sampled_between_its_corners(tmp_path):
         read_csv(one, breakpoints=True)
     with pytest.raises(PulseError, match="HS40: an ISO-MME channel is sampled, not a table of breakpoints"):
         processed_pulse(Path(__file__).parent / "data" / "HS40", breakpoints=True)
+    square = tmp_path / "square.csv"  # vertical edges: two rows of one time; the last corner off the 0.1 ms grid
+    square.write_text("time,acc\n0,0\n0.01,0\n0.01,-20\n0.05,-20\n0.05,0\n0.08005,-4\n")
+    q = read_csv(square, breakpoints=True)
+    assert q.time[-1] == pytest.approx(0.0801) and q.acc[0, -1] == pytest.approx(-4 * G0)  # kept, held after it
+    inside = (q.time > 0.0100001) & (q.time < 0.0499999)
+    assert np.all(q.acc[0, inside] == -20 * G0)
+    k = int(np.argmin(np.abs(q.time - 0.065)))  # on the ramp from 0 at 50 ms (after the edge) to -4 g at 80.05 ms
+    assert q.acc[0, k] == pytest.approx(-4 * G0 * (q.time[k] - 0.05) / 0.03005, rel=1e-9)
+    third = tmp_path / "third.csv"
+    third.write_text("time,acc\n0,0\n0.01,0\n0.01,-20\n0.01,-5\n0.05,0\n")
+    with pytest.raises(PulseError, match=r"third\.csv line 5, column 'time': a third row at one time"):
+        read_csv(third, breakpoints=True)
+    with pytest.raises(PulseError, match=r"the breakpoints span 0\.0002 s.*is the time column in s"):
+        read_csv(path, breakpoints=True, time_unit="ms")  # a table in s read as ms
+    dense = tmp_path / "dense.csv"  # a 20 kHz record read as breakpoints: decimated, so warned about
+    dense.write_text("time,acc\n" + "".join(f"{i * 5e-5:.5f},-1\n" for i in range(400)))
+    with pytest.warns(UserWarning, match=r"dense\.csv: rows 5e-05 s apart \(median\) are a sampled record"):
+        read_csv(dense, breakpoints=True)
 
 
 def test_a_table_of_breakpoints_read_as_samples_is_refused_with_the_option_to_use(tmp_path):
@@ -491,3 +512,8 @@ def test_a_table_of_breakpoints_read_as_samples_is_refused_with_the_option_to_us
     with pytest.warns(UserWarning, match=r"read it as one: --breakpoints"), pytest.raises(PulseError, match=refused):
         processed_pulse(path)
     assert processed_pulse(path, breakpoints=True)[1].sample_rate_hz == pytest.approx(1e4)
+    slow = Pulse(np.arange(40) * 0.01, -np.ones((1, 40)) * G0, ("10VEHC0000ACXP",))  # 100 Hz: seconds in ms?
+    mme = write_mme(slow, tmp_path / "slow")
+    with pytest.raises(PulseError, match="'Sampling interval' in seconds") as info:
+        processed_pulse(mme)
+    assert "--breakpoints" not in str(info.value)  # an ISO-MME channel is never a table of breakpoints

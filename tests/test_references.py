@@ -245,6 +245,9 @@ def test_file_reference_checks_its_rate_and_reads_breakpoints(cells, sim, tmp_pa
     spec = FileReference(path=str(in_ms), scenario="full_width_40", channels=channels)
     with pytest.raises(PulseError, match=r"in_ms\.csv: sampling rate 10 Hz .*time_unit: ms"):
         sampler(cells, sim, kind="file", files=[spec])
-    for key, value in (("unit", "G"), ("time_unit", "sec")):
-        with pytest.raises(ConfigError, match=key):
+    for key, value in (("unit", "km/h"), ("time_unit", "sec")):
+        with pytest.raises(ConfigError) as e:
             FileReference(path="x.csv", scenario="full_width_40", channels=channels, **{key: value}).validate()
+        assert e.value.key == key
+    for unit in ("G", "mm/s2", "m/s^2"):  # every spelling the reader takes
+        FileReference(path="x.csv", scenario="full_width_40", channels=channels, unit=unit).validate()

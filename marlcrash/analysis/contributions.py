@@ -23,19 +23,31 @@ problem it was evaluated on.
 from __future__ import annotations
 
 import csv
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from marlcrash.analysis.shapley import Attribution, exact_shapley, one_at_a_time, sampled_shapley
+from marlcrash.analysis.shapley import (
+    MAX_EXACT_PLAYERS,
+    Attribution,
+    check_permutations,
+    exact_shapley,
+    from_table,
+    one_at_a_time,
+    sampled_shapley,
+)
 from marlcrash.calibrate.compare import evaluate_params
 from marlcrash.calibrate.problem import CalibrationProblem
 from marlcrash.errors import ConfigError
 from marlcrash.outputs import atomic_output, write_text
 
 METRICS = ("area", "dfd", "rmse")
+MOVE_RTOL = 1e-6
+"""A cell parameter counts as moved when it differs from the initial one by more than this relative amount: a run
+simulated in float32 stores parameters rounded at about 6e-8 (its unowned cells must not look moved)."""
 
 
 @dataclass
@@ -162,8 +174,9 @@ def agent_contributions(
         problem: the reference, scenario, window and agents (e.g. :func:`run_calibration`'s).
         calibrated: ``[n_cells, 7]`` calibrated cell parameters.
         initial: ``[n_cells, 7]`` parameters before calibration (default: the problem's initial ones).
-        exact_max: enumerate all coalitions when at most this many agents moved, else sample orderings.
-        n_permutations: sampled orderings (even; antithetic pairs).
+        exact_max: enumerate all coalitions when at most this many agents moved (at most
+            :data:`~marlcrash.analysis.shapley.MAX_EXACT_PLAYERS`), else sample orderings.
+        n_permutations: sampled orderings (even, >= 4; antithetic pairs).
         seed: seed of the orderings.
         batch: coalitions per simulation batch.
 
@@ -172,11 +185,14 @@ def agent_contributions(
 
     Raises:
         ValueError: parameters of the wrong shape, non-finite, or changed in cells no agent owns (then no agent
-            can be credited with the change).
+            can be credited with the change); a bad ``exact_max`` or ``n_permutations``.
     """
+    if not 0 <= exact_max <= MAX_EXACT_PLAYERS:
+        raise ValueError(f"exact_max: expected 0 to {MAX_EXACT_PLAYERS} agents, got {exact_max}")
+    check_permutations(n_permutations)
     init = problem.init if initial is None else _check_params(problem, "initial", initial)
     cal = _check_params(problem, "calibrated", calibrated)
-    moved_cells = (cal != init).any(-1)  # [n]
+    moved_cells = ((cal - init).abs() > MOVE_RTOL * init.abs()).any(-1)  # [n]
     agent = problem.layout.agent_of_cell
     stray = moved_cells & (agent < 0)
     if bool(stray.any()):
@@ -206,9 +222,12 @@ def agent_contributions(
         v = value(torch.zeros(1, 0, dtype=torch.bool))[0]
         return Contributions(list(problem.agent_names), names, players, v, v.clone(), zeros, zeros.clone(), True,
                              zeros.clone(), zeros.clone(), counted)  # fmt: skip
-    att: Attribution = (exact_shapley(value, n, batch=batch) if n <= exact_max
-                        else sampled_shapley(value, n, n_permutations, seed=seed, batch=batch))  # fmt: skip
-    loo, add, _ = one_at_a_time(value, n, batch=batch)
+    if n <= exact_max:
+        att: Attribution = exact_shapley(value, n, batch=batch)
+        loo, add = from_table(att.table)
+    else:
+        att = sampled_shapley(value, n, n_permutations, seed=seed, batch=batch)
+        loo, add, _ = one_at_a_time(value, n, batch=batch)
 
     def spread(t: torch.Tensor | None) -> torch.Tensor:
         out = zeros.clone()
@@ -295,7 +314,7 @@ def run_calibration(run_dir: str | Path) -> RunCalibration:
     try:
         with np.load(path) as data:
             arrays = {k: data[k] for k in data.files}
-    except (OSError, ValueError) as e:
+    except (OSError, ValueError, zipfile.BadZipFile) as e:
         raise ConfigError(f"cannot read {path}: {e}", key="run") from None
     missing = [k for k in ("initial", "calibrated", "per_iteration", "selected_iteration") if k not in arrays]
     if missing:
@@ -303,7 +322,10 @@ def run_calibration(run_dir: str | Path) -> RunCalibration:
     problem = evaluation_problem(config)
     t = {k: torch.as_tensor(v, dtype=torch.float64) for k, v in arrays.items() if k != "selected_iteration"}
     for k in ("initial", "calibrated"):
-        _check_params(problem, f"{path.name}[{k}]", t[k])
+        try:
+            _check_params(problem, f"{path}[{k}]", t[k])
+        except ValueError as e:
+            raise ConfigError(f"{e} (a run of another vehicle or discretization?)", key="run") from None
     return RunCalibration(problem=problem, initial=t["initial"], calibrated=t["calibrated"],
                           per_iteration=t["per_iteration"], selected_iteration=int(arrays["selected_iteration"]),
                           true=t.get("true"))  # fmt: skip

@@ -41,6 +41,7 @@ class Attribution:
         stderr: ``[n, Q]`` standard error of a sampled estimate, ``None`` when exact.
         empty, full: ``[Q]`` the values of the empty and of the grand coalition.
         n_evaluations: coalitions the game was asked for.
+        table: ``[2**n, Q]`` the value of every coalition (row ``c`` as in :func:`all_coalitions`) when exact.
     """
 
     phi: torch.Tensor
@@ -48,11 +49,30 @@ class Attribution:
     empty: torch.Tensor
     full: torch.Tensor
     n_evaluations: int
+    table: torch.Tensor | None = None
 
 
 def _check_players(n: int) -> None:
     if not isinstance(n, int) or n < 1:
         raise ValueError(f"expected a number of players >= 1, got {n!r}")
+
+
+def check_permutations(n_permutations: int) -> None:
+    """Raise :class:`ValueError` unless ``n_permutations`` is an even number >= 4 (:func:`sampled_shapley`)."""
+    if not isinstance(n_permutations, int) or n_permutations < 4 or n_permutations % 2:
+        raise ValueError(
+            f"n_permutations: expected an even number of orderings >= 4 (antithetic pairs), got {n_permutations!r}"
+        )
+
+
+def from_table(table: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Leave-one-out and add-one effects ``[n, Q]`` read from an exact table ``[2**n, Q]`` (:class:`Attribution`)."""
+    n = round(math.log2(table.shape[0]))
+    if 2**n != table.shape[0]:
+        raise ValueError(f"expected a table of 2**n coalitions, got {table.shape[0]} rows")
+    bits = 1 << torch.arange(n)
+    full = 2**n - 1
+    return table[full] - table[full ^ bits], table[bits] - table[0]
 
 
 def evaluate(value: ValueFn, masks: torch.Tensor, batch: int) -> torch.Tensor:
@@ -102,7 +122,7 @@ def exact_shapley(value: ValueFn, n: int, *, batch: int = 256) -> Attribution:
     for i in range(n):  # n passes over the table, each vectorized over its 2**(n-1) coalitions
         without = idx[~masks[:, i]]
         phi[i] = (w[size[without]][:, None] * (v[without | (1 << i)] - v[without])).sum(0)
-    return Attribution(phi=phi, stderr=None, empty=v[0], full=v[-1], n_evaluations=int(masks.shape[0]))
+    return Attribution(phi=phi, stderr=None, empty=v[0], full=v[-1], n_evaluations=int(masks.shape[0]), table=v)
 
 
 def sampled_shapley(value: ValueFn, n: int, n_permutations: int, *, seed: int = 0, batch: int = 256) -> Attribution:
@@ -111,7 +131,8 @@ def sampled_shapley(value: ValueFn, n: int, n_permutations: int, *, seed: int = 
     Args:
         value: the game.
         n: players.
-        n_permutations: orderings, an even number >= 2 (each ordering and its reverse).
+        n_permutations: orderings, an even number >= 4 (each ordering and its reverse; two pairs at least, for a
+            standard error).
         seed: seed of the orderings.
         batch: coalitions per call of ``value``.
 
@@ -119,11 +140,10 @@ def sampled_shapley(value: ValueFn, n: int, n_permutations: int, *, seed: int = 
         The estimates and their standard errors (over the antithetic pairs' means).
 
     Raises:
-        ValueError: fewer than 2 or an odd number of orderings.
+        ValueError: fewer than 4 or an odd number of orderings.
     """
     _check_players(n)
-    if n_permutations < 2 or n_permutations % 2:
-        raise ValueError(f"expected an even number of orderings >= 2 (antithetic pairs), got {n_permutations}")
+    check_permutations(n_permutations)
     rng = np.random.default_rng(seed)
     half = np.stack([rng.permutation(n) for _ in range(n_permutations // 2)])
     perms = np.concatenate([half, half[:, ::-1]])  # [P, n]: pair p is rows p and p + P/2
@@ -140,8 +160,7 @@ def sampled_shapley(value: ValueFn, n: int, n_permutations: int, *, seed: int = 
     per_player[torch.arange(P)[:, None], torch.as_tensor(perms.copy())] = marg  # [P, player, Q]
     pairs = 0.5 * (per_player[: P // 2] + per_player[P // 2 :])  # [P/2, n, Q]
     phi = pairs.mean(0)
-    m = pairs.shape[0]
-    stderr = pairs.std(0, unbiased=True) / math.sqrt(m) if m > 1 else torch.full_like(phi, float("nan"))
+    stderr = pairs.std(0, unbiased=True) / math.sqrt(pairs.shape[0])
     empty = v[0, 0]
     return Attribution(phi=phi, stderr=stderr, empty=empty, full=v[0, -1], n_evaluations=int(unique.shape[0]))
 

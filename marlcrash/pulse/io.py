@@ -50,7 +50,7 @@ from marlcrash.pulse.signal import (
 )
 from marlcrash.units import G0
 
-_ACC_UNITS = {"g": G0, "m/s2": 1.0, "m/s^2": 1.0, "m/s**2": 1.0, "m/s²": 1.0, "m/(s*s)": 1.0, "mm/s2": 1e-3}
+ACC_UNITS = {"g": G0, "m/s2": 1.0, "m/s^2": 1.0, "m/s**2": 1.0, "m/s²": 1.0, "m/(s*s)": 1.0, "mm/s2": 1e-3}
 _TIME_UNITS = {"s": 1.0, "ms": 1e-3}
 _TIME_NAMES = ("time", "t", "zeit", "time_s", "time [s]", "time (s)")
 MIN_GAP_S = 2.5e-3
@@ -89,12 +89,17 @@ def _err(reason: str, path: str | Path, line: int | None = None, column: str | N
     return PulseError(_located(reason, path, line, column))
 
 
+def acc_unit_key(unit: str) -> str:
+    """The normalized spelling of an acceleration unit name, as :data:`ACC_UNITS` holds it (case and spaces)."""
+    return unit.strip().lower().replace(" ", "")
+
+
 def acc_unit_factor(unit: str, path: str | Path | None = None, line: int | None = None) -> float:
     """SI factor [m/s^2 per unit] of an acceleration unit name (``g``, ``m/s2``, ``m/s**2`` ...)."""
-    key = unit.strip().lower().replace(" ", "")
-    if key in _ACC_UNITS:
-        return _ACC_UNITS[key]
-    reason = f"expected an acceleration unit in {sorted(_ACC_UNITS)}, got {unit!r}"
+    key = acc_unit_key(unit)
+    if key in ACC_UNITS:
+        return ACC_UNITS[key]
+    reason = f"expected an acceleration unit in {sorted(ACC_UNITS)}, got {unit!r}"
     raise _err(reason, path, line) if path is not None else PulseError(reason)
 
 
@@ -213,11 +218,18 @@ def read_csv(
     data = np.asarray(rows, dtype=np.float64)
     time = data[:, 0] * _TIME_UNITS[time_unit]
     steps = np.diff(time)
-    if np.any(steps <= 0):
-        i = int(np.argmax(steps <= 0))
-        what = "duplicated time" if steps[i] == 0 else "time goes backwards"
+    # a table of breakpoints may draw a vertical edge (a rectangular pulse) with two rows of the same time
+    bad = (steps < 0) | ((steps == 0) & np.r_[False, steps[:-1] == 0]) if breakpoints else steps <= 0
+    if np.any(bad):
+        i = int(np.argmax(bad))
+        if steps[i] < 0:
+            what = "time goes backwards"
+        else:
+            what = "a third row at one time" if breakpoints else "duplicated time"
+        expected = ("time to increase (two rows of one time draw a vertical edge)" if breakpoints
+                    else "time to strictly increase")  # fmt: skip
         raise _err(
-            f"{what}: expected time to strictly increase, got {float(data[i + 1, 0])!r} after {float(data[i, 0])!r}",
+            f"{what}: expected {expected}, got {float(data[i + 1, 0])!r} after {float(data[i, 0])!r}",
             path,
             line_of[i + 1],
             header[ti],
@@ -234,10 +246,17 @@ def read_csv(
                 line_of[-1],
                 header[ti],
             )
-        n = int(np.floor(span * BREAKPOINT_RATE_HZ + 1e-6)) + 1
+        n = int(np.ceil(span * BREAKPOINT_RATE_HZ - 1e-6)) + 1  # to the last corner (beyond it: its value)
         if n < MIN_SAMPLES:
+            hint = " (is the time column in s? time_unit: s)" if time_unit == "ms" else ""
             raise _err(f"the breakpoints span {span:.4g} s, less than {MIN_SAMPLES} samples at "
-                       f"{BREAKPOINT_RATE_HZ:g} Hz", path, line_of[-1], header[ti])  # fmt: skip
+                       f"{BREAKPOINT_RATE_HZ:g} Hz{hint}", path, line_of[-1], header[ti])  # fmt: skip
+        rows_apart = float(np.median(steps[steps > 0]))
+        if rows_apart < 0.5 / BREAKPOINT_RATE_HZ:
+            reason = (f"rows {rows_apart:g} s apart (median) are a sampled record, not a table of breakpoints; "
+                      f"sampling them at {BREAKPOINT_RATE_HZ:g} Hz drops samples (read the file without --breakpoints "
+                      "/ breakpoints: true)")  # fmt: skip
+            warnings.warn(_located(reason, path), stacklevel=2)
         grid = time[0] + np.arange(n) / BREAKPOINT_RATE_HZ
         dense = np.stack([np.interp(grid, time, a) for a in acc])
         return Pulse(time=grid, acc=dense, channels=channels, source=str(path))
@@ -256,7 +275,7 @@ def read_csv(
 
 
 def _read_text_lines(path: Path) -> list[str]:
-    """The lines of a text file: UTF-8 (with or without a byte-order mark) or UTF-16 with one; a line that is not
+    """The lines of a text file: UTF-8 (with or without a byte-order mark) or UTF-16/32 with one; a line that is not
     UTF-8 is read as Windows-1252 / Latin-1, the encodings lab and spreadsheet exports use (``m/s²`` in a header
     must not turn into a replacement character)."""
     try:
@@ -264,11 +283,18 @@ def _read_text_lines(path: Path) -> list[str]:
     except OSError as e:
         raise _err(f"cannot read pulse file ({e.strerror})", path) from None
     raw = raw.removeprefix(b"\xef\xbb\xbf")
-    if raw.startswith((b"\xff\xfe", b"\xfe\xff")):  # UTF-16 with its byte-order mark: Excel's "Unicode Text"
-        try:
-            return raw.decode("utf-16").splitlines()
-        except UnicodeDecodeError as e:
-            raise _err(f"starts with a UTF-16 byte-order mark but is not UTF-16 text ({e.reason})", path) from None
+    for bom, codec in (
+        (b"\xff\xfe\x00\x00", "utf-32"),
+        (b"\x00\x00\xfe\xff", "utf-32"),
+        (b"\xff\xfe", "utf-16"),
+        (b"\xfe\xff", "utf-16"),
+    ):  # Excel's "Unicode Text" is UTF-16 with its byte-order mark
+        if raw.startswith(bom):
+            try:
+                return raw.decode(codec).splitlines()
+            except UnicodeDecodeError as e:
+                raise _err(f"starts with a {codec.upper()} byte-order mark but is not {codec.upper()} text "
+                           f"({e.reason})", path) from None  # fmt: skip
     try:
         return raw.decode("utf-8").splitlines()
     except UnicodeDecodeError:  # line by line: one Latin-1 comment must not turn a UTF-8 header into mojibake
@@ -447,7 +473,7 @@ def mme_channels(path: str | Path) -> list[dict[str, Any]]:
                 "code": "" if code.upper() == "NOVALUE" else code,
                 "name": h.get("name of the channel", ("", 0))[0],
                 "unit": unit,
-                "acceleration": unit is not None and unit.strip().lower().replace(" ", "") in _ACC_UNITS,
+                "acceleration": unit is not None and acc_unit_key(unit) in ACC_UNITS,
             }
         )
     return out
@@ -484,7 +510,7 @@ def read_mme(path: str | Path, *, channels: str | Sequence[str] | None = None, s
         chosen = [c["file"] for c in info if c["acceleration"]]
         if not chosen:
             units = sorted({c["unit"] for c in info})
-            known = sorted(_ACC_UNITS)
+            known = sorted(ACC_UNITS)
             raise _err(
                 f"no acceleration channel in the test (channel units: {units}; acceleration units: {known})", mme
             )
@@ -737,16 +763,18 @@ def check_record_rate(pulse: Pulse, path: str | Path, *, time_unit: str = "s") -
     if pulse.sample_rate_hz >= MIN_RECORD_RATE_HZ:
         return
     p = Path(path)
-    if p.is_dir() or p.suffix.lower() == ".mme":
+    mme = p.is_dir() or p.suffix.lower() == ".mme"
+    if mme:
         cause = "is the channel's 'Sampling interval' in seconds?"
     elif time_unit == "s":
         cause = _UNIT_HINT
     else:
         cause = "is the time column in the unit given?"
+    table = ("" if mme else " A table of breakpoints (the corners of a piecewise linear pulse) is read as such with "
+             "--breakpoints (breakpoints: true)")  # fmt: skip
     raise _err(
         f"sampling rate {pulse.sample_rate_hz:.4g} Hz (record of {pulse.time[-1] - pulse.time[0]:.4g} s): crash "
-        f"accelerometer records are sampled at {MIN_RECORD_RATE_HZ:g} Hz or more; {cause} A table of breakpoints "
-        "(the corners of a piecewise linear pulse) is read as such with --breakpoints (breakpoints: true)",
+        f"accelerometer records are sampled at {MIN_RECORD_RATE_HZ:g} Hz or more; {cause}{table}",
         p,
     )
 
