@@ -9,8 +9,8 @@ data that records deceleration as positive.
 CSV: an optional block of ``#`` comment lines, one header row, then one row per sample. Time in seconds
 (``time_unit="ms"`` for milliseconds), acceleration in g (``unit="m/s2"`` for SI). Columns are chosen by name;
 the delimiter (``,``, ``;`` or tab) is the one that splits the header and the first rows alike; with ``;`` a
-decimal comma (``-2,5``) is read as a decimal point. UTF-8, Windows-1252 or UTF-16 (with its byte-order mark)
-text. A gap in the time column (``max_gap``) is reported as a warning: resampling bridges it with a straight
+decimal comma (``-2,5``) is read as a decimal point. UTF-8, Windows-1252, or UTF-16/32 with its byte-order
+mark. A gap in the time column (``max_gap``) is reported as a warning: resampling bridges it with a straight
 line. A table of breakpoints (a pulse given by its corners, e.g. a trapezoid from a specification) is read
 with ``breakpoints=True``: at least two rows, no gap warning, and sampled at :data:`BREAKPOINT_RATE_HZ` by
 linear interpolation, so it is filtered and integrated like a record.
