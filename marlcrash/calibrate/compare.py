@@ -44,7 +44,7 @@ import json
 import math
 import shutil
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -612,35 +612,73 @@ def _first_difference(a: Any, b: Any, key: str = "") -> str | None:
     return None if a == b else key
 
 
-def _start_run_dir(config: CompareConfig) -> tuple[Path, list[dict[str, Any]]]:
-    """The run folder and the rows already finished in it (resume), after checking the settings agree."""
-    check_output_dir(config.out_dir, "out_dir")
-    run_dir = config.run_dir
-    path = run_dir / "compare.json"
-    if not config.resume:
+def open_run_dir(
+    run_dir: Path,
+    filename: str,
+    config: dict[str, Any],
+    out_dir: str,
+    resume: bool,
+    free_keys: Callable[[list[dict[str, Any]]], Iterable[str]],
+) -> tuple[Path, list[dict[str, Any]]]:
+    """The run folder of a table of runs and the rows already finished in it, after checking settings agree.
+
+    Args:
+        run_dir: the run folder.
+        filename: its JSON record (``{"config": ..., "rows": [...]}``).
+        config: this run's settings (``asdict`` of its config).
+        out_dir: the parent folder setting (checked to be a folder, key ``out_dir``).
+        resume: continue the rows there; otherwise the folder must hold no finished row.
+        free_keys: top-level settings that may differ from the saved ones, given the saved rows.
+
+    Raises:
+        ConfigError: the record exists without ``resume`` (key ``name``), is missing or unreadable with it
+            (key ``resume``), or was run with other settings (the first differing dotted key).
+    """
+    check_output_dir(out_dir, "out_dir")
+    path = run_dir / filename
+    if not resume:
         if path.exists() and _saved_rows(path) != []:  # no finished row (a first run that failed): started over
             raise ConfigError(f"{path} exists already; choose another name or resume=true", key="name")
         run_dir.mkdir(parents=True, exist_ok=True)
         return run_dir, []
     if not path.is_file():
         raise ConfigError(f"resume=true but {path} does not exist", key="resume")
-    saved = json.loads(path.read_text())
-    old, new = saved["config"], asdict(config)
-    done = {r["method"] for r in saved["rows"]}
-    # a method's own settings only define its own rows: those of methods without finished rows may differ
-    for k in (*_RESUMABLE_DIFF_OK, *(m for m in METHODS if m not in done)):
+    rows = _saved_rows(path)
+    try:
+        saved = json.loads(path.read_text())["config"]
+    except (OSError, ValueError, KeyError, TypeError):
+        rows = None
+    if rows is None or not isinstance(saved, dict):
+        raise ConfigError(f"resume=true but {path} cannot be read as a record of finished runs", key="resume")
+    old, new = copy.deepcopy(saved), copy.deepcopy(config)
+    for k in free_keys(rows):
         old.pop(k, None)
         new.pop(k, None)
     diff = _first_difference(old, new)
     if diff is not None:
-        raise ConfigError(f"resume: {run_dir} was run with {diff} = {_lookup(saved['config'], diff)!r}, this config "
-                          f"has {_lookup(asdict(config), diff)!r}; the finished rows would not compare",
-                          key=diff)  # fmt: skip
-    return run_dir, list(saved["rows"])
+        raise ConfigError(f"resume: {run_dir} was run with {diff} = {_lookup(saved, diff)!r}, this config "
+                          f"has {_lookup(config, diff)!r}; the finished rows would not compare", key=diff)  # fmt: skip
+    return run_dir, rows
+
+
+def _start_run_dir(config: CompareConfig) -> tuple[Path, list[dict[str, Any]]]:
+    """The run folder and the rows already finished in it (resume), after checking the settings agree.
+
+    A method's own settings only define its own rows: those of methods without finished rows may differ.
+    """
+
+    def free(rows: list[dict[str, Any]]) -> list[str]:
+        done = {r["method"] for r in rows}
+        return [*_RESUMABLE_DIFF_OK, *(m for m in METHODS if m not in done)]
+
+    return open_run_dir(config.run_dir, "compare.json", asdict(config), config.out_dir, config.resume, free)
 
 
 def _saved_rows(path: Path) -> list[dict[str, Any]] | None:
-    """The rows of a ``compare.json``; ``None`` where it cannot be read (kept: it is not ours to overwrite)."""
+    """The rows of a run record (``compare.json``, ``ablate.json``); ``None`` where it cannot be read.
+
+    An unreadable record is kept: it is not ours to overwrite.
+    """
     try:
         return list(json.loads(path.read_text())["rows"])
     except (OSError, ValueError, KeyError, TypeError):
