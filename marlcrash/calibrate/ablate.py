@@ -1,0 +1,565 @@
+"""Ablations (DESIGN 6): masking mode x scenario x action granularity x reward form x algorithm x seeds.
+
+One command (``python train/ablate.py``) runs the full product of the factor levels in
+``configs/train/ablate.yaml``, every combination (a *cell*) on every reference seed, and writes one
+results table (CSV and Markdown), a JSON record and plots.
+
+Protocol (the results table's, :mod:`marlcrash.calibrate.compare`, so the numbers compare):
+
+- A run calibrates ONE reference: the twin of the cell's scenario drawn with reference seed ``s``; the
+  run's own seed is ``s`` too. The PPO algorithm trains on an environment pinned to that reference
+  (:func:`~marlcrash.calibrate.compare.run_ppo`) with the cell's masking mode, action granularity and
+  reward form as env settings; everything else (vehicle, agents, bounds, observation scales) is the
+  same in every cell.
+- Budget: ``budget`` simulations per run, counted as the results table counts them; a wall cap per run.
+- Result of a run: the best candidate of all its simulations.
+- One yardstick for every cell: candidates are ranked by the ``score`` reward form's fit score (by
+  default ``log_ratio``), whatever reward the cell trained on, and tested against the ``success``
+  thresholds; the metrics (area, DFD, RMSE per sensor) do not depend on the reward form at all.
+  ``param_error`` is the mean relative error of every sub-assembly's parameters against the twin
+  truth, masked agents' included, so a masking mode that leaves part of the truth out of reach pays for
+  it there; ``active_agents`` counts the agents the cell's masking mode lets act on its reference.
+- Gain: a run's best score minus the score of the initial parameters on its reference. References
+  differ in how far the initial parameters are from them (by far the largest spread between runs), so
+  the gain, not the score, is what compares across scenarios and seeds.
+- Paired effects: for every factor with more than one level, each level is compared with the factor's
+  first level (the baseline) on runs that agree in every other factor and in the seed (same reference,
+  same other settings; for the scenario factor, the same seed): the mean difference of the gain with its
+  standard error over those pairs, how many pairs the level wins, and the geometric mean ratio of the
+  worst-sensor area.
+
+:func:`run_ablation` rewrites ``ablate.json``, ``ablate.csv`` and ``ablate.md`` atomically after every
+finished run and draws ``ablate.png`` at the end, so a kill loses nothing finished; ``resume`` skips
+finished runs (levels and seeds may be added, the protocol may not change).
+"""
+
+from __future__ import annotations
+
+import copy
+import csv
+import io
+import itertools
+import json
+import math
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from marlcrash.calibrate.amortized import _fmt
+from marlcrash.calibrate.compare import (
+    COLUMNS,
+    CompareConfig,
+    PPOBudgetConfig,
+    initial_score,
+    open_run_dir,
+    outcome_row,
+    problem_config,
+    run_ppo,
+)
+from marlcrash.calibrate.marl import ALGORITHMS, AlgorithmConfig
+from marlcrash.calibrate.problem import CalibrationProblem, SuccessConfig, build_problem
+from marlcrash.config import from_dict, require, require_complete
+from marlcrash.envs.core import load_env_config
+from marlcrash.envs.masking import ImpactRegions
+from marlcrash.errors import ConfigError
+from marlcrash.outputs import atomic_output, write_text
+from marlcrash.reward import load_reward_config
+from marlcrash.sim.scenario import list_scenarios
+
+FACTORS: tuple[str, ...] = ("algorithm", "masking", "scenario", "granularity", "reward")
+"""The factors of a cell, in the order of its name (``mappo-none-offset40_left-subassembly-log_ratio``)."""
+
+LEVEL_KEYS: dict[str, str] = {
+    "algorithm": "algorithms",
+    "masking": "masking",
+    "scenario": "scenarios",
+    "granularity": "granularity",
+    "reward": "rewards",
+}
+"""Config key holding each factor's levels."""
+
+ENV_KEYS: dict[str, str] = {"masking": "masking.mode", "granularity": "granularity", "reward": "reward"}
+"""Env-config key each env factor sets."""
+
+_PROTECTED_ENV_KEYS = ("masking.mode", "granularity", "reward", "scenarios", "reference", "seed")
+"""Env keys the factors or the protocol set (``env_overrides`` may not change them)."""
+
+FILES = ("ablate.json", "ablate.csv", "ablate.md", "ablate.png")
+"""What a finished ablation leaves in its run folder (the PPO logs aside)."""
+
+CSV_COLUMNS = ("cell", *FACTORS, "active_agents", "n_agents", "gain", *(c for c in COLUMNS if c != "method"))
+"""Columns of ``ablate.csv``, in order (the results table's columns, with the factors for ``method``)."""
+
+_AGG_KEYS = ("gain", "score", "area_worst", "dfd_worst", "rmse_worst", "param_error", "simulations", "wall_time_s")
+
+
+# ------------------------------------------------------------------------------------------- config
+@dataclass
+class AblationConfig:
+    """One ablation; values and their meaning in ``configs/train/ablate.yaml``."""
+
+    algorithms: list[str] = field(default_factory=lambda: ["mappo"])
+    masking: list[str] = field(default_factory=lambda: ["none", "primary", "primary_secondary"])
+    scenarios: list[str] = field(default_factory=lambda: ["offset40_left", "small_overlap_right"])
+    granularity: list[str] = field(default_factory=lambda: ["subassembly"])
+    rewards: list[str] = field(default_factory=lambda: ["log_ratio"])
+    seeds: list[int] = field(default_factory=lambda: [0, 1, 2])
+    budget: int = 1000
+    max_wall_s: float | None = 300.0
+    score: str = "log_ratio"
+    env: str = "default"
+    env_overrides: dict[str, Any] = field(default_factory=dict)
+    success: SuccessConfig = field(default_factory=SuccessConfig)
+    out_dir: str = "runs"
+    name: str = "ablate"
+    resume: bool = False
+    plots: bool = True
+    ppo: PPOBudgetConfig = field(default_factory=PPOBudgetConfig)
+    mappo: AlgorithmConfig = field(default_factory=lambda: AlgorithmConfig(name="mappo"))
+    ippo: AlgorithmConfig = field(default_factory=lambda: AlgorithmConfig(name="ippo", centralised_critic=False))
+    ppo_single: AlgorithmConfig = field(default_factory=lambda: AlgorithmConfig(name="ppo_single"))
+
+    def levels(self, factor: str) -> list[Any]:
+        """The levels of ``factor`` (one of :data:`FACTORS`)."""
+        return list(getattr(self, LEVEL_KEYS[factor]))
+
+    def varied(self) -> list[str]:
+        """Factors with more than one level."""
+        return [f for f in FACTORS if len(self.levels(f)) > 1]
+
+    def cells(self) -> list[dict[str, Any]]:
+        """Every combination of the factor levels, as ``{factor: level}`` in :data:`FACTORS` order."""
+        return [dict(zip(FACTORS, combo, strict=True)) for combo in itertools.product(*map(self.levels, FACTORS))]
+
+    def validate(self) -> None:
+        for factor in FACTORS:
+            key = LEVEL_KEYS[factor]
+            levels = self.levels(factor)
+            require(len(levels) >= 1, key, f"expected at least one {factor} level")
+            require(len(set(levels)) == len(levels), key, f"expected distinct levels, got {levels}")
+        for i, a in enumerate(self.algorithms):
+            require(a in ALGORITHMS, f"algorithms[{i}]", f"unknown algorithm {a!r}; expected one of {list(ALGORITHMS)}")
+        known = list_scenarios()
+        for i, s in enumerate(self.scenarios):
+            require(s in known, f"scenarios[{i}]", f"unknown scenario {s!r}; registered: {known}")
+        require(len(self.seeds) >= 1, "seeds", "expected at least one reference seed, e.g. [0, 1, 2]")
+        for i, s in enumerate(self.seeds):
+            require(s >= 0, f"seeds[{i}]", f"expected a seed >= 0, got {s}")
+        require(len(set(self.seeds)) == len(self.seeds), "seeds", f"expected distinct seeds, got {self.seeds}")
+        require(self.budget >= 1, "budget", f"expected a simulation budget >= 1, got {self.budget}")
+        require(self.max_wall_s is None or (math.isfinite(self.max_wall_s) and self.max_wall_s > 0), "max_wall_s",
+                f"expected a wall-time cap > 0 s per run or null, got {self.max_wall_s}")  # fmt: skip
+        require(bool(self.name) and "/" not in self.name and self.name not in (".", ".."), "name",
+                f"expected a run folder name without '/', got {self.name!r}")  # fmt: skip
+        require(bool(self.out_dir), "out_dir", "expected an output folder")
+        for k in [*self.env_overrides, *self.ppo.env_overrides]:
+            for p in _PROTECTED_ENV_KEYS:
+                require(not (k == p or k.startswith(p + ".")), f"env_overrides.{k}",
+                        f"{p} is set by the ablation's factors or protocol; list its levels instead "
+                        f"({', '.join(LEVEL_KEYS.values())})")  # fmt: skip
+        frames = self.ppo.n_envs * self.ppo.episode_length
+        for a in self.algorithms:
+            algo: AlgorithmConfig = getattr(self, a)
+            require(algo.name == a, f"{a}.name", f"expected the {a} settings (name {a!r}), got name {algo.name!r}")
+            require(frames % algo.minibatch_size == 0, f"{a}.minibatch_size",
+                    f"expected a divisor of ppo.n_envs * ppo.episode_length = {frames} env steps, "
+                    f"got {algo.minibatch_size}")  # fmt: skip
+        cost = self.ppo.iteration_cost
+        require(self.budget >= cost, "budget",
+                f"expected at least one PPO iteration of ppo.n_envs * (ppo.episode_length + 1) = {cost} "
+                f"simulations, got {self.budget}")  # fmt: skip
+
+    @property
+    def run_dir(self) -> Path:
+        """``<out_dir>/ablate/<name>/``."""
+        return Path(self.out_dir) / "ablate" / self.name
+
+
+def cell_name(cell: dict[str, Any]) -> str:
+    """``algorithm-masking-scenario-granularity-reward``: the cell's folder and row name."""
+    return "-".join(str(cell[f]) for f in FACTORS)
+
+
+def load_ablation_config(data: dict[str, Any], source: str | None = None) -> AblationConfig:
+    """Validate an ablation config mapping (e.g. Hydra's, without its ``hydra`` node).
+
+    Every level of an env factor is loaded into the env config (with ``env_overrides`` and the PPO
+    ones), so an unknown masking mode, granularity or reward form fails here, naming its list entry.
+
+    Raises:
+        ConfigError: unknown key, wrong type or bad value, naming the dotted key -- before any run.
+    """
+    data = {k: v for k, v in data.items() if k != "hydra"}
+    if source is not None:
+        require_complete(AblationConfig, data, source)
+    config = from_dict(AblationConfig, data, path=source)
+    over = {**config.env_overrides, **config.ppo.env_overrides}
+    try:
+        load_env_config(config.env, over)
+    except ConfigError as e:
+        raise ConfigError(e.reason, key=f"env_overrides.{e.key}" if e.key else "env_overrides", path=source) from None
+    for factor, env_key in ENV_KEYS.items():
+        for i, level in enumerate(config.levels(factor)):
+            try:
+                load_env_config(config.env, {**over, env_key: level})
+                if factor == "reward":  # the env config names the form; its file is read when an env is built
+                    load_reward_config(level)
+            except ConfigError as e:
+                raise ConfigError(e.reason, key=f"{LEVEL_KEYS[factor]}[{i}]", path=source) from None
+    try:
+        load_reward_config(config.score)
+    except ConfigError as e:
+        raise ConfigError(e.reason, key="score", path=source) from None
+    return config
+
+
+# ------------------------------------------------------------------------------------------- runs
+def cell_compare_config(config: AblationConfig, cell: dict[str, Any], seed: int) -> CompareConfig:
+    """The results-table config of one PPO run of ``cell`` on reference ``seed``."""
+    over = {**config.env_overrides, **{ENV_KEYS[f]: cell[f] for f in ENV_KEYS}}
+    algo = cell["algorithm"]
+    return CompareConfig(
+        methods=[algo], seeds=[seed], budget=config.budget, max_wall_s=config.max_wall_s, scenario=cell["scenario"],
+        env=config.env, env_overrides=over, masking=False, success=copy.deepcopy(config.success),
+        out_dir=config.out_dir, name=config.name, ppo=copy.deepcopy(config.ppo),
+        **{algo: copy.deepcopy(getattr(config, algo))},
+    )  # fmt: skip
+
+
+def reference_problem(config: AblationConfig, scenario: str, seed: int) -> CalibrationProblem:
+    """The yardstick of every cell of ``scenario`` on reference ``seed``.
+
+    The twin of ``scenario`` drawn with ``seed``, ranked by the ``score`` form, no agent frozen (the
+    parameter error covers every sub-assembly); the env factors do not change the reference.
+    """
+    cell = {f: config.levels(f)[0] for f in FACTORS} | {"scenario": scenario}
+    pc = problem_config(cell_compare_config(config, cell, seed), seed)
+    pc.fit = config.score
+    return build_problem(pc)
+
+
+def active_agents(config: AblationConfig, problem: CalibrationProblem, masking: str) -> int:
+    """Agents that masking mode ``masking`` lets act on the problem's reference."""
+    env = load_env_config(config.env, {**config.env_overrides, "masking.mode": masking})
+    ref = problem.reference
+    regions = ImpactRegions(problem.cells, problem.layout, env.masking)
+    return int(regions.active(ref.overlap, ref.side, ref.speed)[0].sum())
+
+
+def run_cell(
+    config: AblationConfig, cell: dict[str, Any], seed: int, problem: CalibrationProblem, run_dir: Path,
+    initial: float | None = None,
+) -> dict[str, Any]:  # fmt: skip
+    """Run one cell on reference ``seed`` and return its row (keys :data:`CSV_COLUMNS`, ``metrics``, ``history``).
+
+    The PPO training log goes to ``<run folder>/runs/<cell>/ppo/<algorithm>/seed<s>/log.csv``.
+    """
+    cc = cell_compare_config(config, cell, seed)
+    out = run_ppo(cc, cell["algorithm"], seed, problem, run_dir / "runs" / cell_name(cell))
+    row = outcome_row(cc, problem, out, initial)
+    row.pop("method")
+    head = {"cell": cell_name(cell), **cell, "active_agents": active_agents(config, problem, cell["masking"]),
+            "n_agents": problem.n_agents, "gain": row["score"] - row["initial_score"]}  # fmt: skip
+    return {**head, **row}
+
+
+# ----------------------------------------------------------------------------------------- tables
+def aggregate_cells(rows: list[dict[str, Any]], cells: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Per cell (in ``cells`` order, those with rows): mean and std (ddof 0) over seeds, passed, sims to success."""
+    out = []
+    for cell in cells:
+        name = cell_name(cell)
+        g = [r for r in rows if r["cell"] == name]
+        if not g:
+            continue
+        a: dict[str, Any] = {"cell": name, **cell, "seeds": len(g), "active_agents": g[0]["active_agents"]}
+        for k in _AGG_KEYS:
+            v = np.array([r[k] for r in g if r[k] is not None], dtype=np.float64)
+            a[f"{k}_mean"] = float(v.mean()) if v.size else None
+            a[f"{k}_std"] = float(v.std()) if v.size else None
+        a["passed"] = sum(bool(r["passed"]) for r in g)
+        hit = [r["sims_to_success"] for r in g if r["sims_to_success"] is not None]
+        a["sims_to_success_median"] = float(np.median(hit)) if hit else None
+        a["wall_capped"] = sum(r["stop"] == "wall_cap" for r in g)
+        out.append(a)
+    return out
+
+
+def paired_effects(rows: list[dict[str, Any]], levels: dict[str, list[Any]]) -> list[dict[str, Any]]:
+    """Each level of every factor with more than one level against that factor's first level (module docstring).
+
+    Args:
+        rows: finished runs.
+        levels: ``{factor: levels}``; the first level is the baseline.
+
+    Returns:
+        One entry per (factor, non-baseline level): ``pairs`` (runs matched on every other factor and the
+        seed), ``gain_diff_mean`` and ``gain_diff_se`` (standard error, ddof 1; ``None`` below 2 pairs),
+        ``wins`` (pairs where the level gains more), ``area_worst_ratio`` (geometric mean of the level's
+        worst-sensor area over the baseline's), and ``gain_mean`` / ``baseline_gain_mean`` over the pairs.
+    """
+    out = []
+    for factor, lv in levels.items():
+        if len(lv) < 2:
+            continue
+        others = [f for f in FACTORS if f != factor]
+
+        def key(r: dict[str, Any], others: list[str] = others) -> tuple:
+            return (*(r[f] for f in others), r["seed"])
+
+        base = {key(r): r for r in rows if r[factor] == lv[0]}
+        for level in lv[1:]:
+            pairs = [(r, base[key(r)]) for r in rows if r[factor] == level and key(r) in base]
+            d = np.array([r["gain"] - b["gain"] for r, b in pairs], dtype=np.float64)
+            ratio = np.array([r["area_worst"] / b["area_worst"] for r, b in pairs if b["area_worst"] > 0])
+            n = len(pairs)
+            out.append({
+                "factor": factor, "baseline": lv[0], "level": level, "pairs": n,
+                "gain_diff_mean": float(d.mean()) if n else None,
+                "gain_diff_se": float(d.std(ddof=1) / math.sqrt(n)) if n >= 2 else None,
+                "wins": int((d > 0).sum()),
+                "area_worst_ratio": float(np.exp(np.log(ratio).mean())) if ratio.size else None,
+                "gain_mean": float(np.mean([r["gain"] for r, _ in pairs])) if n else None,
+                "baseline_gain_mean": float(np.mean([b["gain"] for _, b in pairs])) if n else None,
+            })  # fmt: skip
+    return out
+
+
+def present_levels(config: AblationConfig, rows: list[dict[str, Any]]) -> dict[str, list[Any]]:
+    """Per factor: the config's levels that have rows, then levels only a resumed run's rows have."""
+    out = {}
+    for f in FACTORS:
+        lv = [*config.levels(f), *sorted({r[f] for r in rows} - set(config.levels(f)), key=str)]
+        out[f] = [x for x in lv if any(r[f] == x for r in rows)]
+    return out
+
+
+def _present_cells(config: AblationConfig, rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    lv = present_levels(config, rows)
+    names = {r["cell"] for r in rows}
+    combos = (dict(zip(FACTORS, c, strict=True)) for c in itertools.product(*(lv[f] for f in FACTORS)))
+    return [c for c in combos if cell_name(c) in names]
+
+
+def markdown(config: AblationConfig, rows: list[dict[str, Any]], command: str | None, date: str) -> str:
+    """``ablate.md``: protocol, paired effects, per-cell table (mean ± std over seeds), per-run table."""
+    lv = present_levels(config, rows)
+    cells = _present_cells(config, rows)
+    agg = aggregate_cells(rows, cells)
+    th = config.success
+    fixed = [f"{f} `{lv[f][0]}`" for f in FACTORS if len(lv[f]) == 1]
+    varied = [f for f in FACTORS if len(lv[f]) > 1]
+    wall = "no wall cap" if config.max_wall_s is None else f"wall cap {config.max_wall_s:g} s"
+    lines = ["# Ablation: masking mode x scenario x action granularity x reward form", "", f"- date: {date}"]
+    if command:
+        lines.append(f"- command: `{command}`")
+    lines += [
+        f"- varied: {'; '.join(f + ' (' + ', '.join(map(str, lv[f])) + ')' for f in varied) or 'nothing'}; "
+        f"fixed: {', '.join(fixed) or 'nothing'}; reference seeds {config.seeds} (the twin of the cell's "
+        "scenario drawn with the seed; the run's own seed is the same)",
+        f"- every run: {config.budget} simulations of PPO training on its pinned reference ({config.ppo.n_envs} "
+        f"envs x {config.ppo.episode_length} steps per iteration), {wall}; "
+        "its result is the best candidate of all its simulations",
+        f"- one yardstick for every cell: score = fit score of the `{config.score}` form (higher is better) "
+        "whatever reward the cell trained on; gain = score minus the initial parameters' score on the same "
+        f"reference; passed = every sensor A < {th.area} m, DFD < {th.dfd} m/s, "
+        f"RMSE < {th.rmse} m/s; param err = mean relative error of every sub-assembly's parameters "
+        "(masked ones included) against the twin truth; active = agents the masking mode lets act",
+        "",
+    ]
+    effects = paired_effects(rows, lv)
+    if effects:
+        lines += [
+            "## Paired effects (each level against the factor's first level; pairs share every other setting "
+            "and the reference)",
+            "",
+            "| factor | level vs baseline | pairs | gain difference (± s.e.) | level wins | worst-area ratio "
+            "(geometric mean) | gain (level / baseline) |",
+            "|---|---|---|---|---|---|---|",
+        ]
+        for e in effects:
+            diff = _fmt(e["gain_diff_mean"], "+.4f")
+            if e["gain_diff_se"] is not None:
+                diff += f" ± {e['gain_diff_se']:.4f}"
+            lines.append(
+                f"| {e['factor']} | {e['level']} vs {e['baseline']} | {e['pairs']} | {diff} | {e['wins']}/{e['pairs']} "
+                f"| {_fmt(e['area_worst_ratio'], '.3f')} | {_fmt(e['gain_mean'], '.4f')} / "
+                f"{_fmt(e['baseline_gain_mean'], '.4f')} |"
+            )
+        lines.append("")
+
+    def pm(a: dict[str, Any], k: str, spec: str = ".4g") -> str:
+        return f"{_fmt(a[f'{k}_mean'], spec)} ± {_fmt(a[f'{k}_std'], spec)}"
+
+    lines += [
+        "## Per cell (mean ± std over reference seeds)",
+        "",
+        "| " + " | ".join(FACTORS) + " | active | passed | gain | score | area worst [m] | DFD worst [m/s] "
+        "| RMSE worst [m/s] | param err | median sims to success | wall [s] | note |",
+        "|" + "---|" * (len(FACTORS) + 11),
+    ]
+    for a in agg:
+        note = f"stopped by wall cap ({a['wall_capped']}/{a['seeds']})" if a["wall_capped"] else ""
+        lines.append(
+            "| " + " | ".join(str(a[f]) for f in FACTORS) + f" | {a['active_agents']} | {a['passed']}/{a['seeds']} | "
+            f"{pm(a, 'gain')} | {pm(a, 'score')} | {pm(a, 'area_worst')} | {pm(a, 'dfd_worst')} | "
+            f"{pm(a, 'rmse_worst')} | "
+            f"{pm(a, 'param_error', '.3f')} | {_fmt(a['sims_to_success_median'], '.0f')} | "
+            f"{pm(a, 'wall_time_s', '.1f')} | {note} |"
+        )
+    lines += [
+        "",
+        "## Per run",
+        "",
+        "| cell | seed | simulations | stop | gain | score | initial score | area worst | DFD worst | RMSE worst "
+        "| passed | sims to success | param err | wall [s] |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    order = [cell_name(c) for c in cells]
+    for r in sorted(rows, key=lambda r: (order.index(r["cell"]), r["seed"])):
+        stop = "stopped by wall cap" if r["stop"] == "wall_cap" else r["stop"]
+        lines.append(
+            f"| {r['cell']} | {r['seed']} | {r['simulations']} | {stop} | {_fmt(r['gain'])} | {_fmt(r['score'])} | "
+            f"{_fmt(r['initial_score'])} | {_fmt(r['area_worst'])} | {_fmt(r['dfd_worst'])} | "
+            f"{_fmt(r['rmse_worst'])} | "
+            f"{_fmt(r['passed'])} | {_fmt(r['sims_to_success'])} | {_fmt(r['param_error'], '.3f')} | "
+            f"{_fmt(r['wall_time_s'], '.1f')} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def csv_text(rows: list[dict[str, Any]]) -> str:
+    """The rows as CSV (columns :data:`CSV_COLUMNS`; ``None`` as an empty field)."""
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=list(CSV_COLUMNS), lineterminator="\n", extrasaction="ignore")
+    w.writeheader()
+    for r in rows:
+        w.writerow({k: ("" if r[k] is None else r[k]) for k in CSV_COLUMNS})
+    return buf.getvalue()
+
+
+def write_results(config: AblationConfig, rows: list[dict[str, Any]], run_dir: Path, command: str | None) -> None:
+    """Rewrite ``ablate.json``, ``ablate.csv`` and ``ablate.md`` in ``run_dir`` atomically."""
+    date = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
+    lv = present_levels(config, rows)
+    cells = aggregate_cells(rows, _present_cells(config, rows))
+    payload = {"date": date, "command": command, "config": asdict(config), "rows": rows, "cells": cells,
+               "effects": paired_effects(rows, lv)}  # fmt: skip
+    write_text(run_dir / "ablate.json", json.dumps(payload, indent=2))
+    write_text(run_dir / "ablate.csv", csv_text(rows))
+    write_text(run_dir / "ablate.md", markdown(config, rows, command, date))
+
+
+# ------------------------------------------------------------------------------------------- plots
+def best_so_far_curve(history: list[list[float]], grid: np.ndarray) -> np.ndarray:
+    """A run's best score after each simulation count of ``grid`` (NaN before its first candidate).
+
+    ``history`` is the results table's ``[[simulations, best score], ...]`` record (best so far after
+    that many simulations, increasing).
+    """
+    sims = np.array([h[0] for h in history], dtype=np.float64)
+    best = np.array([h[1] for h in history], dtype=np.float64)
+    idx = np.searchsorted(sims, grid, side="right") - 1
+    return np.where(idx >= 0, best[np.clip(idx, 0, None)], np.nan) if sims.size else np.full(grid.shape, np.nan)
+
+
+def plot_ablation(config: AblationConfig, rows: list[dict[str, Any]], path: Path) -> Path:
+    """``ablate.png``: per varied factor, the runs' gains per level and the mean best-so-far gain curves.
+
+    One column per factor with more than one level (one column for the single cell if none varies): on
+    top every run's gain (best score minus the initial score; dots) and the level means (lines); below
+    the gain so far against the simulations spent, averaged over the runs of each level.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    lv = present_levels(config, rows)
+    varied = [f for f in FACTORS if len(lv[f]) > 1] or [FACTORS[0]]
+    budget = max([config.budget, *(r["simulations"] for r in rows)])
+    grid = np.linspace(0, budget, 201)
+    fig, axes = plt.subplots(2, len(varied), figsize=(4.2 * len(varied), 6.4), squeeze=False)
+    rng = np.random.default_rng(0)  # dot jitter only
+    for j, factor in enumerate(varied):
+        top, bottom = axes[0, j], axes[1, j]
+        for i, level in enumerate(lv[factor]):
+            g = [r for r in rows if r[factor] == level]
+            gains = np.array([r["gain"] for r in g], dtype=np.float64)
+            top.hlines(gains.mean(), i - 0.3, i + 0.3, color=f"C{i}", linewidth=2.5)
+            top.scatter(i + rng.uniform(-0.18, 0.18, gains.size), gains, color=f"C{i}", s=14, zorder=3)
+            curves = np.array([best_so_far_curve(r["history"], grid) - r["initial_score"] for r in g])
+            seen = ~np.isnan(curves).all(axis=0)  # grid points where some run has a candidate
+            mean = np.full(grid.shape, np.nan)
+            mean[seen] = np.nanmean(curves[:, seen], axis=0)
+            bottom.plot(grid, mean, color=f"C{i}", label=f"{level} ({len(g)} runs)")
+        top.set_xticks(range(len(lv[factor])), [str(x) for x in lv[factor]], rotation=15, fontsize=8)
+        top.set_title(f"{factor}: gain of each run", fontsize=9)
+        top.set_ylabel(f"best - initial fit score ({config.score})", fontsize=8)
+        bottom.set_xlabel("simulations", fontsize=8)
+        bottom.set_ylabel("gain so far (mean over runs)", fontsize=8)
+        bottom.legend(fontsize=7)
+        for ax in (top, bottom):
+            ax.grid(alpha=0.3)
+            ax.tick_params(labelsize=7)
+    fig.tight_layout()
+    with atomic_output(path, key="out_dir") as tmp:
+        fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+    return path
+
+
+# ------------------------------------------------------------------------------------------- driver
+_RESUMABLE_DIFF_OK = (*LEVEL_KEYS.values(), "seeds", "resume", "out_dir", "plots")
+"""Settings a resumed ablation may change: levels and seeds may be added; the rest is the protocol."""
+
+
+def run_ablation(
+    config: AblationConfig, command: str | None = None, progress: Callable[[str], None] | None = None
+) -> tuple[Path, list[dict[str, Any]]]:
+    """Run every cell on every reference seed and write the results after each run (module docstring).
+
+    Runs go seed by seed, so a stopped ablation has whole comparisons of the first seeds.
+
+    Args:
+        config: the ablation.
+        command: the command line, recorded in the files.
+        progress: optional callable told about each finished run.
+
+    Returns:
+        The run folder and all rows (finished earlier and now).
+
+    Raises:
+        ConfigError: the run folder exists (without ``resume``), or ``resume`` with other protocol settings.
+    """
+    say = progress or (lambda _msg: None)
+
+    def free(rows: list[dict[str, Any]]) -> list[str]:  # an algorithm's settings only define its own rows
+        done = {r["algorithm"] for r in rows}
+        return [*_RESUMABLE_DIFF_OK, *(a for a in ALGORITHMS if a not in done)]
+
+    run_dir, rows = open_run_dir(config.run_dir, "ablate.json", asdict(config), config.out_dir, config.resume, free)
+    done = {(r["cell"], r["seed"]) for r in rows}
+    write_results(config, rows, run_dir, command)
+    cells = config.cells()
+    for seed in config.seeds:
+        for scenario in config.scenarios:
+            todo = [c for c in cells if c["scenario"] == scenario and (cell_name(c), seed) not in done]
+            if not todo:
+                continue
+            problem = reference_problem(config, scenario, seed)
+            initial = initial_score(problem)
+            for cell in todo:
+                row = run_cell(config, cell, seed, problem, run_dir, initial)
+                rows.append(row)
+                write_results(config, rows, run_dir, command)
+                say(f"seed {seed} {row['cell']}: score {row['score']:.4f} (initial {row['initial_score']:.4f}), "
+                    f"worst area {row['area_worst']:.4g} m, {row['simulations']} simulations, {row['active_agents']}/"
+                    f"{row['n_agents']} agents active, stop {row['stop']}, {row['wall_time_s']:.1f} s")  # fmt: skip
+    if config.plots and rows:
+        plot_ablation(config, rows, run_dir / "ablate.png")
+    return run_dir, rows

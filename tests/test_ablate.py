@@ -1,0 +1,302 @@
+"""Ablations (DESIGN 6): the factor product, runs under the results table's protocol, paired effects, resume, script.
+
+Runs on a shortened copy of configs/ (every scenario simulated for 30 ms instead of 150 ms).
+"""
+
+from __future__ import annotations
+
+import csv
+import itertools
+import json
+import math
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import yaml
+
+import marlcrash.calibrate.ablate as ablate
+from marlcrash.calibrate.ablate import (
+    CSV_COLUMNS,
+    FACTORS,
+    best_so_far_curve,
+    cell_compare_config,
+    cell_name,
+    load_ablation_config,
+    paired_effects,
+    reference_problem,
+    run_ablation,
+)
+from marlcrash.calibrate.compare import outcome_row, ppo_train_config, run_ppo
+from marlcrash.envs.core import CalibrationCore, load_env_config
+from marlcrash.errors import ConfigError
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def short(short_configs) -> Path:
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("MARLCRASH_CONFIGS", str(short_configs))
+        yield short_configs
+
+
+def tiny_data(tmp_path: Path, **kw) -> dict:
+    """configs/train/ablate.yaml as a mapping, shrunk to seconds: budget 24, 2 envs x 3 steps, small networks."""
+    data = yaml.safe_load((REPO / "configs" / "train" / "ablate.yaml").read_text())
+    for k in ("defaults", "hydra", "name"):
+        data.pop(k)
+    for m in ("mappo", "ippo", "ppo_single"):
+        algo = yaml.safe_load((REPO / "configs" / "train" / "algorithm" / f"{m}.yaml").read_text())
+        data[m] = {**algo, "hidden": [16, 16], "minibatch_size": 3, "epochs": 2}
+    data.update(budget=24, seeds=[0], out_dir=str(tmp_path / "runs"), name="t", max_wall_s=None,
+                masking=["none", "primary_secondary"], scenarios=["offset40_left"])  # fmt: skip
+    data["ppo"].update(n_envs=2, episode_length=3)
+    data.update(kw)
+    return data
+
+
+def tiny(tmp_path: Path, **kw) -> ablate.AblationConfig:
+    return load_ablation_config(tiny_data(tmp_path, **kw), source="test")
+
+
+# ------------------------------------------------------------------------------------------- config
+@pytest.mark.parametrize(
+    "override, key, words",
+    [
+        ({"masking": ["none", "sideways"]}, "masking[1]", "sideways"),
+        ({"masking": ["none", "none"]}, "masking", "distinct"),
+        ({"rewards": ["log_ratio", "nope"]}, "rewards[1]", "nope"),
+        ({"granularity": ["agent"]}, "granularity[0]", "agent"),
+        ({"scenarios": ["head_on"]}, "scenarios[0]", "unknown scenario"),
+        ({"algorithms": ["sgd"]}, "algorithms[0]", "unknown algorithm"),
+        ({"algorithms": []}, "algorithms", "at least one"),
+        ({"seeds": [0, -1]}, "seeds[1]", ">= 0"),
+        ({"env_overrides": {"masking.mode": "none"}}, "env_overrides.masking.mode", "list its levels"),
+        ({"env_overrides": {"reference.pin_seed": 3}}, "env_overrides.reference.pin_seed", "protocol"),
+        ({"env_overrides": {"max_stepp": 0.1}}, "env_overrides.max_stepp", ""),
+        ({"score": "nope"}, "score", "nope"),
+        ({"budget": 7}, "budget", "at least one PPO iteration"),
+        ({"max_wall_s": -1.0}, "max_wall_s", "> 0"),
+    ],
+)
+def test_bad_config_fails_naming_the_key(short, tmp_path, override, key, words):
+    with pytest.raises(ConfigError) as e:
+        tiny(tmp_path, **override)
+    assert e.value.key == key, str(e.value)
+    assert words in str(e.value)
+
+
+def test_minibatch_must_divide_the_frames_of_each_algorithm_run(short, tmp_path):
+    data = tiny_data(tmp_path, algorithms=["mappo", "ippo"])
+    data["ippo"]["minibatch_size"] = 4  # 2 envs x 3 steps = 6 frames
+    with pytest.raises(ConfigError) as e:
+        load_ablation_config(data, source="test")
+    assert e.value.key == "ippo.minibatch_size" and "6 env steps" in str(e.value)
+
+
+def test_config_file_defaults_and_the_full_factor_product(short, tmp_path):
+    data = yaml.safe_load((REPO / "configs" / "train" / "ablate.yaml").read_text())
+    assert data["masking"] == ["none", "primary", "primary_secondary"] and data["seeds"] == [0, 1, 2]
+    cfg = tiny(tmp_path, masking=["none", "primary"], rewards=["log_ratio", "paper_factor", "neg_weighted_sum"],
+               granularity=["subassembly", "cell"], scenarios=["offset40_left", "full_width_40"])  # fmt: skip
+    cells = cfg.cells()
+    assert len(cells) == 1 * 2 * 2 * 2 * 3
+    assert len({cell_name(c) for c in cells}) == len(cells)
+    rewards = ["log_ratio", "paper_factor", "neg_weighted_sum"]
+    want = set(itertools.product(["mappo"], ["none", "primary"], ["offset40_left", "full_width_40"],
+                                 ["subassembly", "cell"], rewards))  # fmt: skip
+    assert {tuple(c[f] for f in FACTORS) for c in cells} == want
+    assert cfg.varied() == ["masking", "scenario", "granularity", "reward"]
+
+
+def test_a_cell_trains_with_its_factors_and_the_fixed_settings(short, tmp_path):
+    cfg = tiny(tmp_path, env_overrides={"behaviour_bounds": [0.5, 2.0]})
+    cell = {"algorithm": "mappo", "masking": "primary", "scenario": "small_overlap_right", "granularity": "cell",
+            "reward": "paper_factor"}  # fmt: skip
+    tc = ppo_train_config(cell_compare_config(cfg, cell, 3), "mappo", 3, tmp_path)
+    env = load_env_config(tc.env, tc.env_overrides)
+    assert env.masking.mode == "primary" and env.granularity == "cell" and env.reward == "paper_factor"
+    assert env.scenarios == {"small_overlap_right": 1.0} and env.reference.pin_seed == 3
+    assert list(env.behaviour_bounds) == [0.5, 2.0] and env.max_step == 0.1  # shared and PPO overrides
+    assert tc.seed == 3 and tc.n_envs == 2 and tc.episode_length == 3
+
+
+# ------------------------------------------------------------------------------------- statistics
+def test_best_so_far_curve_is_the_step_function_of_the_record():
+    hist = [[2, -3.0], [5, -2.0], [9, -1.5]]
+    grid = np.array([0.0, 1.9, 2.0, 4.0, 5.0, 8.99, 9.0, 20.0])
+    got = best_so_far_curve(hist, grid)
+    assert np.isnan(got[:2]).all()
+    np.testing.assert_array_equal(got[2:], [-3.0, -3.0, -2.0, -2.0, -1.5, -1.5])
+    assert np.isnan(best_so_far_curve([], grid)).all()
+
+
+def _row(seed, gain, area, **cell):
+    base = {"algorithm": "mappo", "masking": "none", "scenario": "s1", "granularity": "subassembly",
+            "reward": "log_ratio"}  # fmt: skip
+    c = {**base, **cell}
+    return {"cell": cell_name(c), **c, "seed": seed, "gain": gain, "area_worst": area}
+
+
+def test_paired_effects_match_a_hand_computation():
+    rows = [
+        _row(0, -1.0, 0.04), _row(1, -2.0, 0.02),  # baseline masking none, scenario s1
+        _row(0, -0.5, 0.01, masking="primary"), _row(1, -2.5, 0.04, masking="primary"),
+        _row(0, -3.0, 0.08, scenario="s2"), _row(0, -2.0, 0.02, scenario="s2", masking="primary"),
+        _row(2, 9.0, 1.0, masking="primary"),  # no baseline run with seed 2: unpaired, left out
+    ]  # fmt: skip
+    levels = {"algorithm": ["mappo"], "masking": ["none", "primary"], "scenario": ["s1", "s2"],
+              "granularity": ["subassembly"], "reward": ["log_ratio"]}  # fmt: skip
+    eff = {(e["factor"], e["level"]): e for e in paired_effects(rows, levels)}
+    assert set(eff) == {("masking", "primary"), ("scenario", "s2")}
+    m = eff["masking", "primary"]
+    d = np.array([0.5, -0.5, 1.0])  # (s1, 0), (s1, 1), (s2, 0)
+    assert m["pairs"] == 3 and m["baseline"] == "none" and m["wins"] == 2
+    assert m["gain_diff_mean"] == pytest.approx(d.mean(), abs=1e-15)
+    assert m["gain_diff_se"] == pytest.approx(d.std(ddof=1) / math.sqrt(3), abs=1e-15)
+    assert m["area_worst_ratio"] == pytest.approx((0.25 * 2.0 * 0.25) ** (1 / 3), rel=1e-12)
+    assert m["gain_mean"] == pytest.approx(np.mean([-0.5, -2.5, -2.0])) and m["baseline_gain_mean"] == -2.0
+    s = eff["scenario", "s2"]  # pairs: (none, 0) and (primary, 0)
+    assert s["pairs"] == 2 and s["gain_diff_mean"] == pytest.approx(np.mean([-2.0, -1.5])) and s["wins"] == 0
+
+
+# ------------------------------------------------------------------------------------------- runs
+@pytest.fixture(scope="module")
+def finished(short, tmp_path_factory):
+    """A finished tiny ablation: masking none / primary_secondary on offset40_left, reference seed 0."""
+    tmp = tmp_path_factory.mktemp("abl")
+    cfg = tiny(tmp)
+    run_dir, rows = run_ablation(cfg, command="test")
+    return cfg, run_dir, rows
+
+
+def test_ablation_runs_every_cell_and_writes_its_tables(finished):
+    cfg, run_dir, rows = finished
+    assert sorted(p.name for p in run_dir.iterdir()) == sorted([*ablate.FILES, "runs"])
+    assert [(r["masking"], r["seed"]) for r in rows] == [("none", 0), ("primary_secondary", 0)]
+    with open(run_dir / "ablate.csv") as fh:
+        table = list(csv.DictReader(fh))
+    assert list(table[0]) == list(CSV_COLUMNS) and len(table) == 2
+    for r, t in zip(rows, table, strict=True):
+        assert 1 <= r["simulations"] <= cfg.budget and r["stop"] == "budget"
+        assert r["score"] >= r["initial_score"] - 1e-12 and r["gain"] == r["score"] - r["initial_score"]
+        assert float(t["score"]) == pytest.approx(r["score"], rel=1e-12) and t["cell"] == r["cell"]
+        assert set(r["metrics"]) == {"upfront_left", "upfront_right", "tunnel"}
+        assert (run_dir / "runs" / r["cell"] / "ppo" / "mappo" / "seed0" / "log.csv").is_file()
+    data = json.loads((run_dir / "ablate.json").read_text())
+    assert len(data["rows"]) == 2 and len(data["cells"]) == 2
+    [eff] = data["effects"]
+    assert eff["factor"] == "masking" and eff["pairs"] == 1
+    assert eff["gain_diff_mean"] == pytest.approx(rows[1]["gain"] - rows[0]["gain"], abs=1e-12)
+    assert rows[0]["initial_score"] == rows[1]["initial_score"]  # one reference: gains differ as scores do
+    md = (run_dir / "ablate.md").read_text()
+    assert "## Paired effects" in md and "| masking | primary_secondary vs none | 1 |" in md
+    assert "- command: `test`" in md
+
+
+def test_active_agents_are_those_the_env_masks_in_training(finished):
+    _, _, rows = finished
+    for r in rows:
+        env = load_env_config("default", {"scenarios": {r["scenario"]: 1.0}, "reference.pin_seed": r["seed"],
+                                          "masking.mode": r["masking"]})  # fmt: skip
+        core = CalibrationCore(env, batch_size=1)
+        core.reset()
+        assert r["active_agents"] == int(core.active[0].sum()) and r["n_agents"] == core.A
+    none, ps = rows
+    assert none["active_agents"] == none["n_agents"] > ps["active_agents"] > 0  # offset: part of the front masked
+
+
+def test_a_row_is_the_results_table_run_of_its_cell(finished, tmp_path):
+    """Rerun one cell through the results table's own functions: the same numbers (same seeds, same reference)."""
+    cfg, _, rows = finished
+    r = rows[1]
+    cell = {f: r[f] for f in FACTORS}
+    cc = cell_compare_config(cfg, cell, 0)
+    problem = reference_problem(cfg, cell["scenario"], 0)
+    assert cc.env_overrides["masking.mode"] == "primary_secondary"
+    direct = outcome_row(cc, problem, run_ppo(cc, "mappo", 0, problem, tmp_path))
+    for k in ("score", "initial_score", "simulations", "area_worst", "dfd_worst", "rmse_worst", "param_error"):
+        assert direct[k] == pytest.approx(r[k], rel=1e-12, abs=1e-15), k
+    assert direct["history"] == r["history"]
+
+
+def test_the_yardstick_is_the_score_form_whatever_the_cell_trained_on(short, tmp_path):
+    cfg = tiny(tmp_path, score="paper_factor")
+    problem = reference_problem(cfg, "offset40_left", 0)
+    m = problem.evaluate(problem.zeros(1))
+    from marlcrash.reward import Reward, load_reward_config
+
+    torch.testing.assert_close(problem.score(m), Reward(load_reward_config("paper_factor")).score(m))
+    assert not torch.allclose(problem.score(m), Reward(load_reward_config("log_ratio")).score(m))
+
+
+def test_resume_skips_finished_runs_and_refuses_a_changed_protocol(finished, tmp_path, monkeypatch):
+    _, run_dir, rows = finished
+    shutil.copytree(run_dir, tmp_path / "runs" / "ablate" / "t")  # the finished run, seed 0 only
+    data = tiny_data(tmp_path, seeds=[0, 1], resume=True, plots=False)
+    calls = []
+    real = ablate.run_cell
+
+    def counting(config, cell, seed, *a, **kw):
+        calls.append((cell_name(cell), seed))
+        return real(config, cell, seed, *a, **kw)
+
+    monkeypatch.setattr(ablate, "run_cell", counting)
+    _, more = run_ablation(load_ablation_config(data, source="test"))
+    assert sorted(s for _, s in calls) == [1, 1] and len(more) == 4
+    assert more[:2] == json.loads(json.dumps(rows))  # the finished rows, as saved
+    with pytest.raises(ConfigError) as e:
+        run_ablation(load_ablation_config({**data, "budget": 32}, source="test"))
+    assert e.value.key == "budget" and "would not compare" in str(e.value)
+    with pytest.raises(ConfigError) as e:
+        run_ablation(load_ablation_config({**data, "resume": False}, source="test"))
+    assert e.value.key == "name"
+
+
+def test_resume_of_an_unreadable_record_names_it(short, tmp_path):
+    cfg = tiny(tmp_path, resume=True)
+    cfg.run_dir.mkdir(parents=True)
+    (cfg.run_dir / "ablate.json").write_text("{not json")
+    with pytest.raises(ConfigError) as e:
+        run_ablation(cfg)
+    assert e.value.key == "resume" and "ablate.json" in str(e.value)
+
+
+# --------------------------------------------------------------------------------------- script
+def _script(args: list[str], configs: Path, cwd: Path) -> subprocess.CompletedProcess:
+    env = {**os.environ, "MARLCRASH_CONFIGS": str(configs), "HYDRA_FULL_ERROR": "0"}
+    return subprocess.run([sys.executable, str(REPO / "train" / "ablate.py"), *args], cwd=cwd, env=env,
+                          capture_output=True, text=True, timeout=600)  # fmt: skip
+
+
+@pytest.mark.slow
+def test_script_runs_the_factor_product(short_configs, tmp_path):
+    args = ["budget=24", "seeds=[0]", "max_wall_s=null", "ppo.n_envs=2", "ppo.episode_length=3",
+            "mappo.minibatch_size=3", "mappo.hidden=[16,16]", "ippo.minibatch_size=3", "ippo.hidden=[16,16]",
+            "algorithms=[mappo,ippo]", "masking=[none,primary]", "scenarios=[small_overlap_left]",
+            "name=smoke"]  # fmt: skip
+    p = _script(args, short_configs, tmp_path)
+    assert p.returncode == 0, p.stderr[-3000:]
+    assert sorted(x.name for x in tmp_path.iterdir()) == ["runs"]  # Hydra wrote nothing else
+    run_dir = tmp_path / "runs" / "ablate" / "smoke"
+    with open(run_dir / "ablate.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert sorted((r["algorithm"], r["masking"]) for r in rows) == sorted(
+        itertools.product(["mappo", "ippo"], ["none", "primary"])
+    )
+    assert (run_dir / "ablate.png").stat().st_size > 0
+    assert "| algorithm | ippo vs mappo | 2 |" in p.stdout and '"rows": 4' in p.stdout
+
+
+@pytest.mark.slow
+def test_script_rejects_bad_config_before_running(short_configs, tmp_path):
+    p = _script(["masking=[none,sideways]", "name=bad"], short_configs, tmp_path)
+    assert p.returncode == 2
+    assert "masking[1]" in p.stderr and "sideways" in p.stderr and "Traceback" not in p.stderr
+    assert not (tmp_path / "runs").exists()

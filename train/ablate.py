@@ -1,0 +1,39 @@
+"""Ablations (DESIGN 6): masking mode x scenario x action granularity x reward form x algorithm x seeds.
+
+    python train/ablate.py                                        # masking modes x 2 scenarios x seeds 0, 1, 2
+    python train/ablate.py masking=[none,primary_secondary] scenarios=[full_width_40] rewards=[log_ratio,paper_factor]
+    python train/ablate.py granularity=[subassembly,cell] budget=2000 name=gran
+    python train/ablate.py name=gran resume=true                  # after a kill: skip finished runs
+
+Writes ``<out_dir>/ablate/<name>/``: ablate.json, ablate.csv, ablate.md (rewritten after every run),
+ablate.png, and every run's training log under runs/<cell>/ppo/<algorithm>/seed<s>/.
+"""
+
+from __future__ import annotations
+
+import json
+import shlex
+import sys
+
+import hydra
+from omegaconf import DictConfig, OmegaConf
+
+from marlcrash.calibrate.ablate import load_ablation_config, run_ablation
+from marlcrash.errors import MarlcrashError
+
+
+@hydra.main(version_base=None, config_path="../configs/train", config_name="ablate")
+def main(cfg: DictConfig) -> None:
+    command = ("python train/ablate.py " + " ".join(shlex.quote(a) for a in sys.argv[1:])).strip()
+    try:
+        config = load_ablation_config(OmegaConf.to_container(cfg, resolve=True), source="configs/train/ablate.yaml")
+        run_dir, rows = run_ablation(config, command=command, progress=lambda msg: print(msg, flush=True))
+    except MarlcrashError as e:  # bad config or input: a message, not a traceback
+        print(f"error: {e}", file=sys.stderr)
+        sys.exit(2)
+    print((run_dir / "ablate.md").read_text())
+    print(json.dumps({"run": str(run_dir), "rows": len(rows)}))
+
+
+if __name__ == "__main__":
+    main()
