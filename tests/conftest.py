@@ -40,6 +40,14 @@ def short_configs(tmp_path_factory) -> Path:
     return dst
 
 
+@pytest.fixture(scope="module")
+def short(short_configs) -> Path:
+    """``short_configs`` in effect ($MARLCRASH_CONFIGS) for a whole test module."""
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("MARLCRASH_CONFIGS", str(short_configs))
+        yield short_configs
+
+
 @pytest.fixture(scope="session")
 def default_cells():
     """The embedded default car's optimized cell model (discretized once per test session)."""

@@ -39,13 +39,6 @@ from marlcrash.errors import ConfigError
 REPO = Path(__file__).resolve().parents[1]
 
 
-@pytest.fixture(scope="module")
-def short(short_configs) -> Path:
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setenv("MARLCRASH_CONFIGS", str(short_configs))
-        yield short_configs
-
-
 def tiny_data(tmp_path: Path, **kw) -> dict:
     """configs/train/ablate.yaml as a mapping, shrunk to seconds: budget 24, 2 envs x 3 steps, small networks."""
     data = yaml.safe_load((REPO / "configs" / "train" / "ablate.yaml").read_text())

@@ -45,13 +45,6 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
-def short(short_configs) -> Path:
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setenv("MARLCRASH_CONFIGS", str(short_configs))
-        yield short_configs
-
-
-@pytest.fixture(scope="module")
 def problem0(short, tmp_path_factory):
     """The optimizers' problem of reference seed 0 (built once: its twin-truth fit takes seconds)."""
     return build_problem(problem_config(tiny(tmp_path_factory.mktemp("p")), 0))

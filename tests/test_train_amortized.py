@@ -40,14 +40,7 @@ ITERATIONS = 2  # policy steps: 3 simulations per reference
 
 
 @pytest.fixture(scope="module")
-def short_env(short_configs):
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setenv("MARLCRASH_CONFIGS", str(short_configs))
-        yield short_configs
-
-
-@pytest.fixture(scope="module")
-def run_dir(short_env, tmp_path_factory) -> Path:
+def run_dir(short, tmp_path_factory) -> Path:
     """A 2-iteration MAPPO run (tiny networks, 4 envs, 2 steps), checkpoint only."""
     cfg = tiny(tmp_path_factory.mktemp("amortized"), iterations=2, name="src")
     return train(cfg, evaluate=False).run_dir
@@ -219,8 +212,8 @@ def test_the_yaml_config_loads_through_hydra():
 
 
 @pytest.mark.slow
-def test_script_smoke(run_dir, short_env, tmp_path):
-    env = {**os.environ, "MARLCRASH_CONFIGS": str(short_env)}
+def test_script_smoke(run_dir, short, tmp_path):
+    env = {**os.environ, "MARLCRASH_CONFIGS": str(short)}
     cmd = [sys.executable, str(REPO / "train" / "amortized.py"), f"run={run_dir}", "reference_seeds=[101]",
            "iterations=1", "budgets={cmaes: [1]}", "cmaes.popsize=2", f"out_dir={tmp_path}"]  # fmt: skip
     out = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=REPO, timeout=300)

@@ -36,8 +36,6 @@ finished runs (levels and seeds may be added, the protocol may not change).
 from __future__ import annotations
 
 import copy
-import csv
-import io
 import itertools
 import json
 import math
@@ -54,11 +52,13 @@ from marlcrash.calibrate.compare import (
     COLUMNS,
     CompareConfig,
     PPOBudgetConfig,
+    csv_text,
     initial_score,
     open_run_dir,
     outcome_row,
     problem_config,
     run_ppo,
+    summarize,
 )
 from marlcrash.calibrate.marl import ALGORITHMS, AlgorithmConfig
 from marlcrash.calibrate.problem import CalibrationProblem, SuccessConfig, build_problem
@@ -274,18 +274,8 @@ def aggregate_cells(rows: list[dict[str, Any]], cells: list[dict[str, Any]]) -> 
     for cell in cells:
         name = cell_name(cell)
         g = [r for r in rows if r["cell"] == name]
-        if not g:
-            continue
-        a: dict[str, Any] = {"cell": name, **cell, "seeds": len(g), "active_agents": g[0]["active_agents"]}
-        for k in _AGG_KEYS:
-            v = np.array([r[k] for r in g if r[k] is not None], dtype=np.float64)
-            a[f"{k}_mean"] = float(v.mean()) if v.size else None
-            a[f"{k}_std"] = float(v.std()) if v.size else None
-        a["passed"] = sum(bool(r["passed"]) for r in g)
-        hit = [r["sims_to_success"] for r in g if r["sims_to_success"] is not None]
-        a["sims_to_success_median"] = float(np.median(hit)) if hit else None
-        a["wall_capped"] = sum(r["stop"] == "wall_cap" for r in g)
-        out.append(a)
+        if g:
+            out.append({"cell": name, **cell, "active_agents": g[0]["active_agents"], **summarize(g, _AGG_KEYS)})
     return out
 
 
@@ -432,16 +422,6 @@ def markdown(config: AblationConfig, rows: list[dict[str, Any]], command: str | 
     return "\n".join(lines) + "\n"
 
 
-def csv_text(rows: list[dict[str, Any]]) -> str:
-    """The rows as CSV (columns :data:`CSV_COLUMNS`; ``None`` as an empty field)."""
-    buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=list(CSV_COLUMNS), lineterminator="\n", extrasaction="ignore")
-    w.writeheader()
-    for r in rows:
-        w.writerow({k: ("" if r[k] is None else r[k]) for k in CSV_COLUMNS})
-    return buf.getvalue()
-
-
 def write_results(config: AblationConfig, rows: list[dict[str, Any]], run_dir: Path, command: str | None) -> None:
     """Rewrite ``ablate.json``, ``ablate.csv`` and ``ablate.md`` in ``run_dir`` atomically."""
     date = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
@@ -450,7 +430,7 @@ def write_results(config: AblationConfig, rows: list[dict[str, Any]], run_dir: P
     payload = {"date": date, "command": command, "config": asdict(config), "rows": rows, "cells": cells,
                "effects": paired_effects(rows, lv)}  # fmt: skip
     write_text(run_dir / "ablate.json", json.dumps(payload, indent=2))
-    write_text(run_dir / "ablate.csv", csv_text(rows))
+    write_text(run_dir / "ablate.csv", csv_text(rows, CSV_COLUMNS))
     write_text(run_dir / "ablate.md", markdown(config, rows, command, date))
 
 

@@ -450,23 +450,29 @@ def aggregate(rows: list[dict[str, Any]], methods: list[str]) -> list[dict[str, 
     miss the thresholds on one sensor where an earlier candidate met them); ``wall_capped``: runs stopped
     by the wall cap.
     """
+    keys = ("simulations", "area_mean", "area_worst", "dfd_mean", "dfd_worst", "rmse_mean", "rmse_worst", "score",
+            "param_error", "wall_time_s")  # fmt: skip
     out = []
     for method in methods:
         g = [r for r in rows if r["method"] == method]
-        if not g:
-            continue
-        a: dict[str, Any] = {"method": method, "seeds": len(g)}
-        for k in ("simulations", "area_mean", "area_worst", "dfd_mean", "dfd_worst", "rmse_mean", "rmse_worst",
-                  "score", "param_error", "wall_time_s"):  # fmt: skip
-            v = np.array([r[k] for r in g if r[k] is not None], dtype=np.float64)
-            a[f"{k}_mean"] = float(v.mean()) if v.size else None
-            a[f"{k}_std"] = float(v.std()) if v.size else None
-        a["passed"] = sum(bool(r["passed"]) for r in g)
-        hit = [r["sims_to_success"] for r in g if r["sims_to_success"] is not None]
-        a["sims_to_success_median"] = float(np.median(hit)) if hit else None
-        a["wall_capped"] = sum(r["stop"] == "wall_cap" for r in g)
-        out.append(a)
+        if g:
+            out.append({"method": method, **summarize(g, keys)})
     return out
+
+
+def summarize(group: list[dict[str, Any]], keys: tuple[str, ...]) -> dict[str, Any]:
+    """Runs of one group (a method, an ablation cell): ``seeds``, mean and std (ddof 0) of ``keys``, ``passed``,
+    ``sims_to_success_median`` and ``wall_capped`` (:func:`aggregate`)."""
+    a: dict[str, Any] = {"seeds": len(group)}
+    for k in keys:
+        v = np.array([r[k] for r in group if r[k] is not None], dtype=np.float64)
+        a[f"{k}_mean"] = float(v.mean()) if v.size else None
+        a[f"{k}_std"] = float(v.std()) if v.size else None
+    a["passed"] = sum(bool(r["passed"]) for r in group)
+    hit = [r["sims_to_success"] for r in group if r["sims_to_success"] is not None]
+    a["sims_to_success_median"] = float(np.median(hit)) if hit else None
+    a["wall_capped"] = sum(r["stop"] == "wall_cap" for r in group)
+    return a
 
 
 def winners(rows: list[dict[str, Any]], seeds: list[int]) -> list[dict[str, Any]]:
@@ -574,13 +580,13 @@ def markdown(config: CompareConfig, rows: list[dict[str, Any]], command: str | N
     return "\n".join(lines) + "\n"
 
 
-def csv_text(rows: list[dict[str, Any]]) -> str:
-    """The rows as CSV (columns :data:`COLUMNS`; ``None`` as an empty field)."""
+def csv_text(rows: list[dict[str, Any]], columns: tuple[str, ...] = COLUMNS) -> str:
+    """The rows as CSV (``columns``, by default :data:`COLUMNS`; ``None`` as an empty field)."""
     buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=list(COLUMNS), lineterminator="\n", extrasaction="ignore")
+    w = csv.DictWriter(buf, fieldnames=list(columns), lineterminator="\n", extrasaction="ignore")
     w.writeheader()
     for r in rows:
-        w.writerow({k: ("" if r[k] is None else r[k]) for k in COLUMNS})
+        w.writerow({k: ("" if r[k] is None else r[k]) for k in columns})
     return buf.getvalue()
 
 
