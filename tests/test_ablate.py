@@ -32,7 +32,8 @@ from marlcrash.calibrate.ablate import (
     reference_problem,
     run_ablation,
 )
-from marlcrash.calibrate.compare import outcome_row, ppo_train_config, run_ppo
+from marlcrash.calibrate.compare import outcome_row, ppo_train_config, problem_config, run_ppo
+from marlcrash.calibrate.problem import build_problem
 from marlcrash.envs.core import CalibrationCore, load_env_config
 from marlcrash.errors import ConfigError
 
@@ -74,6 +75,13 @@ def tiny(tmp_path: Path, **kw) -> ablate.AblationConfig:
         ({"env_overrides": {"reference.pin_seed": 3}}, "env_overrides.reference.pin_seed", "protocol"),
         ({"env_overrides": {"max_stepp": 0.1}}, "env_overrides.max_stepp", ""),
         ({"score": "nope"}, "score", "nope"),
+        ({"masking": ["none", "a-b"]}, "masking[1]", "without"),
+        ({"rewards": ["configs/reward/log_ratio.yaml"]}, "rewards[0]", "without"),
+        (
+            {"ppo": {"n_envs": 2, "episode_length": 3, "threads": 0, "env_overrides": {"masking.mode": "none"}}},
+            "ppo.env_overrides.masking.mode",
+            "list its levels",
+        ),
         ({"budget": 7}, "budget", "at least one PPO iteration"),
         ({"max_wall_s": -1.0}, "max_wall_s", "> 0"),
     ],
@@ -83,6 +91,21 @@ def test_bad_config_fails_naming_the_key(short, tmp_path, override, key, words):
         tiny(tmp_path, **override)
     assert e.value.key == key, str(e.value)
     assert words in str(e.value)
+
+
+def test_reward_forms_must_measure_as_the_score_form_does(short, tmp_path):
+    path = short / "reward" / "paper_factor.yaml"  # an edited registered form: another scaling of the Frechet points
+    text = path.read_text()
+    form = yaml.safe_load(text)
+    form["metrics"]["dfd_time_scale"] = 10.0
+    path.write_text(yaml.safe_dump(form))
+    try:
+        with pytest.raises(ConfigError) as e:
+            tiny(tmp_path, rewards=["log_ratio", "paper_factor"])
+        assert e.value.key == "rewards[1]" and "measures A, DFD and RMSE differently" in str(e.value)
+    finally:
+        path.write_text(text)
+    tiny(tmp_path, rewards=["log_ratio", "paper_factor"])  # as shipped: the same measurement
 
 
 def test_minibatch_must_divide_the_frames_of_each_algorithm_run(short, tmp_path):
@@ -143,18 +166,20 @@ def test_paired_effects_match_a_hand_computation():
         _row(0, -0.5, 0.01, masking="primary"), _row(1, -2.5, 0.04, masking="primary"),
         _row(0, -3.0, 0.08, scenario="s2"), _row(0, -2.0, 0.02, scenario="s2", masking="primary"),
         _row(2, 9.0, 1.0, masking="primary"),  # no baseline run with seed 2: unpaired, left out
+        _row(3, 0.0, 0.0), _row(3, 0.5, 0.01, masking="primary"),  # a zero area: paired, but no area ratio
     ]  # fmt: skip
     levels = {"algorithm": ["mappo"], "masking": ["none", "primary"], "scenario": ["s1", "s2"],
               "granularity": ["subassembly"], "reward": ["log_ratio"]}  # fmt: skip
     eff = {(e["factor"], e["level"]): e for e in paired_effects(rows, levels)}
     assert set(eff) == {("masking", "primary"), ("scenario", "s2")}
     m = eff["masking", "primary"]
-    d = np.array([0.5, -0.5, 1.0])  # (s1, 0), (s1, 1), (s2, 0)
-    assert m["pairs"] == 3 and m["baseline"] == "none" and m["wins"] == 2
+    d = np.array([0.5, -0.5, 1.0, 0.5])  # (s1, 0), (s1, 1), (s2, 0), (s1, 3)
+    assert m["pairs"] == 4 and m["baseline"] == "none" and m["wins"] == 3 and m["ratio_pairs"] == 3
     assert m["gain_diff_mean"] == pytest.approx(d.mean(), abs=1e-15)
-    assert m["gain_diff_se"] == pytest.approx(d.std(ddof=1) / math.sqrt(3), abs=1e-15)
+    assert m["gain_diff_se"] == pytest.approx(d.std(ddof=1) / math.sqrt(4), abs=1e-15)
     assert m["area_worst_ratio"] == pytest.approx((0.25 * 2.0 * 0.25) ** (1 / 3), rel=1e-12)
-    assert m["gain_mean"] == pytest.approx(np.mean([-0.5, -2.5, -2.0])) and m["baseline_gain_mean"] == -2.0
+    assert m["gain_mean"] == pytest.approx(np.mean([-0.5, -2.5, -2.0, 0.5]))
+    assert m["baseline_gain_mean"] == pytest.approx(np.mean([-1.0, -2.0, -3.0, 0.0]))
     s = eff["scenario", "s2"]  # pairs: (none, 0) and (primary, 0)
     assert s["pairs"] == 2 and s["gain_diff_mean"] == pytest.approx(np.mean([-2.0, -1.5])) and s["wins"] == 0
 
@@ -211,8 +236,8 @@ def test_a_row_is_the_results_table_run_of_its_cell(finished, tmp_path):
     r = rows[1]
     cell = {f: r[f] for f in FACTORS}
     cc = cell_compare_config(cfg, cell, 0)
-    problem = reference_problem(cfg, cell["scenario"], 0)
-    assert cc.env_overrides["masking.mode"] == "primary_secondary"
+    assert cc.env_overrides["masking.mode"] == "primary_secondary" and cfg.score == cell["reward"]
+    problem = build_problem(problem_config(cc, 0))  # the results table's own problem (it ranks by the env's reward)
     direct = outcome_row(cc, problem, run_ppo(cc, "mappo", 0, problem, tmp_path))
     for k in ("score", "initial_score", "simulations", "area_worst", "dfd_worst", "rmse_worst", "param_error"):
         assert direct[k] == pytest.approx(r[k], rel=1e-12, abs=1e-15), k
@@ -250,6 +275,20 @@ def test_resume_skips_finished_runs_and_refuses_a_changed_protocol(finished, tmp
     with pytest.raises(ConfigError) as e:
         run_ablation(load_ablation_config({**data, "resume": False}, source="test"))
     assert e.value.key == "name"
+
+
+def test_resume_refuses_rows_of_another_reference_or_metric(finished, tmp_path):
+    _, run_dir, _ = finished
+    dst = tmp_path / "runs" / "ablate" / "t"
+    shutil.copytree(run_dir, dst)
+    record = json.loads((dst / "ablate.json").read_text())
+    for r in record["rows"]:  # as if configs/ had changed since: the same settings, another initial fit
+        r["initial_score"] -= 0.5
+    (dst / "ablate.json").write_text(json.dumps(record))
+    data = tiny_data(tmp_path, masking=["none", "primary_secondary", "primary"], resume=True, plots=False)
+    with pytest.raises(ConfigError) as e:
+        run_ablation(load_ablation_config(data, source="test"))
+    assert e.value.key == "resume" and "would not compare" in str(e.value)
 
 
 def test_resume_of_an_unreadable_record_names_it(short, tmp_path):

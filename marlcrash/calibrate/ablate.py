@@ -141,6 +141,9 @@ class AblationConfig:
             levels = self.levels(factor)
             require(len(levels) >= 1, key, f"expected at least one {factor} level")
             require(len(set(levels)) == len(levels), key, f"expected distinct levels, got {levels}")
+            for i, level in enumerate(levels):  # a level is part of the cell's name and folder
+                require(bool(level) and not any(c in str(level) for c in "/-\\"), f"{key}[{i}]",
+                        f"expected a registered name without '/', '\\' or '-', got {level!r}")  # fmt: skip
         for i, a in enumerate(self.algorithms):
             require(a in ALGORITHMS, f"algorithms[{i}]", f"unknown algorithm {a!r}; expected one of {list(ALGORITHMS)}")
         known = list_scenarios()
@@ -156,9 +159,11 @@ class AblationConfig:
         require(bool(self.name) and "/" not in self.name and self.name not in (".", ".."), "name",
                 f"expected a run folder name without '/', got {self.name!r}")  # fmt: skip
         require(bool(self.out_dir), "out_dir", "expected an output folder")
-        for k in [*self.env_overrides, *self.ppo.env_overrides]:
+        keyed = [(f"env_overrides.{k}", k) for k in self.env_overrides]
+        keyed += [(f"ppo.env_overrides.{k}", k) for k in self.ppo.env_overrides]
+        for name, k in keyed:
             for p in _PROTECTED_ENV_KEYS:
-                require(not (k == p or k.startswith(p + ".")), f"env_overrides.{k}",
+                require(not (k == p or k.startswith(p + ".")), name,
                         f"{p} is set by the ablation's factors or protocol; list its levels instead "
                         f"({', '.join(LEVEL_KEYS.values())})")  # fmt: skip
         frames = self.ppo.n_envs * self.ppo.episode_length
@@ -197,23 +202,28 @@ def load_ablation_config(data: dict[str, Any], source: str | None = None) -> Abl
     if source is not None:
         require_complete(AblationConfig, data, source)
     config = from_dict(AblationConfig, data, path=source)
-    over = {**config.env_overrides, **config.ppo.env_overrides}
+    for key, over in (("env_overrides", config.env_overrides),
+                      ("ppo.env_overrides", {**config.env_overrides, **config.ppo.env_overrides})):  # fmt: skip
+        try:
+            load_env_config(config.env, over)
+        except ConfigError as e:
+            raise ConfigError(e.reason, key=f"{key}.{e.key}" if e.key else key, path=source) from None
     try:
-        load_env_config(config.env, over)
+        yardstick = load_reward_config(config.score)
     except ConfigError as e:
-        raise ConfigError(e.reason, key=f"env_overrides.{e.key}" if e.key else "env_overrides", path=source) from None
+        raise ConfigError(e.reason, key="score", path=source) from None
     for factor, env_key in ENV_KEYS.items():
         for i, level in enumerate(config.levels(factor)):
             try:
                 load_env_config(config.env, {**over, env_key: level})
                 if factor == "reward":  # the env config names the form; its file is read when an env is built
-                    load_reward_config(level)
+                    measured = load_reward_config(level).metrics
+                    require(measured == yardstick.metrics, "",
+                            f"the reward form measures A, DFD and RMSE differently from the score form "
+                            f"{config.score!r} ({measured} against {yardstick.metrics}); their scores would not "
+                            "compare")  # fmt: skip
             except ConfigError as e:
                 raise ConfigError(e.reason, key=f"{LEVEL_KEYS[factor]}[{i}]", path=source) from None
-    try:
-        load_reward_config(config.score)
-    except ConfigError as e:
-        raise ConfigError(e.reason, key="score", path=source) from None
     return config
 
 
@@ -244,7 +254,7 @@ def reference_problem(config: AblationConfig, scenario: str, seed: int) -> Calib
 
 def active_agents(config: AblationConfig, problem: CalibrationProblem, masking: str) -> int:
     """Agents that masking mode ``masking`` lets act on the problem's reference."""
-    env = load_env_config(config.env, {**config.env_overrides, "masking.mode": masking})
+    env = load_env_config(config.env, {**config.env_overrides, **config.ppo.env_overrides, "masking.mode": masking})
     ref = problem.reference
     regions = ImpactRegions(problem.cells, problem.layout, env.masking)
     return int(regions.active(ref.overlap, ref.side, ref.speed)[0].sum())
@@ -290,7 +300,8 @@ def paired_effects(rows: list[dict[str, Any]], levels: dict[str, list[Any]]) -> 
         One entry per (factor, non-baseline level): ``pairs`` (runs matched on every other factor and the
         seed), ``gain_diff_mean`` and ``gain_diff_se`` (standard error, ddof 1; ``None`` below 2 pairs),
         ``wins`` (pairs where the level gains more), ``area_worst_ratio`` (geometric mean of the level's
-        worst-sensor area over the baseline's), and ``gain_mean`` / ``baseline_gain_mean`` over the pairs.
+        worst-sensor area over the baseline's, over the ``ratio_pairs`` pairs where both are finite
+        and > 0), and ``gain_mean`` / ``baseline_gain_mean`` over the pairs.
     """
     out = []
     for factor, lv in levels.items():
@@ -305,7 +316,9 @@ def paired_effects(rows: list[dict[str, Any]], levels: dict[str, list[Any]]) -> 
         for level in lv[1:]:
             pairs = [(r, base[key(r)]) for r in rows if r[factor] == level and key(r) in base]
             d = np.array([r["gain"] - b["gain"] for r, b in pairs], dtype=np.float64)
-            ratio = np.array([r["area_worst"] / b["area_worst"] for r, b in pairs if b["area_worst"] > 0])
+            areas = np.array([(r["area_worst"], b["area_worst"]) for r, b in pairs], dtype=np.float64).reshape(-1, 2)
+            ok = np.isfinite(areas).all(axis=1) & (areas > 0).all(axis=1)  # a ratio of zero areas says nothing
+            ratio = areas[ok, 0] / areas[ok, 1]
             n = len(pairs)
             out.append({
                 "factor": factor, "baseline": lv[0], "level": level, "pairs": n,
@@ -313,6 +326,7 @@ def paired_effects(rows: list[dict[str, Any]], levels: dict[str, list[Any]]) -> 
                 "gain_diff_se": float(d.std(ddof=1) / math.sqrt(n)) if n >= 2 else None,
                 "wins": int((d > 0).sum()),
                 "area_worst_ratio": float(np.exp(np.log(ratio).mean())) if ratio.size else None,
+                "ratio_pairs": int(ok.sum()),
                 "gain_mean": float(np.mean([r["gain"] for r, _ in pairs])) if n else None,
                 "baseline_gain_mean": float(np.mean([b["gain"] for _, b in pairs])) if n else None,
             })  # fmt: skip
@@ -349,8 +363,8 @@ def markdown(config: AblationConfig, rows: list[dict[str, Any]], command: str | 
         lines.append(f"- command: `{command}`")
     lines += [
         f"- varied: {'; '.join(f + ' (' + ', '.join(map(str, lv[f])) + ')' for f in varied) or 'nothing'}; "
-        f"fixed: {', '.join(fixed) or 'nothing'}; reference seeds {config.seeds} (the twin of the cell's "
-        "scenario drawn with the seed; the run's own seed is the same)",
+        f"fixed: {', '.join(fixed) or 'nothing'}; reference seeds {sorted({r['seed'] for r in rows})} (the twin of "
+        "the cell's scenario drawn with the seed; the run's own seed is the same)",
         f"- every run: {config.budget} simulations of PPO training on its pinned reference ({config.ppo.n_envs} "
         f"envs x {config.ppo.episode_length} steps per iteration), {wall}; "
         "its result is the best candidate of all its simulations",
@@ -364,8 +378,8 @@ def markdown(config: AblationConfig, rows: list[dict[str, Any]], command: str | 
     effects = paired_effects(rows, lv)
     if effects:
         lines += [
-            "## Paired effects (each level against the factor's first level; pairs share every other setting "
-            "and the reference)",
+            "## Paired effects (each level against the factor's first level; pairs share every other factor "
+            "and the reference seed)",
             "",
             "| factor | level vs baseline | pairs | gain difference (± s.e.) | level wins | worst-area ratio "
             "(geometric mean) | gain (level / baseline) |",
@@ -533,6 +547,12 @@ def run_ablation(
                 continue
             problem = reference_problem(config, scenario, seed)
             initial = initial_score(problem)
+            saved = {r["initial_score"] for r in rows if r["scenario"] == scenario and r["seed"] == seed}
+            if saved and saved != {initial}:  # same settings, yet another reference or metric: configs/ changed
+                raise ConfigError(f"resume: the initial parameters score {initial!r} on the {scenario} reference of "
+                                  f"seed {seed}, the finished runs of {run_dir} recorded {sorted(saved)}; the "
+                                  "config files or the simulator changed since, so the rows would not compare",
+                                  key="resume")  # fmt: skip
             for cell in todo:
                 row = run_cell(config, cell, seed, problem, run_dir, initial)
                 rows.append(row)
