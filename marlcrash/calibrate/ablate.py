@@ -52,6 +52,7 @@ from marlcrash.calibrate.compare import (
     COLUMNS,
     CompareConfig,
     PPOBudgetConfig,
+    check_env_overrides,
     csv_text,
     initial_score,
     open_run_dir,
@@ -202,12 +203,8 @@ def load_ablation_config(data: dict[str, Any], source: str | None = None) -> Abl
     if source is not None:
         require_complete(AblationConfig, data, source)
     config = from_dict(AblationConfig, data, path=source)
-    for key, over in (("env_overrides", config.env_overrides),
-                      ("ppo.env_overrides", {**config.env_overrides, **config.ppo.env_overrides})):  # fmt: skip
-        try:
-            load_env_config(config.env, over)
-        except ConfigError as e:
-            raise ConfigError(e.reason, key=f"{key}.{e.key}" if e.key else key, path=source) from None
+    check_env_overrides(config.env, config.env_overrides, config.ppo.env_overrides, source)
+    over = {**config.env_overrides, **config.ppo.env_overrides}
     try:
         yardstick = load_reward_config(config.score)
     except ConfigError as e:

@@ -202,13 +202,21 @@ def load_compare_config(data: dict[str, Any], source: str | None = None) -> Comp
     if source is not None:
         require_complete(CompareConfig, data, source)
     config = from_dict(CompareConfig, data, path=source)
-    for key, over in (("env_overrides", config.env_overrides),
-                      ("ppo.env_overrides", {**config.env_overrides, **config.ppo.env_overrides})):  # fmt: skip
+    check_env_overrides(config.env, config.env_overrides, config.ppo.env_overrides, source)
+    return config
+
+
+def check_env_overrides(env: str, shared: dict[str, Any], ppo: dict[str, Any], source: str | None) -> None:
+    """Load env config ``env`` with the ``env_overrides`` and, on top, the ``ppo.env_overrides`` of a table of runs.
+
+    Raises:
+        ConfigError: a bad override, named by its dotted key under ``env_overrides`` or ``ppo.env_overrides``.
+    """
+    for key, over in (("env_overrides", shared), ("ppo.env_overrides", {**shared, **ppo})):
         try:
-            load_env_config(config.env, over)
+            load_env_config(env, over)
         except ConfigError as e:
             raise ConfigError(e.reason, key=f"{key}.{e.key}" if e.key else key, path=source) from None
-    return config
 
 
 # ------------------------------------------------------------------------------------------ problem
