@@ -234,3 +234,15 @@ def test_a_key_deleted_from_a_config_file_is_named_not_defaulted(name, drop):
     with pytest.raises(ConfigError, match="missing") as e:
         load(data, source=f"configs/train/{name}.yaml")
     assert e.value.key == drop
+
+
+@pytest.mark.parametrize("name", ["train", "evaluate", "baseline", "compare", "amortized", "ablate"])
+def test_scripts_log_to_stderr_so_stdout_stays_their_json(name):
+    """Library warnings (matplotlib's findfont, torch, ...) must not land in the JSON a script prints on stdout."""
+    from hydra import compose, initialize_config_dir
+
+    with initialize_config_dir(config_dir=str(config_dir() / "train"), version_base=None):
+        cfg = compose(config_name=name, return_hydra_config=True)
+    handlers = cfg.hydra.job_logging.handlers
+    assert [h.stream for h in handlers.values()] == ["ext://sys.stderr"]
+    assert list(cfg.hydra.job_logging.root.handlers) == list(handlers)
