@@ -57,6 +57,7 @@ from marlcrash.calibrate.compare import (
     initial_score,
     open_run_dir,
     outcome_row,
+    pm,
     problem_config,
     run_ppo,
     summarize,
@@ -392,9 +393,6 @@ def markdown(config: AblationConfig, rows: list[dict[str, Any]], command: str | 
                 f"{_fmt(e['baseline_gain_mean'], '.4f')} |"
             )
         lines.append("")
-
-    def pm(a: dict[str, Any], k: str, spec: str = ".4g") -> str:
-        return f"{_fmt(a[f'{k}_mean'], spec)} ± {_fmt(a[f'{k}_std'], spec)}"
 
     lines += [
         "## Per cell (mean ± std over reference seeds)",

@@ -503,6 +503,11 @@ def _present(config: CompareConfig, rows: list[dict[str, Any]]) -> tuple[list[st
     return list(dict.fromkeys(methods)), [s for s in seeds if any(r["seed"] == s for r in rows)]
 
 
+def pm(a: dict[str, Any], k: str, spec: str = ".4g") -> str:
+    """``mean ± std`` of an aggregate's ``<k>_mean`` and ``<k>_std`` (:func:`summarize`), ``-`` for ``None``."""
+    return f"{_fmt(a[f'{k}_mean'], spec)} ± {_fmt(a[f'{k}_std'], spec)}"
+
+
 def markdown(config: CompareConfig, rows: list[dict[str, Any]], command: str | None, date: str) -> str:
     """``compare.md``: protocol, per-method table (mean ± std over seeds), winner per reference, per-run table."""
     methods, seeds = _present(config, rows)
@@ -531,9 +536,6 @@ def markdown(config: CompareConfig, rows: list[dict[str, Any]], command: str | N
         "",
     ]
     n = len(seeds)
-
-    def pm(a: dict[str, Any], k: str, spec: str = ".4g") -> str:
-        return f"{_fmt(a[f'{k}_mean'], spec)} ± {_fmt(a[f'{k}_std'], spec)}"
 
     lines += [
         f"## Per method (mean ± std over {n} reference{'s' if n != 1 else ''})",
