@@ -196,7 +196,7 @@ def finished(short, tmp_path_factory):
 
 def test_ablation_runs_every_cell_and_writes_its_tables(finished):
     cfg, run_dir, rows = finished
-    assert sorted(p.name for p in run_dir.iterdir()) == sorted([*ablate.FILES, "runs"])
+    assert sorted(p.name for p in run_dir.iterdir()) == sorted([*ablate.FILES, "runs", "provenance.json"])
     assert [(r["masking"], r["seed"]) for r in rows] == [("none", 0), ("primary_secondary", 0)]
     with open(run_dir / "ablate.csv") as fh:
         table = list(csv.DictReader(fh))

@@ -91,7 +91,7 @@ _PROTECTED_ENV_KEYS = ("masking.mode", "granularity", "reward", "scenarios", "re
 """Env keys the factors or the protocol set (``env_overrides`` may not change them)."""
 
 FILES = ("ablate.json", "ablate.csv", "ablate.md", "ablate.png")
-"""What a finished ablation leaves in its run folder (the PPO logs aside)."""
+"""The results a finished ablation writes into its run folder (besides ``provenance.json`` and the PPO logs)."""
 
 CSV_COLUMNS = ("cell", *FACTORS, "active_agents", "n_agents", "gain", *(c for c in COLUMNS if c != "method"))
 """Columns of ``ablate.csv``, in order (the results table's columns, with the factors for ``method``)."""

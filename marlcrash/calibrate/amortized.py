@@ -46,6 +46,7 @@ import numpy as np
 import torch
 from tensordict.nn import TensorDictModuleBase
 
+from marlcrash import provenance
 from marlcrash.calibrate.baselines import (
     BASELINES,
     CalibrationResult,
@@ -61,7 +62,7 @@ from marlcrash.calibrate.evaluate import (
     param_errors,
     policy_from_checkpoint,
 )
-from marlcrash.calibrate.marl import TrainConfig, load_run_config
+from marlcrash.calibrate.marl import TrainConfig, load_run_config, make_env_config
 from marlcrash.calibrate.problem import CalibrationProblem
 from marlcrash.config import from_dict, require, require_complete
 from marlcrash.errors import ConfigError
@@ -157,6 +158,8 @@ def load_policy(run_dir: str | Path) -> tuple[TensorDictModuleBase, TrainConfig]
     if not run_dir.is_dir():
         raise ConfigError(f"expected a training run folder, {run_dir} does not exist", key="run")
     config = load_run_config(run_dir)
+    check = provenance.check_run(run_dir, provenance.env_inputs(make_env_config(config)))
+    provenance.warn_changes(run_dir, check, "amortized")  # a policy trained on other physics still calibrates
     if not (run_dir / CHECKPOINT_FILE).is_file():
         raise ConfigError(f"expected a run folder with {CHECKPOINT_FILE}, found none in {run_dir}", key="run")
     path = run_dir / CHECKPOINT_FILE

@@ -48,6 +48,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from marlcrash import provenance
 from marlcrash.calibrate.budget import Progress
 from marlcrash.calibrate.leastsq import STEP_FACTORS, lm_iteration
 from marlcrash.calibrate.problem import CalibrationProblem, ProblemConfig, SmoothLoss
@@ -538,7 +539,8 @@ def run_folder(config: BaselineRunConfig) -> Path:
 
 
 def write_run(config: BaselineRunConfig, problem: CalibrationProblem, result: CalibrationResult) -> Path:
-    """Write ``<out_dir>/<method>/<name>/``: ``summary.json``, ``history.csv``, ``velocity.png``, ``config.json``.
+    """Write ``<out_dir>/<method>/<name>/``: ``summary.json``, ``history.csv``, ``velocity.png``, ``config.json``,
+    ``provenance.json`` (:mod:`marlcrash.provenance`).
 
     The folder is assembled in a temporary sibling and renamed into place, so a failed run
     leaves nothing half-written.
@@ -557,6 +559,7 @@ def write_run(config: BaselineRunConfig, problem: CalibrationProblem, result: Ca
         )  # fmt: skip
         (tmp / "summary.json").write_text(json.dumps(summary, indent=2))
         (tmp / "config.json").write_text(json.dumps(asdict(config), indent=2))
+        (tmp / provenance.PROVENANCE_FILE).write_text(json.dumps(provenance.record(), indent=1))
         write_history_csv(result, tmp / "history.csv")
         torch.save({"best_x": result.best_x, "best_params": result.best_params}, tmp / "best.pt")
         if config.plot:

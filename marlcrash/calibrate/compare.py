@@ -53,6 +53,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from marlcrash import provenance
 from marlcrash.calibrate.amortized import _fmt, _mean_param_error
 from marlcrash.calibrate.baselines import BASELINES, CMAESConfig, GradientConfig, LMConfig, RandomSearchConfig
 from marlcrash.calibrate.budget import Progress
@@ -648,7 +649,8 @@ def open_run_dir(
 
     Raises:
         ConfigError: the record exists without ``resume`` (key ``name``), is missing or unreadable with it
-            (key ``resume``), or was run with other settings (the first differing dotted key).
+            (key ``resume``), was run with other settings (the first differing dotted key), or with other
+            files in ``configs/`` (key ``resume``, :func:`marlcrash.provenance.require_unchanged`).
     """
     check_output_dir(out_dir, "out_dir")
     path = run_dir / filename
@@ -656,6 +658,7 @@ def open_run_dir(
         if path.exists() and _saved_rows(path) != []:  # no finished row (a first run that failed): started over
             raise ConfigError(f"{path} exists already; choose another name or resume=true", key="name")
         run_dir.mkdir(parents=True, exist_ok=True)
+        provenance.write_record(run_dir)
         return run_dir, []
     if not path.is_file():
         raise ConfigError(f"resume=true but {path} does not exist", key="resume")
@@ -674,6 +677,7 @@ def open_run_dir(
     if diff is not None:
         raise ConfigError(f"resume: {run_dir} was run with {diff} = {_lookup(saved, diff)!r}, this config "
                           f"has {_lookup(config, diff)!r}; the finished rows would not compare", key=diff)  # fmt: skip
+    provenance.require_unchanged(run_dir)
     return run_dir, rows
 
 

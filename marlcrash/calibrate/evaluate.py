@@ -40,6 +40,7 @@ import torch
 from tensordict.nn import TensorDictModuleBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
+from marlcrash import provenance
 from marlcrash.calibrate.checkpoint import find_checkpoint, load_training_checkpoint
 from marlcrash.calibrate.logging import LOG_FILE, read_log
 from marlcrash.calibrate.marl import TrainConfig, act, load_run_config, make_env, make_env_config, make_policy
@@ -387,6 +388,8 @@ def evaluate_run(
         if checkpoint not in (None, "latest"):  # only once the checkpoint proved usable: no empty folders
             out_dir = run_dir / EVAL_DIR / ckpt.stem
             out_dir.mkdir(parents=True, exist_ok=True)
+    check = provenance.check_run(run_dir, provenance.env_inputs(make_env_config(config)))
+    provenance.warn_changes(run_dir, check, "evaluate")
     result = evaluate_policy(policy, config)
     problem = evaluation_problem(config)
     if not torch.allclose(problem.ref_velocity, result.ref_velocity, rtol=0, atol=1e-9):
@@ -427,6 +430,7 @@ def evaluate_run(
         "train_wall_time_s": train_time,
         "env_steps_per_s": steps / train_time if train_time > 0 else None,
         "collect_env_steps_per_s": float(np.median(collect_rates)) if collect_rates else None,
+        "provenance": check.as_dict(),  # configs or code changed since the run started (provenance.json)
     }
     if result.true_params is not None:
         summary["param_error"] = param_errors(problem, result.params[result.selected], result.true_params)

@@ -58,6 +58,7 @@ from torchrl.modules import MLP, MultiAgentMLP, ProbabilisticActor, TanhNormal
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
+from marlcrash import provenance
 from marlcrash.calibrate.budget import Progress
 from marlcrash.calibrate.checkpoint import (
     CHECKPOINT_FILE,
@@ -872,6 +873,7 @@ def train(config: TrainConfig, *, stop_at: int | None = None, evaluate: bool = T
     if resume is not False:
         run_dir = find_resume_dir(config)
         config = load_run_config(run_dir)
+        provenance.require_unchanged(run_dir, provenance.env_inputs(make_env_config(config)))
         state = load_training_checkpoint(run_dir / CHECKPOINT_FILE)
     else:
         check_output_dir(config.out_dir, "out_dir")
@@ -891,6 +893,8 @@ def train(config: TrainConfig, *, stop_at: int | None = None, evaluate: bool = T
         raise
     if state is not None:
         tr.load_state_dict(state)
+    else:  # which configs and code this run's numbers come from, checked by a resume and an evaluation
+        provenance.write_record(run_dir, provenance.env_inputs(make_env_config(config)))
     was_finished = tr.finished  # a finished run's checkpoint is its record: a resume only evaluates it again
     # with a time limit the iteration count is only a cap: say when training will stop
     desc = config.algorithm.name

@@ -1,0 +1,227 @@
+"""Provenance of a run folder: which configs and which code produced its numbers.
+
+A run folder keeps its own resolved training config (``config.yaml``), but the simulator and the
+environments read the rest at run time from ``configs/``: the env config, ``sim.yaml``, ``cells.yaml``,
+``materials.yaml``, the vehicle, the scenarios, the reward forms and measured reference pulses. A run
+resumed or evaluated after one of them changed would silently mix two physics. So every run folder
+gets ``provenance.json`` when it starts: the SHA-256 of every file under ``configs/`` except
+``configs/train/`` (saved resolved in the run), of a vehicle deck or reference pulse named by a path
+outside ``configs/``, and of the package's source (plus the git commit where there is one).
+
+:func:`check_run` compares a run folder's record with the files now:
+
+- changed, added or removed config files (``kind="configs"``): a resume refuses them, naming the
+  files; an evaluation warns and reports them in its summary;
+- changed code (``kind="code"``): always a warning, because a resumed run is still that run's
+  training (but no longer bit-identical to an uninterrupted one).
+
+A folder without a record (written before this module existed) is resumed and evaluated with a warning.
+Deleting a run's ``provenance.json`` is how to resume it anyway after a deliberate config change.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import platform
+import subprocess
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from marlcrash.config import config_dir
+from marlcrash.errors import ConfigError
+
+log = logging.getLogger(__name__)
+
+PROVENANCE_FILE = "provenance.json"
+"""The record in a run folder."""
+
+_SKIPPED_DIRS = ("train",)
+"""Folders of ``configs/`` that runs save resolved themselves (their own ``config.yaml`` / ``config`` record)."""
+
+
+def _sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def config_digests(extra: Iterable[str | Path] = ()) -> dict[str, str]:
+    """SHA-256 of the files a simulation or an environment may read.
+
+    Args:
+        extra: further input files (a vehicle deck, a measured pulse) named by paths outside ``configs/``;
+            missing ones are left out (the run that needs them fails on them with its own error).
+
+    Returns:
+        ``{name: hex digest}``: files under ``configs/`` (all but ``configs/train/``) named by their path
+        relative to it, as ``configs/<path>``; ``extra`` files by their resolved path.
+    """
+    root = config_dir()
+    out: dict[str, str] = {}
+    if root.is_dir():
+        for p in sorted(root.rglob("*")):
+            rel = p.relative_to(root)
+            if p.is_file() and rel.parts[0] not in _SKIPPED_DIRS and not any(s.startswith(".") for s in rel.parts):
+                out[f"configs/{rel.as_posix()}"] = _sha256(p)
+    for e in extra:
+        p = Path(e).resolve()
+        if p.is_file() and not p.is_relative_to(root.resolve()):
+            out[str(p)] = _sha256(p)
+    return out
+
+
+def _package_root() -> Path:
+    return Path(__file__).resolve().parent
+
+
+def source_digest() -> str:
+    """SHA-256 over the package's Python sources (relative path and contents of each, sorted)."""
+    h = hashlib.sha256()
+    root = _package_root()
+    for p in sorted(root.rglob("*.py")):
+        h.update(p.relative_to(root).as_posix().encode())
+        h.update(b"\0")
+        h.update(p.read_bytes())
+        h.update(b"\0")
+    return h.hexdigest()
+
+
+def git_commit() -> str | None:
+    """The commit of the git work tree the package lives in, or ``None`` (installed copy, no git)."""
+    repo = _package_root().parent
+    if not (repo / ".git").exists():
+        return None
+    try:
+        out = subprocess.run(["git", "-C", str(repo), "rev-parse", "HEAD"], capture_output=True, text=True,
+                             timeout=10, check=False)  # fmt: skip
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return (out.stdout.strip() or None) if out.returncode == 0 else None
+
+
+def record(extra: Iterable[str | Path] = ()) -> dict[str, Any]:
+    """The provenance of a run starting now (see the module docstring); ``extra`` as in :func:`config_digests`."""
+    import numpy
+    import torch
+
+    from marlcrash import __version__
+
+    return {
+        "configs": config_digests(extra),
+        "code": {"marlcrash": __version__, "source_sha256": source_digest(), "git_commit": git_commit()},
+        "python": platform.python_version(),
+        "torch": torch.__version__,
+        "numpy": numpy.__version__,
+    }
+
+
+def env_inputs(env_config: Any) -> list[str]:
+    """Input files of an env config named by a path outside ``configs/``: a vehicle file, measured pulses."""
+    paths: list[str] = []
+    vehicle = str(getattr(env_config, "vehicle", ""))
+    if Path(vehicle).suffix:  # a registered vehicle has no suffix; its YAML is under configs/ already
+        paths.append(vehicle)
+    reference = getattr(env_config, "reference", None)
+    for f in getattr(reference, "files", None) or []:
+        p = Path(f.path)
+        paths.append(str(p if p.is_absolute() else config_dir() / p))
+    return paths
+
+
+def write_record(run_dir: str | Path, extra: Iterable[str | Path] = ()) -> dict[str, Any]:
+    """Write ``provenance.json`` into ``run_dir`` (atomically) and return the record."""
+    from marlcrash.outputs import write_text
+
+    rec = record(extra)
+    write_text(Path(run_dir) / PROVENANCE_FILE, json.dumps(rec, indent=1))
+    return rec
+
+
+@dataclass
+class ProvenanceCheck:
+    """What changed since a run folder's record was written (:func:`check_run`)."""
+
+    recorded: bool
+    """The folder has a readable record."""
+    configs: list[str]
+    """Changed, added or removed input files, e.g. ``"configs/sim.yaml changed"``."""
+    code: list[str]
+    """Code changes, e.g. ``"marlcrash source changed (git 1c27aa5 -> 5d0f473)"``."""
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"recorded": self.recorded, "config_changes": self.configs, "code_changes": self.code}
+
+
+def config_changes(saved: dict[str, str], now: dict[str, str]) -> list[str]:
+    """Readable differences of two :func:`config_digests` maps, sorted by file name."""
+    out = []
+    for name in sorted(set(saved) | set(now)):
+        if name not in now:
+            out.append(f"{name} removed")
+        elif name not in saved:
+            out.append(f"{name} added")
+        elif saved[name] != now[name]:
+            out.append(f"{name} changed")
+    return out
+
+
+def check_run(run_dir: str | Path, extra: Iterable[str | Path] = ()) -> ProvenanceCheck:
+    """Compare a run folder's ``provenance.json`` with the configs and code of this process.
+
+    Args:
+        run_dir: the run folder.
+        extra: the run's input files outside ``configs/`` (:func:`env_inputs`).
+
+    Returns:
+        The differences; ``recorded`` is false (and both lists empty) for a folder without a record.
+
+    Raises:
+        ConfigError: (key ``resume``) the record exists but cannot be read.
+    """
+    path = Path(run_dir) / PROVENANCE_FILE
+    if not path.exists():
+        return ProvenanceCheck(recorded=False, configs=[], code=[])
+    try:
+        saved = json.loads(path.read_text())
+        saved_configs, saved_code = dict(saved["configs"]), dict(saved["code"])
+    except (OSError, ValueError, KeyError, TypeError):
+        raise ConfigError(f"{path} cannot be read as a provenance record; delete it to go on without one",
+                          key="resume") from None  # fmt: skip
+    configs = config_changes(saved_configs, config_digests(extra))
+    code: list[str] = []
+    if saved_code.get("source_sha256") != source_digest():
+        then, now = saved_code.get("git_commit"), git_commit()
+        where = f" (git {str(then)[:7]} -> {str(now)[:7]})" if then or now else ""
+        code.append(f"marlcrash source changed{where}")
+    return ProvenanceCheck(recorded=True, configs=configs, code=code)
+
+
+def require_unchanged(run_dir: str | Path, extra: Iterable[str | Path] = (), what: str = "resume") -> ProvenanceCheck:
+    """:func:`check_run` for a resume: refuse changed configs, warn about changed code or a missing record.
+
+    Raises:
+        ConfigError: (key ``resume``) an input file changed since the run started.
+    """
+    check = check_run(run_dir, extra)
+    if check.configs:
+        shown = "; ".join(check.configs[:6]) + ("; ..." if len(check.configs) > 6 else "")
+        raise ConfigError(f"{what}: {run_dir} was started with other configs ({shown}); its finished part would not "
+                          f"compare with the rest. Restore them, start a new run, or delete {PROVENANCE_FILE} "
+                          "there to go on anyway", key="resume")  # fmt: skip
+    warn_changes(run_dir, check, what)
+    return check
+
+
+def warn_changes(run_dir: str | Path, check: ProvenanceCheck, what: str) -> None:
+    """Log a warning for each difference of ``check`` (and for a missing record)."""
+    if not check.recorded:
+        log.warning("%s: %s has no %s; cannot tell whether configs or code changed since it ran",
+                    what, run_dir, PROVENANCE_FILE)  # fmt: skip
+    for change in check.configs + check.code:
+        log.warning("%s: %s: %s since the run started", what, run_dir, change)

@@ -1,0 +1,137 @@
+"""Run provenance: config and code digests recorded in run folders, checked on resume and evaluation."""
+
+from __future__ import annotations
+
+import json
+import logging
+import shutil
+from pathlib import Path
+
+import pytest
+
+from marlcrash import provenance
+from marlcrash.errors import ConfigError
+
+
+@pytest.fixture
+def configs(short_configs, tmp_path, monkeypatch) -> Path:
+    """A private copy of the short-scenario configs in effect: tests edit it."""
+    dst = tmp_path / "configs"
+    shutil.copytree(short_configs, dst)
+    monkeypatch.setenv("MARLCRASH_CONFIGS", str(dst))
+    return dst
+
+
+def _touch(path: Path) -> None:
+    """Change a file's bytes without changing what it configures (a YAML comment)."""
+    path.write_text(path.read_text() + "\n# edited\n")
+
+
+def test_digests_cover_every_input_config_but_not_the_saved_training_configs(configs, tmp_path):
+    outside = tmp_path / "deck.k"
+    outside.write_text("*KEYWORD\n*END\n")
+    d = provenance.config_digests([outside, configs / "sim.yaml", tmp_path / "missing.csv"])
+    names = {p.relative_to(configs).as_posix() for p in configs.rglob("*") if p.is_file()}
+    expected = {f"configs/{n}" for n in names if not n.startswith("train/")}
+    assert expected <= set(d) and "configs/sim.yaml" in expected and "configs/env/default.yaml" in expected
+    assert not any(k.startswith("configs/train/") for k in d)
+    assert set(d) - expected == {str(outside.resolve())}  # a file inside configs/ is not named twice
+    import hashlib
+
+    assert d["configs/sim.yaml"] == hashlib.sha256((configs / "sim.yaml").read_bytes()).hexdigest()
+
+
+def test_changes_name_changed_added_and_removed_files():
+    saved = {"configs/a.yaml": "1", "configs/b.yaml": "2", "configs/c.yaml": "3"}
+    now = {"configs/a.yaml": "1", "configs/b.yaml": "9", "configs/d.yaml": "4"}
+    assert provenance.config_changes(saved, now) == [
+        "configs/b.yaml changed",
+        "configs/c.yaml removed",
+        "configs/d.yaml added",
+    ]
+    assert provenance.config_changes(saved, dict(saved)) == []
+
+
+def test_check_run_finds_config_edits_and_code_changes(configs, tmp_path, monkeypatch, caplog):
+    run = tmp_path / "run"
+    run.mkdir()
+    rec = provenance.write_record(run)
+    assert json.loads((run / provenance.PROVENANCE_FILE).read_text()) == rec
+    assert rec["code"]["source_sha256"] == provenance.source_digest()
+    clean = provenance.check_run(run)
+    assert clean.recorded and clean.configs == [] and clean.code == []
+    provenance.require_unchanged(run)  # nothing changed: no error
+
+    _touch(configs / "sim.yaml")
+    (configs / "scenarios" / "extra.yaml").write_text("speed: 1\n")
+    check = provenance.check_run(run)
+    assert check.configs == ["configs/scenarios/extra.yaml added", "configs/sim.yaml changed"]
+    with pytest.raises(ConfigError, match=r"configs/sim\.yaml changed") as e:
+        provenance.require_unchanged(run)
+    assert e.value.key == "resume" and provenance.PROVENANCE_FILE in str(e.value)
+
+    # code changes warn, they do not refuse
+    (configs / "scenarios" / "extra.yaml").unlink()
+    rec["configs"] = provenance.config_digests()
+    (run / provenance.PROVENANCE_FILE).write_text(json.dumps(rec))
+    monkeypatch.setattr(provenance, "source_digest", lambda: "0" * 64)
+    with caplog.at_level(logging.WARNING, logger="marlcrash.provenance"):
+        check = provenance.require_unchanged(run)
+    assert check.configs == [] and check.code and check.code[0].startswith("marlcrash source changed")
+    assert "marlcrash source changed" in caplog.text
+
+
+def test_a_folder_without_a_record_warns_and_a_broken_record_is_named(configs, tmp_path, caplog):
+    run = tmp_path / "old_run"
+    run.mkdir()
+    with caplog.at_level(logging.WARNING, logger="marlcrash.provenance"):
+        check = provenance.require_unchanged(run)
+    assert not check.recorded and check.as_dict() == {"recorded": False, "config_changes": [], "code_changes": []}
+    assert "has no provenance.json" in caplog.text
+    (run / provenance.PROVENANCE_FILE).write_text("{not json")
+    with pytest.raises(ConfigError, match=r"provenance\.json cannot be read") as e:
+        provenance.check_run(run)
+    assert e.value.key == "resume"
+
+
+def test_env_inputs_are_files_named_by_path():
+    from marlcrash.envs.core import load_env_config
+
+    cfg = load_env_config("default", {"vehicle": "decks/car.k"})
+    assert provenance.env_inputs(cfg) == ["decks/car.k"]
+    assert provenance.env_inputs(load_env_config("default")) == []  # a registered vehicle lives in configs/
+
+
+def test_a_training_resume_refuses_changed_configs_and_an_evaluation_reports_them(configs, tmp_path):
+    from test_train_marl import tiny
+
+    from marlcrash.calibrate.evaluate import evaluate_run
+    from marlcrash.calibrate.marl import train
+
+    part = train(tiny(tmp_path, name="p", iterations=2), stop_at=1, evaluate=False)
+    rec = json.loads((part.run_dir / provenance.PROVENANCE_FILE).read_text())
+    assert "configs/env/default.yaml" in rec["configs"] and rec["code"]["marlcrash"]
+    _touch(configs / "materials.yaml")
+    with pytest.raises(ConfigError, match=r"configs/materials\.yaml changed") as e:
+        train(tiny(tmp_path, name="p", iterations=2, resume=str(part.run_dir)))
+    assert e.value.key == "resume"
+    summary = evaluate_run(part.run_dir)  # evaluating an old run on today's configs is allowed, and reported
+    assert summary["provenance"]["config_changes"] == ["configs/materials.yaml changed"]
+    assert json.loads((part.run_dir / "summary.json").read_text())["provenance"]["recorded"] is True
+    (part.run_dir / provenance.PROVENANCE_FILE).unlink()  # the documented way to go on anyway
+    done = train(tiny(tmp_path, name="p", iterations=2, resume=str(part.run_dir)))
+    assert done.iterations == 2 and done.summary["provenance"]["recorded"] is False
+
+
+def test_a_resumed_table_of_runs_refuses_changed_configs(configs, tmp_path):
+    from test_compare import tiny
+
+    from marlcrash.calibrate.compare import run_comparison
+
+    cfg = tiny(tmp_path, methods=["random_search"], seeds=[0])
+    run_dir, _ = run_comparison(cfg)
+    assert (run_dir / provenance.PROVENANCE_FILE).is_file()
+    _touch(configs / "cells.yaml")
+    with pytest.raises(ConfigError, match=r"configs/cells\.yaml changed") as e:
+        run_comparison(tiny(tmp_path, methods=["random_search", "cmaes"], seeds=[0], resume=True))
+    assert e.value.key == "resume"
