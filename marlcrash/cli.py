@@ -291,6 +291,74 @@ def cmd_pulse(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_contributions(args: argparse.Namespace) -> int:
+    from marlcrash.analysis import agent_contributions, plot_cells_by_contribution, plot_contributions, run_calibration
+    from marlcrash.analysis.shapley import MAX_EXACT_PLAYERS
+    from marlcrash.outputs import check_output_dir
+
+    if args.run is None:
+        out = Path(args.out or "contributions")
+    else:
+        out = Path(args.out) if args.out else Path(args.run) / "contributions"
+    check_output_dir(out, "--out")  # before the simulations: a bad output path costs nothing
+    if args.exact_max > MAX_EXACT_PLAYERS:
+        raise ConfigError(f"expected 0 to {MAX_EXACT_PLAYERS} agents, got {args.exact_max}", key="--exact-max")
+    if args.permutations < 4 or args.permutations % 2:
+        raise ConfigError(f"expected an even number >= 4 (antithetic pairs), got {args.permutations}",
+                          key="--permutations")  # fmt: skip
+    if args.run is None:  # the twin's hidden perturbation: every agent at the truth (what a calibration must find)
+        from marlcrash.calibrate.problem import ProblemConfig, build_problem
+
+        if args.iteration is not None:
+            raise ConfigError("--iteration needs a RUN (the twin's truth has no iterations)", key="--iteration")
+        problem = build_problem(ProblemConfig(scenario="full_width_40", reference="twin", reference_seed=0))
+        initial, calibrated, iteration = problem.init, problem.true_params, None
+        what = "twin truth (full_width_40, reference seed 0)"
+    else:
+        run = run_calibration(args.run)
+        problem, initial = run.problem, run.initial
+        iteration = run.selected_iteration if args.iteration is None else args.iteration
+        last = run.per_iteration.shape[0] - 1
+        if not 0 <= iteration <= last:
+            raise ConfigError(f"expected a calibration step 0 to {last} of {args.run}, got {iteration}",
+                              key="--iteration")  # fmt: skip
+        calibrated = run.per_iteration[iteration]
+        what = f"{args.run}, calibration step {iteration}"
+    try:
+        contrib = agent_contributions(problem, calibrated, initial, exact_max=args.exact_max,
+                                      n_permutations=args.permutations, seed=args.seed)  # fmt: skip
+    except ValueError as e:  # parameters that do not fit the problem (another vehicle or layout)
+        raise ConfigError(str(e), key="run") from None
+    out.mkdir(parents=True, exist_ok=True)
+    areas = [q for q in contrib.quantities if q.startswith("area/")]
+    files = [contrib.write_csv(out / "contributions.csv"), contrib.write_markdown(out / "contributions.md")]
+    if not args.no_plots:
+        worst = max(areas, key=lambda q: float(contrib.initial[contrib.column(q)]))
+        files += [plot_contributions(contrib, out / "contributions.png"),
+                  plot_cells_by_contribution(problem, contrib, out / "cells.png", quantity=worst)]  # fmt: skip
+    if args.json:
+        quantities = {}
+        for q in contrib.quantities:
+            j = contrib.column(q)
+            ranked = contrib.ranking(q)
+            quantities[q] = {
+                "initial": float(contrib.initial[j]),
+                "calibrated": float(contrib.calibrated[j]),
+                "shapley": dict(ranked),
+                "shapley_stderr": {a: float(contrib.shapley_stderr[contrib.agents.index(a), j]) for a, _ in ranked},
+            }
+        _print_json({"analysed": what, "iteration": iteration, "agents_moved": int(contrib.players.sum()),
+                     "n_agents": len(contrib.agents), "exact": contrib.exact, "simulations": contrib.n_simulations,
+                     "quantities": quantities, "files": [str(f) for f in files]})  # fmt: skip
+        return 0
+    print(f"{what}: {int(contrib.players.sum())} of {len(contrib.agents)} agents moved; {contrib.n_simulations} "
+          f"simulations; Shapley values {'exact' if contrib.exact else 'sampled'}\n")  # fmt: skip
+    for q in ["score", *areas]:
+        print(contrib.markdown(q))
+    print("written: " + ", ".join(str(f) for f in files))
+    return 0
+
+
 # ------------------------------------------------------------------ parser
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
@@ -372,6 +440,29 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--plot", metavar="FILE.png", help="write acceleration and velocity plots")
     p.set_defaults(func=cmd_pulse)
+
+    p = sub.add_parser(
+        "contributions",
+        help="per-agent contributions (Shapley, leave-one-out, add-one) to a run's calibration of every metric",
+    )
+    p.add_argument(
+        "run",
+        nargs="?",
+        help="an evaluated training run folder (runs/<algorithm>/<name>, with calibrated.npz); default: the twin's "
+        "hidden perturbation of the main job's evaluation reference (every agent at the truth)",
+    )
+    p.add_argument(
+        "--iteration", type=_seed, metavar="N", help="calibration step to analyse (default: the evaluation's selected)"
+    )
+    p.add_argument("--exact-max", type=_seed, default=10, metavar="N",
+                   help="enumerate all coalitions when at most N agents moved (default 10)")  # fmt: skip
+    p.add_argument("--permutations", type=_positive_int, default=64, metavar="N",
+                   help="sampled orderings otherwise (even, >= 4; default 64)")  # fmt: skip
+    p.add_argument("--seed", type=_seed, default=0, help="seed of the sampled orderings (default 0)")
+    p.add_argument("--out", metavar="DIR", help="output folder (default: RUN/contributions, or ./contributions)")
+    p.add_argument("--no-plots", action="store_true", help="write the tables only")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=cmd_contributions)
     return parser
 
 

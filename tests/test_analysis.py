@@ -236,3 +236,51 @@ def test_run_calibration_loads_an_evaluated_run(tmp_path):
     with pytest.raises(ConfigError, match=r"no calibrated\.npz") as e:
         run_calibration(tmp_path)
     assert e.value.key == "run"
+
+
+def test_contributions_command_analyses_a_run_and_names_bad_arguments(tmp_path, capsys):
+    """``marlcrash contributions RUN``: the evaluated run's iterate, Shapley values that add up to the whole change
+    (here: to the twin's truth, every area to zero), the tables and pictures; bad arguments exit 2 naming the flag."""
+    import json
+
+    from marlcrash.cli import main
+
+    run = tmp_path / "run"
+    run.mkdir()
+    write_evaluated_run(run)
+    out = tmp_path / "c"
+    assert main(["contributions", str(run), "--permutations", "4", "--out", str(out), "--json"]) == 0
+    s = json.loads(capsys.readouterr().out)
+    assert s["iteration"] == 1 and s["agents_moved"] == s["n_agents"] == 21 and not s["exact"]
+    names = ("contributions.csv", "contributions.md", "contributions.png", "cells.png")
+    assert sorted(s["files"]) == sorted(str(out / f) for f in names)
+    for q, v in s["quantities"].items():
+        assert sum(v["shapley"].values()) == pytest.approx(v["calibrated"] - v["initial"], abs=1e-9), q
+        if q.startswith("area/"):
+            assert v["calibrated"] == pytest.approx(0.0, abs=1e-12) and v["initial"] > 0.01
+    assert len((out / "contributions.csv").read_text().splitlines()) == 1 + 21 * len(s["quantities"])
+
+    # no RUN: the twin's truth of the main job's evaluation reference (seed 0), what a calibration must find
+    assert main(["contributions", "--permutations", "4", "--no-plots", "--out", str(out / "truth"), "--json"]) == 0
+    st = json.loads(capsys.readouterr().out)
+    assert st["analysed"].startswith("twin truth") and st["iteration"] is None and st["agents_moved"] == 21
+    assert st["quantities"]["area/tunnel"]["calibrated"] == pytest.approx(0.0, abs=1e-12)
+    assert st["quantities"]["area/tunnel"]["initial"] != pytest.approx(s["quantities"]["area/tunnel"]["initial"])
+
+    # step 0 is the initial parameters: nothing moved, nothing to credit
+    assert main(["contributions", str(run), "--iteration", "0", "--no-plots", "--out", str(out / "i0"), "--json"]) == 0
+    s0 = json.loads(capsys.readouterr().out)
+    assert s0["agents_moved"] == 0 and all(x == 0 for v in s0["quantities"].values() for x in v["shapley"].values())
+
+    for argv, flag in (
+        ([str(run), "--iteration", "2"], "--iteration"),
+        ([str(run), "--permutations", "6", "--exact-max", "17"], "--exact-max"),
+        ([str(run), "--permutations", "5"], "--permutations"),
+        ([str(run), "--out", str(run / "calibrated.npz")], "--out"),
+        ([str(tmp_path)], "run"),  # no run folder
+    ):
+        assert main(["contributions", *argv]) == 2, argv
+        assert f"key '{flag}'" in capsys.readouterr().err, argv
+    (run / "calibrated.npz").unlink()  # a run not evaluated yet
+    assert main(["contributions", str(run)]) == 2
+    assert "evaluate the run first" in capsys.readouterr().err
