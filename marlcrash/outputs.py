@@ -1,9 +1,10 @@
 """Output files and folders: checked before the work, written whole or not at all.
 
 :func:`check_output_file` and :func:`check_output_dir` fail early, with the user's key or option in the message,
-where a path can never be written (its folder is missing, it names a folder, a file stands where a folder must
-be). :func:`atomic_output` writes through a temporary sibling that replaces the target only once it is complete
-and is removed if writing fails, so an interrupted or failed write leaves neither a partial file nor a stray one.
+where a path can never be written (its folder is missing or not writable, it names a folder, a file stands where
+a folder must be). :func:`atomic_output` writes through a temporary sibling that replaces the target only once it
+is complete and is removed if writing fails, so an interrupted or failed write leaves neither a partial file nor a
+stray one.
 """
 
 from __future__ import annotations
@@ -25,7 +26,8 @@ def check_output_file(
 ) -> Path | None:
     """Raise :class:`ConfigError` (naming ``key``, if given) unless ``path`` can be written as a file (``None`` passes).
 
-    The folder must exist (it is not created for a single output file: a typo should not create folders).
+    The folder must exist and take a new file (it is not created for a single output file: a typo should not
+    create folders).
     With ``suffix`` (e.g. ``".png"``) the name must end in it (the file is written in that format); a path
     that is one of ``inputs`` (the files the command reads or writes otherwise) is refused, so an output
     never replaces them.
@@ -42,17 +44,32 @@ def check_output_file(
             raise ConfigError(f"{p} is also {other!s} of this command; choose another file name", key=key)
     if suffix is not None and p.suffix.lower() != suffix:
         raise ConfigError(f"{p}: expected a {suffix} file name (it is written in that format)", key=key)
+    _check_writable(p.parent, key)
     return p
 
 
+def _check_writable(folder: Path, key: str | None) -> None:
+    """Raise :class:`ConfigError` unless a file can be created in the existing ``folder`` (a probe, removed at once):
+    no permission, a read-only or virtual file system (``/proc``) show up now, not after the work."""
+    import tempfile
+
+    try:
+        with tempfile.NamedTemporaryFile(dir=folder, prefix=".marlcrash-probe-"):
+            pass
+    except OSError as e:
+        raise ConfigError(f"cannot write in the folder {folder} ({e.strerror or e})", key=key) from None
+
+
 def check_output_dir(path: str | Path, key: str) -> Path:
-    """Raise :class:`ConfigError` naming ``key`` if ``path`` or one of its existing ancestors is not a folder."""
+    """Raise :class:`ConfigError` naming ``key`` if ``path`` or one of its existing ancestors is not a folder, or
+    nothing can be created in the nearest existing one."""
     p = Path(path)
     for q in (p, *p.parents):
         if q.exists():
             if not q.is_dir():
                 why = "expected a folder" if q == p else f"so the folder {p} cannot be created"
                 raise ConfigError(f"{q} is a file; {why}", key=key)
+            _check_writable(q, key)
             break
     return p
 

@@ -27,6 +27,29 @@ def test_check_output_dir_refuses_a_file_on_the_way(tmp_path):
         check_output_dir(f / "runs", "out_dir")
 
 
+def test_folders_that_cannot_be_written_in_are_refused_before_the_work(tmp_path, monkeypatch):
+    import os
+    import tempfile
+
+    if os.path.isdir("/proc"):  # a virtual file system: it exists, it is a folder, and nothing can be created there
+        with pytest.raises(ConfigError, match=r"'--plot'.*cannot write in the folder /proc"):
+            check_output_file("/proc/x.png", "--plot")
+        with pytest.raises(ConfigError, match=r"'out_dir'.*cannot write in the folder /proc"):
+            check_output_dir("/proc/runs/mappo", "out_dir")
+
+    def denied(*args, **kwargs):  # a folder without write permission (root ignores chmod, so simulate it)
+        raise PermissionError(13, "Permission denied")
+
+    monkeypatch.setattr(tempfile, "NamedTemporaryFile", denied)
+    with pytest.raises(ConfigError, match=r"'--csv'.*cannot write in the folder .*\(Permission denied\)"):
+        check_output_file(tmp_path / "a.csv", "--csv")
+    with pytest.raises(ConfigError, match=r"'out_dir'.*cannot write in the folder"):
+        check_output_dir(tmp_path / "new", "out_dir")
+    monkeypatch.undo()
+    assert check_output_dir(tmp_path / "new", "out_dir") == tmp_path / "new"
+    assert sorted(p.name for p in tmp_path.iterdir()) == []  # the probes left nothing behind
+
+
 def test_atomic_output_replaces_whole_or_leaves_the_old_file(tmp_path):
     target = tmp_path / "out.png"
     target.write_text("old")
