@@ -86,6 +86,16 @@ def test_unknown_algorithm_lists_the_registered_ones(short_configs, tmp_path):
     assert not (tmp_path / "runs").exists()
 
 
+def test_resume_of_a_named_run_that_does_not_exist_never_takes_the_newest_run(short_configs, tmp_path):
+    newest = tmp_path / "runs" / "mappo" / "real"
+    newest.mkdir(parents=True)
+    (newest / "checkpoint.pt").write_bytes(b"")  # what resume=true alone would pick
+    p = run("train.py", ["resume=true", "name=typo"], short_configs, tmp_path)
+    assert p.returncode == 2, p.stderr[-2000:]
+    assert "key 'resume'" in p.stderr and str(Path("runs") / "mappo" / "typo") in p.stderr
+    assert "ignored" not in p.stderr and not (tmp_path / "runs" / "mappo" / "typo").exists()
+
+
 @pytest.mark.slow
 def test_evaluate_script_reports_a_missing_run(short_configs, tmp_path):
     p = run("evaluate.py", [f"run={tmp_path / 'nope'}"], short_configs, tmp_path)

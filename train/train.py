@@ -4,6 +4,7 @@
     python train/train.py algorithm=ippo seed=1 name=ippo1
     python train/train.py algorithm=ppo_single n_envs=32 algorithm.minibatch_size=64
     python train/train.py resume=true                      # continue the newest run (or resume=runs/mappo/<name>)
+    python train/train.py resume=true name=ippo1 algorithm=ippo   # continue that run (an error if it has none)
     MARLCRASH_CI=1 python train/train.py                   # the 1-2 minute smoke run of CI (the `ci:` overrides;
                                                            # keys given on the command line keep their values)
 
@@ -28,11 +29,12 @@ from hydra.core.hydra_config import HydraConfig  # noqa: E402
 from omegaconf import DictConfig, OmegaConf  # noqa: E402
 
 from marlcrash.calibrate.evaluate import update_summary  # noqa: E402
-from marlcrash.calibrate.marl import load_train_config, train, value_keys  # noqa: E402
+from marlcrash.calibrate.marl import load_train_config, run_dir_of, train, value_keys  # noqa: E402
 from marlcrash.errors import MarlcrashError  # noqa: E402
 
-RESUME_KEYS = ("resume", "name", "out_dir")
-"""Command-line keys a resume reads; every other override is ignored (the run's saved config.yaml wins)."""
+RESUME_KEYS = ("resume", "name", "out_dir", "algorithm")
+"""Command-line keys a resume reads (they locate the run folder); every other override is ignored (the run's saved
+config.yaml wins)."""
 
 
 @hydra.main(version_base=None, config_path="../configs/train", config_name="train")
@@ -43,6 +45,8 @@ def main(cfg: DictConfig) -> None:
         config = load_train_config(  # command-line values win over the ci: block
             OmegaConf.to_container(cfg, resolve=True), source="configs/train/train.yaml", explicit=value_keys(given)
         )
+        if config.resume is True and "name" in given:  # a name given: that run or an error, never the newest instead
+            config.resume = str(run_dir_of(config))
         if config.resume is not False:
             ignored = [o for o, k in zip(overrides, given, strict=True) if k not in RESUME_KEYS]
             if ignored:
