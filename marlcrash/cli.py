@@ -165,8 +165,13 @@ def scenario_from_args(args: argparse.Namespace):
     if not overrides:
         return scenario
     scenario = replace(scenario, **overrides)
-    scenario = replace(scenario, name=f"{scenario.name}_custom", description="command-line overrides")
     scenario.validate()
+    # named after what it is, not after the registered scenario it started from (an offset is no "full_width_40")
+    shape = "full_width" if scenario.overlap >= 1.0 else f"overlap{scenario.overlap:g}_{scenario.side}"
+    scenario = replace(scenario, name=f"custom_{scenario.speed_kmh:g}kmh_{shape}",
+                       description=f"command-line overrides of {scenario.name}")  # fmt: skip
+    if args.side is not None and scenario.overlap >= 1.0:
+        warnings.warn(f"--side {args.side} has no effect: the barrier covers the full width (overlap 1)", stacklevel=2)
     # the registered scenarios' speeds are those the default car's pulses are checked at (tests/test_sim_*)
     speeds = [get_scenario(name).speed_kmh for name in list_scenarios()]
     lo, hi = min(speeds), max(speeds)

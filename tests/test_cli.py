@@ -266,6 +266,10 @@ def test_simulate_messages_for_out_of_range_and_empty_input(tmp_path):
 def test_simulate_overrides_and_errors():
     out = json.loads(run_cli("simulate", "--speed", "56", "--overlap", "0.4", "--side", "right", "--json").stdout)
     assert (out["speed_kmh"], out["overlap"], out["side"]) == (56.0, 0.4, "right")
+    assert out["scenario"] == "custom_56kmh_overlap0.4_right"  # named after what it is, not full_width_40
+    proc = run_cli("simulate", "--side", "left", "--json")
+    assert "warning: --side left has no effect" in proc.stderr
+    assert json.loads(proc.stdout)["scenario"] == "custom_40kmh_full_width"
     proc = run_cli("simulate", "--speed", "-3", check=False)
     assert proc.returncode == 2 and "speed_kmh" in proc.stderr
     proc = run_cli("simulate", "--scenario", "moon_landing", check=False)

@@ -292,8 +292,8 @@ class _Params:
         if key in self.user:
             return self.user[key]
         raise DeckError(
-            f"parameter {key!r} is used but not defined in the deck; define it with *PARAMETER or pass "
-            f"params={{{key!r}: value}}",
+            f"parameter {key!r} is used but not defined in the deck; define it with *PARAMETER, or give its value in "
+            f"the deck's units: --param {key}=VALUE on the command line, params={{{key!r}: value}} in Python",
             path,
             line,
         )
