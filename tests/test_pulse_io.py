@@ -106,9 +106,9 @@ def test_pulse_summary_csv_and_mme(tmp_path, analytic):
         assert s["sample_rate_hz"] == pytest.approx(1e4)
         assert s["peak_g"] == pytest.approx(amp_g, rel=0.01)
         # time zero: the 0.5 g crossing of the raw pulse is asin(0.5 g / A) * tau / pi = 0.57 ms after the
-        # onset; the zero-phase filter output rises a little earlier (0.23 ms), never before the onset - 1 ms
+        # onset; the CFC 60 output crosses 0.23 ms earlier, the CFC 600 one (10 kHz) at the raw crossing
         t0_raw = math.asin(0.5 / amp_g) * 0.080 / math.pi * 1e3
-        assert t0_raw - 0.5 < s["t0_ms"] <= t0_raw
+        assert s["t0_ms"] == pytest.approx(t0_raw, abs=0.01)
         assert s["t_peak_ms"] == pytest.approx(40.0 - s["t0_ms"], abs=0.2)
         assert s["delta_v_ms"] == pytest.approx(DV, rel=0.01)
         assert s["delta_v_150ms_ms"] == pytest.approx(DV, rel=0.01)
@@ -318,6 +318,41 @@ def test_a_record_that_starts_at_the_impact_filters_like_one_with_pre_trigger_sa
         assert got[key] == pytest.approx(ref[key], rel=1e-6, abs=1e-6), key
     exact = 2 * 20 * G0 * 0.003 / np.pi  # unfiltered delta-v of the half-sine; the filter keeps the integral
     assert got["delta_v_ms"] == pytest.approx(exact, rel=0.03)
+
+
+@pytest.mark.parametrize("rate_hz", [2e3, 1e4, 2e4])
+@pytest.mark.parametrize("peak_g", [30.0, 300.0, 3000.0])
+def test_time_zero_is_the_onset_not_where_the_zero_phase_filter_spreads_it(rate_hz, peak_g):
+    """A 3 ms half-sine starting at t = 0 (with and without 20 ms of pre-trigger data; clean, and with 0.3 g rms
+    noise at test-record rates): time zero lies at its onset, within two samples or 1.1 ms; the CFC 60 record
+    itself crosses 0.5 g 5-13 ms earlier, where time zero used to be."""
+    from marlcrash.pulse.signal import filtered_from_time_zero
+
+    rng = np.random.default_rng(int(peak_g))
+    for start in (0.0, -0.02):
+        t = np.arange(round(start * rate_hz), round(0.2 * rate_hz)) / rate_hz
+        a = np.where((t >= 0) & (t <= 0.003), -peak_g * G0 * np.sin(np.pi * t / 0.003), 0.0)
+        for noise in (0.0, 0.3 * G0) if rate_hz > 5e3 else (0.0,):  # slower records (simulated) are not filtered
+            p = Pulse(time=t, acc=(a + rng.normal(0.0, noise, t.size))[None], channels=["a"])
+            work, t0 = filtered_from_time_zero(p, 60)
+            assert -max(2.0 / rate_hz, 1.1e-3) <= t0 <= 2.0 / rate_hz, (start, noise, t0)
+            spread = find_time_zero(work)  # the filtered record's own crossing, well ahead of the pulse
+            assert spread < -2e-3 if peak_g >= 300 else spread < t0
+
+
+def test_onset_after_the_filtered_crossing():
+    from marlcrash.pulse.signal import onset_after
+
+    t = np.arange(0, 101) * 1e-4  # 0-10 ms at 10 kHz
+    ramp = -np.clip(t - 0.005, 0.0, None) * 1000.0 * G0  # 0 until 5 ms, then 1 g per ms: 0.5 g at 5.5 ms
+    other = np.where(t >= 0.002, -G0, 0.0)  # a second channel at 1 g from 2 ms on
+    p = Pulse(time=t, acc=np.stack([ramp, np.zeros_like(t)]), channels=["ramp", "flat"])
+    assert onset_after(p, 0.001) == pytest.approx(0.0055)  # interpolated between samples
+    assert onset_after(p, 0.0056) == pytest.approx(0.0056)  # already above at t_from: t_from
+    q = Pulse(time=t, acc=np.stack([np.zeros_like(t)] * 2), channels=["a", "b"])
+    assert onset_after(q, 0.003) == 0.003  # no crossing after t_from: t_from stands
+    r = Pulse(time=t, acc=np.stack([ramp, other]), channels=["ramp", "step"])
+    assert onset_after(r, 0.001) == pytest.approx(0.002 - 0.5e-4)  # the earliest channel (step, interpolated)
 
 
 def test_sampled_acceleration_is_the_derivative_with_a_resting_lead_in():
