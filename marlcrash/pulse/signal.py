@@ -18,10 +18,13 @@ recording rate -> find time zero -> resample to the surrogate's 2 kHz output
 grid -> integrate to velocity (:func:`prepare_velocity`).
 
 Time zero (a documented choice): the first instant at which the magnitude of
-the CFC-filtered acceleration of any channel reaches ``threshold_g`` (default
-0.5 g), linearly interpolated between samples. Because the CFC filter is
-zero-phase (non-causal), its output rises a little before the raw signal does,
-so this instant is slightly earlier than a threshold crossing of raw data.
+the acceleration of any channel reaches ``threshold_g`` (default 0.5 g),
+linearly interpolated between samples, found in two steps
+(:func:`filtered_from_time_zero`): the CFC-filtered record's crossing, which
+noise cannot trigger, then the crossing from there on of the record at CFC 1000
+(unfiltered below 4.2 kHz). The CFC 60 filter is zero-phase (non-causal): its
+output rises before the raw signal does, by 5-13 ms for a sharp onset, so its
+own crossing only starts the search.
 """
 
 from __future__ import annotations
