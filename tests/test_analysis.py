@@ -241,6 +241,7 @@ def test_run_calibration_loads_an_evaluated_run(tmp_path):
 def test_contributions_command_analyses_a_run_and_names_bad_arguments(tmp_path, capsys):
     """``marlcrash contributions RUN``: the evaluated run's iterate, Shapley values that add up to the whole change
     (here: to the twin's truth, every area to zero), the tables and pictures; bad arguments exit 2 naming the flag."""
+    import csv
     import json
 
     from marlcrash.cli import main
@@ -270,7 +271,11 @@ def test_contributions_command_analyses_a_run_and_names_bad_arguments(tmp_path, 
     # step 0 is the initial parameters: nothing moved, nothing to credit
     assert main(["contributions", str(run), "--iteration", "0", "--no-plots", "--out", str(out / "i0"), "--json"]) == 0
     s0 = json.loads(capsys.readouterr().out)
-    assert s0["agents_moved"] == 0 and all(x == 0 for v in s0["quantities"].values() for x in v["shapley"].values())
+    assert s0["agents_moved"] == 0
+    for v in s0["quantities"].values():
+        assert v["calibrated"] == v["initial"] and v["shapley"] == {}  # no moving agent is ranked
+    rows0 = list(csv.DictReader((out / "i0" / "contributions.csv").open()))
+    assert len(rows0) == 21 * len(s0["quantities"]) and all(float(r["shapley"]) == 0.0 for r in rows0)
 
     for argv, flag in (
         ([str(run), "--iteration", "2"], "--iteration"),
