@@ -78,11 +78,13 @@ def test_bad_config_fails_before_training(override, key, short_configs, tmp_path
     assert not (tmp_path / "runs").exists()  # nothing was started, nothing written
 
 
-@pytest.mark.slow
-def test_unknown_algorithm_lists_the_registered_ones(short_configs, tmp_path):
+def test_unknown_algorithm_or_key_lists_the_options_and_starts_nothing(short_configs, tmp_path):
+    """Hydra's composition errors come out as the scripts' own: ``error:``, the key, the options, exit 2."""
     p = run("train.py", ["algorithm=sac", *TINY], short_configs, tmp_path)
-    assert p.returncode != 0
-    assert "algorithm" in p.stderr and "mappo" in p.stderr
+    assert p.returncode == 2, p.stderr[-2000:]
+    assert p.stderr.startswith("error: train.yaml key 'algorithm': no config 'sac'") and "'mappo'" in p.stderr
+    p = run("train.py", [*TINY, "algorithm.lrr=1e-3"], short_configs, tmp_path)
+    assert p.returncode == 2 and "key 'algorithm.lrr': unknown key; expected one of [" in p.stderr
     assert not (tmp_path / "runs").exists()
 
 

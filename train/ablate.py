@@ -19,6 +19,7 @@ import hydra
 from omegaconf import DictConfig, OmegaConf
 
 from marlcrash.calibrate.ablate import load_ablation_config, run_ablation
+from marlcrash.calibrate.entry import exit_on_bad_overrides
 from marlcrash.errors import MarlcrashError
 
 
@@ -36,4 +37,5 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
+    exit_on_bad_overrides(__file__, "ablate")  # Hydra's composition errors as ours: the key, exit 2
     main()

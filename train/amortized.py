@@ -21,6 +21,7 @@ import hydra
 from omegaconf import DictConfig, OmegaConf
 
 from marlcrash.calibrate.amortized import amortized_comparison, load_amortized_config, write_comparison
+from marlcrash.calibrate.entry import exit_on_bad_overrides
 from marlcrash.errors import MarlcrashError
 
 
@@ -39,4 +40,5 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
+    exit_on_bad_overrides(__file__, "amortized")  # Hydra's composition errors as ours: the key, exit 2
     main()

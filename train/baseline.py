@@ -17,6 +17,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from marlcrash.calibrate import build_problem, load_run_config, run_baseline, write_run
 from marlcrash.calibrate.baselines import run_folder
+from marlcrash.calibrate.entry import exit_on_bad_overrides
 from marlcrash.errors import MarlcrashError
 
 
@@ -38,4 +39,5 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
+    exit_on_bad_overrides(__file__, "baseline")  # Hydra's composition errors as ours: the key, exit 2
     main()

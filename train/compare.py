@@ -18,6 +18,7 @@ import hydra
 from omegaconf import DictConfig, OmegaConf
 
 from marlcrash.calibrate.compare import load_compare_config, run_comparison
+from marlcrash.calibrate.entry import exit_on_bad_overrides
 from marlcrash.errors import MarlcrashError
 
 
@@ -35,4 +36,5 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
+    exit_on_bad_overrides(__file__, "compare")  # Hydra's composition errors as ours: the key, exit 2
     main()

@@ -17,6 +17,7 @@ import sys
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
+from marlcrash.calibrate.entry import exit_on_bad_overrides
 from marlcrash.calibrate.evaluate import evaluate_run, load_evaluate_config
 from marlcrash.errors import MarlcrashError
 
@@ -34,4 +35,5 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
+    exit_on_bad_overrides(__file__, "evaluate")  # Hydra's composition errors as ours: the key, exit 2
     main()

@@ -28,6 +28,7 @@ import hydra  # noqa: E402
 from hydra.core.hydra_config import HydraConfig  # noqa: E402
 from omegaconf import DictConfig, OmegaConf  # noqa: E402
 
+from marlcrash.calibrate.entry import exit_on_bad_overrides  # noqa: E402
 from marlcrash.calibrate.evaluate import update_summary  # noqa: E402
 from marlcrash.calibrate.marl import load_train_config, run_dir_of, train, value_keys  # noqa: E402
 from marlcrash.errors import MarlcrashError  # noqa: E402
@@ -68,4 +69,5 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
+    exit_on_bad_overrides(__file__, "train")  # Hydra's composition errors as ours: the key, exit 2
     main()

@@ -1,0 +1,147 @@
+"""Command-line checks shared by the Hydra entry scripts in ``train/``.
+
+Hydra composes a script's config from its YAML files and the command line's overrides before the script
+runs, so an override it cannot apply never reaches the scripts' own validation (which names the key, exits 2
+and starts nothing). Hydra then prints its own message and exits 1. :func:`check_overrides` composes the same
+config first, with Hydra's compose API, and turns Hydra's errors into :class:`~marlcrash.errors.ConfigError`
+messages in the form of every other config error: the key, what was expected and the options there are::
+
+    $ python train/train.py algorithm.lrr=1e-3
+    error: train.yaml key 'algorithm.lrr': unknown key; expected one of ['clip_epsilon', ..., 'lr', ...]
+    $ python train/train.py algorithm=sac
+    error: train.yaml key 'algorithm': no config 'sac' in configs/train/algorithm/; expected one of [...]
+
+Hydra's own flags (``--help``, ``--cfg job``, ``-m``, ...) leave the command line to Hydra.
+"""
+
+from __future__ import annotations
+
+import re
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from marlcrash.errors import ConfigError, MarlcrashError
+
+__all__ = ["check_overrides", "exit_on_bad_overrides"]
+
+
+def _key(override: str) -> str:
+    return override.split("=", 1)[0].lstrip("+~")
+
+
+def _first_line(e: Exception) -> str:
+    return str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+
+
+def _whole(e: Exception) -> str:
+    """Hydra's message on one line (some carry their advice on the lines after the first)."""
+    return " ".join(line.strip() for line in str(e).strip().splitlines() if line.strip()) or type(e).__name__
+
+
+def _named(e: Exception) -> str | None:
+    """The key of the override a Hydra message quotes (``... argument 'seed=0,1,2'``), if any."""
+    found = re.search(r"'([+~]?[\w.]+)=", str(e))
+    return None if found is None else _key(found.group(1))
+
+
+def _options(config_dir: Path, group: str) -> list[str]:
+    return sorted(p.stem for p in (config_dir / group).glob("*.yaml"))
+
+
+def check_overrides(config_dir: str | Path, config_name: str, overrides: Sequence[str]) -> None:
+    """Compose ``config_name`` with ``overrides`` as Hydra will, and name what it cannot apply.
+
+    Args:
+        config_dir: the scripts' Hydra config directory (``configs/train``).
+        config_name: the primary config, without ``.yaml``.
+        overrides: the command line's ``key=value`` overrides.
+
+    Raises:
+        ConfigError: an override that sets a key the config does not have (with the keys there are), picks a
+            config-group option that does not exist (with the options), or cannot be parsed.
+    """
+    from hydra import compose, initialize_config_dir
+    from hydra.errors import ConfigCompositionException, HydraException, MissingConfigException
+
+    config_dir = Path(config_dir).resolve()
+    source = f"{config_name}.yaml"
+
+    def composed(ov: Sequence[str]):
+        with initialize_config_dir(config_dir=str(config_dir), version_base=None):
+            return compose(config_name, overrides=list(ov))
+
+    try:
+        composed(overrides)
+    except MissingConfigException as e:
+        found = re.search(r"Could not find '([^']+)/([^'/]+)'", str(e))
+        if found is None:
+            raise ConfigError(_whole(e), key=_named(e), path=source) from None
+        group, option = found.groups()
+        raise ConfigError(
+            f"no config '{option}' in configs/train/{group}/; expected one of {_options(config_dir, group)}",
+            key=group,
+            path=source,
+        ) from None
+    except ConfigCompositionException as e:
+        key = getattr(e.__cause__, "full_key", None)
+        if not key:
+            raise ConfigError(_whole(e), key=_named(e), path=source) from None
+        parent, _, _ = str(key).rpartition(".")
+        groups = [o for o in overrides if (config_dir / _key(o)).is_dir()]  # the group files the user picked
+        try:
+            node = composed(groups)
+            for part in parent.split(".") if parent else ():
+                node = node[part]
+            expected = f"; expected one of {sorted(node.keys())}"
+        except (HydraException, KeyError, AttributeError, TypeError):
+            expected = ""
+        raise ConfigError(f"unknown key{expected}", key=str(key), path=source) from None
+    except HydraException as e:  # a malformed override (OverrideParseException) and the rest of Hydra's errors
+        bad = _unparsable(overrides)
+        if bad is None:
+            raise ConfigError(_whole(e), key=_named(e), path=source) from None
+        raise ConfigError(
+            f"cannot parse the override {bad!r}: {_first_line(e)}; expected key=value in Hydra's override grammar "
+            f"(quote values with brackets, commas or spaces: key='[1, 2]')",
+            key=_key(bad),
+            path=source,
+        ) from None
+
+
+def _unparsable(overrides: Sequence[str]) -> str | None:
+    """The first override Hydra's grammar rejects on its own, if any."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+    from hydra.errors import HydraException
+
+    parser = OverridesParser.create()
+    for o in overrides:
+        try:
+            parser.parse_overrides([o])
+        except HydraException:
+            return o
+    return None
+
+
+def exit_on_bad_overrides(
+    script: str | Path, config_name: str, config_path: str = "../configs/train", argv: Sequence[str] | None = None
+) -> None:
+    """:func:`check_overrides` on an entry script's command line: ``error: ...`` on stderr and exit status 2.
+
+    Args:
+        script: the entry script's ``__file__``; ``config_path`` is relative to its folder, as in ``hydra.main``.
+        config_name: the script's primary config, as in ``hydra.main``.
+        config_path: as in ``hydra.main``.
+        argv: the command line's arguments (default ``sys.argv[1:]``).
+
+    A command line with a flag (``--help``, ``--cfg``, ``-m``, ``--config-name``, ...) is left to Hydra as it
+    is: those change what is composed, or compose nothing.
+    """
+    args = list(sys.argv[1:] if argv is None else argv)
+    if any(a.startswith("-") for a in args):
+        return
+    try:
+        check_overrides(Path(script).resolve().parent / config_path, config_name, args)
+    except MarlcrashError as e:
+        print(f"error: {e}", file=sys.stderr)
+        sys.exit(2)

@@ -1,0 +1,64 @@
+"""Hydra's composition errors of the train/ entry scripts come out as ours: ``error:``, the key, exit 2."""
+
+from __future__ import annotations
+
+import pytest
+
+from marlcrash.calibrate.entry import check_overrides, exit_on_bad_overrides
+from marlcrash.config import config_dir
+from marlcrash.errors import ConfigError
+
+TRAIN_CONFIGS = config_dir() / "train"
+ENTRY_CONFIGS = ["train", "evaluate", "baseline", "compare", "ablate", "amortized"]
+
+
+def message(name: str, overrides: list[str]) -> str:
+    with pytest.raises(ConfigError) as e:
+        check_overrides(TRAIN_CONFIGS, name, overrides)
+    return str(e.value)
+
+
+@pytest.mark.parametrize("name", ENTRY_CONFIGS)
+def test_every_entry_config_composes_and_names_an_unknown_top_level_key(name):
+    check_overrides(TRAIN_CONFIGS, name, [])  # the shipped configs compose as they are
+    m = message(name, ["no_such_key=1"])
+    assert m.startswith(f"{name}.yaml key 'no_such_key': unknown key; expected one of [")
+    assert "'out_dir'" in m or "'run'" in m  # the keys there are, read from the composed config
+
+
+def test_an_unknown_nested_key_lists_the_keys_of_the_group_file_picked():
+    m = message("train", ["algorithm=ippo", "algorithm.lrr=1e-3"])
+    assert "key 'algorithm.lrr': unknown key" in m and "'lr'" in m and "'clip_epsilon'" in m
+    assert "'seed'" not in m  # the group's keys, not the top level's
+    assert "key 'eval.foo'" in message("train", ["eval.iterations=3", "eval.foo=2"])
+
+
+def test_an_unknown_group_option_lists_the_files_of_the_group():
+    m = message("train", ["algorithm=sac"])
+    options = sorted(p.stem for p in (TRAIN_CONFIGS / "algorithm").glob("*.yaml"))
+    assert len(options) >= 3 and "mappo" in options
+    assert m == f"train.yaml key 'algorithm': no config 'sac' in configs/train/algorithm/; expected one of {options}"
+
+
+def test_an_unparsable_override_is_named_with_its_key():
+    m = message("train", ["seed=1", "algorithm.hidden=[16,16"])
+    assert m.startswith("train.yaml key 'algorithm.hidden': cannot parse the override 'algorithm.hidden=[16,16'")
+    assert "key 'seed': Ambiguous value" in message("train", ["seed=0,1,2"])  # a sweep without -m
+
+
+def test_valid_overrides_pass_and_new_keys_are_left_to_the_config_validation():
+    check_overrides(TRAIN_CONFIGS, "train", ["algorithm=ippo", "algorithm.lr=3e-4", "seed=2", "hydra.run.dir=x"])
+    check_overrides(TRAIN_CONFIGS, "train", ["+foo=1"])  # load_train_config rejects it, naming the key
+
+
+def test_exit_status_2_with_the_message_and_flags_left_to_hydra(tmp_path, capsys):
+    script = tmp_path / "train" / "script.py"  # config_path is relative to the script's folder, as in hydra.main
+    configs = tmp_path / "configs" / "train"
+    configs.mkdir(parents=True)
+    (configs / "tiny.yaml").write_text("seed: 0  # a seed\n")
+    with pytest.raises(SystemExit) as e:
+        exit_on_bad_overrides(script, "tiny", argv=["sed=1"])
+    assert e.value.code == 2
+    assert capsys.readouterr().err == "error: tiny.yaml key 'sed': unknown key; expected one of ['seed']\n"
+    exit_on_bad_overrides(script, "tiny", argv=["--cfg", "job", "sed=1"])  # Hydra's flags: Hydra decides
+    exit_on_bad_overrides(script, "tiny", argv=["seed=3"])
