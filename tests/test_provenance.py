@@ -118,6 +118,10 @@ def test_a_training_resume_refuses_changed_configs_and_an_evaluation_reports_the
     summary = evaluate_run(part.run_dir)  # evaluating an old run on today's configs is allowed, and reported
     assert summary["provenance"]["config_changes"] == ["configs/materials.yaml changed"]
     assert json.loads((part.run_dir / "summary.json").read_text())["provenance"]["recorded"] is True
+    own = (part.run_dir / "summary.json").read_text()  # the run's first evaluation went into the run folder;
+    again = evaluate_run(part.run_dir)  # with results there, one on changed inputs goes beside them
+    assert again["eval_dir"] == str(part.run_dir / "eval" / "checkpoint") and again["provenance"]["config_changes"]
+    assert (part.run_dir / "summary.json").read_text() == own
     (part.run_dir / provenance.PROVENANCE_FILE).unlink()  # the documented way to go on anyway
     done = train(tiny(tmp_path, name="p", iterations=2, resume=str(part.run_dir)))
     assert done.iterations == 2 and done.summary["provenance"]["recorded"] is False

@@ -378,6 +378,10 @@ def test_kept_snapshots_are_evaluated_beside_the_run_results(short, tmp_path):
     assert json.loads((out / "summary.json").read_text()) == early
     assert (out / "calibrated.npz").is_file()
     assert (res.run_dir / "summary.json").read_text() == final  # the run's own results stay
+    other = evaluate_run(res.run_dir, iterations=1)  # other settings: beside the run's results, never over them
+    assert other["eval_dir"] == str(res.run_dir / "eval" / "checkpoint_steps1") and other["eval_iterations"] == 1
+    assert json.loads((res.run_dir / "eval" / "checkpoint_steps1" / "summary.json").read_text()) == other
+    assert (res.run_dir / "summary.json").read_text() == final
     latest = evaluate_run(res.run_dir, checkpoint="latest")
     assert latest["final_metrics"] == json.loads(final)["final_metrics"] and latest["iterations_trained"] == 3
     with pytest.raises(ConfigError, match=r"iter_00002\.pt") as e:

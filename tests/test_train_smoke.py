@@ -63,7 +63,8 @@ def test_train_script_writes_a_summary(algorithm, short_configs, tmp_path):
     k = run("evaluate.py", [f"run={run_dir}", "checkpoint=1", "iterations=1"], short_configs, tmp_path)
     assert k.returncode == 0, k.stderr[-3000:]
     assert json.loads(k.stdout)["iterations_trained"] == 1
-    assert (run_dir / "eval" / "iter_00001" / "summary.json").is_file()
+    assert json.loads(k.stdout)["eval_dir"] == str(run_dir / "eval" / "iter_00001_steps1")  # TINY evaluates 2 steps
+    assert (run_dir / "eval" / "iter_00001_steps1" / "summary.json").is_file()
 
 
 @pytest.mark.slow

@@ -4,9 +4,11 @@
     python train/evaluate.py run=runs/mappo/<name> checkpoint=40   # the snapshot kept after iteration 40
     python train/evaluate.py run=runs/mappo/<name> iterations=30
 
-The latest checkpoint rewrites summary.json, eval_metrics.csv/.md, calibrated.npz, pulses.png and
-learning_curves.png in the run folder; a kept snapshot or another checkpoint file writes them to
-``<run>/eval/<checkpoint file stem>/``. Settings: configs/train/evaluate.yaml.
+The latest checkpoint with the run's own settings and inputs redoes the run's evaluation (summary.json,
+eval_metrics.csv/.md, calibrated.npz, pulses.png, learning_curves.png in the run folder). Anything else never
+replaces those files: a kept snapshot, another checkpoint file, other ``iterations``, or configs or code changed
+since the run started (provenance.json) write to ``<run>/eval/<checkpoint file stem>[_steps<n>]/``; the printed
+``eval_dir`` says where. Settings: configs/train/evaluate.yaml.
 """
 
 from __future__ import annotations
@@ -30,7 +32,8 @@ def main(cfg: DictConfig) -> None:
     except MarlcrashError as e:
         print(f"error: {e}", file=sys.stderr)
         sys.exit(2)
-    keys = ("checkpoint", "iterations_trained", "selected_iteration", "all_passed", "final_metrics", "initial_metrics")
+    keys = ("eval_dir", "checkpoint", "iterations_trained", "selected_iteration", "all_passed")
+    keys += ("final_metrics", "initial_metrics")
     print(json.dumps({k: s[k] for k in keys}, indent=1))
 
 

@@ -22,7 +22,9 @@ or the ``last`` one (``eval.select``); ``summary.json`` says which (``selected_i
   compared) and ``learning_curves.png`` (from ``log.csv``).
 
 Any kept checkpoint can be evaluated later (``python train/evaluate.py run=<run> checkpoint=<iteration>``;
-training keeps one every ``snapshot_every`` iterations); those files go into ``<run>/eval/<checkpoint>/``.
+training keeps one every ``snapshot_every`` iterations); those files go into ``<run>/eval/<checkpoint>/``, and
+so does a re-evaluation of the latest checkpoint with other settings (``iterations=40``:
+``<run>/eval/checkpoint_steps40/``) or after the run's inputs or the code changed: the run's own results stay.
 """
 
 from __future__ import annotations
@@ -360,13 +362,19 @@ def evaluate_run(
         run_dir: the run folder (``config.yaml``, ``checkpoint.pt``, ``log.csv``).
         trainer: the trainer that just finished (its networks and counters are used as they are).
         iterations: override ``eval.iterations``.
-        checkpoint: ``None`` or ``"latest"``: ``checkpoint.pt``, the files go into ``run_dir``; otherwise an
-            iteration with a kept snapshot or a checkpoint file (:func:`find_checkpoint`), and the files go
-            into ``run_dir/eval/<checkpoint file stem>/`` so the run's own results stay; the learning
-            curves then end at that checkpoint's iteration.
+        checkpoint: ``None`` or ``"latest"``: ``checkpoint.pt``; otherwise an iteration with a kept snapshot or a
+            checkpoint file (:func:`find_checkpoint`), and the learning curves then end at that checkpoint's
+            iteration.
+
+    Where the files go: the run's own evaluation (by ``trainer``, or of ``checkpoint.pt`` with the run's
+    ``eval.iterations`` and the inputs it started with, or its first) is written into ``run_dir``. Any other
+    never replaces it: it goes into ``run_dir/eval/<checkpoint file stem>/``, with ``_steps<n>`` added for
+    another ``iterations`` (``eval/checkpoint_steps40/``, ``eval/iter_00040/``), so a re-evaluation with other
+    settings or after ``configs/`` or the code changed (``provenance.json``) keeps the run's results.
 
     Returns:
-        The summary written to ``summary.json`` (with ``checkpoint``: the file evaluated, ``None`` for a trainer).
+        The summary written to ``summary.json`` (with ``checkpoint``: the file evaluated, ``None`` for a trainer,
+        and ``eval_dir``: the folder written).
 
     Raises:
         ConfigError: no run config or no such checkpoint in ``run_dir``.
@@ -375,20 +383,25 @@ def evaluate_run(
     run_dir = Path(run_dir)
     out_dir = run_dir
     config = trainer.config if trainer is not None else load_run_config(run_dir)
+    own_steps = config.eval.iterations
     if iterations is not None:
         if iterations < 1:
             raise ConfigError(f"expected >= 1 calibration steps, got {iterations}", key="iterations")
         config.eval.iterations = iterations
+    check = provenance.check_run(run_dir, provenance.env_inputs(make_env_config(config)))
     if trainer is not None:
         policy, counters = trainer.policy, trainer.state_dict()
     else:
         ckpt = find_checkpoint(run_dir, checkpoint)
         counters = load_training_checkpoint(ckpt, key="checkpoint")
         policy = policy_from_checkpoint(config, counters, ckpt, key="checkpoint")
-        if checkpoint not in (None, "latest"):  # only once the checkpoint proved usable: no empty folders
-            out_dir = run_dir / EVAL_DIR / ckpt.stem
+        own = checkpoint in (None, "latest") and config.eval.iterations == own_steps
+        if own and (run_dir / SUMMARY_FILE).is_file():  # the run's results exist: only the same evaluation redoes them
+            own = not (check.configs or check.code)
+        if not own:  # only once the checkpoint proved usable: no empty folders
+            steps = "" if config.eval.iterations == own_steps else f"_steps{config.eval.iterations}"
+            out_dir = run_dir / EVAL_DIR / f"{ckpt.stem}{steps}"
             out_dir.mkdir(parents=True, exist_ok=True)
-    check = provenance.check_run(run_dir, provenance.env_inputs(make_env_config(config)))
     provenance.warn_changes(run_dir, check, "evaluate")
     result = evaluate_policy(policy, config)
     problem = evaluation_problem(config)
@@ -407,6 +420,7 @@ def evaluate_run(
     summary: dict[str, Any] = {
         "algorithm": config.algorithm.name,
         "checkpoint": None if trainer is not None else str(ckpt),
+        "eval_dir": str(out_dir),
         "seed": config.seed,
         "scenario": result.scenario,
         "reference": "twin",
