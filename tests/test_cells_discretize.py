@@ -207,6 +207,11 @@ def test_summary_and_plot(car, cfg, optimized, tmp_path):
     assert s_uniform["cell_mass_kg"] == pytest.approx(s["cell_mass_kg"], rel=1e-9)
     table = format_discretization_summary(s)
     assert f"{optimized.n_cells}" in table and "cells per sub-assembly" in table
+    for summary, method in ((s, "optimized"), (s_uniform, "uniform")):  # "of which" counts follow the model's own
+        lines = format_discretization_summary(summary).splitlines()
+        at = next(i for i, line in enumerate(lines) if "of which null cells" in line)
+        assert lines[at - 1].startswith(f"cells, {method} discretization")
+        assert lines[at].split()[-1] == str(summary["n_null_cells"])
     png = plot_cells(optimized, tmp_path / "cells.png")
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 

@@ -73,14 +73,19 @@ def discretization_summary(
 
 def format_discretization_summary(s: dict) -> str:
     """Render a summary as the paper's Table 2 plus cells per sub-assembly."""
+    counts = [
+        ("cells, uniform discretization", f"{s['n_cells_uniform']}", ""),
+        ("cells, optimized discretization", f"{s['n_cells_optimized']}", ""),
+    ]
+    if s["method"] != "optimized":
+        counts.reverse()
     rows = [
         ("model", s["name"], ""),
         ("method", s["method"], ""),
         ("ROI volume", f"{s['roi_volume_mm3']:.4g}", "mm^3"),
         ("threshold cell volume", f"{s['target_cell_volume_mm3']:.4g}", "mm^3"),
-        ("cells, uniform discretization", f"{s['n_cells_uniform']}", ""),
-        ("cells, optimized discretization", f"{s['n_cells_optimized']}", ""),
-        ("  of which null cells", f"{s['n_null_cells']}", "" if s["method"] == "optimized" else "(uniform model)"),
+        *counts,  # the other discretization's count first: the "of which" rows below are this model's
+        ("  of which null cells", f"{s['n_null_cells']}", ""),
         ("  of which sensor cells", f"{s['n_sensor_cells']}", ""),
         ("links", f"{s['n_links']}", ""),
         ("ROI material mass", f"{s['roi_mass_kg']:.3f}", "kg"),
