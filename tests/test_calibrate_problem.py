@@ -204,6 +204,7 @@ def test_bad_candidates_are_named(problem):
         ({"box_radius": -1.0}, "box_radius"),
         ({"duration": 0.0123}, "problem.duration"),
         ({"duration": 0.5}, "problem.duration"),
+        ({"duration": 0.005}, "problem.duration"),  # shorter than a period of CFC 60's 100 Hz: no compared signal
         ({"success": {"area": -1.0}}, "success.area"),
         ({"reference": "file"}, "reference"),
         ({"scenario": "moon_landing"}, "scenario"),

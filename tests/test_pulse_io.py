@@ -122,7 +122,8 @@ def test_prepare_velocity_gives_2_khz_from_time_zero(analytic):
     t, v = prepare_velocity(analytic, duration=0.15, v0=DV)
     assert t[0] == 0.0 and len(t) == 301
     np.testing.assert_allclose(np.diff(t), 5e-4, atol=1e-12)
-    np.testing.assert_allclose(v[:, 0], DV)
+    np.testing.assert_allclose(v[:, 0], DV, atol=0.005)  # v0 before the impact; the filter spreads a little before t0
+    assert (v[:, 0] < DV).all()
     np.testing.assert_allclose(v[:, -1], 0.0, atol=0.01 * DV)
     t0 = find_time_zero(filter_pulse(analytic, 60))
     assert -0.001 < t0 < 0.001

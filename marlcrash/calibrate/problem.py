@@ -57,6 +57,7 @@ from marlcrash.envs.core import build_cells, load_env_config
 from marlcrash.envs.masking import ImpactRegions
 from marlcrash.errors import ConfigError, ModelError
 from marlcrash.metrics import Metrics, area_between, compute_metrics, rmse
+from marlcrash.pulse.cfc import f_h
 from marlcrash.pulse.signal import compared_velocity
 from marlcrash.references import ReferenceBatch, ReferenceSampler
 from marlcrash.reward import Reward, TerminationConfig, load_reward_config, termination
@@ -543,6 +544,13 @@ def build_problem(config: ProblemConfig, cells: CellModel | None = None) -> Cali
             raise ConfigError(
                 f"expected a whole number of {scenario.output_dt} s output steps, at most the scenario's "
                 f"{scenario.duration} s, got {config.duration}",
+                key="problem.duration",
+            )
+        cfc = env.reference.compare_cfc
+        if cfc is not None and config.duration < 1.0 / f_h(cfc) - 1e-12:  # as filter_pulse asks of a record
+            raise ConfigError(
+                f"expected a window of at least {1.0 / f_h(cfc)} s, one period of the {f_h(cfc):.0f} Hz -3 dB "
+                f"frequency of the compared signal's CFC {cfc} (reference.compare_cfc), got {config.duration}",
                 key="problem.duration",
             )
     sensors = list(env.sensors) or list(cells.sensor_names)

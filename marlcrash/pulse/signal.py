@@ -447,7 +447,9 @@ def filtered_from_time_zero(
             with warnings.catch_warnings():  # J211's 10 F_H margin concerns the corridor, not finding an onset
                 warnings.simplefilter("ignore")
                 sharp = filter_pulse(sharp, widest)
-        return p, onset_after(sharp, t_filtered, threshold_g)
+        # not before the file's first sample: a record that starts above the threshold (no pre-trigger data, e.g.
+        # a simulation's) would otherwise cross it inside the assumed lead-in, up to one sample early
+        return p, max(onset_after(sharp, t_filtered, threshold_g), float(u.time[0]))
     if time_zero == "file":
         return p, 0.0
     raise PulseError(f"time_zero must be 'threshold' or 'file', got {time_zero!r}")
@@ -472,12 +474,22 @@ def prepare_velocity(
         duration: length [s] of the window after time zero (default: to the end of the record).
         time_zero: ``"threshold"`` (see :func:`find_time_zero`) or ``"file"`` (the file's t = 0).
         threshold_g: time-zero threshold [g].
-        v0: forward speed [m/s] at time zero (0 gives the velocity change).
+        v0: forward speed [m/s] before the impact (0 gives the velocity change).
+
+    The filtered record is integrated from :data:`PRE_IMPACT_TIME` before time zero (or its first sample, if
+    later), where it is ``v0``, as :func:`compared_velocity` integrates a simulation from before its contact:
+    the zero-phase filter spreads the onset's deceleration before time zero, so the returned velocity at time
+    zero is slightly below ``v0`` (a sharp onset: a few tenths of a m/s), as a simulation's compared one is.
 
     Returns:
-        ``time [T]`` from 0 at ``rate_hz`` and ``velocity [K, T]`` [m/s], ``velocity[:, 0] == v0``.
+        ``time [T]`` from 0 at ``rate_hz`` and ``velocity [K, T]`` [m/s].
     """
     p, t0 = filtered_from_time_zero(pulse, cfc, time_zero, threshold_g)
     t_end = p.time[-1] if duration is None else t0 + float(duration)
-    q = shift_time(resample(p, rate_hz, t0, t_end), t0)
-    return q.time, q.velocity(v0)
+    # integrated from PRE_IMPACT_TIME before time zero, as compared_velocity integrates a simulation: the zero-phase
+    # filter spreads the onset's deceleration before time zero, and integrating from time zero lost it (an up-front
+    # sensor's velocity change came out 4.6 m/s short of the simulation's the file was written from)
+    n_pre = int(np.floor((t0 - max(float(p.time[0]), t0 - PRE_IMPACT_TIME)) * rate_hz + 1e-9))
+    q = resample(p, rate_hz, t0 - n_pre / rate_hz, t_end)
+    v = q.velocity(v0)[:, n_pre:]
+    return np.arange(v.shape[1]) / rate_hz, v
