@@ -301,10 +301,10 @@ def cmd_contributions(args: argparse.Namespace) -> int:
     from marlcrash.analysis.shapley import MAX_EXACT_PLAYERS
     from marlcrash.outputs import check_output_dir
 
-    if args.run is None:
+    if args.out is not None or args.run is None:
         out = Path(args.out or "contributions")
     else:
-        out = Path(args.out) if args.out else Path(args.run) / "contributions"
+        out = Path(args.run) / "contributions"  # + iteration_<n>/ once the run says which step is analysed
     check_output_dir(out, "--out")  # before the simulations: a bad output path costs nothing
     if args.exact_max > MAX_EXACT_PLAYERS:
         raise ConfigError(f"expected 0 to {MAX_EXACT_PLAYERS} agents, got {args.exact_max}", key="--exact-max")
@@ -329,6 +329,8 @@ def cmd_contributions(args: argparse.Namespace) -> int:
                               key="--iteration")  # fmt: skip
         calibrated = run.per_iteration[iteration]
         what = f"{args.run}, calibration step {iteration}"
+        if args.out is None:  # one folder per step: analysing another step never replaces this one's files
+            out = out / f"iteration_{iteration}"
     try:
         contrib = agent_contributions(problem, calibrated, initial, exact_max=args.exact_max,
                                       n_permutations=args.permutations, seed=args.seed)  # fmt: skip
@@ -352,7 +354,8 @@ def cmd_contributions(args: argparse.Namespace) -> int:
                 "shapley": dict(ranked),
                 "shapley_stderr": {a: float(contrib.shapley_stderr[contrib.agents.index(a), j]) for a, _ in ranked},
             }
-        _print_json({"analysed": what, "iteration": iteration, "agents_moved": int(contrib.players.sum()),
+        _print_json({"analysed": what, "iteration": iteration, "provenance": None if args.run is None else
+                     run.provenance, "agents_moved": int(contrib.players.sum()),
                      "n_agents": len(contrib.agents), "exact": contrib.exact, "simulations": contrib.n_simulations,
                      "quantities": quantities, "files": [str(f) for f in files]})  # fmt: skip
         return 0

@@ -134,11 +134,13 @@ def env_inputs(env_config: Any) -> list[str]:
     return paths
 
 
-def write_record(run_dir: str | Path, extra: Iterable[str | Path] = ()) -> dict[str, Any]:
-    """Write ``provenance.json`` into ``run_dir`` (atomically) and return the record."""
+def write_record(run_dir: str | Path, extra: Iterable[str | Path] = (), note: str | None = None) -> dict[str, Any]:
+    """Write ``provenance.json`` into ``run_dir`` (atomically) and return the record (with ``note``, if given)."""
     from marlcrash.outputs import write_text
 
     rec = record(extra)
+    if note is not None:
+        rec["note"] = note
     write_text(Path(run_dir) / PROVENANCE_FILE, json.dumps(rec, indent=1))
     return rec
 
@@ -153,9 +155,15 @@ class ProvenanceCheck:
     """Changed, added or removed input files, e.g. ``"configs/sim.yaml changed"``."""
     code: list[str]
     """Code changes, e.g. ``"marlcrash source changed (git 1c27aa5 -> 5d0f473)"``."""
+    note: str | None = None
+    """The record's note (:data:`RESUME_NOTE`: written at a resume, not when the run started)."""
 
     def as_dict(self) -> dict[str, Any]:
-        return {"recorded": self.recorded, "config_changes": self.configs, "code_changes": self.code}
+        out = {"recorded": self.recorded, "config_changes": self.configs, "code_changes": self.code}
+        return out if self.note is None else {**out, "note": self.note}
+
+
+RESUME_NOTE = "written at a resume that found no record: the part of the run before it ran with unrecorded inputs"
 
 
 def config_changes(saved: dict[str, str], now: dict[str, str]) -> list[str]:
@@ -171,18 +179,20 @@ def config_changes(saved: dict[str, str], now: dict[str, str]) -> list[str]:
     return out
 
 
-def check_run(run_dir: str | Path, extra: Iterable[str | Path] = ()) -> ProvenanceCheck:
+def check_run(run_dir: str | Path, extra: Iterable[str | Path] = (), key: str | None = "resume") -> ProvenanceCheck:
     """Compare a run folder's ``provenance.json`` with the configs and code of this process.
 
     Args:
         run_dir: the run folder.
         extra: the run's input files outside ``configs/`` (:func:`env_inputs`).
+        key: the key an unreadable record is reported under; ``None``: log a warning and go on as without one
+            (an evaluation only reports changes, so a damaged record need not stop it).
 
     Returns:
-        The differences; ``recorded`` is false (and both lists empty) for a folder without a record.
+        The differences; ``recorded`` is false (and both lists empty) for a folder without a (readable) record.
 
     Raises:
-        ConfigError: (key ``resume``) the record exists but cannot be read.
+        ConfigError: (key ``key``) the record exists but cannot be read.
     """
     path = Path(run_dir) / PROVENANCE_FILE
     if not path.exists():
@@ -191,30 +201,56 @@ def check_run(run_dir: str | Path, extra: Iterable[str | Path] = ()) -> Provenan
         saved = json.loads(path.read_text())
         saved_configs, saved_code = dict(saved["configs"]), dict(saved["code"])
     except (OSError, ValueError, KeyError, TypeError):
+        if key is None:
+            log.warning("%s cannot be read as a provenance record; going on without it", path)
+            return ProvenanceCheck(recorded=False, configs=[], code=[])
         raise ConfigError(f"{path} cannot be read as a provenance record; delete it to go on without one",
-                          key="resume") from None  # fmt: skip
+                          key=key) from None  # fmt: skip
     configs = config_changes(saved_configs, config_digests(extra))
     code: list[str] = []
     if saved_code.get("source_sha256") != source_digest():
         then, now = saved_code.get("git_commit"), git_commit()
         where = f" (git {str(then)[:7]} -> {str(now)[:7]})" if then or now else ""
         code.append(f"marlcrash source changed{where}")
-    return ProvenanceCheck(recorded=True, configs=configs, code=code)
+    note = saved.get("note") if isinstance(saved, dict) else None
+    return ProvenanceCheck(recorded=True, configs=configs, code=code, note=None if note is None else str(note))
 
 
-def require_unchanged(run_dir: str | Path, extra: Iterable[str | Path] = (), what: str = "resume") -> ProvenanceCheck:
-    """:func:`check_run` for a resume: refuse changed configs, warn about changed code or a missing record.
+def require_unchanged(
+    run_dir: str | Path, extra: Iterable[str | Path] = (), what: str = "resume", finished: bool = False
+) -> ProvenanceCheck:
+    """:func:`check_run` for a resume: refuse changed or removed input files; warn about added ones (no run reads a
+    file that did not exist when it started), changed code or a missing record.
+
+    A resume that finds no record writes a new one (:func:`write_record`), so the rest of the run is guarded
+    again, also after the record was deleted to go on past a refusal.
+
+    Args:
+        finished: the run is finished and a resume would only evaluate it again (the message says how to
+            evaluate it on today's files without replacing its results).
 
     Raises:
-        ConfigError: (key ``resume``) an input file changed since the run started.
+        ConfigError: (key ``resume``) an input file changed or was removed since the run started.
     """
     check = check_run(run_dir, extra)
-    if check.configs:
-        shown = "; ".join(check.configs[:6]) + ("; ..." if len(check.configs) > 6 else "")
-        raise ConfigError(f"{what}: {run_dir} was started with other configs ({shown}); its finished part would not "
-                          f"compare with the rest. Restore them, start a new run, or delete {PROVENANCE_FILE} "
-                          "there to go on anyway", key="resume")  # fmt: skip
+    refused = [c for c in check.configs if not c.endswith(" added")]
+    if refused:
+        shown = "; ".join(refused[:6]) + ("; ..." if len(refused) > 6 else "")
+        if finished:
+            why = (
+                f"it is finished, and a resume would evaluate it again over its results. Restore them, or "
+                f"evaluate it on today's files beside its results: python train/evaluate.py run={run_dir}"
+            )
+        else:
+            why = (
+                f"its finished part would not compare with the rest. Restore them, start a new run, or delete "
+                f"{PROVENANCE_FILE} there to go on anyway (a new record is then written)"
+            )
+        raise ConfigError(f"{what}: {run_dir} was started with other configs ({shown}); {why}",
+                          key="resume")  # fmt: skip
     warn_changes(run_dir, check, what)
+    if not check.recorded:
+        write_record(run_dir, extra, note=RESUME_NOTE)
     return check
 
 

@@ -276,6 +276,17 @@ def test_contributions_command_analyses_a_run_and_names_bad_arguments(tmp_path, 
         assert v["calibrated"] == v["initial"] and v["shapley"] == {}  # no moving agent is ranked
     rows0 = list(csv.DictReader((out / "i0" / "contributions.csv").open()))
     assert len(rows0) == 21 * len(s0["quantities"]) and all(float(r["shapley"]) == 0.0 for r in rows0)
+    assert s0["provenance"]["recorded"] is False  # this folder has no provenance.json: changes cannot be told
+
+    # without --out: one folder per analysed step inside the run, so another step never replaces its files; a
+    # re-evaluation folder (<run>/eval/<checkpoint>/, no config.yaml of its own) is analysed with the run's config
+    again = run / "eval" / "checkpoint_steps2"
+    again.mkdir(parents=True)
+    (again / "calibrated.npz").write_bytes((run / "calibrated.npz").read_bytes())
+    for where in (run, again):
+        assert main(["contributions", str(where), "--iteration", "0", "--no-plots", "--json"]) == 0
+        files = json.loads(capsys.readouterr().out)["files"]
+        assert files[0] == str(where / "contributions" / "iteration_0" / "contributions.csv")
 
     for argv, flag in (
         ([str(run), "--iteration", "2"], "--iteration"),

@@ -77,3 +77,22 @@ def test_a_failed_write_names_the_file_asked_for_not_the_temporary_one(tmp_path)
         raise OSError(errno.ENOSPC, "No space left on device", str(tmp))
     assert e.value.filename == str(target) and e.value.errno == errno.ENOSPC
     assert list(tmp_path.iterdir()) == []
+
+
+def test_the_run_folders_own_parent_is_probed_not_only_out_dir(tmp_path):
+    """``<out_dir>/<method>`` may be another user's or unwritable while ``out_dir`` is fine: the baseline spent its
+    whole budget and then failed to create its folder (a traceback)."""
+    import os
+
+    from marlcrash.calibrate.baselines import BaselineRunConfig, run_folder
+    from marlcrash.calibrate.marl import TrainConfig, run_dir_of
+
+    if not os.path.isdir("/proc"):
+        pytest.skip("needs a folder nothing can be created in (/proc)")
+    for sub in ("random_search", "mappo"):
+        (tmp_path / sub).symlink_to("/proc")
+    with pytest.raises(ConfigError, match=r"'out_dir'.*cannot write in the folder .*random_search") as e:
+        run_folder(BaselineRunConfig(method="random_search", name="b1", out_dir=str(tmp_path)))
+    assert e.value.key == "out_dir"
+    assert run_dir_of(TrainConfig(name="m1", out_dir=str(tmp_path))).parent == tmp_path / "mappo"
+    assert run_folder(BaselineRunConfig(method="cmaes", name="b1", out_dir=str(tmp_path))) == tmp_path / "cmaes" / "b1"

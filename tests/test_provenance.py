@@ -69,6 +69,9 @@ def test_check_run_finds_config_edits_and_code_changes(configs, tmp_path, monkey
     with pytest.raises(ConfigError, match=r"configs/sim\.yaml changed") as e:
         provenance.require_unchanged(run)
     assert e.value.key == "resume" and provenance.PROVENANCE_FILE in str(e.value)
+    assert "extra.yaml" not in str(e.value)  # an added file is no reason to refuse: no run read it
+    (configs / "sim.yaml").write_text((configs / "sim.yaml").read_text().removesuffix("\n# edited\n"))
+    assert provenance.require_unchanged(run).configs == ["configs/scenarios/extra.yaml added"]  # warned only
 
     # code changes warn, they do not refuse
     (configs / "scenarios" / "extra.yaml").unlink()
@@ -88,10 +91,14 @@ def test_a_folder_without_a_record_warns_and_a_broken_record_is_named(configs, t
         check = provenance.require_unchanged(run)
     assert not check.recorded and check.as_dict() == {"recorded": False, "config_changes": [], "code_changes": []}
     assert "has no provenance.json" in caplog.text
+    assert json.loads((run / provenance.PROVENANCE_FILE).read_text())["note"] == provenance.RESUME_NOTE  # guarded again
     (run / provenance.PROVENANCE_FILE).write_text("{not json")
     with pytest.raises(ConfigError, match=r"provenance\.json cannot be read") as e:
         provenance.check_run(run)
     assert e.value.key == "resume"
+    with caplog.at_level(logging.WARNING, logger="marlcrash.provenance"):  # an evaluation goes on, warned
+        assert not provenance.check_run(run, key=None).recorded
+    assert "cannot be read as a provenance record; going on without it" in caplog.text
 
 
 def test_env_inputs_are_files_named_by_path():
@@ -124,7 +131,12 @@ def test_a_training_resume_refuses_changed_configs_and_an_evaluation_reports_the
     assert (part.run_dir / "summary.json").read_text() == own
     (part.run_dir / provenance.PROVENANCE_FILE).unlink()  # the documented way to go on anyway
     done = train(tiny(tmp_path, name="p", iterations=2, resume=str(part.run_dir)))
-    assert done.iterations == 2 and done.summary["provenance"]["recorded"] is False
+    assert done.iterations == 2  # the resume wrote a new record, saying so: later changes are caught again
+    assert done.summary["provenance"] == {"recorded": True, "config_changes": [], "code_changes": [],
+                                          "note": provenance.RESUME_NOTE}  # fmt: skip
+    _touch(configs / "sim.yaml")
+    with pytest.raises(ConfigError, match=r"it is finished.*python train/evaluate\.py run=") as e:
+        train(tiny(tmp_path, name="p", iterations=2, resume=str(part.run_dir)))  # a finished run: how to evaluate
 
 
 def test_a_resumed_table_of_runs_refuses_changed_configs(configs, tmp_path):

@@ -66,6 +66,8 @@ def comparison(run_dir):
 
 
 def test_table_shape_and_keys(comparison, run_dir, tmp_path):
+    # the policy's run was recorded when it started and nothing changed since; a changed file would be listed
+    assert comparison.meta["provenance"] == {"recorded": True, "config_changes": [], "code_changes": []}
     rows = comparison.rows
     # per reference: policy best + last, cmaes 1x and 2x, random search 1x, gradient 1x
     assert len(rows) == len(SEEDS) * 6
@@ -124,7 +126,7 @@ def test_sims_to_reach_reads_the_best_so_far_column():
 
 def test_policy_rows_match_an_independent_resimulation(comparison, run_dir):
     """Re-simulate the policy's selected parameters and recompute the metrics with the torch reference engine."""
-    policy, cfg = load_policy(run_dir)
+    policy, cfg, _ = load_policy(run_dir)
     from marlcrash.calibrate.evaluate import evaluate_policy
 
     seed = SEEDS[0]
@@ -145,7 +147,7 @@ def test_policy_rows_match_an_independent_resimulation(comparison, run_dir):
 
 
 def test_held_out_references_differ_from_the_evaluation_reference(run_dir):
-    _, cfg = load_policy(run_dir)
+    _, cfg, _ = load_policy(run_dir)
     assert cfg.eval.reference_seed == 0 and cfg.seed == 0
     refs = {s: evaluation_problem(held_out_config(cfg, s, "full_width_40", 1)) for s in [0, *SEEDS]}
     for s in SEEDS:

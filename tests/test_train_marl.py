@@ -307,9 +307,13 @@ def test_resume_true_finds_the_run_and_fresh_runs_refuse_to_overwrite(short, tmp
         train(tiny(tmp_path / "empty", resume=True))
     # a named run without a checkpoint (killed before its first one) is not swapped for the newest run
     (part.run_dir.parent / "killed_early").mkdir()
-    with pytest.raises(ConfigError, match=r"has no checkpoint\.pt") as e:
+    with pytest.raises(ConfigError, match=r"expected a run folder with checkpoint\.pt, found none in .*killed_early"):
         train(tiny(tmp_path, name="killed_early", resume=True))
-    assert e.value.key == "resume"
+    (part.run_dir.parent / "killed_early" / "config.yaml").write_text("{}\n")  # a run that had started: how to go on
+    for resume in (True, str(part.run_dir.parent / "killed_early")):  # named, or given as a path (train.py name=)
+        with pytest.raises(ConfigError, match=r"has no checkpoint\.pt \(the run stopped before its first") as e:
+            train(tiny(tmp_path, name="killed_early", resume=resume))
+        assert e.value.key == "resume"
     with pytest.raises(ConfigError, match=r"delete it \(it has no checkpoint\)"):
         train(tiny(tmp_path, name="killed_early"))
 

@@ -293,20 +293,31 @@ class RunCalibration:
     per_iteration: torch.Tensor
     selected_iteration: int
     true: torch.Tensor | None
+    provenance: dict | None = None
+    """What changed in ``configs/`` or the code since the run started (the problem is rebuilt from today's files;
+    :meth:`marlcrash.provenance.ProvenanceCheck.as_dict`)."""
 
 
 def run_calibration(run_dir: str | Path) -> RunCalibration:
     """Load ``<run>/calibrated.npz`` and rebuild the problem the run was evaluated on (its twin reference).
 
+    ``run_dir`` is a run folder or one of its re-evaluations (``<run>/eval/<checkpoint>/``, which hold no
+    ``config.yaml``: the run's is used). Input files or code changed since the run started are logged as warnings
+    and returned (``provenance``): the problem is rebuilt from today's files.
+
     Raises:
         ConfigError: (key ``run``) no run folder, no ``config.yaml`` or no ``calibrated.npz`` (the run was not
             evaluated yet: ``python train/evaluate.py run=<run>``), or an unreadable one.
     """
-    from marlcrash.calibrate.evaluate import evaluation_problem
-    from marlcrash.calibrate.marl import load_run_config
+    from marlcrash import provenance
+    from marlcrash.calibrate.evaluate import EVAL_DIR, evaluation_problem
+    from marlcrash.calibrate.marl import CONFIG_FILE, load_run_config, make_env_config
 
     run = Path(run_dir)
-    config = load_run_config(run)
+    home = run.parent.parent if not (run / CONFIG_FILE).is_file() and run.parent.name == EVAL_DIR else run
+    config = load_run_config(home)
+    check = provenance.check_run(home, provenance.env_inputs(make_env_config(config)), key=None)
+    provenance.warn_changes(home, check, "contributions")
     path = run / "calibrated.npz"
     if not path.is_file():
         raise ConfigError(f"no calibrated.npz in {run}: evaluate the run first (python train/evaluate.py run={run})",
@@ -328,4 +339,4 @@ def run_calibration(run_dir: str | Path) -> RunCalibration:
             raise ConfigError(f"{e} (a run of another vehicle or discretization?)", key="run") from None
     return RunCalibration(problem=problem, initial=t["initial"], calibrated=t["calibrated"],
                           per_iteration=t["per_iteration"], selected_iteration=int(arrays["selected_iteration"]),
-                          true=t.get("true"))  # fmt: skip
+                          true=t.get("true"), provenance=check.as_dict())  # fmt: skip

@@ -148,8 +148,10 @@ def load_amortized_config(data: dict[str, Any], source: str | None = None) -> Am
 
 
 # ------------------------------------------------------------------------------------------ policy
-def load_policy(run_dir: str | Path) -> tuple[TensorDictModuleBase, TrainConfig]:
-    """The trained policy of a run folder (its latest checkpoint) and the run's config.
+def load_policy(run_dir: str | Path) -> tuple[TensorDictModuleBase, TrainConfig, provenance.ProvenanceCheck]:
+    """The trained policy of a run folder (its latest checkpoint), the run's config, and what changed since the run
+    started (:func:`marlcrash.provenance.check_run`; logged as warnings: a policy trained on other physics still
+    calibrates).
 
     Raises:
         ConfigError: (key ``run``) no such folder, or no ``config.yaml`` / ``checkpoint.pt`` in it.
@@ -158,13 +160,13 @@ def load_policy(run_dir: str | Path) -> tuple[TensorDictModuleBase, TrainConfig]
     if not run_dir.is_dir():
         raise ConfigError(f"expected a training run folder, {run_dir} does not exist", key="run")
     config = load_run_config(run_dir)
-    check = provenance.check_run(run_dir, provenance.env_inputs(make_env_config(config)))
+    check = provenance.check_run(run_dir, provenance.env_inputs(make_env_config(config)), key=None)
     provenance.warn_changes(run_dir, check, "amortized")  # a policy trained on other physics still calibrates
     if not (run_dir / CHECKPOINT_FILE).is_file():
         raise ConfigError(f"expected a run folder with {CHECKPOINT_FILE}, found none in {run_dir}", key="run")
     path = run_dir / CHECKPOINT_FILE
     state = load_training_checkpoint(path, key="run")
-    return policy_from_checkpoint(config, state, path, key="run"), config
+    return policy_from_checkpoint(config, state, path, key="run"), config, check
 
 
 def held_out_config(train_config: TrainConfig, seed: int, scenario: str, iterations: int) -> TrainConfig:
@@ -275,10 +277,12 @@ def amortized_comparison(
         ConfigError: no run folder (key ``run``), a reference seed that is not held out (key
             ``reference_seeds[i]``), or a policy without its training config.
     """
+    changes = None  # a policy given as an object: its run's files are not known
     if policy is None:
         if config.run is None:
             raise ConfigError("expected a training run folder (or a policy and its training config)", key="run")
-        policy, train_config = load_policy(config.run)
+        policy, train_config, check = load_policy(config.run)
+        changes = check.as_dict()
     elif train_config is None:
         raise ConfigError("a policy needs the training config it was trained with", key="train_config")
     for i, s in enumerate(config.reference_seeds):
@@ -328,6 +332,7 @@ def amortized_comparison(
         "budgets": {k: list(v) for k, v in config.budgets.items()},
         "optimizers": {k: asdict(getattr(config, k)) for k in config.budgets},
         "thresholds": asdict(train_config.eval.thresholds),
+        "provenance": changes,  # configs or code changed since the policy's run started
     }
     return Comparison(rows=rows, aggregate=aggregate(rows), meta=meta)
 

@@ -531,8 +531,8 @@ def run_folder(config: BaselineRunConfig) -> Path:
     Raises:
         ConfigError: the folder exists already (key ``name``), or ``out_dir`` is a file (key ``out_dir``).
     """
-    check_output_dir(config.out_dir, "out_dir")
     final = Path(config.out_dir) / config.method / config.name
+    check_output_dir(final, "out_dir")  # its nearest existing folder: <out_dir>/<method> may be another user's
     if final.exists():
         raise ConfigError(f"run folder {final} exists already; choose another name", key="name")
     return final

@@ -633,7 +633,6 @@ def open_run_dir(
     run_dir: Path,
     filename: str,
     config: dict[str, Any],
-    out_dir: str,
     resume: bool,
     free_keys: Callable[[list[dict[str, Any]]], Iterable[str]],
 ) -> tuple[Path, list[dict[str, Any]]]:
@@ -643,7 +642,6 @@ def open_run_dir(
         run_dir: the run folder.
         filename: its JSON record (``{"config": ..., "rows": [...]}``).
         config: this run's settings (``asdict`` of its config).
-        out_dir: the parent folder setting (checked to be a folder, key ``out_dir``).
         resume: continue the rows there; otherwise the folder must hold no finished row.
         free_keys: top-level settings that may differ from the saved ones, given the saved rows.
 
@@ -652,7 +650,7 @@ def open_run_dir(
             (key ``resume``), was run with other settings (the first differing dotted key), or with other
             files in ``configs/`` (key ``resume``, :func:`marlcrash.provenance.require_unchanged`).
     """
-    check_output_dir(out_dir, "out_dir")
+    check_output_dir(run_dir, "out_dir")  # the nearest existing folder of the run's
     path = run_dir / filename
     if not resume:
         if path.exists() and _saved_rows(path) != []:  # no finished row (a first run that failed): started over
@@ -691,7 +689,7 @@ def _start_run_dir(config: CompareConfig) -> tuple[Path, list[dict[str, Any]]]:
         done = {r["method"] for r in rows}
         return [*_RESUMABLE_DIFF_OK, *(m for m in METHODS if m not in done)]
 
-    return open_run_dir(config.run_dir, "compare.json", asdict(config), config.out_dir, config.resume, free)
+    return open_run_dir(config.run_dir, "compare.json", asdict(config), config.resume, free)
 
 
 def _saved_rows(path: Path) -> list[dict[str, Any]] | None:

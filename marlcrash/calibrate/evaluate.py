@@ -388,7 +388,7 @@ def evaluate_run(
         if iterations < 1:
             raise ConfigError(f"expected >= 1 calibration steps, got {iterations}", key="iterations")
         config.eval.iterations = iterations
-    check = provenance.check_run(run_dir, provenance.env_inputs(make_env_config(config)))
+    check = provenance.check_run(run_dir, provenance.env_inputs(make_env_config(config)), key=None)
     if trainer is not None:
         policy, counters = trainer.policy, trainer.state_dict()
     else:

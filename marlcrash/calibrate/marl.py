@@ -686,20 +686,17 @@ def find_resume_dir(config: TrainConfig) -> Path:
     Raises:
         ConfigError: no such run folder or no checkpoint in it.
     """
-    if isinstance(config.resume, str):
-        path = Path(config.resume)
-        if not (path / CHECKPOINT_FILE).is_file():
-            raise ConfigError(f"expected a run folder with {CHECKPOINT_FILE}, found none in {path}", key="resume")
-        return path
-    named = run_dir_of(config)
+    named = Path(config.resume) if isinstance(config.resume, str) else run_dir_of(config)
     if (named / CHECKPOINT_FILE).is_file():
         return named
-    if named.exists():  # never fall back to another run when this one was named
+    if (named / CONFIG_FILE).is_file():  # never fall back to another run when this one was named
         raise ConfigError(
             f"run folder {named} has no {CHECKPOINT_FILE} (the run stopped before its first checkpoint, "
             f"every {config.checkpoint_every} iterations); delete the folder and start the run again",
             key="resume",
         )
+    if isinstance(config.resume, str) or named.exists():
+        raise ConfigError(f"expected a run folder with {CHECKPOINT_FILE}, found none in {named}", key="resume")
     parent = Path(config.out_dir) / config.algorithm.name
     runs = sorted(parent.glob(f"*/{CHECKPOINT_FILE}"), key=lambda p: p.stat().st_mtime) if parent.is_dir() else []
     if not runs:
@@ -873,11 +870,12 @@ def train(config: TrainConfig, *, stop_at: int | None = None, evaluate: bool = T
     if resume is not False:
         run_dir = find_resume_dir(config)
         config = load_run_config(run_dir)
-        provenance.require_unchanged(run_dir, provenance.env_inputs(make_env_config(config)))
         state = load_training_checkpoint(run_dir / CHECKPOINT_FILE)
+        extra = provenance.env_inputs(make_env_config(config))
+        provenance.require_unchanged(run_dir, extra, finished=bool(state.get("finished", False)))
     else:
-        check_output_dir(config.out_dir, "out_dir")
         run_dir = run_dir_of(config)
+        check_output_dir(run_dir, "out_dir")  # the nearest existing folder of the run's (<out_dir>/<algorithm>)
         if run_dir.exists():
             hint = "resume=true" if (run_dir / CHECKPOINT_FILE).is_file() else "delete it (it has no checkpoint)"
             raise ConfigError(f"run folder {run_dir} exists already; choose another name or {hint}", key="name")
