@@ -56,7 +56,8 @@ def config_digests(extra: Iterable[str | Path] = ()) -> dict[str, str]:
 
     Args:
         extra: further input files (a vehicle deck, a measured pulse) named by paths outside ``configs/``;
-            missing ones are left out (the run that needs them fails on them with its own error).
+            missing ones are left out (the run that needs them fails on them with its own error). A keyword deck
+            brings the files it ``*INCLUDE``s.
 
     Returns:
         ``{name: hex digest}``: files under ``configs/`` (all but ``configs/train/``) named by their path
@@ -70,10 +71,26 @@ def config_digests(extra: Iterable[str | Path] = ()) -> dict[str, str]:
             if p.is_file() and rel.parts[0] not in _SKIPPED_DIRS and not any(s.startswith(".") for s in rel.parts):
                 out[f"configs/{rel.as_posix()}"] = _sha256(p)
     for e in extra:
-        p = Path(e).resolve()
-        if p.is_file() and not p.is_relative_to(root.resolve()):
-            out[str(p)] = _sha256(p)
+        for p in _with_includes(Path(e).resolve()):
+            if p.is_file() and not p.is_relative_to(root.resolve()):
+                out[str(p)] = _sha256(p)
     return out
+
+
+def _with_includes(path: Path) -> list[Path]:
+    """``path`` and, for a keyword deck, the files it ``*INCLUDE``s (a deck that cannot be split: itself only;
+    reading the vehicle reports the problem)."""
+    from marlcrash.errors import MarlcrashError
+    from marlcrash.vehicle.registry import DECK_SUFFIXES
+
+    if path.suffix.lower() not in DECK_SUFFIXES or not path.is_file():
+        return [path]
+    from marlcrash.vehicle.keyword import deck_files
+
+    try:
+        return deck_files(path)
+    except (MarlcrashError, OSError):
+        return [path]
 
 
 def _package_root() -> Path:

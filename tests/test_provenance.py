@@ -151,3 +151,32 @@ def test_a_resumed_table_of_runs_refuses_changed_configs(configs, tmp_path):
     with pytest.raises(ConfigError, match=r"configs/cells\.yaml changed") as e:
         run_comparison(tiny(tmp_path, methods=["random_search", "cmaes"], seeds=[0], resume=True))
     assert e.value.key == "resume"
+
+
+def test_a_deck_outside_configs_is_recorded_with_its_includes_by_tables_and_baselines(configs, tmp_path):
+    """A vehicle deck named by ``env_overrides.vehicle`` is an input of a table of runs and of a baseline, and so
+    are the files it ``*INCLUDE``s (real models are mostly includes): editing one refuses a resume."""
+    from marlcrash.calibrate.baselines import BaselineRunConfig, run_record
+    from marlcrash.calibrate.compare import open_run_dir
+    from marlcrash.calibrate.problem import ProblemConfig
+
+    decks = tmp_path / "decks"
+    (decks / "sub").mkdir(parents=True)
+    (decks / "car.k").write_text("*KEYWORD\n*INCLUDE\nsub/part.k\n*END\n")
+    (decks / "sub" / "part.k").write_text("*KEYWORD\n$ shells of the bumper\n*END\n")
+    names = {str((decks / "car.k").resolve()), str((decks / "sub" / "part.k").resolve())}
+    assert names <= set(provenance.config_digests([decks / "car.k"]))
+
+    env = ("default", {"vehicle": str(decks / "car.k")})
+    run = tmp_path / "table"
+    open_run_dir(run, "compare.json", {"a": 1}, False, lambda rows: [], env)
+    assert names <= set(json.loads((run / provenance.PROVENANCE_FILE).read_text())["configs"])
+    (run / "compare.json").write_text(json.dumps({"config": {"a": 1}, "rows": []}))
+    open_run_dir(run, "compare.json", {"a": 1}, True, lambda rows: [], env)  # unchanged: resumes
+    (decks / "sub" / "part.k").write_text("*KEYWORD\n$ thicker shells of the bumper\n*END\n")
+    with pytest.raises(ConfigError, match=r"part\.k changed") as e:
+        open_run_dir(run, "compare.json", {"a": 1}, True, lambda rows: [], env)
+    assert e.value.key == "resume"
+
+    rec = run_record(BaselineRunConfig(problem=ProblemConfig(env_overrides={"vehicle": str(decks / "car.k")})))
+    assert names <= set(rec["configs"])

@@ -16,7 +16,7 @@ import hydra
 from omegaconf import DictConfig, OmegaConf
 
 from marlcrash.calibrate import build_problem, load_run_config, run_baseline, write_run
-from marlcrash.calibrate.baselines import run_folder
+from marlcrash.calibrate.baselines import run_folder, run_record
 from marlcrash.calibrate.entry import exit_on_bad_overrides
 from marlcrash.errors import MarlcrashError
 
@@ -26,9 +26,10 @@ def main(cfg: DictConfig) -> None:
     try:
         config = load_run_config(OmegaConf.to_container(cfg, resolve=True), source="configs/train/baseline.yaml")
         run_folder(config)  # an existing run name fails now, not after the budget is spent
+        record = run_record(config)  # the inputs as the run starts (provenance.json)
         problem = build_problem(config.problem)
         result = run_baseline(config, problem)
-        folder = write_run(config, problem, result)
+        folder = write_run(config, problem, result, record)
     except MarlcrashError as e:  # bad config or input: a message, not a traceback
         print(f"error: {e}", file=sys.stderr)
         sys.exit(2)

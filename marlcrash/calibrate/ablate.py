@@ -531,7 +531,8 @@ def run_ablation(
         done = {r["algorithm"] for r in rows}
         return [*_RESUMABLE_DIFF_OK, *(a for a in ALGORITHMS if a not in done)]
 
-    run_dir, rows = open_run_dir(config.run_dir, "ablate.json", asdict(config), config.resume, free)
+    env = (config.env, dict(config.env_overrides))
+    run_dir, rows = open_run_dir(config.run_dir, "ablate.json", asdict(config), config.resume, free, env)
     done = {(r["cell"], r["seed"]) for r in rows}
     write_results(config, rows, run_dir, command)
     cells = config.cells()

@@ -51,7 +51,7 @@ import torch
 from marlcrash import provenance
 from marlcrash.calibrate.budget import Progress
 from marlcrash.calibrate.leastsq import STEP_FACTORS, lm_iteration
-from marlcrash.calibrate.problem import CalibrationProblem, ProblemConfig, SmoothLoss
+from marlcrash.calibrate.problem import CalibrationProblem, ProblemConfig, SmoothLoss, problem_env_config
 from marlcrash.config import from_dict, require, require_complete
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics
@@ -538,9 +538,21 @@ def run_folder(config: BaselineRunConfig) -> Path:
     return final
 
 
-def write_run(config: BaselineRunConfig, problem: CalibrationProblem, result: CalibrationResult) -> Path:
+def run_record(config: BaselineRunConfig) -> dict[str, Any]:
+    """The provenance record of a baseline run (:func:`marlcrash.provenance.record`): ``configs/``, the code, and
+    the input files its problem names outside ``configs/`` (a vehicle deck, measured pulses). Take it when the run
+    starts, so it holds the files the run read."""
+    return provenance.record(provenance.env_inputs(problem_env_config(config.problem)))
+
+
+def write_run(
+    config: BaselineRunConfig,
+    problem: CalibrationProblem,
+    result: CalibrationResult,
+    record: dict[str, Any] | None = None,
+) -> Path:
     """Write ``<out_dir>/<method>/<name>/``: ``summary.json``, ``history.csv``, ``velocity.png``, ``config.json``,
-    ``provenance.json`` (:mod:`marlcrash.provenance`).
+    ``provenance.json`` (``record``: :func:`run_record` taken when the run started; default: now).
 
     The folder is assembled in a temporary sibling and renamed into place, so a failed run
     leaves nothing half-written.
@@ -559,7 +571,8 @@ def write_run(config: BaselineRunConfig, problem: CalibrationProblem, result: Ca
         )  # fmt: skip
         (tmp / "summary.json").write_text(json.dumps(summary, indent=2))
         (tmp / "config.json").write_text(json.dumps(asdict(config), indent=2))
-        (tmp / provenance.PROVENANCE_FILE).write_text(json.dumps(provenance.record(), indent=1))
+        rec = run_record(config) if record is None else record
+        (tmp / provenance.PROVENANCE_FILE).write_text(json.dumps(rec, indent=1))
         write_history_csv(result, tmp / "history.csv")
         torch.save({"best_x": result.best_x, "best_params": result.best_params}, tmp / "best.pt")
         if config.plot:

@@ -635,6 +635,7 @@ def open_run_dir(
     config: dict[str, Any],
     resume: bool,
     free_keys: Callable[[list[dict[str, Any]]], Iterable[str]],
+    env: tuple[str, dict[str, Any]] = ("default", {}),
 ) -> tuple[Path, list[dict[str, Any]]]:
     """The run folder of a table of runs and the rows already finished in it, after checking settings agree.
 
@@ -644,6 +645,8 @@ def open_run_dir(
         config: this run's settings (``asdict`` of its config).
         resume: continue the rows there; otherwise the folder must hold no finished row.
         free_keys: top-level settings that may differ from the saved ones, given the saved rows.
+        env: the env config name and overrides the runs use; their input files outside ``configs/`` (a vehicle
+            deck, measured pulses) are recorded and checked with ``configs/`` (:func:`marlcrash.provenance.env_inputs`).
 
     Raises:
         ConfigError: the record exists without ``resume`` (key ``name``), is missing or unreadable with it
@@ -651,12 +654,13 @@ def open_run_dir(
             files in ``configs/`` (key ``resume``, :func:`marlcrash.provenance.require_unchanged`).
     """
     check_output_dir(run_dir, "out_dir")  # the nearest existing folder of the run's
+    inputs = provenance.env_inputs(load_env_config(*env))
     path = run_dir / filename
     if not resume:
         if path.exists() and _saved_rows(path) != []:  # no finished row (a first run that failed): started over
             raise ConfigError(f"{path} exists already; choose another name or resume=true", key="name")
         run_dir.mkdir(parents=True, exist_ok=True)
-        provenance.write_record(run_dir)
+        provenance.write_record(run_dir, inputs)
         return run_dir, []
     if not path.is_file():
         raise ConfigError(f"resume=true but {path} does not exist", key="resume")
@@ -675,7 +679,7 @@ def open_run_dir(
     if diff is not None:
         raise ConfigError(f"resume: {run_dir} was run with {diff} = {_lookup(saved, diff)!r}, this config "
                           f"has {_lookup(config, diff)!r}; the finished rows would not compare", key=diff)  # fmt: skip
-    provenance.require_unchanged(run_dir)
+    provenance.require_unchanged(run_dir, inputs)
     return run_dir, rows
 
 
@@ -689,7 +693,8 @@ def _start_run_dir(config: CompareConfig) -> tuple[Path, list[dict[str, Any]]]:
         done = {r["method"] for r in rows}
         return [*_RESUMABLE_DIFF_OK, *(m for m in METHODS if m not in done)]
 
-    return open_run_dir(config.run_dir, "compare.json", asdict(config), config.resume, free)
+    env = (config.env, dict(config.env_overrides))
+    return open_run_dir(config.run_dir, "compare.json", asdict(config), config.resume, free, env)
 
 
 def _saved_rows(path: Path) -> list[dict[str, Any]] | None:

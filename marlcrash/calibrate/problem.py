@@ -521,6 +521,14 @@ class CalibrationProblem:
         return (x.detach()[0] * self.free).clamp(min=self.lower, max=self.upper)
 
 
+def problem_env_config(config: ProblemConfig):
+    """The env config a problem is built from: ``config.env`` with its overrides, reference kind and scenario."""
+    over = dict(config.env_overrides)
+    over["reference.kind"] = config.reference
+    over["scenarios"] = {config.scenario: 1.0}
+    return load_env_config(config.env, over)
+
+
 def build_problem(config: ProblemConfig, cells: CellModel | None = None) -> CalibrationProblem:
     """Build the calibration problem of a config: cells, agents, simulator, reference.
 
@@ -531,10 +539,7 @@ def build_problem(config: ProblemConfig, cells: CellModel | None = None) -> Cali
     Raises:
         ConfigError: invalid env, scenario, window, reward or reference settings (key named).
     """
-    over = dict(config.env_overrides)
-    over["reference.kind"] = config.reference
-    over["scenarios"] = {config.scenario: 1.0}
-    env = load_env_config(config.env, over)
+    env = problem_env_config(config)
     if cells is None:
         cells = build_cells(env.vehicle, env.vehicle_seed, env.discretization)
     scenario = get_scenario(config.scenario)

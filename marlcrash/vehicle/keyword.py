@@ -569,6 +569,8 @@ class _Deck:
     skipped: Counter = field(default_factory=Counter)
     notes: list[str] = field(default_factory=list)
     include_paths: list[Path] = field(default_factory=list)
+    files: list[Path] = field(default_factory=list)
+    """Every file read, the main deck first, then the ``*INCLUDE`` files in the order they were met."""
 
 
 def _keyword_line(text: str) -> tuple[str, str | None, list[str]]:
@@ -589,6 +591,7 @@ def _keyword_line(text: str) -> tuple[str, str | None, list[str]]:
 def _scan(path: Path, deck: _Deck, fmt: str, stack: tuple[Path, ...], including: tuple[Path, int] | None) -> None:
     """Split one file into keyword blocks, following includes; read parameters now."""
     src = _Source.load(path, including)
+    deck.files.append(path.resolve())
     kw = np.flatnonzero(src.first == ord("*"))
     head_end = int(kw[0]) if kw.size else src.n_lines
     for i in np.flatnonzero(src.first[:head_end] != ord("$")).tolist():
@@ -1372,6 +1375,20 @@ def _assemble(deck: _Deck, t: _Tables, units: str | None, main: Path) -> tuple[V
         warnings=notes,
     )
     return model, notes
+
+
+def deck_files(path: str | Path, params: dict[str, float] | None = None) -> list[Path]:
+    """The files a deck consists of: ``path`` and every file it pulls in with ``*INCLUDE`` (nested), resolved.
+
+    What a run's record hashes (:mod:`marlcrash.provenance`): real vehicle models are mostly includes.
+
+    Raises:
+        DeckError: the deck or an included file cannot be read or split into keyword blocks.
+    """
+    main = Path(path)
+    deck = _Deck(params=_Params(params))
+    _scan(main, deck, "std", (main.resolve(),), None)
+    return list(dict.fromkeys(deck.files))
 
 
 def read_deck(
