@@ -178,10 +178,50 @@ def require_complete(cls: type, data: dict[str, Any], path: str | Path | None) -
         )
 
 
+def _field_type(cls: type, parts: list[str]) -> Any:
+    """The annotated type at the dotted path ``parts`` of schema ``cls`` (``X | None`` unwrapped), or ``None``."""
+    t: Any = cls
+    for p in parts:
+        if not (isinstance(t, type) and dataclasses.is_dataclass(t)):
+            return None
+        hints = typing.get_type_hints(t)
+        if p not in hints:
+            return None
+        t = hints[p]
+        args = [a for a in typing.get_args(t) if a is not type(None)]
+        if len(args) == 1 and len(typing.get_args(t)) == 2:
+            t = args[0]
+    return t
+
+
+def flatten_overrides(cls: type, overrides: dict[str, Any]) -> dict[str, Any]:
+    """Overrides with every mapping aimed at a section of schema ``cls`` spread into dotted keys.
+
+    ``{"termination": {"failure_dfd": 10.0}}`` (what Hydra makes of ``+env_overrides.termination.failure_dfd=10``)
+    becomes ``{"termination.failure_dfd": 10.0}``: it changes that key and keeps the section's others, where
+    setting the mapping whole reset them to the schema's defaults. A mapping for a mapping-valued field
+    (``scenarios``, ``agents.merge``) stays whole: it is the value.
+    """
+    out: dict[str, Any] = {}
+
+    def spread(parts: list[str], value: Any) -> None:
+        t = _field_type(cls, parts)
+        if isinstance(value, dict) and isinstance(t, type) and dataclasses.is_dataclass(t):
+            for k, v in value.items():
+                spread([*parts, str(k)], v)
+        else:
+            out[".".join(parts)] = value
+
+    for dotted, value in overrides.items():
+        spread(str(dotted).split("."), value)
+    return out
+
+
 def load_config(cls: type[T], path: str | Path, overrides: dict[str, Any] | None = None) -> T:
-    """Load a YAML file into ``cls``, applying dotted-key ``overrides`` first."""
+    """Load a YAML file into ``cls``, applying dotted-key ``overrides`` first (:func:`flatten_overrides`: a
+    mapping for a section changes only the keys it gives)."""
     data = load_yaml(path)
-    for dotted, value in (overrides or {}).items():
+    for dotted, value in flatten_overrides(cls, overrides or {}).items():
         node = data
         parts = dotted.split(".")
         for p in parts[:-1]:

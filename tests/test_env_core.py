@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -236,6 +238,21 @@ def test_bad_input_raises_clear_errors(cells):
         load_env_config("nope")
     with pytest.raises(ConfigError, match="granularity"):
         load_env_config(overrides={"granularity": "part"})
+
+
+def test_a_nested_override_changes_only_the_keys_it_gives():
+    """Hydra makes ``+env_overrides.termination.failure_dfd=10`` a mapping; it must not reset the section's other
+    keys to the schema's defaults (the success thresholds went to None: success was switched off)."""
+    base = load_env_config()
+    nested = load_env_config(overrides={"termination": {"failure_dfd": 10.0}, "observation.param_scale": 5.0,
+                                        "observation": {"velocity_scale": 3.0}})  # fmt: skip
+    assert nested.termination == dataclasses.replace(base.termination, failure_dfd=10.0)
+    assert nested.termination.success_area == base.termination.success_area is not None
+    assert (nested.observation.velocity_scale, nested.observation.param_scale) == (3.0, 5.0)
+    # a mapping-valued field is replaced whole: it is the value
+    assert load_env_config(overrides={"scenarios": {"offset40_left": 1.0}}).scenarios == {"offset40_left": 1.0}
+    with pytest.raises(ConfigError, match=r"key 'termination\.failure_dfdx': unknown key"):
+        load_env_config(overrides={"termination": {"failure_dfdx": 10.0}})
 
 
 def test_errors_found_while_building_name_the_yaml_file(cells):

@@ -67,8 +67,8 @@ from marlcrash.calibrate.marl import (
     train_iteration,
 )
 from marlcrash.calibrate.problem import CalibrationProblem, ProblemConfig, SmoothLoss, SuccessConfig, build_problem
-from marlcrash.config import from_dict, require, require_complete
-from marlcrash.envs.core import load_env_config
+from marlcrash.config import flatten_overrides, from_dict, require, require_complete
+from marlcrash.envs.core import EnvConfig, load_env_config
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics
 from marlcrash.outputs import check_output_dir, write_text
@@ -118,7 +118,7 @@ class PPOBudgetConfig:
         require(self.n_envs >= 1, "n_envs", f"expected >= 1 parallel episodes, got {self.n_envs}")
         require(self.episode_length >= 1, "episode_length", f"expected >= 1 steps, got {self.episode_length}")
         require(self.threads >= 0, "threads", f"expected >= 0 (0: torch's setting), got {self.threads}")
-        for k in self.env_overrides:
+        for k in flatten_overrides(EnvConfig, self.env_overrides):  # nested sections too: {"reference": {...}}
             for p in _PROTECTED_PPO_KEYS:
                 require(not (k == p or k.startswith(p + ".")), f"env_overrides.{k}",
                         f"the protocol sets {p} for the pinned PPO runs; put shared env settings in the "
