@@ -17,7 +17,16 @@ surrogate's sign convention (forward speed, starting at the impact speed). Three
 - ``file``: measured pulses read with :func:`marlcrash.pulse.io.read_pulse` (CSV or
   ISO-MME), CFC-filtered, time-zero aligned, resampled to the output rate and integrated
   to velocity (:func:`marlcrash.pulse.signal.prepare_velocity`), starting at the impact
-  speed of the file's scenario. Loaded once, drawn per episode by weight.
+  speed of the file's scenario. Loaded once, drawn per episode by weight. Time zero is the
+  file's t = 0 by default (``time_zero: file``): the first contact, as the simulation's t = 0
+  (ISO-MME's T0; lab exports put pre-trigger samples at negative times, and their mean is
+  subtracted as the channel's zero level). ``time_zero: threshold`` finds the 0.5 g onset
+  instead, for records whose clock is not aligned to contact; a threshold crossing lies a
+  few tenths of a millisecond off a sharp onset, and a channel far from the front (the
+  tunnel) crosses it milliseconds after the contact. The file must be filtered with the
+  compared signal's class (``cfc`` = ``compare_cfc``, or null when filtered already), and a
+  record whose velocity climbs above the impact speed (decelerations recorded positive)
+  is refused, naming ``sign``.
 
 One :class:`ReferenceSampler` draws a reference per episode (:meth:`ReferenceSampler.sample`)
 from a :class:`ReferenceConfig`; the scenario distribution (names and weights) is
@@ -44,7 +53,7 @@ from marlcrash.cells.parameterization import apply_increments
 from marlcrash.config import config_dir, require
 from marlcrash.errors import ConfigError, PulseError
 from marlcrash.pulse.io import ACC_UNITS, acc_unit_key, check_record_rate, read_pulse
-from marlcrash.pulse.signal import compared_velocity, prepare_velocity
+from marlcrash.pulse.signal import compared_velocity, prepare_velocity, remove_zero_offset
 from marlcrash.sim.scenario import CrashScenario, get_scenario
 from marlcrash.sim.surrogate import SimConfig, Surrogate
 
@@ -77,6 +86,10 @@ class CrossFidelityConfig:
         require(bool(self.vehicle_seeds), "vehicle_seeds", "expected at least one vehicle seed (null = nominal car)")
 
 
+ZERO_LEVEL_MARGIN = 0.001
+"""[s] The zero level of a file reference is the mean of its samples up to this long before its t = 0."""
+
+
 @dataclass
 class FileReference:
     """One measured test: file, its load case, and how its channels map to sensors."""
@@ -88,7 +101,7 @@ class FileReference:
     time_unit: str = "s"
     sign: float = 1.0
     cfc: int | None = 60
-    time_zero: Literal["threshold", "file"] = "threshold"
+    time_zero: Literal["threshold", "file"] = "file"
     threshold_g: float = 0.5
     weight: float = 1.0
     breakpoints: bool = False
@@ -117,6 +130,10 @@ class ReferenceConfig:
 
     def validate(self) -> None:
         require(self.kind != "file" or bool(self.files), "files", "kind 'file' needs at least one entry in files")
+        for i, f in enumerate(self.files):  # the file and the simulation must be compared as the same signal
+            require(f.cfc is None or f.cfc == self.compare_cfc, f"files[{i}].cfc",
+                    f"expected the compared signal's class, compare_cfc = {self.compare_cfc} (or null: the file is "
+                    f"filtered already), got {f.cfc}: the simulation is filtered with compare_cfc")  # fmt: skip
         require(self.pin_seed is None or self.pin_seed >= 0, "pin_seed",
                 f"expected a reference seed >= 0 or null, got {self.pin_seed}")  # fmt: skip
         require(
@@ -372,6 +389,9 @@ class ReferenceSampler:
         path = Path(spec.path)
         if not path.is_absolute():
             path = config_dir() / path
+        if not path.exists():
+            raise ConfigError(f"no such file or ISO-MME folder: {path} (a relative path is read from configs/)",
+                              key=f"{key}.path")  # fmt: skip
         channels = [spec.channels[s] for s in self.sensors]
         unique = list(dict.fromkeys(channels))
         pulse = read_pulse(path, acc_col=unique, unit=spec.unit, time_unit=spec.time_unit, sign=spec.sign,
@@ -381,8 +401,18 @@ class ReferenceSampler:
             raise PulseError(f"{path.name}: asked for channels {unique}, read {list(pulse.channels)}")
         pulse = pulse.select([unique.index(c) for c in channels])
         sc = self.scenarios[spec.scenario]
+        if spec.time_zero == "file":  # the samples before the contact are at rest: their mean is the offset
+            pulse, _ = remove_zero_offset(pulse, before=-ZERO_LEVEL_MARGIN)
         _, vel = prepare_velocity(pulse, cfc=spec.cfc, rate_hz=sc.output_rate, duration=sc.duration,
                                      time_zero=spec.time_zero, threshold_g=spec.threshold_g, v0=sc.speed)  # fmt: skip
+        rise = float(vel.max()) - sc.speed
+        if rise > max(1.0, 0.1 * sc.speed):  # a frontal impact slows the vehicle; rebound never exceeds the speed
+            k = int(vel.max(axis=1).argmax())
+            raise PulseError(
+                f"{path.name}: channel {channels[k]!r} integrates to {rise:.3g} m/s above the impact speed "
+                f"{sc.speed:.4g} m/s; expected decelerations negative (SAE J211, x forward): if the file records them "
+                f"positive, set {key}.sign: -1"
+            )
         if vel.shape[1] != self.n_outputs:
             raise PulseError(
                 f"{path.name}: expected {self.n_outputs} samples ({sc.duration} s at {sc.output_rate} Hz) after time "

@@ -33,6 +33,16 @@ def test_an_unknown_nested_key_lists_the_keys_of_the_group_file_picked():
     assert "key 'eval.foo'" in message("train", ["eval.iterations=3", "eval.foo=2"])
 
 
+def test_a_new_key_of_an_overrides_mapping_is_told_to_use_plus():
+    """``env_overrides`` mappings hold the user's own keys: Hydra needs '+' to add one, and the message says so."""
+    for name, over in (("train", "env_overrides.observation.velocity_scale=2"),
+                       ("baseline", "problem.env_overrides={reference.kind: file}")):  # fmt: skip
+        m = message(name, [over])
+        assert m == (f"{name}.yaml key '{over.split('=')[0]}': a key the config does not have yet (a mapping of "
+                     f"overrides); add it with '+': +{over}")  # fmt: skip
+        check_overrides(TRAIN_CONFIGS, name, [f"+{over}"])
+
+
 def test_an_unknown_group_option_lists_the_files_of_the_group():
     m = message("train", ["algorithm=sac"])
     options = sorted(p.stem for p in (TRAIN_CONFIGS / "algorithm").glob("*.yaml"))

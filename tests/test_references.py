@@ -9,6 +9,7 @@ import pytest
 import torch
 
 from marlcrash.cells.parameterization import apply_increments
+from marlcrash.config import from_dict
 from marlcrash.envs.core import build_cells
 from marlcrash.errors import ConfigError, PulseError
 from marlcrash.pulse.cfc import cfc_filter
@@ -140,7 +141,8 @@ def test_file_reference_conventions_and_time_zero_alignment(cells, sim, tmp_path
     """The same test written another way: decelerations positive, m/s^2, time in ms, recorded 37 ms later.
 
     With ``sign=-1, unit='m/s2', time_unit='ms'`` the reference must equal the default-convention one: the
-    sign and unit conversions are right and time zero is found from the pulse, not from the file's clock.
+    sign and unit conversions are right and, with ``time_zero: threshold``, time zero is found from the pulse,
+    not from the file's clock. Read with the default sign, the positive decelerations are refused, naming it.
     """
     rows = [r for r in (DATA / "halfsine_40kmh.csv").read_text().splitlines() if not r.startswith("#")]
     data = np.array([[float(x) for x in r.split(",")] for r in rows[1:]])
@@ -153,11 +155,15 @@ def test_file_reference_conventions_and_time_zero_alignment(cells, sim, tmp_path
         (DATA / "halfsine_40kmh.csv", "tunnel_acx", {}),
         (other, "tunnel_decel", {"sign": -1.0, "unit": "m/s2", "time_unit": "ms"}),
     ):
-        spec = FileReference(
-            path=str(path), scenario="full_width_40", channels=dict.fromkeys(cells.sensor_names, chan), **conv
-        )
+        spec = FileReference(path=str(path), scenario="full_width_40", channels=dict.fromkeys(cells.sensor_names, chan),
+                             time_zero="threshold", **conv)  # fmt: skip
         refs.append(sampler(cells, sim, kind="file", files=[spec]).sample(np.random.default_rng(0), 1).velocity)
     torch.testing.assert_close(refs[1], refs[0], rtol=0, atol=1e-9)
+    channels = dict.fromkeys(cells.sensor_names, "tunnel_decel")
+    positive = FileReference(path=str(other), scenario="full_width_40", unit="m/s2", time_unit="ms",
+                             channels=channels, time_zero="threshold")  # fmt: skip
+    with pytest.raises(PulseError, match=r"above the impact speed.*set reference\.files\[0\]\.sign: -1"):
+        sampler(cells, sim, kind="file", files=[positive])
 
 
 def test_a_simulation_written_as_csv_and_read_as_a_file_reference_is_the_simulation(cells, sim, tmp_path):
@@ -175,6 +181,48 @@ def test_a_simulation_written_as_csv_and_read_as_a_file_reference_is_the_simulat
     model = compared_velocity(result.velocity.double(), sc.output_dt, 60)
     assert float(ref[0, 0, 0]) < sc.speed - 3.0  # the up-front sensors' first millisecond, as the model's
     torch.testing.assert_close(ref, model, rtol=0, atol=1e-6)  # the CSV's 17 significant digits, filtered
+
+
+def test_a_test_record_with_pre_trigger_samples_and_an_offset_is_the_simulation(cells, sim, tmp_path):
+    """A lab export: 20 ms of pre-trigger samples at negative times, t = 0 at the contact, and a 0.3 g transducer
+    offset on every sample. With the default ``time_zero: file`` the offset is the pre-trigger mean and is removed
+    (integrated, it drifted 0.44 m/s over 150 ms), and the reference is the simulation the record came from. A
+    problem calibrating against it (``reference=file``) starts at zero error with the simulated parameters."""
+    from marlcrash.calibrate.problem import ProblemConfig, build_problem
+    from marlcrash.pulse.simulation import write_crash_csv
+
+    sc = get_scenario("full_width_40")
+    result = sim.run(torch.as_tensor(cells.params)[None], sc, record_cells="none")
+    sim_csv = write_crash_csv(result, tmp_path / "sim.csv")
+    rows = np.genfromtxt(sim_csv, delimiter=",", names=True)
+    t = np.concatenate([np.arange(-40, 0) * sc.output_dt, rows["time_s"]])
+    cols = {s: np.concatenate([np.zeros(40), rows[f"{s}_acc_g"]]) + 0.3 for s in cells.sensor_names}
+    path = tmp_path / "lab.csv"
+    body = "".join(",".join(f"{v:.17g}" for v in (t[i], *(c[i] for c in cols.values()))) + "\n" for i in range(t.size))
+    path.write_text("time_s," + ",".join(cols) + "\n" + body)
+    channels = {s: s for s in cells.sensor_names}
+    spec = FileReference(path=str(path), scenario=sc.name, channels=channels)
+    ref = sampler(cells, sim, kind="file", files=[spec]).sample(np.random.default_rng(0), 1).velocity
+    torch.testing.assert_close(ref, compared_velocity(result.velocity.double(), sc.output_dt, 60), rtol=0, atol=1e-6)
+
+    files = [{"path": str(path), "scenario": sc.name, "channels": channels}]
+    problem = build_problem(ProblemConfig(reference="file", env_overrides={"reference.files": files}), cells)
+    m = problem.evaluate(problem.zeros(1))
+    assert float(m.area.max()) < 1e-6 and problem.success(m).tolist() == [True]
+    with pytest.raises(ConfigError, match=r"set reference=file") as e:  # the kind is the problem's to set
+        build_problem(ProblemConfig(env_overrides={"reference.kind": "file", "reference.files": files}), cells)
+    assert e.value.key == "env_overrides.reference.kind"
+
+
+def test_file_reference_settings_that_cannot_line_up_are_refused(cells, sim, tmp_path):
+    spec = {"path": "nope.csv", "scenario": "full_width_40", "channels": dict.fromkeys(cells.sensor_names, "a")}
+    with pytest.raises(ConfigError, match=r"expected the compared signal's class, compare_cfc = 60") as e:
+        from_dict(ReferenceConfig, {"kind": "file", "files": [{**spec, "cfc": 180}]})
+    assert e.value.key == "files[0].cfc"
+    from_dict(ReferenceConfig, {"kind": "file", "compare_cfc": 180, "files": [{**spec, "cfc": 180}]})
+    with pytest.raises(ConfigError, match=r"no such file or ISO-MME folder: .*nope\.csv") as e:
+        sampler(cells, sim, kind="file", files=[FileReference(**spec)])
+    assert e.value.key == "reference.files[0].path"
 
 
 @pytest.mark.parametrize("peak_g", [30.0, 300.0])

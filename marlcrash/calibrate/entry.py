@@ -93,9 +93,17 @@ def check_overrides(config_dir: str | Path, config_name: str, overrides: Sequenc
             node = composed(groups)
             for part in parent.split(".") if parent else ():
                 node = node[part]
-            expected = f"; expected one of {sorted(node.keys())}"
+            keys = sorted(node.keys())
         except (HydraException, KeyError, AttributeError, TypeError):
-            expected = ""
+            keys = None
+        k = str(key)
+        bad = next((o for o in overrides if k == _key(o) or f"{k}.".startswith(_key(o) + ".")
+                    or _key(o).startswith(k + ".")), None)  # fmt: skip
+        if bad is not None and (not keys or "overrides" in parent.split(".")[-1] or "overrides" in _key(bad)):
+            # a free-form mapping (env_overrides): its keys are the user's to add, with Hydra's '+'
+            raise ConfigError(f"a key the config does not have yet (a mapping of overrides); add it with '+': "
+                              f"+{bad.lstrip('+~')}", key=_key(bad), path=source) from None  # fmt: skip
+        expected = "" if keys is None else f"; expected one of {keys}"
         raise ConfigError(f"unknown key{expected}", key=str(key), path=source) from None
     except HydraException as e:  # a malformed override (OverrideParseException) and the rest of Hydra's errors
         bad = _unparsable(overrides)

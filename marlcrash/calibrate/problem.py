@@ -51,9 +51,9 @@ import torch
 
 from marlcrash.cells.model import PARAM_NAMES, CellModel
 from marlcrash.cells.parameterization import apply_increments
-from marlcrash.config import require
+from marlcrash.config import flatten_overrides, require
 from marlcrash.envs.agents import AgentLayout, build_agents
-from marlcrash.envs.core import build_cells, load_env_config
+from marlcrash.envs.core import EnvConfig, build_cells, load_env_config
 from marlcrash.envs.masking import ImpactRegions
 from marlcrash.errors import ConfigError, ModelError
 from marlcrash.metrics import Metrics, area_between, compute_metrics, rmse
@@ -96,7 +96,8 @@ class ProblemConfig:
             masking and reference settings, so baselines search the environments' space.
         env_overrides: dotted-key overrides of that env config.
         scenario: registered scenario name.
-        reference: ``twin`` or ``cross_fidelity`` (replaces the env's ``reference.kind``).
+        reference: ``twin``, ``cross_fidelity`` or ``file`` (a measured test of ``reference.files`` in the env
+            config or ``env_overrides``, for this scenario); replaces the env's ``reference.kind``.
         reference_seed: seed of the reference draw (the twin's hidden perturbation).
         duration: simulated window [s]; ``None`` uses the scenario's.
         box_radius: half-width of the search box in log-scale [-].
@@ -110,7 +111,7 @@ class ProblemConfig:
     env: str = "default"
     env_overrides: dict[str, Any] = field(default_factory=dict)
     scenario: str = "full_width_40"
-    reference: Literal["twin", "cross_fidelity"] = "twin"
+    reference: Literal["twin", "cross_fidelity", "file"] = "twin"
     reference_seed: int = 0
     duration: float | None = None
     box_radius: float = 1.0
@@ -522,7 +523,16 @@ class CalibrationProblem:
 
 
 def problem_env_config(config: ProblemConfig):
-    """The env config a problem is built from: ``config.env`` with its overrides, reference kind and scenario."""
+    """The env config a problem is built from: ``config.env`` with its overrides, reference kind and scenario.
+
+    Raises:
+        ConfigError: ``env_overrides`` set another ``reference.kind`` than ``reference`` (the problem's wins, so
+            asking for a file reference there alone silently calibrated against the twin).
+    """
+    kind = flatten_overrides(EnvConfig, config.env_overrides).get("reference.kind", config.reference)
+    if kind != config.reference:
+        raise ConfigError(f"the problem's reference is {config.reference!r}; set reference={kind} instead "
+                          "(problem.reference picks the kind)", key="env_overrides.reference.kind")  # fmt: skip
     over = dict(config.env_overrides)
     over["reference.kind"] = config.reference
     over["scenarios"] = {config.scenario: 1.0}

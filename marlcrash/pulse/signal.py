@@ -372,6 +372,23 @@ def onset_after(raw: Pulse, t_from: float, threshold_g: float = DEFAULT_THRESHOL
     return t_from if math.isinf(best) else best
 
 
+def remove_zero_offset(pulse: Pulse, before: float, min_time: float = 0.005) -> tuple[Pulse, np.ndarray]:
+    """Subtract each channel's zero level: the mean of its raw samples before ``before`` [s] (ISO 6487 / SAE J211
+    practice: the pre-trigger samples of a test are at rest, so their mean is the transducer's offset).
+
+    A DC offset integrates into a velocity drift: 0.3 g over 150 ms is 0.44 m/s. Records with less than
+    ``min_time`` of samples before ``before`` (a record that starts at the impact) are returned unchanged.
+
+    Returns:
+        ``(pulse, offsets [K] in m/s^2)``; zeros where nothing was subtracted.
+    """
+    pre = pulse.time < before
+    if not pre.any() or float(pulse.time[pre][-1] - pulse.time[0]) < min_time:
+        return pulse, np.zeros(pulse.n_channels)
+    offset = pulse.acc[:, pre].mean(axis=1)
+    return replace(pulse, acc=pulse.acc - offset[:, None]), offset
+
+
 def shift_time(pulse: Pulse, t0: float) -> Pulse:
     """The pulse with its clock shifted so that ``t0`` becomes time 0."""
     return replace(pulse, time=pulse.time - float(t0))
@@ -486,6 +503,11 @@ def prepare_velocity(
     """
     p, t0 = filtered_from_time_zero(pulse, cfc, time_zero, threshold_g)
     t_end = p.time[-1] if duration is None else t0 + float(duration)
+    if t_end > p.time[-1] + 1e-9:
+        raise PulseError(
+            f"{pulse.source or 'pulse'}: the record ends {(p.time[-1] - t0) * 1e3:.4g} ms after time zero "
+            f"(t = {t0 * 1e3:.4g} ms); expected at least {float(duration) * 1e3:.4g} ms"
+        )
     # integrated from PRE_IMPACT_TIME before time zero, as compared_velocity integrates a simulation: the zero-phase
     # filter spreads the onset's deceleration before time zero, and integrating from time zero lost it (an up-front
     # sensor's velocity change came out 4.6 m/s short of the simulation's the file was written from)
