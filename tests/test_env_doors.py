@@ -36,6 +36,8 @@ def test_parallel_api_and_seed_tests(cells):
 
 def test_reset_returns_every_agent_but_only_active_ones_live(cells):
     env = CalibrationParallelEnv(cfg(scenarios={"small_overlap_left": 1.0}), cells)
+    with pytest.raises(ActionError, match=r"call reset\(\) before state\(\)"):
+        env.state()
     obs, infos = env.reset(seed=0)
     assert set(obs) == set(infos) == set(env.possible_agents)
     assert "crash_box_right" not in env.agents and "crash_box_left" in env.agents

@@ -85,6 +85,8 @@ class CalibrationParallelEnv(ParallelEnv):
 
     def state(self) -> np.ndarray:
         """Global state ``[state_dim]`` float32 (for centralized critics)."""
+        if getattr(self, "_state", None) is None:
+            raise ActionError("call reset() before state()")
         return self._state[0].numpy().copy()
 
     # ---------------------------------------------------------------------------------- API
