@@ -41,6 +41,7 @@ def test_a_new_key_of_an_overrides_mapping_is_told_to_use_plus():
         assert m == (f"{name}.yaml key '{over.split('=')[0]}': a key the config does not have yet (a mapping of "
                      f"overrides); add it with '+': +{over}")  # fmt: skip
         check_overrides(TRAIN_CONFIGS, name, [f"+{over}"])
+    assert message("train", ["seed.x=1"]) == "train.yaml key 'seed.x': unknown key"  # not a mapping: no '+' advice
 
 
 def test_an_unknown_group_option_lists_the_files_of_the_group():

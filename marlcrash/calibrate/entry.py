@@ -99,7 +99,7 @@ def check_overrides(config_dir: str | Path, config_name: str, overrides: Sequenc
         k = str(key)
         bad = next((o for o in overrides if k == _key(o) or f"{k}.".startswith(_key(o) + ".")
                     or _key(o).startswith(k + ".")), None)  # fmt: skip
-        if bad is not None and (not keys or "overrides" in parent.split(".")[-1] or "overrides" in _key(bad)):
+        if bad is not None and (keys == [] or "overrides" in _key(bad)):
             # a free-form mapping (env_overrides): its keys are the user's to add, with Hydra's '+'
             raise ConfigError(f"a key the config does not have yet (a mapping of overrides); add it with '+': "
                               f"+{bad.lstrip('+~')}", key=_key(bad), path=source) from None  # fmt: skip
