@@ -402,7 +402,7 @@ class ReferenceSampler:
         pulse = pulse.select([unique.index(c) for c in channels])
         sc = self.scenarios[spec.scenario]
         if spec.time_zero == "file":  # the samples before the contact are at rest: their mean is the offset
-            pulse, _ = remove_zero_offset(pulse, before=-ZERO_LEVEL_MARGIN)
+            pulse = remove_zero_offset(pulse, before=-ZERO_LEVEL_MARGIN)
         _, vel = prepare_velocity(pulse, cfc=spec.cfc, rate_hz=sc.output_rate, duration=sc.duration,
                                      time_zero=spec.time_zero, threshold_g=spec.threshold_g, v0=sc.speed)  # fmt: skip
         rise = float(vel.max()) - sc.speed

@@ -84,15 +84,21 @@ def test_the_run_folders_own_parent_is_probed_not_only_out_dir(tmp_path):
     whole budget and then failed to create its folder (a traceback)."""
     import os
 
+    from test_train_marl import tiny
+
     from marlcrash.calibrate.baselines import BaselineRunConfig, run_folder
-    from marlcrash.calibrate.marl import TrainConfig, run_dir_of
+    from marlcrash.calibrate.marl import train
 
     if not os.path.isdir("/proc"):
         pytest.skip("needs a folder nothing can be created in (/proc)")
     for sub in ("random_search", "mappo"):
-        (tmp_path / sub).symlink_to("/proc")
+        (tmp_path / "runs" / sub).parent.mkdir(exist_ok=True)
+        (tmp_path / "runs" / sub).symlink_to("/proc")
+    out = str(tmp_path / "runs")
     with pytest.raises(ConfigError, match=r"'out_dir'.*cannot write in the folder .*random_search") as e:
-        run_folder(BaselineRunConfig(method="random_search", name="b1", out_dir=str(tmp_path)))
+        run_folder(BaselineRunConfig(method="random_search", name="b1", out_dir=out))
     assert e.value.key == "out_dir"
-    assert run_dir_of(TrainConfig(name="m1", out_dir=str(tmp_path))).parent == tmp_path / "mappo"
-    assert run_folder(BaselineRunConfig(method="cmaes", name="b1", out_dir=str(tmp_path))) == tmp_path / "cmaes" / "b1"
+    with pytest.raises(ConfigError, match=r"'out_dir'.*cannot write in the folder .*mappo") as e:
+        train(tiny(tmp_path, name="m1"))  # refused before the run folder or any environment is made
+    assert e.value.key == "out_dir"
+    assert run_folder(BaselineRunConfig(method="cmaes", name="b1", out_dir=out)) == tmp_path / "runs" / "cmaes" / "b1"

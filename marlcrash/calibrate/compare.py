@@ -635,7 +635,7 @@ def open_run_dir(
     config: dict[str, Any],
     resume: bool,
     free_keys: Callable[[list[dict[str, Any]]], Iterable[str]],
-    env: tuple[str, dict[str, Any]] = ("default", {}),
+    env: tuple[str, dict[str, Any]],
 ) -> tuple[Path, list[dict[str, Any]]]:
     """The run folder of a table of runs and the rows already finished in it, after checking settings agree.
 

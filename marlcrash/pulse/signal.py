@@ -372,21 +372,18 @@ def onset_after(raw: Pulse, t_from: float, threshold_g: float = DEFAULT_THRESHOL
     return t_from if math.isinf(best) else best
 
 
-def remove_zero_offset(pulse: Pulse, before: float, min_time: float = 0.005) -> tuple[Pulse, np.ndarray]:
+def remove_zero_offset(pulse: Pulse, before: float, min_time: float = 0.005) -> Pulse:
     """Subtract each channel's zero level: the mean of its raw samples before ``before`` [s] (ISO 6487 / SAE J211
     practice: the pre-trigger samples of a test are at rest, so their mean is the transducer's offset).
 
     A DC offset integrates into a velocity drift: 0.3 g over 150 ms is 0.44 m/s. Records with less than
     ``min_time`` of samples before ``before`` (a record that starts at the impact) are returned unchanged.
 
-    Returns:
-        ``(pulse, offsets [K] in m/s^2)``; zeros where nothing was subtracted.
     """
     pre = pulse.time < before
     if not pre.any() or float(pulse.time[pre][-1] - pulse.time[0]) < min_time:
-        return pulse, np.zeros(pulse.n_channels)
-    offset = pulse.acc[:, pre].mean(axis=1)
-    return replace(pulse, acc=pulse.acc - offset[:, None]), offset
+        return pulse
+    return replace(pulse, acc=pulse.acc - pulse.acc[:, pre].mean(axis=1, keepdims=True))
 
 
 def shift_time(pulse: Pulse, t0: float) -> Pulse:

@@ -1385,10 +1385,14 @@ def deck_files(path: str | Path, params: dict[str, float] | None = None) -> list
     Raises:
         DeckError: the deck or an included file cannot be read or split into keyword blocks.
     """
-    main = Path(path)
+    return list(dict.fromkeys(_scanned(Path(path), params).files))
+
+
+def _scanned(main: Path, params: dict[str, float] | None) -> _Deck:
+    """The deck's keyword blocks, parameters and files, ``*INCLUDE``s followed (standard format to start)."""
     deck = _Deck(params=_Params(params))
     _scan(main, deck, "std", (main.resolve(),), None)
-    return list(dict.fromkeys(deck.files))
+    return deck
 
 
 def read_deck(
@@ -1429,8 +1433,7 @@ def read_deck(
     from marlcrash.vehicle.subassembly_map import load_subassembly_map, resolve_subassemblies
 
     main = Path(path)
-    deck = _Deck(params=_Params(params))
-    _scan(main, deck, "std", (main.resolve(),), None)
+    deck = _scanned(main, params)
     deck.params.finish()
     tables = _Tables()
     for block in deck.blocks:
