@@ -59,6 +59,26 @@ def test_reset_returns_every_agent_but_only_active_ones_live(cells):
     assert env.state().shape == env.state_space.shape
 
 
+def test_the_aec_conversion_gets_the_live_agents_infos(cells):
+    """``reset_agents="live"``: PettingZoo's ``parallel_to_aec`` takes the reset infos as they are (with every
+    possible agent's, it copied the whole dict under each agent) and passes its API test without a warning."""
+    from pettingzoo.test import api_test
+    from pettingzoo.utils.conversions import parallel_to_aec
+
+    config = cfg(scenarios={"small_overlap_left": 1.0})
+    aec = parallel_to_aec(CalibrationParallelEnv(config, cells, reset_agents="live"))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", UserWarning)
+        aec.reset(seed=0)
+    assert set(aec.infos) == set(aec.agents) and "crash_box_right" not in aec.agents
+    assert set(aec.infos["crash_box_left"]) == {"area", "dfd", "rmse"}
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=".*(seed|observation space|action space|named in the format).*")
+        api_test(parallel_to_aec(CalibrationParallelEnv(config, cells, reset_agents="live")), num_cycles=5)
+    with pytest.raises(ActionError, match="reset_agents must be 'possible' or 'live'"):
+        CalibrationParallelEnv(config, cells, reset_agents="all")
+
+
 @pytest.mark.parametrize("granularity", ["subassembly", "cell"])
 def test_native_torchrl_env_specs(cells, granularity):
     env = CalibrationTorchEnv(cfg(granularity=granularity), batch_size=3, cells=cells)

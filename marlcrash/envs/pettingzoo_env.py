@@ -3,8 +3,10 @@
 - ``possible_agents``: every agent of the layout; ``agents``: the agents active in the
   episode (impact-region rule), fixed at reset and emptied when the episode ends.
 - :meth:`CalibrationParallelEnv.reset` returns observations and infos for EVERY possible
-  agent (TorchRL's ``PettingZooWrapper`` indexes all of them at reset); ``step`` returns
-  entries for the live agents only.
+  agent by default (TorchRL's ``PettingZooWrapper`` indexes all of them at reset);
+  ``reset_agents="live"`` returns them for the live agents only, as PettingZoo's own
+  ``parallel_to_aec`` expects (it replaces infos whose keys are not ``agents`` by the whole
+  dict copied under every agent). ``step`` returns entries for the live agents only.
 - Spaces are fixed per agent (``gymnasium.spaces.Box``, float32): observations
   ``[obs_dim]``, actions ``[act_dim]`` in ``[-1, 1]``; the same objects on every call.
 - Actions of agents not in ``agents`` (inactive or finished) are ignored; missing actions
@@ -36,6 +38,8 @@ class CalibrationParallelEnv(ParallelEnv):
         cells: the model to calibrate (``None``: discretize ``config.vehicle``).
         sim_config: simulator settings (``None``: ``configs/sim.yaml``).
         render_mode: only ``None`` (no rendering).
+        reset_agents: ``possible`` (default; for TorchRL's ``PettingZooWrapper``) or ``live``: the agents
+            whose observations and infos :meth:`reset` returns (for ``pettingzoo.utils.parallel_to_aec``).
     """
 
     metadata: ClassVar[dict] = {"name": "marlcrash_calibration_v0", "render_modes": [], "is_parallelizable": True}
@@ -46,9 +50,13 @@ class CalibrationParallelEnv(ParallelEnv):
         cells: CellModel | None = None,
         sim_config: SimConfig | None = None,
         render_mode: str | None = None,
+        reset_agents: str = "possible",
     ):
         if render_mode is not None:
             raise ActionError(f"render_mode must be None (no rendering), got {render_mode!r}")
+        if reset_agents not in ("possible", "live"):
+            raise ActionError(f"reset_agents must be 'possible' or 'live', got {reset_agents!r}")
+        self.reset_agents = reset_agents
         self.render_mode = None
         self.core = CalibrationCore(config if config is not None else load_env_config(), 1, cells, sim_config)
         c = self.core
@@ -91,12 +99,13 @@ class CalibrationParallelEnv(ParallelEnv):
 
     # ---------------------------------------------------------------------------------- API
     def reset(self, seed: int | None = None, options: dict | None = None):
-        """New episode; observations and infos for every possible agent (module docstring)."""
+        """New episode; observations and infos for every possible agent, or the live ones (module docstring)."""
         self.core.reset(seed=seed)
         active = self.core.active[0].tolist()
         self.agents = [a for a, on in zip(self.possible_agents, active, strict=True) if on]
         self._started = True
-        return self._observations(self.possible_agents), self._infos(self.possible_agents)
+        who = self.possible_agents if self.reset_agents == "possible" else self.agents
+        return self._observations(who), self._infos(who)
 
     def step(self, actions: dict[str, np.ndarray]):
         """One calibration iteration; returns dicts for the agents live at its start."""
