@@ -30,7 +30,9 @@ surrogate's sign convention (forward speed, starting at the impact speed). Three
 
 One :class:`ReferenceSampler` draws a reference per episode (:meth:`ReferenceSampler.sample`)
 from a :class:`ReferenceConfig`; the scenario distribution (names and weights) is
-passed in by the environment, except for ``file`` whose entries name their own scenario.
+passed in by the environment, except for ``file`` whose entries name their own scenario and
+weight (``file_scenario``: only the tests of that scenario; the calibration problem and a run's
+evaluation set it to their scenario, so a set of tests of several load cases gives each its own).
 
 Pinned reference (``pin_seed``, :meth:`ReferenceSampler.pinned`): every episode gets the same
 reference, the first draw of ``numpy.random.default_rng(pin_seed)`` -- exactly the draw that
@@ -127,9 +129,12 @@ class ReferenceConfig:
     files: list[FileReference] = field(default_factory=list)
     compare_cfc: int | None = 60
     pin_seed: int | None = None
+    file_scenario: str | None = None
 
     def validate(self) -> None:
         require(self.kind != "file" or bool(self.files), "files", "kind 'file' needs at least one entry in files")
+        if self.kind == "file" and self.file_scenario is not None:
+            require_file_scenario(self, self.file_scenario, "file_scenario")
         for i, f in enumerate(self.files):  # the file and the simulation must be compared as the same signal
             require(f.cfc is None or f.cfc == self.compare_cfc, f"files[{i}].cfc",
                     f"expected the compared signal's class, compare_cfc = {self.compare_cfc} (or null: the file is "
@@ -141,6 +146,13 @@ class ReferenceConfig:
             "compare_cfc",
             f"expected a CFC class (60, 180, 600, 1000) or null, got {self.compare_cfc!r}",
         )
+
+
+def require_file_scenario(config: ReferenceConfig, scenario: str, key: str) -> None:
+    """Refuse, naming ``key``, a scenario that no test of ``config.files`` is of."""
+    have = sorted({f.scenario for f in config.files})
+    require(scenario in have, key,
+            f"no test of reference.files is of scenario {scenario!r}; their scenarios: {have}")  # fmt: skip
 
 
 @dataclass
@@ -274,9 +286,12 @@ class ReferenceSampler:
         unknown = [s for s in self.sensors if s not in cells.sensor_names]
         if unknown:
             raise ConfigError(f"unknown sensors {unknown}; the cell model has {cells.sensor_names}", key="sensors")
-        if config.kind == "file":
-            names = [f.scenario for f in config.files]
-            weights = [f.weight for f in config.files]
+        self._file_index: list[int] = []
+        if config.kind == "file":  # a choice is an index into config.files (only file_scenario's tests, if set)
+            self._file_index = [i for i, f in enumerate(config.files)
+                                if config.file_scenario in (None, f.scenario)]  # fmt: skip
+            names = [config.files[i].scenario for i in self._file_index]
+            weights = [config.files[i].weight for i in self._file_index]
         else:
             names, weights = list(scenarios), list(scenarios.values())
         if not names:
@@ -293,7 +308,7 @@ class ReferenceSampler:
         self._feasible = torch.as_tensor(cells.feasible)
         self._fine: dict[int | None, tuple[CellModel, Surrogate]] = {}
         self._cache: dict[tuple[int | None, str], tuple[np.ndarray, np.ndarray]] = {}
-        self._files = [self._load_file(i, f) for i, f in enumerate(config.files)] if config.kind == "file" else []
+        self._files = [self._load_file(i, config.files[i]) for i in self._file_index] if config.kind == "file" else []
         self._pinned: dict[int, ReferenceBatch] = {}
 
     @property
@@ -333,7 +348,7 @@ class ReferenceSampler:
             raw = None
             vel = torch.as_tensor(np.stack([self._files[i][0] for i in pick]))
             acc = torch.as_tensor(np.stack([self._files[i][1] for i in pick]))
-            source = [self.config.files[i].path for i in pick]
+            source = [self.config.files[self._file_index[i]].path for i in pick]
         if raw is not None:
             vel = self.compared(raw)
         return ReferenceBatch(names, speed, overlap, side, vel, acc, truth, source, raw, increments)

@@ -214,6 +214,41 @@ def test_a_test_record_with_pre_trigger_samples_and_an_offset_is_the_simulation(
     assert e.value.key == "env_overrides.reference.kind"
 
 
+def test_tests_of_several_load_cases_give_each_problem_the_test_of_its_scenario(cells, sim, tmp_path):
+    """``reference.files`` with tests of two load cases: ``file_scenario`` draws only one case's tests, and a
+    problem (``reference=file``) calibrates against the test of ``problem.scenario``; the seed drew any test by
+    weight before, and the problem then simulated that test's load case under its own scenario's name."""
+    from marlcrash.calibrate.problem import ProblemConfig, build_problem
+    from marlcrash.pulse.simulation import write_crash_csv
+
+    files = []
+    for name in ("full_width_40", "offset40_left"):
+        result = sim.run(torch.as_tensor(cells.params)[None], get_scenario(name), record_cells="none")
+        path = write_crash_csv(result, tmp_path / f"{name}.csv")
+        files.append(FileReference(path=str(path), scenario=name, weight=1.0 + 8 * len(files),
+                                   channels={s: f"{s}_acc_g" for s in cells.sensor_names}))  # fmt: skip
+    one = sampler(cells, sim, kind="file", files=files, file_scenario="full_width_40")
+    ref = one.sample(np.random.default_rng(0), 8)
+    assert ref.scenario == ["full_width_40"] * 8 and ref.source == [files[0].path] * 8
+    both = sampler(cells, sim, kind="file", files=files).sample(np.random.default_rng(0), 64).scenario
+    assert set(both) == {"full_width_40", "offset40_left"}
+    with pytest.raises(ConfigError, match=r"no test of reference\.files is of scenario 'full_width_56'") as e:
+        from_dict(
+            ReferenceConfig,
+            {"kind": "file", "files": [vars(f) for f in files], "file_scenario": "full_width_56"},
+        )
+    assert e.value.key == "file_scenario"
+
+    over = {"reference.files": [vars(f) for f in files]}
+    for seed in range(3):  # the offset test is 9 in 10 of an unrestricted draw
+        problem = build_problem(ProblemConfig(reference="file", reference_seed=seed, env_overrides=over), cells)
+        assert problem.reference.source == [files[0].path]
+        assert float(problem.evaluate(problem.zeros(1)).area.max()) < 1e-6
+    with pytest.raises(ConfigError, match=r"no test of reference\.files is of scenario 'full_width_56'") as e:
+        build_problem(ProblemConfig(reference="file", scenario="full_width_56", env_overrides=over), cells)
+    assert e.value.key == "problem.scenario"
+
+
 def test_file_reference_settings_that_cannot_line_up_are_refused(cells, sim, tmp_path):
     spec = {"path": "nope.csv", "scenario": "full_width_40", "channels": dict.fromkeys(cells.sensor_names, "a")}
     with pytest.raises(ConfigError, match=r"expected the compared signal's class, compare_cfc = 60") as e:

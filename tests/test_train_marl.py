@@ -410,3 +410,59 @@ def _read_csv(path: Path) -> list[dict]:
 
     with open(path, newline="") as fh:
         return list(csv.DictReader(fh))
+
+
+def test_a_run_trained_against_measured_tests_is_evaluated_on_the_test_of_its_scenario(short, tmp_path):
+    """Two tests of two load cases (the model's own simulations, written as CSV) as ``reference.files``: the
+    run trains against both, and its evaluation calibrates against the test of ``eval.scenario`` (it used to
+    swap in the twin): the initial parameters fit it exactly, the summary names it, and there are no parameter
+    errors (a test has no known truth). ``eval.reference: twin`` still evaluates on the twin; a scenario that
+    no test is of is refused before training starts."""
+    from marlcrash.envs.core import build_cells
+    from marlcrash.pulse.simulation import write_crash_csv
+    from marlcrash.sim import Surrogate, get_scenario
+
+    cells = build_cells("b_segment", None, "optimized")
+    sim = Surrogate(cells)
+    files = []
+    for name in ("full_width_40", "offset40_left"):
+        result = sim.run(torch.as_tensor(cells.params)[None], get_scenario(name), record_cells="none")
+        path = write_crash_csv(result, tmp_path / f"{name}.csv")
+        channels = {s: f"{s}_acc_g" for s in cells.sensor_names}
+        files.append({"path": str(path), "scenario": name, "channels": channels, "weight": 1.0 + 8 * len(files)})
+    over = {"reference.kind": "file", "reference.files": files}  # drawn by weight, the offset test is 9 in 10
+    res = train(tiny(tmp_path, iterations=1, env_overrides=over, **{"eval.scenario": "full_width_40"}))
+    s = res.summary
+    assert s["reference"] == "file" and s["reference_source"] == files[0]["path"]
+    assert "param_error" not in s
+    assert max(v["area"] for v in s["initial_metrics"].values()) < 1e-6  # the 40 km/h test, not the twin or offset
+    assert "full_width_40.csv" in (res.run_dir / "eval_metrics.md").read_text().splitlines()[0]
+
+    twin = train(tiny(tmp_path, iterations=1, name="twin", env_overrides=over, **{"eval.reference": "twin"}))
+    assert twin.summary["reference"] == "twin" and twin.summary["param_error"]
+    assert max(v["area"] for v in twin.summary["initial_metrics"].values()) > 1e-3
+
+    with pytest.raises(ConfigError, match=r"no test of reference\.files is of scenario 'small_overlap_left'") as e:
+        train(tiny(tmp_path, name="none", env_overrides=over, **{"eval.scenario": "small_overlap_left"}))
+    assert e.value.key == "eval.scenario" and not (tmp_path / "runs" / "mappo" / "none").exists()
+    with pytest.raises(ConfigError, match=r"needs tests in the env's reference\.files") as e:
+        train(tiny(tmp_path, name="none", **{"eval.reference": "file"}))
+    assert e.value.key == "eval.reference"
+
+    # a run saved before eval.reference existed was evaluated on the twin, and still is
+    from marlcrash.calibrate.evaluate import evaluate_run
+
+    path = res.run_dir / "config.yaml"
+    path.write_text(path.read_text().replace("  reference: env\n", ""))
+    assert "reference: env" not in path.read_text()
+    old = evaluate_run(res.run_dir)
+    assert old["reference"] == "twin" and old["param_error"]
+
+
+def test_a_run_on_a_pinned_reference_is_evaluated_on_its_evaluation_seed(short, tmp_path):
+    """``reference.pin_seed`` pins the training episodes only: the evaluation env and the evaluation problem both
+    draw ``eval.reference_seed`` (the env used the pinned one, and the run failed after training); a warning says
+    that the two differ."""
+    with pytest.warns(UserWarning, match=r"pinned reference 3 .* calibrates reference 0"):
+        res = train(tiny(tmp_path, iterations=1, env_overrides={"reference.pin_seed": 3}))
+    assert res.summary["reference"] == "twin" and res.summary["reference_seed"] == 0

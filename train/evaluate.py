@@ -1,4 +1,4 @@
-"""Evaluate a training run's checkpoint (DESIGN 6): deterministic policy on the twin reference.
+"""Evaluate a training run's checkpoint (DESIGN 6): deterministic policy on the run's reference.
 
     python train/evaluate.py run=runs/mappo/<name>                 # the latest checkpoint
     python train/evaluate.py run=runs/mappo/<name> checkpoint=40   # the snapshot kept after iteration 40

@@ -299,7 +299,7 @@ class RunCalibration:
 
 
 def run_calibration(run_dir: str | Path) -> RunCalibration:
-    """Load ``<run>/calibrated.npz`` and rebuild the problem the run was evaluated on (its twin reference).
+    """Load ``<run>/calibrated.npz`` and rebuild the problem the run was evaluated on (its reference).
 
     ``run_dir`` is a run folder or one of its re-evaluations (``<run>/eval/<checkpoint>/``, which hold no
     ``config.yaml``: the run's is used). Input files or code changed since the run started are logged as warnings

@@ -170,8 +170,9 @@ def load_policy(run_dir: str | Path) -> tuple[TensorDictModuleBase, TrainConfig,
 
 
 def held_out_config(train_config: TrainConfig, seed: int, scenario: str, iterations: int) -> TrainConfig:
-    """A copy of the run's config whose evaluation is reference ``seed`` of ``scenario`` for ``iterations`` steps."""
+    """A copy of the run's config whose evaluation is twin ``seed`` of ``scenario`` for ``iterations`` steps."""
     cfg = copy.deepcopy(train_config)
+    cfg.eval.reference = "twin"  # held-out twins, with their truth, whatever the run trained against
     cfg.eval.reference_seed = seed
     cfg.eval.scenario = scenario
     cfg.eval.iterations = iterations

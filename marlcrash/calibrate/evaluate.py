@@ -1,9 +1,9 @@
-"""Evaluation of a trained calibration policy on one twin reference (DESIGN 6; paper Table 3).
+"""Evaluation of a trained calibration policy on one reference (DESIGN 6; paper Table 3).
 
 :func:`evaluate_policy` runs the policy *deterministically* (the mean action of its
 TanhNormal) for ``eval.iterations`` calibration steps on a single environment reset with a
-fixed seed in the evaluation scenario (default: the twin reference at ``full_width_40``,
-seed 0 -- the same twin the baselines calibrate with ``reference_seed: 0``), and records the
+fixed seed in the evaluation scenario (default: the env's reference kind, the twin reference at
+``full_width_40``, seed 0 -- the same twin the baselines calibrate with ``reference_seed: 0``), and records the
 per-sensor metrics and the parameters after every iteration. The reported calibration is the
 ``best`` iterate by the reward form's score (a calibration engineer keeps the best fit seen)
 or the ``last`` one (``eval.select``); ``summary.json`` says which (``selected_iteration``).
@@ -14,12 +14,17 @@ or the ``last`` one (``eval.select``); ``summary.json`` says which (``selected_i
   ``{area, dfd, rmse}`` [m, m/s, m/s], ``last_metrics``, ``selected_iteration``, ``passed``
   against the thresholds (paper Table 3, best iteration I5), ``env_steps``, ``simulations``,
   ``wall_time_s``, ``env_steps_per_s``, ``param_error`` and ``initial_param_error`` per
-  sub-assembly ``{E_x, E_s, transmission}`` (relative errors against the twin's truth);
+  sub-assembly ``{E_x, E_s, transmission}`` (relative errors against the twin's truth; a twin only);
 - ``eval_metrics.csv`` and ``eval_metrics.md``: the three metrics and the paper's reward factor
   ``1/A + 1/DFD + 1/RMSE`` per iteration and sensor (Table 3's layout);
 - ``calibrated.npz``: initial, selected, true and per-iteration cell parameters ``[n_cells, 7]``;
 - ``pulses.png`` (reference vs initial vs calibrated acceleration and velocity per sensor, as
   compared) and ``learning_curves.png`` (from ``log.csv``).
+
+The reference is of the kind the run trained against (``eval.reference: env``): a run trained against
+measured tests (``reference.kind: file``) is evaluated on the test of ``eval.scenario`` (``reference`` and
+``reference_source`` in the summary name it), with no parameter errors, as a test has no known truth.
+``eval.reference`` picks another kind.
 
 Any kept checkpoint can be evaluated later (``python train/evaluate.py run=<run> checkpoint=<iteration>``;
 training keeps one every ``snapshot_every`` iterations); those files go into ``<run>/eval/<checkpoint>/``, and
@@ -47,10 +52,12 @@ from marlcrash.calibrate.checkpoint import find_checkpoint, load_training_checkp
 from marlcrash.calibrate.logging import LOG_FILE, read_log
 from marlcrash.calibrate.marl import TrainConfig, act, load_run_config, make_env, make_env_config, make_policy
 from marlcrash.calibrate.problem import CalibrationProblem, ProblemConfig, build_problem
-from marlcrash.config import from_dict, require
+from marlcrash.config import flatten_overrides, from_dict, require
+from marlcrash.envs import EnvConfig
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics
 from marlcrash.outputs import atomic_output, write_text
+from marlcrash.references import require_file_scenario
 from marlcrash.reward import paper_factor
 from marlcrash.units import G0
 
@@ -107,6 +114,8 @@ class EvalResult:
         true_params: ``[n_cells, 7]`` the twin's hidden truth (``None`` for other references).
         ref_velocity: ``[K, T]`` the reference velocity [m/s].
         scenario: the evaluation scenario's name; ``seed``: its reset seed.
+        reference: the reference kind (``twin``, ``cross_fidelity``, ``file``); ``source``: its origin
+            (:attr:`marlcrash.references.ReferenceBatch.source`: ``twin``, the fine model, the test's path).
     """
 
     sensors: list[str]
@@ -119,6 +128,8 @@ class EvalResult:
     ref_velocity: torch.Tensor
     scenario: str
     seed: int
+    reference: str = "twin"
+    source: str = "twin"
 
     @property
     def iterations(self) -> int:
@@ -130,13 +141,34 @@ class EvalResult:
         return Metrics(*(t[i] for t in self.metrics)).per_sensor(self.sensors)
 
 
+def evaluation_reference(config: TrainConfig) -> str:
+    """The evaluation's reference kind: ``eval.reference``, or for ``env`` the kind the run trained against.
+
+    Raises:
+        ConfigError: a file reference with no test of ``eval.scenario`` in ``reference.files`` (key ``eval.scenario``).
+    """
+    kind = config.eval.reference
+    if kind == "env" or kind == "file":
+        ref = make_env_config(config).reference
+        kind = ref.kind if kind == "env" else kind
+        if kind == "file":
+            require(bool(ref.files), "eval.reference", "the file reference needs tests in the env's reference.files")
+            require_file_scenario(ref, config.eval.scenario, "eval.scenario")
+    return kind
+
+
 def evaluation_overrides(config: TrainConfig) -> dict[str, Any]:
-    """Env overrides of the evaluation: one scenario, twin reference, ``eval.iterations`` steps."""
-    return {
+    """Env overrides of the evaluation: one scenario, its reference kind, ``eval.iterations`` steps."""
+    kind = evaluation_reference(config)
+    over = {
         "scenarios": {config.eval.scenario: 1.0},
-        "reference.kind": "twin",
+        "reference.kind": kind,
         "termination.max_iterations": config.eval.iterations,
-    }
+        "reference.pin_seed": None,  # the reset seed is eval.reference_seed, as the problem's draw (a pinned
+    }  # training reference would replace it in the env only, and the two would differ)
+    if kind == "file":  # the test of the evaluation scenario, of a set that may hold several load cases
+        over["reference.file_scenario"] = config.eval.scenario
+    return over
 
 
 def evaluate_policy(policy: TensorDictModuleBase, config: TrainConfig) -> EvalResult:
@@ -167,15 +199,27 @@ def evaluate_policy(policy: TensorDictModuleBase, config: TrainConfig) -> EvalRe
     return EvalResult(
         sensors=list(core.sensors), metrics=m, scores=scores, params=torch.stack(params), selected=selected,
         select=ev.select, true_params=truth, ref_velocity=core.ref_velocity[0].clone(), scenario=ev.scenario,
-        seed=ev.reference_seed,
+        seed=ev.reference_seed, reference=core.config.reference.kind, source=core.source[0],
     )  # fmt: skip
 
 
+def reference_label(result: EvalResult) -> str:
+    """``twin seed 0``, ``cross_fidelity uniform:seed=None``, ``test ../tests/x.csv``: what was calibrated against."""
+    if result.reference == "twin":
+        return f"twin seed {result.seed}"
+    if result.reference == "file":
+        return f"test {result.source}"
+    return f"{result.reference} {result.source}"
+
+
 def evaluation_problem(config: TrainConfig) -> CalibrationProblem:
-    """The baselines' :class:`CalibrationProblem` of the same twin (simulator, truth, sub-assembly sums)."""
+    """The baselines' :class:`CalibrationProblem` of the same reference (simulator, truth, sub-assembly sums)."""
     env_cfg = make_env_config(config)
-    pc = ProblemConfig(env=config.env, env_overrides=dict(config.env_overrides), scenario=config.eval.scenario,
-                       reference="twin", reference_seed=config.eval.reference_seed, fit=env_cfg.reward,
+    kind = evaluation_reference(config)
+    over = flatten_overrides(EnvConfig, config.env_overrides)  # the evaluation's kind, not the training's
+    over["reference.kind"] = kind
+    pc = ProblemConfig(env=config.env, env_overrides=over, scenario=config.eval.scenario, reference=kind,
+                       reference_seed=config.eval.reference_seed, fit=env_cfg.reward,
                        success=config.eval.thresholds)  # fmt: skip
     return build_problem(pc)
 
@@ -219,7 +263,7 @@ def write_metrics_tables(result: EvalResult, csv_path: Path, md_path: Path) -> N
     head = "| | " + " | ".join(f"I{i}{'*' if i == result.selected else ''}" for i in range(n)) + " |"
     sep = "|---|" + "---|" * n
     lines = [
-        f"# Calibration metrics per iteration ({result.scenario}, twin seed {result.seed})",
+        f"# Calibration metrics per iteration ({result.scenario}, {reference_label(result)})",
         "",
         "I0 = initial parameters; * = the reported iterate "
         f"({result.select}). A [m], DFD [m/s, time in s], RMSE [m/s]; factor = 1/A + 1/DFD + 1/RMSE.",
@@ -263,7 +307,7 @@ def plot_pulses(problem: CalibrationProblem, result: EvalResult, path: Path) -> 
     for k in range(K):
         for row, series in enumerate((acc[:, k], vel[:, k])):
             ax = axes[row, k]
-            ax.plot(t, series[0].numpy(), "k-", lw=2, label="reference (twin)")
+            ax.plot(t, series[0].numpy(), "k-", lw=2, label=f"reference ({reference_label(result)})")
             ax.plot(t, series[1].numpy(), "C0--", label="initial")
             ax.plot(t, series[2].numpy(), "C3-", label=f"calibrated (I{result.selected})")
             ax.grid(alpha=0.3)
@@ -406,7 +450,7 @@ def evaluate_run(
     result = evaluate_policy(policy, config)
     problem = evaluation_problem(config)
     if not torch.allclose(problem.ref_velocity, result.ref_velocity, rtol=0, atol=1e-9):
-        raise ConfigError("the evaluation env and the baselines' problem drew different twin references", key="eval")
+        raise ConfigError("the evaluation env and the baselines' problem drew different references", key="eval")
     log_path = run_dir / LOG_FILE
     log_rows = read_log(log_path) if log_path.is_file() else []
     log_rows = [r for r in log_rows if r["iteration"] <= int(counters["iteration"])]
@@ -423,7 +467,8 @@ def evaluate_run(
         "eval_dir": str(out_dir),
         "seed": config.seed,
         "scenario": result.scenario,
-        "reference": "twin",
+        "reference": result.reference,
+        "reference_source": result.source,
         "reference_seed": result.seed,
         "select": result.select,
         "selected_iteration": result.selected,

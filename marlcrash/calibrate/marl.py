@@ -41,6 +41,7 @@ import math
 import os
 import shutil
 import time
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -145,9 +146,10 @@ class AlgorithmConfig:
 
 @dataclass
 class EvalConfig:
-    """The end-of-run evaluation (deterministic policy on one twin reference); see ``configs/train/train.yaml``."""
+    """The end-of-run evaluation (deterministic policy on one reference); see ``configs/train/train.yaml``."""
 
     scenario: str = "full_width_40"
+    reference: Literal["env", "twin", "cross_fidelity", "file"] = "env"
     reference_seed: int = 0
     iterations: int = 20
     select: Literal["best", "last"] = "best"
@@ -716,6 +718,8 @@ def load_run_config(run_dir: str | Path) -> TrainConfig:
     if not path.is_file():
         raise ConfigError(f"expected a run folder with {CONFIG_FILE}, found none in {run_dir}", key="run")
     data = yaml.safe_load(path.read_text())
+    if isinstance(data, dict) and isinstance(data.get("eval"), dict):  # a run saved before eval.reference existed
+        data["eval"].setdefault("reference", "twin")  # was evaluated on the twin, whatever it trained against
     return load_train_config(data, source=str(path), ci=False)
 
 
@@ -882,6 +886,17 @@ def train(config: TrainConfig, *, stop_at: int | None = None, evaluate: bool = T
         save_run_config(config, run_dir)
         state = None
     try:
+        if evaluate:  # an evaluation that cannot be built is refused now, not after the training time
+            from marlcrash.calibrate.evaluate import evaluation_overrides
+
+            make_env_config(config, evaluation_overrides(config))
+            pin = make_env_config(config).reference.pin_seed
+            if pin is not None and pin != config.eval.reference_seed:
+                warnings.warn(
+                    f"training calibrates the pinned reference {pin} (reference.pin_seed); the evaluation "
+                    f"calibrates reference {config.eval.reference_seed} (eval.reference_seed)",
+                    stacklevel=2,
+                )
         tr = build_trainer(config, run_dir)
     except Exception:
         if resume is False:  # a fresh run that cannot start leaves no folder behind to block a rerun

@@ -59,7 +59,7 @@ from marlcrash.errors import ConfigError, ModelError
 from marlcrash.metrics import Metrics, area_between, compute_metrics, rmse
 from marlcrash.pulse.cfc import f_h
 from marlcrash.pulse.signal import compared_velocity
-from marlcrash.references import ReferenceBatch, ReferenceSampler
+from marlcrash.references import ReferenceBatch, ReferenceSampler, require_file_scenario
 from marlcrash.reward import Reward, TerminationConfig, load_reward_config, termination
 from marlcrash.sim.scenario import CrashScenario, get_scenario, list_scenarios
 from marlcrash.sim.surrogate import SimResult, Surrogate, load_sim_config
@@ -525,9 +525,13 @@ class CalibrationProblem:
 def problem_env_config(config: ProblemConfig):
     """The env config a problem is built from: ``config.env`` with its overrides, reference kind and scenario.
 
+    A file reference is a test of ``config.scenario`` (``reference.file_scenario``): with tests of several load
+    cases in ``reference.files``, the seed drew any of them and the problem simulated that test's load case.
+
     Raises:
         ConfigError: ``env_overrides`` set another ``reference.kind`` than ``reference`` (the problem's wins, so
-            asking for a file reference there alone silently calibrated against the twin).
+            asking for a file reference there alone silently calibrated against the twin), or no test of
+            ``reference.files`` is of ``config.scenario``.
     """
     kind = flatten_overrides(EnvConfig, config.env_overrides).get("reference.kind", config.reference)
     if kind != config.reference:
@@ -536,7 +540,11 @@ def problem_env_config(config: ProblemConfig):
     over = dict(config.env_overrides)
     over["reference.kind"] = config.reference
     over["scenarios"] = {config.scenario: 1.0}
-    return load_env_config(config.env, over)
+    env = load_env_config(config.env, over)
+    if config.reference == "file":  # the test of this scenario (a set of tests may hold several load cases)
+        require_file_scenario(env.reference, config.scenario, "problem.scenario")
+        env.reference.file_scenario = config.scenario
+    return env
 
 
 def build_problem(config: ProblemConfig, cells: CellModel | None = None) -> CalibrationProblem:

@@ -253,6 +253,7 @@ class CalibrationCore:
         self.truncated = torch.zeros(B, dtype=torch.bool)
         self.success = torch.zeros(B, dtype=torch.bool)
         self.scenario: list[str] = [""] * B
+        self.source: list[str] = [""] * B  # each row's reference origin (ReferenceBatch.source: twin, a file path)
         self.true_params: torch.Tensor | None = None
         self.rng = np.random.default_rng(cfg.seed)
         self.simulation_hooks: list[Callable[[torch.Tensor, Metrics], None]] = []
@@ -306,6 +307,7 @@ class CalibrationCore:
         ref = self.sampler.sample(self.rng, n) if pin is None else self.sampler.pinned(pin, n)
         for i, r in enumerate(rows.tolist()):  # scenario names: per-row Python strings
             self.scenario[r] = ref.scenario[i]
+            self.source[r] = ref.source[i]
         self.speed[rows], self.overlap[rows], self.side[rows] = ref.speed, ref.overlap, ref.side
         self.ref_velocity[rows] = ref.velocity
         if ref.true_params is not None:
