@@ -525,8 +525,8 @@ class CalibrationProblem:
 def problem_env_config(config: ProblemConfig):
     """The env config a problem is built from: ``config.env`` with its overrides, reference kind and scenario.
 
-    A file reference is a test of ``config.scenario`` (``reference.file_scenario``): with tests of several load
-    cases in ``reference.files``, the seed drew any of them and the problem simulated that test's load case.
+    A file reference is a test of ``config.scenario`` (``reference.file_scenario``), so a set of tests of several
+    load cases in ``reference.files`` gives each problem the test of its own scenario.
 
     Raises:
         ConfigError: ``env_overrides`` set another ``reference.kind`` than ``reference`` (the problem's wins, so
