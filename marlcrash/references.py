@@ -308,7 +308,7 @@ class ReferenceSampler:
         self._feasible = torch.as_tensor(cells.feasible)
         self._fine: dict[int | None, tuple[CellModel, Surrogate]] = {}
         self._cache: dict[tuple[int | None, str], tuple[np.ndarray, np.ndarray]] = {}
-        self._files = [self._load_file(i, config.files[i]) for i in self._file_index] if config.kind == "file" else []
+        self._files = [self._load_file(i, config.files[i]) for i in self._file_index]  # empty unless kind file
         self._pinned: dict[int, ReferenceBatch] = {}
 
     @property
