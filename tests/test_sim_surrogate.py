@@ -388,3 +388,34 @@ def test_gap_link_engages_only_after_closing():
     assert float(short.cell_transmitted[0, src, -1]) != float(short.cell_transmitted[1, src, -1])
     out = sim.run(p[:1], FW40, backend="torch")
     assert max_balance_error(out) < 5e-3
+
+
+@pytest.mark.parametrize("backend", ["numba", "torch"])
+def test_cells_at_takes_the_per_cell_energies_and_saturation_at_that_sample(backend):
+    """A simulation run on past ``cells_at`` reports the per-cell ledgers a simulation ending there ends with.
+
+    The env runs past a compared window to filter over a margin; its energy and saturation observations
+    are the window's. Both paths, against a run that stops at 40 ms and against the 60 ms run's own series.
+    """
+    cells = block()
+    sim = Surrogate(cells)
+    p = sim.check_params(_random_params(cells, 6, seed=3))
+    sc = get_scenario("offset40_left")
+    run = lambda d, **kw: sim.run(p, sc, duration=d, backend=backend, **kw)  # noqa: E731
+    short = run(0.04, record_cells="final")
+    long = run(0.06, record_cells="final", cells_at=0.04)
+    end = run(0.06, record_cells="final")
+    series = run(0.06, record_cells="series")
+    i = round(0.04 / sim.output_dt)
+    assert bool(short.saturated.any()) and not torch.equal(short.saturated, end.saturated), "must saturate later"
+    for f in ("cell_input", "cell_absorbed", "cell_transmitted"):
+        ref = getattr(short, f)
+        assert float((getattr(end, f) - ref).abs().max()) > 1e-3 * float(ref.abs().max())  # it does move on
+        torch.testing.assert_close(getattr(long, f), ref, rtol=1e-9, atol=1e-9 * float(ref.abs().max()))
+        torch.testing.assert_close(getattr(series, f)[..., i : i + 1], ref, rtol=1e-9, atol=1e-6)
+    torch.testing.assert_close(long.cell_plastic, short.cell_plastic, rtol=1e-9, atol=1e-9)
+    assert torch.equal(long.saturated, short.saturated)
+    torch.testing.assert_close(long.velocity[..., : i + 1], short.velocity, rtol=0, atol=0)
+    for bad in (0.0403, 0.061, -0.001, float("nan")):
+        with pytest.raises(ModelError, match="cells_at must be an output sample's time"):
+            run(0.06, record_cells="final", cells_at=bad)

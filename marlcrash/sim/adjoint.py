@@ -372,7 +372,7 @@ class _SensorVelocity(torch.autograd.Function):
         return (*out, None, None)
 
 
-def run_adjoint(sim, props, wall, n_out: int, sensor_idx, record_cells: str):
+def run_adjoint(sim, props, wall, n_out: int, sensor_idx, record_cells: str, snap: int | None = None):
     """:func:`~marlcrash.sim.kernels.run_numba`'s result with sensor velocities differentiable by the adjoint.
 
     Raises:
@@ -384,7 +384,7 @@ def run_adjoint(sim, props, wall, n_out: int, sensor_idx, record_cells: str):
         raise ModelError("backend 'adjoint' does not support springback_relief; use backend 'torch'")
     if sim.dtype != torch.float64:
         raise ModelError("backend 'adjoint' needs dtype float64; use backend 'torch' for float32 gradients")
-    res = run_numba(sim, props, wall, n_out, sensor_idx, record_cells)
+    res = run_numba(sim, props, wall, n_out, sensor_idx, record_cells, snap=snap)
     tensors = (props.yield_c, props.yield_t, props.k, props.k_dense, props.damping, props.e_s)
     if torch.is_grad_enabled() and any(t.requires_grad for t in tensors):
         st = _statics(sim, wall, n_out, sensor_idx[1])

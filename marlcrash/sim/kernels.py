@@ -272,6 +272,7 @@ def _simulate(
     dt,
     sub,
     n_out,
+    snap,
     mode,
     relief,
     vel_o,
@@ -298,6 +299,7 @@ def _simulate(
         src, dst, gap0, trl: ``[L]`` link ends, initial gap [m] and tension ratio [-].
         out_ptr, out_idx: the links by source cell (CSR: links ``out_idx[out_ptr[i]:out_ptr[i + 1]]`` start at i).
         mass, mass_ke: ``[n]`` scaled mass and kinetic-energy mass [kg].
+        snap: the output sample of the per-cell energies (``mode`` 1) and of ``plastic_o``.
         Outputs are ``[C, lanes, ...]`` float64 arrays (see :func:`run_numba`).
     """
     n_chunks, L, _, CH = lp.shape
@@ -479,7 +481,11 @@ def _simulate(
                     st_o[ch, j, t] = a_st[j]
                     ab_o[ch, j, t] = a_w[j] + ww[j] - a_st[j]
                     pl_o[ch, j, t] = a_p[j]
-                if mode == 2 or (mode == 1 and t == n_out - 1):
+                if t == snap:
+                    for i in range(n):
+                        for j in range(CH):
+                            plastic_o[ch, j, i] = plastic[i, j]
+                if mode == 2 or (mode == 1 and t == snap):
                     tt = t if mode == 2 else 0
                     for i in range(n):
                         for j in range(CH):
@@ -495,9 +501,6 @@ def _simulate(
                                 w_work[i, j] - stored_w[i, j] + a_out[i, j] - h_out[i, j] - st_cell[i, j]
                             )
                             ctr_o[ch, j, i, tt] = h_out[i, j]
-        for i in range(n):
-            for j in range(CH):
-                plastic_o[ch, j, i] = plastic[i, j]
 
 
 def run_numba(
@@ -508,6 +511,7 @@ def run_numba(
     sensor_idx,
     record_cells: str,
     lanes: int | None = None,
+    snap: int | None = None,
 ) -> SimResult:
     """Run the fused kernel (no gradients); same inputs and result layout as the torch path.
 
@@ -519,6 +523,8 @@ def run_numba(
         sensor_idx: ``(names, [K] cell indices)``.
         record_cells: ``none``, ``final`` or ``series``.
         lanes: simulations per chunk (default :func:`default_lanes`; results do not depend on it).
+        snap: the output sample of the ``final`` per-cell energies and of the plastic work per cell (default:
+            the last).
     """
     names, sidx = sensor_idx
     B, n = props.k.shape[0], sim.n
@@ -602,6 +608,7 @@ def run_numba(
         dt,
         sim.config.substeps,
         n_out,
+        n_out - 1 if snap is None else int(snap),
         mode,
         relief,
         vel,

@@ -215,9 +215,9 @@ class SimResult:
         initial: ``[B]`` initial kinetic energy [J].
         cell_input, cell_absorbed, cell_transmitted: ``[B, n_cells, T']`` cumulative
             per-cell energies [J] (``T' = T`` for ``record_cells='series'``, 1 for
-            ``'final'``, 0 for ``'none'``).
-        cell_plastic: ``[B, n_cells]`` final plastic work per cell [J].
-        saturated: ``[B, n_cells]`` bool, cell bottomed out (plastic work reached E_s).
+            ``'final'``: at the end, or at ``Surrogate.run``'s ``cells_at``; 0 for ``'none'``).
+        cell_plastic: ``[B, n_cells]`` plastic work per cell [J], at the end (or at ``cells_at``).
+        saturated: ``[B, n_cells]`` bool, cell bottomed out (plastic work reached E_s), at the same time.
     """
 
     time: torch.Tensor
@@ -525,6 +525,7 @@ class Surrogate:
         probe_cells: list[int] | np.ndarray | torch.Tensor | None = None,
         record_cells: Literal["series", "final", "none"] = "series",
         backend: Literal["torch", "numba", "adjoint", "auto"] | None = None,
+        cells_at: float | None = None,
     ) -> SimResult:
         """Simulate ``B`` crashes.
 
@@ -541,9 +542,15 @@ class Surrogate:
                 ``numba`` result with sensor velocities differentiable by a compiled reverse pass,
                 :mod:`marlcrash.sim.adjoint`), ``auto``
                 (numba unless gradients are required); default from the config.
+            cells_at: time [s] of the ``final`` per-cell energies, ``cell_plastic`` and ``saturated``, an
+                output sample's (default: the end), e.g. a compared window's end when the simulation runs on
+                past it to filter the pulse over a longer record.
 
         Returns:
             A :class:`SimResult`.
+
+        Raises:
+            ModelError: an unknown backend, ``cells_at`` outside the simulated time or between samples.
         """
         if backend not in (None, "torch", "numba", "adjoint", "auto"):
             raise ModelError(f"backend must be one of torch, numba, adjoint, auto; got {backend!r}")
@@ -555,18 +562,27 @@ class Surrogate:
         p, props, wall, n_out, sensor_idx = self.prepare(
             params, scenario, speed, overlap, side, duration, sensors, probe_cells
         )
+        snap = n_out - 1
+        if cells_at is not None:
+            at = float(cells_at) / self.output_dt
+            if not (np.isfinite(at) and abs(at - round(at)) <= 1e-6 * max(1.0, at) and 0 <= round(at) < n_out):
+                raise ModelError(
+                    f"cells_at must be an output sample's time in [0, {(n_out - 1) * self.output_dt:.6g}] s "
+                    f"(every {self.output_dt:.6g} s), got {cells_at}"
+                )
+            snap = round(at)
         backend = backend or self.config.backend
         if backend == "auto":
             backend = "torch" if (torch.is_grad_enabled() and p.requires_grad) else "numba"
         if backend == "adjoint":
             from marlcrash.sim.adjoint import run_adjoint
 
-            return run_adjoint(self, props, wall, n_out, sensor_idx, record_cells)
+            return run_adjoint(self, props, wall, n_out, sensor_idx, record_cells, snap)
         if backend == "numba":
             from marlcrash.sim.kernels import run_numba
 
-            return run_numba(self, props, wall, n_out, sensor_idx, record_cells)
-        return self._run_torch(props, wall, n_out, sensor_idx, record_cells)
+            return run_numba(self, props, wall, n_out, sensor_idx, record_cells, snap=snap)
+        return self._run_torch(props, wall, n_out, sensor_idx, record_cells, snap=snap)
 
     def prepare(
         self,
@@ -681,9 +697,20 @@ class Surrogate:
         return torch.zeros_like(st.fw).index_add(1, self.src, st.f_tot).index_add(1, self.dst, -st.f_tot) - st.fw
 
     def _run_torch(
-        self, props: LinkProps, wall: WallProps, n_out: int, sensor_idx, record_cells, increment=None, theta=1.0
+        self,
+        props: LinkProps,
+        wall: WallProps,
+        n_out: int,
+        sensor_idx,
+        record_cells,
+        increment=None,
+        theta=1.0,
+        snap: int | None = None,
     ) -> SimResult:
         """The explicit reference path (symplectic Euler); ``increment`` swaps in the implicit study's step.
+
+        ``snap``: the output sample of the ``final`` per-cell energies and the plastic work per cell (default:
+        the last).
 
         ``increment(props, wall, f_el, o, plastic, yielded, s, v, force)`` returns a step's node increments
         ``ds``; the velocity update then applies ``(1 - theta)`` of the start and ``theta`` of the end forces
@@ -708,6 +735,8 @@ class Surrogate:
 
         rec: dict[str, list[torch.Tensor]] = {k: [] for k in ("vel", "s", "vc", "pen", "ke", "st", "ab", "pl")}
         cells_rec: dict[str, list[torch.Tensor]] = {"in": [], "ab": [], "tr": []}
+        snap = n_out - 1 if snap is None else snap
+        at_snap: dict[str, tuple[torch.Tensor, ...] | torch.Tensor] = {}
 
         def record(vel, ke):
             pen = torch.where(wall.covered, (s - wall.gap).clamp_min(0.0), zn).amax(dim=1)
@@ -725,6 +754,10 @@ class Surrogate:
                 cells_rec["in"].append(ci)
                 cells_rec["ab"].append(ca)
                 cells_rec["tr"].append(ct)
+            if len(rec["vel"]) - 1 == snap:
+                at_snap["plastic"] = plastic
+                if record_cells == "final":
+                    at_snap["cells"] = cell_energies(work, passed, stored_l, w_work, w_in, stored_w, src, dst)
 
         record(v, e0)
         force = zn
@@ -766,7 +799,7 @@ class Surrogate:
 
         stack = lambda key: torch.stack(rec[key], dim=-1)  # noqa: E731
         if record_cells == "final":
-            ci, ca, ct = cell_energies(work, passed, stored_l, w_work, w_in, stored_w, src, dst)
+            ci, ca, ct = at_snap["cells"]
             cell_in, cell_ab, cell_tr = ci[..., None], ca[..., None], ct[..., None]
         elif record_cells == "series":
             cell_in, cell_ab, cell_tr = (torch.stack(cells_rec[k], dim=-1) for k in ("in", "ab", "tr"))
@@ -788,6 +821,6 @@ class Surrogate:
             cell_input=cell_in,
             cell_absorbed=cell_ab,
             cell_transmitted=cell_tr,
-            cell_plastic=plastic,
-            saturated=plastic >= props.e_s,
+            cell_plastic=at_snap["plastic"],
+            saturated=at_snap["plastic"] >= props.e_s,
         )
