@@ -26,7 +26,11 @@ surrogate's sign convention (forward speed, starting at the impact speed). Three
   tunnel) crosses it milliseconds after the contact. The file must be filtered with the
   compared signal's class (``cfc`` = ``compare_cfc``, or null when filtered already), and a
   record whose velocity climbs above the impact speed (decelerations recorded positive)
-  is refused, naming ``sign``.
+  is refused, naming ``sign``. A record usually goes on past the window and is filtered over all of
+  it, so the filter's end handling never reaches the window's last samples; candidates compared with
+  it are simulated up to ``compare_margin`` (10 ms) longer, as far as the record reaches, filtered and
+  cut at the window alike (:attr:`ReferenceBatch.margin`; without it a candidate at the test's own
+  parameters missed it by a DFD of up to 0.24 m/s over 150 ms and 3.3 m/s over 30 ms).
 
 One :class:`ReferenceSampler` draws a reference per episode (:meth:`ReferenceSampler.sample`)
 from a :class:`ReferenceConfig`; the scenario distribution (names and weights) is
@@ -55,7 +59,13 @@ from marlcrash.cells.parameterization import apply_increments
 from marlcrash.config import config_dir, require
 from marlcrash.errors import ConfigError, PulseError
 from marlcrash.pulse.io import ACC_UNITS, acc_unit_key, check_record_rate, read_pulse
-from marlcrash.pulse.signal import compared_velocity, prepare_velocity, remove_zero_offset
+from marlcrash.pulse.signal import (
+    DEFAULT_COMPARE_MARGIN,
+    compared_window,
+    margin_samples,
+    prepare_velocity,
+    remove_zero_offset,
+)
 from marlcrash.sim.scenario import CrashScenario, get_scenario
 from marlcrash.sim.surrogate import SimConfig, Surrogate
 
@@ -130,6 +140,7 @@ class ReferenceConfig:
     compare_cfc: int | None = 60
     pin_seed: int | None = None
     file_scenario: str | None = None
+    compare_margin: float = DEFAULT_COMPARE_MARGIN
 
     def validate(self) -> None:
         require(self.kind != "file" or bool(self.files), "files", "kind 'file' needs at least one entry in files")
@@ -139,6 +150,8 @@ class ReferenceConfig:
             require(f.cfc is None or f.cfc == self.compare_cfc, f"files[{i}].cfc",
                     f"expected the compared signal's class, compare_cfc = {self.compare_cfc} (or null: the file is "
                     f"filtered already), got {f.cfc}: the simulation is filtered with compare_cfc")  # fmt: skip
+        require(np.isfinite(self.compare_margin) and 0.0 <= self.compare_margin <= 0.1, "compare_margin",
+                f"expected a duration in [0, 0.1] s, got {self.compare_margin}")  # fmt: skip
         require(self.pin_seed is None or self.pin_seed >= 0, "pin_seed",
                 f"expected a reference seed >= 0 or null, got {self.pin_seed}")  # fmt: skip
         require(
@@ -174,6 +187,11 @@ class ReferenceBatch:
         raw_velocity: ``[B, K, T]`` unfiltered simulated velocity of simulated references (so a
             shorter comparison window can be filtered alike); ``None`` for measured files,
             which are filtered when read.
+        margin: ``[B]`` int64 samples past the window that a measured record holds (at most
+            ``ReferenceConfig.compare_margin``): it was filtered over them, so a candidate compared with it
+            is simulated that much longer and cut after filtering
+            (:func:`~marlcrash.pulse.signal.compared_window`); 0 for simulated references, which end at the
+            window as the candidates do. ``None``: all 0.
     """
 
     scenario: list[str]
@@ -186,6 +204,7 @@ class ReferenceBatch:
     source: list[str]
     raw_velocity: torch.Tensor | None = None
     true_increments: torch.Tensor | None = None
+    margin: torch.Tensor | None = None
 
     def repeat(self, n: int) -> ReferenceBatch:
         """The first row repeated ``n`` times (every tensor ``[n, ...]``; copies, not views)."""
@@ -195,7 +214,8 @@ class ReferenceBatch:
 
         return ReferenceBatch([self.scenario[0]] * n, rows(self.speed), rows(self.overlap), rows(self.side),
                               rows(self.velocity), rows(self.acceleration), rows(self.true_params),
-                              [self.source[0]] * n, rows(self.raw_velocity), rows(self.true_increments))  # fmt: skip
+                              [self.source[0]] * n, rows(self.raw_velocity), rows(self.true_increments),
+                              rows(self.margin))  # fmt: skip
 
 
 def twin_increments(noise: torch.Tensor, config: TwinConfig) -> torch.Tensor:
@@ -326,6 +346,7 @@ class ReferenceSampler:
         side = torch.tensor([s.side_sign for s in scs], dtype=torch.float64)
         kind = self.config.kind
         truth = increments = None
+        margin = torch.zeros(n, dtype=torch.int64)
         if kind == "twin":
             noise = torch.as_tensor(rng.standard_normal((n, self.n_subassemblies, 7)))
             truth = perturb_twin(
@@ -348,10 +369,11 @@ class ReferenceSampler:
             raw = None
             vel = torch.as_tensor(np.stack([self._files[i][0] for i in pick]))
             acc = torch.as_tensor(np.stack([self._files[i][1] for i in pick]))
+            margin = torch.tensor([self._files[i][2] for i in pick], dtype=torch.int64)
             source = [self.config.files[self._file_index[i]].path for i in pick]
         if raw is not None:
             vel = self.compared(raw)
-        return ReferenceBatch(names, speed, overlap, side, vel, acc, truth, source, raw, increments)
+        return ReferenceBatch(names, speed, overlap, side, vel, acc, truth, source, raw, increments, margin)
 
     def pinned(self, seed: int, n: int) -> ReferenceBatch:
         """The pinned reference of ``seed`` for ``n`` episodes (module docstring); drawn once, then cached.
@@ -362,9 +384,19 @@ class ReferenceSampler:
             self._pinned[seed] = self.sample(np.random.default_rng(seed), 1)
         return self._pinned[seed].repeat(n)
 
-    def compared(self, velocity: torch.Tensor) -> torch.Tensor:
-        """Simulated ``[..., T]`` velocity as it is compared: integral of the CFC-filtered acceleration."""
-        return compared_velocity(velocity.to(torch.float64), 1.0 / self.output_rate, self.config.compare_cfc)
+    @property
+    def max_margin(self) -> int:
+        """The most samples past the window that a reference of this sampler holds (:attr:`ReferenceBatch.margin`)."""
+        return max((f[2] for f in self._files), default=0)
+
+    def compared(self, velocity: torch.Tensor, margin: torch.Tensor | int = 0) -> torch.Tensor:
+        """Simulated ``[B, K, T + max(margin)]`` velocity as it is compared over the ``T`` samples of the window.
+
+        The integral of the CFC-filtered acceleration, each row filtered over its ``margin`` samples past the
+        window (its reference's :attr:`ReferenceBatch.margin`) and cut to the window.
+        """
+        return compared_window(velocity.to(torch.float64), 1.0 / self.output_rate, self.config.compare_cfc,
+                               self.n_outputs, margin)  # fmt: skip
 
     # ------------------------------------------------------------------------------ cross-fidelity
     def fine_model(self, seed: int | None = None) -> tuple[CellModel, Surrogate]:
@@ -395,7 +427,8 @@ class ReferenceSampler:
         return self._cache[key]
 
     # ------------------------------------------------------------------------------------- files
-    def _load_file(self, i: int, spec: FileReference) -> tuple[np.ndarray, np.ndarray]:
+    def _load_file(self, i: int, spec: FileReference) -> tuple[np.ndarray, np.ndarray, int]:
+        """Velocity ``[K, T]`` and acceleration of test ``i`` over the window, and its margin (samples past it)."""
         key = f"reference.files[{i}]"
         missing = [s for s in self.sensors if s not in spec.channels]
         if missing:
@@ -418,8 +451,14 @@ class ReferenceSampler:
         sc = self.scenarios[spec.scenario]
         if spec.time_zero == "file":  # the samples before the contact are at rest: their mean is the offset
             pulse = remove_zero_offset(pulse, before=-ZERO_LEVEL_MARGIN)
+        # unfiltered comparisons (compare_cfc null) have no filter end handling to match: no margin
+        most = 0 if self.config.compare_cfc is None else margin_samples(self.config.compare_margin, sc.output_rate)
         _, vel = prepare_velocity(pulse, cfc=spec.cfc, rate_hz=sc.output_rate, duration=sc.duration,
-                                     time_zero=spec.time_zero, threshold_g=spec.threshold_g, v0=sc.speed)  # fmt: skip
+                                  time_zero=spec.time_zero, threshold_g=spec.threshold_g, v0=sc.speed,
+                                  beyond=most / sc.output_rate)  # fmt: skip
+        margin = vel.shape[1] - self.n_outputs
+        acc = np.gradient(vel, 1.0 / sc.output_rate, axis=1)[:, : self.n_outputs]  # central at the window's end
+        vel = vel[:, : self.n_outputs]
         rise = float(vel.max()) - sc.speed
         if rise > max(1.0, 0.1 * sc.speed):  # a frontal impact slows the vehicle; rebound never exceeds the speed
             k = int(vel.max(axis=1).argmax())
@@ -433,5 +472,4 @@ class ReferenceSampler:
                 f"{path.name}: expected {self.n_outputs} samples ({sc.duration} s at {sc.output_rate} Hz) after time "
                 f"zero, got {vel.shape[1]}; the record is too short for scenario {sc.name!r}"
             )
-        acc = np.gradient(vel, 1.0 / sc.output_rate, axis=1)
-        return vel, acc
+        return vel, acc, margin

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import json
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -13,7 +16,7 @@ from marlcrash.config import from_dict
 from marlcrash.envs.core import build_cells
 from marlcrash.errors import ConfigError, PulseError
 from marlcrash.pulse.cfc import cfc_filter
-from marlcrash.pulse.signal import PRE_IMPACT_TIME, compared_velocity
+from marlcrash.pulse.signal import PRE_IMPACT_TIME, compared_velocity, compared_window, margin_samples
 from marlcrash.references import FileReference, ReferenceConfig, ReferenceSampler, TwinConfig, perturb_twin
 from marlcrash.sim import Surrogate, get_scenario
 
@@ -249,6 +252,85 @@ def test_tests_of_several_load_cases_give_each_problem_the_test_of_its_scenario(
     assert e.value.key == "problem.scenario"
 
 
+def test_a_test_record_that_goes_on_past_the_window_is_compared_as_filtered_over_it(cells, sim, tmp_path):
+    """A test's record goes on past the compared window, and the filter ran over all of it; candidates are
+    simulated ``compare_margin`` (10 ms) longer, filtered, and cut alike. The model's own 200 ms small-overlap
+    simulation as the test: at its parameters the problem and the environment now fit it to a DFD of 0.002-0.015
+    m/s over 150 and 30 ms windows; filtered only up to the window's end, the candidate missed it by 0.24 and
+    3.3 m/s (the front is still crushing at 30 ms), the paper's DFD mark being 0.335."""
+    from marlcrash.calibrate.problem import ProblemConfig, build_problem
+    from marlcrash.envs.core import CalibrationCore, load_env_config
+    from marlcrash.pulse.simulation import write_crash_csv
+
+    sc = get_scenario("small_overlap_left")
+    channels = {s: f"{s}_acc_g" for s in cells.sensor_names}
+    long = sim.run(torch.as_tensor(cells.params)[None], sc, duration=0.2, record_cells="none")
+    files = [FileReference(path=str(write_crash_csv(long, tmp_path / "long.csv")), scenario=sc.name,
+                           channels=channels)]  # fmt: skip
+    at_window = sim.run(torch.as_tensor(cells.params)[None], sc, record_cells="none")
+    files.append(FileReference(path=str(write_crash_csv(at_window, tmp_path / "window.csv")), scenario=sc.name,
+                               channels=channels, weight=1e-9))  # fmt: skip
+    s = sampler(cells, sim, kind="file", files=files)
+    assert s.max_margin == 20  # 10 ms at 2 kHz; a record that ends at the window has none:
+    assert sampler(cells, sim, kind="file", files=files[1:]).sample(np.random.default_rng(0), 1).margin.tolist() == [0]
+    ref = s.sample(np.random.default_rng(0), 2)
+    assert ref.margin.tolist() == [20, 20] and ref.velocity.shape[-1] == sc.n_outputs
+    assert ref.repeat(3).margin.tolist() == [20] * 3
+    raw = [FileReference(**{**vars(files[0]), "cfc": None})]  # unfiltered comparisons have no end handling to match
+    assert sampler(cells, sim, kind="file", files=raw, compare_cfc=None).max_margin == 0
+
+    def problem(duration, margin, file=0):
+        over = {"reference.files": [vars(files[file])], "reference.compare_margin": margin}
+        return build_problem(ProblemConfig(scenario=sc.name, reference="file", duration=duration,
+                                           env_overrides=over), cells)  # fmt: skip
+
+    for duration, fits, misses in ((None, 0.003, 0.2), (0.03, 0.02, 3.0)):
+        p = problem(duration, 0.01)
+        assert p.margin == 20 and p.sim_duration == pytest.approx(p.duration + 0.01)
+        assert float(p.evaluate(p.zeros(1)).dfd.max()) < fits
+        assert float(problem(duration, 0.0).evaluate(p.zeros(1)).dfd.max()) > misses
+    unfiltered = {"reference.files": [{**vars(files[0]), "cfc": None}], "reference.compare_cfc": None}
+    assert build_problem(ProblemConfig(scenario=sc.name, reference="file", env_overrides=unfiltered), cells).margin == 0
+    short = problem(0.03, 0.01, file=1)  # the window-length record still goes on past a 30 ms window
+    assert short.margin == 20 and float(short.evaluate(short.zeros(1)).dfd.max()) < 0.02
+    full = problem(None, 0.01, file=1)
+    assert full.margin == 0 and float(full.evaluate(full.zeros(1)).area.max()) < 1e-6
+
+    env = load_env_config(overrides={"reference.kind": "file", "reference.files": [vars(f) for f in files[:1]]})
+    core = CalibrationCore(env, 2, cells)
+    core.reset(seed=0)
+    assert core.margin.tolist() == [20, 20] and float(core.metrics.dfd.max()) < 0.003
+    fraction, saturated = core.energy_fraction.clone(), core.saturated.clone()
+    env.reference.compare_margin = 0.0
+    core = CalibrationCore(env, 2, cells)
+    core.reset(seed=0)
+    assert core.margin.tolist() == [0, 0] and float(core.metrics.dfd.max()) > 0.2
+    # the observed energy fractions and saturation are the window's end, margin or not
+    torch.testing.assert_close(core.energy_fraction, fraction, rtol=1e-9, atol=1e-12)
+    assert torch.equal(core.saturated, saturated)
+    with pytest.raises(ConfigError, match=r"expected a duration in \[0, 0.1\] s, got -0.01") as e:
+        from_dict(ReferenceConfig, {"compare_margin": -0.01})
+    assert e.value.key == "compare_margin"
+
+
+def test_compared_window_filters_each_row_over_its_margin():
+    v = 10.0 - torch.cumsum(torch.rand(3, 2, 60, dtype=torch.float64), -1) * 0.1
+    got = compared_window(v, 5e-4, 60, 40, torch.tensor([0, 20, 5]))
+    for row, m in enumerate((0, 20, 5)):
+        torch.testing.assert_close(got[row], compared_velocity(v[row, :, : 40 + m], 5e-4, 60)[:, :40], rtol=0, atol=0)
+    same = compared_window(v, 5e-4, 60, 40, torch.tensor([20, 20, 20]))
+    torch.testing.assert_close(compared_window(v, 5e-4, 60, 40, 20), same, rtol=0, atol=0)
+    assert not torch.equal(got[0], compared_window(v, 5e-4, 60, 40, 20)[0])  # the margin changes the window
+    with pytest.raises(PulseError, match="a window of 40 samples and a margin of 30 need 70 samples, got 60"):
+        compared_window(v, 5e-4, 60, 40, torch.tensor([0, 30, 0]))
+    with pytest.raises(PulseError, match=r"margins are samples past the window, >= 0; got \[0, -1, 0\]"):
+        compared_window(v, 5e-4, 60, 40, torch.tensor([0, -1, 0]))
+    with pytest.raises(PulseError, match=r"per row of the \(3, 2, 60\) velocities, got margins of shape \(2,\)"):
+        compared_window(v, 5e-4, 60, 40, torch.tensor([0, 1]))
+    # the loader and the problem count a margin's samples alike, whatever the float rounding of the seconds
+    assert [margin_samples(x, 2000.0) for x in (0.01, 0.0099999999, 0.03 - 0.02, 0.00049, 0.0)] == [20, 20, 20, 0, 0]
+
+
 def test_file_reference_settings_that_cannot_line_up_are_refused(cells, sim, tmp_path):
     spec = {"path": "nope.csv", "scenario": "full_width_40", "channels": dict.fromkeys(cells.sensor_names, "a")}
     with pytest.raises(ConfigError, match=r"expected the compared signal's class, compare_cfc = 60") as e:
@@ -367,3 +449,17 @@ def test_file_reference_checks_its_rate_and_reads_breakpoints(cells, sim, tmp_pa
         assert e.value.key == key
     for unit in ("G", "mm/s2", "m/s^2"):  # every spelling the reader takes
         FileReference(path="x.csv", scenario="full_width_40", channels=channels, unit=unit).validate()
+
+
+def test_file_margin_benchmark_prints_its_rows_as_json():
+    script = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_file_margin.py"
+    cmd = [sys.executable, str(script), "--scenarios", "full_width_40", "--durations", "0.03",
+           "--margins", "0", "0.01", "--record", "0.17", "--json"]  # fmt: skip
+    out = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr
+    rows = json.loads(out.stdout)
+    assert [(r["margin_s"], r["margin_samples"]) for r in rows] == [(0.0, 0), (0.01, 20)]
+    assert rows[1]["dfd"] < rows[0]["dfd"] / 10  # the margin is what closes the window-end gap
+    cmd[cmd.index("--record") + 1] = "0.1"  # a test record must cover the scenario's window, 150 ms
+    bad = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    assert bad.returncode == 2 and "shorter than full_width_40's window 0.15 s" in bad.stderr

@@ -137,7 +137,7 @@ def test_policy_rows_match_an_independent_resimulation(comparison, run_dir):
     p = result.params[row["iteration"]][None]
     with torch.no_grad():
         res = problem.sim.run(p, speed=problem.speed, overlap=problem.overlap, side=problem.side,
-                              duration=problem.duration, sensors=problem.sensors, record_cells="none")  # fmt: skip
+                              duration=problem.sim_duration, sensors=problem.sensors, record_cells="none")  # fmt: skip
     m = compute_metrics(problem.compared(res.velocity), problem.ref_velocity, dt=problem.dt,
                         config=problem.fit.cfg.metrics, backend="torch")  # fmt: skip
     assert float(m.area.mean()) == pytest.approx(row["area"], rel=1e-6, abs=1e-12)

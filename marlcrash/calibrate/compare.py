@@ -240,7 +240,7 @@ def evaluate_params(problem: CalibrationProblem, params: torch.Tensor) -> Metric
     n = p.shape[0]
     with torch.no_grad():
         res = problem.sim.run(p, speed=problem.speed.expand(n), overlap=problem.overlap.expand(n),
-                              side=problem.side.expand(n), duration=problem.duration, sensors=problem.sensors,
+                              side=problem.side.expand(n), duration=problem.sim_duration, sensors=problem.sensors,
                               record_cells="none", backend=problem.sim_backend)  # fmt: skip
     return problem.metrics(res.velocity)
 
@@ -372,7 +372,8 @@ def run_ppo(config: CompareConfig, method: str, seed: int, problem: CalibrationP
     threads = torch.get_num_threads()
     tr = build_trainer(tc, log_dir)
     pinned = tr.env.core.sampler.pinned(seed, 1)  # what every reset of the run uses (drawn once, cached)
-    if not torch.equal(pinned.velocity[0], problem.ref_velocity):
+    margin = 0 if pinned.margin is None else int(pinned.margin[0])  # how far candidates are simulated past it
+    if not torch.equal(pinned.velocity[0], problem.ref_velocity) or margin != problem.margin:
         torch.set_num_threads(threads)
         tr.logger.close()
         raise ConfigError(f"the pinned env of {method} and the optimizers' problem drew different references "

@@ -296,7 +296,7 @@ def plot_pulses(problem: CalibrationProblem, result: EvalResult, path: Path) -> 
     p = torch.stack([result.params[0], result.params[result.selected]])
     with torch.no_grad():
         res = problem.sim.run(p, speed=problem.speed.expand(2), overlap=problem.overlap.expand(2),
-                              side=problem.side.expand(2), duration=problem.duration, sensors=problem.sensors,
+                              side=problem.side.expand(2), duration=problem.sim_duration, sensors=problem.sensors,
                               record_cells="none")  # fmt: skip
     vel = torch.cat([problem.ref_velocity[None], problem.compared(res.velocity)]).double()  # [3, K, T]
     acc = torch.gradient(vel, spacing=problem.dt, dim=-1)[0] / G0

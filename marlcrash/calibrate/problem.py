@@ -58,7 +58,7 @@ from marlcrash.envs.masking import ImpactRegions
 from marlcrash.errors import ConfigError, ModelError
 from marlcrash.metrics import Metrics, area_between, compute_metrics, rmse
 from marlcrash.pulse.cfc import f_h
-from marlcrash.pulse.signal import compared_velocity
+from marlcrash.pulse.signal import DEFAULT_COMPARE_MARGIN, compared_velocity, compared_window, margin_samples
 from marlcrash.references import ReferenceBatch, ReferenceSampler, require_file_scenario
 from marlcrash.reward import Reward, TerminationConfig, load_reward_config, termination
 from marlcrash.sim.scenario import CrashScenario, get_scenario, list_scenarios
@@ -172,6 +172,10 @@ class CalibrationProblem:
         sim_backend, metrics_backend: engines of :meth:`evaluate`.
         compare_cfc: CFC class of the compared signal (the integral of the filtered acceleration;
             ``ReferenceConfig.compare_cfc``), ``None`` for raw velocity.
+        compare_margin: [s] a measured reference's record goes on past the window and was filtered over
+            it, so candidates are simulated up to this much longer, as far as the record reaches
+            (:attr:`margin`; ``ReferenceConfig.compare_margin``); simulated references are cut at the window
+            as the candidates are, and get none.
 
     Raises:
         ConfigError: reference with more than one row or shorter than the window.
@@ -196,6 +200,7 @@ class CalibrationProblem:
         sim_backend: str = "numba",
         metrics_backend: str = "numba",
         compare_cfc: int | None = 60,
+        compare_margin: float = DEFAULT_COMPARE_MARGIN,
     ):
         self.cells, self.layout, self.sim, self.scenario = cells, layout, surrogate, scenario
         self.sensors = list(sensors)
@@ -214,10 +219,17 @@ class CalibrationProblem:
             )
         self.reference = reference
         self.compare_cfc = compare_cfc
+        # samples the candidates are simulated past the window and filtered over before the cut: a measured record's
+        # samples past the window (past the scenario's, and past a shorter duration's), at most compare_margin
+        self.margin = 0
         if reference.raw_velocity is not None:  # filter the simulated reference over this window, as the estimates
-            self.ref_velocity = self.compared(reference.raw_velocity[0, :, : self.T])  # [K, T]
-        else:  # a measured pulse, filtered when read
+            self.ref_velocity = compared_velocity(reference.raw_velocity[0, :, : self.T].to(torch.float64), self.dt,
+                                                  compare_cfc)  # [K, T]  # fmt: skip
+        else:  # a measured pulse, filtered when read over its whole record
             self.ref_velocity = reference.velocity[0, :, : self.T].to(torch.float64)
+            past = reference.velocity.shape[-1] - self.T + (0 if reference.margin is None else int(reference.margin[0]))
+            if compare_cfc is not None:  # unfiltered comparisons have no filter end handling to match
+                self.margin = min(past, margin_samples(compare_margin, 1.0 / self.dt))
         self.speed, self.overlap, self.side = (
             t[:1].to(torch.float64) for t in (reference.speed, reference.overlap, reference.side)
         )
@@ -335,10 +347,16 @@ class CalibrationProblem:
         return torch.cat([p[..., :2], f], dim=-1)
 
     # -------------------------------------------------------------------------------- simulation
+    @property
+    def sim_duration(self) -> float:
+        """[s] What a candidate is simulated over: the window and the :attr:`margin`."""
+        return self.duration + self.margin * self.dt
+
     def simulate(
         self, x: torch.Tensor, *, count: bool = True, backend: str | None = None, probe_cells=None
     ) -> SimResult:
-        """Simulate candidates ``x [N, n_agents, 7]`` over the window; ``count`` charges ``N`` simulations.
+        """Simulate candidates ``x [N, n_agents, 7]`` over the window and the margin (:attr:`sim_duration`, ``T +
+        margin`` samples: :meth:`compared` cuts them); ``count`` charges ``N`` simulations.
 
         Without gradients (``x`` not requiring grad) it uses :attr:`sim_backend`; ``count=False`` is
         for reporting (re-simulating a known candidate for plots), never for search. ``probe_cells``
@@ -352,7 +370,7 @@ class CalibrationProblem:
             speed=self.speed.expand(n),
             overlap=self.overlap.expand(n),
             side=self.side.expand(n),
-            duration=self.duration,
+            duration=self.sim_duration,
             sensors=self.sensors,
             probe_cells=probe_cells,
             record_cells="none",
@@ -363,11 +381,13 @@ class CalibrationProblem:
         return res
 
     def compared(self, velocity: torch.Tensor) -> torch.Tensor:
-        """Simulated velocities ``[..., K, T]`` as compared (:func:`~marlcrash.pulse.signal.compared_velocity`)."""
-        return compared_velocity(velocity.to(torch.float64), self.dt, self.compare_cfc)
+        """Simulated velocities ``[..., K, T + margin]`` as compared over the window, ``[..., K, T]``
+        (:func:`~marlcrash.pulse.signal.compared_window`)."""
+        return compared_window(velocity.to(torch.float64), self.dt, self.compare_cfc, self.T, self.margin)
 
     def metrics(self, velocity: torch.Tensor) -> Metrics:
-        """Per-sensor metrics ``[N, K]`` of simulated velocities ``[N, K, T]`` against the reference (no grad)."""
+        """Per-sensor metrics ``[N, K]`` of simulated velocities ``[N, K, T + margin]`` (:meth:`simulate`'s,
+        over :attr:`sim_duration`) against the reference (no grad)."""
         return self._compared_metrics(self.compared(velocity.detach()))
 
     def _compared_metrics(self, v: torch.Tensor) -> Metrics:
@@ -592,5 +612,5 @@ def build_problem(config: ProblemConfig, cells: CellModel | None = None) -> Cali
         cells, layout, sim, scenario, reference, sensors, bounds=bounds, floor=env.transmission_floor,
         fit=Reward(fit_cfg), success=config.success, duration=config.duration, active=active,
         box_radius=config.box_radius, sim_backend=config.sim_backend, metrics_backend=config.metrics_backend,
-        compare_cfc=env.reference.compare_cfc,
+        compare_cfc=env.reference.compare_cfc, compare_margin=env.reference.compare_margin,
     )  # fmt: skip

@@ -243,6 +243,7 @@ class CalibrationCore:
         self.speed = torch.zeros(B, dtype=f64)
         self.overlap = torch.ones(B, dtype=f64)
         self.side = torch.ones(B, dtype=f64)
+        self.margin = torch.zeros(B, dtype=torch.int64)  # samples simulated past the window (ReferenceBatch.margin)
         self.active = torch.ones(B, self.A, dtype=torch.bool)
         self.saturated = torch.zeros(B, n, dtype=torch.bool)
         self.energy_fraction = torch.zeros(B, n, dtype=f64)
@@ -265,11 +266,15 @@ class CalibrationCore:
 
     # --------------------------------------------------------------------------------- simulation
     def _simulate(self, rows: torch.Tensor | slice) -> Metrics:
+        # past the window by the rows' largest margin (a measured reference filtered over a longer record); the
+        # energy fractions and saturation below are at the window's end whatever the margin
+        margin = self.margin[rows]
         with torch.no_grad():
             res = self.sim.run(self.params[rows], speed=self.speed[rows], overlap=self.overlap[rows],
-                               side=self.side[rows], duration=self.duration, sensors=self.sensors,
-                               record_cells="final", backend=self.config.sim_backend)  # fmt: skip
-        est = self.sampler.compared(res.velocity)
+                               side=self.side[rows], duration=self.duration + int(margin.max()) * self.dt,
+                               sensors=self.sensors, record_cells="final", backend=self.config.sim_backend,
+                               cells_at=self.duration)  # fmt: skip
+        est = self.sampler.compared(res.velocity, margin)
         self.est_velocity[rows] = est
         e_s = self.params[rows][..., 1]
         absorbed = res.cell_absorbed[..., -1].to(torch.float64)
@@ -310,6 +315,7 @@ class CalibrationCore:
             self.source[r] = ref.source[i]
         self.speed[rows], self.overlap[rows], self.side[rows] = ref.speed, ref.overlap, ref.side
         self.ref_velocity[rows] = ref.velocity
+        self.margin[rows] = 0 if ref.margin is None else ref.margin
         if ref.true_params is not None:
             if self.true_params is None:
                 self.true_params = self.init[None].repeat(self.B, 1, 1)

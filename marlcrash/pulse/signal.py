@@ -61,6 +61,9 @@ PRE_IMPACT_TIME = 2.0 * DEFAULT_PAD_TIME
 """Constant-velocity (zero-acceleration) lead-in [s] put before a record for filtering, simulated
 (:func:`compared_velocity`) or measured (:func:`filtered_from_time_zero`): twice the CFC filter's end padding
 (20 ms), longer than the CFC 60 filter's impulse response (about 10 ms)."""
+DEFAULT_COMPARE_MARGIN = 0.01
+"""[s] How much longer than the compared window a candidate is simulated when its reference is a measured record
+that goes on past the window (:func:`compared_window`, ``ReferenceConfig.compare_margin``)."""
 
 
 @dataclass(frozen=True)
@@ -229,6 +232,55 @@ def compared_velocity(
     acc = sampled_acceleration(velocity, dt)
     acc = torch.cat([acc.new_zeros((*acc.shape[:-1], n)), acc], dim=-1)
     return integrate_torch(cfc_filter_torch(acc, dt, cfc), dt, v0=velocity[..., 0])[..., n:]
+
+
+def margin_samples(seconds: float, rate_hz: float) -> int:
+    """Whole samples at ``rate_hz`` in a compare margin of ``seconds`` (:func:`compared_window`): the one rounding
+    the reference loader and the calibration problem share."""
+    return math.floor(float(seconds) * float(rate_hz) + 1e-6)
+
+
+def compared_window(
+    velocity: torch.Tensor, dt: float, cfc: int | None, n: int, margin: torch.Tensor | int = 0
+) -> torch.Tensor:
+    """:func:`compared_velocity` of a record simulated ``margin`` samples past a window of ``n``, cut to the window.
+
+    A measured reference is filtered over its whole record, which goes on past the compared window, so its
+    last samples in the window carry none of the filter's end handling. A candidate filtered only up to the
+    window's end does (:data:`DEFAULT_COMPARE_MARGIN`); simulated ``margin`` samples longer, filtered, then cut,
+    it is compared as the test is. Rows of a batch may have different margins (tests of different lengths).
+
+    Args:
+        velocity: ``[B, ..., T]`` velocities [m/s], ``T >= n + max(margin)``.
+        dt: sampling interval [s].
+        cfc: channel frequency class; ``None`` cuts the raw velocity.
+        n: samples of the window.
+        margin: samples past the window each row is filtered over: an int, or ``[B]`` integers.
+
+    Returns:
+        ``[B, ..., n]`` velocity [m/s].
+
+    Raises:
+        PulseError: a negative margin, ``[B]`` margins for a batch of another size, or ``velocity`` shorter
+            than the window and a row's margin.
+    """
+    m = torch.as_tensor(margin, dtype=torch.int64)
+    if m.numel() and int(m.min()) < 0:
+        raise PulseError(f"margins are samples past the window, >= 0; got {m.tolist()}")
+    if m.ndim > 1 or (m.ndim == 1 and (velocity.ndim < 2 or m.shape[0] != velocity.shape[0])):
+        raise PulseError(f"expected an int or one margin per row of the {tuple(velocity.shape)} velocities, "
+                         f"got margins of shape {tuple(m.shape)}")  # fmt: skip
+    longest = n + (int(m.max()) if m.numel() else 0)
+    if velocity.shape[-1] < longest:
+        raise PulseError(f"a window of {n} samples and a margin of {longest - n} need {longest} samples, "
+                         f"got {velocity.shape[-1]}")  # fmt: skip
+    if m.ndim == 0:
+        return compared_velocity(velocity[..., : n + int(m)], dt, cfc)[..., :n]
+    out = velocity.new_empty((*velocity.shape[:-1], n))
+    for k in torch.unique(m).tolist():  # one filter call per distinct margin (a few: one per test length)
+        rows = m == k
+        out[rows] = compared_velocity(velocity[rows][..., : n + k], dt, cfc)[..., :n]
+    return out
 
 
 def sampled_acceleration(velocity: torch.Tensor, dt: float) -> torch.Tensor:
@@ -478,6 +530,7 @@ def prepare_velocity(
     time_zero: str = "threshold",
     threshold_g: float = DEFAULT_THRESHOLD_G,
     v0: float = 0.0,
+    beyond: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Turn a raw reference pulse into the velocity signal the metrics compare (DESIGN 1.5).
 
@@ -489,6 +542,8 @@ def prepare_velocity(
         time_zero: ``"threshold"`` (see :func:`find_time_zero`) or ``"file"`` (the file's t = 0).
         threshold_g: time-zero threshold [g].
         v0: forward speed [m/s] before the impact (0 gives the velocity change).
+        beyond: with a ``duration``, also return up to this long [s] past the window, as far as the record
+            reaches (the filter ran over the whole record either way; :func:`compared_window`).
 
     The filtered record is integrated from :data:`PRE_IMPACT_TIME` before time zero (or its first sample, if
     later), where it is ``v0``, as :func:`compared_velocity` integrates a simulation from before its contact:
@@ -498,6 +553,8 @@ def prepare_velocity(
     Returns:
         ``time [T]`` from 0 at ``rate_hz`` and ``velocity [K, T]`` [m/s].
     """
+    if not (math.isfinite(beyond) and beyond >= 0):
+        raise PulseError(f"beyond must be a duration >= 0 s, got {beyond!r}")
     p, t0 = filtered_from_time_zero(pulse, cfc, time_zero, threshold_g)
     t_end = p.time[-1] if duration is None else t0 + float(duration)
     if t_end > p.time[-1] + 1e-9:
@@ -505,6 +562,8 @@ def prepare_velocity(
             f"{pulse.source or 'pulse'}: the record ends {(p.time[-1] - t0) * 1e3:.4g} ms after time zero "
             f"(t = {t0 * 1e3:.4g} ms); expected at least {float(duration) * 1e3:.4g} ms"
         )
+    if duration is not None and beyond > 0:  # whole samples past the window that the record holds
+        t_end += min(beyond, np.floor((p.time[-1] - t_end) * rate_hz + 1e-6) / rate_hz)
     # integrated from PRE_IMPACT_TIME before time zero, as compared_velocity integrates a simulation: the zero-phase
     # filter spreads the onset's deceleration before time zero, and integrating from time zero lost it (an up-front
     # sensor's velocity change came out 4.6 m/s short of the simulation's the file was written from)
