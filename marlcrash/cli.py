@@ -151,12 +151,23 @@ def cmd_discretize(args: argparse.Namespace) -> int:
 
 
 def scenario_from_args(args: argparse.Namespace):
-    """The crash scenario named by ``--scenario`` with ``--speed/--overlap/--side`` overrides."""
+    """The crash scenario named by ``--scenario`` with ``--speed/--overlap/--side`` overrides.
+
+    ``--duration`` [ms] (where the command has it) lengthens or shortens the record and keeps the scenario's
+    name: the load case is the same, e.g. a test record that goes on past the compared window.
+    """
     from dataclasses import replace
 
     from marlcrash.sim.scenario import get_scenario, list_scenarios
 
     scenario = get_scenario(args.scenario or "full_width_40")
+    ms = getattr(args, "duration", None)
+    if ms is not None:
+        try:
+            scenario = replace(scenario, duration=ms * 1e-3)
+            scenario.validate()
+        except ConfigError as e:  # the scenario's key in seconds, said as the option the user typed
+            raise ConfigError(f"{ms:g} ms: {e.reason}", key="--duration") from None
     overrides = {
         key: value
         for key, value in (("speed_kmh", args.speed), ("overlap", args.overlap), ("side", args.side))
@@ -395,6 +406,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--speed", type=float, metavar="KMH", help="impact speed [km/h] (overrides the scenario's)")
     p.add_argument("--overlap", type=float, metavar="F", help="barrier overlap as a fraction of vehicle width")
     p.add_argument("--side", choices=["left", "right"], help="struck side for partial overlaps")
+    p.add_argument("--duration", type=float, metavar="MS",
+                   help="simulated time after first contact [ms] (default: the scenario's, 150); e.g. 200 for a "
+                        "test record that goes on past the compared window, as a lab's does")  # fmt: skip
     p.add_argument("--method", choices=["uniform", "optimized"], help="discretization method (default: config)")
     p.add_argument("--config", help="discretization config YAML (default: configs/cells.yaml)")
     p.add_argument("--json", action="store_true", help="print one JSON object")

@@ -7,6 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 
@@ -277,6 +278,21 @@ def test_simulate_overrides_and_errors():
     for size in ("0", "-1"):  # argparse's own message, before any simulation
         proc = run_cli("bench", "--batch-sizes", size, check=False)
         assert proc.returncode == 2 and "expected an integer >= 1" in proc.stderr, proc.stderr
+
+
+def test_simulate_duration_writes_a_longer_record_of_the_same_load_case(tmp_path):
+    base = json.loads(run_cli("simulate", "--json").stdout)
+    csv = tmp_path / "test.csv"
+    out = json.loads(run_cli("simulate", "--duration", "200", "--csv", str(csv), "--json").stdout)
+    assert (out["scenario"], out["duration_ms"], base["duration_ms"]) == ("full_width_40", 200.0, 150.0)
+    rows = np.loadtxt(csv, delimiter=",", skiprows=1)
+    assert rows.shape[0] == 401 and rows[-1, 0] == pytest.approx(0.2)  # 2 kHz from t = 0
+    assert out["peak_decel_g"] == pytest.approx(base["peak_decel_g"], rel=1e-4)  # long before 150 ms
+    assert out["max_crush_m"] == pytest.approx(base["max_crush_m"], rel=1e-9)
+    for bad, why in (("150.3", "not a whole number of 0.0005 s output steps"), ("0", "must be in (0, 1] s")):
+        proc = run_cli("simulate", "--duration", bad, check=False)
+        assert proc.returncode == 2 and f"key '--duration': {float(bad):g} ms: " in proc.stderr and why in proc.stderr
+        assert "Traceback" not in proc.stderr
 
 
 @pytest.mark.slow

@@ -47,7 +47,8 @@ def crash_summary(result: SimResult, cells: CellModel, scenario: CrashScenario, 
     """Key figures of one simulated crash (batch row ``row``).
 
     Returns:
-        A JSON-ready dict: ``scenario``, ``speed_kmh``, ``overlap``, ``side``, ``n_cells``,
+        A JSON-ready dict: ``scenario``, ``speed_kmh``, ``overlap``, ``side``, ``duration_ms`` (the simulated
+        time after first contact), ``n_cells``,
         ``peak_decel_g`` (largest CFC-filtered compartment deceleration, g), ``t_peak_ms``,
         ``time_to_zero_velocity_ms`` (compartment; ``None`` if it never stops in the window),
         ``max_crush_m``, ``rebound_velocity_ms`` (largest rearward compartment speed after the
@@ -84,6 +85,7 @@ def crash_summary(result: SimResult, cells: CellModel, scenario: CrashScenario, 
         "speed_kmh": scenario.speed_kmh,
         "overlap": scenario.overlap,
         "side": scenario.side,
+        "duration_ms": scenario.duration * 1e3,
         "n_cells": cells.n_cells,
         "peak_decel_g": float(-a_comp[i_peak] / G0),
         "t_peak_ms": float(t[i_peak] * 1e3),
