@@ -20,8 +20,8 @@ def run_cli(*args: str, check: bool = True) -> subprocess.CompletedProcess:
 
 def test_inspect_lsopt_json(lsopt_deck):
     out = json.loads(run_cli("inspect", str(lsopt_deck), "--param", "tbumper=3", "--param", "thood=1", "--json").stdout)
-    assert (out["n_nodes"], out["n_shells"], out["n_solids"], out["n_beams"], out["n_parts"]) == (1236, 1174, 0, 0, 6)
-    assert set(out["parts"]) == {"1", "2", "3", "4", "5", "6"}
+    assert (out["n_nodes"], out["n_shells"], out["n_solids"], out["n_beams"], out["n_parts"]) == (1236, 584, 0, 0, 5)
+    assert set(out["parts"]) == {"1", "2", "3", "4", "5"} and set(out["left_out"]) == {"6"}  # 6: the fixed block
     assert out["total_mass_kg"] == pytest.approx(sum(out["parts"].values()))
     assert out["skipped_cards"]  # the deck has contacts, rigid walls, database cards
 
@@ -35,7 +35,8 @@ def test_inspect_undefined_parameter_is_a_clear_error(lsopt_deck):
 
 def test_inspect_table_and_bad_param(lsopt_deck):
     proc = run_cli("inspect", str(lsopt_deck), "--param", "tbumper=3", "--param", "thood=1")
-    assert "1174 shells" in proc.stdout and "skipped cards" in proc.stdout
+    assert "584 shells" in proc.stdout and "skipped cards" in proc.stdout
+    assert "left out of the vehicle (1 part(s)):\n  part 6 " in proc.stdout
     proc = run_cli("inspect", str(lsopt_deck), "--param", "tbumper", check=False)
     assert proc.returncode == 2 and "--param" in proc.stderr
 
@@ -234,6 +235,13 @@ def test_simulate_a_keyword_deck(lsopt_deck):
     assert set(out["absorbed_energy_kj"]) == {"part_1", "part_2", "part_3", "part_4", "part_5", "compartment"}
     assert out["energy_balance_max_rel_error"] < 5e-3
     assert 0.0 < out["max_crush_m"] < 2.0 and out["peak_decel_g"] > 1.0
+    mass = json.loads(run_cli("inspect", str(lsopt_deck), *args[:4], "--json").stdout)["total_mass_kg"]
+    assert out["impact_energy_kj"] == pytest.approx(0.5 * mass * (40 / 3.6) ** 2 / 1e3, rel=1e-9)
+    crushed = sum(v for k, v in out["absorbed_energy_kj"].items() if k != "compartment")
+    assert 0.0 < crushed <= out["crush_capacity_kj"] and out["crush_capacity_kj"] > out["impact_energy_kj"]
+    # at 56 km/h this heavy box (4.4 t) brings more than its first 1.2 m can take by crushing: said, not hidden
+    proc = run_cli("simulate", str(lsopt_deck), *args[:-1], "--speed", "56")
+    assert "note: the cells can absorb at most" in proc.stdout and "roi_depth" in proc.stdout
 
 
 def test_output_paths_are_checked_before_the_work(tmp_path):

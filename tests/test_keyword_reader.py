@@ -422,3 +422,73 @@ def test_subassembly_map_yaml_sets_and_errors(tmp_path):
             _read(deck, subassemblies=y)
     out = dump_subassembly_map({"hood": [1, 2], "front bumper": [3]}, tmp_path / "d.yaml")
     assert load_subassembly_map(out, m) == {"hood": [1, 2], "front bumper": [3]}
+
+
+# part 2: a rigid block 50 mm in front of the plate (x = -60 .. -50 mm), its card 2 "CMO CON1 CON2" filled in
+def _with_rigid_block(cmo: str, con1: str, con2: str) -> str:
+    block = f"""*PART
+rigid block
+         2         1         2
+*MAT_RIGID
+         2  7.85e-09  210000.0       0.3
+{cmo:>10}{con1:>10}{con2:>10}
+*NODE
+      11           -60.0
+      12           -50.0
+      13           -50.0           300.0
+      14           -60.0           300.0
+*ELEMENT_SHELL
+       2       2      11      12      13      14
+"""
+    return HEAD + NODES + SHELL + block
+
+
+@pytest.mark.parametrize(
+    ("cmo", "con1", "con2", "axis_map", "left_out"),
+    [
+        ("1.0", "7", "7", None, True),  # held in x, y and z: the barrier of the LS-OPT small car
+        ("1.0", "1", "0", None, True),  # held along the direction of travel alone is enough
+        ("1.0", "5", "0", None, False),  # held in y and z only: it can still move with the vehicle (a sled)
+        ("1.0", "1", "0", AxisMap(x="+z", y="+y", z="+x"), False),  # travel is along the deck's z: x is not it
+        ("-1.0", "3", "111000", None, True),  # local system, every translation held: whichever the system
+        ("-1.0", "3", "100000", None, False),  # local system, one translation: the reader cannot tell which
+        ("0.0", "0", "0", None, False),  # unconstrained
+    ],
+)
+def test_rigid_parts_held_along_the_travel_are_left_out(tmp_path, cmo, con1, con2, axis_map, left_out):
+    deck = _write(tmp_path, _with_rigid_block(cmo, con1, con2))
+    with warnings.catch_warnings(record=True) as rec:
+        warnings.simplefilter("always")
+        m = read_deck(deck, **({"axis_map": axis_map} if axis_map else {}))
+    plate_mass = 0.01 * 2e-3 * 7850
+    said = [str(r.message) for r in rec]
+    if left_out:
+        assert sorted(m.parts) == [1] and m.n_shells == 1 and m.subassemblies == {"part_1": [1]}
+        assert "barrier or fixture" in m.left_out[2] and "1 elements" in m.left_out[2]
+        assert any("deck.k: part 2 ('rigid block')" in w for w in said)
+        assert m.total_mass() == pytest.approx(plate_mass, rel=1e-12)
+        np.testing.assert_allclose(m.bounds(), [[0, -0.05, 0], [0.1, 0.05, 0]], atol=1e-15)  # front: the plate
+    else:
+        assert sorted(m.parts) == [1, 2] and m.left_out == {}
+        assert m.total_mass() > plate_mass
+        assert np.ptp(m.bounds(), axis=0).max() > 0.2  # the 0.3 m block is part of the vehicle (plate: 0.1 m)
+    assert any("local system 3" in w for w in m.warnings) == (con2 == "100000")
+
+
+def test_a_deck_of_fixed_parts_only_and_maps_naming_them_are_refused(tmp_path):
+    text = _with_rigid_block("1.0", "7", "7")
+    only = _write(tmp_path, text.replace(SHELL, ""), name="only.k")
+    with pytest.raises(DeckError, match=r"only.k: no vehicle structure is left: part 2 \('rigid block'\)"):
+        _read(only)
+    sets = "*SET_PART_LIST\n        10\n         1         2\n*SET_PART_LIST\n        11\n         2\n"
+    deck = _write(tmp_path, text + sets)
+    y = tmp_path / "map.yaml"
+    y.write_text("subassemblies:\n  front: ['set:10']\n")
+    assert _read(deck, subassemblies=y).subassemblies == {"front": [1]}  # a set keeps its vehicle parts
+    for text, pattern in (
+        ("subassemblies:\n  front: [1, 2]\n", r"key 'subassemblies.front\[1\]': part 2 .* barrier or fixture"),
+        ("subassemblies:\n  barrier: ['set:11']\n", r"\*SET_PART 11 holds only parts left out of the vehicle"),
+    ):
+        y.write_text(text)
+        with pytest.raises(ConfigError, match=pattern):
+            _read(deck, subassemblies=y)

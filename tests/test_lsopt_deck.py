@@ -60,15 +60,38 @@ def test_counts_and_part_masses_match_hand_computation(lsopt_deck):
     with pytest.warns(UserWarning, match="skipped"):
         m = read_deck(lsopt_deck, params=PARAMS)
     n_nodes, n_shells, expect = _hand_masses(lsopt_deck)
-    assert (m.n_nodes, m.n_shells, len(m.parts)) == (1236, 1174, 6) == (n_nodes, n_shells, 6)
+    n_block = 590  # part 6's shells, by eye
+    assert (m.n_nodes, m.n_shells, len(m.parts)) == (1236, 1174 - n_block, 5) == (n_nodes, n_shells - n_block, 5)
     got = m.part_masses()
-    for pid, mass in expect.items():
-        assert got[pid] == pytest.approx(mass, rel=1e-9), f"part {pid}"
+    for pid in range(1, 6):
+        assert got[pid] == pytest.approx(expect[pid], rel=1e-9), f"part {pid}"
+    # the rigid part 6 (0.2 mm element thickness; its section's is 0) is a fixed block in front of the car
+    assert f"({n_block} elements, {expect[6]:.1f} kg)" in m.left_out[6]
     assert m.units == "mm-t-s"
     assert m.materials[6].kind == "rigid" and m.materials[1].kind == "plastic_kinematic"
-    assert m.parts[6].thickness == 0.0  # the rigid part's section thickness is 0; element thickness applies
-    assert m.shell_thickness[m.shell_part == 6] == pytest.approx(0.2e-3)
     assert m.parts[2].thickness == pytest.approx(3e-3) and m.parts[3].thickness == pytest.approx(1e-3)
+
+
+def test_the_fixed_rigid_block_in_front_of_the_car_is_not_vehicle(lsopt_deck):
+    """Part 6 is *MAT_RIGID with CMO = 1, CON1 = CON2 = 7 and gets no *INITIAL_VELOCITY_NODE: it stays put.
+
+    Read as vehicle, it was the car's front (26 mm ahead of the bumper) and its width (2.03 m against the
+    car's 1.40 m), so the surrogate's region of interest and every overlap were measured on the barrier.
+    """
+    text = lsopt_deck.read_text().splitlines()
+    i = text.index("*INITIAL_VELOCITY_NODE")
+    moving = set()
+    for ln in text[i + 1 :]:
+        if ln.startswith("*"):
+            break
+        if not ln.startswith("$"):
+            moving.add(int(ln[:10]))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        m = read_deck(lsopt_deck, params=PARAMS, axis_map=AxisMap(x="+x", y="+z", z="+y"))
+    in_vehicle = set(m.node_ids[m.used_nodes()].tolist())
+    assert in_vehicle == moving  # exactly the nodes the deck sets moving
+    assert "CMO=1, CON1=7" in m.left_out[6] and "barrier or fixture" in m.left_out[6]
     assert m.skipped_cards["HOURGLASS"] == 6 and m.skipped_cards["SET_NODE_LIST"] == 3
 
 
@@ -86,4 +109,6 @@ def test_axis_map_makes_the_vertical_deck_axis_z(lsopt_deck):
     lo, hi = m.bounds()
     assert hi[2] - lo[2] == pytest.approx(1.397, abs=1e-3)  # roof at 1397 mm over the ground
     assert lo[0] == pytest.approx(0.0) and lo[1] == pytest.approx(-hi[1])  # front at x = 0, centred laterally
-    assert hi[1] - lo[1] == pytest.approx(1.778 + 0.254, abs=1e-3)  # deck z spans -254 .. 1778 mm
+    # the car's deck z spans 0 .. 1397 mm (the fixed block's -254 .. 1778, left out)
+    assert hi[1] - lo[1] == pytest.approx(1.397, abs=1e-3)
+    assert hi[0] - lo[0] == pytest.approx(4.699 - 0.381, abs=1e-3)  # the car's deck x spans 381 .. 4699 mm

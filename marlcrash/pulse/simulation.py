@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from marlcrash.cells.model import CellModel
+from marlcrash.cells.model import PARAM_NAMES, CellModel
 from marlcrash.outputs import atomic_output
 from marlcrash.pulse.signal import filtered_acceleration, sampled_acceleration
 from marlcrash.sim.energy import max_balance_error
@@ -41,6 +41,24 @@ def compartment_sensor(result: SimResult, cells: CellModel) -> int | None:
         if int(cells.sensor_cell[list(cells.sensor_names).index(name)]) == cells.compartment:
             return k
     return None
+
+
+def energy_budget(cells: CellModel, scenario: CrashScenario, params: np.ndarray | None = None) -> dict[str, float]:
+    """What the impact brings against what the cells can absorb by crushing.
+
+    Returns:
+        ``impact_energy_kj`` (the whole vehicle's kinetic energy at the impact speed) and
+        ``crush_capacity_kj`` (the sum of the crushing cells' ``E_s`` under ``params``, default
+        ``cells.params``): an upper bound on the energy crush can take, reached only if every cell
+        crushes to the end. Where the impact brings more, the front bottoms out and the rest comes
+        back through the densified cells as a stiff stop and rebound.
+    """
+    p = np.asarray(cells.params if params is None else params, dtype=float).reshape(cells.n_cells, -1)
+    crushing = ~cells.is_null & ~cells.is_rigid
+    return {
+        "impact_energy_kj": 0.5 * cells.total_mass * scenario.speed**2 / 1e3,
+        "crush_capacity_kj": float(p[crushing, PARAM_NAMES.index("E_s")].sum() / 1e3),
+    }
 
 
 def crash_summary(result: SimResult, cells: CellModel, scenario: CrashScenario, cfc: int = 60, row: int = 0) -> dict:

@@ -33,7 +33,10 @@ Coverage:
   strain (FS, FAIL) or the curve maximum; the fracture strength the curve value at
   FAIL. Everything else is completed by :func:`complete_material`;
 - ``*SET_PART``, ``*SET_PART_LIST`` and ``*SET_PART_LIST_GENERATE`` (usable as
-  ``"set:<id>"`` in sub-assembly maps).
+  ``"set:<id>"`` in sub-assembly maps);
+- fixed parts: a ``*MAT_RIGID`` part whose constraints (``CMO``, ``CON1``, ``CON2``) hold it
+  along the direction of travel is a barrier or fixture, not vehicle structure: it is left
+  out of the model (``VehicleModel.left_out`` says why; a warning too).
 
 Every other card (``*CONTROL_*``, ``*DATABASE_*``, ``*CONTACT_*``, ``*HOURGLASS``,
 ``*INITIAL_*``, ``*RIGIDWALL_*``, ``*BOUNDARY_*``, ``*SET_NODE*``, unknown ones) is
@@ -1065,6 +1068,9 @@ def _read_material(block: _Block, kind: str, title: bool, t: _Tables, params: _P
         c2 = card(1)
         vals.update(sigy=f[3], etan=f[4], fail=f[5], lcss=c2[2])
         vals["eps"], vals["es"] = card(2), card(3)  # type: ignore[assignment]
+    elif kind == "rigid":
+        cmo, con1, con2 = card(1)[:3]
+        vals.update(cmo=cmo, con1=con1, con2=con2)
     t.materials[int(mid)] = _RawMaterial(int(mid), name, kind, vals, (block.src.path, r + 1))
 
 
@@ -1377,6 +1383,60 @@ def _assemble(deck: _Deck, t: _Tables, units: str | None, main: Path) -> tuple[V
     return model, notes
 
 
+# *MAT_RIGID CMO = +1: CON1 is the global translational constraint code
+_CON1_AXES = {0: "", 1: "x", 2: "y", 3: "z", 4: "xy", 5: "yz", 6: "zx", 7: "xyz"}
+
+
+def _fixed_parts(model: VehicleModel, t: _Tables, axis_map: AxisMap) -> tuple[dict[int, str], list[str]]:
+    """Parts a ``*MAT_RIGID`` holds in place along the direction of travel: part id -> why; and notes.
+
+    A rigid body whose translation along the deck axis that becomes marlcrash's x (the
+    direction of travel) is constrained cannot move with the vehicle: it is a barrier, an
+    impactor's backing or a fixture, not vehicle structure (the LS-OPT small car's rigid block
+    in front of its bumper is one). ``CMO = +1`` reads ``CON1`` as global translational
+    constraints; ``CMO = -1`` reads the first three digits of the local SPC code ``CON2``, which
+    decides only when all three translations are held (the local system is not read).
+    """
+    travel = "xyz"[int(np.abs(axis_map.matrix()[0]).argmax())]
+    masses = model.part_masses()
+    counts = Counter(np.concatenate([model.shell_part, model.solid_part, model.beam_part]).tolist())
+    fixed: dict[int, str] = {}
+    notes: list[str] = []
+    for pid, part in sorted(model.parts.items()):
+        raw = t.materials[part.material_id]
+        if raw.kind != "rigid":
+            continue
+        cmo, con1, con2 = (raw.values.get(k, 0.0) for k in ("cmo", "con1", "con2"))
+        held = ""
+        if cmo == 1.0:
+            if con1 not in _CON1_AXES:
+                notes.append(
+                    f"part {pid}: *MAT_RIGID {raw.mid} ({raw.where[0].name} line {raw.where[1]}) has CON1 = {con1:g}, "
+                    "expected 0-7 with CMO = 1; read as unconstrained"
+                )
+                continue
+            held = _CON1_AXES[int(con1)]
+            how = f"CMO=1, CON1={int(con1)}: held in deck {held or 'no axis'}"
+        elif cmo == -1.0:
+            code = f"{int(con2):06d}" if 0 <= con2 < 1e6 and con2 == int(con2) else ""
+            if code[:3] == "111":
+                held = "xyz"
+            elif code[:3].strip("0"):
+                notes.append(
+                    f"part {pid}: *MAT_RIGID {raw.mid} is held in local system {con1:g} (CMO=-1, CON2={code}); "
+                    "the reader does not follow local systems, so it stays vehicle structure"
+                )
+            how = f"CMO=-1, CON2={code}: held in every translation"
+        if travel not in held:
+            continue
+        fixed[pid] = (
+            f"part {pid} ({part.name!r}): *MAT_RIGID {raw.mid} ({how}) does not move along deck {travel}, "
+            f"the direction of travel: a barrier or fixture, not vehicle structure; left out of the vehicle "
+            f"({counts.get(pid, 0)} elements, {masses.get(pid, 0.0):.1f} kg)"
+        )
+    return fixed, notes
+
+
 def deck_files(path: str | Path, params: dict[str, float] | None = None) -> list[Path]:
     """The files a deck consists of: ``path`` and every file it pulls in with ``*INCLUDE`` (nested), resolved.
 
@@ -1445,7 +1505,16 @@ def read_deck(
         model.validate()
     except ModelError as e:
         raise DeckError(str(e), main) from None
-    model = model.transformed(axis_map if axis_map is not None else AxisMap())
+    axis_map = axis_map if axis_map is not None else AxisMap()
+    fixed, notes = _fixed_parts(model, tables, axis_map)
+    model.warnings.extend(notes)
+    if fixed:
+        model = model.without_parts(fixed)
+        if model.n_shells + model.n_solids + model.n_beams == 0:
+            raise DeckError(f"no vehicle structure is left: {'; '.join(fixed.values())}", main)
+        for why in fixed.values():
+            warnings.warn(f"{main.name}: {why}", UserWarning, stacklevel=2)
+    model = model.transformed(axis_map)
     sets = {sid: (title, ids) for sid, (title, ids) in tables.sets.items()}
     if subassemblies is not None:
         if isinstance(subassemblies, dict):

@@ -130,6 +130,9 @@ class VehicleModel:
         units: the unit system the source was written in.
         skipped_cards: keyword -> count of cards the reader did not interpret.
         warnings: everything defaulted or skipped while building the model.
+        left_out: part id -> why the part is not part of the vehicle, for parts a source
+            holds fixed in space (a barrier or fixture in the deck,
+            :meth:`without_parts`); their elements are gone, their nodes stay.
     """
 
     node_ids: np.ndarray
@@ -152,6 +155,7 @@ class VehicleModel:
     units: str = "m-kg-s"
     skipped_cards: dict[str, int] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
+    left_out: dict[int, str] = field(default_factory=dict)
 
     # ------------------------------------------------------------------ sizes
     @property
@@ -268,6 +272,32 @@ class VehicleModel:
             if pid not in owned:
                 mapping[f"part_{pid}"] = [pid]
         return replace(self, subassemblies=mapping)
+
+    def without_parts(self, reasons: dict[int, str]) -> VehicleModel:
+        """A copy without the parts ``reasons`` names (part id -> why), recorded in ``left_out``.
+
+        Their elements, part entries and sub-assembly memberships go; nodes stay (unused
+        nodes do not count in :meth:`bounds`). Sub-assemblies left empty are dropped.
+        """
+        drop = np.array(sorted(reasons), dtype=np.int64)
+        keep = {kind: ~np.isin(getattr(self, f"{kind}_part"), drop) for kind in ("shell", "solid", "beam")}
+        arrays = {
+            f"{kind}_{name}": getattr(self, f"{kind}_{name}")[keep[kind]]
+            for kind, names in (
+                ("shell", ("ids", "part", "nodes", "thickness")),
+                ("solid", ("ids", "part", "nodes")),
+                ("beam", ("ids", "part", "nodes", "area")),
+            )
+            for name in names
+        }
+        subs = {k: [p for p in v if p not in reasons] for k, v in self.subassemblies.items()}
+        return replace(
+            self,
+            **arrays,
+            parts={pid: p for pid, p in self.parts.items() if pid not in reasons},
+            subassemblies={k: v for k, v in subs.items() if v},
+            left_out={**self.left_out, **{int(k): v for k, v in reasons.items()}},
+        )
 
     # ------------------------------------------------------------ transforms
     def transformed(self, axis_map: AxisMap) -> VehicleModel:

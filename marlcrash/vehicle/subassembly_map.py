@@ -78,6 +78,8 @@ def resolve_subassemblies(
                     f"expected a part id, a name pattern or 'set:<id>', got {entry!r}", key=ekey, path=path
                 )
             if isinstance(entry, int):
+                if entry in model.left_out:
+                    raise ConfigError(f"{model.left_out[entry]}; remove it from the map", key=ekey, path=path)
                 if entry not in model.parts:
                     raise ConfigError(
                         f"unknown part {entry}; the model has parts {sorted(model.parts)[:20]}", key=ekey, path=path
@@ -93,7 +95,14 @@ def resolve_subassemblies(
                     raise ConfigError(
                         f"unknown *SET_PART {sid}; the deck defines {sorted(part_sets)}", key=ekey, path=path
                     )
-                found = list(part_sets[sid][1])
+                found = [p for p in part_sets[sid][1] if p not in model.left_out]  # a set may hold the barrier
+                if not found and part_sets[sid][1]:
+                    raise ConfigError(
+                        f"*SET_PART {sid} holds only parts left out of the vehicle: "
+                        + "; ".join(model.left_out[p] for p in part_sets[sid][1]),
+                        key=ekey,
+                        path=path,
+                    )
                 bad = [p for p in found if p not in model.parts]
                 if bad:
                     raise ConfigError(f"*SET_PART {sid} lists unknown parts {bad[:10]}", key=ekey, path=path)

@@ -14,7 +14,8 @@ def vehicle_summary(model: VehicleModel) -> dict:
         A JSON-serialisable dict with ``n_nodes``, ``n_shells``, ``n_solids``, ``n_beams``,
         ``n_parts``, ``parts`` (part id as string -> mass [kg]), ``part_details`` (id -> name,
         material, thickness [mm], element counts, mass), ``subassemblies`` (name -> part ids),
-        ``total_mass_kg``, ``skipped_cards``, ``units``, ``bounds_m``, ``warnings``.
+        ``total_mass_kg``, ``skipped_cards``, ``units``, ``bounds_m``, ``warnings``, ``left_out``
+        (part id as string -> why it is not vehicle structure, e.g. a fixed barrier in the deck).
     """
     masses = model.part_masses()
     details = {}
@@ -52,6 +53,7 @@ def vehicle_summary(model: VehicleModel) -> dict:
         "skipped_cards": dict(sorted(model.skipped_cards.items())),
         "bounds_m": bounds,
         "warnings": list(model.warnings),
+        "left_out": {str(pid): why for pid, why in sorted(model.left_out.items())},
     }
 
 
@@ -80,6 +82,10 @@ def format_vehicle_summary(s: dict) -> str:
     lines.append("sub-assemblies")
     for name, pids in s["subassemblies"].items():
         lines.append(f"  {name:<28} parts {', '.join(str(p) for p in pids)}")
+    if s["left_out"]:
+        lines.append("")
+        lines.append(f"left out of the vehicle ({len(s['left_out'])} part(s)):")
+        lines.extend(f"  {why}" for why in s["left_out"].values())
     if s["skipped_cards"]:
         lines.append("")
         total = sum(s["skipped_cards"].values())
