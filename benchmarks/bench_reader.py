@@ -8,6 +8,8 @@ longer than the limit (15 s by default).
 
     python benchmarks/bench_reader.py                 # 1,000,000 nodes and shells
     python benchmarks/bench_reader.py --nodes 10000   # quick check
+    python benchmarks/bench_reader.py --velocities    # plus a *SET_NODE_LIST and an *INITIAL_VELOCITY_NODE
+                                                      # line for every node, as a crash deck's initial state
 """
 
 from __future__ import annotations
@@ -25,8 +27,11 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout without installing
 
 
-def write_grid_deck(path: Path, n_nodes: int) -> tuple[int, int]:
-    """Write a torus grid deck with about ``n_nodes`` nodes and as many quads; returns the counts."""
+def write_grid_deck(path: Path, n_nodes: int, velocities: bool = False) -> tuple[int, int]:
+    """Write a torus grid deck with about ``n_nodes`` nodes and as many quads; returns the counts.
+
+    ``velocities``: also a node set of every node and an initial velocity (56 km/h along -x) per node.
+    """
     nu = max(3, round(math.sqrt(n_nodes)))
     nv = max(3, n_nodes // nu)
     u = np.arange(nu) * (2 * math.pi / nu)
@@ -55,6 +60,15 @@ def write_grid_deck(path: Path, n_nodes: int) -> tuple[int, int]:
         rows = zip(ids.ravel().tolist(), *cols, strict=True)
         for chunk in _chunks(rows):
             f.write("".join(f"{e:8d}       1{a:8d}{b:8d}{c:8d}{d:8d}\n" for e, a, b, c, d in chunk))
+        if velocities:
+            flat = ids.ravel().tolist()
+            f.write("*SET_NODE_LIST\n         1\n")
+            for k in range(0, len(flat), 100_000):
+                part = flat[k : k + 100_000]
+                f.write("".join("".join(f"{i:10d}" for i in part[j : j + 8]) + "\n" for j in range(0, len(part), 8)))
+            f.write("*INITIAL_VELOCITY_NODE\n")
+            for chunk in _chunks(iter(flat)):
+                f.write("".join(f"{i:10d}  -15640.0\n" for i in chunk))
         f.write("*END\n")
     return nu * nv, nu * nv
 
@@ -75,6 +89,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--nodes", type=int, default=1_000_000, help="number of nodes (and shells) in the deck")
     ap.add_argument("--limit", type=float, default=15.0, help="largest acceptable read_deck time [s]")
     ap.add_argument("--skip-dynakw", action="store_true", help="do not time dynakw")
+    ap.add_argument("--velocities", action="store_true", help="add a node set and an initial velocity per node")
     args = ap.parse_args(argv)
 
     from marlcrash.vehicle.keyword import read_deck
@@ -82,7 +97,7 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         deck = Path(tmp) / "grid.k"
         t0 = time.perf_counter()
-        n_nodes, n_shells = write_grid_deck(deck, args.nodes)
+        n_nodes, n_shells = write_grid_deck(deck, args.nodes, args.velocities)
         t_write = time.perf_counter() - t0
         size = deck.stat().st_size / 1e6
         print(f"deck: {n_nodes} nodes, {n_shells} shells, {size:.1f} MB, written in {t_write:.2f} s")
@@ -92,7 +107,7 @@ def main(argv: list[str] | None = None) -> int:
             warnings.simplefilter("ignore")
             model = read_deck(deck)
         t_ours = time.perf_counter() - t0
-        ok = model.n_nodes == n_nodes and model.n_shells == n_shells
+        ok = model.n_nodes == n_nodes and model.n_shells == n_shells and not model.left_out
         print(
             f"marlcrash read_deck: {t_ours:.2f} s ({model.n_nodes} nodes, {model.n_shells} shells, mass "
             f"{model.total_mass():.1f} kg)"

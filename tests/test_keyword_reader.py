@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import math
+import subprocess
+import sys
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -305,14 +308,15 @@ curve driven
 
 def test_skipped_cards_counted_in_one_warning(tmp_path):
     extra = (
-        "*CONTROL_TERMINATION\n0.1\n*DATABASE_GLSTAT\n1e-4\n*DATABASE_GLSTAT\n1e-4\n*FOO_BAR\nx\n*SET_NODE_LIST\n1\n1\n"
+        "*CONTROL_TERMINATION\n0.1\n*DATABASE_GLSTAT\n1e-4\n*DATABASE_GLSTAT\n1e-4\n*FOO_BAR\nx\n"
+        "*SET_SHELL_LIST\n1\n1\n"
     )
     with warnings.catch_warnings(record=True) as rec:
         warnings.simplefilter("always")
         m = read_deck(_write(tmp_path, HEAD + extra + NODES + SHELL))
     msgs = [str(r.message) for r in rec if issubclass(r.category, UserWarning)]
     assert len(msgs) == 1 and "skipped 5 card(s)" in msgs[0]
-    assert m.skipped_cards == {"CONTROL_TERMINATION": 1, "DATABASE_GLSTAT": 2, "FOO_BAR": 1, "SET_NODE_LIST": 1}
+    assert m.skipped_cards == {"CONTROL_TERMINATION": 1, "DATABASE_GLSTAT": 2, "FOO_BAR": 1, "SET_SHELL_LIST": 1}
 
 
 @pytest.mark.parametrize(
@@ -492,3 +496,47 @@ def test_a_deck_of_fixed_parts_only_and_maps_naming_them_are_refused(tmp_path):
         y.write_text(text)
         with pytest.raises(ConfigError, match=pattern):
             _read(deck, subassemblies=y)
+
+
+# part 2: a deformable block (a honeycomb barrier) 50 mm in front of the plate, on nodes 11-14
+AT_REST = _with_rigid_block("", "", "").replace("*MAT_RIGID", "*MAT_ELASTIC").replace("rigid block", "honeycomb")
+V = f"{-15640.0:10.1f}"  # 56 km/h in mm/s, toward -x
+PLATE_NODES = "*SET_NODE_LIST\n         5\n         1         2         3         4\n"
+BLOCK_NODES = "*SET_NODE_LIST_GENERATE\n         6\n        11        14\n"
+
+
+@pytest.mark.parametrize(
+    ("cards", "left_out"),
+    [
+        ("*INITIAL_VELOCITY_NODE\n" + "".join(f"{n:10d}{V}\n" for n in (1, 2, 3, 4)), True),
+        ("*INITIAL_VELOCITY_NODE\n" + "".join(f"{n:10d}{V}\n" for n in (1, 2, 3, 4, 11)), False),  # one node moves
+        (f"*INITIAL_VELOCITY\n         0         6\n{V}\n\n", True),  # all but the exempted set 6
+        (f"*INITIAL_VELOCITY\n         0         6\n{V}\n{V}\n", False),  # ... which moves too
+        (f"*INITIAL_VELOCITY\n         0\n{V}\n", False),  # everything moves
+        (f"*INITIAL_VELOCITY\n         5\n{V}\n", True),  # node set 5: the plate
+        (f"*INITIAL_VELOCITY_GENERATION\n         1         2       0.0{V}\n\n", True),  # part 1
+        (f"*INITIAL_VELOCITY_GENERATION\n        10         1       0.0{V}\n\n", True),  # part set 10 = {1}
+        (f"*INITIAL_VELOCITY_GENERATION\n         5         3       0.0{V}\n\n", True),  # node set 5
+        (f"*INITIAL_VELOCITY_GENERATION\n         2         2       0.0{V}\n\n", False),  # only the block moves
+        ("*INITIAL_VELOCITY_NODE\n" + "".join(f"{n:10d}{0.0:10.1f}\n" for n in (1, 2, 3, 4)), False),  # at rest
+        (f"*INITIAL_VELOCITY\n        99\n{V}\n", False),  # a set the deck lacks: nothing is decided
+        ("", False),  # no initial velocity: nothing to go by
+    ],
+)
+def test_parts_the_initial_velocities_leave_at_rest_are_left_out(tmp_path, cards, left_out):
+    sets = PLATE_NODES + BLOCK_NODES + "*SET_PART_LIST\n        10\n         1\n"
+    m = _read(_write(tmp_path, AT_REST + sets + cards))
+    assert (2 in m.left_out) == left_out and (2 in m.parts) != left_out
+    if left_out:
+        assert "initial velocities set none of its nodes moving" in m.left_out[2]
+        np.testing.assert_allclose(m.bounds(), [[0, -0.05, 0], [0.1, 0.05, 0]], atol=1e-15)  # the plate alone
+    assert any("refers to a set the reader lacks" in w for w in m.warnings) == (" 99\n" in cards)
+
+
+def test_reader_benchmark_runs_with_initial_velocities():
+    """benchmarks/bench_reader.py --velocities: every node in a set and moving; nothing is left out."""
+    bench = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_reader.py"
+    args = ["--nodes", "2000", "--velocities", "--skip-dynakw"]
+    proc = subprocess.run([sys.executable, str(bench), *args], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "OK: read_deck within" in proc.stdout

@@ -92,7 +92,8 @@ def test_the_fixed_rigid_block_in_front_of_the_car_is_not_vehicle(lsopt_deck):
     in_vehicle = set(m.node_ids[m.used_nodes()].tolist())
     assert in_vehicle == moving  # exactly the nodes the deck sets moving
     assert "CMO=1, CON1=7" in m.left_out[6] and "barrier or fixture" in m.left_out[6]
-    assert m.skipped_cards["HOURGLASS"] == 6 and m.skipped_cards["SET_NODE_LIST"] == 3
+    assert m.skipped_cards["HOURGLASS"] == 6
+    assert "SET_NODE_LIST" not in m.skipped_cards and "INITIAL_VELOCITY_NODE" not in m.skipped_cards  # read
 
 
 def test_undefined_parameters_are_named_with_their_line(lsopt_deck):
@@ -112,3 +113,16 @@ def test_axis_map_makes_the_vertical_deck_axis_z(lsopt_deck):
     # the car's deck z spans 0 .. 1397 mm (the fixed block's -254 .. 1778, left out)
     assert hi[1] - lo[1] == pytest.approx(1.397, abs=1e-3)
     assert hi[0] - lo[0] == pytest.approx(4.699 - 0.381, abs=1e-3)  # the car's deck x spans 381 .. 4699 mm
+
+
+def test_the_block_is_left_out_by_its_initial_velocity_alone(lsopt_deck, tmp_path):
+    """With its constraints cleared, part 6 is still at rest: *INITIAL_VELOCITY_NODE moves only the car's nodes."""
+    text = lsopt_deck.read_text()
+    assert text.count("  1.000000         7         7\n") == 1  # *MAT_RIGID 6: CMO CON1 CON2
+    free = tmp_path / "free_block.k"
+    free.write_text(text.replace("  1.000000         7         7\n", "       0.0         0         0\n"))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        m = read_deck(free, params=PARAMS)
+    assert sorted(m.parts) == [1, 2, 3, 4, 5] and list(m.left_out) == [6]
+    assert "initial velocities set none of its nodes moving while 576 nodes move" in m.left_out[6]

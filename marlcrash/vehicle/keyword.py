@@ -34,12 +34,16 @@ Coverage:
   FAIL. Everything else is completed by :func:`complete_material`;
 - ``*SET_PART``, ``*SET_PART_LIST`` and ``*SET_PART_LIST_GENERATE`` (usable as
   ``"set:<id>"`` in sub-assembly maps);
-- fixed parts: a ``*MAT_RIGID`` part whose constraints (``CMO``, ``CON1``, ``CON2``) hold it
-  along the direction of travel is a barrier or fixture, not vehicle structure: it is left
-  out of the model (``VehicleModel.left_out`` says why; a warning too).
+- ``*SET_NODE``/``*SET_NODE_LIST`` (``_TITLE``, ``_GENERATE``) and ``*INITIAL_VELOCITY``,
+  ``_NODE``, ``_GENERATION`` (part, part set or node set) and ``_RIGID_BODY``, for which
+  parts the deck sets moving;
+- parts that are not vehicle: a ``*MAT_RIGID`` part whose constraints (``CMO``, ``CON1``,
+  ``CON2``) hold it along the direction of travel, and, where the deck sets nodes moving, a
+  part none of whose nodes moves, are a barrier or fixture: they are left out of the model
+  (``VehicleModel.left_out`` says why; a warning too).
 
 Every other card (``*CONTROL_*``, ``*DATABASE_*``, ``*CONTACT_*``, ``*HOURGLASS``,
-``*INITIAL_*``, ``*RIGIDWALL_*``, ``*BOUNDARY_*``, ``*SET_NODE*``, unknown ones) is
+other ``*INITIAL_*``, ``*RIGIDWALL_*``, ``*BOUNDARY_*``, other sets, unknown ones) is
 skipped, counted per keyword in ``VehicleModel.skipped_cards`` and summarised in one
 :class:`UserWarning`.
 
@@ -137,6 +141,10 @@ _MAT_8 = _card(*(f"c{i}" for i in range(8)))
 _SET_HEAD = _card("sid", kinds="i")
 _SET_IDS = _card(*(f"p{i}" for i in range(8)), kinds="i" * 8)
 _CURVE_HEAD = _card("lcid", "sidr", "sfa", "sfo", "offa", "offo", kinds="iiffff")
+_VEL_NODE = _card("nid", "vx", "vy", "vz", kinds="ifff")  # then VXR VYR VZR ICID, not needed
+_VEL_HEAD = _card("nsid", "nsidex", "boxid", "irigid", "icid", kinds="iiiff")
+_VEL_6 = _card("vx", "vy", "vz", "vxr", "vyr", "vzr")
+_VEL_GEN = _card("id", "styp", "omega", "vx", "vy", "vz", "ivatn", "icid", kinds="iifffffi")
 _CURVE_PT = (_Field("a", 20, "f", "abscissa"), _Field("o", 20, "f", "ordinate"))
 
 
@@ -783,6 +791,22 @@ class _RawMaterial:
 
 
 @dataclass
+class _Velocity:
+    """One initial-velocity assignment: what it moves and whether its velocity is non-zero.
+
+    ``target``: ``"nodes"`` (``ids`` node ids), ``"node_set"``, ``"part"``, ``"part_set"`` (``ids``: the one
+    set or part id) or ``"all"``; ``except_set`` a node set exempted (``*INITIAL_VELOCITY`` NSIDEX).
+    """
+
+    target: str
+    ids: np.ndarray
+    moving: np.ndarray  # [len(ids)] bool (one entry for sets, parts and "all")
+    where: tuple[Path, int]
+    except_set: int = 0
+    except_moving: bool = False
+
+
+@dataclass
 class _Tables:
     node_ids: list[np.ndarray] = field(default_factory=list)
     coords: list[np.ndarray] = field(default_factory=list)
@@ -794,7 +818,9 @@ class _Tables:
     sections: dict[int, _Section] = field(default_factory=dict)
     materials: dict[int, _RawMaterial] = field(default_factory=dict)
     sets: dict[int, tuple[str, list[int]]] = field(default_factory=dict)
+    node_sets: dict[int, tuple[str, list[int]]] = field(default_factory=dict)
     curves: dict[int, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    velocities: list[_Velocity] = field(default_factory=list)
 
 
 def _split_options(name: str, base: str) -> set[str]:
@@ -1075,6 +1101,15 @@ def _read_material(block: _Block, kind: str, title: bool, t: _Tables, params: _P
 
 
 def _read_set_part(block: _Block, opts: set[str], t: _Tables, params: _Params) -> None:
+    _read_id_set(block, opts, t.sets, params)
+
+
+def _read_set_node(block: _Block, opts: set[str], t: _Tables, params: _Params) -> None:
+    _read_id_set(block, opts, t.node_sets, params)
+
+
+def _read_id_set(block: _Block, opts: set[str], out: dict[int, tuple[str, list[int]]], params: _Params) -> None:
+    """A ``*SET_PART``/``*SET_NODE`` ``[_LIST][_TITLE][_GENERATE]`` block into ``out[sid] = (title, ids)``."""
     rows = block.rows.tolist()
     title = ""
     if "TITLE" in opts:
@@ -1088,14 +1123,59 @@ def _read_set_part(block: _Block, opts: set[str], t: _Tables, params: _Params) -
             f"*{block.keyword} expects a positive SID {_field_where(block, rows[0], _SET_HEAD, 0)}", rows[0]
         )
     ids: list[int] = []
-    for r in rows[1:]:
-        vals = [int(x) for x in _read_line(block, r, _SET_IDS, params) if x]
+    body = _nonblank(block, np.asarray(rows[1:], dtype=np.int64))
+    if body.size:
+        v = _table(block, body, _SET_IDS, params)
+        vals = np.stack([v[f.name] for f in _SET_IDS], axis=1)  # [lines, 8], blanks 0
         if "GENERATE" in opts:
-            for a, b in zip(vals[0::2], vals[1::2], strict=False):
-                ids.extend(range(a, b + 1))
+            for a, b in vals.reshape(-1, 2).tolist():
+                if a or b:
+                    ids.extend(range(a, b + 1))
         else:
-            ids.extend(vals)
-    t.sets[int(sid)] = (title, ids)
+            ids = [int(x) for x in vals.ravel().tolist() if x]
+    out[int(sid)] = (title, ids)
+
+
+def _read_velocity(block: _Block, opts: set[str], t: _Tables, params: _Params) -> bool:
+    """``*INITIAL_VELOCITY``, ``_NODE``, ``_GENERATION`` and ``_RIGID_BODY``; ``False`` for other options.
+
+    Only which nodes, parts or sets are set moving is kept (any non-zero translational
+    velocity): that tells the vehicle from a barrier at rest (:func:`_stationary_parts`).
+    """
+    # one-line tables skip blank lines; in card pairs a blank line is a card of defaults
+    rows = _nonblank(block, block.rows) if opts in ({"NODE"}, {"RIGID", "BODY"}) else block.rows
+    if rows.size == 0:
+        return True
+    where = (block.src.path, block.lineno(int(rows[0])))
+
+    def moving(*v: float | None) -> bool:
+        return any(x not in (None, 0.0) for x in v)
+
+    if opts == {"NODE"}:
+        v = _table(block, rows, _VEL_NODE, params, required=("nid",), positive=("nid",))
+        mv = (v["vx"] != 0) | (v["vy"] != 0) | (v["vz"] != 0)
+        t.velocities.append(_Velocity("nodes", v["nid"], mv, where))
+    elif opts == {"RIGID", "BODY"}:
+        for r in rows.tolist():
+            pid, *vel = _read_line(block, r, _VEL_NODE, params)
+            t.velocities.append(_Velocity("part", np.array([pid or 0]), np.array([moving(*vel[:3])]), where))
+    elif not opts:  # NSID NSIDEX BOXID ..., then VX VY VZ ..., then VXE VYE VZE ... where NSIDEX > 0
+        r = rows.tolist()
+        nsid, nsidex, boxid, *_ = _read_line(block, r[0], _VEL_HEAD, params)
+        vel = _read_line(block, r[1], _VEL_6, params) if len(r) > 1 else []
+        target = "box" if boxid else "node_set" if nsid else "all"
+        exempt_moving = bool(nsidex) and len(r) > 2 and moving(*_read_line(block, r[2], _VEL_6, params)[:3])
+        t.velocities.append(
+            _Velocity(target, np.array([nsid or 0]), np.array([moving(*vel[:3])]), where, nsidex or 0, exempt_moving)
+        )
+    elif opts == {"GENERATION"}:
+        for k in range(0, rows.size, 2):  # ID STYP OMEGA VX VY VZ ..., then XC YC ZC NX NY NZ PHASE IRIGID
+            gid, styp, omega, vx, vy, vz, *_ = _read_line(block, int(rows[k]), _VEL_GEN, params)
+            target = {1: "part_set", 2: "part", 3: "node_set"}.get(styp or 0, "unknown") if gid else "all"
+            t.velocities.append(_Velocity(target, np.array([gid or 0]), np.array([moving(vx, vy, vz, omega)]), where))
+    else:
+        return False
+    return True
 
 
 def _read_curve(block: _Block, opts: set[str], t: _Tables, params: _Params) -> None:
@@ -1160,6 +1240,17 @@ def _dispatch(block: _Block, t: _Tables, deck: _Deck) -> None:
             _read_set_part(block, opts, t, params)
         else:
             deck.skipped[kw] += 1
+        return
+    if kw == "SET_NODE" or kw.startswith("SET_NODE_"):
+        opts = _split_options(kw, "SET_NODE")
+        if opts <= {"LIST", "TITLE", "GENERATE"}:
+            _read_set_node(block, opts, t, params)
+        else:
+            deck.skipped[kw] += 1
+        return
+    if (kw == "INITIAL_VELOCITY" or kw.startswith("INITIAL_VELOCITY_")) and _read_velocity(
+        block, _split_options(kw, "INITIAL_VELOCITY"), t, params
+    ):
         return
     if kw in ("DEFINE_CURVE", "DEFINE_CURVE_TITLE"):
         _read_curve(block, _split_options(kw, "DEFINE_CURVE"), t, params)
@@ -1398,6 +1489,8 @@ def _fixed_parts(model: VehicleModel, t: _Tables, axis_map: AxisMap) -> tuple[di
     decides only when all three translations are held (the local system is not read).
     """
     travel = "xyz"[int(np.abs(axis_map.matrix()[0]).argmax())]
+    if not any(t.materials[p.material_id].kind == "rigid" for p in model.parts.values()):
+        return {}, []
     masses = model.part_masses()
     counts = Counter(np.concatenate([model.shell_part, model.solid_part, model.beam_part]).tolist())
     fixed: dict[int, str] = {}
@@ -1435,6 +1528,86 @@ def _fixed_parts(model: VehicleModel, t: _Tables, axis_map: AxisMap) -> tuple[di
             f"({counts.get(pid, 0)} elements, {masses.get(pid, 0.0):.1f} kg)"
         )
     return fixed, notes
+
+
+def _stationary_parts(model: VehicleModel, t: _Tables, skip: set[int]) -> tuple[dict[int, str], list[str]]:
+    """Parts none of whose nodes the deck's initial-velocity cards set moving, while others move.
+
+    A part at rest when the rest of the model starts at the impact speed is a barrier (a
+    deformable honeycomb, its backing) or a fixture, not vehicle structure. Nothing is
+    decided when the deck sets nothing moving, or when a card refers to something the
+    reader cannot resolve (a box, an undefined or unread set): a note says so.
+    """
+    if not t.velocities:
+        return {}, []
+    order = np.argsort(model.node_ids, kind="stable")
+    sorted_ids = model.node_ids[order]
+
+    def node_index(ids) -> np.ndarray:
+        idx, found = _lookup(sorted_ids, order, np.asarray(ids, dtype=np.int64))
+        return idx[found]
+
+    elems = [
+        (model.shell_part, model.shell_nodes),
+        (model.solid_part, model.solid_nodes),
+        (model.beam_part, model.beam_nodes),
+    ]
+
+    def part_nodes(pids) -> np.ndarray:
+        return np.concatenate([nodes[np.isin(part, pids)].ravel() for part, nodes in elems])
+
+    moving = np.zeros(model.n_nodes, dtype=bool)
+    for v in t.velocities:
+        if v.target == "nodes":
+            moving[node_index(v.ids[v.moving])] = True
+            continue
+        if not v.moving[0] and not v.except_moving:
+            continue
+        sid = int(v.ids[0])
+        unresolved = (
+            v.target in ("box", "unknown")
+            or (v.target == "node_set" and sid not in t.node_sets)
+            or (v.target == "part_set" and sid not in t.sets)
+            or (v.except_set and v.except_set not in t.node_sets)
+        )
+        if unresolved:
+            what = {"box": "a *DEFINE_BOX", "unknown": "an unknown set type"}.get(v.target, "a set the reader lacks")
+            return {}, [
+                f"{v.where[0].name} line {v.where[1]}: an initial velocity refers to {what}; parts at rest "
+                "(a barrier) are not detected from initial velocities"
+            ]
+        if v.target == "all":
+            sel = np.arange(model.n_nodes)
+        elif v.target == "node_set":
+            sel = node_index(t.node_sets[sid][1])
+        else:
+            sel = part_nodes(t.sets[sid][1] if v.target == "part_set" else [sid])
+        if v.except_set:
+            exempt = np.zeros(model.n_nodes, dtype=bool)
+            exempt[node_index(t.node_sets[v.except_set][1])] = True
+            moving[sel[exempt[sel]]] |= v.except_moving
+            sel = sel[~exempt[sel]]
+        moving[sel] |= bool(v.moving[0])
+    if not moving.any():
+        return {}, []
+    moved = set()
+    for part, nodes in elems:
+        moved.update(np.unique(part[moving[nodes].any(axis=1)]).tolist())
+    pids, n = np.unique(np.concatenate([p for p, _ in elems]), return_counts=True)
+    counts = dict(zip(pids.tolist(), n.tolist(), strict=True))
+    rest = [pid for pid in sorted(model.parts) if pid not in moved and pid not in skip and counts.get(pid)]
+    if not rest:
+        return {}, []
+    masses = model.part_masses()
+    out = {}
+    for pid in rest:
+        part = model.parts[pid]
+        out[pid] = (
+            f"part {pid} ({part.name!r}): the deck's initial velocities set none of its nodes moving while "
+            f"{int(moving.sum())} nodes move: a barrier or fixture at rest, not vehicle structure; left out of the "
+            f"vehicle ({counts[pid]} elements, {masses.get(pid, 0.0):.1f} kg)"
+        )
+    return out, []
 
 
 def deck_files(path: str | Path, params: dict[str, float] | None = None) -> list[Path]:
@@ -1507,7 +1680,9 @@ def read_deck(
         raise DeckError(str(e), main) from None
     axis_map = axis_map if axis_map is not None else AxisMap()
     fixed, notes = _fixed_parts(model, tables, axis_map)
-    model.warnings.extend(notes)
+    at_rest, more = _stationary_parts(model, tables, skip=set(fixed))
+    fixed.update(at_rest)
+    model.warnings.extend(notes + more)
     if fixed:
         model = model.without_parts(fixed)
         if model.n_shells + model.n_solids + model.n_beams == 0:
