@@ -199,7 +199,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     import torch
 
     from marlcrash.cells import discretize, load_discretization_config
-    from marlcrash.pulse.simulation import crash_summary, energy_budget, plot_crash, write_crash_csv
+    from marlcrash.pulse.simulation import bottoming_note, crash_summary, energy_budget, plot_crash, write_crash_csv
     from marlcrash.sim import Surrogate
 
     scenario = scenario_from_args(args)
@@ -234,14 +234,13 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         f"({100 * summary['rebound_fraction']:.1f} % of impact speed)"
     )
     print(f"energy balance, max rel. error {summary['energy_balance_max_rel_error']:8.1e}")
-    e_in, e_cap = summary["impact_energy_kj"], summary["crush_capacity_kj"]
-    print(f"impact energy / crush capacity {e_in:8.1f} / {e_cap:.1f} kJ")
-    if e_in > e_cap:
-        print(
-            f"note: the cells can absorb at most {e_cap:.1f} kJ by crushing and the impact brings {e_in:.1f} kJ, so "
-            "the front bottoms out: the rest comes back as a stiff stop and rebound. A deeper region of interest "
-            "(roi_depth in the discretization config, --config) gives the surrogate more structure to crush."
-        )
+    print(
+        f"impact energy / crush capacity {summary['impact_energy_kj']:8.1f} / {summary['crush_capacity_kj']:.1f} kJ"
+        " (plastic work the cells can take)"
+    )
+    note = bottoming_note(summary)
+    if note:
+        print(note)
     for name, d in summary["sensors"].items():
         print(
             f"  sensor {name:<16} peak {d['peak_g']:7.1f} g at {d['t_peak_ms']:6.1f} ms, "

@@ -454,6 +454,15 @@ rigid block
         ("1.0", "1", "0", None, True),  # held along the direction of travel alone is enough
         ("1.0", "5", "0", None, False),  # held in y and z only: it can still move with the vehicle (a sled)
         ("1.0", "1", "0", AxisMap(x="+z", y="+y", z="+x"), False),  # travel is along the deck's z: x is not it
+        ("1.0", "4", "0", None, True),  # x and y
+        ("1.0", "6", "0", None, True),  # z and x
+        ("1.0", "2", "0", None, False),  # y
+        ("1.0", "3", "0", None, False),  # z
+        ("1.0", "2", "0", AxisMap(x="+y", y="+z", z="+x"), True),  # a cyclic map: travel along the deck's y
+        ("1.0", "3", "0", AxisMap(x="+y", y="+z", z="+x"), False),
+        ("1.0", "9", "0", None, False),  # not a CON1 code: a note, kept
+        ("-1.0", "0", "111000.5", None, False),  # not an SPC code: a note, kept
+        ("2.0", "7", "7", None, False),  # not a CMO: a note, kept
         ("-1.0", "3", "111000", None, True),  # local system, every translation held: whichever the system
         ("-1.0", "3", "100000", None, False),  # local system, one translation: the reader cannot tell which
         ("0.0", "0", "0", None, False),  # unconstrained
@@ -471,12 +480,44 @@ def test_rigid_parts_held_along_the_travel_are_left_out(tmp_path, cmo, con1, con
         assert "barrier or fixture" in m.left_out[2] and "1 elements" in m.left_out[2]
         assert any("deck.k: part 2 ('rigid block')" in w for w in said)
         assert m.total_mass() == pytest.approx(plate_mass, rel=1e-12)
-        np.testing.assert_allclose(m.bounds(), [[0, -0.05, 0], [0.1, 0.05, 0]], atol=1e-15)  # front: the plate
+        plate = _read(_write(tmp_path, HEAD + NODES + SHELL, name="plate.k"), axis_map=axis_map or AxisMap())
+        np.testing.assert_allclose(m.bounds(), plate.bounds(), atol=1e-15)  # front and width: the plate's
     else:
         assert sorted(m.parts) == [1, 2] and m.left_out == {}
         assert m.total_mass() > plate_mass
         assert np.ptp(m.bounds(), axis=0).max() > 0.2  # the 0.3 m block is part of the vehicle (plate: 0.1 m)
     assert any("local system 3" in w for w in m.warnings) == (con2 == "100000")
+    assert any("read as unconstrained" in w for w in m.warnings) == (con1 == "9" or cmo == "2.0" or "." in con2)
+
+
+def test_rigid_parts_merged_into_a_fixed_body_are_left_out_with_it(tmp_path):
+    """*CONSTRAINED_RIGID_BODIES: the merged body moves under its master's constraints, not the slave's."""
+    slave = """*PART
+merged plate
+         3         1         3
+*MAT_RIGID
+         3  7.85e-09  210000.0       0.3
+{cmo:>10}{con1:>10}{con2:>10}
+*NODE
+      21           -60.0           400.0
+      22           -50.0           400.0
+      23           -50.0           500.0
+*ELEMENT_SHELL
+       3       3      21      22      23      23
+*CONSTRAINED_RIGID_BODIES
+{pidm:>10}{pids:>10}
+"""
+    for (cmo2, con2), (cmo3, con3), (pidm, pids), out in (
+        (("1.0", "7"), ("0.0", "0"), (2, 3), [2, 3]),  # the free slave of a fixed master is fixed
+        (("0.0", "0"), ("1.0", "7"), (2, 3), []),  # a held slave of a free master moves with it
+        (("0.0", "0"), ("1.0", "7"), (3, 2), [2, 3]),  # the same parts, the other way round
+        (("1.0", "7"), ("0.0", "0"), (9, 3), [2]),  # a merge naming no part changes nothing
+    ):
+        text = _with_rigid_block(cmo2, con2, con2) + slave.format(cmo=cmo3, con1=con3, con2=con3, pidm=pidm, pids=pids)
+        m = _read(_write(tmp_path, text))
+        assert sorted(m.left_out) == out, (cmo2, cmo3, pidm, pids)
+        if 3 in out and (pidm, pids) == (2, 3):
+            assert "merged into rigid part 2 by *CONSTRAINED_RIGID_BODIES" in m.left_out[3]
 
 
 def test_a_deck_of_fixed_parts_only_and_maps_naming_them_are_refused(tmp_path):

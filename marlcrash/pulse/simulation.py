@@ -44,14 +44,14 @@ def compartment_sensor(result: SimResult, cells: CellModel) -> int | None:
 
 
 def energy_budget(cells: CellModel, scenario: CrashScenario, params: np.ndarray | None = None) -> dict[str, float]:
-    """What the impact brings against what the cells can absorb by crushing.
+    """What the impact brings against the plastic work the cells can take.
 
     Returns:
-        ``impact_energy_kj`` (the whole vehicle's kinetic energy at the impact speed) and
-        ``crush_capacity_kj`` (the sum of the crushing cells' ``E_s`` under ``params``, default
-        ``cells.params``): an upper bound on the energy crush can take, reached only if every cell
-        crushes to the end. Where the impact brings more, the front bottoms out and the rest comes
-        back through the densified cells as a stiff stop and rebound.
+        ``impact_energy_kj``: the kinetic energy of the model's element masses at the impact speed
+        (masses a deck adds by ``*ELEMENT_MASS`` or ``*PART_INERTIA`` are not read, so not counted);
+        ``crush_capacity_kj``: the sum of the crushing cells' ``E_s`` under ``params`` (default
+        ``cells.params``), the plastic work they can take before they bottom out. Damping and the
+        densified cells take energy beyond it, so the absorbed energy can exceed it.
     """
     p = np.asarray(cells.params if params is None else params, dtype=float).reshape(cells.n_cells, -1)
     crushing = ~cells.is_null & ~cells.is_rigid
@@ -59,6 +59,23 @@ def energy_budget(cells: CellModel, scenario: CrashScenario, params: np.ndarray 
         "impact_energy_kj": 0.5 * cells.total_mass * scenario.speed**2 / 1e3,
         "crush_capacity_kj": float(p[crushing, PARAM_NAMES.index("E_s")].sum() / 1e3),
     }
+
+
+def bottoming_note(budget: dict[str, float]) -> str | None:
+    """A note when the impact brings more than the cells can take as plastic work, else ``None``.
+
+    A sufficient sign that the front bottoms out, not a necessary one: where the load paths
+    crush unevenly, some lanes bottom out with capacity left in others.
+    """
+    e_in, e_cap = budget["impact_energy_kj"], budget["crush_capacity_kj"]
+    if e_in <= e_cap:
+        return None
+    return (
+        f"note: the impact brings {e_in:.1f} kJ and the cells can take {e_cap:.1f} kJ as plastic work, so the "
+        "front must bottom out: the rest comes back through the densified cells as a stiff stop and rebound. "
+        "A deeper region of interest (roi_depth in the discretization config, --config) gives the surrogate "
+        "more structure to crush."
+    )
 
 
 def crash_summary(result: SimResult, cells: CellModel, scenario: CrashScenario, cfc: int = 60, row: int = 0) -> dict:

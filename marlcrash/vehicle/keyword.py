@@ -34,7 +34,8 @@ Coverage:
   FAIL. Everything else is completed by :func:`complete_material`;
 - ``*SET_PART``, ``*SET_PART_LIST`` and ``*SET_PART_LIST_GENERATE`` (usable as
   ``"set:<id>"`` in sub-assembly maps);
-- ``*SET_NODE``/``*SET_NODE_LIST`` (``_TITLE``, ``_GENERATE``) and ``*INITIAL_VELOCITY``,
+- ``*CONSTRAINED_RIGID_BODIES`` (which rigid parts move as one body), ``*SET_NODE``/
+  ``*SET_NODE_LIST`` (``_TITLE``, ``_GENERATE``) and ``*INITIAL_VELOCITY``,
   ``_NODE``, ``_GENERATION`` (part, part set or node set) and ``_RIGID_BODY``, for which
   parts the deck sets moving;
 - parts that are not vehicle: a ``*MAT_RIGID`` part whose constraints (``CMO``, ``CON1``,
@@ -142,6 +143,7 @@ _SET_HEAD = _card("sid", kinds="i")
 _SET_IDS = _card(*(f"p{i}" for i in range(8)), kinds="i" * 8)
 _CURVE_HEAD = _card("lcid", "sidr", "sfa", "sfo", "offa", "offo", kinds="iiffff")
 _VEL_NODE = _card("nid", "vx", "vy", "vz", kinds="ifff")  # then VXR VYR VZR ICID, not needed
+_MERGE = _card("pidm", "pids", kinds="ii")
 _VEL_HEAD = _card("nsid", "nsidex", "boxid", "irigid", "icid", kinds="iiiff")
 _VEL_6 = _card("vx", "vy", "vz", "vxr", "vyr", "vzr")
 _VEL_GEN = _card("id", "styp", "omega", "vx", "vy", "vz", "ivatn", "icid", kinds="iifffffi")
@@ -821,6 +823,7 @@ class _Tables:
     node_sets: dict[int, tuple[str, list[int]]] = field(default_factory=dict)
     curves: dict[int, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
     velocities: list[_Velocity] = field(default_factory=list)
+    rigid_merges: list[tuple[int, int]] = field(default_factory=list)  # (PIDM, PIDS) pairs
 
 
 def _split_options(name: str, base: str) -> set[str]:
@@ -1252,6 +1255,12 @@ def _dispatch(block: _Block, t: _Tables, deck: _Deck) -> None:
         block, _split_options(kw, "INITIAL_VELOCITY"), t, params
     ):
         return
+    if kw == "CONSTRAINED_RIGID_BODIES":
+        for r in _nonblank(block, block.rows).tolist():
+            pidm, pids = _read_line(block, r, _MERGE, params)
+            if pidm and pids:
+                t.rigid_merges.append((int(pidm), int(pids)))
+        return
     if kw in ("DEFINE_CURVE", "DEFINE_CURVE_TITLE"):
         _read_curve(block, _split_options(kw, "DEFINE_CURVE"), t, params)
         return
@@ -1478,6 +1487,12 @@ def _assemble(deck: _Deck, t: _Tables, units: str | None, main: Path) -> tuple[V
 _CON1_AXES = {0: "", 1: "x", 2: "y", 3: "z", 4: "xy", 5: "yz", 6: "zx", 7: "xyz"}
 
 
+def _element_counts(model: VehicleModel) -> dict[int, int]:
+    """Part id -> number of elements (shells, solids and beams)."""
+    pids, n = np.unique(np.concatenate([model.shell_part, model.solid_part, model.beam_part]), return_counts=True)
+    return dict(zip(pids.tolist(), n.tolist(), strict=True))
+
+
 def _fixed_parts(model: VehicleModel, t: _Tables, axis_map: AxisMap) -> tuple[dict[int, str], list[str]]:
     """Parts a ``*MAT_RIGID`` holds in place along the direction of travel: part id -> why; and notes.
 
@@ -1486,45 +1501,67 @@ def _fixed_parts(model: VehicleModel, t: _Tables, axis_map: AxisMap) -> tuple[di
     impactor's backing or a fixture, not vehicle structure (the LS-OPT small car's rigid block
     in front of its bumper is one). ``CMO = +1`` reads ``CON1`` as global translational
     constraints; ``CMO = -1`` reads the first three digits of the local SPC code ``CON2``, which
-    decides only when all three translations are held (the local system is not read).
+    decides only when all three translations are held (the local system is not read). Rigid
+    parts merged by ``*CONSTRAINED_RIGID_BODIES`` move as one body under the master's constraints.
     """
     travel = "xyz"[int(np.abs(axis_map.matrix()[0]).argmax())]
-    if not any(t.materials[p.material_id].kind == "rigid" for p in model.parts.values()):
+    rigid = {pid for pid, p in model.parts.items() if t.materials[p.material_id].kind == "rigid"}
+    if not rigid:
         return {}, []
-    masses = model.part_masses()
-    counts = Counter(np.concatenate([model.shell_part, model.solid_part, model.beam_part]).tolist())
-    fixed: dict[int, str] = {}
     notes: list[str] = []
-    for pid, part in sorted(model.parts.items()):
-        raw = t.materials[part.material_id]
-        if raw.kind != "rigid":
-            continue
+
+    def held(pid: int) -> tuple[str, str]:
+        """(deck axes held, how) of a rigid part's own material."""
+        raw = t.materials[model.parts[pid].material_id]
         cmo, con1, con2 = (raw.values.get(k, 0.0) for k in ("cmo", "con1", "con2"))
-        held = ""
+        at = f"*MAT_RIGID {raw.mid} ({raw.where[0].name} line {raw.where[1]})"
         if cmo == 1.0:
-            if con1 not in _CON1_AXES:
-                notes.append(
-                    f"part {pid}: *MAT_RIGID {raw.mid} ({raw.where[0].name} line {raw.where[1]}) has CON1 = {con1:g}, "
-                    "expected 0-7 with CMO = 1; read as unconstrained"
-                )
-                continue
-            held = _CON1_AXES[int(con1)]
-            how = f"CMO=1, CON1={int(con1)}: held in deck {held or 'no axis'}"
+            if con1 in _CON1_AXES:
+                axes = _CON1_AXES[int(con1)]
+                return axes, f"{at}, CMO=1, CON1={int(con1)}: held in deck {axes or 'no axis'}"
+            notes.append(f"part {pid}: {at} has CON1 = {con1:g}, expected 0-7 with CMO = 1; read as unconstrained")
         elif cmo == -1.0:
-            code = f"{int(con2):06d}" if 0 <= con2 < 1e6 and con2 == int(con2) else ""
-            if code[:3] == "111":
-                held = "xyz"
-            elif code[:3].strip("0"):
+            if not (0 <= con2 < 1e6 and con2 == int(con2)):
                 notes.append(
-                    f"part {pid}: *MAT_RIGID {raw.mid} is held in local system {con1:g} (CMO=-1, CON2={code}); "
-                    "the reader does not follow local systems, so it stays vehicle structure"
+                    f"part {pid}: {at} has CON2 = {con2:g}, expected a 6-digit SPC code with CMO = -1; "
+                    "read as unconstrained"
                 )
-            how = f"CMO=-1, CON2={code}: held in every translation"
-        if travel not in held:
+                return "", ""
+            code = f"{int(con2):06d}"
+            if code[:3] == "111":
+                return "xyz", f"{at}, CMO=-1, CON2={code}: held in every translation"
+            if code[:3].strip("0"):
+                notes.append(
+                    f"part {pid}: {at} is held in local system {con1:g} (CMO=-1, CON2={code}); the reader does "
+                    "not follow local systems, so it stays vehicle structure"
+                )
+        elif cmo != 0.0:
+            notes.append(f"part {pid}: {at} has CMO = {cmo:g}, expected -1, 0 or 1; read as unconstrained")
+        return "", ""
+
+    master = {s: m for m, s in t.rigid_merges if m in rigid and s in rigid and m != s}
+
+    def root(pid: int) -> int:
+        seen = {pid}
+        while pid in master and master[pid] not in seen:
+            pid = master[pid]
+            seen.add(pid)
+        return pid
+
+    own = {pid: held(pid) for pid in sorted({root(p) for p in rigid})}
+    masses = counts = None
+    fixed: dict[int, str] = {}
+    for pid in sorted(rigid):
+        top = root(pid)
+        axes, how = own[top]
+        if travel not in axes:
             continue
+        if masses is None:
+            masses, counts = model.part_masses(), _element_counts(model)
+        via = "" if top == pid else f"merged into rigid part {top} by *CONSTRAINED_RIGID_BODIES, whose "
         fixed[pid] = (
-            f"part {pid} ({part.name!r}): *MAT_RIGID {raw.mid} ({how}) does not move along deck {travel}, "
-            f"the direction of travel: a barrier or fixture, not vehicle structure; left out of the vehicle "
+            f"part {pid} ({model.parts[pid].name!r}): {via}{how} does not move along deck {travel}, the direction "
+            f"of travel: a barrier or fixture, not vehicle structure; left out of the vehicle "
             f"({counts.get(pid, 0)} elements, {masses.get(pid, 0.0):.1f} kg)"
         )
     return fixed, notes
@@ -1593,8 +1630,7 @@ def _stationary_parts(model: VehicleModel, t: _Tables, skip: set[int]) -> tuple[
     moved = set()
     for part, nodes in elems:
         moved.update(np.unique(part[moving[nodes].any(axis=1)]).tolist())
-    pids, n = np.unique(np.concatenate([p for p, _ in elems]), return_counts=True)
-    counts = dict(zip(pids.tolist(), n.tolist(), strict=True))
+    counts = _element_counts(model)
     rest = [pid for pid in sorted(model.parts) if pid not in moved and pid not in skip and counts.get(pid)]
     if not rest:
         return {}, []
