@@ -1103,14 +1103,6 @@ def _read_material(block: _Block, kind: str, title: bool, t: _Tables, params: _P
     t.materials[int(mid)] = _RawMaterial(int(mid), name, kind, vals, (block.src.path, r + 1))
 
 
-def _read_set_part(block: _Block, opts: set[str], t: _Tables, params: _Params) -> None:
-    _read_id_set(block, opts, t.sets, params)
-
-
-def _read_set_node(block: _Block, opts: set[str], t: _Tables, params: _Params) -> None:
-    _read_id_set(block, opts, t.node_sets, params)
-
-
 def _read_id_set(block: _Block, opts: set[str], out: dict[int, tuple[str, list[int]]], params: _Params) -> None:
     """A ``*SET_PART``/``*SET_NODE`` ``[_LIST][_TITLE][_GENERATE]`` block into ``out[sid] = (title, ids)``."""
     rows = block.rows.tolist()
@@ -1237,20 +1229,14 @@ def _dispatch(block: _Block, t: _Tables, deck: _Deck) -> None:
         else:
             _read_material(block, mk[0], mk[1], t, params)
         return
-    if kw == "SET_PART" or kw.startswith("SET_PART_"):
-        opts = _split_options(kw, "SET_PART")
-        if opts <= {"LIST", "TITLE", "GENERATE"}:
-            _read_set_part(block, opts, t, params)
-        else:
-            deck.skipped[kw] += 1
-        return
-    if kw == "SET_NODE" or kw.startswith("SET_NODE_"):
-        opts = _split_options(kw, "SET_NODE")
-        if opts <= {"LIST", "TITLE", "GENERATE"}:
-            _read_set_node(block, opts, t, params)
-        else:
-            deck.skipped[kw] += 1
-        return
+    for base, sets in (("SET_PART", t.sets), ("SET_NODE", t.node_sets)):
+        if kw == base or kw.startswith(base + "_"):
+            opts = _split_options(kw, base)
+            if opts <= {"LIST", "TITLE", "GENERATE"}:
+                _read_id_set(block, opts, sets, params)
+            else:
+                deck.skipped[kw] += 1
+            return
     if (kw == "INITIAL_VELOCITY" or kw.startswith("INITIAL_VELOCITY_")) and _read_velocity(
         block, _split_options(kw, "INITIAL_VELOCITY"), t, params
     ):
