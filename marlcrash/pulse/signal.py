@@ -563,7 +563,7 @@ def prepare_velocity(
             f"(t = {t0 * 1e3:.4g} ms); expected at least {float(duration) * 1e3:.4g} ms"
         )
     if duration is not None and beyond > 0:  # whole samples past the window that the record holds
-        t_end += min(beyond, np.floor((p.time[-1] - t_end) * rate_hz + 1e-6) / rate_hz)
+        t_end += min(beyond, margin_samples(p.time[-1] - t_end, rate_hz) / rate_hz)
     # integrated from PRE_IMPACT_TIME before time zero, as compared_velocity integrates a simulation: the zero-phase
     # filter spreads the onset's deceleration before time zero, and integrating from time zero lost it (an up-front
     # sensor's velocity change came out 4.6 m/s short of the simulation's the file was written from)
