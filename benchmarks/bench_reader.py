@@ -10,6 +10,8 @@ longer than the limit (15 s by default).
     python benchmarks/bench_reader.py --nodes 10000   # quick check
     python benchmarks/bench_reader.py --velocities    # plus a *SET_NODE_LIST and an *INITIAL_VELOCITY_NODE
                                                       # line for every node, as a crash deck's initial state
+    python benchmarks/bench_reader.py --masses        # plus an *ELEMENT_MASS of 1 g on every node (checked in
+                                                      # the total mass)
 """
 
 from __future__ import annotations
@@ -27,10 +29,11 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout without installing
 
 
-def write_grid_deck(path: Path, n_nodes: int, velocities: bool = False) -> tuple[int, int]:
+def write_grid_deck(path: Path, n_nodes: int, velocities: bool = False, masses: bool = False) -> tuple[int, int]:
     """Write a torus grid deck with about ``n_nodes`` nodes and as many quads; returns the counts.
 
     ``velocities``: also a node set of every node and an initial velocity (56 km/h along -x) per node.
+    ``masses``: also an ``*ELEMENT_MASS`` of 1 g (1e-6 t) on every node.
     """
     nu = max(3, round(math.sqrt(n_nodes)))
     nv = max(3, n_nodes // nu)
@@ -69,6 +72,10 @@ def write_grid_deck(path: Path, n_nodes: int, velocities: bool = False) -> tuple
             f.write("*INITIAL_VELOCITY_NODE\n")
             for chunk in _chunks(iter(flat)):
                 f.write("".join(f"{i:10d}  -15640.0\n" for i in chunk))
+        if masses:
+            f.write("*ELEMENT_MASS\n")
+            for chunk in _chunks(iter(ids.ravel().tolist())):
+                f.write("".join(f"{i:8d}{i:8d}{1e-6:16.6e}{1:8d}\n" for i in chunk))
         f.write("*END\n")
     return nu * nv, nu * nv
 
@@ -90,6 +97,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--limit", type=float, default=15.0, help="largest acceptable read_deck time [s]")
     ap.add_argument("--skip-dynakw", action="store_true", help="do not time dynakw")
     ap.add_argument("--velocities", action="store_true", help="add a node set and an initial velocity per node")
+    ap.add_argument("--masses", action="store_true", help="add an *ELEMENT_MASS of 1 g on every node")
     args = ap.parse_args(argv)
 
     from marlcrash.vehicle.keyword import read_deck
@@ -97,7 +105,7 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         deck = Path(tmp) / "grid.k"
         t0 = time.perf_counter()
-        n_nodes, n_shells = write_grid_deck(deck, args.nodes, args.velocities)
+        n_nodes, n_shells = write_grid_deck(deck, args.nodes, args.velocities, args.masses)
         t_write = time.perf_counter() - t0
         size = deck.stat().st_size / 1e6
         print(f"deck: {n_nodes} nodes, {n_shells} shells, {size:.1f} MB, written in {t_write:.2f} s")
@@ -108,9 +116,11 @@ def main(argv: list[str] | None = None) -> int:
             model = read_deck(deck)
         t_ours = time.perf_counter() - t0
         ok = model.n_nodes == n_nodes and model.n_shells == n_shells and not model.left_out
+        ok &= model.point_mass.size == (n_nodes if args.masses else 0)
+        ok &= abs(model.total_mass() - sum(model.part_masses().values()) - 1e-3 * model.point_mass.size) < 1e-6
         print(
-            f"marlcrash read_deck: {t_ours:.2f} s ({model.n_nodes} nodes, {model.n_shells} shells, mass "
-            f"{model.total_mass():.1f} kg)"
+            f"marlcrash read_deck: {t_ours:.2f} s ({model.n_nodes} nodes, {model.n_shells} shells, "
+            f"{model.point_mass.size} point masses, mass {model.total_mass():.1f} kg)"
         )
         if not ok:
             print("ERROR: read_deck returned the wrong counts")

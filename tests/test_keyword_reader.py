@@ -575,9 +575,10 @@ def test_parts_the_initial_velocities_leave_at_rest_are_left_out(tmp_path, cards
 
 
 def test_reader_benchmark_runs_with_initial_velocities():
-    """benchmarks/bench_reader.py --velocities: every node in a set and moving; nothing is left out."""
+    """benchmarks/bench_reader.py --velocities --masses: every node in a set, moving and carrying a point mass;
+    nothing is left out and the total mass counts the point masses (the script checks both)."""
     bench = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_reader.py"
-    args = ["--nodes", "2000", "--velocities", "--skip-dynakw"]
+    args = ["--nodes", "2000", "--velocities", "--masses", "--skip-dynakw"]
     proc = subprocess.run([sys.executable, str(bench), *args], capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "OK: read_deck within" in proc.stdout

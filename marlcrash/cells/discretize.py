@@ -600,6 +600,19 @@ def _material_table(model: VehicleModel) -> tuple[np.ndarray, dict[int, int]]:
     return table, {pid: row[p.material_id] for pid, p in model.parts.items()}
 
 
+def _point_masses(model: VehicleModel, grid: FineGrid, labels: np.ndarray, n: int) -> np.ndarray:
+    """``[n]`` point mass [kg] in each cell: a node's lumped mass goes to the cell of its voxel.
+
+    A mass outside the ROI box is left out here; with masses in cells without structure, the caller
+    leaves it to the rigid compartment, which takes the rest of the vehicle's total mass.
+    """
+    out = np.zeros(n)
+    if model.point_mass.size:
+        vox, inside = grid.locate(model.coords[model.point_mass_nodes], clamp=False)
+        np.add.at(out, labels.ravel()[vox[inside]], model.point_mass[inside])
+    return out
+
+
 def _compartment_aggregate(
     model: VehicleModel, roi: Roi, mat_table, part_row
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -669,7 +682,7 @@ def discretize(model: VehicleModel, config: DiscretizationConfig | None = None, 
     tick("roi_grid")
     samples = sample_elements(
         model, roi.shell_in, roi.solid_in, roi.beam_in, part_row, part_sub, pitch,
-        cfg.samples_per_pitch, cfg.max_subdivision, roi.masses,
+        cfg.samples_per_pitch, cfg.max_subdivision, roi.masses, roi.added,
     )  # fmt: skip
     vox, _ = grid.locate(samples.pos, clamp=True)
     # compartment material inside the ROI box labels its voxels as the compartment
@@ -681,7 +694,7 @@ def discretize(model: VehicleModel, config: DiscretizationConfig | None = None, 
     beam_x = model.coords[model.beam_nodes][:, :, 0]
     near.append(np.isin(model.beam_part, comp_parts) & (beam_x.min(axis=1) < roi.hi[0]))
     comp_samples = sample_elements(
-        model, near[0], near[1], near[2], part_row, part_sub, pitch, 1, cfg.max_subdivision, roi.masses
+        model, near[0], near[1], near[2], part_row, part_sub, pitch, 1, cfg.max_subdivision, roi.masses, roi.added
     )
     cv, inside = grid.locate(comp_samples.pos, clamp=False)
     comp_vox = np.unique(cv[inside])
@@ -692,17 +705,21 @@ def discretize(model: VehicleModel, config: DiscretizationConfig | None = None, 
     n = lab.is_null.shape[0]
     comp = n - 1
     cos = lab.cell_of_sample
-    # mass, material, centroid
-    mass = np.bincount(cos, weights=samples.mass, minlength=n)
-    mass[comp] = 0.0
+    # material and centroid weighted by the structural mass
+    smass = np.bincount(cos, weights=samples.mass, minlength=n)
+    smass[comp] = 0.0
     mvec = np.stack(
         [np.bincount(cos, weights=samples.mass * mat_table[samples.material, j], minlength=n) for j in range(8)], axis=1
     )
-    material = np.divide(mvec, mass[:, None], out=np.zeros((n, 8)), where=mass[:, None] > 0)
+    material = np.divide(mvec, smass[:, None], out=np.zeros((n, 8)), where=smass[:, None] > 0)
     mom = np.stack([np.bincount(cos, weights=samples.mass * samples.pos[:, a], minlength=n) for a in range(3)], axis=1)
     lo, hi, volume = _voxel_boxes(grid, lab.labels, n)
     geo_centre = 0.5 * (lo + hi)
-    centroid = np.where(mass[:, None] > 0, mom / np.where(mass > 0, mass, 1.0)[:, None], geo_centre)
+    centroid = np.where(smass[:, None] > 0, mom / np.where(smass > 0, smass, 1.0)[:, None], geo_centre)
+    # inertia: structural, added and point masses; what lands in a cell without structure rides with the compartment
+    mass = np.bincount(cos, weights=samples.mass + samples.added, minlength=n)
+    mass += _point_masses(model, grid, lab.labels, n)
+    mass[smass <= 0] = 0.0
     cvec, ccen, clo, chi = _compartment_aggregate(model, roi, mat_table, part_row)
     comp_mass = roi.total_mass - float(mass.sum())
     mass[comp] = comp_mass

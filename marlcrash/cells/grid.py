@@ -182,6 +182,8 @@ class Samples:
         kind: ``[P]`` int8 element kind (:data:`KIND_SHELL`, ...).
         material: ``[P]`` int64 row into the material table.
         subassembly: ``[P]`` int64 sub-assembly index.
+        added: ``[P]`` non-structural mass [kg] riding on the sample (the element's share of its part's added
+            mass): inertia without material, so it does not weight the cell's material.
     """
 
     pos: np.ndarray
@@ -191,6 +193,7 @@ class Samples:
     kind: np.ndarray
     material: np.ndarray
     subassembly: np.ndarray
+    added: np.ndarray
 
     @property
     def n(self) -> int:
@@ -271,6 +274,7 @@ def sample_elements(
     samples_per_pitch: int = 2,
     max_subdivision: int = 12,
     masses: dict[str, np.ndarray] | None = None,
+    added: dict[str, np.ndarray] | None = None,
 ) -> Samples:
     """Sample the selected elements into sub-elements carrying mass, volume and material.
 
@@ -285,18 +289,22 @@ def sample_elements(
         samples_per_pitch: sampling density along an element edge per voxel pitch.
         max_subdivision: cap on ``k``.
         masses: precomputed :meth:`VehicleModel.element_masses` (computed if ``None``).
+        added: precomputed :meth:`VehicleModel.element_added_masses` (computed if ``None``).
 
     Returns:
         The :class:`Samples` of all selected elements.
     """
     em = model.element_masses() if masses is None else masses
+    ea = model.element_added_masses() if added is None else added
     pkeys = np.array(sorted(model.parts), dtype=np.int64)
     mat_lut = np.array([part_material_row[int(p)] for p in pkeys], dtype=np.int64)
     sub_lut = np.array([part_subassembly[int(p)] for p in pkeys], dtype=np.int64)
     out: list[Samples] = []
 
-    def emit(pos, w, mass, vol, ax, kind, part):
+    def emit(pos, w, idx, vol, ax, kind, part):
         m = w.shape[1]
+        name = {KIND_SHELL: "shell", KIND_SOLID: "solid", KIND_BEAM: "beam"}[kind]
+        mass, add = em[name][idx], ea[name][idx]
         out.append(
             Samples(
                 pos=pos.reshape(-1, 3),
@@ -306,6 +314,7 @@ def sample_elements(
                 kind=np.full(w.size, kind, dtype=np.int8),
                 material=np.repeat(_lookup(part, pkeys, mat_lut), m),
                 subassembly=np.repeat(_lookup(part, pkeys, sub_lut), m),
+                added=(w * add[:, None]).ravel(),
             )
         )
 
@@ -324,7 +333,7 @@ def sample_elements(
         for kk in np.unique(k):
             g = k == kk
             pos, w = _shell_samples(p[g], int(kk))
-            emit(pos, w, em["shell"][idx[g]], vol[g], ax[g], KIND_SHELL, model.shell_part[idx[g]])
+            emit(pos, w, idx[g], vol[g], ax[g], KIND_SHELL, model.shell_part[idx[g]])
     # solids
     idx = np.flatnonzero(solid_mask)
     if idx.size:
@@ -335,7 +344,7 @@ def sample_elements(
         for kk in np.unique(k):
             g = k == kk
             pos, w = _solid_samples(p[g], int(kk))
-            emit(pos, w, em["solid"][idx[g]], vol[g], np.ones(int(g.sum())), KIND_SOLID, model.solid_part[idx[g]])
+            emit(pos, w, idx[g], vol[g], np.ones(int(g.sum())), KIND_SOLID, model.solid_part[idx[g]])
     # beams
     idx = np.flatnonzero(beam_mask)
     if idx.size:
@@ -350,7 +359,7 @@ def sample_elements(
             t = (np.arange(kk) + 0.5) / kk
             pos = p[g, 0][:, None] + t[None, :, None] * d[g][:, None]
             w = np.full((int(g.sum()), int(kk)), 1.0 / kk)
-            emit(pos, w, em["beam"][idx[g]], vol[g], ax[g], KIND_BEAM, model.beam_part[idx[g]])
+            emit(pos, w, idx[g], vol[g], ax[g], KIND_BEAM, model.beam_part[idx[g]])
     if not out:
         return Samples(
             np.zeros((0, 3)),
@@ -360,5 +369,6 @@ def sample_elements(
             np.zeros(0, np.int8),
             np.zeros(0, np.int64),
             np.zeros(0, np.int64),
+            np.zeros(0),
         )
     return Samples.concat(out)

@@ -30,9 +30,10 @@ class Roi:
         compartment_parts: sorted part ids of the compartment.
         shell_in, solid_in, beam_in: ``[S]``, ``[V]``, ``[B]`` bool, elements that are discretized
             (not compartment, centroid in front of ``roi_depth``).
-        roi_mass: mass of the discretized elements [kg].
-        total_mass: vehicle mass [kg].
-        masses: the model's element masses (``VehicleModel.element_masses``), reused downstream.
+        roi_mass: mass of the discretized elements [kg], their added mass included.
+        total_mass: vehicle mass [kg] (:meth:`VehicleModel.total_mass`: added and point masses included).
+        masses: the model's structural element masses (``VehicleModel.element_masses``), reused downstream.
+        added: the model's non-structural element masses (``VehicleModel.element_added_masses``).
     """
 
     lo: np.ndarray
@@ -46,6 +47,7 @@ class Roi:
     roi_mass: float
     total_mass: float
     masses: dict[str, np.ndarray]
+    added: dict[str, np.ndarray]
 
     @property
     def volume(self) -> float:
@@ -111,6 +113,7 @@ def region_of_interest(model: VehicleModel, roi_depth: float, overlaps: list[flo
         raise ModelError(f"{model.name}: vehicle has zero width (all nodes at y = {b[0, 1]} m)")
     comp = compartment_parts(model)
     masses = model.element_masses()
+    added = model.element_added_masses()
     sel = {}
     for kind, parts, nodes in (
         ("shell", model.shell_part, model.shell_nodes),
@@ -136,8 +139,10 @@ def region_of_interest(model: VehicleModel, roi_depth: float, overlaps: list[flo
         zlo, zhi = zlo - 0.5e-3, zhi + 0.5e-3
     lo = np.array([0.0, -0.5 * width + 0.5 * (b[0, 1] + b[1, 1]), zlo])
     hi = np.array([roi_depth, 0.5 * width + 0.5 * (b[0, 1] + b[1, 1]), zhi])
-    roi_mass = float(sum(masses[k][sel[k]].sum() for k in sel))
+    roi_mass = float(sum(masses[k][sel[k]].sum() + added[k][sel[k]].sum() for k in sel))
+    # summed as before added masses existed, so a model without them keeps its mass to the last bit
     total = float(sum(m.sum() for m in masses.values()))
+    total += float(sum(a.sum() for a in added.values())) + float(model.point_mass.sum())
     return Roi(
         lo=lo,
         hi=hi,
@@ -150,4 +155,5 @@ def region_of_interest(model: VehicleModel, roi_depth: float, overlaps: list[flo
         roi_mass=roi_mass,
         total_mass=total,
         masses=masses,
+        added=added,
     )

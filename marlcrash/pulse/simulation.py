@@ -47,8 +47,8 @@ def energy_budget(cells: CellModel, scenario: CrashScenario, params: np.ndarray 
     """What the impact brings against the plastic work the cells can take.
 
     Returns:
-        ``impact_energy_kj``: the kinetic energy of the model's element masses at the impact speed
-        (masses a deck adds by ``*ELEMENT_MASS`` or ``*PART_INERTIA`` are not read, so not counted);
+        ``impact_energy_kj``: the kinetic energy of the vehicle's mass at the impact speed (elements,
+        and the masses a deck adds by ``*ELEMENT_MASS``, ``*ELEMENT_MASS_PART``, MAREA, ``*PART_INERTIA``);
         ``crush_capacity_kj``: the sum of the crushing cells' ``E_s`` under ``params`` (default
         ``cells.params``), the plastic work they can take before they bottom out. Damping and the
         densified cells take energy beyond it, so the absorbed energy can exceed it.

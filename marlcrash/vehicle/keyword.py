@@ -20,7 +20,7 @@ Coverage:
   ``*ELEMENT_BEAM`` (options ``THICKNESS``/``SECTION`` give element areas;
   ``PID``/``OFFSET``/``ORIENTATION``/``SCALAR``/``SCALR``/``WARPAGE`` are read past);
 - properties: ``*PART`` (title line + card; ``CONTACT``, ``PRINT``,
-  ``ATTACHMENT_NODES``, ``AVERAGED``, ``INERTIA`` cards read past),
+  ``ATTACHMENT_NODES``, ``AVERAGED`` cards read past, ``INERTIA`` below),
   ``*SECTION_SHELL`` (mean of T1..T4), ``*SECTION_SOLID``, ``*SECTION_BEAM`` (area A
   of resultant/truss beams, or from TS1/TS2/TT1/TT2 for rectangular and tubular
   integrated beams), all with ``_TITLE``;
@@ -32,6 +32,13 @@ Coverage:
   ``E ETAN / (E - ETAN)``; the ultimate strength is the yield stress at the failure
   strain (FS, FAIL) or the curve maximum; the fracture strength the curve value at
   FAIL. Everything else is completed by :func:`complete_material`;
+- masses beyond density times volume (:attr:`VehicleModel.point_mass`, ``part_added_mass``,
+  ``part_mass``): ``*ELEMENT_MASS`` (a lumped mass on a node) and ``_NODE_SET`` (one mass shared
+  equally by the set's nodes), ``*ELEMENT_MASS_PART`` and ``_SET`` (ADDMASS spread over the part's
+  elements by area, volume or length; FINMASS the part's, or the set's, final mass), ``*SECTION_SHELL``
+  MAREA (mass per area), and ``*PART_INERTIA`` TM (a rigid part's mass; its VTX..VTZ set it moving);
+  ``*ELEMENT_INERTIA``, ``*ELEMENT_MASS_MATRIX``, ``*SECTION_BEAM`` NSM and nodal rigid bodies' inertia
+  are not read (skipped and counted like any card);
 - ``*SET_PART``, ``*SET_PART_LIST`` and ``*SET_PART_LIST_GENERATE`` (usable as
   ``"set:<id>"`` in sub-assembly maps);
 - ``*CONSTRAINED_RIGID_BODIES`` (which rigid parts move as one body), ``*SET_NODE``/
@@ -73,7 +80,7 @@ import math
 import operator
 import warnings
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -133,7 +140,7 @@ def _card(*names: str, kinds: str | None = None) -> tuple[_Field, ...]:
 
 _PART = _card("pid", "secid", "mid", kinds="iii")
 _SEC_SHELL_1 = _card("secid", "elform", "shrf", "nip", "propt", "qr", "icomp", kinds="iifffff")
-_SEC_SHELL_2 = _card("t1", "t2", "t3", "t4")
+_SEC_SHELL_2 = _card("t1", "t2", "t3", "t4", "nloc", "marea")
 _SEC_SOLID = _card("secid", "elform", kinds="if")
 _SEC_BEAM_1 = _card("secid", "elform", "shrf", "qr", "cst", kinds="iffff")
 _SEC_BEAM_2 = _card("a1", "a2", "a3", "a4")
@@ -148,6 +155,14 @@ _VEL_HEAD = _card("nsid", "nsidex", "boxid", "irigid", "icid", kinds="iiiff")
 _VEL_6 = _card("vx", "vy", "vz", "vxr", "vyr", "vzr")
 _VEL_GEN = _card("id", "styp", "omega", "vx", "vy", "vz", "ivatn", "icid", kinds="iifffffi")
 _CURVE_PT = (_Field("a", 20, "f", "abscissa"), _Field("o", 20, "f", "ordinate"))
+_ELEM_MASS = _layout(
+    ("eid", 8, "i", "element id"), ("nid", 8, "i", "node id"), ("mass", 16, "f", "mass"), ("pid", 8, "i", "part id")
+)
+_ELEM_MASS_SET = _layout(
+    ("eid", 8, "i", "element id"), ("nid", 8, "i", "node set id"), ("mass", 16, "f", "mass"), ("pid", 8, "i", "part id")
+)
+_MASS_PART = _card("id", "addmass", "finmass", "lcid", "mwd", kinds="iffii")
+_INERTIA = _card("xc", "yc", "zc", "tm", "ircs", "nodeid", kinds="ffffii")
 
 
 def _widths(layout: tuple[_Field, ...], fmt: str) -> list[int]:
@@ -781,6 +796,7 @@ class _Section:
     elform: int
     cst: int
     where: tuple[Path, int]
+    marea: float = 0.0  # shells: non-structural mass per area (deck units)
 
 
 @dataclass
@@ -824,6 +840,33 @@ class _Tables:
     curves: dict[int, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
     velocities: list[_Velocity] = field(default_factory=list)
     rigid_merges: list[tuple[int, int]] = field(default_factory=list)  # (PIDM, PIDS) pairs
+    point_masses: list[_PointMasses] = field(default_factory=list)
+    part_masses: list[_PartMass] = field(default_factory=list)
+    inertia: dict[int, tuple[float, tuple[Path, int]]] = field(default_factory=dict)  # pid -> (TM, where)
+
+
+@dataclass
+class _PointMasses:
+    """One ``*ELEMENT_MASS`` block (deck units): ``nids`` node ids, or node set ids (``on_sets``)."""
+
+    ids: np.ndarray
+    nids: np.ndarray
+    mass: np.ndarray
+    pid: np.ndarray
+    on_sets: bool
+    src: _Source
+    rows: np.ndarray
+
+
+@dataclass
+class _PartMass:
+    """One ``*ELEMENT_MASS_PART`` (``_SET``) card (deck units)."""
+
+    target: int  # part id, or part set id where ``on_set``
+    on_set: bool
+    addmass: float
+    finmass: float
+    where: tuple[Path, int]
 
 
 def _split_options(name: str, base: str) -> set[str]:
@@ -962,9 +1005,21 @@ def _read_part(block: _Block, opts: set[str], t: _Tables, params: _Params) -> No
         i += 2
         i += sum(o in opts for o in ("CONTACT", "PRINT", "ATTACHMENT", "AVERAGED"))
         if "INERTIA" in opts:
-            ircs = _read_line(block, rows[i], _card("xc", "yc", "zc", "tm", "ircs"), params) if i < len(rows) else []
-            i += 3 + (len(ircs) == 5 and ircs[4] == 1)
-            break  # cards after an inertia part are read past; one part per *PART_INERTIA block
+            if i >= len(rows):
+                raise block.err("*PART_INERTIA expects a card XC, YC, ZC, TM after the part card, got end of block", r)
+            _xc, _yc, _zc, tm, ircs, _nodeid = _read_line(block, rows[i], _INERTIA, params)
+            if tm is None or not (math.isfinite(tm) and tm > 0):
+                raise block.err(
+                    f"*PART_INERTIA expects a positive mass TM {_field_where(block, rows[i], _INERTIA, 3)}",
+                    rows[i],
+                )
+            t.inertia[int(pid)] = (float(tm), (block.src.path, rows[i] + 1))
+            vel = _read_line(block, rows[i + 2], _VEL_6, params) if i + 2 < len(rows) else []  # blank at the end
+            if any(x not in (None, 0.0) for x in vel):  # a rigid body set moving; at rest it says nothing
+                where = (block.src.path, rows[i + 2] + 1)
+                t.velocities.append(_Velocity("part", np.array([pid]), np.array([True]), where))
+            i += 3 + (ircs == 1)
+            break  # one part per *PART_INERTIA block
 
 
 def _add_section(block: _Block, t: _Tables, secid: int | None, sec: _Section, row: int) -> None:
@@ -995,12 +1050,16 @@ def _read_section(block: _Block, kind: str, opts: set[str], t: _Tables, params: 
             raise block.err(f"*{block.keyword} expects a second card after the section card, got end of block", r)
         if kind == "shell":
             secid, elform, _shrf, nip, _propt, _qr, icomp = _read_line(block, r, _SEC_SHELL_1, params)
-            ts = [x or 0.0 for x in _read_line(block, rows[i + 1], _SEC_SHELL_2, params)]
+            *ts, _nloc, marea = (x or 0.0 for x in _read_line(block, rows[i + 1], _SEC_SHELL_2, params))
             t1 = ts[0]
             ts = [x if x > 0 else t1 for x in ts]
             if any(x < 0 for x in ts) or not all(math.isfinite(x) for x in ts):
                 raise block.err(f"*{block.keyword} expects thicknesses T1..T4 >= 0, got {ts}", rows[i + 1])
-            _add_section(block, t, secid, _Section("shell", float(np.mean(ts)), int(elform or 0), 0, where), r)
+            if not (math.isfinite(marea) and marea >= 0):
+                at = _field_where(block, rows[i + 1], _SEC_SHELL_2, 5)
+                raise block.err(f"*{block.keyword} expects a mass per area MAREA >= 0 {at}", rows[i + 1])
+            sec = _Section("shell", float(np.mean(ts)), int(elform or 0), 0, where, float(marea))
+            _add_section(block, t, secid, sec, r)
             i += 2
             if icomp == 1:
                 i += math.ceil((nip or 2) / 8)
@@ -1173,6 +1232,40 @@ def _read_velocity(block: _Block, opts: set[str], t: _Tables, params: _Params) -
     return True
 
 
+def _read_element_mass(block: _Block, opts: set[str], t: _Tables, params: _Params) -> bool:
+    """``*ELEMENT_MASS`` (``_NODE_SET``) and ``*ELEMENT_MASS_PART`` (``_SET``); ``False`` for other options."""
+    rows = _nonblank(block, block.rows)
+    if opts <= {"NODE", "SET"} and opts != {"NODE"}:
+        if rows.size:
+            on_sets = bool(opts)
+            layout = _ELEM_MASS_SET if on_sets else _ELEM_MASS
+            v = _table(block, rows, layout, params, required=("eid", "nid", "mass"), positive=("eid", "nid"))
+            bad = np.flatnonzero(~(np.isfinite(v["mass"]) & (v["mass"] >= 0)))
+            if bad.size:
+                i = int(bad[0])
+                raise block.err(
+                    f"*{block.keyword} expects a mass >= 0 {_field_where(block, int(rows[i]), layout, 2)}", int(rows[i])
+                )
+            t.point_masses.append(_PointMasses(v["eid"], v["nid"], v["mass"], v["pid"], on_sets, block.src, rows))
+        return True
+    if opts in ({"PART"}, {"PART", "SET"}):
+        for r in rows.tolist():
+            pid, addmass, finmass, _lcid, _mwd = _read_line(block, r, _MASS_PART, params)
+            what = "PSID" if "SET" in opts else "PID"
+            if pid is None or pid <= 0:
+                at = _field_where(block, r, _MASS_PART, 0)
+                raise block.err(f"*{block.keyword} expects a positive {what} {at}", r)
+            for k, val in ((1, addmass), (2, finmass)):
+                if val is not None and not (math.isfinite(val) and val >= 0):
+                    label = _MASS_PART[k].label
+                    raise block.err(f"*{block.keyword} expects {label} >= 0 {_field_where(block, r, _MASS_PART, k)}", r)
+            t.part_masses.append(
+                _PartMass(int(pid), "SET" in opts, addmass or 0.0, finmass or 0.0, (block.src.path, r + 1))
+            )
+        return True
+    return False
+
+
 def _read_curve(block: _Block, opts: set[str], t: _Tables, params: _Params) -> None:
     rows = block.rows.tolist()
     if "TITLE" in opts:
@@ -1206,6 +1299,10 @@ def _dispatch(block: _Block, t: _Tables, deck: _Deck) -> None:
                 return
             deck.skipped[kw] += 1
             return
+    if kw == "ELEMENT_MASS" or kw.startswith("ELEMENT_MASS_"):
+        if not _read_element_mass(block, _split_options(kw, "ELEMENT_MASS"), t, params):
+            deck.skipped[kw] += 1
+        return
     if kw == "PART" or kw.startswith("PART_"):
         opts = _split_options(kw, "PART")
         opts = {"ATTACHMENT" if o == "NODES" else o for o in opts} - {"NODES"}
@@ -1469,6 +1566,119 @@ def _assemble(deck: _Deck, t: _Tables, units: str | None, main: Path) -> tuple[V
     return model, notes
 
 
+def _deck_masses(model: VehicleModel, t: _Tables) -> VehicleModel:
+    """The model with the masses the deck adds to its elements and nodes (SI), each checked against the model.
+
+    ``*PART_INERTIA`` TM sets a rigid part's structural mass (:attr:`VehicleModel.part_mass`); ``*SECTION_SHELL``
+    MAREA and ``*ELEMENT_MASS_PART`` (``_SET``) add non-structural mass, FINMASS what brings the part (the set)
+    to that total (:attr:`VehicleModel.part_added_mass`); ``*ELEMENT_MASS`` puts masses on nodes, ``_NODE_SET``
+    shares one equally among the set's nodes (:attr:`VehicleModel.point_mass`).
+    """
+    if not (t.point_masses or t.part_masses or t.inertia or any(s.marea for s in t.sections.values())):
+        return model
+    u = get_unit_system(model.units)
+    notes: list[str] = []
+    part_mass: dict[int, float] = {}
+    for pid, (tm, where) in t.inertia.items():
+        if pid not in model.parts:
+            continue
+        if not model.materials[model.parts[pid].material_id].is_rigid:
+            at = f"{where[0].name} line {where[1]}"
+            notes.append(f"{at}: *PART_INERTIA of part {pid} ignored: LS-DYNA reads it for rigid parts only")
+            continue
+        part_mass[pid] = tm * u.mass
+    model = replace(model, part_mass=part_mass)
+    area = model.shell_areas()
+    added: dict[int, float] = {}
+    for pid, part in model.parts.items():
+        marea = t.sections[part.section_id].marea if part.section_id in t.sections else 0.0
+        if marea > 0:
+            added[pid] = marea * u.mass / u.area * float(area[model.shell_part == pid].sum())
+    if t.part_masses:
+        own = replace(model, part_added_mass=dict(added)).part_masses()  # structural + MAREA so far
+        measure = dict.fromkeys(model.parts, 0.0)
+        kinds: dict[int, set[str]] = {pid: set() for pid in model.parts}
+        for kind, m in model.element_measures().items():
+            uniq, inv = np.unique(getattr(model, f"{kind}_part"), return_inverse=True)
+            for pid, val in zip(uniq.tolist(), np.bincount(inv, weights=m, minlength=uniq.size).tolist(), strict=True):
+                measure[pid] += val
+                kinds[pid].add(kind)
+        for pm in t.part_masses:
+            card = f"*ELEMENT_MASS_PART{'_SET' if pm.on_set else ''} {pm.target}"
+            if pm.on_set:
+                if pm.target not in t.sets:
+                    raise DeckError(f"*ELEMENT_MASS_PART_SET refers to undefined part set {pm.target}", *pm.where)
+                pids = [p for p in dict.fromkeys(t.sets[pm.target][1]) if p in model.parts]
+            else:
+                if pm.target not in t.parts:
+                    raise DeckError(f"*ELEMENT_MASS_PART refers to undefined part {pm.target}", *pm.where)
+                pids = [pm.target]
+            pids = [p for p in pids if measure.get(p, 0.0) > 0]
+            if not pids:
+                raise DeckError(f"{card} has no element to carry its mass", *pm.where)
+            current = sum(own[p] for p in pids)
+            add = pm.addmass * u.mass
+            if pm.finmass > 0:  # FINMASS wins over ADDMASS
+                add = pm.finmass * u.mass - current
+                if add < -1e-9 * current:
+                    raise DeckError(
+                        f"{card} asks for a final mass FINMASS of {pm.finmass * u.mass:.4g} kg, below the "
+                        f"{current:.4g} kg its part(s) have already",
+                        *pm.where,
+                    )
+                add = max(add, 0.0)
+            # by area (volume, length) as LS-DYNA spreads it; by mass across parts of different element kinds
+            by_measure = len(set().union(*(kinds[p] for p in pids))) == 1 or current <= 0
+            weight = {p: measure[p] if by_measure else own[p] for p in pids}
+            wsum = sum(weight.values())
+            for p in pids:
+                added[p] = added.get(p, 0.0) + add * weight[p] / wsum
+                own[p] += add * weight[p] / wsum
+    model = replace(model, part_added_mass={p: m for p, m in added.items() if m > 0})
+    if t.point_masses:
+        order = np.argsort(model.node_ids, kind="stable")
+        sorted_ids = model.node_ids[order]
+        ids, nodes, mass = [], [], []
+        for pm in t.point_masses:
+            if pm.on_sets:
+                cards = zip(pm.ids.tolist(), pm.nids.tolist(), pm.mass.tolist(), strict=True)
+                for k, (eid, sid, m) in enumerate(cards):
+                    where = (pm.src.path, int(pm.rows[k]) + 1)
+                    if sid not in t.node_sets or not t.node_sets[sid][1]:
+                        what = "undefined" if sid not in t.node_sets else "empty"
+                        raise DeckError(f"*ELEMENT_MASS_NODE_SET {eid} refers to {what} node set {sid}", *where)
+                    members = np.unique(np.asarray(t.node_sets[sid][1], dtype=np.int64))
+                    idx, found = _lookup(sorted_ids, order, members)
+                    if not found.all():
+                        missing = int(members[~found][0])
+                        raise DeckError(
+                            f"node set {sid} of *ELEMENT_MASS_NODE_SET {eid} lists undefined node {missing}", *where
+                        )
+                    ids.append(np.full(idx.size, eid, dtype=np.int64))
+                    nodes.append(idx)
+                    mass.append(np.full(idx.size, m * u.mass / idx.size))
+            else:
+                idx, found = _lookup(sorted_ids, order, pm.nids)
+                if not found.all():
+                    k = int(np.flatnonzero(~found)[0])
+                    raise DeckError(
+                        f"*ELEMENT_MASS {int(pm.ids[k])} refers to undefined node {int(pm.nids[k])}",
+                        pm.src.path,
+                        int(pm.rows[k]) + 1,
+                    )
+                ids.append(pm.ids)
+                nodes.append(idx)
+                mass.append(pm.mass * u.mass)
+        model = replace(
+            model,
+            point_mass_ids=np.concatenate(ids).astype(np.int64),
+            point_mass_nodes=np.concatenate(nodes).astype(np.int64),
+            point_mass=np.concatenate(mass).astype(np.float64),
+        )
+    model.warnings.extend(notes)
+    return model
+
+
 # *MAT_RIGID CMO = +1: CON1 is the global translational constraint code
 _CON1_AXES = {0: "", 1: "x", 2: "y", 3: "z", 4: "xy", 5: "yz", 6: "zx", 7: "xyz"}
 
@@ -1694,6 +1904,7 @@ def read_deck(
     for block in deck.blocks:
         _dispatch(block, tables, deck)
     model, _ = _assemble(deck, tables, units, main)
+    model = _deck_masses(model, tables)
     if name is not None:
         model.name = name
     try:

@@ -10,7 +10,10 @@ The deck holds ``*NODE`` (16-character coordinates, 10 significant digits),
 per-keyword long format (``+``, 20-character fields) so their values survive a round
 trip to 13 significant digits. A ``<stem>.subassemblies.yaml`` beside the deck holds
 the sub-assemblies. :func:`marlcrash.vehicle.keyword.read_deck` reads the pair back
-to the same model.
+to the same model. Added masses go as the reader takes them: a part's set structural mass as
+``*PART_INERTIA`` (its inertia tensor that of its elements as lumped masses), non-structural
+mass as ``*ELEMENT_MASS_PART`` ADDMASS, point masses as ``*ELEMENT_MASS`` (renumbered where
+ids repeat, as a node set's share does).
 
 What the cards cannot carry: strengths of elastic and rigid materials (the reader
 re-derives them with :func:`complete_material`), a fracture strength different from
@@ -193,8 +196,14 @@ def write_deck(model: VehicleModel, path: str | Path, *, units: str = "mm-t-s", 
                     secid, fresh = fresh, fresh + 1
                 used_secids.add(secid)
                 kind = kinds.get(pid, "shell")
-                f.write(f"*PART\n{p.name.replace(chr(10), ' ')[:80]}\n")
-                f.write(f"{pid:10d}{secid:10d}{p.material_id:10d}\n")
+                if pid in model.part_mass:
+                    f.write(
+                        f"*PART_INERTIA+\n{p.name.replace(chr(10), ' ')[:80]}\n" + _card([pid, secid, p.material_id])
+                    )
+                    f.write(_inertia_cards(model, pid, u))
+                else:
+                    f.write(f"*PART\n{p.name.replace(chr(10), ' ')[:80]}\n")
+                    f.write(f"{pid:10d}{secid:10d}{p.material_id:10d}\n")
                 if kind == "shell":
                     t = (p.thickness or 0.0) / u.length
                     f.write("*SECTION_SHELL+\n" + _card([secid, 2, 1.0, 2, 0.0]) + _card([t, t, t, t]))
@@ -207,6 +216,7 @@ def write_deck(model: VehicleModel, path: str | Path, *, units: str = "mm-t-s", 
                     i = a * a / (4 * math.pi)  # solid circular section of that area
                     f.write("*SECTION_BEAM+\n" + _card([secid, 2, 1.0, 2.0, 0.0]) + _card([a, i, i, 2 * i]))
             _write_geometry(f, model, u)
+            _write_masses(f, model, u)
             f.write("*END\n")
         os.replace(tmp, path)
     except BaseException:
@@ -250,6 +260,45 @@ def _write_geometry(f, model: VehicleModel, u) -> None:
         f.write(f"*ELEMENT_BEAM_THICKNESS{sfx}\n")
         fmt = f"%{w}d" * 4 + "\n" + f"%{tw}.9e" * 4 + "\n"
         _write_rows(f, fmt, model.beam_ids, model.beam_part, n[:, 0], n[:, 1], a, i, i, 2 * i)
+
+
+def _inertia_cards(model: VehicleModel, pid: int, u) -> str:
+    """The three ``*PART_INERTIA`` cards of part ``pid`` (long format): its mass centre and set mass, the
+    inertia tensor of its elements as lumped masses about that centre, zero initial velocity."""
+    em = model.element_masses()
+    pts, ms = [], []
+    for kind in ("shell", "solid", "beam"):
+        sel = getattr(model, f"{kind}_part") == pid
+        pts.append(model.coords[getattr(model, f"{kind}_nodes")[sel]].mean(axis=1))
+        ms.append(em[kind][sel])
+    p, m = np.concatenate(pts), np.concatenate(ms)
+    c = (m[:, None] * p).sum(axis=0) / m.sum()
+    d = p - c
+    r2 = (d**2).sum(axis=1)
+    j = (m[:, None, None] * (r2[:, None, None] * np.eye(3) - d[:, :, None] * d[:, None, :])).sum(axis=0)
+    j /= u.mass * u.length**2
+    c = c / u.length
+    return (
+        _card([c[0], c[1], c[2], model.part_mass[pid] / u.mass, 0, 0])
+        + _card([j[0, 0], j[0, 1], j[0, 2], j[1, 1], j[1, 2], j[2, 2]])
+        + _card([0.0] * 6)
+    )
+
+
+def _write_masses(f, model: VehicleModel, u) -> None:
+    if model.part_added_mass:
+        f.write("*ELEMENT_MASS_PART+\n")
+        for pid, mass in sorted(model.part_added_mass.items()):
+            f.write(_card([pid, mass / u.mass, 0.0, 0, 0]))
+    if model.point_mass.size:
+        ids = model.point_mass_ids
+        if np.unique(ids).size < ids.size:
+            ids = np.arange(1, ids.size + 1)
+        nid = model.node_ids[model.point_mass_nodes]
+        sfx, w = _id_format(max(int(ids.max()), int(nid.max())))
+        f.write(f"*ELEMENT_MASS{sfx}\n")
+        mw = 20 if sfx else 16
+        _write_rows(f, f"%{w}d%{w}d%{mw}.9e%{w}d\n", ids, nid, model.point_mass / u.mass, np.zeros_like(ids))
 
 
 def _tidy(x: np.ndarray) -> np.ndarray:

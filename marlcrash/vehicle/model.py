@@ -13,6 +13,7 @@ lateral with +y to the driver's left, z is up.
 
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass, field, replace
 
@@ -133,6 +134,15 @@ class VehicleModel:
         left_out: part id -> why the part is not part of the vehicle, for parts a source
             holds fixed in space (a barrier or fixture in the deck,
             :meth:`without_parts`); their elements are gone, their nodes stay.
+        point_mass_ids, point_mass_nodes, point_mass: ``[M]`` int64 ids, int64 node indices and
+            float64 masses [kg] of lumped masses on nodes (a deck's ``*ELEMENT_MASS``). They add
+            inertia where they sit and no material.
+        part_added_mass: part id -> non-structural mass [kg] spread over the part's elements in
+            proportion to their area (shells), volume (solids) or length (beams), as LS-DYNA spreads
+            ``*ELEMENT_MASS_PART`` and ``*SECTION_SHELL`` MAREA.
+        part_mass: part id -> the part's structural mass [kg] as the source sets it, replacing
+            density times volume (a rigid body's ``*PART_INERTIA`` TM); spread over its elements in
+            proportion to their structural mass, or their measure where that is zero.
     """
 
     node_ids: np.ndarray
@@ -156,6 +166,11 @@ class VehicleModel:
     skipped_cards: dict[str, int] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
     left_out: dict[int, str] = field(default_factory=dict)
+    point_mass_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    point_mass_nodes: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    point_mass: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    part_added_mass: dict[int, float] = field(default_factory=dict)
+    part_mass: dict[int, float] = field(default_factory=dict)
 
     # ------------------------------------------------------------------ sizes
     @property
@@ -206,18 +221,73 @@ class VehicleModel:
         rho = np.array([self.materials[self.parts[int(p)].material_id].density for p in uniq])
         return rho[inv]
 
+    def element_measures(self) -> dict[str, np.ndarray]:
+        """What added mass is spread by: shell area [m^2], solid volume [m^3], beam length [m], keyed as
+        :meth:`element_masses`."""
+        return {"shell": self.shell_areas(), "solid": self.solid_volumes(), "beam": self.beam_lengths()}
+
     def element_masses(self) -> dict[str, np.ndarray]:
-        """Masses [kg] of every element: ``{"shell": [S], "solid": [V], "beam": [B]}``."""
-        return {
-            "shell": self.shell_areas() * self.shell_thickness * self._density_of_parts(self.shell_part),
-            "solid": self.solid_volumes() * self._density_of_parts(self.solid_part),
-            "beam": self.beam_lengths() * self.beam_area * self._density_of_parts(self.beam_part),
+        """Structural masses [kg] of every element, ``{"shell": [S], "solid": [V], "beam": [B]}``.
+
+        Density times volume, or a share of the part's :attr:`part_mass` where the source sets it. This is
+        the mass that carries the material (it weights a cell's material); :meth:`element_added_masses`
+        is the inertia on top.
+        """
+        measure = self.element_measures()
+        out = {
+            "shell": measure["shell"] * self.shell_thickness * self._density_of_parts(self.shell_part),
+            "solid": measure["solid"] * self._density_of_parts(self.solid_part),
+            "beam": measure["beam"] * self.beam_area * self._density_of_parts(self.beam_part),
         }
+        if self.part_mass:
+            self._spread(out, self.part_mass, {k: np.where(out[k] > 0, out[k], 0.0) for k in out}, measure, True)
+        return out
+
+    def element_added_masses(self) -> dict[str, np.ndarray]:
+        """Non-structural masses [kg] per element (:attr:`part_added_mass` spread by measure), as
+        :meth:`element_masses`."""
+        measure = self.element_measures()
+        out = {k: np.zeros_like(v) for k, v in measure.items()}
+        if self.part_added_mass:
+            self._spread(out, self.part_added_mass, measure, measure, False)
+        return out
+
+    def _spread(self, out, totals: dict[int, float], weights, fallback, replace_: bool) -> None:
+        """Spread ``totals`` (part id -> kg) over each part's elements in proportion to ``weights``
+        (``fallback`` where a part's weights sum to zero); replace or add to ``out`` in place. Vectorised:
+        one pass over the elements whatever the number of parts."""
+        kinds = ("shell", "solid", "beam")
+        pids = np.array(sorted(totals), dtype=np.int64)
+        tot = np.array([totals[int(p)] for p in pids])
+        pos = {}
+        for k in kinds:
+            part = getattr(self, f"{k}_part")
+            i = np.clip(np.searchsorted(pids, part), 0, pids.size - 1)
+            pos[k] = np.where(pids[i] == part, i, -1)
+
+        def sums(w):
+            acc = np.zeros(pids.size)
+            for k in kinds:
+                sel = pos[k] >= 0
+                acc += np.bincount(pos[k][sel], weights=w[k][sel], minlength=pids.size)
+            return acc
+
+        wsum, fsum = sums(weights), sums(fallback)
+        if ((wsum <= 0) & (fsum <= 0)).any():
+            p = int(pids[np.flatnonzero((wsum <= 0) & (fsum <= 0))[0]])
+            raise ModelError(f"{self.name}: part {p} has no element with a size to carry its {totals[p]:.4g} kg")
+        use_w = wsum > 0
+        for k in kinds:
+            sel = pos[k] >= 0
+            j = pos[k][sel]
+            w = np.where(use_w[j], weights[k][sel], fallback[k][sel])
+            share = tot[j] * w / np.where(use_w[j], wsum[j], fsum[j])
+            out[k][sel] = share if replace_ else out[k][sel] + share
 
     def part_masses(self) -> dict[int, float]:
-        """Part id -> mass [kg]."""
+        """Part id -> mass [kg]: structural plus added (point masses on nodes not included)."""
         out = dict.fromkeys(self.parts, 0.0)
-        em = self.element_masses()
+        em, ea = self.element_masses(), self.element_added_masses()
         for kind, parts in (
             ("shell", self.shell_part),
             ("solid", self.solid_part),
@@ -225,14 +295,14 @@ class VehicleModel:
         ):
             if parts.size:
                 uniq, inv = np.unique(parts, return_inverse=True)
-                sums = np.bincount(inv, weights=em[kind])
+                sums = np.bincount(inv, weights=em[kind] + ea[kind])
                 for pid, m in zip(uniq.tolist(), sums.tolist(), strict=True):
                     out[int(pid)] = out.get(int(pid), 0.0) + float(m)
         return out
 
     def total_mass(self) -> float:
-        """Total mass [kg]."""
-        return float(sum(self.part_masses().values()))
+        """Total mass [kg]: every part's (:meth:`part_masses`) and every point mass."""
+        return float(sum(self.part_masses().values())) + float(self.point_mass.sum())
 
     def bounds(self) -> np.ndarray:
         """``[2, 3]`` min and max corner of the nodes actually used by elements [m]."""
@@ -276,11 +346,19 @@ class VehicleModel:
     def without_parts(self, reasons: dict[int, str]) -> VehicleModel:
         """A copy without the parts ``reasons`` names (part id -> why), recorded in ``left_out``.
 
-        Their elements, part entries and sub-assembly memberships go; nodes stay (unused
-        nodes do not count in :meth:`bounds`). Sub-assemblies left empty are dropped.
+        Their elements, part entries, added masses and sub-assembly memberships go, and so do point
+        masses on nodes that only their elements use; nodes stay (unused nodes do not count in
+        :meth:`bounds`). Sub-assemblies left empty are dropped.
         """
         drop = np.array(sorted(reasons), dtype=np.int64)
         keep = {kind: ~np.isin(getattr(self, f"{kind}_part"), drop) for kind in ("shell", "solid", "beam")}
+        kept_node = np.zeros(self.n_nodes, dtype=bool)
+        dropped_node = np.zeros(self.n_nodes, dtype=bool)
+        for kind in ("shell", "solid", "beam"):
+            nodes = getattr(self, f"{kind}_nodes")
+            kept_node[nodes[keep[kind]].ravel()] = True
+            dropped_node[nodes[~keep[kind]].ravel()] = True
+        pm_keep = ~(dropped_node & ~kept_node)[self.point_mass_nodes]
         arrays = {
             f"{kind}_{name}": getattr(self, f"{kind}_{name}")[keep[kind]]
             for kind, names in (
@@ -295,6 +373,11 @@ class VehicleModel:
             self,
             **arrays,
             parts={pid: p for pid, p in self.parts.items() if pid not in reasons},
+            point_mass_ids=self.point_mass_ids[pm_keep],
+            point_mass_nodes=self.point_mass_nodes[pm_keep],
+            point_mass=self.point_mass[pm_keep],
+            part_added_mass={pid: m for pid, m in self.part_added_mass.items() if pid not in reasons},
+            part_mass={pid: m for pid, m in self.part_mass.items() if pid not in reasons},
             subassemblies={k: v for k, v in subs.items() if v},
             left_out={**self.left_out, **{int(k): v for k, v in reasons.items()}},
         )
@@ -361,6 +444,27 @@ class VehicleModel:
                 seen[pid] = name
         if (self.shell_thickness < 0).any() or not np.isfinite(self.shell_thickness).all():
             raise ModelError(f"{self.name}: shell thickness must be finite and >= 0")
+        m = self.point_mass.shape[0]
+        if self.point_mass_nodes.shape != (m,) or self.point_mass_ids.shape != (m,):
+            raise ModelError(
+                f"{self.name}: point mass arrays disagree: ids {self.point_mass_ids.shape}, "
+                f"nodes {self.point_mass_nodes.shape}, masses {self.point_mass.shape}"
+            )
+        if m and (self.point_mass_nodes.min() < 0 or self.point_mass_nodes.max() >= n):
+            i = int(np.flatnonzero((self.point_mass_nodes < 0) | (self.point_mass_nodes >= n))[0])
+            pm = int(self.point_mass_ids[i])
+            raise ModelError(f"{self.name}: point mass {pm} refers to a node index outside 0..{n - 1}")
+        bad = ~(np.isfinite(self.point_mass) & (self.point_mass >= 0))
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            pm, val = int(self.point_mass_ids[i]), float(self.point_mass[i])
+            raise ModelError(f"{self.name}: point mass {pm} must be finite and >= 0 kg, got {val}")
+        for what, masses in (("added mass", self.part_added_mass), ("mass", self.part_mass)):
+            for pid, mass in masses.items():
+                if pid not in self.parts:
+                    raise ModelError(f"{self.name}: {what} {mass:.4g} kg is given for unknown part {pid}")
+                if not (math.isfinite(mass) and mass >= 0):
+                    raise ModelError(f"{self.name}: part {pid}'s {what} must be finite and >= 0 kg, got {mass}")
 
     # --------------------------------------------------------------- meshes
     def shell_triangles(self, mask: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:

@@ -14,8 +14,10 @@ def vehicle_summary(model: VehicleModel) -> dict:
         A JSON-serialisable dict with ``n_nodes``, ``n_shells``, ``n_solids``, ``n_beams``,
         ``n_parts``, ``parts`` (part id as string -> mass [kg]), ``part_details`` (id -> name,
         material, thickness [mm], element counts, mass), ``subassemblies`` (name -> part ids),
-        ``total_mass_kg``, ``skipped_cards``, ``units``, ``bounds_m``, ``warnings``, ``left_out``
-        (part id as string -> why it is not vehicle structure, e.g. a fixed barrier in the deck).
+        ``total_mass_kg`` (point masses included), ``added_mass_kg`` (non-structural mass on parts),
+        ``point_mass_kg`` and ``n_point_masses`` (lumped masses on nodes), ``skipped_cards``, ``units``,
+        ``bounds_m``, ``warnings``, ``left_out`` (part id as string -> why it is not vehicle structure, e.g. a
+        fixed barrier in the deck).
     """
     masses = model.part_masses()
     details = {}
@@ -33,6 +35,7 @@ def vehicle_summary(model: VehicleModel) -> dict:
             "n_solids": int((model.solid_part == pid).sum()),
             "n_beams": int((model.beam_part == pid).sum()),
             "mass_kg": masses.get(pid, 0.0),
+            "added_mass_kg": model.part_added_mass.get(pid, 0.0),
         }
     try:
         bounds = model.bounds().tolist()
@@ -49,7 +52,10 @@ def vehicle_summary(model: VehicleModel) -> dict:
         "parts": {str(pid): masses.get(pid, 0.0) for pid in sorted(model.parts)},
         "part_details": details,
         "subassemblies": {k: list(v) for k, v in model.subassemblies.items()},
-        "total_mass_kg": float(sum(masses.values())),
+        "total_mass_kg": float(sum(masses.values())) + float(model.point_mass.sum()),
+        "added_mass_kg": float(sum(model.part_added_mass.values())),
+        "point_mass_kg": float(model.point_mass.sum()),
+        "n_point_masses": int(model.point_mass.size),
         "skipped_cards": dict(sorted(model.skipped_cards.items())),
         "bounds_m": bounds,
         "warnings": list(model.warnings),
@@ -65,6 +71,11 @@ def format_vehicle_summary(s: dict) -> str:
         f"elements   {s['n_shells']} shells, {s['n_solids']} solids, {s['n_beams']} beams",
         f"total mass {s['total_mass_kg']:.3f} kg",
     ]
+    if s["added_mass_kg"] or s["n_point_masses"]:
+        lines.append(
+            f"           of which {s['added_mass_kg']:.3f} kg non-structural on parts, "
+            f"{s['point_mass_kg']:.3f} kg in {s['n_point_masses']} point mass(es) on nodes"
+        )
     if s["bounds_m"] is not None:
         lo, hi = s["bounds_m"]
         ext = [h - l for l, h in zip(lo, hi, strict=True)]

@@ -1,0 +1,255 @@
+"""Masses a deck adds beyond density times volume: *ELEMENT_MASS, *ELEMENT_MASS_PART, MAREA, *PART_INERTIA.
+
+References are hand computations on a two-shell plate in mm-t-s units (1 t = 1000 kg, 1 mm = 1e-3 m).
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from marlcrash.cells.discretize import discretize
+from marlcrash.errors import DeckError
+from marlcrash.vehicle.keyword import read_deck
+from marlcrash.vehicle.keyword_writer import write_deck
+from marlcrash.vehicle.registry import load_vehicle
+from marlcrash.vehicle.summary import format_vehicle_summary, vehicle_summary
+
+RHO, T = 7850.0, 2e-3  # kg/m^3, m
+A1, A2, A3 = 0.01, 0.005, 0.01  # shell areas [m^2]: 100 x 100, 100 x 50 (part 1), 100 x 100 (part 2)
+M1, M2, M3 = (a * T * RHO for a in (A1, A2, A3))
+
+
+def _deck(section_card2: str = "       2.0       2.0       2.0       2.0", part2: str = "*PART", mat2: str = "") -> str:
+    mat2 = mat2 or "*MAT_ELASTIC\n         2  7.85e-09  210000.0       0.3\n"
+    return f"""*KEYWORD
+*PART
+plate
+         1         1         1
+{part2}
+second plate
+         2         1         2
+{{inertia}}*SECTION_SHELL
+         1         2
+{section_card2}
+*MAT_ELASTIC
+         1  7.85e-09  210000.0       0.3
+{mat2}*NODE
+       1
+       2           100.0
+       3           100.0           100.0
+       4                           100.0
+       5           100.0           150.0
+       6                           150.0
+       7           200.0
+       8           200.0           100.0
+*ELEMENT_SHELL
+       1       1       1       2       3       4
+       2       1       4       3       5       6
+       3       2       2       7       8       3
+"""
+
+
+def _read(text: str, tmp_path, name: str = "deck.k", **kw):
+    path = tmp_path / name
+    path.write_text(text)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        return read_deck(path, **kw)
+
+
+def _mass_line(eid: int, nid: int, tonnes: float, pid: int = 0) -> str:
+    return f"{eid:8d}{nid:8d}{tonnes:16.6e}{pid:8d}\n"
+
+
+def test_plain_deck_has_no_added_mass(tmp_path):
+    m = _read(_deck().format(inertia=""), tmp_path)
+    assert m.point_mass.size == 0 and m.part_added_mass == {} and m.part_mass == {}
+    assert m.part_masses() == pytest.approx({1: M1 + M2, 2: M3}, rel=1e-12)
+
+
+def test_element_mass_on_nodes_and_node_sets(tmp_path):
+    cards = (
+        "*ELEMENT_MASS\n"
+        + _mass_line(1, 3, 0.001)  # 1 kg on node 3
+        + "*ELEMENT_MASS_NODE_SET\n"
+        + _mass_line(2, 5, 0.002)  # 2 kg shared by the two nodes of set 5
+        + "*SET_NODE_LIST\n         5\n         7         8\n"
+    )
+    m = _read(_deck().format(inertia="") + cards, tmp_path)
+    got = dict(zip(m.node_ids[m.point_mass_nodes].tolist(), m.point_mass.tolist(), strict=True))
+    assert got == pytest.approx({3: 1.0, 7: 1.0, 8: 1.0}, rel=1e-12)
+    assert m.point_mass_ids.tolist() == [1, 2, 2]
+    assert m.total_mass() == pytest.approx(M1 + M2 + M3 + 3.0, rel=1e-12)
+    assert m.part_masses() == pytest.approx({1: M1 + M2, 2: M3}, rel=1e-12)  # point masses are on nodes
+    s = vehicle_summary(m)
+    assert s["point_mass_kg"] == pytest.approx(3.0) and s["n_point_masses"] == 3
+    assert s["total_mass_kg"] == pytest.approx(m.total_mass())
+    assert "3.000 kg in 3 point mass(es) on nodes" in format_vehicle_summary(s)
+
+
+def test_element_mass_part_spreads_by_area_and_finmass_sets_the_total(tmp_path):
+    base = _deck().format(inertia="")
+    m = _read(base + "*ELEMENT_MASS_PART\n         1    0.0003\n", tmp_path)  # ADDMASS 0.3 kg
+    assert m.part_added_mass == pytest.approx({1: 0.3})
+    np.testing.assert_allclose(m.element_added_masses()["shell"], [0.2, 0.1, 0.0], rtol=1e-12)  # 2:1 by area
+    np.testing.assert_allclose(m.element_masses()["shell"], [M1, M2, M3], rtol=1e-12)  # structure unchanged
+    assert m.part_masses()[1] == pytest.approx(M1 + M2 + 0.3, rel=1e-12)
+    m = _read(base + "*ELEMENT_MASS_PART\n         1    0.0003     0.001\n", tmp_path)  # FINMASS 1 kg wins
+    assert m.part_masses()[1] == pytest.approx(1.0, rel=1e-12)
+    # a part set: the 0.3 kg over both parts by area (0.015 and 0.01 m^2)
+    m = _read(
+        base + "*ELEMENT_MASS_PART_SET\n         9    0.0003\n*SET_PART_LIST\n         9\n         1         2\n",
+        tmp_path,
+    )
+    assert m.part_added_mass == pytest.approx({1: 0.18, 2: 0.12}, rel=1e-12)
+    # FINMASS on the set: the set's total
+    m = _read(
+        base
+        + "*ELEMENT_MASS_PART_SET\n         9       0.0     0.002\n*SET_PART_LIST\n         9\n         1         2\n",
+        tmp_path,
+    )
+    assert sum(m.part_masses().values()) == pytest.approx(2.0, rel=1e-12)
+
+
+def test_marea_adds_mass_per_area(tmp_path):
+    # MAREA 2e-9 t/mm^2 = 2 kg/m^2 on every shell of section 1 (both parts)
+    m = _read(_deck("       2.0       2.0       2.0       2.0         0   2.0e-09").format(inertia=""), tmp_path)
+    assert m.part_added_mass == pytest.approx({1: 2.0 * (A1 + A2), 2: 2.0 * A3}, rel=1e-9)
+    assert m.total_mass() == pytest.approx(M1 + M2 + M3 + 2.0 * (A1 + A2 + A3), rel=1e-9)
+
+
+RIGID = "*MAT_RIGID\n         2  7.85e-09  210000.0       0.3\n       0.0         0         0\n"
+# XC YC ZC TM (5 kg) IRCS NODEID / IXX IXY IXZ IYY IYZ IZZ / VTX VTY VTZ VRX VRY VRZ
+INERTIA = (
+    "     150.0      50.0       0.0     0.005\n       1.0       0.0       0.0       1.0       0.0       1.0\n{vel}\n"
+)
+
+
+def test_part_inertia_sets_a_rigid_part_mass_and_its_velocity_counts(tmp_path):
+    text = _deck(part2="*PART_INERTIA", mat2=RIGID).replace("{inertia}", INERTIA.format(vel=""))
+    m = _read(text, tmp_path)
+    assert m.part_mass == {2: pytest.approx(5.0)} and m.part_masses()[2] == pytest.approx(5.0, rel=1e-12)
+    assert m.total_mass() == pytest.approx(M1 + M2 + 5.0, rel=1e-12)
+    # on a deformable part LS-DYNA ignores it: so does the reader, with a note
+    m = _read(_deck(part2="*PART_INERTIA").replace("{inertia}", INERTIA.format(vel="")), tmp_path)
+    assert m.part_mass == {} and m.part_masses()[2] == pytest.approx(M3)
+    assert any("*PART_INERTIA of part 2 ignored" in w for w in m.warnings)
+    # nodes of part 1 alone move; the rigid part's only velocity is its *PART_INERTIA VTX: it moves, it stays
+    moving = "*INITIAL_VELOCITY_NODE\n" + "".join(f"{n:10d}{-15640.0:10.1f}\n" for n in (1, 4, 5, 6))
+    for vel, stays in ((f"{-15640.0:10.1f}", True), ("", False)):
+        text = _deck(part2="*PART_INERTIA", mat2=RIGID).replace("{inertia}", INERTIA.format(vel=vel)) + moving
+        m = _read(text, tmp_path)
+        assert (2 in m.parts) == stays and (2 in m.left_out) != stays
+
+
+def test_left_out_parts_take_their_masses_along(tmp_path):
+    """A barrier at rest leaves with its point masses and added mass; the vehicle's stay."""
+    moving = "*INITIAL_VELOCITY_NODE\n" + "".join(f"{n:10d}{-15640.0:10.1f}\n" for n in (1, 4, 5, 6))
+    cards = "*ELEMENT_MASS\n" + _mass_line(1, 7, 0.001) + _mass_line(2, 6, 0.002)  # node 7: part 2 only
+    cards += "*ELEMENT_MASS_PART\n         2    0.0003\n"
+    m = _read(_deck().format(inertia="") + moving + cards, tmp_path)
+    assert sorted(m.left_out) == [2]
+    assert m.point_mass_ids.tolist() == [2] and m.part_added_mass == {}
+    assert m.total_mass() == pytest.approx(M1 + M2 + 2.0, rel=1e-12)
+
+
+@pytest.mark.parametrize(
+    ("cards", "message"),
+    [
+        ("*ELEMENT_MASS\n" + _mass_line(1, 99, 0.001), r"deck.k line 29: \*ELEMENT_MASS 1 refers to undefined node 99"),
+        ("*ELEMENT_MASS\n" + _mass_line(1, 3, -0.001), r"line 29: \*ELEMENT_MASS expects a mass >= 0 in columns 17-32"),
+        ("*ELEMENT_MASS\n       1       3\n", r"line 29: \*ELEMENT_MASS expects mass in columns 17-32"),
+        (
+            "*ELEMENT_MASS_NODE_SET\n" + _mass_line(4, 8, 0.001),
+            r"line 29: \*ELEMENT_MASS_NODE_SET 4 refers to undefined",
+        ),
+        ("*ELEMENT_MASS_PART\n         7    0.0003\n", r"line 29: \*ELEMENT_MASS_PART refers to undefined part 7"),
+        (
+            "*ELEMENT_MASS_PART_SET\n         7    0.0003\n",
+            r"line 29: \*ELEMENT_MASS_PART_SET refers to undefined part",
+        ),
+        (
+            "*ELEMENT_MASS_PART\n         1   -0.0003\n",
+            r"line 29: \*ELEMENT_MASS_PART expects ADDMASS >= 0 in columns 11-20",
+        ),
+        ("*ELEMENT_MASS_PART\n         1       0.0    0.0001\n", r"line 29: .*FINMASS of 0.1 kg, below the 0.2355 kg"),
+    ],
+)
+def test_bad_mass_cards_name_the_line(tmp_path, cards, message):
+    with pytest.raises(DeckError, match=message):
+        _read(_deck().format(inertia="") + cards, tmp_path)
+
+
+def test_bad_part_inertia_names_the_line(tmp_path):
+    text = _deck(part2="*PART_INERTIA", mat2=RIGID).replace(
+        "{inertia}", INERTIA.format(vel="").replace("0.005", "0.0  ")
+    )
+    with pytest.raises(DeckError, match=r"line 8: \*PART_INERTIA expects a positive mass TM in columns 31-40"):
+        _read(text, tmp_path)
+
+
+def test_written_deck_reads_back_with_every_mass(tmp_path):
+    cards = "*ELEMENT_MASS\n" + _mass_line(1, 3, 0.001) + "*ELEMENT_MASS_NODE_SET\n" + _mass_line(2, 5, 0.002)
+    cards += "*SET_NODE_LIST\n         5\n         1         2\n*ELEMENT_MASS_PART\n         1    0.0003\n"
+    text = _deck("       2.0       2.0       2.0       2.0         0   2.0e-09", "*PART_INERTIA", RIGID)
+    m = _read(text.replace("{inertia}", INERTIA.format(vel="")) + cards, tmp_path)
+    for units in ("mm-t-s", "m-kg-s"):
+        out = write_deck(m, tmp_path / f"out_{units}.k", units=units, subassembly_yaml=False)
+        back = _read(out.read_text(), tmp_path, name=f"back_{units}.k")
+        assert back.total_mass() == pytest.approx(m.total_mass(), rel=1e-9)
+        assert back.part_masses() == pytest.approx(m.part_masses(), rel=1e-9)
+        assert back.part_mass == pytest.approx(m.part_mass, rel=1e-9)
+        np.testing.assert_allclose(back.point_mass, m.point_mass, rtol=1e-9)
+        np.testing.assert_array_equal(back.node_ids[back.point_mass_nodes], m.node_ids[m.point_mass_nodes])
+        for kind in ("shell", "solid", "beam"):
+            np.testing.assert_allclose(back.element_masses()[kind], m.element_masses()[kind], rtol=1e-9)
+            np.testing.assert_allclose(back.element_added_masses()[kind], m.element_added_masses()[kind], rtol=1e-9)
+
+
+@pytest.fixture(scope="module")
+def car_cells():
+    car = load_vehicle("b_segment")
+    return car, discretize(car)
+
+
+def test_point_and_added_masses_add_inertia_where_they_sit_and_no_strength(car_cells):
+    car, base = car_cells
+    front = int(np.argmin(car.coords[car.used_nodes(), 0]))
+    front = int(car.used_nodes()[front])
+    rear = int(car.used_nodes()[np.argmax(car.coords[car.used_nodes(), 0])])
+    bumper = int(car.shell_part[np.argmin(car.coords[car.shell_nodes[:, 0], 0])])
+    heavy = replace(
+        car,
+        point_mass_ids=np.array([1, 2]),
+        point_mass_nodes=np.array([front, rear]),
+        point_mass=np.array([3.0, 40.0]),
+        part_added_mass={bumper: 2.5},
+    )
+    cells = discretize(heavy)
+    comp = cells.n_cells - 1
+    # the same cells, the same strength: added mass carries no material
+    np.testing.assert_array_equal(cells.params, base.params)
+    np.testing.assert_array_equal(cells.material, base.material)
+    assert cells.total_mass == pytest.approx(base.total_mass + 45.5, rel=1e-12)
+    dm = cells.mass - base.mass
+    # the front node's 3 kg in the cell of its voxel; the rear one's 40 kg with the compartment
+    vox, inside = _locate(cells, car.coords[front])
+    assert inside and dm[cells.grid_labels.ravel()[vox]] >= 3.0 - 1e-9
+    assert dm[comp] == pytest.approx(40.0, abs=1e-9)
+    # the bumper's 2.5 kg over the bumper's cells (all in the ROI), nothing anywhere else
+    assert dm[:comp].sum() == pytest.approx(3.0 + 2.5, rel=1e-9)
+    gained = {cells.subassembly_names[i] for i in np.unique(cells.subassembly[:comp][dm[:comp] > 1e-12])}
+    front_sub = cells.subassembly_names[cells.subassembly[cells.grid_labels.ravel()[vox]]]
+    assert car.subassembly_of_part()[bumper] in gained and gained <= {car.subassembly_of_part()[bumper], front_sub}
+    assert cells.mass.sum() == pytest.approx(cells.total_mass, rel=1e-12)
+
+
+def _locate(cells, point):
+    edges = cells.grid_edges
+    idx = [int(np.clip(np.searchsorted(edges[a], point[a], side="right") - 1, 0, len(edges[a]) - 2)) for a in range(3)]
+    inside = all(edges[a][0] <= point[a] <= edges[a][-1] for a in range(3))
+    return np.ravel_multi_index(tuple(idx), cells.grid_labels.shape), inside
