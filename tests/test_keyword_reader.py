@@ -15,6 +15,7 @@ from marlcrash.errors import ConfigError, DeckError
 from marlcrash.vehicle.keyword import read_deck
 from marlcrash.vehicle.model import AxisMap
 from marlcrash.vehicle.subassembly_map import dump_subassembly_map, load_subassembly_map
+from marlcrash.vehicle.summary import format_vehicle_summary, vehicle_summary
 
 HEAD = """*KEYWORD
 *TITLE
@@ -533,10 +534,25 @@ def test_a_deck_of_fixed_parts_only_and_maps_naming_them_are_refused(tmp_path):
     for text, pattern in (
         ("subassemblies:\n  front: [1, 2]\n", r"key 'subassemblies.front\[1\]': part 2 .* barrier or fixture"),
         ("subassemblies:\n  barrier: ['set:11']\n", r"\*SET_PART 11 holds only parts left out of the vehicle"),
+        (
+            "subassemblies:\n  barrier: ['rigid*']\n",
+            r"pattern 'rigid\*' matches no part title; not matched, left out of the vehicle: part 2 \('rigid block'\)",
+        ),
     ):
         y.write_text(text)
         with pytest.raises(ConfigError, match=pattern):
             _read(deck, subassemblies=y)
+
+
+def test_summary_counts_the_nodes_the_vehicle_uses(tmp_path):
+    """A left-out barrier's elements go, its nodes stay: inspect says how many the vehicle uses."""
+    m = _read(_write(tmp_path, _with_rigid_block("1.0", "7", "7")))
+    s = vehicle_summary(m)
+    assert (s["n_nodes"], s["n_nodes_used"]) == (8, 4)
+    assert "nodes      8 (4 used by the vehicle's elements)" in format_vehicle_summary(s)
+    plate = vehicle_summary(_read(_write(tmp_path, HEAD + NODES + SHELL, name="plate.k")))
+    assert (plate["n_nodes"], plate["n_nodes_used"]) == (4, 4)
+    assert format_vehicle_summary(plate).splitlines()[1] == "nodes      4"
 
 
 # part 2: a deformable block (a honeycomb barrier) 50 mm in front of the plate, on nodes 11-14

@@ -110,7 +110,8 @@ def resolve_subassemblies(
                 pattern = entry.strip().lower()
                 found = sorted(pid for pid, n in names.items() if fnmatch.fnmatchcase(n, pattern))
                 if not found:
-                    raise ConfigError(f"pattern {entry!r} matches no part title", key=ekey, path=path)
+                    gone = "".join(f"; not matched, left out of the vehicle: {why}" for why in model.left_out.values())
+                    raise ConfigError(f"pattern {entry!r} matches no part title{gone}", key=ekey, path=path)
             for pid in found:
                 if pid in owner and owner[pid] != group:
                     raise ConfigError(

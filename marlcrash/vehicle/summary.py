@@ -11,8 +11,9 @@ def vehicle_summary(model: VehicleModel) -> dict:
     """Counts, per-part data, sub-assemblies and skipped cards of a model.
 
     Returns:
-        A JSON-serialisable dict with ``n_nodes``, ``n_shells``, ``n_solids``, ``n_beams``,
-        ``n_parts``, ``parts`` (part id as string -> mass [kg]), ``part_details`` (id -> name,
+        A JSON-serialisable dict with ``n_nodes`` (every node of the source), ``n_nodes_used`` (those the
+        vehicle's elements use: a left-out barrier's nodes stay in the model unused), ``n_shells``, ``n_solids``,
+        ``n_beams``, ``n_parts``, ``parts`` (part id as string -> mass [kg]), ``part_details`` (id -> name,
         material, thickness [mm], element counts, mass), ``subassemblies`` (name -> part ids),
         ``total_mass_kg`` (point masses included), ``added_mass_kg`` (non-structural mass on parts),
         ``point_mass_kg`` and ``n_point_masses`` (lumped masses on nodes), ``skipped_cards``, ``units``,
@@ -45,6 +46,7 @@ def vehicle_summary(model: VehicleModel) -> dict:
         "name": model.name,
         "units": model.units,
         "n_nodes": model.n_nodes,
+        "n_nodes_used": int(model.used_nodes().size),
         "n_shells": model.n_shells,
         "n_solids": model.n_solids,
         "n_beams": model.n_beams,
@@ -67,7 +69,8 @@ def format_vehicle_summary(s: dict) -> str:
     """Render :func:`vehicle_summary` as a plain-text report."""
     lines = [
         f"model      {s['name']}  (deck units {s['units']}, shown in SI)",
-        f"nodes      {s['n_nodes']}",
+        f"nodes      {s['n_nodes']}"
+        + (f" ({s['n_nodes_used']} used by the vehicle's elements)" if s["n_nodes_used"] != s["n_nodes"] else ""),
         f"elements   {s['n_shells']} shells, {s['n_solids']} solids, {s['n_beams']} beams",
         f"total mass {s['total_mass_kg']:.3f} kg",
     ]
