@@ -65,6 +65,11 @@ def _mass_line(eid: int, nid: int, tonnes: float, pid: int = 0) -> str:
     return f"{eid:8d}{nid:8d}{tonnes:16.6e}{pid:8d}\n"
 
 
+def _part_line(pid: int, addmass: float = 0.0, finmass: float = 0.0) -> str:
+    """An *ELEMENT_MASS_PART(_SET) card: PID I8, ADDMASS E16, FINMASS E16 (then LCID, not read)."""
+    return f"{pid:8d}{addmass:16.6e}{finmass:16.6e}{0:8d}\n"
+
+
 def test_plain_deck_has_no_added_mass(tmp_path):
     m = _read(_deck().format(inertia=""), tmp_path)
     assert m.point_mass.size == 0 and m.part_added_mass == {} and m.part_mass == {}
@@ -93,26 +98,41 @@ def test_element_mass_on_nodes_and_node_sets(tmp_path):
 
 def test_element_mass_part_spreads_by_area_and_finmass_sets_the_total(tmp_path):
     base = _deck().format(inertia="")
-    m = _read(base + "*ELEMENT_MASS_PART\n         1    0.0003\n", tmp_path)  # ADDMASS 0.3 kg
+    m = _read(base + "*ELEMENT_MASS_PART\n" + _part_line(1, 0.0003), tmp_path)  # ADDMASS 0.3 kg
     assert m.part_added_mass == pytest.approx({1: 0.3})
     np.testing.assert_allclose(m.element_added_masses()["shell"], [0.2, 0.1, 0.0], rtol=1e-12)  # 2:1 by area
     np.testing.assert_allclose(m.element_masses()["shell"], [M1, M2, M3], rtol=1e-12)  # structure unchanged
     assert m.part_masses()[1] == pytest.approx(M1 + M2 + 0.3, rel=1e-12)
-    m = _read(base + "*ELEMENT_MASS_PART\n         1    0.0003     0.001\n", tmp_path)  # FINMASS 1 kg wins
+    m = _read(base + "*ELEMENT_MASS_PART\n" + _part_line(1, 0.0003, 0.001), tmp_path)  # FINMASS 1 kg wins
     assert m.part_masses()[1] == pytest.approx(1.0, rel=1e-12)
     # a part set: the 0.3 kg over both parts by area (0.015 and 0.01 m^2)
     m = _read(
-        base + "*ELEMENT_MASS_PART_SET\n         9    0.0003\n*SET_PART_LIST\n         9\n         1         2\n",
+        base
+        + "*ELEMENT_MASS_PART_SET\n"
+        + _part_line(9, 0.0003)
+        + "*SET_PART_LIST\n         9\n         1         2\n",
         tmp_path,
     )
     assert m.part_added_mass == pytest.approx({1: 0.18, 2: 0.12}, rel=1e-12)
     # FINMASS on the set: the set's total
     m = _read(
         base
-        + "*ELEMENT_MASS_PART_SET\n         9       0.0     0.002\n*SET_PART_LIST\n         9\n         1         2\n",
+        + "*ELEMENT_MASS_PART_SET\n"
+        + _part_line(9, 0.0, 0.002)
+        + "*SET_PART_LIST\n         9\n         1         2\n",
         tmp_path,
     )
     assert sum(m.part_masses().values()) == pytest.approx(2.0, rel=1e-12)
+    add = 2.0 - (M1 + M2 + M3)  # spread by area, 0.015 : 0.01
+    assert m.part_added_mass == pytest.approx({1: 0.6 * add, 2: 0.4 * add}, rel=1e-12)
+    # the same card in the I10 form (PID I10, ADDMASS E16, FINMASS E16) and in long format (20 each)
+    i10 = f"*ELEMENT_MASS_PART %\n{1:10d}{0.0003:16.6e}{0.0:16.6e}\n"
+    assert _read(base + i10, tmp_path).part_added_mass == pytest.approx({1: 0.3})
+    long = f"*ELEMENT_MASS_PART +\n{1:20d}{0.0003:20.6e}{0.0:20.6e}\n"
+    assert _read(base + long, tmp_path).part_added_mass == pytest.approx({1: 0.3})
+    # a blank MASS is LS-DYNA's default, 0
+    m = _read(base + "*ELEMENT_MASS\n       1       3\n", tmp_path)
+    assert m.point_mass.tolist() == [0.0] and m.total_mass() == pytest.approx(M1 + M2 + M3, rel=1e-12)
 
 
 def test_marea_adds_mass_per_area(tmp_path):
@@ -150,33 +170,59 @@ def test_left_out_parts_take_their_masses_along(tmp_path):
     """A barrier at rest leaves with its point masses and added mass; the vehicle's stay."""
     moving = "*INITIAL_VELOCITY_NODE\n" + "".join(f"{n:10d}{-15640.0:10.1f}\n" for n in (1, 4, 5, 6))
     cards = "*ELEMENT_MASS\n" + _mass_line(1, 7, 0.001) + _mass_line(2, 6, 0.002)  # node 7: part 2 only
-    cards += "*ELEMENT_MASS_PART\n         2    0.0003\n"
+    cards += "*ELEMENT_MASS_PART\n" + _part_line(2, 0.0003) + ""
     m = _read(_deck().format(inertia="") + moving + cards, tmp_path)
     assert sorted(m.left_out) == [2]
     assert m.point_mass_ids.tolist() == [2] and m.part_added_mass == {}
     assert m.total_mass() == pytest.approx(M1 + M2 + 2.0, rel=1e-12)
 
 
+def test_part_inertia_is_the_whole_mass_and_its_cards_come_before_contact(tmp_path):
+    """TM is a rigid part's whole mass: MAREA and *ELEMENT_MASS_PART do not add to it. The inertia cards (and
+    the IRCS card) come right after the part card; CONTACT cards follow; a block may hold several parts."""
+    marea = "       2.0       2.0       2.0       2.0         0   2.0e-09"
+    contact = "       0.3       0.2\n"  # FS FD: not a velocity
+    ircs = INERTIA.format(vel="").replace("     0.005\n", "     0.005         1\n") + "       1.0       0.0       0.0\n"
+    third = "third, no elements\n         3         1         2\n" + INERTIA.format(vel="")
+    text = _deck(marea, "*PART_INERTIA_CONTACT", RIGID).replace("{inertia}", ircs + contact + third + contact)
+    moving = "*INITIAL_VELOCITY_NODE\n" + "".join(f"{n:10d}{-15640.0:10.1f}\n" for n in (1, 4, 5, 6))
+    m = _read(text + "*ELEMENT_MASS_PART\n" + _part_line(2, 0.0003), tmp_path)
+    assert m.part_mass == {2: pytest.approx(5.0)} and m.part_masses()[2] == pytest.approx(5.0, rel=1e-12)
+    assert m.part_added_mass == pytest.approx({1: 2.0 * (A1 + A2)}, rel=1e-9)  # part 1's MAREA only
+    assert 3 in m.parts and 3 not in m.part_mass  # read from the same block; nothing to place its mass on
+    said = "\n".join(m.warnings)
+    assert "MAREA of section 1 not added" in said and "adds nothing to part(s) [2]" in said
+    assert "*PART_INERTIA part 3 has no elements to place its 5 kg" in said
+    # the friction card is not an initial velocity: the rigid part at rest is left out
+    assert sorted(_read(text + moving, tmp_path).left_out) == [2]  # part 3 has no elements to leave out
+    # a rotation alone does not move a body toward the barrier
+    rot = _deck(part2="*PART_INERTIA", mat2=RIGID).replace("{inertia}", INERTIA.format(vel=f"{'':30}{1.0:10.1f}"))
+    assert 2 in _read(rot + moving, tmp_path).left_out
+
+
 @pytest.mark.parametrize(
     ("cards", "message"),
     [
+        (
+            "*ELEMENT_MASS_PART_SET\n" + _part_line(9, 0.0003) + "*SET_PART_LIST\n         9\n         1         8\n",
+            r"line 29: \*SET_PART 9 of \*ELEMENT_MASS_PART_SET lists undefined part 8",
+        ),
         ("*ELEMENT_MASS\n" + _mass_line(1, 99, 0.001), r"deck.k line 29: \*ELEMENT_MASS 1 refers to undefined node 99"),
         ("*ELEMENT_MASS\n" + _mass_line(1, 3, -0.001), r"line 29: \*ELEMENT_MASS expects a mass >= 0 in columns 17-32"),
-        ("*ELEMENT_MASS\n       1       3\n", r"line 29: \*ELEMENT_MASS expects mass in columns 17-32"),
         (
             "*ELEMENT_MASS_NODE_SET\n" + _mass_line(4, 8, 0.001),
             r"line 29: \*ELEMENT_MASS_NODE_SET 4 refers to undefined",
         ),
-        ("*ELEMENT_MASS_PART\n         7    0.0003\n", r"line 29: \*ELEMENT_MASS_PART refers to undefined part 7"),
+        ("*ELEMENT_MASS_PART\n" + _part_line(7, 0.0003), r"line 29: \*ELEMENT_MASS_PART refers to undefined part 7"),
         (
-            "*ELEMENT_MASS_PART_SET\n         7    0.0003\n",
+            "*ELEMENT_MASS_PART_SET\n" + _part_line(7, 0.0003),
             r"line 29: \*ELEMENT_MASS_PART_SET refers to undefined part",
         ),
         (
-            "*ELEMENT_MASS_PART\n         1   -0.0003\n",
-            r"line 29: \*ELEMENT_MASS_PART expects ADDMASS >= 0 in columns 11-20",
+            "*ELEMENT_MASS_PART\n" + _part_line(1, -0.0003),
+            r"line 29: \*ELEMENT_MASS_PART expects ADDMASS >= 0 in columns 9-24",
         ),
-        ("*ELEMENT_MASS_PART\n         1       0.0    0.0001\n", r"line 29: .*FINMASS of 0.1 kg, below the 0.2355 kg"),
+        ("*ELEMENT_MASS_PART\n" + _part_line(1, 0.0, 0.0001), r"line 29: .*FINMASS of 0.1 kg, below the 0.2355 kg"),
     ],
 )
 def test_bad_mass_cards_name_the_line(tmp_path, cards, message):
@@ -194,7 +240,7 @@ def test_bad_part_inertia_names_the_line(tmp_path):
 
 def test_written_deck_reads_back_with_every_mass(tmp_path):
     cards = "*ELEMENT_MASS\n" + _mass_line(1, 3, 0.001) + "*ELEMENT_MASS_NODE_SET\n" + _mass_line(2, 5, 0.002)
-    cards += "*SET_NODE_LIST\n         5\n         1         2\n*ELEMENT_MASS_PART\n         1    0.0003\n"
+    cards += "*SET_NODE_LIST\n         5\n         1         2\n*ELEMENT_MASS_PART\n" + _part_line(1, 0.0003)
     text = _deck("       2.0       2.0       2.0       2.0         0   2.0e-09", "*PART_INERTIA", RIGID)
     m = _read(text.replace("{inertia}", INERTIA.format(vel="")) + cards, tmp_path)
     for units in ("mm-t-s", "m-kg-s"):

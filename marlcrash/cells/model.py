@@ -86,7 +86,8 @@ class CellModel:
         roi_depth: crop depth [m]; ``roi_lo``, ``roi_hi``: ``[3]`` ROI box [m].
         planes_y: sorted y positions of the section planes [m].
         vehicle_width: lateral extent of the vehicle [m] (overlaps are fractions of it).
-        roi_mass: material mass inside the ROI [kg] (compartment parts excluded).
+        roi_mass: mass of the elements inside the ROI [kg], their added mass included (compartment parts
+            excluded; point masses on nodes not counted).
         total_mass: vehicle mass [kg].
         grid_edges: x, y, z edges of the fine voxel grid [m] (for plots and masks).
         grid_labels: ``[nx, ny, nz]`` int64 cell index per voxel, -1 outside cells.

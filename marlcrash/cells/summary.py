@@ -88,7 +88,7 @@ def format_discretization_summary(s: dict) -> str:
         ("  of which null cells", f"{s['n_null_cells']}", ""),
         ("  of which sensor cells", f"{s['n_sensor_cells']}", ""),
         ("links", f"{s['n_links']}", ""),
-        ("ROI material mass", f"{s['roi_mass_kg']:.3f}", "kg"),
+        ("ROI element mass", f"{s['roi_mass_kg']:.3f}", "kg"),
         ("sum of cell masses", f"{s['cell_mass_kg']:.3f}", "kg"),
         ("rigid compartment mass", f"{s['compartment_mass_kg']:.3f}", "kg"),
         ("total mass", f"{s['total_mass_kg']:.3f}", "kg"),

@@ -36,7 +36,8 @@ Coverage:
   ``part_mass``): ``*ELEMENT_MASS`` (a lumped mass on a node) and ``_NODE_SET`` (one mass shared
   equally by the set's nodes), ``*ELEMENT_MASS_PART`` and ``_SET`` (ADDMASS spread over the part's
   elements by area, volume or length; FINMASS the part's, or the set's, final mass), ``*SECTION_SHELL``
-  MAREA (mass per area), and ``*PART_INERTIA`` TM (a rigid part's mass; its VTX..VTZ set it moving);
+  MAREA (mass per area), and ``*PART_INERTIA`` TM (a rigid part's whole mass; its VTX..VTZ set it moving);
+  ``*ELEMENT_MASS_PART`` LCID and MWD are not read;
   ``*ELEMENT_INERTIA``, ``*ELEMENT_MASS_MATRIX``, ``*SECTION_BEAM`` NSM and nodal rigid bodies' inertia
   are not read (skipped and counted like any card);
 - ``*SET_PART``, ``*SET_PART_LIST`` and ``*SET_PART_LIST_GENERATE`` (usable as
@@ -161,7 +162,7 @@ _ELEM_MASS = _layout(
 _ELEM_MASS_SET = _layout(
     ("eid", 8, "i", "element id"), ("nid", 8, "i", "node set id"), ("mass", 16, "f", "mass"), ("pid", 8, "i", "part id")
 )
-_MASS_PART = _card("id", "addmass", "finmass", "lcid", "mwd", kinds="iffii")
+_MASS_PART = _layout(("id", 8, "i", "PID"), ("addmass", 16, "f", "ADDMASS"), ("finmass", 16, "f", "FINMASS"))
 _INERTIA = _card("xc", "yc", "zc", "tm", "ircs", "nodeid", kinds="ffffii")
 
 
@@ -1003,8 +1004,7 @@ def _read_part(block: _Block, opts: set[str], t: _Tables, params: _Params) -> No
             raise block.err(f"*PART id {pid} is defined twice (first in {prev[0].name} line {prev[1]})", r)
         t.parts[int(pid)] = (title, int(secid), int(mid), (block.src.path, r + 1))
         i += 2
-        i += sum(o in opts for o in ("CONTACT", "PRINT", "ATTACHMENT", "AVERAGED"))
-        if "INERTIA" in opts:
+        if "INERTIA" in opts:  # its cards come first, the CONTACT, PRINT, ... cards after them
             if i >= len(rows):
                 raise block.err("*PART_INERTIA expects a card XC, YC, ZC, TM after the part card, got end of block", r)
             _xc, _yc, _zc, tm, ircs, _nodeid = _read_line(block, rows[i], _INERTIA, params)
@@ -1015,11 +1015,11 @@ def _read_part(block: _Block, opts: set[str], t: _Tables, params: _Params) -> No
                 )
             t.inertia[int(pid)] = (float(tm), (block.src.path, rows[i] + 1))
             vel = _read_line(block, rows[i + 2], _VEL_6, params) if i + 2 < len(rows) else []  # blank at the end
-            if any(x not in (None, 0.0) for x in vel):  # a rigid body set moving; at rest it says nothing
+            if any(x not in (None, 0.0) for x in vel[:3]):  # a rigid body set moving; at rest it says nothing
                 where = (block.src.path, rows[i + 2] + 1)
                 t.velocities.append(_Velocity("part", np.array([pid]), np.array([True]), where))
             i += 3 + (ircs == 1)
-            break  # one part per *PART_INERTIA block
+        i += sum(o in opts for o in ("CONTACT", "PRINT", "ATTACHMENT", "AVERAGED"))
 
 
 def _add_section(block: _Block, t: _Tables, secid: int | None, sec: _Section, row: int) -> None:
@@ -1239,7 +1239,7 @@ def _read_element_mass(block: _Block, opts: set[str], t: _Tables, params: _Param
         if rows.size:
             on_sets = bool(opts)
             layout = _ELEM_MASS_SET if on_sets else _ELEM_MASS
-            v = _table(block, rows, layout, params, required=("eid", "nid", "mass"), positive=("eid", "nid"))
+            v = _table(block, rows, layout, params, required=("eid", "nid"), positive=("eid", "nid"))  # MASS: 0
             bad = np.flatnonzero(~(np.isfinite(v["mass"]) & (v["mass"] >= 0)))
             if bad.size:
                 i = int(bad[0])
@@ -1250,7 +1250,7 @@ def _read_element_mass(block: _Block, opts: set[str], t: _Tables, params: _Param
         return True
     if opts in ({"PART"}, {"PART", "SET"}):
         for r in rows.tolist():
-            pid, addmass, finmass, _lcid, _mwd = _read_line(block, r, _MASS_PART, params)
+            pid, addmass, finmass = _read_line(block, r, _MASS_PART, params)
             what = "PSID" if "SET" in opts else "PID"
             if pid is None or pid <= 0:
                 at = _field_where(block, r, _MASS_PART, 0)
@@ -1569,22 +1569,30 @@ def _assemble(deck: _Deck, t: _Tables, units: str | None, main: Path) -> tuple[V
 def _deck_masses(model: VehicleModel, t: _Tables) -> VehicleModel:
     """The model with the masses the deck adds to its elements and nodes (SI), each checked against the model.
 
-    ``*PART_INERTIA`` TM sets a rigid part's structural mass (:attr:`VehicleModel.part_mass`); ``*SECTION_SHELL``
-    MAREA and ``*ELEMENT_MASS_PART`` (``_SET``) add non-structural mass, FINMASS what brings the part (the set)
-    to that total (:attr:`VehicleModel.part_added_mass`); ``*ELEMENT_MASS`` puts masses on nodes, ``_NODE_SET``
-    shares one equally among the set's nodes (:attr:`VehicleModel.point_mass`).
+    ``*PART_INERTIA`` TM sets a rigid part's whole mass (:attr:`VehicleModel.part_mass`; MAREA and
+    ``*ELEMENT_MASS_PART`` do not add to it, a note says so); ``*SECTION_SHELL`` MAREA and ``*ELEMENT_MASS_PART``
+    (``_SET``) add non-structural mass, FINMASS what brings the part (the set) to that total
+    (:attr:`VehicleModel.part_added_mass`); ``*ELEMENT_MASS`` puts masses on nodes, ``_NODE_SET`` shares one
+    equally among the set's nodes (:attr:`VehicleModel.point_mass`).
     """
     if not (t.point_masses or t.part_masses or t.inertia or any(s.marea for s in t.sections.values())):
         return model
     u = get_unit_system(model.units)
     notes: list[str] = []
     part_mass: dict[int, float] = {}
+    counts = _element_counts(model) if t.inertia else {}
     for pid, (tm, where) in t.inertia.items():
         if pid not in model.parts:
             continue
+        at = f"{where[0].name} line {where[1]}"
         if not model.materials[model.parts[pid].material_id].is_rigid:
-            at = f"{where[0].name} line {where[1]}"
             notes.append(f"{at}: *PART_INERTIA of part {pid} ignored: LS-DYNA reads it for rigid parts only")
+            continue
+        if not counts.get(pid):
+            notes.append(
+                f"{at}: *PART_INERTIA part {pid} has no elements to place its {tm * u.mass:.4g} kg (a rigid body of "
+                "extra nodes the reader does not follow): not counted"
+            )
             continue
         part_mass[pid] = tm * u.mass
     model = replace(model, part_mass=part_mass)
@@ -1592,8 +1600,10 @@ def _deck_masses(model: VehicleModel, t: _Tables) -> VehicleModel:
     added: dict[int, float] = {}
     for pid, part in model.parts.items():
         marea = t.sections[part.section_id].marea if part.section_id in t.sections else 0.0
-        if marea > 0:
-            added[pid] = marea * u.mass / u.area * float(area[model.shell_part == pid].sum())
+        if marea > 0 and pid in part_mass:
+            notes.append(f"part {pid}: MAREA of section {part.section_id} not added: *PART_INERTIA sets its whole mass")
+        elif marea > 0 and (a := float(area[model.shell_part == pid].sum())) > 0:
+            added[pid] = marea * u.mass / u.area * a
     if t.part_masses:
         own = replace(model, part_added_mass=dict(added)).part_masses()  # structural + MAREA so far
         measure = dict.fromkeys(model.parts, 0.0)
@@ -1608,11 +1618,26 @@ def _deck_masses(model: VehicleModel, t: _Tables) -> VehicleModel:
             if pm.on_set:
                 if pm.target not in t.sets:
                     raise DeckError(f"*ELEMENT_MASS_PART_SET refers to undefined part set {pm.target}", *pm.where)
-                pids = [p for p in dict.fromkeys(t.sets[pm.target][1]) if p in model.parts]
+                pids = list(dict.fromkeys(t.sets[pm.target][1]))
+                undefined = [p for p in pids if p not in t.parts]
+                if undefined:
+                    raise DeckError(
+                        f"*SET_PART {pm.target} of *ELEMENT_MASS_PART_SET lists undefined part {undefined[0]}",
+                        *pm.where,
+                    )
             else:
                 if pm.target not in t.parts:
                     raise DeckError(f"*ELEMENT_MASS_PART refers to undefined part {pm.target}", *pm.where)
                 pids = [pm.target]
+            inertia = [p for p in pids if p in part_mass]
+            if inertia:
+                notes.append(
+                    f"{pm.where[0].name} line {pm.where[1]}: {card} adds nothing to part(s) {inertia}: "
+                    "*PART_INERTIA sets their whole mass"
+                )
+                pids = [p for p in pids if p not in part_mass]
+                if not pids:
+                    continue
             pids = [p for p in pids if measure.get(p, 0.0) > 0]
             if not pids:
                 raise DeckError(f"{card} has no element to carry its mass", *pm.where)

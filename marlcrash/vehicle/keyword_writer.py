@@ -289,7 +289,7 @@ def _write_masses(f, model: VehicleModel, u) -> None:
     if model.part_added_mass:
         f.write("*ELEMENT_MASS_PART+\n")
         for pid, mass in sorted(model.part_added_mass.items()):
-            f.write(_card([pid, mass / u.mass, 0.0, 0, 0]))
+            f.write(_card([pid, mass / u.mass, 0.0]))
     if model.point_mass.size:
         ids = model.point_mass_ids
         if np.unique(ids).size < ids.size:
