@@ -1596,14 +1596,15 @@ def _deck_masses(model: VehicleModel, t: _Tables) -> VehicleModel:
             continue
         part_mass[pid] = tm * u.mass
     model = replace(model, part_mass=part_mass)
-    area = model.shell_areas()
+    uniq, inv = np.unique(model.shell_part, return_inverse=True)  # shell area per part, one pass
+    part_area = dict(zip(uniq.tolist(), np.bincount(inv, weights=model.shell_areas()).tolist(), strict=True))
     added: dict[int, float] = {}
     for pid, part in model.parts.items():
         marea = t.sections[part.section_id].marea if part.section_id in t.sections else 0.0
         if marea > 0 and pid in part_mass:
             notes.append(f"part {pid}: MAREA of section {part.section_id} not added: *PART_INERTIA sets its whole mass")
-        elif marea > 0 and (a := float(area[model.shell_part == pid].sum())) > 0:
-            added[pid] = marea * u.mass / u.area * a
+        elif marea > 0 and part_area.get(pid, 0.0) > 0:
+            added[pid] = marea * u.mass / u.area * part_area[pid]
     if t.part_masses:
         own = replace(model, part_added_mass=dict(added)).part_masses()  # structural + MAREA so far
         measure = dict.fromkeys(model.parts, 0.0)
