@@ -1596,24 +1596,17 @@ def _deck_masses(model: VehicleModel, t: _Tables) -> VehicleModel:
             continue
         part_mass[pid] = tm * u.mass
     model = replace(model, part_mass=part_mass)
-    uniq, inv = np.unique(model.shell_part, return_inverse=True)  # shell area per part, one pass
-    part_area = dict(zip(uniq.tolist(), np.bincount(inv, weights=model.shell_areas()).tolist(), strict=True))
+    part_area = model.sum_by_part({"shell": model.shell_areas()})
     added: dict[int, float] = {}
     for pid, part in model.parts.items():
         marea = t.sections[part.section_id].marea if part.section_id in t.sections else 0.0
         if marea > 0 and pid in part_mass:
             notes.append(f"part {pid}: MAREA of section {part.section_id} not added: *PART_INERTIA sets its whole mass")
-        elif marea > 0 and part_area.get(pid, 0.0) > 0:
+        elif marea > 0 and part_area[pid] > 0:
             added[pid] = marea * u.mass / u.area * part_area[pid]
     if t.part_masses:
         own = replace(model, part_added_mass=dict(added)).part_masses()  # structural + MAREA so far
-        measure = dict.fromkeys(model.parts, 0.0)
-        kinds: dict[int, set[str]] = {pid: set() for pid in model.parts}
-        for kind, m in model.element_measures().items():
-            uniq, inv = np.unique(getattr(model, f"{kind}_part"), return_inverse=True)
-            for pid, val in zip(uniq.tolist(), np.bincount(inv, weights=m, minlength=uniq.size).tolist(), strict=True):
-                measure[pid] += val
-                kinds[pid].add(kind)
+        measure = model.sum_by_part(model.element_measures())
         for pm in t.part_masses:
             card = f"*ELEMENT_MASS_PART{'_SET' if pm.on_set else ''} {pm.target}"
             if pm.on_set:
@@ -1654,7 +1647,8 @@ def _deck_masses(model: VehicleModel, t: _Tables) -> VehicleModel:
                     )
                 add = max(add, 0.0)
             # by area (volume, length) as LS-DYNA spreads it; by mass across parts of different element kinds
-            by_measure = len(set().union(*(kinds[p] for p in pids))) == 1 or current <= 0
+            kinds = {t.sections[model.parts[p].section_id].kind for p in pids}  # a part's elements are its section's
+            by_measure = len(kinds) == 1 or current <= 0
             weight = {p: measure[p] if by_measure else own[p] for p in pids}
             wsum = sum(weight.values())
             for p in pids:

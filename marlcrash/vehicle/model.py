@@ -284,21 +284,26 @@ class VehicleModel:
             share = tot[j] * w / np.where(use_w[j], wsum[j], fsum[j])
             out[k][sel] = share if replace_ else out[k][sel] + share
 
-    def part_masses(self) -> dict[int, float]:
-        """Part id -> mass [kg]: structural plus added (point masses on nodes not included)."""
+    def sum_by_part(self, values: dict[str, np.ndarray]) -> dict[int, float]:
+        """Part id -> sum of per-element ``values`` (keyed ``shell``, ``solid``, ``beam``; a kind left out
+        counts 0), every part included."""
         out = dict.fromkeys(self.parts, 0.0)
-        em, ea = self.element_masses(), self.element_added_masses()
         for kind, parts in (
             ("shell", self.shell_part),
             ("solid", self.solid_part),
             ("beam", self.beam_part),
         ):
-            if parts.size:
+            if parts.size and kind in values:
                 uniq, inv = np.unique(parts, return_inverse=True)
-                sums = np.bincount(inv, weights=em[kind] + ea[kind])
+                sums = np.bincount(inv, weights=values[kind])
                 for pid, m in zip(uniq.tolist(), sums.tolist(), strict=True):
                     out[int(pid)] = out.get(int(pid), 0.0) + float(m)
         return out
+
+    def part_masses(self) -> dict[int, float]:
+        """Part id -> mass [kg]: structural plus added (point masses on nodes not included)."""
+        em, ea = self.element_masses(), self.element_added_masses()
+        return self.sum_by_part({k: em[k] + ea[k] for k in em})
 
     def total_mass(self) -> float:
         """Total mass [kg]: every part's (:meth:`part_masses`) and every point mass."""
