@@ -94,8 +94,11 @@ def test_table_shape_and_keys(comparison, run_dir, tmp_path):
     assert "## Aggregate over 2 references" in md and "| 101 | cmaes 2x |" in md and "python train/amortized.py" in md
     data = json.loads(paths["amortized.json"].read_text())
     assert data["meta"]["policy_simulations"] == ITERATIONS + 1 and len(data["rows"]) == len(rows)
-    with pytest.raises(ConfigError, match="out_dir"):
-        write_comparison(comparison, tmp_path / "missing")
+    made = write_comparison(comparison, tmp_path / "new" / "cmp")  # a missing folder is made
+    assert json.loads(made["amortized.json"].read_text())["rows"] == data["rows"]
+    (tmp_path / "afile").write_text("")
+    with pytest.raises(ConfigError, match=r"key 'out_dir'.*afile is a file"):
+        write_comparison(comparison, tmp_path / "afile")
 
 
 def test_budgets_are_respected(comparison):
@@ -187,8 +190,10 @@ def test_bad_configs_name_the_key(run_dir, tmp_path):
         small_config(run_dir, budgets={"lbfgs": [1]})
     with pytest.raises(ConfigError, match=r"budgets\.lm.*unknown optimizer"):  # a baseline without settings here
         small_config(run_dir, budgets={"lm": [1]})
-    with pytest.raises(ConfigError, match="key 'out_dir'"):  # at once, not after the work
-        small_config(run_dir, out_dir=str(tmp_path / "missing"))
+    (tmp_path / "afile").write_text("")
+    with pytest.raises(ConfigError, match=r"key 'out_dir'.*afile is a file"):  # at once, not after the work
+        small_config(run_dir, out_dir=str(tmp_path / "afile" / "cmp"))
+    assert small_config(run_dir, out_dir=str(tmp_path / "missing")).out_dir == str(tmp_path / "missing")  # made later
     with pytest.raises(ConfigError, match="iterations"):
         small_config(run_dir, iterations=0)
     with pytest.raises(ConfigError, match="reference_seeds"):

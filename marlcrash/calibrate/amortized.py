@@ -67,7 +67,7 @@ from marlcrash.calibrate.problem import CalibrationProblem
 from marlcrash.config import from_dict, require, require_complete
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics
-from marlcrash.outputs import write_text
+from marlcrash.outputs import check_output_dir, write_text
 
 POLICY_METHODS = ("policy_best", "policy_last")
 """Row names of the policy: its best iterate by fit score and its last iterate."""
@@ -127,8 +127,8 @@ class AmortizedConfig:
                 require(math.isfinite(m) and m > 0, f"budgets.{name}[{i}]",
                         f"expected a budget multiple > 0 of the policy's simulations, got {m}")  # fmt: skip
 
-        require(self.out_dir is None or Path(self.out_dir).is_dir(), "out_dir",  # before any work, not at the end
-                f"expected an existing output folder, {self.out_dir} is none")  # fmt: skip
+        if self.out_dir is not None:  # before any work, not at the end; a missing folder is made when writing
+            check_output_dir(self.out_dir, "out_dir")
 
     def budget(self, multiplier: float, policy_sims: int) -> int:
         """Simulations of a budget: ``max(1, round(multiplier * policy_sims))``."""
@@ -456,14 +456,14 @@ def csv_text(comparison: Comparison) -> str:
 
 
 def write_comparison(comparison: Comparison, out_dir: str | Path, command: str | None = None) -> dict[str, Path]:
-    """Write :data:`FILES` into ``out_dir`` atomically (each file replaced whole); return their paths.
+    """Write :data:`FILES` into ``out_dir`` atomically (each file replaced whole; the folder made if missing);
+    return their paths.
 
     Raises:
-        ConfigError: (key ``out_dir``) the folder does not exist.
+        ConfigError: (key ``out_dir``) ``out_dir`` or an ancestor is a file, or the folder cannot be written.
     """
-    out = Path(out_dir)
-    if not out.is_dir():
-        raise ConfigError(f"expected an existing output folder, {out} is none", key="out_dir")
+    out = check_output_dir(out_dir, "out_dir")
+    out.mkdir(parents=True, exist_ok=True)
     date = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
     payload = {"date": date, "command": command, "meta": comparison.meta, "aggregate": comparison.aggregate,
                "rows": comparison.rows}  # fmt: skip
