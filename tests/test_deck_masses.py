@@ -1,4 +1,5 @@
-"""Masses a deck adds beyond density times volume: *ELEMENT_MASS, *ELEMENT_MASS_PART, MAREA, *PART_INERTIA.
+"""Masses a deck adds beyond density times volume: *ELEMENT_MASS, *ELEMENT_INERTIA, *ELEMENT_MASS_PART, MAREA,
+*PART_INERTIA (also of a body of extra nodes) and *CONSTRAINED_NODAL_RIGID_BODY_INERTIA.
 
 References are hand computations on a two-shell plate in mm-t-s units (1 t = 1000 kg, 1 mm = 1e-3 m).
 """
@@ -192,7 +193,7 @@ def test_part_inertia_is_the_whole_mass_and_its_cards_come_before_contact(tmp_pa
     assert 3 in m.parts and 3 not in m.part_mass  # read from the same block; nothing to place its mass on
     said = "\n".join(m.warnings)
     assert "MAREA of section 1 not added" in said and "adds nothing to part(s) [2]" in said
-    assert "*PART_INERTIA part 3 has no elements to place its 5 kg" in said
+    assert "*PART_INERTIA part 3 has neither elements nor *CONSTRAINED_EXTRA_NODES to place its 5 kg" in said
     # the friction card is not an initial velocity: the rigid part at rest is left out
     assert sorted(_read(text + moving, tmp_path).left_out) == [2]  # part 3 has no elements to leave out
     # a rotation alone does not move a body toward the barrier
@@ -254,6 +255,108 @@ def test_written_deck_reads_back_with_every_mass(tmp_path):
         for kind in ("shell", "solid", "beam"):
             np.testing.assert_allclose(back.element_masses()[kind], m.element_masses()[kind], rtol=1e-9)
             np.testing.assert_allclose(back.element_added_masses()[kind], m.element_added_masses()[kind], rtol=1e-9)
+
+
+def _point_masses(m) -> dict[int, float]:
+    """Node id -> point mass [kg], summed."""
+    out: dict[int, float] = {}
+    for nid, kg in zip(m.node_ids[m.point_mass_nodes].tolist(), m.point_mass.tolist(), strict=True):
+        out[nid] = out.get(nid, 0.0) + kg
+    return out
+
+
+def _inertia_card(eid: int, nid: int, tonnes: float) -> str:
+    """*ELEMENT_INERTIA: EID NID CSID (I8), then IXX IXY IXZ IYY IYZ IZZ MASS (10 columns each)."""
+    return (
+        f"{eid:8d}{nid:8d}{0:8d}\n"
+        + f"{1.0:10.1f}{0.0:10.1f}{0.0:10.1f}{1.0:10.1f}{0.0:10.1f}{1.0:10.1f}{tonnes:10.4g}\n"
+    )
+
+
+def _body(pid: int, nsid: int, tonnes: float, vtx: float = 0.0, spc: bool = False, title: str = "") -> str:
+    """One *CONSTRAINED_NODAL_RIGID_BODY_INERTIA body: PID CID NSID ..., [CMO CON1 CON2], XC YC ZC TM IRCS NODEID,
+    IXX .. IZZ, VTX .. VRZ (10 columns each)."""
+    text = f"{title}\n" if title else ""
+    text += f"{pid:10d}{0:10d}{nsid:10d}\n" + (f"{1.0:10.1f}{7:10d}{7:10d}\n" if spc else "")
+    text += f"{150.0:10.1f}{50.0:10.1f}{0.0:10.1f}{tonnes:10.4g}\n"
+    return text + f"{1.0:10.1f}{0.0:10.1f}{0.0:10.1f}{1.0:10.1f}{0.0:10.1f}{1.0:10.1f}\n" + f"{vtx:10.1f}\n"
+
+
+def test_element_inertia_puts_its_mass_on_its_node(tmp_path):
+    """The mass (card 2, columns 61-70) on the node; the inertia tensor and an _OFFSET card move no mass."""
+    cards = "*ELEMENT_INERTIA\n" + _inertia_card(1, 3, 0.001) + _inertia_card(2, 7, 0.0025)
+    cards += "*ELEMENT_INERTIA_OFFSET\n" + _inertia_card(3, 8, 0.0005) + f"{10.0:10.1f}{0.0:10.1f}{0.0:10.1f}\n"
+    m = _read(_deck().format(inertia="") + cards, tmp_path)
+    assert _point_masses(m) == pytest.approx({3: 1.0, 7: 2.5, 8: 0.5}, rel=1e-12)
+    assert sorted(m.point_mass_ids.tolist()) == [1, 2, 3]
+    assert m.total_mass() == pytest.approx(M1 + M2 + M3 + 4.0, rel=1e-12)
+    assert "ELEMENT_INERTIA" not in m.skipped_cards and "ELEMENT_INERTIA_OFFSET" not in m.skipped_cards
+    # the same numbers in long format (+: every field 20 columns)
+    long = "*ELEMENT_INERTIA+\n" + f"{1:20d}{3:20d}{0:20d}\n" + f"{1.0:20.1f}" * 6 + f"{0.001:20.4g}\n"
+    assert _point_masses(_read(_deck().format(inertia="") + long, tmp_path)) == pytest.approx({3: 1.0})
+    with pytest.raises(DeckError, match=r"line 29: \*ELEMENT_INERTIA 4 refers to undefined node 99"):
+        _read(_deck().format(inertia="") + "*ELEMENT_INERTIA\n" + _inertia_card(4, 99, 0.001), tmp_path)
+    with pytest.raises(DeckError, match=r"line 30: \*ELEMENT_INERTIA expects a mass >= 0 in columns 61-70"):
+        _read(_deck().format(inertia="") + "*ELEMENT_INERTIA\n" + _inertia_card(4, 3, -0.001), tmp_path)
+    with pytest.raises(DeckError, match=r"expects 2 lines per element"):
+        _read(_deck().format(inertia="") + "*ELEMENT_INERTIA\n" + _inertia_card(4, 3, 0.001)[:25], tmp_path)
+
+
+def test_nodal_rigid_body_inertia_shares_its_mass_and_replaces_lumped_masses(tmp_path):
+    """TM is the body's whole mass, shared by its node set; a lumped mass on one of its nodes is replaced by it."""
+    base = _deck().format(inertia="") + "*SET_NODE_LIST\n         5\n         7         8\n"
+    lumped = "*ELEMENT_MASS\n" + _mass_line(1, 7, 0.001) + _mass_line(2, 3, 0.002)
+    m = _read(base + lumped + "*CONSTRAINED_NODAL_RIGID_BODY_INERTIA\n" + _body(9, 5, 0.004), tmp_path)
+    assert _point_masses(m) == pytest.approx({7: 2.0, 8: 2.0, 3: 2.0}, rel=1e-12)  # node 7's 1 kg is replaced
+    assert m.total_mass() == pytest.approx(M1 + M2 + M3 + 6.0, rel=1e-12)
+    assert any("1 lumped mass(es) (1 kg; element(s) [1])" in w and "replaced by its TM" in w for w in m.warnings)
+    # _SPC_INERTIA (an SPC card after the first) and _TITLE, two bodies in one block; NSID 0: the set numbered as
+    # the body
+    two = _body(5, 0, 0.004, spc=True, title="engine") + _body(6, 6, 0.001, spc=True, title="battery")
+    sets = "*SET_NODE_LIST\n         6\n         1\n"
+    m = _read(_deck().format(inertia="") + "*SET_NODE_LIST\n         5\n         7         8\n" + sets
+              + "*CONSTRAINED_NODAL_RIGID_BODY_SPC_INERTIA_TITLE\n" + two, tmp_path)  # fmt: skip
+    assert _point_masses(m) == pytest.approx({7: 2.0, 8: 2.0, 1: 1.0}, rel=1e-12)
+    # no TM: nothing added, a note; without INERTIA: skipped like any card
+    m = _read(base + lumped + "*CONSTRAINED_NODAL_RIGID_BODY_INERTIA\n" + _body(9, 5, 0.0), tmp_path)
+    assert _point_masses(m) == pytest.approx({7: 1.0, 3: 2.0})
+    assert any("gives no mass TM: its nodes keep their own" in w for w in m.warnings)
+    m = _read(base + "*CONSTRAINED_NODAL_RIGID_BODY\n         9         0         5\n", tmp_path)
+    assert m.point_mass.size == 0 and m.skipped_cards.get("CONSTRAINED_NODAL_RIGID_BODY") == 1
+    with pytest.raises(DeckError, match=r"line 29: \*CONSTRAINED_NODAL_RIGID_BODY 9 refers to undefined node set 4"):
+        _read(_deck().format(inertia="") + "*CONSTRAINED_NODAL_RIGID_BODY_INERTIA\n" + _body(9, 4, 0.004), tmp_path)
+    with pytest.raises(DeckError, match=r"line 30: .*expects a mass TM >= 0 in columns 31-40, got '-0.004'"):
+        _read(_deck().format(inertia="") + "*CONSTRAINED_NODAL_RIGID_BODY_INERTIA\n" + _body(9, 5, -0.004), tmp_path)
+    with pytest.raises(DeckError, match=r"line 29: .*expects a card XC, YC, ZC, TM for body 9, got end of block"):
+        _read(_deck().format(inertia="") + "*CONSTRAINED_NODAL_RIGID_BODY_INERTIA\n         9         0         5\n",
+              tmp_path)  # fmt: skip
+
+
+def test_nodal_rigid_body_velocity_sets_its_nodes_moving(tmp_path):
+    """VTX of a nodal rigid body moves its node set: part 2, whose nodes only it moves, stays vehicle."""
+    moving = "*INITIAL_VELOCITY_NODE\n" + "".join(f"{n:10d}{-15640.0:10.1f}\n" for n in (1, 4, 5, 6))
+    base = _deck().format(inertia="") + moving + "*SET_NODE_LIST\n         5\n         2         7         8\n"
+    for vtx, stays in ((-15640.0, True), (0.0, False)):
+        m = _read(base + "*CONSTRAINED_NODAL_RIGID_BODY_INERTIA\n" + _body(9, 5, 0.003, vtx=vtx), tmp_path)
+        assert (2 in m.parts) == stays
+        # at rest, the body's nodes 7 and 8 are used only by the left-out part 2: their masses leave with it
+        assert _point_masses(m) == pytest.approx({2: 1.0, 7: 1.0, 8: 1.0} if stays else {2: 1.0})
+
+
+def test_part_inertia_of_a_body_of_extra_nodes_sits_on_them(tmp_path):
+    """A rigid part without elements whose *CONSTRAINED_EXTRA_NODES are its body: TM shared by those nodes."""
+    third = "third, no elements\n         3         1         2\n" + INERTIA.format(vel="")
+    text = _deck(part2="*PART_INERTIA", mat2=RIGID).replace("{inertia}", INERTIA.format(vel="") + third)
+    extra = "*CONSTRAINED_EXTRA_NODES_SET\n         3         5\n*SET_NODE_LIST\n         5\n         7         8\n"
+    extra += "*CONSTRAINED_EXTRA_NODES_NODE\n         3         1\n"
+    m = _read(text + extra, tmp_path)
+    assert _point_masses(m) == pytest.approx({1: 5 / 3, 7: 5 / 3, 8: 5 / 3}, rel=1e-12)
+    assert m.point_mass_ids.tolist() == [3, 3, 3] and 3 not in m.part_mass
+    assert m.total_mass() == pytest.approx(M1 + M2 + 5.0 + 5.0, rel=1e-12)
+    with pytest.raises(DeckError, match=r"line 38: \*CONSTRAINED_EXTRA_NODES of part 3 refers to undefined node 99"):
+        _read(text + "*CONSTRAINED_EXTRA_NODES_NODE\n         3        99\n", tmp_path)
+    with pytest.raises(DeckError, match=r"line 38: \*CONSTRAINED_EXTRA_NODES_NODE expects a positive NID"):
+        _read(text + "*CONSTRAINED_EXTRA_NODES_NODE\n         3\n", tmp_path)
 
 
 @pytest.fixture(scope="module")

@@ -34,12 +34,15 @@ Coverage:
   FAIL. Everything else is completed by :func:`complete_material`;
 - masses beyond density times volume (:attr:`VehicleModel.point_mass`, ``part_added_mass``,
   ``part_mass``): ``*ELEMENT_MASS`` (a lumped mass on a node) and ``_NODE_SET`` (one mass shared
-  equally by the set's nodes), ``*ELEMENT_MASS_PART`` and ``_SET`` (ADDMASS spread over the part's
-  elements by area, volume or length; FINMASS the part's, or the set's, final mass), ``*SECTION_SHELL``
-  MAREA (mass per area), and ``*PART_INERTIA`` TM (a rigid part's whole mass; its VTX..VTZ set it moving);
-  ``*ELEMENT_MASS_PART`` LCID and MWD are not read;
-  ``*ELEMENT_INERTIA``, ``*ELEMENT_MASS_MATRIX``, ``*SECTION_BEAM`` NSM and nodal rigid bodies' inertia
-  are not read (skipped and counted like any card);
+  equally by the set's nodes), ``*ELEMENT_INERTIA`` (``_OFFSET``; its MASS on its node: cells translate,
+  so the inertia tensor and the offset are not needed), ``*ELEMENT_MASS_PART`` and ``_SET`` (ADDMASS
+  spread over the part's elements by area, volume or length; FINMASS the part's, or the set's, final
+  mass), ``*SECTION_SHELL`` MAREA (mass per area), ``*PART_INERTIA`` TM (a rigid part's whole mass; its
+  VTX..VTZ set it moving; a rigid part without elements shares it among its ``*CONSTRAINED_EXTRA_NODES``),
+  and ``*CONSTRAINED_NODAL_RIGID_BODY_INERTIA`` (``_SPC``, ``_TITLE``) TM, the body's whole mass, shared
+  equally by its node set (lumped masses on those nodes are replaced by it, a note says so; its VTX..VTZ
+  set the set moving); ``*ELEMENT_MASS_PART`` LCID and MWD are not read; ``*ELEMENT_MASS_MATRIX``,
+  ``*SECTION_BEAM`` NSM are not read (skipped and counted like any card);
 - ``*SET_PART``, ``*SET_PART_LIST`` and ``*SET_PART_LIST_GENERATE`` (usable as
   ``"set:<id>"`` in sub-assembly maps);
 - ``*CONSTRAINED_RIGID_BODIES`` (which rigid parts move as one body), ``*SET_NODE``/
@@ -164,6 +167,10 @@ _ELEM_MASS_SET = _layout(
 )
 _MASS_PART = _layout(("id", 8, "i", "PID"), ("addmass", 16, "f", "ADDMASS"), ("finmass", 16, "f", "FINMASS"))
 _INERTIA = _card("xc", "yc", "zc", "tm", "ircs", "nodeid", kinds="ffffii")
+_ELEM_INERTIA = _layout(("eid", 8, "i", "element id"), ("nid", 8, "i", "node id"), ("csid", 8, "i", "CSID"))
+_ELEM_INERTIA_2 = _card("ixx", "ixy", "ixz", "iyy", "iyz", "izz", "mass")
+_NODAL_BODY = _card("pid", "cid", "nsid", "pnode", "iprt", "drflag", "rrflag", kinds="iiiiiii")
+_EXTRA_NODES = _card("pid", "nid", "iflag", kinds="iii")
 
 
 def _widths(layout: tuple[_Field, ...], fmt: str) -> list[int]:
@@ -844,11 +851,14 @@ class _Tables:
     point_masses: list[_PointMasses] = field(default_factory=list)
     part_masses: list[_PartMass] = field(default_factory=list)
     inertia: dict[int, tuple[float, tuple[Path, int]]] = field(default_factory=dict)  # pid -> (TM, where)
+    nodal_bodies: list[_NodalBody] = field(default_factory=list)
+    extra_nodes: dict[int, list[tuple[int, bool, tuple[Path, int]]]] = field(default_factory=dict)  # pid -> (id, set)
 
 
 @dataclass
 class _PointMasses:
-    """One ``*ELEMENT_MASS`` block (deck units): ``nids`` node ids, or node set ids (``on_sets``)."""
+    """One ``*ELEMENT_MASS`` (or ``*ELEMENT_INERTIA``) block (deck units): ``nids`` node ids, or node set ids
+    (``on_sets``)."""
 
     ids: np.ndarray
     nids: np.ndarray
@@ -857,6 +867,17 @@ class _PointMasses:
     on_sets: bool
     src: _Source
     rows: np.ndarray
+    keyword: str = "ELEMENT_MASS"
+
+
+@dataclass
+class _NodalBody:
+    """One ``*CONSTRAINED_NODAL_RIGID_BODY_INERTIA`` body (deck units): its node set and total mass TM."""
+
+    pid: int
+    nsid: int
+    tm: float
+    where: tuple[Path, int]
 
 
 @dataclass
@@ -1246,7 +1267,8 @@ def _read_element_mass(block: _Block, opts: set[str], t: _Tables, params: _Param
                 raise block.err(
                     f"*{block.keyword} expects a mass >= 0 {_field_where(block, int(rows[i]), layout, 2)}", int(rows[i])
                 )
-            t.point_masses.append(_PointMasses(v["eid"], v["nid"], v["mass"], v["pid"], on_sets, block.src, rows))
+            masses = _PointMasses(v["eid"], v["nid"], v["mass"], v["pid"], on_sets, block.src, rows, block.keyword)
+            t.point_masses.append(masses)
         return True
     if opts in ({"PART"}, {"PART", "SET"}):
         for r in rows.tolist():
@@ -1264,6 +1286,85 @@ def _read_element_mass(block: _Block, opts: set[str], t: _Tables, params: _Param
             )
         return True
     return False
+
+
+def _read_element_inertia(block: _Block, opts: set[str], t: _Tables, params: _Params) -> bool:
+    """``*ELEMENT_INERTIA`` (``_OFFSET``): EID, NID, CSID, then IXX .. IZZ, MASS (then the offset); the mass is
+    kept as a point mass on the node (the surrogate moves cells, it does not rotate them: the inertia tensor and
+    the offset are not needed). ``False`` for other options."""
+    if not opts <= {"OFFSET"}:
+        return False
+    rows = block.rows
+    if rows.size == 0:
+        return True
+    groups = _grouped(block, 2 + ("OFFSET" in opts), rows)
+    head = _table(block, groups[0], _ELEM_INERTIA, params, required=("eid", "nid"), positive=("eid", "nid"))
+    mass = _table(block, groups[1], _ELEM_INERTIA_2, params)["mass"]
+    bad = np.flatnonzero(~(np.isfinite(mass) & (mass >= 0)))
+    if bad.size:
+        r = int(groups[1][int(bad[0])])
+        raise block.err(f"*{block.keyword} expects a mass >= 0 {_field_where(block, r, _ELEM_INERTIA_2, 6)}", r)
+    pid = np.zeros(mass.size, dtype=np.int64)
+    t.point_masses.append(_PointMasses(head["eid"], head["nid"], mass, pid, False, block.src, groups[0], block.keyword))
+    return True
+
+
+def _read_nodal_body(block: _Block, opts: set[str], t: _Tables, params: _Params) -> bool:
+    """``*CONSTRAINED_NODAL_RIGID_BODY_INERTIA`` (``_SPC``, ``_TITLE``): per body the card PID .. NSID, the SPC
+    card, XC YC ZC TM IRCS NODEID, the inertia tensor, VTX .. VRZ and, where IRCS = 1, the local axes. Keeps the
+    node set and TM, and a non-zero VTX .. VTZ as an initial velocity of the set. ``False`` without ``INERTIA``
+    (a nodal rigid body without inertia adds no mass)."""
+    if "INERTIA" not in opts or not opts <= {"INERTIA", "SPC", "TITLE"}:
+        return False
+    rows = block.rows.tolist()
+    i = 0
+    while i < len(rows):
+        i += "TITLE" in opts
+        if i >= len(rows):
+            raise block.err(
+                f"*{block.keyword} expects a card PID, CID, NSID after the title, got end of block", rows[-1]
+            )
+        r = rows[i]
+        pid, _cid, nsid, *_ = _read_line(block, r, _NODAL_BODY, params)
+        if pid is None or pid <= 0:
+            raise block.err(f"*{block.keyword} expects a positive PID {_field_where(block, r, _NODAL_BODY, 0)}", r)
+        if nsid is not None and nsid < 0:
+            raise block.err(
+                f"*{block.keyword} expects a node set NSID >= 0 {_field_where(block, r, _NODAL_BODY, 2)}", r
+            )
+        i += 1 + ("SPC" in opts)
+        if i >= len(rows):
+            raise block.err(f"*{block.keyword} expects a card XC, YC, ZC, TM for body {pid}, got end of block", r)
+        _xc, _yc, _zc, tm, ircs, _nodeid = _read_line(block, rows[i], _INERTIA, params)
+        if tm is not None and not (math.isfinite(tm) and tm >= 0):
+            raise block.err(
+                f"*{block.keyword} expects a mass TM >= 0 {_field_where(block, rows[i], _INERTIA, 3)}", rows[i]
+            )
+        where = (block.src.path, r + 1)  # the card that names the node set
+        sid = int(nsid or pid)  # NSID 0: the node set numbered as the body
+        t.nodal_bodies.append(_NodalBody(int(pid), sid, float(tm or 0.0), where))
+        vel = _read_line(block, rows[i + 2], _VEL_6, params) if i + 2 < len(rows) else []
+        if any(x not in (None, 0.0) for x in vel[:3]):
+            t.velocities.append(
+                _Velocity("node_set", np.array([sid]), np.array([True]), (block.src.path, rows[i + 2] + 1))
+            )
+        i += 3 + (ircs == 1)
+    return True
+
+
+def _read_extra_nodes(block: _Block, opts: set[str], t: _Tables, params: _Params) -> bool:
+    """``*CONSTRAINED_EXTRA_NODES_NODE`` / ``_SET``: PID, NID (NSID), IFLAG per card; ``False`` otherwise."""
+    if opts not in ({"NODE"}, {"SET"}):
+        return False
+    for r in _nonblank(block, block.rows).tolist():
+        pid, nid, _iflag = _read_line(block, r, _EXTRA_NODES, params)
+        for k, (val, label) in enumerate(((pid, "PID"), (nid, "NSID" if "SET" in opts else "NID"))):
+            if val is None or val <= 0:
+                raise block.err(
+                    f"*{block.keyword} expects a positive {label} {_field_where(block, r, _EXTRA_NODES, k)}", r
+                )
+        t.extra_nodes.setdefault(int(pid), []).append((int(nid), "SET" in opts, (block.src.path, r + 1)))
+    return True
 
 
 def _read_curve(block: _Block, opts: set[str], t: _Tables, params: _Params) -> None:
@@ -1299,10 +1400,16 @@ def _dispatch(block: _Block, t: _Tables, deck: _Deck) -> None:
                 return
             deck.skipped[kw] += 1
             return
-    if kw == "ELEMENT_MASS" or kw.startswith("ELEMENT_MASS_"):
-        if not _read_element_mass(block, _split_options(kw, "ELEMENT_MASS"), t, params):
-            deck.skipped[kw] += 1
-        return
+    for base, reader in (
+        ("ELEMENT_MASS", _read_element_mass),
+        ("ELEMENT_INERTIA", _read_element_inertia),
+        ("CONSTRAINED_NODAL_RIGID_BODY", _read_nodal_body),
+        ("CONSTRAINED_EXTRA_NODES", _read_extra_nodes),
+    ):
+        if kw == base or kw.startswith(base + "_"):
+            if not reader(block, _split_options(kw, base), t, params):
+                deck.skipped[kw] += 1
+            return
     if kw == "PART" or kw.startswith("PART_"):
         opts = _split_options(kw, "PART")
         opts = {"ATTACHMENT" if o == "NODES" else o for o in opts} - {"NODES"}
@@ -1575,11 +1682,14 @@ def _deck_masses(model: VehicleModel, t: _Tables) -> VehicleModel:
     (:attr:`VehicleModel.part_added_mass`); ``*ELEMENT_MASS`` puts masses on nodes, ``_NODE_SET`` shares one
     equally among the set's nodes (:attr:`VehicleModel.point_mass`).
     """
-    if not (t.point_masses or t.part_masses or t.inertia or any(s.marea for s in t.sections.values())):
+    if not (
+        t.point_masses or t.part_masses or t.inertia or t.nodal_bodies or any(s.marea for s in t.sections.values())
+    ):
         return model
     u = get_unit_system(model.units)
     notes: list[str] = []
     part_mass: dict[int, float] = {}
+    bodies: list[tuple[int, list[tuple[int, bool, tuple[Path, int]]], float, str]] = []  # masses on extra nodes
     counts = _element_counts(model) if t.inertia else {}
     for pid, (tm, where) in t.inertia.items():
         if pid not in model.parts:
@@ -1589,10 +1699,13 @@ def _deck_masses(model: VehicleModel, t: _Tables) -> VehicleModel:
             notes.append(f"{at}: *PART_INERTIA of part {pid} ignored: LS-DYNA reads it for rigid parts only")
             continue
         if not counts.get(pid):
-            notes.append(
-                f"{at}: *PART_INERTIA part {pid} has no elements to place its {tm * u.mass:.4g} kg (a rigid body of "
-                "extra nodes the reader does not follow): not counted"
-            )
+            if pid in t.extra_nodes:  # a rigid body of extra nodes only: TM shared by them
+                bodies.append((pid, t.extra_nodes[pid], tm * u.mass, f"*CONSTRAINED_EXTRA_NODES of part {pid}"))
+            else:
+                notes.append(
+                    f"{at}: *PART_INERTIA part {pid} has neither elements nor *CONSTRAINED_EXTRA_NODES to place its "
+                    f"{tm * u.mass:.4g} kg: not counted"
+                )
             continue
         part_mass[pid] = tm * u.mass
     model = replace(model, part_mass=part_mass)
@@ -1655,48 +1768,102 @@ def _deck_masses(model: VehicleModel, t: _Tables) -> VehicleModel:
                 added[p] = added.get(p, 0.0) + add * weight[p] / wsum
                 own[p] += add * weight[p] / wsum
     model = replace(model, part_added_mass={p: m for p, m in added.items() if m > 0})
-    if t.point_masses:
-        order = np.argsort(model.node_ids, kind="stable")
-        sorted_ids = model.node_ids[order]
-        ids, nodes, mass = [], [], []
-        for pm in t.point_masses:
-            if pm.on_sets:
-                cards = zip(pm.ids.tolist(), pm.nids.tolist(), pm.mass.tolist(), strict=True)
-                for k, (eid, sid, m) in enumerate(cards):
-                    where = (pm.src.path, int(pm.rows[k]) + 1)
-                    if sid not in t.node_sets or not t.node_sets[sid][1]:
-                        what = "undefined" if sid not in t.node_sets else "empty"
-                        raise DeckError(f"*ELEMENT_MASS_NODE_SET {eid} refers to {what} node set {sid}", *where)
-                    members = np.unique(np.asarray(t.node_sets[sid][1], dtype=np.int64))
-                    idx, found = _lookup(sorted_ids, order, members)
-                    if not found.all():
-                        missing = int(members[~found][0])
-                        raise DeckError(
-                            f"node set {sid} of *ELEMENT_MASS_NODE_SET {eid} lists undefined node {missing}", *where
-                        )
-                    ids.append(np.full(idx.size, eid, dtype=np.int64))
-                    nodes.append(idx)
-                    mass.append(np.full(idx.size, m * u.mass / idx.size))
-            else:
-                idx, found = _lookup(sorted_ids, order, pm.nids)
-                if not found.all():
-                    k = int(np.flatnonzero(~found)[0])
-                    raise DeckError(
-                        f"*ELEMENT_MASS {int(pm.ids[k])} refers to undefined node {int(pm.nids[k])}",
-                        pm.src.path,
-                        int(pm.rows[k]) + 1,
-                    )
-                ids.append(pm.ids)
-                nodes.append(idx)
-                mass.append(pm.mass * u.mass)
-        model = replace(
-            model,
-            point_mass_ids=np.concatenate(ids).astype(np.int64),
-            point_mass_nodes=np.concatenate(nodes).astype(np.int64),
-            point_mass=np.concatenate(mass).astype(np.float64),
-        )
+    for nb in t.nodal_bodies:
+        if nb.tm > 0:
+            bodies.append(
+                (nb.pid, [(nb.nsid, True, nb.where)], nb.tm * u.mass, f"*CONSTRAINED_NODAL_RIGID_BODY {nb.pid}")
+            )
+        else:
+            notes.append(
+                f"{nb.where[0].name} line {nb.where[1]}: *CONSTRAINED_NODAL_RIGID_BODY_INERTIA {nb.pid} gives no mass "
+                "TM: its nodes keep their own"
+            )
+    if t.point_masses or bodies:
+        model = _point_masses(model, t, bodies, u.mass, notes)
     model.warnings.extend(notes)
     return model
+
+
+def _point_masses(
+    model: VehicleModel,
+    t: _Tables,
+    bodies: list[tuple[int, list[tuple[int, bool, tuple[Path, int]]], float, str]],
+    to_kg: float,
+    notes: list[str],
+) -> VehicleModel:
+    """The model with its point masses: ``*ELEMENT_MASS`` (``_NODE_SET``: one mass shared equally by the set's
+    nodes) and ``*ELEMENT_INERTIA`` on nodes; each of ``bodies`` (id, [(node or node set id, is set, where)],
+    mass [kg], what) shares its mass equally among its nodes. A nodal rigid body's TM is its whole mass: lumped
+    masses on its nodes are replaced by it (a note names them)."""
+    order = np.argsort(model.node_ids, kind="stable")
+    sorted_ids = model.node_ids[order]
+
+    def nodes_of(nids: np.ndarray, what: str, where: tuple[Path, int]) -> np.ndarray:
+        idx, found = _lookup(sorted_ids, order, nids)
+        if not found.all():
+            raise DeckError(f"{what} undefined node {int(nids[~found][0])}", *where)
+        return idx
+
+    def set_nodes(sid: int, what: str, where: tuple[Path, int]) -> np.ndarray:
+        if sid not in t.node_sets or not t.node_sets[sid][1]:
+            kind = "undefined" if sid not in t.node_sets else "empty"
+            raise DeckError(f"{what} refers to {kind} node set {sid}", *where)
+        members = np.unique(np.asarray(t.node_sets[sid][1], dtype=np.int64))
+        return nodes_of(members, f"node set {sid} of {what} lists", where)
+
+    ids, nodes, mass = [], [], []
+    for pm in t.point_masses:
+        if pm.on_sets:
+            cards = zip(pm.ids.tolist(), pm.nids.tolist(), pm.mass.tolist(), strict=True)
+            for k, (eid, sid, m) in enumerate(cards):
+                idx = set_nodes(sid, f"*{pm.keyword} {eid}", (pm.src.path, int(pm.rows[k]) + 1))
+                ids.append(np.full(idx.size, eid, dtype=np.int64))
+                nodes.append(idx)
+                mass.append(np.full(idx.size, m * to_kg / idx.size))
+        else:
+            idx, found = _lookup(sorted_ids, order, pm.nids)
+            if not found.all():
+                k = int(np.flatnonzero(~found)[0])
+                raise DeckError(
+                    f"*{pm.keyword} {int(pm.ids[k])} refers to undefined node {int(pm.nids[k])}",
+                    pm.src.path,
+                    int(pm.rows[k]) + 1,
+                )
+            ids.append(pm.ids)
+            nodes.append(idx)
+            mass.append(pm.mass * to_kg)
+    lumped = len(ids)
+    replaced = np.zeros(model.n_nodes, dtype=bool)
+    for bid, members, m, what in bodies:
+        idx = np.unique(
+            np.concatenate(
+                [
+                    set_nodes(i, what, where) if is_set else nodes_of(np.array([i]), f"{what} refers to", where)
+                    for i, is_set, where in members
+                ]
+            )
+        )
+        ids.append(np.full(idx.size, bid, dtype=np.int64))
+        nodes.append(idx)
+        mass.append(np.full(idx.size, m / idx.size))
+        replaced[idx] |= what.startswith("*CONSTRAINED_NODAL")
+    ids_a, nodes_a, mass_a = (np.concatenate(x) for x in (ids, nodes, mass))
+    drop = np.zeros(ids_a.size, dtype=bool)
+    n_lumped = sum(a.size for a in ids[:lumped])
+    drop[:n_lumped] = replaced[nodes_a[:n_lumped]]
+    if drop.any():
+        notes.append(
+            f"{int(drop.sum())} lumped mass(es) ({mass_a[drop].sum():.4g} kg; element(s) "
+            f"{sorted(set(ids_a[drop].astype(np.int64).tolist()))[:5]}) sit on nodes of a "
+            "*CONSTRAINED_NODAL_RIGID_BODY_INERTIA: replaced by its TM, as LS-DYNA does"
+        )
+    keep = ~drop
+    return replace(
+        model,
+        point_mass_ids=ids_a[keep].astype(np.int64),
+        point_mass_nodes=nodes_a[keep].astype(np.int64),
+        point_mass=mass_a[keep].astype(np.float64),
+    )
 
 
 # *MAT_RIGID CMO = +1: CON1 is the global translational constraint code
