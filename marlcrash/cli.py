@@ -109,6 +109,12 @@ def load_model_from_args(args: argparse.Namespace):
     return model
 
 
+def _input_files(args: argparse.Namespace) -> tuple[str, ...]:
+    """The files a command reads (deck or vehicle YAML, configs, sub-assembly map): outputs must not replace them."""
+    names = (getattr(args, k, None) for k in ("deck", "config", "subassemblies"))
+    return tuple(str(n) for n in names if n is not None and Path(n).is_file())
+
+
 def _print_json(obj: dict) -> None:
     print(json.dumps(obj, indent=2, sort_keys=False))
 
@@ -128,8 +134,9 @@ def cmd_inspect(args: argparse.Namespace) -> int:
 def cmd_discretize(args: argparse.Namespace) -> int:
     from marlcrash.cells import discretization_summary, format_discretization_summary, load_discretization_config
 
-    check_output_file(args.save, "--save")
-    check_output_file(args.plot, "--plot")
+    inputs = _input_files(args)
+    check_output_file(args.save, "--save", suffix=".npz", inputs=inputs)  # before the work
+    check_output_file(args.plot, "--plot", suffix=".png", inputs=(*inputs, args.save))
     model = load_model_from_args(args)
     config = load_discretization_config(args.config)
     summary, cells = discretization_summary(model, config, method=args.method)
@@ -203,8 +210,9 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from marlcrash.sim import Surrogate
 
     scenario = scenario_from_args(args)
-    check_output_file(args.csv, "--csv")  # before the work: a typo in an output path costs nothing
-    check_output_file(args.plot, "--plot", suffix=".png", inputs=(args.csv,))
+    inputs = _input_files(args)
+    check_output_file(args.csv, "--csv", inputs=inputs)  # before the work: a typo in an output path costs nothing
+    check_output_file(args.plot, "--plot", suffix=".png", inputs=(*inputs, args.csv))
     model = load_model_from_args(args)
     cells = discretize(model, load_discretization_config(args.config), method=args.method)
     sim = Surrogate(cells, output_dt=scenario.output_dt)

@@ -262,6 +262,32 @@ def test_output_paths_are_checked_before_the_work(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["adir"] and not any((tmp_path / "adir").iterdir())
 
 
+def test_outputs_never_replace_the_command_inputs(tmp_path, lsopt_deck):
+    """An output path that is the deck, the config or another output of the same command is refused before the work;
+    the inputs are left as they were."""
+    deck = tmp_path / "car.k"
+    deck.write_text(lsopt_deck.read_text())
+    config = tmp_path / "cells.yaml"
+    config.write_text((Path(__file__).parents[1] / "configs" / "cells.yaml").read_text())
+    params = ("--param", "tbumper=3", "--param", "thood=1")
+    cases = [
+        (("simulate", str(deck), *params, "--csv", str(deck)), "'--csv'"),
+        (("simulate", str(deck), *params, "--config", str(config), "--csv", str(config)), "'--csv'"),
+        (("discretize", str(deck), *params, "--config", str(config), "--save", str(config)), "'--save'"),
+        (
+            ("discretize", str(deck), *params, "--save", str(tmp_path / "c.npz"), "--plot", str(tmp_path / "c.npz")),
+            "'--plot'",
+        ),
+    ]
+    for args, key in cases:
+        proc = run_cli(*args, check=False)
+        assert proc.returncode == 2 and key in proc.stderr and "choose another file name" in proc.stderr, proc.stderr
+    proc = run_cli("discretize", "--plot", str(tmp_path / "cells.txt"), check=False)
+    assert proc.returncode == 2 and "'--plot'" in proc.stderr and "expected a .png file name" in proc.stderr
+    assert deck.read_text() == lsopt_deck.read_text() and "upfront_sensor_x" in config.read_text()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["car.k", "cells.yaml"]
+
+
 def test_simulate_messages_for_out_of_range_and_empty_input(tmp_path):
     proc = run_cli("simulate", "--speed", "200", "--json")
     assert "warning: 200 km/h lies outside" in proc.stderr and json.loads(proc.stdout)["speed_kmh"] == 200.0
