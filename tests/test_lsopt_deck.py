@@ -126,3 +126,37 @@ def test_the_block_is_left_out_by_its_initial_velocity_alone(lsopt_deck, tmp_pat
         m = read_deck(free, params=PARAMS)
     assert sorted(m.parts) == [1, 2, 3, 4, 5] and list(m.left_out) == [6]
     assert "initial velocities set none of its nodes moving while 576 nodes move" in m.left_out[6]
+
+
+def test_a_deck_read_in_the_wrong_units_is_caught_before_memory_runs_out(lsopt_deck):
+    """Forcing metres on a millimetre deck: the reader warns that the materials read otherwise, and the
+    discretization refuses a region of interest 1000x a front end instead of allocating hundreds of GB."""
+    from marlcrash.cells.discretize import discretize
+    from marlcrash.errors import ModelError
+
+    with pytest.warns(UserWarning, match="units m-kg-s given, but the material densities .* read as mm-t-s"):
+        m = read_deck(lsopt_deck, params=PARAMS, units="m-kg-s")
+    with pytest.raises(
+        ModelError, match=r"region of interest, .* would take .*check the deck's length unit \(--units\)"
+    ):
+        discretize(m)
+
+
+def test_a_flat_deck_is_a_clear_error(lsopt_deck):
+    """Two parts pressed flat into a side plane (a collapsed model): the sub-assembly without a cell of its own is
+    named."""
+    from dataclasses import replace
+
+    from marlcrash.cells.discretize import discretize
+    from marlcrash.errors import ModelError
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        m = read_deck(lsopt_deck, params=PARAMS)
+    coords = m.coords.copy()
+    flat = np.unique(m.shell_nodes[np.isin(m.shell_part, [3, 4])])
+    coords[flat, 1] = coords[:, 1].min()  # parts 3 and 4 pressed into the vehicle's side plane
+    with pytest.raises(
+        ModelError, match=r"sub-assembly 'part_\d' has material but no cell of its own.*flat or collapsed"
+    ):
+        discretize(replace(m, coords=coords))

@@ -320,6 +320,8 @@ def test_default_vehicle_is_registered_b_segment(car):
         ({"powertrain.width": 0.86}, "powertrain.width"),
         ({"body.dash_x": 0.3}, "body.dash_x"),
         ({"mesh.element_size": 0.2}, "mesh.element_size"),
+        ({"mesh.element_size": 1e-5}, "mesh.element_size"),  # would take ~100 GB, not a MemoryError
+        ({"mesh.compartment_element_size": 1e-5}, "mesh.compartment_element_size"),
         ({"variation.thickness": 0.9}, "variation.thickness"),
         ({"wheel.radius": 0.4}, "wheel.radius"),
         ({"hood.colour": "red"}, "hood.colour"),

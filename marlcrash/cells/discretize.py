@@ -345,8 +345,17 @@ def _sensor_requests(cfg: DiscretizationConfig, roi: Roi) -> list[tuple[str, np.
     return out
 
 
+def _no_cell(grid: FineGrid, name: str) -> ModelError:
+    """The error for a sub-assembly whose material ends up in no cell of its own (degenerate geometry)."""
+    return ModelError(
+        f"sub-assembly {name!r} has material but no cell of its own: its envelope is thinner than the "
+        f"{grid.min_pitch():.3g} m voxel pitch; is the geometry flat or collapsed (check the deck's coordinates and "
+        "its units, --units)?"
+    )
+
+
 def _attribute_samples(
-    grid: FineGrid, labels_flat: np.ndarray, cell_sub: np.ndarray, vox: np.ndarray, samples: Samples
+    grid: FineGrid, labels_flat: np.ndarray, cell_sub: np.ndarray, vox: np.ndarray, samples: Samples, names: list[str]
 ) -> np.ndarray:
     """Cell of every sample: its voxel's cell if of its own sub-assembly, else the nearest such cell."""
     cell = labels_flat[vox]
@@ -354,7 +363,7 @@ def _attribute_samples(
     for s in np.unique(samples.subassembly[bad]).tolist():  # loop over sub-assemblies
         own = np.flatnonzero(cell_sub[labels_flat] == s)
         if own.size == 0:
-            raise ModelError(f"sub-assembly index {s} has material but no cell")
+            raise _no_cell(grid, names[s])
         tree = cKDTree(grid.voxel_centers(own))
         q = np.flatnonzero(bad & (samples.subassembly == s))
         _, nearest = tree.query(samples.pos[q])
@@ -466,7 +475,7 @@ def _optimized(
     is_null = np.zeros(n, dtype=bool)
     is_null[n_cells_mat:comp] = True
     is_sensor = np.concatenate([is_sensor, np.zeros(n_null + 1, dtype=bool)])
-    cell_of_sample = _attribute_samples(grid, labels, cell_sub, vox, samples)
+    cell_of_sample = _attribute_samples(grid, labels, cell_sub, vox, samples, names)
     # cells left without material (envelope interior only) merge into the nearest cell of their sub-assembly
     mass = np.bincount(cell_of_sample, weights=samples.mass, minlength=n)
     empty_cells = (~is_null) & (mass <= 0) & (np.arange(n) != comp)
@@ -474,6 +483,8 @@ def _optimized(
         for s in np.unique(cell_sub[empty_cells]).tolist():
             src = np.flatnonzero(empty_cells[labels] & (cell_sub[labels] == s))
             dst = np.flatnonzero((~empty_cells[labels]) & (cell_sub[labels] == s))
+            if dst.size == 0:  # every cell of the sub-assembly is empty
+                raise _no_cell(grid, names[s])
             _, nearest = cKDTree(grid.voxel_centers(dst)).query(grid.voxel_centers(src))
             labels[src] = labels[dst[nearest]]
         keep = ~empty_cells

@@ -28,6 +28,11 @@ from marlcrash.vehicle.model import VehicleModel
 KIND_SHELL, KIND_SOLID, KIND_BEAM = 0, 1, 2
 """Element kinds carried by samples."""
 
+MAX_VOXELS = 50_000_000
+"""Largest fine grid :func:`build_grid` builds (the default car's has 0.45 million voxels; this one would take
+gigabytes): beyond it the ROI is far larger than a vehicle's front end for the cell size, which is what a deck
+read in the wrong length unit gives."""
+
 
 @dataclass
 class FineGrid:
@@ -160,6 +165,16 @@ def build_grid(
     h = float(target_volume) ** (1.0 / 3.0)
     inner = np.unique(np.asarray(planes_y, dtype=np.float64))
     inner = inner[(inner > lo[1] + 1e-9) & (inner < hi[1] - 1e-9)]
+    bands = [np.array([lo[0], hi[0]]), np.concatenate([[lo[1]], inner, [hi[1]]]), np.array([lo[2], hi[2]])]
+    per_axis = [sum(max(1, round((c - a) / h)) for a, c in itertools.pairwise(b)) for b in bands]
+    n_voxels = float(np.prod(per_axis, dtype=np.float64)) * voxels_per_edge**3
+    if n_voxels > MAX_VOXELS:
+        raise ModelError(
+            f"the region of interest, {' x '.join(f'{x:.4g}' for x in hi - lo)} m, would take "
+            f"{' x '.join(map(str, per_axis))} cells of {h:.4g} m ({n_voxels:.3g} voxels, more than {MAX_VOXELS:.0e}); "
+            "a vehicle's front end is about 1-2 m: check the deck's length unit (--units) and the cell size "
+            "(target_volume of the cells config)"
+        )
     ex, bx, _, nbx = _axis_edges(np.array([lo[0], hi[0]]), h, voxels_per_edge)
     ey, by, band, nby = _axis_edges(np.concatenate([[lo[1]], inner, [hi[1]]]), h, voxels_per_edge)
     ez, bz, _, nbz = _axis_edges(np.array([lo[2], hi[2]]), h, voxels_per_edge)

@@ -349,8 +349,12 @@ class Surrogate:
         mass = mass + added
         mass[self.comp] -= added.sum()
         if (mass[~null] <= 0).any():
+            total = float(cells.mass[~null].sum())
             raise ModelError(
-                f"non-positive cell mass after mass scaling (floor {cfg.mass_floor} kg); check CellModel.mass"
+                f"{cells.name}: the mass floor of {cfg.mass_floor:g} kg (mass_floor, sim config) adds "
+                f"{added.sum():.4g} kg to {int((added > 0).sum())} light cells, more than the compartment's "
+                f"{cells.mass[self.comp]:.4g} kg can pay for (vehicle {total:.4g} kg); a deck read in the wrong unit "
+                "system is this light: check its units (--units)"
             )
         self.mass_added = float(added.sum())
         exposed = (cells.front_area > 0) & active

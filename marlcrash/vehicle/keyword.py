@@ -1533,11 +1533,19 @@ def _assemble(deck: _Deck, t: _Tables, units: str | None, main: Path) -> tuple[V
     if not t.node_ids:  # checked first: an empty or wrong file has no materials either, and says so more plainly
         raise DeckError("the deck has no *NODE data", main)
     # ---- units
+    rho = np.array([m.values["ro"] for m in t.materials.values()], dtype=float)
+    e = np.array([m.values["e"] for m in t.materials.values()], dtype=float)
     if units is not None:
         u = get_unit_system(units)
+        seen = detect_unit_system(rho, e)
+        if seen is not None and seen.name != u.name:  # the user may know better: a warning, not an error
+            msg = (
+                f"units {u.name} given, but the material densities (median {np.nanmedian(rho):.4g}) and moduli read "
+                f"as {seen.name}: lengths, masses and strengths will be off by orders of magnitude"
+            )
+            notes.append(msg)
+            warnings.warn(f"{main.name}: {msg}", UserWarning, stacklevel=3)
     else:
-        rho = np.array([m.values["ro"] for m in t.materials.values()], dtype=float)
-        e = np.array([m.values["e"] for m in t.materials.values()], dtype=float)
         u = detect_unit_system(rho, e)
         if u is None:
             med = f"{np.nanmedian(rho):.4g}" if rho.size else "n/a"

@@ -69,6 +69,7 @@ _VARIED_DIMENSIONS: dict[str, tuple[str, ...]] = {
 _MAY_BE_ZERO = {"bumper_beam.sweep", "compartment.gap"}
 _MAX_THICKNESS = 0.01  # [m]; a car-body sheet beyond 10 mm is a unit mistake (mm given as m)
 _MAX_ELEMENT_SIZE = 0.04  # [m]; the cell discretization samples shells and needs a fine mesh
+_MIN_ELEMENT_SIZE = 0.002  # [m]; finer than crash meshes (about 5 mm): at 1e-5 m the mesh would take ~100 GB
 _SCENE_COLORS = np.array(
     [
         [31, 119, 180],
@@ -412,9 +413,15 @@ class SyntheticCarConfig:
                 )
         m = self.mesh
         require(
-            m.element_size <= _MAX_ELEMENT_SIZE,
+            _MIN_ELEMENT_SIZE <= m.element_size <= _MAX_ELEMENT_SIZE,
             "mesh.element_size",
-            f"expected <= {_MAX_ELEMENT_SIZE} m (cells sample shells), got {m.element_size}",
+            f"expected {_MIN_ELEMENT_SIZE}-{_MAX_ELEMENT_SIZE} m (cells sample shells; finer only costs memory), "
+            f"got {m.element_size}",
+        )
+        require(
+            m.compartment_element_size >= _MIN_ELEMENT_SIZE,
+            "mesh.compartment_element_size",
+            f"expected >= {_MIN_ELEMENT_SIZE} m (a finer mesh only costs memory), got {m.compartment_element_size}",
         )
         self._validate_geometry()
 
