@@ -160,6 +160,9 @@ p
     m2 = _read(p, params={"tsize": 50, "tbumper": 4.0})  # params= override the deck, recorded
     assert m2.shell_thickness[0] == pytest.approx(8e-3)
     assert any("overridden" in w for w in m2.warnings)
+    # a name the deck neither defines nor uses (a typo: 'tbumper' would keep its deck value) is refused
+    with pytest.raises(DeckError, match=r"deck.k: parameter\(s\) 'tbumpr' given .* its parameters: .*tbumper"):
+        _read(p, params={"tsize": 50, "tbumpr": 4.0})
 
 
 def test_nested_includes_relative_to_including_file(tmp_path):

@@ -302,12 +302,15 @@ class _Params:
         self.user = {str(k).strip().lower(): v for k, v in (user or {}).items()}
         self.exprs: list[tuple[str, str, str, Path, int]] = []
         self.notes: list[str] = []
+        self.deck_names: set[str] = set()  # defined by the deck (*PARAMETER, *PARAMETER_EXPRESSION)
+        self.used: set[str] = set()  # referenced by a field or an expression
 
     def define(self, name: str, value: float | int | str) -> None:
         self.values[name.lower()] = value
 
     def finish(self) -> None:
         """Apply ``params=`` overrides, then evaluate expressions in deck order."""
+        self.deck_names = set(self.values) | {name for _, name, *_ in self.exprs}
         for k, v in self.user.items():
             if k in self.values and self.values[k] != v:
                 self.notes.append(f"parameter {k!r}: deck value {self.values[k]!r} overridden by params= {v!r}")
@@ -323,6 +326,7 @@ class _Params:
 
     def get(self, name: str, path: Path, line: int) -> float | int | str:
         key = name.strip().lower()
+        self.used.add(key)
         if key in self.values:
             return self.values[key]
         if key in self.user:
@@ -2098,6 +2102,14 @@ def read_deck(
     tables = _Tables()
     for block in deck.blocks:
         _dispatch(block, tables, deck)
+    stray = sorted(set(deck.params.user) - deck.params.deck_names - deck.params.used)
+    if stray:  # most likely a misspelt name, whose intended parameter then keeps the deck's value
+        known = sorted(deck.params.deck_names | deck.params.used)
+        raise DeckError(
+            f"parameter(s) {', '.join(map(repr, stray))} given (--param, params=) but the deck neither defines nor "
+            f"uses them; its parameters: {', '.join(known) if known else 'none'}",
+            main,
+        )
     model, _ = _assemble(deck, tables, units, main)
     model = _deck_masses(model, tables)
     if name is not None:
