@@ -85,6 +85,8 @@ def test_complete_material_derives_and_warns():
         ({"density": math.nan, "youngs_modulus": 2e11}, "density"),
         ({"density": 7850.0, "youngs_modulus": 0.0}, "Young"),
         ({"density": 7850.0, "youngs_modulus": 2e11, "poisson_ratio": 0.6}, "Poisson"),
+        ({"density": 7850.0, "youngs_modulus": 2e11, "yield_strength": -4e8}, "yield strength must be > 0 .* -4e"),
+        ({"density": 7850.0, "youngs_modulus": 2e11, "ultimate_strength": -1.0}, "ultimate strength must be > 0"),
     ],
 )
 def test_complete_material_rejects(kwargs, match):

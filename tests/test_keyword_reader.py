@@ -308,6 +308,12 @@ curve driven
     assert h.density == pytest.approx(100.0) and h.youngs_modulus == pytest.approx(1e9)
     assert n.youngs_modulus == pytest.approx(5e9) and n.poisson_ratio == 0.25
     assert r.is_rigid
+    # a negative yield stress is refused where it is written, not replaced by a default
+    kinematic = (
+        "*MAT_PLASTIC_KINEMATIC\n         1  7.85e-09  210000.0       0.3    -250.0\n       0.0       0.0       0.2\n"
+    )
+    with pytest.raises(DeckError, match=r"deck.k line 13: material 1 .*yield strength must be > 0 .*got -2.5e\+08 Pa"):
+        read_deck(_write(tmp_path, base + "*PART\np1\n         1         1         1\n" + kinematic + shells[:59]))
 
 
 def test_skipped_cards_counted_in_one_warning(tmp_path):

@@ -81,7 +81,7 @@ def complete_material(m: Material) -> Material:
 
     Raises:
         ModelError: density or Young's modulus missing, non-finite or not positive
-            (they cannot be guessed), or Poisson's ratio outside (-1, 0.5).
+            (they cannot be guessed), a negative strength, or Poisson's ratio outside (-1, 0.5).
     """
     where = f"material {m.id} ({m.name})"
     if not (math.isfinite(m.density) and m.density >= 0):
@@ -98,6 +98,10 @@ def complete_material(m: Material) -> Material:
     y = m.youngs_modulus
     g = m.shear_modulus if math.isfinite(m.shear_modulus) and m.shear_modulus > 0 else y / (2 * (1 + nu))
     k = m.bulk_modulus if math.isfinite(m.bulk_modulus) and m.bulk_modulus > 0 else y / (3 * (1 - 2 * nu))
+    given = {"yield": m.yield_strength, "ultimate": m.ultimate_strength, "fracture": m.fracture_strength}
+    for label, val in given.items():
+        if math.isfinite(val) and val < 0:  # 0 or blank reads as "not given"; a negative strength is a typo
+            raise ModelError(f"{where}: {label} strength must be > 0 (0 or blank: not given), got {val:.4g} Pa")
     sy = m.yield_strength
     if not (math.isfinite(sy) and sy > 0):
         sy = DEFAULT_YIELD_STRAIN * y
