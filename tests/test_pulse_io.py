@@ -284,6 +284,17 @@ def test_a_time_column_in_ms_gets_a_hint_and_numbers_print_plainly(tmp_path):
             processed_pulse(ms, cfc=cfc)
     work = processed_pulse(ms, time_unit="ms")[1]
     assert work.sample_rate_hz == pytest.approx(1e4)
+    # the other way round: a record in seconds read as ms lasts 0.2 ms
+    s = tmp_path / "s.csv"
+    s.write_text("time,acc\n" + "".join(f"{a / 1e3:.7f},{b:.6f}\n" for a, b in zip(t, acc, strict=True)))
+    for cfc in (60, None):
+        with pytest.raises(PulseError, match=r"s\.csv: record of 0\.1999 ms at 1e\+07 Hz.*in seconds \(--time-unit s"):
+            processed_pulse(s, cfc=cfc, time_unit="ms")
+    s2 = tmp_path / "s2.csv"  # 2 s at 2 kHz in seconds, read as ms: 2 ms long, but at 2 MHz
+    s2.write_text("time,acc\n" + "".join(f"{k / 2e3:.4f},{-1.0 if 200 < k < 360 else 0.0}\n" for k in range(4001)))
+    with pytest.raises(PulseError, match=r"s2\.csv: record of 2 ms at 2e\+06 Hz"):
+        processed_pulse(s2, time_unit="ms")
+    assert processed_pulse(s)[1].sample_rate_hz == pytest.approx(1e4)
     back = tmp_path / "back.csv"
     back.write_text("time,acc\n" + "".join(f"{x},1\n" for x in (0, 0.0004, 0.0001, 0.0005, 0.0006, 0.0007, 0.0008, 9)))
     with pytest.raises(PulseError, match=r"got 0\.0001 after 0\.0004") as info:

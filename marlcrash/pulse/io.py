@@ -61,6 +61,13 @@ MIN_RECORD_RATE_HZ = 500.0
 """Lowest sampling rate :func:`check_record_rate` accepts [Hz]. Crash accelerometers record at 10 kHz or more, and
 CFC 60 itself needs about 600 Hz; a record at a few Hz is almost always a time column in ms read as seconds
 (10 kHz in ms: 10 Hz), which would make every velocity change 1000x too large."""
+MIN_RECORD_S = 1e-3
+"""Shortest record :func:`check_record_rate` accepts [s]. A crash pulse lasts tens to hundreds of ms (a record
+too short for its filter is accepted with a note); a record in seconds read as ms lasts 1000x less (150 ms: 0.15
+ms)."""
+MAX_RECORD_RATE_HZ = 1e6
+"""Highest sampling rate :func:`check_record_rate` accepts [Hz]: crash data loggers sample at 10-100 kHz; a record
+in seconds read as ms samples 1000x faster (2 kHz: 2 MHz)."""
 BREAKPOINT_RATE_HZ = 10_000.0
 """Rate a table of breakpoints (``read_csv(breakpoints=True)``) is sampled at [Hz]: a crash accelerometer's."""
 MAX_BREAKPOINT_SPAN_S = 10.0
@@ -750,7 +757,8 @@ def processed_pulse(
 
 
 def check_record_rate(pulse: Pulse, path: str | Path, *, time_unit: str = "s") -> None:
-    """Refuse a record sampled below :data:`MIN_RECORD_RATE_HZ` (a time column in ms read as s, typically).
+    """Refuse a record sampled below :data:`MIN_RECORD_RATE_HZ` (a time column in ms read as s, typically) or
+    shorter than :data:`MIN_RECORD_S` or sampled above :data:`MAX_RECORD_RATE_HZ` (one in s read as ms).
 
     Args:
         pulse: the record as read.
@@ -760,9 +768,19 @@ def check_record_rate(pulse: Pulse, path: str | Path, *, time_unit: str = "s") -
     Raises:
         PulseError: naming the file, the rate and the likely cause.
     """
+    p = Path(path)
+    span = float(pulse.time[-1] - pulse.time[0])
+    if span < MIN_RECORD_S or pulse.sample_rate_hz > MAX_RECORD_RATE_HZ:
+        cause = "is the time column in seconds (--time-unit s; time_unit: s)?" if time_unit == "ms" else (
+            "is the record complete, and its time in the unit given?")  # fmt: skip
+        raise _err(
+            f"record of {span * 1e3:.4g} ms at {pulse.sample_rate_hz:.4g} Hz: crash pulse records last tens to "
+            f"hundreds of ms at 10-100 kHz (accepted here: at least {MIN_RECORD_S * 1e3:g} ms, at most "
+            f"{MAX_RECORD_RATE_HZ:.0e} Hz); {cause}",
+            p,
+        )
     if pulse.sample_rate_hz >= MIN_RECORD_RATE_HZ:
         return
-    p = Path(path)
     mme = p.is_dir() or p.suffix.lower() == ".mme"
     if mme:
         cause = "is the channel's 'Sampling interval' in seconds?"
