@@ -176,6 +176,11 @@ def test_nested_includes_relative_to_including_file(tmp_path):
     p = _write(tmp_path, HEAD + "$ comment\n*INCLUDE\nsub/missing.k\n", "bad.k")
     with pytest.raises(DeckError, match=r"bad.k line 14: \*INCLUDE file 'sub/missing.k' not found"):
         _read(p)
+    p = _write(tmp_path, HEAD + "*INCLUDE\nsub/deeper\n", "folder.k")
+    with pytest.raises(
+        DeckError, match=r"folder.k line 13: \*INCLUDE 'sub/deeper' is a folder .*expected a keyword file"
+    ):
+        _read(p)
     _write(tmp_path, "*KEYWORD\n*INCLUDE\nloop.k\n", "loop.k")
     with pytest.raises(DeckError, match="cycle"):
         _read(tmp_path / "loop.k")

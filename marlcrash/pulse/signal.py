@@ -100,7 +100,8 @@ class Pulse:
         if np.any(steps <= 0):
             i = int(np.argmax(steps <= 0))
             raise PulseError(
-                f"{where}time must strictly increase; sample {i + 1} has t={time[i + 1]!r} after t={time[i]!r}"
+                f"{where}time must strictly increase; sample {i + 1} has t={float(time[i + 1])!r} "
+                f"after t={float(time[i])!r}"
             )
         channels = tuple(str(c) for c in self.channels)
         if len(channels) != acc.shape[0]:

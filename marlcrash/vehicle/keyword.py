@@ -705,6 +705,9 @@ def _resolve_include(fname: str, including: Path, deck: _Deck, row: int) -> Path
     for c in candidates:
         if c.is_file():
             return c.resolve()
+    folders = [c for c in candidates if c.is_dir()]
+    if folders:
+        raise DeckError(f"*INCLUDE {fname!r} is a folder ({folders[0]}); expected a keyword file", including, row + 1)
     looked = ", ".join(str(c.parent) for c in candidates)
     raise DeckError(f"*INCLUDE file {fname!r} not found (looked in {looked})", including, row + 1)
 
