@@ -264,9 +264,20 @@ def test_mme_without_channel_folder(tmp_path):
         read_mme(tmp_path / "E")
 
 
+def test_time_zero_outside_the_record_names_the_record_as_written(tmp_path):
+    from marlcrash.pulse.io import processed_pulse
+
+    early = tmp_path / "early.csv"  # ends 50 ms before the file's time zero
+    early.write_text("time,acc\n" + "".join(f"{-0.2 + k * 5e-4:.4f},-1.0\n" for k in range(301)))
+    with pytest.raises(PulseError, match=r"early\.csv: time zero 0 s lies outside the record \[-0\.2, -0\.05\] s"):
+        processed_pulse(early, time_zero="file")
+
+
 def test_pulse_rejects_non_increasing_time_and_nan():
     t = np.arange(10) * 1e-3
-    with pytest.raises(PulseError, match=r"strictly increase; sample 1 has t=0\.008 after t=0\.009\d*$"):  # plain numbers
+    with pytest.raises(
+        PulseError, match=r"strictly increase; sample 1 has t=0\.008 after t=0\.009\d*$"
+    ):  # plain numbers
         Pulse(t[::-1], np.zeros(10), ("a",))
     with pytest.raises(PulseError, match="finite"):
         Pulse(t, np.full(10, np.nan), ("a",))

@@ -752,7 +752,7 @@ def processed_pulse(
             raise _err(str(e), p) from None
         raise
     if not work.time[0] <= t0 < work.time[-1]:
-        raise _err(f"time zero {t0} s lies outside the record [{work.time[0]}, {work.time[-1]}] s", p)
+        raise _err(f"time zero {t0:.6g} s lies outside the record [{pulse.time[0]:.6g}, {pulse.time[-1]:.6g}] s", p)
     return pulse, work, t0
 
 
