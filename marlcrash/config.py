@@ -38,6 +38,8 @@ def load_yaml(path: str | Path) -> dict[str, Any]:
         text = path.read_text()
     except OSError as e:
         raise ConfigError(f"cannot read config file ({e.strerror})", path=path) from None
+    except UnicodeDecodeError as e:  # binary junk, a file of another kind
+        raise ConfigError(f"not a text file (byte {e.start} is not UTF-8); expected YAML", path=path) from None
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as e:

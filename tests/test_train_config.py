@@ -200,6 +200,29 @@ def test_saved_run_config_round_trips(tmp_path):
 
 
 @pytest.mark.parametrize(
+    "text, words",
+    [
+        ("algorithm: {name: mappo\n", r"config\.yaml: invalid YAML at line 2"),  # a torn or hand-edited file
+        ("", r"config\.yaml: empty; expected the run's settings \(a mapping\)"),
+        ("- 1\n- 2\n", r"config\.yaml: expected a mapping at the top level, got list"),
+        ("seed: 3\n", r"config\.yaml key 'algorithm': missing"),
+    ],
+)
+def test_a_bad_saved_run_config_names_the_file(tmp_path, text, words):
+    """evaluate, resume, contributions and amortized read a run's config.yaml: a broken one is named, not a
+    traceback from the YAML parser."""
+    from marlcrash.calibrate.marl import load_run_config
+
+    (tmp_path / "config.yaml").write_text(text)
+    with pytest.raises(ConfigError, match=words) as e:
+        load_run_config(tmp_path)
+    assert e.value.path == str(tmp_path / "config.yaml")
+    (tmp_path / "config.yaml").write_bytes(b"\xff\xfe\x00junk")
+    with pytest.raises(ConfigError, match=r"config\.yaml: not a text file"):
+        load_run_config(tmp_path)
+
+
+@pytest.mark.parametrize(
     ("name", "drop"),
     [("train", "algorithm.lr"), ("train", "time_limit_s"), ("baseline", "gradient.lr"), ("compare", "budget"),
      ("amortized", "seed")],

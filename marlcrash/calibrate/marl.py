@@ -71,7 +71,7 @@ from marlcrash.calibrate.checkpoint import (
 )
 from marlcrash.calibrate.logging import LOGGERS, CSVLogger, make_logger
 from marlcrash.calibrate.problem import SuccessConfig
-from marlcrash.config import config_dir, from_dict, load_config, require, require_complete
+from marlcrash.config import config_dir, from_dict, load_config, load_yaml, require, require_complete
 from marlcrash.envs.core import EnvConfig, load_env_config
 from marlcrash.envs.torchrl_env import GROUP, CalibrationTorchEnv
 from marlcrash.errors import ConfigError
@@ -713,12 +713,19 @@ def save_run_config(config: TrainConfig, run_dir: Path) -> None:
 
 
 def load_run_config(run_dir: str | Path) -> TrainConfig:
-    """The resolved config saved in a run folder (the ``ci`` overrides were applied when it was saved)."""
+    """The resolved config saved in a run folder (the ``ci`` overrides were applied when it was saved).
+
+    Raises:
+        ConfigError: no ``config.yaml`` (key ``run``), or one that is not a YAML mapping of valid settings (the
+            file, and the line of a YAML error).
+    """
     path = Path(run_dir) / CONFIG_FILE
     if not path.is_file():
         raise ConfigError(f"expected a run folder with {CONFIG_FILE}, found none in {run_dir}", key="run")
-    data = yaml.safe_load(path.read_text())
-    if isinstance(data, dict) and isinstance(data.get("eval"), dict):  # a run saved before eval.reference existed
+    data = load_yaml(path)  # a torn or hand-edited file: the file, the line and what was expected
+    if not data:  # else every key would be reported missing, one at a time
+        raise ConfigError("empty; expected the run's settings (a mapping) as train/train.py saved them", path=path)
+    if isinstance(data.get("eval"), dict):  # a run saved before eval.reference existed
         data["eval"].setdefault("reference", "twin")  # was evaluated on the twin, whatever it trained against
     return load_train_config(data, source=str(path), ci=False)
 
