@@ -239,6 +239,44 @@ def test_csv_logger_truncates_to_a_checkpoint(tmp_path):
         again.log({"iteration": 4.0})
 
 
+def test_a_torn_row_after_the_checkpoint_is_cut_and_a_malformed_row_before_it_is_named(tmp_path):
+    """A kill while a row is written leaves it torn (no newline, fields missing, junk bytes): a resume cuts it
+    unread. A malformed row that a resume keeps, or that an evaluation reads, is an error naming the file and
+    line, not a float() traceback."""
+    log = CSVLogger(tmp_path)
+    for i in range(3):
+        log.log({"iteration": float(i + 1), "x": i * 0.1})
+    path = tmp_path / "log.csv"
+    good = path.read_bytes()
+    path.write_bytes(good + b"4.0,0.3\r\n5.0")  # row 4 written, then a kill in the middle of row 5
+    assert [r["iteration"] for r in read_log(path, rows=3)] == [1.0, 2.0, 3.0]  # the rows a checkpoint counts
+    with pytest.raises(ConfigError, match=r"log\.csv: line 6: expected 2 values.*got 1 \(a row cut short") as e:
+        read_log(path)
+    assert e.value.path == str(path)
+    again = CSVLogger(tmp_path)
+    again.truncate(3)  # the checkpoint's position: the rows after it are dropped, the torn one too
+    assert path.read_bytes() == good and again.position == 3
+    again.log({"iteration": 4.0, "x": 9.0})
+    assert [r["x"] for r in read_log(path)] == [0.0, 0.1, 0.2, 9.0]
+
+    path.write_bytes(good + b"\xff\x00garbage")  # junk after the checkpoint's rows, not even text
+    CSVLogger(tmp_path).truncate(3)
+    assert path.read_bytes() == good
+
+    lines = good.decode().splitlines(keepends=True)
+    path.write_text(lines[0] + lines[1] + "3.0,0.2,7\r\n" + lines[3])  # a row the checkpoint counts is malformed
+    with pytest.raises(ConfigError, match=r"log\.csv: line 3: expected 2 values, one per column of line 1, got 3"):
+        read_log(path)
+    with pytest.raises(ConfigError, match=r"log\.csv: line 3"):
+        CSVLogger(tmp_path).truncate(3)
+    path.write_text(lines[0] + lines[1] + "garbage,,\r\n" + lines[3])
+    with pytest.raises(ConfigError, match=r"log\.csv: line 3: expected a number in column 'iteration', got 'garbage'"):
+        CSVLogger(tmp_path).truncate(2)
+    assert read_log(path, rows=1) == [{"iteration": 1.0, "x": 0.0}]
+    with pytest.raises(ConfigError, match=r"log\.csv: line 1: no column 'reward_mean'"):
+        read_log(path, rows=1, columns=("iteration", "reward_mean"))
+
+
 def _comparable_log(run: Path) -> list[dict]:
     drop = ("wall_time_s", "env_steps_per_s")
     return [{k: v for k, v in r.items() if k not in drop} for r in read_log(run / "log.csv")]
@@ -251,6 +289,7 @@ def test_resume_reaches_the_same_result_as_a_straight_run(short, tmp_path):
     assert part.iterations == 2 and part.summary is None
     with open(part.run_dir / "log.csv", "a") as fh:  # a row logged after the checkpoint, before the "kill"
         fh.write(",".join(["9"] * len(read_log(part.run_dir / "log.csv")[0])) + "\n")
+        fh.write("9,9")  # and a row torn by the kill: cut unread, as the row before it
     resumed = train(tiny(tmp_path, name="killed", resume=str(part.run_dir)))
     assert resumed.iterations == straight.iterations == 4
     assert resumed.env_steps == straight.env_steps and resumed.simulations == straight.simulations

@@ -70,6 +70,9 @@ KEPT_SUMMARY_KEY = "process_wall_time_s"
 """Summary entry written by the training script, kept when a run is evaluated again."""
 EVAL_DIR = "eval"
 """Folder of a run that holds the evaluations of kept checkpoints, one sub-folder per checkpoint."""
+LOG_COLUMNS = ("iteration", "env_steps", "env_steps_per_s", "reward_mean", "return_mean",
+               *(f"{k}_{w}" for k in ("area", "dfd", "rmse") for w in ("initial", "final")))  # fmt: skip
+"""Columns of ``log.csv`` that the evaluation reads (summary and learning curves)."""
 
 
 @dataclass
@@ -447,13 +450,14 @@ def evaluate_run(
             out_dir = run_dir / EVAL_DIR / f"{ckpt.stem}{steps}"
             out_dir.mkdir(parents=True, exist_ok=True)
     provenance.warn_changes(run_dir, check, "evaluate")
+    log_path = run_dir / LOG_FILE  # read before the evaluation's work: a malformed row fails now
+    position = counters.get("log_position")  # the rows the checkpoint counts; a torn one after them is not read
+    log_rows = read_log(log_path, rows=position, columns=LOG_COLUMNS) if log_path.is_file() else []
+    log_rows = [r for r in log_rows if r["iteration"] <= int(counters["iteration"])]
     result = evaluate_policy(policy, config)
     problem = evaluation_problem(config)
     if not torch.allclose(problem.ref_velocity, result.ref_velocity, rtol=0, atol=1e-9):
         raise ConfigError("the evaluation env and the baselines' problem drew different references", key="eval")
-    log_path = run_dir / LOG_FILE
-    log_rows = read_log(log_path) if log_path.is_file() else []
-    log_rows = [r for r in log_rows if r["iteration"] <= int(counters["iteration"])]
     th = config.eval.thresholds
     final = result.per_sensor(result.selected)
     passed = {s: all(lim is None or v[k] < lim for k, lim in (("area", th.area), ("dfd", th.dfd), ("rmse", th.rmse)))

@@ -16,6 +16,7 @@ from __future__ import annotations
 import csv
 import math
 import os
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -44,11 +45,11 @@ class CSVLogger:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.columns: list[str] | None = None
         self.position = 0
-        if self.path.is_file():
-            rows = read_log(self.path)
-            self.position = len(rows)
-            if rows:
-                self.columns = list(rows[0])
+        if self.path.is_file():  # counted, not parsed: a resume cuts the rows after its checkpoint (a torn one too)
+            lines = _lines(self.path)
+            self.position = max(0, len(lines) - 1)
+            if lines:
+                self.columns = _header(self.path, *lines[0])
 
     def log(self, row: dict[str, float]) -> None:
         """Append one row ``{column: value}``; the first row fixes the columns.
@@ -69,13 +70,21 @@ class CSVLogger:
         self.position += 1
 
     def truncate(self, position: int) -> None:
-        """Keep only the first ``position`` rows (rows written after a checkpoint are cut on resume)."""
+        """Keep only the first ``position`` rows (rows written after a checkpoint are cut on resume).
+
+        The rows after ``position`` are dropped unread: a row torn by a kill during its write is one of them.
+
+        Raises:
+            ConfigError: a row kept is not one number per column (naming the file and line).
+        """
         if not self.path.is_file():
             self.position = 0
             return
-        with open(self.path, newline="") as fh:
-            lines = list(csv.reader(fh))
-        keep = lines[: position + 1]
+        lines = _lines(self.path)[: position + 1]
+        keep = []
+        if lines:
+            columns = _header(self.path, *lines[0])
+            keep = [columns] + [_values(self.path, n, text, columns) for n, text in lines[1:]]
         with atomic_output(self.path) as tmp, open(tmp, "w", newline="") as fh:
             csv.writer(fh).writerows(keep)
         self.position = max(0, len(keep) - 1)
@@ -151,11 +160,65 @@ def make_logger(kind: str, run_dir: str | Path) -> CSVLogger:
     raise ConfigError(f"unknown logger {kind!r}; expected one of {list(LOGGERS)}", key="logger")
 
 
-def read_log(path: str | Path) -> list[dict[str, float]]:
-    """Rows of a CSV log as ``{column: float}`` dicts (empty if the file has no rows)."""
-    with open(path, newline="") as fh:
-        reader = csv.DictReader(fh)
-        return [{k: float(v) for k, v in row.items()} for row in reader]
+def read_log(path: str | Path, rows: int | None = None, columns: Sequence[str] = ()) -> list[dict[str, float]]:
+    """Rows of a CSV log as ``{column: float}`` dicts (empty if the file has no rows).
+
+    Args:
+        path: the log file.
+        rows: read only the first ``rows`` rows (a checkpoint's ``log_position``); the rows after them, which a
+            resume would cut, are not parsed (a row torn by a kill during its write is one).
+        columns: columns the caller needs; a log without one of them is refused.
+
+    Raises:
+        ConfigError: a row read is not one number per column, or a column in ``columns`` is missing, naming the
+            file and line.
+    """
+    path = Path(path)
+    lines = _lines(path)
+    if not lines:
+        return []
+    header = _header(path, *lines[0])
+    missing = [c for c in columns if c not in header]
+    if missing:
+        raise ConfigError(f"line 1: no column {missing[0]!r}; expected a log written by train/train.py", path=path)
+    body = lines[1:] if rows is None else lines[1 : rows + 1]
+    return [dict(zip(header, map(float, _values(path, n, text, header)), strict=True)) for n, text in body]
+
+
+def _lines(path: Path) -> list[tuple[int, str]]:
+    """The non-blank lines of a log as ``(1-based line number, text)``, undecoded bytes kept as escapes: a line is
+    decoded (and refused) only where it is parsed, so junk after the rows read costs nothing."""
+    raw = path.read_bytes().split(b"\n")
+    out = []
+    for i, line in enumerate(raw, 1):
+        text = line.rstrip(b"\r").decode("utf-8", errors="backslashreplace")
+        if text.strip():
+            out.append((i, text))
+    return out
+
+
+def _header(path: Path, line: int, text: str) -> list[str]:
+    columns = next(csv.reader([text]))
+    if any(not c.strip() for c in columns) or len(set(columns)) != len(columns):
+        raise ConfigError(f"line {line}: expected the column names of a log (distinct, none empty), got {text!r}",
+                          path=path)  # fmt: skip
+    return columns
+
+
+def _values(path: Path, line: int, text: str, columns: list[str]) -> list[str]:
+    """The fields of one row, checked to be one number per column."""
+    values = next(csv.reader([text]))
+    for c, v in zip(columns, values, strict=False):
+        try:
+            float(v)
+        except ValueError:
+            raise ConfigError(f"line {line}: expected a number in column {c!r}, got {v!r}", path=path) from None
+    if len(values) != len(columns):  # numbers, too few of them: the row a kill cut short
+        cut = " (a row cut short: was the run killed while writing it?)" if len(values) < len(columns) else ""
+        raise ConfigError(
+            f"line {line}: expected {len(columns)} values, one per column of line 1, got {len(values)}{cut}", path=path
+        )
+    return values
 
 
 def _fmt(value: Any) -> str:
