@@ -4,7 +4,7 @@
 where a path can never be written (its folder is missing or not writable, it names a folder, a file stands where
 a folder must be). :func:`atomic_output` writes through a temporary sibling that replaces the target only once it
 is complete and is removed if writing fails, so an interrupted or failed write leaves neither a partial file nor a
-stray one.
+stray one. :func:`read_npz` reads a ``.npz`` file back, saying in words what is wrong with a damaged or foreign one.
 """
 
 from __future__ import annotations
@@ -13,6 +13,8 @@ import os
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+
+import numpy as np
 
 from marlcrash.errors import ConfigError
 
@@ -108,3 +110,37 @@ def atomic_output(path: str | Path, key: str | None = None) -> Iterator[Path]:
         raise
     finally:
         tmp.unlink(missing_ok=True)
+
+
+_ZIP_STARTS = (b"PK\x03\x04", b"PK\x05\x06")  # a zip's first member, or an empty zip
+
+
+def read_npz(path: str | Path) -> dict[str, np.ndarray]:
+    """Every array of a ``.npz`` file, all read now (a damaged member shows here, not later), none of objects.
+
+    Raises:
+        ValueError: what is wrong, in words (callers add the file and their error type): it cannot be read, is
+            empty, is not a zip archive, is cut short or damaged, or holds something other than numeric arrays.
+            Never numpy's advice to unpickle a file that is junk.
+    """
+    path = Path(path)
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(4)
+    except OSError as e:
+        raise ValueError(f"cannot read it ({e.strerror or e})") from None
+    if not head:
+        raise ValueError("the file is empty")
+    if head not in _ZIP_STARTS:  # numpy would try it as a pickle, and say so
+        raise ValueError("not a .npz archive (it does not begin as a zip file does)")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files}
+    except Exception as e:  # zipfile, zlib, numpy's header parser: all say "damaged" in their own words
+        if "pickle" in str(e):
+            raise ValueError("an array holds Python objects; expected numeric arrays") from None
+        raise ValueError(f"a damaged .npz archive, cut short or overwritten ({type(e).__name__}: {e})") from None
+    for k, v in arrays.items():
+        if not isinstance(v, np.ndarray) or not (np.issubdtype(v.dtype, np.number) or v.dtype == np.bool_):
+            raise ValueError(f"member {k!r} is not a numeric array")
+    return arrays

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import re
 
 import numpy as np
 import pytest
@@ -232,6 +233,29 @@ def test_run_calibration_loads_an_evaluated_run(tmp_path):
     (tmp_path / "calibrated.npz").write_bytes(b"PK\x03\x04 not a zip")
     with pytest.raises(ConfigError, match="cannot read") as e:
         run_calibration(tmp_path)
+    real = (tmp_path / "keep.npz").read_bytes()
+    for junk, words in [
+        (b"junk\n", "not a .npz archive"),  # numpy would suggest allow_pickle= for this
+        (b"", "the file is empty"),
+        (real[: len(real) // 2], "a damaged .npz archive, cut short"),  # a copy or a write that stopped midway
+    ]:
+        (tmp_path / "calibrated.npz").write_bytes(junk)
+        with pytest.raises(ConfigError, match=re.escape(f"cannot read {tmp_path / 'calibrated.npz'}: {words}")) as e:
+            run_calibration(tmp_path)
+        assert "pickle" not in str(e.value) and "evaluate the run again" in str(e.value) and e.value.key == "run"
+    keep = dict(np.load(tmp_path / "keep.npz"))
+    np.savez(tmp_path / "calibrated.npz", **{**keep, "selected_iteration": np.array([object()], dtype=object)})
+    with pytest.raises(ConfigError, match="an array holds Python objects; expected numeric arrays"):
+        run_calibration(tmp_path)
+    for bad, words in [
+        ({"selected_iteration": np.array(2)}, r"\[selected_iteration\]: expected an iteration in 0\.\.1 of "),
+        ({"selected_iteration": np.array(0.5)}, r"\[selected_iteration\]: expected an iteration"),
+        ({"per_iteration": keep["per_iteration"][0]}, r"\[per_iteration\]: expected cell parameters of shape"),
+        ({"calibrated": np.array(["a"])}, r"member 'calibrated' is not a numeric array"),
+    ]:
+        np.savez(tmp_path / "calibrated.npz", **{**keep, **bad})
+        with pytest.raises(ConfigError, match=r"calibrated\.npz.*" + words):
+            run_calibration(tmp_path)
     (tmp_path / "calibrated.npz").unlink()
     with pytest.raises(ConfigError, match=r"no calibrated\.npz") as e:
         run_calibration(tmp_path)

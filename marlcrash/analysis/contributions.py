@@ -23,7 +23,6 @@ problem it was evaluated on.
 from __future__ import annotations
 
 import csv
-import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -42,7 +41,7 @@ from marlcrash.analysis.shapley import (
 from marlcrash.calibrate.compare import evaluate_params
 from marlcrash.calibrate.problem import CalibrationProblem
 from marlcrash.errors import ConfigError
-from marlcrash.outputs import atomic_output, write_text
+from marlcrash.outputs import atomic_output, read_npz, write_text
 
 METRICS = ("area", "dfd", "rmse")
 MOVE_RTOL = 1e-6
@@ -322,14 +321,15 @@ def run_calibration(run_dir: str | Path) -> RunCalibration:
     if not path.is_file():
         raise ConfigError(f"no calibrated.npz in {run}: evaluate the run first (python train/evaluate.py run={run})",
                           key="run")  # fmt: skip
+    again = f"evaluate the run again (python train/evaluate.py run={home})"
     try:
-        with np.load(path) as data:
-            arrays = {k: data[k] for k in data.files}
-    except (OSError, ValueError, zipfile.BadZipFile) as e:
-        raise ConfigError(f"cannot read {path}: {e}", key="run") from None
+        arrays = read_npz(path)
+    except ValueError as e:  # junk, an empty or a cut-short file: say so, not numpy's advice to unpickle it
+        raise ConfigError(f"cannot read {path}: {e}; expected the evaluation's calibrated.npz: {again}",
+                          key="run") from None  # fmt: skip
     missing = [k for k in ("initial", "calibrated", "per_iteration", "selected_iteration") if k not in arrays]
     if missing:
-        raise ConfigError(f"{path} lacks {missing}; expected the evaluation's calibrated.npz", key="run")
+        raise ConfigError(f"{path} lacks {missing}; expected the evaluation's calibrated.npz: {again}", key="run")
     problem = evaluation_problem(config)
     t = {k: torch.as_tensor(v, dtype=torch.float64) for k, v in arrays.items() if k != "selected_iteration"}
     for k in ("initial", "calibrated"):
@@ -337,6 +337,14 @@ def run_calibration(run_dir: str | Path) -> RunCalibration:
             _check_params(problem, f"{path}[{k}]", t[k])
         except ValueError as e:
             raise ConfigError(f"{e} (a run of another vehicle or discretization?)", key="run") from None
+    per_it, shape = t["per_iteration"], tuple(problem.init.shape)
+    if per_it.ndim != len(shape) + 1 or tuple(per_it.shape[1:]) != shape or per_it.shape[0] < 1:
+        raise ConfigError(f"{path}[per_iteration]: expected cell parameters of shape [iterations, {shape[0]}, "
+                          f"{shape[1]}], got {tuple(per_it.shape)}: {again}", key="run")  # fmt: skip
+    sel = arrays["selected_iteration"]
+    if sel.shape != () or not np.issubdtype(sel.dtype, np.integer) or not 0 <= int(sel) < per_it.shape[0]:
+        raise ConfigError(f"{path}[selected_iteration]: expected an iteration in 0..{per_it.shape[0] - 1} of "
+                          f"per_iteration, got {sel.tolist()!r}: {again}", key="run")  # fmt: skip
     return RunCalibration(problem=problem, initial=t["initial"], calibrated=t["calibrated"],
                           per_iteration=t["per_iteration"], selected_iteration=int(arrays["selected_iteration"]),
                           true=t.get("true"), provenance=check.as_dict())  # fmt: skip
