@@ -142,12 +142,23 @@ def from_dict(cls: type[T], data: dict[str, Any], prefix: str = "", path: str | 
         try:
             validate()
         except ConfigError as e:
-            # Schemas name keys relative to themselves; make them absolute here.
-            key = e.key
-            if prefix and key is not None and not key.startswith(prefix + "."):
-                key = f"{prefix}.{key}"
-            raise ConfigError(e.reason, key=key or prefix or None, path=e.path or path) from None
+            raise nested_error(e, prefix, path) from None
     return obj
+
+
+def nested_error(e: ConfigError, prefix: str, path: str | Path | None = None) -> ConfigError:
+    """``e``, raised by the section at dotted key ``prefix`` of a config read from ``path``, keyed as the user sets it.
+
+    A section names its keys relative to itself (``require`` in a schema's ``validate()``, a bad override of a config
+    it names): the key becomes ``<prefix>.<key>`` (one already under ``prefix`` is kept) and the error takes ``path``
+    where it names no file. An error that names another file is about that file's own keys: it is returned as it is.
+    """
+    if e.path is not None and (path is None or Path(e.path) != Path(path)):
+        return e
+    key = e.key
+    if prefix and key is not None and not key.startswith(prefix + "."):
+        key = f"{prefix}.{key}"
+    return ConfigError(e.reason, key=key or prefix or None, path=e.path or path)
 
 
 def missing_keys(cls: type, data: dict[str, Any], prefix: str = "") -> list[str]:
@@ -223,14 +234,20 @@ def load_config(cls: type[T], path: str | Path, overrides: dict[str, Any] | None
     """Load a YAML file into ``cls``, applying dotted-key ``overrides`` first (:func:`flatten_overrides`: a
     mapping for a section changes only the keys it gives)."""
     data = load_yaml(path)
+    applied: list[str] = []
     for dotted, value in flatten_overrides(cls, overrides or {}).items():
         node = data
         parts = dotted.split(".")
-        for p in parts[:-1]:
+        for i, p in enumerate(parts[:-1]):
             node = node.setdefault(p, {})
             if not isinstance(node, dict):
-                raise ConfigError("cannot override inside a non-mapping value", key=dotted, path=path)
+                inner = ".".join(parts[: i + 1])
+                if inner in applied:  # an earlier override set a section to a plain value: that one is wrong
+                    raise ConfigError(f"expected a mapping, got {node!r}", key=inner, path=path)
+                raise ConfigError(f"cannot override inside a non-mapping value ({inner} is {node!r})", key=dotted,
+                                  path=path)  # fmt: skip
         node[parts[-1]] = value
+        applied.append(dotted)
     return from_dict(cls, data, path=path)
 
 

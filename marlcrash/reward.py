@@ -176,10 +176,17 @@ REWARD_FORMS: dict[str, type[RewardForm]] = {c.name: c for c in (PaperFactor, Lo
 """Reward forms by name; each has ``configs/reward/<name>.yaml``."""
 
 
-def _form_class(name: str) -> type[RewardForm]:
+def _form_class(name: str, key: str = "name") -> type[RewardForm]:
     if name not in REWARD_FORMS:
-        raise ConfigError(f"unknown reward form {name!r}; known forms: {sorted(REWARD_FORMS)}", key="name")
+        raise ConfigError(f"unknown reward form {name!r}; known forms: {sorted(REWARD_FORMS)}", key=key)
     return REWARD_FORMS[name]
+
+
+def require_reward(name: str, key: str) -> None:
+    """Refuse, naming ``key`` (the setting that names the reward, for a schema's ``validate()``), a reward that is
+    neither a registered form nor a reward config file (``.yaml``, read where the reward is built)."""
+    if Path(name).suffix not in (".yaml", ".yml"):
+        _form_class(name, key)
 
 
 def get_reward(name: str, **params: Any) -> RewardForm:

@@ -174,6 +174,13 @@ def test_success_counts_the_candidate_that_passed(problem):
         ({"problem": {"success": {"dfd": -0.3}}}, "problem.success.dfd"),
         ({"name": "a/b"}, "name"),
         ({"seeds": 3}, "seeds"),
+        # the key the user set, not the reward form's 'name', the env loader's 'env' or the env file's own keys
+        ({"problem": {"fit": "nope"}}, "problem.fit"),
+        ({"problem": {"env": "nope"}}, "problem.env"),
+        ({"problem": {"env_overrides": {"max_step": 9.0}}}, "problem.env_overrides.max_step"),
+        ({"problem": {"env_overrides": {"reward": "nope"}}}, "problem.env_overrides.reward"),
+        ({"problem": {"env_overrides": {"termination": 3}}}, "problem.env_overrides.termination"),
+        ({"problem": {"env_overrides": {"reference.kind": "file"}}}, "problem.env_overrides.reference.kind"),
     ],
 )
 def test_bad_run_configs_fail_before_running(over, key):

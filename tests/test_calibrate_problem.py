@@ -208,7 +208,8 @@ def test_bad_candidates_are_named(problem):
         ({"success": {"area": -1.0}}, "success.area"),
         ({"reference": "file"}, "reference"),
         ({"scenario": "moon_landing"}, "scenario"),
-        ({"fit": "nope"}, "name"),
+        ({"fit": "nope"}, "fit"),  # the problem's key, not the reward form's 'name'
+        ({"env": "nope"}, "env"),
         ({"bogus": 1}, "bogus"),
     ],
 )

@@ -320,6 +320,9 @@ def test_a_first_run_that_failed_before_any_row_does_not_block_its_rerun(short, 
         ({"ppo.env_overrides": {"reference": {"pin_seed": 3}}}, "ppo.env_overrides.reference.pin_seed", "protocol"),
         ({"env_overrides": {"max_step": 9.0}}, "env_overrides.max_step", "log increment"),
         ({"scenario": "nope"}, "scenario", "unknown scenario 'nope'"),
+        ({"env": "nope"}, "env", "unknown env config 'nope'"),  # not env_overrides.env
+        ({"env_overrides": {"reward": "nope"}}, "env_overrides.reward", "unknown reward form 'nope'"),
+        ({"ppo.env_overrides": {"termination": 3}}, "ppo.env_overrides.termination", "expected a mapping, got 3"),
     ],
 )
 def test_bad_config_fails_naming_the_key(short, tmp_path, override, key, words):

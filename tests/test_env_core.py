@@ -13,6 +13,7 @@ from marlcrash.envs.core import (
     CalibrationCore,
     apply_increments,
     build_cells,
+    env_config_of,
     load_env_config,
 )
 from marlcrash.errors import ConfigError, MarlcrashError
@@ -253,6 +254,22 @@ def test_a_nested_override_changes_only_the_keys_it_gives():
     assert load_env_config(overrides={"scenarios": {"offset40_left": 1.0}}).scenarios == {"offset40_left": 1.0}
     with pytest.raises(ConfigError, match=r"key 'termination\.failure_dfdx': unknown key"):
         load_env_config(overrides={"termination": {"failure_dfdx": 10.0}})
+
+
+def test_an_override_inside_a_plain_value_names_the_key_that_set_it():
+    """``termination=3`` then ``termination.max_iterations=8`` (a training adds that one): the first is wrong."""
+    with pytest.raises(ConfigError, match=r"default\.yaml key 'termination': expected a mapping, got 3"):
+        load_env_config(overrides={"termination": 3, "termination.max_iterations": 8})
+    with pytest.raises(ConfigError, match=r"key 'max_step\.x': cannot override inside a non-mapping value \(max_step"):
+        load_env_config(overrides={"max_step.x": 1.0})
+    with pytest.raises(ConfigError, match=r"default\.yaml key 'reward': unknown reward form 'nope'"):
+        load_env_config(overrides={"reward": "nope"})  # when the config is loaded, not when an env is built
+    with pytest.raises(ConfigError, match=r"key 'env_overrides\.reward': unknown reward form") as e:
+        env_config_of("default", {"reward": "nope"}, {"seed": 1})  # named as the config that names the env sets it
+    assert e.value.path is None
+    with pytest.raises(ConfigError) as e:
+        env_config_of("nope", {}, env_key="problem.env")
+    assert e.value.key == "problem.env"
 
 
 def test_errors_found_while_building_name_the_yaml_file(cells):

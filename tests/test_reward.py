@@ -19,6 +19,7 @@ from marlcrash.reward import (
     load_reward_config,
     paper_factor,
     reduce_sensors,
+    require_reward,
     termination,
 )
 
@@ -81,6 +82,10 @@ def test_unknown_form_lists_the_known_ones():
         get_reward("nope")
     with pytest.raises(ConfigError, match="unknown reward form"):
         load_reward_config("nope")
+    with pytest.raises(ConfigError, match=r"key 'fit': unknown reward form 'nope'"):  # the setting that names it
+        require_reward("nope", "fit")
+    require_reward("log_ratio", "fit")
+    require_reward("my_reward.yaml", "fit")  # a file: read (and checked) where the reward is built
 
 
 def test_bad_params_name_the_key(tmp_path):

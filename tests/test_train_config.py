@@ -144,11 +144,26 @@ def test_unavailable_device_is_refused():
         load_train_config(composed(["device=gpu0"]), ci=False)
 
 
-def test_bad_env_override_names_the_training_key():
-    cfg = load_train_config(composed(["env_overrides.max_step=-1"]), ci=False)
-    with pytest.raises(ConfigError) as e:
+@pytest.mark.parametrize(
+    "override, key, words",
+    [
+        ("env_overrides.max_step=-1", "env_overrides.max_step", "expected a log increment"),
+        ("+env_overrides.reward=nope", "env_overrides.reward", "unknown reward form 'nope'"),  # not the form's 'name'
+        # not termination.max_iterations, the key the training adds for its episode length
+        ("+env_overrides.termination=3", "env_overrides.termination", "expected a mapping, got 3"),
+        ("env=nope", "env", "unknown env config 'nope'"),
+    ],
+)
+def test_bad_env_override_names_the_training_key(override, key, words):
+    """The key the user set, in train.yaml, when the config is loaded: not the env file's, nor the reward's."""
+    with pytest.raises(ConfigError, match=words) as e:
+        load_train_config(composed([override]), source="configs/train/train.yaml", ci=False)
+    assert e.value.key == key and str(e.value).startswith(f"train.yaml key '{key}': ")
+    cfg = load_train_config(composed([]), ci=False)
+    cfg.env_overrides = {"reward": "nope"}  # set after loading: make_env_config names it all the same
+    with pytest.raises(ConfigError, match="unknown reward form") as e:
         make_env_config(cfg)
-    assert e.value.key == "env_overrides.max_step"
+    assert e.value.key == "env_overrides.reward"
 
 
 def test_unknown_algorithm_file():

@@ -372,9 +372,15 @@ def test_a_fresh_run_interrupted_before_its_first_checkpoint_leaves_no_folder(sh
 
 
 def test_a_run_that_cannot_start_leaves_no_folder(short, tmp_path):
-    """An env override the env config refuses fails while building, before training; the same name works after."""
+    """An env override the env config refuses fails when the config is loaded; one set after that fails while
+    building, before training, and leaves no folder; the same name works after."""
     with pytest.raises(ConfigError) as e:
-        train(tiny(tmp_path, name="bad", env_overrides={"max_step": -1}))
+        tiny(tmp_path, name="bad", env_overrides={"max_step": -1})
+    assert e.value.key == "env_overrides.max_step"
+    cfg = tiny(tmp_path, name="bad")
+    cfg.env_overrides = {"max_step": -1}
+    with pytest.raises(ConfigError) as e:
+        train(cfg)
     assert e.value.key == "env_overrides.max_step"
     assert not (tmp_path / "runs").exists() or not any((tmp_path / "runs").rglob("bad"))
     assert train(tiny(tmp_path, name="bad", iterations=1), evaluate=False).iterations == 1

@@ -65,7 +65,7 @@ from marlcrash.calibrate.compare import (
 from marlcrash.calibrate.marl import ALGORITHMS, AlgorithmConfig
 from marlcrash.calibrate.problem import CalibrationProblem, SuccessConfig, build_problem
 from marlcrash.config import from_dict, require, require_complete
-from marlcrash.envs.core import load_env_config
+from marlcrash.envs.core import load_env_config, require_env
 from marlcrash.envs.masking import ImpactRegions
 from marlcrash.errors import ConfigError
 from marlcrash.outputs import atomic_output, write_text
@@ -158,6 +158,7 @@ class AblationConfig:
         require(self.budget >= 1, "budget", f"expected a simulation budget >= 1, got {self.budget}")
         require(self.max_wall_s is None or (math.isfinite(self.max_wall_s) and self.max_wall_s > 0), "max_wall_s",
                 f"expected a wall-time cap > 0 s per run or null, got {self.max_wall_s}")  # fmt: skip
+        require_env(self.env, "env")
         require(bool(self.name) and "/" not in self.name and self.name not in (".", ".."), "name",
                 f"expected a run folder name without '/', got {self.name!r}")  # fmt: skip
         require(bool(self.out_dir), "out_dir", "expected an output folder")

@@ -52,7 +52,7 @@ from marlcrash import provenance
 from marlcrash.calibrate.budget import Progress
 from marlcrash.calibrate.leastsq import STEP_FACTORS, lm_iteration
 from marlcrash.calibrate.problem import CalibrationProblem, ProblemConfig, SmoothLoss, problem_env_config
-from marlcrash.config import from_dict, require, require_complete
+from marlcrash.config import from_dict, nested_error, require, require_complete
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics
 from marlcrash.outputs import check_output_dir
@@ -468,13 +468,20 @@ class BaselineRunConfig:
 def load_run_config(data: dict[str, Any], source: str | None = None) -> BaselineRunConfig:
     """Validate a run config mapping (e.g. Hydra's, without its ``hydra`` node).
 
+    Also loads the problem's env config with its overrides, so a bad env key fails here.
+
     Raises:
         ConfigError: unknown key, wrong type or bad value, naming the dotted key.
     """
     data = {k: v for k, v in data.items() if k != "hydra"}
     if source is not None:
         require_complete(BaselineRunConfig, data, source)
-    return from_dict(BaselineRunConfig, data, path=source)
+    config = from_dict(BaselineRunConfig, data, path=source)
+    try:
+        problem_env_config(config.problem)
+    except ConfigError as e:  # keyed within the problem: problem.env_overrides.<key>, as the user set it
+        raise nested_error(e, "problem", source) from None
+    return config
 
 
 def run_baseline(config: BaselineRunConfig, problem: CalibrationProblem) -> CalibrationResult:

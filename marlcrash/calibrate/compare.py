@@ -67,8 +67,8 @@ from marlcrash.calibrate.marl import (
     train_iteration,
 )
 from marlcrash.calibrate.problem import CalibrationProblem, ProblemConfig, SmoothLoss, SuccessConfig, build_problem
-from marlcrash.config import flatten_overrides, from_dict, require, require_complete
-from marlcrash.envs.core import EnvConfig, load_env_config
+from marlcrash.config import flatten_overrides, from_dict, nested_error, require, require_complete
+from marlcrash.envs.core import EnvConfig, env_config_of, load_env_config, require_env
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics
 from marlcrash.outputs import check_output_dir, write_text
@@ -168,6 +168,7 @@ class CompareConfig:
                 f"expected a log-scale half-width in (0, 5], got {self.box_radius}")  # fmt: skip
         require(self.scenario in list_scenarios(), "scenario",
                 f"unknown scenario {self.scenario!r}; registered: {list_scenarios()}")  # fmt: skip
+        require_env(self.env, "env")
         require(bool(self.name) and "/" not in self.name and self.name not in (".", ".."), "name",
                 f"expected a run folder name without '/', got {self.name!r}")  # fmt: skip
         require(bool(self.out_dir), "out_dir", "expected an output folder")
@@ -215,9 +216,9 @@ def check_env_overrides(env: str, shared: dict[str, Any], ppo: dict[str, Any], s
     """
     for key, over in (("env_overrides", shared), ("ppo.env_overrides", {**shared, **ppo})):
         try:
-            load_env_config(env, over)
-        except ConfigError as e:
-            raise ConfigError(e.reason, key=f"{key}.{e.key}" if e.key else key, path=source) from None
+            env_config_of(env, over, overrides_key=key)
+        except ConfigError as e:  # an override named in this file; an error of the env file's own keys in that one
+            raise nested_error(e, "", source) from None
 
 
 # ------------------------------------------------------------------------------------------ problem

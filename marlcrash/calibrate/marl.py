@@ -71,8 +71,16 @@ from marlcrash.calibrate.checkpoint import (
 )
 from marlcrash.calibrate.logging import LOGGERS, CSVLogger, make_logger
 from marlcrash.calibrate.problem import SuccessConfig
-from marlcrash.config import config_dir, from_dict, load_config, load_yaml, require, require_complete
-from marlcrash.envs.core import EnvConfig, load_env_config
+from marlcrash.config import (
+    config_dir,
+    from_dict,
+    load_config,
+    load_yaml,
+    nested_error,
+    require,
+    require_complete,
+)
+from marlcrash.envs.core import EnvConfig, env_config_of, require_env
 from marlcrash.envs.torchrl_env import GROUP, CalibrationTorchEnv
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics
@@ -201,6 +209,7 @@ class TrainConfig:
                 f"expected a limit > 0 s or null, got {self.time_limit_s}")  # fmt: skip
         require(self.threads >= 0, "threads", f"expected >= 0 (0: torch's default), got {self.threads}")
         require(self.logger in LOGGERS, "logger", f"unknown logger {self.logger!r}; expected one of {list(LOGGERS)}")
+        require_env(self.env, "env")
         require(
             self.checkpoint_every >= 1, "checkpoint_every", f"expected >= 1 iterations, got {self.checkpoint_every}"
         )
@@ -276,8 +285,8 @@ def load_train_config(
             (``algorithm=ippo`` picks a file; the ``ci`` block's ``algorithm.*`` keys still apply).
 
     Raises:
-        ConfigError: unknown key, wrong type or bad value, naming the dotted key -- before any training; a bad
-            value that came from the ``ci`` block is named ``ci.<key>``.
+        ConfigError: unknown key, wrong type or bad value (an ``env_overrides`` entry too), naming the dotted key --
+            before any training; a bad value that came from the ``ci`` block is named ``ci.<key>``.
     """
     data = {k: v for k, v in data.items() if k != "hydra"}
     if ci is None:
@@ -294,7 +303,12 @@ def load_train_config(
     try:
         if source is not None:
             require_complete(TrainConfig, data, source)
-        return from_dict(TrainConfig, data, path=source)
+        config = from_dict(TrainConfig, data, path=source)
+        try:  # a bad env override fails now, named in this file, not when the run folder exists
+            make_env_config(config)
+        except ConfigError as e:
+            raise nested_error(e, "", source) from None
+        return config
     except ConfigError as e:
         if e.key in applied:
             raise ConfigError(f"{e.reason} ({CI_ENV}=1 applied it)", key=f"ci.{e.key}", path=e.path) from None
@@ -302,18 +316,13 @@ def load_train_config(
 
 
 def make_env_config(config: TrainConfig, overrides: dict[str, Any] | None = None) -> EnvConfig:
-    """The env config of a run: ``config.env`` with ``env_overrides``, episode length and seed, then ``overrides``."""
-    over = dict(config.env_overrides)
-    over["termination.max_iterations"] = config.episode_length
-    over["seed"] = config.seed
-    over.update(overrides or {})
-    try:
-        return load_env_config(config.env, over)
-    except ConfigError as e:  # a key overridden here is named inside the training config, others in the env file
-        k = e.key or ""
-        if any(k == o or k.startswith(o + ".") or o.startswith(k + ".") for o in config.env_overrides):
-            raise ConfigError(e.reason, key=f"env_overrides.{k}", path=e.path) from None
-        raise
+    """The env config of a run: ``config.env`` with ``env_overrides``, episode length and seed, then ``overrides``.
+
+    Raises:
+        ConfigError: a bad ``env_overrides`` entry named ``env_overrides.<key>`` (:func:`env_config_of`).
+    """
+    extra = {"termination.max_iterations": config.episode_length, "seed": config.seed, **(overrides or {})}
+    return env_config_of(config.env, config.env_overrides, extra)
 
 
 # -------------------------------------------------------------------------------- joint-action env

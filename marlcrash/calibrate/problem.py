@@ -53,14 +53,14 @@ from marlcrash.cells.model import PARAM_NAMES, CellModel
 from marlcrash.cells.parameterization import apply_increments
 from marlcrash.config import flatten_overrides, require
 from marlcrash.envs.agents import AgentLayout, build_agents
-from marlcrash.envs.core import EnvConfig, build_cells, load_env_config
+from marlcrash.envs.core import EnvConfig, build_cells, env_config_of, require_env
 from marlcrash.envs.masking import ImpactRegions
 from marlcrash.errors import ConfigError, ModelError
 from marlcrash.metrics import Metrics, area_between, compute_metrics, rmse
 from marlcrash.pulse.cfc import f_h
 from marlcrash.pulse.signal import DEFAULT_COMPARE_MARGIN, compared_velocity, compared_window, margin_samples
 from marlcrash.references import ReferenceBatch, ReferenceSampler, require_file_scenario
-from marlcrash.reward import Reward, TerminationConfig, load_reward_config, termination
+from marlcrash.reward import Reward, TerminationConfig, load_reward_config, require_reward, termination
 from marlcrash.sim.scenario import CrashScenario, get_scenario, list_scenarios
 from marlcrash.sim.surrogate import SimResult, Surrogate, load_sim_config
 
@@ -129,6 +129,8 @@ class ProblemConfig:
                 f"expected a window > 0 s or null, got {self.duration}")  # fmt: skip
         require(np.isfinite(self.box_radius) and 0 < self.box_radius <= 5.0, "box_radius",
                 f"expected a log-scale half-width in (0, 5], got {self.box_radius}")  # fmt: skip
+        require_env(self.env, "env")
+        require_reward(self.fit, "fit")
 
 
 @dataclass
@@ -550,17 +552,16 @@ def problem_env_config(config: ProblemConfig):
 
     Raises:
         ConfigError: ``env_overrides`` set another ``reference.kind`` than ``reference`` (the problem's wins, so
-            asking for a file reference there alone silently calibrated against the twin), or no test of
-            ``reference.files`` is of ``config.scenario``.
+            asking for a file reference there alone silently calibrated against the twin), no test of
+            ``reference.files`` is of ``config.scenario``, or a bad env or override (keyed within the problem:
+            ``env``, ``env_overrides.<key>``; :func:`~marlcrash.envs.core.env_config_of`).
     """
     kind = flatten_overrides(EnvConfig, config.env_overrides).get("reference.kind", config.reference)
     if kind != config.reference:
         raise ConfigError(f"the problem's reference is {config.reference!r}; set reference={kind} instead "
                           "(problem.reference picks the kind)", key="env_overrides.reference.kind")  # fmt: skip
-    over = dict(config.env_overrides)
-    over["reference.kind"] = config.reference
-    over["scenarios"] = {config.scenario: 1.0}
-    env = load_env_config(config.env, over)
+    env = env_config_of(config.env, config.env_overrides, {"reference.kind": config.reference,
+                                                          "scenarios": {config.scenario: 1.0}})  # fmt: skip
     if config.reference == "file":  # the test of this scenario (a set of tests may hold several load cases)
         require_file_scenario(env.reference, config.scenario, "problem.scenario")
         env.reference.file_scenario = config.scenario

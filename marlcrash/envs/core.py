@@ -56,20 +56,20 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 import torch
 
 from marlcrash.cells.model import CellModel
 from marlcrash.cells.parameterization import apply_increments
-from marlcrash.config import config_dir, load_config, require
+from marlcrash.config import config_dir, flatten_overrides, load_config, require
 from marlcrash.envs.agents import AgentsConfig, build_agents
 from marlcrash.envs.masking import ImpactRegions, MaskingConfig
 from marlcrash.errors import ConfigError, MarlcrashError
 from marlcrash.metrics import Metrics, compute_metrics
 from marlcrash.references import ReferenceConfig, ReferenceSampler
-from marlcrash.reward import Reward, TerminationConfig, load_reward_config
+from marlcrash.reward import Reward, TerminationConfig, load_reward_config, require_reward
 from marlcrash.sim.surrogate import SimConfig, Surrogate, load_sim_config
 
 
@@ -125,6 +125,7 @@ class EnvConfig:
                 f"expected [lo, hi] with 0 < lo <= 1 <= hi (factors of the initial E_x, E_s), got {b}")  # fmt: skip
         require(0.0 < self.transmission_floor <= 1.0, "transmission_floor",
                 f"expected a value in (0, 1], got {self.transmission_floor}")  # fmt: skip
+        require_reward(self.reward, "reward")  # now, not when an env is built from it
 
 
 def env_config_path(name: str) -> Path:
@@ -132,17 +133,53 @@ def env_config_path(name: str) -> Path:
     return config_dir() / "env" / f"{name}.yaml"
 
 
+def require_env(name: str | Path, key: str = "env") -> None:
+    """Refuse, naming ``key`` (the setting that names the env, for a schema's ``validate()``), an env config that
+    is neither registered (``configs/env/<name>.yaml``) nor a ``.yaml`` file path."""
+    path = Path(name)
+    if path.suffix in (".yaml", ".yml"):
+        require(path.is_file(), key, f"no env config file {str(name)!r}; expected a registered name or a YAML file")
+    elif not env_config_path(str(name)).is_file():
+        known = sorted(p.stem for p in (config_dir() / "env").glob("*.yaml"))
+        raise ConfigError(f"unknown env config {str(name)!r}; registered: {known}", key=key)
+
+
 def load_env_config(name_or_path: str | Path = "default", overrides: dict | None = None) -> EnvConfig:
     """Load an env config by registered name (``configs/env/<name>.yaml``) or path, with dotted overrides."""
     path = Path(name_or_path)
     if path.suffix not in (".yaml", ".yml"):
+        require_env(name_or_path)
         path = env_config_path(str(name_or_path))
-        if not path.is_file():
-            known = sorted(p.stem for p in (config_dir() / "env").glob("*.yaml"))
-            raise ConfigError(f"unknown env config {str(name_or_path)!r}; registered: {known}", key="env")
     config = load_config(EnvConfig, path, overrides)
     config._source = str(path)  # for errors found later, when the environment is built from it
     return config
+
+
+def env_config_of(
+    env: str,
+    env_overrides: dict[str, Any],
+    extra: dict[str, Any] | None = None,
+    *,
+    env_key: str = "env",
+    overrides_key: str = "env_overrides",
+) -> EnvConfig:
+    """:func:`load_env_config` for a config that names an env (``env_key``) and overrides of it (``overrides_key``),
+    then ``extra``, the settings its code adds; an error is keyed as the user set it.
+
+    A bad or misplaced override is named ``<overrides_key>.<key>`` without the env file (it is not in that file;
+    the caller adds its own with :func:`~marlcrash.config.nested_error`), an unknown env ``env_key``; an error of
+    the env file's own keys names that file and key.
+    """
+    given = list(flatten_overrides(EnvConfig, env_overrides))
+    try:
+        return load_env_config(env, {**env_overrides, **(extra or {})})
+    except ConfigError as e:
+        k = e.key or ""
+        if e.path is None and k == "env":
+            raise ConfigError(e.reason, key=env_key) from None
+        if any(k == o or k.startswith(o + ".") or o.startswith(k + ".") for o in given):
+            raise ConfigError(e.reason, key=f"{overrides_key}.{k}") from None
+        raise
 
 
 @functools.lru_cache(maxsize=4)
