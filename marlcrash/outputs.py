@@ -76,6 +76,20 @@ def check_output_dir(path: str | Path, key: str) -> Path:
     return p
 
 
+def require_run_name(name: str, key: str = "name") -> None:
+    """Refuse, naming ``key`` (relative, for a schema's ``validate()``), a run folder name that is not one new
+    folder inside the output folder: empty, a path (with ``/``), or ``.`` or ``..`` (the output folder itself, its
+    parent)."""
+    if not name:
+        raise ConfigError("expected a run folder name, got an empty one", key=key)
+    if "/" in name:
+        raise ConfigError(f"expected a run folder name without '/' (one folder, not a path), got {name!r}", key=key)
+    if name in (".", ".."):
+        where = "the output folder itself" if name == "." else "the output folder's parent"
+        raise ConfigError(f"expected a run folder name, got {name!r}, which names {where}, not a folder in it",
+                          key=key)  # fmt: skip
+
+
 def write_text(path: str | Path, text: str) -> Path:
     """Write ``text`` to ``path`` through :func:`atomic_output` (whole or not at all)."""
     with atomic_output(path) as tmp:

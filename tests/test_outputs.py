@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import re
+
 import pytest
 
 from marlcrash.errors import ConfigError
-from marlcrash.outputs import atomic_output, check_output_dir, check_output_file
+from marlcrash.outputs import atomic_output, check_output_dir, check_output_file, require_run_name
 
 
 def test_check_output_file_names_the_key(tmp_path):
@@ -102,3 +104,19 @@ def test_the_run_folders_own_parent_is_probed_not_only_out_dir(tmp_path):
         train(tiny(tmp_path, name="m1"))  # refused before the run folder or any environment is made
     assert e.value.key == "out_dir"
     assert run_folder(BaselineRunConfig(method="cmaes", name="b1", out_dir=out)) == tmp_path / "runs" / "cmaes" / "b1"
+
+
+@pytest.mark.parametrize(
+    ("name", "words"),
+    [
+        ("", "got an empty one"),
+        ("a/b", "without '/' (one folder, not a path)"),
+        (".", "names the output folder itself"),
+        ("..", "names the output folder's parent"),  # it has no '/': the message must not blame one
+    ],
+)
+def test_a_run_name_must_be_one_new_folder(name, words):
+    with pytest.raises(ConfigError, match=re.escape(words)) as e:
+        require_run_name(name, "name")
+    assert e.value.key == "name" and ("/" in name or "'/'" not in str(e.value))
+    require_run_name("..x")

@@ -118,6 +118,9 @@ def test_ci_reads_the_environment(monkeypatch):
         (["+algorithm.learning_rate=0.1"], "algorithm.learning_rate", "unknown key"),
         (["eval.iterations=0"], "eval.iterations", ">= 1"),
         (["time_limit_s=-5"], "time_limit_s", "> 0 s"),
+        (["name=.."], "name", "got '..', which names the output folder's parent"),  # no '/' in it: say why
+        (["name=."], "name", "got '.', which names the output folder itself"),
+        (["name=a/b"], "name", "without '/'"),
         (["seed=-1"], "seed", "seed >= 0"),
         (["eval.scenario=nope"], "eval.scenario", "unknown scenario 'nope'"),
         (["eval.reference_seed=-1"], "eval.reference_seed", "seed >= 0"),

@@ -68,7 +68,7 @@ from marlcrash.config import from_dict, require, require_complete
 from marlcrash.envs.core import load_env_config, require_env
 from marlcrash.envs.masking import ImpactRegions
 from marlcrash.errors import ConfigError
-from marlcrash.outputs import atomic_output, write_text
+from marlcrash.outputs import atomic_output, require_run_name, write_text
 from marlcrash.reward import load_reward_config
 from marlcrash.sim.scenario import list_scenarios
 
@@ -159,8 +159,7 @@ class AblationConfig:
         require(self.max_wall_s is None or (math.isfinite(self.max_wall_s) and self.max_wall_s > 0), "max_wall_s",
                 f"expected a wall-time cap > 0 s per run or null, got {self.max_wall_s}")  # fmt: skip
         require_env(self.env, "env")
-        require(bool(self.name) and "/" not in self.name and self.name not in (".", ".."), "name",
-                f"expected a run folder name without '/', got {self.name!r}")  # fmt: skip
+        require_run_name(self.name)
         require(bool(self.out_dir), "out_dir", "expected an output folder")
         keyed = [(f"env_overrides.{k}", k) for k in self.env_overrides]
         keyed += [(f"ppo.env_overrides.{k}", k) for k in self.ppo.env_overrides]

@@ -55,7 +55,7 @@ from marlcrash.calibrate.problem import CalibrationProblem, ProblemConfig, Smoot
 from marlcrash.config import from_dict, nested_error, require, require_complete
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics
-from marlcrash.outputs import check_output_dir
+from marlcrash.outputs import check_output_dir, require_run_name
 
 # ----------------------------------------------------------------------------------------- configs
 
@@ -455,8 +455,7 @@ class BaselineRunConfig:
         )
         require(self.budget >= 1, "budget", f"expected a simulation budget >= 1, got {self.budget}")
         require(self.seed >= 0, "seed", f"expected a seed >= 0, got {self.seed}")
-        require(bool(self.name) and "/" not in self.name and self.name not in (".", ".."), "name",
-                f"expected a run folder name without '/', got {self.name!r}")  # fmt: skip
+        require_run_name(self.name)
         require(bool(self.out_dir), "out_dir", "expected an output folder")
 
     @property

@@ -71,7 +71,7 @@ from marlcrash.config import flatten_overrides, from_dict, nested_error, require
 from marlcrash.envs.core import EnvConfig, env_config_of, load_env_config, require_env
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics
-from marlcrash.outputs import check_output_dir, write_text
+from marlcrash.outputs import check_output_dir, require_run_name, write_text
 from marlcrash.sim.scenario import list_scenarios
 
 METHODS: tuple[str, ...] = (*ALGORITHMS, *BASELINES)
@@ -169,8 +169,7 @@ class CompareConfig:
         require(self.scenario in list_scenarios(), "scenario",
                 f"unknown scenario {self.scenario!r}; registered: {list_scenarios()}")  # fmt: skip
         require_env(self.env, "env")
-        require(bool(self.name) and "/" not in self.name and self.name not in (".", ".."), "name",
-                f"expected a run folder name without '/', got {self.name!r}")  # fmt: skip
+        require_run_name(self.name)
         require(bool(self.out_dir), "out_dir", "expected an output folder")
         ppo = [m for m in self.methods if m in ALGORITHMS]
         for m in ppo:

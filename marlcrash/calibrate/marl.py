@@ -84,7 +84,7 @@ from marlcrash.envs.core import EnvConfig, env_config_of, require_env
 from marlcrash.envs.torchrl_env import GROUP, CalibrationTorchEnv
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics
-from marlcrash.outputs import check_output_dir, write_text
+from marlcrash.outputs import check_output_dir, require_run_name, write_text
 from marlcrash.sim.scenario import list_scenarios
 
 ALGORITHMS: tuple[str, ...] = ("mappo", "ippo", "ppo_single")
@@ -215,8 +215,7 @@ class TrainConfig:
         )
         require(self.snapshot_every >= 0, "snapshot_every",
                 f"expected >= 0 iterations (0: only the latest checkpoint), got {self.snapshot_every}")  # fmt: skip
-        require(bool(self.name) and "/" not in self.name and self.name not in (".", ".."), "name",
-                f"expected a run folder name without '/', got {self.name!r}")  # fmt: skip
+        require_run_name(self.name)
         require(bool(self.out_dir), "out_dir", "expected an output folder")
         try:
             dev = torch.device(self.device)
