@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import pytest
 
-from marlcrash.calibrate.entry import check_overrides, exit_on_bad_overrides
+from marlcrash.calibrate.entry import check_overrides, exit_on_bad_overrides, name_default_run
 from marlcrash.config import config_dir
 from marlcrash.errors import ConfigError
 
@@ -73,3 +75,29 @@ def test_exit_status_2_with_the_message_and_flags_left_to_hydra(tmp_path, capsys
     assert capsys.readouterr().err == "error: tiny.yaml key 'sed': unknown key; expected one of ['seed']\n"
     exit_on_bad_overrides(script, "tiny", argv=["--cfg", "job", "sed=1"])  # Hydra's flags: Hydra decides
     exit_on_bad_overrides(script, "tiny", argv=["seed=3"])
+
+
+@pytest.mark.parametrize("name", ["train", "baseline", "compare", "ablate"])
+def test_a_default_run_name_takes_the_next_free_folder_and_a_given_one_is_kept(name, tmp_path):
+    """The default name is the launch second: the jobs of a multirun share it, so each takes the next free folder.
+    A name the user gave is kept (the run refuses it later where it exists), as is a resumed run's."""
+    from hydra import compose, initialize_config_dir
+
+    with initialize_config_dir(config_dir=str(TRAIN_CONFIGS), version_base=None):
+        cfg = compose(name)
+    stamp = str(cfg.name)  # resolved once: the clock may tick between jobs, not within this test's folders
+    config = SimpleNamespace(name=stamp, resume=False)
+    for taken in (stamp, f"{stamp}-2"):
+        (tmp_path / taken).mkdir()
+    name_default_run(cfg, config, lambda c: tmp_path / c.name, given=["seed"])
+    assert config.name == f"{stamp}-3"
+    for given, resume in ((["name"], False), ([], True)):  # name=<stamp> typed, or a resume: that folder, no other
+        config = SimpleNamespace(name=stamp, resume=resume)
+        name_default_run(cfg, config, lambda c: tmp_path / c.name, given=given)
+        assert config.name == stamp
+    with initialize_config_dir(config_dir=str(TRAIN_CONFIGS), version_base=None):
+        fixed = compose(name, overrides=["name=mine"])
+    config = SimpleNamespace(name="mine", resume=False)
+    (tmp_path / "mine").mkdir()
+    name_default_run(fixed, config, lambda c: tmp_path / c.name, given=[])  # a plain value in the file: the user's
+    assert config.name == "mine"

@@ -7,6 +7,7 @@ import json
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -67,3 +68,19 @@ def test_script_refuses_an_existing_run_name_or_a_file_as_out_dir_before_simulat
     afile.write_text("x")
     p = run("method=cmaes", "budget=100000", f"out_dir={afile}", cwd=tmp_path)
     assert p.returncode == 2 and "key 'out_dir'" in p.stderr and "is a file" in p.stderr
+
+
+def test_a_default_run_name_that_is_taken_gets_the_next_free_folder(tmp_path):
+    """The default name is the launch second, which the jobs of a multirun (``--multirun seed=0,1,2``) share: a job
+    whose stamp is taken runs in ``<stamp>-2``, where it was refused ("exists already") after the first job."""
+    out = tmp_path / "runs"
+    now = time.time()
+    stamps = {time.strftime("%Y%m%d-%H%M%S", time.localtime(now + s)) for s in range(-2, 120)}
+    for stamp in stamps:  # every second the run may start in is taken, as by an earlier job of the multirun
+        (out / "random_search" / stamp).mkdir(parents=True)
+        (out / "random_search" / stamp / "keep.txt").write_text("earlier job")
+    p = run("method=random_search", "budget=1", "plot=false", "problem.duration=0.01", f"out_dir={out}", cwd=tmp_path)
+    assert p.returncode == 0, p.stderr[-3000:]
+    folder = Path(json.loads(p.stdout.strip().splitlines()[-1])["run"])
+    assert folder.name.endswith("-2") and folder.name[:-2] in stamps and (folder / "summary.json").is_file()
+    assert all((out / "random_search" / s / "keep.txt").read_text() == "earlier job" for s in stamps)

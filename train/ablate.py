@@ -19,7 +19,7 @@ import hydra
 from omegaconf import DictConfig, OmegaConf
 
 from marlcrash.calibrate.ablate import load_ablation_config, run_ablation
-from marlcrash.calibrate.entry import exit_on_bad_overrides
+from marlcrash.calibrate.entry import exit_on_bad_overrides, name_default_run
 from marlcrash.errors import MarlcrashError
 
 
@@ -28,6 +28,7 @@ def main(cfg: DictConfig) -> None:
     command = ("python train/ablate.py " + " ".join(shlex.quote(a) for a in sys.argv[1:])).strip()
     try:
         config = load_ablation_config(OmegaConf.to_container(cfg, resolve=True), source="configs/train/ablate.yaml")
+        name_default_run(cfg, config, lambda c: c.run_dir)  # multirun jobs started in one second: one folder each
         run_dir, rows = run_ablation(config, command=command, progress=lambda msg: print(msg, flush=True))
     except MarlcrashError as e:  # bad config or input: a message, not a traceback
         print(f"error: {e}", file=sys.stderr)

@@ -16,8 +16,8 @@ import hydra
 from omegaconf import DictConfig, OmegaConf
 
 from marlcrash.calibrate import build_problem, load_run_config, run_baseline, write_run
-from marlcrash.calibrate.baselines import run_folder, run_record
-from marlcrash.calibrate.entry import exit_on_bad_overrides
+from marlcrash.calibrate.baselines import run_folder, run_path, run_record
+from marlcrash.calibrate.entry import exit_on_bad_overrides, name_default_run
 from marlcrash.errors import MarlcrashError
 
 
@@ -25,6 +25,7 @@ from marlcrash.errors import MarlcrashError
 def main(cfg: DictConfig) -> None:
     try:
         config = load_run_config(OmegaConf.to_container(cfg, resolve=True), source="configs/train/baseline.yaml")
+        name_default_run(cfg, config, run_path)  # multirun jobs started in one second: one folder each
         run_folder(config)  # an existing run name fails now, not after the budget is spent
         record = run_record(config)  # the inputs as the run starts (provenance.json)
         problem = build_problem(config.problem)

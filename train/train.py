@@ -28,7 +28,7 @@ import hydra  # noqa: E402
 from hydra.core.hydra_config import HydraConfig  # noqa: E402
 from omegaconf import DictConfig, OmegaConf  # noqa: E402
 
-from marlcrash.calibrate.entry import exit_on_bad_overrides  # noqa: E402
+from marlcrash.calibrate.entry import exit_on_bad_overrides, name_default_run  # noqa: E402
 from marlcrash.calibrate.evaluate import update_summary  # noqa: E402
 from marlcrash.calibrate.marl import load_train_config, run_dir_of, train, value_keys  # noqa: E402
 from marlcrash.errors import MarlcrashError  # noqa: E402
@@ -48,6 +48,7 @@ def main(cfg: DictConfig) -> None:
         )
         if config.resume is True and "name" in given:  # a name given: that run or an error, never the newest instead
             config.resume = str(run_dir_of(config))
+        name_default_run(cfg, config, run_dir_of)  # multirun jobs started in one second: one folder each
         if config.resume is not False:
             ignored = [o for o, k in zip(overrides, given, strict=True) if k not in RESUME_KEYS]
             if ignored:

@@ -531,13 +531,18 @@ def plot_velocities(problem: CalibrationProblem, result: CalibrationResult, path
     plt.close(fig)
 
 
+def run_path(config: BaselineRunConfig) -> Path:
+    """``<out_dir>/<method>/<name>/``, unchecked (:func:`run_folder` checks it)."""
+    return Path(config.out_dir) / config.method / config.name
+
+
 def run_folder(config: BaselineRunConfig) -> Path:
     """``<out_dir>/<method>/<name>/``, checked so a run can fail before it simulates rather than after.
 
     Raises:
         ConfigError: the folder exists already (key ``name``), or ``out_dir`` is a file (key ``out_dir``).
     """
-    final = Path(config.out_dir) / config.method / config.name
+    final = run_path(config)
     check_output_dir(final, "out_dir")  # its nearest existing folder: <out_dir>/<method> may be another user's
     if final.exists():
         raise ConfigError(f"run folder {final} exists already; choose another name", key="name")

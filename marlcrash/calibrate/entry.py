@@ -12,18 +12,22 @@ messages in the form of every other config error: the key, what was expected and
     error: train.yaml key 'algorithm': no config 'sac' in configs/train/algorithm/; expected one of [...]
 
 Hydra's own flags (``--help``, ``--cfg job``, ``-m``, ...) leave the command line to Hydra.
+
+:func:`name_default_run` gives a run whose name is the default launch time stamp a folder of its own: the jobs of a
+multirun (``--multirun seed=0,1,2``) start within one second and would share it.
 """
 
 from __future__ import annotations
 
 import re
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
 from marlcrash.errors import ConfigError, MarlcrashError
 
-__all__ = ["check_overrides", "exit_on_bad_overrides"]
+__all__ = ["check_overrides", "exit_on_bad_overrides", "name_default_run"]
 
 
 def _key(override: str) -> str:
@@ -153,3 +157,33 @@ def exit_on_bad_overrides(
     except MarlcrashError as e:
         print(f"error: {e}", file=sys.stderr)
         sys.exit(2)
+
+
+def name_default_run(cfg: Any, config: Any, run_dir: Callable[[Any], Path], given: Sequence[str] | None = None) -> None:
+    """Give a fresh run whose name is the default the first free folder: ``<stamp>``, else ``<stamp>-2``, ``-3``, ...
+
+    The default name is the launch time stamp (``name: ${now:%Y%m%d-%H%M%S}``, to the second), so the jobs of a Hydra
+    multirun, which start within a second of each other, shared it and every job after the first was refused as
+    "exists already". A name the user gave (on the command line, or as a plain value in the YAML file) is kept, and
+    refused later where its folder exists; so is a resumed run's (``resume`` set), which names the run to continue.
+
+    Args:
+        cfg: the script's composed Hydra config (its ``name`` node not yet resolved).
+        config: the validated config; its ``name`` is changed in place.
+        run_dir: the run folder of a config (``<out_dir>/<algorithm>/<name>``, ...).
+        given: the keys set on the command line; default: Hydra's record of this job's overrides.
+    """
+    from omegaconf import OmegaConf
+
+    if given is None:
+        from hydra.core.hydra_config import HydraConfig
+
+        given = [_key(o) for o in HydraConfig.get().overrides.task]
+    if "name" in given or not OmegaConf.is_interpolation(cfg, "name"):
+        return
+    if getattr(config, "resume", False) not in (False, None):
+        return
+    stamp, n = config.name, 1
+    while run_dir(config).exists():
+        n += 1
+        config.name = f"{stamp}-{n}"
