@@ -407,8 +407,15 @@ def test_summary_and_evaluation_of_a_checkpoint(short, tmp_path):
     assert "| A |" in (res.run_dir / "eval_metrics.md").read_text()
     for f in ("pulses.png", "learning_curves.png", "calibrated.npz"):
         assert (res.run_dir / f).stat().st_size > 0
+    log = res.run_dir / "log.csv"
+    good = log.read_text()
+    log.write_text(good + "3.0,48")  # a row torn by a kill after the checkpoint: not the checkpoint's, not read
     again = evaluate_run(res.run_dir)  # from the checkpoint alone: same deterministic numbers
     assert again["final_metrics"] == s["final_metrics"]
+    lines = good.splitlines(keepends=True)
+    log.write_text(lines[0] + "garbage" + lines[1][lines[1].index(",") :] + lines[2])  # a row the evaluation reads
+    with pytest.raises(ConfigError, match=r"log\.csv: line 2: expected a number in column 'iteration', got 'garbage'"):
+        evaluate_run(res.run_dir)
 
 
 def test_kept_snapshots_are_evaluated_beside_the_run_results(short, tmp_path):
