@@ -188,6 +188,14 @@ def test_save_load_round_trip(optimized, tmp_path):
             assert a.dtype == b.dtype
         elif f != "meta":
             assert a == b, f
+    junk = tmp_path / "junk.npz"
+    junk.write_bytes(b"\x80\x04junk, not an archive")
+    with pytest.raises(ModelError, match=r"junk\.npz: not a readable CellModel file \(not a \.npz archive") as info:
+        CellModel.load(junk)
+    assert "allow_pickle" not in str(info.value)
+    junk.write_bytes(path.read_bytes()[:5000])  # cut short
+    with pytest.raises(ModelError, match=r"junk\.npz: not a readable CellModel file \(a damaged \.npz archive"):
+        CellModel.load(junk)
     assert back.meta["n_cells_uniform"] == optimized.meta["n_cells_uniform"]
 
 

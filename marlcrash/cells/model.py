@@ -217,11 +217,12 @@ class CellModel:
     @classmethod
     def load(cls, path: str | Path) -> CellModel:
         """Read a file written by :meth:`save` (``allow_pickle=False``)."""
+        from marlcrash.outputs import read_npz
+
         path = Path(path)
         try:
-            with np.load(path, allow_pickle=False) as z:
-                arrays = {k: z[k] for k in z.files}
-        except (OSError, ValueError) as e:
+            arrays = read_npz(path)
+        except ValueError as e:  # in words: empty, not an archive, damaged, objects (never numpy's pickle advice)
             raise ModelError(f"{path}: not a readable CellModel file ({e})") from None
         if "__header__" not in arrays:
             raise ModelError(f"{path}: not a CellModel file (no header)")
