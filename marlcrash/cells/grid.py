@@ -128,14 +128,18 @@ def bin_index(edges: np.ndarray, values: np.ndarray, mirror: bool = False) -> np
     return i
 
 
+def _band_blocks(bounds: np.ndarray, h: float) -> list[int]:
+    """Uniform cells of edge about ``h`` in each band between consecutive ``bounds`` (at least one)."""
+    return [max(1, round((c - a) / h)) for a, c in itertools.pairwise(bounds)]
+
+
 def _axis_edges(bounds: np.ndarray, h: float, voxels_per_edge: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
     """Edges, block index and band index along one axis from band boundaries ``bounds``."""
     edges = [np.array([bounds[0]])]
     block = []
     band = []
     n_blocks = 0
-    for b, (a, c) in enumerate(itertools.pairwise(bounds)):
-        n = max(1, round((c - a) / h))
+    for b, ((a, c), n) in enumerate(zip(itertools.pairwise(bounds), _band_blocks(bounds, h), strict=True)):
         fine = np.linspace(a, c, n * voxels_per_edge + 1)
         edges.append(fine[1:])
         block.append(n_blocks + np.repeat(np.arange(n), voxels_per_edge))
@@ -166,7 +170,7 @@ def build_grid(
     inner = np.unique(np.asarray(planes_y, dtype=np.float64))
     inner = inner[(inner > lo[1] + 1e-9) & (inner < hi[1] - 1e-9)]
     bands = [np.array([lo[0], hi[0]]), np.concatenate([[lo[1]], inner, [hi[1]]]), np.array([lo[2], hi[2]])]
-    per_axis = [sum(max(1, round((c - a) / h)) for a, c in itertools.pairwise(b)) for b in bands]
+    per_axis = [sum(_band_blocks(b, h)) for b in bands]
     n_voxels = float(np.prod(per_axis, dtype=np.float64)) * voxels_per_edge**3
     if n_voxels > MAX_VOXELS:
         raise ModelError(

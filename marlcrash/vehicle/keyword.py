@@ -878,6 +878,17 @@ class _PointMasses:
 
 
 @dataclass
+class _MassBody:
+    """A mass [kg] shared equally by a body's nodes (SI, resolved from the deck's cards)."""
+
+    id: int
+    members: list[tuple[int, bool, tuple[Path, int]]]  # (node id or node set id, is a set, where)
+    mass: float
+    what: str  # the card, for messages
+    replaces: bool  # the body's whole mass: lumped masses on its nodes are replaced by it
+
+
+@dataclass
 class _NodalBody:
     """One ``*CONSTRAINED_NODAL_RIGID_BODY_INERTIA`` body (deck units): its node set and total mass TM."""
 
@@ -1704,7 +1715,7 @@ def _deck_masses(model: VehicleModel, t: _Tables) -> VehicleModel:
     u = get_unit_system(model.units)
     notes: list[str] = []
     part_mass: dict[int, float] = {}
-    bodies: list[tuple[int, list[tuple[int, bool, tuple[Path, int]]], float, str]] = []  # masses on extra nodes
+    bodies: list[_MassBody] = []  # masses on extra nodes and nodal rigid bodies
     counts = _element_counts(model) if t.inertia else {}
     for pid, (tm, where) in t.inertia.items():
         if pid not in model.parts:
@@ -1715,7 +1726,8 @@ def _deck_masses(model: VehicleModel, t: _Tables) -> VehicleModel:
             continue
         if not counts.get(pid):
             if pid in t.extra_nodes:  # a rigid body of extra nodes only: TM shared by them
-                bodies.append((pid, t.extra_nodes[pid], tm * u.mass, f"*CONSTRAINED_EXTRA_NODES of part {pid}"))
+                what = f"*CONSTRAINED_EXTRA_NODES of part {pid}"
+                bodies.append(_MassBody(pid, t.extra_nodes[pid], tm * u.mass, what, replaces=False))
             else:
                 notes.append(
                     f"{at}: *PART_INERTIA part {pid} has neither elements nor *CONSTRAINED_EXTRA_NODES to place its "
@@ -1785,9 +1797,8 @@ def _deck_masses(model: VehicleModel, t: _Tables) -> VehicleModel:
     model = replace(model, part_added_mass={p: m for p, m in added.items() if m > 0})
     for nb in t.nodal_bodies:
         if nb.tm > 0:
-            bodies.append(
-                (nb.pid, [(nb.nsid, True, nb.where)], nb.tm * u.mass, f"*CONSTRAINED_NODAL_RIGID_BODY {nb.pid}")
-            )
+            what = f"*CONSTRAINED_NODAL_RIGID_BODY {nb.pid}"
+            bodies.append(_MassBody(nb.pid, [(nb.nsid, True, nb.where)], nb.tm * u.mass, what, replaces=True))
         else:
             notes.append(
                 f"{nb.where[0].name} line {nb.where[1]}: *CONSTRAINED_NODAL_RIGID_BODY_INERTIA {nb.pid} gives no mass "
@@ -1802,14 +1813,14 @@ def _deck_masses(model: VehicleModel, t: _Tables) -> VehicleModel:
 def _point_masses(
     model: VehicleModel,
     t: _Tables,
-    bodies: list[tuple[int, list[tuple[int, bool, tuple[Path, int]]], float, str]],
+    bodies: list[_MassBody],
     to_kg: float,
     notes: list[str],
 ) -> VehicleModel:
     """The model with its point masses: ``*ELEMENT_MASS`` (``_NODE_SET``: one mass shared equally by the set's
-    nodes) and ``*ELEMENT_INERTIA`` on nodes; each of ``bodies`` (id, [(node or node set id, is set, where)],
-    mass [kg], what) shares its mass equally among its nodes. A nodal rigid body's TM is its whole mass: lumped
-    masses on its nodes are replaced by it (a note names them)."""
+    nodes) and ``*ELEMENT_INERTIA`` on nodes; each of ``bodies`` shares its mass equally among its nodes. A nodal
+    rigid body's TM is its whole mass (``replaces``): lumped masses on its nodes are replaced by it (a note names
+    them)."""
     order = np.argsort(model.node_ids, kind="stable")
     sorted_ids = model.node_ids[order]
 
@@ -1847,24 +1858,25 @@ def _point_masses(
             ids.append(pm.ids)
             nodes.append(idx)
             mass.append(pm.mass * to_kg)
-    lumped = len(ids)
+    n_lumped = sum(a.size for a in ids)
     replaced = np.zeros(model.n_nodes, dtype=bool)
-    for bid, members, m, what in bodies:
+    for body in bodies:
         idx = np.unique(
             np.concatenate(
                 [
-                    set_nodes(i, what, where) if is_set else nodes_of(np.array([i]), f"{what} refers to", where)
-                    for i, is_set, where in members
+                    set_nodes(i, body.what, where)
+                    if is_set
+                    else nodes_of(np.array([i]), f"{body.what} refers to", where)
+                    for i, is_set, where in body.members
                 ]
             )
         )
-        ids.append(np.full(idx.size, bid, dtype=np.int64))
+        ids.append(np.full(idx.size, body.id, dtype=np.int64))
         nodes.append(idx)
-        mass.append(np.full(idx.size, m / idx.size))
-        replaced[idx] |= what.startswith("*CONSTRAINED_NODAL")
+        mass.append(np.full(idx.size, body.mass / idx.size))
+        replaced[idx] |= body.replaces
     ids_a, nodes_a, mass_a = (np.concatenate(x) for x in (ids, nodes, mass))
     drop = np.zeros(ids_a.size, dtype=bool)
-    n_lumped = sum(a.size for a in ids[:lumped])
     drop[:n_lumped] = replaced[nodes_a[:n_lumped]]
     if drop.any():
         notes.append(
