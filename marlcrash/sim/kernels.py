@@ -172,12 +172,13 @@ def _link(P, ll, j, dd, gap, relief, f_el, o, yd, plastic, a, tl, cst):
 
 @numba.njit(cache=True, fastmath=_FASTMATH, inline="always")
 def _links(
-    P, lo, hi, gap, relief, ledger, src, dst, ds, f_el, o, yd, plastic, fs, fd, h_out, f_prev, step_in, trl, cst
+    P, lo, hi, gap, relief, ledger, src, dst, ds, f_el, o, yd, plastic, fs, fd, h_step, f_prev, step_in, trl, cst
 ):
     """Update links ``lo .. hi-1`` (all of one kind) in every lane and scatter their forces to the nodes.
 
     ``gap`` and ``relief`` are literal booleans at the call sites; ``ledger`` adds the per-link term of
-    the per-cell energies (``h_out``, needs ``f_prev``). ``trl [L]``: tension ratios. Per-link scalars are read
+    the per-cell energies (``h_step``: this step's transmitted work by source cell, in the simulation's
+    precision; needs ``f_prev``). ``trl [L]``: tension ratios. Per-link scalars are read
     once per link, outside the lane loop: read inside it (``trl[ll]`` in every lane) the loop ran 0.85x.
     """
     CH = ds.shape[1]
@@ -190,7 +191,7 @@ def _links(
             fs[a, j] += f_tot
             fd[c, j] += f_tot
             if ledger:
-                h_out[a, j] += 0.5 * (float(f_prev[ll, j]) + float(f_tot)) * float(step_in[j] - ds[c, j])
+                h_step[a, j] += cst[0] * (f_prev[ll, j] + f_tot) * (step_in[j] - ds[c, j])
                 f_prev[ll, j] = f_tot
 
 
@@ -220,7 +221,7 @@ def _bottom_out(P, PC, i, j, out_ptr, out_idx, relief, cst):
 
 @numba.njit(cache=True, fastmath=_FASTMATH, inline="always")
 def _densify(
-    P, PC, i, j, phi, out_ptr, out_idx, n_plain, dst, ds, f_el, fs, fd, ledger, h_out, f_prev, step_in, trl, cst
+    P, PC, i, j, phi, out_ptr, out_idx, n_plain, dst, ds, f_el, fs, fd, ledger, h_step, f_prev, step_in, trl, cst
 ):
     """Lane ``j`` of cell ``i`` bottomed out within this step, the last fraction ``phi`` of it past ``E_s``.
 
@@ -247,7 +248,7 @@ def _densify(
         fs[i, j] += tot
         fd[c, j] += tot
         if ledger:
-            h_out[i, j] += 0.5 * float(tot) * float(step_in[j] - ds[c, j])
+            h_step[i, j] += cst[0] * tot * (step_in[j] - ds[c, j])
             f_prev[ll, j] += tot
 
 
@@ -336,6 +337,9 @@ def _simulate(
         a_out = np.zeros((n, CH))  # sum Fsbar r_src
         p_in = np.zeros((n, CH))  # sum Fdbar r_dst
         h_out = np.zeros((n, CH))  # sum_{src} fbar r_dst (per-cell modes only)
+        # ... this step's share, summed over the source's out-links in the simulation's precision and added to the
+        # float64 ledger once per cell (widening every link's term to float64 ran float32 at 0.8x)
+        h_step = np.zeros((n if mode else 0, CH), lp.dtype)
         stored_w = np.zeros((n, CH))
         st_cell = np.zeros((n, CH))
         # link state [L, lanes]
@@ -382,14 +386,14 @@ def _simulate(
             # plain links (elastic-plastic), then gap (contact) links; one specialised loop per kind
             led = mode > 0
             if relief:
-                _links(P, 0, n_plain, False, True, led, src, dst, ds, f_el, o, yd, plastic, fs, fd, h_out, f_prev,
+                _links(P, 0, n_plain, False, True, led, src, dst, ds, f_el, o, yd, plastic, fs, fd, h_step, f_prev,
                        step_in, trl, cst)  # fmt: skip
-                _links(P, n_plain, L, True, True, led, src, dst, ds, f_el, o, yd, plastic, fs, fd, h_out, f_prev,
+                _links(P, n_plain, L, True, True, led, src, dst, ds, f_el, o, yd, plastic, fs, fd, h_step, f_prev,
                        step_in, trl, cst)  # fmt: skip
             else:
-                _links(P, 0, n_plain, False, False, led, src, dst, ds, f_el, o, yd, plastic, fs, fd, h_out, f_prev,
+                _links(P, 0, n_plain, False, False, led, src, dst, ds, f_el, o, yd, plastic, fs, fd, h_step, f_prev,
                        step_in, trl, cst)  # fmt: skip
-                _links(P, n_plain, L, True, False, led, src, dst, ds, f_el, o, yd, plastic, fs, fd, h_out, f_prev,
+                _links(P, n_plain, L, True, False, led, src, dst, ds, f_el, o, yd, plastic, fs, fd, h_step, f_prev,
                        step_in, trl, cst)  # fmt: skip
             # saturation within the step: a cell whose plastic work crossed E_s densifies its out-links for the
             # part of the step past the crossing, keeps E_s as its plastic work and switches them to their dense
@@ -403,7 +407,7 @@ def _simulate(
                         e_s = NP[i, W_ES, j]
                         if sat[i, j] == zero and plastic[i, j] >= e_s:
                             phi = (plastic[i, j] - e_s) / (plastic[i, j] - w0[i, j])
-                            _densify(P, PC, i, j, phi, out_ptr, out_idx, n_plain, dst, ds, f_el, fs, fd, led, h_out,
+                            _densify(P, PC, i, j, phi, out_ptr, out_idx, n_plain, dst, ds, f_el, fs, fd, led, h_step,
                                      f_prev, step_in, trl, cst)  # fmt: skip
                             plastic[i, j] = e_s
                             sat[i, j] = one
@@ -436,6 +440,8 @@ def _simulate(
                         acc[i, j] = (fs[i, j] - fd[i, j]) / mi
                 if led:  # per-cell ledgers: only where per-cell energies are recorded
                     for j in range(CH):
+                        h_out[i, j] += float(h_step[i, j])
+                        h_step[i, j] = zero
                         r = float(step_in[j]) - float(ds[i, j])
                         a_out[i, j] += 0.5 * (fs_prev[i, j] + float(fs[i, j])) * r
                         p_in[i, j] += 0.5 * (fd_prev[i, j] + float(fd[i, j])) * r
