@@ -338,7 +338,7 @@ def _simulate(
         p_in = np.zeros((n, CH))  # sum Fdbar r_dst
         h_out = np.zeros((n, CH))  # sum_{src} fbar r_dst (per-cell modes only)
         # ... this step's share, summed over the source's out-links in the simulation's precision and added to the
-        # float64 ledger once per cell (widening every link's term to float64 ran float32 at 0.8x)
+        # float64 ledger once per cell (widening every link's term to float64 ran float32 at about 0.85x)
         h_step = np.zeros((n if mode else 0, CH), lp.dtype)
         stored_w = np.zeros((n, CH))
         st_cell = np.zeros((n, CH))
