@@ -73,6 +73,12 @@ def tiny(tmp_path: Path, **kw) -> ablate.AblationConfig:
         ({"seeds": [0, -1]}, "seeds[1]", ">= 0"),
         ({"env_overrides": {"masking.mode": "none"}}, "env_overrides.masking.mode", "list its levels"),
         ({"env_overrides": {"reference.pin_seed": 3}}, "env_overrides.reference.pin_seed", "protocol"),
+        ({"env_overrides": {"reference": {"pin_seed": 3}}}, "env_overrides.reference.pin_seed", "protocol"),
+        (
+            {"env_overrides": {"termination": {"max_iterations": 4}}},
+            "env_overrides.termination.max_iterations",
+            "ppo.episode_length",
+        ),
         ({"env_overrides": {"max_stepp": 0.1}}, "env_overrides.max_stepp", ""),
         ({"score": "nope"}, "score", "nope"),
         ({"masking": ["none", "a-b"]}, "masking[1]", "without"),

@@ -181,6 +181,7 @@ def test_success_counts_the_candidate_that_passed(problem):
         ({"problem": {"env_overrides": {"reward": "nope"}}}, "problem.env_overrides.reward"),
         ({"problem": {"env_overrides": {"termination": 3}}}, "problem.env_overrides.termination"),
         ({"problem": {"env_overrides": {"reference.kind": "file"}}}, "problem.env_overrides.reference.kind"),
+        ({"problem": {"env_overrides": {"scenarios": {"offset40_left": 1.0}}}}, "problem.env_overrides.scenarios"),
     ],
 )
 def test_bad_run_configs_fail_before_running(over, key):

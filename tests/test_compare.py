@@ -323,6 +323,18 @@ def test_a_first_run_that_failed_before_any_row_does_not_block_its_rerun(short, 
         ({"env": "nope"}, "env", "unknown env config 'nope'"),  # not env_overrides.env
         ({"env_overrides": {"reward": "nope"}}, "env_overrides.reward", "unknown reward form 'nope'"),
         ({"ppo.env_overrides": {"termination": 3}}, "ppo.env_overrides.termination", "expected a mapping, got 3"),
+        # set by the protocol for every method: an override would be replaced without a word
+        ({"env_overrides": {"seed": 4}}, "env_overrides.seed", "protocol"),
+        (
+            {"env_overrides": {"termination": {"max_iterations": 4}}},
+            "env_overrides.termination.max_iterations",
+            "ppo.episode_length",
+        ),
+        (
+            {"ppo.env_overrides": {"termination.max_iterations": 4}},
+            "ppo.env_overrides.termination.max_iterations",
+            "protocol",
+        ),
     ],
 )
 def test_bad_config_fails_naming_the_key(short, tmp_path, override, key, words):

@@ -154,6 +154,9 @@ def test_unavailable_device_is_refused():
         ("+env_overrides.reward=nope", "env_overrides.reward", "unknown reward form 'nope'"),  # not the form's 'name'
         # not termination.max_iterations, the key the training adds for its episode length
         ("+env_overrides.termination=3", "env_overrides.termination", "expected a mapping, got 3"),
+        # keys the training sets from its own settings: an override would be replaced without a word
+        ("+env_overrides.termination.max_iterations=9", "env_overrides.termination.max_iterations", "episode_length"),
+        ("+env_overrides.seed=3", "env_overrides.seed", "the run's seed"),
         ("env=nope", "env", "unknown env config 'nope'"),
     ],
 )

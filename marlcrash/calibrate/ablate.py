@@ -65,7 +65,7 @@ from marlcrash.calibrate.compare import (
 from marlcrash.calibrate.marl import ALGORITHMS, AlgorithmConfig
 from marlcrash.calibrate.problem import CalibrationProblem, SuccessConfig, build_problem
 from marlcrash.config import from_dict, require, require_complete
-from marlcrash.envs.core import load_env_config, require_env
+from marlcrash.envs.core import load_env_config, require_env, require_env_keys_unset
 from marlcrash.envs.masking import ImpactRegions
 from marlcrash.errors import ConfigError
 from marlcrash.outputs import atomic_output, require_run_name, write_text
@@ -87,8 +87,12 @@ LEVEL_KEYS: dict[str, str] = {
 ENV_KEYS: dict[str, str] = {"masking": "masking.mode", "granularity": "granularity", "reward": "reward"}
 """Env-config key each env factor sets."""
 
-_PROTECTED_ENV_KEYS = ("masking.mode", "granularity", "reward", "scenarios", "reference", "seed")
-"""Env keys the factors or the protocol set (``env_overrides`` may not change them)."""
+_PROTECTED_ENV_KEYS: dict[str, str] = {
+    **{k: f"the ablation's {f} factor (list its levels in {LEVEL_KEYS[f]})" for f, k in ENV_KEYS.items()},
+    **dict.fromkeys(("scenarios", "reference", "seed", "termination.max_iterations"),
+                    "the ablation's protocol (scenarios, seeds, ppo.episode_length)"),
+}  # fmt: skip
+"""Env keys the factors or the protocol set (``env_overrides`` and ``ppo.env_overrides`` may not change them)."""
 
 FILES = ("ablate.json", "ablate.csv", "ablate.md", "ablate.png")
 """The results a finished ablation writes into its run folder (besides ``provenance.json`` and the PPO logs)."""
@@ -161,13 +165,8 @@ class AblationConfig:
         require_env(self.env, "env")
         require_run_name(self.name)
         require(bool(self.out_dir), "out_dir", "expected an output folder")
-        keyed = [(f"env_overrides.{k}", k) for k in self.env_overrides]
-        keyed += [(f"ppo.env_overrides.{k}", k) for k in self.ppo.env_overrides]
-        for name, k in keyed:
-            for p in _PROTECTED_ENV_KEYS:
-                require(not (k == p or k.startswith(p + ".")), name,
-                        f"{p} is set by the ablation's factors or protocol; list its levels instead "
-                        f"({', '.join(LEVEL_KEYS.values())})")  # fmt: skip
+        require_env_keys_unset(self.env_overrides, _PROTECTED_ENV_KEYS)
+        require_env_keys_unset(self.ppo.env_overrides, _PROTECTED_ENV_KEYS, "ppo.env_overrides")
         frames = self.ppo.n_envs * self.ppo.episode_length
         for a in self.algorithms:
             algo: AlgorithmConfig = getattr(self, a)

@@ -67,8 +67,8 @@ from marlcrash.calibrate.marl import (
     train_iteration,
 )
 from marlcrash.calibrate.problem import CalibrationProblem, ProblemConfig, SmoothLoss, SuccessConfig, build_problem
-from marlcrash.config import flatten_overrides, from_dict, nested_error, require, require_complete
-from marlcrash.envs.core import EnvConfig, env_config_of, load_env_config, require_env
+from marlcrash.config import from_dict, nested_error, require, require_complete
+from marlcrash.envs.core import env_config_of, load_env_config, require_env, require_env_keys_unset
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics
 from marlcrash.outputs import check_output_dir, require_run_name, write_text
@@ -87,8 +87,13 @@ COLUMNS = (
 )  # fmt: skip
 """Columns of ``compare.csv``, in order (empty field: not applicable or never reached)."""
 
-_PROTECTED_PPO_KEYS = ("scenarios", "reference", "seed", "termination.max_iterations")
-"""Env keys the protocol sets for the PPO runs (a ``ppo.env_overrides`` entry may not change them)."""
+_PROTOCOL = "the comparison protocol (scenario, seeds, ppo.episode_length)"
+_SHARED_ENV_KEYS = dict.fromkeys(("scenarios", "reference.kind", "reference.pin_seed", "seed",
+                                  "termination.max_iterations"), _PROTOCOL)  # fmt: skip
+"""Env keys the protocol sets for every method (an ``env_overrides`` entry may not change them)."""
+_PPO_ENV_KEYS = {**_SHARED_ENV_KEYS, "reference": f"{_PROTOCOL} for the pinned PPO runs; put shared env settings "
+                 "in the top-level env_overrides"}  # fmt: skip
+"""Env keys a ``ppo.env_overrides`` entry may not change: the PPO runs' reference must be the problem's."""
 
 
 # ------------------------------------------------------------------------------------------- config
@@ -118,11 +123,7 @@ class PPOBudgetConfig:
         require(self.n_envs >= 1, "n_envs", f"expected >= 1 parallel episodes, got {self.n_envs}")
         require(self.episode_length >= 1, "episode_length", f"expected >= 1 steps, got {self.episode_length}")
         require(self.threads >= 0, "threads", f"expected >= 0 (0: torch's setting), got {self.threads}")
-        for k in flatten_overrides(EnvConfig, self.env_overrides):  # nested sections too: {"reference": {...}}
-            for p in _PROTECTED_PPO_KEYS:
-                require(not (k == p or k.startswith(p + ".")), f"env_overrides.{k}",
-                        f"the protocol sets {p} for the pinned PPO runs; put shared env settings in the "
-                        "top-level env_overrides")  # fmt: skip
+        require_env_keys_unset(self.env_overrides, _PPO_ENV_KEYS)
 
 
 @dataclass
@@ -169,6 +170,7 @@ class CompareConfig:
         require(self.scenario in list_scenarios(), "scenario",
                 f"unknown scenario {self.scenario!r}; registered: {list_scenarios()}")  # fmt: skip
         require_env(self.env, "env")
+        require_env_keys_unset(self.env_overrides, _SHARED_ENV_KEYS)
         require_run_name(self.name)
         require(bool(self.out_dir), "out_dir", "expected an output folder")
         ppo = [m for m in self.methods if m in ALGORITHMS]

@@ -80,7 +80,7 @@ from marlcrash.config import (
     require,
     require_complete,
 )
-from marlcrash.envs.core import EnvConfig, env_config_of, require_env
+from marlcrash.envs.core import EnvConfig, env_config_of, require_env, require_env_keys_unset
 from marlcrash.envs.torchrl_env import GROUP, CalibrationTorchEnv
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics
@@ -210,6 +210,7 @@ class TrainConfig:
         require(self.threads >= 0, "threads", f"expected >= 0 (0: torch's default), got {self.threads}")
         require(self.logger in LOGGERS, "logger", f"unknown logger {self.logger!r}; expected one of {list(LOGGERS)}")
         require_env(self.env, "env")
+        require_env_keys_unset(self.env_overrides, TRAINING_ENV_KEYS)
         require(
             self.checkpoint_every >= 1, "checkpoint_every", f"expected >= 1 iterations, got {self.checkpoint_every}"
         )
@@ -312,6 +313,13 @@ def load_train_config(
         if e.key in applied:
             raise ConfigError(f"{e.reason} ({CI_ENV}=1 applied it)", key=f"ci.{e.key}", path=e.path) from None
         raise
+
+
+TRAINING_ENV_KEYS = {
+    "termination.max_iterations": "episode_length (eval.iterations in the evaluation)",
+    "seed": "the run's seed",
+}
+"""Env keys a training sets from its own settings (:func:`make_env_config`): ``env_overrides`` may not set them."""
 
 
 def make_env_config(config: TrainConfig, overrides: dict[str, Any] | None = None) -> EnvConfig:

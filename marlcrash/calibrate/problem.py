@@ -53,7 +53,7 @@ from marlcrash.cells.model import PARAM_NAMES, CellModel
 from marlcrash.cells.parameterization import apply_increments
 from marlcrash.config import flatten_overrides, require
 from marlcrash.envs.agents import AgentLayout, build_agents
-from marlcrash.envs.core import EnvConfig, build_cells, env_config_of, require_env
+from marlcrash.envs.core import EnvConfig, build_cells, env_config_of, require_env, require_env_keys_unset
 from marlcrash.envs.masking import ImpactRegions
 from marlcrash.errors import ConfigError, ModelError
 from marlcrash.metrics import Metrics, area_between, compute_metrics, rmse
@@ -130,6 +130,7 @@ class ProblemConfig:
         require(np.isfinite(self.box_radius) and 0 < self.box_radius <= 5.0, "box_radius",
                 f"expected a log-scale half-width in (0, 5], got {self.box_radius}")  # fmt: skip
         require_env(self.env, "env")
+        require_env_keys_unset(self.env_overrides, {"scenarios": "scenario"})
         require_reward(self.fit, "fit")
 
 

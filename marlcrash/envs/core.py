@@ -155,6 +155,21 @@ def load_env_config(name_or_path: str | Path = "default", overrides: dict | None
     return config
 
 
+def require_env_keys_unset(
+    env_overrides: dict[str, Any], owners: dict[str, str], overrides_key: str = "env_overrides"
+) -> None:
+    """Refuse an env override of a key that another setting decides (``owners``: env key -> that setting).
+
+    The caller's code sets those keys after the overrides, so an override of one (or of a key within it) would be
+    replaced without a word; the error names ``<overrides_key>.<key>`` and the setting to use instead.
+    """
+    for k in flatten_overrides(EnvConfig, env_overrides):
+        for p, owner in owners.items():
+            if k == p or k.startswith(p + "."):
+                raise ConfigError(f"{p} is set by {owner}, which would replace this value; set that instead",
+                                  key=f"{overrides_key}.{k}")  # fmt: skip
+
+
 def env_config_of(
     env: str,
     env_overrides: dict[str, Any],
