@@ -410,7 +410,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("discretize", help="discretize a vehicle front into cells (paper Table 2)")
     _add_vehicle_args(p, deck_required=False)
     p.add_argument("--method", choices=["uniform", "optimized"], help="discretization method (default: config)")
-    p.add_argument("--config", help="discretization config YAML (default: configs/cells.yaml)")
+    p.add_argument("--config", help="cells config YAML giving every key of configs/cells.yaml (default: that file)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     p.add_argument("--plot", metavar="FILE.png", help="write a 3D picture of the cells coloured by sub-assembly")
     p.add_argument("--save", metavar="CELLS.npz", help="write the cell model")
@@ -426,7 +426,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="simulated time after first contact [ms] (default: the scenario's, 150); e.g. 200 for a "
                         "test record that goes on past the compared window, as a lab's does")  # fmt: skip
     p.add_argument("--method", choices=["uniform", "optimized"], help="discretization method (default: config)")
-    p.add_argument("--config", help="discretization config YAML (default: configs/cells.yaml)")
+    p.add_argument("--config", help="cells config YAML giving every key of configs/cells.yaml (default: that file)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--csv", metavar="FILE.csv", help="write time, per-sensor acceleration and velocity, crush")
     p.add_argument("--plot", metavar="FILE.png", help="plot pulses per sensor and energy per sub-assembly")

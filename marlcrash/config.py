@@ -230,9 +230,16 @@ def flatten_overrides(cls: type, overrides: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def load_config(cls: type[T], path: str | Path, overrides: dict[str, Any] | None = None) -> T:
+def load_config(
+    cls: type[T], path: str | Path, overrides: dict[str, Any] | None = None, *, complete: bool = False
+) -> T:
     """Load a YAML file into ``cls``, applying dotted-key ``overrides`` first (:func:`flatten_overrides`: a
-    mapping for a section changes only the keys it gives)."""
+    mapping for a section changes only the keys it gives).
+
+    ``complete=True``: the file (with the overrides) must give every key of ``cls`` (:func:`require_complete`), for
+    a file whose values are the source of truth: a key left out would silently take the schema's default, which
+    need not be the shipped file's value.
+    """
     data = load_yaml(path)
     applied: list[str] = []
     for dotted, value in flatten_overrides(cls, overrides or {}).items():
@@ -248,6 +255,8 @@ def load_config(cls: type[T], path: str | Path, overrides: dict[str, Any] | None
                                   path=path)  # fmt: skip
         node[parts[-1]] = value
         applied.append(dotted)
+    if complete:
+        require_complete(cls, data, path)
     return from_dict(cls, data, path=path)
 
 

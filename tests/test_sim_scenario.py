@@ -2,13 +2,17 @@
 
 from __future__ import annotations
 
+import shutil
+
 import numpy as np
 import pytest
 from sim_fixtures import block, vehicle_block
 
-from marlcrash.config import from_dict
+from marlcrash.cells import load_discretization_config
+from marlcrash.config import config_dir, from_dict
 from marlcrash.errors import ConfigError
 from marlcrash.sim.scenario import CrashScenario, barrier_mask, get_scenario, list_scenarios, scenario_dir
+from marlcrash.sim.surrogate import load_sim_config
 
 REQUIRED = {
     "full_width_40",
@@ -68,6 +72,28 @@ def test_unknown_scenario_lists_known():
 def test_unknown_key_rejected(tmp_path):
     with pytest.raises(ConfigError, match="speed"):
         from_dict(CrashScenario, {"speed": 3.0})
+
+
+@pytest.mark.parametrize(
+    "file,key,loader",
+    [
+        ("scenarios/offset40_left.yaml", "speed_kmh", lambda: get_scenario("offset40_left")),
+        ("sim.yaml", "substeps", lambda: load_sim_config()),
+        ("cells.yaml", "crush_efficiency_shell", lambda: load_discretization_config()),
+    ],
+)
+def test_a_config_file_missing_a_key_is_refused_naming_it(tmp_path, monkeypatch, file, key, loader):
+    """Values live in the YAML files: a key left out of one must not silently take the schema's default (56 km/h
+    for a scenario, 1 substep, a crush efficiency of 0.4 against the file's 0.22)."""
+    dst = tmp_path / "configs"
+    shutil.copytree(config_dir(), dst)
+    path = dst / file
+    lines = path.read_text().splitlines(keepends=True)
+    path.write_text("".join(line for line in lines if not line.startswith(f"{key}:")))
+    monkeypatch.setenv("MARLCRASH_CONFIGS", str(dst))
+    with pytest.raises(ConfigError) as e:
+        loader()
+    assert e.value.key == key and e.value.path == str(path) and "missing" in str(e.value)
 
 
 def test_barrier_mask_full_and_offsets_on_block():

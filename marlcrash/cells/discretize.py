@@ -166,7 +166,7 @@ class DiscretizationConfig:
 
 def load_discretization_config(path=None, overrides: dict | None = None) -> DiscretizationConfig:
     """Load ``configs/cells.yaml`` (or ``path``) with optional dotted-key overrides."""
-    return load_config(DiscretizationConfig, path or (config_dir() / "cells.yaml"), overrides)
+    return load_config(DiscretizationConfig, path or (config_dir() / "cells.yaml"), overrides, complete=True)
 
 
 # ----------------------------------------------------------------------------- labelling

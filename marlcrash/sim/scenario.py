@@ -131,7 +131,7 @@ def get_scenario(name: str, overrides: dict | None = None) -> CrashScenario:
     path = scenario_dir() / f"{name}.yaml"
     if not path.is_file():
         raise ConfigError(f"unknown scenario {name!r}; registered: {list_scenarios()}", key="scenario")
-    sc = load_config(CrashScenario, path, overrides)
+    sc = load_config(CrashScenario, path, overrides, complete=True)
     if sc.name != name:
         raise ConfigError(
             f"scenario file {path.name} declares name {sc.name!r}; expected {name!r}", key="name", path=path

@@ -187,7 +187,7 @@ class SimConfig:
 
 def load_sim_config(path: str | Path | None = None, overrides: dict | None = None) -> SimConfig:
     """Load ``configs/sim.yaml`` (or ``path``) with optional dotted-key overrides."""
-    return load_config(SimConfig, path or config_dir() / "sim.yaml", overrides)
+    return load_config(SimConfig, path or config_dir() / "sim.yaml", overrides, complete=True)
 
 
 @dataclass
