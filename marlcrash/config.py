@@ -133,6 +133,17 @@ def from_dict(cls: type[T], data: dict[str, Any], prefix: str = "", path: str | 
         if k not in names:
             raise ConfigError(f"unknown key; expected one of {sorted(names)}", key=key, path=path)
         kwargs[k] = _check_type(v, hints[k], key, path)
+    required = [
+        f.name
+        for f in dataclasses.fields(cls)  # type: ignore[arg-type]
+        if f.init and f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING
+    ]
+    absent = [name for name in required if name not in kwargs]
+    if absent:
+        more = f" (and {', '.join(absent[1:])})" if len(absent) > 1 else ""
+        raise ConfigError(
+            f"missing: expected this key{more}", key=f"{prefix}.{absent[0]}" if prefix else absent[0], path=path
+        )
     try:
         obj = cls(**kwargs)
     except TypeError as e:

@@ -67,6 +67,26 @@ def test_missing_files_and_deck_seed_are_config_errors(tmp_path):
     assert err.value.key == "seed"
 
 
+def test_a_vehicle_file_missing_a_key_names_the_key(tmp_path):
+    """A key left out of a vehicle YAML (or of a section) is named as the user writes it, not as a Python TypeError."""
+    text = (
+        vehicle_config_path(DEFAULT_VEHICLE)
+        .read_text()
+        .replace("materials: materials.yaml", f"materials: {vehicle_dir().parent / 'materials.yaml'}")
+    )
+    lines = text.splitlines(keepends=True)
+    beam = lines.index(next(line for line in lines if line.startswith("bumper_beam:")))
+    thickness = next(i for i in range(beam, len(lines)) if lines[i].startswith("  thickness:"))
+    top = next(i for i, line in enumerate(lines) if line.startswith("total_mass:"))
+    for drop, key in ((top, "total_mass"), (thickness, "bumper_beam.thickness")):
+        path = tmp_path / f"{key}.yaml"
+        path.write_text("".join(lines[:drop] + lines[drop + 1 :]))
+        with pytest.raises(ConfigError) as err:
+            load_vehicle(str(path))
+        assert err.value.key == key and err.value.path == str(path), str(err.value)
+        assert "missing" in str(err.value) and "__init__" not in str(err.value)
+
+
 def test_deck_options_for_a_synthetic_car_are_a_config_error():
     with pytest.raises(ConfigError, match="units"):
         load_vehicle(DEFAULT_VEHICLE, units="mm-t-s")
