@@ -251,6 +251,16 @@ def test_no_material_in_front_of_the_roi_depth_is_a_model_error(cfg):
         discretize(model, cfg)
 
 
+def test_a_massless_subassembly_is_named_with_its_cause(cfg):
+    """Elements without mass (a deck's zero density or thickness) own no voxel: the error says so, not that the
+    geometry is flat."""
+    model = mini_car()
+    massless = model.subassemblies["cooling"][0]
+    model.shell_thickness[model.shell_part == massless] = 0.0
+    with pytest.raises(ModelError, match="sub-assembly 'cooling' has elements in the region of interest but no mass"):
+        discretize(model, cfg, method="optimized")
+
+
 # ------------------------------------------------------------------ the synthetic B-segment car
 @pytest.fixture(scope="module")
 def synthetic():

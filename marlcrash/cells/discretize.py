@@ -345,8 +345,14 @@ def _sensor_requests(cfg: DiscretizationConfig, roi: Roi) -> list[tuple[str, np.
     return out
 
 
-def _no_cell(grid: FineGrid, name: str) -> ModelError:
-    """The error for a sub-assembly whose material ends up in no cell of its own (degenerate geometry)."""
+def _no_cell(grid: FineGrid, name: str, mass: float) -> ModelError:
+    """The error for a sub-assembly whose material ends up in no cell of its own: no mass (``mass``, that of its
+    elements in the ROI, is 0: zero density or thickness) or degenerate geometry."""
+    if not mass > 0:  # voxels are owned by mass: massless elements own none, whatever their shape
+        return ModelError(
+            f"sub-assembly {name!r} has elements in the region of interest but no mass: their density or "
+            "thickness is 0 (`marlcrash inspect` lists each part's thickness and mass)"
+        )
     return ModelError(
         f"sub-assembly {name!r} has material but no cell of its own: its envelope is thinner than the "
         f"{grid.min_pitch():.3g} m voxel pitch; is the geometry flat or collapsed (check the deck's coordinates and "
@@ -363,7 +369,7 @@ def _attribute_samples(
     for s in np.unique(samples.subassembly[bad]).tolist():  # loop over sub-assemblies
         own = np.flatnonzero(cell_sub[labels_flat] == s)
         if own.size == 0:
-            raise _no_cell(grid, names[s])
+            raise _no_cell(grid, names[s], float(samples.mass[samples.subassembly == s].sum()))
         tree = cKDTree(grid.voxel_centers(own))
         q = np.flatnonzero(bad & (samples.subassembly == s))
         _, nearest = tree.query(samples.pos[q])
@@ -484,7 +490,7 @@ def _optimized(
             src = np.flatnonzero(empty_cells[labels] & (cell_sub[labels] == s))
             dst = np.flatnonzero((~empty_cells[labels]) & (cell_sub[labels] == s))
             if dst.size == 0:  # every cell of the sub-assembly is empty
-                raise _no_cell(grid, names[s])
+                raise _no_cell(grid, names[s], float(samples.mass[samples.subassembly == s].sum()))
             _, nearest = cKDTree(grid.voxel_centers(dst)).query(grid.voxel_centers(src))
             labels[src] = labels[dst[nearest]]
         keep = ~empty_cells
