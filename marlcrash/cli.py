@@ -89,6 +89,11 @@ def load_model_from_args(args: argparse.Namespace):
     if is_deck:
         from marlcrash.vehicle.keyword import read_deck
 
+        if args.seed is not None:  # a deck is one vehicle: the seed would be ignored without a word
+            raise ConfigError(
+                f"{args.seed} given for the deck {Path(target).name}; only synthetic cars have variants", key="--seed"
+            )
+
         return read_deck(
             target,
             params=_parse_params(args.param),

@@ -298,6 +298,9 @@ def test_simulate_messages_for_out_of_range_and_empty_input(tmp_path):
     empty.write_text("*KEYWORD\n*END\n")
     proc = run_cli("simulate", str(empty), check=False)
     assert proc.returncode == 2 and "empty.k: the deck has no *NODE data" in proc.stderr
+    for command in ("inspect", "discretize", "simulate"):  # a deck is one vehicle: a variant seed is not ignored
+        proc = run_cli(command, str(empty), "--seed", "3", check=False)
+        assert proc.returncode == 2 and "'--seed'" in proc.stderr and "only synthetic cars have variants" in proc.stderr
 
 
 def test_simulate_overrides_and_errors():
