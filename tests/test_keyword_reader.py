@@ -392,7 +392,7 @@ def test_units_detection_and_override(tmp_path):
     m = _read(_write(tmp_path, si + NODES.replace("100.0", "  0.1") + SHELL))
     assert m.units == "m-kg-s" and m.total_mass() == pytest.approx(0.01 * 2e-3 * 7850)
     mixed = HEAD.replace("  7.85e-09  210000.0", "       1.0   2.1e+11")
-    with pytest.raises(DeckError, match=r"pass units= one of"):
+    with pytest.raises(DeckError, match=r"give it: --units on the command line, units= in Python, one of"):
         _read(_write(tmp_path, mixed + NODES + SHELL))
     m2 = _read(_write(tmp_path, mixed + NODES + SHELL), units="m-kg-s")
     assert m2.materials[1].density == 1.0

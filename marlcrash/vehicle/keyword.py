@@ -1569,7 +1569,7 @@ def _assemble(deck: _Deck, t: _Tables, units: str | None, main: Path) -> tuple[V
             med = f"{np.nanmedian(rho):.4g}" if rho.size else "n/a"
             raise DeckError(
                 f"cannot tell the unit system from material densities (median {med}) and moduli; "
-                "pass units= one of 'mm-t-s', 'mm-kg-ms', 'm-kg-s'",
+                "give it: --units on the command line, units= in Python, one of 'mm-t-s', 'mm-kg-ms', 'm-kg-s'",
                 main,
             )
     # ---- nodes
