@@ -183,7 +183,10 @@ def test_axis_map_parse_and_transform():
     assert lo[2] == pytest.approx(6.0)  # deck y became z, origin kept
     flipped = m.transformed(AxisMap(x="-x"))
     assert flipped.bounds()[0][0] == pytest.approx(0.0)
-    for text, match in [("x=+q", "deck axis"), ("x=+x,y=+x", "used twice"), ("w=+x", "expected items")]:
+    # the last: z=+y meant, y typed twice; the identity z must not be kept without a word
+    cases = [("x=+q", "deck axis"), ("x=+x,y=+x", "used twice"), ("w=+x", "expected items"),
+             ("x=-x,y=+z,y=+y", "axis 'y' is given twice")]  # fmt: skip
+    for text, match in cases:
         with pytest.raises(ConfigError, match=match):
             AxisMap.parse(text)
 

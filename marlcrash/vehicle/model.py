@@ -83,6 +83,9 @@ class AxisMap:
             key = key.strip()
             if not sep or key not in ("x", "y", "z"):
                 raise ConfigError(f"expected items like 'x=+x,y=+z,z=+y', got {item!r}", key="axis_map")
+            if key in fields:  # the later one would silently win, and the axis meant keep the identity
+                raise ConfigError(f"axis {key!r} is given twice in {text!r}; expected each of x, y, z at most once",
+                                  key="axis_map")  # fmt: skip
             fields[key] = value.strip()
         out = cls(**fields)
         out.matrix()  # validates
