@@ -16,7 +16,7 @@ from pathlib import Path
 from marlcrash.errors import ConfigError, MarlcrashError
 from marlcrash.outputs import check_output_file
 
-DECK_SUFFIXES = (".k", ".key", ".dyn", ".kw")
+DECK_SUFFIXES = (".k", ".key", ".dyn", ".kw")  # as marlcrash.vehicle.registry's (not imported: startup time)
 
 
 # ----------------------------------------------------------------- helpers

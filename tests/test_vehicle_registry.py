@@ -5,9 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from marlcrash import cli
 from marlcrash.errors import ConfigError
 from marlcrash.vehicle.model import COMPARTMENT, VehicleModel
 from marlcrash.vehicle.registry import (
+    DECK_SUFFIXES,
     DEFAULT_VEHICLE,
     VEHICLES,
     list_vehicles,
@@ -104,3 +106,7 @@ def test_deck_path_is_read_with_the_keyword_reader(tmp_path):
     assert isinstance(model, VehicleModel)
     assert model.n_nodes == car.n_nodes and model.n_shells == car.n_shells and model.n_solids == car.n_solids
     assert model.total_mass() == pytest.approx(car.total_mass(), rel=1e-6)
+    # every suffix `marlcrash simulate DECK` reads as a deck is one in an env config's vehicle too
+    assert set(cli.DECK_SUFFIXES) == set(DECK_SUFFIXES)
+    kw = path.rename(tmp_path / "car.kw")
+    assert load_vehicle(str(kw), units="mm-t-s").n_shells == car.n_shells

@@ -1,7 +1,7 @@
 """Vehicle registry: names -> vehicle config files in ``configs/vehicle/``.
 
 A vehicle is named by a registered name (``b_segment``), by the path of a synthetic-car
-YAML file, or by the path of an LS-DYNA keyword deck (``.k``, ``.key``, ``.dyn``), which is
+YAML file, or by the path of an LS-DYNA keyword deck (``.k``, ``.key``, ``.dyn``, ``.kw``), which is
 read with :func:`marlcrash.vehicle.keyword.read_deck` (imported only when needed).
 """
 
@@ -22,8 +22,8 @@ VEHICLES: dict[str, str] = {
 DEFAULT_VEHICLE = "b_segment"
 """The embedded default vehicle."""
 
-DECK_SUFFIXES = (".k", ".key", ".dyn")
-"""File suffixes read as LS-DYNA keyword decks."""
+DECK_SUFFIXES = (".k", ".key", ".dyn", ".kw")
+"""File suffixes read as LS-DYNA keyword decks (the ``marlcrash`` command's too)."""
 
 
 def vehicle_dir() -> Path:
@@ -57,7 +57,7 @@ def load_vehicle(name_or_path: str | Path, seed: int | None = None, **deck_optio
 
     Args:
         name_or_path: a registered name (:func:`list_vehicles`), the path of a synthetic-car
-            YAML file, or the path of a keyword deck (``.k``, ``.key``, ``.dyn``).
+            YAML file, or the path of a keyword deck (``.k``, ``.key``, ``.dyn``, ``.kw``).
         seed: variant seed for synthetic cars (``None``: nominal). A deck has no variants.
         **deck_options: keyword arguments of :func:`marlcrash.vehicle.keyword.read_deck`
             (``params``, ``units``, ``axis_map``, ``subassemblies``, ``name``); decks only.
