@@ -66,7 +66,7 @@ from marlcrash.pulse.signal import (
     prepare_velocity,
     remove_zero_offset,
 )
-from marlcrash.sim.scenario import CrashScenario, get_scenario
+from marlcrash.sim.scenario import CrashScenario, get_scenario, list_scenarios
 from marlcrash.sim.surrogate import SimConfig, Surrogate
 
 
@@ -121,6 +121,8 @@ class FileReference:
     def validate(self) -> None:
         require(bool(self.path), "path", "expected the path of a CSV file or ISO-MME test")
         require(bool(self.scenario), "scenario", "expected the registered scenario of the test")
+        require(self.scenario in list_scenarios(), "scenario",  # named here, not as the env's 'scenario' at its build
+                f"unknown scenario {self.scenario!r}; registered: {list_scenarios()}")  # fmt: skip
         require(bool(self.channels), "channels", "expected a mapping sensor name -> channel name")
         require(self.sign in (1.0, -1.0), "sign", f"expected +1 or -1, got {self.sign}")
         require(acc_unit_key(self.unit) in ACC_UNITS, "unit", f"expected one of {sorted(ACC_UNITS)}, got {self.unit!r}")

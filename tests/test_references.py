@@ -337,6 +337,9 @@ def test_file_reference_settings_that_cannot_line_up_are_refused(cells, sim, tmp
         from_dict(ReferenceConfig, {"kind": "file", "files": [{**spec, "cfc": 180}]})
     assert e.value.key == "files[0].cfc"
     from_dict(ReferenceConfig, {"kind": "file", "compare_cfc": 180, "files": [{**spec, "cfc": 180}]})
+    with pytest.raises(ConfigError, match=r"unknown scenario 'full_width_30'; registered: \[") as e:
+        from_dict(ReferenceConfig, {"kind": "file", "files": [{**spec, "scenario": "full_width_30"}]})
+    assert e.value.key == "files[0].scenario"  # was 'scenario', when the env was built
     with pytest.raises(ConfigError, match=r"no such file or ISO-MME folder: .*nope\.csv") as e:
         sampler(cells, sim, kind="file", files=[FileReference(**spec)])
     assert e.value.key == "reference.files[0].path"
