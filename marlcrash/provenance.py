@@ -139,11 +139,15 @@ def record(extra: Iterable[str | Path] = ()) -> dict[str, Any]:
 
 
 def env_inputs(env_config: Any) -> list[str]:
-    """Input files of an env config named by a path outside ``configs/``: a vehicle file, measured pulses."""
+    """Input files of an env config named by a path outside ``configs/``: a vehicle file, its sub-assembly map,
+    measured pulses."""
     paths: list[str] = []
     vehicle = str(getattr(env_config, "vehicle", ""))
     if Path(vehicle).suffix:  # a registered vehicle has no suffix; its YAML is under configs/ already
         paths.append(vehicle)
+    subassemblies = getattr(getattr(env_config, "vehicle_options", None), "subassemblies", None)
+    if subassemblies is not None:
+        paths.append(str(subassemblies))
     reference = getattr(env_config, "reference", None)
     for f in getattr(reference, "files", None) or []:
         p = Path(f.path)

@@ -49,7 +49,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 import torch
@@ -68,6 +68,9 @@ from marlcrash.pulse.signal import (
 )
 from marlcrash.sim.scenario import CrashScenario, get_scenario, list_scenarios
 from marlcrash.sim.surrogate import SimConfig, Surrogate
+
+if TYPE_CHECKING:
+    from marlcrash.vehicle.registry import VehicleOptions
 
 
 @dataclass
@@ -282,6 +285,7 @@ class ReferenceSampler:
         scenarios: scenario name -> weight (ignored for ``kind: file``).
         config: the reference settings.
         vehicle: the vehicle name or path (cross-fidelity builds its fine model from it).
+        vehicle_options: how ``vehicle`` is read (``None``: the defaults).
         bounds: optional ``(lo, hi)`` factor bounds of ``E_x``, ``E_s`` for twins.
         floor: transmission shift of the parameter space (:mod:`marlcrash.cells.parameterization`).
         backend: simulator backend for references.
@@ -299,12 +303,14 @@ class ReferenceSampler:
         scenarios: dict[str, float],
         config: ReferenceConfig,
         vehicle: str = "b_segment",
+        vehicle_options: VehicleOptions | None = None,
         bounds: tuple[float, float] | None = None,
         floor: float = 0.01,
         backend: str = "auto",
     ):
         self.cells, self.sim, self.sensors, self.config = cells, surrogate, list(sensors), config
         self.vehicle, self.bounds, self.floor, self.backend = vehicle, bounds, floor, backend
+        self.vehicle_options = vehicle_options
         unknown = [s for s in self.sensors if s not in cells.sensor_names]
         if unknown:
             raise ConfigError(f"unknown sensors {unknown}; the cell model has {cells.sensor_names}", key="sensors")
@@ -405,12 +411,12 @@ class ReferenceSampler:
         """The cross-fidelity reference model of a vehicle variant and its simulator (built once)."""
         if seed not in self._fine:
             from marlcrash.cells.discretize import discretize, load_discretization_config
-            from marlcrash.vehicle.registry import load_vehicle
+            from marlcrash.vehicle.registry import load_configured_vehicle
 
             cfg = self.config.cross_fidelity
             over = {} if cfg.target_cell_volume is None else {"target_cell_volume": cfg.target_cell_volume}
-            fine = discretize(load_vehicle(self.vehicle, seed=seed), load_discretization_config(overrides=over),
-                              method=cfg.method)  # fmt: skip
+            model = load_configured_vehicle(self.vehicle, seed, self.vehicle_options)
+            fine = discretize(model, load_discretization_config(overrides=over), method=cfg.method)
             missing = [s for s in self.sensors if s not in fine.sensor_names]
             if missing:
                 raise ConfigError(f"the {cfg.method} reference model lacks sensors {missing}", key="sensors")

@@ -277,3 +277,33 @@ def test_errors_found_while_building_name_the_yaml_file(cells):
     cfg = load_env_config("default", overrides={"agents.merge": {"front": ["nose_cone"]}})
     with pytest.raises(ConfigError, match=r"default\.yaml.*unknown sub-assembly 'nose_cone'"):
         CalibrationCore(cfg, batch_size=1, cells=cells)
+
+
+def test_env_calibrates_a_deck_read_with_its_vehicle_options(lsopt_deck, tmp_path):
+    """A deck that needs *PARAMETER values and a sub-assembly map is an env's vehicle through ``vehicle_options``
+    (as ``marlcrash simulate DECK --param ... --subassemblies ...``); its map's groups are the agents."""
+    from marlcrash.cells.discretize import discretize
+    from marlcrash.provenance import env_inputs
+    from marlcrash.vehicle.keyword import read_deck
+
+    amap = tmp_path / "map.yaml"
+    amap.write_text("subassemblies:\n  front: [1, 2]\n")
+    params = {"tbumper": 3.0, "thood": 1.0}
+    over = {"vehicle": str(lsopt_deck), "vehicle_options": {"params": params, "subassemblies": str(amap)},
+            "agents.split_lr": [], "scenarios": {"full_width_40": 1.0}}  # fmt: skip
+    cfg = load_env_config("default", over)
+    with pytest.warns(UserWarning):  # the deck's barrier block is left out, some cards skipped
+        core = CalibrationCore(cfg, batch_size=2)
+        want = discretize(read_deck(lsopt_deck, params=params, subassemblies=amap), method="optimized")
+    assert core.cells.n_cells == want.n_cells
+    np.testing.assert_array_equal(core.cells.centroid, want.centroid)
+    np.testing.assert_array_equal(core.cells.params, want.params)
+    assert core.cells.subassembly_names == want.subassembly_names
+    assert "front" in core.layout.names and not any(n.startswith("part_1") for n in core.layout.names)
+    core.reset(seed=0)
+    core.step(torch.zeros(2, core.A, core.act_dim))
+    assert torch.isfinite(core.reward).all()
+    assert str(amap) in env_inputs(cfg)  # a run records the map as an input
+    with pytest.raises(ConfigError, match="keyword decks only") as e:
+        load_env_config("default", {"vehicle_options.params": params})
+    assert e.value.key == "vehicle_options.params"

@@ -7,12 +7,15 @@ import pytest
 
 from marlcrash import cli
 from marlcrash.errors import ConfigError
-from marlcrash.vehicle.model import COMPARTMENT, VehicleModel
+from marlcrash.vehicle.keyword import read_deck
+from marlcrash.vehicle.model import COMPARTMENT, AxisMap, VehicleModel
 from marlcrash.vehicle.registry import (
     DECK_SUFFIXES,
     DEFAULT_VEHICLE,
     VEHICLES,
+    VehicleOptions,
     list_vehicles,
+    load_configured_vehicle,
     load_vehicle,
     vehicle_config_path,
     vehicle_dir,
@@ -110,3 +113,51 @@ def test_deck_path_is_read_with_the_keyword_reader(tmp_path):
     assert set(cli.DECK_SUFFIXES) == set(DECK_SUFFIXES)
     kw = path.rename(tmp_path / "car.kw")
     assert load_vehicle(str(kw), units="mm-t-s").n_shells == car.n_shells
+
+
+def test_vehicle_options_read_a_deck_as_read_deck_does(lsopt_deck, tmp_path):
+    """Every option reaches the reader: parameters the deck needs, units, axes, a sub-assembly map."""
+    amap = tmp_path / "map.yaml"
+    amap.write_text("subassemblies:\n  front: [1, 2]\n")
+    params = {"tbumper": 3.0, "thood": 1.0}
+    opts = VehicleOptions(params=params, units="mm-t-s", axis_map="x=-x,y=-y,z=+z", subassemblies=str(amap))
+    opts.validate()
+    with pytest.warns(UserWarning):
+        got = load_configured_vehicle(lsopt_deck, None, opts)
+        want = read_deck(lsopt_deck, params=params, units="mm-t-s", subassemblies=amap,
+                         axis_map=AxisMap.parse("x=-x,y=-y,z=+z"))  # fmt: skip
+        plain = read_deck(lsopt_deck, params=params)
+    np.testing.assert_array_equal(got.coords, want.coords)
+    assert not np.allclose(got.coords, plain.coords)  # the axis map was applied
+    assert list(got.subassemblies) == list(want.subassemblies) and "front" in got.subassemblies
+    assert got.total_mass() == want.total_mass()
+
+
+def test_vehicle_options_of_a_synthetic_car(tmp_path):
+    """Deck-only options are refused naming the option; a sub-assembly map regroups the synthetic car's parts."""
+    for key, value in (("params", {"t": 1.0}), ("units", "mm-t-s"), ("axis_map", "x=+x")):
+        with pytest.raises(ConfigError, match="keyword decks only") as e:
+            load_configured_vehicle(DEFAULT_VEHICLE, None, VehicleOptions(**{key: value}))
+        assert e.value.key == key
+    amap = tmp_path / "map.yaml"
+    amap.write_text("subassemblies:\n  crash_boxes: ['crash_box_*']\n")
+    model = load_configured_vehicle(DEFAULT_VEHICLE, 2, VehicleOptions(subassemblies=str(amap)))
+    nominal = load_vehicle(DEFAULT_VEHICLE, seed=2)
+    assert "crash_boxes" in model.subassemblies and "crash_box_left" not in model.subassemblies
+    assert model.total_mass() == nominal.total_mass()
+    np.testing.assert_array_equal(model.coords, nominal.coords)
+
+
+@pytest.mark.parametrize(
+    "options,key,match",
+    [
+        ({"units": "mm-s"}, "units", "unknown unit system"),
+        ({"axis_map": "x=+q"}, "axis_map.x", "deck axis"),
+        ({"subassemblies": "no/such/map.yaml"}, "subassemblies", "no sub-assembly map file"),
+        ({"params": {"t": float("nan")}}, "params.t", "finite"),
+    ],
+)
+def test_bad_vehicle_options_name_the_key(options, key, match):
+    with pytest.raises(ConfigError, match=match) as e:
+        VehicleOptions(**options).validate()
+    assert e.value.key == key

@@ -581,7 +581,7 @@ def build_problem(config: ProblemConfig, cells: CellModel | None = None) -> Cali
     """
     env = problem_env_config(config)
     if cells is None:
-        cells = build_cells(env.vehicle, env.vehicle_seed, env.discretization)
+        cells = build_cells(env.vehicle, env.vehicle_seed, env.discretization, env.vehicle_options)
     scenario = get_scenario(config.scenario)
     if config.duration is not None:
         steps = config.duration * scenario.output_rate
@@ -603,7 +603,8 @@ def build_problem(config: ProblemConfig, cells: CellModel | None = None) -> Cali
     sim = Surrogate(cells, load_sim_config(overrides={"dtype": env.sim_dtype}), output_dt=scenario.output_dt)
     bounds = (env.behaviour_bounds[0], env.behaviour_bounds[1])
     sampler = ReferenceSampler(cells, sim, sensors, env.scenarios, env.reference, vehicle=env.vehicle,
-                               bounds=bounds, floor=env.transmission_floor, backend=config.sim_backend)  # fmt: skip
+                               vehicle_options=env.vehicle_options, bounds=bounds, floor=env.transmission_floor,
+                               backend=config.sim_backend)  # fmt: skip
     reference = sampler.sample(np.random.default_rng(config.reference_seed), 1)
     fit_cfg = load_reward_config(config.fit)
     active = None

@@ -51,7 +51,6 @@ calibration run, :class:`marlcrash.calibrate.marl.ProgressHook`). They get copie
 
 from __future__ import annotations
 
-import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -71,6 +70,7 @@ from marlcrash.metrics import Metrics, compute_metrics
 from marlcrash.references import ReferenceConfig, ReferenceSampler
 from marlcrash.reward import Reward, TerminationConfig, load_reward_config, require_reward
 from marlcrash.sim.surrogate import SimConfig, Surrogate, load_sim_config
+from marlcrash.vehicle.registry import VehicleOptions
 
 
 class ActionError(MarlcrashError):
@@ -97,6 +97,7 @@ class EnvConfig:
 
     vehicle: str = "b_segment"
     vehicle_seed: int | None = None
+    vehicle_options: VehicleOptions = field(default_factory=VehicleOptions)
     discretization: Literal["optimized", "uniform"] = "optimized"
     sensors: list[str] = field(default_factory=list)
     scenarios: dict[str, float] = field(default_factory=lambda: {"full_width_40": 1.0})
@@ -116,6 +117,10 @@ class EnvConfig:
     seed: int = 0
 
     def validate(self) -> None:
+        try:
+            self.vehicle_options.require_fits(self.vehicle)
+        except ConfigError as e:
+            raise ConfigError(e.reason, key=f"vehicle_options.{e.key}") from None
         require(bool(self.scenarios), "scenarios", "expected at least one scenario name with a weight")
         for k, w in self.scenarios.items():
             require(math.isfinite(w) and w > 0, f"scenarios.{k}", f"expected a weight > 0, got {w}")
@@ -197,13 +202,23 @@ def env_config_of(
         raise
 
 
-@functools.lru_cache(maxsize=4)
-def build_cells(vehicle: str, seed: int | None, method: str) -> CellModel:
-    """Discretize a registered vehicle (or a vehicle file) once per process and cache it."""
+def build_cells(vehicle: str, seed: int | None, method: str, options: VehicleOptions | None = None) -> CellModel:
+    """Discretize a registered vehicle (or a vehicle file, read with ``options``) once per process and cache it
+    (the last :data:`_CELLS_KEPT`)."""
     from marlcrash.cells.discretize import discretize
-    from marlcrash.vehicle.registry import load_vehicle
+    from marlcrash.vehicle.registry import load_configured_vehicle
 
-    return discretize(load_vehicle(vehicle, seed=seed), method=method)
+    options = options or VehicleOptions()
+    key = (vehicle, seed, method, options.key())
+    if key not in _CELLS:
+        _CELLS[key] = discretize(load_configured_vehicle(vehicle, seed, options), method=method)
+        while len(_CELLS) > _CELLS_KEPT:
+            _CELLS.pop(next(iter(_CELLS)))
+    return _CELLS[key]
+
+
+_CELLS: dict[tuple, CellModel] = {}
+_CELLS_KEPT = 4
 
 
 # ------------------------------------------------------------------------------------------ the core
@@ -240,7 +255,9 @@ class CalibrationCore:
             raise ConfigError(f"batch_size must be a positive integer, got {batch_size!r}", key="batch_size")
         self.config = cfg = config
         self.B = batch_size
-        self.cells = cells if cells is not None else build_cells(cfg.vehicle, cfg.vehicle_seed, cfg.discretization)
+        if cells is None:
+            cells = build_cells(cfg.vehicle, cfg.vehicle_seed, cfg.discretization, cfg.vehicle_options)
+        self.cells = cells
         self.sensors = list(cfg.sensors) or list(self.cells.sensor_names)
         rcfg = load_reward_config(cfg.reward)
         rcfg.termination = cfg.termination
@@ -257,8 +274,8 @@ class CalibrationCore:
         self.sim = Surrogate(self.cells, sim_cfg, output_dt=1.0 / rate)
         self.sampler = ReferenceSampler(
             self.cells, self.sim, self.sensors, cfg.scenarios, cfg.reference, vehicle=cfg.vehicle,
-            bounds=(cfg.behaviour_bounds[0], cfg.behaviour_bounds[1]), floor=cfg.transmission_floor,
-            backend=cfg.sim_backend,
+            vehicle_options=cfg.vehicle_options, bounds=(cfg.behaviour_bounds[0], cfg.behaviour_bounds[1]),
+            floor=cfg.transmission_floor, backend=cfg.sim_backend,
         )  # fmt: skip
         self.duration, self.dt = self.sampler.duration, 1.0 / self.sampler.output_rate
         self.T, self.K = self.sampler.n_outputs, len(self.sensors)
