@@ -269,7 +269,7 @@ def load_reward_config(name_or_path: str | Path, overrides: dict[str, Any] | Non
     if path.suffix not in (".yaml", ".yml"):
         _form_class(str(name_or_path))
         path = reward_config_path(str(name_or_path))
-    return load_config(RewardConfig, path, overrides)
+    return load_config(RewardConfig, path, overrides, complete=True)
 
 
 class Termination(NamedTuple):

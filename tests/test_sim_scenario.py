@@ -10,7 +10,9 @@ from sim_fixtures import block, vehicle_block
 
 from marlcrash.cells import load_discretization_config
 from marlcrash.config import config_dir, from_dict
+from marlcrash.envs.core import load_env_config
 from marlcrash.errors import ConfigError
+from marlcrash.reward import load_reward_config
 from marlcrash.sim.scenario import CrashScenario, barrier_mask, get_scenario, list_scenarios, scenario_dir
 from marlcrash.sim.surrogate import load_sim_config
 
@@ -80,11 +82,14 @@ def test_unknown_key_rejected(tmp_path):
         ("scenarios/offset40_left.yaml", "speed_kmh", lambda: get_scenario("offset40_left")),
         ("sim.yaml", "substeps", lambda: load_sim_config()),
         ("cells.yaml", "crush_efficiency_shell", lambda: load_discretization_config()),
+        ("env/default.yaml", "sim_dtype", lambda: load_env_config("default")),
+        ("reward/log_ratio.yaml", "sensor_reduction", lambda: load_reward_config("log_ratio")),
     ],
 )
 def test_a_config_file_missing_a_key_is_refused_naming_it(tmp_path, monkeypatch, file, key, loader):
     """Values live in the YAML files: a key left out of one must not silently take the schema's default (56 km/h
-    for a scenario, 1 substep, a crush efficiency of 0.4 against the file's 0.22)."""
+    for a scenario, 1 substep, a crush efficiency of 0.4 against the file's 0.22, an env in float64 where the file
+    says float32, the mean over sensors)."""
     dst = tmp_path / "configs"
     shutil.copytree(config_dir(), dst)
     path = dst / file

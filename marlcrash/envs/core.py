@@ -155,7 +155,7 @@ def load_env_config(name_or_path: str | Path = "default", overrides: dict | None
     if path.suffix not in (".yaml", ".yml"):
         require_env(name_or_path)
         path = env_config_path(str(name_or_path))
-    config = load_config(EnvConfig, path, overrides)
+    config = load_config(EnvConfig, path, overrides, complete=True)  # values live in the file, not the schema
     config._source = str(path)  # for errors found later, when the environment is built from it
     return config
 
