@@ -188,7 +188,13 @@ def scenario_from_args(args: argparse.Namespace):
     if not overrides:
         return scenario
     scenario = replace(scenario, **overrides)
-    scenario.validate()
+    try:
+        scenario.validate()
+    except ConfigError as e:  # said as the option the user typed, not the scenario file's key
+        option = {"speed_kmh": "speed", "overlap": "overlap", "side": "side"}.get(e.key or "")
+        if option is None or getattr(args, option) is None:
+            raise
+        raise ConfigError(e.reason, key=f"--{option}") from None
     # named after what it is, not after the registered scenario it started from (an offset is no "full_width_40")
     shape = "full_width" if scenario.overlap >= 1.0 else f"overlap{scenario.overlap:g}_{scenario.side}"
     scenario = replace(scenario, name=f"custom_{scenario.speed_kmh:g}kmh_{shape}",

@@ -311,7 +311,9 @@ def test_simulate_overrides_and_errors():
     assert "warning: --side left has no effect" in proc.stderr
     assert json.loads(proc.stdout)["scenario"] == "custom_40kmh_full_width"
     proc = run_cli("simulate", "--speed", "-3", check=False)
-    assert proc.returncode == 2 and "speed_kmh" in proc.stderr
+    assert proc.returncode == 2 and "key '--speed'" in proc.stderr and "speed_kmh" not in proc.stderr
+    proc = run_cli("simulate", "--speed", "40", "--overlap", "1.5", check=False)
+    assert proc.returncode == 2 and "key '--overlap'" in proc.stderr and "got 1.5" in proc.stderr
     proc = run_cli("simulate", "--scenario", "moon_landing", check=False)
     assert proc.returncode == 2 and "full_width_40" in proc.stderr  # lists the registered ones
     for size in ("0", "-1"):  # argparse's own message, before any simulation
