@@ -140,3 +140,26 @@ def test_native_seed_and_partial_reset(cells):
     env.reset(TensorDict({"_reset": torch.tensor([[True], [False]])}, batch_size=[2]))
     assert torch.equal(env.core.params[1], before) and int(env.core.iteration[0]) == 0
     assert td["next", "reward"].dtype == torch.float32
+
+
+def test_actions_taken_with_gradients_are_used_as_values(cells):
+    """A policy's output outside ``torch.no_grad()`` (``env.rollout(n, policy)``): the env takes the values. It tied
+    the parameters and every later observation to the policy's graph (which grew each step), and the PettingZoo
+    door failed inside numpy (``Can't call numpy() on Tensor that requires grad``)."""
+    from tensordict.nn import TensorDictModule
+
+    env = CalibrationTorchEnv(cfg(), batch_size=2, cells=cells)
+    lin = torch.nn.Linear(env.core.obs_dim, env.core.act_dim)
+    policy = TensorDictModule(lambda o: torch.tanh(lin(o)), in_keys=[("agents", "observation")],
+                              out_keys=[("agents", "action")])  # fmt: skip
+    roll = env.rollout(2, policy, break_when_any_done=False)
+    assert roll["agents", "action"].requires_grad  # the policy's graph, as the user built it
+    assert not env.core.params.requires_grad and env.core.params.grad_fn is None
+    assert not roll["next", "agents", "observation"].requires_grad and not roll["next", "state"].requires_grad
+    pz, plain = CalibrationParallelEnv(cfg(), cells), CalibrationParallelEnv(cfg(), cells)
+    pz.reset(seed=3)
+    plain.reset(seed=3)
+    act = {a: torch.full((7,), 0.5, requires_grad=True) for a in pz.agents}
+    obs, rew, _, _, _ = pz.step(act)
+    obs0, rew0, _, _, _ = plain.step({a: np.full(7, 0.5, np.float32) for a in plain.agents})
+    assert rew == rew0 and all(np.array_equal(obs[a], obs0[a]) for a in obs0)

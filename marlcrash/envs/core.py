@@ -404,6 +404,10 @@ class CalibrationCore:
     def check_actions(self, actions: torch.Tensor | np.ndarray) -> torch.Tensor:
         """Validate ``[B, n_agents, act_dim]`` float actions; return them clipped to [-1, 1] as float64.
 
+        The actions are detached from any autograd graph: the simulation is not differentiated through, and a
+        policy's output taken with gradients (``env.rollout(n, policy)`` outside ``torch.no_grad()``) would
+        otherwise tie the parameters, and every later observation, to that graph, which grew with every step.
+
         Raises:
             ActionError: wrong type, shape or dtype, or NaN/inf entries (named by index).
         """
@@ -426,7 +430,7 @@ class CalibrationCore:
                 f"actions must be finite; actions[{b}, {a}, {j}] (agent {self.layout.names[a]!r}) is "
                 f"{float(actions[b, a, j])} ({int(bad.sum())} non-finite entries)"
             )
-        return actions.to(torch.float64).clamp(-1.0, 1.0)
+        return actions.detach().to(torch.float64).clamp(-1.0, 1.0)
 
     def increments(self, actions: torch.Tensor) -> torch.Tensor:
         """Per-cell log increments ``[B, n_cells, 7]`` from checked actions ``[B, n_agents, act_dim]``.

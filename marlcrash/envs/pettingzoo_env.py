@@ -122,7 +122,7 @@ class CalibrationParallelEnv(ParallelEnv):
                 raise ActionError(f"unknown agent {name!r}; possible agents are {self.possible_agents}")
             if name not in live:
                 continue
-            a = np.asarray(act)
+            a = np.asarray(act.detach().cpu() if isinstance(act, torch.Tensor) else act)  # a policy's output too
             if a.shape != (self.core.act_dim,):
                 raise ActionError(
                     f"action of agent {name!r} must have shape [{self.core.act_dim}], got {list(a.shape)}"
