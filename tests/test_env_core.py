@@ -241,6 +241,25 @@ def test_bad_input_raises_clear_errors(cells):
         load_env_config(overrides={"granularity": "part"})
 
 
+def test_step_before_reset_is_refused_naming_the_rows(cells):
+    """A row never reset has no reference (speed 0): the simulator refused it with its own message
+    ("need speed > 0 m/s, ..."), which did not say that reset() was missing; the TorchRL door too."""
+    from marlcrash.envs.torchrl_env import CalibrationTorchEnv
+
+    core = make(cells, 3)
+    with pytest.raises(ActionError, match=r"call reset\(\) before step\(\): rows \[0, 1, 2\] of 3"):
+        core.step(torch.zeros(3, core.A, 7))
+    core.reset(seed=0, mask=torch.tensor([True, False, True]))
+    with pytest.raises(ActionError, match=r"call reset\(\) before step\(\): rows \[1\] of 3"):
+        core.step(torch.zeros(3, core.A, 7))
+    core.reset(mask=torch.tensor([False, True, False]))
+    core.step(torch.zeros(3, core.A, 7))
+    assert core.iteration.tolist() == [1, 1, 1]
+    env = CalibrationTorchEnv(core.config, batch_size=2, cells=cells)
+    with pytest.raises(ActionError, match=r"call reset\(\) before step\(\)"):
+        env.step(env.rand_action())
+
+
 def test_a_nested_override_changes_only_the_keys_it_gives():
     """Hydra makes ``+env_overrides.termination.failure_dfd=10`` a mapping; it must not reset the section's other
     keys to the schema's defaults (the success thresholds went to None: success was switched off)."""

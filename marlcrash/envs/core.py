@@ -318,6 +318,7 @@ class CalibrationCore:
         self.energy_fraction = torch.zeros(B, n, dtype=f64)
         self.metrics = Metrics(*(torch.zeros(B, self.K, dtype=f64) for _ in range(3)))
         self.iteration = torch.zeros(B, dtype=torch.int64)
+        self.started = torch.zeros(B, dtype=torch.bool)  # rows that had a reset (an episode to step)
         self.reward = torch.zeros(B, dtype=f64)
         self.terminated = torch.zeros(B, dtype=torch.bool)
         self.truncated = torch.zeros(B, dtype=torch.bool)
@@ -395,6 +396,7 @@ class CalibrationCore:
         for old, new in zip(self.metrics, m, strict=True):
             old[rows] = new
         self.iteration[rows] = 0
+        self.started[rows] = True
         self.reward[rows] = 0.0
         self.terminated[rows] = False
         self.truncated[rows] = False
@@ -463,7 +465,14 @@ class CalibrationCore:
 
     # --------------------------------------------------------------------------------------- step
     def step(self, actions: torch.Tensor | np.ndarray) -> None:
-        """Apply actions, simulate all ``B`` rows once, update metrics, reward and end flags."""
+        """Apply actions, simulate all ``B`` rows once, update metrics, reward and end flags.
+
+        Raises:
+            ActionError: bad actions (:meth:`check_actions`), or a row that was never reset (no reference yet).
+        """
+        if not bool(self.started.all()):
+            rows = torch.nonzero(~self.started).flatten().tolist()
+            raise ActionError(f"call reset() before step(): rows {rows} of {self.B} have no episode yet")
         prev = self.metrics
         self.apply_actions(actions)
         m = self._simulate(slice(None))
