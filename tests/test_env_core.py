@@ -241,6 +241,26 @@ def test_bad_input_raises_clear_errors(cells):
         load_env_config(overrides={"granularity": "part"})
 
 
+def test_constructor_arguments_are_checked_as_arguments(cells):
+    """A bad batch size was reported as a key of the env's YAML file (``default.yaml key 'batch_size'``), a numpy
+    integer was refused, a float or a string failed inside ``torch.Size`` (TorchRL door), and a config given by name
+    failed with ``AttributeError: 'str' object has no attribute 'vehicle'``."""
+    from marlcrash.envs.pettingzoo_env import CalibrationParallelEnv
+    from marlcrash.envs.torchrl_env import CalibrationTorchEnv
+
+    config = load_env_config()
+    for door in (CalibrationCore, CalibrationTorchEnv):
+        for bad in (0, 2.5, "3", True):
+            with pytest.raises(ConfigError, match=r"^key 'batch_size': batch_size must be a positive integer") as e:
+                door(config, bad, cells)
+            assert e.value.path is None
+    assert CalibrationTorchEnv(config, np.int64(2), cells).batch_size == (2,)
+    assert CalibrationCore(config, np.int64(2), cells).B == 2
+    for door in (CalibrationParallelEnv, CalibrationTorchEnv):
+        with pytest.raises(ConfigError, match=r"key 'config': expected an EnvConfig \(load_env_config\('default'\)\)"):
+            door("default", cells=cells)
+
+
 def test_step_before_reset_is_refused_naming_the_rows(cells):
     """A row never reset has no reference (speed 0): the simulator refused it with its own message
     ("need speed > 0 m/s, ..."), which did not say that reset() was missing; the TorchRL door too."""

@@ -202,6 +202,21 @@ def env_config_of(
         raise
 
 
+def check_env_args(config: Any, batch_size: Any) -> int:
+    """Refuse an env's constructor arguments that are not an :class:`EnvConfig` and a whole number of episodes
+    >= 1 (a numpy integer too); return ``batch_size`` as an ``int``. Arguments, not keys of the env's YAML file.
+
+    Raises:
+        ConfigError: named ``config`` or ``batch_size``, without a file.
+    """
+    if not isinstance(config, EnvConfig):
+        hint = f" (load_env_config({config!r}))" if isinstance(config, str | Path) else ""
+        raise ConfigError(f"expected an EnvConfig{hint}, got {type(config).__name__}", key="config")
+    if isinstance(batch_size, bool | np.bool_) or not isinstance(batch_size, int | np.integer) or batch_size < 1:
+        raise ConfigError(f"batch_size must be a positive integer, got {batch_size!r}", key="batch_size")
+    return int(batch_size)
+
+
 def build_cells(vehicle: str, seed: int | None, method: str, options: VehicleOptions | None = None) -> CellModel:
     """Discretize a registered vehicle (or a vehicle file, read with ``options``) once per process and cache it
     (the last :data:`_CELLS_KEPT`)."""
@@ -242,6 +257,7 @@ class CalibrationCore:
         cells: CellModel | None = None,
         sim_config: SimConfig | None = None,
     ):
+        batch_size = check_env_args(config, batch_size)  # arguments: not keys of the env's YAML file
         try:
             self._build(config, batch_size, cells, sim_config)
         except ConfigError as e:  # name the YAML file the bad key came from
@@ -251,8 +267,6 @@ class CalibrationCore:
             raise
 
     def _build(self, config: EnvConfig, batch_size: int, cells: CellModel | None, sim_config: SimConfig | None) -> None:
-        if not isinstance(batch_size, int) or batch_size < 1:
-            raise ConfigError(f"batch_size must be a positive integer, got {batch_size!r}", key="batch_size")
         self.config = cfg = config
         self.B = batch_size
         if cells is None:

@@ -26,7 +26,7 @@ from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
 from marlcrash.cells.model import CellModel
-from marlcrash.envs.core import CalibrationCore, EnvConfig, load_env_config
+from marlcrash.envs.core import CalibrationCore, EnvConfig, check_env_args, load_env_config
 from marlcrash.sim.surrogate import SimConfig
 
 GROUP = "agents"
@@ -52,8 +52,10 @@ class CalibrationTorchEnv(EnvBase):
         cells: CellModel | None = None,
         sim_config: SimConfig | None = None,
     ):
+        config = config if config is not None else load_env_config()
+        batch_size = check_env_args(config, batch_size)
         super().__init__(device="cpu", batch_size=torch.Size([batch_size]))
-        self.core = CalibrationCore(config if config is not None else load_env_config(), batch_size, cells, sim_config)
+        self.core = CalibrationCore(config, batch_size, cells, sim_config)
         self._make_specs()
 
     @property
