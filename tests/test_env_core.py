@@ -261,6 +261,26 @@ def test_constructor_arguments_are_checked_as_arguments(cells):
             door("default", cells=cells)
 
 
+def test_a_bad_seed_is_named(cells):
+    """numpy's own messages ("expected non-negative integer", "SeedSequence expects int ...") named no value."""
+    from marlcrash.envs.pettingzoo_env import CalibrationParallelEnv
+    from marlcrash.envs.torchrl_env import CalibrationTorchEnv
+
+    core = make(cells, 1)
+    for bad in (-1, 1.5, "a", True):
+        with pytest.raises(ActionError, match=rf"seed must be an integer >= 0 or None, got {bad!r}"):
+            core.reset(seed=bad)
+    pz = CalibrationParallelEnv(core.config, cells)
+    with pytest.raises(ActionError, match=r"seed must be an integer >= 0 or None, got -3"):
+        pz.reset(seed=-3)
+    with pytest.raises(ActionError, match=r"got -3"):
+        CalibrationTorchEnv(core.config, 1, cells).set_seed(-3)
+    core.reset(seed=np.int64(4))
+    first = core.ref_velocity.clone()
+    core.reset(seed=4)
+    assert torch.equal(core.ref_velocity, first)
+
+
 def test_step_before_reset_is_refused_naming_the_rows(cells):
     """A row never reset has no reference (speed 0): the simulator refused it with its own message
     ("need speed > 0 m/s, ..."), which did not say that reset() was missing; the TorchRL door too."""

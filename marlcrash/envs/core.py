@@ -74,7 +74,8 @@ from marlcrash.vehicle.registry import VehicleOptions
 
 
 class ActionError(MarlcrashError):
-    """Actions of the wrong shape, dtype, or with non-finite values."""
+    """Bad use of an environment's API: actions of the wrong shape, dtype, or with non-finite values, a call out of
+    order (step() before reset()), a bad seed or argument."""
 
 
 @dataclass
@@ -345,7 +346,15 @@ class CalibrationCore:
 
     # ------------------------------------------------------------------------------------ seeding
     def seed(self, seed: int | None) -> None:
-        """Re-seed the core's own generator (the global RNGs are never touched)."""
+        """Re-seed the core's own generator (the global RNGs are never touched).
+
+        Raises:
+            ActionError: ``seed`` is not ``None`` or an integer >= 0 (numpy's own message did not say which value).
+        """
+        if seed is not None and (
+            isinstance(seed, bool | np.bool_) or not isinstance(seed, int | np.integer) or seed < 0
+        ):
+            raise ActionError(f"seed must be an integer >= 0 or None, got {seed!r}")
         self.rng = np.random.default_rng(seed)
 
     # --------------------------------------------------------------------------------- simulation
