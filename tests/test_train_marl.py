@@ -357,6 +357,26 @@ def test_resume_true_finds_the_run_and_fresh_runs_refuse_to_overwrite(short, tmp
         train(tiny(tmp_path, name="killed_early"))
 
 
+def test_resuming_a_checkpoint_of_other_networks_names_the_file(short, tmp_path):
+    """config.yaml edited to other layer widths (or a checkpoint copied from another run): the resume failed deep
+    inside tensordict ("Failed to update '0' in tensordict"); now the error names the file and the mismatch, as the
+    evaluation's does, and leaves the run as it was."""
+    part = train(tiny(tmp_path, name="edited", iterations=2), stop_at=1, evaluate=False)
+    cfg = part.run_dir / "config.yaml"
+    cfg.write_text(cfg.read_text().replace("  - 16\n", "  - 32\n"))
+    ckpt, log = (part.run_dir / "checkpoint.pt").read_bytes(), (part.run_dir / "log.csv").read_text()
+    with pytest.raises(ConfigError, match=r"checkpoint\.pt does not fit this run's mappo policy: .* has shape") as e:
+        train(tiny(tmp_path, name="edited", resume=str(part.run_dir)))
+    assert e.value.key == "resume"
+    assert (part.run_dir / "checkpoint.pt").read_bytes() == ckpt and (part.run_dir / "log.csv").read_text() == log
+    cfg.write_text(cfg.read_text().replace("  - 32\n", "  - 16\n"))
+    state = load_checkpoint(part.run_dir / "checkpoint.pt")
+    state["critic"] = {k: v[..., :1] for k, v in state["critic"].items()}  # would broadcast into place
+    save_checkpoint(part.run_dir / "checkpoint.pt", state)
+    with pytest.raises(ConfigError, match=r"does not fit this run's mappo critic"):
+        train(tiny(tmp_path, name="edited", resume=str(part.run_dir)))
+
+
 def test_a_fresh_run_interrupted_before_its_first_checkpoint_leaves_no_folder(short, tmp_path, monkeypatch):
     import marlcrash.calibrate.marl as marl
 

@@ -50,7 +50,15 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 from marlcrash import provenance
 from marlcrash.calibrate.checkpoint import find_checkpoint, load_training_checkpoint
 from marlcrash.calibrate.logging import LOG_FILE, read_log
-from marlcrash.calibrate.marl import TrainConfig, act, load_run_config, make_env, make_env_config, make_policy
+from marlcrash.calibrate.marl import (
+    TrainConfig,
+    act,
+    load_run_config,
+    make_env,
+    make_env_config,
+    make_policy,
+    require_fits,
+)
 from marlcrash.calibrate.problem import CalibrationProblem, ProblemConfig, build_problem
 from marlcrash.config import flatten_overrides, from_dict, require
 from marlcrash.envs import EnvConfig
@@ -379,21 +387,8 @@ def policy_from_checkpoint(config: TrainConfig, state: dict[str, Any], path: Pat
     """
     torch.manual_seed(config.seed)  # the networks' initial draw, overwritten by the checkpoint
     policy = make_policy(make_env(config, n_envs=1), config.algorithm)
-    own, saved = policy.state_dict(), state["policy"]
-    # checked here: TorchRL's MultiAgentMLP keeps its weights in a TensorDict, whose loading broadcasts a
-    # tensor of another shape into place instead of refusing it
-    problems = [f"missing {k}" for k in own if k not in saved] + [f"unexpected {k}" for k in saved if k not in own]
-    problems += [
-        f"{k} has shape {tuple(saved[k].shape)}, expected {tuple(v.shape)}"
-        for k, v in own.items()
-        if k in saved and tuple(getattr(saved[k], "shape", ())) != tuple(v.shape)
-    ]
-    if problems:
-        more = f" (and {len(problems) - 3} more)" if len(problems) > 3 else ""
-        raise ConfigError(
-            f"{path} does not fit this run's {config.algorithm.name} policy: {'; '.join(problems[:3])}{more}", key=key
-        )
-    policy.load_state_dict(saved)
+    require_fits(policy.state_dict(), state["policy"], f"{config.algorithm.name} policy", path, key)
+    policy.load_state_dict(state["policy"])
     return policy
 
 

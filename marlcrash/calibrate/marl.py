@@ -746,6 +746,27 @@ def load_run_config(run_dir: str | Path) -> TrainConfig:
     return load_train_config(data, source=str(path), ci=False)
 
 
+def require_fits(own: dict[str, Any], saved: Any, what: str, path: Path, key: str) -> None:
+    """Refuse a checkpoint's network weights ``saved`` that do not fit a run's network (state dict ``own``).
+
+    Checked here: TorchRL's ``MultiAgentMLP`` keeps its weights in a TensorDict, whose loading broadcasts a tensor of
+    another shape into place instead of refusing it (or fails deep inside tensordict).
+
+    Raises:
+        ConfigError: (``key``) naming the file, the network (``what``) and the first mismatches.
+    """
+    saved = saved if isinstance(saved, dict) else {}
+    problems = [f"missing {k}" for k in own if k not in saved] + [f"unexpected {k}" for k in saved if k not in own]
+    problems += [
+        f"{k} has shape {tuple(saved[k].shape)}, expected {tuple(v.shape)}"
+        for k, v in own.items()
+        if k in saved and tuple(getattr(saved[k], "shape", ())) != tuple(v.shape)
+    ]
+    if problems:
+        more = f" (and {len(problems) - 3} more)" if len(problems) > 3 else ""
+        raise ConfigError(f"{path} does not fit this run's {what}: {'; '.join(problems[:3])}{more}", key=key)
+
+
 # ------------------------------------------------------------------------------------- the trainer
 @dataclass
 class TrainResult:
@@ -927,7 +948,10 @@ def train(config: TrainConfig, *, stop_at: int | None = None, evaluate: bool = T
             with contextlib.suppress(OSError):  # and no empty <out_dir>/<algorithm>/ it created
                 run_dir.parent.rmdir()
         raise
-    if state is not None:
+    if state is not None:  # weights of other networks (config.yaml edited, a checkpoint of another run): refused
+        for what, module in (("policy", tr.policy), ("critic", tr.critic)):
+            name = f"{config.algorithm.name} {what}"
+            require_fits(module.state_dict(), state[what], name, run_dir / CHECKPOINT_FILE, "resume")
         tr.load_state_dict(state)
     else:  # which configs and code this run's numbers come from, checked by a resume and an evaluation
         provenance.write_record(run_dir, provenance.env_inputs(make_env_config(config)))
