@@ -6,6 +6,7 @@ with a 2-iteration training run and budgets of a few simulations.
 
 from __future__ import annotations
 
+import copy
 import csv
 import json
 import os
@@ -160,6 +161,12 @@ def test_held_out_references_differ_from_the_evaluation_reference(run_dir):
     for bad in (0, cfg.seed):  # the evaluation seed, the training seed
         with pytest.raises(ConfigError, match=r"reference_seeds\[1\]"):
             amortized_comparison(small_config(run_dir, reference_seeds=[101, bad]))
+    # a run trained on one pinned reference (reference.pin_seed): that seed is the one reference it has seen
+    policy, _, _ = load_policy(run_dir)
+    pinned = copy.deepcopy(cfg)
+    pinned.env_overrides = {**pinned.env_overrides, "reference.pin_seed": 102}
+    with pytest.raises(ConfigError, match=r"reference_seeds\[1\]': seed 102 is the reference the run trained on"):
+        amortized_comparison(small_config(run_dir, reference_seeds=[101, 102]), policy=policy, train_config=pinned)
 
 
 def test_deterministic_and_independent_of_the_other_runs(comparison, run_dir):

@@ -3,8 +3,8 @@
 A policy trained on many randomized twin references should calibrate an *unseen* reference in a
 few iterations, where an optimizer starts from scratch every time. :func:`amortized_comparison`
 measures that on held-out twin references (``reference_seeds``; each must differ from the run's
-evaluation seed ``eval.reference_seed`` and from its training seed, whose generator draws the
-training references):
+evaluation seed ``eval.reference_seed``, from its training seed, whose generator draws the
+training references, and from ``reference.pin_seed`` of a run trained on that one reference):
 
 - the trained policy alone (:func:`~marlcrash.calibrate.evaluate.evaluate_policy`, the mean action)
   for ``iterations`` calibration steps; it uses ``iterations + 1`` simulations (the reset simulates the
@@ -89,7 +89,7 @@ class AmortizedConfig:
 
     Attributes:
         run: the trained run folder (``config.yaml``, ``checkpoint.pt``); ``None`` only when a policy is passed.
-        reference_seeds: held-out twin seeds (not the run's evaluation or training seed).
+        reference_seeds: held-out twin seeds (not the run's evaluation, training or pinned reference seed).
         scenario: evaluation scenario (registered name).
         iterations: policy calibration steps; ``None`` = the run's ``eval.iterations``.
         target: the policy iterate whose score the optimizers must reach: ``best`` or ``last``.
@@ -286,7 +286,11 @@ def amortized_comparison(
         changes = check.as_dict()
     elif train_config is None:
         raise ConfigError("a policy needs the training config it was trained with", key="train_config")
+    pin = make_env_config(train_config).reference.pin_seed  # a run trained on one reference: that one's seed
     for i, s in enumerate(config.reference_seeds):
+        if s == pin:
+            raise ConfigError(f"seed {s} is the reference the run trained on (reference.pin_seed), not held out",
+                              key=f"reference_seeds[{i}]")  # fmt: skip
         if s == train_config.eval.reference_seed:
             raise ConfigError(f"seed {s} is the run's evaluation reference (eval.reference_seed), not held out",
                               key=f"reference_seeds[{i}]")  # fmt: skip
