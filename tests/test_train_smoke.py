@@ -99,6 +99,15 @@ def test_resume_of_a_named_run_that_does_not_exist_never_takes_the_newest_run(sh
     assert "ignored" not in p.stderr and not (tmp_path / "runs" / "mappo" / "typo").exists()
 
 
+def test_a_resume_of_a_given_folder_reports_the_keys_that_locate_a_run_as_ignored(short_configs, tmp_path):
+    """``resume=<folder>`` continues that folder's run as it was: ``algorithm=ippo name=x`` did not switch it to
+    another algorithm or folder, and were dropped without a word (they locate the run only with ``resume=true``)."""
+    p = run("train.py", [f"resume={tmp_path / 'gone'}", "algorithm=ippo", "name=x", "out_dir=o"], short_configs,
+            tmp_path)  # fmt: skip
+    assert p.returncode == 2 and "key 'resume'" in p.stderr, p.stderr[-2000:]
+    assert "ignored: algorithm=ippo name=x out_dir=o" in p.stderr
+
+
 @pytest.mark.slow
 def test_evaluate_script_reports_a_missing_run(short_configs, tmp_path):
     p = run("evaluate.py", [f"run={tmp_path / 'nope'}"], short_configs, tmp_path)

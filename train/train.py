@@ -34,8 +34,8 @@ from marlcrash.calibrate.marl import load_train_config, run_dir_of, train, value
 from marlcrash.errors import MarlcrashError  # noqa: E402
 
 RESUME_KEYS = ("resume", "name", "out_dir", "algorithm")
-"""Command-line keys a resume reads (they locate the run folder); every other override is ignored (the run's saved
-config.yaml wins)."""
+"""Command-line keys a ``resume=true`` reads (they locate the run folder); a ``resume=<folder>`` reads only itself.
+Every other override is ignored (the run's saved config.yaml wins), and a warning names it."""
 
 
 @hydra.main(version_base=None, config_path="../configs/train", config_name="train")
@@ -46,11 +46,12 @@ def main(cfg: DictConfig) -> None:
         config = load_train_config(  # command-line values win over the ci: block
             OmegaConf.to_container(cfg, resolve=True), source="configs/train/train.yaml", explicit=value_keys(given)
         )
+        locating = ("resume",) if isinstance(config.resume, str) else RESUME_KEYS  # a folder given: it alone
         if config.resume is True and "name" in given:  # a name given: that run or an error, never the newest instead
             config.resume = str(run_dir_of(config))
         name_default_run(cfg, config, run_dir_of)  # multirun jobs started in one second: one folder each
         if config.resume is not False:
-            ignored = [o for o, k in zip(overrides, given, strict=True) if k not in RESUME_KEYS]
+            ignored = [o for o, k in zip(overrides, given, strict=True) if k not in locating]
             if ignored:
                 print(f"warning: resume continues the run with its saved config.yaml; ignored: {' '.join(ignored)}",
                       file=sys.stderr)  # fmt: skip
