@@ -59,6 +59,22 @@ def test_reset_returns_every_agent_but_only_active_ones_live(cells):
     assert env.state().shape == env.state_space.shape
 
 
+def test_an_episode_without_active_agents_says_so(cells):
+    """Masking settings that leave no agent active: step() said "the episode is over; call reset()", and every
+    reset gave the same."""
+    env = CalibrationParallelEnv(cfg(scenarios={"small_overlap_left": 1.0}, **{"masking.mode": "primary",
+                                     "masking.min_fraction": 1.0, "masking.primary_depth": 0.05}), cells)  # fmt: skip
+    env.reset(seed=0)
+    assert env.agents == []
+    with pytest.raises(ActionError, match=r"no agent is active in this episode \(small_overlap_left: .*'primary'"):
+        env.step({})
+    env = CalibrationParallelEnv(cfg(**{"termination.max_iterations": 1}), cells)
+    env.reset(seed=0)
+    env.step({})
+    with pytest.raises(ActionError, match=r"the episode is over"):
+        env.step({})
+
+
 def test_the_aec_conversion_gets_the_live_agents_infos(cells):
     """``reset_agents="live"``: PettingZoo's ``parallel_to_aec`` takes the reset infos as they are (with every
     possible agent's, it copied the whole dict under each agent) and passes its API test without a warning."""

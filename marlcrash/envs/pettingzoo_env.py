@@ -114,6 +114,11 @@ class CalibrationParallelEnv(ParallelEnv):
         if not isinstance(actions, dict):
             raise ActionError(f"actions must be a dict agent name -> array [{self.core.act_dim}], got {type(actions)}")
         live = list(self.agents)
+        if not live and not bool(self.core.active[0].any()):  # at reset, not at the episode's end
+            raise ActionError(
+                f"no agent is active in this episode ({self.core.scenario[0]}: the impact-region rule, masking.mode "
+                f"{self.core.config.masking.mode!r}, leaves none); call reset() for another, or loosen masking"
+            )
         if not live:
             raise ActionError("the episode is over (no live agents); call reset()")
         arr = np.zeros((1, self.core.A, self.core.act_dim), dtype=np.float64)
