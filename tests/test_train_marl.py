@@ -237,6 +237,13 @@ def test_csv_logger_truncates_to_a_checkpoint(tmp_path):
     assert rows[2]["x"] == 0.2  # repr round trip: the float written is the float read
     with pytest.raises(ValueError, match="differ from the columns"):
         again.log({"iteration": 4.0})
+    with pytest.warns(UserWarning, match=r"holds 3 rows, the checkpoint counts 5: the log of iterations 4-5 is lost"):
+        again.truncate(5)  # a log cut short since the checkpoint: said, not hidden
+    assert again.position == 3 and len(read_log(tmp_path / "log.csv")) == 3
+    (tmp_path / "log.csv").unlink()
+    with pytest.warns(UserWarning, match=r"log\.csv is missing, the checkpoint counts 5: the log of iterations 1-5"):
+        again.truncate(5)
+    assert again.position == 0
 
 
 def test_a_torn_row_after_the_checkpoint_is_cut_and_a_malformed_row_before_it_is_named(tmp_path):

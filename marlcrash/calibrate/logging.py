@@ -16,6 +16,7 @@ from __future__ import annotations
 import csv
 import math
 import os
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -72,23 +73,30 @@ class CSVLogger:
     def truncate(self, position: int) -> None:
         """Keep only the first ``position`` rows (rows written after a checkpoint are cut on resume).
 
-        The rows after ``position`` are dropped unread: a row torn by a kill during its write is one of them.
+        The rows after ``position`` are dropped unread: a row torn by a kill during its write is one of them. A log
+        with fewer rows (deleted or cut short since the checkpoint) is kept as it is, with a warning: the rows it
+        lacks are lost, and the learning curves will miss those iterations.
 
         Raises:
             ConfigError: a row kept is not one number per column (naming the file and line).
         """
-        if not self.path.is_file():
+        lines = _lines(self.path)[: position + 1] if self.path.is_file() else []
+        if max(len(lines) - 1, 0) < position:
+            held = "is missing" if not lines else f"holds {len(lines) - 1} rows"
+            warnings.warn(
+                f"{self.path} {held}, the checkpoint counts {position}: the log of iterations "
+                f"{max(len(lines), 1)}-{position} is lost (the run goes on; its learning curves will lack them)",
+                stacklevel=2,
+            )
+        if not lines:
             self.position = 0
             return
-        lines = _lines(self.path)[: position + 1]
-        keep = []
-        if lines:
-            columns = _header(self.path, *lines[0])
-            keep = [columns] + [_values(self.path, n, text, columns) for n, text in lines[1:]]
+        columns = _header(self.path, *lines[0])
+        keep = [columns] + [_values(self.path, n, text, columns) for n, text in lines[1:]]
         with atomic_output(self.path) as tmp, open(tmp, "w", newline="") as fh:
             csv.writer(fh).writerows(keep)
-        self.position = max(0, len(keep) - 1)
-        self.columns = keep[0] if keep else None
+        self.position = len(keep) - 1
+        self.columns = keep[0]
 
     def close(self) -> None:
         """Nothing to release (every row is flushed as written)."""
