@@ -72,6 +72,10 @@ def _check_type(value: Any, tp: Any, key: str, path: str | Path | None) -> Any:
                 return _check_type(value, a, key, path)
             except ConfigError as e:
                 errors.append(e.reason)
+        got = f", got {value!r}"
+        if all(r.startswith("expected ") and r.endswith(got) for r in errors):  # one message: "expected A or B, got x"
+            wanted = [r[len("expected ") : -len(got)] for r in errors]
+            raise ConfigError(f"expected {' or '.join(wanted)}{got}", key=key, path=path)
         raise ConfigError("; ".join(errors), key=key, path=path)
     if dataclasses.is_dataclass(tp):
         if not isinstance(value, dict):

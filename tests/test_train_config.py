@@ -126,6 +126,7 @@ def test_ci_reads_the_environment(monkeypatch):
         (["eval.reference_seed=-1"], "eval.reference_seed", "seed >= 0"),
         (["algorithm.init_std=inf"], "algorithm.init_std", "expected a finite number"),
         (["algorithm.mean_init_gain=nan"], "algorithm.mean_init_gain", "expected a finite number"),
+        (["resume=1"], "resume", "expected true or false or a string, got 1"),  # one message for the union
     ],
 )
 def test_bad_values_name_the_key(overrides, key, words):
