@@ -347,11 +347,13 @@ def _sensor_requests(cfg: DiscretizationConfig, roi: Roi) -> list[tuple[str, np.
 
 def _no_cell(grid: FineGrid, name: str, mass: float) -> ModelError:
     """The error for a sub-assembly whose material ends up in no cell of its own: no mass (``mass``, that of its
-    elements in the ROI, is 0: zero density or thickness) or degenerate geometry."""
+    elements in the ROI, is 0: zero density or thickness, or elements of no area or volume) or an envelope thinner
+    than the voxel pitch."""
     if not mass > 0:  # voxels are owned by mass: massless elements own none, whatever their shape
         return ModelError(
             f"sub-assembly {name!r} has elements in the region of interest but no mass: their density or "
-            "thickness is 0 (`marlcrash inspect` lists each part's thickness and mass)"
+            "thickness is 0, or they are flat or collapsed (no area or volume: check the deck's coordinates and "
+            "units); `marlcrash inspect` lists each part's thickness and mass"
         )
     return ModelError(
         f"sub-assembly {name!r} has material but no cell of its own: its envelope is thinner than the "
