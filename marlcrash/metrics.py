@@ -86,6 +86,13 @@ def _check_pair(q: torch.Tensor, p: torch.Tensor) -> None:
         )
     if q.shape[-1] < 2:
         raise PulseError(f"expected at least 2 time samples, got {q.shape[-1]}")
+    try:
+        torch.broadcast_shapes(q.shape, p.shape)
+    except RuntimeError:
+        raise PulseError(
+            f"expected q and p with broadcastable batch dimensions (e.g. [B, n_sensors, T] and [n_sensors, T]), "
+            f"got shapes {tuple(q.shape)} and {tuple(p.shape)}"
+        ) from None
 
 
 def _steps(time: torch.Tensor | None, dt: float | None, like: torch.Tensor) -> torch.Tensor:
@@ -413,6 +420,7 @@ def compute_metrics(
         :class:`Metrics` of ``[...]`` tensors.
     """
     cfg = config or MetricsConfig()
+    _check_pair(q, p)  # before broadcasting: torch's own message would not say what was expected
     q, p = torch.broadcast_tensors(q, p)
     area = area_between(q, p, time, dt=dt, method=cfg.area_method)
     if backend == "numba":

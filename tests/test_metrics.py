@@ -190,6 +190,12 @@ def test_metric_input_errors():
         area_between(torch.zeros(10), torch.zeros(10))
     with pytest.raises(PulseError, match="points"):
         discrete_frechet_points(torch.zeros(10), torch.zeros(10))
+    # not torch's broadcasting error from inside: the shapes and what was expected
+    with pytest.raises(PulseError, match=r"common time samples.*\(2, 3, 301\) and \(3, 300\)"):
+        compute_metrics(torch.zeros(2, 3, 301), torch.zeros(3, 300), dt=5e-4)
+    for f in (compute_metrics, area_between):
+        with pytest.raises(PulseError, match=r"broadcastable batch dimensions.*\(2, 3, 301\) and \(2, 4, 301\)"):
+            f(torch.zeros(2, 3, 301), torch.zeros(2, 4, 301), dt=5e-4)
 
 
 def test_numba_backend_equals_torch_backend():
