@@ -419,6 +419,8 @@ def compute_metrics(
     Returns:
         :class:`Metrics` of ``[...]`` tensors.
     """
+    if backend not in ("torch", "numba"):
+        raise PulseError(f"metrics backend must be 'torch' or 'numba', got {backend!r}")
     cfg = config or MetricsConfig()
     _check_pair(q, p)  # before broadcasting: torch's own message would not say what was expected
     q, p = torch.broadcast_tensors(q, p)

@@ -210,3 +210,5 @@ def test_numba_backend_equals_torch_backend():
             torch.testing.assert_close(a, b, rtol=1e-12, atol=1e-12)
     with pytest.raises(PulseError, match="uniform step"):
         compute_metrics(q, p, torch.linspace(0, 0.03, 60, dtype=torch.float64), backend="numba")
+    with pytest.raises(PulseError, match="backend must be 'torch' or 'numba', got 'cuda'"):  # not torch silently
+        compute_metrics(q, p, dt=5e-4, backend="cuda")
