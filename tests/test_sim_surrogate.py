@@ -362,6 +362,9 @@ def test_parameter_validation_errors():
         sim.run(_params(cells), FW40, overlap=torch.tensor([1.5]))
     with pytest.raises(ModelError, match="unknown sensors"):
         sim.run(_params(cells), FW40, sensors=["nope"])
+    for backend in ("torch", "numba"):  # not a KeyError from the recording code
+        with pytest.raises(ModelError, match="record_cells must be one of series, final, none; got 'all'"):
+            sim.run(_params(cells), FW40, record_cells="all", backend=backend)
 
 
 def test_sim_config_validation_names_key():

@@ -554,10 +554,13 @@ class Surrogate:
             A :class:`SimResult`.
 
         Raises:
-            ModelError: an unknown backend, ``cells_at`` outside the simulated time or between samples.
+            ModelError: an unknown backend or ``record_cells``, ``cells_at`` outside the simulated time or between
+                samples.
         """
         if backend not in (None, "torch", "numba", "adjoint", "auto"):
             raise ModelError(f"backend must be one of torch, numba, adjoint, auto; got {backend!r}")
+        if record_cells not in ("series", "final", "none"):
+            raise ModelError(f"record_cells must be one of series, final, none; got {record_cells!r}")
         if not self.stability_caps:
             raise ModelError(
                 "this Surrogate was built with stability_caps=False: no explicit step is stable with the raw "
