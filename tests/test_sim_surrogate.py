@@ -362,6 +362,10 @@ def test_parameter_validation_errors():
         sim.run(_params(cells), FW40, overlap=torch.tensor([1.5]))
     with pytest.raises(ModelError, match="unknown sensors"):
         sim.run(_params(cells), FW40, sensors=["nope"])
+    for bad in (-0.01, 0.0, float("nan"), 0.01024):  # not numpy's errors, nor a window silently rounded
+        with pytest.raises(ModelError, match=r"duration must be > 0 s and a whole number of 0.0005 s output steps"):
+            sim.run(_params(cells), FW40, duration=bad)
+    assert sim.run(_params(cells), FW40, duration=0.01).time[-1].item() == pytest.approx(0.01)
     for backend in ("torch", "numba"):  # not a KeyError from the recording code
         with pytest.raises(ModelError, match="record_cells must be one of series, final, none; got 'all'"):
             sim.run(_params(cells), FW40, record_cells="all", backend=backend)

@@ -614,7 +614,12 @@ class Surrogate:
                 "build the Surrogate with output_dt=scenario.output_dt"
             )
         dur = duration if duration is not None else (scenario.duration if scenario is not None else 0.150)
-        n_out = round(dur / self.output_dt) + 1
+        steps = float(dur) / self.output_dt
+        if not (np.isfinite(steps) and steps >= 0.5 and abs(steps - round(steps)) <= 1e-6 * steps):
+            raise ModelError(
+                f"duration must be > 0 s and a whole number of {self.output_dt:.6g} s output steps, got {dur}"
+            )
+        n_out = round(steps) + 1
         names = sensors if sensors is not None else (list(scenario.sensors) if scenario is not None else [])
         sensor_idx = self._sensor_index(names) if probe_cells is None else self._probe_index(probe_cells)
         return (
