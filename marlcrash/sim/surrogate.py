@@ -537,7 +537,8 @@ class Surrogate:
             params: ``[B, n_cells, 7]`` (or ``[n_cells, 7]``) cell parameters.
             scenario: load case (speed, overlap, side, duration, sensors); per-row tensors override it.
             speed, overlap, side: optional ``[B]`` tensors (m/s, fraction, +1 left / -1 right).
-            duration: simulated window [s] when no scenario is given (default 0.150).
+            duration: simulated window [s], a whole number of output steps; overrides the scenario's (default: the
+                scenario's, without one 0.150).
             sensors: sensor names to record (default: the scenario's list, else all).
             probe_cells: record these cells' acceleration and velocity instead of the sensors (named
                 ``cell<i>`` in the result), e.g. to study sensor placement; indices into the cell model.
