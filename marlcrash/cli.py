@@ -104,14 +104,9 @@ def load_model_from_args(args: argparse.Namespace):
     for flag in ("param", "units", "axis_map"):
         if getattr(args, flag):
             raise ConfigError(f"--{flag.replace('_', '-')} only applies to keyword decks ({', '.join(DECK_SUFFIXES)})")
-    from marlcrash.vehicle.registry import load_vehicle
+    from marlcrash.vehicle.registry import VehicleOptions, load_configured_vehicle
 
-    model = load_vehicle(target or "b_segment", seed=args.seed)
-    if args.subassemblies:
-        from marlcrash.vehicle.subassembly_map import load_subassembly_map
-
-        model = model.with_subassemblies(load_subassembly_map(args.subassemblies, model))
-    return model
+    return load_configured_vehicle(target or "b_segment", args.seed, VehicleOptions(subassemblies=args.subassemblies))
 
 
 def _input_files(args: argparse.Namespace) -> tuple[str, ...]:

@@ -203,6 +203,11 @@ def env_config_of(
         raise
 
 
+def _is_int_at_least(value: Any, lo: int) -> bool:
+    """``value`` is an integer (Python or numpy, not a bool) ``>= lo``."""
+    return not isinstance(value, bool | np.bool_) and isinstance(value, int | np.integer) and value >= lo
+
+
 def check_env_args(config: Any, batch_size: Any) -> int:
     """Refuse an env's constructor arguments that are not an :class:`EnvConfig` and a whole number of episodes
     >= 1 (a numpy integer too); return ``batch_size`` as an ``int``. Arguments, not keys of the env's YAML file.
@@ -213,7 +218,7 @@ def check_env_args(config: Any, batch_size: Any) -> int:
     if not isinstance(config, EnvConfig):
         hint = f" (load_env_config({config!r}))" if isinstance(config, str | Path) else ""
         raise ConfigError(f"expected an EnvConfig{hint}, got {type(config).__name__}", key="config")
-    if isinstance(batch_size, bool | np.bool_) or not isinstance(batch_size, int | np.integer) or batch_size < 1:
+    if not _is_int_at_least(batch_size, 1):
         raise ConfigError(f"batch_size must be a positive integer, got {batch_size!r}", key="batch_size")
     return int(batch_size)
 
@@ -351,9 +356,7 @@ class CalibrationCore:
         Raises:
             ActionError: ``seed`` is not ``None`` or an integer >= 0 (numpy's own message did not say which value).
         """
-        if seed is not None and (
-            isinstance(seed, bool | np.bool_) or not isinstance(seed, int | np.integer) or seed < 0
-        ):
+        if seed is not None and not _is_int_at_least(seed, 0):
             raise ActionError(f"seed must be an integer >= 0 or None, got {seed!r}")
         self.rng = np.random.default_rng(seed)
 
