@@ -9,9 +9,11 @@ from marlcrash.sim.bench import (
     format_dtype_study,
     format_implicit_study,
     format_lane_study,
+    format_noalias_study,
     format_substep_study,
     implicit_study,
     lane_study,
+    noalias_study,
     run_benchmark,
     substep_study,
 )
@@ -164,3 +166,19 @@ def test_implicit_study_counts_link_passes_and_grades_the_linear_scheme():
     assert not li["passed"] and "energy balance < 0.5 %" in li["failed"] and li["balance"] > 5e-3
     text = format_implicit_study(res)
     assert "backward Euler" in text and "linearly implicit" in text and "at 2100 steps (300.0 sims/s)" in text
+
+
+@pytest.mark.slow
+def test_noalias_study_times_both_compilations_and_finds_the_same_numbers():
+    """The kernel and the roofline pass recompiled without ``noalias`` from their own source: identical outputs,
+    ratios of the same run."""
+    res = noalias_study(batch=4, repeats=1)
+    r = res["sims_per_s"]
+    assert set(r) == {"kernel_noalias", "kernel_plain", "roofline_noalias", "roofline_plain"}
+    assert all(v > 0 for v in r.values())
+    assert res["kernel_ratio"] == pytest.approx(r["kernel_noalias"] / r["kernel_plain"])
+    assert res["roofline_ratio"] == pytest.approx(r["roofline_noalias"] / r["roofline_plain"])
+    assert res["max_abs_diff"] == 0.0 and res["noalias_active"]
+    assert "kernel   noalias" in format_noalias_study(res)
+    with pytest.raises(ValueError, match="dtype must be one of"):
+        noalias_study(batch=1, dtype="float16")

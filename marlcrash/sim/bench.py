@@ -10,26 +10,25 @@ force, plastic work, damping, stored energy, scatter of the force to both end no
 none of the model's logic (saturation, wall contact, ledgers, outputs). Achieved rates are
 reported as ratios to it, so the numbers compare across machines.
 
-The roofline pass is the fastest form of that loop found on this machine: a link's lanes are computed into
-stack scratch, then added to each node array in a lane loop of its own. LLVM cannot prove that numba arrays do
-not overlap, so a lane loop that writes several of them is preceded by a runtime overlap test of every pair of
-arrays, once per link; the fused form ran 0.69-0.80x of this one (B = 1024, default car, both precisions,
-interleaved). The simulation kernel written the same way ran no faster (0.9-1.0x, interleaved), so it keeps its
-fused loop (README "Simulator speed").
+The roofline pass is the fastest form of that loop found on this machine: the fused loop of the kernel, with its
+arrays compiled ``noalias`` (:mod:`marlcrash.sim.noalias`; without that mark LLVM guards every lane loop with
+runtime overlap tests of each pair of arrays, once per link). The simulation kernel is compiled the same way.
+Before both were, the roofline pass computed a link's lanes into stack scratch and added them to each node array in
+a loop of its own, which avoided the tests at the price of extra passes: the fused ``noalias`` pass runs about
+1.1x as fast as that (``benchmarks/bench_noalias.py``).
 """
 
 from __future__ import annotations
 
 import time
+import types as pytypes
 
 import numba
 import numpy as np
 import torch
-from numba import types
-from numba.core import cgutils
-from numba.extending import intrinsic
 
 from marlcrash.sim import kernels
+from marlcrash.sim.noalias import njit_noalias
 from marlcrash.sim.scenario import get_scenario
 from marlcrash.sim.surrogate import Surrogate, load_sim_config
 
@@ -37,64 +36,48 @@ SCENARIO = "full_width_56"
 """Load case timed (its 150 ms window and 2 kHz output define the step count)."""
 
 
-MAX_LANES = 256
-"""Widest chunk the roofline pass takes (its stack scratch holds this many lanes)."""
-
-
-@intrinsic
-def _stack_lanes(typingctx, dtype):
-    """A pointer to :data:`MAX_LANES` values of ``dtype`` on the calling function's stack (overlaps no array)."""
-
-    def codegen(context, builder, signature, args):
-        return cgutils.alloca_once(builder, context.get_value_type(dtype.dtype), size=MAX_LANES)
-
-    return types.CPointer(dtype.dtype)(dtype), codegen
+@njit_noalias(cache=True, fastmath=kernels._FASTMATH)
+def _roofline_chunk(P, f, ds, fs, fd, plastic, st, src, dst, n_steps, cst):
+    """The roofline's link pass over one chunk (``P [L, N_PROP, lanes]``); its arrays are compiled ``noalias``."""
+    L, _, CH = P.shape
+    n = ds.shape[0]
+    half, zero = cst[0], cst[1]
+    for _ in range(n_steps):
+        for ll in range(L):
+            a = src[ll]
+            c = dst[ll]
+            for j in range(CH):
+                dd = ds[c, j] - ds[a, j]
+                y = P[ll, kernels.H_YU, j]
+                f0 = f[ll, j]
+                ft = f0 + P[ll, kernels.H_K, j] * dd
+                fn = min(max(ft, -y), y)
+                plastic[a, j] += fn * (ft - fn) * P[ll, kernels.H_IK, j]
+                tot = fn + P[ll, kernels.H_DC, j] * (fn - f0)
+                f[ll, j] = fn
+                st[j] += half * fn * fn * P[ll, kernels.H_IK, j]
+                fs[a, j] += tot
+                fd[c, j] += tot
+        for i in range(n):
+            for j in range(CH):
+                ds[i, j] = 1e-12 * (fs[i, j] - fd[i, j])
+                fs[i, j] = zero
+                fd[i, j] = zero
 
 
 @numba.njit(cache=True, fastmath=kernels._FASTMATH, parallel=True)
 def _roofline(lp, src, dst, n, n_steps, cst):
-    """Link-update roofline: ``lp [C, L, N_PROP, lanes]``; elastic-plastic update + scatter, no model logic.
-
-    Each link's lanes go to stack scratch first, then to each node array in a loop of its own (module doc).
-    """
+    """Link-update roofline: ``lp [C, L, N_PROP, lanes]``; elastic-plastic update + scatter, no model logic."""
     n_chunks, L, _, CH = lp.shape
-    half, zero = cst[0], cst[1]
     total = np.zeros(n_chunks)
     for ch in numba.prange(n_chunks):
-        P = lp[ch]
         f = np.zeros((L, CH), lp.dtype)
         ds = np.zeros((n, CH), lp.dtype)
         fs = np.zeros((n, CH), lp.dtype)
         fd = np.zeros((n, CH), lp.dtype)
         plastic = np.zeros((n, CH), lp.dtype)
         st = np.zeros(CH, lp.dtype)
-        s_ft = numba.carray(_stack_lanes(lp.dtype), (MAX_LANES,))
-        s_dp = numba.carray(_stack_lanes(lp.dtype), (MAX_LANES,))
-        for _ in range(n_steps):
-            for ll in range(L):
-                a = src[ll]
-                c = dst[ll]
-                for j in range(CH):
-                    dd = ds[c, j] - ds[a, j]
-                    y = P[ll, kernels.H_YU, j]
-                    f0 = f[ll, j]
-                    ft = f0 + P[ll, kernels.H_K, j] * dd
-                    fn = min(max(ft, -y), y)
-                    s_dp[j] = fn * (ft - fn) * P[ll, kernels.H_IK, j]
-                    s_ft[j] = fn + P[ll, kernels.H_DC, j] * (fn - f0)
-                    f[ll, j] = fn
-                    st[j] += half * fn * fn * P[ll, kernels.H_IK, j]
-                for j in range(CH):
-                    plastic[a, j] += s_dp[j]
-                for j in range(CH):
-                    fs[a, j] += s_ft[j]
-                for j in range(CH):
-                    fd[c, j] += s_ft[j]
-            for i in range(n):
-                for j in range(CH):
-                    ds[i, j] = 1e-12 * (fs[i, j] - fd[i, j])
-                    fs[i, j] = zero
-                    fd[i, j] = zero
+        _roofline_chunk(lp[ch], f, ds, fs, fd, plastic, st, src, dst, n_steps, cst)
         total[ch] = st.sum() + plastic.sum()
     return total.sum()
 
@@ -123,7 +106,7 @@ def measure_roofline(sim: Surrogate, batch: int, n_steps: int, repeats: int = 1,
     npdt = np.float32 if sim.dtype == torch.float32 else np.float64
     L = sim.L if n_links is None else int(n_links)
     nprop = kernels.n_hot(bool(sim.config.springback_relief))
-    lanes = min(kernels.lanes_for(batch, L, sim.n, np.dtype(npdt).name), MAX_LANES)
+    lanes = kernels.lanes_for(batch, L, sim.n, np.dtype(npdt).name)
     n_chunks = -(-batch // lanes)
     rng = np.random.default_rng(0)
     lp = rng.uniform(1e3, 1e5, (n_chunks, L, nprop, lanes)).astype(npdt)
@@ -316,6 +299,114 @@ def format_dtype_study(res: dict) -> str:
             f"float32 / float64: {res['float32_over_float64']:.2f}x",
             f"float32 - float64: sensor velocity up to {res['max_velocity_diff_ms']:.1e} m/s, "
             f"crush up to {res['max_crush_diff_m']:.1e} m",
+        ]
+    )
+
+
+# ------------------------------------------------------------------------------------------ noalias
+def _recompiled(disp, parallel: bool = False, **replace):
+    """``disp``'s Python function compiled by plain ``numba.njit`` (no ``noalias``), some globals replaced."""
+    fn = disp.py_func
+    g = {**fn.__globals__, **replace}
+    copy = pytypes.FunctionType(fn.__code__, g, fn.__name__, fn.__defaults__, fn.__closure__)
+    return numba.njit(fastmath=kernels._FASTMATH, parallel=parallel)(copy)
+
+
+def noalias_study(batch: int = 1024, repeats: int = 3, dtype: str = "float64") -> dict:
+    """The fast path and the roofline pass with their arrays compiled ``noalias`` against the same code without.
+
+    :mod:`marlcrash.sim.noalias` marks the array arguments of the kernel's per-chunk function
+    (:func:`marlcrash.sim.kernels._chunk`) and of the roofline's (:func:`_roofline_chunk`) as not overlapping. This
+    recompiles both from their own source with plain ``numba.njit`` and times the four in turn within one run
+    (``batch`` complete ``full_width_56`` simulations of the default car, per-cell energies at the final step, as
+    the environments call it; each keeps its best of ``repeats`` rounds). The two kernels must give identical
+    numbers.
+
+    Returns:
+        ``batch``, ``dtype``, ``threads``, ``lanes``, ``noalias_active`` (:data:`marlcrash.sim.noalias.ACTIVE`),
+        ``sims_per_s`` (``kernel_noalias``, ``kernel_plain``, ``roofline_noalias``, ``roofline_plain``),
+        ``kernel_ratio`` and ``roofline_ratio`` (noalias / plain) and ``max_abs_diff`` (largest difference of any
+        output between the two kernels).
+
+    Raises:
+        ValueError: ``batch`` or ``repeats`` below 1, or an unknown ``dtype``.
+    """
+    from marlcrash.sim import noalias
+
+    if batch < 1 or repeats < 1:
+        raise ValueError(f"batch and repeats must be >= 1, got {batch} and {repeats}")
+    if dtype not in kernels.LANE_EFFICIENCY:
+        raise ValueError(f"dtype must be one of {sorted(kernels.LANE_EFFICIENCY)}, got {dtype!r}")
+    cells = load_sim_cells()
+    scenario = get_scenario(SCENARIO)
+    sim = Surrogate(cells, load_sim_config(overrides={"dtype": dtype}))
+    base = torch.as_tensor(cells.params)[None]
+    p = base.repeat(batch, 1, 1)
+    steps = (scenario.n_outputs - 1) * sim.config.substeps
+    live = live_links(sim, base)
+    plain_sim = _recompiled(kernels._simulate, parallel=True, _chunk=_recompiled(kernels._chunk))
+    plain_roof = _recompiled(_roofline, parallel=True, _roofline_chunk=_recompiled(_roofline_chunk))
+
+    def kernel(impl):
+        saved = kernels._simulate
+        kernels._simulate = impl
+        try:
+            return sim.run(p, scenario, backend="numba", record_cells="final")
+        finally:
+            kernels._simulate = saved
+
+    def roofline(impl):
+        global _roofline
+        saved = _roofline
+        _roofline = impl
+        try:
+            return measure_roofline(sim, batch, steps, n_links=live)
+        finally:
+            _roofline = saved
+
+    out = {"noalias": kernel(kernels._simulate), "plain": kernel(plain_sim)}  # also compiles
+    roofline(plain_roof)
+    best = dict.fromkeys(("kernel_noalias", "kernel_plain"), float("inf"))
+    roof = dict.fromkeys(("roofline_noalias", "roofline_plain"), 0.0)
+    for _ in range(repeats):
+        for name, impl in (("kernel_noalias", kernels._simulate), ("kernel_plain", plain_sim)):
+            t0 = time.perf_counter()
+            kernel(impl)
+            best[name] = min(best[name], time.perf_counter() - t0)
+        for name, impl in (("roofline_noalias", _roofline), ("roofline_plain", plain_roof)):
+            roof[name] = max(roof[name], roofline(impl))
+    rates = {**{k: batch / t for k, t in best.items()}, **roof}
+    a, b = out["noalias"], out["plain"]
+    diff = max(
+        float((x - y).abs().max())
+        for x, y in ((a.velocity, b.velocity), (a.crush, b.crush), (a.absorbed, b.absorbed),
+                     (a.cell_absorbed, b.cell_absorbed), (a.cell_transmitted, b.cell_transmitted))
+    )  # fmt: skip
+    return {
+        "batch": batch,
+        "dtype": dtype,
+        "threads": numba.get_num_threads(),
+        "lanes": kernels.lanes_for(batch, live, sim.n, dtype),
+        "noalias_active": noalias.ACTIVE,
+        "sims_per_s": rates,
+        "kernel_ratio": rates["kernel_noalias"] / rates["kernel_plain"],
+        "roofline_ratio": rates["roofline_noalias"] / rates["roofline_plain"],
+        "max_abs_diff": diff,
+    }
+
+
+def format_noalias_study(res: dict) -> str:
+    """The lines of :func:`noalias_study`."""
+    r = res["sims_per_s"]
+    return "\n".join(
+        [
+            f"noalias study: default car, B={res['batch']}, {res['dtype']}, {res['lanes']} lanes, {res['threads']} "
+            f"threads (best of the rounds, interleaved; noalias active: {res['noalias_active']})",
+            f"kernel   noalias: {r['kernel_noalias']:8.1f} sims/s   plain: {r['kernel_plain']:8.1f} sims/s   "
+            f"ratio {res['kernel_ratio']:.2f}x",
+            f"roofline noalias: {r['roofline_noalias']:8.1f} sims/s   plain: {r['roofline_plain']:8.1f} sims/s   "
+            f"ratio {res['roofline_ratio']:.2f}x",
+            f"kernel noalias - plain: every output within {res['max_abs_diff']:.1e}",
         ]
     )
 

@@ -40,6 +40,7 @@ import numba
 import numpy as np
 import torch
 
+from marlcrash.sim.noalias import njit_noalias
 from marlcrash.sim.surrogate import LinkProps, SimResult, Surrogate, WallProps
 
 _MODES = {"none": 0, "final": 1, "series": 2}
@@ -252,44 +253,186 @@ def _densify(
             f_prev[ll, j] += tot
 
 
+@njit_noalias(cache=True, fastmath=_FASTMATH)
+def _chunk(
+    cst, P, PC, NP, sp, src, dst, n_plain, out_ptr, out_idx, gap0, trl, mass, mass_ke, sidx, comp, dt, sub, n_out,
+    snap, mode, relief, vel_o, s_o, vc_o, pen_o, ke_o, st_o, ab_o, pl_o, cin_o, cab_o, ctr_o, plastic_o, s, v, ds,
+    fs, fd, plastic, sat, w0, fw_prev, acc, wall_node, fs_prev, fd_prev, w_work, w_in, a_out, p_in, h_out,
+    stored_w, st_cell, h_step, f_el, o, yd, f_prev, st_l, step_in, w_link, pmax, ww, a_ke, a_st, a_w, a_p,
+):  # fmt: skip
+    """Advance one chunk of ``CH`` simulations through every step (the body of :func:`_simulate`'s parallel loop).
+
+    Every array argument is its own allocation, or a view of one no other argument shares, so they are compiled
+    ``noalias`` (:mod:`marlcrash.sim.noalias`): the lane loops need no runtime overlap tests. ``P``, ``PC``, ``NP``,
+    ``sp`` and the outputs are the chunk's slices of :func:`_simulate`'s arrays; the rest is the chunk's work state
+    (zeros; ``wall_node`` and ``step_in`` are filled here).
+    """
+    L, _, CH = P.shape
+    n = mass.shape[0]
+    K = sidx.shape[0]
+    half, zero, one, dtf = cst[0], cst[1], cst[2], cst[4]
+    n_steps = (n_out - 1) * sub
+    # cells the barrier covers in some lane of this chunk: the only ones that need the contact terms
+    for i in range(n):
+        for j in range(CH):
+            if NP[i, W_COV, j] > zero:
+                wall_node[i] = True
+    for j in range(CH):
+        step_in[j] = sp[j] * dtf
+    for ll in range(n_plain, L):
+        for j in range(CH):
+            o[ll, j] = gap0[ll]
+    for i in range(n):
+        for j in range(CH):
+            v[i, j] = sp[j]
+    for j in range(CH):
+        e0 = 0.0
+        for i in range(n):
+            e0 += 0.5 * mass_ke[i] * float(sp[j]) * float(sp[j])
+        for q in range(K):
+            vel_o[j, q, 0] = sp[j]
+        vc_o[j, 0] = sp[j]
+        ke_o[j, 0] = e0
+    for step in range(1, n_steps + 1):
+        record = step % sub == 0
+        t = step // sub
+        for i in range(n):
+            for j in range(CH):
+                d = dtf * v[i, j]
+                ds[i, j] = d
+                s[i, j] += d
+                fs[i, j] = zero
+                fd[i, j] = zero
+        # plain links (elastic-plastic), then gap (contact) links; one specialised loop per kind
+        led = mode > 0
+        if relief:
+            _links(P, 0, n_plain, False, True, led, src, dst, ds, f_el, o, yd, plastic, fs, fd, h_step, f_prev,
+                   step_in, trl, cst)  # fmt: skip
+            _links(P, n_plain, L, True, True, led, src, dst, ds, f_el, o, yd, plastic, fs, fd, h_step, f_prev,
+                   step_in, trl, cst)  # fmt: skip
+        else:
+            _links(P, 0, n_plain, False, False, led, src, dst, ds, f_el, o, yd, plastic, fs, fd, h_step, f_prev,
+                   step_in, trl, cst)  # fmt: skip
+            _links(P, n_plain, L, True, False, led, src, dst, ds, f_el, o, yd, plastic, fs, fd, h_step, f_prev,
+                   step_in, trl, cst)  # fmt: skip
+        # saturation within the step: a cell whose plastic work crossed E_s densifies its out-links for the
+        # part of the step past the crossing, keeps E_s as its plastic work and switches them to their dense
+        # properties once (saturation is monotone)
+        for i in range(n):
+            new = zero
+            for j in range(CH):
+                new += (one if plastic[i, j] >= NP[i, W_ES, j] else zero) - sat[i, j]
+            if new > zero:
+                for j in range(CH):
+                    e_s = NP[i, W_ES, j]
+                    if sat[i, j] == zero and plastic[i, j] >= e_s:
+                        phi = (plastic[i, j] - e_s) / (plastic[i, j] - w0[i, j])
+                        _densify(P, PC, i, j, phi, out_ptr, out_idx, n_plain, dst, ds, f_el, fs, fd, led, h_step,
+                                 f_prev, step_in, trl, cst)  # fmt: skip
+                        plastic[i, j] = e_s
+                        sat[i, j] = one
+                        _bottom_out(P, PC, i, j, out_ptr, out_idx, relief, cst)
+            for j in range(CH):
+                w0[i, j] = plastic[i, j]  # the next step's starting plastic work (nothing else changes it)
+        for j in range(CH):
+            pmax[j] = 0.0
+            w_link[j] = 0.0
+        for i in range(n):
+            mi = mass[i]
+            mk = mass_ke[i]
+            if wall_node[i]:
+                for j in range(CH):
+                    pen = s[i, j] - NP[i, W_GAP, j]
+                    inc = NP[i, W_COV, j] > zero and pen > zero
+                    fw = max(NP[i, W_K, j] * pen + NP[i, W_C, j] * min(v[i, j], pen * cst[3]), zero) if inc else zero
+                    stored_w[i, j] = 0.5 * float(NP[i, W_K, j]) * float(pen) * float(pen) if inc else 0.0
+                    fwbar = 0.5 * (float(fw_prev[i, j]) + float(fw))
+                    dsi = float(ds[i, j])
+                    w_work[i, j] += fwbar * dsi
+                    w_in[i, j] += fwbar * float(step_in[j])
+                    fw_prev[i, j] = fw
+                    pmax[j] = max(pmax[j], float(pen) if inc else 0.0)
+                    acc[i, j] = (fs[i, j] - fd[i, j] - fw) / mi
+            else:
+                for j in range(CH):
+                    acc[i, j] = (fs[i, j] - fd[i, j]) / mi
+            if led:  # per-cell ledgers: only where per-cell energies are recorded
+                for j in range(CH):
+                    h_out[i, j] += float(h_step[i, j])
+                    h_step[i, j] = zero
+                    r = float(step_in[j]) - float(ds[i, j])
+                    a_out[i, j] += 0.5 * (fs_prev[i, j] + float(fs[i, j])) * r
+                    p_in[i, j] += 0.5 * (fd_prev[i, j] + float(fd[i, j])) * r
+            for j in range(CH):
+                dsi = float(ds[i, j])
+                fsi = float(fs[i, j])
+                fdi = float(fd[i, j])
+                w_link[j] += (0.5 * (fd_prev[i, j] + fdi) - 0.5 * (fs_prev[i, j] + fsi)) * dsi
+                fs_prev[i, j] = fsi
+                fd_prev[i, j] = fdi
+                v_new = v[i, j] + dtf * acc[i, j]
+                ds[i, j] = half * mk * v[i, j] * v_new  # reused: leapfrog kinetic energy
+                v[i, j] = v_new
+        for j in range(CH):
+            a_w[j] += w_link[j]
+        if record:
+            # elastic energy of the links (only needed at output steps); a plain per-lane sum: the per-cell
+            # split below is needed only where per-cell energies are recorded (summing by cell at every output
+            # step measured 4 % slower)
+            for j in range(CH):
+                st_l[j] = zero
+            for ll in range(L):
+                for j in range(CH):
+                    st_l[j] += half * f_el[ll, j] * f_el[ll, j] * P[ll, H_IK, j]
+            for j in range(CH):
+                for q in range(K):
+                    vel_o[j, q, t] = v[sidx[q], j] - 0.5 * dt * acc[sidx[q], j]
+                s_o[j, t] = s[comp, j]
+                vc_o[j, t] = v[comp, j] - 0.5 * dt * acc[comp, j]
+                pen_o[j, t] = pmax[j]
+                a_ke[j] = 0.0
+                a_st[j] = float(st_l[j])
+                a_p[j] = 0.0
+                ww[j] = 0.0
+            for i in range(n):
+                for j in range(CH):
+                    a_ke[j] += ds[i, j]
+                    a_st[j] += stored_w[i, j]
+                    ww[j] += w_work[i, j]
+                    a_p[j] += plastic[i, j]
+            for j in range(CH):
+                ke_o[j, t] = a_ke[j]
+                st_o[j, t] = a_st[j]
+                ab_o[j, t] = a_w[j] + ww[j] - a_st[j]
+                pl_o[j, t] = a_p[j]
+            if t == snap:
+                for i in range(n):
+                    for j in range(CH):
+                        plastic_o[j, i] = plastic[i, j]
+            if mode == 2 or (mode == 1 and t == snap):
+                tt = t if mode == 2 else 0
+                for i in range(n):
+                    for j in range(CH):
+                        st_cell[i, j] = 0.0
+                for ll in range(L):
+                    a = src[ll]
+                    for j in range(CH):
+                        st_cell[a, j] += 0.5 * float(f_el[ll, j]) * float(f_el[ll, j]) * float(P[ll, H_IK, j])
+                for j in range(CH):
+                    for i in range(n):
+                        cin_o[j, i, tt] = w_in[i, j] + p_in[i, j]
+                        cab_o[j, i, tt] = w_work[i, j] - stored_w[i, j] + a_out[i, j] - h_out[i, j] - st_cell[i, j]
+                        ctr_o[j, i, tt] = h_out[i, j]
+
+
 @numba.njit(cache=True, fastmath=_FASTMATH, parallel=True)
 def _simulate(
-    cst,
-    lp,
-    lc,
-    npr,
-    speed,
-    src,
-    dst,
-    n_plain,
-    out_ptr,
-    out_idx,
-    gap0,
-    trl,
-    mass,
-    mass_ke,
-    sidx,
-    comp,
-    dt,
-    sub,
-    n_out,
-    snap,
-    mode,
-    relief,
-    vel_o,
-    s_o,
-    vc_o,
-    pen_o,
-    ke_o,
-    st_o,
-    ab_o,
-    pl_o,
-    cin_o,
-    cab_o,
-    ctr_o,
-    plastic_o,
-):
-    """Advance all chunks; links ``0 .. n_plain-1`` are plain links, the rest gap (contact) links.
+    cst, lp, lc, npr, speed, src, dst, n_plain, out_ptr, out_idx, gap0, trl, mass, mass_ke, sidx, comp, dt, sub, n_out,
+    snap, mode, relief, vel_o, s_o, vc_o, pen_o, ke_o, st_o, ab_o, pl_o, cin_o, cab_o, ctr_o, plastic_o,
+):  # fmt: skip
+    """Advance all chunks in parallel; links ``0 .. n_plain-1`` are plain links, the rest gap (contact) links.
+
+    Each chunk's work state is allocated here and the chunk is run by :func:`_chunk`.
 
     Args:
         lp: ``[C, L, n_hot, lanes]`` current link properties (dtype of the simulation; rewritten in place when
@@ -305,14 +448,8 @@ def _simulate(
     """
     n_chunks, L, _, CH = lp.shape
     n = mass.shape[0]
-    K = sidx.shape[0]
-    half, zero, one, dtf = cst[0], cst[1], cst[2], cst[4]
-    n_steps = (n_out - 1) * sub
     for ch in numba.prange(n_chunks):
-        P = lp[ch]
-        PC = lc[ch]
-        NP = npr[ch]
-        # node state [n, lanes]
+        # node state [n, lanes], in the simulation's precision
         s = np.zeros((n, CH), lp.dtype)
         v = np.zeros((n, CH), lp.dtype)
         ds = np.zeros((n, CH), lp.dtype)
@@ -323,12 +460,7 @@ def _simulate(
         w0 = np.zeros((n, CH), lp.dtype)  # plastic work at the start of the step (written by the saturation scan)
         fw_prev = np.zeros((n, CH), lp.dtype)
         acc = np.zeros((n, CH), lp.dtype)
-        # cells the barrier covers in some lane of this chunk: the only ones that need the contact terms
-        wall_node = np.zeros(n, np.bool_)
-        for i in range(n):
-            for j in range(CH):
-                if NP[i, W_COV, j] > zero:
-                    wall_node[i] = True
+        wall_node = np.zeros(n, np.bool_)  # the barrier covers the cell in some lane of this chunk
         # float64 node ledgers
         fs_prev = np.zeros((n, CH))
         fd_prev = np.zeros((n, CH))
@@ -337,17 +469,19 @@ def _simulate(
         a_out = np.zeros((n, CH))  # sum Fsbar r_src
         p_in = np.zeros((n, CH))  # sum Fdbar r_dst
         h_out = np.zeros((n, CH))  # sum_{src} fbar r_dst (per-cell modes only)
+        stored_w = np.zeros((n, CH))
+        st_cell = np.zeros((n, CH))
         # ... this step's share, summed over the source's out-links in the simulation's precision and added to the
         # float64 ledger once per cell (widening every link's term to float64 ran float32 at about 0.85x)
         h_step = np.zeros((n if mode else 0, CH), lp.dtype)
-        stored_w = np.zeros((n, CH))
-        st_cell = np.zeros((n, CH))
         # link state [L, lanes]
         f_el = np.zeros((L, CH), lp.dtype)
         o = np.zeros((L, CH), lp.dtype)
         yd = np.zeros((L if relief else 0, CH), lp.dtype)  # 1 once the link has yielded (springback relief)
         f_prev = np.zeros((L if mode else 0, CH), lp.dtype)
+        # per-lane sums and constants [lanes]
         st_l = np.zeros(CH, lp.dtype)
+        step_in = np.zeros(CH, lp.dtype)
         w_link = np.zeros(CH)
         pmax = np.zeros(CH)
         ww = np.zeros(CH)
@@ -355,158 +489,13 @@ def _simulate(
         a_st = np.zeros(CH)
         a_w = np.zeros(CH)
         a_p = np.zeros(CH)
-        sp = speed[ch]
-        step_in = np.empty(CH, lp.dtype)
-        for j in range(CH):
-            step_in[j] = sp[j] * dtf
-        for ll in range(n_plain, L):
-            for j in range(CH):
-                o[ll, j] = gap0[ll]
-        for i in range(n):
-            for j in range(CH):
-                v[i, j] = sp[j]
-        for j in range(CH):
-            e0 = 0.0
-            for i in range(n):
-                e0 += 0.5 * mass_ke[i] * float(sp[j]) * float(sp[j])
-            for q in range(K):
-                vel_o[ch, j, q, 0] = sp[j]
-            vc_o[ch, j, 0] = sp[j]
-            ke_o[ch, j, 0] = e0
-        for step in range(1, n_steps + 1):
-            record = step % sub == 0
-            t = step // sub
-            for i in range(n):
-                for j in range(CH):
-                    d = dtf * v[i, j]
-                    ds[i, j] = d
-                    s[i, j] += d
-                    fs[i, j] = zero
-                    fd[i, j] = zero
-            # plain links (elastic-plastic), then gap (contact) links; one specialised loop per kind
-            led = mode > 0
-            if relief:
-                _links(P, 0, n_plain, False, True, led, src, dst, ds, f_el, o, yd, plastic, fs, fd, h_step, f_prev,
-                       step_in, trl, cst)  # fmt: skip
-                _links(P, n_plain, L, True, True, led, src, dst, ds, f_el, o, yd, plastic, fs, fd, h_step, f_prev,
-                       step_in, trl, cst)  # fmt: skip
-            else:
-                _links(P, 0, n_plain, False, False, led, src, dst, ds, f_el, o, yd, plastic, fs, fd, h_step, f_prev,
-                       step_in, trl, cst)  # fmt: skip
-                _links(P, n_plain, L, True, False, led, src, dst, ds, f_el, o, yd, plastic, fs, fd, h_step, f_prev,
-                       step_in, trl, cst)  # fmt: skip
-            # saturation within the step: a cell whose plastic work crossed E_s densifies its out-links for the
-            # part of the step past the crossing, keeps E_s as its plastic work and switches them to their dense
-            # properties once (saturation is monotone)
-            for i in range(n):
-                new = zero
-                for j in range(CH):
-                    new += (one if plastic[i, j] >= NP[i, W_ES, j] else zero) - sat[i, j]
-                if new > zero:
-                    for j in range(CH):
-                        e_s = NP[i, W_ES, j]
-                        if sat[i, j] == zero and plastic[i, j] >= e_s:
-                            phi = (plastic[i, j] - e_s) / (plastic[i, j] - w0[i, j])
-                            _densify(P, PC, i, j, phi, out_ptr, out_idx, n_plain, dst, ds, f_el, fs, fd, led, h_step,
-                                     f_prev, step_in, trl, cst)  # fmt: skip
-                            plastic[i, j] = e_s
-                            sat[i, j] = one
-                            _bottom_out(P, PC, i, j, out_ptr, out_idx, relief, cst)
-                for j in range(CH):
-                    w0[i, j] = plastic[i, j]  # the next step's starting plastic work (nothing else changes it)
-            for j in range(CH):
-                pmax[j] = 0.0
-                w_link[j] = 0.0
-            for i in range(n):
-                mi = mass[i]
-                mk = mass_ke[i]
-                if wall_node[i]:
-                    for j in range(CH):
-                        pen = s[i, j] - NP[i, W_GAP, j]
-                        inc = NP[i, W_COV, j] > zero and pen > zero
-                        fw = (
-                            max(NP[i, W_K, j] * pen + NP[i, W_C, j] * min(v[i, j], pen * cst[3]), zero) if inc else zero
-                        )
-                        stored_w[i, j] = 0.5 * float(NP[i, W_K, j]) * float(pen) * float(pen) if inc else 0.0
-                        fwbar = 0.5 * (float(fw_prev[i, j]) + float(fw))
-                        dsi = float(ds[i, j])
-                        w_work[i, j] += fwbar * dsi
-                        w_in[i, j] += fwbar * float(step_in[j])
-                        fw_prev[i, j] = fw
-                        pmax[j] = max(pmax[j], float(pen) if inc else 0.0)
-                        acc[i, j] = (fs[i, j] - fd[i, j] - fw) / mi
-                else:
-                    for j in range(CH):
-                        acc[i, j] = (fs[i, j] - fd[i, j]) / mi
-                if led:  # per-cell ledgers: only where per-cell energies are recorded
-                    for j in range(CH):
-                        h_out[i, j] += float(h_step[i, j])
-                        h_step[i, j] = zero
-                        r = float(step_in[j]) - float(ds[i, j])
-                        a_out[i, j] += 0.5 * (fs_prev[i, j] + float(fs[i, j])) * r
-                        p_in[i, j] += 0.5 * (fd_prev[i, j] + float(fd[i, j])) * r
-                for j in range(CH):
-                    dsi = float(ds[i, j])
-                    fsi = float(fs[i, j])
-                    fdi = float(fd[i, j])
-                    w_link[j] += (0.5 * (fd_prev[i, j] + fdi) - 0.5 * (fs_prev[i, j] + fsi)) * dsi
-                    fs_prev[i, j] = fsi
-                    fd_prev[i, j] = fdi
-                    v_new = v[i, j] + dtf * acc[i, j]
-                    ds[i, j] = half * mk * v[i, j] * v_new  # reused: leapfrog kinetic energy
-                    v[i, j] = v_new
-            for j in range(CH):
-                a_w[j] += w_link[j]
-            if record:
-                # elastic energy of the links (only needed at output steps); a plain per-lane sum: the per-cell
-                # split below is needed only where per-cell energies are recorded (summing by cell at every output
-                # step measured 4 % slower)
-                for j in range(CH):
-                    st_l[j] = zero
-                for ll in range(L):
-                    for j in range(CH):
-                        st_l[j] += half * f_el[ll, j] * f_el[ll, j] * P[ll, H_IK, j]
-                for j in range(CH):
-                    for q in range(K):
-                        vel_o[ch, j, q, t] = v[sidx[q], j] - 0.5 * dt * acc[sidx[q], j]
-                    s_o[ch, j, t] = s[comp, j]
-                    vc_o[ch, j, t] = v[comp, j] - 0.5 * dt * acc[comp, j]
-                    pen_o[ch, j, t] = pmax[j]
-                    a_ke[j] = 0.0
-                    a_st[j] = float(st_l[j])
-                    a_p[j] = 0.0
-                    ww[j] = 0.0
-                for i in range(n):
-                    for j in range(CH):
-                        a_ke[j] += ds[i, j]
-                        a_st[j] += stored_w[i, j]
-                        ww[j] += w_work[i, j]
-                        a_p[j] += plastic[i, j]
-                for j in range(CH):
-                    ke_o[ch, j, t] = a_ke[j]
-                    st_o[ch, j, t] = a_st[j]
-                    ab_o[ch, j, t] = a_w[j] + ww[j] - a_st[j]
-                    pl_o[ch, j, t] = a_p[j]
-                if t == snap:
-                    for i in range(n):
-                        for j in range(CH):
-                            plastic_o[ch, j, i] = plastic[i, j]
-                if mode == 2 or (mode == 1 and t == snap):
-                    tt = t if mode == 2 else 0
-                    for i in range(n):
-                        for j in range(CH):
-                            st_cell[i, j] = 0.0
-                    for ll in range(L):
-                        a = src[ll]
-                        for j in range(CH):
-                            st_cell[a, j] += 0.5 * float(f_el[ll, j]) * float(f_el[ll, j]) * float(P[ll, H_IK, j])
-                    for j in range(CH):
-                        for i in range(n):
-                            cin_o[ch, j, i, tt] = w_in[i, j] + p_in[i, j]
-                            cab_o[ch, j, i, tt] = (
-                                w_work[i, j] - stored_w[i, j] + a_out[i, j] - h_out[i, j] - st_cell[i, j]
-                            )
-                            ctr_o[ch, j, i, tt] = h_out[i, j]
+        _chunk(
+            cst, lp[ch], lc[ch], npr[ch], speed[ch], src, dst, n_plain, out_ptr, out_idx, gap0, trl, mass, mass_ke,
+            sidx, comp, dt, sub, n_out, snap, mode, relief, vel_o[ch], s_o[ch], vc_o[ch], pen_o[ch], ke_o[ch], st_o[ch],
+            ab_o[ch], pl_o[ch], cin_o[ch], cab_o[ch], ctr_o[ch], plastic_o[ch], s, v, ds, fs, fd, plastic, sat, w0,
+            fw_prev, acc, wall_node, fs_prev, fd_prev, w_work, w_in, a_out, p_in, h_out, stored_w, st_cell, h_step,
+            f_el, o, yd, f_prev, st_l, step_in, w_link, pmax, ww, a_ke, a_st, a_w, a_p,
+        )  # fmt: skip
 
 
 def run_numba(
