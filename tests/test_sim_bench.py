@@ -82,14 +82,14 @@ def test_mass_floor_limit_is_where_the_compartment_runs_out_of_mass(default_cell
 def test_default_lanes_balances_vector_width_and_cores():
     from marlcrash.sim.kernels import default_lanes
 
-    # large batches: the fastest width per simulation (32 lanes); 64 measured slower per simulation (0.81)
-    assert default_lanes(1024, 2) == default_lanes(128, 2) == 32
-    # the main job's 48 episodes: 2 chunks of 32 (one padded by 16) still beat 6 of 8 and 3 of 16
-    # (measured on the default car, interleaved: 97 vs 94 vs 74 sims/s)
-    assert default_lanes(48, 2) == 32
-    # 24 simulations on 2 cores: one chunk of 32 leaves a core idle, 3 chunks of 8 leave one idle for a round;
-    # 6 chunks of 4 keep both busy (measured: 77 vs 57 sims/s at 32 lanes, 74 at 8 and 16)
-    assert default_lanes(24, 2) == 4
+    # large batches: the fastest width per simulation (16 lanes); 32 measured slower per simulation (0.85)
+    assert default_lanes(1024, 2) == default_lanes(128, 2) == 16
+    # the main job's 48 episodes: 6 chunks of 8 (3 rounds per core, no padding) beat 3 chunks of 16 (one core
+    # idle for a round) and 2 of 32 (measured on the default car, interleaved: 126-133 vs 96-98 vs 81 sims/s)
+    assert default_lanes(48, 2) == 8
+    # 24 simulations on 2 cores: 2 chunks of 16 (one padded by 8) keep both cores busy in one round; 3 chunks
+    # of 8 leave one idle for a round, 6 of 4 run at 0.73
+    assert default_lanes(24, 2) == 16
     # one simulation: one lane, never padding to a vector
     assert default_lanes(1, 2) == 1
     # a large model: chunks beyond the cache budget are left out (the uniform model, 6891 cells and 11462
@@ -99,17 +99,22 @@ def test_default_lanes_balances_vector_width_and_cores():
     uniform = chunk_bytes_per_lane(11462, 6891)
     assert 8 * uniform <= CHUNK_BYTES < 16 * uniform
     assert default_lanes(64, 2, uniform) == 8
-    assert default_lanes(64, 2, chunk_bytes_per_lane(2138, 518)) == 32  # the default car is not capped
+    assert default_lanes(64, 2, chunk_bytes_per_lane(2138, 518)) == 16  # the default car is not capped
+    assert default_lanes(64, 2, chunk_bytes_per_lane(2138, 518), "float64") * chunk_bytes_per_lane(2138, 518) * 4 < (
+        CHUNK_BYTES
+    )  # ... by far
     assert default_lanes(64, 2, 10 * CHUNK_BYTES) == 1  # nothing fits: one lane, never an empty choice
 
 
 def test_default_lanes_in_float32_fills_the_same_row_bytes():
-    """float32 doubles the lanes per vector: its fastest chunk is 64 lanes (256 bytes per row, as 32 in float64)."""
+    """float32 has its own table: its fastest chunk is 16 lanes, as in float64 (since the noalias kernel)."""
     from marlcrash.sim.kernels import CHUNK_BYTES, chunk_bytes_per_lane, default_lanes
 
     car32 = chunk_bytes_per_lane(2138, 518, itemsize=4)
-    assert default_lanes(1024, 2, car32, "float32") == default_lanes(128, 2, car32, "float32") == 64
-    assert default_lanes(1024, 2, chunk_bytes_per_lane(2138, 518), "float64") == 32
+    assert default_lanes(1024, 2, car32, "float32") == default_lanes(128, 2, car32, "float32") == 16
+    assert default_lanes(1024, 2, chunk_bytes_per_lane(2138, 518), "float64") == 16
+    # the main job's 48 episodes: 6 chunks of 8 at 0.86 of 16's rate still beat 3 of 16 (a core idle for a round)
+    assert default_lanes(48, 2, car32, "float32") == 8
     assert default_lanes(1, 2, car32, "float32") == 1
     # the cache cap still applies: the uniform model in float32 gets 16 lanes (8 in float64)
     uniform32 = chunk_bytes_per_lane(11462, 6891, itemsize=4)
@@ -123,7 +128,7 @@ def test_dtype_study_times_both_precisions_at_their_own_width():
     """The interleaved float64 / float32 comparison: each precision at its default width, the speed ratio of
     the same run, and how far float32 moves the sensor velocities and the crush (float64 ledgers keep it close)."""
     res = dtype_study(batch=128, repeats=1)
-    assert res["lanes"] == {"float64": 32, "float32": 64}
+    assert res["lanes"] == {"float64": 16, "float32": 16}
     assert all(r > 0 for r in res["sims_per_s"].values())
     assert res["float32_over_float64"] == pytest.approx(res["sims_per_s"]["float32"] / res["sims_per_s"]["float64"])
     assert 0 < res["max_velocity_diff_ms"] < 0.01  # of a 15.6 m/s impact

@@ -14,8 +14,10 @@ The roofline pass is the fastest form of that loop found on this machine: the fu
 arrays compiled ``noalias`` (:mod:`marlcrash.sim.noalias`; without that mark LLVM guards every lane loop with
 runtime overlap tests of each pair of arrays, once per link). The simulation kernel is compiled the same way.
 Before both were, the roofline pass computed a link's lanes into stack scratch and added them to each node array in
-a loop of its own, which avoided the tests at the price of extra passes: the fused ``noalias`` pass runs about
-1.1x as fast as that (``benchmarks/bench_noalias.py``).
+a loop of its own, which avoided the tests at the price of extra passes: the fused ``noalias`` pass ran 1.09-1.10x
+as fast as that (float64, B = 1024, 3 interleaved rounds, measured once before the scratch form was removed; the
+commit before ``njit_noalias`` has it). ``benchmarks/bench_noalias.py`` times both passes against their unmarked
+compilation.
 """
 
 from __future__ import annotations
@@ -243,7 +245,7 @@ def dtype_study(batch: int = 1024, repeats: int = 3) -> dict:
     """float64 against float32 on the default car, timed in turn within one run (ratios, not absolute rates).
 
     Each precision runs ``batch`` complete ``full_width_56`` simulations at its own default chunk width
-    (:func:`marlcrash.sim.kernels.default_lanes`: 32 lanes in float64, 64 in float32) with per-cell
+    (:func:`marlcrash.sim.kernels.default_lanes`; 16 lanes in both at large batches) with per-cell
     energies at the final step, as the environments call it; the two alternate for ``repeats`` rounds and
     each keeps its best time. It also reports how far the float32 sensor velocities and crush move from
     float64 (same parameters), the precision cost of the speed.

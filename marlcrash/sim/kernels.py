@@ -15,11 +15,12 @@ that step (:func:`_densify`) and rewritten once to their dense values (:func:`_b
 energy is summed at output steps only. ``lanes`` balances vector width against keeping both cores busy
 and a chunk within the cache (:func:`default_lanes`); chunks run in parallel (``prange``).
 
-Chunk width matters more than any other choice here: on the default car 32 lanes run 1.66x as fast per
-simulation as 16 in float64, and 64 lanes 1.42x as fast as 32 in float32 (``benchmarks/bench_lanes.py``): the
-fastest chunk is 256 bytes wide per row in both precisions. That holds since the link loop reads four property
-streams and no per-link scalar inside the lane loop; the layout before (a separate tensile-yield stream,
-damping times compliance times ``1 / dt`` per link-step) ran no faster at 32 lanes than at 16.
+Chunk width matters more than any other choice here (``benchmarks/bench_lanes.py``, table at
+:data:`LANE_EFFICIENCY`). The per-chunk body is compiled ``noalias`` (:mod:`marlcrash.sim.noalias`), so a lane
+loop starts without runtime overlap tests; since then 8-16 lanes are the fastest chunk in both precisions (16 float64
+lanes 1.18x as fast per simulation as 32, 16 float32 lanes 1.11x as fast as 64, at B = 256). Before, each link's
+lane loops paid about a hundred scalar instructions of such tests, and only wide chunks (32 float64, 64 float32
+lanes) amortized them. The link loop reads four property streams and no per-link scalar inside the lane loop.
 
 Energy ledgers without per-link work arrays: with ``r = v0 dt - ds`` the rearward increment
 of a node in the frame moving at the impact speed, a link's work ``fbar (ds_dst - ds_src)``
@@ -66,21 +67,21 @@ KERNEL_SECONDS = [0.0]
 """Cumulative wall time spent inside the compiled kernel [s] (for overhead accounting in benchmarks)."""
 
 LANE_EFFICIENCY = {
-    "float64": {1: 0.23, 2: 0.35, 4: 0.48, 8: 0.59, 16: 0.60, 32: 1.0, 64: 0.81},
-    "float32": {1: 0.12, 2: 0.17, 4: 0.24, 8: 0.31, 16: 0.36, 32: 0.70, 64: 1.0, 128: 0.69},
+    "float64": {1: 0.22, 2: 0.34, 4: 0.73, 8: 0.99, 16: 1.0, 32: 0.85, 64: 0.76},
+    "float32": {1: 0.14, 2: 0.22, 4: 0.36, 8: 0.86, 16: 1.0, 32: 0.98, 64: 0.90, 128: 0.83},
 }
 """Per-simulation throughput of a chunk of this many lanes relative to the fastest width of the same dtype, measured
-on the default car: ``python benchmarks/bench_lanes.py --widths 1 2 4 8 16 32 64 128 --batch 256 --repeat 4
-[--float32]`` (per-cell energies at the final step, 2 threads). The fastest row is 256 bytes wide in both: 32
-float64 lanes, 64 float32 lanes (283 sims/s against 199 at 32 float32 lanes; 2.03x the float64 rate at B = 1024,
-timed in turn: ``python benchmarks/bench_sim.py --dtypes``).
-64 float64 lanes vary most between runs (0.94-1.76x 16 lanes in interleaved runs at B = 256; 32 lanes:
-1.14-1.40x): two 64-lane chunks stream about 9 MB of link data per step."""
+on the default car with the ``noalias`` kernel (2026-11-23): ``python benchmarks/bench_lanes.py --widths 1 2 4 8 16
+32 64 128 --batch 256 --repeat 3 [--float32]`` (per-cell energies at the final step, 2 threads): float64 130 sims/s
+at 16 lanes, 129 at 8, 111 at 32; float32 202 at 16, 198 at 32, 182 at 64. At B = 1024 (interleaved, 3 rounds) 16
+float64 lanes ran 1.10-1.13x as fast as 32, and 16 float32 lanes 1.09-1.11x as fast as 64; at the main job's 48
+simulations the width chosen from this table, 8 float64 lanes, ran 1.55-1.64x as fast as 32 (the choice before)."""
 
 CHUNK_BYTES = 16 * 2**20
 """Largest estimated working set of one chunk [bytes] (:func:`chunk_bytes_per_lane`): two chunks in flight, one
 per core, stay within this machine's 32 MB L3 cache. On the uniform model (6891 cells) 8 lanes (about 15 MB per
-chunk) ran 1.49x as fast as 32 lanes (about 60 MB); on the default car 32 lanes take about 6.5 MB."""
+chunk) ran 1.49x as fast as 32 lanes (about 60 MB, before the ``noalias`` kernel); on the default car 32 lanes take
+about 6.5 MB."""
 
 _FASTMATH = {"nsz", "arcp", "contract", "reassoc", "afn"}  # no nnan/ninf: BIG and saturation tests use huge values
 
