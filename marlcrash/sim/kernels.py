@@ -259,7 +259,7 @@ def _chunk(
     cst, P, PC, NP, sp, src, dst, n_plain, out_ptr, out_idx, gap0, trl, mass, mass_ke, sidx, comp, dt, sub, n_out,
     snap, mode, relief, vel_o, s_o, vc_o, pen_o, ke_o, st_o, ab_o, pl_o, cin_o, cab_o, ctr_o, plastic_o, s, v, ds,
     fs, fd, plastic, sat, w0, fw_prev, acc, wall_node, fs_prev, fd_prev, w_work, w_in, a_out, p_in, h_out,
-    stored_w, st_cell, h_step, f_el, o, yd, f_prev, st_l, step_in, w_link, pmax, ww, a_ke, a_st, a_w, a_p,
+    stored_w, st_cell, h_step, f_el, o, yd, f_prev, st_l, step_in, fwv, w_link, pmax, ww, a_ke, a_st, a_w, a_p,
 ):  # fmt: skip
     """Advance one chunk of ``CH`` simulations through every step (the body of :func:`_simulate`'s parallel loop).
 
@@ -294,16 +294,15 @@ def _chunk(
             vel_o[j, q, 0] = sp[j]
         vc_o[j, 0] = sp[j]
         ke_o[j, 0] = e0
+    # the first step's travel; every later step's is taken in the node update of the step before (fused loop)
+    for i in range(n):
+        for j in range(CH):
+            d = dtf * v[i, j]
+            ds[i, j] = d
+            s[i, j] += d
     for step in range(1, n_steps + 1):
         record = step % sub == 0
         t = step // sub
-        for i in range(n):
-            for j in range(CH):
-                d = dtf * v[i, j]
-                ds[i, j] = d
-                s[i, j] += d
-                fs[i, j] = zero
-                fd[i, j] = zero
         # plain links (elastic-plastic), then gap (contact) links; one specialised loop per kind
         led = mode > 0
         if relief:
@@ -333,11 +332,10 @@ def _chunk(
                         plastic[i, j] = e_s
                         sat[i, j] = one
                         _bottom_out(P, PC, i, j, out_ptr, out_idx, relief, cst)
-            for j in range(CH):
-                w0[i, j] = plastic[i, j]  # the next step's starting plastic work (nothing else changes it)
         for j in range(CH):
             pmax[j] = 0.0
             w_link[j] = 0.0
+            a_ke[j] = 0.0
         for i in range(n):
             mi = mass[i]
             mk = mass_ke[i]
@@ -353,10 +351,7 @@ def _chunk(
                     w_in[i, j] += fwbar * float(step_in[j])
                     fw_prev[i, j] = fw
                     pmax[j] = max(pmax[j], float(pen) if inc else 0.0)
-                    acc[i, j] = (fs[i, j] - fd[i, j] - fw) / mi
-            else:
-                for j in range(CH):
-                    acc[i, j] = (fs[i, j] - fd[i, j]) / mi
+                    fwv[j] = fw  # taken (and reset to zero) by the update below
             if led:  # per-cell ledgers: only where per-cell energies are recorded
                 for j in range(CH):
                     h_out[i, j] += float(h_step[i, j])
@@ -364,6 +359,11 @@ def _chunk(
                     r = float(step_in[j]) - float(ds[i, j])
                     a_out[i, j] += 0.5 * (fs_prev[i, j] + float(fs[i, j])) * r
                     p_in[i, j] += 0.5 * (fd_prev[i, j] + float(fd[i, j])) * r
+            if record and i == comp:
+                for j in range(CH):
+                    s_o[j, t] = s[i, j]
+            # one fused pass: this step's link work, acceleration and velocity, then the next step's travel (so
+            # ``s`` and ``ds`` run one step ahead from here; the first step's are taken before the loop)
             for j in range(CH):
                 dsi = float(ds[i, j])
                 fsi = float(fs[i, j])
@@ -371,9 +371,19 @@ def _chunk(
                 w_link[j] += (0.5 * (fd_prev[i, j] + fdi) - 0.5 * (fs_prev[i, j] + fsi)) * dsi
                 fs_prev[i, j] = fsi
                 fd_prev[i, j] = fdi
-                v_new = v[i, j] + dtf * acc[i, j]
-                ds[i, j] = half * mk * v[i, j] * v_new  # reused: leapfrog kinetic energy
+                acc_ij = (fs[i, j] - fd[i, j] - fwv[j]) / mi
+                fwv[j] = zero
+                acc[i, j] = acc_ij
+                v_old = v[i, j]
+                v_new = v_old + dtf * acc_ij
+                a_ke[j] += float(half * mk * v_old * v_new)  # leapfrog kinetic energy
                 v[i, j] = v_new
+                w0[i, j] = plastic[i, j]  # the next step's starting plastic work (nothing else changes it)
+                d = dtf * v_new
+                ds[i, j] = d
+                s[i, j] += d
+                fs[i, j] = zero
+                fd[i, j] = zero
         for j in range(CH):
             a_w[j] += w_link[j]
         if record:
@@ -388,16 +398,13 @@ def _chunk(
             for j in range(CH):
                 for q in range(K):
                     vel_o[j, q, t] = v[sidx[q], j] - 0.5 * dt * acc[sidx[q], j]
-                s_o[j, t] = s[comp, j]
                 vc_o[j, t] = v[comp, j] - 0.5 * dt * acc[comp, j]
                 pen_o[j, t] = pmax[j]
-                a_ke[j] = 0.0
                 a_st[j] = float(st_l[j])
                 a_p[j] = 0.0
                 ww[j] = 0.0
             for i in range(n):
                 for j in range(CH):
-                    a_ke[j] += ds[i, j]
                     a_st[j] += stored_w[i, j]
                     ww[j] += w_work[i, j]
                     a_p[j] += plastic[i, j]
@@ -483,6 +490,7 @@ def _simulate(
         # per-lane sums and constants [lanes]
         st_l = np.zeros(CH, lp.dtype)
         step_in = np.zeros(CH, lp.dtype)
+        fwv = np.zeros(CH, lp.dtype)  # the wall force on the node being updated
         w_link = np.zeros(CH)
         pmax = np.zeros(CH)
         ww = np.zeros(CH)
@@ -495,7 +503,7 @@ def _simulate(
             sidx, comp, dt, sub, n_out, snap, mode, relief, vel_o[ch], s_o[ch], vc_o[ch], pen_o[ch], ke_o[ch], st_o[ch],
             ab_o[ch], pl_o[ch], cin_o[ch], cab_o[ch], ctr_o[ch], plastic_o[ch], s, v, ds, fs, fd, plastic, sat, w0,
             fw_prev, acc, wall_node, fs_prev, fd_prev, w_work, w_in, a_out, p_in, h_out, stored_w, st_cell, h_step,
-            f_el, o, yd, f_prev, st_l, step_in, w_link, pmax, ww, a_ke, a_st, a_w, a_p,
+            f_el, o, yd, f_prev, st_l, step_in, fwv, w_link, pmax, ww, a_ke, a_st, a_w, a_p,
         )  # fmt: skip
 
 
