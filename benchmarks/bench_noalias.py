@@ -2,7 +2,7 @@
 
 Prints :func:`marlcrash.sim.bench.noalias_study`: simulations per second of the kernel and of the roofline's link
 pass, each with its arrays marked ``noalias`` (:mod:`marlcrash.sim.noalias`) and recompiled without, their ratios,
-and the largest difference between the two kernels' outputs (0: the same numbers).
+and the largest difference between the two kernels' outputs, relative to each output's magnitude (rounding only).
 
 Usage: python benchmarks/bench_noalias.py [--batch 1024] [--repeat 3] [--float32] [--json]
 """

@@ -175,15 +175,15 @@ def test_implicit_study_counts_link_passes_and_grades_the_linear_scheme():
 
 @pytest.mark.slow
 def test_noalias_study_times_both_compilations_and_finds_the_same_numbers():
-    """The kernel and the roofline pass recompiled without ``noalias`` from their own source: identical outputs,
-    ratios of the same run."""
+    """The kernel and the roofline pass recompiled without ``noalias`` from their own source: the same outputs to
+    rounding, ratios of the same run."""
     res = noalias_study(batch=4, repeats=1)
     r = res["sims_per_s"]
     assert set(r) == {"kernel_noalias", "kernel_plain", "roofline_noalias", "roofline_plain"}
     assert all(v > 0 for v in r.values())
     assert res["kernel_ratio"] == pytest.approx(r["kernel_noalias"] / r["kernel_plain"])
     assert res["roofline_ratio"] == pytest.approx(r["roofline_noalias"] / r["roofline_plain"])
-    assert res["max_abs_diff"] == 0.0 and res["noalias_active"]
+    assert res["max_rel_diff"] < 1e-12 and res["noalias_active"]  # rounding only (bit for bit on most builds)
     assert "kernel   noalias" in format_noalias_study(res)
     with pytest.raises(ValueError, match="dtype must be one of"):
         noalias_study(batch=1, dtype="float16")
