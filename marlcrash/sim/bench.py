@@ -94,7 +94,9 @@ def _best(fn, repeats: int) -> float:
     return best
 
 
-def measure_roofline(sim: Surrogate, batch: int, n_steps: int, repeats: int = 1, n_links: int | None = None) -> float:
+def measure_roofline(
+    sim: Surrogate, batch: int, n_steps: int, repeats: int = 1, n_links: int | None = None, link_pass=None
+) -> float:
     """Roofline of this machine in complete simulations per second at ``batch`` (see module doc).
 
     Args:
@@ -104,7 +106,10 @@ def measure_roofline(sim: Surrogate, batch: int, n_steps: int, repeats: int = 1,
         repeats: timed runs (best is kept).
         n_links: links streamed per step (default: all of ``sim``; the fast path streams only the links
             with a non-zero transmission share, :func:`live_links`).
+        link_pass: the compiled pass timed (default :func:`_roofline`; :func:`noalias_study` passes its unmarked
+            compilation).
     """
+    link_pass = _roofline if link_pass is None else link_pass
     npdt = np.float32 if sim.dtype == torch.float32 else np.float64
     L = sim.L if n_links is None else int(n_links)
     nprop = kernels.n_hot(bool(sim.config.springback_relief))
@@ -117,8 +122,8 @@ def measure_roofline(sim: Surrogate, batch: int, n_steps: int, repeats: int = 1,
     src = sim.src.numpy()[sim.link_order][:L]
     dst = sim.dst.numpy()[sim.link_order][:L]
     cst = np.array([0.5, 0.0, 1.0, 1.0 / sim.dt, sim.dt, kernels._BIG], dtype=npdt)
-    _roofline(lp[:1], src, dst, sim.n, 2, cst)  # compile or load the cache
-    t = _best(lambda: _roofline(lp, src, dst, sim.n, n_steps, cst), repeats)
+    link_pass(lp[:1], src, dst, sim.n, 2, cst)  # compile or load the cache
+    t = _best(lambda: link_pass(lp, src, dst, sim.n, n_steps, cst), repeats)
     return n_chunks * lanes / t
 
 
@@ -358,13 +363,7 @@ def noalias_study(batch: int = 1024, repeats: int = 3, dtype: str = "float64") -
             kernels._simulate = saved
 
     def roofline(impl):
-        global _roofline
-        saved = _roofline
-        _roofline = impl
-        try:
-            return measure_roofline(sim, batch, steps, n_links=live)
-        finally:
-            _roofline = saved
+        return measure_roofline(sim, batch, steps, n_links=live, link_pass=impl)
 
     out = {"noalias": kernel(kernels._simulate), "plain": kernel(plain_sim)}  # also compiles
     roofline(plain_roof)
