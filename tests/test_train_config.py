@@ -291,3 +291,18 @@ def test_scripts_log_to_stderr_so_stdout_stays_their_json(name):
     handlers = cfg.hydra.job_logging.handlers
     assert [h.stream for h in handlers.values()] == ["ext://sys.stderr"]
     assert list(cfg.hydra.job_logging.root.handlers) == list(handlers)
+
+
+@pytest.mark.parametrize("name", ["train", "evaluate", "baseline", "compare", "amortized", "ablate"])
+def test_a_multirun_sweep_records_itself_beside_the_runs_not_in_the_launch_directory(name):
+    """``--multirun`` writes only ``multirun.yaml``, under ``<out_dir>/multirun/`` (``runs/`` by default)."""
+    from hydra import compose, initialize_config_dir
+    from omegaconf import OmegaConf
+
+    fixed = name in ("evaluate", "amortized")  # no out_dir, or (amortized) one that may be null
+    parent = "runs" if fixed else "elsewhere"
+    with initialize_config_dir(config_dir=str(config_dir() / "train"), version_base=None):
+        cfg = compose(config_name=name, overrides=[] if fixed else [f"out_dir={parent}"], return_hydra_config=True)
+        sweep = OmegaConf.to_container(cfg.hydra.sweep, resolve=True)
+    assert sweep["dir"].startswith(f"{parent}/multirun/") and len(sweep["dir"]) > len(f"{parent}/multirun/")
+    assert sweep["subdir"] == "."  # no empty per-job folders

@@ -68,6 +68,18 @@ def test_train_script_writes_a_summary(algorithm, short_configs, tmp_path):
 
 
 @pytest.mark.slow
+def test_a_multirun_seed_sweep_writes_one_run_per_seed_and_nothing_in_the_launch_directory(short_configs, tmp_path):
+    p = run("train.py", ["-m", "seed=0,1", "name=sweep_s${seed}", *TINY, "iterations=1"], short_configs, tmp_path)
+    assert p.returncode == 0, p.stderr[-3000:]
+    assert sorted(x.name for x in tmp_path.iterdir()) == ["runs"]  # Hydra's default would add multirun/ here
+    for seed in (0, 1):
+        s = json.loads((tmp_path / "runs" / "mappo" / f"sweep_s{seed}" / "summary.json").read_text())
+        assert s["seed"] == seed
+    (record,) = (tmp_path / "runs" / "multirun").glob("*/multirun.yaml")
+    assert sorted(x.name for x in record.parent.iterdir()) == ["multirun.yaml"]  # no empty per-job folders
+
+
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("override", "key"),
     [("algorithm.lr=-1", "algorithm.lr"), ("algorithm.minibatch_size=3", "algorithm.minibatch_size")],
