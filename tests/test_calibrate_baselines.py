@@ -217,3 +217,23 @@ def test_hydra_composes_the_primary_config():
     run = load_run_config(OmegaConf.to_container(cfg, resolve=True))
     assert run.method == "gradient" and run.budget == 10 and run.method_config.lr == 0.01
     assert run.problem.success.area == 0.0015 and run.problem.success.rmse == 0.1511
+
+
+def test_baseline_results_go_beside_a_folder_another_run_took_meanwhile(tmp_path):
+    from marlcrash.calibrate import BASELINES, build_problem, write_run
+    from marlcrash.calibrate.baselines import BaselineRunConfig, RandomSearchConfig
+    from marlcrash.calibrate.problem import ProblemConfig
+
+    cfg = BaselineRunConfig(method="random_search", name="b", out_dir=str(tmp_path / "runs"), plot=False,
+                            problem=ProblemConfig(duration=0.01))  # fmt: skip
+    problem = build_problem(cfg.problem)
+    result = BASELINES["random_search"][1](problem, 4, RandomSearchConfig(batch_size=4), 0)
+    final = tmp_path / "runs" / "random_search" / "b"
+    final.mkdir(parents=True)
+    (final / "summary.json").write_text("{}")  # another run of this name finished while this one ran
+    (final.parent / "b-2").mkdir()  # ... and one more started
+    with pytest.warns(UserWarning, match="results are in .*b-3"):
+        got = write_run(cfg, problem, result)
+    assert got == final.parent / "b-3" and (got / "summary.json").stat().st_size > 100
+    assert (final / "summary.json").read_text() == "{}" and not any((final.parent / "b-2").iterdir())
+    assert sorted(p.name for p in final.parent.iterdir()) == ["b", "b-2", "b-3"]  # no temporary folder left

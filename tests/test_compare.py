@@ -406,3 +406,13 @@ def test_script_rejects_bad_config_before_running(short_configs, tmp_path):
     assert p.returncode == 2
     assert "methods[1]" in p.stderr and "unknown method 'sgd'" in p.stderr and "Traceback" not in p.stderr
     assert not (tmp_path / "runs").exists()
+
+
+def test_a_comparison_whose_folder_another_process_writes_is_refused(short_configs, tmp_path, monkeypatch):
+    from marlcrash.calibrate.runlock import run_lock
+
+    monkeypatch.setenv("MARLCRASH_CONFIGS", str(short_configs))
+    cfg = tiny(tmp_path, methods=["random_search"], seeds=[0])
+    with run_lock(cfg.run_dir, "name", create=True), pytest.raises(ConfigError, match="in use") as e:
+        run_comparison(cfg)
+    assert e.value.key == "name" and not (cfg.run_dir / "compare.json").exists()

@@ -545,3 +545,20 @@ def test_a_run_on_a_pinned_reference_is_evaluated_on_its_evaluation_seed(short, 
     with pytest.warns(UserWarning, match=r"pinned reference 3 .* calibrates reference 0"):
         res = train(tiny(tmp_path, iterations=1, env_overrides={"reference.pin_seed": 3}))
     assert res.summary["reference"] == "twin" and res.summary["reference_seed"] == 0
+
+
+def test_a_training_resume_of_a_run_another_process_writes_is_refused_before_reading_it(short_configs, tmp_path,
+                                                                                        monkeypatch):  # fmt: skip
+    from marlcrash.calibrate.runlock import run_lock
+
+    monkeypatch.setenv("MARLCRASH_CONFIGS", str(short_configs))
+    run_dir = tmp_path / "runs" / "mappo" / "busy"
+    run_dir.mkdir(parents=True)
+    (run_dir / "checkpoint.pt").write_bytes(b"not read")  # a resume that got past the lock would fail to load it
+    with run_lock(run_dir, "name"), pytest.raises(ConfigError, match="in use by another process") as e:
+        train(tiny(tmp_path, resume=str(run_dir)))
+    assert e.value.key == "resume"
+    assert (run_dir / "checkpoint.pt").read_bytes() == b"not read"
+    with pytest.raises(ConfigError, match="exists already") as e:  # a fresh run of that name: refused, untouched
+        train(tiny(tmp_path, name="busy"))
+    assert e.value.key == "name" and sorted(p.name for p in run_dir.iterdir()) == ["checkpoint.pt"]

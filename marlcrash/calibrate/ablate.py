@@ -54,6 +54,7 @@ from marlcrash.calibrate.compare import (
     PPOBudgetConfig,
     check_env_overrides,
     csv_text,
+    hold_run_dir,
     initial_score,
     open_run_dir,
     outcome_row,
@@ -531,30 +532,32 @@ def run_ablation(
         return [*_RESUMABLE_DIFF_OK, *(a for a in ALGORITHMS if a not in done)]
 
     env = (config.env, dict(config.env_overrides))
-    run_dir, rows = open_run_dir(config.run_dir, "ablate.json", asdict(config), config.resume, free, env)
-    done = {(r["cell"], r["seed"]) for r in rows}
-    write_results(config, rows, run_dir, command)
-    cells = config.cells()
-    for seed in config.seeds:
-        for scenario in config.scenarios:
-            todo = [c for c in cells if c["scenario"] == scenario and (cell_name(c), seed) not in done]
-            if not todo:
-                continue
-            problem = reference_problem(config, scenario, seed)
-            initial = initial_score(problem)
-            saved = {r["initial_score"] for r in rows if r["scenario"] == scenario and r["seed"] == seed}
-            if saved and saved != {initial}:  # same settings, yet another reference or metric: configs/ changed
-                raise ConfigError(f"resume: the initial parameters score {initial!r} on the {scenario} reference of "
-                                  f"seed {seed}, the finished runs of {run_dir} recorded {sorted(saved)}; the "
-                                  "config files or the simulator changed since, so the rows would not compare",
-                                  key="resume")  # fmt: skip
-            for cell in todo:
-                row = run_cell(config, cell, seed, problem, run_dir, initial)
-                rows.append(row)
-                write_results(config, rows, run_dir, command)
-                say(f"seed {seed} {row['cell']}: score {row['score']:.4f} (initial {row['initial_score']:.4f}), "
-                    f"worst area {row['area_worst']:.4g} m, {row['simulations']} simulations, {row['active_agents']}/"
-                    f"{row['n_agents']} agents active, stop {row['stop']}, {row['wall_time_s']:.1f} s")  # fmt: skip
-    if config.plots and rows:
-        plot_ablation(config, rows, run_dir / "ablate.png")
-    return run_dir, rows
+    with hold_run_dir(config.run_dir, config.resume):  # one process per run folder
+        run_dir, rows = open_run_dir(config.run_dir, "ablate.json", asdict(config), config.resume, free, env)
+        done = {(r["cell"], r["seed"]) for r in rows}
+        write_results(config, rows, run_dir, command)
+        cells = config.cells()
+        for seed in config.seeds:
+            for scenario in config.scenarios:
+                todo = [c for c in cells if c["scenario"] == scenario and (cell_name(c), seed) not in done]
+                if not todo:
+                    continue
+                problem = reference_problem(config, scenario, seed)
+                initial = initial_score(problem)
+                saved = {r["initial_score"] for r in rows if r["scenario"] == scenario and r["seed"] == seed}
+                if saved and saved != {initial}:  # same settings, yet another reference or metric: configs/ changed
+                    raise ConfigError(f"resume: the initial parameters score {initial!r} on the {scenario} "
+                                      f"reference of seed {seed}, the finished runs of {run_dir} recorded "
+                                      f"{sorted(saved)}; the config files or the simulator changed since, so the "
+                                      "rows would not compare", key="resume")  # fmt: skip
+                for cell in todo:
+                    row = run_cell(config, cell, seed, problem, run_dir, initial)
+                    rows.append(row)
+                    write_results(config, rows, run_dir, command)
+                    say(f"seed {seed} {row['cell']}: score {row['score']:.4f} (initial {row['initial_score']:.4f}), "
+                        f"worst area {row['area_worst']:.4g} m, {row['simulations']} simulations, "
+                        f"{row['active_agents']}/{row['n_agents']} agents active, stop {row['stop']}, "
+                        f"{row['wall_time_s']:.1f} s")  # fmt: skip
+        if config.plots and rows:
+            plot_ablation(config, rows, run_dir / "ablate.png")
+        return run_dir, rows

@@ -40,6 +40,7 @@ import json
 import os
 import shutil
 import tempfile
+import warnings
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -52,6 +53,7 @@ from marlcrash import provenance
 from marlcrash.calibrate.budget import Progress
 from marlcrash.calibrate.leastsq import STEP_FACTORS, lm_iteration
 from marlcrash.calibrate.problem import CalibrationProblem, ProblemConfig, SmoothLoss, problem_env_config
+from marlcrash.calibrate.runlock import claim_dir
 from marlcrash.config import from_dict, nested_error, require, require_complete
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics
@@ -566,12 +568,18 @@ def write_run(
     ``provenance.json`` (``record``: :func:`run_record` taken when the run started; default: now).
 
     The folder is assembled in a temporary sibling and renamed into place, so a failed run
-    leaves nothing half-written.
+    leaves nothing half-written. Where another run took the folder's name while this one ran (two runs of one
+    name, or of the default launch-second name, at once), the results go to the first free ``<name>-<n>`` beside
+    it, with a warning, rather than being lost after the budget was spent.
+
+    Returns:
+        The run folder written.
 
     Raises:
-        ConfigError: the run folder exists already (:func:`run_folder`).
+        ConfigError: ``out_dir`` is a file (:func:`marlcrash.outputs.check_output_dir`).
     """
-    final = run_folder(config)
+    final = run_path(config)
+    check_output_dir(final, "out_dir")
     final.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{config.name}.", dir=final.parent))
     try:
@@ -588,8 +596,26 @@ def write_run(
         torch.save({"best_x": result.best_x, "best_params": result.best_params}, tmp / "best.pt")
         if config.plot:
             plot_velocities(problem, result, tmp / "velocity.png")
-        os.replace(tmp, final)
+        final = _claim_free(final)
+        try:
+            os.replace(tmp, final)  # onto the empty folder just claimed
+        except BaseException:
+            final.rmdir()
+            raise
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return final
+
+
+def _claim_free(folder: Path) -> Path:
+    """``folder``, created here, or where another process has it, the first ``<folder>-<n>`` this call creates."""
+    taken = folder
+    for n in itertools.count(2):
+        if claim_dir(folder):
+            break
+        folder = taken.with_name(f"{taken.name}-{n}")
+    if folder != taken:
+        warnings.warn(f"run folder {taken} was made by another run while this one ran; its results are in {folder}",
+                      stacklevel=3)  # fmt: skip
+    return folder

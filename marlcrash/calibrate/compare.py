@@ -37,6 +37,7 @@ crash or kill loses nothing finished, and ``resume`` skips finished method/seed 
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import csv
 import io
@@ -44,7 +45,7 @@ import json
 import math
 import shutil
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import asdict, dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -67,6 +68,7 @@ from marlcrash.calibrate.marl import (
     train_iteration,
 )
 from marlcrash.calibrate.problem import CalibrationProblem, ProblemConfig, SmoothLoss, SuccessConfig, build_problem
+from marlcrash.calibrate.runlock import run_lock
 from marlcrash.config import from_dict, nested_error, require, require_complete
 from marlcrash.envs.core import env_config_of, load_env_config, require_env, require_env_keys_unset
 from marlcrash.errors import ConfigError
@@ -632,6 +634,16 @@ def _first_difference(a: Any, b: Any, key: str = "") -> str | None:
     return None if a == b else key
 
 
+@contextlib.contextmanager
+def hold_run_dir(run_dir: Path, resume: bool) -> Iterator[None]:
+    """Hold the run folder of a table of runs for the ``with`` block (:func:`marlcrash.calibrate.runlock.run_lock`):
+    a second run of this name, or a second resume, fails there before it reads or writes a row. A fresh run's folder
+    is made here; a resumed one's must exist (:func:`open_run_dir` names it where it does not)."""
+    check_output_dir(run_dir, "out_dir")  # before the folder is made: out_dir may be a file
+    with run_lock(run_dir, "resume" if resume else "name", create=not resume):
+        yield
+
+
 def open_run_dir(
     run_dir: Path,
     filename: str,
@@ -736,21 +748,22 @@ def run_comparison(
         ConfigError: the run folder exists (without ``resume``), or ``resume`` with other protocol settings.
     """
     say = progress or (lambda _msg: None)
-    run_dir, rows = _start_run_dir(config)
-    done = {(r["method"], r["seed"]) for r in rows}
-    write_results(config, rows, run_dir, command)
-    for seed in config.seeds:
-        todo = [m for m in config.methods if (m, seed) not in done]
-        if not todo:
-            continue
-        problem = build_problem(problem_config(config, seed))
-        initial = initial_score(problem)
-        for method in todo:
-            out = run_method(config, method, seed, problem, run_dir)
-            row = outcome_row(config, problem, out, initial)
-            rows.append(row)
-            write_results(config, rows, run_dir, command)
-            say(f"seed {seed} {method}: score {row['score']:.4f} (initial {row['initial_score']:.4f}), "
-                f"{row['simulations']} simulations, passed {row['passed']}, stop {row['stop']}, "
-                f"{row['wall_time_s']:.1f} s")  # fmt: skip
-    return run_dir, rows
+    with hold_run_dir(config.run_dir, config.resume):  # one process per run folder
+        run_dir, rows = _start_run_dir(config)
+        done = {(r["method"], r["seed"]) for r in rows}
+        write_results(config, rows, run_dir, command)
+        for seed in config.seeds:
+            todo = [m for m in config.methods if (m, seed) not in done]
+            if not todo:
+                continue
+            problem = build_problem(problem_config(config, seed))
+            initial = initial_score(problem)
+            for method in todo:
+                out = run_method(config, method, seed, problem, run_dir)
+                row = outcome_row(config, problem, out, initial)
+                rows.append(row)
+                write_results(config, rows, run_dir, command)
+                say(f"seed {seed} {method}: score {row['score']:.4f} (initial {row['initial_score']:.4f}), "
+                    f"{row['simulations']} simulations, passed {row['passed']}, stop {row['stop']}, "
+                    f"{row['wall_time_s']:.1f} s")  # fmt: skip
+        return run_dir, rows

@@ -71,6 +71,7 @@ from marlcrash.calibrate.checkpoint import (
 )
 from marlcrash.calibrate.logging import LOGGERS, CSVLogger, make_logger
 from marlcrash.calibrate.problem import SuccessConfig
+from marlcrash.calibrate.runlock import claim_dir, run_lock
 from marlcrash.config import (
     config_dir,
     from_dict,
@@ -910,23 +911,33 @@ def train(config: TrainConfig, *, stop_at: int | None = None, evaluate: bool = T
         A :class:`TrainResult`.
 
     Raises:
-        ConfigError: the run folder exists (fresh run) or cannot be resumed.
+        ConfigError: the run folder exists (fresh run), cannot be resumed, or another process writes it
+            (:func:`marlcrash.calibrate.runlock.run_lock`).
     """
+    if config.resume is not False:
+        run_dir = find_resume_dir(config)
+        with run_lock(run_dir, "resume"):
+            return _train(config, run_dir, stop_at, evaluate)
+    run_dir = run_dir_of(config)
+    check_output_dir(run_dir, "out_dir")  # the nearest existing folder of the run's (<out_dir>/<algorithm>)
+    if not claim_dir(run_dir):  # created here or refused, in one step: two runs of one name never share it
+        hint = "resume=true" if (run_dir / CHECKPOINT_FILE).is_file() else "delete it (it has no checkpoint)"
+        raise ConfigError(f"run folder {run_dir} exists already; choose another name or {hint}", key="name")
+    with run_lock(run_dir, "name"):
+        return _train(config, run_dir, stop_at, evaluate)
+
+
+def _train(config: TrainConfig, run_dir: Path, stop_at: int | None, evaluate: bool) -> TrainResult:
+    """:func:`train` in its run folder, which this process holds."""
     from tqdm import tqdm
 
     resume = config.resume
     if resume is not False:
-        run_dir = find_resume_dir(config)
         config = load_run_config(run_dir)
         state = load_training_checkpoint(run_dir / CHECKPOINT_FILE)
         extra = provenance.env_inputs(make_env_config(config))
         provenance.require_unchanged(run_dir, extra, finished=bool(state.get("finished", False)))
     else:
-        run_dir = run_dir_of(config)
-        check_output_dir(run_dir, "out_dir")  # the nearest existing folder of the run's (<out_dir>/<algorithm>)
-        if run_dir.exists():
-            hint = "resume=true" if (run_dir / CHECKPOINT_FILE).is_file() else "delete it (it has no checkpoint)"
-            raise ConfigError(f"run folder {run_dir} exists already; choose another name or {hint}", key="name")
         save_run_config(config, run_dir)
         state = None
     try:

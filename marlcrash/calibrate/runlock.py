@@ -1,0 +1,95 @@
+"""One process per run folder: the folder of a fresh run is created exclusively, and a run holds a lock on it.
+
+Two processes writing one run folder would interleave their checkpoints, logs and results, and whichever wrote
+last would silently decide what the folder holds. That happens with two resumes of one run (a second terminal, a
+requeued cluster job whose first start still runs), and with two fresh runs given the same name at the same
+moment (a parallel Hydra launcher; the default name is the launch second). So:
+
+- :func:`claim_dir` creates a fresh run's folder with one ``mkdir`` that fails where the folder exists, instead of
+  testing first and creating later;
+- :func:`run_lock` holds an exclusive advisory lock (``flock``) on ``<run folder>/.lock`` while the run writes,
+  and removes the file when it ends. The operating system drops the lock when the process ends, killed or not, so
+  a crashed run never blocks its own resume (its file stays, unlocked). The file records the holder's process id
+  for the message. Where ``fcntl`` does not exist (Windows) no lock is taken.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+from collections.abc import Iterator
+from pathlib import Path
+
+from marlcrash.errors import ConfigError
+
+try:
+    import fcntl
+except ImportError:  # pragma: no cover - Windows
+    fcntl = None
+
+LOCK_FILE = ".lock"
+"""The lock file inside a run folder while a run writes it (left unlocked by a killed run: nobody writes it)."""
+
+__all__ = ["LOCK_FILE", "claim_dir", "run_lock"]
+
+
+def claim_dir(path: str | Path) -> bool:
+    """Create ``path`` (and its missing parents) unless it exists; True when this call created it.
+
+    The creation and the test are one step, so of two processes claiming one folder exactly one gets True.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        path.mkdir()
+    except FileExistsError:
+        return False
+    return True
+
+
+@contextlib.contextmanager
+def run_lock(run_dir: str | Path, key: str, create: bool = False) -> Iterator[Path]:
+    """Hold the run folder's lock for the ``with`` block; yields the folder.
+
+    Args:
+        run_dir: the run folder.
+        key: the config key that chose the folder, named in the error (``name``, ``resume``, ...).
+        create: make the folder (and its parents) where it is missing. Otherwise a missing folder is left to the
+            caller to report, and the block runs without a lock (there is nothing in it to protect).
+
+    Raises:
+        ConfigError: another process holds the lock (with its process id), before anything is written.
+    """
+    run_dir = Path(run_dir)
+    if create:
+        run_dir.mkdir(parents=True, exist_ok=True)
+    if fcntl is None or not run_dir.is_dir():  # Windows; or a missing folder, which the caller reports
+        yield run_dir
+        return
+    path = run_dir / LOCK_FILE
+    while True:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 32, 0).decode("ascii", "replace").strip() or "unknown"
+            os.close(fd)
+            raise ConfigError(
+                f"run folder {run_dir} is in use by another process (pid {holder}); wait for it to end or stop it",
+                key=key,
+            ) from None
+        try:  # the holder before may have removed the file between our open and our lock: lock the one there is
+            same = os.path.samestat(os.fstat(fd), os.stat(path))
+        except FileNotFoundError:
+            same = False
+        if same:
+            break
+        os.close(fd)
+    try:
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        yield run_dir
+    finally:
+        with contextlib.suppress(FileNotFoundError):  # the run removed its folder (a fresh run that failed)
+            path.unlink()  # while still locked, so the folder is left as the run wrote it
+        os.close(fd)  # releases the lock

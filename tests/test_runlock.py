@@ -1,0 +1,65 @@
+"""One process per run folder: exclusive creation, the run lock, and what the writers do with them."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from marlcrash.calibrate.runlock import LOCK_FILE, claim_dir, run_lock
+from marlcrash.errors import ConfigError
+
+pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="no flock on Windows (runlock takes no lock there)")
+
+
+def test_claim_creates_once_with_parents(tmp_path):
+    folder = tmp_path / "runs" / "mappo" / "a"
+    assert claim_dir(folder) and folder.is_dir()
+    assert not claim_dir(folder)
+
+
+def test_a_second_holder_is_refused_with_the_first_ones_pid_and_the_key(tmp_path):
+    with run_lock(tmp_path, "resume"):
+        with pytest.raises(ConfigError) as e, run_lock(tmp_path, "resume"):
+            pass
+        assert e.value.key == "resume"
+        assert f"{tmp_path} is in use by another process (pid {os.getpid()})" in str(e.value)
+    with run_lock(tmp_path, "resume"):  # released at the end of the block
+        pass
+
+
+def test_a_killed_holder_leaves_no_lock_behind(tmp_path):
+    code = (
+        "import sys, time\nfrom marlcrash.calibrate.runlock import run_lock\n"
+        "with run_lock(sys.argv[1], 'name'):\n    print('held', flush=True)\n    time.sleep(60)\n"
+    )
+    proc = subprocess.Popen([sys.executable, "-c", code, str(tmp_path)], stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "held"
+        with pytest.raises(ConfigError, match=f"pid {proc.pid}"), run_lock(tmp_path, "name"):
+            pass
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=30)
+    deadline = time.monotonic() + 10
+    while True:  # the kernel drops the lock with the process
+        try:
+            with run_lock(tmp_path, "name"):
+                assert (tmp_path / LOCK_FILE).read_text() == f"{os.getpid()}\n"
+                break
+        except ConfigError:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.1)
+    assert not (tmp_path / LOCK_FILE).exists()  # removed by the holder that ends normally
+
+
+def test_a_missing_folder_is_left_to_the_caller_unless_created(tmp_path):
+    with run_lock(tmp_path / "gone", "resume") as d:
+        assert not d.exists()
+    with run_lock(tmp_path / "new" / "run", "name", create=True) as d:
+        assert (d / LOCK_FILE).is_file()
