@@ -111,11 +111,15 @@ default damping. The undamped Gershgorin bound would be 2."""
 
 @dataclass
 class SimConfig:
-    """Integrator and contact settings; values in ``configs/sim.yaml`` (see its comments)."""
+    """Integrator and contact settings; values in ``configs/sim.yaml`` (see its comments).
 
-    substeps: int = 1
+    The defaults here are that file's shipped values (tested), so ``SimConfig()`` in a notebook simulates what the
+    tools do; the tools themselves read the file and refuse one with a key missing.
+    """
+
+    substeps: int = 8
     stiffness_cap: float = 1.0
-    mass_floor: float = 0.05
+    mass_floor: float = 0.5
     stroke_fraction: float = 0.7
     densification_factor: float = 10.0
     tension_ratio: float = 0.3
