@@ -1,5 +1,5 @@
 """Masses a deck adds beyond density times volume: *ELEMENT_MASS, *ELEMENT_INERTIA, *ELEMENT_MASS_PART, MAREA,
-*PART_INERTIA (also of a body of extra nodes) and *CONSTRAINED_NODAL_RIGID_BODY_INERTIA.
+*SECTION_BEAM NSM, *PART_INERTIA (also of a body of extra nodes) and *CONSTRAINED_NODAL_RIGID_BODY_INERTIA.
 
 References are hand computations on a two-shell plate in mm-t-s units (1 t = 1000 kg, 1 mm = 1e-3 m).
 """
@@ -401,3 +401,29 @@ def _locate(cells, point):
     idx = [int(np.clip(np.searchsorted(edges[a], point[a], side="right") - 1, 0, len(edges[a]) - 2)) for a in range(3)]
     inside = all(edges[a][0] <= point[a] <= edges[a][-1] for a in range(3))
     return np.ravel_multi_index(tuple(idx), cells.grid_labels.shape), inside
+
+
+def _beam_deck(elform: int, nsm: str) -> str:
+    """Part 1: shells as in :func:`_deck`; part 3: two truss beams (section 3, 50 mm^2) of 100 mm each."""
+    card2 = "      50.0" if elform != 6 else "       1.0       0.0         0       1.0"
+    return _deck().format(inertia="") + (
+        "*PART\nbar\n         3         3         1\n"
+        f"*SECTION_BEAM\n         3{elform:10d}       1.0         0       0.0       0.0{nsm}\n{card2}\n"
+        "*ELEMENT_BEAM\n       9       3       1       2       4\n      10       3       2       7       3\n"
+    )
+
+
+def test_section_beam_nsm_adds_mass_per_length(tmp_path):
+    # NSM 1e-6 t/mm = 1 kg/m on the truss beams of 100 mm (nodes 1-2) and 100 mm (2-7): 0.2 kg
+    m = _read(_beam_deck(3, "   1.0e-06"), tmp_path)
+    assert m.part_added_mass == pytest.approx({3: 0.2}, rel=1e-9)
+    np.testing.assert_allclose(m.element_added_masses()["beam"], [0.1, 0.1], rtol=1e-9)
+    no_nsm = _read(_beam_deck(3, ""), tmp_path)
+    assert no_nsm.part_added_mass == {} and m.total_mass() == pytest.approx(no_nsm.total_mass() + 0.2, rel=1e-12)
+    # discrete beams take no NSM in LS-DYNA: a note, no mass
+    m = _read(_beam_deck(6, "   1.0e-06"), tmp_path)
+    assert m.part_added_mass == {} and any("NSM of section 3 not added" in w for w in m.warnings)
+    with pytest.raises(
+        DeckError, match=r"line 32: \*SECTION_BEAM expects a mass per length NSM >= 0 in columns 61-70, got '-1.0e-06'"
+    ):
+        _read(_beam_deck(3, "  -1.0e-06"), tmp_path)

@@ -41,8 +41,9 @@ Coverage:
   VTX..VTZ set it moving; a rigid part without elements shares it among its ``*CONSTRAINED_EXTRA_NODES``),
   and ``*CONSTRAINED_NODAL_RIGID_BODY_INERTIA`` (``_SPC``, ``_TITLE``) TM, the body's whole mass, shared
   equally by its node set (lumped masses on those nodes are replaced by it, a note says so; its VTX..VTZ
-  set the set moving); ``*ELEMENT_MASS_PART`` LCID and MWD are not read; ``*ELEMENT_MASS_MATRIX``,
-  ``*SECTION_BEAM`` NSM are not read (skipped and counted like any card);
+  set the set moving), ``*SECTION_BEAM`` NSM (mass per length; not for discrete beams, ELFORM 6, as in
+  LS-DYNA); ``*ELEMENT_MASS_PART`` LCID and MWD are not read; ``*ELEMENT_MASS_MATRIX`` is not read (skipped and
+  counted like any card);
 - ``*SET_PART``, ``*SET_PART_LIST`` and ``*SET_PART_LIST_GENERATE`` (usable as
   ``"set:<id>"`` in sub-assembly maps);
 - ``*CONSTRAINED_RIGID_BODIES`` (which rigid parts move as one body), ``*SET_NODE``/
@@ -146,7 +147,7 @@ _PART = _card("pid", "secid", "mid", kinds="iii")
 _SEC_SHELL_1 = _card("secid", "elform", "shrf", "nip", "propt", "qr", "icomp", kinds="iifffff")
 _SEC_SHELL_2 = _card("t1", "t2", "t3", "t4", "nloc", "marea")
 _SEC_SOLID = _card("secid", "elform", kinds="if")
-_SEC_BEAM_1 = _card("secid", "elform", "shrf", "qr", "cst", kinds="iffff")
+_SEC_BEAM_1 = _card("secid", "elform", "shrf", "qr", "cst", "scoor", "nsm", kinds="iffffff")
 _SEC_BEAM_2 = _card("a1", "a2", "a3", "a4")
 _MAT_1 = _card("mid", "c1", "c2", "c3", "c4", "c5", "c6", "c7", kinds="ifffffff")
 _MAT_8 = _card(*(f"c{i}" for i in range(8)))
@@ -811,7 +812,7 @@ class _Section:
     elform: int
     cst: int
     where: tuple[Path, int]
-    marea: float = 0.0  # shells: non-structural mass per area (deck units)
+    marea: float = 0.0  # non-structural mass (deck units): per area for shells (MAREA), per length for beams (NSM)
 
 
 @dataclass
@@ -1105,11 +1106,14 @@ def _read_section(block: _Block, kind: str, opts: set[str], t: _Tables, params: 
             if (elform or 0) >= 101 or (opts - {"TITLE"}):
                 break  # user-element or option cards follow: only the first section of this block is read
         else:
-            secid, elform, _shrf, qr, cst = _read_line(block, r, _SEC_BEAM_1, params)
+            secid, elform, _shrf, qr, cst, _scoor, nsm = _read_line(block, r, _SEC_BEAM_1, params)
             a1, a2, a3, a4 = (x or 0.0 for x in _read_line(block, rows[i + 1], _SEC_BEAM_2, params))
-            elform, cst = int(elform or 1), int(cst or 0)
+            elform, cst, nsm = int(elform or 1), int(cst or 0), nsm or 0.0
+            if not (math.isfinite(nsm) and nsm >= 0):
+                at = _field_where(block, r, _SEC_BEAM_1, 6)
+                raise block.err(f"*{block.keyword} expects a mass per length NSM >= 0 {at}", r)
             area = _beam_area(elform, cst, a1, a2, a3, a4, qr or 0.0)
-            _add_section(block, t, secid, _Section("beam", area, elform, cst, where), r)
+            _add_section(block, t, secid, _Section("beam", area, elform, cst, where, float(nsm)), r)
             i += 2
             if opts - {"TITLE"}:
                 break
@@ -1702,8 +1706,9 @@ def _assemble(deck: _Deck, t: _Tables, units: str | None, main: Path) -> tuple[V
 def _deck_masses(model: VehicleModel, t: _Tables) -> VehicleModel:
     """The model with the masses the deck adds to its elements and nodes (SI), each checked against the model.
 
-    ``*PART_INERTIA`` TM sets a rigid part's whole mass (:attr:`VehicleModel.part_mass`; MAREA and
-    ``*ELEMENT_MASS_PART`` do not add to it, a note says so); ``*SECTION_SHELL`` MAREA and ``*ELEMENT_MASS_PART``
+    ``*PART_INERTIA`` TM sets a rigid part's whole mass (:attr:`VehicleModel.part_mass`; MAREA, NSM and
+    ``*ELEMENT_MASS_PART`` do not add to it, a note says so); ``*SECTION_SHELL`` MAREA, ``*SECTION_BEAM`` NSM
+    (per length; not for discrete beams) and ``*ELEMENT_MASS_PART``
     (``_SET``) add non-structural mass, FINMASS what brings the part (the set) to that total
     (:attr:`VehicleModel.part_added_mass`); ``*ELEMENT_MASS`` puts masses on nodes, ``_NODE_SET`` shares one
     equally among the set's nodes (:attr:`VehicleModel.point_mass`).
@@ -1736,14 +1741,23 @@ def _deck_masses(model: VehicleModel, t: _Tables) -> VehicleModel:
             continue
         part_mass[pid] = tm * u.mass
     model = replace(model, part_mass=part_mass)
-    part_area = model.sum_by_part({"shell": model.shell_areas()})
+    measures = model.element_measures()
+    part_measure = {k: model.sum_by_part({k: measures[k]}) for k in ("shell", "beam")}  # area, length per part
     added: dict[int, float] = {}
     for pid, part in model.parts.items():
-        marea = t.sections[part.section_id].marea if part.section_id in t.sections else 0.0
-        if marea > 0 and pid in part_mass:
-            notes.append(f"part {pid}: MAREA of section {part.section_id} not added: *PART_INERTIA sets its whole mass")
-        elif marea > 0 and part_area[pid] > 0:
-            added[pid] = marea * u.mass / u.area * part_area[pid]
+        sec = t.sections.get(part.section_id)
+        if sec is None or sec.marea <= 0 or sec.kind == "solid":
+            continue
+        field = "MAREA" if sec.kind == "shell" else "NSM"
+        if pid in part_mass:
+            notes.append(f"part {pid}: {field} of section {part.section_id} not added: *PART_INERTIA sets its whole "
+                         "mass")  # fmt: skip
+        elif sec.kind == "beam" and sec.elform == 6:
+            notes.append(f"part {pid}: NSM of section {part.section_id} not added: LS-DYNA ignores it for discrete "
+                         "beams (ELFORM 6)")  # fmt: skip
+        elif part_measure[sec.kind][pid] > 0:
+            per = u.area if sec.kind == "shell" else u.length
+            added[pid] = sec.marea * u.mass / per * part_measure[sec.kind][pid]
     if t.part_masses:
         own = replace(model, part_added_mass=dict(added)).part_masses()  # structural + MAREA so far
         measure = model.sum_by_part(model.element_measures())
