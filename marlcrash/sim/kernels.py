@@ -68,14 +68,17 @@ KERNEL_SECONDS = [0.0]
 
 LANE_EFFICIENCY = {
     "float64": {1: 0.22, 2: 0.34, 4: 0.73, 8: 0.99, 16: 1.0, 32: 0.85, 64: 0.76},
-    "float32": {1: 0.14, 2: 0.22, 4: 0.36, 8: 0.86, 16: 1.0, 32: 0.98, 64: 0.90, 128: 0.83},
+    "float32": {1: 0.13, 2: 0.20, 4: 0.33, 8: 0.80, 16: 1.0, 32: 0.91, 64: 0.78, 128: 0.73},
 }
 """Per-simulation throughput of a chunk of this many lanes relative to the fastest width of the same dtype, measured
 on the default car with the ``noalias`` kernel (2026-11-23): ``python benchmarks/bench_lanes.py --widths 1 2 4 8 16
 32 64 128 --batch 256 --repeat 3 [--float32]`` (per-cell energies at the final step, 2 threads): float64 130 sims/s
 at 16 lanes, 129 at 8, 111 at 32; float32 202 at 16, 198 at 32, 182 at 64. At B = 1024 (interleaved, 3 rounds) 16
 float64 lanes ran 1.10-1.13x as fast as 32, and 16 float32 lanes 1.09-1.11x as fast as 64; at the main job's 48
-simulations the width chosen from this table, 8 float64 lanes, ran 1.55-1.64x as fast as 32 (the choice before)."""
+simulations the width chosen from this table, 8 float64 lanes, ran 1.55-1.64x as fast as 32 (the choice before).
+Re-measured the same day with the link update written out in the lane loop (:func:`_links`): float64 unchanged
+within noise (136.3 sims/s at 8 lanes, 136.7 at 16, 113.7 at 32, best of 5), float32 the table above (244 sims/s
+at 16 lanes, 222 at 32, 195 at 8, 192 at 64); the widths chosen stay the same."""
 
 CHUNK_BYTES = 16 * 2**20
 """Largest estimated working set of one chunk [bytes] (:func:`chunk_bytes_per_lane`): two chunks in flight, one
@@ -133,67 +136,61 @@ def lanes_for(batch: int, n_links: int, n_cells: int, dtype: str) -> int:
 
 
 @numba.njit(cache=True, fastmath=_FASTMATH, inline="always")
-def _link(P, ll, j, dd, gap, relief, f_el, o, yd, plastic, a, tl, cst):
-    """One link update in lane ``j``: return-mapped force and plastic work; returns f_tot.
-
-    ``gap`` and ``relief`` are compile-time constants at every call site (the link loops are
-    specialised per link kind and per springback-relief setting, so neither costs a branch per lane).
-    Plain links are elastic-plastic with tension up to ``tl P[H_YU]`` (``tl`` the link's tension ratio);
-    gap (contact) links carry compression only once their opening ``o`` has closed. Springback relief (module doc of
-    :mod:`marlcrash.sim.surrogate`): a link that has yielded (``yd``) and unloads (``|f_ret| < |f0|``,
-    same sign) has its force scaled by its relaxation factor ``q <= 1``.
-    """
-    half, zero = cst[0], cst[1]
-    k = P[ll, H_K, j]
-    ik = P[ll, H_IK, j]
-    yu = P[ll, H_YU, j]
-    f0 = f_el[ll, j]
-    if gap:
-        z = f0 * ik - o[ll, j] + dd
-        f_tr = k * max(z, zero)
-        o[ll, j] = max(-z, zero)
-        f_ret = min(f_tr, yu)
-    else:
-        f_tr = f0 + k * dd
-        f_ret = min(max(f_tr, -yu * tl), yu)
-    f_new = f_ret
-    if relief:
-        y = max(yd[ll, j], cst[2] if f_tr != f_ret else zero)
-        yd[ll, j] = y
-        if y > zero and f_ret * f0 > zero and abs(f_ret) < abs(f0):
-            f_new = f_ret * P[ll, H_Q, j]
-        plastic[a, j] += (f_ret * (f_tr - f_ret) + half * (f_ret * f_ret - f_new * f_new)) * ik
-    else:
-        plastic[a, j] += f_ret * (f_tr - f_ret) * ik
-    f_el[ll, j] = f_new
-    damp = P[ll, H_DC, j] * (f_ret - f0)
-    if gap:
-        return max(f_new + damp, zero)
-    return f_new + damp
-
-
-@numba.njit(cache=True, fastmath=_FASTMATH, inline="always")
 def _links(
     P, lo, hi, gap, relief, ledger, src, dst, ds, f_el, o, yd, plastic, fs, fd, h_step, f_prev, step_in, trl, cst
 ):
     """Update links ``lo .. hi-1`` (all of one kind) in every lane and scatter their forces to the nodes.
 
-    ``gap`` and ``relief`` are literal booleans at the call sites; ``ledger`` adds the per-link term of
-    the per-cell energies (``h_step``: this step's transmitted work by source cell, in the simulation's
-    precision; needs ``f_prev``). ``trl [L]``: tension ratios. Per-link scalars are read
-    once per link, outside the lane loop: read inside it (``trl[ll]`` in every lane) the loop ran 0.85x.
+    Plain links are elastic-plastic with tension up to ``tl P[H_YU]`` (``tl = trl[ll]``, the link's tension ratio);
+    gap (contact) links carry compression only once their opening ``o`` has closed. Springback relief (module doc
+    of :mod:`marlcrash.sim.surrogate`): a link that has yielded (``yd``) and unloads (``|f_ret| < |f0|``, same sign)
+    has its force scaled by its relaxation factor ``q <= 1``.
+
+    ``gap``, ``relief`` and ``ledger`` are literal booleans at the call sites, so each loop is compiled for one
+    link kind without a branch per lane; ``ledger`` adds the per-link term of the per-cell energies (``h_step``:
+    this step's transmitted work by source cell, in the simulation's precision; needs ``f_prev``). Per-link
+    scalars are read once per link, outside the lane loop: read inside it (``trl[ll]`` in every lane) the loop ran
+    0.85x. The update is written out in the lane loop: the same arithmetic in a function inlined per lane (the
+    kernel of commit ``a123cab``) gave the same outputs bit for bit at 0.68-0.77x the speed in float64 and
+    0.50-0.58x in float32 (B = 1024 and 48, interleaved; README, Simulator speed).
     """
     CH = ds.shape[1]
+    half, zero = cst[0], cst[1]
     for ll in range(lo, hi):
         a = src[ll]
         c = dst[ll]
         tl = trl[ll]
         for j in range(CH):
-            f_tot = _link(P, ll, j, ds[c, j] - ds[a, j], gap, relief, f_el, o, yd, plastic, a, tl, cst)
+            dd = ds[c, j] - ds[a, j]
+            k = P[ll, H_K, j]
+            ik = P[ll, H_IK, j]
+            yu = P[ll, H_YU, j]
+            f0 = f_el[ll, j]
+            if gap:
+                z = f0 * ik - o[ll, j] + dd
+                f_tr = k * max(z, zero)
+                o[ll, j] = max(-z, zero)
+                f_ret = min(f_tr, yu)
+            else:
+                f_tr = f0 + k * dd
+                f_ret = min(max(f_tr, -yu * tl), yu)
+            f_new = f_ret
+            if relief:
+                y = max(yd[ll, j], cst[2] if f_tr != f_ret else zero)
+                yd[ll, j] = y
+                if y > zero and f_ret * f0 > zero and abs(f_ret) < abs(f0):
+                    f_new = f_ret * P[ll, H_Q, j]
+                plastic[a, j] += (f_ret * (f_tr - f_ret) + half * (f_ret * f_ret - f_new * f_new)) * ik
+            else:
+                plastic[a, j] += f_ret * (f_tr - f_ret) * ik
+            f_el[ll, j] = f_new
+            f_tot = f_new + P[ll, H_DC, j] * (f_ret - f0)  # with the damping of the elastic force change
+            if gap:
+                f_tot = max(f_tot, zero)  # a contact never pulls
             fs[a, j] += f_tot
             fd[c, j] += f_tot
             if ledger:
-                h_step[a, j] += cst[0] * (f_prev[ll, j] + f_tot) * (step_in[j] - ds[c, j])
+                h_step[a, j] += half * (f_prev[ll, j] + f_tot) * (step_in[j] - ds[c, j])
                 f_prev[ll, j] = f_tot
 
 
