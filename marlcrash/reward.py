@@ -24,7 +24,7 @@ its failure limit (a hopeless state); truncation after ``max_iterations``.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar, Literal, NamedTuple
 
@@ -86,9 +86,9 @@ class WeightedSumParams:
     w_area: float = 1.0
     w_dfd: float = 1.0
     w_rmse: float = 1.0
-    area_scale: float = 0.01
-    dfd_scale: float = 0.1
-    rmse_scale: float = 0.1
+    area_scale: float = 0.02
+    dfd_scale: float = 0.4
+    rmse_scale: float = 0.25
     eps: float = 1e-9
 
     def validate(self) -> None:
@@ -234,6 +234,15 @@ class TerminationConfig:
         require(self.max_iterations >= 1, "termination.max_iterations", f"must be >= 1, got {self.max_iterations}")
 
 
+def shipped_termination() -> TerminationConfig:
+    """The ``termination`` block of the shipped reward and env files: the default of :class:`RewardConfig` and
+    :class:`~marlcrash.envs.core.EnvConfig` made in Python (``tests/test_config_defaults.py`` keeps it equal to the
+    files). A bare ``TerminationConfig()`` checks nothing but the iteration limit."""
+    return TerminationConfig(
+        success_area=0.002, success_dfd=0.05, success_rmse=0.03, failure_area=0.5, failure_dfd=5.0, failure_rmse=3.0
+    )
+
+
 @dataclass
 class RewardConfig:
     """One reward setup: the form and its parameters, how metrics are measured, termination.
@@ -248,9 +257,9 @@ class RewardConfig:
 
     name: str = "paper_factor"
     sensor_reduction: Literal["mean", "max"] = "mean"
-    params: dict[str, float] = field(default_factory=dict)
+    params: dict[str, float] = field(default_factory=lambda: asdict(PaperFactorParams()))
     metrics: MetricsConfig = field(default_factory=MetricsConfig)
-    termination: TerminationConfig = field(default_factory=TerminationConfig)
+    termination: TerminationConfig = field(default_factory=shipped_termination)
 
     def validate(self) -> None:
         """Check the name is registered and the params fit the form."""

@@ -371,17 +371,6 @@ def test_parameter_validation_errors():
             sim.run(_params(cells), FW40, record_cells="all", backend=backend)
 
 
-def test_sim_config_defaults_are_the_shipped_sim_yaml():
-    """A ``SimConfig()`` made in Python (a notebook) must simulate what the tools simulate: 1 substep and a
-    0.05 kg mass floor, the defaults before, gave implausible pulses silently."""
-    from dataclasses import asdict
-
-    from marlcrash.config import config_dir
-    from marlcrash.sim import SimConfig
-
-    assert asdict(SimConfig()) == asdict(load_sim_config(config_dir() / "sim.yaml"))
-
-
 def test_sim_config_validation_names_key():
     with pytest.raises(ConfigError, match="substeps"):
         load_sim_config(overrides={"substeps": 0})

@@ -24,13 +24,13 @@ from marlcrash.errors import ConfigError
 ALGO_DIR = config_dir() / "train" / "algorithm"
 
 
-def composed(overrides: list[str] | None = None) -> dict:
-    """configs/train/train.yaml composed by Hydra exactly as train/train.py sees it."""
+def composed(overrides: list[str] | None = None, name: str = "train") -> dict:
+    """configs/train/<name>.yaml composed by Hydra exactly as train/<name>.py sees it."""
     from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
 
     with initialize_config_dir(config_dir=str(config_dir() / "train"), version_base=None):
-        cfg = compose(config_name="train", overrides=overrides or [])
+        cfg = compose(config_name=name, overrides=overrides or [])
     return OmegaConf.to_container(cfg, resolve=True)
 
 

@@ -52,6 +52,7 @@ from marlcrash.calibrate.compare import (
     COLUMNS,
     CompareConfig,
     PPOBudgetConfig,
+    budget_algorithm,
     check_env_overrides,
     csv_text,
     hold_run_dir,
@@ -126,9 +127,9 @@ class AblationConfig:
     resume: bool = False
     plots: bool = True
     ppo: PPOBudgetConfig = field(default_factory=PPOBudgetConfig)
-    mappo: AlgorithmConfig = field(default_factory=lambda: AlgorithmConfig(name="mappo"))
-    ippo: AlgorithmConfig = field(default_factory=lambda: AlgorithmConfig(name="ippo", centralised_critic=False))
-    ppo_single: AlgorithmConfig = field(default_factory=lambda: AlgorithmConfig(name="ppo_single"))
+    mappo: AlgorithmConfig = field(default_factory=lambda: budget_algorithm("mappo"))
+    ippo: AlgorithmConfig = field(default_factory=lambda: budget_algorithm("ippo"))
+    ppo_single: AlgorithmConfig = field(default_factory=lambda: budget_algorithm("ppo_single"))
 
     def levels(self, factor: str) -> list[Any]:
         """The levels of ``factor`` (one of :data:`FACTORS`)."""

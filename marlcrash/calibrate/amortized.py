@@ -83,6 +83,10 @@ COLUMNS = (
 
 
 # ------------------------------------------------------------------------------------------- config
+DEFAULT_BUDGETS = {"cmaes": [1.0, 10.0, 40.0], "random_search": [1.0, 10.0], "gradient": [1.0, 10.0, 40.0]}
+"""``budgets`` of ``configs/train/amortized.yaml``, the default of an :class:`AmortizedConfig` made in Python."""
+
+
 @dataclass
 class AmortizedConfig:
     """One comparison; values and their meaning in ``configs/train/amortized.yaml``.
@@ -102,9 +106,9 @@ class AmortizedConfig:
     run: str | None = None
     reference_seeds: list[int] = field(default_factory=lambda: [101, 102, 103])
     scenario: str = "full_width_40"
-    iterations: int | None = None
+    iterations: int | None = 12
     target: Literal["best", "last"] = "best"
-    budgets: dict[str, list[float]] = field(default_factory=lambda: {"cmaes": [1.0, 10.0, 100.0]})
+    budgets: dict[str, list[float]] = field(default_factory=lambda: dict(DEFAULT_BUDGETS))
     seed: int = 0
     out_dir: str | None = None
     random_search: RandomSearchConfig = field(default_factory=RandomSearchConfig)

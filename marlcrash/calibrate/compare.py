@@ -61,6 +61,7 @@ from marlcrash.calibrate.budget import Progress
 from marlcrash.calibrate.evaluate import param_errors
 from marlcrash.calibrate.marl import (
     ALGORITHMS,
+    TRAIN_ENV_OVERRIDES,
     AlgorithmConfig,
     ProgressHook,
     TrainConfig,
@@ -99,6 +100,12 @@ _PPO_ENV_KEYS = {**_SHARED_ENV_KEYS, "reference": f"{_PROTOCOL} for the pinned P
 
 
 # ------------------------------------------------------------------------------------------- config
+def budget_algorithm(name: str) -> AlgorithmConfig:
+    """A PPO method's settings in ``compare.yaml`` and ``ablate.yaml``: its algorithm file with minibatches of 32 env
+    steps (the default ``ppo`` batch, 8 episodes of 8 steps, is 64)."""
+    return AlgorithmConfig(name=name, centralised_critic=name != "ippo", minibatch_size=32)
+
+
 @dataclass
 class PPOBudgetConfig:
     """How the PPO methods spend the budget; values in ``configs/train/compare.yaml`` (``ppo:``).
@@ -114,7 +121,7 @@ class PPOBudgetConfig:
     n_envs: int = 8
     episode_length: int = 8
     threads: int = 0
-    env_overrides: dict[str, Any] = field(default_factory=dict)
+    env_overrides: dict[str, Any] = field(default_factory=lambda: dict(TRAIN_ENV_OVERRIDES))
 
     @property
     def iteration_cost(self) -> int:
@@ -146,9 +153,9 @@ class CompareConfig:
     name: str = "compare"
     resume: bool = False
     ppo: PPOBudgetConfig = field(default_factory=PPOBudgetConfig)
-    mappo: AlgorithmConfig = field(default_factory=lambda: AlgorithmConfig(name="mappo"))
-    ippo: AlgorithmConfig = field(default_factory=lambda: AlgorithmConfig(name="ippo", centralised_critic=False))
-    ppo_single: AlgorithmConfig = field(default_factory=lambda: AlgorithmConfig(name="ppo_single"))
+    mappo: AlgorithmConfig = field(default_factory=lambda: budget_algorithm("mappo"))
+    ippo: AlgorithmConfig = field(default_factory=lambda: budget_algorithm("ippo"))
+    ppo_single: AlgorithmConfig = field(default_factory=lambda: budget_algorithm("ppo_single"))
     random_search: RandomSearchConfig = field(default_factory=RandomSearchConfig)
     cmaes: CMAESConfig = field(default_factory=CMAESConfig)
     gradient: GradientConfig = field(default_factory=GradientConfig)
@@ -351,7 +358,7 @@ def ppo_train_config(config: CompareConfig, method: str, seed: int, run_root: Pa
     tc = TrainConfig(
         algorithm=copy.deepcopy(getattr(config, method)), env=config.env, env_overrides=over, n_envs=p.n_envs,
         episode_length=p.episode_length, iterations=max(1, config.budget // p.iteration_cost), time_limit_s=None,
-        seed=seed, threads=p.threads, logger="csv", checkpoint_every=1, progress_bar=False,
+        seed=seed, threads=p.threads, logger="csv", checkpoint_every=1, snapshot_every=0, progress_bar=False,
         out_dir=str(run_root / "ppo"), name=f"seed{seed}",
     )  # fmt: skip
     tc.validate()

@@ -97,6 +97,10 @@ CONFIG_FILE = "config.yaml"
 CI_ENV = "MARLCRASH_CI"
 """Environment variable that shrinks a run to its ``ci`` overrides (a 1-2 minute smoke run)."""
 
+TRAIN_ENV_OVERRIDES = {"max_step": 0.1, "observation.velocity_scale": 2.0, "observation.param_scale": 5.0}
+"""``env_overrides`` of ``configs/train/train.yaml`` (and of ``ppo`` in ``compare.yaml`` and ``ablate.yaml``), the
+defaults of the schemas built in Python (``tests/test_config_defaults.py`` keeps them equal to the files)."""
+
 _ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU}
 
 
@@ -109,20 +113,20 @@ class AlgorithmConfig:
     centralised_critic: bool = True
     share_policy_params: bool = True
     share_critic_params: bool = True
-    hidden: list[int] = field(default_factory=lambda: [256, 256])
+    hidden: list[int] = field(default_factory=lambda: [128, 128])
     activation: Literal["tanh", "relu", "elu"] = "tanh"
     init_std: float = 0.3
-    min_std: float = 1e-3
+    min_std: float = 0.01
     mean_init_gain: float = 0.01
-    lr: float = 3e-4
-    lr_final: float = 3e-4
-    entropy_coef: float = 0.0
+    lr: float = 1e-3
+    lr_final: float = 2e-4
+    entropy_coef: float = 1e-3
     entropy_coef_final: float = 0.0
     clip_epsilon: float = 0.2
     gamma: float = 0.9
     lmbda: float = 0.9
     epochs: int = 4
-    minibatch_size: int = 128
+    minibatch_size: int = 48
     max_grad_norm: float = 1.0
     critic_coef: float = 1.0
     normalize_advantage: bool = True
@@ -160,7 +164,7 @@ class EvalConfig:
     scenario: str = "full_width_40"
     reference: Literal["env", "twin", "cross_fidelity", "file"] = "env"
     reference_seed: int = 0
-    iterations: int = 20
+    iterations: int = 24
     select: Literal["best", "last"] = "best"
     plots: bool = True
     thresholds: SuccessConfig = field(default_factory=SuccessConfig)
@@ -178,17 +182,17 @@ class TrainConfig:
 
     algorithm: AlgorithmConfig = field(default_factory=AlgorithmConfig)
     env: str = "default"
-    env_overrides: dict[str, Any] = field(default_factory=dict)
-    n_envs: int = 64
-    episode_length: int = 8
-    iterations: int = 30
-    time_limit_s: float | None = None
+    env_overrides: dict[str, Any] = field(default_factory=lambda: dict(TRAIN_ENV_OVERRIDES))
+    n_envs: int = 48
+    episode_length: int = 6
+    iterations: int = 400
+    time_limit_s: float | None = 660.0
     seed: int = 0
     device: str = "cpu"
     threads: int = 0
     logger: str = "csv"
     checkpoint_every: int = 1
-    snapshot_every: int = 0
+    snapshot_every: int = 20
     progress_bar: bool = True
     out_dir: str = "runs"
     name: str = "run"

@@ -80,7 +80,9 @@ class DiscretizationConfig:
     roi_depth: float = 1.2
     target_cell_volume: float = 3e-4
     solid_target_cell_volume: float = 0.03
-    subassembly_target_cell_volume: dict[str, float] = field(default_factory=dict)
+    subassembly_target_cell_volume: dict[str, float] = field(
+        default_factory=lambda: {"wheel_left": 0.01, "wheel_right": 0.01}
+    )
     method: Literal["optimized", "uniform"] = "optimized"
     overlaps: list[float] = field(default_factory=lambda: [0.4, 0.25])
     voxels_per_cell_edge: int = 4
@@ -91,7 +93,7 @@ class DiscretizationConfig:
     weight_x: float = 2.0
     weight_lateral: float = 1.0
     weight_vertical: float = 1.0
-    crush_efficiency_shell: float = 0.4
+    crush_efficiency_shell: float = 0.22
     crush_efficiency_solid: float = 1.0
     compaction_shell: float = 0.3
     compaction_solid: float = 0.9

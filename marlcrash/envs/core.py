@@ -68,7 +68,7 @@ from marlcrash.envs.masking import ImpactRegions, MaskingConfig
 from marlcrash.errors import ConfigError, MarlcrashError
 from marlcrash.metrics import Metrics, compute_metrics
 from marlcrash.references import ReferenceConfig, ReferenceSampler
-from marlcrash.reward import Reward, TerminationConfig, load_reward_config, require_reward
+from marlcrash.reward import Reward, TerminationConfig, load_reward_config, require_reward, shipped_termination
 from marlcrash.sim.surrogate import SimConfig, Surrogate, load_sim_config
 from marlcrash.vehicle.registry import VehicleOptions
 
@@ -76,6 +76,14 @@ from marlcrash.vehicle.registry import VehicleOptions
 class ActionError(MarlcrashError):
     """Bad use of an environment's API: actions of the wrong shape, dtype, or with non-finite values, a call out of
     order (step() before reset()), a bad seed or argument."""
+
+
+DEFAULT_SCENARIOS = ("full_width_40", "offset40_left", "offset40_right", "small_overlap_left", "small_overlap_right")
+"""The scenario distribution of ``configs/env/default.yaml`` (equal weights): the default of an :class:`EnvConfig` made
+in Python, as every default there (``tests/test_config_defaults.py`` keeps them equal to the file)."""
+
+DEFAULT_SPLIT_LR = ("bumper_beam", "subframe", "cooling_module", "dash_firewall", "hood")
+"""Sub-assemblies ``configs/env/default.yaml`` splits into left and right agents."""
 
 
 @dataclass
@@ -101,15 +109,15 @@ class EnvConfig:
     vehicle_options: VehicleOptions = field(default_factory=VehicleOptions)
     discretization: Literal["optimized", "uniform"] = "optimized"
     sensors: list[str] = field(default_factory=list)
-    scenarios: dict[str, float] = field(default_factory=lambda: {"full_width_40": 1.0})
+    scenarios: dict[str, float] = field(default_factory=lambda: dict.fromkeys(DEFAULT_SCENARIOS, 1.0))
     granularity: Literal["subassembly", "cell"] = "subassembly"
     max_step: float = 0.1
     behaviour_bounds: list[float] = field(default_factory=lambda: [0.25, 4.0])
     transmission_floor: float = 0.01
-    agents: AgentsConfig = field(default_factory=AgentsConfig)
+    agents: AgentsConfig = field(default_factory=lambda: AgentsConfig(split_lr=list(DEFAULT_SPLIT_LR)))
     masking: MaskingConfig = field(default_factory=MaskingConfig)
     reward: str = "log_ratio"
-    termination: TerminationConfig = field(default_factory=TerminationConfig)
+    termination: TerminationConfig = field(default_factory=shipped_termination)
     reference: ReferenceConfig = field(default_factory=ReferenceConfig)
     observation: ObservationConfig = field(default_factory=ObservationConfig)
     metrics_backend: Literal["numba", "torch"] = "numba"
