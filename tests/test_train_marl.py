@@ -454,7 +454,13 @@ def test_kept_snapshots_are_evaluated_beside_the_run_results(short, tmp_path):
     kept = sorted(p.name for p in (res.run_dir / "checkpoints").iterdir())
     assert kept == ["iter_00002.pt"]
     final = (res.run_dir / "summary.json").read_text()
-    early = evaluate_run(res.run_dir, checkpoint="2")
+    from marlcrash.calibrate.runlock import run_lock
+
+    with run_lock(res.run_dir, "name"):  # the run still trains (another process holds its folder)
+        with pytest.raises(ConfigError, match="in use by another process") as e:  # its own results: refused
+            evaluate_run(res.run_dir)
+        assert e.value.key == "run" and (res.run_dir / "summary.json").read_text() == final
+        early = evaluate_run(res.run_dir, checkpoint="2")  # a kept snapshot goes beside them: allowed meanwhile
     assert early["iterations_trained"] == 2 and early["env_steps"] == 2 * 4 * 2
     assert early["checkpoint"].endswith("iter_00002.pt")
     out = res.run_dir / "eval" / "iter_00002"

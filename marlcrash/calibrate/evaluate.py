@@ -60,6 +60,7 @@ from marlcrash.calibrate.marl import (
     require_fits,
 )
 from marlcrash.calibrate.problem import CalibrationProblem, ProblemConfig, build_problem
+from marlcrash.calibrate.runlock import run_lock
 from marlcrash.config import flatten_overrides, from_dict, require
 from marlcrash.envs import EnvConfig
 from marlcrash.errors import ConfigError
@@ -419,7 +420,9 @@ def evaluate_run(
         and ``eval_dir``: the folder written).
 
     Raises:
-        ConfigError: no run config or no such checkpoint in ``run_dir``.
+        ConfigError: no run config or no such checkpoint in ``run_dir``; the folder to write is in use by another
+            process (a run still training, or another evaluation of the same checkpoint:
+            :func:`marlcrash.calibrate.runlock.run_lock`).
     """
     t0 = time.perf_counter()
     run_dir = Path(run_dir)
@@ -444,72 +447,76 @@ def evaluate_run(
             steps = "" if config.eval.iterations == own_steps else f"_steps{config.eval.iterations}"
             out_dir = run_dir / EVAL_DIR / f"{ckpt.stem}{steps}"
             out_dir.mkdir(parents=True, exist_ok=True)
-    provenance.warn_changes(run_dir, check, "evaluate")
-    log_path = run_dir / LOG_FILE  # read before the evaluation's work: a malformed row fails now
-    position = counters.get("log_position")  # the rows the checkpoint counts; a torn one after them is not read
-    log_rows = read_log(log_path, rows=position, columns=LOG_COLUMNS) if log_path.is_file() else []
-    log_rows = [r for r in log_rows if r["iteration"] <= int(counters["iteration"])]
-    result = evaluate_policy(policy, config)
-    problem = evaluation_problem(config)
-    if not torch.allclose(problem.ref_velocity, result.ref_velocity, rtol=0, atol=1e-9):
-        raise ConfigError("the evaluation env and the baselines' problem drew different references", key="eval")
-    th = config.eval.thresholds
-    final = result.per_sensor(result.selected)
-    passed = {s: all(lim is None or v[k] < lim for k, lim in (("area", th.area), ("dfd", th.dfd), ("rmse", th.rmse)))
-              for s, v in final.items()}  # fmt: skip
-    train_time = float(counters["wall_time_s"])
-    steps = int(counters["env_steps"])
-    collect_rates = [r["env_steps_per_s"] for r in log_rows]
-    summary: dict[str, Any] = {
-        "algorithm": config.algorithm.name,
-        "checkpoint": None if trainer is not None else str(ckpt),
-        "eval_dir": str(out_dir),
-        "seed": config.seed,
-        "scenario": result.scenario,
-        "reference": result.reference,
-        "reference_source": result.source,
-        "reference_seed": result.seed,
-        "select": result.select,
-        "selected_iteration": result.selected,
-        "eval_iterations": result.iterations,
-        "final_metrics": final,
-        "initial_metrics": result.per_sensor(0),
-        "last_metrics": result.per_sensor(result.iterations),
-        "thresholds": {"area": th.area, "dfd": th.dfd, "rmse": th.rmse},
-        "passed": passed,
-        "all_passed": all(passed.values()),
-        "initial_passed": all(
-            all(lim is None or v[k] < lim for k, lim in (("area", th.area), ("dfd", th.dfd), ("rmse", th.rmse)))
-            for v in result.per_sensor(0).values()
-        ),
-        "iterations_trained": int(counters["iteration"]),
-        "env_steps": steps,
-        "simulations": int(counters["simulations"]),
-        "train_wall_time_s": train_time,
-        "env_steps_per_s": steps / train_time if train_time > 0 else None,
-        "collect_env_steps_per_s": float(np.median(collect_rates)) if collect_rates else None,
-        "provenance": check.as_dict(),  # configs or code changed since the run started (provenance.json)
-    }
-    if result.true_params is not None:
-        summary["param_error"] = param_errors(problem, result.params[result.selected], result.true_params)
-        summary["initial_param_error"] = param_errors(problem, result.params[0], result.true_params)
-    write_metrics_tables(result, out_dir / "eval_metrics.csv", out_dir / "eval_metrics.md")
-    arrays = {"initial": result.params[0].numpy(), "calibrated": result.params[result.selected].numpy(),
-              "per_iteration": result.params.numpy(), "selected_iteration": np.array(result.selected)}  # fmt: skip
-    if result.true_params is not None:
-        arrays["true"] = result.true_params.numpy()
-    with atomic_output(out_dir / "calibrated.npz") as tmp:
-        np.savez(tmp, **arrays)
-    if config.eval.plots:
-        plot_pulses(problem, result, out_dir / "pulses.png")
-        plot_learning_curves(log_rows, result, out_dir / "learning_curves.png")
-    summary["eval_wall_time_s"] = time.perf_counter() - t0
-    summary["wall_time_s"] = train_time + summary["eval_wall_time_s"]
-    old = out_dir / SUMMARY_FILE
-    if old.is_file():  # the training process's wall time (train/train.py) is not the evaluation's to drop
-        with contextlib.suppress(ValueError, OSError, AttributeError):
-            earlier = json.loads(old.read_text()).get(KEPT_SUMMARY_KEY)
-            if earlier is not None:
-                summary[KEPT_SUMMARY_KEY] = earlier
-    write_text(out_dir / SUMMARY_FILE, json.dumps(summary, indent=2))
-    return summary
+    # a trainer holds its run folder already; otherwise hold the folder written, so an evaluation neither writes a
+    # run that still trains nor interleaves its files with another evaluation of the same checkpoint
+    with contextlib.nullcontext() if trainer is not None else run_lock(out_dir, "run"):
+        provenance.warn_changes(run_dir, check, "evaluate")
+        log_path = run_dir / LOG_FILE  # read before the evaluation's work: a malformed row fails now
+        position = counters.get("log_position")  # the rows the checkpoint counts; a torn one after them is not read
+        log_rows = read_log(log_path, rows=position, columns=LOG_COLUMNS) if log_path.is_file() else []
+        log_rows = [r for r in log_rows if r["iteration"] <= int(counters["iteration"])]
+        result = evaluate_policy(policy, config)
+        problem = evaluation_problem(config)
+        if not torch.allclose(problem.ref_velocity, result.ref_velocity, rtol=0, atol=1e-9):
+            raise ConfigError("the evaluation env and the baselines' problem drew different references", key="eval")
+        th = config.eval.thresholds
+        final = result.per_sensor(result.selected)
+        limits = (("area", th.area), ("dfd", th.dfd), ("rmse", th.rmse))
+
+        def passes(metrics: dict[str, float]) -> bool:
+            return all(lim is None or metrics[k] < lim for k, lim in limits)
+
+        passed = {s: passes(v) for s, v in final.items()}
+        train_time = float(counters["wall_time_s"])
+        steps = int(counters["env_steps"])
+        collect_rates = [r["env_steps_per_s"] for r in log_rows]
+        summary: dict[str, Any] = {
+            "algorithm": config.algorithm.name,
+            "checkpoint": None if trainer is not None else str(ckpt),
+            "eval_dir": str(out_dir),
+            "seed": config.seed,
+            "scenario": result.scenario,
+            "reference": result.reference,
+            "reference_source": result.source,
+            "reference_seed": result.seed,
+            "select": result.select,
+            "selected_iteration": result.selected,
+            "eval_iterations": result.iterations,
+            "final_metrics": final,
+            "initial_metrics": result.per_sensor(0),
+            "last_metrics": result.per_sensor(result.iterations),
+            "thresholds": {"area": th.area, "dfd": th.dfd, "rmse": th.rmse},
+            "passed": passed,
+            "all_passed": all(passed.values()),
+            "initial_passed": all(passes(v) for v in result.per_sensor(0).values()),
+            "iterations_trained": int(counters["iteration"]),
+            "env_steps": steps,
+            "simulations": int(counters["simulations"]),
+            "train_wall_time_s": train_time,
+            "env_steps_per_s": steps / train_time if train_time > 0 else None,
+            "collect_env_steps_per_s": float(np.median(collect_rates)) if collect_rates else None,
+            "provenance": check.as_dict(),  # configs or code changed since the run started (provenance.json)
+        }
+        if result.true_params is not None:
+            summary["param_error"] = param_errors(problem, result.params[result.selected], result.true_params)
+            summary["initial_param_error"] = param_errors(problem, result.params[0], result.true_params)
+        write_metrics_tables(result, out_dir / "eval_metrics.csv", out_dir / "eval_metrics.md")
+        arrays = {"initial": result.params[0].numpy(), "calibrated": result.params[result.selected].numpy(),
+                  "per_iteration": result.params.numpy(), "selected_iteration": np.array(result.selected)}  # fmt: skip
+        if result.true_params is not None:
+            arrays["true"] = result.true_params.numpy()
+        with atomic_output(out_dir / "calibrated.npz") as tmp:
+            np.savez(tmp, **arrays)
+        if config.eval.plots:
+            plot_pulses(problem, result, out_dir / "pulses.png")
+            plot_learning_curves(log_rows, result, out_dir / "learning_curves.png")
+        summary["eval_wall_time_s"] = time.perf_counter() - t0
+        summary["wall_time_s"] = train_time + summary["eval_wall_time_s"]
+        old = out_dir / SUMMARY_FILE
+        if old.is_file():  # the training process's wall time (train/train.py) is not the evaluation's to drop
+            with contextlib.suppress(ValueError, OSError, AttributeError):
+                earlier = json.loads(old.read_text()).get(KEPT_SUMMARY_KEY)
+                if earlier is not None:
+                    summary[KEPT_SUMMARY_KEY] = earlier
+        write_text(out_dir / SUMMARY_FILE, json.dumps(summary, indent=2))
+        return summary
