@@ -66,6 +66,20 @@ def test_substep_study_grades_variants_and_names_the_fewest_passing_steps():
     assert f"floors up to {res['mass_floor_limit_kg']:.2f} kg" in text
 
 
+def test_coarser_cells_do_not_buy_a_larger_step():
+    """Merging the light sheet-metal cells into heavier ones (a target cell volume 10x ``cells.yaml``'s) leaves the
+    links as stiff relative to their cells: at 2 substeps the capped links still spring back far above 20 %, and at
+    the configured 8 the coarse front no longer gives partial overlaps their softer, longer pulses."""
+    res = substep_study(variants=((2, False), (8, False)), batch=2, vehicle_seeds=(), target_cell_volume=3e-3)
+    assert 60 < res["n_cells"] < 300 and res["target_cell_volume"] == 3e-3  # the default car: 518 cells
+    two, eight = res["rows"]
+    assert not two["passed"] and two["figures"]["rebound"] > 0.2
+    assert not eight["passed"] and any("softer and longer" in f for f in eight["failed"])
+    assert res["needed"] is None
+    text = format_substep_study(res)
+    assert text.startswith(f"cells of 0.003 m^3: {res['n_cells']} cells") and "no step count passes" in text
+
+
 def test_mass_floor_limit_is_where_the_compartment_runs_out_of_mass(default_cells):
     from marlcrash.errors import ModelError
     from marlcrash.sim import Surrogate

@@ -587,6 +587,7 @@ def substep_study(
     batch: int = 256,
     repeats: int = 1,
     vehicle_seeds: tuple[int, ...] = (1, 2, 3, 4),
+    target_cell_volume: float | None = None,
 ) -> dict:
     """How many explicit steps plausible physics needs, and what the machine allows at each count.
 
@@ -602,26 +603,29 @@ def substep_study(
     mass, so the links stay stiffer, but the added mass (taken from the compartment, :class:`Surrogate`)
     moves inertia into the crush zone, up to the floor the compartment can pay for (:func:`mass_floor_limit`).
 
+    ``target_cell_volume`` [m^3] discretizes the default car (and its seeded variants) with cells of that volume
+    instead of ``configs/cells.yaml``'s: coarser cells merge the light sheet-metal cells into heavier ones, the other
+    way to a larger stable step.
+
     Returns:
         A JSON-ready dict: ``rows`` (one per variant: ``substeps``, ``springback_relief``, ``mass_floor``
         [kg], ``mass_added_kg`` (moved from the compartment to light cells), ``steps_per_sim``, ``passed``,
         ``failed`` (names of failed checks), ``figures`` (full width 40),
         ``variants_passed`` (how many seeded vehicle variants pass every check), ``sims_per_s``,
         ``roofline_sims_per_s``), ``needed`` (the passing row with the fewest steps or ``None``),
-        ``vehicle_seeds``, ``target_sims_per_s``, ``mass_floor_limit_kg`` (the default car's).
+        ``vehicle_seeds``, ``target_sims_per_s``, ``mass_floor_limit_kg`` (the default car's), ``target_cell_volume``
+        (``None``: the configured one) and ``n_cells``.
     """
-    from marlcrash.envs.core import build_cells
-    from marlcrash.vehicle.registry import DEFAULT_VEHICLE
-
     rows = []
     scenario = get_scenario(SCENARIO)
-    variant_cells = [build_cells(DEFAULT_VEHICLE, int(seed), "optimized") for seed in vehicle_seeds]
+    nominal = load_sim_cells(target_cell_volume=target_cell_volume)
+    variant_cells = [load_sim_cells(int(seed), target_cell_volume) for seed in vehicle_seeds]
     for sub, relief, *floor in variants:
         overrides = {"substeps": int(sub), "springback_relief": bool(relief)}
         if floor:
             overrides["mass_floor"] = float(floor[0])
         cfg = load_sim_config(overrides=overrides)
-        sim = Surrogate(load_sim_cells(), cfg)
+        sim = Surrogate(nominal, cfg)
         grade = plausibility_checks(sim)
         variants_passed = sum(plausibility_checks(Surrogate(c, cfg))["passed"] for c in variant_cells)
         p = torch.as_tensor(sim.cells.params)[None].repeat(batch, 1, 1)
@@ -648,7 +652,8 @@ def substep_study(
     passing = [r for r in rows if r["passed"]]
     needed = min(passing, key=lambda r: r["steps_per_sim"]) if passing else None
     return {"batch": batch, "rows": rows, "needed": needed, "vehicle_seeds": [int(v) for v in vehicle_seeds],
-            "target_sims_per_s": 1000.0, "mass_floor_limit_kg": mass_floor_limit(load_sim_cells())}  # fmt: skip
+            "target_sims_per_s": 1000.0, "mass_floor_limit_kg": mass_floor_limit(nominal),
+            "target_cell_volume": target_cell_volume, "n_cells": int(nominal.n_cells)}  # fmt: skip
 
 
 def implicit_study(
@@ -774,17 +779,26 @@ def mass_floor_limit(cells) -> float:
     return float("inf")  # no deformable cells
 
 
-def load_sim_cells():
-    """The default car's optimized CellModel (cached per process)."""
+def load_sim_cells(seed: int | None = None, target_cell_volume: float | None = None):
+    """The default car's (or its seeded variant's) optimized CellModel; with ``target_cell_volume`` [m^3]
+    discretized with cells of that volume instead of ``configs/cells.yaml``'s (cached per process otherwise)."""
     from marlcrash.envs.core import build_cells
     from marlcrash.vehicle.registry import DEFAULT_VEHICLE
 
-    return build_cells(DEFAULT_VEHICLE, None, "optimized")
+    if target_cell_volume is None:
+        return build_cells(DEFAULT_VEHICLE, seed, "optimized")
+    from marlcrash.cells.discretize import discretize, load_discretization_config
+    from marlcrash.vehicle.registry import load_configured_vehicle
+
+    cfg = load_discretization_config(overrides={"target_cell_volume": float(target_cell_volume)})
+    return discretize(load_configured_vehicle(DEFAULT_VEHICLE, seed), cfg, method="optimized")
 
 
 def format_substep_study(res: dict) -> str:
     """Render :func:`substep_study` as a table plus the conclusion."""
-    lines = [
+    vol = res.get("target_cell_volume")
+    lines = [] if vol is None else [f"cells of {vol:g} m^3: {res['n_cells']} cells"]
+    lines += [
         f"{'substeps':>8} {'relief':>6} {'floor kg':>8} {'added kg':>8} {'steps':>6} {'peak g':>7} {'crush m':>8} "
         f"{'t0 ms':>6} {'rebound':>8} "
         f"{'variants':>8} {'sims/s':>8} {'roofline':>9}  plausibility (default car)",
