@@ -8,7 +8,7 @@ against five, reward scales 2.5-4x off and other PPO hyperparameters, silently.
 
 from __future__ import annotations
 
-from dataclasses import asdict
+from dataclasses import asdict, fields, is_dataclass
 
 import pytest
 from test_train_config import composed
@@ -78,6 +78,19 @@ def test_a_schema_made_in_python_holds_the_shipped_values(file):
     for k in skip:
         made.pop(k), got.pop(k)
     assert differences(made, got) == [], f"{cls.__name__}() differs from configs/{file}"
+    one, two = cls(), cls()  # both alive, so no id is reused
+    assert not set(_containers(one)) & set(_containers(two)), f"two {cls.__name__}() share a list or dict"
+
+
+def _containers(obj: object):
+    """Ids of the lists and dicts reachable from ``obj`` through dataclass fields, dicts and lists."""
+    if is_dataclass(obj):
+        for f in fields(obj):
+            yield from _containers(getattr(obj, f.name))
+    elif isinstance(obj, list | dict):
+        yield id(obj)
+        for v in obj.values() if isinstance(obj, dict) else obj:
+            yield from _containers(v)
 
 
 def test_the_comparison_finds_a_difference():

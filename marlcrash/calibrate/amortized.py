@@ -108,7 +108,7 @@ class AmortizedConfig:
     scenario: str = "full_width_40"
     iterations: int | None = 12
     target: Literal["best", "last"] = "best"
-    budgets: dict[str, list[float]] = field(default_factory=lambda: dict(DEFAULT_BUDGETS))
+    budgets: dict[str, list[float]] = field(default_factory=lambda: {k: list(v) for k, v in DEFAULT_BUDGETS.items()})
     seed: int = 0
     out_dir: str | None = None
     random_search: RandomSearchConfig = field(default_factory=RandomSearchConfig)
