@@ -612,3 +612,170 @@ def test_reader_benchmark_runs_with_initial_velocities():
     proc = subprocess.run([sys.executable, str(bench), *args], capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "OK: read_deck within" in proc.stdout
+
+
+def _duplicate_t(dflag: str) -> str:
+    head = HEAD.replace("       2.0       2.0       2.0       2.0", "&t,&t,&t,&t")
+    return "*KEYWORD\n*PARAMETER\nR t       2.0\n" + dflag + head[len("*KEYWORD\n") :] + NODES + SHELL
+
+
+@pytest.mark.parametrize(
+    ("dflag", "thickness", "note"),
+    [
+        ("", 2e-3, "first definition is kept"),  # LS-DYNA's default, DFLAG 1
+        ("*PARAMETER_DUPLICATION\n         2\n", 1e-3, "new definition replaces it"),
+        ("*PARAMETER_DUPLICATION\n         3\n", 2e-3, None),
+        ("*PARAMETER_DUPLICATION\n         4\n", 1e-3, None),
+    ],
+)
+def test_a_parameter_defined_twice_keeps_the_first_value_as_ls_dyna_does(tmp_path, dflag, thickness, note):
+    """An include that defines a deck's parameter again (here in a component file read after the main deck's
+    definition) does not silently change what the main deck's fields read."""
+    _write(tmp_path, "*KEYWORD\n*PARAMETER\nR t       1.0\n*END\n", "component.k")
+    m = _read(_write(tmp_path, _duplicate_t(dflag) + "*INCLUDE\ncomponent.k\n*END\n"))
+    assert m.shell_thickness[0] == pytest.approx(thickness)
+    said = [w for w in m.warnings if "defined again" in w]
+    assert (said[0] if said else None) is None if note is None else note in said[0]
+    if note is not None:
+        assert "component.k line 3: parameter 't'" in said[0] and "first in deck.k line 3" in said[0]
+    same = _read(_write(tmp_path, _duplicate_t("") + "*PARAMETER\nR t       2.0\n*END\n", "same.k"))
+    assert not any("defined again" in w for w in same.warnings)  # the same value again: nothing to say
+    strict = _duplicate_t("*PARAMETER_DUPLICATION\n         5\n") + "*INCLUDE\ncomponent.k\n"
+    with pytest.raises(
+        DeckError, match=r"component.k line 3: parameter 't' is defined twice \(first in strict.k line 3\)"
+    ):
+        _read(_write(tmp_path, strict, "strict.k"))
+    with pytest.raises(DeckError, match=r"bad.k line 3: \*PARAMETER_DUPLICATION expects DFLAG 1, 2, 3, 4 or 5"):
+        _read(_write(tmp_path, "*KEYWORD\n*PARAMETER_DUPLICATION\n         7\n", "bad.k"))
+
+
+FULL_VEHICLE_EXTRAS = """*PART
+bumper foam
+        11        11        11
+*SECTION_SOLID
+        11         1
+*MAT_LOW_DENSITY_FOAM
+        11  5.0e-11       2.0       100       0.0       1.2
+*PART
+crash box
+        12         1        12
+*MAT_JOHNSON_COOK
+        12  7.85e-09   80000.0  210000.0      0.28
+*PART
+engine mount spring
+        13        13        13
+*SECTION_DISCRETE
+        13         0
+*MAT_SPRING_ELASTIC
+        13     100.0
+*ELEMENT_DISCRETE
+     901      13       1       2
+*PART
+door trim
+        14         1        14
+*MAT_SOME_FUTURE_MODEL
+        14  1.0e-09    2000.0     100.0
+*PART
+belt
+        15        15        16
+*SECTION_SEATBELT
+        15
+*MAT_SEATBELT
+        16   1.0e-06       100       100
+*ELEMENT_SEATBELT
+     902      15       3       4
+*PART
+lining
+        17         1        17
+*MAT_FABRIC
+        17  1.0e-09    5000.0    4000.0    4000.0      0.35
+"""
+FULL_VEHICLE_ELEMENTS = """*NODE
+       5                           100.0           100.0
+       6           100.0           100.0           100.0
+       7           100.0                           100.0
+       8                                           100.0
+*ELEMENT_SOLID
+       2      11       1       2       3       4       8       7       6       5
+*ELEMENT_SHELL
+       3      12       1       2       3       4
+       4      14       1       2       3       4
+       5      17       1       2       3       4
+"""
+
+
+def test_materials_and_sections_of_a_full_vehicle_deck(tmp_path):
+    """A full-vehicle deck has springs, belts, foams and material models whose first card is not MID RO E PR. Each
+    material is read by its own layout; parts of elements the reader skips (discrete, seatbelt) are left out with a
+    note instead of refusing the deck; a material of a layout the reader does not know keeps its density, and its
+    modulus is defaulted with a note rather than reading a curve id as Poisson's ratio."""
+    m = _read(_write(tmp_path, HEAD + NODES + SHELL + FULL_VEHICLE_EXTRAS + FULL_VEHICLE_ELEMENTS))
+    assert m.units == "mm-t-s"  # the spring stiffness and the belt's mass per length are not densities
+    foam, jc, other, fabric = (m.materials[i] for i in (11, 12, 14, 17))
+    assert foam.density == pytest.approx(50.0) and foam.youngs_modulus == pytest.approx(2e6)
+    assert foam.poisson_ratio == pytest.approx(0.3)  # LCID 100 is not a Poisson's ratio: defaulted
+    assert jc.youngs_modulus == pytest.approx(210e9) and jc.poisson_ratio == pytest.approx(0.28)  # after G
+    assert fabric.youngs_modulus == pytest.approx(5e9) and fabric.density == pytest.approx(1000.0)  # EA
+    assert other.density == pytest.approx(1000.0)
+    assert other.youngs_modulus == pytest.approx(np.median([210e9, 2e6, 210e9, 5e9]))  # of the parts' materials
+    assert any("material 14 (*MAT_SOME_FUTURE_MODEL): its first card does not read as MID RO E PR" in w
+               for w in m.warnings)  # fmt: skip
+    assert 13 not in m.parts and 15 not in m.parts and 13 not in m.materials and 16 not in m.materials
+    assert any("2 part(s) without shell, solid or beam elements and with a section the reader does not read left "
+               "out: [13, 15]" in w for w in m.warnings)  # fmt: skip
+    assert any("material 16 (*MAT_SEATBELT) left out" in w and "no density" in w for w in m.warnings)
+    # a part with elements the reader reads still needs a section and a material it reads
+    on_discrete = (
+        FULL_VEHICLE_ELEMENTS
+        + "*PART\nsheet\n        19        13         1\n"
+        + ("*ELEMENT_SHELL\n       6      19       1       2       3       4\n")
+    )
+    with pytest.raises(DeckError, match=r"used.k line \d+: \*PART 19 refers to undefined section 13"):
+        _read(_write(tmp_path, HEAD + NODES + SHELL + FULL_VEHICLE_EXTRAS + on_discrete, "used.k"))
+    spring_mat = (
+        FULL_VEHICLE_ELEMENTS
+        + "*PART\nsheet\n        18         1        13\n"
+        + ("*ELEMENT_SHELL\n       6      18       1       2       3       4\n")
+    )
+    with pytest.raises(
+        DeckError, match=r"spring.k line 37: material 13 \(\*MAT_SPRING_ELASTIC\) is a spring, .* yet part 18 uses it"
+    ):
+        _read(_write(tmp_path, HEAD + NODES + SHELL + FULL_VEHICLE_EXTRAS + spring_mat, "spring.k"))
+
+
+def test_includes_resolve_against_the_main_deck_folder_too(tmp_path):
+    """LS-DYNA resolves a relative *INCLUDE name against the main deck's folder: an include inside ``sub/`` that
+    names ``sub/nodes.k`` is found, while a name found beside the including file still wins."""
+    sub = tmp_path / "sub"
+    sub.mkdir()
+    _write(sub, "*KEYWORD\n" + NODES + "*END\n", "nodes.k")
+    _write(sub, "*KEYWORD\n*INCLUDE\nsub/nodes.k\n" + SHELL + "*END\n", "mesh.k")
+    m = _read(_write(tmp_path, HEAD + "*INCLUDE\nsub/mesh.k\n*END\n"))
+    assert m.n_nodes == 4 and m.n_shells == 1
+    _write(sub, "*KEYWORD\n*INCLUDE\nsub/none.k\n*END\n", "bad.k")
+    with pytest.raises(DeckError, match=r"bad.k line 3: \*INCLUDE file 'sub/none.k' not found \(looked in .*sub/sub, "):
+        _read(_write(tmp_path, HEAD + "*INCLUDE\nsub/bad.k\n*END\n", "main2.k"))
+
+
+def test_a_blank_last_card_is_a_card_of_defaults(tmp_path):
+    """A blank line is a card of defaults also at the end of a block: a section whose thickness card is blank (the
+    elements carry it), the last element's blank thickness line; a stray blank line after a block stays harmless."""
+    thick = "*ELEMENT_SHELL_THICKNESS\n       1       1       1       2       3       4\n{}\n"
+    sec = HEAD.replace("       2.0       2.0       2.0       2.0\n", "\n")
+    blank_sec = sec.replace("*MAT_ELASTIC", NODES + thick.format(f"{3.0:16}" * 4) + "*MAT_ELASTIC")
+    m = _read(_write(tmp_path, blank_sec + "*END\n"))
+    assert m.shell_thickness[0] == pytest.approx(3e-3)  # the element's thickness; the section gives none
+    m = _read(_write(tmp_path, HEAD + NODES + thick.format("") + "\n\n*END\n", "last.k"))
+    assert m.shell_thickness[0] == pytest.approx(2e-3)  # the blank line: the section's thickness
+    m = _read(_write(tmp_path, HEAD + "\n\n" + NODES + "\n" + SHELL + "\n\n*END\n", "stray.k"))
+    assert m.n_shells == 1 and m.shell_thickness[0] == pytest.approx(2e-3)
+
+
+def test_utf8_titles_and_an_early_end(tmp_path):
+    p = tmp_path / "utf8.k"
+    p.write_bytes((HEAD.replace("front plate", "Stoßfänger vorne") + NODES + SHELL).encode("utf-8"))
+    assert _read(p).parts[1].name == "Stoßfänger vorne"
+    p.write_bytes((HEAD.replace("front plate", "Stoßfänger vorne") + NODES + SHELL).encode("latin-1"))
+    assert _read(p).parts[1].name == "Stoßfänger vorne"  # an older deck in Latin-1
+    with pytest.raises(DeckError, match=r"no \*ELEMENT_SHELL.*reading stopped at the \*END in end.k line 17"):
+        _read(_write(tmp_path, HEAD + NODES + "*END\n" + SHELL + "*END\n", "end.k"))

@@ -10,7 +10,10 @@ Coverage:
   ``*INCLUDE`` (paths relative to the including file, nested), ``*INCLUDE_PATH``
   and ``*INCLUDE_PATH_RELATIVE``;
 - ``*PARAMETER`` (``R``/``I``/``C`` typed), ``*PARAMETER_LOCAL`` (treated as global)
-  and ``*PARAMETER_EXPRESSION``; ``&name`` and ``-&name`` in any numeric field.
+  and ``*PARAMETER_EXPRESSION``; ``&name`` and ``-&name`` in any numeric field. A name defined
+  twice keeps its first definition with a note where the value may differ, as LS-DYNA's default
+  ``*PARAMETER_DUPLICATION`` (DFLAG 1) does; the deck's own ``*PARAMETER_DUPLICATION`` DFLAG 2-5
+  applies to the definitions after it.
   ``params=`` supplies values for parameters the deck uses but does not define,
   and overrides deck values (each override is recorded in ``model.warnings``);
 - geometry: ``*NODE`` (blank fields read as 0), ``*ELEMENT_SHELL`` with options
@@ -28,7 +31,11 @@ Coverage:
   ``*MAT_RIGID``/``*MAT_020``, ``*MAT_PIECEWISE_LINEAR_PLASTICITY``/``*MAT_024``
   (eight-point curves or an LCSS ``*DEFINE_CURVE``), with ``_TITLE``; any other
   ``*MAT_...`` is read for RO, E, PR from its first card where those fields are
-  numbers (``*MAT_NULL`` from its own columns). The hardening modulus from ETAN is
+  numbers: ``MID RO E PR`` unless :data:`_MAT_LAYOUTS` knows its layout (``*MAT_NULL``, Johnson-Cook,
+  foams, rubbers, orthotropic and discrete-beam materials); a card whose PR field is no Poisson's ratio
+  has a layout the reader does not know, and its E and PR are defaulted with a note. Springs, dampers and
+  seatbelts have no density. Only the materials of the parts kept decide the unit system and must be
+  complete. The hardening modulus from ETAN is
   ``E ETAN / (E - ETAN)``; the ultimate strength is the yield stress at the failure
   strain (FS, FAIL) or the curve maximum; the fracture strength the curve value at
   FAIL. Everything else is completed by :func:`complete_material`;
@@ -58,7 +65,10 @@ Coverage:
 Every other card (``*CONTROL_*``, ``*DATABASE_*``, ``*CONTACT_*``, ``*HOURGLASS``,
 other ``*INITIAL_*``, ``*RIGIDWALL_*``, ``*BOUNDARY_*``, other sets, unknown ones) is
 skipped, counted per keyword in ``VehicleModel.skipped_cards`` and summarised in one
-:class:`UserWarning`.
+:class:`UserWarning`. So are other element and section kinds (``*ELEMENT_DISCRETE``, ``_SEATBELT``,
+``_TSHELL``, ...): a part with none of the elements read whose section or material the reader does not
+read is left out with a note. A blank line is a card of defaults, also as the last card of a section or
+of an element with several lines.
 
 Big blocks (``*NODE``, ``*ELEMENT_*``) are parsed vectorised: the block's lines are
 laid out as a ``[n, width]`` byte array, columns are sliced and converted with
@@ -172,6 +182,7 @@ _ELEM_INERTIA = _layout(("eid", 8, "i", "element id"), ("nid", 8, "i", "node id"
 _ELEM_INERTIA_2 = _card("ixx", "ixy", "ixz", "iyy", "iyz", "izz", "mass")
 _NODAL_BODY = _card("pid", "cid", "nsid", "pnode", "iprt", "drflag", "rrflag", kinds="iiiiiii")
 _EXTRA_NODES = _card("pid", "nid", "iflag", kinds="iii")
+_DUPLICATION = _card("dflag", kinds="i")
 
 
 def _widths(layout: tuple[_Field, ...], fmt: str) -> list[int]:
@@ -227,7 +238,13 @@ class _Source:
         return len(self.starts)
 
     def text(self, i: int) -> str:
-        return self.data[self.starts[i] : self.ends[i]].decode("latin-1")
+        """Line ``i`` as text: UTF-8 (titles such as "Stoßfänger" written by current pre-processors), else Latin-1
+        (older decks; every byte decodes)."""
+        raw = self.data[self.starts[i] : self.ends[i]]
+        try:
+            return raw.decode("utf-8")
+        except UnicodeDecodeError:
+            return raw.decode("latin-1")
 
     def padded(self, rows: np.ndarray, width: int) -> np.ndarray:
         """``[n, width]`` uint8 array of the given lines, cut or padded with spaces."""
@@ -265,6 +282,17 @@ class _Block:
     src: _Source
     line: int
     rows: np.ndarray
+    tail: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    """Blank lines after the last data line (not in ``rows``): a stray blank line, or a last card of defaults, which
+    readers of multi-line entries take where an entry would otherwise be cut short (:meth:`complete`)."""
+
+    def complete(self, rows: np.ndarray, per: int) -> np.ndarray:
+        """``rows`` (ending with the block's last data line) plus the trailing blank lines that complete the last
+        entry of ``per`` lines, where the blank lines after it suffice; ``rows`` unchanged otherwise."""
+        short = -rows.size % per
+        if short and self.tail.size >= short:
+            return np.concatenate([rows, self.tail[:short]])
+        return rows
 
     def lineno(self, row: int) -> int:
         return int(row) + 1
@@ -305,9 +333,53 @@ class _Params:
         self.notes: list[str] = []
         self.deck_names: set[str] = set()  # defined by the deck (*PARAMETER, *PARAMETER_EXPRESSION)
         self.used: set[str] = set()  # referenced by a field or an expression
+        self.where: dict[str, tuple[Path, int]] = {}  # the definition in effect of each deck parameter
+        self.duplication = 1  # *PARAMETER_DUPLICATION DFLAG; LS-DYNA's default: warn and keep the first
 
-    def define(self, name: str, value: float | int | str) -> None:
-        self.values[name.lower()] = value
+    def _claim(self, name: str, path: Path, line: int, differs: bool) -> bool:
+        """Whether a definition of ``name`` at ``path`` line ``line`` takes effect (``*PARAMETER_DUPLICATION``).
+
+        A first definition always does. A later one is ignored (DFLAG 1 and 3, 1 being LS-DYNA's default) or
+        replaces the one before (2 and 4); 1 and 2 add a note where the value may differ (``differs``), 5 refuses.
+        """
+        if name not in self.where:
+            self.where[name] = (path, line)
+            return True
+        first, at = self.where[name]
+        d = self.duplication
+        if d == 5:
+            raise DeckError(
+                f"parameter {name!r} is defined twice (first in {first.name} line {at}), which "
+                "*PARAMETER_DUPLICATION DFLAG 5 makes an error",
+                path,
+                line,
+            )
+        if d in (1, 2) and differs:
+            what = "the first definition is kept" if d == 1 else "the new definition replaces it"
+            self.notes.append(
+                f"{path.name} line {line}: parameter {name!r} is defined again with another value (first in "
+                f"{first.name} line {at}); {what}, as LS-DYNA's *PARAMETER_DUPLICATION DFLAG {d} does"
+            )
+        if d in (2, 4):
+            self.where[name] = (path, line)
+            return True
+        return False
+
+    def define(self, name: str, value: float | int | str, path: Path, line: int) -> None:
+        """A ``*PARAMETER`` value, subject to the duplicate rule (:meth:`_claim`)."""
+        key = name.lower()
+        expr = any(e[1] == key for e in self.exprs)
+        if self._claim(key, path, line, expr or (key in self.values and self.values[key] != value)):
+            self.exprs = [e for e in self.exprs if e[1] != key]
+            self.values[key] = value
+
+    def define_expr(self, kind: str, name: str, expr: str, path: Path, line: int) -> None:
+        """A ``*PARAMETER_EXPRESSION``, evaluated by :meth:`finish`, subject to the duplicate rule."""
+        key = name.lower()
+        if self._claim(key, path, line, True):
+            self.exprs = [e for e in self.exprs if e[1] != key]
+            self.values.pop(key, None)
+            self.exprs.append((kind, key, expr, path, line))
 
     def finish(self) -> None:
         """Apply ``params=`` overrides, then evaluate expressions in deck order."""
@@ -612,6 +684,8 @@ class _Deck:
     include_paths: list[Path] = field(default_factory=list)
     files: list[Path] = field(default_factory=list)
     """Every file read, the main deck first, then the ``*INCLUDE`` files in the order they were met."""
+    early_end: list[tuple[Path, int]] = field(default_factory=list)
+    """``*END`` lines with more than comments after them (LS-DYNA, like the reader, stops reading the file there)."""
 
 
 def _keyword_line(text: str) -> tuple[str, str | None, list[str]]:
@@ -646,11 +720,14 @@ def _scan(path: Path, deck: _Deck, fmt: str, stack: tuple[Path, ...], including:
             raise DeckError("expected a keyword name after '*', got nothing", path, k + 1)
         rows = np.arange(k + 1, end, dtype=np.int64)
         rows = rows[src.first[rows] != ord("$")]
-        while rows.size and not src.text(int(rows[-1])).strip():
-            rows = rows[:-1]
+        n_data = rows.size
+        while n_data and not src.text(int(rows[n_data - 1])).strip():
+            n_data -= 1
         bfmt = {"+": "long", "%": "i10", "-": "std"}.get(suffix or "", fmt)
-        block = _Block(name, bfmt, src, k, rows)
+        block = _Block(name, bfmt, src, k, rows[:n_data], rows[n_data:])
         if name == "END":
+            if any(src.text(i).strip() and src.first[i] != ord("$") for i in range(k + 1, src.n_lines)):
+                deck.early_end.append((path, k + 1))
             return
         if name == "KEYWORD":
             opts = {t.upper().partition("=")[0]: t.upper().partition("=")[2] for t in rest if "=" in t}
@@ -677,6 +754,8 @@ def _scan(path: Path, deck: _Deck, fmt: str, stack: tuple[Path, ...], including:
             _read_parameters(block, deck.params)
         elif name == "PARAMETER_EXPRESSION" or name == "PARAMETER_EXPRESSION_LOCAL":
             _read_parameter_expressions(block, deck.params)
+        elif name == "PARAMETER_DUPLICATION":
+            _read_duplication(block, deck.params)
         else:
             deck.blocks.append(block)
 
@@ -702,13 +781,16 @@ def _include_names(src: _Source, rows: np.ndarray) -> list[tuple[int, str]]:
 
 def _resolve_include(fname: str, including: Path, deck: _Deck, row: int) -> Path:
     p = Path(fname)
-    candidates = [p] if p.is_absolute() else [including.parent / p, *(d / p for d in deck.include_paths)]
+    # the including file's folder, then the main deck's (LS-DYNA resolves a relative name against the main file's
+    # folder, so nested includes are often written relative to it), then the *INCLUDE_PATH folders
+    folders = [including.parent, deck.files[0].parent, *deck.include_paths]
+    candidates = [p] if p.is_absolute() else list(dict.fromkeys(d.resolve() / p for d in folders))
     for c in candidates:
         if c.is_file():
             return c.resolve()
-    folders = [c for c in candidates if c.is_dir()]
-    if folders:
-        raise DeckError(f"*INCLUDE {fname!r} is a folder ({folders[0]}); expected a keyword file", including, row + 1)
+    dirs = [c for c in candidates if c.is_dir()]
+    if dirs:
+        raise DeckError(f"*INCLUDE {fname!r} is a folder ({dirs[0]}); expected a keyword file", including, row + 1)
     looked = ", ".join(str(c.parent) for c in candidates)
     raise DeckError(f"*INCLUDE file {fname!r} not found (looked in {looked})", including, row + 1)
 
@@ -749,13 +831,23 @@ def _read_parameters(block: _Block, params: _Params) -> None:
             if kind not in ("R", "I", "C") or not name:
                 raise block.err(f"*PARAMETER expects a type R, I or C followed by a name, got {head!r}", r)
             if kind == "C":
-                params.define(name, val)
+                params.define(name, val, block.src.path, r + 1)
                 continue
             try:
                 v = _to_number(val, "i" if kind == "I" else "f")
             except (ValueError, OverflowError):
                 raise block.err(f"*PARAMETER expects a {kind} value for {name!r}, got {val!r}", r) from None
-            params.define(name, v)
+            params.define(name, v, block.src.path, r + 1)
+
+
+def _read_duplication(block: _Block, params: _Params) -> None:
+    """``*PARAMETER_DUPLICATION``: DFLAG, how later definitions of a parameter name are treated from here on."""
+    rows = _nonblank(block, block.rows)
+    (dflag,) = _read_line(block, int(rows[0]), _DUPLICATION, params) if rows.size else (None,)
+    if dflag is not None and dflag not in (1, 2, 3, 4, 5):
+        at = _field_where(block, int(rows[0]), _DUPLICATION, 0)
+        raise block.err(f"*PARAMETER_DUPLICATION expects DFLAG 1, 2, 3, 4 or 5 {at}", int(rows[0]))
+    params.duplication = 1 if dflag is None else int(dflag)
 
 
 def _read_parameter_expressions(block: _Block, params: _Params) -> None:
@@ -769,7 +861,7 @@ def _read_parameter_expressions(block: _Block, params: _Params) -> None:
         kind, name = head[:1].upper(), head[1:].strip()
         if kind not in ("R", "I") or not name:
             raise block.err(f"*PARAMETER_EXPRESSION expects a type R or I followed by a name, got {head!r}", r)
-        params.exprs.append((kind, name.lower(), expr, block.src.path, r + 1))
+        params.define_expr(kind, name, expr, block.src.path, r + 1)
 
 
 # --------------------------------------------------------------------------- cards
@@ -822,6 +914,8 @@ class _RawMaterial:
     kind: str
     values: dict[str, float]
     where: tuple[Path, int]
+    keyword: str = ""
+    note: str | None = None  # what the reader could not take from the card (e.g. a layout it does not know)
 
 
 @dataclass
@@ -931,7 +1025,7 @@ def _read_node(block: _Block, t: _Tables, params: _Params) -> None:
 
 
 def _grouped(block: _Block, per: int, rows: np.ndarray | None = None) -> list[np.ndarray]:
-    rows = block.rows if rows is None else rows
+    rows = block.complete(block.rows if rows is None else rows, per)
     if rows.size % per:
         last = int(rows[-1])
         raise block.err(
@@ -1087,6 +1181,8 @@ def _read_section(block: _Block, kind: str, opts: set[str], t: _Tables, params: 
             i += 1
             continue
         if i + 1 >= len(rows):
+            rows = block.complete(np.asarray(rows, dtype=np.int64), i + 2).tolist()  # a blank last card: defaults
+        if i + 1 >= len(rows):
             raise block.err(f"*{block.keyword} expects a second card after the section card, got end of block", r)
         if kind == "shell":
             secid, elform, _shrf, nip, _propt, _qr, icomp = _read_line(block, r, _SEC_SHELL_1, params)
@@ -1163,6 +1259,37 @@ def _material_kind(keyword: str) -> tuple[str, bool] | None:
     return ("null" if name in ("NULL", "009") else "other"), title
 
 
+_STANDARD_LAYOUT = (0, 1, 2)
+_MAT_LAYOUT_GROUPS: tuple[tuple[tuple[int | None, int | None, int | None], tuple[str, ...]], ...] = (
+    ((0, 2, 3), ("JOHNSON_COOK", "015")),  # MID RO G E PR
+    ((0, None, None), ("ISOTROPIC_ELASTIC_PLASTIC", "012", "SOIL_AND_FOAM", "005")),  # MID RO G ...
+    ((0, None, None), ("VISCOELASTIC", "006", "SIMPLIFIED_RUBBER/FOAM", "SIMPLIFIED_RUBBER", "181")),  # RO BULK/KM
+    ((0, None, 1), ("MOONEY-RIVLIN_RUBBER", "027", "HYPERELASTIC_RUBBER", "077_H", "OGDEN_RUBBER", "077_O")),
+    ((0, 1, None), ("LOW_DENSITY_FOAM", "057", "FU_CHANG_FOAM", "083")),  # MID RO E LCID / KCON
+    # orthotropic, MID RO EA EB EC PRBA: EA (the material's first axis) is taken as E
+    ((0, 1, None), ("ORTHOTROPIC_ELASTIC", "002", "COMPOSITE_DAMAGE", "022", "FABRIC", "034")),
+    ((0, 1, None), ("ENHANCED_COMPOSITE_DAMAGE", "054", "055", "LAMINATED_COMPOSITE_FABRIC", "058")),
+    # discrete beams: MID RO, then stiffnesses
+    ((0, None, None), ("LINEAR_ELASTIC_DISCRETE_BEAM", "066", "NONLINEAR_ELASTIC_DISCRETE_BEAM", "067")),
+    ((0, None, None), ("NONLINEAR_PLASTIC_DISCRETE_BEAM", "068")),
+)
+_MAT_LAYOUTS = {name: layout for layout, names in _MAT_LAYOUT_GROUPS for name in names}
+"""Where RO, E and PR sit among the fields after MID on the first card of ``*MAT`` types read as "other", where
+that differs from LS-DYNA's usual ``MID RO E PR`` (:data:`_STANDARD_LAYOUT`); ``None``: not on that card."""
+
+
+def _mat_layout(keyword: str) -> tuple[int | None, int | None, int | None] | None:
+    """The first-card layout of a ``*MAT_...`` keyword read as "other"; ``None`` for materials without a density
+    (springs, dampers, seatbelts: ``*MAT_SPRING_...``, ``*MAT_DAMPER_...``, ``*MAT_S01`` .. ``*MAT_S15``,
+    ``*MAT_SEATBELT``/``*MAT_B01``), which only elements the reader skips use."""
+    name = keyword[4:].removesuffix("_TITLE")
+    if name.startswith(("SPRING_", "DAMPER_", "SEATBELT", "B01")) or (
+        len(name) >= 3 and name[0] == "S" and name[1:3].isdigit()
+    ):
+        return None
+    return _MAT_LAYOUTS.get(name, _STANDARD_LAYOUT)
+
+
 def _read_material(block: _Block, kind: str, title: bool, t: _Tables, params: _Params) -> None:
     rows = block.rows.tolist()
     name = block.keyword
@@ -1190,9 +1317,24 @@ def _read_material(block: _Block, kind: str, title: bool, t: _Tables, params: _P
 
     f = [x if x is not None else math.nan for x in c[1:]]
     vals: dict[str, float] = {"ro": f[0], "e": f[1], "pr": f[2]}
+    note = None
     if kind == "null":
         vals = {"ro": f[0], "e": f[5], "pr": f[6]}
         kind = "other"
+    elif kind == "other":
+        layout = _mat_layout(block.keyword)
+        ro_i, e_i, pr_i = layout if layout is not None else (None, None, None)
+        vals = {k: f[i] if i is not None else math.nan for k, i in (("ro", ro_i), ("e", e_i), ("pr", pr_i))}
+        if layout is None:
+            note = "a spring, damper or seatbelt material: no density"
+        elif layout is _STANDARD_LAYOUT and math.isfinite(vals["pr"]) and not -1.0 < vals["pr"] < 0.5:
+            note = (
+                f"its first card does not read as MID RO E PR (PR field {vals['pr']:g}): the reader does not know "
+                "this material's layout, so its Young's modulus and Poisson's ratio are defaulted"
+            )
+            vals.update(e=math.nan, pr=math.nan)
+        elif e_i is None:
+            note = "its first card gives no Young's modulus"
     elif kind == "plastic_kinematic":
         vals.update(sigy=f[3], etan=f[4], fail=card(1)[2])
     elif kind == "piecewise_linear":
@@ -1202,7 +1344,7 @@ def _read_material(block: _Block, kind: str, title: bool, t: _Tables, params: _P
     elif kind == "rigid":
         cmo, con1, con2 = card(1)[:3]
         vals.update(cmo=cmo, con1=con1, con2=con2)
-    t.materials[int(mid)] = _RawMaterial(int(mid), name, kind, vals, (block.src.path, r + 1))
+    t.materials[int(mid)] = _RawMaterial(int(mid), name, kind, vals, (block.src.path, r + 1), block.keyword, note)
 
 
 def _read_id_set(block: _Block, opts: set[str], out: dict[int, tuple[str, list[int]]], params: _Params) -> None:
@@ -1526,6 +1668,68 @@ def _material_si(raw: _RawMaterial, u: UnitSystem, curves: dict, notes: list[str
     )
 
 
+def _mat_label(raw: _RawMaterial) -> str:
+    """``name, *KEYWORD`` of a read material (the keyword alone where the card has no title)."""
+    return f"*{raw.keyword}" if raw.name == raw.keyword else f"{raw.name}, *{raw.keyword}"
+
+
+def _drop_unread_parts(t: _Tables, carried: set[int], notes: list[str]) -> None:
+    """Leave out the parts that carry nothing the reader reads and refer to what it does not read.
+
+    A part with no shell, solid or beam elements (and no rigid-body mass on extra nodes: ``carried``) whose
+    section is not a ``*SECTION_SHELL``/``_SOLID``/``_BEAM`` (``*SECTION_DISCRETE``, ``_SEATBELT``, ``_TSHELL``,
+    ...), whose material is missing, or whose material has no density (springs, dampers, seatbelts) holds the
+    skipped elements of a full-vehicle deck (springs, belts, thick shells): one note lists them. Parts with
+    elements the reader reads still have to refer to a section and a material it reads.
+    """
+    why: dict[str, list[int]] = {}
+    for pid, (_title, secid, mid, _where) in list(t.parts.items()):
+        if pid in carried:
+            continue
+        if secid not in t.sections:
+            reason = "a section the reader does not read"
+        elif mid not in t.materials:
+            reason = "no material the deck defines"
+        elif t.materials[mid].kind == "other" and not math.isfinite(t.materials[mid].values["ro"]):
+            reason = f"a material without a density (*{t.materials[mid].keyword})"
+        else:
+            continue
+        why.setdefault(reason, []).append(pid)
+        del t.parts[pid]
+    for reason, pids in why.items():
+        notes.append(f"{len(pids)} part(s) without shell, solid or beam elements and with {reason} left out: "
+                     f"{sorted(pids)[:10]}{' ...' if len(pids) > 10 else ''}")  # fmt: skip
+
+
+def _complete_raw(
+    raw: _RawMaterial, u: UnitSystem, t: _Tables, es_known: list[float], notes: list[str], user: int | None
+) -> Material:
+    """A read material in SI with its 8-vector completed (:func:`complete_material`); ``notes`` gets its defaults;
+    ``user``: a part that uses it, named in the error about a material without a density.
+
+    Raises:
+        DeckError: no density, or a value :func:`complete_material` refuses, at the card.
+    """
+    mid = raw.mid
+    if raw.kind == "other" and not math.isfinite(raw.values["ro"]) and raw.note is not None:
+        raise DeckError(f"material {mid} ({_mat_label(raw)}) is {raw.note}, yet part {user} uses it", *raw.where)
+    if raw.note is not None:
+        notes.append(f"material {mid} ({_mat_label(raw)}): {raw.note}")
+    m = _material_si(raw, u, t.curves, notes)
+    if not (math.isfinite(m.youngs_modulus) and m.youngs_modulus > 0) and raw.kind == "other":
+        e_def = float(np.median(es_known)) if es_known else 2.1e11
+        notes.append(f"material {mid} ({raw.name}): Young's modulus not given, defaulted to {e_def:.4g} Pa")
+        m = Material(mid, m.name, m.kind, m.density, e_def, poisson_ratio=m.poisson_ratio)
+    if not math.isfinite(m.density) and raw.kind == "other":
+        raise DeckError(f"*MAT card {mid} expects a numeric density RO in columns 11-20", *raw.where)
+    try:
+        m = complete_material(m)
+    except ModelError as err:
+        raise DeckError(str(err), *raw.where) from None
+    notes.extend(m.warnings)
+    return m
+
+
 def _lookup(keys: np.ndarray, values: np.ndarray, query: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Vectorised dict lookup: ``(values[pos], found)`` for sorted ``keys``."""
     if keys.size == 0:
@@ -1552,11 +1756,23 @@ def _check_duplicates(ids: np.ndarray, locs: _Locs, what: str) -> None:
 
 def _assemble(deck: _Deck, t: _Tables, units: str | None, main: Path) -> tuple[VehicleModel, list[str]]:
     notes: list[str] = list(deck.params.notes)
+    stopped = "".join(f" (reading stopped at the *END in {p.name} line {n}, before the rest of that file)"
+                      for p, n in deck.early_end[:1])  # fmt: skip
     if not t.node_ids:  # checked first: an empty or wrong file has no materials either, and says so more plainly
-        raise DeckError("the deck has no *NODE data", main)
-    # ---- units
-    rho = np.array([m.values["ro"] for m in t.materials.values()], dtype=float)
-    e = np.array([m.values["e"] for m in t.materials.values()], dtype=float)
+        raise DeckError(f"the deck has no *NODE data{stopped}", main)
+    node_ids = np.concatenate(t.node_ids)
+    _check_duplicates(node_ids, t.node_locs, "node")
+    elem_parts = {int(p) for a in (*t.shells.part, *t.solids.part, *t.beams.part) for p in np.unique(a).tolist()}
+    if not elem_parts:
+        raise DeckError(f"the deck has no *ELEMENT_SHELL, *ELEMENT_SOLID or *ELEMENT_BEAM data{stopped}", main)
+    _drop_unread_parts(t, elem_parts | (set(t.inertia) & set(t.extra_nodes)), notes)
+    used: dict[int, int] = {}  # material id -> the first part (one with elements or mass) that uses it
+    for pid, (_, _, mid, _) in t.parts.items():
+        used.setdefault(mid, pid)
+    # ---- units, from the materials of the parts kept (the deck's others may be of any kind: foams, belts, springs)
+    judged = [m for mid, m in t.materials.items() if mid in used] or list(t.materials.values())
+    rho = np.array([m.values["ro"] for m in judged], dtype=float)
+    e = np.array([m.values["e"] for m in judged], dtype=float)
     if units is not None:
         u = get_unit_system(units)
         seen = detect_unit_system(rho, e)
@@ -1572,14 +1788,12 @@ def _assemble(deck: _Deck, t: _Tables, units: str | None, main: Path) -> tuple[V
         if u is None:
             med = f"{np.nanmedian(rho):.4g}" if rho.size else "n/a"
             raise DeckError(
-                f"cannot tell the unit system from material densities (median {med}) and moduli; "
+                f"cannot tell the unit system from material densities (median {med}) and moduli{stopped}; "
                 "give it: --units on the command line, units= in Python, one of 'mm-t-s', 'mm-kg-ms', 'm-kg-s'",
                 main,
             )
     # ---- nodes
-    node_ids = np.concatenate(t.node_ids)
     coords = np.concatenate(t.coords) * u.length
-    _check_duplicates(node_ids, t.node_locs, "node")
     order = np.argsort(node_ids, kind="stable")
     sorted_ids = node_ids[order]
 
@@ -1593,21 +1807,16 @@ def _assemble(deck: _Deck, t: _Tables, units: str | None, main: Path) -> tuple[V
 
     # ---- parts, sections, materials
     materials: dict[int, Material] = {}
-    es_known = [m.values["e"] * u.stress for m in t.materials.values() if m.values["e"] > 0]
+    es_known = [m.values["e"] * u.stress for m in judged if m.values["e"] > 0]
     for mid, raw in t.materials.items():
-        m = _material_si(raw, u, t.curves, notes)
-        if not (math.isfinite(m.youngs_modulus) and m.youngs_modulus > 0) and raw.kind == "other":
-            e_def = float(np.median(es_known)) if es_known else 2.1e11
-            notes.append(f"material {mid} ({raw.name}): Young's modulus not given, defaulted to {e_def:.4g} Pa")
-            m = Material(mid, m.name, m.kind, m.density, e_def, poisson_ratio=m.poisson_ratio)
-        if not math.isfinite(m.density) and raw.kind == "other":
-            raise DeckError(f"*MAT card {mid} expects a numeric density RO in columns 11-20", *raw.where)
         try:
-            m = complete_material(m)
-        except ModelError as err:
-            raise DeckError(str(err), *raw.where) from None
-        materials[mid] = m
-        notes.extend(m.warnings)
+            materials[mid] = _complete_raw(raw, u, t, es_known, notes if mid in used else [], used.get(mid))
+        except DeckError as err:
+            if mid in used:
+                raise
+            why = raw.note if raw.note is not None and "no density" in raw.note else err.reason
+            notes.append(f"material {mid} ({_mat_label(raw)}) left out: no part the reader keeps uses it, and it "
+                         f"cannot be read ({why})")  # fmt: skip
     parts: dict[int, Part] = {}
     for pid, (title, secid, mid, where) in t.parts.items():
         if secid not in t.sections:
