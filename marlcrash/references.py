@@ -64,7 +64,7 @@ from marlcrash.pulse.signal import (
     compared_window,
     margin_samples,
     prepare_velocity,
-    remove_zero_offset,
+    without_zero_offset,
 )
 from marlcrash.sim.scenario import CrashScenario, get_scenario, list_scenarios
 from marlcrash.sim.surrogate import SimConfig, Surrogate
@@ -99,10 +99,6 @@ class CrossFidelityConfig:
         require(self.target_cell_volume is None or self.target_cell_volume > 0, "target_cell_volume",
                 f"expected > 0 m^3 or null, got {self.target_cell_volume}")  # fmt: skip
         require(bool(self.vehicle_seeds), "vehicle_seeds", "expected at least one vehicle seed (null = nominal car)")
-
-
-ZERO_LEVEL_MARGIN = 0.001
-"""[s] The zero level of a file reference is the mean of its samples up to this long before its t = 0."""
 
 
 @dataclass
@@ -457,8 +453,8 @@ class ReferenceSampler:
             raise PulseError(f"{path.name}: asked for channels {unique}, read {list(pulse.channels)}")
         pulse = pulse.select([unique.index(c) for c in channels])
         sc = self.scenarios[spec.scenario]
-        if spec.time_zero == "file":  # the samples before the contact are at rest: their mean is the offset
-            pulse = remove_zero_offset(pulse, before=-ZERO_LEVEL_MARGIN)
+        # the samples before the contact are at rest: their mean is the offset (as `marlcrash pulse` removes it)
+        pulse = without_zero_offset(pulse, spec.time_zero, spec.cfc, spec.threshold_g)
         # unfiltered comparisons (compare_cfc null) have no filter end handling to match: no margin
         most = 0 if self.config.compare_cfc is None else margin_samples(self.config.compare_margin, sc.output_rate)
         _, vel = prepare_velocity(pulse, cfc=spec.cfc, rate_hz=sc.output_rate, duration=sc.duration,

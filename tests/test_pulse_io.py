@@ -430,7 +430,9 @@ def test_csv_dialects_of_spreadsheets_and_lab_tools(tmp_path, analytic):
         read_csv(thousands, unit="m/s2")
     stray = tmp_path / "stray.csv"  # one Latin-1 comment line in a UTF-8 file: the header stays UTF-8
     stray.write_bytes("# Prüfung\n".encode("latin-1") + "time,acc [m/s²]\n".encode() + _plain_rows(analytic).encode())
-    assert read_csv(stray, acc_col="acc [m/s²]").channels == ("acc [m/s²]",)
+    assert read_csv(stray, acc_col="acc [m/s²]", unit="m/s2").channels == ("acc [m/s²]",)
+    with pytest.raises(PulseError, match=r"stray\.csv line 2: column 'acc \[m/s²\]' is in m/s² by its header, but"):
+        read_csv(stray, acc_col="acc [m/s²]")  # read in g, the default: 9.8x too large
     names = tmp_path / "names.csv"  # commas in the names and the numbers of a ';' file split evenly at ',' too
     names.write_text("Zeit, s;Beschl., g\n" + "".join(f"0,{i:04d};-1,50\n" for i in range(20)))
     assert read_csv(names).channels == ("Beschl., g",)
@@ -575,3 +577,68 @@ def test_a_table_of_breakpoints_read_as_samples_is_refused_with_the_option_to_us
     with pytest.raises(PulseError, match="'Sampling interval' in seconds") as info:
         processed_pulse(mme)
     assert "--breakpoints" not in str(info.value)  # an ISO-MME channel is never a table of breakpoints
+
+
+def _onset_csv(path: Path, *, offset_g: float = 0.0, noise_g: float = 0.0, pre_s: float = 0.02, shift_s: float = 0.0):
+    """A 10 kHz record of an 80 ms, 30 g half-sine from t = 0 with ``pre_s`` of pre-trigger samples, a transducer
+    offset and white noise; its clock shifted by ``shift_s``. The true velocity change is 2 A tau / pi."""
+    t = np.arange(-round(pre_s * 1e4), 2500) / 1e4
+    a = half_sine(t, 0.08, 30 * G0 * 2 * 0.08 / math.pi) / G0 + offset_g
+    a = a + np.random.default_rng(1).normal(0.0, noise_g, t.size) if noise_g else a
+    path.write_text("time,acc\n" + "".join(f"{x + shift_s:.6f},{y:.9g}\n" for x, y in zip(t, a, strict=True)))
+    return path
+
+
+def test_unfiltered_summary_integrates_from_before_the_first_sample(tmp_path):
+    """``--cfc 0`` (``cfc=None``) leads the record in with zero acceleration as the filtered path does: a record that
+    starts at the impact counted only half its first interval, and a rectangle given by its corners (10 g for
+    100 ms, 9.80665 m/s) came out 0.05 % short; unfiltered at 10 kHz it is exact to the trapezoid rule."""
+    corners = tmp_path / "rect.csv"
+    corners.write_text("time,acc\n0,0\n0,-10\n100,-10\n100,0\n200,0\n")
+    s = pulse_summary(corners, breakpoints=True, time_unit="ms", time_zero="file", cfc=None)
+    assert s["delta_v_ms"] == pytest.approx(10 * G0 * 0.1, rel=1e-12)
+    start = _onset_csv(tmp_path / "start.csv", pre_s=0.0)  # starts at the impact, with a 0 g first sample
+    t = np.arange(2500) / 1e4
+    expected = -np.trapezoid(half_sine(t, 0.08, 30 * G0 * 2 * 0.08 / math.pi), t)
+    assert pulse_summary(start, time_zero="file", cfc=None)["delta_v_ms"] == pytest.approx(expected, rel=1e-9)
+
+
+@pytest.mark.parametrize("time_zero", ["file", "threshold"])
+@pytest.mark.parametrize("offset_g", [0.2, 0.6])
+def test_a_transducer_offset_is_removed_from_the_pre_trigger_samples(tmp_path, time_zero, offset_g):
+    """A constant offset integrates into a drift (0.2 g: -3.5 % of the velocity change) and, above the 0.5 g
+    threshold, set time zero at the first sample: its pre-trigger mean is subtracted, with either time-zero rule,
+    in ``marlcrash pulse`` as in a file reference. With ``threshold`` the record's clock does not matter."""
+    clean = pulse_summary(_onset_csv(tmp_path / "clean.csv"), time_zero=time_zero)
+    assert clean["delta_v_ms"] == pytest.approx(30 * G0 * 2 * 0.08 / math.pi, rel=1e-4)
+    biased = pulse_summary(_onset_csv(tmp_path / "bias.csv", offset_g=offset_g), time_zero=time_zero)
+    for key in ("delta_v_ms", "delta_v_150ms_ms", "t0_ms", "peak_g"):
+        assert biased[key] == pytest.approx(clean[key], rel=1e-9, abs=1e-9), key
+    if time_zero == "threshold" and offset_g < 0.5:  # the same record, its clock 37 ms later (no negative times):
+        # the offset is measured before the onset; one above the threshold then hides the onset (not recognised)
+        late = pulse_summary(_onset_csv(tmp_path / "late.csv", offset_g=offset_g, shift_s=0.037), time_zero=time_zero)
+        assert late["delta_v_ms"] == pytest.approx(clean["delta_v_ms"], rel=1e-9)
+        assert late["t0_ms"] - 37.0 == pytest.approx(clean["t0_ms"], abs=1e-6)
+    with pytest.warns(UserWarning, match=r"averages 5 g before t = -1 ms, more than a transducer offset"):
+        pulse_summary(_onset_csv(tmp_path / "fault.csv", offset_g=5.0), time_zero="file")
+
+
+@pytest.mark.parametrize(("noise_g", "pre_s"), [(0.3, 0.02), (1.0, 0.02), (3.0, 0.05)])
+def test_time_zero_of_a_noisy_record_stays_at_the_onset(tmp_path, noise_g, pre_s):
+    """Raw records carry noise: the onset search on the CFC 1000 record took any noise sample above 0.5 g after the
+    CFC 60 crossing, milliseconds before the pulse. The level is now 5x the channel's rms before the filtered
+    crossing where that is higher: time zero falls between the onset and where the clean half-sine reaches that
+    level. (With 3 g rms the CFC 60 crossing itself is noise; it takes pre-trigger data long enough to measure it.)"""
+    s = pulse_summary(_onset_csv(tmp_path / "noisy.csv", noise_g=noise_g, pre_s=pre_s))
+    level = max(0.5, 5 * noise_g)
+    assert 0.0 <= s["t0_ms"] <= 80.0 / math.pi * math.asin(level / 30) + 0.5  # clean crossing of the level [ms]
+
+
+def test_iso_mme_default_channel_is_not_chosen_past_a_channel_without_unit(tmp_path, analytic):
+    folder = tmp_path / "T1"
+    write_mme(analytic, folder, "T1")
+    chan = folder / "Channel" / "T1.001"
+    chan.write_text("".join(line for line in chan.read_text(encoding="latin-1").splitlines(True)
+                            if not line.startswith("Unit")), encoding="latin-1")  # fmt: skip
+    with pytest.raises(PulseError, match=r"T1: channel file T1.001 has no 'Unit' header line.*--acc-col"):
+        pulse_summary(folder)

@@ -34,6 +34,7 @@ from marlcrash.pulse.signal import (
     resample,
     sampled_acceleration,
     shift_time,
+    without_zero_offset,
 )
 
 __all__ = [
@@ -66,6 +67,7 @@ __all__ = [
     "resample",
     "sampled_acceleration",
     "shift_time",
+    "without_zero_offset",
     "write_csv",
     "write_mme",
 ]

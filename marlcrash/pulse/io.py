@@ -47,6 +47,7 @@ from marlcrash.pulse.signal import (
     PRE_IMPACT_TIME,
     Pulse,
     filtered_from_time_zero,
+    without_zero_offset,
 )
 from marlcrash.units import G0
 
@@ -99,6 +100,12 @@ def _err(reason: str, path: str | Path, line: int | None = None, column: str | N
 def acc_unit_key(unit: str) -> str:
     """The normalized spelling of an acceleration unit name, as :data:`ACC_UNITS` holds it (case and spaces)."""
     return unit.strip().lower().replace(" ", "")
+
+
+def _header_unit(name: str) -> str | None:
+    """The unit a column name gives in brackets or parentheses at its end (``'a_x [m/s2]'``), else ``None``."""
+    m = re.search(r"[\[(]\s*([^\[\]()]+?)\s*[\])]\s*$", name)
+    return m.group(1) if m else None
 
 
 def acc_unit_factor(unit: str, path: str | Path | None = None, line: int | None = None) -> float:
@@ -198,6 +205,23 @@ def read_csv(
         ai = [find(n) for n in names]
         if ti in ai:
             raise _err(f"column {header[ti]!r} is chosen as both time and acceleration", path, first + 1)
+    for j in ai:  # a unit written in the header ('a_x [m/s2]', 'ACC (g)') must be the unit the column is read in
+        said = _header_unit(header[j])
+        if said is not None and acc_unit_key(said) in ACC_UNITS and ACC_UNITS[acc_unit_key(said)] != factor:
+            raise _err(
+                f"column {header[j]!r} is in {said} by its header, but is read in {unit}: give that unit "
+                f"(--unit {said}; unit: {said})",
+                path,
+                first + 1,
+            )
+    said = _header_unit(header[ti])
+    if said is not None and said.strip().lower() in _TIME_UNITS and said.strip().lower() != time_unit:
+        raise _err(
+            f"column {header[ti]!r} is in {said} by its header, but is read in {time_unit}: give that unit "
+            f"(--time-unit {said.strip().lower()}; time_unit: {said.strip().lower()})",
+            path,
+            first + 1,
+        )
     rows: list[list[float]] = []
     line_of: list[int] = []
     wanted = [ti, *ai]
@@ -700,9 +724,10 @@ def processed_pulse(
 ) -> tuple[Pulse, Pulse, float]:
     """Read one acceleration channel and prepare it as :func:`pulse_summary` and ``marlcrash pulse --plot`` use it.
 
-    A non-uniform record is resampled at its mean rate, then CFC-filtered at that rate; time zero is
-    found on the filtered signal (:func:`~marlcrash.pulse.signal.find_time_zero`, or the file's t = 0
-    with ``time_zero="file"``).
+    The channel's transducer offset, the mean of its samples before the contact, is subtracted first
+    (:func:`~marlcrash.pulse.signal.without_zero_offset`, as a file reference does). A non-uniform record is
+    resampled at its mean rate, then CFC-filtered at that rate; time zero is found on the filtered signal
+    (:func:`~marlcrash.pulse.signal.find_time_zero`, or the file's t = 0 with ``time_zero="file"``).
 
     Args:
         path: CSV file, ``.mme`` file or ISO-MME test folder.
@@ -740,13 +765,23 @@ def processed_pulse(
     if acc_col is not None:
         kwargs["acc_col"] = acc_col
     elif mme:  # the first acceleration channel only: others may have their own time base
-        first = next((c for c in mme_channels(p) if c["acceleration"]), None)
-        if first is not None:
-            kwargs["acc_col"] = first["file"].name
+        listed = mme_channels(p)
+        k = next((i for i, c in enumerate(listed) if c["acceleration"]), len(listed))
+        blind = [c["file"].name for c in listed[:k] if c["unit"] is None]
+        if blind:  # it may be the acceleration channel meant: say so rather than pick a later one
+            raise _err(
+                f"channel file {blind[0]} has no 'Unit' header line, so the reader cannot tell whether it is the "
+                "first acceleration channel; give the channel with --acc-col (acc_col=)",
+                p,
+            )
+        if k < len(listed):
+            kwargs["acc_col"] = listed[k]["file"].name
     pulse = read_pulse(p, **kwargs).select(0)
     check_record_rate(pulse, p, time_unit=time_unit)
     try:
-        work, t0 = filtered_from_time_zero(pulse, cfc, time_zero, threshold_g)
+        # the transducer offset, from pre-trigger samples at negative times, as a file reference removes it
+        work, t0 = filtered_from_time_zero(without_zero_offset(pulse, time_zero, cfc, threshold_g), cfc, time_zero,
+                                           threshold_g)  # fmt: skip
     except PulseError as e:  # e.g. a sampling rate too low for the filter class: say which file
         if p.name not in str(e):
             raise _err(str(e), p) from None

@@ -399,19 +399,38 @@ def find_time_zero(pulse: Pulse, threshold_g: float = DEFAULT_THRESHOLD_G) -> fl
     return float(pulse.time[i - 1] + (level - m0) / (m1 - m0) * (pulse.time[i] - pulse.time[i - 1]))
 
 
-def onset_after(raw: Pulse, t_from: float, threshold_g: float = DEFAULT_THRESHOLD_G) -> float:
+NOISE_LEVELS = 5.0
+"""Onset level as a multiple of a channel's noise (rms of its samples before the filtered crossing) where that is
+above the threshold: :func:`onset_after`."""
+NOISE_WINDOW = (0.005, 0.002)
+"""[s] Least record length, and gap before the filtered crossing, of the samples that measure a channel's noise."""
+
+
+def onset_after(
+    raw: Pulse, t_from: float, threshold_g: float = DEFAULT_THRESHOLD_G, t_first: float | None = None
+) -> float:
     """The first crossing of ``|acc| = threshold_g`` by any channel of ``raw`` at or after ``t_from`` [s]
     (interpolated).
 
     ``t_from`` is the filtered record's crossing (:func:`find_time_zero`), which a zero-phase filter moves ahead of
     the pulse; the unfiltered record's own crossing after it is the onset. A channel already above the threshold at
     ``t_from`` (noise, or a pulse the filter did not move) gives ``t_from``; no crossing after it gives ``t_from`` too.
+
+    A noisy channel crosses the threshold on noise right after ``t_from``, which put time zero 5 ms early on a
+    2 ms, 30 g onset with 1 g rms of noise. Where a channel has at least ``NOISE_WINDOW[0]`` of samples from
+    ``t_first`` (the record's first sample; its lead-in is noise-free) to ``NOISE_WINDOW[1]`` before ``t_from``,
+    its level is ``NOISE_LEVELS`` times their rms deviation, if that is above the threshold.
     """
-    level = threshold_g * G0
     mag = np.abs(raw.acc)
+    levels = np.full(mag.shape[0], threshold_g * G0)
+    if t_first is not None:
+        quiet = (raw.time >= t_first) & (raw.time < t_from - NOISE_WINDOW[1])
+        if quiet.any() and float(raw.time[quiet][-1] - raw.time[quiet][0]) >= NOISE_WINDOW[0]:
+            levels = np.maximum(levels, NOISE_LEVELS * raw.acc[:, quiet].std(axis=1))
     i0 = int(np.searchsorted(raw.time, t_from))
     best = math.inf
     for k in range(mag.shape[0]):
+        level = levels[k]
         above = np.nonzero(mag[k, i0:] >= level)[0]
         if above.size == 0:
             continue
@@ -425,18 +444,60 @@ def onset_after(raw: Pulse, t_from: float, threshold_g: float = DEFAULT_THRESHOL
     return t_from if math.isinf(best) else best
 
 
-def remove_zero_offset(pulse: Pulse, before: float, min_time: float = 0.005) -> Pulse:
+ZERO_LEVEL_MARGIN = 0.001
+"""[s] The zero level of a record is the mean of its samples up to this long before its t = 0 (pre-trigger data)."""
+MAX_ZERO_OFFSET_G = 2.0
+"""[g] A pre-trigger mean above this is not a transducer offset (the record's clock puts part of the crash, or a
+fault, before t = 0): :func:`remove_zero_offset` then leaves the channel as it is and warns."""
+
+
+def remove_zero_offset(
+    pulse: Pulse, before: float = -ZERO_LEVEL_MARGIN, min_time: float = 0.005, max_offset_g: float = MAX_ZERO_OFFSET_G
+) -> Pulse:
     """Subtract each channel's zero level: the mean of its raw samples before ``before`` [s] (ISO 6487 / SAE J211
     practice: the pre-trigger samples of a test are at rest, so their mean is the transducer's offset).
 
-    A DC offset integrates into a velocity drift: 0.3 g over 150 ms is 0.44 m/s. Records with less than
-    ``min_time`` of samples before ``before`` (a record that starts at the impact) are returned unchanged.
-
+    A DC offset integrates into a velocity drift: 0.3 g over 150 ms is 0.44 m/s, and an offset above the 0.5 g
+    time-zero threshold sets time zero at the record's first sample. Records with less than ``min_time`` of
+    samples before ``before`` (a record that starts at the impact) are returned unchanged, and so is a channel
+    whose pre-trigger mean exceeds ``max_offset_g`` (with a warning): those samples are not at rest.
     """
     pre = pulse.time < before
     if not pre.any() or float(pulse.time[pre][-1] - pulse.time[0]) < min_time:
         return pulse
-    return replace(pulse, acc=pulse.acc - pulse.acc[:, pre].mean(axis=1, keepdims=True))
+    level = pulse.acc[:, pre].mean(axis=1, keepdims=True)
+    big = np.abs(level[:, 0]) > max_offset_g * G0
+    for k in np.flatnonzero(big).tolist():
+        warnings.warn(
+            f"{pulse.source or 'pulse'}: channel {pulse.channels[k]!r} averages {level[k, 0] / G0:.3g} g before "
+            f"t = {before * 1e3:g} ms, more than a transducer offset ({max_offset_g:g} g): its zero level is left as "
+            "recorded",
+            UserWarning,
+            stacklevel=2,
+        )
+    return replace(pulse, acc=pulse.acc - np.where(big[:, None], 0.0, level))
+
+
+def without_zero_offset(
+    pulse: Pulse, time_zero: str = "file", cfc: int | None = 60, threshold_g: float = DEFAULT_THRESHOLD_G
+) -> Pulse:
+    """``pulse`` less each channel's transducer offset, measured where the record is at rest.
+
+    With ``time_zero="file"`` (the file's t = 0 is the contact) the pre-trigger samples are those at negative
+    times (:func:`remove_zero_offset`). With ``"threshold"`` the file's clock is not trusted: the offset is the
+    mean of the samples from the record's start to :data:`ZERO_LEVEL_MARGIN` before the onset found on the record
+    less its negative-time offset (an offset above the 0.5 g threshold would otherwise set the onset at the first
+    sample), where they span at least 5 ms; else the negative-time offset stands. So a record gives the same
+    result whatever its clock.
+    """
+    first = remove_zero_offset(pulse)
+    if time_zero != "threshold":
+        return first
+    _, t0 = filtered_from_time_zero(first, cfc, "threshold", threshold_g)
+    before = pulse.time < t0 - ZERO_LEVEL_MARGIN
+    if not before.any() or float(pulse.time[before][-1] - pulse.time[0]) < 0.005:
+        return first
+    return remove_zero_offset(pulse, before=t0 - ZERO_LEVEL_MARGIN)
 
 
 def shift_time(pulse: Pulse, t0: float) -> Pulse:
@@ -494,17 +555,21 @@ def filtered_from_time_zero(
     a record that starts at the impact (no pre-trigger samples, e.g. a ``marlcrash simulate --csv`` record)
     would otherwise lose that part to the filter's end reflection. A 3 ms, 20 g half-sine starting at the
     first sample lost 35 % of its CFC 60 velocity change that way. For records with quiet pre-trigger data
-    the lead-in changes nothing material.
+    the lead-in changes nothing material. Unfiltered (``cfc=None``) the record is led in the same way, so its
+    integral starts from the constant speed before the first sample as the filtered one does (from the first
+    sample itself, a record starting at the impact lost half of that sample's interval: the simulated
+    up-front velocity change came out 10 % short).
 
     Returns:
         ``(uniform filtered pulse on the file's clock, time zero [s] on that clock)``.
     """
     u = pulse if pulse.is_uniform else resample(pulse, pulse.sample_rate_hz)
-    p = u if cfc is None else filter_pulse(lead_in(u, PRE_IMPACT_TIME), cfc)
+    led = lead_in(u, PRE_IMPACT_TIME)
+    p = led if cfc is None else filter_pulse(led, cfc)
     if time_zero == "threshold":
         t_filtered = find_time_zero(p, threshold_g)
-        if cfc is None:
-            return p, t_filtered
+        if cfc is None:  # the record's own crossing, not before its first sample (one that starts above the level)
+            return p, max(t_filtered, float(u.time[0]))
         # the onset on CFC 1000 where the rate can filter it (design frequency below Nyquist), else unfiltered:
         # a narrower band spreads a sharp onset by milliseconds again (CFC 180 at 2 kHz: 1.5-4.5 ms)
         rate = 1.0 / float(u.time[1] - u.time[0])
@@ -516,7 +581,7 @@ def filtered_from_time_zero(
                 sharp = filter_pulse(sharp, widest)
         # not before the file's first sample: a record that starts above the threshold (no pre-trigger data, e.g.
         # a simulation's) would otherwise cross it inside the assumed lead-in, up to one sample early
-        return p, max(onset_after(sharp, t_filtered, threshold_g), float(u.time[0]))
+        return p, max(onset_after(sharp, t_filtered, threshold_g, float(u.time[0])), float(u.time[0]))
     if time_zero == "file":
         return p, 0.0
     raise PulseError(f"time_zero must be 'threshold' or 'file', got {time_zero!r}")
