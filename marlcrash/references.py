@@ -99,6 +99,9 @@ class CrossFidelityConfig:
         require(self.target_cell_volume is None or self.target_cell_volume > 0, "target_cell_volume",
                 f"expected > 0 m^3 or null, got {self.target_cell_volume}")  # fmt: skip
         require(bool(self.vehicle_seeds), "vehicle_seeds", "expected at least one vehicle seed (null = nominal car)")
+        for i, v in enumerate(self.vehicle_seeds):
+            ok = v is None or (isinstance(v, int) and not isinstance(v, bool) and v >= 0)
+            require(ok, f"vehicle_seeds[{i}]", f"expected a seed >= 0 or null (the nominal car), got {v!r}")
 
 
 @dataclass

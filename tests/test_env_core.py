@@ -227,9 +227,15 @@ def test_bad_input_raises_clear_errors(cells):
     with pytest.raises(ActionError, match="floating point"):
         core.step(torch.zeros(2, core.A, 7, dtype=torch.int64))
     bad = torch.zeros(2, core.A, 7)
-    bad[1, 3, 2] = float("nan")
-    with pytest.raises(ActionError, match=r"actions\[1, 3, 2\].*nan"):
+    used = core.action_mask()
+    a = int(used[1, :, 2].nonzero()[0])  # an active agent: an inactive one's actions are ignored
+    bad[1, a, 2] = float("nan")
+    with pytest.raises(ActionError, match=rf"actions\[1, {a}, 2\].*nan"):
         core.step(bad)
+    ignored = torch.where(used, 0.0, float("nan"))
+    core.step(ignored)  # NaN only where action_mask() is false: ignored, as the PettingZoo door ignores them
+    with pytest.raises(ConfigError, match=r"key 'seed': expected a seed >= 0, got -1"):
+        load_env_config(overrides={"seed": -1})
     assert issubclass(ActionError, MarlcrashError) and issubclass(ActionError, ValueError)
     with pytest.raises(ConfigError, match="unknown scenario 'moon_landing'"):
         make(cells, 1, scenarios={"moon_landing": 1.0})

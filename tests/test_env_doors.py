@@ -129,6 +129,7 @@ def test_both_doors_give_identical_numbers(cells):
         g = torch.Generator().manual_seed(seed)
         for _ in range(4):
             act = torch.rand(1, native.core.A, 7, generator=g) * 2 - 1
+            act[0, ~a["agents", "mask"][0]] = float("nan")  # inactive agents' actions are ignored by both doors
             a = native.step(a.set(("agents", "action"), act))["next"]
             b = wrapped.step(b.set((group, "action"), act[0]))["next"]
             live = a["agents", "mask"][0]

@@ -159,6 +159,18 @@ def test_unavailable_device_is_refused():
         ("+env_overrides.termination.max_iterations=9", "env_overrides.termination.max_iterations", "episode_length"),
         ("+env_overrides.seed=3", "env_overrides.seed", "the run's seed"),
         ("env=nope", "env", "unknown env config 'nope'"),
+        # a numpy traceback from inside the vehicle generator; an error after the discretization, naming default.yaml
+        ("+env_overrides.vehicle_seed=-3", "env_overrides.vehicle_seed", "expected a seed >= 0 or null"),
+        (
+            "+env_overrides.scenarios.full_width_4O=1",
+            "env_overrides.scenarios.full_width_4O",
+            "unknown scenario 'full_width_4O'",
+        ),
+        (
+            "+env_overrides.reference.cross_fidelity.vehicle_seeds=[-1]",
+            "env_overrides.reference.cross_fidelity.vehicle_seeds[0]",
+            "expected a seed >= 0",
+        ),
     ],
 )
 def test_bad_env_override_names_the_training_key(override, key, words):

@@ -30,6 +30,7 @@ from marlcrash.calibrate.marl import (
     make_policy,
     masked_standardize,
     train,
+    update,
 )
 from marlcrash.errors import ConfigError
 
@@ -192,6 +193,36 @@ def test_inactive_agents_are_masked_out_of_the_loss(short, tmp_path, name):
     active = perturbed(mask)
     assert not torch.allclose(active["loss_objective"], base["loss_objective"])
     assert not torch.allclose(active["loss_critic"], base["loss_critic"])
+
+
+def test_a_runaway_ratio_is_bounded_and_a_diverged_update_is_refused_before_the_step(short, tmp_path):
+    """Single-agent PPO on per-cell actions (thousands of joint dimensions) moved the summed log density by hundreds
+    in one step: the ratio overflowed, the gradient was NaN, and the NaN weights were checkpointed. The log ratio
+    is now bounded, so such a batch gives a finite loss; and an update whose loss or gradient is still not finite
+    raises, naming ``algorithm.lr``, before the optimizer touches the weights."""
+    cfg = tiny(tmp_path)
+    torch.manual_seed(0)
+    env = make_env(cfg)
+    policy, critic = make_policy(env, cfg.algorithm), make_critic(env, cfg.algorithm)
+    loss, gae = make_loss(policy, critic, cfg.algorithm), make_advantage(critic, cfg.algorithm)
+    data, _ = collect(env, policy, 2)
+    expand_team(data)
+    with torch.no_grad():
+        gae(data)
+    far = data.clone()
+    far["agents", "action_log_prob"] = far["agents", "action_log_prob"] - 5e3  # the old policy: far less likely
+    adv = far["agents", "advantage"]
+    far["agents", "advantage"] = -adv.abs() - 1.0  # negative: the unclipped, exploding branch of the objective
+    out = loss(far.reshape(-1))
+    assert torch.isfinite(out["loss_objective"]) and float(out["loss_objective"]) > 0
+    optimizer = torch.optim.Adam(list(loss.parameters()), lr=1e-3)
+    algo = dataclasses.replace(cfg.algorithm, normalize_advantage=False, epochs=1)
+    before = [p.detach().clone() for p in loss.parameters()]
+    nan = data.clone()
+    nan["next", "agents", "reward"] = torch.full_like(nan["next", "agents", "reward"], float("nan"))
+    with pytest.raises(ConfigError, match=r"key 'algorithm.lr': the PPO update diverged at learning rate 0.001"):
+        update(nan, loss, gae, optimizer, algo)
+    assert all(torch.equal(a, b) for a, b in zip(before, loss.parameters(), strict=True))  # untouched
 
 
 def test_checkpoint_is_atomic(tmp_path):

@@ -68,6 +68,7 @@ from marlcrash.config import from_dict, require, require_complete
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics
 from marlcrash.outputs import check_output_dir, write_text
+from marlcrash.sim.scenario import list_scenarios
 
 POLICY_METHODS = ("policy_best", "policy_last")
 """Row names of the policy: its best iterate by fit score and its last iterate."""
@@ -121,6 +122,8 @@ class AmortizedConfig:
                 f"expected distinct seeds, got {self.reference_seeds}")  # fmt: skip
         for i, s in enumerate(self.reference_seeds):
             require(s >= 0, f"reference_seeds[{i}]", f"expected a seed >= 0, got {s}")
+        known = list_scenarios()
+        require(self.scenario in known, "scenario", f"unknown scenario {self.scenario!r}; registered: {known}")
         require(self.iterations is None or self.iterations >= 1, "iterations",
                 f"expected >= 1 calibration steps or null, got {self.iterations}")  # fmt: skip
         optimizers = sorted(f.name for f in fields(self) if f.name in BASELINES)  # those with settings here

@@ -534,19 +534,29 @@ _AGENT_KEYS = {
 }
 
 
+LOG_RATIO_LIMIT = 10.0
+"""Largest magnitude of a sample's log importance ratio ``log pi_new / pi_old`` the PPO loss uses [-]."""
+
+
 class MaskedClipPPOLoss(ClipPPOLoss):
-    """``ClipPPOLoss`` whose logged diagnostics ``entropy`` and ``kl_approx`` average over active agents only.
+    """``ClipPPOLoss`` whose logged diagnostics ``entropy`` and ``kl_approx`` average over active agents only, and
+    whose log importance ratio is bounded.
 
     TorchRL 0.14 applies ``loss_mask_key`` to the loss terms (``loss_*``) but logs the plain mean of the
     per-sample entropy and KL estimate, inactive agents included: with the impact-region rule the logged
     entropy then mixes in agents whose actions are ignored. This subclass keeps both per-sample tensors
-    and reduces them with the same mask as the loss terms. The loss itself is unchanged.
+    and reduces them with the same mask as the loss terms.
+
+    The log ratio is clamped to ``+-LOG_RATIO_LIMIT`` (the clipped objective uses ``+-0.2``, so only runaway
+    samples are touched). A joint action of thousands of dimensions (single-agent PPO with per-cell actions:
+    21 agents x 357) sums so many log densities that one optimizer step moved it by hundreds: the ratio
+    overflowed to ``inf``, the gradient became NaN, and the NaN weights were checkpointed.
     """
 
     def _log_weight(self, tensordict: TensorDictBase, adv_shape: torch.Size):
-        out = super()._log_weight(tensordict, adv_shape)
-        self._diagnostics["kl_approx"] = out[2].detach()
-        return out
+        log_weight, *rest = super()._log_weight(tensordict, adv_shape)
+        self._diagnostics["kl_approx"] = rest[1].detach()
+        return (log_weight.clamp(-LOG_RATIO_LIMIT, LOG_RATIO_LIMIT), *rest)
 
     def _get_entropy(self, dist, adv_shape: torch.Size):
         entropy = super()._get_entropy(dist, adv_shape)
@@ -672,6 +682,14 @@ def update(
             optimizer.zero_grad()
             total.backward()
             gn = torch.nn.utils.clip_grad_norm_(params, algo.max_grad_norm)
+            if not (torch.isfinite(total) and torch.isfinite(gn)):  # before the step: the weights stay usable
+                raise ConfigError(
+                    f"the PPO update diverged at learning rate {optimizer.param_groups[0]['lr']:.3g} (loss "
+                    f"{float(total):.3g}, gradient norm {float(gn):.3g}, approximate KL "
+                    f"{float(out['kl_approx']):.3g}); the last checkpoint holds the weights before it. Lower the "
+                    "learning rate (or use per-sub-assembly actions for a joint policy of many cells)",
+                    key="algorithm.lr",
+                )
             optimizer.step()
             for k in ("loss_objective", "loss_critic", "loss_entropy", "entropy", "kl_approx"):
                 sums[k] = sums.get(k, 0.0) + float(out[k].detach())

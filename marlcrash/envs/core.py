@@ -69,6 +69,7 @@ from marlcrash.errors import ConfigError, MarlcrashError
 from marlcrash.metrics import Metrics, compute_metrics
 from marlcrash.references import ReferenceConfig, ReferenceSampler
 from marlcrash.reward import Reward, TerminationConfig, load_reward_config, require_reward, shipped_termination
+from marlcrash.sim.scenario import list_scenarios
 from marlcrash.sim.surrogate import SimConfig, Surrogate, load_sim_config
 from marlcrash.vehicle.registry import VehicleOptions
 
@@ -130,8 +131,13 @@ class EnvConfig:
             self.vehicle_options.require_fits(self.vehicle)
         except ConfigError as e:
             raise ConfigError(e.reason, key=f"vehicle_options.{e.key}") from None
+        require(self.vehicle_seed is None or _is_int_at_least(self.vehicle_seed, 0), "vehicle_seed",
+                f"expected a seed >= 0 or null (the nominal car), got {self.vehicle_seed!r}")  # fmt: skip
+        require(_is_int_at_least(self.seed, 0), "seed", f"expected a seed >= 0, got {self.seed!r}")
         require(bool(self.scenarios), "scenarios", "expected at least one scenario name with a weight")
+        known = list_scenarios()
         for k, w in self.scenarios.items():
+            require(k in known, f"scenarios.{k}", f"unknown scenario {k!r}; registered (configs/scenarios/): {known}")
             require(math.isfinite(w) and w > 0, f"scenarios.{k}", f"expected a weight > 0, got {w}")
         require(0.0 < self.max_step <= 2.0, "max_step", f"expected a log increment in (0, 2], got {self.max_step}")
         b = self.behaviour_bounds
@@ -206,7 +212,7 @@ def env_config_of(
         k = e.key or ""
         if e.path is None and k == "env":
             raise ConfigError(e.reason, key=env_key) from None
-        if any(k == o or k.startswith(o + ".") or o.startswith(k + ".") for o in given):
+        if any(k == o or k.startswith((o + ".", o + "[")) or o.startswith(k + ".") for o in given):
             raise ConfigError(e.reason, key=f"{overrides_key}.{k}") from None
         raise
 
@@ -445,7 +451,8 @@ class CalibrationCore:
         otherwise tie the parameters, and every later observation, to that graph, which grew with every step.
 
         Raises:
-            ActionError: wrong type, shape or dtype, or NaN/inf entries (named by index).
+            ActionError: wrong type, shape or dtype, or NaN/inf entries of active agents (named by index); the
+                entries :meth:`action_mask` leaves out are ignored, and returned as zero.
         """
         if isinstance(actions, np.ndarray):
             actions = torch.from_numpy(actions)
@@ -459,14 +466,15 @@ class CalibrationCore:
             )
         if not actions.is_floating_point():
             raise ActionError(f"actions must be floating point (float32 or float64), got {actions.dtype}")
-        bad = ~torch.isfinite(actions)
+        used = self.action_mask()  # inactive agents' and padded entries are ignored (as the PettingZoo door does)
+        bad = ~torch.isfinite(actions) & used
         if bool(bad.any()):
             b, a, j = (int(x) for x in torch.nonzero(bad)[0])
             raise ActionError(
                 f"actions must be finite; actions[{b}, {a}, {j}] (agent {self.layout.names[a]!r}) is "
                 f"{float(actions[b, a, j])} ({int(bad.sum())} non-finite entries)"
             )
-        return actions.detach().to(torch.float64).clamp(-1.0, 1.0)
+        return torch.where(used, actions.detach().to(torch.float64).clamp(-1.0, 1.0), 0.0)
 
     def increments(self, actions: torch.Tensor) -> torch.Tensor:
         """Per-cell log increments ``[B, n_cells, 7]`` from checked actions ``[B, n_agents, act_dim]``.
