@@ -73,9 +73,10 @@ class MetricsConfig:
 
 
 def _safe_sqrt(x: torch.Tensor) -> torch.Tensor:
-    """``sqrt(x)`` for ``x >= 0`` whose gradient at 0 is 0 instead of NaN."""
+    """``sqrt(x)`` for ``x >= 0`` whose gradient at 0 is 0 instead of NaN; NaN stays NaN (an RMSE of a NaN curve
+    came out 0, a perfect fit)."""
     pos = x > 0
-    return torch.where(pos, torch.sqrt(torch.where(pos, x, torch.ones_like(x))), torch.zeros_like(x))
+    return torch.where(pos, torch.sqrt(torch.where(pos, x, torch.ones_like(x))), torch.where(x.isnan(), x, 0.0))
 
 
 def _check_pair(q: torch.Tensor, p: torch.Tensor) -> None:
@@ -386,13 +387,10 @@ def discrete_frechet_uniform_numba(
     """
     q, p = torch.broadcast_tensors(q.detach().double().cpu(), p.detach().double().cpu())
     shape = q.shape[:-1]
-    rows = _dfd_rows(
-        np.ascontiguousarray(q.reshape(-1, q.shape[-1]).numpy()),
-        np.ascontiguousarray(p.reshape(-1, p.shape[-1]).numpy()),
-        float(dt),
-        float(time_scale),
-        float(value_scale),
-    )
+    qa = np.ascontiguousarray(q.reshape(-1, q.shape[-1]).numpy())
+    pa = np.ascontiguousarray(p.reshape(-1, p.shape[-1]).numpy())
+    rows = _dfd_rows(qa, pa, float(dt), float(time_scale), float(value_scale))
+    rows[np.isnan(qa).any(axis=1) | np.isnan(pa).any(axis=1)] = np.nan  # the kernel's min/max skip NaN; torch's not
     return torch.from_numpy(rows).reshape(shape)
 
 

@@ -312,6 +312,7 @@ def termination(metrics: Metrics, cfg: TerminationConfig, iteration: int | torch
             checked = True
         if hi is not None:
             failure = failure | (value > hi).any(-1)
+        failure = failure | value.isnan().any(-1)  # a NaN fit is no fit: the episode fails (NaN > hi is False)
     if not checked:
         success = torch.zeros_like(success)
     it = torch.as_tensor(iteration, device=ref.device)

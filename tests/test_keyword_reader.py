@@ -645,8 +645,10 @@ def test_a_parameter_defined_twice_keeps_the_first_value_as_ls_dyna_does(tmp_pat
         DeckError, match=r"component.k line 3: parameter 't' is defined twice \(first in strict.k line 3\)"
     ):
         _read(_write(tmp_path, strict, "strict.k"))
-    with pytest.raises(DeckError, match=r"bad.k line 3: \*PARAMETER_DUPLICATION expects DFLAG 1, 2, 3, 4 or 5"):
+    with pytest.raises(DeckError, match=r"bad.k line 3: \*PARAMETER_DUPLICATION expects DFLAG 0 to 5"):
         _read(_write(tmp_path, "*KEYWORD\n*PARAMETER_DUPLICATION\n         7\n", "bad.k"))
+    zero = _duplicate_t("*PARAMETER_DUPLICATION\n         0\n") + "*INCLUDE\ncomponent.k\n*END\n"
+    assert _read(_write(tmp_path, zero, "zero.k")).shell_thickness[0] == pytest.approx(2e-3)  # 0: the default
 
 
 FULL_VEHICLE_EXTRAS = """*PART
@@ -721,6 +723,17 @@ def test_materials_and_sections_of_a_full_vehicle_deck(tmp_path):
     assert any("material 14 (*MAT_SOME_FUTURE_MODEL): its first card does not read as MID RO E PR" in w
                for w in m.warnings)  # fmt: skip
     assert 13 not in m.parts and 15 not in m.parts and 13 not in m.materials and 16 not in m.materials
+    assert "part 13 ('engine mount spring') has no shell, solid or beam elements" in m.left_out[13]  # maps say so
+    masses = "*ELEMENT_MASS_PART\n      13     2.0e-3\n"  # a spring's added mass: not modelled with it, a note
+    m = _read(_write(tmp_path, HEAD + NODES + SHELL + FULL_VEHICLE_EXTRAS + FULL_VEHICLE_ELEMENTS + masses, "m.k"))
+    assert any("*ELEMENT_MASS_PART 13 adds nothing to part(s) [13]: left out" in w for w in m.warnings)
+    blank_ro = (
+        FULL_VEHICLE_ELEMENTS
+        + "*PART\nsheet\n        18         1        18\n*MAT_012\n        18\n"
+        + ("*ELEMENT_SHELL\n       6      18       1       2       3       4\n")
+    )
+    with pytest.raises(DeckError, match=r"line \d+: \*MAT card 18 expects a numeric density RO in columns 11-20"):
+        _read(_write(tmp_path, HEAD + NODES + SHELL + FULL_VEHICLE_EXTRAS + blank_ro, "ro.k"))
     assert any("2 part(s) without shell, solid or beam elements and with a section the reader does not read left "
                "out: [13, 15]" in w for w in m.warnings)  # fmt: skip
     assert any("material 16 (*MAT_SEATBELT) left out" in w and "no density" in w for w in m.warnings)

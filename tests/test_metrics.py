@@ -212,3 +212,22 @@ def test_numba_backend_equals_torch_backend():
         compute_metrics(q, p, torch.linspace(0, 0.03, 60, dtype=torch.float64), backend="numba")
     with pytest.raises(PulseError, match="backend must be 'torch' or 'numba', got 'cuda'"):  # not torch silently
         compute_metrics(q, p, dt=5e-4, backend="cuda")
+
+
+def test_a_nan_curve_gets_nan_metrics_in_both_backends_and_fails_the_episode():
+    """A NaN estimate scored an RMSE of 0 (a perfect fit), the compiled Frechet kernel skipped the NaN (1.0 where
+    torch gave NaN), and a NaN state never ended an episode."""
+    from marlcrash.reward import TerminationConfig, termination
+
+    t = torch.arange(40, dtype=torch.float64) * 5e-4
+    q, p = torch.sin(60 * t)[None].repeat(2, 1), torch.cos(60 * t)[None].repeat(2, 1)
+    q[1, 7] = float("nan")
+    for backend in ("torch", "numba"):
+        m = compute_metrics(q, p, dt=5e-4, backend=backend)
+        for name, v in zip(("area", "dfd", "rmse"), m, strict=True):
+            assert math.isfinite(float(v[0])) and math.isnan(float(v[1])), (backend, name)
+    assert math.isnan(float(rmse(q[1], p[1])))
+    cfg = TerminationConfig(max_iterations=10, success_area=1e-3, failure_area=None)
+    m = compute_metrics(q, p, dt=5e-4)
+    end = termination(type(m)(*(v[:, None] for v in m)), cfg, 1)
+    assert end.failure.tolist() == [False, True] and end.success.tolist() == [False, False]

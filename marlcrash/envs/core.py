@@ -451,8 +451,8 @@ class CalibrationCore:
         otherwise tie the parameters, and every later observation, to that graph, which grew with every step.
 
         Raises:
-            ActionError: wrong type, shape or dtype, or NaN/inf entries of active agents (named by index); the
-                entries :meth:`action_mask` leaves out are ignored, and returned as zero.
+            ActionError: wrong type, shape or dtype, or NaN/inf entries of active agents (named by index); such
+                entries where :meth:`action_mask` is false are ignored, and returned as zero.
         """
         if isinstance(actions, np.ndarray):
             actions = torch.from_numpy(actions)
@@ -474,7 +474,8 @@ class CalibrationCore:
                 f"actions must be finite; actions[{b}, {a}, {j}] (agent {self.layout.names[a]!r}) is "
                 f"{float(actions[b, a, j])} ({int(bad.sum())} non-finite entries)"
             )
-        return torch.where(used, actions.detach().to(torch.float64).clamp(-1.0, 1.0), 0.0)
+        actions = actions.detach().to(torch.float64)
+        return torch.where(used | torch.isfinite(actions), actions.clamp(-1.0, 1.0), 0.0)  # finite ones: as given
 
     def increments(self, actions: torch.Tensor) -> torch.Tensor:
         """Per-cell log increments ``[B, n_cells, 7]`` from checked actions ``[B, n_agents, act_dim]``.

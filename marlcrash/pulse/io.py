@@ -108,6 +108,12 @@ def _header_unit(name: str) -> str | None:
     return m.group(1) if m else None
 
 
+def _with_unit(name: str, unit: str) -> str:
+    """``name`` with the unit at its end (:func:`_header_unit`) replaced by ``unit``; unchanged without one."""
+    m = re.search(r"([\[(])\s*([^\[\]()]+?)\s*([\])])\s*$", name)
+    return name if m is None else f"{name[: m.start()]}{m.group(1)}{unit}{m.group(3)}"
+
+
 def acc_unit_factor(unit: str, path: str | Path | None = None, line: int | None = None) -> float:
     """SI factor [m/s^2 per unit] of an acceleration unit name (``g``, ``m/s2``, ``m/s**2`` ...)."""
     key = acc_unit_key(unit)
@@ -361,11 +367,15 @@ def _delimiter(lines: list[str], first: int, path: Path) -> str:
 
 
 def write_csv(pulse: Pulse, path: str | Path, *, unit: str = "g", time_col: str = "time") -> Path:
-    """Write a pulse as CSV (time in s, acceleration in ``unit``), the format :func:`read_csv` reads."""
+    """Write a pulse as CSV (time in s, acceleration in ``unit``), the format :func:`read_csv` reads.
+
+    A channel name that ends in a unit (``'a_x [m/s2]'``, read as such) gets the unit written instead, and a time
+    column name ending in one gets ``s``: :func:`read_csv` checks a header's units against the units it reads in.
+    """
     path = Path(path)
     factor = acc_unit_factor(unit)
     data = np.column_stack([pulse.time, pulse.acc.T / factor])
-    header = ",".join([time_col, *pulse.channels])
+    header = ",".join([_with_unit(time_col, "s"), *(_with_unit(c, unit) for c in pulse.channels)])
     with atomic_output(path) as tmp:
         np.savetxt(tmp, data, delimiter=",", header=header, comments="", fmt="%.17g")
     return path

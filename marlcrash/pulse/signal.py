@@ -487,13 +487,18 @@ def without_zero_offset(
     times (:func:`remove_zero_offset`). With ``"threshold"`` the file's clock is not trusted: the offset is the
     mean of the samples from the record's start to :data:`ZERO_LEVEL_MARGIN` before the onset found on the record
     less its negative-time offset (an offset above the 0.5 g threshold would otherwise set the onset at the first
-    sample), where they span at least 5 ms; else the negative-time offset stands. So a record gives the same
-    result whatever its clock.
+    sample), where they span at least 5 ms; else the negative-time offset stands. Where that onset lies inside the
+    negative times averaged (the file's clock puts the contact before -1 ms), the mean held part of the pulse: the
+    onset is found on the record as read instead. So an offset below the threshold gives the same result whatever
+    the record's clock; one above it is recognised only where the contact is at the file's t = 0.
     """
     first = remove_zero_offset(pulse)
     if time_zero != "threshold":
         return first
     _, t0 = filtered_from_time_zero(first, cfc, "threshold", threshold_g)
+    if first is not pulse and t0 < -ZERO_LEVEL_MARGIN:  # the negative-time mean held the onset: part of the crash
+        first = pulse
+        _, t0 = filtered_from_time_zero(pulse, cfc, "threshold", threshold_g)
     before = pulse.time < t0 - ZERO_LEVEL_MARGIN
     if not before.any() or float(pulse.time[before][-1] - pulse.time[0]) < 0.005:
         return first

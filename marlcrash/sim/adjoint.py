@@ -331,7 +331,7 @@ def _statics(sim, wall, n_out: int, sidx: torch.Tensor) -> dict:
         "v0": f64(wall.speed), "kw": f64(wall.k), "cw": f64(wall.damping), "gapw": f64(wall.gap),
         "covered": np.ascontiguousarray(wall.covered.numpy()), "m": f64(sim.mass), "src": sim.src.numpy(),
         "dst": sim.dst.numpy(), "gap": np.ascontiguousarray(sim.is_gap.numpy()), "gap0": f64(sim.gap),
-        "sidx": sidx.numpy().astype(np.int64), "dt": float(sim.dt), "sub": int(sim.config.substeps),
+        "sidx": sidx.numpy().astype(np.int64), "dt": float(sim.dt), "sub": int(sim.substeps),
         "n_out": int(n_out),
     }  # fmt: skip
 

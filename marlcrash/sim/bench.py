@@ -349,7 +349,7 @@ def noalias_study(batch: int = 1024, repeats: int = 3, dtype: str = "float64") -
     sim = Surrogate(cells, load_sim_config(overrides={"dtype": dtype}))
     base = torch.as_tensor(cells.params)[None]
     p = base.repeat(batch, 1, 1)
-    steps = (scenario.n_outputs - 1) * sim.config.substeps
+    steps = (scenario.n_outputs - 1) * sim.substeps
     live = live_links(sim, base)
     plain_sim = _recompiled(kernels._simulate, parallel=True, _chunk=_recompiled(kernels._chunk))
     plain_roof = _recompiled(_roofline, parallel=True, _roofline_chunk=_recompiled(_roofline_chunk))
@@ -631,7 +631,7 @@ def substep_study(
         p = torch.as_tensor(sim.cells.params)[None].repeat(batch, 1, 1)
         sim.run(p[:1], scenario, backend="numba", record_cells="final")  # compile or load the cache
         t = _best(lambda: sim.run(p, scenario, backend="numba", record_cells="final"), repeats)  # noqa: B023
-        steps = (scenario.n_outputs - 1) * sim.config.substeps
+        steps = (scenario.n_outputs - 1) * sim.substeps
         roof = measure_roofline(sim, batch, steps, n_links=live_links(sim, p[:1]))
         fw = grade["figures"]["full_width_40@40"]
         rows.append(

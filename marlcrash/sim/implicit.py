@@ -199,7 +199,7 @@ def run_implicit(
         step = linear_increment if linear else increment
         res = sim._run_torch(props, wall, n_out, sensor_idx, record_cells, increment=step, theta=theta)
     live = int((props.yield_c != 0).any(dim=0).sum())
-    steps = (n_out - 1) * sim.config.substeps
+    steps = (n_out - 1) * sim.substeps
     solves = len(iters) / max(B * steps, 1)  # linear solves per simulation step
     stats = {
         "steps": steps,

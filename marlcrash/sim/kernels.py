@@ -607,7 +607,7 @@ def run_numba(
         sidx.numpy(),
         sim.comp,
         dt,
-        sim.config.substeps,
+        sim.substeps,
         n_out,
         n_out - 1 if snap is None else int(snap),
         mode,

@@ -83,6 +83,7 @@ trajectories chaotic: 1e-12 parameter changes moved the stop time). The released
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Literal, NamedTuple
@@ -103,6 +104,9 @@ MAX_LINK_DAMPING_RATIO = 0.15
 """Largest accepted ``link_damping_ratio`` [-]. The damping force is explicit and each element's stiffness may sit
 at its stability cap, so damping adds to a node's step-stability budget: on the default car with 0.5x-2x random
 energies, 0.15 peaks at 7 500 g (0.05: 5 900 g), 0.2 at 15 000 g and 0.25 diverges (1e30 g)."""
+BASE_OUTPUT_DT = 5e-4
+"""[s] The output step ``substeps`` (configs/sim.yaml) divides: the integration step is ``BASE_OUTPUT_DT / substeps``
+at any output rate (the 2 kHz sensor rate of DESIGN 1.4 the caps were tuned at)."""
 MAX_STIFFNESS_CAP = 1.2
 """Largest accepted ``stiffness_cap`` [-]: stable together with the largest accepted damping ratios (link 0.15,
 contact and wall 1.0: peaks of 6 600 g on the same test); 1.5 with link damping 0.15 diverges, and 1.9 with the
@@ -310,13 +314,17 @@ class Surrogate:
     Args:
         cells: the cell model (validated here).
         config: integrator settings; ``None`` loads ``configs/sim.yaml``.
-        output_dt: output step [s] the stability caps are computed for (2 kHz default).
+        output_dt: output step [s] (2 kHz default): a whole number of integration steps ``dt``. The integration
+            step is ``BASE_OUTPUT_DT / substeps`` whatever the output rate, so the stability caps, and with them the
+            crash, do not depend on how it is sampled (at 500 Hz a crash of 0.5 ms output steps x 8 rebounded 59 %
+            instead of 16 %); :attr:`substeps` steps per output sample.
         stability_caps: combine every element's stiffness in series with its explicit stability cap (the
             module doc). ``False`` keeps the raw stiffnesses: only the implicit study integrator
             (:mod:`marlcrash.sim.implicit`) can run such a surrogate; :meth:`run` refuses.
 
     Raises:
-        ModelError: links touching null cells or owned by the compartment, no mass.
+        ModelError: links touching null cells or owned by the compartment, no mass, or an output step that is
+            not a positive whole number of integration steps.
     """
 
     def __init__(
@@ -327,7 +335,20 @@ class Surrogate:
         self.cells = cells
         self.config = cfg = config if config is not None else load_sim_config()
         self.output_dt = float(output_dt)
-        self.dt = self.output_dt / cfg.substeps
+        self.dt = BASE_OUTPUT_DT / cfg.substeps
+        per = self.output_dt / self.dt if math.isfinite(self.output_dt) else math.nan
+        if not (per >= 1 - 1e-9 and abs(per - round(per)) <= 1e-6 * per):
+            rate = f"{1.0 / self.output_dt:.6g}" if self.output_dt else "inf"
+            fits = ", ".join(
+                f"{1 / (k * self.dt):.6g}" for k in (max(cfg.substeps // 2, 1), cfg.substeps, 2 * cfg.substeps)
+            )
+            raise ModelError(
+                f"output step {output_dt!r} s (a scenario's output_rate {rate} Hz) must be a whole number >= 1 of the "
+                f"{self.dt * 1e6:.6g} us integration steps (configs/sim.yaml substeps: {cfg.substeps} per "
+                f"{BASE_OUTPUT_DT * 1e3:g} ms); e.g. output rates of {fits} Hz"
+            )
+        self.substeps = round(per)
+        """Integration steps per output sample."""
         dtype = self.dtype = cfg.torch_dtype
         n, L = cells.n_cells, cells.n_links
         self.n, self.L = n, L
@@ -735,7 +756,7 @@ class Surrogate:
         """
         names, sidx = sensor_idx
         B, n = props.k.shape[0], self.n
-        dt, sub = self.dt, self.config.substeps
+        dt, sub = self.dt, self.substeps
         src, dst = self.src, self.dst
         m, m_ke = self.mass, self.mass_ke
         zl = props.k.new_zeros((B, self.L))

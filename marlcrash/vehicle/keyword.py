@@ -329,7 +329,7 @@ class _Params:
     def __init__(self, user: dict[str, float] | None):
         self.values: dict[str, float | int | str] = {}
         self.user = {str(k).strip().lower(): v for k, v in (user or {}).items()}
-        self.exprs: list[tuple[str, str, str, Path, int]] = []
+        self.exprs: dict[str, tuple[str, str, str, Path, int]] = {}  # name -> expression, in deck order
         self.notes: list[str] = []
         self.deck_names: set[str] = set()  # defined by the deck (*PARAMETER, *PARAMETER_EXPRESSION)
         self.used: set[str] = set()  # referenced by a field or an expression
@@ -368,27 +368,26 @@ class _Params:
     def define(self, name: str, value: float | int | str, path: Path, line: int) -> None:
         """A ``*PARAMETER`` value, subject to the duplicate rule (:meth:`_claim`)."""
         key = name.lower()
-        expr = any(e[1] == key for e in self.exprs)
-        if self._claim(key, path, line, expr or (key in self.values and self.values[key] != value)):
-            self.exprs = [e for e in self.exprs if e[1] != key]
+        if self._claim(key, path, line, key in self.exprs or (key in self.values and self.values[key] != value)):
+            self.exprs.pop(key, None)
             self.values[key] = value
 
     def define_expr(self, kind: str, name: str, expr: str, path: Path, line: int) -> None:
         """A ``*PARAMETER_EXPRESSION``, evaluated by :meth:`finish`, subject to the duplicate rule."""
         key = name.lower()
         if self._claim(key, path, line, True):
-            self.exprs = [e for e in self.exprs if e[1] != key]
+            self.exprs.pop(key, None)  # re-inserted: evaluated in the order of the definitions in effect
             self.values.pop(key, None)
-            self.exprs.append((kind, key, expr, path, line))
+            self.exprs[key] = (kind, key, expr, path, line)
 
     def finish(self) -> None:
         """Apply ``params=`` overrides, then evaluate expressions in deck order."""
-        self.deck_names = set(self.values) | {name for _, name, *_ in self.exprs}
+        self.deck_names = set(self.values) | {name for _, name, *_ in self.exprs.values()}
         for k, v in self.user.items():
             if k in self.values and self.values[k] != v:
                 self.notes.append(f"parameter {k!r}: deck value {self.values[k]!r} overridden by params= {v!r}")
             self.values[k] = v
-        for kind, name, expr, path, line in self.exprs:
+        for kind, name, expr, path, line in self.exprs.values():
             if name in self.user:
                 self.notes.append(f"parameter {name!r}: deck expression overridden by params= {self.user[name]!r}")
                 continue
@@ -844,10 +843,10 @@ def _read_duplication(block: _Block, params: _Params) -> None:
     """``*PARAMETER_DUPLICATION``: DFLAG, how later definitions of a parameter name are treated from here on."""
     rows = _nonblank(block, block.rows)
     (dflag,) = _read_line(block, int(rows[0]), _DUPLICATION, params) if rows.size else (None,)
-    if dflag is not None and dflag not in (1, 2, 3, 4, 5):
+    if dflag is not None and dflag not in (0, 1, 2, 3, 4, 5):  # 0 (or blank): the default, 1
         at = _field_where(block, int(rows[0]), _DUPLICATION, 0)
-        raise block.err(f"*PARAMETER_DUPLICATION expects DFLAG 1, 2, 3, 4 or 5 {at}", int(rows[0]))
-    params.duplication = 1 if dflag is None else int(dflag)
+        raise block.err(f"*PARAMETER_DUPLICATION expects DFLAG 0 to 5 (0: the default, 1) {at}", int(rows[0]))
+    params.duplication = int(dflag) if dflag else 1
 
 
 def _read_parameter_expressions(block: _Block, params: _Params) -> None:
@@ -916,6 +915,7 @@ class _RawMaterial:
     where: tuple[Path, int]
     keyword: str = ""
     note: str | None = None  # what the reader could not take from the card (e.g. a layout it does not know)
+    densityless: bool = False  # a spring, damper or seatbelt material: its card has no density at all
 
 
 @dataclass
@@ -943,6 +943,7 @@ class _Tables:
     solids: _Elements = field(default_factory=lambda: _Elements(8))
     beams: _Elements = field(default_factory=lambda: _Elements(2))
     parts: dict[int, tuple[str, int, int, tuple[Path, int]]] = field(default_factory=dict)
+    dropped: dict[int, str] = field(default_factory=dict)  # parts left out by _drop_unread_parts -> why
     sections: dict[int, _Section] = field(default_factory=dict)
     materials: dict[int, _RawMaterial] = field(default_factory=dict)
     sets: dict[int, tuple[str, list[int]]] = field(default_factory=dict)
@@ -1344,7 +1345,9 @@ def _read_material(block: _Block, kind: str, title: bool, t: _Tables, params: _P
     elif kind == "rigid":
         cmo, con1, con2 = card(1)[:3]
         vals.update(cmo=cmo, con1=con1, con2=con2)
-    t.materials[int(mid)] = _RawMaterial(int(mid), name, kind, vals, (block.src.path, r + 1), block.keyword, note)
+    where = (block.src.path, r + 1)
+    t.materials[int(mid)] = _RawMaterial(int(mid), name, kind, vals, where, block.keyword, note, kind == "other"
+                                         and _mat_layout(block.keyword) is None)  # fmt: skip
 
 
 def _read_id_set(block: _Block, opts: set[str], out: dict[int, tuple[str, list[int]]], params: _Params) -> None:
@@ -1683,18 +1686,19 @@ def _drop_unread_parts(t: _Tables, carried: set[int], notes: list[str]) -> None:
     elements the reader reads still have to refer to a section and a material it reads.
     """
     why: dict[str, list[int]] = {}
-    for pid, (_title, secid, mid, _where) in list(t.parts.items()):
+    for pid, (title, secid, mid, _where) in list(t.parts.items()):
         if pid in carried:
             continue
         if secid not in t.sections:
             reason = "a section the reader does not read"
         elif mid not in t.materials:
             reason = "no material the deck defines"
-        elif t.materials[mid].kind == "other" and not math.isfinite(t.materials[mid].values["ro"]):
+        elif t.materials[mid].densityless:
             reason = f"a material without a density (*{t.materials[mid].keyword})"
         else:
             continue
         why.setdefault(reason, []).append(pid)
+        t.dropped[pid] = f"part {pid} ({title!r}) has no shell, solid or beam elements and {reason}: not modelled"
         del t.parts[pid]
     for reason, pids in why.items():
         notes.append(f"{len(pids)} part(s) without shell, solid or beam elements and with {reason} left out: "
@@ -1711,7 +1715,7 @@ def _complete_raw(
         DeckError: no density, or a value :func:`complete_material` refuses, at the card.
     """
     mid = raw.mid
-    if raw.kind == "other" and not math.isfinite(raw.values["ro"]) and raw.note is not None:
+    if raw.densityless:
         raise DeckError(f"material {mid} ({_mat_label(raw)}) is {raw.note}, yet part {user} uses it", *raw.where)
     if raw.note is not None:
         notes.append(f"material {mid} ({_mat_label(raw)}): {raw.note}")
@@ -1814,7 +1818,7 @@ def _assemble(deck: _Deck, t: _Tables, units: str | None, main: Path) -> tuple[V
         except DeckError as err:
             if mid in used:
                 raise
-            why = raw.note if raw.note is not None and "no density" in raw.note else err.reason
+            why = raw.note if raw.densityless else err.reason
             notes.append(f"material {mid} ({_mat_label(raw)}) left out: no part the reader keeps uses it, and it "
                          f"cannot be read ({why})")  # fmt: skip
     parts: dict[int, Part] = {}
@@ -1908,6 +1912,7 @@ def _assemble(deck: _Deck, t: _Tables, units: str | None, main: Path) -> tuple[V
         units=u.name,
         skipped_cards=dict(sorted(deck.skipped.items())),
         warnings=notes,
+        left_out=dict(t.dropped),
     )
     return model, notes
 
@@ -1976,16 +1981,23 @@ def _deck_masses(model: VehicleModel, t: _Tables) -> VehicleModel:
                 if pm.target not in t.sets:
                     raise DeckError(f"*ELEMENT_MASS_PART_SET refers to undefined part set {pm.target}", *pm.where)
                 pids = list(dict.fromkeys(t.sets[pm.target][1]))
-                undefined = [p for p in pids if p not in t.parts]
+                undefined = [p for p in pids if p not in t.parts and p not in t.dropped]
                 if undefined:
                     raise DeckError(
                         f"*SET_PART {pm.target} of *ELEMENT_MASS_PART_SET lists undefined part {undefined[0]}",
                         *pm.where,
                     )
             else:
-                if pm.target not in t.parts:
+                if pm.target not in t.parts and pm.target not in t.dropped:
                     raise DeckError(f"*ELEMENT_MASS_PART refers to undefined part {pm.target}", *pm.where)
                 pids = [pm.target]
+            gone = [p for p in pids if p in t.dropped]
+            if gone:  # springs, belts: not modelled, and their mass with them
+                notes.append(f"{pm.where[0].name} line {pm.where[1]}: {card} adds nothing to part(s) {gone}: "
+                             "left out (no elements the reader reads)")  # fmt: skip
+                pids = [p for p in pids if p not in t.dropped]
+                if not pids:
+                    continue
             inertia = [p for p in pids if p in part_mass]
             if inertia:
                 notes.append(
