@@ -727,33 +727,24 @@ def test_materials_and_sections_of_a_full_vehicle_deck(tmp_path):
     masses = "*ELEMENT_MASS_PART\n      13     2.0e-3\n"  # a spring's added mass: not modelled with it, a note
     m = _read(_write(tmp_path, HEAD + NODES + SHELL + FULL_VEHICLE_EXTRAS + FULL_VEHICLE_ELEMENTS + masses, "m.k"))
     assert any("*ELEMENT_MASS_PART 13 adds nothing to part(s) [13]: left out" in w for w in m.warnings)
-    blank_ro = (
-        FULL_VEHICLE_ELEMENTS
-        + "*PART\nsheet\n        18         1        18\n*MAT_012\n        18\n"
-        + ("*ELEMENT_SHELL\n       6      18       1       2       3       4\n")
-    )
-    with pytest.raises(DeckError, match=r"line \d+: \*MAT card 18 expects a numeric density RO in columns 11-20"):
-        _read(_write(tmp_path, HEAD + NODES + SHELL + FULL_VEHICLE_EXTRAS + blank_ro, "ro.k"))
     assert any("2 part(s) without shell, solid or beam elements and with a section the reader does not read left "
                "out: [13, 15]" in w for w in m.warnings)  # fmt: skip
     assert any("material 16 (*MAT_SEATBELT) left out" in w and "no density" in w for w in m.warnings)
-    # a part with elements the reader reads still needs a section and a material it reads
-    on_discrete = (
-        FULL_VEHICLE_ELEMENTS
-        + "*PART\nsheet\n        19        13         1\n"
-        + ("*ELEMENT_SHELL\n       6      19       1       2       3       4\n")
-    )
-    with pytest.raises(DeckError, match=r"used.k line \d+: \*PART 19 refers to undefined section 13"):
-        _read(_write(tmp_path, HEAD + NODES + SHELL + FULL_VEHICLE_EXTRAS + on_discrete, "used.k"))
-    spring_mat = (
-        FULL_VEHICLE_ELEMENTS
-        + "*PART\nsheet\n        18         1        13\n"
-        + ("*ELEMENT_SHELL\n       6      18       1       2       3       4\n")
-    )
-    with pytest.raises(
-        DeckError, match=r"spring.k line 37: material 13 \(\*MAT_SPRING_ELASTIC\) is a spring, .* yet part 18 uses it"
-    ):
-        _read(_write(tmp_path, HEAD + NODES + SHELL + FULL_VEHICLE_EXTRAS + spring_mat, "spring.k"))
+
+    def with_sheet(name: str, secid: int, mid: int, extra: str = "") -> Path:
+        """The deck with a shell of a new part 18 of section ``secid`` and material ``mid``."""
+        shell = "".join(f"{i:8d}" for i in (6, 18, 1, 2, 3, 4))
+        sheet = f"*PART\nsheet\n{18:10d}{secid:10d}{mid:10d}\n{extra}*ELEMENT_SHELL\n{shell}\n"
+        return _write(tmp_path, HEAD + NODES + SHELL + FULL_VEHICLE_EXTRAS + FULL_VEHICLE_ELEMENTS + sheet, name)
+
+    # a part with elements the reader reads still needs a section, a material and a density it reads
+    with pytest.raises(DeckError, match=r"used.k line \d+: \*PART 18 refers to undefined section 13"):
+        _read(with_sheet("used.k", 13, 1))
+    with pytest.raises(DeckError, match=r"spring.k line 37: material 13 \(\*MAT_SPRING_ELASTIC\) is a spring, .* "
+                                        r"yet part 18 uses it"):  # fmt: skip
+        _read(with_sheet("spring.k", 1, 13))
+    with pytest.raises(DeckError, match=r"line \d+: \*MAT card 18 expects a numeric density RO in columns 11-20"):
+        _read(with_sheet("ro.k", 1, 18, "*MAT_012\n        18\n"))
 
 
 def test_includes_resolve_against_the_main_deck_folder_too(tmp_path):
