@@ -102,15 +102,19 @@ def acc_unit_key(unit: str) -> str:
     return unit.strip().lower().replace(" ", "")
 
 
+_UNIT_AT_END = re.compile(r"([\[(])\s*([^\[\]()]+?)\s*([\])])\s*$")
+"""A unit in brackets or parentheses at the end of a column name (``'a_x [m/s2]'``, ``'time (ms)'``)."""
+
+
 def _header_unit(name: str) -> str | None:
-    """The unit a column name gives in brackets or parentheses at its end (``'a_x [m/s2]'``), else ``None``."""
-    m = re.search(r"[\[(]\s*([^\[\]()]+?)\s*[\])]\s*$", name)
-    return m.group(1) if m else None
+    """The unit a column name gives at its end (:data:`_UNIT_AT_END`), else ``None``."""
+    m = _UNIT_AT_END.search(name)
+    return m.group(2) if m else None
 
 
 def _with_unit(name: str, unit: str) -> str:
-    """``name`` with the unit at its end (:func:`_header_unit`) replaced by ``unit``; unchanged without one."""
-    m = re.search(r"([\[(])\s*([^\[\]()]+?)\s*([\])])\s*$", name)
+    """``name`` with the unit at its end replaced by ``unit``; unchanged without one."""
+    m = _UNIT_AT_END.search(name)
     return name if m is None else f"{name[: m.start()]}{m.group(1)}{unit}{m.group(3)}"
 
 
@@ -789,7 +793,7 @@ def processed_pulse(
     pulse = read_pulse(p, **kwargs).select(0)
     check_record_rate(pulse, p, time_unit=time_unit)
     try:
-        # the transducer offset, from pre-trigger samples at negative times, as a file reference removes it
+        # the transducer offset, from the samples before the contact, as a file reference removes it
         work, t0 = filtered_from_time_zero(without_zero_offset(pulse, time_zero, cfc, threshold_g), cfc, time_zero,
                                            threshold_g)  # fmt: skip
     except PulseError as e:  # e.g. a sampling rate too low for the filter class: say which file

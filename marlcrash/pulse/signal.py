@@ -459,8 +459,8 @@ def remove_zero_offset(
 
     A DC offset integrates into a velocity drift: 0.3 g over 150 ms is 0.44 m/s, and an offset above the 0.5 g
     time-zero threshold sets time zero at the record's first sample. Records with less than ``min_time`` of
-    samples before ``before`` (a record that starts at the impact) are returned unchanged, and so is a channel
-    whose pre-trigger mean exceeds ``max_offset_g`` (with a warning): those samples are not at rest.
+    samples before ``before`` (a record that starts at the impact) are returned unchanged (the same object), and so
+    is a channel whose pre-trigger mean exceeds ``max_offset_g`` (with a warning): those samples are not at rest.
     """
     pre = pulse.time < before
     if not pre.any() or float(pulse.time[pre][-1] - pulse.time[0]) < min_time:
@@ -499,10 +499,8 @@ def without_zero_offset(
     if first is not pulse and t0 < -ZERO_LEVEL_MARGIN:  # the negative-time mean held the onset: part of the crash
         first = pulse
         _, t0 = filtered_from_time_zero(pulse, cfc, "threshold", threshold_g)
-    before = pulse.time < t0 - ZERO_LEVEL_MARGIN
-    if not before.any() or float(pulse.time[before][-1] - pulse.time[0]) < 0.005:
-        return first
-    return remove_zero_offset(pulse, before=t0 - ZERO_LEVEL_MARGIN)
+    second = remove_zero_offset(pulse, before=t0 - ZERO_LEVEL_MARGIN)
+    return first if second is pulse else second  # too few samples before the onset: the negative-time offset
 
 
 def shift_time(pulse: Pulse, t0: float) -> Pulse:
