@@ -79,7 +79,27 @@ def _safe_sqrt(x: torch.Tensor) -> torch.Tensor:
     return torch.where(pos, torch.sqrt(torch.where(pos, x, torch.ones_like(x))), torch.where(x.isnan(), x, 0.0))
 
 
-def _check_pair(q: torch.Tensor, p: torch.Tensor) -> None:
+def _as_signal(x: object, name: str) -> torch.Tensor:
+    """``x`` as a floating tensor (numpy arrays and nested lists of numbers are accepted)."""
+    if isinstance(x, torch.Tensor):
+        t = x
+    else:
+        try:
+            t = torch.as_tensor(np.asarray(x, dtype=np.float64))
+        except (TypeError, ValueError):
+            raise PulseError(f"expected {name} as a tensor or array of numbers, got {type(x).__name__}") from None
+    if not (t.is_floating_point() or t.is_complex()):
+        t = t.to(torch.get_default_dtype())
+    if t.is_complex():
+        raise PulseError(f"expected real {name} signals, got {t.dtype}")
+    if t.dim() == 0:
+        raise PulseError(f"expected {name} as [..., T] samples, got a scalar")
+    return t
+
+
+def _check_pair(q: object, p: object) -> tuple[torch.Tensor, torch.Tensor]:
+    """``q`` and ``p`` as tensors on common time samples, or a :class:`PulseError` saying what was expected."""
+    q, p = _as_signal(q, "q"), _as_signal(p, "p")
     if q.shape[-1] != p.shape[-1]:
         raise PulseError(
             f"expected q and p on common time samples (same last dimension), got shapes {tuple(q.shape)} "
@@ -94,6 +114,40 @@ def _check_pair(q: torch.Tensor, p: torch.Tensor) -> None:
             f"expected q and p with broadcastable batch dimensions (e.g. [B, n_sensors, T] and [n_sensors, T]), "
             f"got shapes {tuple(q.shape)} and {tuple(p.shape)}"
         ) from None
+    return q, p
+
+
+def _check_dt(dt: float) -> float:
+    try:
+        step = float(dt)
+    except (TypeError, ValueError):
+        raise PulseError(f"expected dt as a number of seconds, got {dt!r}") from None
+    if not (math.isfinite(step) and step > 0):
+        raise PulseError(f"expected a finite sampling interval dt > 0 [s], got {dt!r}")
+    return step
+
+
+def _check_time(time: object, like: torch.Tensor) -> torch.Tensor:
+    """Sample times ``[T]``/``[..., T]`` [s] as a tensor like ``like``: finite and strictly increasing."""
+    try:
+        t = torch.as_tensor(time, dtype=like.dtype, device=like.device)
+    except (TypeError, ValueError, RuntimeError):
+        raise PulseError(f"expected time as a tensor or array of sample times [s], got {type(time).__name__}") from None
+    if t.dim() == 0:
+        raise PulseError("expected time as [T] sample times [s], got a scalar")
+    if t.shape[-1] != like.shape[-1]:
+        raise PulseError(f"time has {t.shape[-1]} samples, the signals {like.shape[-1]}")
+    if not bool(torch.isfinite(t).all()):
+        raise PulseError("time has non-finite sample times")
+    rows = t.reshape(-1, t.shape[-1])
+    bad = (rows[:, 1:] <= rows[:, :-1]).nonzero()
+    if bad.numel():
+        r, i = (int(v) for v in bad[0])
+        raise PulseError(
+            f"expected strictly increasing sample times, got time[{i + 1}] = {float(rows[r, i + 1])!r} s "
+            f"after time[{i}] = {float(rows[r, i])!r} s"
+        )
+    return t
 
 
 def _steps(time: torch.Tensor | None, dt: float | None, like: torch.Tensor) -> torch.Tensor:
@@ -101,10 +155,8 @@ def _steps(time: torch.Tensor | None, dt: float | None, like: torch.Tensor) -> t
     if (time is None) == (dt is None):
         raise PulseError("pass exactly one of time (sample times [s]) or dt (uniform step [s])")
     if time is None:
-        return torch.full_like(like[..., 1:], float(dt))
-    time = torch.as_tensor(time, dtype=like.dtype, device=like.device)
-    if time.shape[-1] != like.shape[-1]:
-        raise PulseError(f"time has {time.shape[-1]} samples, the signals {like.shape[-1]}")
+        return torch.full_like(like[..., 1:], _check_dt(dt))
+    time = _check_time(time, like)
     return time[..., 1:] - time[..., :-1]
 
 
@@ -128,7 +180,7 @@ def area_between(
     Returns:
         ``[...]`` area [signal unit * s].
     """
-    _check_pair(q, p)
+    q, p = _check_pair(q, p)
     d = q - p
     h = _steps(time, dt, d)
     d0, d1 = d[..., :-1], d[..., 1:]
@@ -153,7 +205,7 @@ def rmse(q: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
     Returns:
         ``[...]`` RMSE [signal unit].
     """
-    _check_pair(q, p)
+    q, p = _check_pair(q, p)
     return _safe_sqrt(((q - p) ** 2).mean(-1))
 
 
@@ -168,12 +220,10 @@ def curve_points(
     """Points ``[..., T, 2]`` = ``(time_scale * t, value_scale * v)`` of a sampled curve ``values [..., T]``."""
     if (time is None) == (dt is None):
         raise PulseError("pass exactly one of time (sample times [s]) or dt (uniform step [s])")
+    values = _as_signal(values, "values")
     if time is None:
-        time = torch.arange(values.shape[-1], dtype=values.dtype, device=values.device) * float(dt)
-    time = torch.as_tensor(time, dtype=values.dtype, device=values.device)
-    if time.shape[-1] != values.shape[-1]:
-        raise PulseError(f"time has {time.shape[-1]} samples, the signal {values.shape[-1]}")
-    time = time.expand(values.shape)
+        time = torch.arange(values.shape[-1], dtype=values.dtype, device=values.device) * _check_dt(dt)
+    time = _check_time(time, values).expand(values.shape)
     return torch.stack([time * time_scale, values * value_scale], dim=-1)
 
 
@@ -420,7 +470,7 @@ def compute_metrics(
     if backend not in ("torch", "numba"):
         raise PulseError(f"metrics backend must be 'torch' or 'numba', got {backend!r}")
     cfg = config or MetricsConfig()
-    _check_pair(q, p)  # before broadcasting: torch's own message would not say what was expected
+    q, p = _check_pair(q, p)  # before broadcasting: torch's own message would not say what was expected
     q, p = torch.broadcast_tensors(q, p)
     area = area_between(q, p, time, dt=dt, method=cfg.area_method)
     if backend == "numba":

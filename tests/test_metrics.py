@@ -198,6 +198,44 @@ def test_metric_input_errors():
             f(torch.zeros(2, 3, 301), torch.zeros(2, 4, 301), dt=5e-4)
 
 
+@pytest.mark.parametrize("dt", [0.0, -5e-4, float("nan"), float("inf"), "fast"])
+def test_a_step_that_is_not_a_positive_number_of_seconds_is_refused(dt):
+    # a zero or negative step gave zero or negative areas without a word
+    q, p = torch.rand(2, 30, dtype=torch.float64), torch.rand(2, 30, dtype=torch.float64)
+    with pytest.raises(PulseError, match="dt"):
+        compute_metrics(q, p, dt=dt)
+    with pytest.raises(PulseError, match="dt"):
+        discrete_frechet(q, p, dt=dt)
+
+
+def test_sample_times_must_increase():
+    q, p = torch.rand(2, 30, dtype=torch.float64), torch.rand(2, 30, dtype=torch.float64)
+    t = torch.linspace(0.0, 0.015, 30, dtype=torch.float64)
+    with pytest.raises(
+        PulseError, match=r"strictly increasing sample times, got time\[1\] = 0.01448.* after time\[0\] = 0.015"
+    ):
+        compute_metrics(q, p, t.flip(0))
+    repeated = t.clone()
+    repeated[7] = repeated[6]
+    with pytest.raises(PulseError, match=r"time\[7\]"):
+        area_between(q, p, repeated)
+    with pytest.raises(PulseError, match="non-finite"):
+        compute_metrics(q, p, torch.where(t > 0.01, torch.nan, t))
+
+
+def test_metrics_accept_arrays_and_name_what_they_cannot_read():
+    q, p = np.random.default_rng(0).random((2, 3, 40))
+    got = compute_metrics(q, p, dt=5e-4)
+    ref = compute_metrics(torch.from_numpy(q), torch.from_numpy(p), dt=5e-4)
+    for a, b in zip(got, ref, strict=True):
+        torch.testing.assert_close(a, b, rtol=0, atol=0)
+    # a string or a scalar was an AttributeError or IndexError from inside torch
+    with pytest.raises(PulseError, match="expected q as a tensor or array of numbers, got str"):
+        compute_metrics("velocity.csv", p, dt=5e-4)
+    with pytest.raises(PulseError, match=r"expected p as .* got a scalar"):
+        rmse(q, 1.0)
+
+
 def test_numba_backend_equals_torch_backend():
     """The compiled row-by-row Frechet kernel gives the DP table's numbers (scaled time axis too)."""
     g = torch.Generator().manual_seed(0)
