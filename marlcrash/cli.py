@@ -167,7 +167,7 @@ def scenario_from_args(args: argparse.Namespace):
 
     from marlcrash.sim.scenario import get_scenario, list_scenarios
 
-    scenario = get_scenario(args.scenario or "full_width_40")
+    scenario = get_scenario("full_width_40" if args.scenario is None else args.scenario)
     ms = getattr(args, "duration", None)
     if ms is not None:
         try:

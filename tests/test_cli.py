@@ -316,6 +316,8 @@ def test_simulate_overrides_and_errors():
     assert proc.returncode == 2 and "key '--overlap'" in proc.stderr and "got 1.5" in proc.stderr
     proc = run_cli("simulate", "--scenario", "moon_landing", check=False)
     assert proc.returncode == 2 and "full_width_40" in proc.stderr  # lists the registered ones
+    proc = run_cli("simulate", "--scenario", "", check=False)  # ran full_width_40
+    assert proc.returncode == 2 and "unknown scenario ''" in proc.stderr
     for size in ("0", "-1"):  # argparse's own message, before any simulation
         proc = run_cli("bench", "--batch-sizes", size, check=False)
         assert proc.returncode == 2 and "expected an integer >= 1" in proc.stderr, proc.stderr
@@ -344,6 +346,7 @@ def test_bench_json_keys():
         assert key in out, key
     assert out["dtype"] == "float32"
     assert set(out["sims_per_s_optimized"]) == {"1", "4"}
+    assert out["smallest_b"] == 1 and out["speedup_vs_smallest_b"]["1"] == 1.0
     assert all(v > 0 for v in out["sims_per_s_optimized"].values())
     assert 0.0 <= out["overhead_share"]["4"] < 1.0
 

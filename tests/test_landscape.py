@@ -172,6 +172,10 @@ def test_probe_cells_record_what_the_named_sensors_record():
     assert torch.equal(named.velocity, probed.velocity) and torch.equal(named.acceleration, probed.acceleration)
     with pytest.raises(ModelError, match="probe_cells"):
         problem.simulate(x, probe_cells=[cells.n_cells])
+    for bad in ([idx[0] + 0.7], [float("nan")], np.array([True])):  # 2.7 was truncated to cell 2
+        with pytest.raises(ModelError, match="probe_cells must be whole cell indices"):
+            problem.simulate(x, probe_cells=bad)
+    assert torch.equal(problem.simulate(x, probe_cells=[float(i) for i in idx]).velocity, named.velocity)
 
 
 def test_cluster_study_at_radius_zero_is_the_landscape_of_the_sensors():

@@ -69,6 +69,10 @@ def test_invalid_values_name_the_key(key, value):
 def test_unknown_scenario_lists_known():
     with pytest.raises(ConfigError, match="full_width_40"):
         get_scenario("nope")
+    # names are looked up in the registry, not joined into a path: "" and "../sim" read files outside it
+    for name in ("", "../sim", "scenarios/../full_width_40", "./full_width_40"):
+        with pytest.raises(ConfigError, match=f"unknown scenario {name!r}; registered"):
+            get_scenario(name)
 
 
 def test_unknown_key_rejected(tmp_path):

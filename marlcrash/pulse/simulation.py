@@ -102,7 +102,7 @@ def crash_summary(result: SimResult, cells: CellModel, scenario: CrashScenario, 
         v = result.velocity[row, k].detach().cpu().numpy()
         i = int(np.argmin(a))
         sensors[name] = {
-            "peak_g": float(-a[i] / G0),
+            "peak_g": float(-a[i] / G0) + 0.0,  # + 0.0: a resting record printed -0.0
             "t_peak_ms": float(t[i] * 1e3),
             "delta_v_ms": float(v[0] - v[-1]),
         }
@@ -122,7 +122,7 @@ def crash_summary(result: SimResult, cells: CellModel, scenario: CrashScenario, 
         "side": scenario.side,
         "duration_ms": scenario.duration * 1e3,
         "n_cells": cells.n_cells,
-        "peak_decel_g": float(-a_comp[i_peak] / G0),
+        "peak_decel_g": float(-a_comp[i_peak] / G0) + 0.0,
         "t_peak_ms": float(t[i_peak] * 1e3),
         "time_to_zero_velocity_ms": t_stop,
         "max_crush_m": float(result.crush[row].max()),

@@ -128,6 +128,9 @@ def get_scenario(name: str, overrides: dict | None = None) -> CrashScenario:
     Raises:
         ConfigError: unknown name (the message lists the known ones), or an invalid file.
     """
+    if not isinstance(name, str) or name not in list_scenarios():
+        # checked against the registry, not the file system: "" and "../other/x" named files outside it
+        raise ConfigError(f"unknown scenario {name!r}; registered: {list_scenarios()}", key="scenario")
     path = scenario_dir() / f"{name}.yaml"
     if not path.is_file():
         raise ConfigError(f"unknown scenario {name!r}; registered: {list_scenarios()}", key="scenario")

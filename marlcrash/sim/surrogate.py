@@ -667,7 +667,13 @@ class Surrogate:
         return list(names), torch.tensor(idx, dtype=torch.int64)
 
     def _probe_index(self, cells) -> tuple[list[str], torch.Tensor]:
-        idx = torch.as_tensor(np.asarray(cells), dtype=torch.int64).reshape(-1)
+        raw = np.asarray(cells.detach().cpu() if isinstance(cells, torch.Tensor) else cells).reshape(-1)
+        if raw.dtype.kind not in "iu" and not (
+            raw.dtype.kind == "f" and np.isfinite(raw).all() and (raw == np.round(raw)).all()
+        ):
+            # 2.7 was truncated to cell 2
+            raise ModelError(f"probe_cells must be whole cell indices in [0, {self.n}), got {raw.tolist()}")
+        idx = torch.as_tensor(raw.astype(np.int64))
         if idx.numel() == 0 or int(idx.min()) < 0 or int(idx.max()) >= self.n:
             raise ModelError(f"probe_cells must be cell indices in [0, {self.n}), got {idx.tolist()}")
         return [f"cell{int(i)}" for i in idx], idx
