@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 import subprocess
 import sys
 import warnings
@@ -394,8 +395,10 @@ def test_units_detection_and_override(tmp_path):
     mixed = HEAD.replace("  7.85e-09  210000.0", "       1.0   2.1e+11")
     with pytest.raises(DeckError, match=r"give it: --units on the command line, units= in Python, one of"):
         _read(_write(tmp_path, mixed + NODES + SHELL))
-    m2 = _read(_write(tmp_path, mixed + NODES + SHELL), units="m-kg-s")
+    m2 = _read(_write(tmp_path, mixed + NODES.replace("100.0", "  0.1") + SHELL), units="m-kg-s")
     assert m2.materials[1].density == 1.0
+    with pytest.raises(DeckError, match=r"spans 100 m, more than any vehicle .* wrong unit system \(read as m-kg-s"):
+        _read(_write(tmp_path, mixed + NODES + SHELL), units="m-kg-s")  # millimetres read as metres
     with pytest.raises(ConfigError, match="unknown unit system"):
         _read(_write(tmp_path, HEAD + NODES + SHELL), units="furlongs")
 
@@ -783,3 +786,42 @@ def test_utf8_titles_and_an_early_end(tmp_path):
     assert _read(p).parts[1].name == "Stoßfänger vorne"  # an older deck in Latin-1
     with pytest.raises(DeckError, match=r"no \*ELEMENT_SHELL.*reading stopped at the \*END in end.k line 17"):
         _read(_write(tmp_path, HEAD + NODES + "*END\n" + SHELL + "*END\n", "end.k"))
+
+
+def test_line_endings_of_any_platform_read_alike(tmp_path):
+    text = HEAD + NODES + SHELL + "*END\n"
+    ref = _read(_write(tmp_path, text))
+    for name, eol in (("crlf.k", b"\r\n"), ("cr.k", b"\r")):  # CR alone read as one line: "no *NODE"
+        p = tmp_path / name
+        p.write_bytes(text.encode().replace(b"\n", eol))
+        m = _read(p)
+        assert m.n_shells == 1 and np.array_equal(m.coords, ref.coords) and m.total_mass() == ref.total_mass()
+    with pytest.raises(DeckError, match=r"cr\.k line 18: shell element 1 refers to undefined node 9"):
+        p.write_bytes(
+            (text + "").replace(SHELL, SHELL.replace("       4\n", "       9\n")).encode().replace(b"\n", b"\r")
+        )
+        _read(p)
+
+
+def _lsopt_with_node_500_x(lsopt_deck, tmp_path, x: str) -> Path:
+    lines = lsopt_deck.read_text().splitlines(keepends=True)
+    start = lines.index("*NODE\n")
+    k = next(i for i in range(start, len(lines)) if lines[i][:8].strip() == "500")
+    lines[k] = lines[k][:8] + f"{x:>16}" + lines[k][24:]
+    return _write(tmp_path, "".join(lines), "typo.k")
+
+
+def test_a_coordinate_typo_is_refused_or_noted_naming_the_node(lsopt_deck, tmp_path):
+    params = {"tbumper": 3, "thood": 1}
+    clean = _read(lsopt_deck, params=params)
+    assert not any("median size" in w for w in clean.warnings)
+    # 1.5e12 mm for 4318 mm: an 8e10 kg car was read without a word
+    with pytest.raises(DeckError, match=r"typo\.k line 3666: the structure spans 1\.5e\+09 m, more than any vehicle"):
+        _read(_lsopt_with_node_500_x(lsopt_deck, tmp_path, "1.5e12"), params=params)
+    # a decimal point one place off: inside 50 m, but its shells are 140x their part's median
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        m = read_deck(_lsopt_with_node_500_x(lsopt_deck, tmp_path, "43180."), params=params)
+    note = r"4 shell element\(s\) .* shell 491 of part 1 spans 39\.6 m .* node 500 \(typo\.k line 3666\)"
+    assert any(re.search(note, str(w.message)) for w in seen) and any(re.search(note, w) for w in m.warnings)
+    assert m.total_mass() > 1.5 * clean.total_mass()  # why the note matters

@@ -129,13 +129,23 @@ def test_the_block_is_left_out_by_its_initial_velocity_alone(lsopt_deck, tmp_pat
 
 
 def test_a_deck_read_in_the_wrong_units_is_caught_before_memory_runs_out(lsopt_deck):
-    """Forcing metres on a millimetre deck: the reader warns that the materials read otherwise, and the
-    discretization refuses a region of interest 1000x a front end instead of allocating hundreds of GB."""
-    from marlcrash.cells.discretize import discretize
-    from marlcrash.errors import ModelError
+    """Forcing metres on a millimetre deck: the reader warns that the materials read otherwise and refuses a
+    4 km car; a model built in Python at 1000x gets a discretization that refuses a region of interest 1000x a
+    front end instead of allocating hundreds of GB."""
+    from dataclasses import replace
 
-    with pytest.warns(UserWarning, match="units m-kg-s given, but the material densities .* read as mm-t-s"):
-        m = read_deck(lsopt_deck, params=PARAMS, units="m-kg-s")
+    from marlcrash.cells.discretize import discretize
+    from marlcrash.errors import DeckError, ModelError
+
+    with (
+        pytest.warns(UserWarning, match="units m-kg-s given, but the material densities .* read as mm-t-s"),
+        pytest.raises(DeckError, match=r"spans 4318 m, more than any vehicle .* \(read as m-kg-s; --units\)"),
+    ):
+        read_deck(lsopt_deck, params=PARAMS, units="m-kg-s")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        m = read_deck(lsopt_deck, params=PARAMS)
+    m = replace(m, coords=m.coords * 1000.0)
     with pytest.raises(
         ModelError, match=r"region of interest, .* would take .*check the deck's length unit \(--units\)"
     ):

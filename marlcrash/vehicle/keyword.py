@@ -108,6 +108,9 @@ from marlcrash.vehicle.model import AxisMap, Part, VehicleModel
 __all__ = ["read_deck"]
 
 _CHUNK = 65536  # rows converted per numpy call when a fast conversion needs a fallback
+MAX_VEHICLE_EXTENT = 50.0  # m: the kept structure spans more only by a coordinate typo or wrong units
+OUTLIER_SIZE_RATIO = 100.0  # an element this many times its part's median size is noted ...
+OUTLIER_MIN_SIZE = 0.5  # m: ... when it is also at least this large
 _NO_FAILURE = 1e20  # LS-DYNA's conventional "never fails" strain
 
 # --------------------------------------------------------------------------- layouts
@@ -205,6 +208,8 @@ class _Source:
     """One deck file: its bytes and line table (``[L]`` arrays of line starts and ends)."""
 
     def __init__(self, path: Path, data: bytes):
+        if b"\r" in data and data.count(b"\r") != data.count(b"\r\n"):  # lone CRs: classic Mac line endings
+            data = data.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
         if not data.endswith(b"\n"):
             data += b"\n"
         self.path = path
@@ -1917,6 +1922,68 @@ def _assemble(deck: _Deck, t: _Tables, units: str | None, main: Path) -> tuple[V
     return model, notes
 
 
+def _element_sizes(coords: np.ndarray, nodes: np.ndarray) -> np.ndarray:
+    """Largest bounding-box side of each element ``nodes [E, k]`` [m], in chunks (full-vehicle decks)."""
+    out = np.empty(len(nodes))
+    for a in range(0, len(nodes), _CHUNK):
+        c = coords[nodes[a : a + _CHUNK]]
+        out[a : a + _CHUNK] = (c.max(axis=1) - c.min(axis=1)).max(axis=1)
+    return out
+
+
+def _check_extent(model: VehicleModel, t: _Tables, main: Path) -> list[str]:
+    """Refuse a structure larger than a vehicle; note elements far larger than the rest of their part.
+
+    A coordinate typo (``1.5e12`` for ``1500.``) makes the elements on that node huge, and their mass with
+    them: the car weighed 8e10 kg without a word. Runs on the parts kept (a ground plane may be large).
+    """
+    used = np.unique(np.concatenate([model.used_nodes(), model.point_mass_nodes]))
+    xyz = model.coords[used]
+    where = t.node_locs.where  # node index = row of the deck's node table (without_parts keeps the nodes)
+    bad = np.flatnonzero(~np.isfinite(xyz).all(axis=1))
+    if bad.size:
+        i = int(used[bad[0]])
+        raise DeckError(
+            f"node {int(model.node_ids[i])} has a non-finite coordinate {model.coords[i].tolist()}", *where(i)
+        )
+    centre = np.median(xyz, axis=0)
+    span = xyz.max(axis=0) - xyz.min(axis=0)
+    if span.max() > MAX_VEHICLE_EXTENT:
+        k = int(np.argmax(np.abs(xyz - centre).max(axis=1)))
+        i = int(used[k])
+        x, y, z = model.coords[i].tolist()
+        raise DeckError(
+            f"the structure spans {span.max():.4g} m, more than any vehicle ({MAX_VEHICLE_EXTENT:g} m); node "
+            f"{int(model.node_ids[i])} at ({x:.4g}, {y:.4g}, {z:.4g}) m lies {np.linalg.norm(xyz[k] - centre):.4g} m "
+            f"from the median node: a coordinate typo, or the wrong unit system (read as {model.units}; --units)",
+            *where(i),
+        )
+    notes = []
+    for kind, nodes in (("shell", model.shell_nodes), ("solid", model.solid_nodes), ("beam", model.beam_nodes)):
+        if not len(nodes):
+            continue
+        part = getattr(model, f"{kind}_part")
+        size = _element_sizes(model.coords, nodes)
+        order = np.lexsort((size, part))
+        pids, first, count = np.unique(part[order], return_index=True, return_counts=True)
+        median = size[order][first + (count - 1) // 2]  # lower median per part
+        ref = median[np.searchsorted(pids, part)]
+        out = np.flatnonzero((size > OUTLIER_MIN_SIZE) & (size > OUTLIER_SIZE_RATIO * ref))
+        if not out.size:
+            continue
+        e = int(out[np.argmax(size[out] / np.maximum(ref[out], 1e-12))])
+        own = nodes[e]
+        i = int(own[np.argmax(np.linalg.norm(model.coords[own] - centre, axis=1))])
+        path, line = where(i)
+        notes.append(
+            f"{out.size} {kind} element(s) are over {OUTLIER_SIZE_RATIO:g}x their part's median size: {kind} "
+            f"{int(getattr(model, f'{kind}_ids')[e])} of part {int(part[e])} spans {size[e]:.3g} m (the part's "
+            f"median {ref[e]:.3g} m); its node {int(model.node_ids[i])} ({path.name} line {line}) may have a "
+            f"coordinate typo, which also inflates the elements' mass"
+        )
+    return notes
+
+
 def _deck_masses(model: VehicleModel, t: _Tables) -> VehicleModel:
     """The model with the masses the deck adds to its elements and nodes (SI), each checked against the model.
 
@@ -2379,6 +2446,9 @@ def read_deck(
             raise DeckError(f"no vehicle structure is left: {'; '.join(fixed.values())}", main)
         for why in fixed.values():
             warnings.warn(f"{main.name}: {why}", UserWarning, stacklevel=2)
+    for note in _check_extent(model, tables, main):
+        model.warnings.append(note)
+        warnings.warn(f"{main.name}: {note}", UserWarning, stacklevel=2)
     model = model.transformed(axis_map)
     sets = {sid: (title, ids) for sid, (title, ids) in tables.sets.items()}
     if subassemblies is not None:
