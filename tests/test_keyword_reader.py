@@ -825,3 +825,16 @@ def test_a_coordinate_typo_is_refused_or_noted_naming_the_node(lsopt_deck, tmp_p
     note = r"4 shell element\(s\) .* shell 491 of part 1 spans 39\.6 m .* node 500 \(typo\.k line 3666\)"
     assert any(re.search(note, str(w.message)) for w in seen) and any(re.search(note, w) for w in m.warnings)
     assert m.total_mass() > 1.5 * clean.total_mass()  # why the note matters
+
+
+def test_an_include_with_options_is_named_as_not_read(tmp_path):
+    """*INCLUDE_TRANSFORM's file was only counted among the skipped cards: its parts went missing unnamed."""
+    _write(tmp_path, "*KEYWORD\n" + NODES.replace("       1\n", "").replace("*NODE\n", "*NODE\n       5\n"), "half.k")
+    transform = "*INCLUDE_TRANSFORM\nhalf.k\n         0         0         0\n         0\n       1.0\n         0\n"
+    with pytest.warns(UserWarning, match=r"\*INCLUDE_TRANSFORM 'half\.k' \(deck\.k line 3\) is not read: the nodes"):
+        m = read_deck(_write(tmp_path, "*KEYWORD\n" + transform + HEAD.replace("*KEYWORD\n", "") + NODES + SHELL))
+    assert m.n_shells == 1 and any("INCLUDE_TRANSFORM 'half.k'" in w for w in m.warnings)
+    # an element on a node only the unread file defines: the error says where that node may be
+    missing = NODES.replace("       4                           100.0\n", "")
+    with pytest.raises(DeckError, match=r"undefined node 4; note: \*INCLUDE_TRANSFORM 'half\.k' \(deck\.k line 3\)"):
+        _read(_write(tmp_path, "*KEYWORD\n" + transform + HEAD.replace("*KEYWORD\n", "") + missing + SHELL))

@@ -690,6 +690,8 @@ class _Deck:
     """Every file read, the main deck first, then the ``*INCLUDE`` files in the order they were met."""
     early_end: list[tuple[Path, int]] = field(default_factory=list)
     """``*END`` lines with more than comments after them (LS-DYNA, like the reader, stops reading the file there)."""
+    unread_includes: list[str] = field(default_factory=list)
+    """One note per ``*INCLUDE_<option>`` card the reader does not follow (``_TRANSFORM``, ``_AUTO_OFFSET``, ...)."""
 
 
 def _keyword_line(text: str) -> tuple[str, str | None, list[str]]:
@@ -754,6 +756,13 @@ def _scan(path: Path, deck: _Deck, fmt: str, stack: tuple[Path, ...], including:
                 if target in stack:
                     raise DeckError(f"*INCLUDE {fname!r} includes itself (cycle through {target.name})", path, r + 1)
                 _scan(target, deck, fmt, (*stack, target), (path, r + 1))
+        elif name.startswith("INCLUDE_"):  # _TRANSFORM, _AUTO_OFFSET, _STAMPED_PART, _NASTRAN, ...
+            for r, fname in _include_names(src, rows)[:1]:  # the file name is the first card; the rest are options
+                deck.unread_includes.append(
+                    f"*{name} {fname!r} ({path.name} line {r + 1}) is not read: the nodes, elements and masses of "
+                    "that file are missing from the vehicle (merge it into the deck, or include it with *INCLUDE)"
+                )
+            deck.skipped[name] += 1
         elif name in ("PARAMETER", "PARAMETER_LOCAL"):
             _read_parameters(block, deck.params)
         elif name == "PARAMETER_EXPRESSION" or name == "PARAMETER_EXPRESSION_LOCAL":
@@ -2427,7 +2436,12 @@ def read_deck(
             f"uses them; its parameters: {', '.join(known) if known else 'none'}",
             main,
         )
-    model, _ = _assemble(deck, tables, units, main)
+    try:
+        model, _ = _assemble(deck, tables, units, main)
+    except DeckError as e:
+        if deck.unread_includes and "undefined" in e.reason:  # the id may well be defined in the unread file
+            raise DeckError(f"{e.reason}; note: {deck.unread_includes[0]}", e.path, e.line) from None
+        raise
     model = _deck_masses(model, tables)
     if name is not None:
         model.name = name
@@ -2446,7 +2460,7 @@ def read_deck(
             raise DeckError(f"no vehicle structure is left: {'; '.join(fixed.values())}", main)
         for why in fixed.values():
             warnings.warn(f"{main.name}: {why}", UserWarning, stacklevel=2)
-    for note in _check_extent(model, tables, main):
+    for note in [*deck.unread_includes, *_check_extent(model, tables, main)]:
         model.warnings.append(note)
         warnings.warn(f"{main.name}: {note}", UserWarning, stacklevel=2)
     model = model.transformed(axis_map)
