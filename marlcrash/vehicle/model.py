@@ -67,6 +67,10 @@ class AxisMap:
     front-most point is at x = 0 and the lateral centre of its bounding box at
     y = 0 (or at ``y_center`` if given, in metres of the mapped frame); z keeps
     the deck's origin.
+
+    marlcrash's frame is left-handed (x rearward, y left, z up), so a map with an odd number of sign changes
+    and swaps is no mistake: a right-handed deck with x rearward, y to the right and z up (a common crash frame)
+    is read with ``AxisMap(y="-y")``. What decides is where the driver's left ends up: at +y.
     """
 
     x: str = "+x"
