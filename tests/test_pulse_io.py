@@ -249,7 +249,10 @@ def test_bad_mme_headers(tmp_path, analytic):
     _edit(ch, "Number of samples           :2200", "Number of samples           :2201")
     with pytest.raises(PulseError, match=r"B\.001 line 8: 'Number of samples' says 2201, found 2200"):
         read_mme(tmp_path / "B")
-    _edit(ch, "Number of samples           :2201", "Number of samples           :2200")
+    _edit(ch, "Number of samples           :2201", "Number of samples           :2200.7")  # was read as 2200
+    with pytest.raises(PulseError, match=r"B\.001 line 8: 'Number of samples': expected a whole number, got '2200\.7'"):
+        read_mme(tmp_path / "B")
+    _edit(ch, "Number of samples           :2200.7", "Number of samples           :2200")
     _edit(ch, "Sampling interval           :", "Sampling interval           :x")
     with pytest.raises(PulseError, match=r"B\.001 line 7: 'Sampling interval': expected a number"):
         read_mme(tmp_path / "B")

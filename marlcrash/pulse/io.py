@@ -449,6 +449,12 @@ def _read_mme_channel(path: Path) -> dict[str, Any]:
         values.append(v)
     if "number of samples" in header:
         n_decl = _header_float(path, header, "number of samples")
+        if n_decl != int(n_decl) or n_decl < 0:  # 2700.7 was read as 2700
+            raise _err(
+                f"'Number of samples': expected a whole number, got {header['number of samples'][0]!r}",
+                path,
+                header["number of samples"][1],
+            )
         if int(n_decl) != len(values):
             raise _err(
                 f"'Number of samples' says {int(n_decl)}, found {len(values)} values",
