@@ -239,6 +239,40 @@ def test_config_file_and_errors():
         discretize(mini_car(), cfg, method="voronoi")
 
 
+@pytest.mark.parametrize(
+    ("change", "key"),
+    [
+        ({"voxels_per_cell_edge": 0}, "voxels_per_cell_edge"),  # was numpy's "zero-size array"
+        ({"target_cell_volume": -1e-4}, "target_cell_volume"),  # was a complex cube root's TypeError
+        ({"overlaps": ["0.4"]}, r"overlaps\[0\]"),
+        ({"compaction_shell": 1.0}, "compaction_shell"),  # ran, with E_s = 0 in every cell
+        ({"crush_efficiency_shell": 0.0}, "crush_efficiency_shell"),
+        ({"roi_depth": float("nan")}, "roi_depth"),
+    ],
+)
+def test_a_config_made_in_python_is_checked_as_a_file_is(change, key):
+    from dataclasses import replace
+
+    with pytest.raises(ConfigError, match=f"key '{key}'"):
+        discretize(mini_car(), replace(load_discretization_config(), **change))
+
+
+def test_scientific_notation_reads_as_a_number(tmp_path):
+    """YAML 1.1 (PyYAML) reads 3e-4 as a string; the loader reads it as YAML 1.2 does."""
+    text = (config_dir() / "cells.yaml").read_text()
+    path = tmp_path / "cells.yaml"
+    path.write_text(text.replace("target_cell_volume: 3.0e-4", "target_cell_volume: 3e-4", 1))
+    assert "target_cell_volume: 3e-4" in path.read_text()
+    assert load_discretization_config(path).target_cell_volume == 3e-4
+
+
+def test_a_car_inside_the_roi_warns_that_the_compartment_has_no_mass(cfg):
+    car = build_model([("rail", "shell", tube_x(0.0, 0.5, -0.1, 0.1, 0.2, 0.4), 2e-3, 1)], name="short")
+    with pytest.warns(UserWarning, match=r"the compartment has no mass \(0 kg\)"):
+        cells = discretize(car, cfg)
+    assert cells.mass[cells.compartment] == 0.0  # not -1.7e-15 (printed -0.000 kg)
+
+
 def test_no_material_in_front_of_the_roi_depth_is_a_model_error(cfg):
     model = build_model(
         [

@@ -449,3 +449,13 @@ def test_float32_per_cell_energies_follow_float64():
             assert err < 2e-5, (mode, f, err)
     single = runs["float32"]
     torch.testing.assert_close(single["final"].cell_input[..., -1], single["series"].cell_input[..., -1])
+
+
+def test_a_sim_config_made_in_python_is_checked_as_a_file_is():
+    from dataclasses import replace
+
+    cells = single_cell()
+    cfg = load_sim_config()
+    for change, key in (({"substeps": 0}, "substeps"), ({"substeps": 2.5}, "substeps"), ({"dtype": "half"}, "dtype")):
+        with pytest.raises(ConfigError, match=f"key '{key}'"):
+            Surrogate(cells, replace(cfg, **change))

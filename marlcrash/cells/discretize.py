@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+import warnings
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -25,7 +26,7 @@ from marlcrash.cells.params import behaviour_params
 from marlcrash.cells.roi import Roi, region_of_interest
 from marlcrash.cells.sections import grid_sections
 from marlcrash.cells.transmission import aggregate_links, extract_faces, transmission_factors
-from marlcrash.config import config_dir, load_config, require
+from marlcrash.config import checked, config_dir, load_config, require
 from marlcrash.errors import ConfigError, ModelError
 from marlcrash.vehicle.model import COMPARTMENT, VehicleModel
 
@@ -680,7 +681,7 @@ def discretize(model: VehicleModel, config: DiscretizationConfig | None = None, 
         ConfigError: unknown method or invalid config.
         ModelError: the vehicle is inconsistent or has no deformable material in the ROI.
     """
-    cfg = load_discretization_config() if config is None else config
+    cfg = load_discretization_config() if config is None else checked(config)  # one made in Python: unchecked
     method = cfg.method if method is None else method
     if method not in ("optimized", "uniform"):
         raise ConfigError(f"expected 'optimized' or 'uniform', got {method!r}", key="method")
@@ -743,6 +744,8 @@ def discretize(model: VehicleModel, config: DiscretizationConfig | None = None, 
     mass[smass <= 0] = 0.0
     cvec, ccen, clo, chi = _compartment_aggregate(model, roi, mat_table, part_row)
     comp_mass = roi.total_mass - float(mass.sum())
+    if comp_mass < 0 and -comp_mass <= 1e-9 * roi.total_mass:  # rounding of the sum (-1.7e-15 kg was printed -0.000)
+        comp_mass = 0.0
     mass[comp] = comp_mass
     material[comp] = cvec
     if not np.isfinite(ccen).all():
@@ -790,9 +793,10 @@ def discretize(model: VehicleModel, config: DiscretizationConfig | None = None, 
         if not np.isfinite(sensor_pos[k]).all():
             spec = cfg.sensors[k]
             sensor_pos[k] = spec.position if spec.position is not None else ccen
-    warnings = []
+    notes = []
     if comp_mass <= 0:
-        warnings.append(f"the compartment has no mass ({comp_mass:.3g} kg): every element lies in the ROI")
+        notes.append(f"the compartment has no mass ({comp_mass:.3g} kg): every element lies in the ROI")
+        warnings.warn(f"{model.name}: {notes[-1]}", UserWarning, stacklevel=2)  # was only kept in meta
     out = CellModel(
         lo=np.where(np.isfinite(lo), lo, 0.0),
         hi=np.where(np.isfinite(hi), hi, 0.0),
@@ -837,7 +841,7 @@ def discretize(model: VehicleModel, config: DiscretizationConfig | None = None, 
             "grid_shape": list(grid.shape),
             "n_samples": samples.n,
             "timings_s": timings,
-            "warnings": warnings,
+            "warnings": notes,
         },
     )
     out.validate()

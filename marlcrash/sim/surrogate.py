@@ -92,7 +92,7 @@ import numpy as np
 import torch
 
 from marlcrash.cells.model import N_PARAMS, PARAM_NAMES, CellModel
-from marlcrash.config import config_dir, load_config, require
+from marlcrash.config import checked, config_dir, load_config, require
 from marlcrash.errors import ModelError
 from marlcrash.sim.energy import cell_energies
 from marlcrash.sim.scenario import CrashScenario, barrier_fraction
@@ -333,7 +333,7 @@ class Surrogate:
         cells.validate()
         self.stability_caps = bool(stability_caps)
         self.cells = cells
-        self.config = cfg = config if config is not None else load_sim_config()
+        self.config = cfg = checked(config) if config is not None else load_sim_config()
         self.output_dt = float(output_dt)
         self.dt = BASE_OUTPUT_DT / cfg.substeps
         per = self.output_dt / self.dt if math.isfinite(self.output_dt) else math.nan
