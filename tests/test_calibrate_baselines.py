@@ -237,3 +237,11 @@ def test_baseline_results_go_beside_a_folder_another_run_took_meanwhile(tmp_path
     assert got == final.parent / "b-3" and (got / "summary.json").stat().st_size > 100
     assert (final / "summary.json").read_text() == "{}" and not any((final.parent / "b-2").iterdir())
     assert sorted(p.name for p in final.parent.iterdir()) == ["b", "b-2", "b-3"]  # no temporary folder left
+
+
+def test_lm_refuses_a_budget_below_one_iteration(problem):
+    """It spent one simulation and reported stop reason 'budget' next to methods that spent the whole budget."""
+    need = 1 + problem.n_free + 6
+    with pytest.raises(ConfigError, match=f"key 'budget': lm needs at least .* = {need} simulations, got a budget of"):
+        BASELINES["lm"][1](problem, need - 1, LMConfig(), 0)
+    assert BASELINES["lm"][1](problem, need, LMConfig(iterations=1), 0).simulations == need

@@ -251,3 +251,10 @@ def test_the_documented_budget_overrides_compose():
         cfg = compose("amortized", overrides=["run=x", "budgets.cmaes=[1,10,100]", "~budgets.gradient"])
     budgets = OmegaConf.to_container(cfg)["budgets"]
     assert budgets["cmaes"] == [1, 10, 100] and "gradient" not in budgets and "random_search" in budgets
+
+
+def test_a_median_of_counts_keeps_its_half():
+    from marlcrash.calibrate.amortized import _fmt
+
+    # ".0f" rounds halves to even: a median of 2 and 3 simulations read "2" in the tables, 2.5 in the JSON
+    assert [_fmt(v, ".0f") for v in (2.5, 3.5, 1500.0, None)] == ["2.5", "3.5", "1500", "-"]

@@ -72,9 +72,12 @@ def test_a_multirun_seed_sweep_writes_one_run_per_seed_and_nothing_in_the_launch
     p = run("train.py", ["-m", "seed=0,1", "name=sweep_s${seed}", *TINY, "iterations=1"], short_configs, tmp_path)
     assert p.returncode == 0, p.stderr[-3000:]
     assert sorted(x.name for x in tmp_path.iterdir()) == ["runs"]  # Hydra's default would add multirun/ here
+    walls = []
     for seed in (0, 1):
         s = json.loads((tmp_path / "runs" / "mappo" / f"sweep_s{seed}" / "summary.json").read_text())
         assert s["seed"] == seed
+        walls.append(s["process_wall_time_s"])
+    assert walls[1] < walls[0]  # the second job's own time; it counted the first job's too (the imports only in it)
     (record,) = (tmp_path / "runs" / "multirun").glob("*/multirun.yaml")
     assert sorted(x.name for x in record.parent.iterdir()) == ["multirun.yaml"]  # no empty per-job folders
 

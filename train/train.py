@@ -38,8 +38,13 @@ RESUME_KEYS = ("resume", "name", "out_dir", "algorithm")
 Every other override is ignored (the run's saved config.yaml wins), and a warning names it."""
 
 
+_JOBS = [0]  # jobs this process ran: a multirun (-m seed=0,1,2) runs them all in one process
+
+
 @hydra.main(version_base=None, config_path="../configs/train", config_name="train")
 def main(cfg: DictConfig) -> None:
+    start = START if _JOBS[0] == 0 else time.perf_counter()  # a later job's time is its own, not the sweep's
+    _JOBS[0] += 1
     try:
         overrides = HydraConfig.get().overrides.task
         given = [o.split("=")[0].lstrip("+~") for o in overrides]
@@ -60,8 +65,8 @@ def main(cfg: DictConfig) -> None:
         print(f"error: {e}", file=sys.stderr)
         sys.exit(2)
     s = result.summary or {}
-    if s and config.resume is False:  # the whole process, imports and discretization included (one process only)
-        s = update_summary(result.run_dir, process_wall_time_s=time.perf_counter() - START)
+    if s and config.resume is False:  # the whole job, imports (first job) and discretization included
+        s = update_summary(result.run_dir, process_wall_time_s=time.perf_counter() - start)
     print(json.dumps({
         "run": str(result.run_dir), "iterations": result.iterations, "env_steps": result.env_steps,
         "simulations": result.simulations, "process_wall_time_s": round(s.get("process_wall_time_s", 0.0), 1),

@@ -319,7 +319,7 @@ def run_calibration(run_dir: str | Path) -> RunCalibration:
     provenance.warn_changes(home, check, "contributions")
     path = run / "calibrated.npz"
     if not path.is_file():
-        raise ConfigError(f"no calibrated.npz in {run}: evaluate the run first (python train/evaluate.py run={run})",
+        raise ConfigError(f"no calibrated.npz in {run}: evaluate the run first (python train/evaluate.py run={home})",
                           key="run")  # fmt: skip
     again = f"evaluate the run again (python train/evaluate.py run={home})"
     try:

@@ -386,6 +386,8 @@ def _fmt(v: Any, spec: str = ".4g") -> str:
     if isinstance(v, bool):
         return "yes" if v else "no"
     if isinstance(v, float):
+        if spec == ".0f" and math.isfinite(v) and not v.is_integer():  # a median of two counts: 2.5, not "2"
+            spec = ".1f"
         return format(v, spec)
     return str(v)
 

@@ -365,6 +365,9 @@ def levenberg_marquardt(
     progress = Progress(budget, stop_on_success)
     lo, hi = problem.flat_box()
     per_iter = lo.numel() + len(STEP_FACTORS)
+    require(budget >= 1 + per_iter, "budget",
+            f"lm needs at least 1 + one iteration of (free coordinates + step sizes) = 1 + {lo.numel()} + "
+            f"{len(STEP_FACTORS)} = {1 + per_iter} simulations, got a budget of {budget}")  # fmt: skip
     r0, m0 = _residuals(problem, progress, problem.zeros(1))
     initial = Metrics(*(t[0] for t in m0))
     ends = [max(2, round(float(w) * (problem.T - 1)) + 1) for w in config.windows]
