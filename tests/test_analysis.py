@@ -324,3 +324,6 @@ def test_contributions_command_analyses_a_run_and_names_bad_arguments(tmp_path, 
     (run / "calibrated.npz").unlink()  # a run not evaluated yet
     assert main(["contributions", str(run)]) == 2
     assert "evaluate the run first" in capsys.readouterr().err
+    (again / "calibrated.npz").unlink()  # its eval subfolder: the hint names the run, which evaluate.py accepts
+    assert main(["contributions", str(again)]) == 2
+    assert f"(python train/evaluate.py run={run})" in capsys.readouterr().err
