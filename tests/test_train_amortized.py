@@ -95,6 +95,9 @@ def test_table_shape_and_keys(comparison, run_dir, tmp_path):
     assert "## Aggregate over 2 references" in md and "| 101 | cmaes 2x |" in md and "python train/amortized.py" in md
     data = json.loads(paths["amortized.json"].read_text())
     assert data["meta"]["policy_simulations"] == ITERATIONS + 1 and len(data["rows"]) == len(rows)
+    with pytest.raises(ConfigError, match=r"key 'out_dir': .* already holds a comparison"):  # was replaced silently
+        write_comparison(comparison, tmp_path)
+    assert write_comparison(comparison, tmp_path, replace=True) == paths
     made = write_comparison(comparison, tmp_path / "new" / "cmp")  # a missing folder is made
     assert json.loads(made["amortized.json"].read_text())["rows"] == data["rows"]
     (tmp_path / "afile").write_text("")
@@ -238,6 +241,9 @@ def test_script_smoke(run_dir, short, tmp_path):
     bad = subprocess.run([*cmd[:2], f"run={tmp_path / 'nope'}"], capture_output=True, text=True, env=env, cwd=REPO,
                          timeout=300)  # fmt: skip
     assert bad.returncode == 2 and "key 'run'" in bad.stderr
+    again = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=REPO, timeout=300)  # refused up front
+    assert again.returncode == 2 and "key 'out_dir'" in again.stderr and "already holds a comparison" in again.stderr
+    assert "seed 101" not in again.stdout  # nothing was run
 
 
 def test_the_documented_budget_overrides_compose():

@@ -20,7 +20,12 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
-from marlcrash.calibrate.amortized import amortized_comparison, load_amortized_config, write_comparison
+from marlcrash.calibrate.amortized import (
+    amortized_comparison,
+    check_comparison_dir,
+    load_amortized_config,
+    write_comparison,
+)
 from marlcrash.calibrate.entry import exit_on_bad_overrides
 from marlcrash.errors import MarlcrashError
 
@@ -30,6 +35,7 @@ def main(cfg: DictConfig) -> None:
     command = "python train/amortized.py " + " ".join(shlex.quote(a) for a in sys.argv[1:])
     try:
         config = load_amortized_config(OmegaConf.to_container(cfg, resolve=True), source="configs/train/amortized.yaml")
+        check_comparison_dir(config.out_dir or config.run or ".")  # before the work, not after it
         comparison = amortized_comparison(config, progress=lambda msg: print(msg, flush=True))
         paths = write_comparison(comparison, config.out_dir or config.run or ".", command=command.strip())
     except MarlcrashError as e:

@@ -468,14 +468,36 @@ def csv_text(comparison: Comparison) -> str:
     return buf.getvalue()
 
 
-def write_comparison(comparison: Comparison, out_dir: str | Path, command: str | None = None) -> dict[str, Path]:
-    """Write :data:`FILES` into ``out_dir`` atomically (each file replaced whole; the folder made if missing);
-    return their paths.
+def check_comparison_dir(out_dir: str | Path) -> Path:
+    """``out_dir`` if it can take a new comparison: not a file, and holding no earlier ``amortized.json``.
+
+    A second run into the same folder (by default the run folder) replaced the first one's tables without a word;
+    ``compare`` and ``ablate`` refuse an existing name the same way.
 
     Raises:
-        ConfigError: (key ``out_dir``) ``out_dir`` or an ancestor is a file, or the folder cannot be written.
+        ConfigError: (key ``out_dir``) a file in the way, or an earlier comparison there.
     """
     out = check_output_dir(out_dir, "out_dir")
+    if (out / "amortized.json").exists():
+        raise ConfigError(
+            f"{out} already holds a comparison (amortized.json); give another folder (out_dir=...) or move that one "
+            "away: it would be replaced",
+            key="out_dir",
+        )
+    return out
+
+
+def write_comparison(
+    comparison: Comparison, out_dir: str | Path, command: str | None = None, replace: bool = False
+) -> dict[str, Path]:
+    """Write :data:`FILES` into ``out_dir`` atomically (each file replaced whole; the folder made if missing);
+    return their paths. An earlier comparison there is refused unless ``replace``.
+
+    Raises:
+        ConfigError: (key ``out_dir``) ``out_dir`` or an ancestor is a file, the folder cannot be written, or it
+            holds an earlier comparison (:func:`check_comparison_dir`).
+    """
+    out = check_output_dir(out_dir, "out_dir") if replace else check_comparison_dir(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     date = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
     payload = {"date": date, "command": command, "meta": comparison.meta, "aggregate": comparison.aggregate,
