@@ -357,17 +357,28 @@ def _adam_loop(
     return initial
 
 
+def check_lm_budget(problem: CalibrationProblem, budget: int) -> None:
+    """Refuse a budget below lm's first iteration (it spent 1 simulation and reported stop reason "budget").
+
+    Raises:
+        ConfigError: (key ``budget``) fewer than 1 + free coordinates + step sizes simulations.
+    """
+    n = problem.flat_box()[0].numel()
+    need = 1 + n + len(STEP_FACTORS)
+    require(budget >= need, "budget",
+            f"lm needs at least 1 + one iteration of (free coordinates + step sizes) = 1 + {n} + "
+            f"{len(STEP_FACTORS)} = {need} simulations, got a budget of {budget}")  # fmt: skip
+
+
 def levenberg_marquardt(
     problem: CalibrationProblem, budget: int, config: LMConfig, seed: int, stop_on_success: bool = False
 ) -> CalibrationResult:
     """Levenberg-Marquardt on the velocity residuals over growing windows, then restarts (module docstring)."""
     gen = torch.Generator().manual_seed(seed)
     progress = Progress(budget, stop_on_success)
+    check_lm_budget(problem, budget)
     lo, hi = problem.flat_box()
     per_iter = lo.numel() + len(STEP_FACTORS)
-    require(budget >= 1 + per_iter, "budget",
-            f"lm needs at least 1 + one iteration of (free coordinates + step sizes) = 1 + {lo.numel()} + "
-            f"{len(STEP_FACTORS)} = {1 + per_iter} simulations, got a budget of {budget}")  # fmt: skip
     r0, m0 = _residuals(problem, progress, problem.zeros(1))
     initial = Metrics(*(t[0] for t in m0))
     ends = [max(2, round(float(w) * (problem.T - 1)) + 1) for w in config.windows]

@@ -56,7 +56,14 @@ import torch
 
 from marlcrash import provenance
 from marlcrash.calibrate.amortized import _fmt, _mean_param_error
-from marlcrash.calibrate.baselines import BASELINES, CMAESConfig, GradientConfig, LMConfig, RandomSearchConfig
+from marlcrash.calibrate.baselines import (
+    BASELINES,
+    CMAESConfig,
+    GradientConfig,
+    LMConfig,
+    RandomSearchConfig,
+    check_lm_budget,
+)
 from marlcrash.calibrate.budget import Progress
 from marlcrash.calibrate.evaluate import param_errors
 from marlcrash.calibrate.marl import (
@@ -764,6 +771,8 @@ def run_comparison(
             if not todo:
                 continue
             problem = build_problem(problem_config(config, seed))
+            if "lm" in todo:  # before the first method runs, not when lm's turn comes
+                check_lm_budget(problem, config.budget)
             initial = initial_score(problem)
             for method in todo:
                 out = run_method(config, method, seed, problem, run_dir)

@@ -108,7 +108,7 @@ class DiscretizationConfig:
         require(self.roi_depth > 0, "roi_depth", f"expected a depth > 0 m, got {self.roi_depth}")
         require(self.target_cell_volume > 0, "target_cell_volume", f"expected > 0 m^3, got {self.target_cell_volume}")
         require(
-            self.target_cell_volume ** (1 / 3) <= self.roi_depth,
+            self.target_cell_volume ** (1 / 3) <= self.roi_depth * (1 + 1e-9),  # 1e-3 ** (1/3) = 0.10000000000000002
             "target_cell_volume",
             f"cell edge {self.target_cell_volume ** (1 / 3):.3g} m exceeds roi_depth {self.roi_depth} m",
         )
