@@ -383,10 +383,7 @@ def test_script_runs_every_method(short_configs, tmp_path):
     methods = [m for m in METHODS if m != "lm"]
     lm = _script([*TINY_ARGS, "methods=[lm]", "name=lm_small"], short_configs, tmp_path)
     assert lm.returncode == 2 and "key 'budget': lm needs at least" in lm.stderr, lm.stderr[-3000:]
-    assert not (tmp_path / "runs" / "compare" / "lm_small" / "compare.csv").exists() or not list(
-        csv.DictReader((tmp_path / "runs" / "compare" / "lm_small" / "compare.csv").open())
-    )
-    shutil.rmtree(tmp_path / "runs")
+    assert not (tmp_path / "runs" / "compare" / "lm_small").exists()  # the refused name stays free
     p = _script([*TINY_ARGS, f"methods=[{','.join(methods)}]"], short_configs, tmp_path)
     assert p.returncode == 0, p.stderr[-3000:]
     run_dir = tmp_path / "runs" / "compare" / "smoke"

@@ -762,6 +762,10 @@ def run_comparison(
         ConfigError: the run folder exists (without ``resume``), or ``resume`` with other protocol settings.
     """
     say = progress or (lambda _msg: None)
+    first = None  # lm's budget is checked before the run folder is made: a refused run must not block its name
+    if "lm" in config.methods and config.seeds:
+        first = build_problem(problem_config(config, config.seeds[0]))
+        check_lm_budget(first, config.budget)
     with hold_run_dir(config.run_dir, config.resume):  # one process per run folder
         run_dir, rows = _start_run_dir(config)
         done = {(r["method"], r["seed"]) for r in rows}
@@ -770,9 +774,9 @@ def run_comparison(
             todo = [m for m in config.methods if (m, seed) not in done]
             if not todo:
                 continue
-            problem = build_problem(problem_config(config, seed))
-            if "lm" in todo:  # before the first method runs, not when lm's turn comes
-                check_lm_budget(problem, config.budget)
+            problem = (
+                first if first is not None and seed == config.seeds[0] else build_problem(problem_config(config, seed))
+            )
             initial = initial_score(problem)
             for method in todo:
                 out = run_method(config, method, seed, problem, run_dir)
