@@ -1940,7 +1940,7 @@ def _element_sizes(coords: np.ndarray, nodes: np.ndarray) -> np.ndarray:
     return out
 
 
-def _check_extent(model: VehicleModel, t: _Tables, main: Path) -> list[str]:
+def _check_extent(model: VehicleModel, t: _Tables) -> list[str]:
     """Refuse a structure larger than a vehicle; note elements far larger than the rest of their part.
 
     A coordinate typo (``1.5e12`` for ``1500.``) makes the elements on that node huge, and their mass with
@@ -2460,7 +2460,7 @@ def read_deck(
             raise DeckError(f"no vehicle structure is left: {'; '.join(fixed.values())}", main)
         for why in fixed.values():
             warnings.warn(f"{main.name}: {why}", UserWarning, stacklevel=2)
-    for note in [*deck.unread_includes, *_check_extent(model, tables, main)]:
+    for note in [*deck.unread_includes, *_check_extent(model, tables)]:
         model.warnings.append(note)
         warnings.warn(f"{main.name}: {note}", UserWarning, stacklevel=2)
     model = model.transformed(axis_map)
