@@ -169,14 +169,33 @@ def test_a_deck_outside_configs_is_recorded_with_its_includes_by_tables_and_base
 
     env = ("default", {"vehicle": str(decks / "car.k")})
     run = tmp_path / "table"
-    open_run_dir(run, "compare.json", {"a": 1}, False, lambda rows: [], env)
+    open_run_dir(run, "compare.json", {"a": 1}, False, lambda rows: [], env, ("method",))
     assert names <= set(json.loads((run / provenance.PROVENANCE_FILE).read_text())["configs"])
     (run / "compare.json").write_text(json.dumps({"config": {"a": 1}, "rows": []}))
-    open_run_dir(run, "compare.json", {"a": 1}, True, lambda rows: [], env)  # unchanged: resumes
+    open_run_dir(run, "compare.json", {"a": 1}, True, lambda rows: [], env, ("method",))  # unchanged: resumes
     (decks / "sub" / "part.k").write_text("*KEYWORD\n$ thicker shells of the bumper\n*END\n")
     with pytest.raises(ConfigError, match=r"part\.k changed") as e:
-        open_run_dir(run, "compare.json", {"a": 1}, True, lambda rows: [], env)
+        open_run_dir(run, "compare.json", {"a": 1}, True, lambda rows: [], env, ("method",))
     assert e.value.key == "resume"
 
     rec = run_record(BaselineRunConfig(problem=ProblemConfig(env_overrides={"vehicle": str(decks / "car.k")})))
     assert names <= set(rec["configs"])
+
+
+@pytest.mark.parametrize(
+    ("rows", "says"),
+    [([{"method": "cmaes"}], r"row 0 of .*compare\.json lacks seed, score"),
+     ([{"method": "cmaes", "seed": 0, "score": 1.0}, ["cmaes", 0]],
+      r"row 1 of .*compare\.json is list, not an object")],
+)  # fmt: skip
+def test_a_resumed_record_with_a_malformed_row_is_refused_naming_the_row(tmp_path, rows, says):
+    """A hand-edited record (or one of another version) is refused before any run, not a KeyError later."""
+    from marlcrash.calibrate.compare import open_run_dir
+
+    run, env = tmp_path / "table", ("default", {})
+    open_run_dir(run, "compare.json", {"a": 1}, False, lambda rows: [], env, ())
+    (run / "compare.json").write_text(json.dumps({"config": {"a": 1}, "rows": rows}))
+    with pytest.raises(ConfigError, match=says) as e:
+        open_run_dir(run, "compare.json", {"a": 1}, True, lambda rows: [r["method"] for r in rows], env,
+                     ("method", "seed", "score"))  # fmt: skip
+    assert e.value.key == "resume"

@@ -534,7 +534,8 @@ def run_ablation(
 
     env = (config.env, dict(config.env_overrides))
     with hold_run_dir(config.run_dir, config.resume):  # one process per run folder
-        run_dir, rows = open_run_dir(config.run_dir, "ablate.json", asdict(config), config.resume, free, env)
+        keys = (*CSV_COLUMNS, "metrics", "history")
+        run_dir, rows = open_run_dir(config.run_dir, "ablate.json", asdict(config), config.resume, free, env, keys)
         done = {(r["cell"], r["seed"]) for r in rows}
         write_results(config, rows, run_dir, command)
         cells = config.cells()

@@ -665,6 +665,7 @@ def open_run_dir(
     resume: bool,
     free_keys: Callable[[list[dict[str, Any]]], Iterable[str]],
     env: tuple[str, dict[str, Any]],
+    row_keys: Iterable[str],
 ) -> tuple[Path, list[dict[str, Any]]]:
     """The run folder of a table of runs and the rows already finished in it, after checking settings agree.
 
@@ -676,11 +677,14 @@ def open_run_dir(
         free_keys: top-level settings that may differ from the saved ones, given the saved rows.
         env: the env config name and overrides the runs use; their input files outside ``configs/`` (a vehicle
             deck, measured pulses) are recorded and checked with ``configs/`` (:func:`marlcrash.provenance.env_inputs`).
+        row_keys: the keys every finished row has (those its tables and the resumed run read).
 
     Raises:
         ConfigError: the record exists without ``resume`` (key ``name``), is missing or unreadable with it
-            (key ``resume``), was run with other settings (the first differing dotted key), or with other
-            files in ``configs/`` (key ``resume``, :func:`marlcrash.provenance.require_unchanged`).
+            (key ``resume``), has a row that is not an object with ``row_keys`` (key ``resume``, naming the row
+            and the keys it lacks: a record edited by hand or written by another version), was run with other
+            settings (the first differing dotted key), or with other files in ``configs/`` (key ``resume``,
+            :func:`marlcrash.provenance.require_unchanged`).
     """
     check_output_dir(run_dir, "out_dir")  # the nearest existing folder of the run's
     inputs = provenance.env_inputs(load_env_config(*env))
@@ -700,6 +704,13 @@ def open_run_dir(
         rows = None
     if rows is None or not isinstance(saved, dict):
         raise ConfigError(f"resume=true but {path} cannot be read as a record of finished runs", key="resume")
+    need = tuple(row_keys)
+    for i, row in enumerate(rows):
+        lacks = [k for k in need if k not in row] if isinstance(row, dict) else None
+        if lacks is None or lacks:
+            what = f"lacks {', '.join(lacks)}" if lacks else f"is {type(row).__name__}, not an object"
+            raise ConfigError(f"resume=true but row {i} of {path} {what}; a finished row has {', '.join(need)} "
+                              "(the record was edited, or written by another version)", key="resume")  # fmt: skip
     old, new = copy.deepcopy(saved), copy.deepcopy(config)
     for k in free_keys(rows):
         old.pop(k, None)
@@ -723,7 +734,8 @@ def _start_run_dir(config: CompareConfig) -> tuple[Path, list[dict[str, Any]]]:
         return [*_RESUMABLE_DIFF_OK, *(m for m in METHODS if m not in done)]
 
     env = (config.env, dict(config.env_overrides))
-    return open_run_dir(config.run_dir, "compare.json", asdict(config), config.resume, free, env)
+    keys = (*COLUMNS, "metrics", "history")
+    return open_run_dir(config.run_dir, "compare.json", asdict(config), config.resume, free, env, keys)
 
 
 def _saved_rows(path: Path) -> list[dict[str, Any]] | None:
