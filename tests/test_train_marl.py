@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -504,6 +505,14 @@ def test_kept_snapshots_are_evaluated_beside_the_run_results(short, tmp_path):
     assert (res.run_dir / "summary.json").read_text() == final
     latest = evaluate_run(res.run_dir, checkpoint="latest")
     assert latest["final_metrics"] == json.loads(final)["final_metrics"] and latest["iterations_trained"] == 3
+    copies = []  # two checkpoint files of one name elsewhere: each its own folder, none over the run's
+    for where in ("a", "b"):
+        (tmp_path / where).mkdir()
+        shutil.copy(res.run_dir / "checkpoints" / "iter_00002.pt", tmp_path / where / "checkpoint.pt")
+        copies.append(evaluate_run(res.run_dir, checkpoint=str(tmp_path / where / "checkpoint.pt"), iterations=1))
+    dirs = {Path(c["eval_dir"]) for c in copies}
+    assert len(dirs) == 2 and all(d.parent == res.run_dir / "eval" and d.name.startswith("checkpoint_") for d in dirs)
+    assert res.run_dir / "eval" / "checkpoint_steps1" not in dirs and all((d / "summary.json").is_file() for d in dirs)
     with pytest.raises(ConfigError, match=r"iter_00002\.pt") as e:
         evaluate_run(res.run_dir, checkpoint=5)
     assert e.value.key == "checkpoint"

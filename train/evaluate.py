@@ -7,8 +7,9 @@
 The latest checkpoint with the run's own settings and inputs redoes the run's evaluation (summary.json,
 eval_metrics.csv/.md, calibrated.npz, pulses.png, learning_curves.png in the run folder). Anything else never
 replaces those files: a kept snapshot, another checkpoint file, other ``iterations``, or configs or code changed
-since the run started (provenance.json) write to ``<run>/eval/<checkpoint file stem>[_steps<n>]/``; the printed
-``eval_dir`` says where. Settings: configs/train/evaluate.yaml.
+since the run started (provenance.json) write to ``<run>/eval/<checkpoint file stem>[_steps<n>]/`` (a file
+outside the run's checkpoints gets 8 hex digits of its path after the stem); the printed ``eval_dir`` says where.
+Settings: configs/train/evaluate.yaml.
 """
 
 from __future__ import annotations

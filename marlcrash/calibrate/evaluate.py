@@ -27,8 +27,8 @@ measured tests (``reference.kind: file``) is evaluated on the test of ``eval.sce
 ``eval.reference`` picks another kind.
 
 Any kept checkpoint can be evaluated later (``python train/evaluate.py run=<run> checkpoint=<iteration>``;
-training keeps one every ``snapshot_every`` iterations); those files go into ``<run>/eval/<checkpoint>/``, and
-so does a re-evaluation of the latest checkpoint with other settings (``iterations=40``:
+training keeps one every ``snapshot_every`` iterations); those files go into ``<run>/eval/<checkpoint>/``
+(:func:`eval_name`), and so does a re-evaluation of the latest checkpoint with other settings (``iterations=40``:
 ``<run>/eval/checkpoint_steps40/``) or after the run's inputs or the code changed: the run's own results stay.
 """
 
@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import hashlib
 import json
 import time
 from dataclasses import dataclass
@@ -48,7 +49,7 @@ from tensordict.nn import TensorDictModuleBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from marlcrash import provenance
-from marlcrash.calibrate.checkpoint import find_checkpoint, load_training_checkpoint
+from marlcrash.calibrate.checkpoint import CHECKPOINT_FILE, SNAPSHOT_DIR, find_checkpoint, load_training_checkpoint
 from marlcrash.calibrate.logging import LOG_FILE, read_log
 from marlcrash.calibrate.marl import (
     TrainConfig,
@@ -393,6 +394,16 @@ def policy_from_checkpoint(config: TrainConfig, state: dict[str, Any], path: Pat
     return policy
 
 
+def eval_name(run_dir: Path, ckpt: Path) -> str:
+    """The ``eval/`` folder name of a checkpoint file: its stem for the run's ``checkpoint.pt`` and kept snapshots
+    (``checkpoint``, ``iter_00040``); for any other file the stem and 8 hex digits of its absolute path
+    (``best_3f2a9c01``), so two files of one name (``a/best.pt``, ``b/best.pt``) never share a folder."""
+    where = ckpt.resolve()
+    if where == (run_dir / CHECKPOINT_FILE).resolve() or where.parent == (run_dir / SNAPSHOT_DIR).resolve():
+        return ckpt.stem
+    return f"{ckpt.stem}_{hashlib.sha256(str(where).encode()).hexdigest()[:8]}"
+
+
 def evaluate_run(
     run_dir: str | Path,
     trainer: Trainer | None = None,
@@ -411,7 +422,7 @@ def evaluate_run(
 
     Where the files go: the run's own evaluation (by ``trainer``, or of ``checkpoint.pt`` with the run's
     ``eval.iterations`` and the inputs it started with, or its first) is written into ``run_dir``. Any other
-    never replaces it: it goes into ``run_dir/eval/<checkpoint file stem>/``, with ``_steps<n>`` added for
+    never replaces it: it goes into ``run_dir/eval/<name>/`` (:func:`eval_name`), with ``_steps<n>`` added for
     another ``iterations`` (``eval/checkpoint_steps40/``, ``eval/iter_00040/``), so a re-evaluation with other
     settings or after ``configs/`` or the code changed (``provenance.json``) keeps the run's results.
 
@@ -445,7 +456,7 @@ def evaluate_run(
             own = not (check.configs or check.code)
         if not own:  # only once the checkpoint proved usable: no empty folders
             steps = "" if config.eval.iterations == own_steps else f"_steps{config.eval.iterations}"
-            out_dir = run_dir / EVAL_DIR / f"{ckpt.stem}{steps}"
+            out_dir = run_dir / EVAL_DIR / f"{eval_name(run_dir, ckpt)}{steps}"
             out_dir.mkdir(parents=True, exist_ok=True)
     # a trainer holds its run folder already; otherwise hold the folder written, so an evaluation neither writes a
     # run that still trains nor interleaves its files with another evaluation of the same checkpoint
