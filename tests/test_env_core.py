@@ -372,3 +372,22 @@ def test_env_calibrates_a_deck_read_with_its_vehicle_options(lsopt_deck, tmp_pat
     with pytest.raises(ConfigError, match="keyword decks only") as e:
         load_env_config("default", {"vehicle_options.params": params})
     assert e.value.key == "vehicle_options.params"
+
+
+def test_a_scenario_that_activates_no_agent_is_named_when_the_env_is_built(lsopt_deck):
+    """The deck read with its height as marlcrash's width (a wrong ``axis_map``) strikes almost nothing on the
+    left: those scenarios' episodes would mask every action, and the env says so; read with its own axes, none."""
+    import warnings
+
+    base = {"vehicle": str(lsopt_deck), "agents.split_lr": []}
+    for axis_map, idle in (("x=+x,y=+z,z=+y", ["offset40_left", "small_overlap_left"]), (None, [])):
+        opts = {"params": {"tbumper": 3.0, "thood": 1.0}, "axis_map": axis_map}
+        cfg = load_env_config("default", {**base, "vehicle_options": opts})
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            CalibrationCore(cfg, batch_size=1)
+        said = [str(w.message) for w in caught if "activates no agent" in str(w.message)]
+        assert len(said) == (1 if idle else 0), said
+        for name in idle:
+            assert f"scenario {name!r} activates no agent" in said[0] and "axis_map" in said[0]
+        assert not idle or "offset40_right" not in said[0]

@@ -62,8 +62,10 @@ def test_reset_returns_every_agent_but_only_active_ones_live(cells):
 def test_an_episode_without_active_agents_says_so(cells):
     """Masking settings that leave no agent active: step() said "the episode is over; call reset()", and every
     reset gave the same."""
-    env = CalibrationParallelEnv(cfg(scenarios={"small_overlap_left": 1.0}, **{"masking.mode": "primary",
-                                     "masking.min_fraction": 1.0, "masking.primary_depth": 0.05}), cells)  # fmt: skip
+    strict = cfg(scenarios={"small_overlap_left": 1.0},
+                 **{"masking.mode": "primary", "masking.min_fraction": 1.0, "masking.primary_depth": 0.05})  # fmt: skip
+    with pytest.warns(UserWarning, match="scenario 'small_overlap_left' activates no agent"):  # said when built
+        env = CalibrationParallelEnv(strict, cells)
     env.reset(seed=0)
     assert env.agents == []
     with pytest.raises(ActionError, match=r"no agent is active in this episode \(small_overlap_left: .*'primary'"):

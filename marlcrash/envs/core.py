@@ -52,6 +52,7 @@ calibration run, :class:`marlcrash.calibrate.marl.ProgressHook`). They get copie
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -298,9 +299,17 @@ class CalibrationCore:
         self.reward_fn = Reward(rcfg)
         self.layout = build_agents(self.cells, cfg.agents)
         self.regions = ImpactRegions(self.cells, self.layout, cfg.masking)
+        from marlcrash.sim.scenario import get_scenario
+
+        files = cfg.reference.files
+        drawn = cfg.scenarios if cfg.reference.kind != "file" else dict.fromkeys(f.scenario for f in files)
+        idle = self.regions.idle_scenarios([get_scenario(name) for name in drawn])
+        if idle:
+            warnings.warn(f"{'; '.join(idle)}: such episodes calibrate nothing. On a deck, check that its axes map "
+                          "onto marlcrash's (vehicle_options.axis_map: x rearward, y to the left, z up); else lower "
+                          "masking.min_fraction or widen the depths", stacklevel=3)  # fmt: skip
         sim_cfg = sim_config if sim_config is not None else load_sim_config(overrides={"dtype": cfg.sim_dtype})
         first = next(iter(cfg.scenarios))
-        from marlcrash.sim.scenario import get_scenario
 
         rate = get_scenario(first).output_rate if cfg.reference.kind != "file" else None
         if rate is None:

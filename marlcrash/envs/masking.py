@@ -32,7 +32,7 @@ import torch
 from marlcrash.cells.model import DIRECTIONS, CellModel
 from marlcrash.config import require
 from marlcrash.envs.agents import AgentLayout
-from marlcrash.sim.scenario import barrier_fraction
+from marlcrash.sim.scenario import CrashScenario, barrier_fraction
 
 
 @dataclass
@@ -122,3 +122,23 @@ class ImpactRegions:
         inside = region[:, self.layout.cells] & self.layout.valid  # [B, A, M]
         n_in = inside.sum(-1)
         return (n_in > 0) & (n_in >= self.config.min_fraction * self.layout.count)
+
+    def idle_scenarios(self, scenarios: list[CrashScenario]) -> list[str]:
+        """Sentences for the scenarios whose episodes would activate no agent (empty where every one has some).
+
+        Such an episode calibrates nothing: every action is masked. On a deck it mostly means its lateral axis is
+        not marlcrash's y (``vehicle_options.axis_map``: a height read as the width strikes almost nothing on one
+        side); otherwise ``min_fraction`` or the depths are too strict for the agents' sizes.
+        """
+        if not scenarios or self.config.mode == "none":
+            return []
+        f64 = torch.float64
+        ov = torch.tensor([s.overlap for s in scenarios], dtype=f64)
+        sd = torch.tensor([s.side_sign for s in scenarios], dtype=f64)
+        sp = torch.tensor([s.speed for s in scenarios], dtype=f64)
+        active = self.active(ov, sd, sp).any(dim=1)
+        struck = self.primary(ov, sd, sp).sum(dim=1)
+        total, mode, frac = int(self.deformable.sum()), self.config.mode, self.config.min_fraction
+        return [f"scenario {s.name!r} activates no agent: its barrier strikes {int(n)} of {total} deformable cells, "
+                f"too few of any agent's (masking.mode {mode}, min_fraction {frac:g})"
+                for s, a, n in zip(scenarios, active, struck, strict=True) if not a]  # fmt: skip
