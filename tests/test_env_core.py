@@ -136,6 +136,41 @@ def test_apply_increments_revives_zero_feasible_factors():
     torch.testing.assert_close(out[2:], torch.tensor([1 / (1 + g), g / (1 + g), 0, 0, 0], dtype=torch.float64))
 
 
+def test_a_factor_that_starts_at_zero_or_falls_to_it_is_observed(cells):
+    """Own parameters are observed in the coordinate the update moves: ``log((f + floor) / (f0 + floor))`` for a
+    feasible factor. As ``log(f / f0)`` a factor that started at 0 (40 feasible ones on the default car) stayed
+    0 in the observation while the agent grew it, and one driven to 0 read as untouched."""
+    core = make(cells, 1, granularity="cell", **{"masking.mode": "none"})
+    core.reset(seed=0)
+    zero = torch.nonzero((core.init[:, 2:] == 0) & core.feasible)
+    assert zero.shape[0] > 0
+    cell, d = (int(x) for x in zero[0])
+    a, slot = int(core.layout.agent_of_cell[cell]), int(core.layout.slot_of_cell[cell])
+    act = torch.zeros(1, core.A, core.act_dim)
+    act[0, a, 7 * slot + 2 + d] = 1.0
+    core.apply_actions(act)
+    f, floor = float(core.params[0, cell, 2 + d]), core.config.transmission_floor
+    assert f > 0
+    obs, _ = core.observations()
+    kt, scale = core.K * core.T, core.config.observation.param_scale
+    seen = float(obs[0, a, kt + 7 * slot + 2 + d])
+    assert seen == pytest.approx(np.log((f + floor) / floor) * scale, rel=1e-6) and seen > 0
+    assert float(obs[0, a, kt + 7 * slot + 2 : kt + 7 * slot + 7].abs().sum()) > seen  # the others renormalised
+
+
+def test_actions_from_numpy_are_copied_and_checked(cells):
+    core = make(cells, 1)
+    core.reset(seed=0)
+    flipped = np.flip(np.linspace(-1, 1, core.A * 7).reshape(1, core.A, 7), axis=2)  # negative strides
+    flipped.setflags(write=False)
+    torch.testing.assert_close(core.check_actions(flipped), torch.as_tensor(flipped.copy()))
+    with pytest.raises(ActionError, match=r"floating point .* numpy object"):
+        core.check_actions(np.zeros((1, core.A, 7), dtype=object))
+    with pytest.raises(ConfigError, match=r"\['tunnel'\] more than once") as e:
+        load_env_config(overrides={"sensors": ["tunnel", "tunnel", "upfront_left"]})
+    assert e.value.key == "sensors"
+
+
 def test_observations_state_and_reward(cells):
     core = make(cells, 3)
     core.reset(seed=4)
@@ -391,3 +426,23 @@ def test_a_scenario_that_activates_no_agent_is_named_when_the_env_is_built(lsopt
         for name in idle:
             assert f"scenario {name!r} activates no agent" in said[0] and "axis_map" in said[0]
         assert not idle or "offset40_right" not in said[0]
+
+
+def test_episodes_that_start_past_the_failure_limits_are_named_once(cells):
+    """The uniform model's small-overlap pulses lie 5.6 m/s RMSE from this model's, past the shipped failure limit
+    of 3 m/s: such an episode ends as a failure at its first step whatever the agents do, and the env says so,
+    once. Without failure limits nothing is said."""
+    import warnings
+
+    over = {"reference.kind": "cross_fidelity", "scenarios": {"small_overlap_left": 1.0}}
+    core = make(cells, 1, **over)
+    with pytest.warns(UserWarning, match=r"start past the failure limits: .*rmse [\d.]+ > failure_rmse 3 "
+                                         r"\(small_overlap_left\).*reference.kind cross_fidelity"):  # fmt: skip
+        core.reset(seed=0)
+    core.step(torch.zeros(1, core.A, 7))
+    assert bool(core.terminated[0]) and not bool(core.success[0])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        core.reset(seed=1)  # once per env
+        free = {f"termination.failure_{m}": None for m in ("area", "dfd", "rmse")}
+        make(cells, 1, **over, **free).reset(seed=0)

@@ -33,9 +33,11 @@ Observation per agent, ``[B, n_agents, obs_dim]`` float32, concatenated:
 
 1. the state vector of DESIGN 1.4: ``(v_ref - v_est) * velocity_scale`` for every
    sensor and output step, ``K * T`` values (same for all agents);
-2. own parameters relative to initial: ``log(p / p0) * param_scale``; ``subassembly``:
-   the mean over the agent's cells (7 values; transmission means over feasible entries),
-   ``cell``: per cell padded (``7 * max_cells``);
+2. own parameters relative to initial, ``* param_scale``: ``log(E / E0)`` for ``E_x``, ``E_s``
+   and ``log((f + floor) / (f0 + floor))`` for a feasible transmission factor (``floor`` =
+   ``transmission_floor``, the coordinate the update moves: a factor that starts at or falls to 0 is
+   seen, not a 0 like an untouched one); ``subassembly``: the mean over the agent's cells (7 values;
+   transmission means over feasible entries), ``cell``: per cell padded (``7 * max_cells``);
 3. its cells' absorbed-energy fractions ``absorbed / E_s`` from the last simulation,
    ``* energy_scale``, padded (``max_cells``);
 4. its identity, one-hot (``n_agents``).
@@ -135,6 +137,9 @@ class EnvConfig:
         require(self.vehicle_seed is None or _is_int_at_least(self.vehicle_seed, 0), "vehicle_seed",
                 f"expected a seed >= 0 or null (the nominal car), got {self.vehicle_seed!r}")  # fmt: skip
         require(_is_int_at_least(self.seed, 0), "seed", f"expected a seed >= 0, got {self.seed!r}")
+        twice = sorted({s for s in self.sensors if self.sensors.count(s) > 1})
+        require(not twice, "sensors", f"names {twice} more than once; each sensor is compared once (an empty list: "
+                                      "every sensor of the cell model)")  # fmt: skip
         require(bool(self.scenarios), "scenarios", "expected at least one scenario name with a weight")
         known = list_scenarios()
         for k, w in self.scenarios.items():
@@ -333,7 +338,8 @@ class CalibrationCore:
         f64 = torch.float64
         self.init = torch.as_tensor(self.cells.params, dtype=f64)
         self.feasible = torch.as_tensor(self.cells.feasible)
-        self._init_pos = self.init > 0  # [n, 7]: where a log-ratio is defined
+        # [n, 7] where an observed log-ratio is defined: E > 0, feasible transmission factors (shifted by the floor)
+        self._observed = torch.cat([self.init[:, :2] > 0, self.feasible], dim=1)
         self._owned = lay.owned[None, :, None]
         self._agent_of = lay.agent_of_cell.clamp_min(0)
         self._slot_of = lay.slot_of_cell.clamp_min(0)
@@ -345,7 +351,7 @@ class CalibrationCore:
             if cfg.granularity == "subassembly"
             else (valid & feas).reshape(self.A, -1)
         )
-        self._summary_w = (lay.valid[:, :, None] & self._init_pos[lay.cells]).to(f64)  # [A, M, 7]
+        self._summary_w = (lay.valid[:, :, None] & self._observed[lay.cells]).to(f64)  # [A, M, 7]
         self._summary_n = self._summary_w.sum(1).clamp_min(1.0)  # [A, 7]
 
         B = self.B
@@ -444,12 +450,33 @@ class CalibrationCore:
         m = self._simulate(rows)
         for old, new in zip(self.metrics, m, strict=True):
             old[rows] = new
+        self._warn_failed_at_reset(rows, m)
         self.iteration[rows] = 0
         self.started[rows] = True
         self.reward[rows] = 0.0
         self.terminated[rows] = False
         self.truncated[rows] = False
         self.success[rows] = False
+
+    def _warn_failed_at_reset(self, rows: torch.Tensor, m: Metrics) -> None:
+        """Warn (once per core) where an episode starts past a failure limit: it ends as a failure at its first
+        step whatever the agents do, so its reward teaches nothing (a reference this model cannot come near)."""
+        if getattr(self, "_warned_failed", False):
+            return
+        cfg = self.reward_fn.cfg.termination
+        over = []
+        for metric in ("area", "dfd", "rmse"):
+            limit = getattr(cfg, f"failure_{metric}")
+            worst = getattr(m, metric).amax(-1)  # [n]
+            if limit is not None and bool((worst > limit).any()):
+                i = int(worst.argmax())
+                where = self.scenario[int(rows[i])]
+                over.append(f"{metric} {float(worst[i]):.4g} > failure_{metric} {limit:g} ({where})")
+        if over:
+            self._warned_failed = True
+            warnings.warn(f"episodes start past the failure limits: {'; '.join(over)}. They end as failures at the "
+                          f"first step whatever the agents do (reference.kind {self.config.reference.kind}); raise "
+                          "termination.failure_* or set them to null", stacklevel=3)  # fmt: skip
 
     # ------------------------------------------------------------------------------------ actions
     def check_actions(self, actions: torch.Tensor | np.ndarray) -> torch.Tensor:
@@ -464,7 +491,9 @@ class CalibrationCore:
                 entries where :meth:`action_mask` is false are ignored, and returned as zero.
         """
         if isinstance(actions, np.ndarray):
-            actions = torch.from_numpy(actions)
+            if actions.dtype.kind != "f":
+                raise ActionError(f"actions must be floating point (float32 or float64), got numpy {actions.dtype}")
+            actions = torch.from_numpy(np.array(actions, order="C"))  # a copy: flipped or read-only arrays are fine
         if not isinstance(actions, torch.Tensor):
             raise ActionError(f"actions must be a tensor [B, n_agents, act_dim], got {type(actions).__name__}")
         want = (self.B, self.A, self.act_dim)
@@ -543,8 +572,11 @@ class CalibrationCore:
 
     # ------------------------------------------------------------------------------- observations
     def _log_ratio(self) -> torch.Tensor:
-        ratio = self.params / torch.where(self._init_pos, self.init, 1.0)
-        return torch.where(self._init_pos & (self.params > 0), torch.log(ratio.clamp_min(1e-300)), 0.0)
+        shift = torch.zeros(7, dtype=self.params.dtype)
+        shift[2:] = self.config.transmission_floor
+        num, den = self.params + shift, (self.init + shift).expand_as(self.params)
+        ok = self._observed & (num > 0)
+        return torch.where(ok, torch.log(torch.where(ok, num, 1.0) / torch.where(ok, den, 1.0)), 0.0)
 
     def state_vector(self) -> torch.Tensor:
         """``[B, K * T]`` scaled signed differences reference minus estimate (DESIGN 1.4)."""
