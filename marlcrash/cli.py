@@ -329,11 +329,20 @@ def cmd_pulse(args: argparse.Namespace) -> int:
     return 0
 
 
+_CONTRIBUTION_FILES = ("contributions.csv", "contributions.md", "contributions.png", "cells.png")
+"""What ``marlcrash contributions`` writes into its folder (an earlier analysis there is refused or replaced whole)."""
+
+
 def cmd_contributions(args: argparse.Namespace) -> int:
+    import torch
+
     from marlcrash.analysis import agent_contributions, plot_cells_by_contribution, plot_contributions, run_calibration
     from marlcrash.analysis.shapley import MAX_EXACT_PLAYERS
     from marlcrash.outputs import check_output_dir
 
+    if args.run is not None and not Path(args.run).is_dir():
+        raise ConfigError(f"{args.run} is not a folder; expected a run folder (runs/<algorithm>/<name>) or one of its "
+                          "re-evaluations (<run>/eval/<checkpoint>/)", key="run")  # fmt: skip
     if args.out is not None or args.run is None:
         out = Path(args.out or "contributions")
     else:
@@ -364,14 +373,30 @@ def cmd_contributions(args: argparse.Namespace) -> int:
         what = f"{args.run}, calibration step {iteration}"
         if args.out is None:  # one folder per step: analysing another step never replaces this one's files
             out = out / f"iteration_{iteration}"
+    ours = [out / n for n in _CONTRIBUTION_FILES]
+    earlier = [p.name for p in ours if p.exists()]
+    if earlier and not args.replace:  # checked before the simulations; the tables do not say their settings
+        raise ConfigError(f"{out} holds an earlier analysis ({', '.join(earlier)}); --replace to write over it, or "
+                          "--out another folder", key="--out")  # fmt: skip
     try:
         contrib = agent_contributions(problem, calibrated, initial, exact_max=args.exact_max,
                                       n_permutations=args.permutations, seed=args.seed)  # fmt: skip
     except ValueError as e:  # parameters that do not fit the problem (another vehicle or layout)
         raise ConfigError(str(e), key="run") from None
+    bad = [q for j, q in enumerate(contrib.quantities)
+           if not (torch.isfinite(contrib.shapley[:, j]).all() and torch.isfinite(contrib.initial[j])
+                   and torch.isfinite(contrib.calibrated[j]))]  # fmt: skip
+    if bad:  # parameters out of the surrogate's range: no table of NaN, no JSON that is not JSON
+        raise ConfigError(f"the simulations of {what} give non-finite {', '.join(bad[:4])}"
+                          f"{f' (and {len(bad) - 4} more)' if len(bad) > 4 else ''}: its parameters lie out of the "
+                          "surrogate's range", key="run")  # fmt: skip
     out.mkdir(parents=True, exist_ok=True)
+    for p in ours:  # --replace: none of the earlier analysis stays beside this one (its pictures with --no-plots)
+        p.unlink(missing_ok=True)
     areas = [q for q in contrib.quantities if q.startswith("area/")]
-    files = [contrib.write_csv(out / "contributions.csv"), contrib.write_markdown(out / "contributions.md")]
+    how = "exact" if contrib.exact else f"{args.permutations} sampled orderings, seed {args.seed}"
+    files = [contrib.write_csv(out / "contributions.csv"),
+             contrib.write_markdown(out / "contributions.md", heading=f"Contributions: {what} ({how})")]  # fmt: skip
     if not args.no_plots:
         worst = max(areas, key=lambda q: float(contrib.initial[contrib.column(q)]))
         files += [plot_contributions(contrib, out / "contributions.png"),
@@ -505,6 +530,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=_seed, default=0, help="seed of the sampled orderings (default 0)")
     p.add_argument("--out", metavar="DIR", help="output folder (default: RUN/contributions, or ./contributions)")
     p.add_argument("--no-plots", action="store_true", help="write the tables only")
+    p.add_argument("--replace", action="store_true", help="write over an earlier analysis in the output folder")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=cmd_contributions)
     return parser

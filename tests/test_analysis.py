@@ -262,7 +262,7 @@ def test_run_calibration_loads_an_evaluated_run(tmp_path):
     assert e.value.key == "run"
 
 
-def test_contributions_command_analyses_a_run_and_names_bad_arguments(tmp_path, capsys):
+def test_contributions_command_analyses_a_run_and_names_bad_arguments(tmp_path, capsys, monkeypatch):
     """``marlcrash contributions RUN``: the evaluated run's iterate, Shapley values that add up to the whole change
     (here: to the twin's truth, every area to zero), the tables and pictures; bad arguments exit 2 naming the flag."""
     import csv
@@ -312,7 +312,21 @@ def test_contributions_command_analyses_a_run_and_names_bad_arguments(tmp_path, 
         files = json.loads(capsys.readouterr().out)["files"]
         assert files[0] == str(where / "contributions" / "iteration_0" / "contributions.csv")
 
+    # an earlier analysis is refused before any simulation (its tables do not say their settings), and with
+    # --replace it goes whole: no picture of it stays beside tables of another
+    assert main(["contributions", str(run), "--permutations", "4", "--out", str(out)]) == 2
+    assert "key '--out'" in (err := capsys.readouterr().err) and "holds an earlier analysis" in err
+    assert main(["contributions", str(run), "--iteration", "0", "--no-plots", "--out", str(out), "--replace"]) == 0
+    assert sorted(p.name for p in out.iterdir() if p.is_file()) == ["contributions.csv", "contributions.md"]
+    assert (out / "contributions.md").read_text().startswith(f"Contributions: {run}, calibration step 0 (")
+    capsys.readouterr()
+    monkeypatch.chdir(again)  # a re-evaluation folder named as '.' (no config.yaml of its own) is one still
+    assert main(["contributions", ".", "--iteration", "0", "--no-plots", "--out", str(out / "dot"), "--json"]) == 0
+    capsys.readouterr()
+    monkeypatch.chdir(tmp_path)
+
     for argv, flag in (
+        ([str(run / "calibrated.npz")], "run"),  # a file of the run, not the run
         ([str(run), "--iteration", "2"], "--iteration"),
         ([str(run), "--permutations", "6", "--exact-max", "17"], "--exact-max"),
         ([str(run), "--permutations", "5"], "--permutations"),
@@ -327,3 +341,19 @@ def test_contributions_command_analyses_a_run_and_names_bad_arguments(tmp_path, 
     (again / "calibrated.npz").unlink()  # its eval subfolder: the hint names the run, which evaluate.py accepts
     assert main(["contributions", str(again)]) == 2
     assert f"(python train/evaluate.py run={run})" in capsys.readouterr().err
+
+
+def test_contributions_of_parameters_out_of_the_surrogates_range_are_refused(tmp_path, capsys):
+    """One agent's ``E_s`` times 1e200 passes every input check (finite, > 0) but simulates to NaN: an error naming
+    the quantities, not a table of NaN and JSON that is not JSON."""
+    from marlcrash.cli import main
+
+    problem = write_evaluated_run(tmp_path)
+    arrays = dict(np.load(tmp_path / "calibrated.npz"))
+    cells = (problem.layout.agent_of_cell == problem.agent_names.index("front_rail_left")).numpy()
+    arrays["per_iteration"][1][cells, 1] *= 1e200
+    np.savez(tmp_path / "calibrated.npz", **arrays)
+    assert main(["contributions", str(tmp_path), "--permutations", "4", "--no-plots", "--json"]) == 2
+    err = capsys.readouterr().err
+    assert "key 'run'" in err and "give non-finite" in err and "out of the surrogate's range" in err
+    assert not (tmp_path / "contributions" / "iteration_1").exists()

@@ -46,7 +46,7 @@ def test_notebook_executes(path, tmp_path):
     out = tmp_path / "out"
     nb = execute(path, f"{SMALL[path.name]}\nOUT = {str(out)!r}")
     assert "analysing the twin's hidden perturbation" in _stdout(nb)
-    written = {p.name for p in out.iterdir()}
+    written = {p.name for p in (out / "twin_truth").iterdir()}  # a run's analysis goes beside it, never over it
     assert {"contributions.csv", "contributions.md", "contributions.png", "cells.png"} <= written
 
 
@@ -58,3 +58,4 @@ def test_agent_contributions_notebook_analyses_a_run(tmp_path):
     nb = execute(path, f"N_PERMUTATIONS = 4\nRUN = {str(run)!r}\nOUT = {str(tmp_path / 'out')!r}")
     text = _stdout(nb)
     assert f"analysing the calibration of {run} (its iterate 1)" in text and "largest per-step move" in text
+    assert (tmp_path / "out" / f"{tmp_path.name}_run" / "contributions.csv").is_file()

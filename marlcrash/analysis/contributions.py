@@ -127,10 +127,12 @@ class Contributions:
                          f"| {float(self.add_one[i, j]):.4g} |")  # fmt: skip
         return "\n".join(lines) + "\n"
 
-    def write_markdown(self, path: str | Path, quantities: list[str] | None = None) -> Path:
-        """:meth:`markdown` of ``quantities`` (default: ``score`` and every sensor's area), written atomically."""
+    def write_markdown(self, path: str | Path, quantities: list[str] | None = None, heading: str | None = None) -> Path:
+        """:meth:`markdown` of ``quantities`` (default: ``score`` and every sensor's area), written atomically, after
+        ``heading`` (e.g. what was analysed, with which settings) where given."""
         qs = quantities or ["score", *(q for q in self.quantities if q.startswith("area/"))]
-        return write_text(path, "\n".join(self.markdown(q) for q in qs))
+        head = [] if heading is None else [heading, ""]
+        return write_text(path, "\n".join([*head, *(self.markdown(q) for q in qs)]))
 
 
 def quantity_names(sensors: list[str]) -> list[str]:
@@ -313,7 +315,11 @@ def run_calibration(run_dir: str | Path) -> RunCalibration:
     from marlcrash.calibrate.marl import CONFIG_FILE, load_run_config, make_env_config
 
     run = Path(run_dir)
-    home = run.parent.parent if not (run / CONFIG_FILE).is_file() and run.parent.name == EVAL_DIR else run
+    if not run.is_dir():
+        raise ConfigError(f"{run} is not a folder; expected a run folder (runs/<algorithm>/<name>) or one of its "
+                          "re-evaluations (<run>/eval/<checkpoint>/)", key="run")  # fmt: skip
+    where = run.resolve()  # '.' or 'ck' typed inside <run>/eval/ is a re-evaluation too
+    home = where.parent.parent if not (run / CONFIG_FILE).is_file() and where.parent.name == EVAL_DIR else run
     config = load_run_config(home)
     check = provenance.check_run(home, provenance.env_inputs(make_env_config(config)), key=None)
     provenance.warn_changes(home, check, "contributions")
