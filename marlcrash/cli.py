@@ -337,12 +337,12 @@ def cmd_contributions(args: argparse.Namespace) -> int:
     import torch
 
     from marlcrash.analysis import agent_contributions, plot_cells_by_contribution, plot_contributions, run_calibration
+    from marlcrash.analysis.contributions import require_run_folder
     from marlcrash.analysis.shapley import MAX_EXACT_PLAYERS
     from marlcrash.outputs import check_output_dir
 
-    if args.run is not None and not Path(args.run).is_dir():
-        raise ConfigError(f"{args.run} is not a folder; expected a run folder (runs/<algorithm>/<name>) or one of its "
-                          "re-evaluations (<run>/eval/<checkpoint>/)", key="run")  # fmt: skip
+    if args.run is not None:
+        require_run_folder(args.run)  # before --out's check, which names a path inside it
     if args.out is not None or args.run is None:
         out = Path(args.out or "contributions")
     else:

@@ -299,6 +299,15 @@ class RunCalibration:
     :meth:`marlcrash.provenance.ProvenanceCheck.as_dict`)."""
 
 
+def require_run_folder(run_dir: str | Path) -> Path:
+    """``run_dir`` as a path, refused (key ``run``) where it is not a folder (a file of the run, a typo)."""
+    run = Path(run_dir)
+    if not run.is_dir():
+        raise ConfigError(f"{run} is not a folder; expected a run folder (runs/<algorithm>/<name>) or one of its "
+                          "re-evaluations (<run>/eval/<checkpoint>/)", key="run")  # fmt: skip
+    return run
+
+
 def run_calibration(run_dir: str | Path) -> RunCalibration:
     """Load ``<run>/calibrated.npz`` and rebuild the problem the run was evaluated on (its reference).
 
@@ -314,10 +323,7 @@ def run_calibration(run_dir: str | Path) -> RunCalibration:
     from marlcrash.calibrate.evaluate import EVAL_DIR, evaluation_problem
     from marlcrash.calibrate.marl import CONFIG_FILE, load_run_config, make_env_config
 
-    run = Path(run_dir)
-    if not run.is_dir():
-        raise ConfigError(f"{run} is not a folder; expected a run folder (runs/<algorithm>/<name>) or one of its "
-                          "re-evaluations (<run>/eval/<checkpoint>/)", key="run")  # fmt: skip
+    run = require_run_folder(run_dir)
     where = run.resolve()  # '.' or 'ck' typed inside <run>/eval/ is a re-evaluation too
     home = where.parent.parent if not (run / CONFIG_FILE).is_file() and where.parent.name == EVAL_DIR else run
     config = load_run_config(home)
