@@ -202,15 +202,23 @@ def test_float32_simulations_match_float64_to_the_noise_floor(cells):
 
     Same seed, same references and actions: the fit metrics move by far less than the paper's marks (area
     0.0015 m, RMSE 0.1511 m/s; measured at the twin's truth: 1.4e-5 m and 1.5e-4 m/s), rewards stay close.
+    The reference velocities agree to 1e-2 m/s (0.07 % of the impact speed): at the window's end of a small
+    overlap an up-front sensor's cell chatters (velocity steps of 2 m/s per sample), float32 moves it by 2e-3 m/s
+    and the CFC60 filter's end handling of the last samples by up to 7.5e-3 m/s.
+
+    The saturation preference is off here: its flag is a threshold (plastic work reached ``E_s``), and a cell that
+    ends within float32's rounding of it flips (one of the default car's ends an offset40 1.8e-6 below it),
+    damping that cell's next increments: a different action, not a precision difference.
     """
-    a, b = make(cells, 3), make(cells, 3, sim_dtype="float32")
+    off = {"masking.saturation_preference": False}
+    a, b = make(cells, 3, **off), make(cells, 3, sim_dtype="float32", **off)
     assert a.sim.dtype == torch.float64 and b.sim.dtype == torch.float32
     act = torch.linspace(-1, 1, 3 * a.A * 7).reshape(3, a.A, 7)
     for core in (a, b):
         core.reset(seed=5)
         core.step(act)
     assert b.est_velocity.dtype == torch.float64  # compared in float64 whatever the simulation's precision
-    torch.testing.assert_close(b.ref_velocity, a.ref_velocity, rtol=0, atol=2e-3)
+    torch.testing.assert_close(b.ref_velocity, a.ref_velocity, rtol=0, atol=1e-2)
     for x, y in zip(b.metrics, a.metrics, strict=True):
         assert float((x - y).abs().max()) < 1e-3 * float(y.abs().max()) + 1e-5
     torch.testing.assert_close(b.reward, a.reward, rtol=0, atol=2e-3)

@@ -206,17 +206,18 @@ def test_script_cluster_radii_prints_json():
 
 
 def test_local_fit_converges_near_the_truth_and_counts_its_simulations():
-    """1 % from the truth over the full 150 ms the landscape is smooth enough for Levenberg-Marquardt to pass.
+    """1 % from the truth over the full 150 ms the landscape is smooth enough for Levenberg-Marquardt to pass
+    within three iterations (worst sensor area 0.0114, 0.0032, 0.0016, 0.0014 m against the 0.0015 mark).
 
     Before damping acted on elastic deformation only and bottoming out happened within the step, the first
     step from here was rejected at every damping value and the fit stalled at 2-5x the area mark.
     """
     problem = build_problem(ProblemConfig())
-    hist = local_fit(problem, start_radius=1e-2, iterations=2, seed=0)
-    assert len(hist) == 3
-    assert [h["simulations"] for h in hist] == [1, 1 + (problem.n_free + 6), 1 + 2 * (problem.n_free + 6)]
+    hist = local_fit(problem, start_radius=1e-2, iterations=3, seed=0)
+    assert len(hist) == 4
+    assert [h["simulations"] for h in hist] == [1 + i * (problem.n_free + 6) for i in range(4)]
     costs = [h["cost"] for h in hist]
-    assert costs[2] <= costs[1] < 0.5 * costs[0], costs
+    assert costs[3] <= costs[2] <= costs[1] < 0.5 * costs[0], costs
     assert not hist[0]["passed"] and hist[-1]["passed"]
     assert set(hist[0]["sensors"]) == set(problem.sensors)
 

@@ -256,7 +256,7 @@ def test_a_test_record_that_goes_on_past_the_window_is_compared_as_filtered_over
     """A test's record goes on past the compared window, and the filter ran over all of it; candidates are
     simulated ``compare_margin`` (10 ms) longer, filtered, and cut alike. The model's own 200 ms small-overlap
     simulation as the test: at its parameters the problem and the environment now fit it to a DFD of 0.002-0.015
-    m/s over 150 and 30 ms windows; filtered only up to the window's end, the candidate missed it by 0.24 and
+    m/s over 150 and 30 ms windows; filtered only up to the window's end, the candidate missed it by 0.18 and
     3.3 m/s (the front is still crushing at 30 ms), the paper's DFD mark being 0.335."""
     from marlcrash.calibrate.problem import ProblemConfig, build_problem
     from marlcrash.envs.core import CalibrationCore, load_env_config
@@ -284,7 +284,7 @@ def test_a_test_record_that_goes_on_past_the_window_is_compared_as_filtered_over
         return build_problem(ProblemConfig(scenario=sc.name, reference="file", duration=duration,
                                            env_overrides=over), cells)  # fmt: skip
 
-    for duration, fits, misses in ((None, 0.003, 0.2), (0.03, 0.02, 3.0)):
+    for duration, fits, misses in ((None, 0.003, 0.1), (0.03, 0.02, 3.0)):
         p = problem(duration, 0.01)
         assert p.margin == 20 and p.sim_duration == pytest.approx(p.duration + 0.01)
         assert float(p.evaluate(p.zeros(1)).dfd.max()) < fits
@@ -304,7 +304,7 @@ def test_a_test_record_that_goes_on_past_the_window_is_compared_as_filtered_over
     env.reference.compare_margin = 0.0
     core = CalibrationCore(env, 2, cells)
     core.reset(seed=0)
-    assert core.margin.tolist() == [0, 0] and float(core.metrics.dfd.max()) > 0.2
+    assert core.margin.tolist() == [0, 0] and float(core.metrics.dfd.max()) > 0.1
     # the observed energy fractions and saturation are the window's end, margin or not
     torch.testing.assert_close(core.energy_fraction, fraction, rtol=1e-9, atol=1e-12)
     assert torch.equal(core.saturated, saturated)

@@ -18,8 +18,8 @@ from marlcrash.cells.grid import FineGrid, _solid_samples, _subdivisions, bin_in
 from marlcrash.vehicle.model import VehicleModel
 
 PLANE_NUDGE = 1e-6
-"""Offset [m] of every cut plane from its grid edge, so nodes that sit exactly on a
-grid plane (common in generated meshes) never produce degenerate on-plane cuts."""
+"""Offset [m] of every cut plane from its grid edge (lateral planes: away from y = 0), so nodes that sit
+exactly on a grid plane (common in generated meshes) never produce degenerate on-plane cuts."""
 
 
 def _other_axes(axis: int) -> tuple[int, int]:
@@ -127,14 +127,40 @@ def shell_sections(
     pl = np.concatenate(p_all)
     d = seg[:, 1] - seg[:, 0]
     length = np.linalg.norm(d, axis=1)
-    pitch = min(np.diff(eu).min(), np.diff(ev).min())
-    m = _subdivisions(length, pitch, 2, 64)
-    rep = np.repeat(np.arange(seg.shape[0]), m)
-    start = np.repeat(np.cumsum(m) - m, m)
-    frac = (np.arange(rep.size) - start + 0.5) / m[rep]
-    mid = seg[rep, 0] + frac[:, None] * d[rep]
-    _bin(out, pl[rep], mid[:, u_ax], mid[:, v_ax], (length * t / m)[rep], eu, ev, (u_ax == 1, v_ax == 1))
+    rep, t0, t1 = _column_pieces(seg[:, 0, u_ax], seg[:, 1, u_ax], seg[:, 0, v_ax], seg[:, 1, v_ax], eu, ev)
+    mid = seg[rep, 0] + (0.5 * (t0 + t1))[:, None] * d[rep]
+    _bin(out, pl[rep], mid[:, u_ax], mid[:, v_ax], (length * t)[rep] * (t1 - t0), eu, ev, (u_ax == 1, v_ax == 1))
     return out
+
+
+def _edge_crossings(a0: np.ndarray, a1: np.ndarray, edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(segment, t)`` of every point ``a0 + t (a1 - a0)``, ``0 < t < 1``, where a segment crosses an edge."""
+    lo, hi = np.minimum(a0, a1), np.maximum(a0, a1)
+    first = np.searchsorted(edges, lo, side="right")
+    count = np.maximum(np.searchsorted(edges, hi, side="left") - first, 0)
+    segment = np.repeat(np.arange(a0.size), count)
+    k = np.repeat(first, count) + np.arange(segment.size) - np.repeat(np.cumsum(count) - count, count)
+    return segment, (edges[k] - a0[segment]) / (a1[segment] - a0[segment])
+
+
+def _column_pieces(
+    u0: np.ndarray, u1: np.ndarray, v0: np.ndarray, v1: np.ndarray, eu: np.ndarray, ev: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Segments ``(u0, v0) -> (u1, v1)`` cut where they cross a column edge: ``(segment, t0, t1)`` per piece.
+
+    Each piece lies in one column, so its length goes where it lies exactly. Binning fixed fractions of a
+    segment by their midpoints (as before) depended on how a quad was split into triangles: mirror twins,
+    whose quads split along mirrored diagonals, got transmission factors up to 100 % apart.
+    """
+    su, tu = _edge_crossings(u0, u1, eu)
+    sv, tv = _edge_crossings(v0, v1, ev)
+    n = u0.size
+    segment = np.concatenate([np.arange(n), np.arange(n), su, sv])
+    t = np.concatenate([np.zeros(n), np.ones(n), tu, tv])
+    order = np.lexsort((t, segment))
+    segment, t = segment[order], t[order]
+    keep = (segment[1:] == segment[:-1]) & (t[1:] > t[:-1])
+    return segment[:-1][keep], t[:-1][keep], t[1:][keep]
 
 
 def solid_subbricks(model: VehicleModel, mask: np.ndarray, pitch: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -241,7 +267,9 @@ def grid_sections(
     for axis in range(3):
         u_ax, v_ax = _other_axes(axis)
         eu, ev = grid.edges[u_ax], grid.edges[v_ax]
-        planes = grid.edges[axis][plane_index[axis]] + PLANE_NUDGE
+        planes = grid.edges[axis][plane_index[axis]]
+        # lateral planes are nudged away from y = 0, so mirror twins are cut at mirrored positions
+        planes = planes + (np.where(planes < 0, -PLANE_NUDGE, PLANE_NUDGE) if axis == 1 else PLANE_NUDGE)
         a = shell_sections(model.coords, tri, thick, axis, planes, eu, ev)
         a += solid_sections(bricks, axis, planes, eu, ev)
         a += beam_sections(model, bm, axis, planes, eu, ev)
