@@ -357,3 +357,17 @@ def test_contributions_of_parameters_out_of_the_surrogates_range_are_refused(tmp
     err = capsys.readouterr().err
     assert "key 'run'" in err and "give non-finite" in err and "out of the surrogate's range" in err
     assert not (tmp_path / "contributions" / "iteration_1").exists()
+
+
+def test_an_invalid_parameter_in_calibrated_npz_is_named_by_file_and_step(tmp_path):
+    """A negative ``E_x`` at step 1 is refused when the run is loaded, naming the file and the step: not later, by
+    the index of a coalition inside a simulation batch."""
+    problem = write_evaluated_run(tmp_path)
+    arrays = dict(np.load(tmp_path / "calibrated.npz"))
+    cell = int(torch.nonzero(problem.layout.agent_of_cell >= 0)[0])
+    arrays["per_iteration"][1][cell, 0] = -1.0
+    np.savez(tmp_path / "calibrated.npz", **arrays)
+    with pytest.raises(ConfigError, match=rf"calibrated\.npz\[per_iteration\]: params\[1, {cell}, 0\] \(E_x\).*"
+                                          r"the first index is the calibration step") as e:  # fmt: skip
+        run_calibration(tmp_path)
+    assert e.value.key == "run"

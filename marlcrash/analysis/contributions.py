@@ -40,7 +40,7 @@ from marlcrash.analysis.shapley import (
 )
 from marlcrash.calibrate.compare import evaluate_params
 from marlcrash.calibrate.problem import CalibrationProblem
-from marlcrash.errors import ConfigError
+from marlcrash.errors import ConfigError, ModelError
 from marlcrash.outputs import atomic_output, read_npz, write_text
 
 METRICS = ("area", "dfd", "rmse")
@@ -353,6 +353,12 @@ def run_calibration(run_dir: str | Path) -> RunCalibration:
     if per_it.ndim != len(shape) + 1 or tuple(per_it.shape[1:]) != shape or per_it.shape[0] < 1:
         raise ConfigError(f"{path}[per_iteration]: expected cell parameters of shape [iterations, {shape[0]}, "
                           f"{shape[1]}], got {tuple(per_it.shape)}: {again}", key="run")  # fmt: skip
+    for name, p in (("initial", t["initial"][None]), ("calibrated", t["calibrated"][None]), ("per_iteration", per_it)):
+        try:  # the simulator's own check, before any simulation: its batch index is then the step, not a coalition
+            problem.sim.check_params(p)
+        except ModelError as e:
+            step = "" if name != "per_iteration" else " (the first index is the calibration step)"
+            raise ConfigError(f"{path}[{name}]: {e}{step}: {again}", key="run") from None
     sel = arrays["selected_iteration"]
     if sel.shape != () or not np.issubdtype(sel.dtype, np.integer) or not 0 <= int(sel) < per_it.shape[0]:
         raise ConfigError(f"{path}[selected_iteration]: expected an iteration in 0..{per_it.shape[0] - 1} of "
