@@ -340,6 +340,7 @@ class CalibrationCore:
         self.feasible = torch.as_tensor(self.cells.feasible)
         # [n, 7] where an observed log-ratio is defined: E > 0, feasible transmission factors (shifted by the floor)
         self._observed = torch.cat([self.init[:, :2] > 0, self.feasible], dim=1)
+        self._warned_failed = False  # episodes that start past the failure limits are warned about once
         self._owned = lay.owned[None, :, None]
         self._agent_of = lay.agent_of_cell.clamp_min(0)
         self._slot_of = lay.slot_of_cell.clamp_min(0)
@@ -461,7 +462,7 @@ class CalibrationCore:
     def _warn_failed_at_reset(self, rows: torch.Tensor, m: Metrics) -> None:
         """Warn (once per core) where an episode starts past a failure limit: it ends as a failure at its first
         step whatever the agents do, so its reward teaches nothing (a reference this model cannot come near)."""
-        if getattr(self, "_warned_failed", False):
+        if self._warned_failed:
             return
         cfg = self.reward_fn.cfg.termination
         over = []
