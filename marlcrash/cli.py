@@ -395,12 +395,12 @@ def cmd_contributions(args: argparse.Namespace) -> int:
         p.unlink(missing_ok=True)
     areas = [q for q in contrib.quantities if q.startswith("area/")]
     how = "exact" if contrib.exact else f"{args.permutations} sampled orderings, seed {args.seed}"
-    files = [contrib.write_csv(out / "contributions.csv"),
-             contrib.write_markdown(out / "contributions.md", heading=f"Contributions: {what} ({how})")]  # fmt: skip
+    table, text, bars, cells = ours
+    files = [contrib.write_csv(table), contrib.write_markdown(text, heading=f"Contributions: {what} ({how})")]
     if not args.no_plots:
         worst = max(areas, key=lambda q: float(contrib.initial[contrib.column(q)]))
-        files += [plot_contributions(contrib, out / "contributions.png"),
-                  plot_cells_by_contribution(problem, contrib, out / "cells.png", quantity=worst)]  # fmt: skip
+        files += [plot_contributions(contrib, bars),
+                  plot_cells_by_contribution(problem, contrib, cells, quantity=worst)]  # fmt: skip
     if args.json:
         quantities = {}
         for q in contrib.quantities:

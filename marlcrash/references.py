@@ -313,8 +313,6 @@ class ReferenceSampler:
         unknown = [s for s in self.sensors if s not in cells.sensor_names]
         if unknown:
             raise ConfigError(f"unknown sensors {unknown}; the cell model has {cells.sensor_names}", key="sensors")
-        if len(set(self.sensors)) != len(self.sensors):
-            raise ConfigError(f"sensors {self.sensors} name one more than once; each is compared once", key="sensors")
         self._file_index: list[int] = []
         if config.kind == "file":  # a choice is an index into config.files (only file_scenario's tests, if set)
             self._file_index = [i for i, f in enumerate(config.files)
