@@ -28,9 +28,17 @@ def cfg(**over):
 
 
 def test_parallel_api_and_seed_tests(cells):
+    """PettingZoo's own tests pass. The one warning they give is by design: agents outside the episode's impact
+    region are never live (not in ``agents`` at reset), so they never get a termination flag, which the API
+    test's end-of-episode check counts as missing. Any other warning fails here."""
+    for reset_agents in ("possible", "live"):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            parallel_api_test(CalibrationParallelEnv(cfg(), cells, reset_agents=reset_agents), num_cycles=20)
+        said = {str(w.message) for w in caught}
+        assert said <= {"No agents present but not all possible_agents are terminated or truncated"}, said
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        parallel_api_test(CalibrationParallelEnv(cfg(), cells), num_cycles=20)
+        warnings.simplefilter("error")
         parallel_seed_test(lambda: CalibrationParallelEnv(cfg(), cells), num_cycles=20)
 
 

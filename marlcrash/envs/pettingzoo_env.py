@@ -6,7 +6,9 @@
   agent by default (TorchRL's ``PettingZooWrapper`` indexes all of them at reset);
   ``reset_agents="live"`` returns them for the live agents only, as PettingZoo's own
   ``parallel_to_aec`` expects (it replaces infos whose keys are not ``agents`` by the whole
-  dict copied under every agent). ``step`` returns entries for the live agents only.
+  dict copied under every agent). ``step`` returns entries for the live agents only, so an agent that is
+  not active in the episode never gets a termination or truncation flag (PettingZoo's ``parallel_api_test``
+  warns "not all possible_agents are terminated or truncated" about exactly these agents).
 - Spaces are fixed per agent (``gymnasium.spaces.Box``, float32): observations
   ``[obs_dim]``, actions ``[act_dim]`` in ``[-1, 1]``; the same objects on every call.
 - Actions of agents not in ``agents`` (inactive or finished) are ignored; missing actions
