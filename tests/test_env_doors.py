@@ -124,6 +124,25 @@ def test_pettingzoo_wrapper_specs(cells):
     check_env_specs(env, seed=0)
 
 
+def test_copies_of_the_env_draw_the_same_episodes_until_seeded(cells):
+    """Every copy starts from the config's ``seed``: the workers of a ``SerialEnv`` replay one another's episodes
+    (a batch of duplicates) until ``set_seed`` gives each its own seed, as the docstring says."""
+    from torchrl.envs import SerialEnv
+
+    def make():
+        return CalibrationTorchEnv(cfg(), batch_size=2, cells=cells)
+
+    env = SerialEnv(2, make)
+    td = env.reset()
+    assert torch.equal(td["state"][0], td["state"][1])
+    env.set_seed(7)
+    first = env.reset()
+    assert not torch.equal(first["state"][0], first["state"][1])
+    env.set_seed(7)
+    assert torch.equal(env.reset()["state"], first["state"])
+    env.close()
+
+
 def test_both_doors_give_identical_numbers(cells):
     config = cfg(scenarios={"offset40_right": 1.0, "small_overlap_left": 1.0, "full_width_40": 1.0})
     native = CalibrationTorchEnv(config, batch_size=1, cells=cells)

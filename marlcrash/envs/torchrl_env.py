@@ -16,6 +16,11 @@ as ``MultiAgentMLP`` expects). Keys:
 
 Partial resets (``"_reset"`` ``[B, 1]``) restart only the flagged rows; ``reset(seed=s)``
 re-seeds the core first, exactly as the PettingZoo door's ``reset(seed=s)``.
+
+Seeding copies: every env starts from its config's ``seed`` (reproducible by default), so copies run side by side
+(``SerialEnv``, ``ParallelEnv``) draw the same episodes until seeded: call ``set_seed(s)`` on the batched env (TorchRL
+gives each worker its own seed from ``s``), or give each copy its own ``seed``. One env with ``batch_size=B`` needs
+neither: its rows draw from one generator.
 """
 
 from __future__ import annotations
