@@ -376,3 +376,17 @@ def test_the_bottoming_note_comes_only_when_the_impact_brings_more_than_the_plas
     assert bottoming_note({"impact_energy_kj": 527.3, "crush_capacity_kj": 527.3}) is None
     note = bottoming_note({"impact_energy_kj": 537.6, "crush_capacity_kj": 527.3})
     assert note.startswith("note: the impact brings 537.6 kJ and the cells can take 527.3 kJ as plastic work")
+
+
+def test_json_output_is_standard_json(capsys):
+    """``--json`` prints standard JSON: a value that could not be computed (NaN, inf) reads as null, also nested,
+    instead of the ``NaN`` that strict parsers (JavaScript, jq) refuse."""
+    from marlcrash.cli import _print_json
+
+    _print_json({"a": float("nan"), "b": [1.0, float("inf"), {"c": -float("inf")}], "d": 2.5, "e": "x", "f": 3})
+
+    def refuse(constant):
+        raise AssertionError(f"non-standard JSON constant {constant}")
+
+    out = json.loads(capsys.readouterr().out, parse_constant=refuse)
+    assert out == {"a": None, "b": [1.0, None, {"c": None}], "d": 2.5, "e": "x", "f": 3}
