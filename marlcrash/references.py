@@ -12,8 +12,9 @@ surrogate's sign convention (forward speed, starting at the impact speed). Three
   so the ground truth stays reachable by the agents. The ground-truth parameters are
   returned for evaluation.
 - ``cross_fidelity``: a uniform-discretization model of the same vehicle (optionally a
-  seeded variant) is simulated as the reference for the optimized model; sensors are
-  matched by name. Deterministic per (vehicle seed, scenario), so results are cached.
+  seeded variant) is simulated as the reference for the optimized model, with its own mass floor and
+  step (:class:`CrossFidelityConfig`: its cells are too light for the calibrated model's mass scaling); sensors
+  are matched by name. Deterministic per (vehicle seed, scenario), so results are cached.
 - ``file``: measured pulses read with :func:`marlcrash.pulse.io.read_pulse` (CSV or
   ISO-MME), CFC-filtered, time-zero aligned, resampled to the output rate and integrated
   to velocity (:func:`marlcrash.pulse.signal.prepare_velocity`), starting at the impact
@@ -47,7 +48,7 @@ paper does, is then RL training on that reference.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Literal
 
@@ -89,15 +90,34 @@ class TwinConfig:
 
 @dataclass
 class CrossFidelityConfig:
-    """The fine reference model: discretization method and vehicle variants."""
+    """The fine reference model: discretization method, vehicle variants, and its own integration settings.
+
+    The fine model's cells are light (the uniform default car's: 1.5 g to 0.27 kg, median 73 g), so the calibrated
+    model's mass floor (``mass_floor`` of ``configs/sim.yaml``, 0.5 kg) would move 1102 of the compartment's 1324 kg
+    into its crush zone and turn its 45-47 g full-width pulse into 115 g. ``mass_floor`` and ``substeps`` here
+    replace the sim config's for the reference only (``None``: the sim config's); the defaults keep the added mass
+    at 30 kg, and halving the floor again moves the reference by a few percent (``benchmarks/bench_cross_fidelity.py``).
+    """
 
     method: Literal["uniform", "optimized"] = "uniform"
     target_cell_volume: float | None = None
     vehicle_seeds: list[int | None] = field(default_factory=lambda: [None])
+    mass_floor: float | None = 0.05
+    substeps: int | None = 24
 
     def validate(self) -> None:
         require(self.target_cell_volume is None or self.target_cell_volume > 0, "target_cell_volume",
                 f"expected > 0 m^3 or null, got {self.target_cell_volume}")  # fmt: skip
+        require(self.mass_floor is None or (np.isfinite(self.mass_floor) and self.mass_floor >= 0), "mass_floor",
+                f"expected a mass >= 0 kg or null (the sim config's), got {self.mass_floor!r}")  # fmt: skip
+        require(self.substeps is None or (isinstance(self.substeps, int) and not isinstance(self.substeps, bool)
+                                          and 1 <= self.substeps <= 1000), "substeps",
+                f"expected an integer in [1, 1000] or null (the sim config's), got {self.substeps!r}")  # fmt: skip
+
+    def sim_config(self, base: SimConfig) -> SimConfig:
+        """``base`` with this reference's own ``mass_floor`` and ``substeps`` where they are set."""
+        own = {k: getattr(self, k) for k in ("mass_floor", "substeps") if getattr(self, k) is not None}
+        return replace(base, **own)
         require(bool(self.vehicle_seeds), "vehicle_seeds", "expected at least one vehicle seed (null = nominal car)")
         for i, v in enumerate(self.vehicle_seeds):
             ok = v is None or (isinstance(v, int) and not isinstance(v, bool) and v >= 0)
@@ -279,7 +299,8 @@ class ReferenceSampler:
 
     Args:
         cells: the model being calibrated.
-        surrogate: its simulator (used for twins; its :class:`SimConfig` for cross-fidelity).
+        surrogate: its simulator (used for twins; its :class:`SimConfig`, with the fine model's own mass floor and
+            substeps, for cross-fidelity).
         sensors: ``[K]`` sensor names, in the order of the reference's sensor axis.
         scenarios: scenario name -> weight (ignored for ``kind: file``).
         config: the reference settings.
@@ -419,7 +440,7 @@ class ReferenceSampler:
             missing = [s for s in self.sensors if s not in fine.sensor_names]
             if missing:
                 raise ConfigError(f"the {cfg.method} reference model lacks sensors {missing}", key="sensors")
-            sim_cfg: SimConfig = self.sim.config
+            sim_cfg = cfg.sim_config(self.sim.config)
             self._fine[seed] = (fine, Surrogate(fine, sim_cfg, output_dt=1.0 / self.output_rate))
         return self._fine[seed]
 

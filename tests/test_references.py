@@ -427,6 +427,34 @@ def test_cross_fidelity_reference_uses_the_uniform_model(cells, sim):
     torch.testing.assert_close(ref.velocity, again.velocity, rtol=0, atol=0)
 
 
+def test_the_fine_reference_has_its_own_mass_scaling_and_step(cells, sim):
+    """The fine model's light cells under the calibrated model's mass floor (0.5 kg) would take 1102 kg of the
+    1324 kg compartment into the crush zone and peak at 115 g; its own floor and step keep the added mass small and
+    the full-width pulse near the one of a finer integration (independent of the pair chosen)."""
+    from dataclasses import replace
+
+    from marlcrash.pulse.simulation import crash_summary
+    from marlcrash.references import CrossFidelityConfig
+
+    own = CrossFidelityConfig()
+    rigid = float(cells.mass[cells.is_rigid.astype(bool)].sum())
+    peaks = {}
+    for label, cf in (("sim", replace(own, mass_floor=None, substeps=None)), ("own", own),
+                      ("finer", replace(own, mass_floor=0.02, substeps=40))):  # fmt: skip
+        fine, fsim = sampler(cells, sim, kind="cross_fidelity", cross_fidelity=cf).fine_model(None)
+        assert fsim.config.mass_floor == (sim.config.mass_floor if cf.mass_floor is None else cf.mass_floor)
+        assert fsim.dt == pytest.approx(5e-4 / (sim.config.substeps if cf.substeps is None else cf.substeps))
+        sc = get_scenario("full_width_40")
+        res = fsim.run(torch.as_tensor(fine.params)[None], sc, record_cells="none")
+        peaks[label] = (fsim.mass_added, crash_summary(res, fine, sc)["peak_decel_g"])
+    assert peaks["sim"][0] > 0.5 * rigid and peaks["own"][0] < 0.05 * rigid
+    assert peaks["sim"][1] > 1.5 * peaks["finer"][1]  # the scaled reference is a different pulse
+    assert peaks["own"][1] == pytest.approx(peaks["finer"][1], rel=0.1)
+    for key, value in (("mass_floor", -1.0), ("substeps", 0), ("substeps", 2.5)):
+        with pytest.raises(ConfigError, match=key):
+            replace(own, **{key: value}).validate()
+
+
 def test_file_reference_checks_its_rate_and_reads_breakpoints(cells, sim, tmp_path):
     channels = dict.fromkeys(cells.sensor_names, "acc")
     corners = [(0.0, 0.0), (0.002, 0.0), (0.012, -20.0), (0.062, -20.0), (0.082, 0.0), (0.3, 0.0)]
@@ -466,3 +494,16 @@ def test_file_margin_benchmark_prints_its_rows_as_json():
     cmd[cmd.index("--record") + 1] = "0.1"  # a test record must cover the scenario's window, 150 ms
     bad = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
     assert bad.returncode == 2 and "shorter than full_width_40's window 0.15 s" in bad.stderr
+
+
+def test_cross_fidelity_benchmark_prints_its_rows_as_json():
+    script = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_cross_fidelity.py"
+    cmd = [sys.executable, str(script), "--scenarios", "full_width_40", "--fine", "0.05", "24", "--json"]
+    out = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr
+    got = json.loads(out.stdout)
+    assert got["sensors"] == ["upfront_left", "upfront_right", "tunnel"]
+    by = {r["reference"].split(" (")[0]: r for r in got["rows"]}
+    assert by["env config"]["to_fine_rmse"] == 0.0  # the "finer" pair given is the env config's own
+    assert by["sim.yaml"]["added_kg"] > 20 * by["env config"]["added_kg"] and by["sim.yaml"]["to_fine_rmse"] > 0.5
+    assert all(len(r["gap_rmse"]) == 3 for r in got["rows"])
