@@ -108,8 +108,14 @@ class CrossFidelityConfig:
     def validate(self) -> None:
         require(self.target_cell_volume is None or self.target_cell_volume > 0, "target_cell_volume",
                 f"expected > 0 m^3 or null, got {self.target_cell_volume}")  # fmt: skip
-        require(self.mass_floor is None or (np.isfinite(self.mass_floor) and self.mass_floor >= 0), "mass_floor",
-                f"expected a mass >= 0 kg or null (the sim config's), got {self.mass_floor!r}")  # fmt: skip
+        require(bool(self.vehicle_seeds), "vehicle_seeds", "expected at least one vehicle seed (null = nominal car)")
+        for i, v in enumerate(self.vehicle_seeds):
+            ok = v is None or (isinstance(v, int) and not isinstance(v, bool) and v >= 0)
+            require(ok, f"vehicle_seeds[{i}]", f"expected a seed >= 0 or null (the nominal car), got {v!r}")
+        floor = self.mass_floor
+        require(floor is None or (isinstance(floor, (int, float)) and not isinstance(floor, bool)
+                                  and np.isfinite(floor) and floor >= 0), "mass_floor",
+                f"expected a mass >= 0 kg or null (the sim config's), got {floor!r}")  # fmt: skip
         require(self.substeps is None or (isinstance(self.substeps, int) and not isinstance(self.substeps, bool)
                                           and 1 <= self.substeps <= 1000), "substeps",
                 f"expected an integer in [1, 1000] or null (the sim config's), got {self.substeps!r}")  # fmt: skip
@@ -118,10 +124,6 @@ class CrossFidelityConfig:
         """``base`` with this reference's own ``mass_floor`` and ``substeps`` where they are set."""
         own = {k: getattr(self, k) for k in ("mass_floor", "substeps") if getattr(self, k) is not None}
         return replace(base, **own)
-        require(bool(self.vehicle_seeds), "vehicle_seeds", "expected at least one vehicle seed (null = nominal car)")
-        for i, v in enumerate(self.vehicle_seeds):
-            ok = v is None or (isinstance(v, int) and not isinstance(v, bool) and v >= 0)
-            require(ok, f"vehicle_seeds[{i}]", f"expected a seed >= 0 or null (the nominal car), got {v!r}")
 
 
 @dataclass

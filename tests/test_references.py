@@ -450,7 +450,7 @@ def test_the_fine_reference_has_its_own_mass_scaling_and_step(cells, sim):
     assert peaks["sim"][0] > 0.5 * rigid and peaks["own"][0] < 0.05 * rigid
     assert peaks["sim"][1] > 1.5 * peaks["finer"][1]  # the scaled reference is a different pulse
     assert peaks["own"][1] == pytest.approx(peaks["finer"][1], rel=0.1)
-    for key, value in (("mass_floor", -1.0), ("substeps", 0), ("substeps", 2.5)):
+    for key, value in (("mass_floor", -1.0), ("mass_floor", "light"), ("substeps", 0), ("substeps", 2.5)):
         with pytest.raises(ConfigError, match=key):
             replace(own, **{key: value}).validate()
 
