@@ -1,11 +1,12 @@
 """How far the cross-fidelity reference lies from the calibrated model, and how settled its integration is.
 
 The cross-fidelity reference (``reference.kind: cross_fidelity``) is the same vehicle discretized on the uniform
-grid (6891 cells for the default car, against 518 optimized), simulated as the "real test". Its cells are light, so
-the mass scaling and step that suit the calibrated model (``configs/sim.yaml``: every active cell raised to 0.5 kg,
-8 steps per 0.5 ms) move most of the compartment's mass into its crush zone. The reference therefore has its own
-``mass_floor`` and ``substeps`` (``reference.cross_fidelity`` of the env config). This prints, per scenario and for
-the reference simulated with sim.yaml's settings, with the env config's, and with a finer pair (``--fine``):
+grid (8939 cells for the default car, 2910 of them active, against 518 optimized), simulated as the "real test".
+Its cells are light, so the mass scaling and step that suit the calibrated model (``configs/sim.yaml``: every active
+cell raised to 0.5 kg, 8 steps per 0.5 ms) move most of the compartment's mass into its crush zone. The reference
+therefore has its own ``mass_floor`` and ``substeps`` (``reference.cross_fidelity`` of the env config). This prints,
+per scenario and for the reference simulated with sim.yaml's settings, with the env config's, and with a finer pair
+(``--fine``):
 
 - the mass the floor adds [kg] and the tunnel's CFC60 peak [g] and stop time [ms];
 - ``gap``: the compared-velocity RMSE per sensor [m/s] between the optimized model at its initial parameters

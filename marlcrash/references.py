@@ -92,11 +92,11 @@ class TwinConfig:
 class CrossFidelityConfig:
     """The fine reference model: discretization method, vehicle variants, and its own integration settings.
 
-    The fine model's cells are light (the uniform default car's: 1.5 g to 0.27 kg, median 73 g), so the calibrated
-    model's mass floor (``mass_floor`` of ``configs/sim.yaml``, 0.5 kg) would move 1102 of the compartment's 1324 kg
-    into its crush zone and turn its 45-47 g full-width pulse into 115 g. ``mass_floor`` and ``substeps`` here
-    replace the sim config's for the reference only (``None``: the sim config's); the defaults keep the added mass
-    at 30 kg, and halving the floor again moves the reference by a few percent (``benchmarks/bench_cross_fidelity.py``).
+    The fine model's cells are light (the uniform default car's: median 64 g), so the calibrated model's mass floor
+    (``mass_floor`` of ``configs/sim.yaml``, 0.5 kg) would move 1179 of the compartment's 1324 kg into its crush zone
+    and turn its 29 g full-width pulse into 99 g. ``mass_floor`` and ``substeps`` here replace the sim config's for
+    the reference only (``None``: the sim config's); the defaults keep the added mass at 36 kg, and a finer pair
+    moves the reference's peaks by 1-10 % (``benchmarks/bench_cross_fidelity.py``).
     """
 
     method: Literal["uniform", "optimized"] = "uniform"

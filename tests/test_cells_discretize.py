@@ -38,6 +38,19 @@ def uniform(car, cfg):
 
 
 @pytest.fixture(scope="module")
+def uniform_blocks(car, cfg):
+    """The strict grid: one cell per block (``uniform_cells: per_block``)."""
+    return discretize(car, from_dict(DiscretizationConfig, {**_asdict(cfg), "uniform_cells": "per_block"}),
+                      method="uniform")  # fmt: skip
+
+
+def _asdict(cfg):
+    import dataclasses
+
+    return dataclasses.asdict(cfg)
+
+
+@pytest.fixture(scope="module")
 def optimized(car, cfg):
     return discretize(car, cfg, method="optimized")
 
@@ -70,18 +83,70 @@ def _assert_counts_and_mass(model, cfg, uni, opt):
         assert (c.mass[c.is_null] == 0).all() and (c.mass[~c.is_null] > 0).all()
 
 
-def test_counts_and_mass_on_hand_built_car(car, cfg, uniform, optimized):
-    # uniform cells = grid blocks, except blocks holding only compartment material, which join the compartment
+def test_counts_and_mass_on_hand_built_car(car, cfg, uniform_blocks, uniform, optimized):
+    # per block: uniform cells = grid blocks, except blocks holding only compartment material, which join the
+    # compartment
     vpe = cfg.voxels_per_cell_edge
-    nx, ny, nz = uniform.grid_labels.shape
-    block_label = uniform.grid_labels[::vpe, ::vpe, ::vpe]
-    n_comp_blocks = int((block_label == uniform.compartment).sum())
-    assert block_label.size == uniform.meta["n_cells_uniform"] == (nx // vpe) * (ny // vpe) * (nz // vpe)
-    assert uniform.n_cells == uniform.meta["n_cells_uniform"] - n_comp_blocks + 1
+    nx, ny, nz = uniform_blocks.grid_labels.shape
+    block_label = uniform_blocks.grid_labels[::vpe, ::vpe, ::vpe]
+    n_comp_blocks = int((block_label == uniform_blocks.compartment).sum())
+    assert block_label.size == uniform_blocks.meta["n_cells_uniform"] == (nx // vpe) * (ny // vpe) * (nz // vpe)
+    assert uniform_blocks.n_cells == uniform_blocks.meta["n_cells_uniform"] - n_comp_blocks + 1
+    _assert_counts_and_mass(car, cfg, uniform_blocks, optimized)
     _assert_counts_and_mass(car, cfg, uniform, optimized)
 
 
-def test_uniform_blocks_are_exact_voxel_blocks(uniform, cfg):
+def _blocks(labels, vpe):
+    nx, ny, nz = labels.shape
+    return labels.reshape(nx // vpe, vpe, ny // vpe, vpe, nz // vpe, vpe).transpose(0, 2, 4, 1, 3, 5)
+
+
+def test_uniform_cells_split_blocks_by_subassembly(uniform, uniform_blocks, cfg):
+    """``per_subassembly`` (the default): every cell lies within one block, no block holds two cells of one
+    sub-assembly, and every cell holds material of its own sub-assembly only, where a block cell of the strict grid
+    holds its block's material whatever part it belongs to."""
+    vpe = cfg.voxels_per_cell_edge
+    blk = _blocks(uniform.grid_labels, vpe).reshape(-1, vpe**3)
+    block_of = {}
+    for b, cells in enumerate(blk):
+        per_block = np.unique(cells[cells != uniform.compartment])
+        subs = uniform.subassembly[per_block[~uniform.is_null[per_block]]]
+        assert np.unique(subs).size == subs.size  # one cell per (block, sub-assembly)
+        for c in per_block.tolist():
+            assert block_of.setdefault(c, b) == b  # a cell never spans blocks
+    assert uniform.n_cells > uniform_blocks.n_cells
+    # what each cell holds: the sub-assemblies of its material, by the material of the strict grid's blocks
+    mixed = 0
+    strict = _blocks(uniform_blocks.grid_labels, vpe).reshape(-1, vpe**3)
+    for cells_split, cells_strict in zip(blk, strict, strict=True):
+        split = {int(uniform.subassembly[c]) for c in np.unique(cells_split)
+                 if not uniform.is_null[c] and c != uniform.compartment}  # fmt: skip
+        mixed += len(split) > 1
+        one = np.unique(cells_strict[cells_strict != uniform_blocks.compartment])
+        assert one.size <= 2  # the strict grid: a material (or null) cell, perhaps compartment voxels beside it
+    assert mixed > 0  # the hand-built car has blocks where two parts meet: the split grid separates them
+
+
+def test_uniform_cells_hold_their_own_subassembly_mass(uniform, uniform_blocks, optimized):
+    """Per sub-assembly, the split grid's cells weigh what the optimized model's do (each sample in a cell of its
+    own sub-assembly); the strict grid's block cells take their neighbours' material."""
+
+    def by_sub(c):
+        keep = ~c.is_null & ~c.is_rigid
+        names = np.asarray(c.subassembly_names)[c.subassembly[keep]] if c.subassembly_names else None
+        out = {}
+        for name, m in zip(names, c.mass[keep], strict=True):
+            out[name] = out.get(name, 0.0) + float(m)
+        return out
+
+    ref = by_sub(optimized)
+    assert by_sub(uniform) == pytest.approx(ref, rel=1e-9)
+    strict = by_sub(uniform_blocks)
+    assert any(abs(strict.get(k, 0.0) - v) > 1e-3 * v for k, v in ref.items())
+
+
+def test_uniform_blocks_are_exact_voxel_blocks(uniform_blocks, cfg):
+    uniform = uniform_blocks
     vpe = cfg.voxels_per_cell_edge
     lab = uniform.grid_labels
     nx, ny, nz = lab.shape

@@ -85,6 +85,7 @@ class DiscretizationConfig:
         default_factory=lambda: {"wheel_left": 0.01, "wheel_right": 0.01}
     )
     method: Literal["optimized", "uniform"] = "optimized"
+    uniform_cells: Literal["per_subassembly", "per_block"] = "per_subassembly"
     overlaps: list[float] = field(default_factory=lambda: [0.4, 0.25])
     voxels_per_cell_edge: int = 4
     samples_per_pitch: int = 2
@@ -532,11 +533,49 @@ def _uniform(
     cfg: DiscretizationConfig,
     names: list[str],
 ) -> _Labels:
+    """Cells of the regular grid: one per block (``uniform_cells: per_block``), or one per block and sub-assembly
+    owning voxels in it (``per_subassembly``, the default), so that no cell fuses two parts' material (a block
+    straddling the gap between the powertrain and a rail otherwise bonds them, and gives the rail the engine's
+    strength)."""
     shape = grid.shape
     _, nby, nbz = grid.n_blocks
     bx, by, bz = grid.block
     bid = ((bx[:, None, None] * nby + by[None, :, None]) * nbz + bz[None, None, :]).ravel()
-    nb = grid.n_uniform_cells
+    if cfg.uniform_cells == "per_block":
+        labels, cell_sub, is_null = _uniform_blocks(bid, grid.n_uniform_cells, vox, samples, n_sub, comp_vox)
+        cell_of_sample, cand = labels[vox], np.unique(vox)
+    else:
+        labels, cell_sub, is_null, cell_of_sample, cand = _uniform_split(grid, bid, vox, samples, n_sub, comp_vox,
+                                                                         cfg, names)  # fmt: skip
+    n = cell_sub.size
+    comp = n - 1
+    is_sensor = np.zeros(n, dtype=bool)
+    sensor_cell, sensor_pos = [], []
+    for _, p in _sensor_requests(cfg, roi):
+        if p is None or cand.size == 0:
+            sensor_cell.append(comp)
+            sensor_pos.append(None)
+            continue
+        v = _snap(grid, cand, p)
+        sensor_cell.append(int(labels[v]))
+        is_sensor[labels[v]] = True
+        sensor_pos.append(grid.voxel_centers(np.array([v]))[0])
+    return _Labels(
+        labels=labels.reshape(shape),
+        cell_sub=cell_sub,
+        is_null=is_null,
+        is_sensor=is_sensor,
+        cell_of_sample=cell_of_sample,
+        sensor_cell=np.array(sensor_cell, dtype=np.int64),
+        sensor_position=_sensor_positions(sensor_pos),
+    )
+
+
+def _uniform_blocks(
+    bid: np.ndarray, nb: int, vox: np.ndarray, samples: Samples, n_sub: int, comp_vox: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One cell per block with material, labelled by its heaviest sub-assembly and holding all of the block's
+    material; empty blocks are null cells, blocks of compartment material only join the compartment (last)."""
     sb = bid[vox]
     key = sb * n_sub + samples.subassembly
     uk, inv = np.unique(key, return_inverse=True)
@@ -554,35 +593,59 @@ def _uniform(
     null_blocks = ~has_mat & ~has_comp
     n_null = int(null_blocks.sum())
     n = n_mat + n_null + 1
-    comp = n - 1
-    cell_of_block = np.full(nb, comp, dtype=np.int64)
+    cell_of_block = np.full(nb, n - 1, dtype=np.int64)
     cell_of_block[has_mat] = np.arange(n_mat)
     cell_of_block[null_blocks] = n_mat + np.arange(n_null)
-    labels = cell_of_block[bid]
     cell_sub = np.concatenate([dom[has_mat], np.full(n_null, -1), [n_sub]])
     is_null = np.zeros(n, dtype=bool)
-    is_null[n_mat:comp] = True
-    is_sensor = np.zeros(n, dtype=bool)
-    cand = np.unique(vox)
-    sensor_cell, sensor_pos = [], []
-    for _, p in _sensor_requests(cfg, roi):
-        if p is None or cand.size == 0:
-            sensor_cell.append(comp)
-            sensor_pos.append(None)
-            continue
-        v = _snap(grid, cand, p)
-        sensor_cell.append(int(labels[v]))
-        is_sensor[labels[v]] = True
-        sensor_pos.append(grid.voxel_centers(np.array([v]))[0])
-    return _Labels(
-        labels=labels.reshape(shape),
-        cell_sub=cell_sub,
-        is_null=is_null,
-        is_sensor=is_sensor,
-        cell_of_sample=labels[vox],
-        sensor_cell=np.array(sensor_cell, dtype=np.int64),
-        sensor_position=_sensor_positions(sensor_pos),
-    )
+    is_null[n_mat : n - 1] = True
+    return cell_of_block[bid], cell_sub, is_null
+
+
+def _uniform_split(
+    grid: FineGrid,
+    bid: np.ndarray,
+    vox: np.ndarray,
+    samples: Samples,
+    n_sub: int,
+    comp_vox: np.ndarray,
+    cfg: DiscretizationConfig,
+    names: list[str],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """One cell per block and owning sub-assembly (voxel ownership as in the optimized method, every sample in a
+    cell of its own sub-assembly); a block's unowned voxels are one null cell, compartment voxels the compartment.
+    A piece that receives no material joins the nearest piece of its sub-assembly. Returns voxel labels, the
+    cells' sub-assemblies, null flags, the cell of every sample, and the voxels a sensor may snap to."""
+    owner, own_mass = _resolve_owners(grid, vox, samples, n_sub, comp_vox, cfg.envelope_closing_iterations)
+    mat = (owner >= 0) & (owner < n_sub)
+    uk, inv = np.unique(bid[mat] * n_sub + owner[mat], return_inverse=True)
+    n_mat = uk.size
+    labels = np.full(grid.n_voxels, -1, dtype=np.int64)
+    labels[mat] = inv.ravel()
+    empty = owner < 0
+    ub, binv = np.unique(bid[empty], return_inverse=True)
+    n_null = ub.size
+    labels[empty] = n_mat + binv.ravel()
+    n = n_mat + n_null + 1
+    labels[owner == n_sub] = n - 1
+    cell_sub = np.concatenate([uk % n_sub, np.full(n_null, -1), [n_sub]]).astype(np.int64)
+    is_null = np.zeros(n, dtype=bool)
+    is_null[n_mat : n - 1] = True
+    cell_of_sample = _attribute_samples(grid, labels, cell_sub, vox, samples, names)
+    mass = np.bincount(cell_of_sample, weights=samples.mass, minlength=n)
+    no_mass = ~is_null & (mass <= 0)
+    no_mass[n - 1] = False
+    if no_mass.any():
+        for sub in np.unique(cell_sub[no_mass]).tolist():
+            src = np.flatnonzero(no_mass[labels] & (cell_sub[labels] == sub))
+            dst = np.flatnonzero(~no_mass[labels] & (cell_sub[labels] == sub))
+            _, nearest = cKDTree(grid.voxel_centers(dst)).query(grid.voxel_centers(src))
+            labels[src] = labels[dst[nearest]]
+        keep = ~no_mass
+        new = np.cumsum(keep) - 1
+        labels, cell_of_sample = new[labels], new[cell_of_sample]
+        cell_sub, is_null = cell_sub[keep], is_null[keep]
+    return labels, cell_sub, is_null, cell_of_sample, np.flatnonzero(mat & (own_mass > 0))
 
 
 # ----------------------------------------------------------------------------- assembly
