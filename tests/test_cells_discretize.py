@@ -284,6 +284,7 @@ def test_summary_and_plot(car, cfg, optimized, tmp_path):
         lines = format_discretization_summary(summary).splitlines()
         at = next(i for i, line in enumerate(lines) if "of which null cells" in line)
         assert lines[at - 1].startswith(f"cells, {method} discretization")
+        assert lines[at - 1].split()[-1] == str(summary["n_cells"])  # this model's count, not the grid's blocks
         assert lines[at].split()[-1] == str(summary["n_null_cells"])
     png = plot_cells(optimized, tmp_path / "cells.png")
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
