@@ -488,21 +488,9 @@ def _optimized(
     is_null[n_cells_mat:comp] = True
     is_sensor = np.concatenate([is_sensor, np.zeros(n_null + 1, dtype=bool)])
     cell_of_sample = _attribute_samples(grid, labels, cell_sub, vox, samples, names)
-    # cells left without material (envelope interior only) merge into the nearest cell of their sub-assembly
-    mass = np.bincount(cell_of_sample, weights=samples.mass, minlength=n)
-    empty_cells = (~is_null) & (mass <= 0) & (np.arange(n) != comp)
-    if empty_cells.any():
-        for s in np.unique(cell_sub[empty_cells]).tolist():
-            src = np.flatnonzero(empty_cells[labels] & (cell_sub[labels] == s))
-            dst = np.flatnonzero((~empty_cells[labels]) & (cell_sub[labels] == s))
-            if dst.size == 0:  # every cell of the sub-assembly is empty
-                raise _no_cell(grid, names[s], float(samples.mass[samples.subassembly == s].sum()))
-            _, nearest = cKDTree(grid.voxel_centers(dst)).query(grid.voxel_centers(src))
-            labels[src] = labels[dst[nearest]]
-        keep = ~empty_cells
+    labels, cell_of_sample, keep = _merge_massless(grid, labels, cell_of_sample, cell_sub, is_null, samples, names)
+    if keep is not None:
         new = np.cumsum(keep) - 1
-        labels = new[labels]
-        cell_of_sample = new[cell_of_sample]
         cell_sub, is_null, is_sensor = cell_sub[keep], is_null[keep], is_sensor[keep]
         sensor_cell_mat = {k: int(new[c]) for k, c in sensor_cell_mat.items()}
         n = int(keep.sum())
@@ -517,6 +505,38 @@ def _optimized(
         sensor_cell=sensor_cell,
         sensor_position=_sensor_positions(sensor_pos),
     )
+
+
+def _merge_massless(
+    grid: FineGrid,
+    labels: np.ndarray,
+    cell_of_sample: np.ndarray,
+    cell_sub: np.ndarray,
+    is_null: np.ndarray,
+    samples: Samples,
+    names: list[str],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """Material cells given no material (envelope interior only) join the nearest cell of their sub-assembly.
+
+    Returns the renumbered voxel labels and sample cells, and the mask of the cells kept (``None`` when every cell
+    has material and nothing changed); the compartment (last cell) is always kept.
+    """
+    n = cell_sub.size
+    mass = np.bincount(cell_of_sample, weights=samples.mass, minlength=n)
+    empty = ~is_null & (mass <= 0)
+    empty[n - 1] = False
+    if not empty.any():
+        return labels, cell_of_sample, None
+    for s in np.unique(cell_sub[empty]).tolist():
+        src = np.flatnonzero(empty[labels] & (cell_sub[labels] == s))
+        dst = np.flatnonzero(~empty[labels] & (cell_sub[labels] == s))
+        if dst.size == 0:  # every cell of the sub-assembly is empty
+            raise _no_cell(grid, names[s], float(samples.mass[samples.subassembly == s].sum()))
+        _, nearest = cKDTree(grid.voxel_centers(dst)).query(grid.voxel_centers(src))
+        labels[src] = labels[dst[nearest]]
+    keep = ~empty
+    new = np.cumsum(keep) - 1
+    return new[labels], new[cell_of_sample], keep
 
 
 def _sensor_positions(pos: list) -> np.ndarray:
@@ -632,18 +652,8 @@ def _uniform_split(
     is_null = np.zeros(n, dtype=bool)
     is_null[n_mat : n - 1] = True
     cell_of_sample = _attribute_samples(grid, labels, cell_sub, vox, samples, names)
-    mass = np.bincount(cell_of_sample, weights=samples.mass, minlength=n)
-    no_mass = ~is_null & (mass <= 0)
-    no_mass[n - 1] = False
-    if no_mass.any():
-        for sub in np.unique(cell_sub[no_mass]).tolist():
-            src = np.flatnonzero(no_mass[labels] & (cell_sub[labels] == sub))
-            dst = np.flatnonzero(~no_mass[labels] & (cell_sub[labels] == sub))
-            _, nearest = cKDTree(grid.voxel_centers(dst)).query(grid.voxel_centers(src))
-            labels[src] = labels[dst[nearest]]
-        keep = ~no_mass
-        new = np.cumsum(keep) - 1
-        labels, cell_of_sample = new[labels], new[cell_of_sample]
+    labels, cell_of_sample, keep = _merge_massless(grid, labels, cell_of_sample, cell_sub, is_null, samples, names)
+    if keep is not None:
         cell_sub, is_null = cell_sub[keep], is_null[keep]
     return labels, cell_sub, is_null, cell_of_sample, np.flatnonzero(mat & (own_mass > 0))
 
