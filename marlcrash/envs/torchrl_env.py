@@ -21,6 +21,11 @@ Seeding copies: every env starts from its config's ``seed`` (reproducible by def
 (``SerialEnv``, ``ParallelEnv``) draw the same episodes until seeded: call ``set_seed(s)`` on the batched env (TorchRL
 gives each worker its own seed from ``s``), or give each copy its own ``seed``. One env with ``batch_size=B`` needs
 neither: its rows draw from one generator.
+
+Worker processes: a ``ParallelEnv`` needs the ``spawn`` start method (TorchRL's default). With
+``mp_start_method="fork"`` in a process that has already simulated, the workers die at start ("fork() called from
+a process already using GNU OpenMP"): the compiled simulator runs on numba's OpenMP threading layer, whose GNU
+runtime is not fork safe. One env with ``batch_size=B`` already runs its rows on every core.
 """
 
 from __future__ import annotations
