@@ -85,7 +85,8 @@ class CellModel:
         target_cell_volume: [m^3].
         roi_depth: crop depth [m]; ``roi_lo``, ``roi_hi``: ``[3]`` ROI box [m].
         planes_y: sorted y positions of the section planes [m].
-        vehicle_width: lateral extent of the vehicle [m] (overlaps are fractions of it).
+        vehicle_width: lateral extent of the vehicle [m] (overlaps are fractions of it, measured from the struck
+            side's outer edge ``centre_y +- vehicle_width / 2``; :attr:`centre_y`).
         roi_mass: mass of the elements inside the ROI [kg], their added mass included (compartment parts
             excluded; point masses on nodes not counted).
         total_mass: vehicle mass [kg].
@@ -155,6 +156,15 @@ class CellModel:
     def compartment(self) -> int:
         """Index of the rigid compartment cell."""
         return int(np.flatnonzero(self.is_rigid)[0])
+
+    @property
+    def centre_y(self) -> float:
+        """The vehicle's centre line ``y0`` [m]: the middle of the ROI box, which spans the vehicle's width.
+
+        Not ``y = 0`` for a model read with an ``AxisMap.y_center`` off its middle: the section planes and the
+        barrier edges (:func:`marlcrash.cells.roi.barrier_edge`) are measured from it.
+        """
+        return float(0.5 * (self.roi_lo[1] + self.roi_hi[1]))
 
     @property
     def roi_volume(self) -> float:

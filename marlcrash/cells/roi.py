@@ -1,12 +1,18 @@
 """Region of interest, section planes and the rigid compartment (DESIGN 1.2).
 
 In marlcrash axes (x rearward from the front at x = 0, y lateral with +y left,
-z up) the ROI is the box ``x in [0, roi_depth]``, ``y in [-W/2, W/2]`` (``W`` the
-vehicle width) and ``z`` spanning the deformable material in front of
-``roi_depth``. The sub-assembly :data:`~marlcrash.vehicle.model.COMPARTMENT`
-(or, if the model has none, every part of rigid material) is not discretized:
-it and every element whose centroid lies behind ``roi_depth`` form one rigid
-compartment cell.
+z up) the ROI is the box ``x in [0, roi_depth]``, ``y`` across the vehicle's width ``W``
+(``[y0 - W/2, y0 + W/2]``, ``y0`` the middle of its bounding box: its centre line) and ``z``
+spanning the deformable material in front of ``roi_depth``. The sub-assembly
+:data:`~marlcrash.vehicle.model.COMPARTMENT` (or, if the model has none, every part of
+rigid material) is not discretized: it and every element whose centroid lies behind
+``roi_depth`` form one rigid compartment cell.
+
+One lateral reference: a barrier covering the fraction ``o`` of the width covers ``o W`` from the
+struck side's outer edge ``y0 +- W/2`` (:func:`barrier_edge`), as a crash test measures it. The
+section planes, the simulated barrier (:func:`marlcrash.sim.scenario.barrier_fraction`) and the
+impact regions all take their edges from it, so a vehicle not centred on ``y = 0`` (an
+:class:`~marlcrash.vehicle.model.AxisMap` with ``y_center``) is struck where it is cut.
 """
 
 from __future__ import annotations
@@ -26,7 +32,7 @@ class Roi:
     Attributes:
         lo, hi: ``[3]`` ROI box corners [m].
         width: vehicle width ``W`` [m] from the model bounds.
-        planes_y: sorted y positions of the section planes [m] (``0``, ``+-y1``, ``+-y2``).
+        planes_y: sorted y positions of the section planes [m] (``y0``, ``y0 +- y1``, ``y0 +- y2``).
         compartment_parts: sorted part ids of the compartment.
         shell_in, solid_in, beam_in: ``[S]``, ``[V]``, ``[B]`` bool, elements that are discretized
             (not compartment, centroid in front of ``roi_depth``).
@@ -54,27 +60,50 @@ class Roi:
         """ROI box volume [m^3]."""
         return float(np.prod(self.hi - self.lo))
 
+    @property
+    def centre_y(self) -> float:
+        """The vehicle's centre line ``y0`` [m]: the middle of its width (of the ROI box, which spans it)."""
+        return float(0.5 * (self.lo[1] + self.hi[1]))
 
-def section_planes(width: float, overlaps: list[float] | tuple[float, ...]) -> np.ndarray:
+
+def barrier_edge(centre_y, width, overlap, side):
+    """Lateral position [m] of the inner edge of a barrier covering the fraction ``overlap`` of the width.
+
+    The barrier covers ``overlap * width`` measured from the vehicle's outer edge on the struck side,
+    ``centre_y + side * width / 2``: its inner edge is at ``centre_y + side * (width / 2 - overlap * width)``
+    (a 40 % offset on the left of a 1.7 m car centred on 0: ``y = +0.17 m``). The one lateral reference of the
+    section planes, the simulated barrier and the impact regions; floats, numpy arrays and tensors alike.
+
+    Args:
+        centre_y: the vehicle's centre line [m] (:attr:`Roi.centre_y`, ``CellModel.centre_y``).
+        width: vehicle width ``W`` [m].
+        overlap: covered fraction(s) of the width.
+        side: +1 (left, +y) or -1 (right, -y).
+    """
+    return centre_y + side * (0.5 * width - overlap * width)
+
+
+def section_planes(width: float, overlaps: list[float] | tuple[float, ...], centre_y: float = 0.0) -> np.ndarray:
     """Section planes in y for the centre line and each barrier overlap.
 
-    A barrier covering the fraction ``o`` of the width from one side has its edge
-    at ``|y| = W/2 - o W``: 40 % gives ``+-0.1 W``, 25 % gives ``+-0.25 W``.
+    A barrier covering the fraction ``o`` of the width from one side has its edge at
+    :func:`barrier_edge`: ``y0 +- (W/2 - o W)``; 40 % gives ``y0 +- 0.1 W``, 25 % gives ``y0 +- 0.25 W``.
 
     Args:
         width: vehicle width ``W`` [m].
         overlaps: overlap fractions in ``(0, 1)``.
+        centre_y: the vehicle's centre line ``y0`` [m].
 
     Returns:
-        Sorted unique plane positions [m], always including ``y0 = 0``.
+        Sorted unique plane positions [m], always including ``y0``.
     """
     ys = [0.0]
     for i, o in enumerate(overlaps):
         if not 0.0 < o < 1.0:
             raise ConfigError(f"overlap fractions must lie in (0, 1), got {o}", key=f"overlaps[{i}]")
-        y = abs(0.5 * width - o * width)
-        ys += [y, -y]
-    return np.unique(np.round(np.array(ys), 12))
+        ys += [barrier_edge(0.0, width, o, side) for side in (1.0, -1.0)]
+    # rounded about the centre line, then placed: a centred model's planes are exact negatives of each other
+    return np.unique(np.round(np.array(ys), 12)) + centre_y
 
 
 def compartment_parts(model: VehicleModel) -> np.ndarray:
@@ -137,8 +166,9 @@ def region_of_interest(model: VehicleModel, roi_depth: float, overlaps: list[flo
     zlo, zhi = float(z.min()), float(z.max())
     if zhi - zlo < 1e-6:
         zlo, zhi = zlo - 0.5e-3, zhi + 0.5e-3
-    lo = np.array([0.0, -0.5 * width + 0.5 * (b[0, 1] + b[1, 1]), zlo])
-    hi = np.array([roi_depth, 0.5 * width + 0.5 * (b[0, 1] + b[1, 1]), zhi])
+    centre = 0.5 * (b[0, 1] + b[1, 1])
+    lo = np.array([0.0, -0.5 * width + centre, zlo])
+    hi = np.array([roi_depth, 0.5 * width + centre, zhi])
     roi_mass = float(sum(masses[k][sel[k]].sum() + added[k][sel[k]].sum() for k in sel))
     # summed as before added masses existed, so a model without them keeps its mass to the last bit
     total = float(sum(m.sum() for m in masses.values()))
@@ -147,7 +177,7 @@ def region_of_interest(model: VehicleModel, roi_depth: float, overlaps: list[flo
         lo=lo,
         hi=hi,
         width=width,
-        planes_y=section_planes(width, overlaps) + 0.5 * (b[0, 1] + b[1, 1]),
+        planes_y=section_planes(width, overlaps, centre),
         compartment_parts=comp,
         shell_in=sel["shell"],
         solid_in=sel["solid"],

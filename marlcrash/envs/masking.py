@@ -79,6 +79,7 @@ class ImpactRegions:
         self.x = torch.as_tensor(cells.centroid[:, 0], dtype=dt)
         self.lo_x = torch.as_tensor(cells.lo[:, 0], dtype=dt)
         self.width = float(cells.vehicle_width)
+        self.centre_y = cells.centre_y
         self.deformable = torch.as_tensor(~cells.is_null & ~cells.is_rigid)
         keep = np.isin(cells.link_dir, [DIRECTIONS.index(d) for d in config.secondary_directions])
         self.src = torch.as_tensor(cells.link_src[keep].astype(np.int64))
@@ -90,7 +91,8 @@ class ImpactRegions:
 
     def primary(self, overlap: torch.Tensor, side: torch.Tensor, speed: torch.Tensor) -> torch.Tensor:
         """``[B, n_cells]`` bool primary region for ``[B]`` overlaps, sides (+1 left, -1 right), speeds [m/s]."""
-        frac = barrier_fraction(self.lo_y, self.hi_y, self.width, overlap.to(torch.float64), side)
+        ov = overlap.to(torch.float64)
+        frac = barrier_fraction(self.lo_y, self.hi_y, self.width, ov, side, centre_y=self.centre_y)
         struck = (frac > 0) & self.deformable
         front = torch.where(struck, self.lo_x, torch.full_like(frac, float("inf"))).amin(dim=1, keepdim=True)
         self._front = front

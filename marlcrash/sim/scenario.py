@@ -5,10 +5,12 @@ A :class:`CrashScenario` is a validated schema whose values live in
 file names to scenarios: :func:`list_scenarios`, :func:`get_scenario`.
 
 Barrier geometry: x points rearward, +y is the vehicle's left. A rigid wall
-perpendicular to x covers the lateral band ``y >= W/2 - o*W`` (side ``left``)
-or ``y <= -W/2 + o*W`` (side ``right``), where ``W`` is the vehicle width and
-``o`` the overlap fraction; the band extends beyond the vehicle's edge, as a real
-barrier face does. :func:`barrier_mask` gives each cell's covered front-area fraction.
+perpendicular to x covers ``o*W`` of the vehicle width ``W`` from the outer edge of
+the struck side, ``o`` the overlap fraction: the lateral band ``y >= y0 + W/2 - o*W``
+(side ``left``) or ``y <= y0 - W/2 + o*W`` (side ``right``), ``y0`` the vehicle's centre
+line (``CellModel.centre_y``, the reference of the section planes too:
+:func:`marlcrash.cells.roi.barrier_edge`); the band extends beyond the vehicle's edge,
+as a real barrier face does. :func:`barrier_mask` gives each cell's covered front-area fraction.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ import numpy as np
 import torch
 
 from marlcrash.cells.model import CellModel
+from marlcrash.cells.roi import barrier_edge
 from marlcrash.config import config_dir, load_config, require
 from marlcrash.errors import ConfigError
 
@@ -143,7 +146,13 @@ def get_scenario(name: str, overrides: dict | None = None) -> CrashScenario:
 
 
 def barrier_fraction(
-    lo_y: torch.Tensor, hi_y: torch.Tensor, width: float, overlap: torch.Tensor, side: torch.Tensor
+    lo_y: torch.Tensor,
+    hi_y: torch.Tensor,
+    width: float,
+    overlap: torch.Tensor,
+    side: torch.Tensor,
+    *,
+    centre_y: float,
 ) -> torch.Tensor:
     """Covered fraction of each cell's lateral extent, batched over scenarios.
 
@@ -152,17 +161,19 @@ def barrier_fraction(
         width: vehicle width ``W`` [m].
         overlap: ``[B]`` overlap fractions in (0, 1].
         side: ``[B]`` +1 (left, +y) or -1 (right, -y).
+        centre_y: the vehicle's centre line [m] (``CellModel.centre_y``): the overlap is measured from the struck
+            side's outer edge ``centre_y +- W/2``, not from ``y = 0``.
 
     Returns:
         ``[B, n]`` fraction in [0, 1] of each cell's y-extent inside the barrier band.
     """
-    edge = 0.5 * width - overlap * width  # [B]: inner barrier edge, measured on the struck side
     sgn = side.to(lo_y.dtype)[:, None]
-    # Mirror the right-side case onto the left: band is y' >= edge with y' = sgn * y.
+    edge = barrier_edge(centre_y, width, overlap.to(lo_y.dtype)[:, None], sgn)  # [B, 1]: inner barrier edge
+    # Mirror the right-side case onto the left: band is y' >= sgn * edge with y' = sgn * y.
     a = torch.minimum(sgn * lo_y[None, :], sgn * hi_y[None, :])
     b = torch.maximum(sgn * lo_y[None, :], sgn * hi_y[None, :])
     extent = (b - a).clamp_min(1e-12)
-    covered = (b - torch.maximum(a, edge[:, None].to(lo_y.dtype))).clamp(min=0.0)
+    covered = (b - torch.maximum(a, sgn * edge)).clamp(min=0.0)
     # Snap round-off slivers: cells never straddle the section planes, so a micrometre is "on the plane".
     covered = torch.where(covered < _PLANE_TOL, torch.zeros_like(covered), covered)
     covered = torch.where(extent - covered < _PLANE_TOL, extent, covered)
@@ -175,7 +186,7 @@ def barrier_mask(cells: CellModel, scenario: CrashScenario) -> np.ndarray:
     """Fraction of each cell's front area covered by the scenario's barrier.
 
     Args:
-        cells: the cell model (uses ``lo``, ``hi``, ``front_area``, ``vehicle_width``).
+        cells: the cell model (uses ``lo``, ``hi``, ``front_area``, ``vehicle_width``, ``centre_y``).
         scenario: the load case.
 
     Returns:
@@ -187,6 +198,7 @@ def barrier_mask(cells: CellModel, scenario: CrashScenario) -> np.ndarray:
         float(cells.vehicle_width),
         torch.tensor([scenario.overlap], dtype=torch.float64),
         torch.tensor([scenario.side_sign], dtype=torch.float64),
+        centre_y=cells.centre_y,
     )[0].numpy()
     exposed = (cells.front_area > 0) & ~cells.is_null & ~cells.is_rigid
     return np.where(exposed, frac, 0.0)

@@ -411,6 +411,7 @@ class Surrogate:
         self.lo_x = t(cells.lo[:, 0])
         self.lo_y, self.hi_y = t(cells.lo[:, 1]), t(cells.hi[:, 1])
         self.width = float(cells.vehicle_width)
+        self.centre_y = cells.centre_y
         # Fast-path layout: plain links first, then gap links, each sorted by (src, dst).
         self.link_order = np.lexsort((dst, src, cells.link_gap > 0))
         self.tension_ratio_np = np.where(cells.link_dir == 0, cfg.tension_ratio, 1.0)
@@ -523,7 +524,7 @@ class Surrogate:
         sd = vec(side, None if scenario is None else scenario.side_sign, "side")
         if bool((sp <= 0).any()) or bool(((ov <= 0) | (ov > 1)).any()) or bool((sd.abs() != 1).any()):
             raise ModelError(f"need speed > 0 m/s, overlap in (0, 1], side in {{+1, -1}}; got {sp}, {ov}, {sd}")
-        frac = barrier_fraction(self.lo_y, self.hi_y, self.width, ov, sd) * self.exposed
+        frac = barrier_fraction(self.lo_y, self.hi_y, self.width, ov, sd, centre_y=self.centre_y) * self.exposed
         covered = frac > 0
         if not bool(covered.any(dim=1).all()):
             rows = torch.nonzero(~covered.any(dim=1)).flatten().tolist()

@@ -66,7 +66,9 @@ class AxisMap:
     whose z axis is lateral. After the rotation, the model is shifted so the
     front-most point is at x = 0 and the lateral centre of its bounding box at
     y = 0 (or at ``y_center`` if given, in metres of the mapped frame); z keeps
-    the deck's origin.
+    the deck's origin. ``y_center`` moves the frame only: the vehicle's centre line, its
+    section planes and every barrier overlap stay measured from its bounding box (an overlap
+    from the struck side's outer edge, :func:`marlcrash.cells.roi.barrier_edge`).
 
     marlcrash's frame is left-handed (x rearward, y left, z up), so a map with an odd number of sign changes
     and swaps is no mistake: a right-handed deck with x rearward, y to the right and z up (a common crash frame)

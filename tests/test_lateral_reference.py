@@ -1,0 +1,100 @@
+"""One lateral reference for section planes, barrier and impact regions, wherever the vehicle sits in y.
+
+A deck read with ``AxisMap(y_center=...)`` off its middle is not centred on y = 0. A barrier covering the fraction
+``o`` of the width covers ``o W`` from the struck side's outer edge (as a crash test measures it), so its edge is
+``y_left - o W`` or ``y_right + o W``: computed here from the node coordinates alone. The section planes sat about
+the box middle while the barrier was measured from y = 0: 3 cm off centre, cells straddled the barrier edges and
+the pulse moved by 2 m/s.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from test_cells_helpers import mini_car
+
+from marlcrash.cells import discretize, load_discretization_config
+from marlcrash.envs.agents import AgentsConfig, build_agents
+from marlcrash.envs.masking import ImpactRegions, MaskingConfig
+from marlcrash.sim.scenario import barrier_mask, get_scenario
+from marlcrash.sim.surrogate import Surrogate
+from marlcrash.vehicle.model import AxisMap
+
+SHIFT = 0.03  # [m] the off-centre car's box middle sits at y = +SHIFT
+OFFSETS = ["offset40_left", "offset40_right", "small_overlap_left", "small_overlap_right"]
+TOL = 1e-9  # [m]
+
+
+@pytest.fixture(scope="module")
+def cars():
+    car = mini_car()
+    off = car.transformed(AxisMap(y_center=-SHIFT))  # the mapped y = -SHIFT becomes 0: the car moves to +y
+    lo, hi = off.bounds()[:, 1]
+    assert 0.5 * (lo + hi) == pytest.approx(SHIFT, abs=1e-12)  # the premise: off centre
+    return car, off
+
+
+@pytest.fixture(scope="module")
+def uniform(cars):
+    cfg = load_discretization_config()
+    return tuple(discretize(c, cfg, method="uniform") for c in cars)
+
+
+def _struck_band(model, scenario):
+    """``(edge, side)`` of the barrier from the node coordinates: ``overlap * W`` from the struck side's edge."""
+    y = model.coords[model.used_nodes(), 1]
+    width = y.max() - y.min()
+    if scenario.side == "left":
+        return y.max() - scenario.overlap * width, 1.0
+    return y.min() + scenario.overlap * width, -1.0
+
+
+@pytest.mark.parametrize("method", ["optimized", "uniform"])
+def test_barrier_edges_of_an_off_centre_car_are_section_planes_and_no_cell_straddles_them(cars, method):
+    off = cars[1]
+    cells = discretize(off, load_discretization_config(), method=method)
+    exposed = (cells.front_area > 0) & ~cells.is_null & ~cells.is_rigid
+    for name in OFFSETS:
+        sc = get_scenario(name)
+        edge, side = _struck_band(off, sc)
+        assert np.abs(cells.planes_y - edge).min() < TOL, (name, edge, cells.planes_y)
+        a, b = np.sort(side * np.stack([cells.lo[:, 1], cells.hi[:, 1]]), axis=0)  # mirrored: band is y' >= e'
+        inside, outside = a >= side * edge - TOL, b <= side * edge + TOL
+        assert (inside | outside)[exposed].all(), f"{name}: cells straddle the barrier edge y = {edge:.4f} m"
+        mask = barrier_mask(cells, sc)
+        np.testing.assert_array_equal(mask, (exposed & inside).astype(float), err_msg=name)
+        assert (mask > 0).any()
+
+
+def test_impact_regions_of_an_off_centre_car_lie_in_the_struck_band(cars, uniform):
+    off, cells = cars[1], uniform[1]
+    layout = build_agents(cells, AgentsConfig())
+    regions = ImpactRegions(cells, layout, MaskingConfig())
+    exposed = (cells.front_area > 0) & ~cells.is_null & ~cells.is_rigid
+    for name in OFFSETS:
+        sc = get_scenario(name)
+        edge, side = _struck_band(off, sc)
+        t = lambda v: torch.tensor([v], dtype=torch.float64)  # noqa: E731
+        prim = regions.primary(t(sc.overlap), t(sc.side_sign), t(sc.speed))[0].numpy()
+        near = np.minimum(side * cells.lo[:, 1], side * cells.hi[:, 1])  # mirrored: the bound nearer the far side
+        assert prim.any() and (near[prim] >= side * edge - TOL).all(), name
+        assert prim[exposed & (near >= side * edge - TOL)].all(), name  # every struck front cell is primary
+
+
+@pytest.mark.parametrize("name", ["offset40_left", "small_overlap_right"])
+def test_moving_the_car_sideways_changes_neither_the_struck_cells_nor_the_pulse(uniform, name):
+    """The same car 3 cm to the left is the same crash: the uniform grid moves with it (same labels), and the
+    barrier, the impact regions and the sensor velocities must follow (before: up to 2.0-2.3 m/s apart in 30 ms)."""
+    centred, off = uniform
+    np.testing.assert_array_equal(centred.grid_labels, off.grid_labels)  # the premise: the same cells
+    sc = get_scenario(name)
+    np.testing.assert_array_equal(barrier_mask(centred, sc), barrier_mask(off, sc))
+    t = lambda v: torch.tensor([v], dtype=torch.float64)  # noqa: E731
+    args = (t(sc.overlap), t(sc.side_sign), t(sc.speed))
+    for a, b in zip(*(ImpactRegions(c, build_agents(c, AgentsConfig()), MaskingConfig()).regions(*args)
+                      for c in uniform), strict=True):  # fmt: skip
+        assert torch.equal(a, b)
+    runs = [Surrogate(c).run(torch.as_tensor(c.params)[None], sc, duration=0.03, record_cells="none") for c in uniform]
+    torch.testing.assert_close(runs[1].velocity, runs[0].velocity, rtol=0, atol=1e-9)
+    assert float(runs[0].crush[0, -1]) > 0.1  # the crash happened
