@@ -98,3 +98,21 @@ def test_moving_the_car_sideways_changes_neither_the_struck_cells_nor_the_pulse(
     runs = [Surrogate(c).run(torch.as_tensor(c.params)[None], sc, duration=0.03, record_cells="none") for c in uniform]
     torch.testing.assert_close(runs[1].velocity, runs[0].velocity, rtol=0, atol=1e-9)
     assert float(runs[0].crush[0, -1]) > 0.1  # the crash happened
+
+
+@pytest.mark.parametrize("method", ["optimized", "uniform"])
+def test_left_and_right_agents_split_at_the_centre_line(cars, method):
+    """``split_lr`` halves meet at the vehicle's centre line, not at y = 0: 3 cm off centre, a cell wholly right of
+    the centre line whose centroid lay in 0 < y < 3 cm joined the left agent (and was struck by a right crash)."""
+    cells = discretize(cars[1], load_discretization_config(), method=method)
+    split = ["bumper", "cooling", "powertrain", "dash"]  # the sub-assemblies across the centre line
+    layout = build_agents(cells, AgentsConfig(split_lr=split))
+    centre = 0.5 * (cells.roi_lo[1] + cells.roi_hi[1])
+    for name in split:
+        for side, sign in (("left", 1.0), ("right", -1.0)):
+            k = layout.index(f"{name}_{side}")
+            own = layout.cells[k][layout.valid[k]].numpy()
+            assert own.size > 0
+            # each cell lies wholly on its agent's side of the centre plane (cells never straddle it)
+            assert (sign * (cells.centroid[own, 1] - centre) > 0).all(), (name, side)
+            assert (np.minimum(sign * (cells.lo[own, 1] - centre), sign * (cells.hi[own, 1] - centre)) >= -TOL).all()

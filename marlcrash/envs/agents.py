@@ -4,8 +4,10 @@ By default every sub-assembly of the :class:`~marlcrash.cells.model.CellModel` i
 agent, named after it (``front_rail_left``, ``cooling_module``); the rigid compartment
 and null cells belong to no agent. :class:`AgentsConfig` changes that layout:
 
-- ``split_lr``: sub-assemblies split into ``<name>_left`` (cell centroid ``y > 0``) and
-  ``<name>_right`` (``y < 0``); a centroid exactly on ``y = 0`` goes to ``split_centre``.
+- ``split_lr``: sub-assemblies split into ``<name>_left`` (cell centroid ``y > y0``) and
+  ``<name>_right`` (``y < y0``); a centroid exactly on ``y0`` goes to ``split_centre``. ``y0`` is
+  the vehicle's centre line (``CellModel.centre_y``; 0 for a centred vehicle), the reference of
+  the section planes and the barrier too.
 - ``merge``: new agent name -> sub-assemblies that form one agent (small parts).
 - ``custom``: explicit agents, each a list of sub-assemblies restricted to a side.
 - ``rest``: ``auto`` makes one agent of every sub-assembly not named above; ``none``
@@ -40,8 +42,8 @@ class AgentSpec:
     Attributes:
         name: agent name (unique).
         subassemblies: sub-assembly names whose cells it owns.
-        side: ``any``, ``left`` (centroid ``y > 0``, plus ``y = 0`` when ``split_centre`` is
-            ``left``) or ``right``.
+        side: ``any``, ``left`` (centroid ``y > y0``, the centre line, plus ``y = y0`` when ``split_centre``
+            is ``left``) or ``right``.
     """
 
     name: str = ""
@@ -115,7 +117,7 @@ class AgentLayout:
 
 
 def _side_mask(cells: CellModel, side: str, centre: str) -> np.ndarray:
-    y = cells.centroid[:, 1]
+    y = cells.centroid[:, 1] - cells.centre_y  # sides of the centre line, not of y = 0 (AxisMap.y_center)
     if side == "any":
         return np.ones(cells.n_cells, dtype=bool)
     if side == "left":
