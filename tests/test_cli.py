@@ -60,20 +60,26 @@ def test_discretize_default_car_json(tmp_path):
     assert plot.stat().st_size > 10_000
 
 
-def test_discretize_lsopt_with_axis_map(lsopt_deck):
-    out = json.loads(
-        run_cli(
-            "discretize",
-            str(lsopt_deck),
-            "--param",
-            "tbumper=3",
-            "--param",
-            "thood=1",
-            "--axis-map",
-            "x=+x,y=+z,z=+y",
-            "--json",
-        ).stdout
+def _without_upfront_left(tmp_path: Path) -> Path:
+    """A copy of configs/cells.yaml without the up-front left sensor: the LS-OPT car read with x=+x,y=+z,z=+y has no
+    material within 0.76 m of its default position on its side of the centre line."""
+    import yaml
+
+    data = yaml.safe_load((Path(__file__).parents[1] / "configs" / "cells.yaml").read_text())
+    data["sensors"] = [s for s in data["sensors"] if s["name"] != "upfront_left"]
+    path = tmp_path / "cells_no_upfront_left.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def test_discretize_lsopt_with_axis_map(lsopt_deck, tmp_path):
+    args = ("discretize", str(lsopt_deck), "--param", "tbumper=3", "--param", "thood=1", "--axis-map", "x=+x,y=+z,z=+y")
+    proc = run_cli(*args, "--json", check=False)
+    assert (
+        proc.returncode == 2 and "error: sensor 'upfront_left': no material within sensor_snap_distance" in proc.stderr
     )
+    assert "Traceback" not in proc.stderr
+    out = json.loads(run_cli(*args, "--config", str(_without_upfront_left(tmp_path)), "--json").stdout)
     assert out["n_cells_optimized"] > 0 and out["n_subassemblies"] >= 5
     assert out["cell_mass_kg"] == pytest.approx(out["roi_mass_kg"], rel=5e-3)
 
@@ -230,10 +236,11 @@ def test_simulate_json_csv_plot(tmp_path):
         assert back["peak_g"] == pytest.approx(s["peak_g"], rel=1e-3), (sensor, back, s)
 
 
-def test_simulate_a_keyword_deck(lsopt_deck):
+def test_simulate_a_keyword_deck(lsopt_deck, tmp_path):
     """The DECK argument: the public LS-OPT small car, its parts as the sub-assemblies of the energy split."""
+    config = ("--config", str(_without_upfront_left(tmp_path)))
     args = ("--param", "tbumper=3", "--param", "thood=1", "--axis-map", "x=+x,y=+z,z=+y", "--json")
-    out = json.loads(run_cli("simulate", str(lsopt_deck), *args).stdout)
+    out = json.loads(run_cli("simulate", str(lsopt_deck), *config, *args).stdout)
     assert out["n_cells"] > 100 and out["scenario"] == "full_width_40"
     assert set(out["absorbed_energy_kj"]) == {"part_1", "part_2", "part_3", "part_4", "part_5", "compartment"}
     assert out["energy_balance_max_rel_error"] < 5e-3
@@ -242,7 +249,7 @@ def test_simulate_a_keyword_deck(lsopt_deck):
     assert out["impact_energy_kj"] == pytest.approx(0.5 * mass * (40 / 3.6) ** 2 / 1e3, rel=1e-9)
     assert out["crush_capacity_kj"] > out["impact_energy_kj"]
     # at 56 km/h this heavy box (4.4 t) brings more than its first 1.2 m can take as plastic work: said, not hidden
-    proc = run_cli("simulate", str(lsopt_deck), *args[:-1], "--speed", "56")
+    proc = run_cli("simulate", str(lsopt_deck), *config, *args[:-1], "--speed", "56")
     assert "note: the impact brings 537.6 kJ and the cells can take" in proc.stdout and "roi_depth" in proc.stdout
 
 

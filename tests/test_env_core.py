@@ -417,11 +417,25 @@ def test_env_calibrates_a_deck_read_with_its_vehicle_options(lsopt_deck, tmp_pat
     assert e.value.key == "vehicle_options.params"
 
 
-def test_a_scenario_that_activates_no_agent_is_named_when_the_env_is_built(lsopt_deck):
+def test_a_scenario_that_activates_no_agent_is_named_when_the_env_is_built(lsopt_deck, tmp_path, monkeypatch):
     """The deck read with its height as marlcrash's width (a wrong ``axis_map``) strikes almost nothing on the
-    left: those scenarios' episodes would mask every action, and the env says so; read with its own axes, none."""
+    left: those scenarios' episodes would mask every action, and the env says so; read with its own axes, none.
+    So read, it has no material within 0.76 m of the default up-front left sensor on its side, which discretization
+    refuses (tests/test_sensor_placement.py): the configs here leave that sensor out."""
+    import shutil
     import warnings
 
+    import yaml
+
+    from marlcrash.config import config_dir
+
+    configs = tmp_path / "configs"
+    shutil.copytree(config_dir(), configs)
+    cells_yaml = configs / "cells.yaml"
+    data = yaml.safe_load(cells_yaml.read_text())
+    data["sensors"] = [s for s in data["sensors"] if s["name"] != "upfront_left"]
+    cells_yaml.write_text(yaml.safe_dump(data))
+    monkeypatch.setenv("MARLCRASH_CONFIGS", str(configs))
     base = {"vehicle": str(lsopt_deck), "agents.split_lr": []}
     for axis_map, idle in (("x=+x,y=+z,z=+y", ["offset40_left", "small_overlap_left"]), (None, [])):
         opts = {"params": {"tbumper": 3.0, "thood": 1.0}, "axis_map": axis_map}

@@ -88,6 +88,8 @@ def test_moving_the_car_sideways_changes_neither_the_struck_cells_nor_the_pulse(
     barrier, the impact regions and the sensor velocities must follow (before: up to 2.0-2.3 m/s apart in 30 ms)."""
     centred, off = uniform
     np.testing.assert_array_equal(centred.grid_labels, off.grid_labels)  # the premise: the same cells
+    np.testing.assert_array_equal(centred.sensor_cell, off.sensor_cell)  # sensors placed about the centre line
+    np.testing.assert_allclose(off.sensor_position - [0.0, SHIFT, 0.0], centred.sensor_position, rtol=0, atol=1e-12)
     sc = get_scenario(name)
     np.testing.assert_array_equal(barrier_mask(centred, sc), barrier_mask(off, sc))
     t = lambda v: torch.tensor([v], dtype=torch.float64)  # noqa: E731

@@ -168,3 +168,32 @@ def test_a_flat_deck_is_a_clear_error(lsopt_deck):
     coords[flat, 1] = coords[:, 1].min()  # parts 3 and 4 pressed into the vehicle's side plane
     with pytest.raises(ModelError, match=r"sub-assembly 'part_\d' has .* no (cell of its own|mass).*flat or collapsed"):
         discretize(replace(m, coords=coords))
+
+
+def test_an_up_front_sensor_with_no_material_near_it_on_its_side_is_named(lsopt_deck):
+    """Read with x=+x,y=+z,z=+y the car has no material left of its centre line near the default up-front left
+    position (0.2, 0.3 W, mid-height): the sensor went 0.51 m away to a voxel right of the centre line, silently.
+    Now discretization stops naming it, its requested position and the nearest material on its side (0.76 m away);
+    given the reach, it lands left of the centre line."""
+    from dataclasses import replace
+
+    from marlcrash.cells.discretize import discretize, load_discretization_config
+    from marlcrash.errors import ModelError
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        m = read_deck(lsopt_deck, params=PARAMS, axis_map=AxisMap(x="+x", y="+z", z="+y"))
+    width = float(np.ptp(m.coords[m.used_nodes(), 1]))
+    cfg = load_discretization_config()
+    with pytest.raises(ModelError) as e:
+        discretize(m, cfg)
+    msg = str(e.value)
+    y = f"{cfg.upfront_sensor_y_fraction * width:.3f}"
+    assert msg.startswith("sensor 'upfront_left': no material within sensor_snap_distance = 0.15 m"), msg
+    assert f"requested position [{cfg.upfront_sensor_x:.3f}, {y}, " in msg and "left of the centre line" in msg, msg
+    far = float(msg.split(" m away")[0].split(", ")[-1])
+    assert 0.7 < far < 0.8, msg
+    cells = discretize(m, replace(cfg, sensor_snap_distance=1.0))
+    left, right = cells.sensor_position[:2]
+    assert left[1] > 0 > right[1]
+    assert np.hypot(left[0] - cfg.upfront_sensor_x, left[1] - float(y)) <= far  # the nearest the message named

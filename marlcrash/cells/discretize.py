@@ -40,11 +40,17 @@ class SensorSpec:
     Attributes:
         name: sensor name.
         rule: ``upfront_left`` / ``upfront_right`` (``x = upfront_sensor_x``,
-            ``y = +-upfront_sensor_y_fraction * W``, z at the ROI mid-height, snapped to the
-            nearest voxel with material), ``compartment`` (the rigid compartment cell) or
-            ``position`` (the explicit position; inside the ROI snapped like up-front sensors,
-            outside it the compartment).
+            ``y = y0 +- upfront_sensor_y_fraction * W`` about the centre line ``y0``, z at the ROI
+            mid-height, snapped to the nearest voxel with material), ``compartment`` (the rigid
+            compartment cell) or ``position`` (the explicit position; inside the ROI snapped like
+            up-front sensors, outside it the compartment).
         position: ``[x, y, z]`` [m] overriding the rule's position, or ``None``.
+
+    Snapping keeps a sensor on its side of the centre line (one requested on the line may go either
+    way) and moves it at most ``sensor_snap_distance``; otherwise discretization stops with a
+    :class:`ModelError` naming the sensor, the requested and the nearest position. Two sensors that
+    would land in one deformable cell record one signal: refused, naming both. Sensors in the rigid
+    compartment share its cell by design.
     """
 
     name: str
@@ -102,6 +108,7 @@ class DiscretizationConfig:
     min_section_fraction: float = 0.1
     upfront_sensor_x: float = 0.2
     upfront_sensor_y_fraction: float = 0.3
+    sensor_snap_distance: float = 0.15
     sensors: list[SensorSpec] = field(default_factory=_default_sensors)
 
     def validate(self) -> None:
@@ -157,6 +164,11 @@ class DiscretizationConfig:
             0 <= self.upfront_sensor_y_fraction <= 0.5,
             "upfront_sensor_y_fraction",
             f"expected a fraction in [0, 0.5], got {self.upfront_sensor_y_fraction}",
+        )
+        require(
+            self.sensor_snap_distance > 0,
+            "sensor_snap_distance",
+            f"expected a distance > 0 m, got {self.sensor_snap_distance}",
         )
         names = [s.name for s in self.sensors]
         for i, s in enumerate(self.sensors):
@@ -316,18 +328,18 @@ def _bisect(coords: np.ndarray, group: np.ndarray, n_pieces: np.ndarray, pitch: 
     return compact.ravel()
 
 
-def _snap(grid: FineGrid, candidates: np.ndarray, position: np.ndarray) -> int:
+def _snap(grid: FineGrid, candidates: np.ndarray, position: np.ndarray, centre_y: float) -> int:
     """Flat index of the candidate voxel nearest to ``position``.
 
     Ties (a position midway between voxel centres) go to the voxel farther from the
-    centre plane y = 0, then to larger x (deeper into the structure) and smaller z, so
-    mirrored positions snap to mirrored voxels.
+    centre line ``y = centre_y``, then to larger x (deeper into the structure) and smaller z,
+    so mirrored positions snap to mirrored voxels.
     """
     centres = grid.voxel_centers(candidates)
     dist = np.linalg.norm(centres - position[None, :], axis=1)
     near = np.flatnonzero(dist <= dist.min() + 1e-9)
     c = centres[near]
-    i = near[np.lexsort((c[:, 2], -c[:, 0], -np.abs(c[:, 1])))[0]]
+    i = near[np.lexsort((c[:, 2], -c[:, 0], -np.abs(c[:, 1] - centre_y)))[0]]
     return int(candidates[i])
 
 
@@ -335,7 +347,7 @@ def _sensor_requests(cfg: DiscretizationConfig, roi: Roi) -> list[tuple[str, np.
     """(name, position or None for the compartment) per sensor, before snapping."""
     out = []
     zmid = 0.5 * (roi.lo[2] + roi.hi[2])
-    ymid = 0.5 * (roi.lo[1] + roi.hi[1])
+    ymid = roi.centre_y
     for s in cfg.sensors:
         if s.position is not None:
             p = np.array(s.position, dtype=np.float64)
@@ -347,6 +359,85 @@ def _sensor_requests(cfg: DiscretizationConfig, roi: Roi) -> list[tuple[str, np.
         inside = p is not None and bool(((p >= roi.lo) & (p <= roi.hi)).all())
         out.append((s.name, p if (inside and s.rule != "compartment") else None))
     return out
+
+
+def _fmt(p: np.ndarray) -> str:
+    return "[" + ", ".join(f"{v:.3f}" for v in p) + "]"
+
+
+def _snap_sensors(
+    grid: FineGrid, candidates: np.ndarray, reqs: list[tuple[str, np.ndarray | None]], roi: Roi, limit: float
+) -> list[int | None]:
+    """The voxel each sensor is clustered around (``None``: the compartment), on its own side of the centre line.
+
+    A sensor requested left of the centre line ``y0`` (:attr:`Roi.centre_y`) snaps to the nearest candidate voxel
+    left of it, one requested right of it to the nearest right of it, one on it to the nearest anywhere. The nearest
+    material overall put the default ``upfront_left`` of the LS-OPT small car (read with ``x=+x,y=+z,z=+y``), which has
+    none near it, 0.51 m away and right of the centre line, without a word.
+
+    Raises:
+        ModelError: a sensor has no candidate voxel on its side, or the nearest is farther than ``limit``
+            (``sensor_snap_distance``) [m]; the message names it with its requested and nearest positions.
+    """
+    centre = roi.centre_y
+    cy = grid.voxel_centers(candidates)[:, 1] - centre if candidates.size else np.zeros(0)
+    out: list[int | None] = []
+    for i, (name, p) in enumerate(reqs):  # loop over a handful of sensors
+        if p is None or candidates.size == 0:
+            out.append(None)
+            continue
+        side = float(np.sign(p[1] - centre)) if abs(p[1] - centre) > 1e-9 else 0.0
+        own = candidates[side * cy > 0] if side else candidates  # voxels never straddle the centre plane
+        where = {1.0: "left", -1.0: "right", 0.0: "on either side"}[side]
+        where += f" of the centre line y = {centre:.3f} m" if side else ""
+        fix = (
+            f"give it a position (sensors[{i}].position [x, y, z] in m) or the rule 'compartment', move the up-front "
+            "sensors (upfront_sensor_x, upfront_sensor_y_fraction), or raise sensor_snap_distance (a deck whose "
+            "lateral axis is not marlcrash's y, --axis-map, has this too)"
+        )
+        if own.size == 0:
+            raise ModelError(f"sensor {name!r}: no material {where} to place it on (requested {_fmt(p)} m); {fix}")
+        v = _snap(grid, own, p, centre)
+        q = grid.voxel_centers(np.array([v]))[0]
+        d = float(np.linalg.norm(q - p))
+        if d > limit:
+            raise ModelError(
+                f"sensor {name!r}: no material within sensor_snap_distance = {limit:g} m of its requested position "
+                f"{_fmt(p)} m {where}; the nearest is at {_fmt(q)} m, {d:.3f} m away; {fix}"
+            )
+        out.append(v)
+    return out
+
+
+def _refuse_shared(
+    reqs: list[tuple[str, np.ndarray | None]],
+    voxels: list[int | None],
+    key: np.ndarray,
+    grid: FineGrid,
+    what: str,
+    cell_edge: float,
+) -> None:
+    """Raise :class:`ModelError` naming the first two sensors whose snapped voxels share ``key[voxel]`` (their cell,
+    or the voxel itself where every sensor gets a cell of its own): both would record one and the same signal.
+
+    Refused rather than warned: the calibration compares each sensor's signal, so a duplicate doubles one signal's
+    weight while the user believes two places are measured; and the optimized method, which gives every sensor a
+    cell of its own, handed the second sensor a one-voxel cell carved out of the first's (or failed with an
+    IndexError when a third took that voxel too).
+    """
+    seen: dict[int, int] = {}
+    for k, v in enumerate(voxels):
+        if v is None:
+            continue
+        j = seen.setdefault(int(key[v]), k)
+        if j != k:
+            q = grid.voxel_centers(np.array([v]))[0]
+            (a, pa), (b, pb) = reqs[j], reqs[k]
+            raise ModelError(
+                f"sensors {a!r} and {b!r} land in one {what} at {_fmt(q)} m (requested {_fmt(pa)} and {_fmt(pb)} m): "
+                "they would record one and the same signal. Move one farther from the other (a cell edge is about "
+                f"{cell_edge:.3g} m) or drop it; sensors in the rigid compartment share its cell by design"
+            )
 
 
 def _no_cell(grid: FineGrid, name: str, mass: float) -> ModelError:
@@ -426,16 +517,18 @@ def _optimized(
     cand = np.flatnonzero((owner >= 0) & (owner < n_sub) & (own_mass > 0))
     half = cfg.voxels_per_cell_edge // 2
     reqs = _sensor_requests(cfg, roi)
+    snapped = _snap_sensors(grid, cand, reqs, roi, cfg.sensor_snap_distance)
+    # every sensor gets a cell of its own around its voxel: two on one voxel cannot
+    _refuse_shared(reqs, snapped, np.arange(nvox), grid, "voxel", cfg.target_cell_volume ** (1 / 3))
     n_groups_base = n_sub * (int(grid.band_y.max()) + 1)
-    for k, (_, p) in enumerate(reqs):  # loop over a handful of sensors
-        if p is None or cand.size == 0:
+    for k, ((_, p), v) in enumerate(zip(reqs, snapped, strict=True)):  # loop over a handful of sensors
+        if v is None:
             sensor_is_comp.append(True)
             sensor_pos.append(None)
             continue
-        v = _snap(grid, cand, p)
         vi = np.array(np.unravel_index(v, shape))
         before = np.full(3, half)
-        if p[1] < 0:  # mirror the block's lateral extent for sensors right of the centre plane
+        if p[1] < roi.centre_y:  # mirror the block's lateral extent for sensors right of the centre plane
             before[1] = cfg.voxels_per_cell_edge - 1 - half
         lo = np.maximum(vi - before, 0)
         hi = np.minimum(lo + cfg.voxels_per_cell_edge, shape)
@@ -571,12 +664,14 @@ def _uniform(
     comp = n - 1
     is_sensor = np.zeros(n, dtype=bool)
     sensor_cell, sensor_pos = [], []
-    for _, p in _sensor_requests(cfg, roi):
-        if p is None or cand.size == 0:
+    reqs = _sensor_requests(cfg, roi)
+    snapped = _snap_sensors(grid, cand, reqs, roi, cfg.sensor_snap_distance)
+    _refuse_shared(reqs, snapped, labels, grid, "cell", cfg.target_cell_volume ** (1 / 3))
+    for v in snapped:
+        if v is None:
             sensor_cell.append(comp)
             sensor_pos.append(None)
             continue
-        v = _snap(grid, cand, p)
         sensor_cell.append(int(labels[v]))
         is_sensor[labels[v]] = True
         sensor_pos.append(grid.voxel_centers(np.array([v]))[0])
