@@ -469,3 +469,25 @@ def test_episodes_that_start_past_the_failure_limits_are_named_once(cells):
         core.reset(seed=1)  # once per env
         free = {f"termination.failure_{m}": None for m in ("area", "dfd", "rmse")}
         make(cells, 1, **over, **free).reset(seed=0)
+
+
+def test_the_cell_model_cache_follows_the_configs_folder(tmp_path, monkeypatch):
+    """``build_cells`` caches per process; a configs folder with other cell settings gets its own model, not the one
+    built from the folder before (it did: the key held the vehicle and its options only)."""
+    import shutil
+
+    import yaml
+
+    from marlcrash.config import config_dir
+
+    first = build_cells("b_segment", None, "optimized")
+    configs = tmp_path / "configs"
+    shutil.copytree(config_dir(), configs)
+    data = yaml.safe_load((configs / "cells.yaml").read_text())
+    data["target_cell_volume"] = 2 * data["target_cell_volume"]
+    (configs / "cells.yaml").write_text(yaml.safe_dump(data))
+    monkeypatch.setenv("MARLCRASH_CONFIGS", str(configs))
+    coarse = build_cells("b_segment", None, "optimized")
+    assert coarse.n_cells < first.n_cells
+    monkeypatch.delenv("MARLCRASH_CONFIGS")
+    assert build_cells("b_segment", None, "optimized") is first

@@ -245,14 +245,16 @@ def check_env_args(config: Any, batch_size: Any) -> int:
 
 def build_cells(vehicle: str, seed: int | None, method: str, options: VehicleOptions | None = None) -> CellModel:
     """Discretize a registered vehicle (or a vehicle file, read with ``options``) once per process and cache it
-    (the last :data:`_CELLS_KEPT`)."""
-    from marlcrash.cells.discretize import discretize
+    (the last :data:`_CELLS_KEPT`), keyed by the configs folder and ``cells.yaml``'s values too (a changed
+    ``MARLCRASH_CONFIGS`` used to get the model built from the folder before)."""
+    from marlcrash.cells.discretize import discretize, load_discretization_config
     from marlcrash.vehicle.registry import load_configured_vehicle
 
     options = options or VehicleOptions()
-    key = (vehicle, seed, method, options.key())
+    cell_config = load_discretization_config()
+    key = (vehicle, seed, method, options.key(), str(config_dir().resolve()), repr(cell_config))
     if key not in _CELLS:
-        _CELLS[key] = discretize(load_configured_vehicle(vehicle, seed, options), method=method)
+        _CELLS[key] = discretize(load_configured_vehicle(vehicle, seed, options), cell_config, method=method)
         while len(_CELLS) > _CELLS_KEPT:
             _CELLS.pop(next(iter(_CELLS)))
     return _CELLS[key]
