@@ -118,3 +118,28 @@ def test_left_and_right_agents_split_at_the_centre_line(cars, method):
             # each cell lies wholly on its agent's side of the centre plane (cells never straddle it)
             assert (sign * (cells.centroid[own, 1] - centre) > 0).all(), (name, side)
             assert (np.minimum(sign * (cells.lo[own, 1] - centre), sign * (cells.hi[own, 1] - centre)) >= -TOL).all()
+
+
+@pytest.mark.parametrize("method", ["optimized", "uniform"])
+def test_the_cells_move_with_the_car(cars, method):
+    """Discretization runs in the frame centred on the vehicle's centre line, so a car off y = 0 gets the same cells,
+    moved: the grid's mirror rules (ties away from y = 0, bisection mirrored about it) used to act about y = 0, and
+    the default car 1 mm sideways got 505 cells instead of 518."""
+    from marlcrash.vehicle.registry import load_vehicle
+
+    cfg = load_discretization_config()
+    default = load_vehicle("b_segment")
+    pairs = [cars] + ([(default, default.transformed(AxisMap(y_center=-0.001)))] if method == "optimized" else [])
+    for centred, off in pairs:
+        a, b = (discretize(c, cfg, method=method) for c in (centred, off))
+        dy = b.centre_y - a.centre_y
+        assert abs(dy) > 5e-4  # the premise: moved
+        assert b.n_cells == a.n_cells and b.n_links == a.n_links
+        np.testing.assert_array_equal(b.link_src, a.link_src)
+        np.testing.assert_array_equal(b.link_dst, a.link_dst)
+        np.testing.assert_array_equal(b.sensor_cell, a.sensor_cell)
+        np.testing.assert_allclose(b.params, a.params, rtol=1e-12, atol=1e-12 * np.abs(a.params).max())
+        for field in ("lo", "hi", "centroid", "sensor_position"):
+            moved = getattr(b, field) - [0.0, dy, 0.0]
+            np.testing.assert_allclose(moved, getattr(a, field), rtol=0, atol=1e-9, err_msg=field)
+        np.testing.assert_allclose(b.planes_y - dy, a.planes_y, rtol=0, atol=1e-9)
