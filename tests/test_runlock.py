@@ -10,10 +10,43 @@ import time
 
 import pytest
 
+from marlcrash.calibrate import runlock
 from marlcrash.calibrate.runlock import LOCK_FILE, claim_dir, run_lock
 from marlcrash.errors import ConfigError
 
-pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="no flock on Windows (runlock takes no lock there)")
+pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="these tests kill with SIGKILL and emulate with flock")
+
+# Windows' lock, emulated: msvcrt.locking's contract on a POSIX machine, a whole-file flock standing for the one
+# byte locked. runlock takes its Windows branch (no fcntl, this msvcrt) in this process and in the children.
+EMULATED_MSVCRT = """
+import errno, fcntl, os
+class EmulatedMsvcrt:
+    LK_UNLCK, LK_NBLCK = 0, 2
+    locked = []
+    @classmethod
+    def locking(cls, fd, mode, nbytes):
+        cls.locked.append((os.lseek(fd, 0, os.SEEK_CUR), mode, nbytes))
+        if mode == cls.LK_UNLCK:
+            fcntl.flock(fd, fcntl.LOCK_UN)
+            return
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise PermissionError(errno.EACCES, "Permission denied") from None
+from marlcrash.calibrate import runlock
+runlock.fcntl, runlock.msvcrt = None, EmulatedMsvcrt
+"""
+
+
+@pytest.fixture(params=["flock", "windows"])
+def lock_setup(request, monkeypatch):
+    """The code a child runs first to take the lock the same way (``""`` for flock)."""
+    if request.param == "flock":
+        return ""
+    monkeypatch.setattr(runlock, "fcntl", runlock.fcntl)  # restored after the test
+    monkeypatch.setattr(runlock, "msvcrt", runlock.msvcrt)
+    exec(EMULATED_MSVCRT, {})
+    return EMULATED_MSVCRT
 
 
 def test_claim_creates_once_with_parents(tmp_path):
@@ -22,7 +55,7 @@ def test_claim_creates_once_with_parents(tmp_path):
     assert not claim_dir(folder)
 
 
-def test_a_second_holder_is_refused_with_the_first_ones_pid_and_the_key(tmp_path):
+def test_a_second_holder_is_refused_with_the_first_ones_pid_and_the_key(tmp_path, lock_setup):
     with run_lock(tmp_path, "resume"):
         with pytest.raises(ConfigError) as e, run_lock(tmp_path, "resume"):
             pass
@@ -32,8 +65,8 @@ def test_a_second_holder_is_refused_with_the_first_ones_pid_and_the_key(tmp_path
         pass
 
 
-def test_a_killed_holder_leaves_no_lock_behind(tmp_path):
-    code = (
+def test_a_killed_holder_leaves_no_lock_behind(tmp_path, lock_setup):
+    code = lock_setup + (
         "import sys, time\nfrom marlcrash.calibrate.runlock import run_lock\n"
         "with run_lock(sys.argv[1], 'name'):\n    print('held', flush=True)\n    time.sleep(60)\n"
     )
@@ -58,8 +91,22 @@ def test_a_killed_holder_leaves_no_lock_behind(tmp_path):
     assert not (tmp_path / LOCK_FILE).exists()  # removed by the holder that ends normally
 
 
-def test_a_missing_folder_is_left_to_the_caller_unless_created(tmp_path):
+def test_a_missing_folder_is_left_to_the_caller_unless_created(tmp_path, lock_setup):
     with run_lock(tmp_path / "gone", "resume") as d:
         assert not d.exists()
     with run_lock(tmp_path / "new" / "run", "name", create=True) as d:
         assert (d / LOCK_FILE).is_file()
+
+
+def test_the_windows_lock_is_one_byte_past_the_pid(tmp_path, lock_setup):
+    """On Windows a locked byte cannot be read by others, so the lock sits past the pid the refusal message reads;
+    it is released before the file is removed (Windows removes no open file)."""
+    if not lock_setup:
+        pytest.skip("flock locks the whole file")
+    lk = runlock.msvcrt
+    lk.locked.clear()
+    with run_lock(tmp_path, "name"):
+        assert (tmp_path / LOCK_FILE).read_text() == f"{os.getpid()}\n"
+    off = runlock._WINDOWS_LOCK_OFFSET
+    assert off > 32 and lk.locked == [(off, lk.LK_NBLCK, 1), (off, lk.LK_UNLCK, 1)]
+    assert not (tmp_path / LOCK_FILE).exists()

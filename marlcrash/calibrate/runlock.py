@@ -10,7 +10,10 @@ moment (a parallel Hydra launcher; the default name is the launch second). So:
 - :func:`run_lock` holds an exclusive advisory lock (``flock``) on ``<run folder>/.lock`` while the run writes,
   and removes the file when it ends. The operating system drops the lock when the process ends, killed or not, so
   a crashed run never blocks its own resume (its file stays, unlocked). The file records the holder's process id
-  for the message. Where ``fcntl`` does not exist (Windows) no lock is taken.
+  for the message. On Windows, where there is no ``flock``, the lock is ``msvcrt.locking`` on one byte of the file
+  (away from the process id: a Windows lock also bars reads of what it covers), which Windows drops with the
+  process too; the file is removed after the lock is released (Windows does not remove an open file, so a waiting
+  process that opened it keeps it).
 """
 
 from __future__ import annotations
@@ -26,6 +29,13 @@ try:
     import fcntl
 except ImportError:  # pragma: no cover - Windows
     fcntl = None
+try:
+    import msvcrt
+except ImportError:  # everywhere but Windows
+    msvcrt = None
+
+_WINDOWS_LOCK_OFFSET = 1 << 20
+"""The byte ``msvcrt.locking`` locks: away from the process id at the start of the file, which others must read."""
 
 LOCK_FILE = ".lock"
 """The lock file inside a run folder while a run writes it (left unlocked by a killed run: nobody writes it)."""
@@ -63,33 +73,65 @@ def run_lock(run_dir: str | Path, key: str, create: bool = False) -> Iterator[Pa
     run_dir = Path(run_dir)
     if create:
         run_dir.mkdir(parents=True, exist_ok=True)
-    if fcntl is None or not run_dir.is_dir():  # Windows; or a missing folder, which the caller reports
+    if (fcntl is None and msvcrt is None) or not run_dir.is_dir():  # no lock; or a missing folder, for the caller
         yield run_dir
         return
     path = run_dir / LOCK_FILE
     while True:
         fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            holder = os.pread(fd, 32, 0).decode("ascii", "replace").strip() or "unknown"
+        if not _try_lock(fd):
+            os.lseek(fd, 0, os.SEEK_SET)
+            holder = os.read(fd, 32).decode("ascii", "replace").strip() or "unknown"
             os.close(fd)
             raise ConfigError(
                 f"run folder {run_dir} is in use by another process (pid {holder}); wait for it to end or stop it",
                 key=key,
-            ) from None
+            )
         try:  # the holder before may have removed the file between our open and our lock: lock the one there is
             same = os.path.samestat(os.fstat(fd), os.stat(path))
         except FileNotFoundError:
             same = False
         if same:
             break
+        _unlock(fd)
         os.close(fd)
     try:
         os.ftruncate(fd, 0)
-        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        os.lseek(fd, 0, os.SEEK_SET)
+        os.write(fd, f"{os.getpid()}\n".encode())
         yield run_dir
     finally:
-        with contextlib.suppress(FileNotFoundError):  # the run removed its folder (a fresh run that failed)
-            path.unlink()  # while still locked, so the folder is left as the run wrote it
-        os.close(fd)  # releases the lock
+        if fcntl is not None:
+            with contextlib.suppress(FileNotFoundError):  # the run removed its folder (a fresh run that failed)
+                path.unlink()  # while still locked, so the folder is left as the run wrote it
+            os.close(fd)  # releases the lock
+        else:  # Windows removes no open file: release, close, then remove it unless a waiting process opened it
+            _unlock(fd)
+            os.close(fd)
+            with contextlib.suppress(OSError):
+                path.unlink()
+
+
+def _try_lock(fd: int) -> bool:
+    """Take the exclusive lock on the open file ``fd`` without waiting; False where another holds it."""
+    if fcntl is not None:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            return False
+        return True
+    os.lseek(fd, _WINDOWS_LOCK_OFFSET, os.SEEK_SET)
+    try:
+        msvcrt.locking(fd, msvcrt.LK_NBLCK, 1)
+    except OSError:  # "Permission denied" while another handle holds the byte
+        return False
+    return True
+
+
+def _unlock(fd: int) -> None:
+    """Release :func:`_try_lock`'s lock (closing the file releases it too)."""
+    if fcntl is not None:
+        fcntl.flock(fd, fcntl.LOCK_UN)
+        return
+    os.lseek(fd, _WINDOWS_LOCK_OFFSET, os.SEEK_SET)
+    msvcrt.locking(fd, msvcrt.LK_UNLCK, 1)
