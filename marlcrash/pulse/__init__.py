@@ -20,10 +20,12 @@ from marlcrash.pulse.io import (
 )
 from marlcrash.pulse.signal import (
     SURROGATE_RATE_HZ,
+    Onset,
     Pulse,
     compared_velocity,
     compared_window,
     filter_pulse,
+    find_onset,
     find_time_zero,
     from_rearward_x,
     integrate,
@@ -40,6 +42,7 @@ from marlcrash.pulse.signal import (
 __all__ = [
     "CFC_CLASSES",
     "SURROGATE_RATE_HZ",
+    "Onset",
     "Pulse",
     "cfc_coefficients",
     "cfc_filter",
@@ -49,6 +52,7 @@ __all__ = [
     "compared_window",
     "f_h",
     "filter_pulse",
+    "find_onset",
     "find_time_zero",
     "from_rearward_x",
     "integrate",

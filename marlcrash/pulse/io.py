@@ -745,9 +745,11 @@ def processed_pulse(
     """Read one acceleration channel and prepare it as :func:`pulse_summary` and ``marlcrash pulse --plot`` use it.
 
     The channel's transducer offset, the mean of its samples before the contact, is subtracted first
-    (:func:`~marlcrash.pulse.signal.without_zero_offset`, as a file reference does). A non-uniform record is
-    resampled at its mean rate, then CFC-filtered at that rate; time zero is found on the filtered signal
-    (:func:`~marlcrash.pulse.signal.find_time_zero`, or the file's t = 0 with ``time_zero="file"``).
+    (:func:`~marlcrash.pulse.signal.without_zero_offset`, as a file reference does: with ``time_zero="threshold"``
+    the samples before the pulse's onset, whatever the record's clock). A non-uniform record is resampled at its
+    mean rate, then CFC-filtered at that rate; time zero is the pulse's onset
+    (:func:`~marlcrash.pulse.signal.find_onset`), or the file's t = 0 with ``time_zero="file"``. A channel with
+    too little pre-trigger data to measure its zero level is named in a warning.
 
     Args:
         path: CSV file, ``.mme`` file or ISO-MME test folder.
@@ -758,7 +760,7 @@ def processed_pulse(
         cfc: CFC class, or ``None`` for no filtering.
         sign: ``+1`` or ``-1`` (see the module docstring).
         time_zero: ``"threshold"`` or ``"file"``.
-        threshold_g: time-zero threshold [g].
+        threshold_g: the lowest onset detection level [g] (:func:`~marlcrash.pulse.signal.find_onset`).
         breakpoints: the CSV rows are the corners of a piecewise linear pulse (:func:`read_csv`).
 
     Returns:

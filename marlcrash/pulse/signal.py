@@ -17,18 +17,23 @@ The processing chain for a reference (DESIGN 1.4, 1.5) is: CFC-filter at the
 recording rate -> find time zero -> resample to the surrogate's 2 kHz output
 grid -> integrate to velocity (:func:`prepare_velocity`).
 
-Time zero (a documented choice): the first instant at which the magnitude of
-the acceleration of any channel reaches ``threshold_g`` (default 0.5 g),
-linearly interpolated between samples, found in two steps
-(:func:`filtered_from_time_zero`): the CFC-filtered record's crossing, which
-noise cannot trigger, then the crossing from there on of the record at CFC 1000
-(unfiltered below 4.2 kHz). The CFC 60 filter is zero-phase (non-causal): its
-output rises before the raw signal does, by 5-13 ms for a sharp onset, so its
-own crossing only starts the search.
+Time zero of a record whose clock is not aligned to the contact (``time_zero:
+threshold``; a documented choice, :func:`find_onset`): where the pulse of the
+earliest channel starts. Each channel's zero level and noise are measured on its
+samples before its onset (its pre-trigger data, whatever the clock); the pulse
+is detected on the CFC-filtered channel where it leaves ``threshold_g`` (0.5 g)
+or 5x its pre-trigger noise after that filter, where higher; and the onset is
+the start of a straight line fitted with the zero level to the record's samples
+up to where the pulse reaches 40 % of its peak. A level crossing is no time
+zero: the zero-phase CFC 60 filter spreads a sharp onset backwards (its output
+crosses 0.5 g 5-13 ms before the pulse starts), and a slow onset reaches a
+level above the noise milliseconds after it starts. A channel with too little
+pre-trigger data for its zero level is named in a warning.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 import warnings
 from collections.abc import Sequence
@@ -370,9 +375,11 @@ def resample(
 
 
 def find_time_zero(pulse: Pulse, threshold_g: float = DEFAULT_THRESHOLD_G) -> float:
-    """Time zero [s]: first crossing of ``|acc| = threshold_g`` by any channel (interpolated).
+    """The first crossing [s] of ``|acc| = threshold_g`` by any channel (interpolated): a plain level crossing.
 
-    Pass a filtered pulse (:func:`filter_pulse`); noise on raw data would trigger early.
+    A record's time zero is its onset (:func:`find_onset`), which a crossing lies off: after a slow onset, and on a
+    CFC-filtered record before a sharp one. Pass a filtered pulse (:func:`filter_pulse`); noise on raw data would
+    trigger early.
 
     Raises:
         PulseError: no channel reaches the threshold, or it is already exceeded at the first sample.
@@ -400,55 +407,314 @@ def find_time_zero(pulse: Pulse, threshold_g: float = DEFAULT_THRESHOLD_G) -> fl
 
 
 NOISE_LEVELS = 5.0
-"""Onset level as a multiple of a channel's noise (rms of its samples before the filtered crossing) where that is
-above the threshold: :func:`onset_after`."""
-NOISE_WINDOW = (0.005, 0.002)
-"""[s] Least record length, and gap before the filtered crossing, of the samples that measure a channel's noise."""
+"""Onset detection level as a multiple of a channel's pre-trigger noise as the detection filter passes it, where that
+is above ``threshold_g`` (:func:`find_onset`)."""
+MIN_PRE_TRIGGER = 0.0025
+"""[s] Fewest seconds of samples before a channel's onset for :func:`find_onset` to measure its zero level and noise
+on them (those up to :data:`ONSET_GAP` before it: 2 ms, 20 samples at 10 kHz; and at least :data:`MIN_SAMPLES`). A
+lab export's 5-20 ms of pre-trigger data are enough; the zero level's own uncertainty is the noise over the root
+of their number (3 g rms over 5 ms at 10 kHz: 0.4 g)."""
+ONSET_GAP = 0.0005
+"""[s] A channel's zero level and noise are measured on its samples up to this long before its onset."""
+ONSET_FIT_FRACTION = 0.4
+"""The onset line is fitted up to where the pulse reaches this fraction of its peak (or 3x the onset level of the
+band it is found on, where higher; at most half the peak): long enough to average the noise, short enough that a
+half-sine's start is nearly straight (fitted to 40-50 % of its peak, the line starts 0.05-0.15 ms before a 60-100 ms
+half-sine's onset)."""
+ONSET_SEARCH = 0.02
+"""[s] How far before the filtered record's first crossing of its onset level the onset is searched: a zero-phase
+filter spreads a sharp onset backwards by up to about 13 ms (CFC 60)."""
+_FIT_STEPS = 8
+"""Candidate onsets per sampling interval in :func:`_hinge_fit`."""
+_ONSET_PASSES = 4
+"""Most passes of :func:`find_onset` (zero level and noise measured before the onset of the previous pass)."""
 
 
-def onset_after(
-    raw: Pulse, t_from: float, threshold_g: float = DEFAULT_THRESHOLD_G, t_first: float | None = None
-) -> float:
-    """The first crossing of ``|acc| = threshold_g`` by any channel of ``raw`` at or after ``t_from`` [s]
-    (interpolated).
+@dataclass(frozen=True)
+class Onset:
+    """Where a record's pulse starts (:func:`find_onset`), per channel and for the record.
 
-    ``t_from`` is the filtered record's crossing (:func:`find_time_zero`), which a zero-phase filter moves ahead of
-    the pulse; the unfiltered record's own crossing after it is the onset. A channel already above the threshold at
-    ``t_from`` (noise, or a pulse the filter did not move) gives ``t_from``; no crossing after it gives ``t_from`` too.
-
-    A noisy channel crosses the threshold on noise right after ``t_from``, which put time zero 5 ms early on a
-    2 ms, 30 g onset with 1 g rms of noise. Where a channel has at least ``NOISE_WINDOW[0]`` of samples from
-    ``t_first`` (the record's first sample; its lead-in is noise-free) to ``NOISE_WINDOW[1]`` before ``t_from``,
-    its level is ``NOISE_LEVELS`` times their rms deviation, if that is above the threshold.
+    Attributes:
+        time: time zero [s] on the record's clock: the earliest channel onset, not before the first sample.
+        onsets: ``[K]`` each channel's onset [s] (``inf``: the channel never leaves its noise).
+        zero_level: ``[K]`` each channel's zero level [m/s^2]: the mean of its samples up to :data:`ONSET_GAP`
+            before its onset; 0 where not measured.
+        noise: ``[K]`` rms deviation of those samples [m/s^2]; 0 where not measured.
+        level: ``[K]`` the detection level [m/s^2]: ``threshold_g``, or :data:`NOISE_LEVELS` times the noise as the
+            detection filter passes it, where that is higher.
+        pre_trigger: ``[K]`` seconds of samples before each channel's onset (before time zero for a channel without).
+        measured: ``[K]`` whether the zero level and noise were measured (at least :data:`MIN_PRE_TRIGGER` of
+            samples before the onset, and :data:`MIN_SAMPLES` samples).
     """
-    mag = np.abs(raw.acc)
-    levels = np.full(mag.shape[0], threshold_g * G0)
-    if t_first is not None:
-        quiet = (raw.time >= t_first) & (raw.time < t_from - NOISE_WINDOW[1])
-        if quiet.any() and float(raw.time[quiet][-1] - raw.time[quiet][0]) >= NOISE_WINDOW[0]:
-            levels = np.maximum(levels, NOISE_LEVELS * raw.acc[:, quiet].std(axis=1))
-    i0 = int(np.searchsorted(raw.time, t_from))
-    best = math.inf
-    for k in range(mag.shape[0]):
-        level = levels[k]
-        above = np.nonzero(mag[k, i0:] >= level)[0]
-        if above.size == 0:
+
+    time: float
+    onsets: np.ndarray
+    zero_level: np.ndarray
+    noise: np.ndarray
+    level: np.ndarray
+    pre_trigger: np.ndarray
+    measured: np.ndarray
+
+
+def _ms(seconds: float) -> str:
+    """``seconds`` in ms with two decimals, for a message (``0.00``, not ``-0.00``)."""
+    return f"{float(seconds) * 1e3 + 0.0:.2f}".replace("-0.00", "0.00")
+
+
+def _quiet_filter(x: np.ndarray, dt: float, cfc: int | None) -> np.ndarray:
+    """``x`` CFC-filtered at ``cfc`` (``None``: as it is), without the J211 10 F_H note (finding an onset, not a
+    corridor)."""
+    if cfc is None:
+        return np.asarray(x, dtype=np.float64)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return cfc_filter(x, dt, cfc, axis=-1)
+
+
+@functools.lru_cache(maxsize=64)
+def _white_gain(cfc: int | None, dt: float) -> float:
+    """Rms of white noise of unit rms after the CFC filter at interval ``dt`` (its impulse response's 2-norm)."""
+    if cfc is None:
+        return 1.0
+    n = 2 * round(2.0 * PRE_IMPACT_TIME / dt) + 1
+    impulse = np.zeros(n)
+    impulse[n // 2] = 1.0
+    return float(np.sqrt(np.sum(_quiet_filter(impulse, dt, cfc) ** 2)))
+
+
+def _onset_bands(cfc: int | None, rate_hz: float) -> list[int | None]:
+    """The detection class, then every wider one the rate can filter, then the record as it is (``None``)."""
+    if cfc is None:
+        return [None]
+    wider = [c for c in CFC_CLASSES if c > cfc and 2.0 * DESIGN_FACTOR * c < rate_hz]
+    return [cfc, *wider, None]
+
+
+def _first_crossing(t: np.ndarray, y: np.ndarray, level: float, i0: int = 0) -> tuple[int, float] | None:
+    """The first index ``i >= i0`` with ``y[i] >= level`` and the crossing time, interpolated; ``None`` without."""
+    above = np.flatnonzero(y[i0:] >= level)
+    if above.size == 0:
+        return None
+    i = i0 + int(above[0])
+    if i == 0 or y[i - 1] >= level:
+        return i, float(t[i])
+    return i, float(t[i - 1] + (level - y[i - 1]) / (y[i] - y[i - 1]) * (t[i] - t[i - 1]))
+
+
+def _hinge_fit(t: np.ndarray, y: np.ndarray, candidates: np.ndarray, free_level: bool) -> int:
+    """The index of the ``t0`` of ``candidates`` whose least-squares fit ``y ~ b + s (t - t0)+`` leaves the least
+    squared error (``b = 0`` unless ``free_level``): a level, then a straight line from the onset ``t0``."""
+
+    def suffix(v: np.ndarray) -> np.ndarray:  # sums over samples k.. (k = 0..n)
+        return np.concatenate([np.cumsum(v[::-1])[::-1], [0.0]])
+
+    n1, s_t, s_tt, s_y, s_ty = suffix(np.ones_like(t)), suffix(t), suffix(t * t), suffix(y), suffix(t * y)
+    k = np.searchsorted(t, candidates, side="right")  # the samples after each candidate: k..
+    c = candidates
+    a1 = s_t[k] - c * n1[k]  # sum of (t - t0)+
+    a2 = s_tt[k] - 2.0 * c * s_t[k] + c * c * n1[k]  # sum of (t - t0)+^2
+    ay = s_ty[k] - c * s_y[k]  # sum of y (t - t0)+
+    yy, ysum, n = float(y @ y), float(y.sum()), float(y.size)
+    if free_level:
+        det = n * a2 - a1 * a1
+        ok = (n1[k] >= 2) & (det > 1e-12 * n * a2)
+        safe = np.where(ok, det, 1.0)
+        b = (a2 * ysum - a1 * ay) / safe
+        s = (n * ay - a1 * ysum) / safe
+        sse = yy - 2.0 * b * ysum - 2.0 * s * ay + b * b * n + 2.0 * b * s * a1 + s * s * a2
+    else:
+        ok = a2 > 0
+        s = ay / np.where(ok, a2, 1.0)
+        sse = yy - s * ay
+    return int(np.argmin(np.where(ok, sse, np.inf)))
+
+
+def _channel_onset(
+    t: np.ndarray, x: np.ndarray, n_lead: int, bands: list[int | None], level0: float, noise: float,
+    quiet: np.ndarray | None, need: float,
+) -> tuple[float, float, bool] | None:  # fmt: skip
+    """One channel's onset [s], detection level [m/s^2] (:func:`find_onset`), and whether its pre-trigger data are
+    too short after all (the onset fitted at ``need`` after the first sample, the earliest it may be with a
+    measured zero level); ``None`` if it never reaches its level.
+
+    Args:
+        t: times of the led-in record (``n_lead`` samples of lead-in, then the record).
+        x: the channel less its zero level, zero over the lead-in.
+        n_lead: samples of lead-in.
+        bands: :func:`_onset_bands`.
+        level0: ``threshold_g`` [m/s^2].
+        noise: rms of the pre-trigger samples [m/s^2] (0 if not measured).
+        quiet: mask of the pre-trigger samples, or ``None`` where too few (the zero level is then 0, known, and the
+            lead-in stands for the pre-trigger data).
+        need: seconds of samples a measured zero level needs before the onset (:data:`MIN_PRE_TRIGGER`).
+    """
+    dt = float(t[1] - t[0])
+
+    def band_level(c: int | None) -> tuple[np.ndarray, float]:
+        d = _quiet_filter(x, dt, c)
+        sigma = noise * _white_gain(c, dt)
+        if quiet is not None and c is not None:  # coloured noise (hum, vibration) passes the filter as it is
+            sigma = max(sigma, float(np.sqrt(np.mean(_quiet_filter(np.where(quiet, x, 0.0), dt, c)[quiet] ** 2))))
+        return d, max(level0, NOISE_LEVELS * sigma)
+
+    d0, level = band_level(bands[0])
+    sign = 1.0 if d0.max() >= -d0.min() else -1.0  # the pulse's direction (a zero-phase filter rings the other way)
+    hit = _first_crossing(t, sign * d0, level)
+    if hit is None:
+        return None
+    t_cross = hit[1]
+    i_from = int(np.searchsorted(t, t_cross - ONSET_SEARCH))
+    # the line is fitted up to where the pulse reaches a fraction of its peak, found on the widest band whose noise
+    # is well below that level (a sharp onset: close to the record itself; a slow one under noise: the detection
+    # band), and a quarter period of the band's -3 dB frequency on (its zero-phase filter moves a sharp rise earlier)
+    t_end = t_cross
+    for c in reversed(bands):
+        d, lev = (d0, level) if c == bands[0] else band_level(c)
+        y = sign * d
+        peak = float(y[i_from:].max())
+        top = min(max(3.0 * lev, ONSET_FIT_FRACTION * peak), 0.5 * peak)
+        if c != bands[0] and top < 2.0 * lev:
             continue
-        i = i0 + int(above[0])
-        if i == 0 or mag[k, i - 1] >= level:
-            t = t_from if i == i0 else float(raw.time[i])
-        else:
-            m0, m1 = mag[k, i - 1], mag[k, i]
-            t = float(raw.time[i - 1] + (level - m0) / (m1 - m0) * (raw.time[i] - raw.time[i - 1]))
-        best = min(best, max(t, t_from))
-    return t_from if math.isinf(best) else best
+        end = _first_crossing(t, y, top, i_from)
+        if end is not None:
+            t_end = max(end[1] + (0.0 if c is None else 0.25 / f_h(c)), t_cross)
+            break
+    j = min(t.size, int(np.searchsorted(t, t_end, side="right")) + 2)  # and two samples on
+    i = n_lead if quiet is not None else 0  # a measured zero level is fitted along; else 0, the lead-in known
+    # a measured zero level needs samples before the onset: the fit's start at that bound (the record supports no
+    # later one) means too few
+    floor = float(t[i]) + (need if quiet is not None else 0.0)
+    lo = max(floor, t_cross - ONSET_SEARCH)
+    step = dt / _FIT_STEPS  # candidates on a fixed grid of the record's clock, wherever the search starts
+    first_step = math.ceil((lo - float(t[0])) / step - 1e-6)
+    candidates = float(t[0]) + step * np.arange(first_step, math.floor((float(t[j - 1]) - float(t[0])) / step) + 1)
+    if candidates.size == 0:
+        return (t_cross, level, False) if quiet is None else (lo, level, True)
+    best = _hinge_fit(t[i:j], x[i:j], candidates, free_level=quiet is not None)
+    return float(candidates[best]), level, quiet is not None and best == 0 and lo == floor
+
+
+def find_onset(pulse: Pulse, cfc: int | None = 60, threshold_g: float = DEFAULT_THRESHOLD_G) -> Onset:
+    """Where the pulse of each channel starts, its zero level and noise, and the record's time zero.
+
+    SAE J211 / ISO 6487 practice, for records whose clock is not aligned to the contact (``time_zero: threshold``):
+
+    1. A channel's zero level and noise are the mean and rms deviation of its samples from the first one to
+       :data:`ONSET_GAP` before its onset (its pre-trigger data), whatever the record's clock: no negative times
+       are needed, and a transducer offset above ``threshold_g`` is measured like any other.
+    2. The pulse is detected where the channel less its zero level, CFC-filtered at ``cfc``, first leaves
+       ``threshold_g`` or :data:`NOISE_LEVELS` times its pre-trigger noise after that filter (where higher), in the
+       pulse's direction (its largest excursion).
+    3. The onset is the start of a straight line fitted by least squares, with the zero level, to the samples of
+       the record (not filtered: the zero-phase filter spreads an onset backwards) up to where the pulse reaches
+       :data:`ONSET_FIT_FRACTION` of its peak: a level crossing lies after the onset by the level over the slope
+       (5 g over a 1.2 g/ms half-sine: 4 ms), the fitted line's start at it.
+
+    Steps 1 and 3 depend on each other: the first pass measures up to a rough start (the filtered channel at a
+    fifth of its peak), each further one before the onsets of the last, until they stay within a sample (at most
+    :data:`_ONSET_PASSES` passes; two, usually).
+
+    A channel with less than :data:`MIN_PRE_TRIGGER` of samples before its onset has no pre-trigger data to measure:
+    its zero level is taken as 0, the threshold is its level, and a warning names the file and channel (a record
+    that starts at the contact is read with ``time_zero: file``). The record's time zero is the earliest channel
+    onset, not before its first sample.
+
+    Args:
+        pulse: the record (resampled at its mean rate here if non-uniform).
+        cfc: the detection filter class (the class the record is filtered with), ``None`` for data filtered
+            already.
+        threshold_g: the lowest detection level [g].
+
+    Returns:
+        The :class:`Onset`.
+
+    Raises:
+        PulseError: a threshold <= 0, or no channel leaves its noise (naming the file and each channel's level).
+    """
+    if not threshold_g > 0:
+        raise PulseError(f"time-zero threshold must be > 0 g, got {threshold_g!r}")
+    where = pulse.source or "pulse"
+    u = pulse if pulse.is_uniform else resample(pulse, pulse.sample_rate_hz)
+    dt = float(u.time[1] - u.time[0])
+    led = lead_in(u, PRE_IMPACT_TIME)
+    t, n_lead, first = led.time, led.n_samples - u.n_samples, float(u.time[0])
+    bands = _onset_bands(cfc, 1.0 / dt)
+    k_n = u.n_channels
+    level0 = threshold_g * G0
+    need = max(MIN_PRE_TRIGGER, ONSET_GAP + MIN_SAMPLES * dt)  # seconds before an onset that measure its zero level
+    # a rough start: the channel (less the median of its first 2 ms) filtered, at a fifth of its peak
+    head = u.acc[:, : max(1, round(0.002 / dt))]
+    rough = led.acc - np.median(head, axis=1, keepdims=True)
+    rough[:, :n_lead] = 0.0
+    filtered = _quiet_filter(rough, dt, bands[0])
+    ends = np.empty(k_n)
+    for k in range(k_n):
+        mag = np.abs(filtered[k])
+        ends[k] = float(t[int(np.argmax(mag >= max(0.2 * float(mag.max()), level0)))])
+    zero, noise, level = np.zeros(k_n), np.zeros(k_n), np.full(k_n, level0)
+    measured = np.zeros(k_n, dtype=bool)
+    onsets = np.full(k_n, math.inf)
+    for n_pass in range(_ONSET_PASSES):
+        before = ends.copy()
+        for k in range(k_n):
+            quiet = (t >= first) & (t < ends[k])
+            measured[k] = quiet.sum() >= MIN_SAMPLES and ends[k] - first >= need - ONSET_GAP - 0.5 * dt
+            zero[k] = float(led.acc[k, quiet].mean()) if measured[k] else 0.0
+            noise[k] = float(led.acc[k, quiet].std()) if measured[k] else 0.0
+            x = led.acc[k] - zero[k]
+            x[:n_lead] = 0.0
+            found = _channel_onset(t, x, n_lead, bands, level0, noise[k], quiet if measured[k] else None, need)
+            if found is not None and found[2]:  # too few samples before the onset after all: the zero level is 0
+                measured[k], zero[k], noise[k] = False, 0.0, 0.0
+                x = led.acc[k].copy()
+                x[:n_lead] = 0.0
+                found = _channel_onset(t, x, n_lead, bands, level0, 0.0, None, need)
+            if found is None:
+                onsets[k], level[k] = math.inf, NOISE_LEVELS * noise[k] * _white_gain(bands[0], dt)
+                level[k] = max(level[k], level0)
+                continue
+            onsets[k], level[k] = found[:2]
+            ends[k] = onsets[k] - ONSET_GAP
+        if np.all(np.isinf(onsets)):
+            filtered = _quiet_filter(led.acc - zero[:, None], dt, bands[0])
+            filtered[:, :n_lead] = 0.0
+            by = "" if bands[0] is None else f" after CFC {bands[0]}"
+            peaks = np.abs(filtered).max(axis=1) / G0
+            each = "; ".join(f"{name!r} peaks at {peaks[k]:.3g} g{by}, its onset level is {level[k] / G0:.3g} g"
+                             for k, name in enumerate(u.channels))  # fmt: skip
+            raise PulseError(
+                f"{where}: no channel leaves its pre-trigger noise ({threshold_g:g} g, or {NOISE_LEVELS:g} x its "
+                f"noise where higher): {each}"
+            )
+        # a channel without an onset is at rest before the record's time zero
+        t_zero = float(onsets.min())
+        ends[np.isinf(onsets)] = t_zero - ONSET_GAP
+        if n_pass > 0 and np.all(np.abs(ends - before) < dt):  # measured before the onsets found with it
+            break
+    pre = np.where(np.isinf(onsets), t_zero, onsets) - first
+    for k in np.flatnonzero(~measured).tolist():
+        at = f"its onset at t = {_ms(onsets[k])} ms" if math.isfinite(onsets[k]) else (
+            f"the record's time zero at t = {_ms(t_zero)} ms")  # fmt: skip
+        warnings.warn(
+            f"{where}: channel {u.channels[k]!r} has {max(pre[k], 0.0) * 1e3:.1f} ms of samples before {at}, too few "
+            f"to measure its zero level and noise (time_zero threshold needs {need * 1e3:.3g} ms of "
+            f"pre-trigger data): its zero level is taken as 0 and its onset level as {threshold_g:g} g. A record that "
+            "starts at the contact is read with time_zero file (--time-zero file)",
+            UserWarning,
+            stacklevel=2,
+        )
+    return Onset(
+        time=max(t_zero, first), onsets=onsets, zero_level=zero, noise=noise, level=level,
+        pre_trigger=np.maximum(pre, 0.0), measured=measured.copy(),
+    )  # fmt: skip
 
 
 ZERO_LEVEL_MARGIN = 0.001
 """[s] The zero level of a record is the mean of its samples up to this long before its t = 0 (pre-trigger data)."""
 MAX_ZERO_OFFSET_G = 2.0
 """[g] A pre-trigger mean above this is not a transducer offset (the record's clock puts part of the crash, or a
-fault, before t = 0): :func:`remove_zero_offset` then leaves the channel as it is and warns."""
+fault, before t = 0): :func:`remove_zero_offset` then leaves the channel as it is and warns. Measured before the
+onset found (``time_zero: threshold``, :func:`without_zero_offset`) it is subtracted all the same, with a warning."""
 
 
 def remove_zero_offset(
@@ -457,8 +723,9 @@ def remove_zero_offset(
     """Subtract each channel's zero level: the mean of its raw samples before ``before`` [s] (ISO 6487 / SAE J211
     practice: the pre-trigger samples of a test are at rest, so their mean is the transducer's offset).
 
-    A DC offset integrates into a velocity drift: 0.3 g over 150 ms is 0.44 m/s, and an offset above the 0.5 g
-    time-zero threshold sets time zero at the record's first sample. Records with less than ``min_time`` of
+    A DC offset integrates into a velocity drift: 0.3 g over 150 ms is 0.44 m/s. This is the zero level of a record
+    whose t = 0 is the contact (``time_zero: file``); :func:`find_onset` measures it before the onset found
+    otherwise. Records with less than ``min_time`` of
     samples before ``before`` (a record that starts at the impact) are returned unchanged (the same object), and so
     is a channel whose pre-trigger mean exceeds ``max_offset_g`` (with a warning): those samples are not at rest.
     """
@@ -484,23 +751,30 @@ def without_zero_offset(
     """``pulse`` less each channel's transducer offset, measured where the record is at rest.
 
     With ``time_zero="file"`` (the file's t = 0 is the contact) the pre-trigger samples are those at negative
-    times (:func:`remove_zero_offset`). With ``"threshold"`` the file's clock is not trusted: the offset is the
-    mean of the samples from the record's start to :data:`ZERO_LEVEL_MARGIN` before the onset found on the record
-    less its negative-time offset (an offset above the 0.5 g threshold would otherwise set the onset at the first
-    sample), where they span at least 5 ms; else the negative-time offset stands. Where that onset lies inside the
-    negative times averaged (the file's clock puts the contact before -1 ms), the mean held part of the pulse: the
-    onset is found on the record as read instead. So an offset below the threshold gives the same result whatever
-    the record's clock; one above it is recognised only where the contact is at the file's t = 0.
+    times (:func:`remove_zero_offset`). With ``"threshold"`` the file's clock is not trusted: each channel's offset
+    is the mean of its samples before its onset (:func:`find_onset`), whatever the record's clock, also where it
+    is above the threshold. A channel with too few samples before its onset (less than :data:`MIN_PRE_TRIGGER`) is
+    left as recorded; :func:`filtered_from_time_zero`, which finds time zero on the result, warns about it, naming
+    the channel. A threshold-mode offset above :data:`MAX_ZERO_OFFSET_G` (by more than three standard errors of the
+    mean) is subtracted all the same (those samples precede the onset), with a warning naming the channel.
     """
-    first = remove_zero_offset(pulse)
     if time_zero != "threshold":
-        return first
-    _, t0 = filtered_from_time_zero(first, cfc, "threshold", threshold_g)
-    if first is not pulse and t0 < -ZERO_LEVEL_MARGIN:  # the negative-time mean held the onset: part of the crash
-        first = pulse
-        _, t0 = filtered_from_time_zero(pulse, cfc, "threshold", threshold_g)
-    second = remove_zero_offset(pulse, before=t0 - ZERO_LEVEL_MARGIN)
-    return first if second is pulse else second  # too few samples before the onset: the negative-time offset
+        return remove_zero_offset(pulse)
+    with warnings.catch_warnings():  # said once, by filtered_from_time_zero, which runs on the result
+        warnings.simplefilter("ignore")
+        onset = find_onset(pulse, cfc, threshold_g)
+    level = np.where(onset.measured, onset.zero_level, 0.0)
+    # beyond the offset by more than three standard errors of the mean (noise over 5 ms of 3 g: 0.4 g)
+    n = np.maximum((onset.pre_trigger - ONSET_GAP) / pulse.dt, 1.0)
+    for k in np.flatnonzero(np.abs(level) - 3.0 * onset.noise / np.sqrt(n) > MAX_ZERO_OFFSET_G * G0).tolist():
+        warnings.warn(
+            f"{pulse.source or 'pulse'}: channel {pulse.channels[k]!r} averages {level[k] / G0:.3g} g before its "
+            f"onset at t = {_ms(onset.onsets[k])} ms, more than a transducer offset ({MAX_ZERO_OFFSET_G:g} g): "
+            "subtracted as its zero level all the same; check the channel",
+            UserWarning,
+            stacklevel=2,
+        )
+    return replace(pulse, acc=pulse.acc - level[:, None])
 
 
 def shift_time(pulse: Pulse, t0: float) -> Pulse:
@@ -541,16 +815,15 @@ def filtered_from_time_zero(
     Args:
         pulse: the raw (or already filtered) pulse.
         cfc: CFC class, or ``None`` to skip filtering.
-        time_zero: ``"threshold"`` (:func:`find_time_zero` on the filtered record) or ``"file"`` (the file's t = 0).
-        threshold_g: time-zero threshold [g].
+        time_zero: ``"threshold"`` (the earliest channel onset, :func:`find_onset`) or ``"file"`` (the file's t = 0).
+        threshold_g: the lowest onset detection level [g] (:func:`find_onset`).
 
-    Time zero is searched in two steps: the first crossing of the threshold by the filtered record (noise on
-    the raw record cannot trigger it), then the first crossing from there on by the record filtered at CFC 1000
-    where its rate allows (above 4.2 kHz, as test records are sampled), or unfiltered (a slower record, e.g. a
-    simulated one at 2 kHz; :func:`onset_after`). The zero-phase filter spreads a pulse backwards
-    in time: a sharp onset (a bumper-region sensor stopping within 1-2 ms, a 3 ms half-sine) crosses 0.5 g
-    after CFC 60 filtering 5-13 ms before it starts, which would shift every time of the record and its
-    velocity change at 150 ms.
+    With ``"threshold"``, time zero is where the pulse starts (:func:`find_onset`): detected on the record filtered
+    at ``cfc`` against its pre-trigger noise, and placed by a straight line fitted to the unfiltered record's onset.
+    A level crossing of the filtered record lay milliseconds off: the zero-phase filter spreads a sharp onset
+    (a bumper-region sensor stopping within 1-2 ms, a 3 ms half-sine) backwards, so it crosses 0.5 g 5-13 ms
+    before it starts, and a noise level above 0.5 g is reached milliseconds after a slow onset. A channel with too
+    little pre-trigger data to measure its zero level and noise is named in a warning (:func:`find_onset`).
 
     Before filtering, the record is led in by :data:`PRE_IMPACT_TIME` of zero acceleration (the vehicle at
     constant speed before the record began), and the filtered lead-in is kept (its times precede the
@@ -570,21 +843,7 @@ def filtered_from_time_zero(
     led = lead_in(u, PRE_IMPACT_TIME)
     p = led if cfc is None else filter_pulse(led, cfc)
     if time_zero == "threshold":
-        t_filtered = find_time_zero(p, threshold_g)
-        if cfc is None:  # the record's own crossing, not before its first sample (one that starts above the level)
-            return p, max(t_filtered, float(u.time[0]))
-        # the onset on CFC 1000 where the rate can filter it (design frequency below Nyquist), else unfiltered:
-        # a narrower band spreads a sharp onset by milliseconds again (CFC 180 at 2 kHz: 1.5-4.5 ms)
-        rate = 1.0 / float(u.time[1] - u.time[0])
-        widest = max(CFC_CLASSES)
-        sharp = lead_in(u, PRE_IMPACT_TIME)
-        if widest > cfc and 2.0 * DESIGN_FACTOR * widest < rate:
-            with warnings.catch_warnings():  # J211's 10 F_H margin concerns the corridor, not finding an onset
-                warnings.simplefilter("ignore")
-                sharp = filter_pulse(sharp, widest)
-        # not before the file's first sample: a record that starts above the threshold (no pre-trigger data, e.g.
-        # a simulation's) would otherwise cross it inside the assumed lead-in, up to one sample early
-        return p, max(onset_after(sharp, t_filtered, threshold_g, float(u.time[0])), float(u.time[0]))
+        return p, find_onset(u, cfc, threshold_g).time
     if time_zero == "file":
         return p, 0.0
     raise PulseError(f"time_zero must be 'threshold' or 'file', got {time_zero!r}")
@@ -608,8 +867,8 @@ def prepare_velocity(
         cfc: CFC class to apply at the recording rate; ``None`` to skip (data already filtered).
         rate_hz: output rate [Hz] (the surrogate's 2 kHz by default).
         duration: length [s] of the window after time zero (default: to the end of the record).
-        time_zero: ``"threshold"`` (see :func:`find_time_zero`) or ``"file"`` (the file's t = 0).
-        threshold_g: time-zero threshold [g].
+        time_zero: ``"threshold"`` (the pulse's onset, :func:`find_onset`) or ``"file"`` (the file's t = 0).
+        threshold_g: the lowest onset detection level [g] (:func:`find_onset`).
         v0: forward speed [m/s] before the impact (0 gives the velocity change).
         beyond: with a ``duration``, also return up to this long [s] past the window, as far as the record
             reaches (the filter ran over the whole record either way; :func:`compared_window`).
