@@ -387,6 +387,29 @@ def test_file_reference_csv_and_mme_match_the_analytic_half_sine(cells, sim):
         assert np.max(np.abs(v[0, 0].numpy() - analytic)) < 0.15
 
 
+@pytest.mark.parametrize("noise_g", [0.0, 1.0])
+def test_a_threshold_reference_of_a_noisy_record_with_an_offset_is_its_pulse(cells, sim, tmp_path, noise_g):
+    """A lab export read with ``time_zero: threshold``: 10 ms of pre-trigger samples on a clock without negative
+    times, a 0.8 g transducer offset and 1 g rms of white noise on an 80 ms, 30 g half-sine at 10 kHz. The reference
+    is the analytic velocity from the impact speed at the onset (clean within 0.03 m/s, noisy within 0.3 m/s over
+    the 150 ms). Before, the offset hid the onset: time zero at the first sample, 10 ms early, and the offset
+    integrated, 1.2 m/s over 150 ms."""
+    rate, pre, tau, amp = 10_000.0, 0.010, 0.080, 30.0
+    t = np.arange(round((pre + 0.2) * rate)) / rate
+    s = t - pre
+    acc_g = np.where((s >= 0) & (s <= tau), -amp * np.sin(np.pi * np.clip(s, 0, tau) / tau), 0.0) + 0.8
+    acc_g = acc_g + np.random.default_rng(7).normal(0.0, noise_g, t.size)
+    path = tmp_path / "lab.csv"
+    path.write_text("time_s,acc_g\n" + "".join(f"{a:.4f},{b:.6f}\n" for a, b in zip(t, acc_g, strict=True)))
+    spec = FileReference(path=str(path), scenario="full_width_40", time_zero="threshold",
+                         channels=dict.fromkeys(cells.sensor_names, "acc_g"))  # fmt: skip
+    v = sampler(cells, sim, kind="file", files=[spec]).sample(np.random.default_rng(0), 1).velocity[0, 0].numpy()
+    tt = np.clip(np.arange(v.size) / 2000.0, 0.0, tau)
+    dv = 2 * amp * 9.80665 * tau / np.pi
+    analytic = 40 / 3.6 - dv / 2 * (1 - np.cos(np.pi * tt / tau))
+    assert np.max(np.abs(v - analytic)) < (0.03 if noise_g == 0 else 0.3)
+
+
 def test_file_reference_errors(cells, sim, tmp_path):
     spec = FileReference(
         path=str(DATA / "halfsine_40kmh.csv"), scenario="full_width_40", channels={"tunnel": "tunnel_acx"}
