@@ -513,7 +513,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--time-zero",
         choices=["threshold", "file"],
         default="threshold",
-        help="time zero: first crossing of 0.5 g (default) or the file's t = 0",
+        help="time zero: the pulse's onset (default; detected against 0.5 g or 5x the pre-trigger noise, zero level "
+        "from the samples before it) or the file's t = 0",
     )
     p.add_argument(
         "--deceleration-positive",

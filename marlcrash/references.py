@@ -21,10 +21,13 @@ surrogate's sign convention (forward speed, starting at the impact speed). Three
   speed of the file's scenario. Loaded once, drawn per episode by weight. Time zero is the
   file's t = 0 by default (``time_zero: file``): the first contact, as the simulation's t = 0
   (ISO-MME's T0; lab exports put pre-trigger samples at negative times, and their mean is
-  subtracted as the channel's zero level). ``time_zero: threshold`` finds the 0.5 g onset
-  instead, for records whose clock is not aligned to contact; a threshold crossing lies a
-  few tenths of a millisecond off a sharp onset, and a channel far from the front (the
-  tunnel) crosses it milliseconds after the contact. The file must be filtered with the
+  subtracted as the channel's zero level). ``time_zero: threshold`` finds the pulse's onset
+  instead, for records whose clock is not aligned to contact
+  (:func:`marlcrash.pulse.signal.find_onset`: each channel's zero level and noise measured on
+  its samples before its onset, whatever the clock; the pulse detected on the CFC-filtered
+  channel against 0.5 g or 5x that noise; its onset the start of a line fitted to it); a
+  channel far from the front (the tunnel) starts milliseconds after the contact, and one with
+  too little pre-trigger data is named in a warning. The file must be filtered with the
   compared signal's class (``cfc`` = ``compare_cfc``, or null when filtered already), and a
   record whose velocity climbs above the impact speed (decelerations recorded positive)
   is refused, naming ``sign``. A record usually goes on past the window and is filtered over all of
