@@ -66,6 +66,7 @@ from marlcrash.pulse.io import ACC_UNITS, acc_unit_key, check_record_rate, read_
 from marlcrash.pulse.signal import (
     DEFAULT_COMPARE_MARGIN,
     compared_window,
+    drawn_without_noise,
     margin_samples,
     prepare_velocity,
     without_zero_offset,
@@ -483,12 +484,13 @@ class ReferenceSampler:
         pulse = pulse.select([unique.index(c) for c in channels])
         sc = self.scenarios[spec.scenario]
         # the samples before the contact are at rest: their mean is the offset (as `marlcrash pulse` removes it)
-        pulse = without_zero_offset(pulse, spec.time_zero, spec.cfc, spec.threshold_g)
         # unfiltered comparisons (compare_cfc null) have no filter end handling to match: no margin
         most = 0 if self.config.compare_cfc is None else margin_samples(self.config.compare_margin, sc.output_rate)
-        _, vel = prepare_velocity(pulse, cfc=spec.cfc, rate_hz=sc.output_rate, duration=sc.duration,
-                                  time_zero=spec.time_zero, threshold_g=spec.threshold_g, v0=sc.speed,
-                                  beyond=most / sc.output_rate)  # fmt: skip
+        with drawn_without_noise(spec.breakpoints):
+            pulse = without_zero_offset(pulse, spec.time_zero, spec.cfc, spec.threshold_g)
+            _, vel = prepare_velocity(pulse, cfc=spec.cfc, rate_hz=sc.output_rate, duration=sc.duration,
+                                      time_zero=spec.time_zero, threshold_g=spec.threshold_g, v0=sc.speed,
+                                      beyond=most / sc.output_rate)  # fmt: skip
         margin = vel.shape[1] - self.n_outputs
         acc = np.gradient(vel, 1.0 / sc.output_rate, axis=1)[:, : self.n_outputs]  # central at the window's end
         vel = vel[:, : self.n_outputs]

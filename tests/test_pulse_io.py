@@ -757,3 +757,23 @@ def test_iso_mme_default_channel_is_not_chosen_past_a_channel_without_unit(tmp_p
                             if not line.startswith("Unit")), encoding="latin-1")  # fmt: skip
     with pytest.raises(PulseError, match=r"T1: channel file T1.001 has no 'Unit' header line.*--acc-col"):
         pulse_summary(folder)
+
+
+def test_a_table_of_breakpoints_from_the_contact_needs_no_pre_trigger_data(tmp_path):
+    """Corners drawn from t = 0 have neither noise nor offset: time_zero threshold takes their zero level as 0 without
+    the warning a sampled record that starts at the contact gets (the same samples written out as such)."""
+    from marlcrash.pulse.io import processed_pulse
+    from marlcrash.pulse.signal import SHORT_PRE_TRIGGER
+
+    path = tmp_path / "corners.csv"
+    path.write_text(_trapezoid_corners())
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        _, work, t0 = processed_pulse(path, breakpoints=True, time_zero="threshold")
+    assert t0 == pytest.approx(0.0, abs=1e-4)
+    p = read_csv(path, breakpoints=True)
+    sampled = tmp_path / "sampled.csv"
+    sampled.write_text("time,acc\n" + "".join(f"{t:.6f},{a / G0:.9f}\n" for t, a in zip(p.time, p.acc[0], strict=True)))
+    with pytest.warns(UserWarning, match=SHORT_PRE_TRIGGER):
+        _, work2, _ = processed_pulse(sampled, time_zero="threshold")
+    np.testing.assert_allclose(work2.acc, work.acc, rtol=0, atol=1e-6 * float(np.abs(work.acc).max()))

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -16,7 +17,13 @@ from marlcrash.config import from_dict
 from marlcrash.envs.core import build_cells
 from marlcrash.errors import ConfigError, PulseError
 from marlcrash.pulse.cfc import cfc_filter
-from marlcrash.pulse.signal import PRE_IMPACT_TIME, compared_velocity, compared_window, margin_samples
+from marlcrash.pulse.signal import (
+    PRE_IMPACT_TIME,
+    SHORT_PRE_TRIGGER,
+    compared_velocity,
+    compared_window,
+    margin_samples,
+)
 from marlcrash.references import FileReference, ReferenceConfig, ReferenceSampler, TwinConfig, perturb_twin
 from marlcrash.sim import Surrogate, get_scenario
 
@@ -487,11 +494,18 @@ def test_file_reference_checks_its_rate_and_reads_breakpoints(cells, sim, tmp_pa
     t = np.arange(3001) / 1e4
     acc = np.interp(t, *zip(*corners, strict=True))
     dense.write_text("time,acc\n" + "".join(f"{a:.4f},{b:.12g}\n" for a, b in zip(t, acc, strict=True)))
-    refs = []
+    refs, short = [], []
     for path, extra in ((dense, {}), (table, {"breakpoints": True})):
-        spec = FileReference(path=str(path), scenario="full_width_40", channels=channels, **extra)
-        refs.append(sampler(cells, sim, kind="file", files=[spec]).sample(np.random.default_rng(0), 1).velocity)
+        spec = FileReference(
+            path=str(path), scenario="full_width_40", channels=channels, time_zero="threshold", **extra
+        )
+        with warnings.catch_warnings(record=True) as said:
+            warnings.simplefilter("always")
+            refs.append(sampler(cells, sim, kind="file", files=[spec]).sample(np.random.default_rng(0), 1).velocity)
+        short.append(any(SHORT_PRE_TRIGGER in str(w.message) for w in said))
     torch.testing.assert_close(refs[1], refs[0], rtol=0, atol=1e-9)
+    # 2 ms before the rise: too short to measure a record's zero level (said), exact for corners (nothing to say)
+    assert short == [True, False]
     in_ms = tmp_path / "in_ms.csv"  # a record in ms, configured as seconds: 1000x delta-v unless refused
     in_ms.write_text("time,acc\n" + "".join(f"{a * 1e3:.1f},{b:.12g}\n" for a, b in zip(t, acc, strict=True)))
     spec = FileReference(path=str(in_ms), scenario="full_width_40", channels=channels)

@@ -46,6 +46,7 @@ from marlcrash.pulse.signal import (
     MIN_SAMPLES,
     PRE_IMPACT_TIME,
     Pulse,
+    drawn_without_noise,
     filtered_from_time_zero,
     without_zero_offset,
 )
@@ -802,8 +803,9 @@ def processed_pulse(
     check_record_rate(pulse, p, time_unit=time_unit)
     try:
         # the transducer offset, from the samples before the contact, as a file reference removes it
-        work, t0 = filtered_from_time_zero(without_zero_offset(pulse, time_zero, cfc, threshold_g), cfc, time_zero,
-                                           threshold_g)  # fmt: skip
+        with drawn_without_noise(breakpoints):
+            work, t0 = filtered_from_time_zero(without_zero_offset(pulse, time_zero, cfc, threshold_g), cfc,
+                                               time_zero, threshold_g)  # fmt: skip
     except PulseError as e:  # e.g. a sampling rate too low for the filter class: say which file
         if p.name not in str(e):
             raise _err(str(e), p) from None

@@ -33,10 +33,11 @@ pre-trigger data for its zero level is named in a warning.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import math
 import warnings
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -696,8 +697,8 @@ def find_onset(pulse: Pulse, cfc: int | None = 60, threshold_g: float = DEFAULT_
         at = f"its onset at t = {_ms(onsets[k])} ms" if math.isfinite(onsets[k]) else (
             f"the record's time zero at t = {_ms(t_zero)} ms")  # fmt: skip
         warnings.warn(
-            f"{where}: channel {u.channels[k]!r} has {max(pre[k], 0.0) * 1e3:.1f} ms of samples before {at}, too few "
-            f"to measure its zero level and noise (time_zero threshold needs {need * 1e3:.3g} ms of "
+            f"{where}: channel {u.channels[k]!r} has {max(pre[k], 0.0) * 1e3:.1f} ms of samples before {at}, "
+            f"{SHORT_PRE_TRIGGER} (time_zero threshold needs {need * 1e3:.3g} ms of "
             f"pre-trigger data): its zero level is taken as 0 and its onset level as {threshold_g:g} g. A record that "
             "starts at the contact is read with time_zero file (--time-zero file)",
             UserWarning,
@@ -707,6 +708,21 @@ def find_onset(pulse: Pulse, cfc: int | None = 60, threshold_g: float = DEFAULT_
         time=max(t_zero, first), onsets=onsets, zero_level=zero, noise=noise, level=level,
         pre_trigger=np.maximum(pre, 0.0), measured=measured.copy(),
     )  # fmt: skip
+
+
+SHORT_PRE_TRIGGER = "too few to measure its zero level and noise"
+"""Part of :func:`find_onset`'s warning about a channel without pre-trigger data (:func:`drawn_without_noise`)."""
+
+
+@contextlib.contextmanager
+def drawn_without_noise(active: bool = True) -> Iterator[None]:
+    """Inside, :func:`find_onset` says nothing of a channel without pre-trigger data: for a table of breakpoints (a
+    pulse drawn by its corners from a specification), which has neither noise nor offset, so a zero level of 0 is
+    exact, not a fallback. Other warnings pass."""
+    with warnings.catch_warnings():
+        if active:
+            warnings.filterwarnings("ignore", message=f".*{SHORT_PRE_TRIGGER}")
+        yield
 
 
 ZERO_LEVEL_MARGIN = 0.001
