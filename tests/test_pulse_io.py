@@ -777,3 +777,25 @@ def test_a_table_of_breakpoints_from_the_contact_needs_no_pre_trigger_data(tmp_p
     with pytest.warns(UserWarning, match=SHORT_PRE_TRIGGER):
         _, work2, _ = processed_pulse(sampled, time_zero="threshold")
     np.testing.assert_allclose(work2.acc, work.acc, rtol=0, atol=1e-6 * float(np.abs(work.acc).max()))
+
+
+def test_a_file_clock_record_with_short_pre_trigger_says_its_offset_stays():
+    """time_zero file: the zero level is the mean before t = -1 ms. Under 5 ms of such samples it is not measured;
+    that used to be silent, with a 0.8 g offset left to drift into the velocity."""
+    from marlcrash.pulse.signal import remove_zero_offset
+
+    def record(pre_ms: float) -> Pulse:
+        t = np.arange(-round(pre_ms * 10), 1500) / 1e4
+        acc = np.where((t >= 0) & (t < 0.08), -30 * G0 * np.sin(np.pi * np.clip(t, 0, 0.08) / 0.08), 0.0) + 0.8 * G0
+        return Pulse(time=t, acc=acc[None], channels=["acc"], source="lab.csv")
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        long = remove_zero_offset(record(10.0))
+        np.testing.assert_allclose(long.acc[0, long.time < 0], 0.0, atol=1e-9)  # offset measured and removed
+        start = record(0.0)
+        assert remove_zero_offset(start) is start  # starts at the contact: nothing to measure, nothing to say
+    short = record(3.0)
+    said = r"lab\.csv: 3 ms of pre-trigger samples \(negative times\), 1\.9 ms of them before t = -1 ms, fewer"
+    with pytest.warns(UserWarning, match=said):
+        assert remove_zero_offset(short) is short
