@@ -479,15 +479,18 @@ def test_the_cell_model_cache_follows_the_configs_folder(tmp_path, monkeypatch):
     import yaml
 
     from marlcrash.config import config_dir
+    from marlcrash.envs import core
 
-    first = build_cells("b_segment", None, "optimized")
+    for seed in range(core._CELLS_KEPT):  # a full cache whose oldest entry is the one used next (kept: used last)
+        build_cells("b_segment", seed, "optimized")
+    first = build_cells("b_segment", 0, "optimized")
     configs = tmp_path / "configs"
     shutil.copytree(config_dir(), configs)
     data = yaml.safe_load((configs / "cells.yaml").read_text())
     data["target_cell_volume"] = 2 * data["target_cell_volume"]
     (configs / "cells.yaml").write_text(yaml.safe_dump(data))
     monkeypatch.setenv("MARLCRASH_CONFIGS", str(configs))
-    coarse = build_cells("b_segment", None, "optimized")
+    coarse = build_cells("b_segment", 0, "optimized")
     assert coarse.n_cells < first.n_cells
     monkeypatch.delenv("MARLCRASH_CONFIGS")
-    assert build_cells("b_segment", None, "optimized") is first
+    assert build_cells("b_segment", 0, "optimized") is first

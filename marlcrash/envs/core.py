@@ -245,7 +245,7 @@ def check_env_args(config: Any, batch_size: Any) -> int:
 
 def build_cells(vehicle: str, seed: int | None, method: str, options: VehicleOptions | None = None) -> CellModel:
     """Discretize a registered vehicle (or a vehicle file, read with ``options``) once per process and cache it
-    (the last :data:`_CELLS_KEPT`), keyed by the configs folder and ``cells.yaml``'s values too (a changed
+    (the :data:`_CELLS_KEPT` used last), keyed by the configs folder and ``cells.yaml``'s values too (a changed
     ``MARLCRASH_CONFIGS`` used to get the model built from the folder before)."""
     from marlcrash.cells.discretize import discretize, load_discretization_config
     from marlcrash.vehicle.registry import load_configured_vehicle
@@ -253,7 +253,9 @@ def build_cells(vehicle: str, seed: int | None, method: str, options: VehicleOpt
     options = options or VehicleOptions()
     cell_config = load_discretization_config()
     key = (vehicle, seed, method, options.key(), str(config_dir().resolve()), repr(cell_config))
-    if key not in _CELLS:
+    if key in _CELLS:
+        _CELLS[key] = _CELLS.pop(key)  # the most recently used last: the least recently used goes first
+    else:
         _CELLS[key] = discretize(load_configured_vehicle(vehicle, seed, options), cell_config, method=method)
         while len(_CELLS) > _CELLS_KEPT:
             _CELLS.pop(next(iter(_CELLS)))

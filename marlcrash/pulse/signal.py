@@ -643,15 +643,21 @@ def find_onset(pulse: Pulse, cfc: int | None = 60, threshold_g: float = DEFAULT_
     k_n = u.n_channels
     level0 = threshold_g * G0
     need = max(MIN_PRE_TRIGGER, ONSET_GAP + MIN_SAMPLES * dt)  # seconds before an onset that measure its zero level
-    # a rough start: the channel (less the median of its first 2 ms) filtered, at a fifth of its peak
+    # a rough start: the channel (less the median of its first 2 ms) filtered, at a fifth of its peak, or above
+    # the noise of those 2 ms (median absolute deviation; without it, 3 g of noise on a 10 g pulse crossed first
+    # near the record's start, and the pre-trigger data were given up as too short)
     head = u.acc[:, : max(1, round(0.002 / dt))]
-    rough = led.acc - np.median(head, axis=1, keepdims=True)
+    centre = np.median(head, axis=1, keepdims=True)
+    head_noise = 1.4826 * np.median(np.abs(head - centre), axis=1) * _white_gain(bands[0], dt)
+    rough = led.acc - centre
     rough[:, :n_lead] = 0.0
     filtered = _quiet_filter(rough, dt, bands[0])
     ends = np.empty(k_n)
     for k in range(k_n):
         mag = np.abs(filtered[k])
-        ends[k] = float(t[int(np.argmax(mag >= max(0.2 * float(mag.max()), level0)))])
+        peak = float(mag.max())
+        rough_level = max(0.2 * peak, level0, min(NOISE_LEVELS * head_noise[k], 0.5 * peak))
+        ends[k] = float(t[int(np.argmax(mag >= rough_level))])
     zero, noise, level = np.zeros(k_n), np.zeros(k_n), np.full(k_n, level0)
     measured = np.zeros(k_n, dtype=bool)
     onsets = np.full(k_n, math.inf)
