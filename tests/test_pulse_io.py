@@ -799,3 +799,19 @@ def test_a_file_clock_record_with_short_pre_trigger_says_its_offset_stays():
     said = r"lab\.csv: 3 ms of pre-trigger samples \(negative times\), 1\.9 ms of them before t = -1 ms, fewer"
     with pytest.warns(UserWarning, match=said):
         assert remove_zero_offset(short) is short
+
+
+def test_noise_near_the_start_of_a_record_does_not_discard_its_pre_trigger_data():
+    """The first guess of where the pulse starts rises above the noise of the record's first 2 ms: with 3 g of noise
+    on a 3 ms, 10 g pulse (seed 22), noise crossed the guess's level near the start, the channel's 10 ms of
+    pre-trigger data were given up as too short, and time zero came out 10 ms early with the 0.5 g offset left in."""
+    from marlcrash.pulse.signal import find_onset
+
+    t = 0.29 + np.arange(1600) / 1e4  # the clock is not the contact's: contact at t = 0.3 s, 10 ms of pre-trigger
+    pulse = np.where((t >= 0.3) & (t < 0.303), -10 * G0 * np.sin(np.pi * (t - 0.3) / 0.003), 0.0)
+    acc = pulse + 0.5 * G0 + np.random.default_rng(22).normal(0, 3 * G0, t.size)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        onset = find_onset(Pulse(time=t, acc=acc[None], channels=["acc"], source="lab.csv"), 60)
+    assert onset.measured[0] and abs(onset.time - 0.3) < 2e-3
+    assert onset.zero_level[0] == pytest.approx(0.5 * G0, abs=3 * G0 / np.sqrt(80))  # the offset, to 3 std errors
