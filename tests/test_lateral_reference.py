@@ -143,3 +143,29 @@ def test_the_cells_move_with_the_car(cars, method):
             moved = getattr(b, field) - [0.0, dy, 0.0]
             np.testing.assert_allclose(moved, getattr(a, field), rtol=0, atol=1e-9, err_msg=field)
         np.testing.assert_allclose(b.planes_y - dy, a.planes_y, rtol=0, atol=1e-9)
+
+
+def test_cells_on_the_centre_line_of_a_car_off_y0_go_to_split_centre():
+    """A plate in the centre plane: its cells' centroids lie on the centre line, to the round-off of the car's
+    shift (-2.8e-17 m 3 cm off centre, which sent all 36 to the right agent); ``split_centre`` decides."""
+    from test_cells_helpers import _tube_y, box_shell, build_model, plate, tube_x
+
+    from marlcrash.envs.agents import _side_mask
+    from marlcrash.vehicle.model import COMPARTMENT
+
+    car = build_model([
+        ("bumper", "shell", _tube_y(0.0, 0.1, -0.7, 0.7, 0.35, 0.47), 2.0e-3, 1),
+        ("rail_left", "shell", tube_x(0.1, 1.35, 0.4, 0.5, 0.33, 0.49, 30, 4), 2.0e-3, 1),
+        ("rail_right", "shell", tube_x(0.1, 1.35, -0.5, -0.4, 0.33, 0.49, 30, 4), 2.0e-3, 1),
+        ("web", "shell", plate([0.2, 0.0, 0.25], [0.6, 0, 0], [0, 0, 0.3], 12, 6), 3e-3, 1),
+        (COMPARTMENT, "shell", box_shell([1.2, -0.8, 0.05], [3.2, 0.8, 1.3], 4), 0.03, 2),
+    ], name="webcar")  # fmt: skip
+    cfg = load_discretization_config()
+    for shift in (0.0, 0.03, -0.37):
+        cells = discretize(car.transformed(AxisMap(y_center=-shift)), cfg, method="uniform")
+        web = np.flatnonzero(cells.subassembly == cells.subassembly_names.index("web"))
+        assert np.abs(cells.centroid[web, 1] - cells.centre_y).max() < 1e-12  # the premise: on the line
+        for centre in ("left", "right"):
+            for side in ("left", "right"):
+                took = _side_mask(cells, side, centre)[web]
+                assert took.all() if side == centre else not took.any(), (shift, centre, side)

@@ -118,11 +118,18 @@ class AgentLayout:
 
 def _side_mask(cells: CellModel, side: str, centre: str) -> np.ndarray:
     y = cells.centroid[:, 1] - cells.centre_y  # sides of the centre line, not of y = 0 (AxisMap.y_center)
+    # on the line within rounding: the centre line of a car off y = 0 carries the round-off of its shift (-2.8e-17 m
+    # sent a centre-plane plate's 36 cells right instead of to split_centre's left)
+    on = np.abs(y) <= _ON_CENTRE_LINE
     if side == "any":
         return np.ones(cells.n_cells, dtype=bool)
     if side == "left":
-        return (y > 0) | ((y == 0) & (centre == "left"))
-    return (y < 0) | ((y == 0) & (centre == "right"))
+        return ((y > 0) & ~on) | (on & (centre == "left"))
+    return ((y < 0) & ~on) | (on & (centre == "right"))
+
+
+_ON_CENTRE_LINE = 1e-9
+"""[m] A centroid this close to the vehicle's centre line lies on it (``split_centre`` decides its side)."""
 
 
 def build_agents(cells: CellModel, config: AgentsConfig) -> AgentLayout:
