@@ -777,6 +777,11 @@ def test_a_table_of_breakpoints_from_the_contact_needs_no_pre_trigger_data(tmp_p
     with pytest.warns(UserWarning, match=SHORT_PRE_TRIGGER):
         _, work2, _ = processed_pulse(sampled, time_zero="threshold")
     np.testing.assert_allclose(work2.acc, work.acc, rtol=0, atol=1e-6 * float(np.abs(work.acc).max()))
+    early = tmp_path / "early.csv"  # corners from t = -2 ms on the file's clock: no offset to leave in either
+    early.write_text("time,acc\n-0.002,0\n" + "".join(_trapezoid_corners().splitlines(keepends=True)[1:]))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        processed_pulse(early, breakpoints=True, time_zero="file")
 
 
 def test_a_file_clock_record_with_short_pre_trigger_says_its_offset_stays():
@@ -799,6 +804,9 @@ def test_a_file_clock_record_with_short_pre_trigger_says_its_offset_stays():
     said = r"lab\.csv: 3 ms of pre-trigger samples \(negative times\), 1\.9 ms of them before t = -1 ms, fewer"
     with pytest.warns(UserWarning, match=said):
         assert remove_zero_offset(short) is short
+    tiny = record(0.5)  # no sample before t = -1 ms at all: said all the same (it was silent)
+    with pytest.warns(UserWarning, match=r"lab\.csv: 0\.5 ms of pre-trigger samples \(negative times\), 0 ms of them"):
+        assert remove_zero_offset(tiny) is tiny
 
 
 def test_noise_near_the_start_of_a_record_does_not_discard_its_pre_trigger_data():

@@ -718,16 +718,19 @@ def find_onset(pulse: Pulse, cfc: int | None = 60, threshold_g: float = DEFAULT_
 
 SHORT_PRE_TRIGGER = "too few to measure its zero level and noise"
 """Part of :func:`find_onset`'s warning about a channel without pre-trigger data (:func:`drawn_without_noise`)."""
+OFFSET_LEFT_IN = "any transducer offset is left in the record"
+"""Part of :func:`remove_zero_offset`'s warning about a record with too little pre-trigger data."""
 
 
 @contextlib.contextmanager
 def drawn_without_noise(active: bool = True) -> Iterator[None]:
-    """Inside, :func:`find_onset` says nothing of a channel without pre-trigger data: for a table of breakpoints (a
-    pulse drawn by its corners from a specification), which has neither noise nor offset, so a zero level of 0 is
-    exact, not a fallback. Other warnings pass."""
+    """Inside, :func:`find_onset` and :func:`remove_zero_offset` say nothing of a record without pre-trigger data:
+    for a table of breakpoints (a pulse drawn by its corners from a specification), which has neither noise nor
+    offset, so a zero level of 0 is exact, not a fallback. Other warnings pass."""
     with warnings.catch_warnings():
         if active:
             warnings.filterwarnings("ignore", message=f".*{SHORT_PRE_TRIGGER}")
+            warnings.filterwarnings("ignore", message=f".*{OFFSET_LEFT_IN}")
         yield
 
 
@@ -752,16 +755,16 @@ def remove_zero_offset(
     stays: 0.8 g drifts about 8 % into a 40 km/h velocity change over 150 ms); and so is a channel whose pre-trigger
     mean exceeds ``max_offset_g`` (with a warning): those samples are not at rest.
     """
-    pre = pulse.time < before
-    if not pre.any():
+    if float(pulse.time[0]) >= 0.0:  # starts at the contact: nothing to measure, nothing to say
         return pulse
-    span = float(pulse.time[pre][-1] - pulse.time[0])
+    pre = pulse.time < before
+    span = float(pulse.time[pre][-1] - pulse.time[0]) if pre.any() else 0.0  # 0-1 ms of negative times: none
     if span < min_time:
         warnings.warn(
             f"{pulse.source or 'pulse'}: {-float(pulse.time[0]) * 1e3:.3g} ms of pre-trigger samples (negative times), "
             f"{span * 1e3:.3g} ms of them before t = {before * 1e3:g} ms, fewer than the {min_time * 1e3:g} ms that "
-            "measure a channel's zero level: any transducer offset is left in the record (it integrates into a "
-            "velocity drift); keep more of the test's pre-trigger data",
+            f"measure a channel's zero level: {OFFSET_LEFT_IN} (it integrates into a velocity drift); keep more of "
+            "the test's pre-trigger data",
             UserWarning,
             stacklevel=2,
         )
