@@ -119,3 +119,18 @@ def test_the_snap_distance_is_checked():
     with pytest.raises(ConfigError, match="expected a distance > 0 m, got 0") as e:
         from_dict(DiscretizationConfig, {"sensor_snap_distance": 0})
     assert e.value.key == "sensor_snap_distance"
+
+
+def test_messages_give_positions_in_the_models_own_frame():
+    """Discretization runs in the frame centred on the vehicle; a message must still name the positions the user
+    configured (they read 0.25 m off, the car's offset, for a car read with ``AxisMap(y_center=-0.25)``)."""
+    from marlcrash.vehicle.model import AxisMap
+
+    cfg = load_discretization_config()
+    far = dataclasses.replace(cfg, sensors=[SensorSpec("s", "position", [0.3, 0.73, 0.41])])
+    with pytest.raises(ModelError, match=r"requested position \[0\.300, 0\.730, 0\.410\] m left of the centre line "
+                                         r"y = 0\.250 m"):  # fmt: skip
+        discretize(_car().transformed(AxisMap(y_center=-0.25)), far, method="optimized")
+    twice = dataclasses.replace(cfg, sensors=[SensorSpec(n, "position", [0.3, 0.2, 0.41]) for n in "ab"])
+    with pytest.raises(ModelError, match=r"requested \[0\.300, 0\.200, 0\.410\] and \[0\.300, 0\.200, 0\.410\] m"):
+        discretize(_car(left_inner=True).transformed(AxisMap(y_center=-0.25)), twice, method="uniform")

@@ -11,6 +11,7 @@ the seven parameters (:mod:`.transmission`, :mod:`.params`).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 import warnings
 from dataclasses import dataclass, field
@@ -361,8 +362,11 @@ def _sensor_requests(cfg: DiscretizationConfig, roi: Roi) -> list[tuple[str, np.
     return out
 
 
-def _fmt(p: np.ndarray) -> str:
-    return "[" + ", ".join(f"{v:.3f}" for v in p) + "]"
+def _fmt(p: np.ndarray, frame_y: float = 0.0) -> str:
+    """A position for a message, moved by ``frame_y`` into the model's own frame (:attr:`Roi.frame_y`)."""
+    q = np.array(p, dtype=np.float64)
+    q[1] += frame_y
+    return "[" + ", ".join(f"{v:.3f}" for v in q) + "]"
 
 
 def _snap_sensors(
@@ -380,6 +384,7 @@ def _snap_sensors(
             (``sensor_snap_distance``) [m]; the message names it with its requested and nearest positions.
     """
     centre = roi.centre_y
+    at = functools.partial(_fmt, frame_y=roi.frame_y)  # positions in messages: in the model's own frame
     cy = grid.voxel_centers(candidates)[:, 1] - centre if candidates.size else np.zeros(0)
     out: list[int | None] = []
     for i, (name, p) in enumerate(reqs):  # loop over a handful of sensors
@@ -389,21 +394,21 @@ def _snap_sensors(
         side = float(np.sign(p[1] - centre)) if abs(p[1] - centre) > 1e-9 else 0.0
         own = candidates[side * cy > 0] if side else candidates  # voxels never straddle the centre plane
         where = {1.0: "left", -1.0: "right", 0.0: "on either side"}[side]
-        where += f" of the centre line y = {centre:.3f} m" if side else ""
+        where += f" of the centre line y = {centre + roi.frame_y:.3f} m" if side else ""
         fix = (
             f"give it a position (sensors[{i}].position [x, y, z] in m) or the rule 'compartment', move the up-front "
             "sensors (upfront_sensor_x, upfront_sensor_y_fraction), or raise sensor_snap_distance (a deck whose "
             "lateral axis is not marlcrash's y, --axis-map, has this too)"
         )
         if own.size == 0:
-            raise ModelError(f"sensor {name!r}: no material {where} to place it on (requested {_fmt(p)} m); {fix}")
+            raise ModelError(f"sensor {name!r}: no material {where} to place it on (requested {at(p)} m); {fix}")
         v = _snap(grid, own, p, centre)
         q = grid.voxel_centers(np.array([v]))[0]
         d = float(np.linalg.norm(q - p))
         if d > limit:
             raise ModelError(
                 f"sensor {name!r}: no material within sensor_snap_distance = {limit:g} m of its requested position "
-                f"{_fmt(p)} m {where}; the nearest is at {_fmt(q)} m, {d:.3f} m away; {fix}"
+                f"{at(p)} m {where}; the nearest is at {at(q)} m, {d:.3f} m away; {fix}"
             )
         out.append(v)
     return out
@@ -416,6 +421,7 @@ def _refuse_shared(
     grid: FineGrid,
     what: str,
     cell_edge: float,
+    frame_y: float = 0.0,
 ) -> None:
     """Raise :class:`ModelError` naming the first two sensors whose snapped voxels share ``key[voxel]`` (their cell,
     or the voxel itself where every sensor gets a cell of its own): both would record one and the same signal.
@@ -425,6 +431,7 @@ def _refuse_shared(
     cell of its own, handed the second sensor a one-voxel cell carved out of the first's (or failed with an
     IndexError when a third took that voxel too).
     """
+    at = functools.partial(_fmt, frame_y=frame_y)  # positions in messages: in the model's own frame
     seen: dict[int, int] = {}
     for k, v in enumerate(voxels):
         if v is None:
@@ -434,7 +441,7 @@ def _refuse_shared(
             q = grid.voxel_centers(np.array([v]))[0]
             (a, pa), (b, pb) = reqs[j], reqs[k]
             raise ModelError(
-                f"sensors {a!r} and {b!r} land in one {what} at {_fmt(q)} m (requested {_fmt(pa)} and {_fmt(pb)} m): "
+                f"sensors {a!r} and {b!r} land in one {what} at {at(q)} m (requested {at(pa)} and {at(pb)} m): "
                 "they would record one and the same signal. Move one farther from the other (a cell edge is about "
                 f"{cell_edge:.3g} m) or drop it; sensors in the rigid compartment share its cell by design"
             )
@@ -519,7 +526,7 @@ def _optimized(
     reqs = _sensor_requests(cfg, roi)
     snapped = _snap_sensors(grid, cand, reqs, roi, cfg.sensor_snap_distance)
     # every sensor gets a cell of its own around its voxel: two on one voxel cannot
-    _refuse_shared(reqs, snapped, np.arange(nvox), grid, "voxel", cfg.target_cell_volume ** (1 / 3))
+    _refuse_shared(reqs, snapped, np.arange(nvox), grid, "voxel", cfg.target_cell_volume ** (1 / 3), roi.frame_y)
     n_groups_base = n_sub * (int(grid.band_y.max()) + 1)
     for k, ((_, p), v) in enumerate(zip(reqs, snapped, strict=True)):  # loop over a handful of sensors
         if v is None:
@@ -666,7 +673,7 @@ def _uniform(
     sensor_cell, sensor_pos = [], []
     reqs = _sensor_requests(cfg, roi)
     snapped = _snap_sensors(grid, cand, reqs, roi, cfg.sensor_snap_distance)
-    _refuse_shared(reqs, snapped, labels, grid, "cell", cfg.target_cell_volume ** (1 / 3))
+    _refuse_shared(reqs, snapped, labels, grid, "cell", cfg.target_cell_volume ** (1 / 3), roi.frame_y)
     for v in snapped:
         if v is None:
             sensor_cell.append(comp)
@@ -871,7 +878,7 @@ def discretize(model: VehicleModel, config: DiscretizationConfig | None = None, 
     cfg_user = cfg
     if shift_y != 0.0:
         model = dataclasses.replace(model, coords=model.coords - np.array([0.0, shift_y, 0.0]))
-        roi = region_of_interest(model, cfg.roi_depth, cfg.overlaps)
+        roi = dataclasses.replace(region_of_interest(model, cfg.roi_depth, cfg.overlaps), frame_y=shift_y)
         cfg = dataclasses.replace(
             cfg,
             sensors=[

@@ -40,6 +40,8 @@ class Roi:
         total_mass: vehicle mass [kg] (:meth:`VehicleModel.total_mass`: added and point masses included).
         masses: the model's structural element masses (``VehicleModel.element_masses``), reused downstream.
         added: the model's non-structural element masses (``VehicleModel.element_added_masses``).
+        frame_y: how far along y this ROI's frame lies from the model's own [m] (``discretize`` works in the frame
+            centred on the vehicle; messages give positions in the model's frame: add it).
     """
 
     lo: np.ndarray
@@ -54,6 +56,7 @@ class Roi:
     total_mass: float
     masses: dict[str, np.ndarray]
     added: dict[str, np.ndarray]
+    frame_y: float = 0.0
 
     @property
     def volume(self) -> float:
