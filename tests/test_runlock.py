@@ -98,11 +98,10 @@ def test_a_missing_folder_is_left_to_the_caller_unless_created(tmp_path, lock_se
         assert (d / LOCK_FILE).is_file()
 
 
+@pytest.mark.parametrize("lock_setup", ["windows"], indirect=True)
 def test_the_windows_lock_is_one_byte_past_the_pid(tmp_path, lock_setup):
     """On Windows a locked byte cannot be read by others, so the lock sits past the pid the refusal message reads;
     it is released before the file is removed (Windows removes no open file)."""
-    if not lock_setup:
-        pytest.skip("flock locks the whole file")
     lk = runlock.msvcrt
     lk.locked.clear()
     with run_lock(tmp_path, "name"):

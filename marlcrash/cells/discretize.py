@@ -882,7 +882,7 @@ def discretize(model: VehicleModel, config: DiscretizationConfig | None = None, 
         cfg = dataclasses.replace(
             cfg,
             sensors=[
-                s if s.position is None else dataclasses.replace(s, position=[*_moved(s.position, -shift_y)])
+                s if s.position is None else dataclasses.replace(s, position=_moved(s.position, -shift_y).tolist())
                 for s in cfg.sensors
             ],
         )
