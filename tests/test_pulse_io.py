@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 import warnings
 from pathlib import Path
 
@@ -448,6 +449,21 @@ def test_a_record_without_a_pulse_above_its_noise_is_refused_naming_the_file_and
     )
     with pytest.raises(PulseError, match=refused):
         pulse_summary(path)
+
+
+def test_a_refused_records_onset_level_is_the_one_its_hum_set():
+    """1 g rms white noise with a 0.4 g, 50 Hz hum and no pulse: CFC 60 passes the hum whole, so the detection level
+    is 5x the filtered pre-trigger samples' rms, and the refusal states that level, above the record's peak. It
+    stated the white-noise level instead (0.74 g), below the peak it named (0.78 g)."""
+    from marlcrash.pulse.signal import find_onset
+
+    t = np.arange(2000) / 1e4
+    a = (np.random.default_rng(0).normal(0.0, 1.0, t.size) + 0.4 * np.sin(2 * np.pi * 50 * t)) * G0
+    with pytest.raises(PulseError, match=r"hum\.csv: no channel leaves its pre-trigger noise") as refused:
+        find_onset(Pulse(t, a[None], ("x_acc",), source="hum.csv"), 60)
+    stated = re.search(r"peaks at ([\d.]+) g.*level is ([\d.]+) g", str(refused.value))
+    peak, level = float(stated.group(1)), float(stated.group(2))
+    assert level > peak
 
 
 def test_sampled_acceleration_is_the_derivative_with_a_resting_lead_in():

@@ -547,10 +547,10 @@ def _hinge_fit(t: np.ndarray, y: np.ndarray, candidates: np.ndarray, free_level:
 def _channel_onset(
     t: np.ndarray, x: np.ndarray, n_lead: int, bands: list[int | None], level0: float, noise: float,
     quiet: np.ndarray | None, need: float,
-) -> tuple[float, float, bool] | None:  # fmt: skip
-    """One channel's onset [s], detection level [m/s^2] (:func:`find_onset`), and whether its pre-trigger data are
-    too short after all (the onset fitted at ``need`` after the first sample, the earliest it may be with a
-    measured zero level); ``None`` if it never reaches its level.
+) -> tuple[float, float, bool]:  # fmt: skip
+    """One channel's onset [s] (``inf`` if it never reaches its level), detection level [m/s^2] (:func:`find_onset`),
+    and whether its pre-trigger data are too short after all (the onset fitted at ``need`` after the first sample,
+    the earliest it may be with a measured zero level).
 
     Args:
         t: times of the led-in record (``n_lead`` samples of lead-in, then the record).
@@ -576,7 +576,7 @@ def _channel_onset(
     sign = 1.0 if d0.max() >= -d0.min() else -1.0  # the pulse's direction (a zero-phase filter rings the other way)
     hit = _first_crossing(t, sign * d0, level)
     if hit is None:
-        return None
+        return math.inf, level, False
     t_cross = hit[1]
     i_from = int(np.searchsorted(t, t_cross - ONSET_SEARCH))
     # the line is fitted up to where the pulse reaches a fraction of its peak, found on the widest band whose noise
@@ -686,17 +686,14 @@ def find_onset(pulse: Pulse, cfc: int | None = 60, threshold_g: float = DEFAULT_
             x = led.acc[k] - zero[k]
             x[:n_lead] = 0.0
             found = _channel_onset(t, x, n_lead, bands, level0, noise[k], quiet if measured[k] else None, need)
-            if found is not None and found[2]:  # too few samples before the onset after all: the zero level is 0
+            if found[2]:  # too few samples before the onset after all: the zero level is 0
                 measured[k], zero[k], noise[k] = False, 0.0, 0.0
                 x = led.acc[k].copy()
                 x[:n_lead] = 0.0
                 found = _channel_onset(t, x, n_lead, bands, level0, 0.0, None, need)
-            if found is None:
-                onsets[k], level[k] = math.inf, NOISE_LEVELS * noise[k] * _white_gain(bands[0], dt)
-                level[k] = max(level[k], level0)
-                continue
             onsets[k], level[k] = found[:2]
-            ends[k] = onsets[k] - ONSET_GAP
+            if math.isfinite(onsets[k]):
+                ends[k] = onsets[k] - ONSET_GAP
         if np.all(np.isinf(onsets)):
             filtered = _detection_filter(led.acc - zero[:, None], dt, bands[0])
             filtered[:, :n_lead] = 0.0
