@@ -166,6 +166,46 @@ p
         _read(p, params={"tsize": 50, "tbumpr": 4.0})
 
 
+def _part_with_shell(pid: int, thickness: str) -> str:
+    """Part ``pid`` (section and element ``pid``) of one shell on four nodes of its own, ``thickness`` a field."""
+    n = 4 * pid
+    nodes = "".join(f"{n + k},{100.0 * k},{10.0 * pid},0\n" for k in range(4))
+    return (
+        f"*PART\npart {pid}\n{pid},{pid},1\n*SECTION_SHELL\n{pid},2\n{thickness},{thickness},{thickness},"
+        f"{thickness}\n*NODE\n{nodes}*ELEMENT_SHELL\n{pid},{pid},{n},{n + 1},{n + 2},{n + 3}\n"
+    )
+
+
+def test_local_parameters_hold_in_their_file_and_its_includes(tmp_path):
+    """Two component files each define their own ``t`` with ``*PARAMETER_LOCAL`` (1 and 2 mm) beside the deck's
+    ``*PARAMETER`` t = 5 mm: each file's parts, and those of the files it includes, take its own value; a
+    ``*PARAMETER_EXPRESSION_LOCAL`` and a global expression written in a component see that component's ``t``.
+    Read as global, every part took the first definition's 5 mm (two notes said the later ones were ignored)."""
+    _write(tmp_path, "*KEYWORD\n" + _part_with_shell(3, "&t"), "sub_a.k")
+    comp_a = "*KEYWORD\n*PARAMETER_LOCAL\nR t,1.0\n*PARAMETER_EXPRESSION\nR tg,t*10\n" + _part_with_shell(2, "&t")
+    _write(tmp_path, comp_a + "*INCLUDE\nsub_a.k\n", "comp_a.k")
+    comp_b = "*KEYWORD\n*PARAMETER_LOCAL\nR t,2.0\n*PARAMETER_EXPRESSION_LOCAL\nR t2,t*2\n"
+    _write(tmp_path, comp_b + _part_with_shell(4, "&t") + _part_with_shell(5, "&t2"), "comp_b.k")
+    main = (
+        "*KEYWORD\n*PARAMETER\nR t,5.0\n*MAT_ELASTIC\n1,7.85e-09,210000.0,0.3\n"
+        + _part_with_shell(1, "&t") + _part_with_shell(6, "&tg") + "*INCLUDE\ncomp_a.k\n*INCLUDE\ncomp_b.k\n"
+    )  # fmt: skip
+    m = _read(_write(tmp_path, main))
+    by_part = dict(zip(m.shell_part.tolist(), (m.shell_thickness * 1e3).tolist(), strict=True))
+    assert by_part == pytest.approx({1: 5.0, 2: 1.0, 3: 1.0, 4: 2.0, 5: 4.0, 6: 10.0})
+    assert not any("defined again" in w for w in m.warnings)
+    # a local name in one component is not the other's: used there without a definition, it is refused
+    _write(tmp_path, "*KEYWORD\n" + _part_with_shell(7, "&t2"), "comp_c.k")
+    with pytest.raises(DeckError, match=r"comp_c.k line \d+: parameter 't2' is used but not defined"):
+        _read(_write(tmp_path, main + "*INCLUDE\ncomp_c.k\n", "main_c.k"))
+    # params= overrides every definition, local ones too, and says so
+    m = _read(_write(tmp_path, main), params={"t": 3.0})
+    assert {p: round(t * 1e3, 9) for p, t in zip(m.shell_part.tolist(), m.shell_thickness, strict=True)} == {
+        1: 3.0, 2: 3.0, 3: 3.0, 4: 3.0, 5: 6.0, 6: 30.0
+    }  # fmt: skip
+    assert any("local value 1.0 of comp_a.k overridden by params= 3.0" in w for w in m.warnings)
+
+
 def test_nested_includes_relative_to_including_file(tmp_path):
     sub = tmp_path / "sub"
     sub.mkdir()

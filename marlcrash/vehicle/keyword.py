@@ -9,8 +9,9 @@ Coverage:
 - structure: ``*KEYWORD``, ``*TITLE``, ``*END`` (ends the current file),
   ``*INCLUDE`` (paths relative to the including file, nested), ``*INCLUDE_PATH``
   and ``*INCLUDE_PATH_RELATIVE``;
-- ``*PARAMETER`` (``R``/``I``/``C`` typed), ``*PARAMETER_LOCAL`` (treated as global)
-  and ``*PARAMETER_EXPRESSION``; ``&name`` and ``-&name`` in any numeric field. A name defined
+- ``*PARAMETER`` (``R``/``I``/``C`` typed), ``*PARAMETER_EXPRESSION`` and their ``_LOCAL`` forms (values of
+  the defining file and the files it includes, before the deck's of the same name: component files may each
+  define their own); ``&name`` and ``-&name`` in any numeric field. A name defined
   twice keeps its first definition with a note where the value may differ, as LS-DYNA's default
   ``*PARAMETER_DUPLICATION`` (DFLAG 1) does; the deck's own ``*PARAMETER_DUPLICATION`` DFLAG 2-5
   applies to the definitions after it.
@@ -214,6 +215,7 @@ class _Source:
             data += b"\n"
         self.path = path
         self.data = data
+        self.parent: _Source | None = None  # the file that includes this one (this inclusion of it)
         self.buf = np.frombuffer(data, dtype=np.uint8)
         nl = np.flatnonzero(self.buf == 10)
         self.starts = np.concatenate([[0], nl[:-1] + 1]).astype(np.int64)
@@ -328,29 +330,55 @@ class _Locs:
 # --------------------------------------------------------------------------- values
 
 
+@dataclass
+class _Scope:
+    """The parameters of one scope: the deck's (``*PARAMETER``), or one included file's (``*PARAMETER_LOCAL``)."""
+
+    values: dict[str, float | int | str] = field(default_factory=dict)
+    where: dict[str, tuple[Path, int]] = field(default_factory=dict)  # the definition in effect of each name
+
+
 class _Params:
-    """Deck parameters: name -> value, with where each was defined."""
+    """Deck parameters: name -> value, with where each was defined.
+
+    ``*PARAMETER`` values hold for the whole deck. ``*PARAMETER_LOCAL`` (and ``*PARAMETER_EXPRESSION_LOCAL``) values
+    hold in the file that defines them and the files it includes, where they take precedence over the deck's of the
+    same name; so component files may each define their own ``&t1``, as LS-DYNA allows. A file included twice has a
+    scope per inclusion.
+    """
 
     def __init__(self, user: dict[str, float] | None):
-        self.values: dict[str, float | int | str] = {}
+        self.glob = _Scope()
+        self.values = self.glob.values
+        self.where = self.glob.where
+        self.local: dict[int, tuple[_Source, _Scope]] = {}  # id of a file's inclusion -> its local parameters
         self.user = {str(k).strip().lower(): v for k, v in (user or {}).items()}
-        self.exprs: dict[str, tuple[str, str, str, Path, int]] = {}  # name -> expression, in deck order
+        # (scope key, name) -> (kind, name, expression, path, line, the file it is written in, local), in deck order
+        self.exprs: dict[tuple[int | None, str], tuple[str, str, str, Path, int, _Source | None, bool]] = {}
         self.notes: list[str] = []
-        self.deck_names: set[str] = set()  # defined by the deck (*PARAMETER, *PARAMETER_EXPRESSION)
+        self.deck_names: set[str] = set()  # defined by the deck (*PARAMETER, *PARAMETER_EXPRESSION, _LOCAL)
         self.used: set[str] = set()  # referenced by a field or an expression
-        self.where: dict[str, tuple[Path, int]] = {}  # the definition in effect of each deck parameter
         self.duplication = 1  # *PARAMETER_DUPLICATION DFLAG; LS-DYNA's default: warn and keep the first
 
-    def _claim(self, name: str, path: Path, line: int, differs: bool) -> bool:
-        """Whether a definition of ``name`` at ``path`` line ``line`` takes effect (``*PARAMETER_DUPLICATION``).
+    def _scope(self, src: _Source | None) -> tuple[int | None, _Scope]:
+        """The scope key and table of the deck (``src`` ``None``) or of the file ``src``'s local parameters."""
+        if src is None:
+            return None, self.glob
+        if id(src) not in self.local:
+            self.local[id(src)] = (src, _Scope())
+        return id(src), self.local[id(src)][1]
+
+    def _claim(self, name: str, path: Path, line: int, differs: bool, scope: _Scope) -> bool:
+        """Whether a definition of ``name`` at ``path`` line ``line`` takes effect in ``scope``
+        (``*PARAMETER_DUPLICATION``).
 
         A first definition always does. A later one is ignored (DFLAG 1 and 3, 1 being LS-DYNA's default) or
         replaces the one before (2 and 4); 1 and 2 add a note where the value may differ (``differs``), 5 refuses.
         """
-        if name not in self.where:
-            self.where[name] = (path, line)
+        if name not in scope.where:
+            scope.where[name] = (path, line)
             return True
-        first, at = self.where[name]
+        first, at = scope.where[name]
         d = self.duplication
         if d == 5:
             raise DeckError(
@@ -366,48 +394,68 @@ class _Params:
                 f"{first.name} line {at}); {what}, as LS-DYNA's *PARAMETER_DUPLICATION DFLAG {d} does"
             )
         if d in (2, 4):
-            self.where[name] = (path, line)
+            scope.where[name] = (path, line)
             return True
         return False
 
-    def define(self, name: str, value: float | int | str, path: Path, line: int) -> None:
-        """A ``*PARAMETER`` value, subject to the duplicate rule (:meth:`_claim`)."""
+    def define(self, name: str, value: float | int | str, path: Path, line: int, src: _Source | None = None) -> None:
+        """A ``*PARAMETER`` value (``*PARAMETER_LOCAL`` of the file ``src``), subject to the duplicate rule of its
+        scope (:meth:`_claim`)."""
         key = name.lower()
-        if self._claim(key, path, line, key in self.exprs or (key in self.values and self.values[key] != value)):
-            self.exprs.pop(key, None)
-            self.values[key] = value
+        skey, scope = self._scope(src)
+        differs = (skey, key) in self.exprs or (key in scope.values and scope.values[key] != value)
+        if self._claim(key, path, line, differs, scope):
+            self.exprs.pop((skey, key), None)
+            scope.values[key] = value
 
-    def define_expr(self, kind: str, name: str, expr: str, path: Path, line: int) -> None:
-        """A ``*PARAMETER_EXPRESSION``, evaluated by :meth:`finish`, subject to the duplicate rule."""
+    def define_expr(
+        self, kind: str, name: str, expr: str, path: Path, line: int, at: _Source | None = None, local: bool = False
+    ) -> None:
+        """A ``*PARAMETER_EXPRESSION`` written in the file ``at`` (``local``: ``_LOCAL``, a value of that file's),
+        evaluated by :meth:`finish` with the values seen there, subject to the duplicate rule of its scope."""
         key = name.lower()
-        if self._claim(key, path, line, True):
-            self.exprs.pop(key, None)  # re-inserted: evaluated in the order of the definitions in effect
-            self.values.pop(key, None)
-            self.exprs[key] = (kind, key, expr, path, line)
+        skey, scope = self._scope(at if local else None)
+        if self._claim(key, path, line, True, scope):
+            self.exprs.pop((skey, key), None)  # re-inserted: evaluated in the order of the definitions in effect
+            scope.values.pop(key, None)
+            self.exprs[(skey, key)] = (kind, key, expr, path, line, at, local)
 
     def finish(self) -> None:
         """Apply ``params=`` overrides, then evaluate expressions in deck order."""
-        self.deck_names = set(self.values) | {name for _, name, *_ in self.exprs.values()}
+        local_names = {k for _, scope in self.local.values() for k in scope.values}
+        self.deck_names = set(self.values) | local_names | {name for _, name, *_ in self.exprs.values()}
         for k, v in self.user.items():
             if k in self.values and self.values[k] != v:
                 self.notes.append(f"parameter {k!r}: deck value {self.values[k]!r} overridden by params= {v!r}")
             self.values[k] = v
-        for kind, name, expr, path, line in self.exprs.values():
+            for src, scope in self.local.values():
+                if k in scope.values and scope.values[k] != v:
+                    self.notes.append(f"parameter {k!r}: local value {scope.values[k]!r} of {src.path.name} "
+                                      f"overridden by params= {v!r}")  # fmt: skip
+        for kind, name, expr, path, line, at, local in self.exprs.values():
             if name in self.user:
                 self.notes.append(f"parameter {name!r}: deck expression overridden by params= {self.user[name]!r}")
                 continue
-            val = _eval_expr(expr, self, path, line)
+            val = _eval_expr(expr, self, path, line, at)
             if kind == "I" and not (math.isfinite(val) and abs(val) < 2**62):
                 raise DeckError(f"*PARAMETER_EXPRESSION expects an integer value for {name!r}, got {val}", path, line)
-            self.values[name] = round(val) if kind == "I" else val
+            self._scope(at if local else None)[1].values[name] = round(val) if kind == "I" else val
 
-    def get(self, name: str, path: Path, line: int) -> float | int | str:
+    def get(self, name: str, path: Path, line: int, src: _Source | None = None) -> float | int | str:
+        """The value of ``&name`` used at ``path`` line ``line`` of the file ``src``: a ``params=`` value, else the
+        nearest local one (that file's, then its includers'), else the deck's."""
         key = name.strip().lower()
         self.used.add(key)
-        if key in self.values:
-            return self.values[key]
         if key in self.user:
             return self.user[key]
+        f = src
+        while f is not None:
+            local = self.local.get(id(f))
+            if local is not None and key in local[1].values:
+                return local[1].values[key]
+            f = f.parent
+        if key in self.values:
+            return self.values[key]
         raise DeckError(
             f"parameter {key!r} is used but not defined in the deck; define it with *PARAMETER, or give its value in "
             f"the deck's units: --param {key}=VALUE on the command line, params={{{key!r}: value}} in Python",
@@ -445,8 +493,8 @@ _BINOPS = {
 }
 
 
-def _eval_expr(text: str, params: _Params, path: Path, line: int) -> float:
-    """Evaluate a ``*PARAMETER_EXPRESSION`` right-hand side (arithmetic only)."""
+def _eval_expr(text: str, params: _Params, path: Path, line: int, at: _Source | None = None) -> float:
+    """Evaluate a ``*PARAMETER_EXPRESSION`` right-hand side (arithmetic only) written in the file ``at``."""
     src = text.strip().replace("^", "**").replace("&", "")
 
     def ev(node: ast.AST) -> float:
@@ -457,7 +505,7 @@ def _eval_expr(text: str, params: _Params, path: Path, line: int) -> float:
         if isinstance(node, ast.Name):
             if node.id.lower() == "pi":
                 return math.pi
-            v = params.get(node.id, path, line)
+            v = params.get(node.id, path, line, at)
             if isinstance(v, str):
                 raise DeckError(f"*PARAMETER_EXPRESSION uses character parameter {node.id!r} as a number", path, line)
             return float(v)
@@ -531,7 +579,7 @@ def _read_line(
             continue
         neg = tok.startswith("-&")
         if neg or tok.startswith("&"):
-            v = params.get(tok[2:] if neg else tok[1:], block.src.path, lineno)
+            v = params.get(tok[2:] if neg else tok[1:], block.src.path, lineno, block.src)
             if isinstance(v, str):
                 try:
                     v = _to_number(v.strip(), f.kind)
@@ -709,9 +757,14 @@ def _keyword_line(text: str) -> tuple[str, str | None, list[str]]:
     return name, suffix, rest
 
 
-def _scan(path: Path, deck: _Deck, fmt: str, stack: tuple[Path, ...], including: tuple[Path, int] | None) -> None:
-    """Split one file into keyword blocks, following includes; read parameters now."""
+def _scan(
+    path: Path, deck: _Deck, fmt: str, stack: tuple[Path, ...], including: tuple[Path, int] | None,
+    parent: _Source | None = None,
+) -> None:  # fmt: skip
+    """Split one file into keyword blocks, following includes; read parameters now. ``parent``: the including
+    file (its ``*PARAMETER_LOCAL`` values hold here too)."""
     src = _Source.load(path, including)
+    src.parent = parent
     deck.files.append(path.resolve())
     kw = np.flatnonzero(src.first == ord("*"))
     head_end = int(kw[0]) if kw.size else src.n_lines
@@ -755,7 +808,7 @@ def _scan(path: Path, deck: _Deck, fmt: str, stack: tuple[Path, ...], including:
                 target = _resolve_include(fname, path, deck, r)
                 if target in stack:
                     raise DeckError(f"*INCLUDE {fname!r} includes itself (cycle through {target.name})", path, r + 1)
-                _scan(target, deck, fmt, (*stack, target), (path, r + 1))
+                _scan(target, deck, fmt, (*stack, target), (path, r + 1), src)
         elif name.startswith("INCLUDE_"):  # _TRANSFORM, _AUTO_OFFSET, _STAMPED_PART, _NASTRAN, ...
             for r, fname in _include_names(src, rows)[:1]:  # the file name is the first card; the rest are options
                 deck.unread_includes.append(
@@ -764,9 +817,9 @@ def _scan(path: Path, deck: _Deck, fmt: str, stack: tuple[Path, ...], including:
                 )
             deck.skipped[name] += 1
         elif name in ("PARAMETER", "PARAMETER_LOCAL"):
-            _read_parameters(block, deck.params)
-        elif name == "PARAMETER_EXPRESSION" or name == "PARAMETER_EXPRESSION_LOCAL":
-            _read_parameter_expressions(block, deck.params)
+            _read_parameters(block, deck.params, local=name.endswith("_LOCAL"))
+        elif name in ("PARAMETER_EXPRESSION", "PARAMETER_EXPRESSION_LOCAL"):
+            _read_parameter_expressions(block, deck.params, local=name.endswith("_LOCAL"))
         elif name == "PARAMETER_DUPLICATION":
             _read_duplication(block, deck.params)
         else:
@@ -835,7 +888,9 @@ def _param_pairs(block: _Block, row: int) -> list[tuple[str, str]]:
     return out
 
 
-def _read_parameters(block: _Block, params: _Params) -> None:
+def _read_parameters(block: _Block, params: _Params, local: bool = False) -> None:
+    """``*PARAMETER`` (``local``: ``*PARAMETER_LOCAL``, the values of the block's file and the files it includes)."""
+    src = block.src if local else None
     for r in block.rows.tolist():
         if not block.src.text(r).strip():
             continue
@@ -844,13 +899,13 @@ def _read_parameters(block: _Block, params: _Params) -> None:
             if kind not in ("R", "I", "C") or not name:
                 raise block.err(f"*PARAMETER expects a type R, I or C followed by a name, got {head!r}", r)
             if kind == "C":
-                params.define(name, val, block.src.path, r + 1)
+                params.define(name, val, block.src.path, r + 1, src)
                 continue
             try:
                 v = _to_number(val, "i" if kind == "I" else "f")
             except (ValueError, OverflowError):
                 raise block.err(f"*PARAMETER expects a {kind} value for {name!r}, got {val!r}", r) from None
-            params.define(name, v, block.src.path, r + 1)
+            params.define(name, v, block.src.path, r + 1, src)
 
 
 def _read_duplication(block: _Block, params: _Params) -> None:
@@ -863,7 +918,8 @@ def _read_duplication(block: _Block, params: _Params) -> None:
     params.duplication = int(dflag) if dflag else 1
 
 
-def _read_parameter_expressions(block: _Block, params: _Params) -> None:
+def _read_parameter_expressions(block: _Block, params: _Params, local: bool = False) -> None:
+    """``*PARAMETER_EXPRESSION`` (``local``: ``_LOCAL``, as :func:`_read_parameters`)."""
     w = 20 if block.fmt == "long" else 10
     for r in block.rows.tolist():
         text = block.src.text(r)
@@ -874,7 +930,7 @@ def _read_parameter_expressions(block: _Block, params: _Params) -> None:
         kind, name = head[:1].upper(), head[1:].strip()
         if kind not in ("R", "I") or not name:
             raise block.err(f"*PARAMETER_EXPRESSION expects a type R or I followed by a name, got {head!r}", r)
-        params.define_expr(kind, name, expr, block.src.path, r + 1)
+        params.define_expr(kind, name, expr, block.src.path, r + 1, block.src, local)
 
 
 # --------------------------------------------------------------------------- cards
