@@ -310,6 +310,29 @@ def test_constructor_arguments_are_checked_as_arguments(cells):
             door("default", cells=cells)
 
 
+def test_a_config_made_in_python_is_checked_as_a_file_is(cells):
+    """An ``EnvConfig`` made in Python skipped the loader's checks: a misspelt ``masking.mode`` ran
+    ``primary_secondary``, a ``granularity`` of ``cells`` per-cell actions and a negative ``max_step`` inverted
+    every action, all without a word."""
+    from marlcrash.envs.core import EnvConfig
+    from marlcrash.envs.masking import MaskingConfig
+
+    bad = {
+        "masking.mode": EnvConfig(masking=MaskingConfig(mode="primry")),
+        "granularity": EnvConfig(granularity="cells"),
+        "max_step": EnvConfig(max_step=-0.5),
+        "masking.min_fraction": EnvConfig(masking=MaskingConfig(min_fraction=0.0)),
+    }
+    for key, config in bad.items():
+        with pytest.raises(ConfigError, match=rf"^key '{key}'"):
+            CalibrationCore(config, 1, cells)
+    config = load_env_config()
+    config.masking.secondary_hops = -1  # changed after loading: named with the file it was loaded from
+    with pytest.raises(ConfigError, match=r"default\.yaml key 'masking\.secondary_hops'"):
+        CalibrationCore(config, 1, cells)
+    assert CalibrationCore(EnvConfig(), 1, cells).config == EnvConfig()
+
+
 def test_a_bad_seed_is_named(cells):
     """numpy's own messages ("expected non-negative integer", "SeedSequence expects int ...") named no value."""
     from marlcrash.envs.pettingzoo_env import CalibrationParallelEnv

@@ -65,7 +65,7 @@ import torch
 
 from marlcrash.cells.model import CellModel
 from marlcrash.cells.parameterization import apply_increments
-from marlcrash.config import config_dir, flatten_overrides, load_config, require
+from marlcrash.config import checked, config_dir, flatten_overrides, load_config, require
 from marlcrash.envs.agents import AgentsConfig, build_agents
 from marlcrash.envs.masking import ImpactRegions, MaskingConfig
 from marlcrash.errors import ConfigError, MarlcrashError
@@ -277,7 +277,8 @@ class CalibrationCore:
         sim_config: simulator settings; ``None`` loads ``configs/sim.yaml`` with the env config's ``sim_dtype``.
 
     Raises:
-        ConfigError: invalid agents, scenarios, sensors or reference settings.
+        ConfigError: an invalid value (a config made or changed in Python is checked as a file's values are), or
+            invalid agents, scenarios, sensors or reference settings.
     """
 
     def __init__(
@@ -289,6 +290,9 @@ class CalibrationCore:
     ):
         batch_size = check_env_args(config, batch_size)  # arguments: not keys of the env's YAML file
         try:
+            # the loaders check a file's values; an EnvConfig made or changed in Python (EnvConfig() in a notebook)
+            # skipped that: a misspelt masking.mode ran primary_secondary, a granularity 'cells' per-cell actions
+            checked(config)
             self._build(config, batch_size, cells, sim_config)
         except ConfigError as e:  # name the YAML file the bad key came from
             source = getattr(config, "_source", None)
