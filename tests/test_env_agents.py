@@ -63,6 +63,8 @@ def test_bad_layouts_are_config_errors_naming_the_cell(cells):
         build_agents(cells, AgentsConfig(custom=[AgentSpec("w", ["wheel_left"], "right")]))
     with pytest.raises(ConfigError, match=r"agents\.custom"):
         load_env_config(overrides={"agents.custom": [{"name": "x", "subassemblies": []}]})
+    with pytest.raises(ConfigError, match=r"key 'agents\.merge': a merge group needs a non-empty agent name"):
+        load_env_config(overrides={"agents.merge": {"": ["wheel_left", "wheel_right"]}})  # built an agent named ''
 
 
 def _active(cells, layout, mode, name, **kw):

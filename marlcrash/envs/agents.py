@@ -68,6 +68,8 @@ class AgentsConfig:
     def validate(self) -> None:
         require(len(set(self.split_lr)) == len(self.split_lr), "split_lr", f"duplicate names in {self.split_lr}")
         for name, subs in self.merge.items():
+            # as a custom agent's name: an agent named '' was built (a blank PettingZoo agent, a blank column)
+            require(bool(name), "merge", f"a merge group needs a non-empty agent name, got {name!r} for {subs}")
             require(bool(subs), f"merge.{name}", f"merge group {name!r} lists no sub-assembly")
         names = [c.name for c in self.custom]
         require(len(set(names)) == len(names), "custom", f"duplicate custom agent names in {names}")
