@@ -171,6 +171,20 @@ def test_contributions_refuse_changes_no_agent_owns(problem):
             agent_contributions(problem, three, **kwargs)
 
 
+def test_contributions_name_an_invalid_parameter_by_its_array_not_a_coalition(problem):
+    """A negative ``E_x`` of an owned cell (finite, so past the shape and finiteness checks) is refused before any
+    simulation, naming ``calibrated`` or ``initial`` and the cell: not by the batch index of whichever coalition
+    happened to take that agent's cells first (``params[23, ...]`` for a sampled ordering)."""
+    cell = int(torch.nonzero(problem.layout.agent_of_cell >= 0)[0])
+    bad = problem.true_params.clone()
+    bad[cell, 0] = -1.0
+    for kwargs in ({}, {"exact_max": 0, "n_permutations": 4}):
+        with pytest.raises(ValueError, match=rf"^calibrated: params\[0, {cell}, 0\] \(E_x\) of active cell {cell}"):
+            agent_contributions(problem, bad, **kwargs)
+    with pytest.raises(ValueError, match=rf"^initial: params\[0, {cell}, 0\] \(E_x\)"):
+        agent_contributions(problem, problem.true_params, bad, exact_max=0, n_permutations=4)
+
+
 def test_agent_changes_reads_each_agents_factors(problem):
     a = problem.agent_names.index("front_rail_left")
     cells = problem.layout.agent_of_cell == a

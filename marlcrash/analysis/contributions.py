@@ -187,12 +187,19 @@ def agent_contributions(
     Raises:
         ValueError: parameters of the wrong shape, non-finite, or changed in cells no agent owns (then no agent
             can be credited with the change); a bad ``exact_max`` or ``n_permutations``.
+        ModelError: (a :class:`ValueError`) parameters the simulator refuses (``E_x <= 0``, a negative transmission
+            factor of an active cell), named ``initial`` or ``calibrated`` and by the cell, before any simulation.
     """
     if not 0 <= exact_max <= MAX_EXACT_PLAYERS:
         raise ValueError(f"exact_max: expected 0 to {MAX_EXACT_PLAYERS} agents, got {exact_max}")
     check_permutations(n_permutations)
     init = problem.init if initial is None else _check_params(problem, "initial", initial)
     cal = _check_params(problem, "calibrated", calibrated)
+    for name, p in (("initial", init), ("calibrated", cal)):
+        try:  # the simulator's own check, up front: a bad value is named by its array, not by a coalition's index
+            problem.sim.check_params(p[None])
+        except ModelError as e:
+            raise ModelError(f"{name}: {e}") from None
     moved_cells = ((cal - init).abs() > MOVE_RTOL * init.abs()).any(-1)  # [n]
     agent = problem.layout.agent_of_cell
     stray = moved_cells & (agent < 0)
