@@ -215,6 +215,27 @@ def test_plots_and_tables_are_written(problem, tmp_path):
     assert len(rows) == 1 + problem.n_agents * len(c.quantities)
 
 
+def test_cells_are_coloured_only_by_contributions_of_the_problems_agents(problem, tmp_path):
+    """Contributions of another agent layout (``agents.split_lr: []`` has 16 agents, in another order) are refused
+    naming ``contrib``: with fewer agents numpy's IndexError came from deep inside, and with as many (or more) the
+    cells were silently coloured by other agents' values."""
+    import dataclasses
+
+    calibrated, _ = _three_agents_at_the_truth(problem)
+    c = agent_contributions(problem, calibrated)
+    A = problem.n_agents
+    more = {"agents": [*c.agents, "extra"], "players": torch.cat([c.players, c.players[:1]]),
+            "shapley": torch.cat([c.shapley, c.shapley[:1]])}  # fmt: skip
+    for other in (
+        dataclasses.replace(c, agents=c.agents[::-1]),  # as many agents, in another order: the wrong colours
+        dataclasses.replace(c, agents=c.agents[:16], players=c.players[:16], shapley=c.shapley[:16]),
+        dataclasses.replace(c, **more),
+    ):
+        with pytest.raises(ValueError, match=rf"^contrib: .*not the {A} agents of the problem"):
+            plot_cells_by_contribution(problem, other, tmp_path / "3d.png")
+    assert not (tmp_path / "3d.png").exists()
+
+
 def write_evaluated_run(run_dir, reference_seed: int = 2):
     """A run folder as train/train.py leaves it for the analysis: config.yaml and calibrated.npz (two iterates: the
     initial parameters and the twin's truth). Returns the problem of that twin."""

@@ -58,7 +58,16 @@ def plot_cells_by_contribution(
     problem: CalibrationProblem, contrib: Contributions, path: str | Path, quantity: str = "score"
 ) -> Path:
     """The cells in 3D (centroids, size by mass), coloured by their agent's Shapley value of ``quantity``;
-    cells of no agent or of agents that did not move are grey. Improvement is green for every quantity."""
+    cells of no agent or of agents that did not move are grey. Improvement is green for every quantity.
+
+    Raises:
+        ValueError: ``contrib`` is not of the problem's agents (another layout: its values would colour the cells of
+            other agents), or an unknown ``quantity``.
+    """
+    if list(contrib.agents) != list(problem.agent_names):
+        raise ValueError(f"contrib: its {len(contrib.agents)} agents {contrib.agents} are not the "
+                         f"{problem.n_agents} agents of the problem {list(problem.agent_names)}; expected the "
+                         "contributions of a calibration of this problem (the same agent layout)")  # fmt: skip
     import matplotlib
 
     matplotlib.use("Agg")
