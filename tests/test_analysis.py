@@ -185,6 +185,22 @@ def test_contributions_name_an_invalid_parameter_by_its_array_not_a_coalition(pr
         agent_contributions(problem, problem.true_params, bad, exact_max=0, n_permutations=4)
 
 
+def test_coalition_params_names_members_of_the_wrong_shape_or_type(problem):
+    """``members`` is ``[C, A]`` bool over every agent of the layout: one column per moving agent, a single row or
+    0/1 integers are refused naming ``members``, not by torch's IndexError or ``where`` from inside."""
+    A = problem.n_agents
+    ok = coalition_params(problem, problem.init, problem.true_params, torch.ones(2, A, dtype=torch.bool))
+    torch.testing.assert_close(ok[1], coalition_params(problem, problem.init, problem.true_params,
+                                                       torch.ones(1, A, dtype=torch.bool))[0])  # fmt: skip
+    for bad in (
+        torch.ones(1, 3, dtype=torch.bool),
+        torch.ones(A, dtype=torch.bool),
+        torch.ones(1, A, dtype=torch.int64),
+    ):
+        with pytest.raises(ValueError, match=rf"^members: expected bool \[coalitions, {A}\]"):
+            coalition_params(problem, problem.init, problem.true_params, bad)
+
+
 def test_agent_changes_reads_each_agents_factors(problem):
     a = problem.agent_names.index("front_rail_left")
     cells = problem.layout.agent_of_cell == a

@@ -153,7 +153,16 @@ def _check_params(problem: CalibrationProblem, name: str, p: torch.Tensor | np.n
 def coalition_params(
     problem: CalibrationProblem, initial: torch.Tensor, calibrated: torch.Tensor, members: torch.Tensor
 ) -> torch.Tensor:
-    """Cell parameters ``[C, n_cells, 7]`` of coalitions ``members [C, A]`` (bool over every agent)."""
+    """Cell parameters ``[C, n_cells, 7]`` of coalitions ``members [C, A]`` (bool over every agent).
+
+    Raises:
+        ValueError: ``members`` not bool ``[C, A]`` with one column per agent of the layout.
+    """
+    shape_ok = isinstance(members, torch.Tensor) and members.dim() == 2 and members.shape[1] == problem.n_agents
+    if not shape_ok or members.dtype != torch.bool:
+        got = f"{members.dtype} {list(members.shape)}" if isinstance(members, torch.Tensor) else type(members).__name__
+        raise ValueError(f"members: expected bool [coalitions, {problem.n_agents}] (a column for every agent of the "
+                         f"layout, {problem.agent_names[0]!r} first), got {got}")  # fmt: skip
     agent = problem.layout.agent_of_cell  # [n], -1 unowned
     take = members[:, agent.clamp_min(0)] & (agent >= 0)[None]  # [C, n]
     return torch.where(take[..., None], calibrated[None], initial[None])
