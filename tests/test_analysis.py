@@ -252,6 +252,18 @@ def test_cells_are_coloured_only_by_contributions_of_the_problems_agents(problem
     assert not (tmp_path / "3d.png").exists()
 
 
+def test_an_empty_list_of_quantities_is_refused_not_read_as_the_default(problem, tmp_path):
+    """``quantities=[]`` (e.g. a filter on the names that matched nothing) asks for no panel and no table: refused
+    naming ``quantities``, where it drew and wrote the default ones (score and every area) as if it were ``None``."""
+    c = agent_contributions(problem, problem.init)  # nothing moved: one simulation
+    for call in (lambda: plot_contributions(c, tmp_path / "bars.png", quantities=[]),
+                 lambda: c.write_markdown(tmp_path / "c.md", quantities=[])):  # fmt: skip
+        with pytest.raises(ValueError, match=r"^quantities: expected at least one quantity of \['area/"):
+            call()
+    assert not any(tmp_path.iterdir())
+    assert c.write_markdown(tmp_path / "c.md").read_text().count("| agent |") == 1 + len(problem.sensors)
+
+
 def write_evaluated_run(run_dir, reference_seed: int = 2):
     """A run folder as train/train.py leaves it for the analysis: config.yaml and calibrated.npz (two iterates: the
     initial parameters and the twin's truth). Returns the problem of that twin."""

@@ -83,6 +83,22 @@ class Contributions:
             raise ValueError(f"unknown quantity {quantity!r}; expected one of {self.quantities}")
         return self.quantities.index(quantity)
 
+    def selected(self, quantities: list[str] | None = None) -> list[str]:
+        """``quantities`` checked by name, or where ``None`` the default ones: ``score`` and every sensor's area.
+
+        Raises:
+            ValueError: an empty list (no panel, no table: not the default's stand-in), or an unknown name.
+        """
+        if quantities is None:
+            return ["score", *(q for q in self.quantities if q.startswith("area/"))]
+        qs = list(quantities)
+        if not qs:
+            raise ValueError(f"quantities: expected at least one quantity of {self.quantities}, or None for the "
+                             "default (score and every sensor's area); got an empty list")  # fmt: skip
+        for q in qs:
+            self.column(q)
+        return qs
+
     def ranking(self, quantity: str = "score") -> list[tuple[str, float]]:
         """``(agent, Shapley value)`` of the moving agents, largest improvement first (most negative error, most
         positive score)."""
@@ -130,7 +146,7 @@ class Contributions:
     def write_markdown(self, path: str | Path, quantities: list[str] | None = None, heading: str | None = None) -> Path:
         """:meth:`markdown` of ``quantities`` (default: ``score`` and every sensor's area), written atomically, after
         ``heading`` (e.g. what was analysed, with which settings) where given."""
-        qs = quantities or ["score", *(q for q in self.quantities if q.startswith("area/"))]
+        qs = self.selected(quantities)
         head = [] if heading is None else [heading, ""]
         return write_text(path, "\n".join([*head, *(self.markdown(q) for q in qs)]))
 

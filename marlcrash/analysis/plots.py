@@ -22,13 +22,17 @@ def _figure_out(fig, path: str | Path) -> Path:
 
 def plot_contributions(contrib: Contributions, path: str | Path, quantities: list[str] | None = None) -> Path:
     """Horizontal bars of the moving agents' Shapley values (with standard errors when sampled) and the
-    leave-one-out effects, one panel per quantity (default: ``score`` and every sensor's area)."""
+    leave-one-out effects, one panel per quantity (default: ``score`` and every sensor's area).
+
+    Raises:
+        ValueError: an empty list of quantities or an unknown one (:meth:`Contributions.selected`).
+    """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    qs = quantities or ["score", *(q for q in contrib.quantities if q.startswith("area/"))]
+    qs = contrib.selected(quantities)
     cols = [contrib.column(q) for q in qs]
     agents = [a for a, _ in contrib.ranking(qs[0])]
     rows = [contrib.agents.index(a) for a in agents]
