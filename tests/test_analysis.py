@@ -105,6 +105,22 @@ def test_one_at_a_time_effects_and_bad_arguments():
         one_at_a_time(toy_game, 0)
 
 
+def test_counts_of_any_integer_type_are_counts():
+    """A numpy or 0-d torch integer (``players.sum()``, ``np.count_nonzero``) is a number of players or orderings:
+    it was refused as 'expected a number of players >= 1, got np.int64(5)'. Bools and floats still are refused."""
+    exact = exact_shapley(toy_game, 5)
+    for n in (np.int64(5), torch.tensor(5)):
+        torch.testing.assert_close(exact_shapley(toy_game, n).phi, exact.phi, rtol=0, atol=0)
+        torch.testing.assert_close(one_at_a_time(toy_game, n)[0], one_at_a_time(toy_game, 5)[0], rtol=0, atol=0)
+    est = sampled_shapley(toy_game, np.int32(5), np.int64(8), seed=1)
+    torch.testing.assert_close(est.phi, sampled_shapley(toy_game, 5, 8, seed=1).phi, rtol=0, atol=0)
+    for bad in (True, 5.0, "5"):
+        with pytest.raises(ValueError, match="players >= 1"):
+            exact_shapley(toy_game, bad)
+    with pytest.raises(ValueError, match="even number of orderings"):
+        sampled_shapley(toy_game, 5, 8.0)
+
+
 # ----------------------------------------------------------------------------------- the surrogate
 @pytest.fixture(scope="module")
 def problem():

@@ -217,7 +217,7 @@ def agent_contributions(
     """
     if not 0 <= exact_max <= MAX_EXACT_PLAYERS:
         raise ValueError(f"exact_max: expected 0 to {MAX_EXACT_PLAYERS} agents, got {exact_max}")
-    check_permutations(n_permutations)
+    n_permutations = check_permutations(n_permutations)
     init = problem.init if initial is None else _check_params(problem, "initial", initial)
     cal = _check_params(problem, "calibrated", calibrated)
     for name, p in (("initial", init), ("calibrated", cal)):

@@ -19,6 +19,7 @@ Shapley values, because every ordering's marginals telescope).
 from __future__ import annotations
 
 import math
+import operator
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -52,17 +53,32 @@ class Attribution:
     table: torch.Tensor | None = None
 
 
-def _check_players(n: int) -> None:
-    if not isinstance(n, int) or n < 1:
+def _integer(x: object) -> int | None:
+    """``x`` as a Python int where it is an integer of any kind (``int``, a numpy or a 0-d torch integer), else None."""
+    if isinstance(x, bool):
+        return None
+    try:
+        return operator.index(x)
+    except TypeError:
+        return None
+
+
+def _check_players(n: int) -> int:
+    """``n`` as an int >= 1 (a numpy integer, e.g. a count of moving agents, is one), else :class:`ValueError`."""
+    k = _integer(n)
+    if k is None or k < 1:
         raise ValueError(f"expected a number of players >= 1, got {n!r}")
+    return k
 
 
-def check_permutations(n_permutations: int) -> None:
-    """Raise :class:`ValueError` unless ``n_permutations`` is an even number >= 4 (:func:`sampled_shapley`)."""
-    if not isinstance(n_permutations, int) or n_permutations < 4 or n_permutations % 2:
+def check_permutations(n_permutations: int) -> int:
+    """``n_permutations`` as an int; :class:`ValueError` unless an even number >= 4 (:func:`sampled_shapley`)."""
+    k = _integer(n_permutations)
+    if k is None or k < 4 or k % 2:
         raise ValueError(
             f"n_permutations: expected an even number of orderings >= 4 (antithetic pairs), got {n_permutations!r}"
         )
+    return k
 
 
 def from_table(table: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -96,7 +112,7 @@ def evaluate(value: ValueFn, masks: torch.Tensor, batch: int) -> torch.Tensor:
 
 def all_coalitions(n: int) -> torch.Tensor:
     """``[2**n, n]`` bool: row ``c`` holds player ``i`` when bit ``i`` of ``c`` is set."""
-    _check_players(n)
+    n = _check_players(n)
     c = torch.arange(2**n, dtype=torch.int64)
     return ((c[:, None] >> torch.arange(n)) & 1).bool()
 
@@ -107,7 +123,7 @@ def exact_shapley(value: ValueFn, n: int, *, batch: int = 256) -> Attribution:
     Raises:
         ValueError: ``n`` outside ``[1, MAX_EXACT_PLAYERS]``.
     """
-    _check_players(n)
+    n = _check_players(n)
     if n > MAX_EXACT_PLAYERS:
         raise ValueError(f"exact Shapley values of {n} players need 2**{n} coalitions; at most {MAX_EXACT_PLAYERS} "
                          "players are enumerated (use sampled_shapley)")  # fmt: skip
@@ -142,8 +158,8 @@ def sampled_shapley(value: ValueFn, n: int, n_permutations: int, *, seed: int = 
     Raises:
         ValueError: fewer than 4 or an odd number of orderings.
     """
-    _check_players(n)
-    check_permutations(n_permutations)
+    n = _check_players(n)
+    n_permutations = check_permutations(n_permutations)
     rng = np.random.default_rng(seed)
     half = np.stack([rng.permutation(n) for _ in range(n_permutations // 2)])
     perms = np.concatenate([half, half[:, ::-1]])  # [P, n]: pair p is rows p and p + P/2
@@ -172,7 +188,7 @@ def one_at_a_time(value: ValueFn, n: int, *, batch: int = 256) -> tuple[torch.Te
         ``(leave_one_out [n, Q], add_one [n, Q], values of (empty, full) [2, Q])``: ``v(N) - v(N - i)`` and
         ``v({i}) - v({})``.
     """
-    _check_players(n)
+    n = _check_players(n)
     eye = torch.eye(n, dtype=torch.bool)
     masks = torch.cat([torch.zeros(1, n, dtype=torch.bool), torch.ones(1, n, dtype=torch.bool), ~eye, eye])
     v = evaluate(value, masks, batch)
