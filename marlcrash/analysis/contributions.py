@@ -3,8 +3,8 @@
 A calibration moves the cell parameters from ``initial`` to ``calibrated``; every agent owns some cells. The
 game: a coalition ``S`` of agents is the parameter set with the cells of the agents in ``S`` at their
 calibrated values and every other cell at its initial one; its value is every metric of every sensor
-(area [m], DFD [m/s], RMSE [m/s] against the problem's reference, as the evaluation computes them) and the fit
-score (higher is better), all from one batched simulation of the coalitions. Then:
+(area [m], DFD [-] on (s, m/s) points, RMSE [m/s] against the problem's reference, as the evaluation computes
+them) and the fit score (higher is better), all from one batched simulation of the coalitions. Then:
 
 - Shapley values (:mod:`marlcrash.analysis.shapley`): exact for up to ``exact_max`` moving agents, sampled
   orderings otherwise. They add up to the whole calibration's change of each quantity, split fairly over

@@ -82,9 +82,9 @@ at 16 lanes, 222 at 32, 195 at 8, 192 at 64); the widths chosen stay the same.""
 
 CHUNK_BYTES = 16 * 2**20
 """Largest estimated working set of one chunk [bytes] (:func:`chunk_bytes_per_lane`): two chunks in flight, one
-per core, stay within this machine's 32 MB L3 cache. On the uniform model (6891 cells) 8 lanes (about 15 MB per
-chunk) ran 1.49x as fast as 32 lanes (about 60 MB, before the ``noalias`` kernel); on the default car 32 lanes take
-about 6.5 MB."""
+per core, stay within this machine's 32 MB L3 cache. On the per-block uniform model (6891 cells) 8 lanes (about 15
+MB per chunk) ran 1.49x as fast as 32 lanes (about 60 MB, before the ``noalias`` kernel); on the default car 32
+lanes take about 6.5 MB."""
 
 _FASTMATH = {"nsz", "arcp", "contract", "reassoc", "afn"}  # no nnan/ninf: BIG and saturation tests use huge values
 
