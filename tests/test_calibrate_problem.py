@@ -7,9 +7,11 @@ import pytest
 import torch
 
 from marlcrash.calibrate import ProblemConfig, Progress, SmoothLoss, build_problem
+from marlcrash.calibrate.problem import problem_env_config
 from marlcrash.cells.parameterization import apply_increments
 from marlcrash.config import from_dict
 from marlcrash.envs.core import build_cells, load_env_config
+from marlcrash.envs.masking import ImpactRegions
 from marlcrash.errors import ConfigError, ModelError
 from marlcrash.metrics import Metrics, compute_metrics
 from marlcrash.pulse.signal import compared_velocity
@@ -86,6 +88,22 @@ def test_params_are_the_env_update_and_feasible(problem, cells):
     # gradient path gives the same values
     xg = random_x(problem, 2, seed=5).requires_grad_(True)
     torch.testing.assert_close(problem.params(xg).detach(), problem.params(xg.detach()), rtol=0, atol=0)
+
+
+def test_region_cells_mode_leaves_cells_outside_the_impact_region_as_the_env_does(cells):
+    """With ``masking.cells: region`` a baseline's agent factors reach only the agent's cells in the impact region,
+    the cells the environment lets it act on: a driver-side small overlap leaves the rest at their initial values."""
+    over = {"scenario": "small_overlap_left", "env_overrides": {"masking.cells": "region"}}
+    region_problem, agent_problem = make(cells, **over), make(cells, scenario="small_overlap_left")
+    x = region_problem.clip(torch.full((1, region_problem.n_agents, 7), 0.5, dtype=torch.float64))
+    init = torch.as_tensor(cells.params, dtype=torch.float64)
+    moved = {k: (p.params(x)[0] != init).any(-1) for k, p in (("region", region_problem), ("agent", agent_problem))}
+    env = problem_env_config(from_dict(ProblemConfig, over))
+    regions = ImpactRegions(cells, region_problem.layout, env.masking)
+    region = regions.region(region_problem.overlap, region_problem.side, region_problem.speed)[0]
+    assert (moved["agent"] & ~region).any()  # an active agent's cells outside the region: moved by default
+    assert moved["region"].any() and not (moved["region"] & ~region).any()
+    assert torch.equal(moved["region"], moved["agent"] & region)
 
 
 def test_box_and_free_coordinates(problem):

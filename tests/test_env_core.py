@@ -83,6 +83,38 @@ def test_zero_action_and_inactive_agents_change_nothing(cells):
     assert not torch.equal(core.params, p0)
 
 
+@pytest.mark.parametrize("granularity", ["subassembly", "cell"])
+def test_region_cells_mode_acts_only_on_the_impact_region(cells, granularity):
+    """``masking.cells: region`` takes DESIGN 1.4's rule per cell: in a driver-side small overlap an active agent's
+    cells outside the primary and secondary region keep their parameters (the per-cell action mask leaves their
+    slots out), and its cells inside change; the default ``agent`` changes every cell of an active agent."""
+    over = {
+        "scenarios": {"small_overlap_left": 1.0},
+        "masking.saturation_preference": False,
+        "granularity": granularity,
+    }
+    moved = {}
+    for mode in ("agent", "region"):
+        core = make(cells, 1, **over, **{"masking.cells": mode})
+        core.reset(seed=0)
+        region = core.regions.region(core.overlap, core.side, core.speed)[0]
+        lay = core.layout
+        owned_active = core.active[0][lay.agent_of_cell.clamp_min(0)] & lay.owned
+        assert (owned_active & ~region).any()  # active agents own cells outside the region (the bumper beam's)
+        before = core.params.clone()
+        core.apply_actions(torch.ones(1, core.A, core.act_dim))
+        moved[mode] = (core.params[0] != before[0]).any(-1)
+        if mode == "region":
+            assert torch.equal(core.acting[0], region)
+            assert not moved[mode][~region].any()
+            if granularity == "cell":
+                slots = core.action_mask()[0].view(core.A, core.M, 7).any(-1)  # [A, M]
+                assert torch.equal(slots, lay.valid & region[lay.cells] & core.active[0][:, None])
+        assert torch.equal(moved[mode], owned_active if mode == "agent" else owned_active & region)
+    with pytest.raises(ConfigError, match=r"masking.cells"):
+        make(cells, 1, **{"masking.cells": "cell"})
+
+
 def test_subassembly_action_scales_all_its_cells(cells):
     core = make(cells, 1, **{"masking.mode": "none", "masking.saturation_preference": False})
     core.reset(seed=0)

@@ -171,6 +171,8 @@ class CalibrationProblem:
         success: success thresholds.
         duration: window [s] (``None``: the scenario's); the reference is cut to it.
         active: ``[n_agents]`` bool agents that may act (``None``: all).
+        acting: ``[n_cells]`` bool cells an agent's factors reach (``None``: all its cells; the impact region
+            where ``masking.cells`` is ``region``).
         box_radius: search box half-width [-].
         sim_backend, metrics_backend: engines of :meth:`evaluate`.
         compare_cfc: CFC class of the compared signal (the integral of the filtered acceleration;
@@ -199,6 +201,7 @@ class CalibrationProblem:
         success: SuccessConfig,
         duration: float | None = None,
         active: torch.Tensor | None = None,
+        acting: torch.Tensor | None = None,
         box_radius: float = 1.0,
         sim_backend: str = "numba",
         metrics_backend: str = "numba",
@@ -245,12 +248,13 @@ class CalibrationProblem:
         self.init = torch.as_tensor(cells.params, dtype=f64)  # [n, 7]
         self.feasible = torch.as_tensor(cells.feasible)  # [n, 5]
         self._agent_of = layout.agent_of_cell.clamp_min(0)
-        self._owned = layout.owned[:, None].to(f64)  # [n, 1]
+        owned = layout.owned if acting is None else layout.owned & torch.as_tensor(acting, dtype=torch.bool)
+        self._owned = owned[:, None].to(f64)  # [n, 1]
         A = layout.n_agents
         self.active = torch.ones(A, dtype=torch.bool) if active is None else torch.as_tensor(active, dtype=torch.bool)
         # a transmission direction is free for an agent if some owned cell may transmit that way
         feas_agent = torch.zeros(A, 5, dtype=f64).index_add_(
-            0, self._agent_of, (self.feasible & layout.owned[:, None]).to(f64)
+            0, self._agent_of, (self.feasible & owned[:, None]).to(f64)
         )
         self.free = torch.cat([torch.ones(A, 2, dtype=torch.bool), feas_agent > 0], dim=1) & self.active[:, None]
         r = float(box_radius)
@@ -607,13 +611,15 @@ def build_problem(config: ProblemConfig, cells: CellModel | None = None) -> Cali
                                backend=config.sim_backend)  # fmt: skip
     reference = sampler.sample(np.random.default_rng(config.reference_seed), 1)
     fit_cfg = load_reward_config(config.fit)
-    active = None
+    active = acting = None
     if config.masking:
         regions = ImpactRegions(cells, layout, env.masking)
-        active = regions.active(reference.overlap, reference.side, reference.speed)[0]
+        region = regions.region(reference.overlap, reference.side, reference.speed)
+        active = regions.active(reference.overlap, reference.side, reference.speed, region)[0]
+        acting = region[0] if env.masking.cells == "region" else None
     return CalibrationProblem(
         cells, layout, sim, scenario, reference, sensors, bounds=bounds, floor=env.transmission_floor,
-        fit=Reward(fit_cfg), success=config.success, duration=config.duration, active=active,
+        fit=Reward(fit_cfg), success=config.success, duration=config.duration, active=active, acting=acting,
         box_radius=config.box_radius, sim_backend=config.sim_backend, metrics_backend=config.metrics_backend,
         compare_cfc=env.reference.compare_cfc, compare_margin=env.reference.compare_margin,
     )  # fmt: skip

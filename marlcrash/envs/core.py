@@ -372,6 +372,7 @@ class CalibrationCore:
         self.side = torch.ones(B, dtype=f64)
         self.margin = torch.zeros(B, dtype=torch.int64)  # samples simulated past the window (ReferenceBatch.margin)
         self.active = torch.ones(B, self.A, dtype=torch.bool)
+        self.acting = torch.ones(B, n, dtype=torch.bool)  # cells an active agent acts on (masking.cells)
         self.saturated = torch.zeros(B, n, dtype=torch.bool)
         self.energy_fraction = torch.zeros(B, n, dtype=f64)
         self.metrics = Metrics(*(torch.zeros(B, self.K, dtype=f64) for _ in range(3)))
@@ -455,7 +456,9 @@ class CalibrationCore:
                 self.true_params = self.init[None].repeat(self.B, 1, 1)
             self.true_params[rows] = ref.true_params
         self.params[rows] = self.init
-        self.active[rows] = self.regions.active(ref.overlap, ref.side, ref.speed)
+        region = self.regions.region(ref.overlap, ref.side, ref.speed)
+        self.active[rows] = self.regions.active(ref.overlap, ref.side, ref.speed, region)
+        self.acting[rows] = region if self.config.masking.cells == "region" else True
         m = self._simulate(rows)
         for old, new in zip(self.metrics, m, strict=True):
             old[rows] = new
@@ -535,7 +538,7 @@ class CalibrationCore:
             inc = a[:, self._agent_of]  # [B, n, 7]
         else:
             inc = a.view(self.B, self.A, self.M, 7)[:, self._agent_of, self._slot_of]
-        inc = inc * self._owned
+        inc = inc * (self._owned & self.acting[..., None])
         m = self.config.masking
         if m.saturation_preference:
             damp = torch.where(self.saturated, m.saturation_damping, 1.0).to(inc.dtype)
@@ -550,8 +553,14 @@ class CalibrationCore:
                                        self.config.transmission_floor)  # fmt: skip
 
     def action_mask(self) -> torch.Tensor:
-        """``[B, n_agents, act_dim]`` bool: entries that act (valid slot, feasible factor, active agent)."""
-        return self._static_action_mask[None] & self.active[..., None]
+        """``[B, n_agents, act_dim]`` bool: entries that act (valid slot, feasible factor, active agent; per cell,
+        its cell in the region where ``masking.cells`` is ``region``)."""
+        mask = self._static_action_mask[None] & self.active[..., None]
+        if self.config.granularity == "cell" and self.config.masking.cells == "region":
+            lay = self.layout
+            acting = self.acting[:, lay.cells.clamp_min(0)] & lay.valid  # [B, A, M]
+            mask = mask & acting[..., None].expand(-1, -1, -1, 7).reshape(self.B, self.A, -1)
+        return mask
 
     # --------------------------------------------------------------------------------------- step
     def step(self, actions: torch.Tensor | np.ndarray) -> None:

@@ -16,6 +16,11 @@ An agent is active when at least ``min_fraction`` of its cells (and at least one
 lie in the region of the mode: ``none`` (every agent active), ``primary``,
 ``primary_secondary`` (union of both regions).
 
+What an active agent acts on (``cells``): ``agent``, all its cells (a sub-assembly's seven factors scale all of
+them); ``region``, only its cells in the region, DESIGN 1.4's rule taken per cell ("no actions on cells outside
+the primary or secondary impact region"): in a driver-side small overlap, the passenger-side half of an active
+bumper beam keeps its parameters. ``agent`` is the default the documented runs used; ``region`` is the ablation.
+
 The saturation preference (DESIGN 1.4) is configured here too: when
 ``saturation_preference`` is on, behaviour-parameter changes of cells that saturated
 in the last simulation are multiplied by ``saturation_damping``.
@@ -46,6 +51,7 @@ class MaskingConfig:
     secondary_directions: list[str] = field(default_factory=lambda: list(DIRECTIONS))
     speed_depth_time: float = 0.0
     min_fraction: float = 0.1
+    cells: Literal["agent", "region"] = "agent"
     saturation_preference: bool = True
     saturation_damping: float = 0.2
 
@@ -114,13 +120,21 @@ class ImpactRegions:
         second = reach & ~prim & near & self.deformable
         return prim, second
 
-    def active(self, overlap: torch.Tensor, side: torch.Tensor, speed: torch.Tensor) -> torch.Tensor:
-        """``[B, n_agents]`` bool activity flags for the configured mode."""
+    def region(self, overlap: torch.Tensor, side: torch.Tensor, speed: torch.Tensor) -> torch.Tensor:
+        """``[B, n_cells]`` bool: the region of the configured mode (every cell for ``none``)."""
+        if self.config.mode == "none":
+            return torch.ones(overlap.shape[0], self.n, dtype=torch.bool)
+        prim, second = self.regions(overlap, side, speed)
+        return prim if self.config.mode == "primary" else prim | second
+
+    def active(
+        self, overlap: torch.Tensor, side: torch.Tensor, speed: torch.Tensor, region: torch.Tensor | None = None
+    ) -> torch.Tensor:
+        """``[B, n_agents]`` bool activity flags for the configured mode (``region``: :meth:`region`, if known)."""
         B = overlap.shape[0]
         if self.config.mode == "none":
             return torch.ones(B, self.layout.n_agents, dtype=torch.bool)
-        prim, second = self.regions(overlap, side, speed)
-        region = prim if self.config.mode == "primary" else prim | second
+        region = self.region(overlap, side, speed) if region is None else region
         inside = region[:, self.layout.cells] & self.layout.valid  # [B, A, M]
         n_in = inside.sum(-1)
         return (n_in > 0) & (n_in >= self.config.min_fraction * self.layout.count)
