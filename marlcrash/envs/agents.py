@@ -142,8 +142,8 @@ def build_agents(cells: CellModel, config: AgentsConfig) -> AgentLayout:
         config: splits, merges, custom agents (module docstring).
 
     Returns:
-        The :class:`AgentLayout`; agents in order: custom, merges, then the remaining
-        sub-assemblies in the model's order (split ones as ``_left``, ``_right``).
+        The :class:`AgentLayout`; agents in order: custom, merges, the ``split_lr`` sub-assemblies in the config's
+        order (each as ``_left``, then ``_right``), then the remaining ones in the model's order.
 
     Raises:
         ConfigError: an unknown sub-assembly name, an empty agent, a duplicate name, a cell
