@@ -472,18 +472,16 @@ def _quiet_filter(x: np.ndarray, dt: float, cfc: int | None) -> np.ndarray:
         return cfc_filter(x, dt, cfc, axis=-1)
 
 
-ONSET_END_ZONE = 1.0
-"""A filtered record is not searched for an onset within this many periods of its class's -3 dB frequency of its
-end (10 ms at CFC 60): there the filter's odd end reflection (SAE J211) pins the output to the last samples and passes
-their noise up to 7x less attenuated (CFC 60 at 10 kHz), so 3 g of noise crossed a 5-sigma level there."""
-
-
 def _detection_filter(x: np.ndarray, dt: float, cfc: int | None) -> np.ndarray:
-    """``x`` filtered for onset detection (:func:`_quiet_filter`), zero within :data:`ONSET_END_ZONE` of the end."""
-    d = _quiet_filter(x, dt, cfc)
-    if cfc is not None:
-        d[..., max(0, d.shape[-1] - math.ceil(ONSET_END_ZONE / (f_h(cfc) * dt) - 1e-9)) :] = 0.0
-    return d
+    """``x`` (a channel less its zero level) filtered for onset detection (:func:`_quiet_filter`) with a resting
+    lead-out of :data:`PRE_IMPACT_TIME` after it, as the lead-in before it: the J211 odd reflection at the record's
+    own end pins the output to the last samples and passes their noise up to 7x less attenuated (CFC 60 at 10 kHz),
+    so 3 g of noise crossed a 5-sigma level there; with the lead-out no output sample passes more noise than the
+    record's interior."""
+    if cfc is None:
+        return np.asarray(x, dtype=np.float64)
+    pad = np.zeros((*np.shape(x)[:-1], round(PRE_IMPACT_TIME / dt)))
+    return _quiet_filter(np.concatenate([x, pad], axis=-1), dt, cfc)[..., : np.shape(x)[-1]]
 
 
 @functools.lru_cache(maxsize=64)
@@ -619,8 +617,8 @@ def find_onset(pulse: Pulse, cfc: int | None = 60, threshold_g: float = DEFAULT_
        are needed, and a transducer offset above ``threshold_g`` is measured like any other.
     2. The pulse is detected where the channel less its zero level, CFC-filtered at ``cfc``, first leaves
        ``threshold_g`` or :data:`NOISE_LEVELS` times its pre-trigger noise after that filter (where higher), in the
-       pulse's direction (its largest excursion); not within :data:`ONSET_END_ZONE` of the record's end, where the
-       filter's end reflection lifts the noise.
+       pulse's direction (its largest excursion); filtered with a resting lead-out after the record, so that the
+       filter's end reflection does not lift the noise of its last samples.
     3. The onset is the start of a straight line fitted by least squares, with the zero level, to the samples of
        the record (not filtered: the zero-phase filter spreads an onset backwards) up to where the pulse reaches
        :data:`ONSET_FIT_FRACTION` of its peak: a level crossing lies after the onset by the level over the slope
