@@ -76,9 +76,8 @@ def main() -> None:
             with torch.no_grad():
                 res = fsim.run(torch.as_tensor(fine.params)[None], sc, duration=s.duration, sensors=sensors,
                                record_cells="none", backend=s.backend)  # fmt: skip
-            runs[k], refs[k] = (res, fine), s.compared(res.velocity)
-        for k, (res, fine) in runs.items():
-            fsim = samplers[k].fine_model(None)[1]
+            runs[k], refs[k] = (res, fine, fsim), s.compared(res.velocity)
+        for k, (res, fine, fsim) in runs.items():
             summ = crash_summary(res, fine, sc)
             stop = summ["time_to_zero_velocity_ms"]
             rows.append({
