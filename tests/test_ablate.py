@@ -88,6 +88,15 @@ def tiny(tmp_path: Path, **kw) -> ablate.AblationConfig:
             "ppo.env_overrides.masking.mode",
             "list its levels",
         ),
+        ({"masking": ["none", "primary+regoin"]}, "masking[1]", "unknown modifier 'regoin'"),
+        ({"masking": ["primary", "primary+region+agent"]}, "masking[1]", "masking.cells twice"),
+        ({"masking": ["none", "none+region"]}, "masking[1]", "changes nothing"),
+        ({"env_overrides": {"masking.cells": "region"}}, "env_overrides.masking.cells", "primary+region"),
+        (
+            {"env_overrides": {"masking": {"saturation_preference": False}}},
+            "env_overrides.masking.saturation_preference",
+            "sat, nosat",
+        ),
         ({"budget": 7}, "budget", "at least one PPO iteration"),
         ({"max_wall_s": -1.0}, "max_wall_s", "> 0"),
     ],
@@ -147,6 +156,35 @@ def test_a_cell_trains_with_its_factors_and_the_fixed_settings(short, tmp_path):
     assert env.scenarios == {"small_overlap_right": 1.0} and env.reference.pin_seed == 3
     assert list(env.behaviour_bounds) == [0.5, 2.0] and env.max_step == 0.1  # shared and PPO overrides
     assert tc.seed == 3 and tc.n_envs == 2 and tc.episode_length == 3
+
+
+def test_a_masking_level_sets_the_mode_and_what_active_agents_act_on(short, tmp_path):
+    """``primary+region+nosat``: DESIGN 1.4's per-cell rule and the saturation preference as masking levels."""
+    cfg = tiny(tmp_path, masking=["primary", "primary+region", "primary_secondary+region+nosat", "none+nosat"])
+    got = {}
+    for level in cfg.masking:
+        cell = {"algorithm": "mappo", "masking": level, "scenario": "small_overlap_left", "granularity": "subassembly",
+                "reward": "log_ratio"}  # fmt: skip
+        tc = ppo_train_config(cell_compare_config(cfg, cell, 0), "mappo", 0, tmp_path)
+        m = load_env_config(tc.env, tc.env_overrides).masking
+        got[level] = (m.mode, m.cells, m.saturation_preference)
+    assert got == {
+        "primary": ("primary", "agent", True),  # no modifier: the env config's values (configs/env/default.yaml)
+        "primary+region": ("primary", "region", True),
+        "primary_secondary+region+nosat": ("primary_secondary", "region", False),
+        "none+nosat": ("none", "agent", False),
+    }
+    names = {cell_name(c) for c in cfg.cells()}
+    assert "mappo-primary+region-offset40_left-subassembly-log_ratio" in names and len(names) == 4
+    # the env honours it: in the driver-side small overlap the region leaves part of an active agent's cells out
+    env = load_env_config("default", {"scenarios": {"small_overlap_left": 1.0}, "reference.pin_seed": 0,
+                                      **ablate.masking_overrides("primary+region")})  # fmt: skip
+    core = CalibrationCore(env, batch_size=1)
+    core.reset()
+    owned = core.layout.cells[core.active[0]]
+    owned = owned[owned >= 0]
+    acting = core.acting[0, owned]
+    assert acting.any() and not acting.all()
 
 
 # ------------------------------------------------------------------------------------- statistics

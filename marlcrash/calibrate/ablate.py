@@ -8,9 +8,11 @@ Protocol (the results table's, :mod:`marlcrash.calibrate.compare`, so the number
 
 - A run calibrates ONE reference: the twin of the cell's scenario drawn with reference seed ``s``; the
   run's own seed is ``s`` too. The PPO algorithm trains on an environment pinned to that reference
-  (:func:`~marlcrash.calibrate.compare.run_ppo`) with the cell's masking mode, action granularity and
+  (:func:`~marlcrash.calibrate.compare.run_ppo`) with the cell's masking level, action granularity and
   reward form as env settings; everything else (vehicle, agents, bounds, observation scales) is the
-  same in every cell.
+  same in every cell. A masking level is a mode with optional modifiers (:func:`masking_overrides`):
+  ``primary+region`` restricts active agents to their in-region cells (DESIGN 1.4 per cell),
+  ``+nosat`` turns the saturation preference off.
 - Budget: ``budget`` simulations per run, counted as the results table counts them; a wall cap per run.
 - Result of a run: the best candidate of all its simulations.
 - One yardstick for every cell: candidates are ranked by the ``score`` reward form's fit score (by
@@ -86,11 +88,27 @@ LEVEL_KEYS: dict[str, str] = {
 }
 """Config key holding each factor's levels."""
 
-ENV_KEYS: dict[str, str] = {"masking": "masking.mode", "granularity": "granularity", "reward": "reward"}
-"""Env-config key each env factor sets."""
+ENV_KEYS: dict[str, tuple[str, ...]] = {
+    "masking": ("masking.mode", "masking.cells", "masking.saturation_preference"),
+    "granularity": ("granularity",),
+    "reward": ("reward",),
+}
+"""Env-config keys each env factor sets (a masking level sets the mode and, through its modifiers, the other two)."""
+
+MASKING_MODIFIERS: dict[str, tuple[str, Any]] = {
+    "region": ("masking.cells", "region"),
+    "agent": ("masking.cells", "agent"),
+    "sat": ("masking.saturation_preference", True),
+    "nosat": ("masking.saturation_preference", False),
+}
+"""Modifiers of a masking level (``primary_secondary+region+nosat``): the env key each sets and its value."""
 
 _PROTECTED_ENV_KEYS: dict[str, str] = {
-    **{k: f"the ablation's {f} factor (list its levels in {LEVEL_KEYS[f]})" for f, k in ENV_KEYS.items()},
+    **{k: f"the ablation's {f} factor (list its levels in {LEVEL_KEYS[f]})"
+       for f, keys in ENV_KEYS.items() for k in keys},
+    **{k: "the ablation's masking factor (a level's modifier: "
+          f"{', '.join(m for m, (mk, _) in MASKING_MODIFIERS.items() if mk == k)}; e.g. primary+region)"
+       for k in ENV_KEYS["masking"][1:]},
     **dict.fromkeys(("scenarios", "reference", "seed", "termination.max_iterations"),
                     "the ablation's protocol (scenarios, seeds, ppo.episode_length)"),
 }  # fmt: skip
@@ -152,6 +170,11 @@ class AblationConfig:
             for i, level in enumerate(levels):  # a level is part of the cell's name and folder
                 require(bool(level) and not any(c in str(level) for c in "/-\\"), f"{key}[{i}]",
                         f"expected a registered name without '/', '\\' or '-', got {level!r}")  # fmt: skip
+        for i, level in enumerate(self.masking):
+            try:
+                masking_overrides(level)
+            except ConfigError as e:
+                raise ConfigError(e.reason, key=f"masking[{i}]") from None
         for i, a in enumerate(self.algorithms):
             require(a in ALGORITHMS, f"algorithms[{i}]", f"unknown algorithm {a!r}; expected one of {list(ALGORITHMS)}")
         known = list_scenarios()
@@ -187,6 +210,40 @@ class AblationConfig:
         return Path(self.out_dir) / "ablate" / self.name
 
 
+def masking_overrides(level: str) -> dict[str, Any]:
+    """The env overrides of a masking level: ``<mode>[+<modifier>...]``.
+
+    The mode (``none``, ``primary``, ``primary_secondary``) sets ``masking.mode``; the modifiers of
+    :data:`MASKING_MODIFIERS` set what an active agent acts on (``region``: only its cells in the impact
+    region, DESIGN 1.4's rule per cell; ``agent``: all its cells) and the saturation preference (``sat``,
+    ``nosat``). A key no modifier sets keeps the env config's value. ``primary+region`` is the ablation of
+    DESIGN 1.4's per-cell rule against ``primary``.
+
+    Raises:
+        ConfigError: an unknown modifier, two modifiers of one key, or ``region`` with mode ``none`` (where
+            every cell is in the region, so it would run ``none`` again under another name); no key.
+    """
+    mode, *mods = str(level).split("+")
+    out: dict[str, Any] = {"masking.mode": mode}
+    for m in mods:
+        if m not in MASKING_MODIFIERS:
+            raise ConfigError(f"unknown modifier {m!r} in masking level {level!r}; expected <mode>[+<modifier>...] "
+                              f"with modifiers from {list(MASKING_MODIFIERS)}")  # fmt: skip
+        key, value = MASKING_MODIFIERS[m]
+        if key in out:
+            raise ConfigError(f"masking level {level!r} sets {key} twice; give one of its modifiers")
+        out[key] = value
+    if mode == "none" and out.get("masking.cells") == "region":
+        raise ConfigError(f"masking level {level!r}: with mode none every cell is in the region, so +region "
+                          "changes nothing; use it with primary or primary_secondary")  # fmt: skip
+    return out
+
+
+def factor_overrides(cell: dict[str, Any]) -> dict[str, Any]:
+    """The env overrides the env factors of ``cell`` set (:data:`ENV_KEYS`)."""
+    return {**masking_overrides(cell["masking"]), "granularity": cell["granularity"], "reward": cell["reward"]}
+
+
 def cell_name(cell: dict[str, Any]) -> str:
     """``algorithm-masking-scenario-granularity-reward``: the cell's folder and row name."""
     return "-".join(str(cell[f]) for f in FACTORS)
@@ -211,10 +268,11 @@ def load_ablation_config(data: dict[str, Any], source: str | None = None) -> Abl
         yardstick = load_reward_config(config.score)
     except ConfigError as e:
         raise ConfigError(e.reason, key="score", path=source) from None
-    for factor, env_key in ENV_KEYS.items():
+    for factor in ENV_KEYS:
         for i, level in enumerate(config.levels(factor)):
             try:
-                load_env_config(config.env, {**over, env_key: level})
+                set_by = masking_overrides(level) if factor == "masking" else {ENV_KEYS[factor][0]: level}
+                load_env_config(config.env, {**over, **set_by})
                 if factor == "reward":  # the env config names the form; its file is read when an env is built
                     measured = load_reward_config(level).metrics
                     require(measured == yardstick.metrics, "",
@@ -229,7 +287,7 @@ def load_ablation_config(data: dict[str, Any], source: str | None = None) -> Abl
 # ------------------------------------------------------------------------------------------- runs
 def cell_compare_config(config: AblationConfig, cell: dict[str, Any], seed: int) -> CompareConfig:
     """The results-table config of one PPO run of ``cell`` on reference ``seed``."""
-    over = {**config.env_overrides, **{ENV_KEYS[f]: cell[f] for f in ENV_KEYS}}
+    over = {**config.env_overrides, **factor_overrides(cell)}
     algo = cell["algorithm"]
     return CompareConfig(
         methods=[algo], seeds=[seed], budget=config.budget, max_wall_s=config.max_wall_s, scenario=cell["scenario"],
@@ -252,8 +310,9 @@ def reference_problem(config: AblationConfig, scenario: str, seed: int) -> Calib
 
 
 def active_agents(config: AblationConfig, problem: CalibrationProblem, masking: str) -> int:
-    """Agents that masking mode ``masking`` lets act on the problem's reference."""
-    env = load_env_config(config.env, {**config.env_overrides, **config.ppo.env_overrides, "masking.mode": masking})
+    """Agents that masking level ``masking`` lets act on the problem's reference."""
+    over = {**config.env_overrides, **config.ppo.env_overrides, **masking_overrides(masking)}
+    env = load_env_config(config.env, over)
     ref = problem.reference
     regions = ImpactRegions(problem.cells, problem.layout, env.masking)
     return int(regions.active(ref.overlap, ref.side, ref.speed)[0].sum())
