@@ -168,6 +168,24 @@ def test_apply_increments_revives_zero_feasible_factors():
     torch.testing.assert_close(out[2:], torch.tensor([1 / (1 + g), g / (1 + g), 0, 0, 0], dtype=torch.float64))
 
 
+def test_increments_on_infeasible_factors_alone_leave_a_cell_bit_exact():
+    """Such an increment moves nothing; the cell used to be renormalised anyway, changing factors by 1e-16."""
+    gen = torch.Generator().manual_seed(0)
+    n = 200
+    feas = torch.rand(n, 5, generator=gen) < 0.6
+    feas[:, 0] = True
+    f = torch.rand(1, n, 5, generator=gen, dtype=torch.float64) * feas
+    p = torch.cat([1 + torch.rand(1, n, 2, generator=gen, dtype=torch.float64), f / f.sum(-1, keepdim=True)], -1)
+    inc = torch.zeros_like(p)
+    inc[..., 2:] = torch.randn(1, n, 5, generator=gen, dtype=torch.float64) * ~feas
+    assert (inc != 0).any()
+    assert torch.equal(apply_increments(p, inc, p[0], feas, (0.5, 2.0), 0.01), p)
+    inc[0, 0, 2] = 1e-3  # a feasible one: the cell changes and is renormalised, the others stay
+    out = apply_increments(p, inc, p[0], feas, (0.5, 2.0), 0.01)
+    assert not torch.equal(out[0, 0], p[0, 0]) and torch.equal(out[0, 1:], p[0, 1:])
+    torch.testing.assert_close(out[0, 0, 2:].sum(), torch.tensor(1.0, dtype=torch.float64))
+
+
 def test_a_factor_that_starts_at_zero_or_falls_to_it_is_observed(cells):
     """Own parameters are observed in the coordinate the update moves: ``log((f + floor) / (f0 + floor))`` for a
     feasible factor. As ``log(f / f0)`` a factor that started at 0 (40 feasible ones on the default car) stayed

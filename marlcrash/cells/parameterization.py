@@ -6,7 +6,7 @@ twin perturbation is exactly reachable by the calibrators:
 - behaviour: ``E <- clip(E * exp(d), lo * E0, hi * E0)`` for ``E_x`` and ``E_s``;
 - transmission: ``g = ((f + floor) * exp(d) - floor)^+`` on feasible entries (zero elsewhere),
   renormalised to sum one. The shift ``floor`` lets a feasible factor that is currently zero
-  grow again; a zero increment leaves the cell unchanged (bit-exact).
+  grow again; a zero increment (or one on infeasible factors only) leaves the cell unchanged (bit-exact).
 """
 
 from __future__ import annotations
@@ -34,13 +34,15 @@ def apply_increments(
 
     Returns:
         ``[B, n_cells, 7]`` new parameters: ``E`` in bounds, factors ``>= 0``, zero where
-        infeasible, summing to one (cells with a non-zero increment; others untouched).
+        infeasible, summing to one (cells with a non-zero increment on a feasible factor; others untouched).
     """
     e0 = init[None, :, :2]
     e = (params[..., :2] * torch.exp(inc[..., :2])).clamp(min=bounds[0] * e0, max=bounds[1] * e0)
     f = params[..., 2:]
     g = (((f + floor) * torch.exp(inc[..., 2:])) - floor).clamp_min(0.0) * feasible
     total = g.sum(-1, keepdim=True)
-    changed = (inc[..., 2:] != 0).any(-1, keepdim=True) & (total > 0)
+    # only a cell with a non-zero increment on a feasible factor changes: one on an infeasible factor alone (an
+    # action slot of a per-cell policy that moves nothing) leaves the cell bit-exact, not renormalised by an ulp
+    changed = ((inc[..., 2:] != 0) & feasible).any(-1, keepdim=True) & (total > 0)
     f_new = torch.where(changed, g / torch.where(total > 0, total, torch.ones_like(total)), f)
     return torch.cat([e, f_new], dim=-1)
