@@ -13,8 +13,11 @@
   ``[obs_dim]``, actions ``[act_dim]`` in ``[-1, 1]``; the same objects on every call.
 - Actions of agents not in ``agents`` (inactive or finished) are ignored; missing actions
   of live agents count as zero (no change).
-- Every agent receives the team reward. Infos carry the per-sensor metrics ``area``,
-  ``dfd``, ``rmse`` (``[n_sensors]`` arrays, the same for every agent).
+- Every live agent receives the team reward. An agent inactive in the episode is not in ``agents``, so
+  ``step`` returns no entry for it at all (PettingZoo's API has no "present but idle" agent; DESIGN 5's
+  "inactive agents receive it too" holds in the native TorchRL env, whose team reward sits at the root for
+  every agent). Infos carry the per-sensor metrics ``area``, ``dfd``, ``rmse`` (``[n_sensors]`` arrays, the
+  same for every agent).
 - Seeding: ``reset(seed=...)`` re-seeds the core's own generator only.
 """
 
