@@ -159,6 +159,23 @@ def test_cell_granularity_moves_one_cell_and_saturation_damps_behaviour(cells):
     torch.testing.assert_close(r1, torch.tensor(np.exp(0.025), dtype=torch.float64))
 
 
+@pytest.mark.parametrize("granularity", ["subassembly", "cell"])
+def test_increments_are_max_step_and_damping_in_float64(cells, granularity):
+    """A full action is a log increment of exactly ``max_step`` (``max_step * saturation_damping`` on a saturated
+    cell's behaviour), in float64, as a baseline's ``x`` is. Before, both factors went through a float32 tensor
+    (``0.1 * bool``, ``torch.where(saturated, 0.2, 1.0)``): a full action moved 0.100000001 > max_step."""
+    over = {"granularity": granularity, "masking.mode": "none", "masking.saturation_damping": 0.2}
+    core = make(cells, 1, **over)
+    core.saturated[0, ::2] = True
+    inc = core.increments(core.check_actions(core.action_mask().float()))[0]
+    moved = core._owned[0] & (inc != 0)
+    sat = core.saturated[0][:, None].expand(-1, 7) & (torch.arange(7) < 2)
+    assert moved.any() and (moved & sat).any()
+    assert torch.equal(inc[moved & ~sat], torch.full_like(inc[moved & ~sat], 0.1))
+    assert torch.equal(inc[moved & sat], torch.full_like(inc[moved & sat], 0.1 * 0.2))
+    assert float(inc.abs().max()) <= core.config.max_step
+
+
 def test_apply_increments_revives_zero_feasible_factors():
     init = torch.tensor([[1.0, 2.0, 1.0, 0.0, 0.0, 0.0, 0.0]], dtype=torch.float64)
     feas = torch.tensor([[True, True, False, False, False]])

@@ -533,7 +533,7 @@ class CalibrationCore:
         Inactive agents and unowned cells get zero; with the saturation preference, behaviour
         increments of cells saturated in the last simulation are damped.
         """
-        a = actions * (self.config.max_step * self.active[..., None])
+        a = actions * self.config.max_step * self.active[..., None]  # float64: not max_step * bool (float32)
         if self.config.granularity == "subassembly":
             inc = a[:, self._agent_of]  # [B, n, 7]
         else:
@@ -541,7 +541,7 @@ class CalibrationCore:
         inc = inc * (self._owned & self.acting[..., None])
         m = self.config.masking
         if m.saturation_preference:
-            damp = torch.where(self.saturated, m.saturation_damping, 1.0).to(inc.dtype)
+            damp = torch.where(self.saturated, torch.tensor(m.saturation_damping, dtype=inc.dtype), 1.0)
             inc = torch.cat([inc[..., :2] * damp[..., None], inc[..., 2:]], dim=-1)
         return inc
 
