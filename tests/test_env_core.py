@@ -115,6 +115,27 @@ def test_region_cells_mode_acts_only_on_the_impact_region(cells, granularity):
         make(cells, 1, **{"masking.cells": "cell"})
 
 
+@pytest.mark.parametrize("cells_mode", ["agent", "region"])
+def test_subassembly_action_mask_leaves_out_factors_no_acting_cell_takes(cells, cells_mode):
+    """A sub-assembly agent's transmission entry acts only where one of the cells its factors reach (all its cells,
+    or its in-region ones with ``masking.cells: region``) may transmit that way: the mask says so, as the baselines'
+    free coordinates do. Before, every entry of an active agent was in the mask (44 that move nothing in this batch:
+    e.g. the hood's +-z); with ``region`` the set changes per episode row."""
+    scenarios = {"small_overlap_left": 1.0, "offset40_right": 1.0, "full_width_40": 1.0}
+    core = make(cells, 3, scenarios=scenarios, **{"masking.cells": cells_mode})
+    core.reset(seed=1)
+    lay = core.layout
+    acting = core.acting[:, lay.cells] & lay.valid  # [B, A, M]
+    takes = (core.feasible[lay.cells][None] & acting[..., None]).any(2)  # [B, A, 5]
+    mask = core.action_mask()
+    assert torch.equal(mask[..., :2], core.active[..., None].expand(-1, -1, 2))
+    assert torch.equal(mask[..., 2:], takes & core.active[..., None])
+    assert (core.active[..., None] & ~takes).any()  # some active agent has a direction none of its cells takes
+    before = core.params.clone()
+    core.apply_actions(torch.where(mask, 0.0, 1.0))  # entries outside the mask move nothing
+    assert torch.equal(core.params, before)
+
+
 def test_subassembly_action_scales_all_its_cells(cells):
     core = make(cells, 1, **{"masking.mode": "none", "masking.saturation_preference": False})
     core.reset(seed=0)

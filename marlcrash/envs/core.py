@@ -355,10 +355,11 @@ class CalibrationCore:
         self._eye = torch.eye(self.A, dtype=torch.float32)
         valid = lay.valid[:, :, None].expand(self.A, self.M, 7)
         feas = torch.cat([torch.ones(n, 2, dtype=torch.bool), self.feasible], dim=1)[lay.cells]  # [A, M, 7]
-        self._static_action_mask = (
-            torch.ones(self.A, 7, dtype=torch.bool)
+        self._slot_action_mask = valid & feas  # [A, M, 7] the factors each cell slot takes
+        self._static_action_mask = (  # a sub-assembly factor acts where one of the agent's cells takes it
+            self._slot_action_mask.any(1)
             if cfg.granularity == "subassembly"
-            else (valid & feas).reshape(self.A, -1)
+            else self._slot_action_mask.reshape(self.A, -1)
         )
         self._summary_w = (lay.valid[:, :, None] & self._observed[lay.cells]).to(f64)  # [A, M, 7]
         self._summary_n = self._summary_w.sum(1).clamp_min(1.0)  # [A, 7]
@@ -553,13 +554,17 @@ class CalibrationCore:
                                        self.config.transmission_floor)  # fmt: skip
 
     def action_mask(self) -> torch.Tensor:
-        """``[B, n_agents, act_dim]`` bool: entries that act (valid slot, feasible factor, active agent; per cell,
-        its cell in the region where ``masking.cells`` is ``region``)."""
+        """``[B, n_agents, act_dim]`` bool: entries that act (active agent; per cell, a valid slot and a feasible
+        factor; per sub-assembly, a factor some cell of the agent takes; where ``masking.cells`` is ``region``, of
+        its cells in the region only)."""
         mask = self._static_action_mask[None] & self.active[..., None]
-        if self.config.granularity == "cell" and self.config.masking.cells == "region":
+        if self.config.masking.cells == "region":
             lay = self.layout
             acting = self.acting[:, lay.cells.clamp_min(0)] & lay.valid  # [B, A, M]
-            mask = mask & acting[..., None].expand(-1, -1, -1, 7).reshape(self.B, self.A, -1)
+            if self.config.granularity == "cell":
+                mask = mask & acting[..., None].expand(-1, -1, -1, 7).reshape(self.B, self.A, -1)
+            else:
+                mask = mask & (self._slot_action_mask[None] & acting[..., None]).any(2)
         return mask
 
     # --------------------------------------------------------------------------------------- step

@@ -8,7 +8,8 @@ as ``MultiAgentMLP`` expects). Keys:
 - ``("agents", "mask")``: ``[B, n_agents]`` bool, the agent is active this episode
   (set a loss's ``loss_mask_key`` to it: inactive agents' actions are ignored);
 - ``("agents", "action_mask")``: ``[B, n_agents, act_dim]`` bool, entries that act
-  (valid cell slots and feasible factors of active agents);
+  (:meth:`~marlcrash.envs.core.CalibrationCore.action_mask`: valid cell slots and feasible factors of active
+  agents, a sub-assembly's factors some of its cells take; with ``masking.cells: region`` its in-region cells);
 - ``"state"``: ``[B, state_dim]`` float32 global state for centralized critics;
 - ``("metrics", "area" | "dfd" | "rmse")``: ``[B, n_sensors]`` float64 per-sensor metrics;
 - ``"reward"``: ``[B, 1]`` float32 team reward; ``"done"``, ``"terminated"``,
