@@ -170,6 +170,21 @@ def test_merged_agents_fall_back_to_a_least_squares_truth(cells):
     assert float(s[1]) > float(s[0])
 
 
+def test_merged_agents_least_squares_truth_fits_the_cells_the_agent_reaches(cells):
+    """With ``masking.cells: region`` a merged agent's factors reach only its in-region cells, so the least-squares
+    truth's ``E`` is the mean log ratio over those cells (the others keep their initial values whatever ``x`` is).
+    Before, it was the mean over all its cells: in a driver-side small overlap 3 of the 39 cells of crash box plus
+    front rail lie outside the region, and ``E_s`` came out 0.0206 instead of 0.0164."""
+    merge = {"agents.merge": {"left_structure": ["crash_box_left", "front_rail_left"]}}
+    p = make(cells, scenario="small_overlap_left", env_overrides={**merge, "masking.cells": "region"})
+    a = p.layout.index("left_structure")
+    own = p.layout.agent_of_cell == a
+    reach = p.params(torch.ones(1, p.n_agents, 7, dtype=torch.float64) * 0.1)[0, :, 0] != p.init[:, 0]
+    assert (own & reach).any() and (own & ~reach).any()
+    log_ratio = torch.log(p.true_params[:, :2] / p.init[:, :2])
+    torch.testing.assert_close(p.true_x[a, :2], log_ratio[own & reach].mean(0), rtol=0, atol=1e-12)
+
+
 def test_loss_gradient_is_finite_and_nonzero_at_the_start(problem):
     x = problem.zeros(2).requires_grad_(True)
     before = problem.n_simulations

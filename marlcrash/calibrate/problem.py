@@ -32,13 +32,14 @@ cannot follow per-sub-assembly increments; then ``true_x`` is a least-squares fi
 parameter space and the truth is representable only approximately. With ``masking`` on, the
 coordinates of agents the impact-region rule leaves inactive stay at zero in ``true_x`` too, so
 the twin's perturbation of their cells is out of reach by design (all agents are active at full
-width).
+width); with ``masking.cells: region`` so is that of an active agent's cells outside the impact region, and
+the least-squares ``true_x`` is fitted over the cells each agent reaches.
 
 The search box: ``|x| <= box_radius`` per coordinate, and for ``E_x``, ``E_s`` also within
 the environment's behaviour bounds (``log lo <= x <= log hi``). Coordinates that cannot
 change anything are fixed at zero (:attr:`CalibrationProblem.free`): agents inactive in the
 scenario (impact-region rule, when ``masking`` is on) and transmission directions
-infeasible in every cell of an agent.
+infeasible in every cell an agent reaches.
 """
 
 from __future__ import annotations
@@ -512,13 +513,15 @@ class CalibrationProblem:
     def _fit_true_x(self, truth: torch.Tensor, sweeps: int = 200, refine_iters: int = 200) -> torch.Tensor:
         """The point ``[n_agents, 7]`` representing the twin truth ``[n_cells, 7]`` (module docstring).
 
+        Fitted over the cells ``x`` reaches (all an agent's, or its in-region ones with ``masking.cells: region``).
         ``E``: mean log ratio over the agent's cells (exact: the twin scales a sub-assembly
         uniformly). Transmission: the twin's ``log(f/f0) = log(phi_d) - log(Z_cell)`` is fitted
         as ``x[a, d] - z[c]`` by alternating least squares, each agent's ``x`` centred, then refined
         by L-BFGS on the squared mismatch of the mapped factors (no simulation involved).
         """
         f64 = torch.float64
-        A, agent, owned = self.n_agents, self._agent_of, self.layout.owned
+        # the cells x reaches (masking.cells region: an agent's in-region ones); the others stay initial whatever x is
+        A, agent, owned = self.n_agents, self._agent_of, self._owned[:, 0] > 0
         cnt = torch.zeros(A, dtype=f64).index_add_(0, agent, owned.to(f64)).clamp_min(1.0)
         le = torch.where(owned[:, None], torch.log(truth[:, :2] / self.init[:, :2]), 0.0)
         x_e = torch.zeros(A, 2, dtype=f64).index_add_(0, agent, le) / cnt[:, None]
@@ -535,16 +538,15 @@ class CalibrationProblem:
         x_t = (x_t - (x_t * used).sum(1, keepdim=True) / used.sum(1, keepdim=True).clamp_min(1.0)) * used
         x = (torch.cat([x_e, x_t], dim=1) * self.free)[None].requires_grad_(True)
         # refine in parameter space: the floor makes the twin's factors representable only approximately
-        own = self.layout.owned
         opt = torch.optim.LBFGS([x], max_iter=refine_iters, line_search_fn="strong_wolfe")
 
         def mismatch() -> torch.Tensor:
             opt.zero_grad()
-            loss = ((self.params(x)[0, own, 2:] - truth[own, 2:]) ** 2).sum()
+            loss = ((self.params(x)[0, owned, 2:] - truth[owned, 2:]) ** 2).sum()
             loss.backward()
             return loss
 
-        if float(w.sum()) > 0 and float((self.params(x.detach())[0, own, 2:] - truth[own, 2:]).abs().max()) > 0:
+        if float(w.sum()) > 0 and float((self.params(x.detach())[0, owned, 2:] - truth[owned, 2:]).abs().max()) > 0:
             opt.step(mismatch)
         return (x.detach()[0] * self.free).clamp(min=self.lower, max=self.upper)
 
