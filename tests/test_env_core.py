@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import torch
 
+from marlcrash.cells.parameterization import movable_factors
 from marlcrash.envs.core import (
     ActionError,
     CalibrationCore,
@@ -126,13 +127,32 @@ def test_subassembly_action_mask_leaves_out_factors_no_acting_cell_takes(cells, 
     core.reset(seed=1)
     lay = core.layout
     acting = core.acting[:, lay.cells] & lay.valid  # [B, A, M]
-    takes = (core.feasible[lay.cells][None] & acting[..., None]).any(2)  # [B, A, 5]
+    takes = (movable_factors(core.feasible)[lay.cells][None] & acting[..., None]).any(2)  # [B, A, 5]
     mask = core.action_mask()
     assert torch.equal(mask[..., :2], core.active[..., None].expand(-1, -1, 2))
     assert torch.equal(mask[..., 2:], takes & core.active[..., None])
     assert (core.active[..., None] & ~takes).any()  # some active agent has a direction none of its cells takes
     before = core.params.clone()
     core.apply_actions(torch.where(mask, 0.0, 1.0))  # entries outside the mask move nothing
+    assert torch.equal(core.params, before)
+
+
+def test_cell_action_mask_leaves_out_a_cells_only_feasible_factor(cells):
+    """A cell with one feasible direction transmits all its load that way: an increment of that factor is
+    renormalised back to one, so its entry moves nothing and is out of the mask (26 deformable cells of the default
+    car); every other feasible factor of an active agent's cell is in it."""
+    core = make(cells, 1, granularity="cell", **{"masking.mode": "none", "masking.saturation_preference": False})
+    core.reset(seed=0)
+    lay = core.layout
+    mask = core.action_mask()[0].reshape(core.A, core.M, 7)[..., 2:]  # [A, M, 5]
+    feas = core.feasible[lay.cells] & lay.valid[..., None]
+    lone = feas & (feas.sum(-1, keepdim=True) == 1)
+    assert int(lone.any(-1).sum()) == int(((core.feasible.sum(1) == 1) & core.layout.owned).sum()) > 0
+    assert not (mask & lone).any() and torch.equal(mask, feas & ~lone)
+    before = core.params.clone()
+    act = torch.zeros(1, core.A, core.M, 7)
+    act[..., 2:] = lone.to(act.dtype)  # a full step on every lone factor
+    core.apply_actions(act.reshape(1, core.A, -1))
     assert torch.equal(core.params, before)
 
 

@@ -39,7 +39,7 @@ The search box: ``|x| <= box_radius`` per coordinate, and for ``E_x``, ``E_s`` a
 the environment's behaviour bounds (``log lo <= x <= log hi``). Coordinates that cannot
 change anything are fixed at zero (:attr:`CalibrationProblem.free`): agents inactive in the
 scenario (impact-region rule, when ``masking`` is on) and transmission directions
-infeasible in every cell an agent reaches.
+no increment can change in any cell an agent reaches (infeasible there, or the cell's only feasible one).
 """
 
 from __future__ import annotations
@@ -51,7 +51,7 @@ import numpy as np
 import torch
 
 from marlcrash.cells.model import PARAM_NAMES, CellModel
-from marlcrash.cells.parameterization import apply_increments
+from marlcrash.cells.parameterization import apply_increments, movable_factors
 from marlcrash.config import flatten_overrides, require
 from marlcrash.envs.agents import AgentLayout, build_agents
 from marlcrash.envs.core import EnvConfig, build_cells, env_config_of, require_env, require_env_keys_unset
@@ -253,9 +253,10 @@ class CalibrationProblem:
         self._owned = owned[:, None].to(f64)  # [n, 1]
         A = layout.n_agents
         self.active = torch.ones(A, dtype=torch.bool) if active is None else torch.as_tensor(active, dtype=torch.bool)
-        # a transmission direction is free for an agent if some owned cell may transmit that way
+        # a transmission direction is free for an agent if an increment along it changes some cell it reaches (a
+        # feasible factor of a cell with another feasible one; a lone one stays one)
         feas_agent = torch.zeros(A, 5, dtype=f64).index_add_(
-            0, self._agent_of, (self.feasible & owned[:, None]).to(f64)
+            0, self._agent_of, (movable_factors(self.feasible) & owned[:, None]).to(f64)
         )
         self.free = torch.cat([torch.ones(A, 2, dtype=torch.bool), feas_agent > 0], dim=1) & self.active[:, None]
         r = float(box_radius)

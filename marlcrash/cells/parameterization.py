@@ -46,3 +46,13 @@ def apply_increments(
     changed = ((inc[..., 2:] != 0) & feasible).any(-1, keepdim=True) & (total > 0)
     f_new = torch.where(changed, g / torch.where(total > 0, total, torch.ones_like(total)), f)
     return torch.cat([e, f_new], dim=-1)
+
+
+def movable_factors(feasible: torch.Tensor) -> torch.Tensor:
+    """``[n_cells, 5]`` bool: the transmission factors an increment can change.
+
+    A feasible factor of a cell with at least two feasible ones. A cell with a single feasible direction
+    transmits all of its load that way: whatever its increment, the renormalised factor stays one, so that
+    entry of an action (or coordinate of a search) moves nothing.
+    """
+    return feasible & (feasible.sum(-1, keepdim=True) >= 2)

@@ -64,7 +64,7 @@ import numpy as np
 import torch
 
 from marlcrash.cells.model import CellModel
-from marlcrash.cells.parameterization import apply_increments
+from marlcrash.cells.parameterization import apply_increments, movable_factors
 from marlcrash.config import checked, config_dir, flatten_overrides, load_config, require
 from marlcrash.envs.agents import AgentsConfig, build_agents
 from marlcrash.envs.masking import ImpactRegions, MaskingConfig
@@ -354,7 +354,8 @@ class CalibrationCore:
         self._slot_of = lay.slot_of_cell.clamp_min(0)
         self._eye = torch.eye(self.A, dtype=torch.float32)
         valid = lay.valid[:, :, None].expand(self.A, self.M, 7)
-        feas = torch.cat([torch.ones(n, 2, dtype=torch.bool), self.feasible], dim=1)[lay.cells]  # [A, M, 7]
+        movable = movable_factors(self.feasible)  # a lone feasible factor stays one whatever the action
+        feas = torch.cat([torch.ones(n, 2, dtype=torch.bool), movable], dim=1)[lay.cells]  # [A, M, 7]
         self._slot_action_mask = valid & feas  # [A, M, 7] the factors each cell slot takes
         self._static_action_mask = (  # a sub-assembly factor acts where one of the agent's cells takes it
             self._slot_action_mask.any(1)
