@@ -214,6 +214,8 @@ def test_bad_configs_name_the_key(run_dir, tmp_path):
         small_config(run_dir, cmaes={"popsize": 1})
     with pytest.raises(ConfigError, match="key 'speed'"):
         small_config(run_dir, speed=3)
+    with pytest.raises(ConfigError, match=r"key 'seed': expected a seed >= 0, got -1"):  # numpy's ValueError, late
+        small_config(run_dir, seed=-1)
 
 
 def test_the_yaml_config_loads_through_hydra():

@@ -134,6 +134,8 @@ class AmortizedConfig:
                 require(math.isfinite(m) and m > 0, f"budgets.{name}[{i}]",
                         f"expected a budget multiple > 0 of the policy's simulations, got {m}")  # fmt: skip
 
+        # the optimizers' generators: numpy refused a negative seed only after the policy had run
+        require(self.seed >= 0, "seed", f"expected a seed >= 0, got {self.seed}")
         if self.out_dir is not None:  # before any work, not at the end; a missing folder is made when writing
             check_output_dir(self.out_dir, "out_dir")
 
