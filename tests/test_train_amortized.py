@@ -196,6 +196,8 @@ def test_bad_configs_name_the_key(run_dir, tmp_path):
     for mults, key in (([1, 0], r"budgets\.cmaes\[1\]"), ([-2.0], r"budgets\.cmaes\[0\]")):
         with pytest.raises(ConfigError, match=key):
             small_config(run_dir, budgets={"cmaes": mults})
+    with pytest.raises(ConfigError, match=r"budgets\.cmaes\[2\]': expected distinct budget multiples"):
+        small_config(run_dir, budgets={"cmaes": [1, 2, 1.0]})  # aggregated as one group: "reached 4/2" in the table
     with pytest.raises(ConfigError, match=r"budgets\.lbfgs.*unknown optimizer"):
         small_config(run_dir, budgets={"lbfgs": [1]})
     with pytest.raises(ConfigError, match=r"budgets\.lm.*unknown optimizer"):  # a baseline without settings here

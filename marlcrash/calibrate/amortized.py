@@ -133,6 +133,9 @@ class AmortizedConfig:
             for i, m in enumerate(mults):
                 require(math.isfinite(m) and m > 0, f"budgets.{name}[{i}]",
                         f"expected a budget multiple > 0 of the policy's simulations, got {m}")  # fmt: skip
+                # rows are aggregated per (optimizer, multiple): a repeated one merged its runs ("reached 6/3")
+                require(m not in mults[:i], f"budgets.{name}[{i}]",
+                        f"expected distinct budget multiples, got {m} twice in {mults}")  # fmt: skip
 
         # the optimizers' generators: numpy refused a negative seed only after the policy had run
         require(self.seed >= 0, "seed", f"expected a seed >= 0, got {self.seed}")
