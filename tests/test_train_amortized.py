@@ -172,6 +172,25 @@ def test_held_out_references_differ_from_the_evaluation_reference(run_dir):
         amortized_comparison(small_config(run_dir, reference_seeds=[101, 102]), policy=policy, train_config=pinned)
 
 
+def test_an_adjoint_the_run_cannot_use_is_refused_before_any_simulation(run_dir):
+    """A run trained on float32 simulations (env sim_dtype, 1.9x faster): the adjoint's reverse pass is float64 only.
+
+    The gradient runs failed with a ModelError after the policy, CMA-ES and random search had run on the first
+    reference, and the rows were lost.
+    """
+    policy, cfg, _ = load_policy(run_dir)
+    f32 = copy.deepcopy(cfg)
+    f32.env_overrides = {**f32.env_overrides, "sim_dtype": "float32"}
+    said: list[str] = []
+    with pytest.raises(ConfigError, match=r"key 'gradient\.backend'.*needs dtype float64"):
+        amortized_comparison(small_config(run_dir), policy=policy, train_config=f32, progress=said.append)
+    assert said == []  # refused before the policy ran
+    # the torch backend differentiates float32 simulations, and the other optimizers need no gradient: no refusal
+    for kw in ({"gradient": {"batch_size": 2, "backend": "torch"}}, {"budgets": {"cmaes": [1]}}):
+        with pytest.raises(ConfigError, match=r"reference_seeds\[0\]"):  # the next check, still before any work
+            amortized_comparison(small_config(run_dir, reference_seeds=[0], **kw), policy=policy, train_config=f32)
+
+
 def test_deterministic_and_independent_of_the_other_runs(comparison, run_dir):
     """One seed and one optimizer alone give exactly the rows of the full comparison (fresh, seeded runs)."""
     again = amortized_comparison(small_config(run_dir, reference_seeds=[SEEDS[1]], budgets={"cmaes": [1, 2]}))

@@ -68,7 +68,9 @@ from marlcrash.config import from_dict, require, require_complete
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics
 from marlcrash.outputs import check_output_dir, write_text
+from marlcrash.sim import adjoint
 from marlcrash.sim.scenario import list_scenarios
+from marlcrash.sim.surrogate import load_sim_config
 
 POLICY_METHODS = ("policy_best", "policy_last")
 """Row names of the policy: its best iterate by fit score and its last iterate."""
@@ -288,7 +290,9 @@ def amortized_comparison(
 
     Raises:
         ConfigError: no run folder (key ``run``), a reference seed that is not held out (key
-            ``reference_seeds[i]``), or a policy without its training config.
+            ``reference_seeds[i]``), a policy without its training config, or gradient budgets with
+            ``gradient.backend: adjoint`` on a simulator the adjoint does not cover (the run's float32
+            ``sim_dtype``, springback relief; key ``gradient.backend``), all before any simulation.
     """
     changes = None  # a policy given as an object: its run's files are not known
     if policy is None:
@@ -298,6 +302,10 @@ def amortized_comparison(
         changes = check.as_dict()
     elif train_config is None:
         raise ConfigError("a policy needs the training config it was trained with", key="train_config")
+    if "gradient" in config.budgets and config.gradient.backend == "adjoint":  # the problems' simulator, as built
+        why = adjoint.unsupported(load_sim_config(overrides={"dtype": make_env_config(train_config).sim_dtype}))
+        if why is not None:  # it failed at the first gradient run, after the policy and the other optimizers
+            raise ConfigError(f"the run's simulator: {why} (gradient.backend=torch)", key="gradient.backend")
     pin = make_env_config(train_config).reference.pin_seed  # a run trained on one reference: that one's seed
     for i, s in enumerate(config.reference_seeds):
         if s == pin:

@@ -372,18 +372,27 @@ class _SensorVelocity(torch.autograd.Function):
         return (*out, None, None)
 
 
+def unsupported(config) -> str | None:
+    """Why the adjoint cannot differentiate a simulator of ``config`` (a :class:`~marlcrash.sim.surrogate.SimConfig`):
+    springback relief on, or a float32 simulation (the reverse pass is float64 only); ``None`` where it can."""
+    if config.springback_relief:
+        return "backend 'adjoint' does not support springback_relief; use backend 'torch'"
+    if config.dtype != "float64":
+        return "backend 'adjoint' needs dtype float64; use backend 'torch' for float32 gradients"
+    return None
+
+
 def run_adjoint(sim, props, wall, n_out: int, sensor_idx, record_cells: str, snap: int | None = None):
     """:func:`~marlcrash.sim.kernels.run_numba`'s result with sensor velocities differentiable by the adjoint.
 
     Raises:
-        ModelError: springback relief on, or a float32 simulation (the reverse pass is float64 only).
+        ModelError: the simulator's config is one the adjoint does not cover (:func:`unsupported`).
     """
     from marlcrash.sim.kernels import run_numba
 
-    if sim.config.springback_relief:
-        raise ModelError("backend 'adjoint' does not support springback_relief; use backend 'torch'")
-    if sim.dtype != torch.float64:
-        raise ModelError("backend 'adjoint' needs dtype float64; use backend 'torch' for float32 gradients")
+    why = unsupported(sim.config)
+    if why is not None:
+        raise ModelError(why)
     res = run_numba(sim, props, wall, n_out, sensor_idx, record_cells, snap=snap)
     tensors = (props.yield_c, props.yield_t, props.k, props.k_dense, props.damping, props.e_s)
     if torch.is_grad_enabled() and any(t.requires_grad for t in tensors):
