@@ -191,6 +191,33 @@ def test_an_adjoint_the_run_cannot_use_is_refused_before_any_simulation(run_dir)
             amortized_comparison(small_config(run_dir, reference_seeds=[0], **kw), policy=policy, train_config=f32)
 
 
+def test_a_failing_optimizer_keeps_the_pieces_that_finished(run_dir, tmp_path, monkeypatch):
+    """The comparison hands its rows so far to ``partial`` after every finished piece, marked incomplete; the
+    tables used to be written only at the end, so an error in the last optimizer run lost every finished row."""
+    import marlcrash.calibrate.amortized as amortized
+
+    name, _ = amortized.BASELINES["random_search"]
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("the optimizer failed")
+
+    monkeypatch.setitem(amortized.BASELINES, "random_search", (name, broken))
+    config = small_config(run_dir, reference_seeds=[SEEDS[0]], budgets={"cmaes": [1], "random_search": [1]})
+    seen = []
+
+    def keep(partial):
+        seen.append(len(partial.rows))
+        write_comparison(partial, tmp_path, replace=True)
+
+    with pytest.raises(RuntimeError, match="the optimizer failed"):
+        amortized_comparison(config, partial=keep)
+    assert seen == [2, 3]  # the policy's two rows (best, last), then CMA-ES
+    record = json.loads((tmp_path / "amortized.json").read_text())
+    assert record["meta"]["complete"] is False and len(record["rows"]) == 3
+    assert [r["method"] for r in record["rows"]][-1] == "cmaes"
+    assert "**incomplete**" in (tmp_path / "amortized.md").read_text()
+
+
 def test_deterministic_and_independent_of_the_other_runs(comparison, run_dir):
     """One seed and one optimizer alone give exactly the rows of the full comparison (fresh, seeded runs)."""
     again = amortized_comparison(small_config(run_dir, reference_seeds=[SEEDS[1]], budgets={"cmaes": [1, 2]}))

@@ -7,7 +7,8 @@
 Hydra merges a mapping given on the command line into the file's ``budgets`` (``budgets='{cmaes: [1]}'`` keeps
 the other optimizers' budgets): change one with ``budgets.<optimizer>=[...]``, drop one with ``~budgets.<optimizer>``.
 
-Writes ``amortized.csv``, ``amortized.md`` and ``amortized.json`` into the run folder (or ``out_dir``).
+Writes ``amortized.csv``, ``amortized.md`` and ``amortized.json`` into the run folder (or ``out_dir``), after every
+finished piece (marked incomplete) and at the end.
 """
 
 from __future__ import annotations
@@ -35,9 +36,13 @@ def main(cfg: DictConfig) -> None:
     command = "python train/amortized.py " + " ".join(shlex.quote(a) for a in sys.argv[1:])
     try:
         config = load_amortized_config(OmegaConf.to_container(cfg, resolve=True), source="configs/train/amortized.yaml")
-        check_comparison_dir(config.out_dir or config.run or ".")  # before the work, not after it
-        comparison = amortized_comparison(config, progress=lambda msg: print(msg, flush=True))
-        paths = write_comparison(comparison, config.out_dir or config.run or ".", command=command.strip())
+        out = check_comparison_dir(config.out_dir or config.run or ".")  # before the work, not after it
+
+        def keep(partial):  # the tables so far after every finished piece: a failure or kill keeps them
+            write_comparison(partial, out, command=command.strip(), replace=True)
+
+        comparison = amortized_comparison(config, progress=lambda msg: print(msg, flush=True), partial=keep)
+        paths = write_comparison(comparison, out, command=command.strip(), replace=True)
     except MarlcrashError as e:
         print(f"error: {e}", file=sys.stderr)
         sys.exit(2)

@@ -25,7 +25,9 @@ form's fit score (higher is better); ``passed``: every sensor below every succes
 
 :func:`write_comparison` writes ``amortized.csv`` (one row per reference and method/budget),
 ``amortized.md`` (per-reference and aggregated tables: mean and standard deviation over
-references) and ``amortized.json`` atomically into a folder (by default the run folder).
+references) and ``amortized.json`` atomically into a folder (by default the run folder). The script
+writes them after every finished piece too (``meta.complete`` false, the Markdown says *incomplete*), so an
+optimizer that fails or a kill keeps what finished; there is no resume (start again into another folder).
 """
 
 from __future__ import annotations
@@ -36,7 +38,7 @@ import io
 import json
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field, fields
 from datetime import UTC, datetime
 from pathlib import Path
@@ -276,6 +278,7 @@ def amortized_comparison(
     policy: TensorDictModuleBase | None = None,
     train_config: TrainConfig | None = None,
     progress: Any = None,
+    partial: Callable[[Comparison], None] | None = None,
 ) -> Comparison:
     """Compare the trained policy with optimizers from scratch on held-out twin references (module docstring).
 
@@ -284,9 +287,12 @@ def amortized_comparison(
         policy: a trained policy (e.g. ``Trainer.policy``); requires ``train_config``.
         train_config: the config it was trained with.
         progress: optional callable ``progress(message: str)`` told about each finished piece.
+        partial: optional callable given the comparison so far after each finished piece (the policy on a
+            reference, one optimizer run), its ``meta["complete"]`` false; e.g. :func:`write_comparison` with
+            ``replace=True``, so a failure or a kill later keeps what finished.
 
     Returns:
-        A :class:`Comparison`.
+        A :class:`Comparison` (``meta["complete"]`` true).
 
     Raises:
         ConfigError: no run folder (key ``run``), a reference seed that is not held out (key
@@ -320,29 +326,6 @@ def amortized_comparison(
     iterations = config.iterations if config.iterations is not None else train_config.eval.iterations
     nominal = iterations + 1
     say = progress or (lambda _msg: None)
-    rows: list[dict[str, Any]] = []
-    for seed in config.reference_seeds:
-        cfg = held_out_config(train_config, seed, config.scenario, iterations)
-        t0 = time.perf_counter()
-        result = evaluate_policy(policy, cfg)
-        t_policy = time.perf_counter() - t0
-        problem = evaluation_problem(cfg)
-        if problem.ref_velocity.shape != result.ref_velocity.shape or not torch.allclose(
-            problem.ref_velocity, result.ref_velocity, rtol=0, atol=1e-9
-        ):
-            raise ConfigError(f"the policy's env and the optimizers' problem drew different references for seed "
-                              f"{seed}", key="reference_seeds")  # fmt: skip
-        pol = policy_rows(problem, result, seed, t_policy)
-        rows += pol
-        say(f"seed {seed}: policy best score {pol[0]['score']:.4f} in {pol[0]['simulations']} simulations")
-        target = pol[0 if config.target == "best" else 1]["score"]
-        for name, mults in config.budgets.items():
-            _, fn = BASELINES[name]
-            for m in mults:
-                b = config.budget(m, nominal)
-                res = fn(problem, b, getattr(config, name), config.seed, False)
-                rows.append(baseline_row(problem, res, seed, m, b, target))
-                say(f"seed {seed}: {name} budget {b}: best score {res.best_score:.4f} ({res.wall_time_s:.1f} s)")
     meta = {
         "run": None if config.run is None else str(config.run),
         "algorithm": train_config.algorithm.name,
@@ -358,7 +341,39 @@ def amortized_comparison(
         "optimizers": {k: asdict(getattr(config, k)) for k in config.budgets},
         "thresholds": asdict(train_config.eval.thresholds),
         "provenance": changes,  # configs or code changed since the policy's run started
+        "complete": False,  # every reference and budget finished
     }
+    rows: list[dict[str, Any]] = []
+
+    def finished_piece() -> None:
+        if partial is not None:
+            partial(Comparison(rows=list(rows), aggregate=aggregate(rows), meta=copy.deepcopy(meta)))
+
+    for seed in config.reference_seeds:
+        cfg = held_out_config(train_config, seed, config.scenario, iterations)
+        t0 = time.perf_counter()
+        result = evaluate_policy(policy, cfg)
+        t_policy = time.perf_counter() - t0
+        problem = evaluation_problem(cfg)
+        if problem.ref_velocity.shape != result.ref_velocity.shape or not torch.allclose(
+            problem.ref_velocity, result.ref_velocity, rtol=0, atol=1e-9
+        ):
+            raise ConfigError(f"the policy's env and the optimizers' problem drew different references for seed "
+                              f"{seed}", key="reference_seeds")  # fmt: skip
+        pol = policy_rows(problem, result, seed, t_policy)
+        rows += pol
+        finished_piece()
+        say(f"seed {seed}: policy best score {pol[0]['score']:.4f} in {pol[0]['simulations']} simulations")
+        target = pol[0 if config.target == "best" else 1]["score"]
+        for name, mults in config.budgets.items():
+            _, fn = BASELINES[name]
+            for m in mults:
+                b = config.budget(m, nominal)
+                res = fn(problem, b, getattr(config, name), config.seed, False)
+                rows.append(baseline_row(problem, res, seed, m, b, target))
+                finished_piece()
+                say(f"seed {seed}: {name} budget {b}: best score {res.best_score:.4f} ({res.wall_time_s:.1f} s)")
+    meta["complete"] = True
     return Comparison(rows=rows, aggregate=aggregate(rows), meta=meta)
 
 
@@ -420,6 +435,10 @@ def markdown(comparison: Comparison, command: str | None = None, date: str | Non
     ]
     if command:
         lines.append(f"- command: `{command}`")
+    if not meta.get("complete", True):
+        done = sorted({r["reference_seed"] for r in comparison.rows})
+        lines.append(f"- **incomplete**: the rows finished so far (references {done} of {meta['reference_seeds']}); "
+                     "the comparison is still running, or it stopped")  # fmt: skip
     lines += [
         f"- run: `{meta['run']}`; scenario `{meta['scenario']}`; held-out twin seeds {meta['reference_seeds']} "
         f"(evaluation seed {meta['eval_reference_seed']}, training seed {meta['train_seed']})",
