@@ -73,6 +73,22 @@ def tiny(tmp_path: Path, **kw) -> CompareConfig:
     return load_compare_config(data, source="test")
 
 
+def test_the_optimizers_problem_runs_the_envs_engines(tmp_path):
+    """The problem of a comparison and of a run's evaluation scores candidates on the env's simulator and metrics
+    engines (``auto``: numba without gradients); the evaluation's problem took the defaults whatever the env said."""
+    from test_train_marl import tiny as tiny_train
+
+    from marlcrash.calibrate.evaluate import evaluation_problem
+
+    over = {"sim_backend": "torch", "metrics_backend": "torch"}
+    pc = problem_config(tiny(tmp_path, env_overrides=over), 0)
+    assert (pc.sim_backend, pc.metrics_backend) == ("torch", "torch")
+    assert (problem_config(tiny(tmp_path), 0).sim_backend, problem_config(tiny(tmp_path), 0).metrics_backend) == (
+        "numba", "numba")  # fmt: skip
+    problem = evaluation_problem(tiny_train(tmp_path / "train", env_overrides=over))
+    assert (problem.sim_backend, problem.metrics_backend) == ("torch", "torch")
+
+
 # ------------------------------------------------------------------------------------- pinned env
 @pytest.mark.parametrize("seed", [0, 3])
 def test_pinned_env_reference_is_the_problems_bit_for_bit(short, problem0, tmp_path, seed):

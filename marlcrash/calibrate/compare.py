@@ -75,7 +75,14 @@ from marlcrash.calibrate.marl import (
     build_trainer,
     train_iteration,
 )
-from marlcrash.calibrate.problem import CalibrationProblem, ProblemConfig, SmoothLoss, SuccessConfig, build_problem
+from marlcrash.calibrate.problem import (
+    CalibrationProblem,
+    ProblemConfig,
+    SmoothLoss,
+    SuccessConfig,
+    build_problem,
+    env_backends,
+)
 from marlcrash.calibrate.runlock import run_lock
 from marlcrash.config import from_dict, nested_error, require, require_complete
 from marlcrash.envs.core import env_config_of, load_env_config, require_env, require_env_keys_unset
@@ -245,7 +252,7 @@ def problem_config(config: CompareConfig, seed: int) -> ProblemConfig:
     return ProblemConfig(env=config.env, env_overrides=dict(config.env_overrides), scenario=config.scenario,
                          reference="twin", reference_seed=seed, box_radius=config.box_radius,
                          masking=config.masking, fit=env.reward, success=copy.deepcopy(config.success),
-                         metrics_backend=env.metrics_backend)  # fmt: skip
+                         **env_backends(env))  # fmt: skip
 
 
 def evaluate_params(problem: CalibrationProblem, params: torch.Tensor) -> Metrics:

@@ -60,7 +60,7 @@ from marlcrash.calibrate.marl import (
     make_policy,
     require_fits,
 )
-from marlcrash.calibrate.problem import CalibrationProblem, ProblemConfig, build_problem
+from marlcrash.calibrate.problem import CalibrationProblem, ProblemConfig, build_problem, env_backends
 from marlcrash.calibrate.runlock import run_lock
 from marlcrash.config import flatten_overrides, from_dict, require
 from marlcrash.envs import EnvConfig
@@ -233,7 +233,7 @@ def evaluation_problem(config: TrainConfig) -> CalibrationProblem:
     over["reference.kind"] = kind
     pc = ProblemConfig(env=config.env, env_overrides=over, scenario=config.eval.scenario, reference=kind,
                        reference_seed=config.eval.reference_seed, fit=env_cfg.reward,
-                       success=config.eval.thresholds)  # fmt: skip
+                       success=config.eval.thresholds, **env_backends(env_cfg))  # fmt: skip
     return build_problem(pc)
 
 

@@ -552,6 +552,14 @@ class CalibrationProblem:
         return (x.detach()[0] * self.free).clamp(min=self.lower, max=self.upper)
 
 
+def env_backends(env: Any) -> dict[str, str]:
+    """The :class:`ProblemConfig` engines of an env config: its ``sim_backend`` (``auto``: the no-grad ``numba``,
+    what ``auto`` runs without gradients) and ``metrics_backend``, so a problem built for an env's reference scores
+    its candidates as that env does."""
+    sim = "numba" if env.sim_backend == "auto" else env.sim_backend
+    return {"sim_backend": sim, "metrics_backend": env.metrics_backend}
+
+
 def problem_env_config(config: ProblemConfig):
     """The env config a problem is built from: ``config.env`` with its overrides, reference kind and scenario.
 
