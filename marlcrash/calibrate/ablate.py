@@ -1,4 +1,4 @@
-"""Ablations (DESIGN 6): masking mode x scenario x action granularity x reward form x algorithm x seeds.
+"""Ablations (DESIGN 6): masking level x scenario x action granularity x reward form x algorithm x seeds.
 
 One command (``python train/ablate.py``) runs the full product of the factor levels in
 ``configs/train/ablate.yaml``, every combination (a *cell*) on every reference seed, and writes one
@@ -19,8 +19,8 @@ Protocol (the results table's, :mod:`marlcrash.calibrate.compare`, so the number
   default ``log_ratio``), whatever reward the cell trained on, and tested against the ``success``
   thresholds; the metrics (area, DFD, RMSE per sensor) do not depend on the reward form at all.
   ``param_error`` is the mean relative error of every sub-assembly's parameters against the twin
-  truth, masked agents' included, so a masking mode that leaves part of the truth out of reach pays for
-  it there; ``active_agents`` counts the agents the cell's masking mode lets act on its reference.
+  truth, masked agents' included, so a masking level that leaves part of the truth out of reach pays for
+  it there; ``active_agents`` counts the agents the cell's masking level lets act on its reference.
 - Gain: a run's best score minus the score of the initial parameters on its reference. References
   differ in how far the initial parameters are from them (by far the largest spread between runs), so
   the gain, not the score, is what compares across scenarios and seeds.
@@ -253,7 +253,8 @@ def load_ablation_config(data: dict[str, Any], source: str | None = None) -> Abl
     """Validate an ablation config mapping (e.g. Hydra's, without its ``hydra`` node).
 
     Every level of an env factor is loaded into the env config (with ``env_overrides`` and the PPO
-    ones), so an unknown masking mode, granularity or reward form fails here, naming its list entry.
+    ones), so an unknown masking level (mode or modifier), granularity or reward form fails here, naming
+    its list entry.
 
     Raises:
         ConfigError: unknown key, wrong type or bad value, naming the dotted key -- before any run.
@@ -416,7 +417,7 @@ def markdown(config: AblationConfig, rows: list[dict[str, Any]], command: str | 
     fixed = [f"{f} `{lv[f][0]}`" for f in FACTORS if len(lv[f]) == 1]
     varied = [f for f in FACTORS if len(lv[f]) > 1]
     wall = "no wall cap" if config.max_wall_s is None else f"wall cap {config.max_wall_s:g} s"
-    lines = ["# Ablation: masking mode x scenario x action granularity x reward form", "", f"- date: {date}"]
+    lines = ["# Ablation: masking level x scenario x action granularity x reward form", "", f"- date: {date}"]
     if command:
         lines.append(f"- command: `{command}`")
     lines += [
@@ -430,7 +431,7 @@ def markdown(config: AblationConfig, rows: list[dict[str, Any]], command: str | 
         "whatever reward the cell trained on; gain = score minus the initial parameters' score on the same "
         f"reference; passed = every sensor A < {th.area} m, DFD < {th.dfd} m/s, "
         f"RMSE < {th.rmse} m/s; param err = mean relative error of every sub-assembly's parameters "
-        "(masked ones included) against the twin truth; active = agents the masking mode lets act",
+        "(masked ones included) against the twin truth; active = agents the masking level lets act",
         "",
     ]
     effects = paired_effects(rows, lv)
