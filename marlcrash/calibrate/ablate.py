@@ -104,8 +104,7 @@ MASKING_MODIFIERS: dict[str, tuple[str, Any]] = {
 """Modifiers of a masking level (``primary_secondary+region+nosat``): the env key each sets and its value."""
 
 _PROTECTED_ENV_KEYS: dict[str, str] = {
-    **{k: f"the ablation's {f} factor (list its levels in {LEVEL_KEYS[f]})"
-       for f, keys in ENV_KEYS.items() for k in keys},
+    **{keys[0]: f"the ablation's {f} factor (list its levels in {LEVEL_KEYS[f]})" for f, keys in ENV_KEYS.items()},
     **{k: "the ablation's masking factor (a level's modifier: "
           f"{', '.join(m for m, (mk, _) in MASKING_MODIFIERS.items() if mk == k)}; e.g. primary+region)"
        for k in ENV_KEYS["masking"][1:]},
