@@ -348,8 +348,6 @@ _CONTRIBUTION_FILES = ("contributions.csv", "contributions.md", "contributions.p
 
 
 def cmd_contributions(args: argparse.Namespace) -> int:
-    import torch
-
     from marlcrash.analysis import agent_contributions, plot_cells_by_contribution, plot_contributions, run_calibration
     from marlcrash.analysis.contributions import require_run_folder
     from marlcrash.analysis.shapley import MAX_EXACT_PLAYERS
@@ -395,15 +393,8 @@ def cmd_contributions(args: argparse.Namespace) -> int:
     try:
         contrib = agent_contributions(problem, calibrated, initial, exact_max=args.exact_max,
                                       n_permutations=args.permutations, seed=args.seed)  # fmt: skip
-    except ValueError as e:  # parameters that do not fit the problem (another vehicle or layout)
-        raise ConfigError(str(e), key="run") from None
-    bad = [q for j, q in enumerate(contrib.quantities)
-           if not (torch.isfinite(contrib.shapley[:, j]).all() and torch.isfinite(contrib.initial[j])
-                   and torch.isfinite(contrib.calibrated[j]))]  # fmt: skip
-    if bad:  # parameters out of the surrogate's range: no table of NaN, no JSON that is not JSON
-        raise ConfigError(f"the simulations of {what} give non-finite {', '.join(bad[:4])}"
-                          f"{f' (and {len(bad) - 4} more)' if len(bad) > 4 else ''}: its parameters lie out of the "
-                          "surrogate's range", key="run")  # fmt: skip
+    except ValueError as e:  # parameters that do not fit the problem (another vehicle or layout) or simulate to NaN
+        raise ConfigError(f"{what}: {e}", key="run") from None
     out.mkdir(parents=True, exist_ok=True)
     for p in ours:  # --replace: none of the earlier analysis stays beside this one (its pictures with --no-plots)
         p.unlink(missing_ok=True)

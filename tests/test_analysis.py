@@ -25,7 +25,7 @@ from marlcrash.analysis import (
 from marlcrash.analysis.shapley import MAX_EXACT_PLAYERS, from_table
 from marlcrash.calibrate.compare import evaluate_params
 from marlcrash.calibrate.problem import ProblemConfig, build_problem
-from marlcrash.errors import ConfigError
+from marlcrash.errors import ConfigError, ModelError
 
 # ------------------------------------------------------------------------------------------ toy games
 A_ADD = torch.tensor([0.5, -1.0, 2.0, 0.0, 0.25], dtype=torch.float64)
@@ -199,6 +199,21 @@ def test_contributions_name_an_invalid_parameter_by_its_array_not_a_coalition(pr
             agent_contributions(problem, bad, **kwargs)
     with pytest.raises(ValueError, match=rf"^initial: params\[0, {cell}, 0\] \(E_x\)"):
         agent_contributions(problem, problem.true_params, bad, exact_max=0, n_permutations=4)
+
+
+def test_contributions_refuse_parameters_that_simulate_to_nan(problem):
+    """One agent's ``E_s`` times 1e200 passes every input check (finite, > 0) but simulates to NaN: the library
+    refuses it naming the quantities and the agent, exact or sampled, instead of returning a table of NaN."""
+    agent = problem.agent_names.index("front_rail_left")
+    bad = problem.init.clone()
+    bad[(problem.layout.agent_of_cell == agent).numpy(), 1] *= 1e200
+    for kwargs in ({}, {"exact_max": 0, "n_permutations": 4}):
+        with pytest.raises(
+            ModelError,
+            match=r"^the simulations give non-finite .*\(first with the changes of "
+            r"front_rail_left\): the parameters lie out of the surrogate's range",
+        ):
+            agent_contributions(problem, bad, **kwargs)
 
 
 def test_coalition_params_names_members_of_the_wrong_shape_or_type(problem):

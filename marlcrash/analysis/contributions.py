@@ -214,6 +214,8 @@ def agent_contributions(
             can be credited with the change); a bad ``exact_max`` or ``n_permutations``.
         ModelError: (a :class:`ValueError`) parameters the simulator refuses (``E_x <= 0``, a negative transmission
             factor of an active cell), named ``initial`` or ``calibrated`` and by the cell, before any simulation.
+            Also parameters that pass those checks but simulate to a non-finite metric or score (e.g. an ``E_s``
+            scaled by 1e200), naming the quantities and the first coalition that gave one.
     """
     if not 0 <= exact_max <= MAX_EXACT_PLAYERS:
         raise ValueError(f"exact_max: expected 0 to {MAX_EXACT_PLAYERS} agents, got {exact_max}")
@@ -246,7 +248,16 @@ def agent_contributions(
         m = evaluate_params(problem, coalition_params(problem, init, cal, members))
         counted += masks.shape[0]
         score = problem.score(m).to(torch.float64)
-        return torch.cat([m.area, m.dfd, m.rmse, score[:, None]], dim=1).to(torch.float64)
+        v = torch.cat([m.area, m.dfd, m.rmse, score[:, None]], dim=1).to(torch.float64)
+        bad = ~torch.isfinite(v)
+        if bool(bad.any()):  # no Shapley table of NaN: stop at the first batch that has one
+            row = int(bad.any(1).nonzero()[0])
+            cols = [q for q, b in zip(names, bad.any(0).tolist(), strict=True) if b]
+            who = [problem.agent_names[i] for i in idx[masks[row]].tolist()] or ["none"]
+            raise ModelError(f"the simulations give non-finite {', '.join(cols[:4])}"
+                             f"{f' (and {len(cols) - 4} more)' if len(cols) > 4 else ''} (first with the changes of "
+                             f"{', '.join(who)}): the parameters lie out of the surrogate's range")  # fmt: skip
+        return v
 
     Q = len(names)
     zeros = torch.zeros(A, Q, dtype=torch.float64)
