@@ -91,6 +91,10 @@ def tiny(tmp_path: Path, **kw) -> ablate.AblationConfig:
         ({"masking": ["none", "primary+regoin"]}, "masking[1]", "unknown modifier 'regoin'"),
         ({"masking": ["primary", "primary+region+agent"]}, "masking[1]", "masking.cells twice"),
         ({"masking": ["none", "none+region"]}, "masking[1]", "changes nothing"),
+        ({"masking": ["primary+region+nosat", "primary+nosat+region"]}, "masking[1]", "as masking[0]"),
+        ({"masking": ["none", "primary", "primary+agent"]}, "masking[2]", "as masking[1]"),  # the env's cells: agent
+        ({"masking": ["primary_secondary", "primary_secondary+sat"]}, "masking[1]", "as masking[0]"),
+        ({"masking": ["none+nosat", "primary", "none+agent+nosat"]}, "masking[2]", "as masking[0]"),
         ({"env_overrides": {"masking.cells": "region"}}, "env_overrides.masking.cells", "primary+region"),
         (
             {"env_overrides": {"masking": {"saturation_preference": False}}},
@@ -319,6 +323,17 @@ def test_resume_skips_finished_runs_and_refuses_a_changed_protocol(finished, tmp
     with pytest.raises(ConfigError) as e:
         run_ablation(load_ablation_config({**data, "resume": False}, source="test"))
     assert e.value.key == "name"
+
+
+def test_resume_refuses_a_level_spelling_the_setting_of_finished_rows(finished, tmp_path, monkeypatch):
+    """``primary_secondary+sat`` is the finished ``primary_secondary`` (the env's saturation preference is on)."""
+    _, run_dir, _ = finished
+    shutil.copytree(run_dir, tmp_path / "runs" / "ablate" / "t")
+    monkeypatch.setattr(ablate, "run_cell", lambda *a, **kw: pytest.fail("ran a cell"))
+    data = tiny_data(tmp_path, masking=["none", "primary_secondary+sat"], resume=True, plots=False)
+    with pytest.raises(ConfigError) as e:
+        run_ablation(load_ablation_config(data, source="test"))
+    assert e.value.key == "masking[1]" and "'primary_secondary'" in str(e.value), str(e.value)
 
 
 def test_resume_refuses_rows_of_another_reference_or_metric(finished, tmp_path):

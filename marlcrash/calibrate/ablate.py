@@ -41,7 +41,7 @@ import copy
 import itertools
 import json
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -69,7 +69,7 @@ from marlcrash.calibrate.compare import (
 from marlcrash.calibrate.marl import ALGORITHMS, AlgorithmConfig
 from marlcrash.calibrate.problem import CalibrationProblem, SuccessConfig, build_problem
 from marlcrash.config import from_dict, require, require_complete
-from marlcrash.envs.core import load_env_config, require_env, require_env_keys_unset
+from marlcrash.envs.core import EnvConfig, load_env_config, require_env, require_env_keys_unset
 from marlcrash.envs.masking import ImpactRegions
 from marlcrash.errors import ConfigError
 from marlcrash.outputs import atomic_output, require_run_name, write_text
@@ -238,6 +238,53 @@ def masking_overrides(level: str) -> dict[str, Any]:
     return out
 
 
+def masking_setting(env: EnvConfig) -> tuple[str, str, bool]:
+    """What a masking level runs: ``(mode, cells, saturation_preference)`` of the env config built for it.
+
+    Mode ``none`` acts on every cell whatever ``masking.cells`` says (its region is every cell), so its cells read
+    ``agent``. Two levels with one setting are one level under two names (``primary+region+nosat`` and
+    ``primary+nosat+region``; ``primary`` and ``primary+agent`` where the env config's cells are ``agent``).
+    """
+    m = env.masking
+    return m.mode, "agent" if m.mode == "none" else m.cells, bool(m.saturation_preference)
+
+
+def _masking_settings(config: AblationConfig, levels: list[str]) -> list[tuple[str, str, bool]]:
+    """:func:`masking_setting` of each masking level, with the env config and overrides of ``config``'s runs."""
+    over = {**config.env_overrides, **config.ppo.env_overrides}
+    return [masking_setting(load_env_config(config.env, {**over, **masking_overrides(lv)})) for lv in levels]
+
+
+def _describe(setting: tuple[str, str, bool]) -> str:
+    mode, cells, sat = setting
+    return f"masking.mode {mode}, masking.cells {cells}, masking.saturation_preference {str(sat).lower()}"
+
+
+def require_distinct_masking(config: AblationConfig, finished: Iterable[str] = ()) -> None:
+    """Refuse a masking level that runs the setting of an earlier level, or of a finished row's level of another name.
+
+    Its runs would repeat those runs under another row name: counted as a level of their own in the tables, and
+    run again on resume where the finished rows' spelling was changed.
+
+    Raises:
+        ConfigError: naming ``masking[i]`` and the level of the same setting.
+    """
+    settings = _masking_settings(config, config.masking)
+    for i, s in enumerate(settings):
+        for j in range(i):
+            if settings[j] == s:
+                raise ConfigError(f"masking level {config.masking[i]!r} runs the same setting as masking[{j}] "
+                                  f"{config.masking[j]!r} ({_describe(s)}); list it once",
+                                  key=f"masking[{i}]")  # fmt: skip
+    old = [lv for lv in dict.fromkeys(finished) if lv not in config.masking]
+    for lv, s in zip(old, _masking_settings(config, old), strict=True):
+        if s in settings:
+            i = settings.index(s)
+            raise ConfigError(f"resume: masking level {config.masking[i]!r} runs the setting of the finished rows' "
+                              f"level {lv!r} ({_describe(s)}); name it {lv!r} so its finished runs are skipped "
+                              "and compared", key=f"masking[{i}]")  # fmt: skip
+
+
 def factor_overrides(cell: dict[str, Any]) -> dict[str, Any]:
     """The env overrides the env factors of ``cell`` set (:data:`ENV_KEYS`)."""
     return {**masking_overrides(cell["masking"]), "granularity": cell["granularity"], "reward": cell["reward"]}
@@ -253,7 +300,8 @@ def load_ablation_config(data: dict[str, Any], source: str | None = None) -> Abl
 
     Every level of an env factor is loaded into the env config (with ``env_overrides`` and the PPO
     ones), so an unknown masking level (mode or modifier), granularity or reward form fails here, naming
-    its list entry.
+    its list entry; so does a masking level that runs the setting of an earlier one
+    (:func:`require_distinct_masking`).
 
     Raises:
         ConfigError: unknown key, wrong type or bad value, naming the dotted key -- before any run.
@@ -281,6 +329,10 @@ def load_ablation_config(data: dict[str, Any], source: str | None = None) -> Abl
                             "compare")  # fmt: skip
             except ConfigError as e:
                 raise ConfigError(e.reason, key=f"{LEVEL_KEYS[factor]}[{i}]", path=source) from None
+    try:
+        require_distinct_masking(config)
+    except ConfigError as e:
+        raise ConfigError(e.reason, key=e.key, path=source) from None
     return config
 
 
@@ -583,7 +635,8 @@ def run_ablation(
         The run folder and all rows (finished earlier and now).
 
     Raises:
-        ConfigError: the run folder exists (without ``resume``), or ``resume`` with other protocol settings.
+        ConfigError: the run folder exists (without ``resume``), or ``resume`` with other protocol settings, or
+            a masking level that renames the setting of finished rows (:func:`require_distinct_masking`).
     """
     say = progress or (lambda _msg: None)
 
@@ -595,6 +648,7 @@ def run_ablation(
     with hold_run_dir(config.run_dir, config.resume):  # one process per run folder
         keys = (*CSV_COLUMNS, "metrics", "history")
         run_dir, rows = open_run_dir(config.run_dir, "ablate.json", asdict(config), config.resume, free, env, keys)
+        require_distinct_masking(config, [r["masking"] for r in rows])
         done = {(r["cell"], r["seed"]) for r in rows}
         write_results(config, rows, run_dir, command)
         cells = config.cells()
