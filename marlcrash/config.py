@@ -275,6 +275,19 @@ def flatten_overrides(cls: type, overrides: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
+def merge_overrides(cls: type, *layers: dict[str, Any]) -> dict[str, Any]:
+    """Dotted-key overrides of schema ``cls`` from ``layers``, a later layer's value winning key by key.
+
+    Each layer is spread first (:func:`flatten_overrides`), so two layers that each give a mapping for one section
+    (``{"masking": {"min_fraction": 0.5}}`` and ``{"masking": {"primary_depth": 1.0}}``) both apply; merged as
+    they are, the later mapping replaced the earlier one whole and its keys were lost without a word.
+    """
+    out: dict[str, Any] = {}
+    for layer in layers:
+        out.update(flatten_overrides(cls, layer))
+    return out
+
+
 def load_config(
     cls: type[T], path: str | Path, overrides: dict[str, Any] | None = None, *, complete: bool = False
 ) -> T:

@@ -162,6 +162,24 @@ def test_a_cell_trains_with_its_factors_and_the_fixed_settings(short, tmp_path):
     assert tc.seed == 3 and tc.n_envs == 2 and tc.episode_length == 3
 
 
+def test_shared_and_ppo_overrides_of_one_section_both_reach_the_runs(short, tmp_path):
+    """``+env_overrides.masking.min_fraction=0.5 +ppo.env_overrides.masking.primary_depth=1.0``: two mappings for
+    the masking section; the PPO one replaced the shared one whole, so the runs trained with min_fraction 0.1."""
+    data = tiny_data(tmp_path, env_overrides={"masking": {"min_fraction": 0.5}})
+    data["ppo"]["env_overrides"]["masking"] = {"primary_depth": 1.0}
+    cfg = load_ablation_config(data, source="test")
+    cell = {"algorithm": "mappo", "masking": "primary", "scenario": "offset40_left", "granularity": "subassembly",
+            "reward": "log_ratio"}  # fmt: skip
+    tc = ppo_train_config(cell_compare_config(cfg, cell, 0), "mappo", 0, tmp_path)
+    m = load_env_config(tc.env, tc.env_overrides).masking
+    assert (m.mode, m.min_fraction, m.primary_depth) == ("primary", 0.5, 1.0)
+    flat = {**cfg.ppo.env_overrides, "masking.min_fraction": 0.5, "masking.primary_depth": 1.0}
+    flat.pop("masking")
+    same = load_ablation_config({**data, "env_overrides": {}, "ppo": {**data["ppo"], "env_overrides": flat}})
+    problem = reference_problem(cfg, "offset40_left", 0)
+    assert ablate.active_agents(cfg, problem, "primary") == ablate.active_agents(same, problem, "primary")
+
+
 def test_a_masking_level_sets_the_mode_and_what_active_agents_act_on(short, tmp_path):
     """``primary+region+nosat``: DESIGN 1.4's per-cell rule and the saturation preference as masking levels."""
     cfg = tiny(tmp_path, masking=["primary", "primary+region", "primary_secondary+region+nosat", "none+nosat"])

@@ -68,7 +68,7 @@ from marlcrash.calibrate.compare import (
 )
 from marlcrash.calibrate.marl import ALGORITHMS, AlgorithmConfig
 from marlcrash.calibrate.problem import CalibrationProblem, SuccessConfig, build_problem
-from marlcrash.config import from_dict, require, require_complete
+from marlcrash.config import from_dict, merge_overrides, require, require_complete
 from marlcrash.envs.core import EnvConfig, load_env_config, require_env, require_env_keys_unset
 from marlcrash.envs.masking import ImpactRegions
 from marlcrash.errors import ConfigError
@@ -251,7 +251,7 @@ def masking_setting(env: EnvConfig) -> tuple[str, str, bool]:
 
 def _masking_settings(config: AblationConfig, levels: list[str]) -> list[tuple[str, str, bool]]:
     """:func:`masking_setting` of each masking level, with the env config and overrides of ``config``'s runs."""
-    over = {**config.env_overrides, **config.ppo.env_overrides}
+    over = merge_overrides(EnvConfig, config.env_overrides, config.ppo.env_overrides)
     return [masking_setting(load_env_config(config.env, {**over, **masking_overrides(lv)})) for lv in levels]
 
 
@@ -311,7 +311,7 @@ def load_ablation_config(data: dict[str, Any], source: str | None = None) -> Abl
         require_complete(AblationConfig, data, source)
     config = from_dict(AblationConfig, data, path=source)
     check_env_overrides(config.env, config.env_overrides, config.ppo.env_overrides, source)
-    over = {**config.env_overrides, **config.ppo.env_overrides}
+    over = merge_overrides(EnvConfig, config.env_overrides, config.ppo.env_overrides)
     try:
         yardstick = load_reward_config(config.score)
     except ConfigError as e:
@@ -363,7 +363,7 @@ def reference_problem(config: AblationConfig, scenario: str, seed: int) -> Calib
 
 def active_agents(config: AblationConfig, problem: CalibrationProblem, masking: str) -> int:
     """Agents that masking level ``masking`` lets act on the problem's reference."""
-    over = {**config.env_overrides, **config.ppo.env_overrides, **masking_overrides(masking)}
+    over = merge_overrides(EnvConfig, config.env_overrides, config.ppo.env_overrides, masking_overrides(masking))
     env = load_env_config(config.env, over)
     ref = problem.reference
     regions = ImpactRegions(problem.cells, problem.layout, env.masking)

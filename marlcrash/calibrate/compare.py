@@ -84,8 +84,8 @@ from marlcrash.calibrate.problem import (
     env_backends,
 )
 from marlcrash.calibrate.runlock import run_lock
-from marlcrash.config import from_dict, nested_error, require, require_complete
-from marlcrash.envs.core import env_config_of, load_env_config, require_env, require_env_keys_unset
+from marlcrash.config import from_dict, merge_overrides, nested_error, require, require_complete
+from marlcrash.envs.core import EnvConfig, env_config_of, load_env_config, require_env, require_env_keys_unset
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics
 from marlcrash.outputs import check_output_dir, require_run_name, write_text
@@ -238,7 +238,7 @@ def check_env_overrides(env: str, shared: dict[str, Any], ppo: dict[str, Any], s
     Raises:
         ConfigError: a bad override, named by its dotted key under ``env_overrides`` or ``ppo.env_overrides``.
     """
-    for key, over in (("env_overrides", shared), ("ppo.env_overrides", {**shared, **ppo})):
+    for key, over in (("env_overrides", shared), ("ppo.env_overrides", merge_overrides(EnvConfig, shared, ppo))):
         try:
             env_config_of(env, over, overrides_key=key)
         except ConfigError as e:  # an override named in this file; an error of the env file's own keys in that one
@@ -366,8 +366,8 @@ def run_optimizer(config: CompareConfig, method: str, seed: int, problem: Calibr
 
 def ppo_train_config(config: CompareConfig, method: str, seed: int, run_root: Path) -> TrainConfig:
     """The training config of a PPO method on pinned reference ``seed`` (module docstring)."""
-    over = {**config.env_overrides, **config.ppo.env_overrides, "scenarios": {config.scenario: 1.0},
-            "reference.kind": "twin", "reference.pin_seed": seed}  # fmt: skip
+    over = {**merge_overrides(EnvConfig, config.env_overrides, config.ppo.env_overrides),
+            "scenarios": {config.scenario: 1.0}, "reference.kind": "twin", "reference.pin_seed": seed}  # fmt: skip
     p = config.ppo
     tc = TrainConfig(
         algorithm=copy.deepcopy(getattr(config, method)), env=config.env, env_overrides=over, n_envs=p.n_envs,
