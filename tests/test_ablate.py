@@ -180,6 +180,21 @@ def test_shared_and_ppo_overrides_of_one_section_both_reach_the_runs(short, tmp_
     assert ablate.active_agents(cfg, problem, "primary") == ablate.active_agents(same, problem, "primary")
 
 
+def test_active_agents_are_counted_over_the_training_envs_agents(short, tmp_path):
+    """``ppo.env_overrides`` may set the agents (``agents.split_lr``): the runs train with that layout, so the active
+    and total agent counts of a row are its; they were the yardstick problem's (12 of 21 instead of 11 of 16)."""
+    data = tiny_data(tmp_path)
+    data["ppo"]["env_overrides"]["agents.split_lr"] = []
+    cfg = load_ablation_config(data, source="test")
+    problem = reference_problem(cfg, "offset40_left", 0)
+    cell = {"algorithm": "mappo", "masking": "primary_secondary", "scenario": "offset40_left",
+            "granularity": "subassembly", "reward": "log_ratio"}  # fmt: skip
+    tc = ppo_train_config(cell_compare_config(cfg, cell, 0), "mappo", 0, tmp_path)
+    core = CalibrationCore(load_env_config(tc.env, tc.env_overrides), batch_size=1)
+    core.reset()
+    assert ablate.active_agents(cfg, problem, "primary_secondary") == (int(core.active[0].sum()), core.A) == (11, 16)
+
+
 def test_a_masking_level_sets_the_mode_and_what_active_agents_act_on(short, tmp_path):
     """``primary+region+nosat``: DESIGN 1.4's per-cell rule and the saturation preference as masking levels."""
     cfg = tiny(tmp_path, masking=["primary", "primary+region", "primary_secondary+region+nosat", "none+nosat"])

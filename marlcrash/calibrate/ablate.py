@@ -69,6 +69,7 @@ from marlcrash.calibrate.compare import (
 from marlcrash.calibrate.marl import ALGORITHMS, AlgorithmConfig
 from marlcrash.calibrate.problem import CalibrationProblem, SuccessConfig, build_problem
 from marlcrash.config import from_dict, merge_overrides, require, require_complete
+from marlcrash.envs.agents import build_agents
 from marlcrash.envs.core import EnvConfig, load_env_config, require_env, require_env_keys_unset
 from marlcrash.envs.masking import ImpactRegions
 from marlcrash.errors import ConfigError
@@ -361,13 +362,15 @@ def reference_problem(config: AblationConfig, scenario: str, seed: int) -> Calib
     return build_problem(pc)
 
 
-def active_agents(config: AblationConfig, problem: CalibrationProblem, masking: str) -> int:
-    """Agents that masking level ``masking`` lets act on the problem's reference."""
+def active_agents(config: AblationConfig, problem: CalibrationProblem, masking: str) -> tuple[int, int]:
+    """``(active, agents)``: the agents that masking level ``masking`` lets act on the problem's reference, and all
+    agents, in the PPO runs' env (``ppo.env_overrides`` may set the agents, which the problem does not see)."""
     over = merge_overrides(EnvConfig, config.env_overrides, config.ppo.env_overrides, masking_overrides(masking))
     env = load_env_config(config.env, over)
     ref = problem.reference
-    regions = ImpactRegions(problem.cells, problem.layout, env.masking)
-    return int(regions.active(ref.overlap, ref.side, ref.speed)[0].sum())
+    layout = build_agents(problem.cells, env.agents)
+    regions = ImpactRegions(problem.cells, layout, env.masking)
+    return int(regions.active(ref.overlap, ref.side, ref.speed)[0].sum()), layout.n_agents
 
 
 def run_cell(
@@ -382,8 +385,9 @@ def run_cell(
     out = run_ppo(cc, cell["algorithm"], seed, problem, run_dir / "runs" / cell_name(cell))
     row = outcome_row(cc, problem, out, initial)
     row.pop("method")
-    head = {"cell": cell_name(cell), **cell, "active_agents": active_agents(config, problem, cell["masking"]),
-            "n_agents": problem.n_agents, "gain": row["score"] - row["initial_score"]}  # fmt: skip
+    active, n_agents = active_agents(config, problem, cell["masking"])
+    head = {"cell": cell_name(cell), **cell, "active_agents": active, "n_agents": n_agents,
+            "gain": row["score"] - row["initial_score"]}  # fmt: skip
     return {**head, **row}
 
 
