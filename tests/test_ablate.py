@@ -80,6 +80,19 @@ def tiny(tmp_path: Path, **kw) -> ablate.AblationConfig:
             "ppo.episode_length",
         ),
         ({"env_overrides": {"max_stepp": 0.1}}, "env_overrides.max_stepp", ""),
+        ({"env_overrides": {"reference.kind": "cross_fidelity"}}, "env_overrides.reference.kind", "protocol"),
+        (
+            {
+                "ppo": {
+                    "n_envs": 2,
+                    "episode_length": 3,
+                    "threads": 0,
+                    "env_overrides": {"reference.twin.e_x_spread": 0.4},
+                }
+            },
+            "ppo.env_overrides.reference.twin.e_x_spread",
+            "top-level env_overrides",
+        ),
         ({"score": "nope"}, "score", "nope"),
         ({"masking": ["none", "a-b"]}, "masking[1]", "without"),
         ({"rewards": ["configs/reward/log_ratio.yaml"]}, "rewards[0]", "without"),
@@ -193,6 +206,19 @@ def test_active_agents_are_counted_over_the_training_envs_agents(short, tmp_path
     core = CalibrationCore(load_env_config(tc.env, tc.env_overrides), batch_size=1)
     core.reset()
     assert ablate.active_agents(cfg, problem, "primary_secondary") == (int(core.active[0].sum()), core.A) == (11, 16)
+
+
+def test_the_twin_spreads_are_an_env_override_of_every_run(short, tmp_path):
+    """The protocol sets the reference's kind and seed, not its twin spreads: ``env_overrides.reference.twin.*``
+    reaches the yardstick's reference and the PPO runs' (it was refused as set by the protocol)."""
+    cfg = tiny(tmp_path, env_overrides={"reference": {"twin": {"e_x_spread": 0.4}}})
+    cell = {"algorithm": "mappo", "masking": "none", "scenario": "offset40_left", "granularity": "subassembly",
+            "reward": "log_ratio"}  # fmt: skip
+    tc = ppo_train_config(cell_compare_config(cfg, cell, 0), "mappo", 0, tmp_path)
+    ref = load_env_config(tc.env, tc.env_overrides).reference
+    assert ref.twin.e_x_spread == 0.4 and ref.twin.e_s_spread == 0.2 and ref.pin_seed == 0 and ref.kind == "twin"
+    wider, default = reference_problem(cfg, "offset40_left", 0), reference_problem(tiny(tmp_path), "offset40_left", 0)
+    assert not torch.equal(wider.ref_velocity, default.ref_velocity)
 
 
 def test_a_masking_level_sets_the_mode_and_what_active_agents_act_on(short, tmp_path):

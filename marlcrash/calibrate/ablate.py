@@ -109,10 +109,12 @@ _PROTECTED_ENV_KEYS: dict[str, str] = {
     **{k: "the ablation's masking factor (a level's modifier: "
           f"{', '.join(m for m, (mk, _) in MASKING_MODIFIERS.items() if mk == k)}; e.g. primary+region)"
        for k in ENV_KEYS["masking"][1:]},
-    **dict.fromkeys(("scenarios", "reference", "seed", "termination.max_iterations"),
+    **dict.fromkeys(("scenarios", "reference.kind", "reference.pin_seed", "seed", "termination.max_iterations"),
                     "the ablation's protocol (scenarios, seeds, ppo.episode_length)"),
 }  # fmt: skip
-"""Env keys the factors or the protocol set (``env_overrides`` and ``ppo.env_overrides`` may not change them)."""
+"""Env keys the factors or the protocol set (``env_overrides`` and ``ppo.env_overrides`` may not change them; the
+other ``reference`` keys, e.g. the twin spreads, are shared env settings, and ``ppo.env_overrides`` may not change
+any, :class:`~marlcrash.calibrate.compare.PPOBudgetConfig`)."""
 
 FILES = ("ablate.json", "ablate.csv", "ablate.md", "ablate.png")
 """The results a finished ablation writes into its run folder (besides ``provenance.json`` and the PPO logs)."""
