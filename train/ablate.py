@@ -1,8 +1,9 @@
-"""Ablations (DESIGN 6): masking mode x scenario x action granularity x reward form x algorithm x seeds.
+"""Ablations (DESIGN 6): masking level x scenario x action granularity x reward form x algorithm x seeds.
 
-    python train/ablate.py                                        # masking modes x 2 scenarios x seeds 0, 1, 2
+    python train/ablate.py                                        # masking levels x 2 scenarios x seeds 0, 1, 2
     python train/ablate.py masking=[none,primary_secondary] scenarios=[full_width_40] rewards=[log_ratio,paper_factor]
     python train/ablate.py granularity=[subassembly,cell] budget=2000 name=gran
+    python train/ablate.py 'masking=[primary_secondary,primary_secondary+region,primary_secondary+nosat]' name=rules
     python train/ablate.py name=gran resume=true                  # after a kill: skip finished runs
 
 Writes ``<out_dir>/ablate/<name>/``: ablate.json, ablate.csv, ablate.md (rewritten after every run),
