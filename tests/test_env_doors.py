@@ -97,7 +97,7 @@ def test_the_aec_conversion_gets_the_live_agents_infos(cells):
         warnings.simplefilter("error", UserWarning)
         aec.reset(seed=0)
     assert set(aec.infos) == set(aec.agents) and "crash_box_right" not in aec.agents
-    assert set(aec.infos["crash_box_left"]) == {"area", "dfd", "rmse"}
+    assert set(aec.infos["crash_box_left"]) == {"area", "dfd", "rmse", "action_entries"}
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message=".*(seed|observation space|action space|named in the format).*")
         api_test(parallel_to_aec(CalibrationParallelEnv(config, cells, reset_agents="live")), num_cycles=5)
@@ -122,6 +122,35 @@ def test_native_torchrl_env_specs(cells, granularity):
 def test_pettingzoo_wrapper_specs(cells):
     env = PettingZooWrapper(CalibrationParallelEnv(cfg(), cells), use_mask=True, done_on_any=False)
     check_env_specs(env, seed=0)
+
+
+@pytest.mark.parametrize("granularity", ["subassembly", "cell"])
+def test_the_pettingzoo_door_gives_each_agent_the_native_action_mask(cells, granularity):
+    """Per cell with ``masking.cells: region`` in a driver-side small overlap, the active left bumper beam's
+    passenger-side cells do not act: the PettingZoo infos carry each agent's row of the native env's
+    ``("agents", "action_mask")`` as ``action_entries`` (all ``False`` for an agent inactive in the episode), which
+    TorchRL's ``PettingZooWrapper`` passes on as ``(group, "info", "action_entries")``."""
+    config = cfg(scenarios={"small_overlap_left": 1.0}, granularity=granularity, **{"masking.cells": "region"})
+    native = CalibrationTorchEnv(config, batch_size=1, cells=cells)
+    mask = native.reset(seed=3)["agents", "action_mask"][0]
+    env = CalibrationParallelEnv(config, cells)
+    _, infos = env.reset(seed=3)
+    for i, a in enumerate(env.possible_agents):
+        assert infos[a]["action_entries"].dtype == np.bool_ and infos[a]["action_entries"].shape == (env.core.act_dim,)
+        assert np.array_equal(infos[a]["action_entries"], mask[i].numpy()), a
+        assert infos[a]["action_entries"].any() == (a in env.agents), a
+    beam = env.possible_agents.index("bumper_beam_left")
+    if granularity == "cell":  # some of the beam's valid cell slots lie outside the region
+        valid = env.core.layout.valid[beam].repeat_interleave(7)
+        assert bool(mask[beam].any()) and bool((valid & ~mask[beam]).any())
+    _, _, _, _, infos = env.step({a: env.action_space(a).sample() for a in env.agents})
+    assert all(np.array_equal(infos[a]["action_entries"], mask[env.possible_agents.index(a)].numpy()) for a in infos)
+    wrapped = PettingZooWrapper(CalibrationParallelEnv(config, cells), use_mask=True, done_on_any=False,
+                                group_map=MarlGroupMapType.ALL_IN_ONE_GROUP)  # fmt: skip
+    group = next(iter(wrapped.group_map))
+    td = wrapped.reset(seed=3)
+    live = td[group, "mask"]
+    assert torch.equal(td[group, "info", "action_entries"][live], mask[live])
 
 
 def test_copies_of_the_env_draw_the_same_episodes_until_seeded(cells):

@@ -17,7 +17,12 @@
   ``step`` returns no entry for it at all (PettingZoo's API has no "present but idle" agent; DESIGN 5's
   "inactive agents receive it too" holds in the native TorchRL env, whose team reward sits at the root for
   every agent). Infos carry the per-sensor metrics ``area``, ``dfd``, ``rmse`` (``[n_sensors]`` arrays, the
-  same for every agent).
+  same for every agent) and ``action_entries`` (``[act_dim]`` bool: the entries of the agent's action that act,
+  its row of the native env's ``("agents", "action_mask")``, :meth:`~marlcrash.envs.core.CalibrationCore.action_mask`:
+  per cell a valid slot and a feasible factor, with ``masking.cells: region`` only the agent's cells in the impact
+  region; all ``False`` for an agent inactive in the episode). Not named ``action_mask``: PettingZoo's API test
+  samples each agent's space with an info of that name as the mask, which a ``Box`` refuses. TorchRL's
+  ``PettingZooWrapper`` gives it as ``(group, "info", "action_entries")``.
 - Seeding: ``reset(seed=...)`` re-seeds the core's own generator only.
 """
 
@@ -94,7 +99,9 @@ class CalibrationParallelEnv(ParallelEnv):
     def _infos(self, agents: list[str]) -> dict[str, dict[str, Any]]:
         m = self.core.metrics
         base = {"area": m.area[0].numpy(), "dfd": m.dfd[0].numpy(), "rmse": m.rmse[0].numpy()}
-        return {a: {k: v.copy() for k, v in base.items()} for a in agents}
+        mask = self.core.action_mask()[0].numpy()
+        return {a: {**{k: v.copy() for k, v in base.items()}, "action_entries": mask[self._index[a]].copy()}
+                for a in agents}  # fmt: skip
 
     def state(self) -> np.ndarray:
         """Global state ``[state_dim]`` float32 (for centralized critics)."""
