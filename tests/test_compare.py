@@ -361,6 +361,30 @@ def test_bad_config_fails_naming_the_key(short, tmp_path, override, key, words):
     assert not (tmp_path / "runs").exists()
 
 
+@pytest.mark.parametrize(
+    ("override", "key"),
+    [
+        ({"sim_dtype": "float32"}, "ppo.env_overrides.sim_dtype"),
+        ({"sim_backend": "torch"}, "ppo.env_overrides.sim_backend"),
+        ({"sensors": ["tunnel"]}, "ppo.env_overrides.sensors"),
+        ({"discretization": "uniform"}, "ppo.env_overrides.discretization"),
+        ({"transmission_floor": 0.05}, "ppo.env_overrides.transmission_floor"),
+        ({"vehicle_seed": 3}, "ppo.env_overrides.vehicle_seed"),
+    ],
+)
+def test_ppo_env_overrides_that_change_the_reference_fail_before_any_run(short, tmp_path, override, key):
+    """Each of these made the pinned PPO env draw another reference than the optimizers' problem: the table stopped
+    at its first PPO run (after the optimizers' runs before it, key ``ppo.env_overrides``), and a resume without the
+    entry was refused as another protocol. Now the config fails, naming the entry."""
+    with pytest.raises(ConfigError) as e:
+        tiny(tmp_path, **{"ppo.env_overrides": override})
+    assert e.value.key == key and "shapes the reference pulse" in str(e.value)
+    assert "top-level env_overrides" in str(e.value)
+    # the same setting for every method is fine, and so are the PPO runs' own settings and restatements
+    tiny(tmp_path, env_overrides=override, **{"ppo.env_overrides": override})
+    tiny(tmp_path, **{"ppo.env_overrides": {"sim_backend": "numba", "reward": "paper_factor", "max_step": 0.05}})
+
+
 def test_config_file_registers_every_method(short, tmp_path):
     cfg = tiny(tmp_path)
     assert tuple(cfg.methods) == METHODS and cfg.seeds == [0] and cfg.success.area == 0.0015

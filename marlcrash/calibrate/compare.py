@@ -84,7 +84,7 @@ from marlcrash.calibrate.problem import (
     env_backends,
 )
 from marlcrash.calibrate.runlock import run_lock
-from marlcrash.config import from_dict, merge_overrides, nested_error, require, require_complete
+from marlcrash.config import flatten_overrides, from_dict, merge_overrides, nested_error, require, require_complete
 from marlcrash.envs.core import EnvConfig, env_config_of, load_env_config, require_env, require_env_keys_unset
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics
@@ -111,6 +111,11 @@ _SHARED_ENV_KEYS = dict.fromkeys(("scenarios", "reference.kind", "reference.pin_
 _PPO_ENV_KEYS = {**_SHARED_ENV_KEYS, "reference": f"{_PROTOCOL} for the pinned PPO runs; put shared env settings "
                  "in the top-level env_overrides"}  # fmt: skip
 """Env keys a ``ppo.env_overrides`` entry may not change: the PPO runs' reference must be the problem's."""
+_REFERENCE_ENV_KEYS = ("vehicle", "vehicle_seed", "vehicle_options", "discretization", "sensors", "transmission_floor",
+                       "sim_dtype", "sim_backend")  # fmt: skip
+"""Env keys that shape the reference pulse besides ``reference`` (the car, its cells, the sensors compared, the twin's
+mapping and the simulator): a ``ppo.env_overrides`` entry may not make them differ from the optimizers' problem, whose
+reference the pinned PPO runs must draw bit for bit (:func:`check_env_overrides`)."""
 
 
 # ------------------------------------------------------------------------------------------- config
@@ -235,14 +240,36 @@ def load_compare_config(data: dict[str, Any], source: str | None = None) -> Comp
 def check_env_overrides(env: str, shared: dict[str, Any], ppo: dict[str, Any], source: str | None) -> None:
     """Load env config ``env`` with the ``env_overrides`` and, on top, the ``ppo.env_overrides`` of a table of runs.
 
+    The PPO runs' env may differ from the optimizers' problem in how the agents act and learn, not in the reference
+    they calibrate against: a ``ppo.env_overrides`` entry that changes a key of :data:`_REFERENCE_ENV_KEYS` made every
+    PPO run stop at its start ("drew different references"), after the optimizers' runs before it, and a resume with
+    the entry removed was refused as another protocol.
+
     Raises:
-        ConfigError: a bad override, named by its dotted key under ``env_overrides`` or ``ppo.env_overrides``.
+        ConfigError: a bad override, named by its dotted key under ``env_overrides`` or ``ppo.env_overrides``, or a
+            ``ppo.env_overrides`` entry that changes the reference pulse.
     """
+    envs = []
     for key, over in (("env_overrides", shared), ("ppo.env_overrides", merge_overrides(EnvConfig, shared, ppo))):
         try:
-            env_config_of(env, over, overrides_key=key)
+            envs.append(env_config_of(env, over, overrides_key=key))
         except ConfigError as e:  # an override named in this file; an error of the env file's own keys in that one
             raise nested_error(e, "", source) from None
+    for k in _REFERENCE_ENV_KEYS:
+        every, own = (_reference_setting(e, k) for e in envs)
+        if own != every:
+            given = [o for o in flatten_overrides(EnvConfig, ppo) if o == k or o.startswith(k + ".")]
+            raise ConfigError(f"{k} shapes the reference pulse, which the pinned PPO runs must share bit for bit with "
+                              f"the optimizers' problem ({every!r}, here {own!r}); set it in the top-level "
+                              "env_overrides", key=f"ppo.env_overrides.{given[0] if given else k}",
+                              path=source)  # fmt: skip
+
+
+def _reference_setting(env: EnvConfig, key: str) -> Any:
+    """The value of a :data:`_REFERENCE_ENV_KEYS` key that decides the reference (``sim_backend`` ``auto`` simulates
+    without gradients on ``numba``, as the problem does: :func:`~marlcrash.calibrate.problem.env_backends`)."""
+    value = getattr(env, key)
+    return "numba" if key == "sim_backend" and value == "auto" else value
 
 
 # ------------------------------------------------------------------------------------------ problem
