@@ -169,6 +169,7 @@ def test_success_counts_the_candidate_that_passed(problem):
         ({"lm": {"stall": 0}}, "lm.stall"),
         ({"problem": {"box_radius": 0.0}}, "problem.box_radius"),
         ({"seed": -1}, "seed"),
+        ({"seed": 2**64}, "seed"),  # torch's generators refused it after the problem was built, with a traceback
         ({"problem": {"scenario": "nope"}}, "problem.scenario"),
         ({"problem": {"reference_seed": -2}}, "problem.reference_seed"),
         ({"problem": {"success": {"dfd": -0.3}}}, "problem.success.dfd"),
@@ -190,6 +191,16 @@ def test_bad_run_configs_fail_before_running(over, key):
     assert e.value.key == key
     if any(isinstance(v, float) and not math.isfinite(v) for v in _leaves(over)):
         assert "expected a finite number" in str(e.value)
+
+
+def test_the_largest_seed_runs_every_seeded_method(problem):
+    """2**64 - 1 is the largest seed torch's generators take (gradient descent, lm); the config refuses larger."""
+    from marlcrash.calibrate.baselines import MAX_SEED
+
+    for method in ("gradient", "lm"):
+        config, budget = SMALL[method]
+        assert BASELINES[method][1](problem, budget, config, MAX_SEED).simulations > 0
+    assert load_run_config({"seed": MAX_SEED}).seed == MAX_SEED
 
 
 def _leaves(d):

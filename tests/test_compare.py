@@ -330,6 +330,7 @@ def test_a_first_run_that_failed_before_any_row_does_not_block_its_rerun(short, 
         ({"budget": 0}, "budget", ">= 1"),
         ({"seeds": []}, "seeds", "at least one reference seed"),
         ({"seeds": [0, 0]}, "seeds", "distinct"),
+        ({"seeds": [0, 2**64]}, "seeds[1]", "2**64 - 1"),  # torch.manual_seed of a PPO run refused it mid-table
         ({"max_wall_s": -1.0}, "max_wall_s", "> 0"),
         ({"budget": 7}, "budget", "at least one iteration"),
         ({"mappo.minibatch_size": 4}, "mappo.minibatch_size", "divisor"),

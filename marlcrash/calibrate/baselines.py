@@ -60,6 +60,9 @@ from marlcrash.metrics import Metrics
 from marlcrash.outputs import check_output_dir, require_run_name
 
 # ----------------------------------------------------------------------------------------- configs
+MAX_SEED = 2**64 - 1
+"""Largest seed a run takes: torch's generators (gradient descent, ``lm``, the PPO runs of a comparison) refuse a
+larger one ("Overflow when unpacking long long") once the problem is built, where numpy's take any."""
 
 
 @dataclass
@@ -470,7 +473,7 @@ class BaselineRunConfig:
             self.method in BASELINES, "method", f"unknown method {self.method!r}; expected one of {sorted(BASELINES)}"
         )
         require(self.budget >= 1, "budget", f"expected a simulation budget >= 1, got {self.budget}")
-        require(self.seed >= 0, "seed", f"expected a seed >= 0, got {self.seed}")
+        require(0 <= self.seed <= MAX_SEED, "seed", f"expected a seed in [0, 2**64 - 1], got {self.seed}")
         require_run_name(self.name)
         require(bool(self.out_dir), "out_dir", "expected an output folder")
 

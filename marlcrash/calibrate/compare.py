@@ -58,6 +58,7 @@ from marlcrash import provenance
 from marlcrash.calibrate.amortized import _fmt, _mean_param_error
 from marlcrash.calibrate.baselines import (
     BASELINES,
+    MAX_SEED,
     CMAESConfig,
     GradientConfig,
     LMConfig,
@@ -188,7 +189,7 @@ class CompareConfig:
                 f"expected distinct methods, got {self.methods}")  # fmt: skip
         require(len(self.seeds) >= 1, "seeds", "expected at least one reference seed, e.g. [0, 1, 2]")
         for i, s in enumerate(self.seeds):
-            require(s >= 0, f"seeds[{i}]", f"expected a seed >= 0, got {s}")
+            require(0 <= s <= MAX_SEED, f"seeds[{i}]", f"expected a seed in [0, 2**64 - 1], got {s}")
         require(len(set(self.seeds)) == len(self.seeds), "seeds", f"expected distinct seeds, got {self.seeds}")
         require(self.budget >= 1, "budget", f"expected a simulation budget >= 1, got {self.budget}")
         require(self.max_wall_s is None or (math.isfinite(self.max_wall_s) and self.max_wall_s > 0), "max_wall_s",
