@@ -292,10 +292,15 @@ def test_comparison_resumes_and_refuses_changed_protocols(short, tmp_path):
     assert e.value.key == "cmaes.popsize"
     data = json.loads((run_dir / "compare.json").read_text())
     assert len(data["rows"]) == 2 and data["config"]["budget"] == 24
+    # a resume with other seeds adds references: the table names every seed its rows cover
+    _, rows5 = run_comparison(tiny(tmp_path, methods=["random_search"], seeds=[1], resume=True))
+    assert sorted({r["seed"] for r in rows5}) == [0, 1]
+    md = (run_dir / "compare.md").read_text()
+    assert "with seeds [0, 1];" in md and "mean ± std over 2 references" in md
     moved = tmp_path / "moved"
     shutil.copytree(tmp_path / "runs", moved)  # a run folder moved elsewhere resumes there
     _, rows4 = run_comparison(tiny(tmp_path, methods=["cmaes"], resume=True, out_dir=str(moved)))
-    assert rows4 == rows2
+    assert rows4 == rows5
 
 
 def test_a_first_run_that_failed_before_any_row_does_not_block_its_rerun(short, tmp_path, monkeypatch):

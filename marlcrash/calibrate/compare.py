@@ -564,8 +564,13 @@ def pm(a: dict[str, Any], k: str, spec: str = ".4g") -> str:
 
 
 def markdown(config: CompareConfig, rows: list[dict[str, Any]], command: str | None, date: str) -> str:
-    """``compare.md``: protocol, per-method table (mean ± std over seeds), winner per reference, per-run table."""
+    """``compare.md``: protocol, per-method table (mean ± std over seeds), winner per reference, per-run table.
+
+    The references it names are this run's seeds and those of the rows finished before (a resume may name other
+    seeds: ``seeds=[2]`` after a table of seeds 0 and 1 is a table of three references).
+    """
     methods, seeds = _present(config, rows)
+    listed = sorted({*config.seeds, *(r["seed"] for r in rows)})
     agg = aggregate(rows, methods)
     win = winners(rows, seeds)
     th = config.success
@@ -578,7 +583,7 @@ def markdown(config: CompareConfig, rows: list[dict[str, Any]], command: str | N
     if command:
         lines.append(f"- command: `{command}`")
     lines += [
-        f"- references: twin of `{config.scenario}` with seeds {config.seeds}; each method's own seed = the "
+        f"- references: twin of `{config.scenario}` with seeds {listed}; each method's own seed = the "
         "reference seed; PPO methods train on the pinned reference (RL calibration = training on it)",
         f"- budget: {config.budget} simulations per run (every simulated candidate counts one; PPO: one per env "
         f"step and one per episode reset, {config.ppo.n_envs} envs x {config.ppo.episode_length} steps per "
