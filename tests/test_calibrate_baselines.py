@@ -193,6 +193,17 @@ def test_bad_run_configs_fail_before_running(over, key):
         assert "expected a finite number" in str(e.value)
 
 
+def test_adjoint_gradient_on_a_float32_env_fails_at_load_naming_the_backend():
+    """The adjoint differentiates float64 simulations only: the run used to build the problem and then stop with a
+    keyless ModelError."""
+    f32 = {"problem": {"env_overrides": {"sim_dtype": "float32"}}}
+    with pytest.raises(ConfigError, match="needs dtype float64") as e:
+        load_run_config({"method": "gradient", **f32})
+    assert e.value.key == "gradient.backend"
+    load_run_config({"method": "gradient", "gradient": {"backend": "torch"}, **f32})  # the torch path takes float32
+    load_run_config({"method": "lm", **f32})  # another method does not use the backend
+
+
 def test_the_largest_seed_runs_every_seeded_method(problem):
     """2**64 - 1 is the largest seed torch's generators take (gradient descent, lm); the config refuses larger."""
     from marlcrash.calibrate.baselines import MAX_SEED

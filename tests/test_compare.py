@@ -387,8 +387,20 @@ def test_ppo_env_overrides_that_change_the_reference_fail_before_any_run(short, 
     assert e.value.key == key and "shapes the reference pulse" in str(e.value)
     assert "top-level env_overrides" in str(e.value)
     # the same setting for every method is fine, and so are the PPO runs' own settings and restatements
-    tiny(tmp_path, env_overrides=override, **{"ppo.env_overrides": override})
+    tiny(tmp_path, env_overrides=override, **{"ppo.env_overrides": override, "gradient.backend": "torch"})
     tiny(tmp_path, **{"ppo.env_overrides": {"sim_backend": "numba", "reward": "paper_factor", "max_step": 0.05}})
+
+
+def test_adjoint_gradient_on_a_float32_env_fails_before_any_run(short, tmp_path):
+    """A float32 comparison used to stop at its first gradient run, after the runs before it, with a keyless
+    ModelError of the adjoint; now the config names gradient.backend."""
+    f32 = {"env_overrides": {"sim_dtype": "float32"}}
+    with pytest.raises(ConfigError, match="needs dtype float64") as e:
+        tiny(tmp_path, methods=["random_search", "gradient"], **f32)
+    assert e.value.key == "gradient.backend"
+    assert not (tmp_path / "runs").exists()
+    tiny(tmp_path, methods=["random_search", "gradient"], **{"gradient.backend": "torch"}, **f32)
+    tiny(tmp_path, methods=["random_search", "cmaes"], **f32)
 
 
 def test_config_file_registers_every_method(short, tmp_path):

@@ -360,6 +360,30 @@ def _adam_loop(
     return initial
 
 
+def check_gradient_backend(config: GradientConfig, sim_dtype: str, key: str = "gradient.backend",
+                           source: str | None = None) -> None:  # fmt: skip
+    """Refuse gradient descent on the ``adjoint`` backend where it cannot differentiate the simulator (a ``float32``
+    env, springback relief in ``configs/sim.yaml``: :func:`marlcrash.sim.adjoint.unsupported`), before any simulation.
+
+    Args:
+        config: the gradient settings.
+        sim_dtype: the env's ``sim_dtype`` (the problem simulates in it).
+        key, source: the backend's dotted key and the config file, for the message.
+
+    Raises:
+        ConfigError: (``key``) the adjoint does not cover that simulator; the run failed with a keyless ModelError
+            after the problem was built (a comparison: mid-table, after the runs before it).
+    """
+    if config.backend != "adjoint":
+        return
+    from marlcrash.sim.adjoint import unsupported
+    from marlcrash.sim.surrogate import load_sim_config
+
+    why = unsupported(load_sim_config(overrides={"dtype": sim_dtype}))
+    if why is not None:
+        raise ConfigError(f"{why} (the env's sim_dtype is {sim_dtype})", key=key, path=source)
+
+
 def check_lm_budget(problem: CalibrationProblem, budget: int) -> None:
     """Refuse a budget below lm's first iteration (it spent 1 simulation and reported stop reason "budget").
 
@@ -486,7 +510,8 @@ class BaselineRunConfig:
 def load_run_config(data: dict[str, Any], source: str | None = None) -> BaselineRunConfig:
     """Validate a run config mapping (e.g. Hydra's, without its ``hydra`` node).
 
-    Also loads the problem's env config with its overrides, so a bad env key fails here.
+    Also loads the problem's env config with its overrides, so a bad env key fails here, and checks that gradient
+    descent's backend can differentiate that env's simulator (:func:`check_gradient_backend`).
 
     Raises:
         ConfigError: unknown key, wrong type or bad value, naming the dotted key.
@@ -496,9 +521,11 @@ def load_run_config(data: dict[str, Any], source: str | None = None) -> Baseline
         require_complete(BaselineRunConfig, data, source)
     config = from_dict(BaselineRunConfig, data, path=source)
     try:
-        problem_env_config(config.problem)
+        env = problem_env_config(config.problem)
     except ConfigError as e:  # keyed within the problem: problem.env_overrides.<key>, as the user set it
         raise nested_error(e, "problem", source) from None
+    if config.method == "gradient":
+        check_gradient_backend(config.gradient, env.sim_dtype, source=source)
     return config
 
 

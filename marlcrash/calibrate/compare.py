@@ -63,6 +63,7 @@ from marlcrash.calibrate.baselines import (
     GradientConfig,
     LMConfig,
     RandomSearchConfig,
+    check_gradient_backend,
     check_lm_budget,
 )
 from marlcrash.calibrate.budget import Progress
@@ -225,7 +226,9 @@ class CompareConfig:
 def load_compare_config(data: dict[str, Any], source: str | None = None) -> CompareConfig:
     """Validate a comparison config mapping (e.g. Hydra's, without its ``hydra`` node).
 
-    Also loads the env config with ``env_overrides`` (and the PPO ones), so a bad env key fails here.
+    Also loads the env config with ``env_overrides`` (and the PPO ones), so a bad env key fails here, and checks that
+    gradient descent's backend can differentiate that env's simulator
+    (:func:`~marlcrash.calibrate.baselines.check_gradient_backend`).
 
     Raises:
         ConfigError: unknown key, wrong type or bad value, naming the dotted key -- before any run.
@@ -235,6 +238,9 @@ def load_compare_config(data: dict[str, Any], source: str | None = None) -> Comp
         require_complete(CompareConfig, data, source)
     config = from_dict(CompareConfig, data, path=source)
     check_env_overrides(config.env, config.env_overrides, config.ppo.env_overrides, source)
+    if "gradient" in config.methods:
+        check_gradient_backend(config.gradient, load_env_config(config.env, config.env_overrides).sim_dtype,
+                               source=source)  # fmt: skip
     return config
 
 
