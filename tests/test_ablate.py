@@ -190,7 +190,7 @@ def test_shared_and_ppo_overrides_of_one_section_both_reach_the_runs(short, tmp_
     flat.pop("masking")
     same = load_ablation_config({**data, "env_overrides": {}, "ppo": {**data["ppo"], "env_overrides": flat}})
     problem = reference_problem(cfg, "offset40_left", 0)
-    assert ablate.active_agents(cfg, problem, "primary") == ablate.active_agents(same, problem, "primary")
+    assert ablate.masking_reach(cfg, problem, "primary") == ablate.masking_reach(same, problem, "primary")
 
 
 def test_active_agents_are_counted_over_the_training_envs_agents(short, tmp_path):
@@ -205,7 +205,32 @@ def test_active_agents_are_counted_over_the_training_envs_agents(short, tmp_path
     tc = ppo_train_config(cell_compare_config(cfg, cell, 0), "mappo", 0, tmp_path)
     core = CalibrationCore(load_env_config(tc.env, tc.env_overrides), batch_size=1)
     core.reset()
-    assert ablate.active_agents(cfg, problem, "primary_secondary") == (int(core.active[0].sum()), core.A) == (11, 16)
+    reach = ablate.masking_reach(cfg, problem, "primary_secondary")
+    assert (reach["active_agents"], reach["n_agents"]) == (int(core.active[0].sum()), core.A) == (11, 16)
+
+
+@pytest.mark.parametrize("scenario", ["offset40_left", "small_overlap_left"])
+def test_acting_cells_are_the_cells_a_full_action_moves(short, tmp_path, scenario):
+    """``acting_cells`` counts the cells the active agents' actions reach in the runs' env: an action of +1 on every
+    entry changes exactly that many cells' parameters, and ``+region`` keeps the agents but reaches fewer cells
+    (``active`` alone read the same for both levels)."""
+    cfg = tiny(tmp_path, masking=["primary_secondary", "primary_secondary+region"], scenarios=[scenario])
+    problem = reference_problem(cfg, scenario, 0)
+    reach = {}
+    for level in cfg.masking:
+        cell = {"algorithm": "mappo", "masking": level, "scenario": scenario, "granularity": "cell",
+                "reward": "log_ratio"}  # fmt: skip
+        tc = ppo_train_config(cell_compare_config(cfg, cell, 0), "mappo", 0, tmp_path)
+        core = CalibrationCore(load_env_config(tc.env, tc.env_overrides), batch_size=1)
+        core.reset()
+        before = core.params.clone()
+        core.apply_actions(torch.ones(1, core.A, core.act_dim, dtype=torch.float64))
+        moved = int((core.params != before).any(-1).sum())
+        reach[level] = ablate.masking_reach(cfg, problem, level)
+        assert reach[level]["acting_cells"] == moved, level
+        assert reach[level]["active_agents"] == int(core.active[0].sum()), level
+    agent, region = reach.values()
+    assert agent["active_agents"] == region["active_agents"] and region["acting_cells"] < agent["acting_cells"]
 
 
 def test_the_twin_spreads_are_an_env_override_of_every_run(short, tmp_path):
@@ -393,6 +418,27 @@ def test_resume_refuses_a_level_spelling_the_setting_of_finished_rows(finished, 
     with pytest.raises(ConfigError) as e:
         run_ablation(load_ablation_config(data, source="test"))
     assert e.value.key == "masking[1]" and "'primary_secondary'" in str(e.value), str(e.value)
+
+
+def test_resume_reads_rows_written_before_acting_cells_were_counted(finished, tmp_path, monkeypatch):
+    """An ablation started before the ``acting_cells`` column resumes: its rows show ``-`` there, the new ones the
+    count."""
+    _, run_dir, rows = finished
+    dst = tmp_path / "runs" / "ablate" / "t"
+    shutil.copytree(run_dir, dst)
+    record = json.loads((dst / "ablate.json").read_text())
+    for r in record["rows"]:
+        del r["acting_cells"]
+    (dst / "ablate.json").write_text(json.dumps(record))
+    data = tiny_data(tmp_path, seeds=[0, 1], resume=True, plots=False)
+    _, more = run_ablation(load_ablation_config(data, source="test"))
+    assert [r["acting_cells"] for r in more[:2]] == [None, None]
+    assert [r["acting_cells"] for r in more[2:]] == [r["acting_cells"] for r in rows] and None not in more[2:]
+    with open(dst / "ablate.csv") as fh:
+        assert [t["acting_cells"] for t in csv.DictReader(fh)] == ["", "", *(str(r["acting_cells"]) for r in rows)]
+    cells = json.loads((dst / "ablate.json").read_text())["cells"]  # per cell: the count its newer rows give
+    assert [c["acting_cells"] for c in cells] == [r["acting_cells"] for r in rows]
+    assert "| active | acting cells |" in (dst / "ablate.md").read_text()
 
 
 def test_resume_refuses_rows_of_another_reference_or_metric(finished, tmp_path):

@@ -20,7 +20,9 @@ Protocol (the results table's, :mod:`marlcrash.calibrate.compare`, so the number
   thresholds; the metrics (area, DFD, RMSE per sensor) do not depend on the reward form at all.
   ``param_error`` is the mean relative error of every sub-assembly's parameters against the twin
   truth, masked agents' included, so a masking level that leaves part of the truth out of reach pays for
-  it there; ``active_agents`` counts the agents the cell's masking level lets act on its reference.
+  it there; ``active_agents`` counts the agents the cell's masking level lets act on its reference, and
+  ``acting_cells`` the cells their actions reach (all their cells, or with ``+region`` those in the region; a
+  ``+region`` level keeps the agents and shrinks this count).
 - Gain: a run's best score minus the score of the initial parameters on its reference. References
   differ in how far the initial parameters are from them (by far the largest spread between runs), so
   the gain, not the score, is what compares across scenarios and seeds.
@@ -119,8 +121,12 @@ any, :class:`~marlcrash.calibrate.compare.PPOBudgetConfig`)."""
 FILES = ("ablate.json", "ablate.csv", "ablate.md", "ablate.png")
 """The results a finished ablation writes into its run folder (besides ``provenance.json`` and the PPO logs)."""
 
-CSV_COLUMNS = ("cell", *FACTORS, "active_agents", "n_agents", "gain", *(c for c in COLUMNS if c != "method"))
+CSV_COLUMNS = ("cell", *FACTORS, "active_agents", "n_agents", "acting_cells", "gain",
+               *(c for c in COLUMNS if c != "method"))  # fmt: skip
 """Columns of ``ablate.csv``, in order (the results table's columns, with the factors for ``method``)."""
+
+_ADDED_COLUMNS = ("acting_cells",)
+"""Columns a finished row of an older ablation may lack (a resume reads it, the tables show ``-``)."""
 
 _AGG_KEYS = ("gain", "score", "area_worst", "dfd_worst", "rmse_worst", "param_error", "simulations", "wall_time_s")
 
@@ -364,15 +370,27 @@ def reference_problem(config: AblationConfig, scenario: str, seed: int) -> Calib
     return build_problem(pc)
 
 
-def active_agents(config: AblationConfig, problem: CalibrationProblem, masking: str) -> tuple[int, int]:
-    """``(active, agents)``: the agents that masking level ``masking`` lets act on the problem's reference, and all
-    agents, in the PPO runs' env (``ppo.env_overrides`` may set the agents, which the problem does not see)."""
+def masking_reach(config: AblationConfig, problem: CalibrationProblem, masking: str) -> dict[str, int]:
+    """What masking level ``masking`` lets act on the problem's reference in the PPO runs' env (``ppo.env_overrides``
+    may set the agents, which the problem does not see).
+
+    Returns:
+        ``active_agents`` (the agents it activates), ``n_agents`` (all agents) and ``acting_cells`` (the cells the
+        active agents' actions reach: every cell they own, or with ``masking.cells: region`` their cells in the
+        region, as :class:`~marlcrash.envs.core.CalibrationCore` applies them).
+    """
     over = merge_overrides(EnvConfig, config.env_overrides, config.ppo.env_overrides, masking_overrides(masking))
     env = load_env_config(config.env, over)
     ref = problem.reference
     layout = build_agents(problem.cells, env.agents)
     regions = ImpactRegions(problem.cells, layout, env.masking)
-    return int(regions.active(ref.overlap, ref.side, ref.speed)[0].sum()), layout.n_agents
+    region = regions.region(ref.overlap, ref.side, ref.speed)[0]  # [n_cells]
+    active = regions.active(ref.overlap, ref.side, ref.speed, region[None])[0]  # [A]
+    owner = layout.agent_of_cell
+    acting = (owner >= 0) & active[owner.clamp_min(0)]
+    if env.masking.cells == "region":
+        acting &= region
+    return {"active_agents": int(active.sum()), "n_agents": layout.n_agents, "acting_cells": int(acting.sum())}
 
 
 def run_cell(
@@ -387,8 +405,7 @@ def run_cell(
     out = run_ppo(cc, cell["algorithm"], seed, problem, run_dir / "runs" / cell_name(cell))
     row = outcome_row(cc, problem, out, initial)
     row.pop("method")
-    active, n_agents = active_agents(config, problem, cell["masking"])
-    head = {"cell": cell_name(cell), **cell, "active_agents": active, "n_agents": n_agents,
+    head = {"cell": cell_name(cell), **cell, **masking_reach(config, problem, cell["masking"]),
             "gain": row["score"] - row["initial_score"]}  # fmt: skip
     return {**head, **row}
 
@@ -401,7 +418,11 @@ def aggregate_cells(rows: list[dict[str, Any]], cells: list[dict[str, Any]]) -> 
         name = cell_name(cell)
         g = [r for r in rows if r["cell"] == name]
         if g:
-            out.append({"cell": name, **cell, "active_agents": g[0]["active_agents"], **summarize(g, _AGG_KEYS)})
+            # the same for every seed; an older ablation's rows may lack acting_cells (None)
+            reach = {
+                k: next((r[k] for r in g if r.get(k) is not None), None) for k in ("active_agents", "acting_cells")
+            }
+            out.append({"cell": name, **cell, **reach, **summarize(g, _AGG_KEYS)})
     return out
 
 
@@ -515,14 +536,15 @@ def markdown(config: AblationConfig, rows: list[dict[str, Any]], command: str | 
     lines += [
         "## Per cell (mean ± std over reference seeds)",
         "",
-        "| " + " | ".join(FACTORS) + " | active | passed | gain | score | area worst [m] | DFD worst [m/s] "
-        "| RMSE worst [m/s] | param err | median sims to success | wall [s] | note |",
-        "|" + "---|" * (len(FACTORS) + 11),
+        "| " + " | ".join(FACTORS) + " | active | acting cells | passed | gain | score | area worst [m] "
+        "| DFD worst [m/s] | RMSE worst [m/s] | param err | median sims to success | wall [s] | note |",
+        "|" + "---|" * (len(FACTORS) + 12),
     ]
     for a in agg:
         note = f"stopped by wall cap ({a['wall_capped']}/{a['seeds']})" if a["wall_capped"] else ""
         lines.append(
-            "| " + " | ".join(str(a[f]) for f in FACTORS) + f" | {a['active_agents']} | {a['passed']}/{a['seeds']} | "
+            "| " + " | ".join(str(a[f]) for f in FACTORS) + f" | {a['active_agents']} | {_fmt(a['acting_cells'])} | "
+            f"{a['passed']}/{a['seeds']} | "
             f"{pm(a, 'gain')} | {pm(a, 'score')} | {pm(a, 'area_worst')} | {pm(a, 'dfd_worst')} | "
             f"{pm(a, 'rmse_worst')} | "
             f"{pm(a, 'param_error', '.3f')} | {_fmt(a['sims_to_success_median'], '.0f')} | "
@@ -652,8 +674,11 @@ def run_ablation(
 
     env = (config.env, dict(config.env_overrides))
     with hold_run_dir(config.run_dir, config.resume):  # one process per run folder
-        keys = (*CSV_COLUMNS, "metrics", "history")
+        keys = (*(c for c in CSV_COLUMNS if c not in _ADDED_COLUMNS), "metrics", "history")
         run_dir, rows = open_run_dir(config.run_dir, "ablate.json", asdict(config), config.resume, free, env, keys)
+        for r in rows:  # rows of an ablation started before a column was added: unknown there
+            for c in _ADDED_COLUMNS:
+                r.setdefault(c, None)
         require_distinct_masking(config, [r["masking"] for r in rows])
         done = {(r["cell"], r["seed"]) for r in rows}
         write_results(config, rows, run_dir, command)
@@ -677,7 +702,8 @@ def run_ablation(
                     write_results(config, rows, run_dir, command)
                     say(f"seed {seed} {row['cell']}: score {row['score']:.4f} (initial {row['initial_score']:.4f}), "
                         f"worst area {row['area_worst']:.4g} m, {row['simulations']} simulations, "
-                        f"{row['active_agents']}/{row['n_agents']} agents active, stop {row['stop']}, "
+                        f"{row['active_agents']}/{row['n_agents']} agents active ({row['acting_cells']} cells), "
+                        f"stop {row['stop']}, "
                         f"{row['wall_time_s']:.1f} s")  # fmt: skip
         if config.plots and rows:
             plot_ablation(config, rows, run_dir / "ablate.png")
