@@ -262,8 +262,15 @@ def test_bad_configs_name_the_key(run_dir, tmp_path):
         small_config(run_dir, cmaes={"popsize": 1})
     with pytest.raises(ConfigError, match="key 'speed'"):
         small_config(run_dir, speed=3)
-    with pytest.raises(ConfigError, match=r"key 'seed': expected a seed >= 0, got -1"):  # numpy's ValueError, late
+    with pytest.raises(ConfigError, match=r"key 'seed': expected a seed in \[0, 2\*\*64 - 1\], got -1"):  # late
         small_config(run_dir, seed=-1)
+    # torch's generators (gradient descent) refused it only after the policy had run
+    with pytest.raises(
+        ConfigError, match=r"key 'seed': expected a seed in \[0, 2\*\*64 - 1\], got 18446744073709551616"
+    ):
+        small_config(run_dir, seed=2**64)
+    with pytest.raises(ConfigError, match=r"key 'reference_seeds\[1\]'"):
+        small_config(run_dir, reference_seeds=[101, 2**64])
 
 
 def test_the_yaml_config_loads_through_hydra():

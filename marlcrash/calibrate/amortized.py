@@ -51,6 +51,7 @@ from tensordict.nn import TensorDictModuleBase
 from marlcrash import provenance
 from marlcrash.calibrate.baselines import (
     BASELINES,
+    MAX_SEED,
     CalibrationResult,
     CMAESConfig,
     GradientConfig,
@@ -125,7 +126,7 @@ class AmortizedConfig:
         require(len(set(self.reference_seeds)) == len(self.reference_seeds), "reference_seeds",
                 f"expected distinct seeds, got {self.reference_seeds}")  # fmt: skip
         for i, s in enumerate(self.reference_seeds):
-            require(s >= 0, f"reference_seeds[{i}]", f"expected a seed >= 0, got {s}")
+            require(0 <= s <= MAX_SEED, f"reference_seeds[{i}]", f"expected a seed in [0, 2**64 - 1], got {s}")
         known = list_scenarios()
         require(self.scenario in known, "scenario", f"unknown scenario {self.scenario!r}; registered: {known}")
         require(self.iterations is None or self.iterations >= 1, "iterations",
@@ -142,7 +143,7 @@ class AmortizedConfig:
                         f"expected distinct budget multiples, got {m} twice in {mults}")  # fmt: skip
 
         # the optimizers' generators: numpy refused a negative seed only after the policy had run
-        require(self.seed >= 0, "seed", f"expected a seed >= 0, got {self.seed}")
+        require(0 <= self.seed <= MAX_SEED, "seed", f"expected a seed in [0, 2**64 - 1], got {self.seed}")
         if self.out_dir is not None:  # before any work, not at the end; a missing folder is made when writing
             check_output_dir(self.out_dir, "out_dir")
 
