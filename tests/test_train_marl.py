@@ -477,6 +477,23 @@ def test_summary_and_evaluation_of_a_checkpoint(short, tmp_path):
         evaluate_run(res.run_dir)
 
 
+def test_a_run_trained_on_a_gpu_is_evaluated_on_a_machine_without_one(short, tmp_path, monkeypatch):
+    """The evaluation runs the policy on the CPU: a run folder whose config.yaml says ``device: cuda`` (trained on a
+    GPU, copied to a machine without one) was refused by the check a resume needs ("device 'cuda' is not available
+    here"), so its checkpoints could not be evaluated at all."""
+    from marlcrash.calibrate.evaluate import evaluate_run
+
+    res = train(tiny(tmp_path, name="gpu", iterations=1, **{"eval.iterations": 1}))
+    cfg = res.run_dir / "config.yaml"
+    cfg.write_text(cfg.read_text().replace("device: cpu\n", "device: cuda\n"))
+    monkeypatch.setattr(torch.cuda, "device_count", lambda: 0)  # no GPU here, whatever the test machine has
+    s = evaluate_run(res.run_dir)
+    assert s["eval_dir"] == str(res.run_dir) and s["final_metrics"] == res.summary["final_metrics"]
+    with pytest.raises(ConfigError) as e:  # a resume trains on the saved device: still refused before anything
+        train(tiny(tmp_path, name="gpu", resume=str(res.run_dir)))
+    assert e.value.key == "device"
+
+
 def test_kept_snapshots_are_evaluated_beside_the_run_results(short, tmp_path):
     from marlcrash.calibrate.evaluate import evaluate_run
 

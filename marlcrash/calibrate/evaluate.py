@@ -438,7 +438,7 @@ def evaluate_run(
     t0 = time.perf_counter()
     run_dir = Path(run_dir)
     out_dir = run_dir
-    config = trainer.config if trainer is not None else load_run_config(run_dir)
+    config = trainer.config if trainer is not None else load_run_config(run_dir, device="cpu")  # policy on the CPU
     own_steps = config.eval.iterations
     if iterations is not None:
         if iterations < 1:

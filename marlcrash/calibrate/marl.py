@@ -751,8 +751,14 @@ def save_run_config(config: TrainConfig, run_dir: Path) -> None:
     write_text(run_dir / CONFIG_FILE, yaml.safe_dump(dataclasses.asdict(config), sort_keys=False))
 
 
-def load_run_config(run_dir: str | Path) -> TrainConfig:
+def load_run_config(run_dir: str | Path, device: str | None = None) -> TrainConfig:
     """The resolved config saved in a run folder (the ``ci`` overrides were applied when it was saved).
+
+    Args:
+        run_dir: the run folder.
+        device: the torch device to use instead of the saved ``device`` (``None``: the saved one, which must exist
+            here, as a resume trains on it). The evaluations run the policy on the CPU and pass ``"cpu"``, so a run
+            trained on a GPU is evaluated on a machine without one.
 
     Raises:
         ConfigError: no ``config.yaml`` (key ``run``), or one that is not a YAML mapping of valid settings (the
@@ -766,6 +772,8 @@ def load_run_config(run_dir: str | Path) -> TrainConfig:
         raise ConfigError("empty; expected the run's settings (a mapping) as train/train.py saved them", path=path)
     if isinstance(data.get("eval"), dict):  # a run saved before eval.reference existed
         data["eval"].setdefault("reference", "twin")  # was evaluated on the twin, whatever it trained against
+    if device is not None:
+        data["device"] = device
     return load_train_config(data, source=str(path), ci=False)
 
 
