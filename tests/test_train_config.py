@@ -127,6 +127,8 @@ def test_ci_reads_the_environment(monkeypatch):
         (["eval.scenario=nope"], "eval.scenario", "unknown scenario 'nope'"),
         (["eval.reference_seed=-1"], "eval.reference_seed", "seed >= 0"),
         (["algorithm.init_std=inf"], "algorithm.init_std", "expected a finite number"),
+        # an infinite initial scale: the first update's loss was NaN, refused as a diverged 'algorithm.lr'
+        (["algorithm.init_std=100"], "algorithm.init_std", "softplus head can represent in float32"),
         (["algorithm.mean_init_gain=nan"], "algorithm.mean_init_gain", "expected a finite number"),
         (["resume=1"], "resume", "expected true or false or a string, got 1"),  # one message for the union
     ],

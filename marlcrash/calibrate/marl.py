@@ -150,6 +150,9 @@ class AlgorithmConfig:
             require(math.isfinite(v) and v >= 0, k, f"expected a coefficient >= 0, got {v}")
         require(0 < self.min_std < self.init_std, "init_std",
                 f"expected 0 < min_std ({self.min_std}) < init_std ({self.init_std})")  # fmt: skip
+        require(math.isfinite(initial_std(self.init_std, self.min_std)), "init_std",
+                f"expected an initial standard deviation the policy's softplus head can represent in float32 "
+                f"(below about 88; tanh saturates far below that), got {self.init_std}")  # fmt: skip
         require(self.mean_init_gain > 0, "mean_init_gain", f"expected a factor > 0, got {self.mean_init_gain}")
         require(0 < self.clip_epsilon < 1, "clip_epsilon", f"expected a ratio clip in (0, 1), got {self.clip_epsilon}")
         for k in ("gamma", "lmbda"):
@@ -158,6 +161,14 @@ class AlgorithmConfig:
         require(self.epochs >= 1, "epochs", f"expected >= 1 passes over each batch, got {self.epochs}")
         require(self.minibatch_size >= 1, "minibatch_size", f"expected >= 1 env steps, got {self.minibatch_size}")
         require(self.max_grad_norm > 0, "max_grad_norm", f"expected > 0, got {self.max_grad_norm}")
+
+
+def initial_std(init_std: float, min_std: float) -> float:
+    """The standard deviation the policy's scale head (:func:`make_policy`: TorchRL's ``biased_softplus_<init_std>``
+    bounded below by ``min_std``) gives before training: ``init_std``, or ``inf`` where float32 cannot hold the
+    inverse softplus of ``init_std`` (above about 88), and the first update's loss is NaN."""
+    extractor = NormalParamExtractor(scale_mapping=f"biased_softplus_{init_std}", scale_lb=min_std)
+    return float(extractor(torch.zeros(2))[1][0])
 
 
 @dataclass
