@@ -100,6 +100,27 @@ def test_untrained_mean_action_is_near_zero(short, tmp_path):
     assert float(a.abs().max()) < 0.05  # mean_init_gain 0.01: the first deterministic step barely moves
 
 
+def test_the_policy_std_starts_at_init_std_and_is_bounded_below_by_min_std(short, tmp_path):
+    """TorchRL's ``biased_softplus_<init_std>`` adds a floor of 0.01 of its own: with ``min_std`` 0.001 the policy's
+    standard deviation never went below 0.01, and ``init_std`` 0.005 started at 0.01."""
+    cfg = tiny(tmp_path, **{"algorithm.init_std": 0.005, "algorithm.min_std": 0.001})
+    env = make_env(cfg)
+    policy = make_policy(env, cfg.algorithm)
+    td = env.reset()
+    with torch.no_grad():
+        scale = policy(td.clone())["agents", "scale"]
+        torch.testing.assert_close(scale, torch.full_like(scale, 0.005), rtol=0.02, atol=0)  # mean_init_gain: near
+        net = policy.module[0].module[0]  # the MultiAgentMLP before the scale head
+        last = str(max(int(k) for k in net.params.keys()))  # noqa: SIM118
+        net.params[last, "bias"].fill_(-100.0)  # as far down as the head goes
+        scale = policy(td.clone())["agents", "scale"]
+    torch.testing.assert_close(scale, torch.full_like(scale, 0.001), rtol=1e-3, atol=0)
+    default = tiny(tmp_path).algorithm  # the shipped values (min_std 0.01 = TorchRL's floor) are unchanged
+    with torch.no_grad():
+        scale = make_policy(env, default)(td.clone())["agents", "scale"]
+    torch.testing.assert_close(scale, torch.full_like(scale, default.init_std), rtol=0.02, atol=0)
+
+
 def test_joint_action_env_is_the_multi_agent_env(short, tmp_path):
     from torchrl.envs.utils import check_env_specs
 

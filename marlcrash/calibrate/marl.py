@@ -164,11 +164,21 @@ class AlgorithmConfig:
 
 
 def initial_std(init_std: float, min_std: float) -> float:
-    """The standard deviation the policy's scale head (:func:`make_policy`: TorchRL's ``biased_softplus_<init_std>``
-    bounded below by ``min_std``) gives before training: ``init_std``, or ``inf`` where float32 cannot hold the
-    inverse softplus of ``init_std`` (above about 88), and the first update's loss is NaN."""
-    extractor = NormalParamExtractor(scale_mapping=f"biased_softplus_{init_std}", scale_lb=min_std)
-    return float(extractor(torch.zeros(2))[1][0])
+    """The standard deviation the policy's scale head (:func:`scale_head`) gives before training: ``init_std``, or
+    ``inf`` where float32 cannot hold the inverse softplus of ``init_std`` (above about 88), and the first update's
+    loss is NaN."""
+    return float(scale_head(init_std, min_std)(torch.zeros(2))[1][0])
+
+
+def scale_head(init_std: float, min_std: float) -> NormalParamExtractor:
+    """Splits the policy network's output into the mean and the standard deviation ``softplus(x + b) + min_std``,
+    with ``b`` such that ``x = 0`` gives ``init_std``.
+
+    TorchRL's ``biased_softplus_<init_std>`` alone adds a floor of its own, 0.01, whatever ``scale_lb`` says: a
+    ``min_std`` below 0.01 was never reached and an ``init_std`` below it started at 0.01. The mapping is given the
+    floor (``biased_softplus_<init_std>_<min_std>``), and ``scale_lb`` keeps it under rounding.
+    """
+    return NormalParamExtractor(scale_mapping=f"biased_softplus_{init_std}_{min_std}", scale_lb=min_std)
 
 
 @dataclass
@@ -512,7 +522,7 @@ def make_policy(env: EnvBase, algo: AlgorithmConfig) -> ProbabilisticActor:
     with torch.no_grad():  # mean and log-scale heads start near zero: mean action 0, std = init_std
         net.params[last, "weight"].mul_(algo.mean_init_gain)
         net.params[last, "bias"].zero_()
-    extractor = NormalParamExtractor(scale_mapping=f"biased_softplus_{algo.init_std}", scale_lb=algo.min_std)
+    extractor = scale_head(algo.init_std, algo.min_std)
     module = TensorDictModule(
         nn.Sequential(net, extractor), in_keys=[(GROUP, "observation")], out_keys=[(GROUP, "loc"), (GROUP, "scale")]
     )
