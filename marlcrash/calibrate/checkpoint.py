@@ -16,7 +16,7 @@ checkpoint or the new one, never a torn file.
 from __future__ import annotations
 
 import os
-import tempfile
+import secrets
 from pathlib import Path
 from typing import Any
 
@@ -97,6 +97,9 @@ def restore_rng(state: dict[str, Any], env_rng: np.random.Generator) -> None:
 def save_checkpoint(path: str | Path, state: dict[str, Any]) -> Path:
     """Write ``state`` to ``path`` atomically (temporary sibling, fsync, :func:`os.replace`).
 
+    The file gets the permissions of every other file of a run (``0o666`` less the umask): ``tempfile.mkstemp``
+    made it ``0o600``, so nobody else could evaluate a run whose results they could read.
+
     Args:
         path: destination file.
         state: anything ``torch.save`` accepts (state dicts, tensors, plain data).
@@ -106,7 +109,7 @@ def save_checkpoint(path: str | Path, state: dict[str, Any]) -> Path:
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    fd, tmp = _create_sibling(path)
     try:
         with os.fdopen(fd, "wb") as fh:
             torch.save(state, fh)
@@ -117,6 +120,18 @@ def save_checkpoint(path: str | Path, state: dict[str, Any]) -> Path:
         Path(tmp).unlink(missing_ok=True)
         raise
     return path
+
+
+def _create_sibling(path: Path) -> tuple[int, str]:
+    """Create a new temporary file beside ``path`` (a name no other writer has) with mode ``0o666`` as the umask
+    allows, as ``open`` creates files; return its descriptor and name."""
+    for _ in range(100):
+        tmp = path.with_name(f".{path.name}.{secrets.token_hex(4)}.tmp")
+        try:
+            return os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0), 0o666), str(tmp)
+        except FileExistsError:
+            continue
+    raise FileExistsError(f"no free temporary name beside {path}")
 
 
 TRAINING_KEYS = ("policy", "critic", "optimizer", "rng", "iteration", "env_steps", "simulations", "wall_time_s")
