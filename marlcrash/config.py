@@ -318,6 +318,16 @@ def load_config(
     return from_dict(cls, data, path=path)
 
 
+MAX_SEED = 2**64 - 1
+"""Largest seed a run takes: torch's generators (``torch.manual_seed``, gradient descent, ``lm``, the PPO runs)
+refuse a larger one ("Overflow when unpacking long long"), where numpy's take any."""
+
+
+def require_seed(value: int, key: str) -> None:
+    """Refuse, naming ``key``, a seed outside ``[0, 2**64 - 1]`` (:data:`MAX_SEED`), before any run."""
+    require(0 <= value <= MAX_SEED, key, f"expected a seed in [0, 2**64 - 1], got {value}")
+
+
 def require(condition: bool, key: str, message: str) -> None:
     """Raise :class:`ConfigError` for ``key`` unless ``condition`` holds (for ``validate()``).
 

@@ -206,7 +206,7 @@ def test_adjoint_gradient_on_a_float32_env_fails_at_load_naming_the_backend():
 
 def test_the_largest_seed_runs_every_seeded_method(problem):
     """2**64 - 1 is the largest seed torch's generators take (gradient descent, lm); the config refuses larger."""
-    from marlcrash.calibrate.baselines import MAX_SEED
+    from marlcrash.config import MAX_SEED
 
     for method in ("gradient", "lm"):
         config, budget = SMALL[method]

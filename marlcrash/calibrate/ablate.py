@@ -52,7 +52,6 @@ from typing import Any
 import numpy as np
 
 from marlcrash.calibrate.amortized import _fmt
-from marlcrash.calibrate.baselines import MAX_SEED
 from marlcrash.calibrate.compare import (
     COLUMNS,
     CompareConfig,
@@ -71,7 +70,7 @@ from marlcrash.calibrate.compare import (
 )
 from marlcrash.calibrate.marl import ALGORITHMS, AlgorithmConfig
 from marlcrash.calibrate.problem import CalibrationProblem, SuccessConfig, build_problem
-from marlcrash.config import from_dict, merge_overrides, require, require_complete
+from marlcrash.config import from_dict, merge_overrides, require, require_complete, require_seed
 from marlcrash.envs.agents import build_agents
 from marlcrash.envs.core import EnvConfig, load_env_config, require_env, require_env_keys_unset
 from marlcrash.envs.masking import ImpactRegions
@@ -191,7 +190,7 @@ class AblationConfig:
             require(s in known, f"scenarios[{i}]", f"unknown scenario {s!r}; registered: {known}")
         require(len(self.seeds) >= 1, "seeds", "expected at least one reference seed, e.g. [0, 1, 2]")
         for i, s in enumerate(self.seeds):
-            require(0 <= s <= MAX_SEED, f"seeds[{i}]", f"expected a seed in [0, 2**64 - 1], got {s}")
+            require_seed(s, f"seeds[{i}]")
         require(len(set(self.seeds)) == len(self.seeds), "seeds", f"expected distinct seeds, got {self.seeds}")
         require(self.budget >= 1, "budget", f"expected a simulation budget >= 1, got {self.budget}")
         require(self.max_wall_s is None or (math.isfinite(self.max_wall_s) and self.max_wall_s > 0), "max_wall_s",

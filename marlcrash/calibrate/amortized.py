@@ -51,7 +51,6 @@ from tensordict.nn import TensorDictModuleBase
 from marlcrash import provenance
 from marlcrash.calibrate.baselines import (
     BASELINES,
-    MAX_SEED,
     CalibrationResult,
     CMAESConfig,
     GradientConfig,
@@ -67,7 +66,7 @@ from marlcrash.calibrate.evaluate import (
 )
 from marlcrash.calibrate.marl import TrainConfig, load_run_config, make_env_config
 from marlcrash.calibrate.problem import CalibrationProblem
-from marlcrash.config import from_dict, require, require_complete
+from marlcrash.config import from_dict, require, require_complete, require_seed
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics
 from marlcrash.outputs import check_output_dir, write_text
@@ -126,7 +125,7 @@ class AmortizedConfig:
         require(len(set(self.reference_seeds)) == len(self.reference_seeds), "reference_seeds",
                 f"expected distinct seeds, got {self.reference_seeds}")  # fmt: skip
         for i, s in enumerate(self.reference_seeds):
-            require(0 <= s <= MAX_SEED, f"reference_seeds[{i}]", f"expected a seed in [0, 2**64 - 1], got {s}")
+            require_seed(s, f"reference_seeds[{i}]")
         known = list_scenarios()
         require(self.scenario in known, "scenario", f"unknown scenario {self.scenario!r}; registered: {known}")
         require(self.iterations is None or self.iterations >= 1, "iterations",
@@ -143,7 +142,7 @@ class AmortizedConfig:
                         f"expected distinct budget multiples, got {m} twice in {mults}")  # fmt: skip
 
         # the optimizers' generators: numpy refused a negative seed only after the policy had run
-        require(0 <= self.seed <= MAX_SEED, "seed", f"expected a seed in [0, 2**64 - 1], got {self.seed}")
+        require_seed(self.seed, "seed")
         if self.out_dir is not None:  # before any work, not at the end; a missing folder is made when writing
             check_output_dir(self.out_dir, "out_dir")
 

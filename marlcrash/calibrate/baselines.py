@@ -54,15 +54,12 @@ from marlcrash.calibrate.budget import Progress
 from marlcrash.calibrate.leastsq import STEP_FACTORS, lm_iteration
 from marlcrash.calibrate.problem import CalibrationProblem, ProblemConfig, SmoothLoss, problem_env_config
 from marlcrash.calibrate.runlock import claim_dir
-from marlcrash.config import from_dict, nested_error, require, require_complete
+from marlcrash.config import from_dict, nested_error, require, require_complete, require_seed
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics
 from marlcrash.outputs import check_output_dir, require_run_name
 
 # ----------------------------------------------------------------------------------------- configs
-MAX_SEED = 2**64 - 1
-"""Largest seed a run takes: torch's generators (gradient descent, ``lm``, the PPO runs of a comparison) refuse a
-larger one ("Overflow when unpacking long long") once the problem is built, where numpy's take any."""
 
 
 @dataclass
@@ -497,7 +494,7 @@ class BaselineRunConfig:
             self.method in BASELINES, "method", f"unknown method {self.method!r}; expected one of {sorted(BASELINES)}"
         )
         require(self.budget >= 1, "budget", f"expected a simulation budget >= 1, got {self.budget}")
-        require(0 <= self.seed <= MAX_SEED, "seed", f"expected a seed in [0, 2**64 - 1], got {self.seed}")
+        require_seed(self.seed, "seed")
         require_run_name(self.name)
         require(bool(self.out_dir), "out_dir", "expected an output folder")
 

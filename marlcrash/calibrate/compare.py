@@ -58,7 +58,6 @@ from marlcrash import provenance
 from marlcrash.calibrate.amortized import _fmt, _mean_param_error
 from marlcrash.calibrate.baselines import (
     BASELINES,
-    MAX_SEED,
     CMAESConfig,
     GradientConfig,
     LMConfig,
@@ -86,7 +85,15 @@ from marlcrash.calibrate.problem import (
     env_backends,
 )
 from marlcrash.calibrate.runlock import run_lock
-from marlcrash.config import flatten_overrides, from_dict, merge_overrides, nested_error, require, require_complete
+from marlcrash.config import (
+    flatten_overrides,
+    from_dict,
+    merge_overrides,
+    nested_error,
+    require,
+    require_complete,
+    require_seed,
+)
 from marlcrash.envs.core import EnvConfig, env_config_of, load_env_config, require_env, require_env_keys_unset
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics
@@ -190,7 +197,7 @@ class CompareConfig:
                 f"expected distinct methods, got {self.methods}")  # fmt: skip
         require(len(self.seeds) >= 1, "seeds", "expected at least one reference seed, e.g. [0, 1, 2]")
         for i, s in enumerate(self.seeds):
-            require(0 <= s <= MAX_SEED, f"seeds[{i}]", f"expected a seed in [0, 2**64 - 1], got {s}")
+            require_seed(s, f"seeds[{i}]")
         require(len(set(self.seeds)) == len(self.seeds), "seeds", f"expected distinct seeds, got {self.seeds}")
         require(self.budget >= 1, "budget", f"expected a simulation budget >= 1, got {self.budget}")
         require(self.max_wall_s is None or (math.isfinite(self.max_wall_s) and self.max_wall_s > 0), "max_wall_s",

@@ -80,6 +80,7 @@ from marlcrash.config import (
     nested_error,
     require,
     require_complete,
+    require_seed,
 )
 from marlcrash.envs.core import EnvConfig, env_config_of, require_env, require_env_keys_unset
 from marlcrash.envs.torchrl_env import GROUP, CalibrationTorchEnv
@@ -102,9 +103,6 @@ TRAIN_ENV_OVERRIDES = {"max_step": 0.1, "observation.velocity_scale": 2.0, "obse
 defaults of the schemas built in Python (``tests/test_config_defaults.py`` keeps them equal to the files)."""
 
 _ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU}
-
-MAX_SEED = 2**64 - 1
-"""Largest ``seed`` of a run: ``torch.manual_seed`` refuses a larger one (numpy's generators take any)."""
 
 
 # ---------------------------------------------------------------------------------------- configs
@@ -233,9 +231,7 @@ class TrainConfig:
         require(self.n_envs >= 1, "n_envs", f"expected >= 1 parallel episodes, got {self.n_envs}")
         require(self.episode_length >= 1, "episode_length", f"expected >= 1 steps, got {self.episode_length}")
         require(self.iterations >= 1, "iterations", f"expected >= 1 training iterations, got {self.iterations}")
-        require(self.seed >= 0, "seed", f"expected a seed >= 0, got {self.seed}")
-        require(self.seed <= MAX_SEED, "seed",
-                f"expected a seed <= 2**64 - 1 (torch.manual_seed takes 64 bits), got {self.seed}")  # fmt: skip
+        require_seed(self.seed, "seed")  # torch.manual_seed takes 64 bits
         require(self.time_limit_s is None or self.time_limit_s > 0, "time_limit_s",
                 f"expected a limit > 0 s or null, got {self.time_limit_s}")  # fmt: skip
         require(self.threads >= 0, "threads", f"expected >= 0 (0: torch's default), got {self.threads}")
