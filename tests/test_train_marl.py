@@ -532,6 +532,11 @@ def test_a_run_trained_on_a_gpu_is_evaluated_on_a_machine_without_one(short, tmp
     monkeypatch.setattr(torch.cuda, "device_count", lambda: 0)  # no GPU here, whatever the test machine has
     s = evaluate_run(res.run_dir)
     assert s["eval_dir"] == str(res.run_dir) and s["final_metrics"] == res.summary["final_metrics"]
+    from marlcrash.analysis.contributions import run_calibration
+    from marlcrash.calibrate.amortized import load_policy
+
+    assert load_policy(res.run_dir)[1].device == "cpu"  # the amortized comparison's policy
+    assert run_calibration(res.run_dir).calibrated.shape[1] == 7  # marlcrash contributions
     with pytest.raises(ConfigError) as e:  # a resume trains on the saved device: still refused before anything
         train(tiny(tmp_path, name="gpu", resume=str(res.run_dir)))
     assert e.value.key == "device"

@@ -369,7 +369,7 @@ def run_calibration(run_dir: str | Path) -> RunCalibration:
     run = require_run_folder(run_dir)
     where = run.resolve()  # '.' or 'ck' typed inside <run>/eval/ is a re-evaluation too
     home = where.parent.parent if not (run / CONFIG_FILE).is_file() and where.parent.name == EVAL_DIR else run
-    config = load_run_config(home)
+    config = load_run_config(home, device="cpu")  # no training here: a GPU-trained run is read on any machine
     check = provenance.check_run(home, provenance.env_inputs(make_env_config(config)), key=None)
     provenance.warn_changes(home, check, "contributions")
     path = run / "calibrated.npz"
