@@ -53,7 +53,7 @@ _HUGE = 1e300  # stands in for an infinite saturation energy (cells without link
 # ``c / (k dt)``, relaxation factor). They start at the intact values and are rewritten once, lane by lane,
 # when the source cell bottoms out (saturation is monotone), so the link loop does no interpolation and
 # reads no dense-state fields. The tensile yield force is ``H_YU`` times the link's tension ratio (a
-# per-link scalar, the same in every lane), not a stream of its own.
+# per-link scalar, the same in every lane), ``BIG`` once the source cell bottomed out, not a stream of its own.
 H_YU, H_K, H_IK, H_DC, H_Q = range(5)
 N_HOT = 5
 # Fields read only when the source cell bottoms out ("cold"), [chunk, L, N_COLD, lanes].
@@ -141,7 +141,9 @@ def _links(
 ):
     """Update links ``lo .. hi-1`` (all of one kind) in every lane and scatter their forces to the nodes.
 
-    Plain links are elastic-plastic with tension up to ``tl P[H_YU]`` (``tl = trl[ll]``, the link's tension ratio);
+    Plain links are elastic-plastic with tension up to ``tl P[H_YU]`` (``tl = trl[ll]``, the link's tension ratio)
+    while intact, and up to ``BIG`` once their source cell has bottomed out (``P[H_YU]`` is then ``BIG``), as the
+    torch path's tensile yield force (``tl BIG`` left links of tension ratio 0 unable to pull after densifying);
     gap (contact) links carry compression only once their opening ``o`` has closed. Springback relief (module doc
     of :mod:`marlcrash.sim.surrogate`): a link that has yielded (``yd``) and unloads (``|f_ret| < |f0|``, same sign)
     has its force scaled by its relaxation factor ``q <= 1``.
@@ -155,7 +157,7 @@ def _links(
     0.50-0.58x in float32 (B = 1024 and 48, interleaved; README, Simulator speed).
     """
     CH = ds.shape[1]
-    half, zero = cst[0], cst[1]
+    half, zero, big = cst[0], cst[1], cst[5]
     for ll in range(lo, hi):
         a = src[ll]
         c = dst[ll]
@@ -173,7 +175,7 @@ def _links(
                 f_ret = min(f_tr, yu)
             else:
                 f_tr = f0 + k * dd
-                f_ret = min(max(f_tr, -yu * tl), yu)
+                f_ret = min(max(f_tr, -(big if yu >= big else yu * tl)), yu)
             f_new = f_ret
             if relief:
                 y = max(yd[ll, j], cst[2] if f_tr != f_ret else zero)
@@ -199,9 +201,9 @@ def _bottom_out(P, PC, i, j, out_ptr, out_idx, relief, cst):
     """Lane ``j`` of cell ``i`` has bottomed out: rewrite its out-links' hot fields to the dense state.
 
     The expressions are those of the torch path's interpolation ``x0 + sat (x_dense - x0)`` at ``sat = 1``
-    (the yield force becomes ``BIG`` where the link has a share, so the tensile one ``tl BIG``; stiffness and
-    compliance their dense values; the damping factor ``c / (k dt)`` follows the dense stiffness), evaluated once
-    instead of every step.
+    (the yield force becomes ``BIG`` where the link has a share, and with it the tensile one, :func:`_links`;
+    stiffness and compliance their dense values; the damping factor ``c / (k dt)`` follows the dense stiffness),
+    evaluated once instead of every step.
     """
     one, zero, big = cst[2], cst[1], cst[5]
     for q in range(out_ptr[i], out_ptr[i + 1]):
