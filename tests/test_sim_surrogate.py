@@ -243,6 +243,25 @@ def test_same_inputs_same_numbers_and_batch_rows_independent():
             torch.testing.assert_close(one.velocity[0], a.velocity[i], rtol=1e-6, atol=1e-9)
 
 
+def test_result_rows_by_integer_keep_the_batch_dimension():
+    """``result[i]`` is row ``i`` with the batch dimension kept, negative and numpy integers included; ``result[-1]``
+    was the empty slice ``-1:0`` (so ``crash_summary(..., row=-1)`` failed in its balance error) and a numpy integer
+    dropped the batch dimension."""
+    from marlcrash.pulse.simulation import crash_summary
+
+    cells = chain(3)
+    sc = get_scenario("full_width_40", {"duration": 0.02})
+    out = Surrogate(cells).run(_random_params(cells, 3, seed=1), sc, backend="numba", record_cells="final")
+    for idx, row in ((-1, 2), (np.int64(1), 1), (0, 0), (-3, 0)):
+        one = out[idx]
+        for f in ("velocity", "crush", "kinetic", "initial", "cell_absorbed", "cell_plastic", "saturated"):
+            assert torch.equal(getattr(one, f), getattr(out, f)[row : row + 1]), (idx, f)
+    for bad in (3, -4):
+        with pytest.raises(IndexError, match="batch row"):
+            out[bad]
+    assert crash_summary(out, cells, sc, row=-1) == crash_summary(out, cells, sc, row=2)
+
+
 @pytest.mark.parametrize("dtype", ["float64", "float32"])
 def test_numba_chunk_width_changes_no_result(dtype):
     """The fast path cuts the batch into chunks of ``lanes`` simulations; the width is a speed choice only.

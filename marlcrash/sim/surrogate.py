@@ -84,6 +84,7 @@ trajectories chaotic: 1e-12 parameter changes moved the stop time). The released
 from __future__ import annotations
 
 import math
+import operator
 from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Literal, NamedTuple
@@ -253,9 +254,20 @@ class SimResult:
         return sampled_acceleration(self.velocity, float(self.time[1] - self.time[0]))
 
     def __getitem__(self, idx) -> SimResult:
-        """Select batch rows (``result[3]``, ``result[2:5]``), keeping the batch dimension."""
-        if isinstance(idx, int):
-            idx = slice(idx, idx + 1)
+        """Select batch rows (``result[3]``, ``result[-1]``, ``result[2:5]``), keeping the batch dimension.
+
+        Raises:
+            IndexError: an integer row outside the batch.
+        """
+        try:
+            row = operator.index(idx)  # an int or numpy integer: one row (result[-1] was the empty slice -1:0)
+        except TypeError:
+            row = None  # a slice, or an index tensor or list of rows
+        if row is not None:
+            B = self.initial.shape[0]
+            if not -B <= row < B:
+                raise IndexError(f"batch row {row} out of range for a result of {B} rows")
+            idx = slice(row % B, row % B + 1)
         out = {}
         for f in fields(self):
             v = getattr(self, f.name)
