@@ -383,6 +383,24 @@ def test_offset_gives_lower_peak_and_longer_pulse():
 
 
 # ------------------------------------------------------------------ input checks
+@pytest.mark.parametrize("column,factor", [(0, 1e-30), (1, 1e12)])
+def test_extreme_accepted_energies_stay_finite_in_float32(column, factor):
+    """Any finite positive E_x, E_s is accepted; a link far stiffer than its stability cap is simply capped. In
+    float32 1e-30 x E_x or 1e12 x E_s made ``k_raw * cap`` overflow to inf and every output NaN."""
+    cells = block()
+    sim = Surrogate(cells, _cfg(dtype="float32"))
+    p = _params(cells, 1)
+    p[..., column] *= factor
+    sc = get_scenario("full_width_40", {"duration": 0.03})
+    props = sim.link_props(sim.check_params(p))
+    assert all(bool(torch.isfinite(x).all()) for x in (props.k, props.k_dense, props.damping, props.relax))
+    for backend in ("numba", "torch"):
+        out = sim.run(p, sc, backend=backend, record_cells="final")
+        for f in ("velocity", "acceleration", "crush", "kinetic", "stored", "absorbed", "cell_absorbed"):
+            assert bool(torch.isfinite(getattr(out, f)).all()), (backend, f)
+        assert max_balance_error(out) < 1e-4
+
+
 def test_parameter_validation_errors():
     cells = block()
     sim = Surrogate(cells)

@@ -469,7 +469,10 @@ class Surrogate:
         B = params.shape[0]
         e_x, e_s = params[..., 0], params[..., 1]
         f_c = e_s / (cfg.stroke_fraction * self.crush_length)  # [B, n] crush force [N]
-        k_c = f_c * f_c / (2.0 * e_x)  # [B, n] elastic stiffness [N/m]
+        # Stiffnesses are clamped at sqrt(largest float), far above any stability cap (which then binds fully), so
+        # that k_raw * cap stays finite: in float32 E_x = 1e-20 J or 1e11 x E_s overflowed to inf and gave NaN.
+        k_max = math.sqrt(torch.finfo(self.dtype).max)
+        k_c = (f_c * f_c / (2.0 * e_x)).clamp(max=k_max)  # [B, n] elastic stiffness [N/m]
         f = params[..., 2:]
         # Transmission factors are relative shares: the principal direction carries the full crush
         # strength, every other direction f_d / f_max of it (f_max > 0 wherever a cell has links).
@@ -481,7 +484,7 @@ class Surrogate:
         f_dst = torch.where(self.dst_rigid, torch.full_like(f_c, float("inf"))[:, self.dst], f_c[:, self.dst])
         yield_c = torch.where(self.is_gap, torch.minimum(yield_c, f_dst), yield_c)
         k_raw = k_c[:, self.src] * factor
-        kd_raw = cfg.densification_factor * k_raw
+        kd_raw = (cfg.densification_factor * k_raw).clamp(max=k_max)
         cap = self.cap_link
         if self.stability_caps:
             k = k_raw * cap / (k_raw + cap) + _EPS_K * cap
