@@ -201,19 +201,35 @@ def test_contributions_name_an_invalid_parameter_by_its_array_not_a_coalition(pr
         agent_contributions(problem, problem.true_params, bad, exact_max=0, n_permutations=4)
 
 
-def test_contributions_refuse_parameters_that_simulate_to_nan(problem):
-    """One agent's ``E_s`` times 1e200 passes every input check (finite, > 0) but simulates to NaN: the library
-    refuses it naming the quantities and the agent, exact or sampled, instead of returning a table of NaN."""
-    agent = problem.agent_names.index("front_rail_left")
-    bad = problem.init.clone()
-    bad[(problem.layout.agent_of_cell == agent).numpy(), 1] *= 1e200
+def nan_where_moved(monkeypatch, cells: torch.Tensor) -> None:
+    """Make every simulation whose parameters move ``cells`` give a NaN area (a simulator failure; the clamped link
+    stiffness leaves no parameters the input checks accept that do, so the failure is injected)."""
+    from marlcrash.analysis import contributions
+
+    real = contributions.evaluate_params
+
+    def failing(problem, params):
+        m = real(problem, params)
+        moved = (params[:, cells] != problem.init[cells]).flatten(1).any(1)
+        m.area[moved] = float("nan")
+        return m
+
+    monkeypatch.setattr(contributions, "evaluate_params", failing)
+
+
+def test_contributions_refuse_parameters_that_simulate_to_nan(problem, monkeypatch):
+    """Parameters that pass every input check but simulate to NaN: the library refuses them naming the quantities
+    and the agent, exact or sampled, instead of returning a table of NaN (only the CLI checked)."""
+    three, agents = _three_agents_at_the_truth(problem)
+    name = problem.agent_names[agents[0]]
+    nan_where_moved(monkeypatch, problem.layout.agent_of_cell == agents[0])
     for kwargs in ({}, {"exact_max": 0, "n_permutations": 4}):
         with pytest.raises(
             ModelError,
-            match=r"^the simulations give non-finite .*\(first with the changes of "
-            r"front_rail_left\): the parameters lie out of the surrogate's range",
+            match=r"^the simulations give non-finite area/upfront_left, area/upfront_right, area/tunnel, score "
+            rf"\(first with the changes of [^)]*\b{name}\b[^)]*\): the parameters lie out of the surrogate's range",
         ):
-            agent_contributions(problem, bad, **kwargs)
+            agent_contributions(problem, three, **kwargs)
 
 
 def test_coalition_params_names_members_of_the_wrong_shape_or_type(problem):
@@ -437,19 +453,17 @@ def test_contributions_command_analyses_a_run_and_names_bad_arguments(tmp_path, 
     assert f"(python train/evaluate.py run={run})" in capsys.readouterr().err
 
 
-def test_contributions_of_parameters_out_of_the_surrogates_range_are_refused(tmp_path, capsys):
-    """One agent's ``E_s`` times 1e200 passes every input check (finite, > 0) but simulates to NaN: an error naming
-    the quantities, not a table of NaN and JSON that is not JSON."""
+def test_contributions_of_parameters_that_simulate_to_nan_are_refused(tmp_path, capsys, monkeypatch):
+    """Simulations that give NaN: an error naming the run, its step and the quantities, not a table of NaN and
+    JSON that is not JSON, and no files."""
     from marlcrash.cli import main
 
     problem = write_evaluated_run(tmp_path)
-    arrays = dict(np.load(tmp_path / "calibrated.npz"))
-    cells = (problem.layout.agent_of_cell == problem.agent_names.index("front_rail_left")).numpy()
-    arrays["per_iteration"][1][cells, 1] *= 1e200
-    np.savez(tmp_path / "calibrated.npz", **arrays)
+    nan_where_moved(monkeypatch, problem.layout.agent_of_cell >= 0)
     assert main(["contributions", str(tmp_path), "--permutations", "4", "--no-plots", "--json"]) == 2
     err = capsys.readouterr().err
-    assert "key 'run'" in err and "give non-finite" in err and "out of the surrogate's range" in err
+    assert "key 'run'" in err and f"{tmp_path}, calibration step 1: the simulations give non-finite area/" in err
+    assert "out of the surrogate's range" in err
     assert not (tmp_path / "contributions" / "iteration_1").exists()
 
 

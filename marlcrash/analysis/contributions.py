@@ -214,8 +214,9 @@ def agent_contributions(
             can be credited with the change); a bad ``exact_max`` or ``n_permutations``.
         ModelError: (a :class:`ValueError`) parameters the simulator refuses (``E_x <= 0``, a negative transmission
             factor of an active cell), named ``initial`` or ``calibrated`` and by the cell, before any simulation.
-            Also parameters that pass those checks but simulate to a non-finite metric or score (e.g. an ``E_s``
-            scaled by 1e200), naming the quantities and the first coalition that gave one.
+            Also parameters that pass those checks but simulate to a non-finite metric or score, naming the
+            quantities and the first coalition that gave one (a guard: since link stiffnesses are clamped, no
+            accepted parameters are known to do so; ``E_s`` times 1e200 did before).
     """
     if not 0 <= exact_max <= MAX_EXACT_PLAYERS:
         raise ValueError(f"exact_max: expected 0 to {MAX_EXACT_PLAYERS} agents, got {exact_max}")
