@@ -262,6 +262,39 @@ def test_result_rows_by_integer_keep_the_batch_dimension():
     assert crash_summary(out, cells, sc, row=-1) == crash_summary(out, cells, sc, row=2)
 
 
+def test_crash_figure_draws_a_single_per_cell_record_as_bars():
+    """With ``record_cells='final'`` the energy panel shows each sub-assembly's absorbed energy at the record as a
+    bar; it used to stack the one record as a curve at t = 0 (an empty area at the left edge of the time axis).
+    With a series it stacks the curves over the whole time axis; without per-cell records it is left out."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.collections import PolyCollection
+
+    from marlcrash.pulse.simulation import crash_figure, subassembly_absorbed
+
+    cells = chain(4)
+    sc = get_scenario("full_width_40", {"duration": 0.02})
+    p = _random_params(cells, 1, seed=2)
+    runs = {rc: Surrogate(cells).run(p, sc, backend="numba", record_cells=rc) for rc in ("final", "series", "none")}
+    figs = {rc: crash_figure(r, cells) for rc, r in runs.items()}
+    try:
+        final = subassembly_absorbed(runs["final"], cells)
+        bars = figs["final"].axes[2].patches
+        assert len(bars) >= 1 and not any(isinstance(c, PolyCollection) for c in figs["final"].axes[2].collections)
+        drawn = sorted(b.get_width() for b in bars)
+        want = sorted(v[-1] / 1e3 for v in final.values() if v[-1] > 1e-3 * max(1.0, runs["final"].initial[0].item()))
+        np.testing.assert_allclose(drawn, want, rtol=1e-12)
+        stacks = [c for c in figs["series"].axes[2].collections if isinstance(c, PolyCollection)]
+        t_ms = runs["series"].time.numpy() * 1e3
+        assert stacks and all(np.ptp(c.get_paths()[0].vertices[:, 0]) == pytest.approx(t_ms[-1]) for c in stacks)
+        assert len(figs["none"].axes) == 2
+    finally:
+        for f in figs.values():
+            plt.close(f)
+
+
 @pytest.mark.parametrize("dtype", ["float64", "float32"])
 def test_numba_chunk_width_changes_no_result(dtype):
     """The fast path cuts the batch into chunks of ``lanes`` simulations; the width is a speed choice only.

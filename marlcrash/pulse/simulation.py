@@ -167,17 +167,41 @@ def write_crash_csv(result: SimResult, path: str | Path, row: int = 0) -> Path:
 
 
 def plot_crash(result: SimResult, cells: CellModel, path: str | Path, title: str = "", cfc: int = 60, row: int = 0):
-    """PNG: CFC-filtered acceleration and velocity per sensor, energy absorbed per sub-assembly."""
+    """PNG: CFC-filtered acceleration and velocity per sensor, energy absorbed per sub-assembly.
+
+    With per-cell energy series (``record_cells='series'``) the third panel stacks each sub-assembly's absorbed
+    energy over time under the vehicle's kinetic energy; with a single per-cell record (``'final'``, at the end or
+    at ``cells_at``) it is a bar per sub-assembly at that record; without per-cell records (``'none'``) it is left
+    out.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    fig = crash_figure(result, cells, title=title, cfc=cfc, row=row)
+    path = Path(path)
+    try:
+        with atomic_output(path) as tmp:
+            fig.savefig(tmp, dpi=110)
+    finally:
+        plt.close(fig)
+    return path
+
+
+def crash_figure(result: SimResult, cells: CellModel, title: str = "", cfc: int = 60, row: int = 0):
+    """The matplotlib figure :func:`plot_crash` saves (the caller closes it)."""
+    import matplotlib.pyplot as plt
+
     t = result.time.detach().cpu().numpy()
     dt = float(t[1] - t[0])
     absorbed = subassembly_absorbed(result, cells, row)
+    series = absorbed is not None and next(iter(absorbed.values())).shape[0] == t.shape[0]
     n_panels = 3 if absorbed is not None else 2
-    fig, axes = plt.subplots(n_panels, 1, figsize=(8, 3.0 * n_panels), sharex=True)
+    fig, axes = plt.subplots(n_panels, 1, figsize=(8, 3.0 * n_panels))
+    axes[1].sharex(axes[0])
+    if series:
+        axes[2].sharex(axes[0])
     acc = filtered_acceleration(result.acceleration[row].detach().cpu().numpy(), dt, cfc) / G0
     for k, name in enumerate(result.sensor_names):
         a = acc[k]
@@ -190,20 +214,19 @@ def plot_crash(result: SimResult, cells: CellModel, path: str | Path, title: str
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
     if absorbed is not None:
-        tt = t[: next(iter(absorbed.values())).shape[0]] * 1e3
-        names = [n for n, v in absorbed.items() if v[-1] > 1e-3 * max(1.0, result.initial[row].item())]
-        axes[2].stackplot(tt, *[absorbed[n] / 1e3 for n in names], labels=names)
-        axes[2].plot(t * 1e3, result.kinetic[row].detach().cpu().numpy() / 1e3, "k--", lw=1, label="kinetic")
-        axes[2].set_ylabel("absorbed energy [kJ]")
-        axes[2].legend(fontsize=6, ncol=3, loc="upper right")
+        floor = 1e-3 * max(1.0, result.initial[row].item())
+        names = [n for n, v in absorbed.items() if v[-1] > floor]
+        if series:
+            axes[2].stackplot(t * 1e3, *[absorbed[n] / 1e3 for n in names], labels=names)
+            axes[2].plot(t * 1e3, result.kinetic[row].detach().cpu().numpy() / 1e3, "k--", lw=1, label="kinetic")
+            axes[2].set_ylabel("absorbed energy [kJ]")
+            axes[2].legend(fontsize=6, ncol=3, loc="upper right")
+        else:  # one per-cell record: the split at that record, not a curve at t = 0
+            axes[2].barh(names, [absorbed[n][-1] / 1e3 for n in names])
+            axes[2].invert_yaxis()
+            axes[2].set_xlabel("absorbed energy at the per-cell record (end, or cells_at) [kJ]")
         axes[2].grid(alpha=0.3)
-    axes[-1].set_xlabel("time [ms]")
+    axes[2 if series else 1].set_xlabel("time [ms]")
     fig.suptitle(title)
     fig.tight_layout()
-    path = Path(path)
-    try:
-        with atomic_output(path) as tmp:
-            fig.savefig(tmp, dpi=110)
-    finally:
-        plt.close(fig)
-    return path
+    return fig
