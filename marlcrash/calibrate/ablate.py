@@ -534,7 +534,7 @@ def markdown(config: AblationConfig, rows: list[dict[str, Any]], command: str | 
         lines.append("")
 
     lines += [
-        "## Per cell (mean ± std over reference seeds)",
+        "## Per cell (mean ± std over reference seeds; population std, ddof 0)",
         "",
         "| " + " | ".join(FACTORS) + " | active | acting cells | passed | gain | score | area worst [m] "
         "| DFD worst [m/s] | RMSE worst [m/s] | param err | median sims to success | wall [s] | note |",

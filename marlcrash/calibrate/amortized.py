@@ -451,7 +451,7 @@ def markdown(comparison: Comparison, command: str | None = None, date: str | Non
         "score, resolved to the optimizer's batch (CMA-ES generation, random-search batch, gradient step); "
         "- = never within the budget",
         "",
-        f"## Aggregate over {n} references (mean ± std)",
+        f"## Aggregate over {n} references (mean ± std; population std, ddof 0)",
         "",
         "| method | budget | area | DFD | RMSE | score | param err | passed | reached policy | median sims to policy "
         "| beats policy best | wall [s] |",

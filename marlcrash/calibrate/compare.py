@@ -611,7 +611,7 @@ def markdown(config: CompareConfig, rows: list[dict[str, Any]], command: str | N
     n = len(seeds)
 
     lines += [
-        f"## Per method (mean ± std over {n} reference{'s' if n != 1 else ''})",
+        f"## Per method (mean ± std over {n} reference{'s' if n != 1 else ''}; population std, ddof 0)",
         "",
         "| method | passed | median sims to success | simulations | area mean | area worst | DFD mean | DFD worst "
         "| RMSE mean | RMSE worst | score | param err | wall [s] | note |",
