@@ -343,6 +343,18 @@ def test_no_material_in_front_of_the_roi_depth_is_a_model_error(cfg):
         discretize(model, cfg)
 
 
+@pytest.mark.parametrize("dx", [-0.3, 0.3])
+def test_a_model_whose_front_is_not_at_x_0_is_a_model_error(cfg, dx):
+    """The ROI is the box x in [0, roi_depth]: a model built with its front elsewhere had material in front of x = 0
+    clamped into the first voxel layer (front at -0.3 m: 27 cells instead of 35) or cropped 0.3 m short (front at
+    +0.3 m), without a word."""
+    nodes, quads = tube_x(0.0, 0.8, -0.05, 0.05, 0.3, 0.4, 10, 4)
+    nodes = nodes + np.array([dx, 0.0, 0.0])
+    model = build_model([("rail", "shell", (nodes, quads), 2e-3, 1)], name="moved")
+    with pytest.raises(ModelError, match=rf"moved: the front-most node is at x = {dx:g} m.*front at x = 0"):
+        discretize(model, cfg)
+
+
 def test_a_massless_subassembly_is_named_with_its_cause(cfg):
     """Elements without mass (a deck's zero density or thickness) own no voxel: the error says so, not that the
     geometry is flat."""

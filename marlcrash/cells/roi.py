@@ -24,6 +24,9 @@ import numpy as np
 from marlcrash.errors import ConfigError, ModelError
 from marlcrash.vehicle.model import COMPARTMENT, VehicleModel
 
+FRONT_TOL = 1e-3
+"""How far [m] the model's front-most node may lie from x = 0 (rounding of a hand-built model)."""
+
 
 @dataclass
 class Roi:
@@ -135,11 +138,18 @@ def region_of_interest(model: VehicleModel, roi_depth: float, overlaps: list[flo
         The :class:`Roi`.
 
     Raises:
-        ModelError: the model has no deformable material in front of ``roi_depth``.
+        ModelError: the model's front is not at x = 0 (within :data:`FRONT_TOL`), or it has no deformable
+            material in front of ``roi_depth``.
     """
     if not roi_depth > 0:
         raise ConfigError(f"expected a positive depth [m], got {roi_depth}", key="roi_depth")
     b = model.bounds()
+    if abs(b[0, 0]) > FRONT_TOL:  # the box starts at x = 0: material ahead of it was clamped, a gap cropped short
+        raise ModelError(
+            f"{model.name}: the front-most node is at x = {b[0, 0]:.4g} m; the region of interest is cut from the "
+            "model in marlcrash axes, front at x = 0 (x rearward, y left, z up): read decks with read_deck, or "
+            "move a model built in Python with model.transformed(AxisMap())"
+        )
     width = float(b[1, 1] - b[0, 1])
     if width <= 0:
         raise ModelError(f"{model.name}: vehicle has zero width (all nodes at y = {b[0, 1]} m)")
