@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import warnings
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -183,3 +184,29 @@ def test_writer_rejects_mixed_parts_and_leaves_nothing_behind(tmp_path):
     with pytest.raises(ModelError, match="part 10 holds both shell and solid"):
         write_deck(m, tmp_path / "bad.k")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_numpy_integer_ids_are_written_as_integers(tmp_path):
+    """Ids held as numpy integers (a model built from arrays) went into the long-format cards as floats
+    (``MID 1.000000000000e+00``) where the keyword format wants an integer field."""
+    m = _model()
+    m.materials = {np.int64(k): replace(v, id=np.int64(v.id)) for k, v in m.materials.items()}
+    i64 = np.int64
+    m.parts = {
+        i64(k): replace(p, id=i64(p.id), material_id=i64(p.material_id), section_id=i64(p.section_id))
+        for k, p in m.parts.items()
+    }
+    m.part_mass = {np.int64(13): 0.5}
+    m.part_added_mass = {np.int64(10): 0.25}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        lines = write_deck(m, tmp_path / "np.k").read_text().splitlines()
+    for head, skip in (
+        ("*MAT_ELASTIC_TITLE+", 2),
+        ("*MAT_RIGID_TITLE+", 2),
+        ("*PART_INERTIA+", 2),
+        ("*SECTION_SHELL+", 1),
+        ("*ELEMENT_MASS_PART+", 1),
+    ):
+        first = lines[lines.index(head) + skip][:20]
+        assert first.strip().isdigit(), f"{head}: id field {first!r}"

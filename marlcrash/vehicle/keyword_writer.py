@@ -54,9 +54,10 @@ def _f20(x: float) -> str:
 
 
 def _card(values: Iterable[float | int]) -> str:
+    """One long-format card: integers (Python or numpy) as integer fields, everything else as a float."""
     out = []
     for v in values:
-        out.append(f"{v:20d}" if isinstance(v, int) else _f20(float(v)))
+        out.append(f"{int(v):20d}" if isinstance(v, int | np.integer) else _f20(float(v)))
     return "".join(out) + "\n"
 
 
