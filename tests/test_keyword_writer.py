@@ -210,3 +210,22 @@ def test_numpy_integer_ids_are_written_as_integers(tmp_path):
     ):
         first = lines[lines.index(head) + skip][:20]
         assert first.strip().isdigit(), f"{head}: id field {first!r}"
+
+
+def test_a_set_mass_the_cards_cannot_carry_is_warned_and_the_deck_reads_back(tmp_path):
+    """``*PART_INERTIA`` TM sets a rigid part's mass only (the reader ignores it on a deformable part, as LS-DYNA
+    does) and must be positive: a deformable part's set mass was dropped on the way back without a word, and a rigid
+    part's zero mass gave a deck its own reader refused."""
+    m = _model()
+    m.part_mass = {12: 3.0, 13: 0.0}  # 12 is elastic, 13 rigid
+    with pytest.warns(UserWarning, match=r"part 12: its set mass 3 kg.*part 13: its set mass 0 kg"):
+        deck = write_deck(m, tmp_path / "pm.k")
+    assert "*PART_INERTIA" not in deck.read_text()
+    back = read_deck(deck, subassemblies=tmp_path / "pm.subassemblies.yaml")
+    assert back.part_mass == {}
+    m.part_mass = {13: 2.0}  # what the cards carry goes through without a warning
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        deck = write_deck(m, tmp_path / "ok.k")
+    back = read_deck(deck, subassemblies=tmp_path / "ok.subassemblies.yaml")
+    assert back.part_mass == {13: pytest.approx(2.0, rel=1e-12)}

@@ -10,7 +10,7 @@ The deck holds ``*NODE`` (16-character coordinates, 10 significant digits),
 per-keyword long format (``+``, 20-character fields) so their values survive a round
 trip to 13 significant digits. A ``<stem>.subassemblies.yaml`` beside the deck holds
 the sub-assemblies. :func:`marlcrash.vehicle.keyword.read_deck` reads the pair back
-to the same model. Added masses go as the reader takes them: a part's set structural mass as
+to the same model. Added masses go as the reader takes them: a rigid part's set structural mass as
 ``*PART_INERTIA`` (its inertia tensor that of its elements as lumped masses), non-structural
 mass as ``*ELEMENT_MASS_PART`` ADDMASS, point masses as ``*ELEMENT_MASS`` (renumbered where
 ids repeat, as a node set's share does).
@@ -18,7 +18,9 @@ ids repeat, as a node set's share does).
 What the cards cannot carry: strengths of elastic and rigid materials (the reader
 re-derives them with :func:`complete_material`), a fracture strength different from
 the ultimate one for ``plastic_kinematic``, shear and bulk moduli inconsistent with
-E and nu. The writer warns (:class:`UserWarning`) when a model holds such values.
+E and nu, a set mass (:attr:`VehicleModel.part_mass`) of a deformable part or a zero one
+(``*PART_INERTIA`` TM is read for rigid parts only, and must be positive). The writer warns
+(:class:`UserWarning`) when a model holds such values.
 """
 
 from __future__ import annotations
@@ -178,6 +180,7 @@ def write_deck(model: VehicleModel, path: str | Path, *, units: str = "mm-t-s", 
     path = Path(path)
     kinds = _part_kinds(model)
     lost: dict[int, list[str]] = {}
+    cannot: list[str] = []  # what else the cards cannot carry
     fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
     try:
         with os.fdopen(fd, "w", newline="\n") as f:
@@ -197,7 +200,8 @@ def write_deck(model: VehicleModel, path: str | Path, *, units: str = "mm-t-s", 
                     secid, fresh = fresh, fresh + 1
                 used_secids.add(secid)
                 kind = kinds.get(pid, "shell")
-                if pid in model.part_mass:
+                inertia = pid in model.part_mass and _inertia_carries(model, pid, cannot)
+                if inertia:
                     f.write(
                         f"*PART_INERTIA+\n{p.name.replace(chr(10), ' ')[:80]}\n" + _card([pid, secid, p.material_id])
                     )
@@ -225,8 +229,8 @@ def write_deck(model: VehicleModel, path: str | Path, *, units: str = "mm-t-s", 
         raise
     if subassembly_yaml:
         dump_subassembly_map(model.subassemblies, path.with_name(path.stem + ".subassemblies.yaml"))
-    if lost:
-        listing = "; ".join(f"material {mid}: {', '.join(v)}" for mid, v in sorted(lost.items()))
+    if lost or cannot:
+        listing = "; ".join([f"material {mid}: {', '.join(v)}" for mid, v in sorted(lost.items())] + cannot)
         warnings.warn(f"{path.name}: the keyword cards cannot carry {listing}", UserWarning, stacklevel=2)
     return path
 
@@ -261,6 +265,18 @@ def _write_geometry(f, model: VehicleModel, u) -> None:
         f.write(f"*ELEMENT_BEAM_THICKNESS{sfx}\n")
         fmt = f"%{w}d" * 4 + "\n" + f"%{tw}.9e" * 4 + "\n"
         _write_rows(f, fmt, model.beam_ids, model.beam_part, n[:, 0], n[:, 1], a, i, i, 2 * i)
+
+
+def _inertia_carries(model: VehicleModel, pid: int, cannot: list[str]) -> bool:
+    """Whether ``*PART_INERTIA`` carries part ``pid``'s set mass: LS-DYNA (and the reader) take its TM for rigid parts
+    only, and only a positive one. Otherwise the part is written as ``*PART`` and the mass noted in ``cannot``."""
+    mass = model.part_mass[pid]
+    rigid = model.materials[model.parts[pid].material_id].is_rigid
+    if rigid and mass > 0:
+        return True
+    why = "*PART_INERTIA sets the mass of rigid parts only" if not rigid else "*PART_INERTIA needs a mass TM > 0"
+    cannot.append(f"part {pid}: its set mass {mass:.4g} kg ({why}; read back, the part weighs density x volume)")
+    return False
 
 
 def _inertia_cards(model: VehicleModel, pid: int, u) -> str:
