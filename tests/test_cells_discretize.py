@@ -365,6 +365,26 @@ def test_a_massless_subassembly_is_named_with_its_cause(cfg):
         discretize(model, cfg, method="optimized")
 
 
+def test_the_strict_uniform_grid_gives_massless_material_no_cell(cfg):
+    """``uniform_cells: per_block`` made a cell of every block with samples, massless ones included (a part of zero
+    thickness): 42 non-null cells without mass, linked into the load paths, where the other methods give such
+    material no cell; and a sub-assembly without any mass was accepted where they name it."""
+    model = mini_car()
+    cooling = model.subassemblies["cooling"][0]
+    left = model.coords[model.shell_nodes][:, :, 1].mean(axis=1) > 0
+    strict = dataclasses.replace(cfg, uniform_cells="per_block")
+    model.shell_thickness[(model.shell_part == cooling) & left] = 0.0  # half the cooling module weighs nothing
+    on_it = SensorSpec("on_the_massless_half", "position", [0.15, 0.2, 0.45])  # snaps to material with mass
+    cells = discretize(model, dataclasses.replace(strict, sensors=[on_it]), method="uniform")
+    assert (cells.mass[~cells.is_null] > 0).all()
+    assert not cells.is_null[cells.sensor_cell].any() and not cells.is_null[cells.is_sensor].any()
+    assert cells.mass.sum() == pytest.approx(model.total_mass(), rel=1e-12)
+    check_invariants(cells)
+    model.shell_thickness[model.shell_part == cooling] = 0.0  # all of it
+    with pytest.raises(ModelError, match="sub-assembly 'cooling' has elements in the region of interest but no mass"):
+        discretize(model, strict, method="uniform")
+
+
 # ------------------------------------------------------------------ the synthetic B-segment car
 @pytest.fixture(scope="module")
 def synthetic():

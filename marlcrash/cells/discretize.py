@@ -662,8 +662,12 @@ def _uniform(
     bx, by, bz = grid.block
     bid = ((bx[:, None, None] * nby + by[None, :, None]) * nbz + bz[None, None, :]).ravel()
     if cfg.uniform_cells == "per_block":
+        count = np.bincount(samples.subassembly, minlength=n_sub)
+        weight = np.bincount(samples.subassembly, weights=samples.mass, minlength=n_sub)
+        for s in np.flatnonzero((count > 0) & ~(weight > 0)).tolist():  # named, as the other methods do
+            raise _no_cell(grid, names[s], float(weight[s]))
         labels, cell_sub, is_null = _uniform_blocks(bid, grid.n_uniform_cells, vox, samples, n_sub, comp_vox)
-        cell_of_sample, cand = labels[vox], np.unique(vox)
+        cell_of_sample, cand = labels[vox], np.unique(vox[samples.mass > 0])  # a sensor sits on a cell with mass
     else:
         labels, cell_sub, is_null, cell_of_sample, cand = _uniform_split(grid, bid, vox, samples, n_sub, comp_vox,
                                                                          cfg, names)  # fmt: skip
@@ -697,11 +701,14 @@ def _uniform_blocks(
     bid: np.ndarray, nb: int, vox: np.ndarray, samples: Samples, n_sub: int, comp_vox: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One cell per block with material, labelled by its heaviest sub-assembly and holding all of the block's
-    material; empty blocks are null cells, blocks of compartment material only join the compartment (last)."""
-    sb = bid[vox]
-    key = sb * n_sub + samples.subassembly
+    material; empty blocks are null cells, blocks of compartment material only join the compartment (last).
+    Material without mass (a part of zero thickness or density) makes no block a cell: a cell without mass has
+    no inertia and no parameters, and the other methods give such material no cell either."""
+    heavy = samples.mass > 0
+    sb = bid[vox[heavy]]
+    key = sb * n_sub + samples.subassembly[heavy]
     uk, inv = np.unique(key, return_inverse=True)
-    m = np.bincount(inv, weights=samples.mass, minlength=uk.size)
+    m = np.bincount(inv, weights=samples.mass[heavy], minlength=uk.size)
     kb, ks = uk // n_sub, uk % n_sub
     order = np.lexsort((-m, kb))
     first = np.ones(order.size, dtype=bool)
