@@ -256,6 +256,34 @@ def test_save_load_round_trip(optimized, tmp_path):
     assert back.meta["n_cells_uniform"] == optimized.meta["n_cells_uniform"]
 
 
+def _corrupt(cells, field):
+    """``cells`` with one field made inconsistent (what a hand-edited or mismatched file holds)."""
+    null = int(np.flatnonzero(cells.is_null)[0])
+    change = {
+        "sensor_cell": {"sensor_cell": np.where(np.arange(len(cells.sensor_names)) == 0, 10**6, cells.sensor_cell)},
+        "sensor_cell null": {"sensor_cell": np.where(np.arange(len(cells.sensor_names)) == 0, null, cells.sensor_cell)},
+        "sensor_names": {"sensor_names": cells.sensor_names[:-1]},
+        "sensor_position": {"sensor_position": cells.sensor_position[:-1]},
+        "subassembly": {
+            "subassembly": np.where(cells.subassembly == 0, len(cells.subassembly_names), cells.subassembly)
+        },
+        "grid_labels": {"grid_labels": np.where(cells.grid_labels == 0, cells.n_cells, cells.grid_labels)},
+    }[field]
+    return dataclasses.replace(cells, **change)
+
+
+@pytest.mark.parametrize(
+    "field", ["sensor_cell", "sensor_cell null", "sensor_names", "sensor_position", "subassembly", "grid_labels"]
+)
+def test_an_inconsistent_cell_model_file_is_refused_naming_the_field(optimized, tmp_path, field):
+    """A cell file whose sensors, sub-assembly indices or voxel labels do not fit its cells loaded, and failed later
+    in the simulator with an IndexError (a sensor cell out of range) or recorded the wrong cell without a word."""
+    path = tmp_path / "bad.npz"
+    _corrupt(optimized, field).save(path)
+    with pytest.raises(ModelError, match=field.split()[0]):
+        CellModel.load(path)
+
+
 def test_summary_and_plot(car, cfg, optimized, tmp_path):
     s, cells = discretization_summary(car, cfg)
     assert cells.n_cells == optimized.n_cells

@@ -204,6 +204,39 @@ class CellModel:
             min(self.link_src.min(), self.link_dst.min()) < 0 or max(self.link_src.max(), self.link_dst.max()) >= n
         ):
             raise ModelError("CellModel links refer to cells outside 0..n_cells-1")
+        self._validate_references()
+
+    def _validate_references(self) -> None:
+        """Sensors, sub-assembly indices and voxel labels refer to cells and names that exist."""
+        n = self.n_cells
+        k = len(self.sensor_names)
+        if self.sensor_cell.shape != (k,) or self.sensor_position.shape != (k, 3):
+            what = "sensor_cell" if self.sensor_cell.shape != (k,) else "sensor_position"
+            raise ModelError(
+                f"CellModel.{what} must be [{k}{']' if what == 'sensor_cell' else ', 3]'} for the {k} sensor_names "
+                f"{list(self.sensor_names)}, got {list(getattr(self, what).shape)}"
+            )
+        bad = [(nm, int(c)) for nm, c in zip(self.sensor_names, self.sensor_cell, strict=True) if not 0 <= c < n]
+        if bad:
+            raise ModelError(
+                f"CellModel.sensor_cell: sensor {bad[0][0]!r} refers to cell {bad[0][1]}, not in 0..{n - 1}"
+            )
+        on_null = [(nm, int(c)) for nm, c in zip(self.sensor_names, self.sensor_cell, strict=True) if self.is_null[c]]
+        if on_null:
+            raise ModelError(
+                f"CellModel.sensor_cell: sensor {on_null[0][0]!r} is in null cell {on_null[0][1]}, which has no mass"
+            )
+        a = len(self.subassembly_names)
+        if self.subassembly.size and (self.subassembly.min() < -1 or self.subassembly.max() >= a):
+            raise ModelError(f"CellModel.subassembly must index subassembly_names (0..{a - 1}) or be -1 for null cells")
+        shape = tuple(len(e) - 1 for e in self.grid_edges)
+        if self.grid_labels.shape != shape:
+            raise ModelError(
+                f"CellModel.grid_labels must be {list(shape)} (the voxels of grid_edges), "
+                f"got {list(self.grid_labels.shape)}"
+            )
+        if self.grid_labels.size and (self.grid_labels.min() < -1 or self.grid_labels.max() >= n):
+            raise ModelError(f"CellModel.grid_labels must be cell indices 0..{n - 1} or -1")
 
     # ----------------------------------------------------------- save / load
     def save(self, path: str | Path) -> None:
