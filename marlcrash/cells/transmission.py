@@ -239,7 +239,7 @@ def transmission_factors(
         links: the cell links.
         active: ``[n]`` bool, non-null non-rigid cells (all others get zeros).
         weights: ``(w_x, w_lateral, w_vertical)``.
-        principal_min_share: least ``f_x`` with +x material continuity.
+        principal_min_share: least ``f_x`` of a cell with a +x link (material continuity or contact, rule 3).
 
     Returns:
         ``(factors [n, 5], feasible [n, 5], link_share [L])``.
