@@ -12,7 +12,10 @@ One iteration:
    ``STEP_FACTORS`` in one more batch, ``s`` solving ``(J^T J + lambda f D) s = -J^T r``, clipped
    to the box. ``D`` is the diagonal of ``J^T J`` floored at ``DIAG_FLOOR`` of its largest entry:
    without the floor, coordinates the pulses barely see took steps to the edge of the box and
-   every step was rejected.
+   every step was rejected. A Jacobian column with a non-finite entry (a finite-difference point
+   the simulator could not run) is zeroed, so its coordinate is held for the iteration instead of
+   poisoning every step; a step that still comes out non-finite (a non-finite residual ``r``) is
+   zero, so no candidate is ever non-finite.
 3. :func:`next_damping`: the best candidate is kept if it lowers the cost and ``lambda`` becomes
    ``lambda f / 3``; otherwise ``lambda`` grows 30x.
 
@@ -57,11 +60,18 @@ def damped_steps(
     hi: torch.Tensor,
     factors: tuple[float, ...] = STEP_FACTORS,
 ) -> torch.Tensor:
-    """Candidates ``[len(factors), n]``: ``z`` plus the damped Gauss-Newton step per factor, clipped to the box."""
+    """Candidates ``[len(factors), n]``: ``z`` plus the damped Gauss-Newton step per factor, clipped to the box.
+
+    Non-finite Jacobian columns are zeroed (their coordinates do not move) and non-finite steps are zero
+    (module docstring), so every candidate is finite.
+    """
+    jac = torch.where(torch.isfinite(jac).all(0), jac, torch.zeros_like(jac))
     jtj, grad = jac.T @ jac, jac.T @ r
     d = torch.diagonal(jtj)
-    diag = torch.diag(d.clamp_min(DIAG_FLOOR * float(d.max()) + 1e-300))
+    top = float(d.max())
+    diag = torch.diag(d.clamp_min(DIAG_FLOOR * top + 1e-300) if top > 0 else torch.ones_like(d))  # J = 0: no step
     steps = [torch.linalg.solve(jtj + lam * f * diag, -grad) for f in factors]
+    steps = [torch.where(torch.isfinite(s).all(), s, torch.zeros_like(s)) for s in steps]
     return torch.stack([torch.minimum(torch.maximum(z + s, lo), hi) for s in steps])
 
 
