@@ -7,6 +7,7 @@ import pytest
 import torch
 
 from marlcrash.calibrate import ProblemConfig, Progress, SmoothLoss, build_problem
+from marlcrash.calibrate.budget import ranked_scores
 from marlcrash.calibrate.problem import problem_env_config
 from marlcrash.cells.parameterization import apply_increments
 from marlcrash.config import from_dict
@@ -266,3 +267,18 @@ def test_progress_counts_exactly():
     assert p.history_array()[:, 1].tolist() == [3.0, 3.0]
     with pytest.raises(ConfigError, match="budget"):
         Progress(0)
+
+
+def test_progress_keeps_a_perfect_fit_whose_score_is_infinite():
+    """``log_ratio`` with ``eps: 0`` (allowed) scores the exact twin truth ``-log(0) = +inf``: the best fit
+    possible. Mapping every non-finite score to ``-inf`` made it the worst, so a later, worse candidate replaced it."""
+    p = Progress(10)
+    x = torch.arange(4, dtype=torch.float64)[:, None, None].expand(4, 2, 7)
+    m = Metrics(*(torch.ones(4, 3) for _ in range(3)))
+    p.record(x[:2], Metrics(*(t[:2] for t in m)), torch.tensor([1.0, float("inf")]),
+             torch.zeros(2, dtype=torch.bool))  # fmt: skip
+    p.record(x[2:], Metrics(*(t[2:] for t in m)), torch.tensor([5.0, float("nan")]), torch.zeros(2, dtype=torch.bool))
+    assert p.best_score == float("inf") and float(p.best_x[0, 0]) == 1.0
+    # the evaluation of a policy selects its best iterate by the same ranking
+    ranked = ranked_scores(torch.tensor([1.0, float("inf"), float("nan"), float("-inf")], dtype=torch.float32))
+    assert ranked.dtype == torch.float64 and int(ranked.argmax()) == 1 and ranked[2] == float("-inf")

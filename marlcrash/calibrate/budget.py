@@ -21,6 +21,13 @@ from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics
 
 
+def ranked_scores(score: torch.Tensor) -> torch.Tensor:
+    """Fit scores as float64 for ranking (higher is better): a NaN (a failed simulation) becomes ``-inf`` so it
+    never wins; ``+inf`` (a perfect fit under ``log_ratio`` with ``eps: 0``) stays the best score there is."""
+    s = score.detach().to(torch.float64)
+    return torch.where(s.isnan(), torch.full_like(s, float("-inf")), s)
+
+
 @dataclass
 class HistoryRow:
     """One line of the best-score log: after ``simulations`` simulations and ``iteration`` batches."""
@@ -101,8 +108,7 @@ class Progress:
         n = int(score.shape[0])
         if n > self.remaining:
             raise RuntimeError(f"batch of {n} simulations exceeds the remaining budget of {self.remaining}")
-        s = score.detach().to(torch.float64)
-        s = torch.where(torch.isfinite(s), s, torch.full_like(s, float("-inf")))  # a NaN never wins
+        s = ranked_scores(score)  # a NaN never wins
         k = int(torch.argmax(s))
         if self.sims_to_success is None and bool(success.any()):
             self.sims_to_success = self.used + int(torch.nonzero(success)[0, 0]) + 1

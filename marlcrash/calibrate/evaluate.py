@@ -49,6 +49,7 @@ from tensordict.nn import TensorDictModuleBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from marlcrash import provenance
+from marlcrash.calibrate.budget import ranked_scores
 from marlcrash.calibrate.checkpoint import CHECKPOINT_FILE, SNAPSHOT_DIR, find_checkpoint, load_training_checkpoint
 from marlcrash.calibrate.logging import LOG_FILE, read_log
 from marlcrash.calibrate.marl import (
@@ -205,8 +206,7 @@ def evaluate_policy(policy: TensorDictModuleBase, config: TrainConfig) -> EvalRe
                 break
             td = td.get("next")
     m = Metrics(*(torch.stack([x[j] for x in metrics]) for j in range(3)))
-    scores = core.reward_fn.score(m).to(torch.float64)
-    scores = torch.where(torch.isfinite(scores), scores, torch.full_like(scores, -torch.inf))
+    scores = ranked_scores(core.reward_fn.score(m))
     selected = int(torch.argmax(scores)) if ev.select == "best" else len(params) - 1
     truth = None if core.true_params is None else core.true_params[0].clone()
     return EvalResult(
