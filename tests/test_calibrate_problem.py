@@ -282,3 +282,10 @@ def test_progress_keeps_a_perfect_fit_whose_score_is_infinite():
     # the evaluation of a policy selects its best iterate by the same ranking
     ranked = ranked_scores(torch.tensor([1.0, float("inf"), float("nan"), float("-inf")], dtype=torch.float32))
     assert ranked.dtype == torch.float64 and int(ranked.argmax()) == 1 and ranked[2] == float("-inf")
+
+
+def test_progress_records_an_empty_batch_as_nothing():
+    p = Progress(3)
+    empty = Metrics(*(torch.ones(0, 3) for _ in range(3)))
+    p.record(torch.zeros(0, 2, 7), empty, torch.zeros(0), torch.zeros(0, dtype=torch.bool))  # raised IndexError
+    assert p.used == 0 and p.history == [] and p.best_x is None

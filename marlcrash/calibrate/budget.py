@@ -94,7 +94,7 @@ class Progress:
         return max(0, min(int(n), self.remaining))
 
     def record(self, x: torch.Tensor, metrics: Metrics, score: torch.Tensor, success: torch.Tensor) -> None:
-        """Charge and record one evaluated batch.
+        """Charge and record one evaluated batch (an empty one, e.g. of ``grant() == 0`` candidates, records nothing).
 
         Args:
             x: ``[N, n_agents, 7]`` candidates.
@@ -106,6 +106,8 @@ class Progress:
             RuntimeError: the batch would exceed the budget (an optimizer skipped :meth:`grant`).
         """
         n = int(score.shape[0])
+        if n == 0:  # argmax of nothing raised an IndexError
+            return
         if n > self.remaining:
             raise RuntimeError(f"batch of {n} simulations exceeds the remaining budget of {self.remaining}")
         s = ranked_scores(score)  # a NaN never wins
