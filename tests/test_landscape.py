@@ -319,3 +319,14 @@ def test_spectrum_of_the_real_problem_sees_few_directions_in_a_short_window():
     assert 0 < res["blind_coordinates"] < problem.n_free
     assert res["above"]["0.0001"] <= problem.n_free - res["blind_coordinates"]
     assert res["relative"][0] == 1.0 and all(a >= b for a, b in zip(res["relative"], res["relative"][1:], strict=False))
+
+
+def test_cluster_study_measures_the_area_as_the_problem_does():
+    """A fit whose reward config integrates the area by the trapezoid rule: the cluster study compared with the
+    exact area regardless, so at radius 0 its medians disagreed with the landscape study's (the problem's)."""
+    problem = build_problem(ProblemConfig(duration=SHORT_DURATION))
+    problem.fit.cfg.metrics.area_method = "trapezoid"
+    radii = [1e-2, 1e-1]
+    ref = truth_neighbourhood(problem, radii, groups=["all"], draws=3, seed=4)["groups"]["all"]["area_per_sensor"]
+    res = cluster_sensor_study(problem, cluster_radii=[0.0], radii=radii, draws=3, seed=4)
+    np.testing.assert_allclose(res["clusters"][0]["area_per_sensor"], ref, rtol=1e-9, atol=1e-15)

@@ -183,8 +183,8 @@ def cluster_sensor_study(
     Each sensor's velocity is replaced by the mass-weighted mean velocity of its cluster
     (:func:`sensor_clusters`, one per ``cluster_radii`` entry [m]) for the truth and for the same
     neighbourhood points as :func:`truth_neighbourhood` alike, then compared as the problem compares
-    (:meth:`CalibrationProblem.compared`, area of Eq. 8). One batched simulation records every cluster
-    cell (``1 + len(radii) * draws`` simulations).
+    (:meth:`CalibrationProblem.compared`, area of Eq. 8 by the fit's ``metrics.area_method``). One batched
+    simulation records every cluster cell (``1 + len(radii) * draws`` simulations).
 
     Returns:
         ``{"sensors", "radii", "draws", "group", "clusters": [{"radius_m", "cells": [K], "mass_kg": [K],
@@ -214,7 +214,8 @@ def cluster_sensor_study(
             w = mass[m] / mass[m].sum()
             v.append((res.velocity[:, [col[int(i)] for i in m]] * w[None, :, None]).sum(1))
         vc = problem.compared(torch.stack(v, dim=1))  # [N, K, T]
-        area = area_between(vc[1:], vc[:1], dt=problem.dt).reshape(len(radii), draws, -1).median(dim=1).values
+        area = area_between(vc[1:], vc[:1], dt=problem.dt, method=problem.fit.cfg.metrics.area_method)
+        area = area.reshape(len(radii), draws, -1).median(dim=1).values
         out["clusters"].append({"radius_m": float(c), "cells": [len(m) for m in members],
                                 "mass_kg": [float(mass[m].sum()) for m in members],
                                 "area_per_sensor": area.tolist()})  # fmt: skip
