@@ -476,7 +476,8 @@ def compute_metrics(
     if backend == "numba":
         if dt is None:
             raise PulseError("the numba metrics backend needs a uniform step dt")
-        dfd = discrete_frechet_uniform_numba(q, p, dt, cfg.dfd_time_scale, cfg.dfd_value_scale).to(q.dtype)
+        dfd = discrete_frechet_uniform_numba(q, p, dt, cfg.dfd_time_scale, cfg.dfd_value_scale)
+        dfd = dfd.to(dtype=area.dtype, device=area.device)  # the promoted dtype and the device of the other two
         return Metrics(area=area, dfd=dfd, rmse=rmse(q, p))
     if time is None:
         dfd = discrete_frechet(q, p, dt=dt, time_scale=cfg.dfd_time_scale, value_scale=cfg.dfd_value_scale)

@@ -269,3 +269,15 @@ def test_a_nan_curve_gets_nan_metrics_in_both_backends_and_fails_the_episode():
     m = compute_metrics(q, p, dt=5e-4)
     end = termination(type(m)(*(v[:, None] for v in m)), cfg, 1)
     assert end.failure.tolist() == [False, True] and end.success.tolist() == [False, False]
+
+
+def test_numba_backend_returns_the_dtype_of_the_other_metrics():
+    """A float32 estimate against a float64 reference: area and RMSE come out float64 (type promotion, as every
+    metric of the torch backend), but the compiled Frechet distance was cast to the estimate's float32."""
+    g = torch.Generator().manual_seed(1)
+    q = torch.randn(2, 3, 30, generator=g).cumsum(-1)  # float32
+    p = torch.randn(3, 30, generator=g, dtype=torch.float64).cumsum(-1)
+    slow = compute_metrics(q, p, dt=5e-4)
+    fast = compute_metrics(q, p, dt=5e-4, backend="numba")
+    assert {t.dtype for t in slow} == {t.dtype for t in fast} == {torch.float64}
+    torch.testing.assert_close(fast.dfd, slow.dfd, rtol=1e-6, atol=1e-6)
