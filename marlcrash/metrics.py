@@ -98,8 +98,16 @@ def _as_signal(x: object, name: str) -> torch.Tensor:
 
 
 def _check_pair(q: object, p: object) -> tuple[torch.Tensor, torch.Tensor]:
-    """``q`` and ``p`` as tensors on common time samples, or a :class:`PulseError` saying what was expected."""
+    """``q`` and ``p`` as tensors on common time samples, or a :class:`PulseError` saying what was expected.
+
+    An array or list is placed on the device of the other signal, when that one is a tensor."""
+    given_q, given_p = isinstance(q, torch.Tensor), isinstance(p, torch.Tensor)
     q, p = _as_signal(q, "q"), _as_signal(p, "p")
+    if given_q and not given_p:
+        p = p.to(q.device)
+    elif given_p and not given_q:
+        q = q.to(p.device)
+    _check_device(q, p)
     if q.shape[-1] != p.shape[-1]:
         raise PulseError(
             f"expected q and p on common time samples (same last dimension), got shapes {tuple(q.shape)} "
@@ -115,6 +123,11 @@ def _check_pair(q: object, p: object) -> tuple[torch.Tensor, torch.Tensor]:
             f"got shapes {tuple(q.shape)} and {tuple(p.shape)}"
         ) from None
     return q, p
+
+
+def _check_device(q: torch.Tensor, p: torch.Tensor) -> None:
+    if q.device != p.device:  # torch's own message names neither argument
+        raise PulseError(f"expected q and p on one device, got {q.device} and {p.device}; move one with .to()")
 
 
 def _check_dt(dt: float) -> float:
@@ -244,6 +257,7 @@ def discrete_frechet_points(q: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
     """
     if q.ndim < 2 or p.ndim < 2 or q.shape[-1] != p.shape[-1]:
         raise PulseError(f"expected points [..., n, D] and [..., m, D], got {tuple(q.shape)} and {tuple(p.shape)}")
+    _check_device(q, p)
     n, m = q.shape[-2], p.shape[-2]
     if n < 1 or m < 1:
         raise PulseError(f"expected at least one point per curve, got n={n}, m={m}")

@@ -281,3 +281,17 @@ def test_numba_backend_returns_the_dtype_of_the_other_metrics():
     fast = compute_metrics(q, p, dt=5e-4, backend="numba")
     assert {t.dtype for t in slow} == {t.dtype for t in fast} == {torch.float64}
     torch.testing.assert_close(fast.dfd, slow.dfd, rtol=1e-6, atol=1e-6)
+
+
+def test_signals_on_two_devices_are_refused_by_name():
+    q = torch.zeros(2, 3, 10, device="meta", dtype=torch.float64)
+    p = torch.zeros(3, 10, dtype=torch.float64)
+    for f in (compute_metrics, area_between):
+        with pytest.raises(PulseError, match=r"expected q and p on one device, got meta and cpu"):
+            f(q, p, dt=5e-4)
+    with pytest.raises(PulseError, match=r"one device"):
+        rmse(q, p)
+    with pytest.raises(PulseError, match=r"one device"):
+        discrete_frechet_points(q[..., None], p[..., None])
+    # an array given with a tensor goes where the tensor is
+    assert area_between(q, p.numpy(), dt=5e-4).device.type == rmse(p.tolist(), q).device.type == "meta"
