@@ -150,6 +150,15 @@ def _check_time(time: object, like: torch.Tensor) -> torch.Tensor:
         raise PulseError("expected time as [T] sample times [s], got a scalar")
     if t.shape[-1] != like.shape[-1]:
         raise PulseError(f"time has {t.shape[-1]} samples, the signals {like.shape[-1]}")
+    try:
+        fits = torch.broadcast_shapes(t.shape, like.shape) == like.shape
+    except RuntimeError:
+        fits = False
+    if not fits:  # torch's own message names neither time nor the signals
+        raise PulseError(
+            f"expected time as [T] or with batch dimensions that broadcast to the signals' "
+            f"{tuple(like.shape)}, got shape {tuple(t.shape)}"
+        )
     if not bool(torch.isfinite(t).all()):
         raise PulseError("time has non-finite sample times")
     rows = t.reshape(-1, t.shape[-1])

@@ -295,3 +295,14 @@ def test_signals_on_two_devices_are_refused_by_name():
         discrete_frechet_points(q[..., None], p[..., None])
     # an array given with a tensor goes where the tensor is
     assert area_between(q, p.numpy(), dt=5e-4).device.type == rmse(p.tolist(), q).device.type == "meta"
+
+
+def test_sample_times_whose_batch_does_not_fit_the_signals_are_refused_by_name():
+    """Times ``[B, T]`` for signals ``[B, K, T]`` (a batch axis in the wrong place) failed deep in torch."""
+    q = torch.rand(2, 3, 5, dtype=torch.float64)
+    p = torch.rand(3, 5, dtype=torch.float64)
+    t = torch.arange(10, dtype=torch.float64).reshape(2, 5) * 1e-3
+    for f in (area_between, compute_metrics, discrete_frechet):
+        with pytest.raises(PulseError, match=r"expected time as \[T\] or with batch dimensions .* got shape \(2, 5\)"):
+            f(q, p, t)
+    assert area_between(q, p, t[:, None]).shape == (2, 3)  # [B, 1, T] broadcasts over the sensors
