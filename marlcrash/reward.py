@@ -250,16 +250,23 @@ class RewardConfig:
     Attributes:
         name: a key of :data:`REWARD_FORMS`.
         sensor_reduction: ``mean`` or ``max`` over sensors before the form.
-        params: the form's parameters (keys of its parameter dataclass).
+        params: the form's parameters (keys of its parameter dataclass); keys left out take the named
+            form's defaults.
         metrics: how A, DFD and RMSE are computed.
         termination: success/failure thresholds and the iteration limit.
     """
 
     name: str = "paper_factor"
     sensor_reduction: Literal["mean", "max"] = "mean"
-    params: dict[str, float] = field(default_factory=lambda: asdict(PaperFactorParams()))
+    params: dict[str, float] = field(default_factory=dict)
     metrics: MetricsConfig = field(default_factory=MetricsConfig)
     termination: TerminationConfig = field(default_factory=shipped_termination)
+
+    def __post_init__(self) -> None:
+        # the defaults of the form named, not of paper_factor: RewardConfig(name="log_ratio") failed on params.a
+        form = REWARD_FORMS.get(self.name) if isinstance(self.name, str) else None
+        if form is not None and isinstance(self.params, dict):
+            self.params = {**asdict(form.params_cls()), **self.params}
 
     def validate(self) -> None:
         """Check the name is registered and the params fit the form."""

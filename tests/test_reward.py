@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 
@@ -14,6 +15,7 @@ from marlcrash.metrics import Metrics
 from marlcrash.reward import (
     REWARD_FORMS,
     Reward,
+    RewardConfig,
     TerminationConfig,
     get_reward,
     load_reward_config,
@@ -158,3 +160,16 @@ def test_reward_end_to_end_on_velocity_curves():
         assert m_far.area.shape == (2, 3)
         assert (rw(m_near, m_far) > 0).all() and (rw(m_far, m_near) < 0).all()
         assert rw.termination(rw.metrics(ref, ref, dt=dt), 0).success.all()
+
+
+def test_a_reward_config_made_in_python_takes_the_defaults_of_the_form_it_names():
+    """``RewardConfig(name="log_ratio")`` kept ``paper_factor``'s parameters as its default and failed on a key
+    the user never set (``params.a: unknown key``)."""
+    for name, form in REWARD_FORMS.items():
+        rw = Reward(RewardConfig(name=name))
+        assert rw.form.params == form.params_cls()
+        assert RewardConfig(name=name).params == dataclasses.asdict(form.params_cls())
+    assert Reward(RewardConfig(name="log_ratio", params={"w_dfd": 0.0})).form.params.w_dfd == 0.0
+    assert RewardConfig() == load_reward_config("paper_factor")  # the shipped default is unchanged
+    with pytest.raises(ConfigError, match=r"key 'params.a'"):  # another form's key is still refused
+        Reward(RewardConfig(name="log_ratio", params={"a": 1.0}))
