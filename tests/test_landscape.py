@@ -85,7 +85,11 @@ def test_linear_toy_gives_slope_one_and_the_radius_it_needs():
 @pytest.mark.parametrize(
     ("kwargs", "key"),
     [({"radii": [1e-3, 1e-4]}, "radii"), ({"radii": [0.0, 1e-3]}, "radii"), ({"draws": 0}, "draws"),
-     ({"groups": ["stiffness"]}, "groups")],
+     ({"groups": ["stiffness"]}, "groups"),
+     # these raised ValueError/TypeError from float()/int(), or (2.5) ran 2 draws silently
+     ({"radii": [1e-3, "x"]}, "radii"), ({"radii": 1e-3}, "radii"), ({"draws": 2.5}, "draws"),
+     ({"draws": None}, "draws"), ({"draws": float("nan")}, "draws"), ({"draws": True}, "draws"),
+     ({"groups": "all"}, "groups")],
 )  # fmt: skip
 def test_bad_arguments_name_the_key(kwargs, key):
     with pytest.raises(ConfigError, match=key):
@@ -193,6 +197,8 @@ def test_cluster_study_at_radius_zero_is_the_landscape_of_the_sensors():
     assert all(a > 0 for row in wide["area_per_sensor"] for a in row)
     with pytest.raises(ConfigError, match="cluster_radii"):
         cluster_sensor_study(problem, cluster_radii=[-0.1])
+    with pytest.raises(ConfigError, match="cluster_radii"):  # raised TypeError from np.isfinite
+        cluster_sensor_study(problem, cluster_radii=["0.1"])
 
 
 def test_script_cluster_radii_prints_json():
@@ -224,7 +230,9 @@ def test_local_fit_converges_near_the_truth_and_counts_its_simulations():
 
 def test_local_fit_rejects_bad_settings():
     problem = build_problem(ProblemConfig(duration=SHORT_DURATION))
-    for key, kw in (("iterations", {"iterations": 0}), ("fd_step", {"fd_step": -1e-5}), ("damping", {"damping": 0.0})):
+    for key, kw in (("iterations", {"iterations": 0}), ("fd_step", {"fd_step": -1e-5}), ("damping", {"damping": 0.0}),
+                    ("iterations", {"iterations": 2.5}), ("iterations", {"iterations": "3"}),
+                    ("fd_step", {"fd_step": None}), ("start_radius", {"start_radius": float("nan")})):  # fmt: skip
         with pytest.raises(ConfigError, match=key):
             local_fit(problem, **kw)
     assert problem.n_simulations == 0
@@ -309,6 +317,10 @@ def test_spectrum_counts_blind_coordinates_and_checks_its_arguments():
     with pytest.raises(ConfigError) as e:
         sensitivity_spectrum(toy, fd_step=0.0)
     assert e.value.key == "fd_step"
+    for kw, key in (({"fd_step": None}, "fd_step"), ({"bands": ("0.1",)}, "bands")):  # TypeError, ValueError
+        with pytest.raises(ConfigError) as e:
+            sensitivity_spectrum(toy, **kw)
+        assert e.value.key == key
 
 
 def test_spectrum_of_the_real_problem_sees_few_directions_in_a_short_window():

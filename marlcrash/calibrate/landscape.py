@@ -38,18 +38,31 @@ DEFAULT_RADII = (1e-6, 1e-5, 1e-4, 1e-3, 3e-3, 1e-2, 3e-2, 0.1)
 def _check(problem: CalibrationProblem, groups: list[str] | tuple[str, ...]) -> None:
     if problem.true_x is None:
         raise ConfigError("the landscape study needs a twin reference with ground truth", key="problem.reference")
+    if isinstance(groups, str):  # iterated letter by letter: "unknown parameter group 'a'"
+        raise ConfigError(f"expected a list of parameter groups, e.g. [{groups!r}], got {groups!r}", key="groups")
     for group in groups:
         if group not in GROUPS:
             raise ConfigError(f"unknown parameter group {group!r}; expected one of {list(GROUPS)}", key="groups")
 
 
+def _is_number(v: Any) -> bool:
+    return isinstance(v, int | float | np.integer | np.floating) and not isinstance(v, bool | np.bool_)
+
+
+def _require_count(value: Any, key: str) -> int:
+    """``value`` as an integer >= 1, or a :class:`ConfigError` naming ``key`` (2.5 is not 2)."""
+    if not _is_number(value) or not (np.isfinite(value) and value >= 1 and float(value).is_integer()):
+        raise ConfigError(f"expected an integer >= 1, got {value!r}", key=key)
+    return int(value)
+
+
 def _check_radii(radii, draws) -> tuple[list[float], int]:
+    if isinstance(radii, str) or not isinstance(radii, list | tuple | np.ndarray) or not all(map(_is_number, radii)):
+        raise ConfigError(f"expected a list of strictly increasing radii > 0, got {radii!r}", key="radii")
     radii = [float(r) for r in radii]
     if not radii or any(not (np.isfinite(r) and r > 0) for r in radii) or sorted(set(radii)) != radii:
         raise ConfigError(f"expected strictly increasing radii > 0, got {radii}", key="radii")
-    if int(draws) < 1:
-        raise ConfigError(f"expected draws >= 1, got {draws}", key="draws")
-    return radii, int(draws)
+    return radii, _require_count(draws, "draws")
 
 
 def neighbourhood_points(
@@ -196,7 +209,11 @@ def cluster_sensor_study(
     """
     _check(problem, [group])
     radii, draws = _check_radii(radii, draws)
-    if not cluster_radii or any(not (np.isfinite(c) and c >= 0) for c in cluster_radii):
+    if (
+        isinstance(cluster_radii, str)
+        or not cluster_radii
+        or any(not (_is_number(c) and np.isfinite(c) and c >= 0) for c in cluster_radii)
+    ):
         raise ConfigError(f"expected cluster radii >= 0 m, got {list(cluster_radii)}", key="cluster_radii")
     cells = problem.cells
     clusters = [sensor_clusters(cells, problem.sensors, float(c)) for c in cluster_radii]
@@ -275,12 +292,16 @@ def local_fit(
         ``area``, ``dfd``, ``rmse``, ``passed``.
 
     Raises:
-        ConfigError: no twin truth, or a non-positive ``iterations``, ``fd_step`` or ``damping`` (key named).
+        ConfigError: no twin truth, ``iterations`` not an integer >= 1, a non-positive ``fd_step`` or ``damping``,
+            or a negative or non-finite ``start_radius`` (key named).
     """
     _check(problem, ())
-    for key, val in (("iterations", iterations), ("fd_step", fd_step), ("damping", damping)):
-        if not (np.isfinite(val) and val > 0):
-            raise ConfigError(f"expected {key} > 0, got {val}", key=key)
+    iterations = _require_count(iterations, "iterations")
+    if start_radius is not None and not (_is_number(start_radius) and np.isfinite(start_radius) and start_radius >= 0):
+        raise ConfigError(f"expected a start radius >= 0 or None, got {start_radius!r}", key="start_radius")
+    for key, val in (("fd_step", fd_step), ("damping", damping)):
+        if not (_is_number(val) and np.isfinite(val) and val > 0):
+            raise ConfigError(f"expected {key} > 0, got {val!r}", key=key)
     lo, hi = problem.flat_box()
     truth = problem.flat(problem.true_x[None])[0]
     if x0 is not None:
@@ -383,8 +404,10 @@ def sensitivity_spectrum(
     if x is None:
         _check(problem, ())
         x = problem.true_x
-    if not (np.isfinite(fd_step) and fd_step > 0):
-        raise ConfigError(f"expected fd_step > 0, got {fd_step}", key="fd_step")
+    if not (_is_number(fd_step) and np.isfinite(fd_step) and fd_step > 0):
+        raise ConfigError(f"expected fd_step > 0, got {fd_step!r}", key="fd_step")
+    if isinstance(bands, str) or not all(map(_is_number, bands)):
+        raise ConfigError(f"expected decreasing thresholds in (0, 1), got {bands!r}", key="bands")
     b = [float(v) for v in bands]
     if not b or any(not 0 < v < 1 for v in b) or any(a <= c for a, c in itertools.pairwise(b)):
         raise ConfigError(f"expected decreasing thresholds in (0, 1), got {bands}", key="bands")
