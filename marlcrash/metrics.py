@@ -361,6 +361,8 @@ def discrete_frechet(
         ``[...]`` distances.
     """
     if dt is not None:
+        if time_q is not None or time_p is not None:
+            raise PulseError("pass exactly one of time (time_q, time_p: sample times [s]) or dt (uniform step [s])")
         pq = curve_points(q, dt=dt, time_scale=time_scale, value_scale=value_scale)
         pp = curve_points(p, dt=dt, time_scale=time_scale, value_scale=value_scale)
     else:

@@ -306,3 +306,13 @@ def test_sample_times_whose_batch_does_not_fit_the_signals_are_refused_by_name()
         with pytest.raises(PulseError, match=r"expected time as \[T\] or with batch dimensions .* got shape \(2, 5\)"):
             f(q, p, t)
     assert area_between(q, p, t[:, None]).shape == (2, 3)  # [B, 1, T] broadcasts over the sensors
+
+
+def test_frechet_refuses_both_sample_times_and_a_step():
+    """``dt`` silently replaced given sample times (area_between and curve_points refuse the pair)."""
+    q, p = torch.rand(5, dtype=torch.float64), torch.rand(5, dtype=torch.float64)
+    t = torch.tensor([0.0, 0.1, 0.5, 0.6, 2.0], dtype=torch.float64)
+    with pytest.raises(PulseError, match="exactly one of time"):
+        discrete_frechet(q, p, t, dt=0.1)
+    with pytest.raises(PulseError, match="exactly one of time"):
+        discrete_frechet(q, p, time_p=t, dt=0.1)
