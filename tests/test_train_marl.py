@@ -673,3 +673,29 @@ def test_a_training_resume_of_a_run_another_process_writes_is_refused_before_rea
     with pytest.raises(ConfigError, match="exists already") as e:  # a fresh run of that name: refused, untouched
         train(tiny(tmp_path, name="busy"))
     assert e.value.key == "name" and sorted(p.name for p in run_dir.iterdir()) == ["checkpoint.pt"]
+
+
+def test_only_the_temporaries_of_checkpoint_writes_are_removed(tmp_path):
+    from marlcrash.calibrate.checkpoint import remove_stale_temporaries
+
+    (tmp_path / "checkpoints").mkdir()
+    left = [".checkpoint.pt.0badf00d.tmp", "checkpoints/.iter_00020.pt.deadbeef.tmp"]
+    kept = ["checkpoint.pt", "checkpoints/iter_00020.pt", ".hidden", "notes.tmp", ".summary.tmp.json", ".lock",
+            ".x.0badf00d.tmpfile", ".y.NOTHEX00.tmp"]  # fmt: skip
+    for name in left + kept:
+        (tmp_path / name).write_text("x")
+    assert sorted(p.relative_to(tmp_path).as_posix() for p in remove_stale_temporaries(tmp_path)) == sorted(left)
+    assert sorted(p.relative_to(tmp_path).as_posix() for p in tmp_path.rglob("*") if p.is_file()) == sorted(kept)
+
+
+def test_a_resume_removes_the_temporary_checkpoints_a_kill_left(short, tmp_path):
+    """A kill during a checkpoint's write leaves ``.checkpoint.pt.<hex>.tmp`` (and, for a kept snapshot,
+    ``checkpoints/.iter_<n>.pt.<hex>.tmp``): a whole checkpoint's size each, which no resume removed."""
+    part = train(tiny(tmp_path, name="torn", snapshot_every=1), stop_at=1, evaluate=False)
+    stale = [part.run_dir / ".checkpoint.pt.0badf00d.tmp", part.run_dir / "checkpoints" / ".iter_00002.pt.deadbeef.tmp"]
+    for p in stale:
+        p.write_bytes(b"half a checkpoint")
+    done = train(tiny(tmp_path, name="torn", resume=str(part.run_dir)), evaluate=False)
+    assert done.iterations == 4
+    assert not [p for p in stale if p.exists()]
+    assert not list(part.run_dir.rglob("*.tmp*"))

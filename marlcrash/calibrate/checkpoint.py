@@ -16,6 +16,7 @@ checkpoint or the new one, never a torn file.
 from __future__ import annotations
 
 import os
+import re
 import secrets
 from pathlib import Path
 from typing import Any
@@ -132,6 +133,29 @@ def _create_sibling(path: Path) -> tuple[int, str]:
         except FileExistsError:
             continue
     raise FileExistsError(f"no free temporary name beside {path}")
+
+
+_TEMPORARY = re.compile(r"\..+\.[0-9a-f]{8}\.tmp")
+"""Names :func:`_create_sibling` gives the temporary files of :func:`save_checkpoint`: ``.<name>.<8 hex>.tmp``."""
+
+
+def remove_stale_temporaries(run_dir: str | Path) -> list[Path]:
+    """Remove the temporary files of checkpoint writes that a kill interrupted; return them.
+
+    A run killed while it wrote ``checkpoint.pt`` or a kept snapshot left ``.checkpoint.pt.<8 hex>.tmp`` (or
+    ``checkpoints/.iter_<n>.pt.<8 hex>.tmp``), a whole checkpoint's size, which nothing else ever removes. Call this
+    only while holding the run folder's lock (:func:`marlcrash.calibrate.runlock.run_lock`): only the run that holds
+    it writes checkpoints there.
+    """
+    removed = []
+    for folder in (Path(run_dir), Path(run_dir) / SNAPSHOT_DIR):
+        if not folder.is_dir():
+            continue
+        for p in folder.iterdir():
+            if _TEMPORARY.fullmatch(p.name) and p.is_file() and not p.is_symlink():
+                p.unlink(missing_ok=True)
+                removed.append(p)
+    return removed
 
 
 TRAINING_KEYS = ("policy", "critic", "optimizer", "rng", "iteration", "env_steps", "simulations", "wall_time_s")

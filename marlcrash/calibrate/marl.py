@@ -64,6 +64,7 @@ from marlcrash.calibrate.budget import Progress
 from marlcrash.calibrate.checkpoint import (
     CHECKPOINT_FILE,
     load_training_checkpoint,
+    remove_stale_temporaries,
     restore_rng,
     rng_state,
     save_checkpoint,
@@ -982,6 +983,8 @@ def train(config: TrainConfig, *, stop_at: int | None = None, evaluate: bool = T
 def _train(config: TrainConfig, run_dir: Path, stop_at: int | None, evaluate: bool) -> TrainResult:
     """:func:`train` in its run folder, which this process holds."""
     from tqdm import tqdm
+
+    remove_stale_temporaries(run_dir)  # of checkpoint writes a kill interrupted: this process holds the folder
 
     resume = config.resume
     if resume is not False:
