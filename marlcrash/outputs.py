@@ -9,10 +9,13 @@ stray one. :func:`read_npz` reads a ``.npz`` file back, saying in words what is 
 
 from __future__ import annotations
 
+import json
+import math
 import os
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -88,6 +91,24 @@ def require_run_name(name: str, key: str = "name") -> None:
         where = "the output folder itself" if name == "." else "the output folder's parent"
         raise ConfigError(f"expected a run folder name, got {name!r}, which names {where}, not a folder in it",
                           key=key)  # fmt: skip
+
+
+def finite_or_null(obj: Any) -> Any:
+    """``obj`` with every non-finite float (NaN, inf) in its dicts, lists and tuples replaced by ``None``: standard
+    JSON has no such numbers, and a value that could not be computed reads as ``null``."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: finite_or_null(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [finite_or_null(v) for v in obj]
+    return obj
+
+
+def json_text(obj: Any, indent: int | None = 2) -> str:
+    """``obj`` as standard JSON (:func:`finite_or_null`): ``json.dumps`` writes NaN and Infinity, which jq,
+    JavaScript and most parsers other than Python's refuse, so one diverged number made a whole file unreadable."""
+    return json.dumps(finite_or_null(obj), indent=indent, allow_nan=False)
 
 
 def write_text(path: str | Path, text: str) -> Path:

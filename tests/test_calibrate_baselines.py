@@ -267,3 +267,26 @@ def test_lm_refuses_a_budget_below_one_iteration(problem):
     with pytest.raises(ConfigError, match=f"key 'budget': lm needs at least .* = {need} simulations, got a budget of"):
         BASELINES["lm"][1](problem, need - 1, LMConfig(), 0)
     assert BASELINES["lm"][1](problem, need, LMConfig(iterations=1), 0).simulations == need
+
+
+def test_a_baseline_whose_candidates_all_diverged_writes_standard_json(tmp_path):
+    """Every candidate non-finite: the best score is -inf, and summary.json held ``-Infinity`` (no JSON)."""
+    import dataclasses
+    import json
+
+    from marlcrash.calibrate import BASELINES, build_problem, write_run
+    from marlcrash.calibrate.baselines import BaselineRunConfig, RandomSearchConfig
+    from marlcrash.calibrate.problem import ProblemConfig
+
+    cfg = BaselineRunConfig(method="random_search", name="nan", out_dir=str(tmp_path / "runs"), plot=False,
+                            problem=ProblemConfig(duration=0.01))  # fmt: skip
+    problem = build_problem(cfg.problem)
+    result = BASELINES["random_search"][1](problem, 4, RandomSearchConfig(batch_size=4), 0)
+    result = dataclasses.replace(result, best_score=float("-inf"), initial_score=float("nan"))
+    folder = write_run(cfg, problem, result)
+
+    def refuse(name):
+        raise ValueError(f"{name} is not JSON")
+
+    s = json.loads((folder / "summary.json").read_text(), parse_constant=refuse)
+    assert s["best_score"] is None and s["initial_score"] is None

@@ -120,3 +120,37 @@ def test_a_run_name_must_be_one_new_folder(name, words):
         require_run_name(name, "name")
     assert e.value.key == "name" and ("/" in name or "'/'" not in str(e.value))
     require_run_name("..x")
+
+
+def _strict(text: str):
+    """``json.loads`` as a standard parser (jq, JavaScript) reads: NaN and Infinity are no JSON."""
+    import json
+
+    def refuse(name):
+        raise ValueError(f"{name} is not JSON")
+
+    return json.loads(text, parse_constant=refuse)
+
+
+def test_json_text_is_standard_json_with_non_finite_numbers_as_null():
+    """summary.json of a run whose every candidate diverged held ``-Infinity`` (a best score of -inf) or ``NaN``
+    (metrics): Python reads it back, jq and JavaScript refuse the whole file."""
+    import numpy as np
+
+    from marlcrash.outputs import json_text
+
+    obj = {"a": float("nan"), "b": [float("inf"), -float("inf"), 1.5], "c": {"d": np.float64("nan"), "e": 2},
+           "f": (1.0, float("nan")), "g": None, "h": "NaN"}  # fmt: skip
+    assert _strict(json_text(obj)) == {"a": None, "b": [None, None, 1.5], "c": {"d": None, "e": 2},
+                                       "f": [1.0, None], "g": None, "h": "NaN"}  # fmt: skip
+
+
+def test_a_runs_summary_is_standard_json(tmp_path):
+    from marlcrash.calibrate.evaluate import update_summary
+
+    (tmp_path / "summary.json").write_text('{"best_score": 1.0}')
+    update_summary(tmp_path, best_score=float("-inf"), final_metrics={"tunnel": {"area": float("nan")}})
+    assert _strict((tmp_path / "summary.json").read_text()) == {
+        "best_score": None,
+        "final_metrics": {"tunnel": {"area": None}},
+    }

@@ -9,7 +9,6 @@ Writes ``<out_dir>/<method>/<name>/``: summary.json, history.csv, config.json, b
 
 from __future__ import annotations
 
-import json
 import sys
 
 import hydra
@@ -19,6 +18,7 @@ from marlcrash.calibrate import build_problem, load_run_config, run_baseline, wr
 from marlcrash.calibrate.baselines import run_folder, run_path, run_record
 from marlcrash.calibrate.entry import exit_on_bad_overrides, name_default_run
 from marlcrash.errors import MarlcrashError
+from marlcrash.outputs import json_text
 
 
 @hydra.main(version_base=None, config_path="../configs/train", config_name="baseline")
@@ -35,9 +35,9 @@ def main(cfg: DictConfig) -> None:
         print(f"error: {e}", file=sys.stderr)
         sys.exit(2)
     s = result.summary()
-    print(json.dumps({"run": str(folder), "simulations": s["simulations"], "sims_to_success": s["sims_to_success"],
+    print(json_text({"run": str(folder), "simulations": s["simulations"], "sims_to_success": s["sims_to_success"],
                       "initial_score": s["initial_score"], "best_score": s["best_score"],
-                      "wall_time_s": round(s["wall_time_s"], 2)}))  # fmt: skip
+                      "wall_time_s": round(s["wall_time_s"], 2)}, indent=None))  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -14,7 +14,6 @@ Settings: configs/train/evaluate.yaml.
 
 from __future__ import annotations
 
-import json
 import sys
 
 import hydra
@@ -23,6 +22,7 @@ from omegaconf import DictConfig, OmegaConf
 from marlcrash.calibrate.entry import exit_on_bad_overrides
 from marlcrash.calibrate.evaluate import evaluate_run, load_evaluate_config
 from marlcrash.errors import MarlcrashError
+from marlcrash.outputs import json_text
 
 
 @hydra.main(version_base=None, config_path="../configs/train", config_name="evaluate")
@@ -35,7 +35,7 @@ def main(cfg: DictConfig) -> None:
         sys.exit(2)
     keys = ("eval_dir", "checkpoint", "iterations_trained", "selected_iteration", "all_passed")
     keys += ("final_metrics", "initial_metrics")
-    print(json.dumps({k: s[k] for k in keys}, indent=1))
+    print(json_text({k: s[k] for k in keys}, indent=1))
 
 
 if __name__ == "__main__":

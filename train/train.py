@@ -21,7 +21,6 @@ import time
 
 START = time.perf_counter()  # before the heavy imports: process_wall_time_s counts them too
 
-import json  # noqa: E402
 import sys  # noqa: E402
 
 import hydra  # noqa: E402
@@ -32,6 +31,7 @@ from marlcrash.calibrate.entry import exit_on_bad_overrides, name_default_run  #
 from marlcrash.calibrate.evaluate import update_summary  # noqa: E402
 from marlcrash.calibrate.marl import load_train_config, run_dir_of, train, value_keys  # noqa: E402
 from marlcrash.errors import MarlcrashError  # noqa: E402
+from marlcrash.outputs import json_text  # noqa: E402
 
 RESUME_KEYS = ("resume", "name", "out_dir", "algorithm")
 """Command-line keys a ``resume=true`` reads (they locate the run folder); a ``resume=<folder>`` reads only itself.
@@ -67,7 +67,7 @@ def main(cfg: DictConfig) -> None:
     s = result.summary or {}
     if s and config.resume is False:  # the whole job, imports (first job) and discretization included
         s = update_summary(result.run_dir, process_wall_time_s=time.perf_counter() - start)
-    print(json.dumps({
+    print(json_text({
         "run": str(result.run_dir), "iterations": result.iterations, "env_steps": result.env_steps,
         "simulations": result.simulations, "process_wall_time_s": round(s.get("process_wall_time_s", 0.0), 1),
         "selected_iteration": s.get("selected_iteration"), "all_passed": s.get("all_passed"),

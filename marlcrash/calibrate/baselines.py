@@ -57,7 +57,7 @@ from marlcrash.calibrate.runlock import claim_dir
 from marlcrash.config import from_dict, nested_error, require, require_complete, require_seed
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics
-from marlcrash.outputs import check_output_dir, require_run_name
+from marlcrash.outputs import check_output_dir, json_text, require_run_name
 
 # ----------------------------------------------------------------------------------------- configs
 
@@ -629,7 +629,7 @@ def write_run(
             {"seed": config.seed, "budget": config.budget, "scenario": problem.scenario.name,
              "reference": problem.reference.source[0], "agents": problem.agent_names, "n_free": problem.n_free}
         )  # fmt: skip
-        (tmp / "summary.json").write_text(json.dumps(summary, indent=2))
+        (tmp / "summary.json").write_text(json_text(summary))
         (tmp / "config.json").write_text(json.dumps(asdict(config), indent=2))
         rec = run_record(config) if record is None else record
         (tmp / provenance.PROVENANCE_FILE).write_text(json.dumps(rec, indent=1))

@@ -67,7 +67,7 @@ from marlcrash.config import flatten_overrides, from_dict, require
 from marlcrash.envs import EnvConfig
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics
-from marlcrash.outputs import atomic_output, write_text
+from marlcrash.outputs import atomic_output, json_text, write_text
 from marlcrash.references import require_file_scenario
 from marlcrash.reward import paper_factor
 from marlcrash.units import G0
@@ -376,7 +376,7 @@ def update_summary(run_dir: str | Path, **entries: Any) -> dict[str, Any]:
     path = Path(run_dir) / SUMMARY_FILE
     summary = json.loads(path.read_text())
     summary.update(entries)
-    write_text(path, json.dumps(summary, indent=2))
+    write_text(path, json_text(summary))
     return summary
 
 
@@ -529,5 +529,5 @@ def evaluate_run(
                 earlier = json.loads(old.read_text()).get(KEPT_SUMMARY_KEY)
                 if earlier is not None:
                     summary[KEPT_SUMMARY_KEY] = earlier
-        write_text(out_dir / SUMMARY_FILE, json.dumps(summary, indent=2))
+        write_text(out_dir / SUMMARY_FILE, json_text(summary))
         return summary
