@@ -699,3 +699,25 @@ def test_a_resume_removes_the_temporary_checkpoints_a_kill_left(short, tmp_path)
     assert done.iterations == 4
     assert not [p for p in stale if p.exists()]
     assert not list(part.run_dir.rglob("*.tmp*"))
+
+
+def test_the_entries_train_py_adds_to_the_summary_are_written_while_the_run_is_held(short, tmp_path):
+    """train/train.py added process_wall_time_s to summary.json after train() had released the run folder: an
+    evaluation or a resume that took the folder then rewrote summary.json beside it, and one of the two lost."""
+    from marlcrash.calibrate.runlock import run_lock
+
+    held = []
+
+    def extra():
+        try:
+            with run_lock(tmp_path / "runs" / "mappo" / "stamped", "resume"):
+                held.append(False)
+        except ConfigError:
+            held.append(True)
+        return {"process_wall_time_s": 12.5}
+
+    done = train(tiny(tmp_path, name="stamped", iterations=1, eval={"iterations": 1, "plots": False}),
+                 summary_extra=extra)  # fmt: skip
+    assert held == [True]
+    assert done.summary["process_wall_time_s"] == 12.5
+    assert json.loads((done.run_dir / "summary.json").read_text())["process_wall_time_s"] == 12.5

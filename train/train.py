@@ -28,7 +28,6 @@ from hydra.core.hydra_config import HydraConfig  # noqa: E402
 from omegaconf import DictConfig, OmegaConf  # noqa: E402
 
 from marlcrash.calibrate.entry import exit_on_bad_overrides, name_default_run  # noqa: E402
-from marlcrash.calibrate.evaluate import update_summary  # noqa: E402
 from marlcrash.calibrate.marl import load_train_config, run_dir_of, train, value_keys  # noqa: E402
 from marlcrash.errors import MarlcrashError  # noqa: E402
 from marlcrash.outputs import json_text  # noqa: E402
@@ -60,13 +59,13 @@ def main(cfg: DictConfig) -> None:
             if ignored:
                 print(f"warning: resume continues the run with its saved config.yaml; ignored: {' '.join(ignored)}",
                       file=sys.stderr)  # fmt: skip
-        result = train(config)
+        # the whole job, imports (first job) and discretization included; added while the run folder is held
+        stamp = None if config.resume is not False else lambda: {"process_wall_time_s": time.perf_counter() - start}
+        result = train(config, summary_extra=stamp)
     except MarlcrashError as e:
         print(f"error: {e}", file=sys.stderr)
         sys.exit(2)
     s = result.summary or {}
-    if s and config.resume is False:  # the whole job, imports (first job) and discretization included
-        s = update_summary(result.run_dir, process_wall_time_s=time.perf_counter() - start)
     print(json_text({
         "run": str(result.run_dir), "iterations": result.iterations, "env_steps": result.env_steps,
         "simulations": result.simulations, "process_wall_time_s": round(s.get("process_wall_time_s", 0.0), 1),

@@ -951,7 +951,13 @@ def train_iteration(tr: Trainer) -> dict[str, float]:
     }
 
 
-def train(config: TrainConfig, *, stop_at: int | None = None, evaluate: bool = True) -> TrainResult:
+def train(
+    config: TrainConfig,
+    *,
+    stop_at: int | None = None,
+    evaluate: bool = True,
+    summary_extra: Callable[[], dict[str, Any]] | None = None,
+) -> TrainResult:
     """Train (or resume) one run, checkpointing atomically, then evaluate it.
 
     Args:
@@ -959,6 +965,9 @@ def train(config: TrainConfig, *, stop_at: int | None = None, evaluate: bool = T
         stop_at: stop after this iteration as if the process were killed there (after its checkpoint);
             no evaluation. For resume tests and staged runs.
         evaluate: run the end-of-run evaluation (:func:`marlcrash.calibrate.evaluate.evaluate_run`).
+        summary_extra: called after the evaluation; its entries are added to ``summary.json`` while the run
+            folder is still held (train/train.py's ``process_wall_time_s``), so no other process rewrites the
+            file between the evaluation and them.
 
     Returns:
         A :class:`TrainResult`.
@@ -970,17 +979,23 @@ def train(config: TrainConfig, *, stop_at: int | None = None, evaluate: bool = T
     if config.resume is not False:
         run_dir = find_resume_dir(config)
         with run_lock(run_dir, "resume"):
-            return _train(config, run_dir, stop_at, evaluate)
+            return _train(config, run_dir, stop_at, evaluate, summary_extra)
     run_dir = run_dir_of(config)
     check_output_dir(run_dir, "out_dir")  # the nearest existing folder of the run's (<out_dir>/<algorithm>)
     if not claim_dir(run_dir):  # created here or refused, in one step: two runs of one name never share it
         hint = "resume=true" if (run_dir / CHECKPOINT_FILE).is_file() else "delete it (it has no checkpoint)"
         raise ConfigError(f"run folder {run_dir} exists already; choose another name or {hint}", key="name")
     with run_lock(run_dir, "name"):
-        return _train(config, run_dir, stop_at, evaluate)
+        return _train(config, run_dir, stop_at, evaluate, summary_extra)
 
 
-def _train(config: TrainConfig, run_dir: Path, stop_at: int | None, evaluate: bool) -> TrainResult:
+def _train(
+    config: TrainConfig,
+    run_dir: Path,
+    stop_at: int | None,
+    evaluate: bool,
+    summary_extra: Callable[[], dict[str, Any]] | None = None,
+) -> TrainResult:
     """:func:`train` in its run folder, which this process holds."""
     from tqdm import tqdm
 
@@ -1063,7 +1078,9 @@ def _train(config: TrainConfig, run_dir: Path, stop_at: int | None, evaluate: bo
         tr.checkpoint()
     summary = None
     if evaluate:
-        from marlcrash.calibrate.evaluate import evaluate_run
+        from marlcrash.calibrate.evaluate import evaluate_run, update_summary
 
         summary = evaluate_run(run_dir, trainer=tr)
+        if summary_extra is not None:
+            summary = update_summary(run_dir, **summary_extra())
     return TrainResult(run_dir, tr.iteration, tr.env_steps, tr.simulations, tr.wall_time_s, summary)
