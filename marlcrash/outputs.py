@@ -120,7 +120,8 @@ def write_text(path: str | Path, text: str) -> Path:
 
 @contextmanager
 def atomic_output(path: str | Path, key: str | None = None) -> Iterator[Path]:
-    """Yield a temporary path next to ``path``; on success it replaces ``path``, on failure it is removed.
+    """Yield a temporary path next to ``path``; on success it is flushed to disk and replaces ``path``, on failure it
+    is removed.
 
     The temporary name keeps ``path``'s suffix (``.name.tmp.png``), so writers that pick a format by suffix
     (matplotlib) see the right one.
@@ -134,6 +135,8 @@ def atomic_output(path: str | Path, key: str | None = None) -> Iterator[Path]:
     tmp = final.with_name(f".{final.stem}.tmp{final.suffix}")
     try:
         yield tmp
+        with open(tmp, "rb+") as fh:  # on disk before the name points at it: a system crash leaves old or new
+            os.fsync(fh.fileno())
         os.replace(tmp, final)
     except OSError as e:  # disk full, no permission: name the file the user asked for, not the temporary one
         if e.filename is None or Path(e.filename) == tmp:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import re
+from pathlib import Path
 
 import pytest
 
@@ -154,3 +155,17 @@ def test_a_runs_summary_is_standard_json(tmp_path):
         "best_score": None,
         "final_metrics": {"tunnel": {"area": None}},
     }
+
+
+def test_atomic_output_flushes_the_file_to_disk_before_it_replaces_the_old_one(tmp_path, monkeypatch):
+    """Without an fsync before os.replace, a power cut or system crash soon after can leave the new name pointing at
+    a file whose data never reached the disk: an empty summary.json or config.yaml where the old one was whole."""
+    import os
+
+    events = []
+    fsync, replace = os.fsync, os.replace
+    monkeypatch.setattr(os, "fsync", lambda fd: (events.append(("fsync", os.fstat(fd).st_size)), fsync(fd))[1])
+    monkeypatch.setattr(os, "replace", lambda a, b: (events.append(("replace", Path(b).name)), replace(a, b))[1])
+    with atomic_output(tmp_path / "summary.json") as tmp:
+        tmp.write_text('{"a": 1}')
+    assert events == [("fsync", 8), ("replace", "summary.json")]
