@@ -264,6 +264,34 @@ def test_checkpoint_is_atomic(tmp_path):
         load_checkpoint(tmp_path / "missing.pt")
 
 
+def test_reading_a_checkpoint_runs_no_code_it_holds(tmp_path):
+    """``train/evaluate.py checkpoint=<file>`` and the amortized comparison read a checkpoint named by the user with
+    ``torch.load(weights_only=False)``: a file from elsewhere ran any code its pickle named. Checkpoints hold only
+    tensors and plain data, which torch's weights-only reader takes; anything else is refused, naming the file."""
+    marker = tmp_path / "ran"
+    torch.save({"policy": _RunsCode(str(marker))}, tmp_path / "foreign.pt")
+    with pytest.raises(ConfigError, match=r"cannot read checkpoint .*foreign\.pt") as e:
+        load_checkpoint(tmp_path / "foreign.pt", key="checkpoint")
+    assert e.value.key == "checkpoint"
+    assert not marker.exists()
+    state = {"policy": {"w": torch.ones(2)}, "rng": {"env": {"state": {"state": 2**100, "inc": 3}}}, "it": 4,
+             "config": {"hidden": [16, 16], "name": "x", "t": None, "lr": 1e-3}}  # fmt: skip
+    save_checkpoint(tmp_path / "ok.pt", state)
+    back = load_checkpoint(tmp_path / "ok.pt")
+    assert torch.equal(back["policy"]["w"], torch.ones(2)) and back["rng"] == state["rng"]
+    assert back["config"] == state["config"]
+
+
+class _RunsCode:
+    """An object whose unpickling runs code (here: creates a file)."""
+
+    def __init__(self, path: str):
+        self.path = path
+
+    def __reduce__(self):
+        return (Path.touch, (Path(self.path),))
+
+
 @pytest.mark.skipif(sys.platform == "win32", reason="POSIX permission bits")
 def test_a_checkpoint_is_as_readable_as_the_other_files_of_its_run(tmp_path):
     """tempfile.mkstemp made every checkpoint 0o600 whatever the umask: on a shared machine the run's summary and

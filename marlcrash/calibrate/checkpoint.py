@@ -169,14 +169,28 @@ def load_checkpoint(path: str | Path, key: str = "resume") -> dict[str, Any]:
         path: the checkpoint file.
         key: the config key that named it, for the error messages (``resume`` or ``checkpoint``).
 
+    The file is read with torch's weights-only unpickler: a checkpoint holds tensors and plain data only, and a file
+    from elsewhere (``checkpoint=<file>``) must not run the code a full unpickling would.
+
     Raises:
-        ConfigError: the file is missing or unreadable.
+        ConfigError: the file is missing or unreadable, or holds other objects.
     """
+    import pickle
+
     path = Path(path)
     if not path.is_file():
         raise ConfigError(f"no checkpoint at {path}; expected a run folder with {CHECKPOINT_FILE}", key=key)
     try:
-        return torch.load(path, map_location="cpu", weights_only=False)
+        return torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError as e:  # torch's advice (load it with weights_only=False) is not for a foreign file
+        what = str(e).strip().splitlines()
+        found = next((line.strip() for line in what if "Unsupported global" in line), what[0] if what else "")
+        found = found.split(" Please use")[0]  # not torch's advice to allow the object's class
+        raise ConfigError(
+            f"cannot read checkpoint {path}: it holds objects other than tensors and plain data ({found}); expected "
+            f"a checkpoint written by marlcrash",
+            key=key,
+        ) from None
     except Exception as e:  # a torn or foreign file: say which and why
         raise ConfigError(f"cannot read checkpoint {path}: {e}", key=key) from None
 
