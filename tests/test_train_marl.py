@@ -749,3 +749,16 @@ def test_the_entries_train_py_adds_to_the_summary_are_written_while_the_run_is_h
     assert held == [True]
     assert done.summary["process_wall_time_s"] == 12.5
     assert json.loads((done.run_dir / "summary.json").read_text())["process_wall_time_s"] == 12.5
+
+
+def test_a_resume_of_an_unreadable_checkpoint_says_how_to_go_on_from_a_kept_snapshot(short, tmp_path):
+    """checkpoint.pt damaged (a disk fault, a copy cut short): the resume said only that it cannot be read, though the
+    run kept snapshots it can go on from."""
+    part = train(tiny(tmp_path, name="damaged", snapshot_every=1), stop_at=2, evaluate=False)
+    (part.run_dir / "checkpoint.pt").write_bytes(b"PK\x03\x04 cut short")
+    with pytest.raises(ConfigError, match=r"cannot read checkpoint .*checkpoint\.pt.*to go on from the last kept "
+                                          r"snapshot, copy .*iter_00002\.pt over it") as e:  # fmt: skip
+        train(tiny(tmp_path, name="damaged", resume=str(part.run_dir)))
+    assert e.value.key == "resume"
+    shutil.copyfile(part.run_dir / "checkpoints" / "iter_00002.pt", part.run_dir / "checkpoint.pt")
+    assert train(tiny(tmp_path, name="damaged", resume=str(part.run_dir)), evaluate=False).iterations == 4

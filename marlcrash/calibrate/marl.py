@@ -63,6 +63,7 @@ from marlcrash import provenance
 from marlcrash.calibrate.budget import Progress
 from marlcrash.calibrate.checkpoint import (
     CHECKPOINT_FILE,
+    SNAPSHOT_DIR,
     load_training_checkpoint,
     remove_stale_temporaries,
     restore_rng,
@@ -1004,7 +1005,14 @@ def _train(
     resume = config.resume
     if resume is not False:
         config = load_run_config(run_dir)
-        state = load_training_checkpoint(run_dir / CHECKPOINT_FILE)
+        try:
+            state = load_training_checkpoint(run_dir / CHECKPOINT_FILE)
+        except ConfigError as e:  # a damaged checkpoint.pt: the kept snapshots are where the run can go on from
+            kept = sorted((run_dir / SNAPSHOT_DIR).glob("iter_*.pt"))
+            if not kept:
+                raise
+            raise ConfigError(f"{e.reason}; to go on from the last kept snapshot, copy {kept[-1]} over it",
+                              key=e.key, path=e.path) from None  # fmt: skip
         extra = provenance.env_inputs(make_env_config(config))
         provenance.require_unchanged(run_dir, extra, finished=bool(state.get("finished", False)))
     else:
