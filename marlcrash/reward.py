@@ -109,6 +109,17 @@ class WeightedSumParams:
         )
 
 
+@dataclass
+class LogRatioParams(WeightedSumParams):
+    """Parameters of ``log_ratio``: those of the weighted sum, with ``eps > 0``."""
+
+    def validate(self) -> None:
+        """As :meth:`WeightedSumParams.validate`, and ``eps > 0``: with ``eps = 0`` a perfect fit (``S = 0``) would
+        score ``+inf``, and its reward and the next step's (``inf - inf``) would reach the PPO loss as inf and NaN."""
+        super().validate()
+        require(self.eps > 0, "params.eps", f"must be > 0 for log_ratio (log(S + eps) at S = 0), got {self.eps}")
+
+
 class RewardForm(ABC):
     """A reward form: ``score`` of one iteration's metrics, and the reward from two iterations.
 
@@ -150,7 +161,7 @@ class LogRatio(RewardForm):
     """``r = log(S(t-1) / S(t))`` of the weighted, normalised metric sum ``S``."""
 
     name = "log_ratio"
-    params_cls = WeightedSumParams
+    params_cls = LogRatioParams
 
     def score(self, m: Metrics) -> torch.Tensor:
         """``-log(S + eps)``."""

@@ -270,8 +270,9 @@ def test_progress_counts_exactly():
 
 
 def test_progress_keeps_a_perfect_fit_whose_score_is_infinite():
-    """``log_ratio`` with ``eps: 0`` (allowed) scores the exact twin truth ``-log(0) = +inf``: the best fit
-    possible. Mapping every non-finite score to ``-inf`` made it the worst, so a later, worse candidate replaced it."""
+    """A score of ``+inf`` (what ``log_ratio`` with ``eps: 0`` gave a perfect fit, before it needed eps > 0) is the
+    best fit possible. Mapping every non-finite score to ``-inf`` made it the worst, so a later, worse candidate
+    replaced it."""
     p = Progress(10)
     x = torch.arange(4, dtype=torch.float64)[:, None, None].expand(4, 2, 7)
     m = Metrics(*(torch.ones(4, 3) for _ in range(3)))

@@ -22,7 +22,7 @@ from marlcrash.calibrate.marl import AlgorithmConfig, TrainConfig, load_algorith
 from marlcrash.cells.discretize import DiscretizationConfig, load_discretization_config
 from marlcrash.config import config_dir, from_dict, load_yaml
 from marlcrash.envs.core import EnvConfig, load_env_config
-from marlcrash.reward import PaperFactorParams, RewardConfig, WeightedSumParams, load_reward_config
+from marlcrash.reward import LogRatioParams, PaperFactorParams, RewardConfig, WeightedSumParams, load_reward_config
 from marlcrash.sim import SimConfig
 from marlcrash.sim.surrogate import load_sim_config
 
@@ -41,7 +41,7 @@ CASES = {
     "cells.yaml": (DiscretizationConfig, load_discretization_config, ()),
     "env/default.yaml": (EnvConfig, load_env_config, ()),
     "reward/paper_factor.yaml": (RewardConfig, lambda: load_reward_config("paper_factor"), ()),
-    "reward/log_ratio.yaml params": (WeightedSumParams, _params("log_ratio", WeightedSumParams), ()),
+    "reward/log_ratio.yaml params": (LogRatioParams, _params("log_ratio", LogRatioParams), ()),
     "reward/neg_weighted_sum.yaml params": (WeightedSumParams, _params("neg_weighted_sum", WeightedSumParams), ()),
     "reward/paper_factor.yaml params": (PaperFactorParams, _params("paper_factor", PaperFactorParams), ()),
     "train/algorithm/mappo.yaml": (AlgorithmConfig, lambda: load_algorithm_config("mappo"), ()),

@@ -105,7 +105,7 @@ def test_bad_params_name_the_key(tmp_path):
 
 
 def test_log_ratio_is_scale_free():
-    rw = get_reward("log_ratio", area_scale=0.02, dfd_scale=0.4, rmse_scale=0.25, eps=0.0)
+    rw = get_reward("log_ratio", area_scale=0.02, dfd_scale=0.4, rmse_scale=0.25, eps=1e-15)
     m = Metrics(torch.tensor([0.02, 2e-4]), torch.tensor([0.4, 4e-3]), torch.tensor([0.25, 2.5e-3]))
     half = Metrics(*(x / 2 for x in m))
     torch.testing.assert_close(rw.reward(half, m), torch.full((2,), math.log(2.0), dtype=torch.float32))
@@ -114,6 +114,20 @@ def test_log_ratio_is_scale_free():
     pf = get_reward("paper_factor")
     r = pf.reward(half, m)
     assert r[1] / r[0] > 50
+
+
+def test_log_ratio_refuses_a_zero_eps():
+    """With ``eps: 0`` a perfect fit scored ``-log(0) = +inf``: its reward was +inf and the next step's NaN
+    (``inf - inf``), both fed to the PPO loss. ``neg_weighted_sum`` takes no logarithm and keeps ``eps >= 0``."""
+    with pytest.raises(ConfigError, match=r"params\.eps.*must be > 0 for log_ratio"):
+        get_reward("log_ratio", eps=0.0)
+    with pytest.raises(ConfigError, match=r"params\.eps"):
+        load_reward_config("log_ratio", overrides={"params.eps": 0.0})
+    get_reward("neg_weighted_sum", eps=0.0)
+    rw = get_reward("log_ratio")
+    exact = Metrics(*(torch.zeros(1, dtype=torch.float64) for _ in range(3)))
+    near = Metrics(*(torch.full((1,), 1e-3, dtype=torch.float64) for _ in range(3)))
+    assert torch.isfinite(rw.reward(exact, near)).all() and torch.isfinite(rw.reward(exact, exact)).all()
 
 
 def test_neg_weighted_sum():

@@ -23,7 +23,7 @@ from marlcrash.metrics import Metrics
 
 def ranked_scores(score: torch.Tensor) -> torch.Tensor:
     """Fit scores as float64 for ranking (higher is better): a NaN (a failed simulation) becomes ``-inf`` so it
-    never wins; ``+inf`` (a perfect fit under ``log_ratio`` with ``eps: 0``) stays the best score there is."""
+    never wins; ``+inf`` stays the best score there is (no shipped form scores it: ``log_ratio`` needs ``eps > 0``)."""
     s = score.detach().to(torch.float64)
     return torch.where(s.isnan(), torch.full_like(s, float("-inf")), s)
 
