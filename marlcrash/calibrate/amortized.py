@@ -56,6 +56,7 @@ from marlcrash.calibrate.baselines import (
     GradientConfig,
     RandomSearchConfig,
 )
+from marlcrash.calibrate.budget import ranked_scores
 from marlcrash.calibrate.checkpoint import CHECKPOINT_FILE, load_training_checkpoint
 from marlcrash.calibrate.evaluate import (
     EvalResult,
@@ -211,8 +212,7 @@ def _sensor_mean(m: Metrics) -> dict[str, float]:
 
 def policy_rows(problem: CalibrationProblem, result: EvalResult, seed: int, wall_time_s: float) -> list[dict]:
     """Rows ``policy_best`` and ``policy_last`` of one reference (scores by the problem's fit, as the baselines)."""
-    scores = problem.score(result.metrics)  # [I + 1]
-    scores = torch.where(torch.isfinite(scores), scores, torch.full_like(scores, -torch.inf))
+    scores = ranked_scores(problem.score(result.metrics))  # [I + 1]; a NaN never wins, as in the evaluation
     passed = problem.success(result.metrics)  # [I + 1]
     sims = result.iterations + 1
     rows = []
