@@ -11,6 +11,12 @@ from __future__ import annotations
 from pathlib import Path
 
 
+def file_label(path: str | Path) -> str:
+    """How a message names a file: its name; the whole resolved path where the name is empty (``.``, ``/``)."""
+    p = Path(path)
+    return p.name or str(p.resolve())
+
+
 class MarlcrashError(ValueError):
     """Base class of all user-input errors raised by marlcrash."""
 
@@ -30,7 +36,7 @@ class DeckError(MarlcrashError):
         self.reason = reason
         where = ""
         if self.path is not None:
-            where = Path(self.path).name if line is None else f"{Path(self.path).name} line {line}"
+            where = file_label(self.path) if line is None else f"{file_label(self.path)} line {line}"
             where += ": "
         super().__init__(f"{where}{reason}")
 
@@ -51,7 +57,7 @@ class ConfigError(MarlcrashError):
         self.reason = reason
         where = []
         if self.path is not None:
-            where.append(Path(self.path).name)
+            where.append(file_label(self.path))
         if key is not None:
             where.append(f"key '{key}'")
         prefix = (" ".join(where) + ": ") if where else ""

@@ -876,3 +876,17 @@ def test_noise_near_the_start_of_a_record_does_not_discard_its_pre_trigger_data(
         onset = find_onset(Pulse(time=t, acc=acc[None], channels=["acc"], source="lab.csv"), 60)
     assert onset.measured[0] and abs(onset.time - 0.3) < 2e-3
     assert onset.zero_level[0] == pytest.approx(0.5 * G0, abs=3 * G0 / np.sqrt(80))  # the offset, to 3 std errors
+
+
+def test_a_folder_given_as_dot_is_named_in_the_message(tmp_path, monkeypatch):
+    """Messages name a file by its name; ``.`` (the working folder) has none, so ``marlcrash pulse .`` printed
+    ``error: : expected exactly one <test>.mme file``. Such a path is named by its resolved path."""
+    from marlcrash.errors import ConfigError, DeckError
+
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(PulseError) as e:
+        read_mme(".")
+    assert str(e.value).startswith(f"{tmp_path.resolve()}: expected exactly one <test>.mme file"), str(e.value)
+    assert str(DeckError("bad card", ".", line=3)).startswith(f"{tmp_path.resolve()} line 3: bad card")
+    assert str(ConfigError("bad", key="k", path=".")) == f"{tmp_path.resolve()} key 'k': bad"
+    assert str(ConfigError("bad", key="k", path=tmp_path / "a.yaml")) == "a.yaml key 'k': bad"  # a name stays a name

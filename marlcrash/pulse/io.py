@@ -39,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from marlcrash.errors import PulseError
+from marlcrash.errors import PulseError, file_label
 from marlcrash.outputs import atomic_output
 from marlcrash.pulse.signal import (
     DEFAULT_THRESHOLD_G,
@@ -88,7 +88,7 @@ def _is_number(text: str) -> bool:
 
 def _located(reason: str, path: str | Path, line: int | None = None, column: str | None = None) -> str:
     """``<file> line <n>, column '<name>': <reason>``, the form of every message about an input file."""
-    where = Path(path).name if line is None else f"{Path(path).name} line {line}"
+    where = file_label(path) if line is None else f"{file_label(path)} line {line}"
     if column is not None:
         where += f", column {column!r}"
     return f"{where}: {reason}"
