@@ -134,3 +134,20 @@ def test_messages_give_positions_in_the_models_own_frame():
     twice = dataclasses.replace(cfg, sensors=[SensorSpec(n, "position", [0.3, 0.2, 0.41]) for n in "ab"])
     with pytest.raises(ModelError, match=r"requested \[0\.300, 0\.200, 0\.410\] and \[0\.300, 0\.200, 0\.410\] m"):
         discretize(_car(left_inner=True).transformed(AxisMap(y_center=-0.25)), twice, method="uniform")
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_an_up_front_sensor_outside_the_region_is_refused_naming_it(cfg, method):
+    """An up-front sensor whose position lies outside the ROI (given in mm, or beside the car) silently became a
+    compartment sensor; a 'position' sensor outside the ROI still is one, as documented."""
+    car = _car(left_inner=True)
+    mm = dataclasses.replace(cfg, sensors=[SensorSpec("s", "upfront_left", [300.0, 100.0, 410.0])])
+    said = r"sensor 's' \(rule 'upfront_left'\): requested position \[300\.000, 100\.000, 410\.000\] m, from its "
+    with pytest.raises(ModelError, match=said + "position, is outside the region of interest"):
+        discretize(car, mm, method=method)
+    wide = dataclasses.replace(cfg, sensors=[SensorSpec("r", "upfront_right", [0.3, -5.0, 0.41])])
+    with pytest.raises(ModelError, match=r"sensor 'r' \(rule 'upfront_right'\): requested position \[0\.300, -5\.000"):
+        discretize(car, wide, method=method)
+    tunnel = dataclasses.replace(cfg, sensors=[SensorSpec("t", "position", [2.0, 0.0, 0.5])])
+    cells = discretize(car, tunnel, method=method)
+    assert cells.subassembly_names[cells.subassembly[cells.sensor_cell[0]]] == COMPARTMENT

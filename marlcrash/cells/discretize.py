@@ -44,7 +44,7 @@ class SensorSpec:
             ``y = y0 +- upfront_sensor_y_fraction * W`` about the centre line ``y0``, z at the ROI
             mid-height, snapped to the nearest voxel with material), ``compartment`` (the rigid
             compartment cell) or ``position`` (the explicit position; inside the ROI snapped like
-            up-front sensors, outside it the compartment).
+            up-front sensors, outside it the compartment). An up-front rule's position must lie inside the ROI.
         position: ``[x, y, z]`` [m] overriding the rule's position, or ``None``.
 
     Snapping keeps a sensor on its side of the centre line (one requested on the line may go either
@@ -358,6 +358,17 @@ def _sensor_requests(cfg: DiscretizationConfig, roi: Roi) -> list[tuple[str, np.
             sign = 1.0 if s.rule == "upfront_left" else -1.0
             p = np.array([cfg.upfront_sensor_x, ymid + sign * cfg.upfront_sensor_y_fraction * roi.width, zmid])
         inside = p is not None and bool(((p >= roi.lo) & (p <= roi.hi)).all())
+        if not inside and s.rule in ("upfront_left", "upfront_right"):
+            # an up-front sensor is on the deformable front by definition: outside the ROI (a position in mm, or
+            # beside the car) it used to become a compartment sensor without a word
+            at = functools.partial(_fmt, frame_y=roi.frame_y)
+            given = "its position" if s.position is not None else "upfront_sensor_x and upfront_sensor_y_fraction"
+            raise ModelError(
+                f"sensor {s.name!r} (rule {s.rule!r}): requested position {at(p)} m, from {given}, is outside the "
+                f"region of interest {at(roi.lo)} to {at(roi.hi)} m (positions in m, x rearward from the front); "
+                "an up-front sensor must sit on the deformable front: give a position inside it, or the rule "
+                "'position' (outside the region: the compartment) or 'compartment'"
+            )
         out.append((s.name, p if (inside and s.rule != "compartment") else None))
     return out
 
