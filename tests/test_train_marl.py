@@ -36,7 +36,7 @@ from marlcrash.calibrate.marl import (
     train,
     update,
 )
-from marlcrash.errors import ConfigError
+from marlcrash.errors import ConfigError, ModelError
 
 
 @pytest.fixture
@@ -244,9 +244,33 @@ def test_a_runaway_ratio_is_bounded_and_a_diverged_update_is_refused_before_the_
     algo = dataclasses.replace(cfg.algorithm, normalize_advantage=False, epochs=1)
     before = [p.detach().clone() for p in loss.parameters()]
     nan = data.clone()
-    nan["next", "agents", "reward"] = torch.full_like(nan["next", "agents", "reward"], float("nan"))
+    nan["agents", "action_log_prob"] = torch.full_like(nan["agents", "action_log_prob"], float("nan"))
     with pytest.raises(ConfigError, match=r"key 'algorithm.lr': the PPO update diverged at learning rate 0.001"):
         update(nan, loss, gae, optimizer, algo)
+    assert all(torch.equal(a, b) for a, b in zip(before, loss.parameters(), strict=True))  # untouched
+
+
+def test_a_batch_with_a_non_finite_reward_is_refused_naming_it(tmp_path):
+    """A NaN reward (a diverged simulation) reached GAE and the loss, and the update then failed as "the PPO update
+    diverged at learning rate ...", naming algorithm.lr; the batch itself is now refused, before any step."""
+    cfg = tiny(tmp_path)
+    torch.manual_seed(0)
+    env = make_env(cfg)
+    policy, critic = make_policy(env, cfg.algorithm), make_critic(env, cfg.algorithm)
+    loss, gae = make_loss(policy, critic, cfg.algorithm), make_advantage(critic, cfg.algorithm)
+    data, _ = collect(env, policy, 2)
+    expand_team(data)
+    optimizer = torch.optim.Adam(list(loss.parameters()), lr=1e-3)
+    before = [p.detach().clone() for p in loss.parameters()]
+    bad = data.clone()
+    r = bad["next", "agents", "reward"].clone()
+    r[1, 1] = float("nan")
+    r[3, 0] = float("inf")
+    bad["next", "agents", "reward"] = r
+    n = data.batch_size.numel()
+    with pytest.raises(ModelError, match=rf"^2 of {n} env steps of the batch have a non-finite reward \(episodes "
+                       r"\[1, 3\]\): a simulation gave non-finite metrics"):  # fmt: skip
+        update(bad, loss, gae, optimizer, cfg.algorithm)
     assert all(torch.equal(a, b) for a, b in zip(before, loss.parameters(), strict=True))  # untouched
 
 

@@ -86,7 +86,7 @@ from marlcrash.config import (
 )
 from marlcrash.envs.core import EnvConfig, env_config_of, require_env, require_env_keys_unset
 from marlcrash.envs.torchrl_env import GROUP, CalibrationTorchEnv
-from marlcrash.errors import ConfigError
+from marlcrash.errors import ConfigError, ModelError
 from marlcrash.metrics import Metrics
 from marlcrash.outputs import check_output_dir, require_run_name, write_text
 from marlcrash.sim.scenario import list_scenarios
@@ -687,7 +687,20 @@ def update(
     Returns:
         Means over minibatches of the loss terms and diagnostics (``loss_objective``, ``loss_critic``,
         ``loss_entropy``, ``entropy``, ``kl_approx``, ``grad_norm``).
+
+    Raises:
+        ModelError: the batch holds a non-finite reward (before any step: the weights stay as they were).
+        ConfigError: a minibatch's loss or gradient is not finite (``algorithm.lr``), before its step.
     """
+    reward = data.get(("next", GROUP, "reward"))
+    finite = torch.isfinite(reward).reshape(*data.batch_size, -1).all(-1)  # [B, L]
+    if not bool(finite.all()):
+        rows = sorted({int(i) for i in (~finite).nonzero()[:, 0]})
+        raise ModelError(
+            f"{int((~finite).sum())} of {finite.numel()} env steps of the batch have a non-finite reward (episodes "
+            f"{rows[:8]}{' ...' if len(rows) > 8 else ''}): a simulation gave non-finite metrics, or the reward form "
+            "an infinite score. No update was made; the last checkpoint holds the weights before this iteration"
+        )
     data = data.to(module_device(loss))
     with torch.no_grad():
         gae(data)
