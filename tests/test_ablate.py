@@ -6,6 +6,7 @@ Runs on a shortened copy of configs/ (every scenario simulated for 30 ms instead
 from __future__ import annotations
 
 import csv
+import dataclasses
 import itertools
 import json
 import math
@@ -440,6 +441,62 @@ def test_resume_reads_rows_written_before_acting_cells_were_counted(finished, tm
     cells = json.loads((dst / "ablate.json").read_text())["cells"]  # per cell: the count its newer rows give
     assert [c["acting_cells"] for c in cells] == [r["acting_cells"] for r in rows]
     assert "| active | acting cells |" in (dst / "ablate.md").read_text()
+
+
+def test_a_diverged_run_is_standard_json_loses_its_pairs_and_resumes(finished, tmp_path, monkeypatch):
+    """ablate.json held ``-Infinity`` (score, gain) and ``NaN`` (areas) for a run whose every candidate diverged: jq
+    and JavaScript refuse the whole file. They are null there, the run loses its pairs, and a resume reads them
+    back and draws the plot."""
+    import re
+
+    from test_outputs import _strict
+
+    _, run_dir, rows = finished
+    dst = tmp_path / "runs" / "ablate" / "t"
+    shutil.copytree(run_dir, dst)
+    record = json.loads((dst / "ablate.json").read_text())  # as written before: Python's -Infinity and NaN
+    r = record["rows"][1]
+    r["score"] = r["gain"] = float("-inf")
+    r["area_worst"] = float("nan")
+    r["history"] = [[h[0], float("-inf")] for h in r["history"]]
+    (dst / "ablate.json").write_text(json.dumps(record))
+    real = ablate.run_ppo
+
+    def diverging(cc, algorithm, seed, problem, root):  # seed 1, masking primary_secondary: every candidate diverges
+        out = real(cc, algorithm, seed, problem, root)
+        if seed == 1 and cc.env_overrides["masking.mode"] == "primary_secondary":
+            out.progress.best_score = float("-inf")
+            out.progress.history = [dataclasses.replace(h, best=float("-inf")) for h in out.progress.history]
+        return out
+
+    monkeypatch.setattr(ablate, "run_ppo", diverging)
+    said: list[str] = []
+    data = tiny_data(tmp_path, seeds=[0, 1], resume=True, plots=True)
+    _, more = run_ablation(load_ablation_config(data, source="test"), progress=said.append)
+    assert [(m["masking"], m["seed"]) for m in more] == [("none", 0), ("primary_secondary", 0), ("none", 1),
+                                                         ("primary_secondary", 1)]  # fmt: skip
+    for m in (more[1], more[3]):
+        assert m["score"] is None and m["gain"] is None and {h[1] for h in m["history"]} == {None}
+    assert more[1]["area_worst"] is None and more[0] == json.loads(json.dumps(rows[0]))
+    assert "primary_secondary" in said[1] and ": score - (initial " in said[1]
+    saved = _strict((dst / "ablate.json").read_text())
+    assert saved["rows"] == more
+    [eff] = saved["effects"]
+    assert eff["pairs"] == 2 and eff["wins"] == 0  # no gain: it loses to the baseline's
+    assert eff["gain_diff_mean"] is None and eff["gain_mean"] is None and eff["baseline_gain_mean"] is not None
+    cells = {c["masking"]: c for c in saved["cells"]}
+    assert cells["primary_secondary"]["gain_mean"] is None and cells["none"]["gain_mean"] is not None
+    with open(dst / "ablate.csv") as fh:
+        table = list(csv.DictReader(fh))
+    assert [(t["score"], t["gain"]) for t in table[1::2]] == [("", "")] * 2 and table[0]["score"] != ""
+    md = (dst / "ablate.md").read_text()
+    assert not re.search(r"\b(inf|nan)\b", md, re.IGNORECASE), md
+    assert "| masking | primary_secondary vs none | 2 | - | 0/2 |" in md
+    assert (dst / "ablate.png").stat().st_size > 0
+    # the same again: nothing to run, every row read back with its nulls
+    monkeypatch.setattr(ablate, "run_cell", lambda *a, **kw: pytest.fail("ran a cell"))
+    _, again = run_ablation(load_ablation_config(data, source="test"))
+    assert again == more and _strict((dst / "ablate.json").read_text())["effects"] == saved["effects"]
 
 
 def test_resume_refuses_rows_of_another_reference_or_metric(finished, tmp_path):

@@ -10,6 +10,7 @@ import csv
 import dataclasses
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -324,6 +325,72 @@ def test_a_first_run_that_failed_before_any_row_does_not_block_its_rerun(short, 
     with pytest.raises(ConfigError, match="exists already") as e:
         run_comparison(other)
     assert e.value.key == "name" and (other.run_dir / "compare.json").read_text() == "{not json"
+
+
+def _diverging(real, method: str):
+    """``run_method`` whose ``method`` runs as if every candidate had diverged: no finite score, NaN areas."""
+
+    def run(config, m, seed, problem, run_root):
+        out = real(config, m, seed, problem, run_root)
+        if m == method:
+            p = out.progress
+            p.best_score = float("-inf")
+            p.history = [dataclasses.replace(h, best=float("-inf")) for h in p.history]
+            p.best_metrics = Metrics(p.best_metrics.area * float("nan"), p.best_metrics.dfd, p.best_metrics.rmse)
+        return out
+
+    return run
+
+
+def test_a_run_without_a_finite_score_is_standard_json_ranks_last_and_resumes(short, tmp_path, monkeypatch):
+    """compare.json held ``-Infinity`` and ``NaN`` for a run whose every candidate diverged: jq and JavaScript refuse
+    the whole file. They are null there (empty in the CSV, ``-`` in the tables), and a resume reads them back."""
+    from test_outputs import _strict
+
+    import marlcrash.calibrate.compare as compare
+
+    monkeypatch.setattr(compare, "run_method", _diverging(compare.run_method, "cmaes"))
+    said: list[str] = []
+    cfg = tiny(tmp_path, methods=["cmaes", "random_search"], seeds=[0])
+    run_dir, rows = run_comparison(cfg, progress=said.append)
+    assert rows[0]["score"] is None and rows[0]["area_mean"] is None and rows[0]["history"][0][1] is None
+    assert said[0].startswith("seed 0 cmaes: score - (initial ")
+
+    def check(data):
+        by = {r["method"]: r for r in data["rows"] if r["seed"] == 0}
+        assert by["cmaes"]["score"] is None and by["cmaes"]["metrics"]["tunnel"]["area"] is None
+        assert isinstance(by["random_search"]["score"], float)
+        [w] = [w for w in data["winners"] if w["seed"] == 0]
+        assert w["winner"] == ["random_search"] and w["score"] == by["random_search"]["score"]  # cmaes ranks last
+        agg = {a["method"]: a for a in data["aggregate"]}
+        assert agg["cmaes"]["score_mean"] is None and agg["random_search"]["score_mean"] is not None
+        with open(run_dir / "compare.csv") as fh:
+            table = {t["method"]: t for t in csv.DictReader(fh) if t["seed"] == "0"}
+        assert table["cmaes"]["score"] == table["cmaes"]["area_mean"] == ""
+        md = (run_dir / "compare.md").read_text()
+        assert not re.search(r"\b(inf|nan)\b", md, re.IGNORECASE), md
+        wins = md.split("## Winner per reference")[1].split("## Per run")[0].splitlines()
+        head = next(ln for ln in wins if ln.startswith("| reference seed |")).strip("| ").split(" | ")
+        cells = dict(zip(head, next(ln for ln in wins if ln.startswith("| 0 |")).strip("| ").split(" | "), strict=True))
+        assert cells["cmaes"] == "-" and cells["winner"] == "random_search"
+        per_run = md.split("## Per run")[1].splitlines()
+        assert next(ln for ln in per_run if ln.startswith("| 0 | cmaes |")).count("| - |") >= 2  # area, score
+
+    check(_strict((run_dir / "compare.json").read_text()))
+    # a record from before: Python's json wrote -Infinity and NaN; a resume reads them as the rows' None
+    record = json.loads((run_dir / "compare.json").read_text())
+    record["rows"][0]["score"] = float("-inf")
+    record["rows"][0]["metrics"]["tunnel"]["area"] = float("nan")
+    (run_dir / "compare.json").write_text(json.dumps(record))
+    _, more = run_comparison(tiny(tmp_path, methods=["cmaes", "random_search"], seeds=[0], resume=True))
+    assert more == rows  # nothing left to run: the record read back, nulls as None
+    check(_strict((run_dir / "compare.json").read_text()))
+    # a resume that adds a run ranks and renders with the null read back
+    _, more = run_comparison(tiny(tmp_path, methods=["random_search"], seeds=[1], resume=True))
+    assert [(r["method"], r["seed"]) for r in more] == [("cmaes", 0), ("random_search", 0), ("random_search", 1)]
+    data = _strict((run_dir / "compare.json").read_text())
+    check(data)
+    assert [(w["seed"], w["winner"]) for w in data["winners"]] == [(1, ["random_search"]), (0, ["random_search"])]
 
 
 # --------------------------------------------------------------------------------------- config

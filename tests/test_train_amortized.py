@@ -105,6 +105,34 @@ def test_table_shape_and_keys(comparison, run_dir, tmp_path):
         write_comparison(comparison, tmp_path / "afile")
 
 
+def test_a_diverged_run_is_written_as_standard_json(comparison, tmp_path):
+    """amortized.json held ``-Infinity`` (the best score of an optimizer whose every candidate diverged) and ``NaN``
+    (its metrics, their means): jq and JavaScript refuse the whole file. They are null there, empty in the CSV and
+    ``-`` in the tables."""
+    import re
+
+    from test_outputs import _strict
+
+    from marlcrash.calibrate.amortized import Comparison, aggregate
+
+    rows = copy.deepcopy(comparison.rows)
+    i = next(i for i, r in enumerate(rows) if r["method"] == "random_search")
+    rows[i].update(score=float("-inf"), area=float("nan"))
+    paths = write_comparison(Comparison(rows, aggregate(rows), copy.deepcopy(comparison.meta)), tmp_path)
+    data = _strict(paths["amortized.json"].read_text())
+    assert data["rows"][i]["score"] is None and data["rows"][i]["area"] is None
+    assert data["rows"][i - 1]["score"] == rows[i - 1]["score"]
+    [a] = [a for a in data["aggregate"] if a["method"] == "random_search"]
+    assert a["score_mean"] is None and a["area_mean"] is None and a["dfd_mean"] is not None
+    back = list(csv.DictReader(paths["amortized.csv"].open()))
+    assert back[i]["score"] == back[i]["area"] == "" and back[i]["dfd"] != ""
+    md = paths["amortized.md"].read_text()
+    assert not re.search(r"\b(inf|nan)\b", md, re.IGNORECASE), md
+    seed = rows[i]["reference_seed"]
+    line = next(ln for ln in md.splitlines() if ln.startswith(f"| {seed} | random_search 1x |"))
+    assert line.split(" | ")[3] == "-" and line.split(" | ")[6] == "-"  # area, score
+
+
 def test_budgets_are_respected(comparison):
     nominal = ITERATIONS + 1
     for r in comparison.rows:

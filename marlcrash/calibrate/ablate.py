@@ -34,14 +34,16 @@ Protocol (the results table's, :mod:`marlcrash.calibrate.compare`, so the number
 
 :func:`run_ablation` rewrites ``ablate.json``, ``ablate.csv`` and ``ablate.md`` atomically after every
 finished run and draws ``ablate.png`` at the end, so a kill loses nothing finished; ``resume`` skips
-finished runs (levels and seeds may be added, the protocol may not change).
+finished runs (levels and seeds may be added, the protocol may not change). As in the results table
+(:mod:`marlcrash.calibrate.compare`), a non-finite number (the score and gain of a run whose every candidate
+diverged) is ``None`` in a row, ``null`` in ``ablate.json``, an empty field in the CSV and ``-`` in the tables; a
+run without a gain loses to a paired run with one.
 """
 
 from __future__ import annotations
 
 import copy
 import itertools
-import json
 import math
 from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass, field
@@ -65,6 +67,7 @@ from marlcrash.calibrate.compare import (
     outcome_row,
     pm,
     problem_config,
+    ranked,
     run_ppo,
     summarize,
 )
@@ -75,7 +78,7 @@ from marlcrash.envs.agents import build_agents
 from marlcrash.envs.core import EnvConfig, load_env_config, require_env, require_env_keys_unset
 from marlcrash.envs.masking import ImpactRegions
 from marlcrash.errors import ConfigError
-from marlcrash.outputs import atomic_output, require_run_name, write_text
+from marlcrash.outputs import atomic_output, finite_or_null, json_text, require_run_name, write_text
 from marlcrash.reward import load_reward_config
 from marlcrash.sim.scenario import list_scenarios
 
@@ -403,10 +406,11 @@ def run_cell(
     """
     cc = cell_compare_config(config, cell, seed)
     out = run_ppo(cc, cell["algorithm"], seed, problem, run_dir / "runs" / cell_name(cell))
-    row = outcome_row(cc, problem, out, initial)
+    row = outcome_row(cc, problem, out, initial)  # a non-finite score: None
     row.pop("method")
+    gain = None if row["score"] is None or row["initial_score"] is None else row["score"] - row["initial_score"]
     head = {"cell": cell_name(cell), **cell, **masking_reach(config, problem, cell["masking"]),
-            "gain": row["score"] - row["initial_score"]}  # fmt: skip
+            "gain": finite_or_null(gain)}  # fmt: skip
     return {**head, **row}
 
 
@@ -438,7 +442,9 @@ def paired_effects(rows: list[dict[str, Any]], levels: dict[str, list[Any]]) -> 
         seed), ``gain_diff_mean`` and ``gain_diff_se`` (standard error, ddof 1; ``None`` below 2 pairs),
         ``wins`` (pairs where the level gains more), ``area_worst_ratio`` (geometric mean of the level's
         worst-sensor area over the baseline's, over the ``ratio_pairs`` pairs where both are finite
-        and > 0), and ``gain_mean`` / ``baseline_gain_mean`` over the pairs.
+        and > 0), and ``gain_mean`` / ``baseline_gain_mean`` over the pairs. A run without a gain (``None``:
+        every candidate diverged) loses to one with a gain, and leaves the means and the standard error
+        without a number (``None``).
     """
     out = []
     for factor, lv in levels.items():
@@ -452,21 +458,23 @@ def paired_effects(rows: list[dict[str, Any]], levels: dict[str, list[Any]]) -> 
         base = {key(r): r for r in rows if r[factor] == lv[0]}
         for level in lv[1:]:
             pairs = [(r, base[key(r)]) for r in rows if r[factor] == level and key(r) in base]
-            d = np.array([r["gain"] - b["gain"] for r, b in pairs], dtype=np.float64)
+            gains = np.array([(r["gain"], b["gain"]) for r, b in pairs], dtype=np.float64).reshape(-1, 2)  # None: nan
+            d = gains[:, 0] - gains[:, 1]
+            whole = bool(np.isfinite(d).all())
             areas = np.array([(r["area_worst"], b["area_worst"]) for r, b in pairs], dtype=np.float64).reshape(-1, 2)
             ok = np.isfinite(areas).all(axis=1) & (areas > 0).all(axis=1)  # a ratio of zero areas says nothing
             ratio = areas[ok, 0] / areas[ok, 1]
             n = len(pairs)
-            out.append({
+            out.append(finite_or_null({
                 "factor": factor, "baseline": lv[0], "level": level, "pairs": n,
-                "gain_diff_mean": float(d.mean()) if n else None,
-                "gain_diff_se": float(d.std(ddof=1) / math.sqrt(n)) if n >= 2 else None,
-                "wins": int((d > 0).sum()),
+                "gain_diff_mean": float(d.mean()) if n and whole else None,
+                "gain_diff_se": float(d.std(ddof=1) / math.sqrt(n)) if n >= 2 and whole else None,
+                "wins": sum(ranked(r["gain"]) > ranked(b["gain"]) for r, b in pairs),
                 "area_worst_ratio": float(np.exp(np.log(ratio).mean())) if ratio.size else None,
                 "ratio_pairs": int(ok.sum()),
-                "gain_mean": float(np.mean([r["gain"] for r, _ in pairs])) if n else None,
-                "baseline_gain_mean": float(np.mean([b["gain"] for _, b in pairs])) if n else None,
-            })  # fmt: skip
+                "gain_mean": float(gains[:, 0].mean()) if n else None,
+                "baseline_gain_mean": float(gains[:, 1].mean()) if n else None,
+            }))  # fmt: skip
     return out
 
 
@@ -525,7 +533,7 @@ def markdown(config: AblationConfig, rows: list[dict[str, Any]], command: str | 
         for e in effects:
             diff = _fmt(e["gain_diff_mean"], "+.4f")
             if e["gain_diff_se"] is not None:
-                diff += f" ± {e['gain_diff_se']:.4f}"
+                diff += f" ± {_fmt(e['gain_diff_se'], '.4f')}"
             lines.append(
                 f"| {e['factor']} | {e['level']} vs {e['baseline']} | {e['pairs']} | {diff} | {e['wins']}/{e['pairs']} "
                 f"| {_fmt(e['area_worst_ratio'], '.3f')} | {_fmt(e['gain_mean'], '.4f')} / "
@@ -578,7 +586,7 @@ def write_results(config: AblationConfig, rows: list[dict[str, Any]], run_dir: P
     cells = aggregate_cells(rows, _present_cells(config, rows))
     payload = {"date": date, "command": command, "config": asdict(config), "rows": rows, "cells": cells,
                "effects": paired_effects(rows, lv)}  # fmt: skip
-    write_text(run_dir / "ablate.json", json.dumps(payload, indent=2))
+    write_text(run_dir / "ablate.json", json_text(payload))  # standard JSON: non-finite numbers as null
     write_text(run_dir / "ablate.csv", csv_text(rows, CSV_COLUMNS))
     write_text(run_dir / "ablate.md", markdown(config, rows, command, date))
 
@@ -588,7 +596,8 @@ def best_so_far_curve(history: list[list[float]], grid: np.ndarray) -> np.ndarra
     """A run's best score after each simulation count of ``grid`` (NaN before its first candidate).
 
     ``history`` is the results table's ``[[simulations, best score], ...]`` record (best so far after
-    that many simulations, increasing).
+    that many simulations, increasing); a best score without a number (``None``: every candidate so far
+    diverged) is NaN.
     """
     sims = np.array([h[0] for h in history], dtype=np.float64)
     best = np.array([h[1] for h in history], dtype=np.float64)
@@ -618,10 +627,13 @@ def plot_ablation(config: AblationConfig, rows: list[dict[str, Any]], path: Path
         top, bottom = axes[0, j], axes[1, j]
         for i, level in enumerate(lv[factor]):
             g = [r for r in rows if r[factor] == level]
-            gains = np.array([r["gain"] for r in g], dtype=np.float64)
-            top.hlines(gains.mean(), i - 0.3, i + 0.3, color=f"C{i}", linewidth=2.5)
+            gains = np.array([r["gain"] for r in g], dtype=np.float64)  # None (no gain: diverged): nan, no dot
+            if np.isfinite(gains).all():  # as the tables: no mean where a run has no gain
+                top.hlines(gains.mean(), i - 0.3, i + 0.3, color=f"C{i}", linewidth=2.5)
             top.scatter(i + rng.uniform(-0.18, 0.18, gains.size), gains, color=f"C{i}", s=14, zorder=3)
-            curves = np.array([best_so_far_curve(r["history"], grid) - r["initial_score"] for r in g])
+            initial = np.array([r["initial_score"] for r in g], dtype=np.float64)[:, None]
+            curves = np.array([best_so_far_curve(r["history"], grid) for r in g]) - initial
+            curves[~np.isfinite(curves)] = np.nan  # a diverged best so far: no number
             seen = ~np.isnan(curves).all(axis=0)  # grid points where some run has a candidate
             mean = np.full(grid.shape, np.nan)
             mean[seen] = np.nanmean(curves[:, seen], axis=0)
@@ -691,7 +703,8 @@ def run_ablation(
                 problem = reference_problem(config, scenario, seed)
                 initial = initial_score(problem)
                 saved = {r["initial_score"] for r in rows if r["scenario"] == scenario and r["seed"] == seed}
-                if saved and saved != {initial}:  # same settings, yet another reference or metric: configs/ changed
+                # same settings, yet another reference or metric: configs/ changed (a non-finite score: None in rows)
+                if saved and saved != {finite_or_null(initial)}:
                     raise ConfigError(f"resume: the initial parameters score {initial!r} on the {scenario} "
                                       f"reference of seed {seed}, the finished runs of {run_dir} recorded "
                                       f"{sorted(saved)}; the config files or the simulator changed since, so the "
@@ -700,11 +713,12 @@ def run_ablation(
                     row = run_cell(config, cell, seed, problem, run_dir, initial)
                     rows.append(row)
                     write_results(config, rows, run_dir, command)
-                    say(f"seed {seed} {row['cell']}: score {row['score']:.4f} (initial {row['initial_score']:.4f}), "
-                        f"worst area {row['area_worst']:.4g} m, {row['simulations']} simulations, "
+                    say(f"seed {seed} {row['cell']}: score {_fmt(row['score'], '.4f')} (initial "
+                        f"{_fmt(row['initial_score'], '.4f')}), worst area {_fmt(row['area_worst'])} m, "
+                        f"{row['simulations']} simulations, "
                         f"{row['active_agents']}/{row['n_agents']} agents active ({row['acting_cells']} cells), "
                         f"stop {row['stop']}, "
-                        f"{row['wall_time_s']:.1f} s")  # fmt: skip
+                        f"{_fmt(row['wall_time_s'], '.1f')} s")  # fmt: skip
         if config.plots and rows:
             plot_ablation(config, rows, run_dir / "ablate.png")
         return run_dir, rows

@@ -25,7 +25,9 @@ form's fit score (higher is better); ``passed``: every sensor below every succes
 
 :func:`write_comparison` writes ``amortized.csv`` (one row per reference and method/budget),
 ``amortized.md`` (per-reference and aggregated tables: mean and standard deviation over
-references) and ``amortized.json`` atomically into a folder (by default the run folder). The script
+references) and ``amortized.json`` (standard JSON: a non-finite number, e.g. the score of a run whose every
+candidate diverged, is ``null``; an empty field in the CSV, ``-`` in the tables) atomically into a folder (by
+default the run folder). The script
 writes them after every finished piece too (``meta.complete`` false, the Markdown says *incomplete*), so an
 optimizer that fails or a kill keeps what finished; there is no resume (start again into another folder).
 """
@@ -35,7 +37,6 @@ from __future__ import annotations
 import copy
 import csv
 import io
-import json
 import math
 import time
 from collections.abc import Callable, Sequence
@@ -70,7 +71,7 @@ from marlcrash.calibrate.problem import CalibrationProblem
 from marlcrash.config import from_dict, require, require_complete, require_seed
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics
-from marlcrash.outputs import check_output_dir, write_text
+from marlcrash.outputs import check_output_dir, finite_or_null, json_text, write_text
 from marlcrash.sim import adjoint
 from marlcrash.sim.scenario import list_scenarios
 from marlcrash.sim.surrogate import load_sim_config
@@ -409,7 +410,9 @@ def aggregate(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
 
 # ----------------------------------------------------------------------------------------- writing
 def _fmt(v: Any, spec: str = ".4g") -> str:
-    if v is None:
+    """``v`` for a Markdown table: ``-`` for ``None`` and for a non-finite number (written as ``null`` to the JSON
+    record, so a resumed table shows what the first one did), ``yes``/``no`` for a bool."""
+    if v is None or (isinstance(v, float) and not math.isfinite(v)):
         return "-"
     if isinstance(v, bool):
         return "yes" if v else "no"
@@ -491,13 +494,19 @@ def markdown(comparison: Comparison, command: str | None = None, date: str | Non
 
 
 def csv_text(comparison: Comparison) -> str:
-    """The rows as CSV (columns :data:`COLUMNS`; ``None`` as an empty field)."""
+    """The rows as CSV (columns :data:`COLUMNS`; ``None`` and non-finite numbers as an empty field, as the JSON
+    record has them as ``null``)."""
     buf = io.StringIO()
     w = csv.DictWriter(buf, fieldnames=list(COLUMNS), lineterminator="\n")
     w.writeheader()
     for r in comparison.rows:
-        w.writerow({k: ("" if r[k] is None else r[k]) for k in COLUMNS})
+        w.writerow({k: csv_field(r[k]) for k in COLUMNS})
     return buf.getvalue()
+
+
+def csv_field(v: Any) -> Any:
+    """``v`` as a CSV field: empty for ``None`` and for a non-finite number (``inf``, ``nan``: no number)."""
+    return "" if finite_or_null(v) is None else v
 
 
 def check_comparison_dir(out_dir: str | Path) -> Path:
@@ -537,5 +546,5 @@ def write_comparison(
     paths = {name: out / name for name in FILES}
     write_text(paths["amortized.csv"], csv_text(comparison))
     write_text(paths["amortized.md"], markdown(comparison, command, date))
-    write_text(paths["amortized.json"], json.dumps(payload, indent=2))
+    write_text(paths["amortized.json"], json_text(payload))  # standard JSON: non-finite numbers as null
     return paths

@@ -33,6 +33,12 @@ rewrites ``compare.json`` (config, rows, per-sensor metrics and best-so-far hist
 ``compare.csv`` (:data:`COLUMNS`, one row per method and seed) and ``compare.md`` (per method: mean
 ± std over seeds, passed k/n, median sims to success; per reference: the winner) atomically, so a
 crash or kill loses nothing finished, and ``resume`` skips finished method/seed pairs.
+
+A number that is not finite (the score of a run whose every candidate diverged is ``-inf``, a diverged metric
+``nan``) has no place in standard JSON: a row holds ``None`` for it from the start (:func:`outcome_row`), written
+``null`` to the JSON record, an empty field to the CSV and ``-`` to the tables, so a resumed run reads back the
+rows it wrote. A run without a score ranks below every run with one (:func:`winners`); a mean over runs of
+which one has no number has none either (:func:`summarize`).
 """
 
 from __future__ import annotations
@@ -55,7 +61,7 @@ import numpy as np
 import torch
 
 from marlcrash import provenance
-from marlcrash.calibrate.amortized import _fmt, _mean_param_error
+from marlcrash.calibrate.amortized import _fmt, _mean_param_error, csv_field
 from marlcrash.calibrate.baselines import (
     BASELINES,
     CMAESConfig,
@@ -97,7 +103,7 @@ from marlcrash.config import (
 from marlcrash.envs.core import EnvConfig, env_config_of, load_env_config, require_env, require_env_keys_unset
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics
-from marlcrash.outputs import check_output_dir, require_run_name, write_text
+from marlcrash.outputs import check_output_dir, finite_or_null, json_text, require_run_name, write_text
 from marlcrash.sim.scenario import list_scenarios
 
 METHODS: tuple[str, ...] = (*ALGORITHMS, *BASELINES)
@@ -111,7 +117,7 @@ COLUMNS = (
     "rmse_mean", "rmse_worst", "score", "initial_score", "passed", "sims_to_success", "param_error",
     "initial_param_error", "wall_time_s", "iterations", "env_steps", "trained_simulations",
 )  # fmt: skip
-"""Columns of ``compare.csv``, in order (empty field: not applicable or never reached)."""
+"""Columns of ``compare.csv``, in order (empty field: not applicable, never reached, or not a finite number)."""
 
 _PROTOCOL = "the comparison protocol (scenario, seeds, ppo.episode_length)"
 _SHARED_ENV_KEYS = dict.fromkeys(("scenarios", "reference.kind", "reference.pin_seed", "seed",
@@ -487,6 +493,9 @@ def outcome_row(
 ) -> dict[str, Any]:
     """A table row (keys :data:`COLUMNS`) plus ``metrics`` per sensor and the best-so-far ``history``.
 
+    A non-finite number (``score`` ``-inf`` where every candidate diverged, a ``nan`` metric) is ``None`` in it, as
+    the JSON record has it (``null``) and a resumed run reads it back (:func:`marlcrash.outputs.finite_or_null`).
+
     Args:
         config: the comparison.
         problem: the run's reference problem.
@@ -514,7 +523,7 @@ def outcome_row(
         "metrics": m.per_sensor(problem.sensors),
         "history": [[h.simulations, h.best] for h in prog.history],
     })  # fmt: skip
-    return row
+    return finite_or_null(row)
 
 
 # ----------------------------------------------------------------------------------------- tables
@@ -538,12 +547,18 @@ def aggregate(rows: list[dict[str, Any]], methods: list[str]) -> list[dict[str, 
 
 def summarize(group: list[dict[str, Any]], keys: tuple[str, ...]) -> dict[str, Any]:
     """Runs of one group (a method, an ablation cell): ``seeds``, mean and std (ddof 0) of ``keys``, ``passed``,
-    ``sims_to_success_median`` and ``wall_capped`` (:func:`aggregate`)."""
+    ``sims_to_success_median`` and ``wall_capped`` (:func:`aggregate`).
+
+    The mean and std of a key are ``None`` where a run of the group has no number for it (``None``: not
+    applicable, or not finite, as a run whose every candidate diverged has no score): leaving that run out would
+    rank a method that failed on one reference by its other runs.
+    """
     a: dict[str, Any] = {"seeds": len(group)}
     for k in keys:
-        v = np.array([r[k] for r in group if r[k] is not None], dtype=np.float64)
-        a[f"{k}_mean"] = float(v.mean()) if v.size else None
-        a[f"{k}_std"] = float(v.std()) if v.size else None
+        v = np.array([r[k] for r in group], dtype=np.float64)  # None: nan
+        whole = v.size and np.isfinite(v).all()
+        a[f"{k}_mean"] = float(v.mean()) if whole else None
+        a[f"{k}_std"] = float(v.std()) if whole else None
     a["passed"] = sum(bool(r["passed"]) for r in group)
     hit = [r["sims_to_success"] for r in group if r["sims_to_success"] is not None]
     a["sims_to_success_median"] = float(np.median(hit)) if hit else None
@@ -551,16 +566,23 @@ def summarize(group: list[dict[str, Any]], keys: tuple[str, ...]) -> dict[str, A
     return a
 
 
+def ranked(score: float | None) -> float:
+    """A row's ``score`` for ranking: ``None`` (no finite score: every candidate diverged) below every number."""
+    return -math.inf if score is None or math.isnan(score) else score
+
+
 def winners(rows: list[dict[str, Any]], seeds: list[int]) -> list[dict[str, Any]]:
-    """Per reference seed: every method's best score and the winner (highest score; ties name all)."""
+    """Per reference seed: every method's best score and the winner (highest score; ties name all; none where no
+    run of the reference has a score)."""
     out = []
     for s in seeds:
         g = [r for r in rows if r["seed"] == s]
         if not g:
             continue
-        best = max(r["score"] for r in g)
-        out.append({"seed": s, "scores": {r["method"]: r["score"] for r in g},
-                    "winner": [r["method"] for r in g if r["score"] == best], "score": best})  # fmt: skip
+        best = max(ranked(r["score"]) for r in g)
+        win = [r["method"] for r in g if ranked(r["score"]) == best] if best > -math.inf else []
+        out.append({"seed": s, "scores": {r["method"]: r["score"] for r in g}, "winner": win,
+                    "score": best if win else None})  # fmt: skip
     return out
 
 
@@ -636,7 +658,7 @@ def markdown(config: CompareConfig, rows: list[dict[str, Any]], command: str | N
     ]
     for w in win:
         cells = [_fmt(w["scores"].get(m), ".4f") for m in methods]
-        lines.append(f"| {w['seed']} | " + " | ".join(cells) + f" | {', '.join(w['winner'])} |")
+        lines.append(f"| {w['seed']} | " + " | ".join(cells) + f" | {', '.join(w['winner']) or '-'} |")
     tally: dict[str, int] = {}
     for w in win:
         for m in w["winner"]:
@@ -664,12 +686,13 @@ def markdown(config: CompareConfig, rows: list[dict[str, Any]], command: str | N
 
 
 def csv_text(rows: list[dict[str, Any]], columns: tuple[str, ...] = COLUMNS) -> str:
-    """The rows as CSV (``columns``, by default :data:`COLUMNS`; ``None`` as an empty field)."""
+    """The rows as CSV (``columns``, by default :data:`COLUMNS`; ``None`` and a non-finite number as an empty
+    field)."""
     buf = io.StringIO()
     w = csv.DictWriter(buf, fieldnames=list(columns), lineterminator="\n", extrasaction="ignore")
     w.writeheader()
     for r in rows:
-        w.writerow({k: ("" if r[k] is None else r[k]) for k in columns})
+        w.writerow({k: csv_field(r[k]) for k in columns})
     return buf.getvalue()
 
 
@@ -679,7 +702,7 @@ def write_results(config: CompareConfig, rows: list[dict[str, Any]], run_dir: Pa
     methods, seeds = _present(config, rows)
     payload = {"date": date, "command": command, "config": asdict(config), "rows": rows,
                "aggregate": aggregate(rows, methods), "winners": winners(rows, seeds)}  # fmt: skip
-    write_text(run_dir / "compare.json", json.dumps(payload, indent=2))
+    write_text(run_dir / "compare.json", json_text(payload))  # standard JSON: non-finite numbers as null
     write_text(run_dir / "compare.csv", csv_text(rows))
     write_text(run_dir / "compare.md", markdown(config, rows, command, date))
 
@@ -732,6 +755,10 @@ def open_run_dir(
             deck, measured pulses) are recorded and checked with ``configs/`` (:func:`marlcrash.provenance.env_inputs`).
         row_keys: the keys every finished row has (those its tables and the resumed run read).
 
+    Returns:
+        The run folder and the finished rows, a non-finite number in them as ``None`` (a record written before
+        the records were standard JSON holds ``NaN`` or ``-Infinity``, which Python reads), as a fresh row has it.
+
     Raises:
         ConfigError: the record exists without ``resume`` (key ``name``), is missing or unreadable with it
             (key ``resume``), has a row that is not an object with ``row_keys`` (key ``resume``, naming the row
@@ -773,7 +800,7 @@ def open_run_dir(
         raise ConfigError(f"resume: {run_dir} was run with {diff} = {_lookup(saved, diff)!r}, this config "
                           f"has {_lookup(config, diff)!r}; the finished rows would not compare", key=diff)  # fmt: skip
     provenance.require_unchanged(run_dir, inputs)
-    return run_dir, rows
+    return run_dir, finite_or_null(rows)
 
 
 def _start_run_dir(config: CompareConfig) -> tuple[Path, list[dict[str, Any]]]:
@@ -848,7 +875,7 @@ def run_comparison(
                 row = outcome_row(config, problem, out, initial)
                 rows.append(row)
                 write_results(config, rows, run_dir, command)
-                say(f"seed {seed} {method}: score {row['score']:.4f} (initial {row['initial_score']:.4f}), "
-                    f"{row['simulations']} simulations, passed {row['passed']}, stop {row['stop']}, "
-                    f"{row['wall_time_s']:.1f} s")  # fmt: skip
+                say(f"seed {seed} {method}: score {_fmt(row['score'], '.4f')} (initial "
+                    f"{_fmt(row['initial_score'], '.4f')}), {row['simulations']} simulations, passed {row['passed']}, "
+                    f"stop {row['stop']}, {_fmt(row['wall_time_s'], '.1f')} s")  # fmt: skip
         return run_dir, rows
