@@ -8,8 +8,6 @@ print ``error: ...`` on stderr and exit with status 2, never a traceback.
 from __future__ import annotations
 
 import argparse
-import json
-import math
 import sys
 import warnings
 from pathlib import Path
@@ -116,21 +114,12 @@ def _input_files(args: argparse.Namespace) -> tuple[str, ...]:
     return tuple(str(n) for n in names if n is not None and Path(n).is_file())
 
 
-def _finite_or_null(obj):
-    """``obj`` with every non-finite float (NaN, inf) replaced by ``None``: standard JSON has no such numbers, and
-    a value that could not be computed reads as ``null``, as ``time_to_zero_velocity_ms`` of a car that never stops."""
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
-    if isinstance(obj, dict):
-        return {k: _finite_or_null(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_finite_or_null(v) for v in obj]
-    return obj
-
-
 def _print_json(obj: dict) -> None:
-    """Print ``obj`` as standard JSON (``allow_nan=False``: non-finite floats become ``null``)."""
-    print(json.dumps(_finite_or_null(obj), indent=2, sort_keys=False, allow_nan=False))
+    """Print ``obj`` as standard JSON: non-finite floats become ``null``, as ``time_to_zero_velocity_ms`` of a car
+    that never stops (:func:`marlcrash.outputs.json_text`)."""
+    from marlcrash.outputs import json_text
+
+    print(json_text(obj))
 
 
 # ---------------------------------------------------------------- commands
