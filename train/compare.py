@@ -1,6 +1,6 @@
-"""The results table of issue 5: MAPPO, IPPO, single-agent PPO, random search, CMA-ES, gradient descent.
+"""The results table of issue 5: MAPPO, IPPO, single-agent PPO, random search, CMA-ES, gradient descent, LM.
 
-    python train/compare.py                                       # 6 methods x seeds 0, 1, 2, budget 2000
+    python train/compare.py                                       # 7 methods x seeds 0, 1, 2, budget 2000
     python train/compare.py methods=[cmaes,mappo] seeds=[0] budget=500 name=try1
     python train/compare.py name=try1 resume=true                 # after a kill: skip finished method/seed pairs
 
