@@ -523,7 +523,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--permutations", type=_positive_int, default=64, metavar="N",
                    help="sampled orderings otherwise (even, >= 4; default 64)")  # fmt: skip
     p.add_argument("--seed", type=_seed, default=0, help="seed of the sampled orderings (default 0)")
-    p.add_argument("--out", metavar="DIR", help="output folder (default: RUN/contributions, or ./contributions)")
+    p.add_argument("--out", metavar="DIR",
+                   help="output folder (default: RUN/contributions/iteration_<n>, or ./contributions)")  # fmt: skip
     p.add_argument("--no-plots", action="store_true", help="write the tables only")
     p.add_argument("--replace", action="store_true", help="write over an earlier analysis in the output folder")
     p.add_argument("--json", action="store_true", help="print one JSON object")
