@@ -220,11 +220,8 @@ def test_inactive_agents_are_masked_out_of_the_loss(short, tmp_path, name):
     assert not torch.allclose(active["loss_critic"], base["loss_critic"])
 
 
-def test_a_runaway_ratio_is_bounded_and_a_diverged_update_is_refused_before_the_step(short, tmp_path):
-    """Single-agent PPO on per-cell actions (thousands of joint dimensions) moved the summed log density by hundreds
-    in one step: the ratio overflowed, the gradient was NaN, and the NaN weights were checkpointed. The log ratio
-    is now bounded, so such a batch gives a finite loss; and an update whose loss or gradient is still not finite
-    raises, naming ``algorithm.lr``, before the optimizer touches the weights."""
+def _collected(tmp_path):
+    """A tiny run's config, PPO loss and GAE, and one collected batch of 2 steps (team reward expanded)."""
     cfg = tiny(tmp_path)
     torch.manual_seed(0)
     env = make_env(cfg)
@@ -232,6 +229,15 @@ def test_a_runaway_ratio_is_bounded_and_a_diverged_update_is_refused_before_the_
     loss, gae = make_loss(policy, critic, cfg.algorithm), make_advantage(critic, cfg.algorithm)
     data, _ = collect(env, policy, 2)
     expand_team(data)
+    return cfg, loss, gae, data
+
+
+def test_a_runaway_ratio_is_bounded_and_a_diverged_update_is_refused_before_the_step(short, tmp_path):
+    """Single-agent PPO on per-cell actions (thousands of joint dimensions) moved the summed log density by hundreds
+    in one step: the ratio overflowed, the gradient was NaN, and the NaN weights were checkpointed. The log ratio
+    is now bounded, so such a batch gives a finite loss; and an update whose loss or gradient is still not finite
+    raises, naming ``algorithm.lr``, before the optimizer touches the weights."""
+    cfg, loss, gae, data = _collected(tmp_path)
     with torch.no_grad():
         gae(data)
     far = data.clone()
@@ -253,13 +259,7 @@ def test_a_runaway_ratio_is_bounded_and_a_diverged_update_is_refused_before_the_
 def test_a_batch_with_a_non_finite_reward_is_refused_naming_it(tmp_path):
     """A NaN reward (a diverged simulation) reached GAE and the loss, and the update then failed as "the PPO update
     diverged at learning rate ...", naming algorithm.lr; the batch itself is now refused, before any step."""
-    cfg = tiny(tmp_path)
-    torch.manual_seed(0)
-    env = make_env(cfg)
-    policy, critic = make_policy(env, cfg.algorithm), make_critic(env, cfg.algorithm)
-    loss, gae = make_loss(policy, critic, cfg.algorithm), make_advantage(critic, cfg.algorithm)
-    data, _ = collect(env, policy, 2)
-    expand_team(data)
+    cfg, loss, gae, data = _collected(tmp_path)
     optimizer = torch.optim.Adam(list(loss.parameters()), lr=1e-3)
     before = [p.detach().clone() for p in loss.parameters()]
     bad = data.clone()
