@@ -246,17 +246,76 @@ def test_a_failing_optimizer_keeps_the_pieces_that_finished(run_dir, tmp_path, m
     assert "**incomplete**" in (tmp_path / "amortized.md").read_text()
 
 
+def _strip(rows):
+    return [{k: v for k, v in r.items() if k != "wall_time_s"} for r in rows]
+
+
+def test_an_interrupted_comparison_resumes_to_the_uninterrupted_rows(comparison, run_dir, tmp_path, monkeypatch):
+    """There was no resume: a comparison killed or failed late had to start again from nothing. ``done=`` (the
+    script's ``resume=true``) keeps the finished pieces of the folder's ``amortized.json`` and runs only the
+    missing ones; every piece is a fresh, seeded run, so the rows equal the uninterrupted comparison's."""
+    import marlcrash.calibrate.amortized as amortized
+
+    config = small_config(run_dir, reference_seeds=SEEDS, budgets={"cmaes": [1], "random_search": [1]})
+    name, search = amortized.BASELINES["random_search"]
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("killed")
+
+    monkeypatch.setitem(amortized.BASELINES, "random_search", (name, broken))
+    with pytest.raises(RuntimeError, match="killed"):
+        amortized_comparison(config, partial=lambda c: write_comparison(c, tmp_path, replace=True))
+    done = amortized.read_comparison(tmp_path)
+    assert done.meta["complete"] is False and [r["method"] for r in done.rows] == ["policy_best", "policy_last",
+                                                                                     "cmaes"]  # fmt: skip
+    ran = []
+
+    def counted(*args, **kwargs):
+        ran.append("random_search")
+        return search(*args, **kwargs)
+
+    monkeypatch.setitem(amortized.BASELINES, "random_search", (name, counted))
+    resumed = amortized_comparison(config, done=done)
+    assert resumed.meta["complete"] is True
+    assert ran == ["random_search"] * 2  # the finished pieces (the policy and CMA-ES on SEEDS[0]) did not run again
+    expected = [r for r in comparison.rows if r["method"] in ("policy_best", "policy_last", "random_search")
+                or (r["method"] == "cmaes" and r["multiplier"] == 1)]  # fmt: skip
+    assert _strip(resumed.rows) == _strip(expected)
+    assert resumed.aggregate == amortized.aggregate(resumed.rows)
+
+
+def test_a_resume_with_other_settings_or_no_record_is_refused_naming_them(run_dir, tmp_path):
+    import marlcrash.calibrate.amortized as amortized
+
+    with pytest.raises(ConfigError, match=r"key 'resume': no comparison to continue in .* \(no amortized.json\)"):
+        amortized.read_comparison(tmp_path)
+    config = small_config(run_dir, reference_seeds=[SEEDS[0]], budgets={"cmaes": [1]})
+    write_comparison(amortized_comparison(config), tmp_path)
+    done = amortized.read_comparison(tmp_path)
+    again = amortized_comparison(config, done=done)  # nothing left to run: the same rows
+    assert again.rows == done.rows
+    for change, said in (({"iterations": ITERATIONS + 1}, r"iterations: 2 then, 3 now"),
+                         ({"cmaes": {"popsize": 6, "sigma0": 0.2}}, r"optimizers\.cmaes: .*'popsize': 4.* then"),
+                         ({"target": "last"}, r"target: 'best' then, 'last' now")):  # fmt: skip
+        with pytest.raises(ConfigError, match=r"key 'resume': cannot continue the comparison: .*" + said):
+            amortized_comparison(small_config(run_dir, reference_seeds=[SEEDS[0]], budgets={"cmaes": [1]}, **change),
+                                 done=done)  # fmt: skip
+    other = dict(done.meta, checkpoint_sha256="0" * 64)
+    with pytest.raises(ConfigError, match=r"checkpoint_sha256"):
+        amortized_comparison(config, done=amortized.Comparison(done.rows, done.aggregate, other))
+    (tmp_path / "amortized.json").write_text('{"rows": [{"a": 1}], "meta": {}}')
+    with pytest.raises(ConfigError, match=r"key 'resume': .*amortized.json is not a comparison this tool wrote"):
+        amortized.read_comparison(tmp_path)
+
+
 def test_deterministic_and_independent_of_the_other_runs(comparison, run_dir):
     """One seed and one optimizer alone give exactly the rows of the full comparison (fresh, seeded runs)."""
     again = amortized_comparison(small_config(run_dir, reference_seeds=[SEEDS[1]], budgets={"cmaes": [1, 2]}))
 
-    def strip(rows):
-        return [{k: v for k, v in r.items() if k != "wall_time_s"} for r in rows]
-
     expected = [r for r in comparison.rows if r["reference_seed"] == SEEDS[1] and r["method"] not in
                 ("random_search", "gradient")]  # fmt: skip
     assert len(again.rows) == 4
-    assert strip(again.rows) == strip(expected)
+    assert _strip(again.rows) == _strip(expected)
 
 
 def test_bad_configs_name_the_key(run_dir, tmp_path):
@@ -329,6 +388,10 @@ def test_script_smoke(run_dir, short, tmp_path):
     again = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=REPO, timeout=300)  # refused up front
     assert again.returncode == 2 and "key 'out_dir'" in again.stderr and "already holds a comparison" in again.stderr
     assert "seed 101" not in again.stdout  # nothing was run
+    resumed = subprocess.run([*cmd, "resume=true"], capture_output=True, text=True, env=env, cwd=REPO, timeout=300)
+    assert resumed.returncode == 0, resumed.stderr
+    assert "seed 101: kept from the earlier comparison" in resumed.stdout  # finished: nothing runs again
+    assert json.loads((tmp_path / "amortized.json").read_text())["meta"]["complete"] is True
 
 
 def test_the_documented_budget_overrides_compose():

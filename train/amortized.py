@@ -8,7 +8,9 @@ Hydra merges a mapping given on the command line into the file's ``budgets`` (``
 the other optimizers' budgets): change one with ``budgets.<optimizer>=[...]``, drop one with ``~budgets.<optimizer>``.
 
 Writes ``amortized.csv``, ``amortized.md`` and ``amortized.json`` into the run folder (or ``out_dir``), after every
-finished piece (marked incomplete) and at the end.
+finished piece (marked incomplete) and at the end. ``resume=true`` continues an interrupted comparison there:
+
+    python train/amortized.py run=runs/mappo/<name> resume=true
 """
 
 from __future__ import annotations
@@ -25,10 +27,12 @@ from marlcrash.calibrate.amortized import (
     amortized_comparison,
     check_comparison_dir,
     load_amortized_config,
+    read_comparison,
     write_comparison,
 )
 from marlcrash.calibrate.entry import exit_on_bad_overrides
 from marlcrash.errors import MarlcrashError
+from marlcrash.outputs import check_output_dir
 
 
 @hydra.main(version_base=None, config_path="../configs/train", config_name="amortized")
@@ -36,12 +40,16 @@ def main(cfg: DictConfig) -> None:
     command = "python train/amortized.py " + " ".join(shlex.quote(a) for a in sys.argv[1:])
     try:
         config = load_amortized_config(OmegaConf.to_container(cfg, resolve=True), source="configs/train/amortized.yaml")
-        out = check_comparison_dir(config.out_dir or config.run or ".")  # before the work, not after it
+        where = config.out_dir or config.run or "."
+        # before the work, not after it: a new comparison needs a folder without one, a resumed one its record
+        done = read_comparison(where) if config.resume else None
+        out = check_output_dir(where, "out_dir") if config.resume else check_comparison_dir(where)
 
         def keep(partial):  # the tables so far after every finished piece: a failure or kill keeps them
             write_comparison(partial, out, command=command.strip(), replace=True)
 
-        comparison = amortized_comparison(config, progress=lambda msg: print(msg, flush=True), partial=keep)
+        comparison = amortized_comparison(config, progress=lambda msg: print(msg, flush=True), partial=keep,
+                                          done=done)  # fmt: skip
         paths = write_comparison(comparison, out, command=command.strip(), replace=True)
     except MarlcrashError as e:
         print(f"error: {e}", file=sys.stderr)

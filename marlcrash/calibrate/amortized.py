@@ -29,14 +29,17 @@ references) and ``amortized.json`` (standard JSON: a non-finite number, e.g. the
 candidate diverged, is ``null``; an empty field in the CSV, ``-`` in the tables) atomically into a folder (by
 default the run folder). The script
 writes them after every finished piece too (``meta.complete`` false, the Markdown says *incomplete*), so an
-optimizer that fails or a kill keeps what finished; there is no resume (start again into another folder).
+optimizer that fails or a kill keeps what finished; ``resume=true`` continues such a comparison in its folder
+(:func:`read_comparison`, ``done=`` of :func:`amortized_comparison`), running only the pieces it lacks.
 """
 
 from __future__ import annotations
 
 import copy
 import csv
+import hashlib
 import io
+import json
 import math
 import time
 from collections.abc import Callable, Sequence
@@ -107,6 +110,7 @@ class AmortizedConfig:
         budgets: per optimizer, budgets as multiples of the policy's nominal simulation count ``iterations + 1``.
         seed: the optimizers' seed.
         out_dir: folder of the output files; ``None`` = the run folder.
+        resume: continue the comparison in that folder: its finished pieces are kept, the others run.
         random_search, cmaes, gradient: the optimizers' settings (``configs/train/baseline/``).
     """
 
@@ -118,6 +122,7 @@ class AmortizedConfig:
     budgets: dict[str, list[float]] = field(default_factory=lambda: {k: list(v) for k, v in DEFAULT_BUDGETS.items()})
     seed: int = 0
     out_dir: str | None = None
+    resume: bool = False
     random_search: RandomSearchConfig = field(default_factory=RandomSearchConfig)
     cmaes: CMAESConfig = field(default_factory=CMAESConfig)
     gradient: GradientConfig = field(default_factory=GradientConfig)
@@ -280,6 +285,7 @@ def amortized_comparison(
     train_config: TrainConfig | None = None,
     progress: Any = None,
     partial: Callable[[Comparison], None] | None = None,
+    done: Comparison | None = None,
 ) -> Comparison:
     """Compare the trained policy with optimizers from scratch on held-out twin references (module docstring).
 
@@ -291,6 +297,10 @@ def amortized_comparison(
         partial: optional callable given the comparison so far after each finished piece (the policy on a
             reference, one optimizer run), its ``meta["complete"]`` false; e.g. :func:`write_comparison` with
             ``replace=True``, so a failure or a kill later keeps what finished.
+        done: an earlier, interrupted comparison (:func:`read_comparison`) to continue: its rows of the pieces this
+            config asks for are kept, in their places, and only the missing pieces run; the policy and the settings
+            must be its own (:func:`resume_mismatch`; reference seeds and budgets may be added or left out). Every
+            piece is a fresh, seeded run, so the result equals an uninterrupted comparison's.
 
     Returns:
         A :class:`Comparison` (``meta["complete"]`` true).
@@ -299,7 +309,8 @@ def amortized_comparison(
         ConfigError: no run folder (key ``run``), a reference seed that is not held out (key
             ``reference_seeds[i]``), a policy without its training config, or gradient budgets with
             ``gradient.backend: adjoint`` on a simulator the adjoint does not cover (the run's float32
-            ``sim_dtype``, springback relief; key ``gradient.backend``), all before any simulation.
+            ``sim_dtype``, springback relief; key ``gradient.backend``), or a ``done`` comparison of another
+            policy or other settings (key ``resume``), all before any simulation.
     """
     changes = None  # a policy given as an object: its run's files are not known
     if policy is None:
@@ -341,9 +352,16 @@ def amortized_comparison(
         "budgets": {k: list(v) for k, v in config.budgets.items()},
         "optimizers": {k: asdict(getattr(config, k)) for k in config.budgets},
         "thresholds": asdict(train_config.eval.thresholds),
+        "checkpoint_sha256": None if config.run is None else _checkpoint_digest(config.run),
         "provenance": changes,  # configs or code changed since the policy's run started
         "complete": False,  # every reference and budget finished
     }
+    kept: dict[tuple[int, str, Any], dict[str, Any]] = {}  # (reference seed, method, multiplier) -> row
+    if done is not None:
+        why = resume_mismatch(done.meta, meta)
+        if why is not None:
+            raise ConfigError(f"cannot continue the comparison: {why}", key="resume")
+        kept = {(r["reference_seed"], r["method"], r["multiplier"]): r for r in done.rows}
     rows: list[dict[str, Any]] = []
 
     def finished_piece() -> None:
@@ -352,29 +370,104 @@ def amortized_comparison(
 
     for seed in config.reference_seeds:
         cfg = held_out_config(train_config, seed, config.scenario, iterations)
-        t0 = time.perf_counter()
-        result = evaluate_policy(policy, cfg)
-        t_policy = time.perf_counter() - t0
+        pieces = [(name, m) for name, mults in config.budgets.items() for m in mults]
+        pol = [kept.get((seed, method, None)) for method in POLICY_METHODS]
+        if all(r is not None for r in pol) and all((seed, name, m) in kept for name, m in pieces):
+            rows += pol + [kept[(seed, name, m)] for name, m in pieces]  # the whole reference finished before
+            finished_piece()
+            say(f"seed {seed}: kept from the earlier comparison")
+            continue
         problem = evaluation_problem(cfg)
-        if problem.ref_velocity.shape != result.ref_velocity.shape or not torch.allclose(
-            problem.ref_velocity, result.ref_velocity, rtol=0, atol=1e-9
-        ):
-            raise ConfigError(f"the policy's env and the optimizers' problem drew different references for seed "
-                              f"{seed}", key="reference_seeds")  # fmt: skip
-        pol = policy_rows(problem, result, seed, t_policy)
+        if all(r is not None for r in pol):
+            say(f"seed {seed}: policy kept from the earlier comparison")
+        else:
+            t0 = time.perf_counter()
+            result = evaluate_policy(policy, cfg)
+            t_policy = time.perf_counter() - t0
+            if problem.ref_velocity.shape != result.ref_velocity.shape or not torch.allclose(
+                problem.ref_velocity, result.ref_velocity, rtol=0, atol=1e-9
+            ):
+                raise ConfigError(f"the policy's env and the optimizers' problem drew different references for "
+                                  f"seed {seed}", key="reference_seeds")  # fmt: skip
+            pol = policy_rows(problem, result, seed, t_policy)
+            say(f"seed {seed}: policy best score {_fmt(pol[0]['score'])} in {pol[0]['simulations']} simulations")
         rows += pol
         finished_piece()
-        say(f"seed {seed}: policy best score {pol[0]['score']:.4f} in {pol[0]['simulations']} simulations")
         target = pol[0 if config.target == "best" else 1]["score"]
-        for name, mults in config.budgets.items():
+        for name, m in pieces:
+            if (seed, name, m) in kept:
+                rows.append(kept[(seed, name, m)])
+                continue
             _, fn = BASELINES[name]
-            for m in mults:
-                b = config.budget(m, nominal)
-                res = fn(problem, b, getattr(config, name), config.seed, False)
-                rows.append(baseline_row(problem, res, seed, m, b, target))
-                finished_piece()
-                say(f"seed {seed}: {name} budget {b}: best score {res.best_score:.4f} ({res.wall_time_s:.1f} s)")
+            b = config.budget(m, nominal)
+            res = fn(problem, b, getattr(config, name), config.seed, False)
+            rows.append(baseline_row(problem, res, seed, m, b, target))
+            finished_piece()
+            say(f"seed {seed}: {name} budget {b}: best score {_fmt(res.best_score)} ({res.wall_time_s:.1f} s)")
     meta["complete"] = True
+    return Comparison(rows=rows, aggregate=aggregate(rows), meta=meta)
+
+
+def _checkpoint_digest(run_dir: str | Path) -> str | None:
+    """SHA-256 of the run's ``checkpoint.pt`` (which policy the rows are of), ``None`` without one."""
+    path = Path(run_dir) / CHECKPOINT_FILE
+    if not path.is_file():
+        return None
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+RESUME_FREE = ("run", "reference_seeds", "budgets", "optimizers", "provenance", "complete")
+"""Entries of ``meta`` a resumed comparison may change: how the run folder is spelled (``checkpoint_sha256`` names
+the policy), which pieces it asks for (the settings of the optimizers both ask for are compared), what changed since
+the policy's run started, and whether it finished."""
+
+
+def resume_mismatch(earlier: dict[str, Any], now: dict[str, Any]) -> str | None:
+    """Why the rows of comparison ``earlier`` (its ``meta``) cannot stand in a comparison with ``now``'s settings,
+    or ``None``: the policy (checkpoint digest) and every setting a row depends on must be equal."""
+
+    def settings(meta: dict[str, Any]) -> dict[str, Any]:
+        meta = json.loads(json_text(meta))  # as the JSON holds it
+        out = {k: v for k, v in meta.items() if k not in RESUME_FREE}
+        return out | {f"optimizers.{k}": v for k, v in (meta.get("optimizers") or {}).items()}
+
+    a, b = settings(earlier), settings(now)
+    differ = [k for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k) and not (k.startswith("optimizers.")
+              and (k not in a or k not in b))]  # fmt: skip
+    if not differ:
+        return None
+    said = "; ".join(f"{k}: {a.get(k)!r} then, {b.get(k)!r} now" for k in differ)
+    return f"its rows were made with other settings or another policy ({said}); start a new one in another folder"
+
+
+def read_comparison(out_dir: str | Path) -> Comparison:
+    """The comparison in ``out_dir``'s ``amortized.json`` (finished or not), to continue with ``done=``.
+
+    A number written as ``null`` because it was not finite is read back as the comparison held it: a score as
+    ``-inf`` (no candidate's simulation gave one), a metric as NaN.
+
+    Raises:
+        ConfigError: (key ``resume``) no ``amortized.json`` there, or one that is not a comparison's.
+    """
+    path = Path(out_dir) / "amortized.json"
+    if not path.is_file():
+        raise ConfigError(f"no comparison to continue in {Path(out_dir)} (no amortized.json)", key="resume")
+    try:
+        record = json.loads(path.read_text())
+        rows, meta = record["rows"], record["meta"]
+        if not (isinstance(rows, list) and all(isinstance(r, dict) and set(r) == set(COLUMNS) for r in rows)):
+            raise ValueError(f"expected rows with the columns {list(COLUMNS)}")
+    except (ValueError, KeyError, TypeError) as e:
+        raise ConfigError(f"{path} is not a comparison this tool wrote: {e}", key="resume") from None
+    for r in rows:
+        for k, gone in (("area", math.nan), ("dfd", math.nan), ("rmse", math.nan), ("score", -math.inf),
+                        ("initial_score", -math.inf)):  # fmt: skip
+            if r[k] is None:
+                r[k] = gone
     return Comparison(rows=rows, aggregate=aggregate(rows), meta=meta)
 
 
