@@ -450,6 +450,8 @@ class VehicleModel:
                 raise ModelError(f"{self.name}: part {pid} refers to unknown material {p.material_id}")
         seen: dict[int, str] = {}
         for name, pids in self.subassemblies.items():
+            if not len(pids):
+                raise ModelError(f"{self.name}: sub-assembly {name!r} lists no part")
             for pid in pids:
                 if pid not in self.parts:
                     raise ModelError(f"{self.name}: sub-assembly {name!r} lists unknown part {pid}")

@@ -95,6 +95,9 @@ def resolve_subassemblies(
                     raise ConfigError(
                         f"unknown *SET_PART {sid}; the deck defines {sorted(part_sets)}", key=ekey, path=path
                     )
+                if not part_sets[sid][1]:  # the group would be a sub-assembly (an agent) of nothing
+                    raise ConfigError(f"*SET_PART {sid} holds no part; expected a set of at least one part",
+                                      key=ekey, path=path)  # fmt: skip
                 found = [p for p in part_sets[sid][1] if p not in model.left_out]  # a set may hold the barrier
                 if not found and part_sets[sid][1]:
                     raise ConfigError(
