@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from marlcrash.errors import ConfigError, ModelError
-from marlcrash.vehicle.subassembly_map import resolve_subassemblies
+from marlcrash.vehicle.subassembly_map import load_subassembly_map, resolve_subassemblies
 from marlcrash.vehicle.synthetic import default_vehicle
 
 
@@ -21,3 +21,19 @@ def test_an_empty_part_set_is_an_error_not_an_empty_group(car):
     assert err.value.key == "subassemblies.front[0]"
     with pytest.raises(ModelError, match="sub-assembly 'front' lists no part"):
         car.with_subassemblies({"front": []})
+
+
+def test_a_group_named_like_another_parts_default_group_is_refused(car, tmp_path):
+    """``part_<id>`` is the name a part left out of the map gets: a group of that name holding other parts had its
+    parts silently replaced by part <id> when the map was completed, and part <id> looked up into the group."""
+    y = tmp_path / "map.yaml"
+    y.write_text("subassemblies:\n  part_2: [1]\n")
+    with pytest.raises(ConfigError, match=r"'part_2' is the name of part 2's own sub-assembly") as err:
+        load_subassembly_map(y, car)
+    assert err.value.key == "subassemblies.part_2" and "map.yaml" in str(err.value)
+    with pytest.raises(ModelError, match=r"'part_2' is the name of part 2's own sub-assembly"):
+        car.with_subassemblies({"part_2": [1]})
+    # the name is fine for a group that holds part 2 (a dumped map, edited), or where no part 99 exists
+    ok = car.with_subassemblies({"part_2": [2, 1], "part_99": [3]}).with_default_subassemblies()
+    assert ok.subassemblies["part_2"] == [2, 1] and ok.subassemblies["part_99"] == [3]
+    assert ok.subassembly_of_part()[1] == "part_2" and ok.subassembly_of_part()[4] == "part_4"

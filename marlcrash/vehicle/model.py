@@ -55,6 +55,17 @@ class Part:
 
 
 _AXIS_RE = re.compile(r"^([+-]?)([xyz])$")
+_DEFAULT_GROUP_RE = re.compile(r"part_([1-9][0-9]*)")
+
+
+def default_group_part(name: str, parts) -> int | None:
+    """The part whose own sub-assembly name ``name`` is (``part_<id>``, what a part in no group gets), else ``None``.
+
+    A group of that name must hold that part: :meth:`VehicleModel.with_default_subassemblies` would replace its
+    parts by part ``<id>``, and :meth:`VehicleModel.subassembly_of_part` would look part ``<id>`` up into it.
+    """
+    m = _DEFAULT_GROUP_RE.fullmatch(str(name))
+    return int(m.group(1)) if m and int(m.group(1)) in parts else None
 
 
 @dataclass(frozen=True)
@@ -452,6 +463,12 @@ class VehicleModel:
         for name, pids in self.subassemblies.items():
             if not len(pids):
                 raise ModelError(f"{self.name}: sub-assembly {name!r} lists no part")
+            own = default_group_part(name, self.parts)
+            if own is not None and own not in pids:
+                raise ModelError(
+                    f"{self.name}: {name!r} is the name of part {own}'s own sub-assembly (a part in no group gets "
+                    f"it), but the sub-assembly does not hold part {own}; rename it or add part {own} to it"
+                )
             for pid in pids:
                 if pid not in self.parts:
                     raise ModelError(f"{self.name}: sub-assembly {name!r} lists unknown part {pid}")

@@ -12,8 +12,9 @@ Rules: every entry names at least one part; an integer is a part id that must ex
 a string is a glob on part titles (``fnmatch``, case-insensitive) that must match at
 least one part, or ``set:<id>`` naming a ``*SET_PART`` of the deck; a part may belong
 to one group only. Parts the map leaves out are their own ``part_<id>`` sub-assembly
-once the reader completes the map. Problems raise :class:`ConfigError` naming the file
-and the key (``subassemblies.hood[0]``).
+once the reader completes the map, so a group named ``part_<id>`` after a part of the
+model must hold that part. Problems raise :class:`ConfigError` naming the file and the
+key (``subassemblies.hood[0]``).
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ from typing import Any
 
 from marlcrash.config import load_yaml
 from marlcrash.errors import ConfigError
-from marlcrash.vehicle.model import VehicleModel
+from marlcrash.vehicle.model import VehicleModel, default_group_part
 
 __all__ = ["dump_subassembly_map", "load_subassembly_map", "resolve_subassemblies"]
 
@@ -126,6 +127,14 @@ def resolve_subassemblies(
                 if pid not in owner:
                     owner[pid] = group
                     pids.append(int(pid))
+        own = default_group_part(group, model.parts)
+        if own is not None and own not in pids:
+            raise ConfigError(
+                f"{group!r} is the name of part {own}'s own sub-assembly (a part the map leaves out gets it), but "
+                f"the group does not hold part {own}; rename it or add part {own} to it",
+                key=key,
+                path=path,
+            )
         out[group] = pids
     return out
 
