@@ -303,6 +303,20 @@ def test_many_variants_are_valid_and_keep_the_mass(config):
         assert lo[0] == 0.0 and abs(lo[1] + hi[1]) < 1e-9
 
 
+@pytest.mark.parametrize("seed", [-1, 1.5, True, "3"])
+def test_a_bad_seed_is_a_config_error_naming_the_key(config, seed):
+    """A negative, fractional, boolean or text seed failed deep in numpy (or, for True, built 'b_segment_seedTrue')."""
+    with pytest.raises(ConfigError, match=r"integer >= 0") as err:
+        build_vehicle(config, seed=seed)
+    assert err.value.key == "seed"
+
+
+def test_a_numpy_integer_seed_is_the_same_variant(config, variants):
+    model = build_vehicle(config, seed=np.int64(SEEDS[1]))
+    np.testing.assert_array_equal(model.coords, variants[SEEDS[1]].coords)
+    assert model.name == variants[SEEDS[1]].name
+
+
 def test_default_vehicle_is_registered_b_segment(car):
     model = default_vehicle()
     np.testing.assert_array_equal(model.coords, car.coords)

@@ -754,9 +754,13 @@ def build_vehicle(config: SyntheticCarConfig, seed: int | None = None) -> Vehicl
         mass of exactly ``config.total_mass``.
 
     Raises:
-        ConfigError: unknown material, a variant that is geometrically impossible, or a
-            front structure heavier than ``total_mass``.
+        ConfigError: a seed that is not an integer >= 0, unknown material, a variant that is
+            geometrically impossible, or a front structure heavier than ``total_mass``.
     """
+    if seed is not None:
+        if isinstance(seed, bool | np.bool_) or not isinstance(seed, int | np.integer) or seed < 0:
+            raise ConfigError(f"expected an integer >= 0 (None: the nominal car), got {seed!r}", key="seed")
+        seed = int(seed)
     library = _resolve_materials(config)
     varied, draw = _vary(config, seed)
     geoms = _geometry(varied, draw)
