@@ -303,6 +303,25 @@ def test_many_variants_are_valid_and_keep_the_mass(config):
         assert lo[0] == 0.0 and abs(lo[1] + hi[1]) < 1e-9
 
 
+def test_a_variant_whose_rail_section_hits_the_shock_tower_is_refused():
+    """The per-side rail section factors were drawn after the variant's geometry check: with a wide spread a rail
+    grew into the shock tower above it (top z 0.536 against the tower's open bottom at 0.53) without a word."""
+    cfg = load_synthetic_config(CONFIG, {"variation.rail_section": 0.45})
+    refused = 0
+    for seed in range(20):
+        try:
+            model = build_vehicle(cfg, seed=seed)
+        except ConfigError as e:
+            assert e.key == "variation" and "front_rail" in str(e)
+            refused += 1
+            continue
+        for side in ("left", "right"):
+            rail = _part_coords(model, _pid(model, f"front_rail_{side}"))
+            tower = _part_coords(model, _pid(model, f"shock_tower_{side}"))
+            assert rail[:, 2].max() < tower[:, 2].min(), (seed, side)
+    assert refused > 0
+
+
 @pytest.mark.parametrize("seed", [-1, 1.5, True, "3"])
 def test_a_bad_seed_is_a_config_error_naming_the_key(config, seed):
     """A negative, fractional, boolean or text seed failed deep in numpy (or, for True, built 'b_segment_seedTrue')."""

@@ -579,13 +579,20 @@ def _vary(config: SyntheticCarConfig, seed: int | None) -> tuple[SyntheticCarCon
     fr = factors(v.rail_section, 2 * len(SIDES)).reshape(len(SIDES), 2)
     ft = factors(v.thickness, len(parts))
     varied = replace(config, **changes)
-    try:
-        varied.validate()
-    except ConfigError as e:
-        raise ConfigError(
-            f"the variant for seed {seed} is geometrically impossible ({e}); reduce the variation spreads",
-            key="variation",
-        ) from None
+    # each side's rail has its own section: check the variant with either, or a rail may grow into its neighbours
+    checks = [("", varied)]
+    for i, (side, _) in enumerate(SIDES):
+        r = varied.front_rail
+        rail = replace(r, width=r.width * float(fr[i, 0]), height=r.height * float(fr[i, 1]))
+        checks.append((f" with the front_rail_{side} section drawn", replace(varied, front_rail=rail)))
+    for what, candidate in checks:
+        try:
+            candidate.validate()
+        except ConfigError as e:
+            raise ConfigError(
+                f"the variant for seed {seed} is geometrically impossible{what} ({e}); reduce the variation spreads",
+                key="variation",
+            ) from None
     draw = _Draw(
         {s: (float(fr[i, 0]), float(fr[i, 1])) for i, (s, _) in enumerate(SIDES)},
         {p: float(f) for p, f in zip(parts, ft, strict=True)},
