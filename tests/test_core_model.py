@@ -79,6 +79,17 @@ def test_complete_material_derives_and_warns():
     assert np.isfinite(m.vector()).all() and m.vector().shape == (8,)
 
 
+def test_an_ultimate_strength_below_yield_is_raised_with_a_warning():
+    """The ultimate strength was silently raised to the yield strength: a value the source gave, changed unsaid."""
+    m = complete_material(Material(4, "odd", "plastic_kinematic", 7850.0, 2.1e11, yield_strength=4e8,
+                                   ultimate_strength=3e8, fracture_strength=3e8))  # fmt: skip
+    assert m.ultimate_strength == 4e8
+    assert any("ultimate strength 3e+08 Pa is below the yield strength 4e+08 Pa" in w for w in m.warnings)
+    ok = complete_material(Material(5, "dp600", "plastic_kinematic", 7850.0, 2.1e11, yield_strength=3.8e8,
+                                    ultimate_strength=6.2e8, fracture_strength=5.6e8))  # fmt: skip
+    assert ok.ultimate_strength == 6.2e8 and not any("ultimate" in w for w in ok.warnings)
+
+
 @pytest.mark.parametrize(
     "kwargs, match",
     [

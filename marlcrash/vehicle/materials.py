@@ -112,7 +112,9 @@ def complete_material(m: Material) -> Material:
         warnings.append(
             f"{where}: ultimate strength missing, defaulted to {su:.4g} Pa (yield x {DEFAULT_ULTIMATE_OVER_YIELD})"
         )
-    su = max(su, sy)
+    if su < sy:  # e.g. a stress-strain curve whose maximum is below SIGY; sigma_u >= sigma_y by definition
+        warnings.append(f"{where}: ultimate strength {su:.4g} Pa is below the yield strength {sy:.4g} Pa; raised to it")
+        su = sy
     sf = m.fracture_strength
     if not (math.isfinite(sf) and sf > 0):
         sf = su
