@@ -175,6 +175,15 @@ def test_validate_names_the_problem():
         _box_model().with_subassemblies({"a": [1], "b": [1, 2]})
 
 
+@pytest.mark.parametrize("area", [-1e-4, math.nan, math.inf])
+def test_validate_refuses_a_negative_or_non_finite_beam_area(area):
+    """Shell thickness was checked, beam area not: a negative area gave the beam a negative mass without a word."""
+    bad = _box_model()
+    bad.beam_area[0] = area
+    with pytest.raises(ModelError, match=r"beam 30's cross-sectional area must be finite and >= 0 m\^2"):
+        bad.validate()
+
+
 def test_default_subassemblies_and_lookup():
     m = _box_model().with_default_subassemblies()
     assert m.subassemblies == {"front": [1, 2], "part_3": [3]}

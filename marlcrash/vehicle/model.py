@@ -475,8 +475,19 @@ class VehicleModel:
                 if pid in seen:
                     raise ModelError(f"{self.name}: part {pid} is in two sub-assemblies, {seen[pid]!r} and {name!r}")
                 seen[pid] = name
+        for what, values, ids in (("shell thickness", self.shell_thickness, self.shell_ids),
+                                  ("beam area", self.beam_area, self.beam_ids)):  # fmt: skip
+            if values.shape != ids.shape:
+                raise ModelError(f"{self.name}: {what} is {values.shape}, expected one value per element {ids.shape}")
         if (self.shell_thickness < 0).any() or not np.isfinite(self.shell_thickness).all():
             raise ModelError(f"{self.name}: shell thickness must be finite and >= 0")
+        bad = ~(np.isfinite(self.beam_area) & (self.beam_area >= 0))
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            raise ModelError(
+                f"{self.name}: beam {int(self.beam_ids[i])}'s cross-sectional area must be finite and >= 0 m^2, "
+                f"got {float(self.beam_area[i])}"
+            )
         m = self.point_mass.shape[0]
         if self.point_mass_nodes.shape != (m,) or self.point_mass_ids.shape != (m,):
             raise ModelError(
