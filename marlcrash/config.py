@@ -33,7 +33,27 @@ def config_dir() -> Path:
 
 
 class _Loader(yaml.SafeLoader):
-    """PyYAML's safe loader with YAML 1.2 floats: ``3e-4`` is a number (YAML 1.1 needs ``3.0e-4``)."""
+    """PyYAML's safe loader with YAML 1.2 floats (``3e-4`` is a number; YAML 1.1 needs ``3.0e-4``) that refuses a
+    key given twice in one mapping (PyYAML keeps the last silently: ``hood: [1]`` then ``hood: [2]`` dropped part 1)."""
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
+        seen: dict[Any, int] = {}
+        for key_node, _ in node.value:
+            if key_node.tag == "tag:yaml.org,2002:merge":  # `<<: *anchor` merges, it is not a key
+                continue
+            key = self.construct_object(key_node, deep=True)
+            try:
+                first = seen.setdefault(key, key_node.start_mark.line)
+            except TypeError:  # an unhashable (complex) key: SafeLoader refuses it below
+                continue
+            if first != key_node.start_mark.line:
+                raise yaml.constructor.ConstructorError(
+                    None,
+                    None,
+                    f"key {key!r} given twice (first at line {first + 1}); expected each key once",
+                    key_node.start_mark,
+                )
+        return super().construct_mapping(node, deep=deep)
 
 
 _Loader.add_implicit_resolver(

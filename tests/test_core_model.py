@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from marlcrash.config import from_dict, load_config, require
+from marlcrash.config import from_dict, load_config, load_yaml, require
 from marlcrash.errors import ConfigError, ModelError
 from marlcrash.units import UNIT_SYSTEMS, detect_unit_system, get_unit_system
 from marlcrash.vehicle.materials import Material, complete_material, mass_weighted
@@ -242,3 +242,9 @@ def test_from_dict_types_keys_and_validate(tmp_path):
     f.write_text("name: [unclosed\n")
     with pytest.raises(ConfigError, match=r"c\.yaml: invalid YAML at line"):
         load_config(_Outer, f)
+    # a key given twice: PyYAML kept the last one without a word
+    f.write_text("name: b\ninner:\n  rate: 0.5\n  rate: 2.0\n")
+    with pytest.raises(ConfigError, match=r"c\.yaml: invalid YAML at line 4: key 'rate' given twice \(first at line 3"):
+        load_config(_Outer, f)
+    f.write_text("base: &b {rate: 1.0}\ninner:\n  <<: *b\n")  # a merge key is not a repeated key
+    assert load_yaml(f)["inner"] == {"rate": 1.0}
