@@ -232,6 +232,27 @@ def test_bad_candidates_are_named(problem):
         problem.evaluate(x)
 
 
+def test_candidates_with_gradients_are_checked_as_the_others_are(problem):
+    """``loss`` and ``simulate`` skipped :meth:`check_x` for a candidate that requires grad (the gradient baseline's):
+    a wrong shape failed deep in torch (``The size of tensor a (6) must match ...``), a single ``[n_agents, 7]``
+    candidate with gradients with an ``IndexError``, a NaN was named as a cell's ``E_x`` by the simulator, not as the
+    candidate's coordinate; and ``simulate`` of a numpy array failed on ``.requires_grad``."""
+    A = problem.n_agents
+    with pytest.raises(ModelError, match="n_agents"):
+        problem.loss(torch.zeros(1, A, 6, dtype=torch.float64, requires_grad=True), SmoothLoss())
+    x = problem.zeros(1)
+    x[0, 2, 1] = float("nan")
+    with pytest.raises(ModelError, match=rf"{problem.agent_names[2]}.*E_s"):
+        problem.loss(x.requires_grad_(True), SmoothLoss())
+    single = torch.zeros(A, 7, dtype=torch.float64, requires_grad=True)  # one candidate, as evaluate takes it
+    loss, _ = problem.loss(single, SmoothLoss())
+    loss.sum().backward()
+    assert loss.shape == (1,) and single.grad.shape == (A, 7) and torch.isfinite(single.grad).all()
+    torch.testing.assert_close(loss.detach(), problem.loss(problem.zeros(1), SmoothLoss())[0], rtol=1e-12, atol=0)
+    res = problem.simulate(np.zeros((1, A, 7)), count=False)
+    assert torch.equal(res.velocity, problem.simulate(problem.zeros(1), count=False).velocity)
+
+
 @pytest.mark.parametrize(
     ("over", "key"),
     [

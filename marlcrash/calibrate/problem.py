@@ -297,6 +297,8 @@ class CalibrationProblem:
     def check_x(self, x: torch.Tensor | np.ndarray) -> torch.Tensor:
         """Validate candidates; return ``[N, n_agents, 7]`` float64 (a single ``[n_agents, 7]`` gets ``N = 1``).
 
+        A candidate that requires grad keeps its graph (the result is ``x`` itself, or a view or cast of it).
+
         Raises:
             ModelError: wrong shape or non-finite entries (named by index).
         """
@@ -370,8 +372,9 @@ class CalibrationProblem:
         Without gradients (``x`` not requiring grad) it uses :attr:`sim_backend`; ``count=False`` is
         for reporting (re-simulating a known candidate for plots), never for search. ``probe_cells``
         records those cells instead of the sensors (:meth:`~marlcrash.sim.surrogate.Surrogate.run`).
+        ``x`` is checked (:meth:`check_x`) with or without gradients; the check keeps its graph.
         """
-        x = self.check_x(x) if not x.requires_grad else x
+        x = self.check_x(x)
         p = self.params(x)
         n = p.shape[0]
         res = self.sim.run(
@@ -439,16 +442,15 @@ class CalibrationProblem:
         Counts ``N`` simulations (forward and backward of a candidate together count one).
 
         Args:
-            x: ``[N, n_agents, 7]`` candidates (usually ``requires_grad``).
+            x: ``[N, n_agents, 7]`` candidates, or one ``[n_agents, 7]`` (usually ``requires_grad``; checked as
+                :meth:`check_x` checks).
             weights: the loss weights and scales.
             backend: ``adjoint`` (compiled forward and reverse pass, :mod:`marlcrash.sim.adjoint`) or
                 ``torch`` (the autograd reference); the same gradients to rounding.
         """
         if backend not in ("adjoint", "torch"):
             raise ConfigError(f"expected adjoint or torch, got {backend!r}", key="backend")
-        if not x.requires_grad:
-            x = self.check_x(x)
-        res = self.simulate(x, backend=backend)
+        res = self.simulate(x, backend=backend)  # checks x, keeping its graph
         v = self.compared(res.velocity)
         ref = self.ref_velocity.expand_as(v)
         area = area_between(v, ref, dt=self.dt, method=self.fit.cfg.metrics.area_method)
