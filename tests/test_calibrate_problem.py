@@ -10,7 +10,7 @@ from marlcrash.calibrate import ProblemConfig, Progress, SmoothLoss, build_probl
 from marlcrash.calibrate.budget import ranked_scores
 from marlcrash.calibrate.problem import problem_env_config
 from marlcrash.cells.parameterization import apply_increments
-from marlcrash.config import from_dict
+from marlcrash.config import config_dir, from_dict
 from marlcrash.envs.core import build_cells, load_env_config
 from marlcrash.envs.masking import ImpactRegions
 from marlcrash.errors import ConfigError, ModelError
@@ -272,6 +272,30 @@ def test_bad_problem_configs_name_the_key(cells, over, key):
     with pytest.raises(ConfigError) as e:
         build_problem(from_dict(ProblemConfig, over), cells=cells)
     assert e.value.key is not None and key in e.value.key
+
+
+@pytest.mark.parametrize(
+    ("over", "key"),
+    [({"sensors": ["nope"]}, "env_overrides.sensors"), ({"agents.rest": "none"}, "env_overrides.agents")],
+)
+def test_env_errors_found_while_building_name_the_override(cells, over, key):
+    """An env value that only building refuses (a sensor the model lacks, a layout leaving cells unowned) was named
+    by its bare env key (``key 'sensors'``), a key the problem config does not have: the override that set it is
+    named, as for the values the env file's loader refuses."""
+    with pytest.raises(ConfigError) as e:
+        make(cells, env_overrides=over)
+    assert e.value.key == key and e.value.path is None
+
+
+def test_env_errors_found_while_building_name_the_env_file(cells, tmp_path):
+    """The same values in an env file of the problem's ``env``: that file and its key, as the environment names."""
+    text = (config_dir() / "env" / "default.yaml").read_text()
+    assert "\nsensors: []" in text
+    path = tmp_path / "bad_sensors.yaml"
+    path.write_text(text.replace("\nsensors: []", "\nsensors: [nope]"))
+    with pytest.raises(ConfigError, match="unknown sensors") as e:
+        make(cells, env=str(path))
+    assert e.value.key == "sensors" and e.value.path == str(path)
 
 
 def test_progress_counts_exactly():

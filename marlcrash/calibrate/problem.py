@@ -44,6 +44,8 @@ no increment can change in any cell an agent reaches (infeasible there, or the c
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -54,7 +56,14 @@ from marlcrash.cells.model import PARAM_NAMES, CellModel
 from marlcrash.cells.parameterization import apply_increments, movable_factors
 from marlcrash.config import flatten_overrides, require
 from marlcrash.envs.agents import AgentLayout, build_agents
-from marlcrash.envs.core import EnvConfig, build_cells, env_config_of, require_env, require_env_keys_unset
+from marlcrash.envs.core import (
+    EnvConfig,
+    build_cells,
+    env_config_of,
+    overridden,
+    require_env,
+    require_env_keys_unset,
+)
 from marlcrash.envs.masking import ImpactRegions
 from marlcrash.errors import ConfigError, ModelError
 from marlcrash.metrics import Metrics, area_between, compute_metrics, rmse
@@ -586,6 +595,22 @@ def problem_env_config(config: ProblemConfig):
     return env
 
 
+@contextmanager
+def _env_errors(config: ProblemConfig, env: EnvConfig) -> Iterator[None]:
+    """Name a :class:`ConfigError` of the env's values raised while building (a sensor the model lacks, an agent
+    layout that leaves cells unowned: bare env keys such as ``sensors``, which the problem config does not have) as
+    the user set them: ``env_overrides.<key>`` where an override set it, else the env file's key (as
+    :class:`~marlcrash.envs.core.CalibrationCore` names it). An error naming a file of its own is kept."""
+    try:
+        yield
+    except ConfigError as e:
+        if e.path is not None:
+            raise
+        if e.key is not None and overridden(e.key, list(flatten_overrides(EnvConfig, config.env_overrides))):
+            raise ConfigError(e.reason, key=f"env_overrides.{e.key}") from None
+        raise ConfigError(e.reason, key=e.key, path=getattr(env, "_source", None)) from None
+
+
 def build_problem(config: ProblemConfig, cells: CellModel | None = None) -> CalibrationProblem:
     """Build the calibration problem of a config: cells, agents, simulator, reference.
 
@@ -597,8 +622,6 @@ def build_problem(config: ProblemConfig, cells: CellModel | None = None) -> Cali
         ConfigError: invalid env, scenario, window, reward or reference settings (key named).
     """
     env = problem_env_config(config)
-    if cells is None:
-        cells = build_cells(env.vehicle, env.vehicle_seed, env.discretization, env.vehicle_options)
     scenario = get_scenario(config.scenario)
     if config.duration is not None:
         steps = config.duration * scenario.output_rate
@@ -615,21 +638,24 @@ def build_problem(config: ProblemConfig, cells: CellModel | None = None) -> Cali
                 f"frequency of the compared signal's CFC {cfc} (reference.compare_cfc), got {config.duration}",
                 key="problem.duration",
             )
-    sensors = list(env.sensors) or list(cells.sensor_names)
-    layout = build_agents(cells, env.agents)
-    sim = Surrogate(cells, load_sim_config(overrides={"dtype": env.sim_dtype}), output_dt=scenario.output_dt)
     bounds = (env.behaviour_bounds[0], env.behaviour_bounds[1])
-    sampler = ReferenceSampler(cells, sim, sensors, env.scenarios, env.reference, vehicle=env.vehicle,
-                               vehicle_options=env.vehicle_options, bounds=bounds, floor=env.transmission_floor,
-                               backend=config.sim_backend)  # fmt: skip
-    reference = sampler.sample(np.random.default_rng(config.reference_seed), 1)
-    fit_cfg = load_reward_config(config.fit)
     active = acting = None
-    if config.masking:
-        regions = ImpactRegions(cells, layout, env.masking)
-        region = regions.region(reference.overlap, reference.side, reference.speed)
-        active = regions.active(reference.overlap, reference.side, reference.speed, region)[0]
-        acting = region[0] if env.masking.cells == "region" else None
+    with _env_errors(config, env):  # values of the env that only building refuses, named as the user set them
+        if cells is None:
+            cells = build_cells(env.vehicle, env.vehicle_seed, env.discretization, env.vehicle_options)
+        sensors = list(env.sensors) or list(cells.sensor_names)
+        layout = build_agents(cells, env.agents)
+        sim = Surrogate(cells, load_sim_config(overrides={"dtype": env.sim_dtype}), output_dt=scenario.output_dt)
+        sampler = ReferenceSampler(cells, sim, sensors, env.scenarios, env.reference, vehicle=env.vehicle,
+                                   vehicle_options=env.vehicle_options, bounds=bounds, floor=env.transmission_floor,
+                                   backend=config.sim_backend)  # fmt: skip
+        reference = sampler.sample(np.random.default_rng(config.reference_seed), 1)
+        if config.masking:
+            regions = ImpactRegions(cells, layout, env.masking)
+            region = regions.region(reference.overlap, reference.side, reference.speed)
+            active = regions.active(reference.overlap, reference.side, reference.speed, region)[0]
+            acting = region[0] if env.masking.cells == "region" else None
+    fit_cfg = load_reward_config(config.fit)
     return CalibrationProblem(
         cells, layout, sim, scenario, reference, sensors, bounds=bounds, floor=env.transmission_floor,
         fit=Reward(fit_cfg), success=config.success, duration=config.duration, active=active, acting=acting,

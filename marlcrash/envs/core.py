@@ -218,9 +218,16 @@ def env_config_of(
         k = e.key or ""
         if e.path is None and k == "env":
             raise ConfigError(e.reason, key=env_key) from None
-        if any(k == o or k.startswith((o + ".", o + "[")) or o.startswith(k + ".") for o in given):
+        if overridden(k, given):
             raise ConfigError(e.reason, key=f"{overrides_key}.{k}") from None
         raise
+
+
+def overridden(key: str, given: list[str]) -> bool:
+    """An error's dotted ``key`` is about a value that one of the dotted override keys ``given`` set: that key, a key
+    within an overridden section (``agents.split_lr`` where ``agents`` is given), or the section of an overridden key
+    (``agents`` where ``agents.rest`` is given)."""
+    return any(key == o or key.startswith((o + ".", o + "[")) or o.startswith(key + ".") for o in given)
 
 
 def _is_int_at_least(value: Any, lo: int) -> bool:
