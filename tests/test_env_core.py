@@ -461,6 +461,19 @@ def test_a_bad_seed_is_named(cells):
     assert torch.equal(core.ref_velocity, first)
 
 
+def test_a_refused_reset_leaves_the_generator_alone(cells):
+    """``reset(seed=s, mask=bad)`` re-seeded the generator and then refused the mask: the refused call moved the
+    episodes every later ``reset()`` draws. A refused call changes nothing."""
+    a, b = make(cells, 2), make(cells, 2)
+    a.reset(seed=1)
+    b.reset(seed=1)
+    with pytest.raises(ActionError, match=r"reset mask must be \[2\] bool"):
+        a.reset(seed=5, mask=torch.ones(3, dtype=torch.bool))
+    a.reset()
+    b.reset()
+    assert torch.equal(a.ref_velocity, b.ref_velocity)
+
+
 def test_step_before_reset_is_refused_naming_the_rows(cells):
     """A row never reset has no reference (speed 0): the simulator refused it with its own message
     ("need speed > 0 m/s, ..."), which did not say that reset() was missing; the TorchRL door too."""

@@ -439,9 +439,10 @@ class CalibrationCore:
         Draws scenario and reference per row with the core's generator (re-seeded first when
         ``seed`` is given; with ``reference.pin_seed`` every row gets the pinned reference instead),
         resets parameters, fixes the active agents and simulates once.
+
+        Raises:
+            ActionError: a bad ``seed`` or ``mask``; a refused call changes nothing (the generator included).
         """
-        if seed is not None:
-            self.seed(seed)
         if mask is None:
             rows = torch.arange(self.B)
         else:
@@ -449,6 +450,8 @@ class CalibrationCore:
             if mask.shape != (self.B,):
                 raise ActionError(f"reset mask must be [{self.B}] bool, got shape {list(mask.shape)}")
             rows = torch.nonzero(mask).flatten()
+        if seed is not None:
+            self.seed(seed)
         if rows.numel() == 0:
             return
         pin = self.config.reference.pin_seed
