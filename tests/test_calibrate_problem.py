@@ -91,6 +91,23 @@ def test_params_are_the_env_update_and_feasible(problem, cells):
     torch.testing.assert_close(problem.params(xg).detach(), problem.params(xg.detach()), rtol=0, atol=0)
 
 
+def test_a_point_is_where_one_env_step_lands_and_near_where_several_do(problem):
+    """The module docstring's claim: ``params(x)`` is bit for bit the env's update by one step of increments ``x``;
+    steps summing to ``x`` reach its ``E_x``, ``E_s`` to rounding, but its transmission factors only near (each step
+    renormalises, and the floor shift does not commute with that; the docstring said "exactly")."""
+    x = random_x(problem, 1, seed=3, scale=0.05)
+    init, feas = problem.init[None], problem.feasible
+    inc = x[:, problem.layout.agent_of_cell.clamp_min(0)] * problem._owned
+    one = apply_increments(init, inc, problem.init, feas, problem.bounds, problem.floor)
+    assert torch.equal(problem.params(x), one)
+    p = init
+    for _ in range(3):
+        p = apply_increments(p, inc / 3, problem.init, feas, problem.bounds, problem.floor)
+    torch.testing.assert_close(p[..., :2], one[..., :2], rtol=1e-12, atol=0)
+    gap = float((p[..., 2:] - one[..., 2:]).abs().max())
+    assert 1e-6 < gap < problem.floor * 0.05 * 2
+
+
 def test_region_cells_mode_leaves_cells_outside_the_impact_region_as_the_env_does(cells):
     """With ``masking.cells: region`` a baseline's agent factors reach only the agent's cells in the impact region,
     the cells the environment lets it act on: a driver-side small overlap leaves the rest at their initial values."""
