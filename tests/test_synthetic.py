@@ -322,10 +322,15 @@ def test_a_variant_whose_rail_section_hits_the_shock_tower_is_refused():
     assert refused > 0
 
 
-@pytest.mark.parametrize("seed", [-1, 1.5, True, "3"])
-def test_a_bad_seed_is_a_config_error_naming_the_key(config, seed):
-    """A negative, fractional, boolean or text seed failed deep in numpy (or, for True, built 'b_segment_seedTrue')."""
-    with pytest.raises(ConfigError, match=r"integer >= 0") as err:
+@pytest.mark.parametrize(
+    ("seed", "said"),
+    [(-1, r"expected a seed in \[0, 2\*\*64 - 1\], got -1"), (2**64, r"expected a seed in \[0, 2\*\*64 - 1\]"),
+     (1.5, "expected an integer seed"), (True, "expected an integer seed"), ("3", "expected an integer seed")],
+)  # fmt: skip
+def test_a_bad_seed_is_a_config_error_naming_the_key(config, seed, said):
+    """A negative, too large, fractional, boolean or text seed failed deep in numpy (or, for True, built
+    'b_segment_seedTrue')."""
+    with pytest.raises(ConfigError, match=said) as err:
         build_vehicle(config, seed=seed)
     assert err.value.key == "seed"
 

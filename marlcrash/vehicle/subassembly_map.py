@@ -100,7 +100,7 @@ def resolve_subassemblies(
                     raise ConfigError(f"*SET_PART {sid} holds no part; expected a set of at least one part",
                                       key=ekey, path=path)  # fmt: skip
                 found = [p for p in part_sets[sid][1] if p not in model.left_out]  # a set may hold the barrier
-                if not found and part_sets[sid][1]:
+                if not found:
                     raise ConfigError(
                         f"*SET_PART {sid} holds only parts left out of the vehicle: "
                         + "; ".join(model.left_out[p] for p in part_sets[sid][1]),
