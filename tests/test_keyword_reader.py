@@ -878,3 +878,21 @@ def test_an_include_with_options_is_named_as_not_read(tmp_path):
     missing = NODES.replace("       4                           100.0\n", "")
     with pytest.raises(DeckError, match=r"undefined node 4; note: \*INCLUDE_TRANSFORM 'half\.k' \(deck\.k line 3\)"):
         _read(_write(tmp_path, "*KEYWORD\n" + transform + HEAD.replace("*KEYWORD\n", "") + missing + SHELL))
+
+
+def test_fortran_exponents_without_the_letter_read_as_ls_dyna_reads_them(tmp_path):
+    """Fortran's formatted input (which LS-DYNA's fixed fields follow) takes ``7.85-9`` as 7.85e-9 and ``1.0+2`` as
+    100: a signed exponent needs no E. Decks written by Fortran tools carry such numbers; they were refused."""
+    ref = _read(_write(tmp_path, HEAD + NODES + SHELL))
+    fortran = (HEAD + NODES + SHELL).replace("  7.85e-09  210000.0", "    7.85-9     2.1+5")
+    fortran = fortran.replace("       2           100.0", "       2           1.0+2")  # the fast path's fallback
+    m = _read(_write(tmp_path, fortran, "fortran.k"))
+    assert m.materials[1].density == pytest.approx(7850.0) and m.materials[1].youngs_modulus == pytest.approx(2.1e11)
+    np.testing.assert_allclose(m.coords, ref.coords, rtol=1e-12)
+    assert m.total_mass() == pytest.approx(ref.total_mass(), rel=1e-12)
+    free = (HEAD + NODES + SHELL).replace("       2           100.0", "2,1.0+2,-0.0d0")
+    np.testing.assert_allclose(_read(_write(tmp_path, free, "free.k")).coords, ref.coords, rtol=1e-12)
+    # what is still no number stays an error naming the field
+    bad = (HEAD + NODES + SHELL).replace("       2           100.0", "       2           1.0+-2")
+    with pytest.raises(DeckError, match=r"bad\.k line 14: \*NODE expects a numeric x coordinate in columns 9-24"):
+        _read(_write(tmp_path, bad, "bad.k"))

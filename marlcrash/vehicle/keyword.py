@@ -5,7 +5,8 @@ Coverage:
 - formats: fixed (8/10/16-character fields), long (20-character fields; a keyword
   suffix ``+`` or ``*KEYWORD LONG=Y``), I10 (fields under 10 characters widened to
   10; suffix ``%`` or ``*KEYWORD I10=Y``) and free format (comma-separated lines,
-  which may stand between fixed-format lines of one block); ``$`` comments;
+  which may stand between fixed-format lines of one block); ``$`` comments; reals as Fortran reads them
+  (``1.0D+03``, and ``7.85-9``: a signed exponent needs no E);
 - structure: ``*KEYWORD``, ``*TITLE``, ``*END`` (ends the current file),
   ``*INCLUDE`` (paths relative to the including file, nested), ``*INCLUDE_PATH``
   and ``*INCLUDE_PATH_RELATIVE``;
@@ -94,6 +95,7 @@ import ast
 import bisect
 import math
 import operator
+import re
 import warnings
 from collections import Counter
 from dataclasses import dataclass, field, replace
@@ -528,6 +530,11 @@ def _eval_expr(text: str, params: _Params, path: Path, line: int, at: _Source | 
         ) from None
 
 
+_FORTRAN_REAL = re.compile(r"([+-]?(?:\d+\.?\d*|\.\d+))(?:[dDeE]([+-]?\d+)|([+-]\d+))")
+"""A real as Fortran's formatted input reads it beyond what ``float`` takes: a ``D`` exponent (``1.0D+03``), or a
+signed exponent without its letter (``7.85-9``, ``2.1+5``: E is optional before a sign)."""
+
+
 def _to_number(tok: str, kind: str) -> float | int:
     """Convert a stripped token; raises ValueError when it is not a number of that kind."""
     if kind == "i":
@@ -541,9 +548,10 @@ def _to_number(tok: str, kind: str) -> float | int:
     try:
         return float(tok)
     except ValueError:
-        if "d" in tok.lower():  # Fortran double exponent, 1.0D+03
-            return float(tok.lower().replace("d", "e"))
-        raise
+        m = _FORTRAN_REAL.fullmatch(tok)
+        if m is None:
+            raise
+        return float(f"{m.group(1)}e{m.group(2) or m.group(3)}")
 
 
 def _columns(widths: list[int]) -> list[tuple[int, int]]:
