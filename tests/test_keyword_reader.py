@@ -896,3 +896,50 @@ def test_fortran_exponents_without_the_letter_read_as_ls_dyna_reads_them(tmp_pat
     bad = (HEAD + NODES + SHELL).replace("       2           100.0", "       2           1.0+-2")
     with pytest.raises(DeckError, match=r"bad\.k line 14: \*NODE expects a numeric x coordinate in columns 9-24"):
         _read(_write(tmp_path, bad, "bad.k"))
+
+
+@pytest.mark.parametrize(
+    ("card", "pattern"),
+    [
+        (
+            "*MAT_ELASTIC\n         1   7.8x-09  210000.0       0.3\n",
+            r"line 11: \*MAT_ELASTIC expects a numeric RO in columns 11-20, got '7.8x-09'",
+        ),
+        (
+            "*MAT_PLASTIC_KINEMATIC\n         1  7.85e-09  210000.0       0.3     25O.0\n",
+            r"line 11: \*MAT_PLASTIC_KINEMATIC expects a numeric SIGY in columns 41-50, got '25O.0'",
+        ),
+        (
+            "*MAT_PLASTIC_KINEMATIC\n         1  7.85e-09  210000.0       0.3     250.0\n"
+            "       0.0       0.0      0.2x\n",
+            r"line 12: \*MAT_PLASTIC_KINEMATIC expects a numeric FS in columns 21-30, got '0.2x'",
+        ),
+        (
+            "*MAT_PIECEWISE_LINEAR_PLASTICITY\n         1  7.85e-09  210000.0       0.3     250.0\n"
+            "       0.0       0.0     curve\n",
+            r"line 12: \*MAT_PIECEWISE_LINEAR_PLASTICITY expects a numeric LCSS in columns 21-30, got 'curve'",
+        ),
+        (
+            "*MAT_024\n         1  7.85e-09  210000.0       0.3     250.0\n       0.0       0.0\n"
+            "       0.0       0.1\n     250.0      3OO.\n",
+            r"line 14: \*MAT_024 expects a numeric ES2 in columns 11-20, got '3OO.'",
+        ),
+        (
+            "*MAT_RIGID\n         1  7.85e-09  210000.0       0.3\n       1.0       x.0\n",
+            r"line 12: \*MAT_RIGID expects a numeric CON1 in columns 11-20, got 'x.0'",
+        ),
+    ],
+)
+def test_material_card_errors_name_the_field_as_the_manual_does(tmp_path, card, pattern):
+    """The material cards' fields were named C1..C7 in errors ('expects a numeric C4' for SIGY)."""
+    head = HEAD.split("*MAT_ELASTIC")[0]
+    with pytest.raises(DeckError, match=r"deck.k " + pattern):
+        _read(_write(tmp_path, head + card + NODES + SHELL))
+
+
+def test_a_rigid_material_with_an_alias_name_reads(tmp_path):
+    """*MAT_RIGID's eighth field ALIAS is a name (a VDA surface); it was read as a number and refused."""
+    head = HEAD.split("*MAT_ELASTIC")[0]
+    rigid = "*MAT_RIGID\n         1  7.85e-09  210000.0       0.3       0.0       0.0       0.0     wheel\n"
+    m = _read(_write(tmp_path, head + rigid + NODES + SHELL))
+    assert m.materials[1].is_rigid and m.total_mass() == pytest.approx(0.1 * 0.1 * 0.002 * 7850.0)

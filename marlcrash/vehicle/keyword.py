@@ -167,6 +167,23 @@ _SEC_BEAM_1 = _card("secid", "elform", "shrf", "qr", "cst", "scoor", "nsm", kind
 _SEC_BEAM_2 = _card("a1", "a2", "a3", "a4")
 _MAT_1 = _card("mid", "c1", "c2", "c3", "c4", "c5", "c6", "c7", kinds="ifffffff")
 _MAT_8 = _card(*(f"c{i}" for i in range(8)))
+_MAT_CARDS: dict[str, tuple[tuple[_Field, ...], ...]] = {
+    "elastic": (_card("mid", "ro", "e", "pr", "da", "db", "k", kinds="iffffff"),),
+    "plastic_kinematic": (
+        _card("mid", "ro", "e", "pr", "sigy", "etan", "beta", kinds="iffffff"),
+        _card("src", "srp", "fs", "vp"),
+    ),
+    "piecewise_linear": (
+        _card("mid", "ro", "e", "pr", "sigy", "etan", "fail", "tdel", kinds="ifffffff"),
+        _card("c", "p", "lcss", "lcsr", "vp", "lcf"),
+        _card(*(f"eps{i}" for i in range(1, 9))),
+        _card(*(f"es{i}" for i in range(1, 9))),
+    ),
+    # the eighth field, ALIAS, is a name (a VDA surface), not read
+    "rigid": (_card("mid", "ro", "e", "pr", "n", "couple", "m", kinds="iffffff"), _card("cmo", "con1", "con2")),
+}
+"""The cards the reader reads of the material kinds it knows, with their fields named as in the LS-DYNA manual
+(other kinds: :data:`_MAT_1`, read leniently)."""
 _SET_HEAD = _card("sid", kinds="i")
 _SET_IDS = _card(*(f"p{i}" for i in range(8)), kinds="i" * 8)
 _CURVE_HEAD = _card("lcid", "sidr", "sfa", "sfo", "offa", "offo", kinds="iiffff")
@@ -1381,7 +1398,8 @@ def _read_material(block: _Block, kind: str, title: bool, t: _Tables, params: _P
         raise block.err(f"*{block.keyword} expects a card with MID, RO, ...; got end of block")
     r = rows[0]
     lenient = kind in ("other", "null")
-    c = _read_line(block, r, _MAT_1, params, lenient=lenient)
+    cards = _MAT_CARDS.get(kind, (_MAT_1,))
+    c = _read_line(block, r, cards[0], params, lenient=lenient)
     mid = c[0]
     if mid is None or mid <= 0:
         raise block.err(f"*{block.keyword} expects a positive MID {_field_where(block, r, _MAT_1, 0)}", r)
@@ -1390,9 +1408,10 @@ def _read_material(block: _Block, kind: str, title: bool, t: _Tables, params: _P
         raise block.err(f"material id {mid} is defined twice (first in {prev[0].name} line {prev[1]})", r)
 
     def card(k: int) -> list[float]:
+        layout = cards[k] if k < len(cards) else _MAT_8
         if k >= len(rows):
-            return [0.0] * 8
-        return [x or 0.0 for x in _read_line(block, rows[k], _MAT_8, params, lenient=lenient)]
+            return [0.0] * len(layout)
+        return [x or 0.0 for x in _read_line(block, rows[k], layout, params, lenient=lenient)]
 
     f = [x if x is not None else math.nan for x in c[1:]]
     vals: dict[str, float] = {"ro": f[0], "e": f[1], "pr": f[2]}
