@@ -943,3 +943,12 @@ def test_a_rigid_material_with_an_alias_name_reads(tmp_path):
     rigid = "*MAT_RIGID\n         1  7.85e-09  210000.0       0.3       0.0       0.0       0.0     wheel\n"
     m = _read(_write(tmp_path, head + rigid + NODES + SHELL))
     assert m.materials[1].is_rigid and m.total_mass() == pytest.approx(0.1 * 0.1 * 0.002 * 7850.0)
+
+
+def test_a_blank_density_is_named_at_its_card(tmp_path):
+    """A blank RO left the unit detection with 'median nan' and no line; with units given, the card was named."""
+    blank = (HEAD + NODES + SHELL).replace("  7.85e-09  210000.0", "            210000.0")
+    for units in (None, "mm-t-s"):
+        with pytest.raises(DeckError, match=r"deck.k line 11: \*MAT card 1 expects a numeric density RO in columns "
+                           r"11-20, got blank \(\*MAT_ELASTIC, used by part 1\)"):  # fmt: skip
+            _read(_write(tmp_path, blank), units=units)

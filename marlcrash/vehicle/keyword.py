@@ -1011,6 +1011,7 @@ class _RawMaterial:
     keyword: str = ""
     note: str | None = None  # what the reader could not take from the card (e.g. a layout it does not know)
     densityless: bool = False  # a spring, damper or seatbelt material: its card has no density at all
+    ro_at: str = ""  # where RO is on the first card and what is there ("in columns 11-20, got blank"), for messages
 
 
 @dataclass
@@ -1445,6 +1446,8 @@ def _read_material(block: _Block, kind: str, title: bool, t: _Tables, params: _P
     where = (block.src.path, r + 1)
     t.materials[int(mid)] = _RawMaterial(int(mid), name, kind, vals, where, block.keyword, note, kind == "other"
                                          and _mat_layout(block.keyword) is None)  # fmt: skip
+    if not math.isfinite(vals["ro"]):
+        t.materials[int(mid)].ro_at = _field_where(block, r, cards[0], 1)
 
 
 def _read_id_set(block: _Block, opts: set[str], out: dict[int, tuple[str, list[int]]], params: _Params) -> None:
@@ -1822,7 +1825,7 @@ def _complete_raw(
         notes.append(f"material {mid} ({raw.name}): Young's modulus not given, defaulted to {e_def:.4g} Pa")
         m = Material(mid, m.name, m.kind, m.density, e_def, poisson_ratio=m.poisson_ratio)
     if not math.isfinite(m.density) and raw.kind == "other":
-        raise DeckError(f"*MAT card {mid} expects a numeric density RO in columns 11-20", *raw.where)
+        raise DeckError(f"*MAT card {mid} expects a numeric density RO {raw.ro_at}", *raw.where)
     try:
         m = complete_material(m)
     except ModelError as err:
@@ -1870,6 +1873,13 @@ def _assemble(deck: _Deck, t: _Tables, units: str | None, main: Path) -> tuple[V
     used: dict[int, int] = {}  # material id -> the first part (one with elements or mass) that uses it
     for pid, (_, _, mid, _) in t.parts.items():
         used.setdefault(mid, pid)
+    for mid, pid in used.items():  # before the units: a blank density would read as "no unit system fits"
+        raw = t.materials.get(mid)
+        if raw is not None and not raw.densityless and not math.isfinite(raw.values["ro"]):
+            raise DeckError(
+                f"*MAT card {mid} expects a numeric density RO {raw.ro_at} ({_mat_label(raw)}, used by part {pid})",
+                *raw.where,
+            )
     # ---- units, from the materials of the parts kept (the deck's others may be of any kind: foams, belts, springs)
     judged = [m for mid, m in t.materials.items() if mid in used] or list(t.materials.values())
     rho = np.array([m.values["ro"] for m in judged], dtype=float)
