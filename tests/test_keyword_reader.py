@@ -952,3 +952,37 @@ def test_a_blank_density_is_named_at_its_card(tmp_path):
         with pytest.raises(DeckError, match=r"deck.k line 11: \*MAT card 1 expects a numeric density RO in columns "
                            r"11-20, got blank \(\*MAT_ELASTIC, used by part 1\)"):  # fmt: skip
             _read(_write(tmp_path, blank), units=units)
+
+
+def test_element_beam_section_reads_its_section_type_card(tmp_path):
+    """*ELEMENT_BEAM_SECTION's card is STYPE D1 .. D6 (a name such as SECTION_08, then 10-column fields); it was read
+    as *ELEMENT_BEAM_THICKNESS's 16-column PARM1..PARM4, so every such deck was refused."""
+    deck = """*KEYWORD
+*PART
+bar
+         1         1         1
+*SECTION_BEAM
+         1         2
+      50.0
+*MAT_ELASTIC
+         1  7.85e-09  210000.0       0.3
+*NODE
+1,0,0,0
+2,100,0,0
+*ELEMENT_BEAM_SECTION
+       1       1       1       2
+SECTION_08      10.0
+       2       1       1       2
+SECTION_09      20.0      10.0
+       3       1       1       2
+SECTION_11      10.0       5.0
+       4       1       1       2
+SECTION_01      10.0       5.0       1.0       1.0
+5,1,1,2
+SECTION_09,20.0,10.0
+"""
+    m = _read(_write(tmp_path, deck))
+    hand = [math.pi / 4 * 10.0**2, math.pi / 4 * (20.0**2 - 10.0**2), 10.0 * 5.0, 50.0, math.pi / 4 * 300.0]  # mm^2
+    np.testing.assert_allclose(m.beam_area, np.array(hand) * 1e-6, rtol=1e-12)
+    assert m.total_mass() == pytest.approx(sum(hand) * 100.0 * 7.85e-9 * 1e3, rel=1e-12)  # mm^3 x t/mm^3 -> kg
+    assert any("SECTION_01 x1" in w and "their part's *SECTION_BEAM area" in w for w in m.warnings)

@@ -22,7 +22,8 @@ Coverage:
   ``THICKNESS``/``BETA``/``MCID``/``OFFSET`` (element thickness 0 means the
   section's), ``*ELEMENT_SOLID`` (one line of 8 nodes, or the two-line form with 8
   or 10 nodes, 10-node tets kept as their 4 corner nodes; option ``ORTHO``),
-  ``*ELEMENT_BEAM`` (options ``THICKNESS``/``SECTION`` give element areas;
+  ``*ELEMENT_BEAM`` (options ``THICKNESS`` and ``SECTION`` give element areas, the latter for the circular,
+  tubular and solid-box section types ``SECTION_08``, ``_09``, ``_11``, other types taking the part's section area;
   ``PID``/``OFFSET``/``ORIENTATION``/``SCALAR``/``SCALR``/``WARPAGE`` are read past);
 - properties: ``*PART`` (title line + card; ``CONTACT``, ``PRINT``,
   ``ATTACHMENT_NODES``, ``AVERAGED`` cards read past, ``INERTIA`` below),
@@ -125,7 +126,7 @@ class _Field:
 
     name: str
     width: int
-    kind: str  # "i" integer, "f" real
+    kind: str  # "i" integer, "f" real, "s" text (read as written)
     label: str
 
 
@@ -151,6 +152,7 @@ _SOLID_HEAD = _layout(*_ELEM_HEAD)
 _SOLID_NODES = _layout(*_ids("n", 10, 8, "node id"))
 _BEAM = _layout(*_ELEM_HEAD, *_ids("n", 3, 8, "node id"))
 _BEAM_T = _layout(*[(f"p{i}", 16, "f", f"PARM{i}") for i in range(1, 5)])
+_BEAM_SEC = _layout(("stype", 10, "s", "section type STYPE"), *[(f"d{i}", 10, "f", f"D{i}") for i in range(1, 7)])
 
 
 def _card(*names: str, kinds: str | None = None) -> tuple[_Field, ...]:
@@ -596,11 +598,14 @@ def _read_line(
         cols = _columns(widths)
         toks = [text[a:b].strip() for a, b in cols]
         where = [f"in columns {a + 1}-{b}" for a, b in cols]
-    out: list[float | int | None] = []
+    out: list = []
     lineno = block.lineno(row)
     for f, tok, wh in zip(layout, toks, where, strict=False):
         if not tok:
             out.append(None)
+            continue
+        if f.kind == "s":
+            out.append(tok)
             continue
         neg = tok.startswith("-&")
         if neg or tok.startswith("&"):
@@ -1052,6 +1057,7 @@ class _Tables:
     inertia: dict[int, tuple[float, tuple[Path, int]]] = field(default_factory=dict)  # pid -> (TM, where)
     nodal_bodies: list[_NodalBody] = field(default_factory=list)
     extra_nodes: dict[int, list[tuple[int, bool, tuple[Path, int]]]] = field(default_factory=dict)  # pid -> (id, set)
+    unread_stypes: Counter = field(default_factory=Counter)  # *ELEMENT_BEAM_SECTION types without an area -> count
 
 
 @dataclass
@@ -1208,13 +1214,34 @@ def _read_beam(block: _Block, opts: set[str], t: _Tables, params: _Params) -> No
     main = groups[0]
     req = ("eid", "pid", "n1", "n2")
     v = _table(block, main, _BEAM, params, req, req)
-    parm = np.full((main.size, 4), np.nan)
-    for o in ("THICKNESS", "SECTION"):
-        if o in order:
-            p = _table(block, groups[1 + order.index(o)], _BEAM_T, params)
-            parm = np.stack([p[f"p{i}"] for i in range(1, 5)], axis=1)
-            parm[(parm == 0).all(axis=1)] = np.nan
+    parm = np.full((main.size, 5), np.nan)  # PARM1..PARM4 (THICKNESS), the area of a section type (SECTION)
+    if "THICKNESS" in order:
+        p = _table(block, groups[1 + order.index("THICKNESS")], _BEAM_T, params)
+        parm[:, :4] = np.stack([p[f"p{i}"] for i in range(1, 5)], axis=1)
+        parm[(parm[:, :4] == 0).all(axis=1), :4] = np.nan
+    elif "SECTION" in order:  # STYPE D1 .. D6: a standard section type and its dimensions
+        for k, r in enumerate(groups[1 + order.index("SECTION")].tolist()):
+            stype, *d = _read_line(block, r, _BEAM_SEC, params)
+            stype = str(stype or "").upper()
+            parm[k, 4] = _stype_area(stype, [x or 0.0 for x in d])
+            if math.isnan(parm[k, 4]):
+                t.unread_stypes[stype or "blank"] += 1
     t.beams.add(block.src, main, v["eid"], v["pid"], np.stack([v["n1"], v["n2"]], axis=1), parm)
+
+
+def _stype_area(stype: str, d: list[float]) -> float:
+    """Area (deck units) of a standard beam section type of ``*ELEMENT_BEAM_SECTION``: ``SECTION_08`` (circular, D1
+    the diameter), ``_09`` (tubular, D1 and D2 the outer and inner diameters), ``_11`` (solid box, D1 x D2); ``nan``
+    for the other types (I, channel, hat, ... shapes) and for dimensions that give no area."""
+    if stype == "SECTION_08":
+        a = 0.25 * math.pi * d[0] ** 2
+    elif stype == "SECTION_09":
+        a = 0.25 * math.pi * (d[0] ** 2 - d[1] ** 2) if d[0] > d[1] >= 0 else math.nan
+    elif stype == "SECTION_11":
+        a = d[0] * d[1]
+    else:
+        return math.nan
+    return a if a > 0 else math.nan
 
 
 def _read_part(block: _Block, opts: set[str], t: _Tables, params: _Params) -> None:
@@ -1978,19 +2005,25 @@ def _assemble(deck: _Deck, t: _Tables, units: str | None, main: Path) -> tuple[V
     part_checks("solid", t.solids, v_ids, v_part)
     v_nodes = node_index(v_nid, t.solids.locs, "solid", v_ids)
     # beams
-    b_ids, b_part, b_nid, b_parm = t.beams.cat((4,))
+    b_ids, b_part, b_nid, b_parm = t.beams.cat((5,))
     pos = part_checks("beam", t.beams, b_ids, b_part)
     b_nodes = node_index(b_nid, t.beams.locs, "beam", b_ids)
     b_area = np.zeros(b_ids.size)
     if b_ids.size:
         sec_area = np.array([(parts[p].beam_area or np.nan) / u.area for p in part_keys.tolist()])
         b_area = sec_area[pos]
-        has = ~np.isnan(b_parm).any(axis=1)
+        has = ~np.isnan(b_parm[:, :4]).any(axis=1)
         for row in np.flatnonzero(has).tolist():  # element-level sections are rare: a loop is fine
             sec = t.sections[parts[int(b_part[row])].section_id]
-            a = _beam_area(sec.elform, sec.cst, *b_parm[row].tolist())
+            a = _beam_area(sec.elform, sec.cst, *b_parm[row, :4].tolist())
             if a is not None:
                 b_area[row] = a
+        typed = ~np.isnan(b_parm[:, 4])
+        b_area[typed] = b_parm[typed, 4]
+        if t.unread_stypes:
+            listing = ", ".join(f"{k} x{n}" for k, n in sorted(t.unread_stypes.items()))
+            notes.append(f"*ELEMENT_BEAM_SECTION types the reader computes no area for ({listing}; it does SECTION_08, "
+                         "_09, _11): those beams take their part's *SECTION_BEAM area")  # fmt: skip
         missing = np.isnan(b_area)
         if missing.any():
             notes.append(f"{int(missing.sum())} beams have no cross-section area the reader can compute: area 0")
