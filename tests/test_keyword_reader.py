@@ -986,3 +986,18 @@ SECTION_09,20.0,10.0
     np.testing.assert_allclose(m.beam_area, np.array(hand) * 1e-6, rtol=1e-12)
     assert m.total_mass() == pytest.approx(sum(hand) * 100.0 * 7.85e-9 * 1e3, rel=1e-12)  # mm^3 x t/mm^3 -> kg
     assert any("SECTION_01 x1" in w and "their part's *SECTION_BEAM area" in w for w in m.warnings)
+
+
+def test_blank_lines_before_the_first_solid_are_skipped_as_for_shells_and_nodes(tmp_path):
+    """A blank line opening an *ELEMENT_SOLID block was taken for the element's card ('expects element id in columns
+    1-8, got blank'); *NODE and *ELEMENT_SHELL skip such lines."""
+    head = HEAD.replace("*SECTION_SHELL\n         1         2\n       2.0       2.0       2.0       2.0\n",
+                        "*SECTION_SOLID\n         1         1\n")  # fmt: skip
+    nodes = "*NODE\n1,0,0,0\n2,10,0,0\n3,10,20,0\n4,0,20,0\n5,0,0,30\n6,10,0,30\n7,10,20,30\n8,0,20,30\n"
+    one = "       1       1       1       2       3       4       5       6       7       8\n"
+    two = "       1       1\n       1       2       3       4       5       6       7       8\n"
+    for body in (one, two):
+        ref = _read(_write(tmp_path, head + nodes + "*ELEMENT_SOLID\n" + body))
+        m = _read(_write(tmp_path, head + nodes + "*ELEMENT_SOLID\n\n$ a comment\n   \n" + body, "blank.k"))
+        np.testing.assert_allclose(m.solid_volumes(), [10 * 20 * 30 * 1e-9], rtol=1e-12)
+        assert m.total_mass() == ref.total_mass() and np.array_equal(m.solid_nodes, ref.solid_nodes)

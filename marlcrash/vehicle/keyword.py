@@ -1166,9 +1166,10 @@ def _read_shell(block: _Block, opts: set[str], t: _Tables, params: _Params) -> N
 
 
 def _read_solid(block: _Block, opts: set[str], t: _Tables, params: _Params) -> None:
-    rows = block.rows
-    if rows.size == 0:
+    filled = _nonblank(block, block.rows)
+    if filled.size == 0:
         return
+    rows = block.rows[block.rows >= filled[0]]  # blank lines before the first element are no card of it
     two_line = "TET10" in opts
     if not two_line:
         first = _read_line(block, int(rows[0]), _SOLID, params)
