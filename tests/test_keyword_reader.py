@@ -1001,3 +1001,26 @@ def test_blank_lines_before_the_first_solid_are_skipped_as_for_shells_and_nodes(
         m = _read(_write(tmp_path, head + nodes + "*ELEMENT_SOLID\n\n$ a comment\n   \n" + body, "blank.k"))
         np.testing.assert_allclose(m.solid_volumes(), [10 * 20 * 30 * 1e-9], rtol=1e-12)
         assert m.total_mass() == ref.total_mass() and np.array_equal(m.solid_nodes, ref.solid_nodes)
+
+
+@pytest.mark.parametrize(
+    ("card", "pattern"),
+    [
+        (
+            "*SET_PART_LIST\n         1\n         1       abc\n",
+            r"\*SET_PART_LIST expects an integer PID2 in columns 11-20",
+        ),
+        (
+            "*SET_NODE_LIST_TITLE\nx\n         1\n         1         2       2.5\n",
+            r"\*SET_NODE_LIST_TITLE expects an integer NID3 in columns 21-30",
+        ),
+        (
+            "*SET_PART_LIST_GENERATE\n         1\n         1         x\n",
+            r"\*SET_PART_LIST_GENERATE expects an integer B1END in columns 11-20, got 'x'",
+        ),
+    ],
+)
+def test_set_card_errors_name_the_field_as_the_manual_does(tmp_path, card, pattern):
+    """The id fields of sets were named P0..P7 in errors: 'P1' for the second id, PID2 in the manual."""
+    with pytest.raises(DeckError, match=r"deck.k line \d+: " + pattern):
+        _read(_write(tmp_path, HEAD + NODES + SHELL + card))

@@ -187,7 +187,9 @@ _MAT_CARDS: dict[str, tuple[tuple[_Field, ...], ...]] = {
 """The cards the reader reads of the material kinds it knows, with their fields named as in the LS-DYNA manual
 (other kinds: :data:`_MAT_1`, read leniently)."""
 _SET_HEAD = _card("sid", kinds="i")
-_SET_IDS = _card(*(f"p{i}" for i in range(8)), kinds="i" * 8)
+_SET_PIDS = _card(*(f"pid{i}" for i in range(1, 9)), kinds="i" * 8)
+_SET_NIDS = _card(*(f"nid{i}" for i in range(1, 9)), kinds="i" * 8)
+_SET_RANGES = _card(*(f"b{i}{end}" for i in range(1, 5) for end in ("beg", "end")), kinds="i" * 8)  # _GENERATE
 _CURVE_HEAD = _card("lcid", "sidr", "sfa", "sfo", "offa", "offo", kinds="iiffff")
 _VEL_NODE = _card("nid", "vx", "vy", "vz", kinds="ifff")  # then VXR VYR VZR ICID, not needed
 _MERGE = _card("pidm", "pids", kinds="ii")
@@ -1495,8 +1497,9 @@ def _read_id_set(block: _Block, opts: set[str], out: dict[int, tuple[str, list[i
     ids: list[int] = []
     body = _nonblank(block, np.asarray(rows[1:], dtype=np.int64))
     if body.size:
-        v = _table(block, body, _SET_IDS, params)
-        vals = np.stack([v[f.name] for f in _SET_IDS], axis=1)  # [lines, 8], blanks 0
+        layout = _SET_RANGES if "GENERATE" in opts else _SET_NIDS if block.keyword.startswith("SET_NODE") else _SET_PIDS
+        v = _table(block, body, layout, params)
+        vals = np.stack([v[f.name] for f in layout], axis=1)  # [lines, 8], blanks 0
         if "GENERATE" in opts:
             for a, b in vals.reshape(-1, 2).tolist():
                 if a or b:
