@@ -1024,3 +1024,17 @@ def test_set_card_errors_name_the_field_as_the_manual_does(tmp_path, card, patte
     """The id fields of sets were named P0..P7 in errors: 'P1' for the second id, PID2 in the manual."""
     with pytest.raises(DeckError, match=r"deck.k line \d+: " + pattern):
         _read(_write(tmp_path, HEAD + NODES + SHELL + card))
+
+
+def test_a_utf8_byte_order_mark_is_no_data(tmp_path):
+    """A deck saved by a Windows editor starts with a byte-order mark; it was refused ('expected a keyword line
+    starting with '*', got data '\\ufeff*KEYWORD'), in an included file too."""
+    ref = _read(_write(tmp_path, HEAD + NODES + SHELL))
+    (tmp_path / "nodes.k").write_bytes(b"\xef\xbb\xbf" + NODES.encode())
+    p = tmp_path / "bom.k"
+    p.write_bytes(b"\xef\xbb\xbf" + (HEAD + "*INCLUDE\nnodes.k\n" + SHELL).encode())
+    m = _read(p)
+    assert np.array_equal(m.coords, ref.coords) and m.total_mass() == ref.total_mass()
+    p.write_bytes(b"\xef\xbb\xbf" + (HEAD + NODES + SHELL.replace("       4\n", "       9\n")).encode())
+    with pytest.raises(DeckError, match=r"bom\.k line 18: shell element 1 refers to undefined node 9"):
+        _read(p)  # line numbers as the editor shows them

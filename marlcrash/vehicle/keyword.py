@@ -232,6 +232,7 @@ class _Source:
     """One deck file: its bytes and line table (``[L]`` arrays of line starts and ends)."""
 
     def __init__(self, path: Path, data: bytes):
+        data = data.removeprefix(b"\xef\xbb\xbf")  # a UTF-8 byte-order mark (Windows editors write one): no data
         if b"\r" in data and data.count(b"\r") != data.count(b"\r\n"):  # lone CRs: classic Mac line endings
             data = data.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
         if not data.endswith(b"\n"):
