@@ -1038,3 +1038,18 @@ def test_a_utf8_byte_order_mark_is_no_data(tmp_path):
     p.write_bytes(b"\xef\xbb\xbf" + (HEAD + NODES + SHELL.replace("       4\n", "       9\n")).encode())
     with pytest.raises(DeckError, match=r"bom\.k line 18: shell element 1 refers to undefined node 9"):
         _read(p)  # line numbers as the editor shows them
+
+
+def test_a_fixed_format_parameter_expression_may_hold_commas(tmp_path):
+    """'R t3      max(t1,t2)' (fixed format: name in columns 1-10, expression after) was split at its comma as free
+    format, so any expression calling max, min or atan2 was refused."""
+    params = "*PARAMETER\nR t1      1.0\nR t2      2.0\n*PARAMETER_EXPRESSION\n"
+    head = HEAD.replace("       2.0       2.0       2.0       2.0\n", "       &t3\n")
+    for line, t3 in (
+        ("R t3      max(t1,t2)", 2.0),
+        ("Rt3       min(t1, t2)+atan2(0.0,1.0)", 1.0),
+        ("R t3,max(t1,t2)+1", 3.0),  # free format: a comma right after the name
+        ("I t3,  2*t2", 4.0),
+    ):
+        m = _read(_write(tmp_path, params + line + "\n" + head.replace("*KEYWORD\n", "") + NODES + SHELL))
+        assert m.shell_thickness[0] == pytest.approx(t3 * 1e-3), line

@@ -951,6 +951,10 @@ def _read_duplication(block: _Block, params: _Params) -> None:
     params.duplication = int(dflag) if dflag else 1
 
 
+_EXPR_HEAD = re.compile(r"\s*[RrIi]\s*[A-Za-z_]\w*\s*")
+"""What stands before the first comma of a free-format ``*PARAMETER_EXPRESSION`` line: a type and a name."""
+
+
 def _read_parameter_expressions(block: _Block, params: _Params, local: bool = False) -> None:
     """``*PARAMETER_EXPRESSION`` (``local``: ``_LOCAL``, as :func:`_read_parameters`)."""
     w = 20 if block.fmt == "long" else 10
@@ -958,7 +962,8 @@ def _read_parameter_expressions(block: _Block, params: _Params, local: bool = Fa
         text = block.src.text(r)
         if not text.strip():
             continue
-        head, expr = text.split(",", 1) if "," in text else (text[:w], text[w:])
+        free = _EXPR_HEAD.fullmatch(text.split(",", 1)[0]) is not None  # a comma after the name, not in max(a, b)
+        head, expr = text.split(",", 1) if free else (text[:w], text[w:])
         head = head.strip()
         kind, name = head[:1].upper(), head[1:].strip()
         if kind not in ("R", "I") or not name:
