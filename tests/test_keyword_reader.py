@@ -1053,3 +1053,11 @@ def test_a_fixed_format_parameter_expression_may_hold_commas(tmp_path):
     ):
         m = _read(_write(tmp_path, params + line + "\n" + head.replace("*KEYWORD\n", "") + NODES + SHELL))
         assert m.shell_thickness[0] == pytest.approx(t3 * 1e-3), line
+
+
+def test_nint_in_a_parameter_expression_rounds_halves_away_from_zero_as_fortran(tmp_path):
+    """NINT(2.5) is 3 in Fortran (and LS-DYNA); it was Python's round, which gives 2 (halves to even)."""
+    params = "*PARAMETER_EXPRESSION\nR t3,nint(2.5)-nint(-0.5)-nint(-1.5)+nint(0.4)\n"  # 3 - (-1) - (-2) + 0 = 6
+    head = HEAD.replace("       2.0       2.0       2.0       2.0\n", "       &t3\n")
+    m = _read(_write(tmp_path, params + head.replace("*KEYWORD\n", "") + NODES + SHELL))
+    assert m.shell_thickness[0] == pytest.approx(6e-3)

@@ -505,7 +505,7 @@ _FUNCS = {
     "max": max,
     "int": int,
     "aint": math.trunc,
-    "nint": round,
+    "nint": lambda x: math.copysign(math.floor(abs(x) + 0.5), x),  # Fortran's NINT: halves away from zero
 }
 _BINOPS = {
     ast.Add: operator.add,
