@@ -890,3 +890,25 @@ def test_a_folder_given_as_dot_is_named_in_the_message(tmp_path, monkeypatch):
     assert str(DeckError("bad card", ".", line=3)).startswith(f"{tmp_path.resolve()} line 3: bad card")
     assert str(ConfigError("bad", key="k", path=".")) == f"{tmp_path.resolve()} key 'k': bad"
     assert str(ConfigError("bad", key="k", path=tmp_path / "a.yaml")) == "a.yaml key 'k': bad"  # a name stays a name
+
+
+def test_an_iso_mme_test_folder_finds_its_mme_file_whatever_the_case_of_its_suffix(tmp_path, analytic, monkeypatch):
+    """``read_pulse`` takes a ``T1.Mme`` file by its suffix in any case; the test folder holding it must be read
+    alike. The folder was searched with two globs, ``*.mme`` and ``*.MME``: a ``.Mme`` file was not found, and
+    where globs ignore case (Windows) both found the one ``.mme`` file, counted twice."""
+    mme = write_mme(analytic, tmp_path / "T1", "T1")
+    mixed = mme.rename(mme.with_name("T1.Mme"))
+    assert read_mme(tmp_path / "T1").channels == read_mme(mixed).channels == ("tunnel", "radsup")
+    assert read_pulse(tmp_path / "T1").channels == ("tunnel", "radsup")
+    mixed.rename(mme)  # a file system whose globs ignore case: '*.MME' also matches 'T1.mme'
+    plain_glob = Path.glob
+
+    def case_blind_glob(self, pattern):
+        return plain_glob(self, pattern.lower())
+
+    monkeypatch.setattr(Path, "glob", case_blind_glob)
+    assert read_mme(tmp_path / "T1").channels == ("tunnel", "radsup")
+    monkeypatch.undo()
+    (tmp_path / "T1" / "T2.MME").write_text("Data format edition number  :1.6\n")
+    with pytest.raises(PulseError, match=r"T1: expected exactly one <test>\.mme file in the test folder, found 2"):
+        read_mme(tmp_path / "T1")

@@ -479,7 +479,9 @@ def _read_mme_channel(path: Path) -> dict[str, Any]:
 def _mme_paths(path: Path) -> tuple[Path, Path]:
     """(test .mme file, Channel folder) for a test folder or its .mme file."""
     if path.is_dir():
-        mmes = sorted(path.glob("*.mme")) + sorted(path.glob("*.MME"))
+        # by the suffix in any case, as read_pulse takes a .mme file (two globs missed '.Mme', and where globs
+        # ignore case, Windows, both found the one file)
+        mmes = sorted(p for p in path.iterdir() if p.is_file() and p.suffix.lower() == ".mme")
         if len(mmes) != 1:
             raise _err(f"expected exactly one <test>.mme file in the test folder, found {len(mmes)}", path)
         mme = mmes[0]
