@@ -912,3 +912,17 @@ def test_an_iso_mme_test_folder_finds_its_mme_file_whatever_the_case_of_its_suff
     (tmp_path / "T1" / "T2.MME").write_text("Data format edition number  :1.6\n")
     with pytest.raises(PulseError, match=r"T1: expected exactly one <test>\.mme file in the test folder, found 2"):
         read_mme(tmp_path / "T1")
+
+
+def test_write_csv_quotes_channel_names_that_hold_a_comma_or_a_quote(tmp_path):
+    """``write_csv`` writes "the format read_csv reads"; an ISO-MME channel read by its name (``Vehicle CG, x``) or
+    a name with a quote made a header of more fields than the rows, which read_csv refused (line 2: expected 4
+    fields as in the header, got 3)."""
+    t = np.arange(0.0, 0.05, 1e-4)
+    acc = np.stack([-9.80665 * np.sin(40 * t), 2 * 9.80665 * np.cos(40 * t)])
+    p = Pulse(t, acc, ("Vehicle CG, x", 'B-pillar "left"'))
+    back = read_csv(write_csv(p, tmp_path / "names.csv"))
+    assert back.channels == p.channels
+    np.testing.assert_allclose(back.acc, acc, rtol=1e-12)
+    back = read_csv(write_csv(p, tmp_path / "si.csv", unit="m/s2", time_col="t, s"), unit="m/s2", time_col="t, s")
+    assert back.channels == p.channels

@@ -30,6 +30,7 @@ file, the line (and column) and what was expected.
 from __future__ import annotations
 
 import csv
+import io
 import math
 import re
 import warnings
@@ -380,7 +381,11 @@ def write_csv(pulse: Pulse, path: str | Path, *, unit: str = "g", time_col: str 
     path = Path(path)
     factor = acc_unit_factor(unit)
     data = np.column_stack([pulse.time, pulse.acc.T / factor])
-    header = ",".join([_with_unit(time_col, "s"), *(_with_unit(c, unit) for c in pulse.channels)])
+    names = io.StringIO()  # quoted where a name holds the delimiter or a quote, as read_csv's csv.reader reads it
+    csv.writer(names, lineterminator="").writerow(
+        [_with_unit(time_col, "s"), *(_with_unit(c, unit) for c in pulse.channels)]
+    )
+    header = names.getvalue()
     with atomic_output(path) as tmp:
         np.savetxt(tmp, data, delimiter=",", header=header, comments="", fmt="%.17g")
     return path
