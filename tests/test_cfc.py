@@ -192,3 +192,17 @@ def test_bad_inputs():
         cfc_filter(np.zeros(10), -1.0, 60)
     with pytest.warns(UserWarning, match="10 x F_H"):
         cfc_coefficients(60, 1 / 800.0)
+
+
+@pytest.mark.parametrize("pad_time", [float("nan"), float("inf"), -0.001, "10 ms"])
+def test_a_bad_pad_time_is_a_pulse_error_on_every_front_end(pad_time):
+    """``pad_time`` < 0 was refused, but NaN or inf reached ``round()`` (ValueError / OverflowError from Python, not
+    a PulseError the command line reports) and a string a TypeError."""
+    x = np.random.default_rng(0).normal(size=200)
+    with pytest.raises(PulseError, match=r"pad_time must be a duration >= 0 s"):
+        cfc_filter(x, 1e-4, 60, pad_time=pad_time)
+    with pytest.raises(PulseError, match=r"pad_time must be a duration >= 0 s"):
+        cfc_filter_torch(torch.as_tensor(x)[None], 1e-4, 60, pad_time=pad_time)
+    with pytest.raises(PulseError, match=r"pad_time must be a duration >= 0 s"):
+        cfc_matrix(200, 1e-4, 60, pad_time=pad_time)
+    np.testing.assert_array_equal(cfc_filter(x, 1e-4, 60, pad_time=0), cfc_filter(x, 1e-4, 60, pad_time=0.0))

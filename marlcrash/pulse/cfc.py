@@ -121,7 +121,7 @@ def cfc_filter(x: np.ndarray, dt: float, cfc: int = 60, *, axis: int = -1, pad_t
         The filtered array, same shape and dtype float64.
 
     Raises:
-        PulseError: non-finite samples, fewer than 3 samples, or a bad ``dt``.
+        PulseError: non-finite samples, fewer than 3 samples, a bad ``dt`` or ``pad_time``.
         ConfigError: ``cfc`` is not a J211 class.
     """
     x = np.asarray(x, dtype=np.float64)
@@ -135,10 +135,16 @@ def cfc_filter(x: np.ndarray, dt: float, cfc: int = 60, *, axis: int = -1, pad_t
 def _filtfilt(x: np.ndarray, dt: float, cfc: int, axis: int, pad_time: float) -> np.ndarray:
     """The filter of :func:`cfc_filter` on float64 ``x`` with at least 3 samples; NaN propagates per record."""
     b, a = cfc_coefficients(cfc, dt)
-    padlen = min(round(pad_time / dt), x.shape[axis] - 1)
-    if padlen < 0:
-        raise PulseError(f"pad_time must be >= 0 s, got {pad_time!r}")
+    padlen = min(round(_check_pad_time(pad_time) / dt), x.shape[axis] - 1)
     return scipy.signal.filtfilt(b, a, x, axis=axis, padtype="odd" if padlen > 0 else None, padlen=padlen)
+
+
+def _check_pad_time(pad_time: float) -> float:
+    """``pad_time`` as a float if it is a finite duration >= 0 s, else a :class:`PulseError`."""
+    ok = isinstance(pad_time, int | float | np.integer | np.floating) and not isinstance(pad_time, bool)
+    if not (ok and math.isfinite(pad_time) and pad_time >= 0):
+        raise PulseError(f"pad_time must be a duration >= 0 s, got {pad_time!r}")
+    return float(pad_time)
 
 
 @functools.lru_cache(maxsize=32)
@@ -151,7 +157,7 @@ def cfc_matrix(n: int, dt: float, cfc: int = 60, pad_time: float = DEFAULT_PAD_T
     """The ``[n, n]`` matrix ``M`` with ``cfc_filter(x) == M @ x`` for records of ``n`` samples."""
     if isinstance(n, bool) or not isinstance(n, int) or n < 3:
         raise PulseError(f"CFC filtering needs at least 3 samples, got n={n!r}")
-    return _cfc_matrix_cached(n, float(dt), check_cfc(cfc), float(pad_time))
+    return _cfc_matrix_cached(n, float(dt), check_cfc(cfc), _check_pad_time(pad_time))
 
 
 def cfc_filter_torch(x: torch.Tensor, dt: float, cfc: int = 60, pad_time: float = DEFAULT_PAD_TIME) -> torch.Tensor:
@@ -175,7 +181,9 @@ def cfc_filter_torch(x: torch.Tensor, dt: float, cfc: int = 60, pad_time: float 
     if x.device.type == "cpu" and not (x.requires_grad and torch.is_grad_enabled()):
         if n < 3:
             raise PulseError(f"CFC filtering needs at least 3 samples, got n={n}")
-        y = _filtfilt(x.detach().numpy().astype(np.float64, copy=False), float(dt), check_cfc(cfc), -1, float(pad_time))
+        y = _filtfilt(
+            x.detach().numpy().astype(np.float64, copy=False), float(dt), check_cfc(cfc), -1, _check_pad_time(pad_time)
+        )
         return torch.from_numpy(np.ascontiguousarray(y)).to(x.dtype)
     m = torch.as_tensor(cfc_matrix(n, dt, cfc, pad_time), dtype=x.dtype, device=x.device)
     return x @ m.T
