@@ -926,3 +926,31 @@ def test_write_csv_quotes_channel_names_that_hold_a_comma_or_a_quote(tmp_path):
     np.testing.assert_allclose(back.acc, acc, rtol=1e-12)
     back = read_csv(write_csv(p, tmp_path / "si.csv", unit="m/s2", time_col="t, s"), unit="m/s2", time_col="t, s")
     assert back.channels == p.channels
+
+
+def test_the_pulse_summary_reads_only_the_first_acceleration_column_of_a_csv(tmp_path):
+    """``marlcrash pulse FILE`` summarizes the first acceleration column (as it reads only the first acceleration
+    channel of an ISO-MME test); a lab export's other columns, a remark column left empty or a channel that ends
+    earlier, made the file unreadable (``column 'remark': expected a number, got ''``)."""
+    from marlcrash.pulse.io import processed_pulse, pulse_summary
+
+    t = np.arange(-0.02, 0.2, 1e-4)
+    acc_g = half_sine(t, 0.080) / G0
+    rows = [
+        f"{x:.4f};{a:.6f};;{'' if k > 1500 else '0,0'}".replace(".", ",")
+        for k, (x, a) in enumerate(zip(t, acc_g, strict=True))
+    ]
+    path = tmp_path / "lab.csv"
+    path.write_text('"Zeit [s]";"a_x [g]";"remark";"v [m/s2]"\n' + "\n".join(rows) + "\n")
+    s = pulse_summary(path)
+    assert s["channel"] == "a_x [g]" and s["delta_v_ms"] == pytest.approx(DV, rel=0.01)
+    assert processed_pulse(path)[0].channels == ("a_x [g]",)
+    # the column named is read, and an unused column's unit is no concern of the first one
+    with pytest.raises(PulseError, match=r"lab\.csv line 1503, column 'v \[m/s2\]': expected a number, got ''"):
+        pulse_summary(path, acc_col="v [m/s2]", unit="m/s2")
+    with pytest.raises(PulseError, match=r"lab\.csv line 1: column 'nope' not found"):
+        pulse_summary(path, acc_col="nope")
+    bad = tmp_path / "bad.csv"
+    bad.write_text("time,,acc\n" + GOOD_ROWS)  # the header is checked as before
+    with pytest.raises(PulseError, match=r"bad\.csv line 1: header column 2 is empty"):
+        pulse_summary(bad)

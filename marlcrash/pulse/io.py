@@ -175,41 +175,14 @@ def read_csv(
     if max_gap is not None and not (math.isfinite(max_gap) and max_gap > 1):
         raise PulseError(f"max_gap: expected a multiple of the median sampling interval > 1 or None, got {max_gap!r}")
     lines = _read_text_lines(path)
-    first = next((i for i, s in enumerate(lines) if s.strip() and not s.lstrip().startswith("#")), None)
-    if first is None:
-        raise _err("expected a header row and samples, found no data", path)
-    header_line = lines[first]
-    delim = _delimiter(lines, first, path)
+    first, delim, header, ti = _csv_header(path, lines, time_col)
     # '0,5;-2,25': European spreadsheets separate by ';' because the comma is their decimal mark. Not with tabs:
     # a tab export of an English spreadsheet may hold thousands separators ('-1,005' is -1005 there).
     decimal_comma = delim == ";"
-    header = [h.strip() for h in next(csv.reader([header_line], delimiter=delim))]
-    if all(_is_number(h) for h in header):  # reading it as names would silently drop the first sample
-        raise _err(
-            "expected a header row naming the columns (e.g. 'time,acc'), got only numbers; lines starting with "
-            "'#' are comments (numpy.savetxt comments its header: write it with comments='')",
-            path,
-            first + 1,
-        )
-    for j, h in enumerate(header):
-        if not h:
-            raise _err(f"header column {j + 1} is empty; every column needs a name", path, first + 1)
-        if header.index(h) != j:
-            raise _err(f"duplicate column name {h!r} in the header", path, first + 1)
 
     def find(name: str) -> int:
-        if name in header:
-            return header.index(name)
-        low = [h.lower() for h in header]
-        if name.lower() in low:
-            return low.index(name.lower())
-        raise _err(f"column {name!r} not found; the header has {header}", path, first + 1)
+        return _csv_column(header, name, path, first + 1)
 
-    if time_col is None:
-        low = [h.lower() for h in header]
-        ti = next((j for j, h in enumerate(low) if h in _TIME_NAMES or h.startswith("time")), 0)
-    else:
-        ti = find(time_col)
     if acc_col is None:
         ai = [j for j in range(len(header)) if j != ti]
     else:
@@ -315,6 +288,52 @@ def read_csv(
         )
         warnings.warn(_located(reason, path, line_of[i + 1], header[ti]), stacklevel=2)
     return Pulse(time=time, acc=acc, channels=channels, source=str(path))
+
+
+def _csv_header(path: Path, lines: list[str], time_col: str | None) -> tuple[int, str, list[str], int]:
+    """The header of a CSV file's ``lines``: its index, the delimiter, the column names, and the time column's
+    index (``time_col``, else the first column named like ``time``, else the first column)."""
+    first = next((i for i, s in enumerate(lines) if s.strip() and not s.lstrip().startswith("#")), None)
+    if first is None:
+        raise _err("expected a header row and samples, found no data", path)
+    delim = _delimiter(lines, first, path)
+    header = [h.strip() for h in next(csv.reader([lines[first]], delimiter=delim))]
+    if all(_is_number(h) for h in header):  # reading it as names would silently drop the first sample
+        raise _err(
+            "expected a header row naming the columns (e.g. 'time,acc'), got only numbers; lines starting with "
+            "'#' are comments (numpy.savetxt comments its header: write it with comments='')",
+            path,
+            first + 1,
+        )
+    for j, h in enumerate(header):
+        if not h:
+            raise _err(f"header column {j + 1} is empty; every column needs a name", path, first + 1)
+        if header.index(h) != j:
+            raise _err(f"duplicate column name {h!r} in the header", path, first + 1)
+    if time_col is None:
+        low = [h.lower() for h in header]
+        ti = next((j for j, h in enumerate(low) if h in _TIME_NAMES or h.startswith("time")), 0)
+    else:
+        ti = _csv_column(header, time_col, path, first + 1)
+    return first, delim, header, ti
+
+
+def _csv_column(header: list[str], name: str, path: Path, line: int) -> int:
+    """The index of column ``name`` in ``header`` (exact, else ignoring case), else a :class:`PulseError`."""
+    if name in header:
+        return header.index(name)
+    low = [h.lower() for h in header]
+    if name.lower() in low:
+        return low.index(name.lower())
+    raise _err(f"column {name!r} not found; the header has {header}", path, line)
+
+
+def _first_acc_column(path: str | Path, time_col: str | None = None) -> str:
+    """The name of a CSV file's first acceleration column: the first column that is not the time column
+    (:func:`read_csv`'s rule), the channel ``marlcrash pulse`` summarizes by default."""
+    path = Path(path)
+    _, _, header, ti = _csv_header(path, _read_text_lines(path), time_col)
+    return header[next(j for j in range(len(header)) if j != ti)]
 
 
 def _read_text_lines(path: Path) -> list[str]:
@@ -794,7 +813,9 @@ def processed_pulse(
         )
     if acc_col is not None:
         kwargs["acc_col"] = acc_col
-    elif mme:  # the first acceleration channel only: others may have their own time base
+    elif not mme:  # the first acceleration column only, as of an ISO-MME test: the others are not read
+        kwargs["acc_col"] = _first_acc_column(p, time_col)
+    else:  # the first acceleration channel only: others may have their own time base
         listed = mme_channels(p)
         k = next((i for i, c in enumerate(listed) if c["acceleration"]), len(listed))
         blind = [c["file"].name for c in listed[:k] if c["unit"] is None]
