@@ -954,3 +954,15 @@ def test_the_pulse_summary_reads_only_the_first_acceleration_column_of_a_csv(tmp
     bad.write_text("time,,acc\n" + GOOD_ROWS)  # the header is checked as before
     with pytest.raises(PulseError, match=r"bad\.csv line 1: header column 2 is empty"):
         pulse_summary(bad)
+
+
+def test_an_iso_mme_number_of_samples_given_as_novalue_is_not_a_count(tmp_path, analytic):
+    """ISO-MME writes ``NOVALUE`` for a value not given (as the reader takes for ``Channel code``); the optional
+    ``Number of samples`` said so was refused as "expected a number, got 'NOVALUE'". It is checked when given."""
+    ch = _mme(tmp_path, analytic)
+    _edit(ch, "Number of samples           :2200", "Number of samples           :NOVALUE")
+    p = read_mme(tmp_path / "B")
+    assert p.n_samples == analytic.n_samples and p.channels == ("tunnel", "radsup")
+    _edit(ch, "Number of samples           :NOVALUE", "Number of samples           :many")
+    with pytest.raises(PulseError, match=r"B\.001 line 8: 'Number of samples': expected a number, got 'many'"):
+        read_mme(tmp_path / "B")

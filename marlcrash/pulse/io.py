@@ -472,7 +472,8 @@ def _read_mme_channel(path: Path) -> dict[str, Any]:
         if not math.isfinite(v):
             raise _err(f"expected a finite sample value, got {s!r}", path, lineno)
         values.append(v)
-    if "number of samples" in header:
+    # optional; NOVALUE is ISO-MME's "not given" (as for 'Channel code')
+    if "number of samples" in header and header["number of samples"][0].upper() != "NOVALUE":
         n_decl = _header_float(path, header, "number of samples")
         if n_decl != int(n_decl) or n_decl < 0:  # 2700.7 was read as 2700
             raise _err(
