@@ -479,3 +479,22 @@ def test_an_invalid_parameter_in_calibrated_npz_is_named_by_file_and_step(tmp_pa
                                           r"the first index is the calibration step") as e:  # fmt: skip
         run_calibration(tmp_path)
     assert e.value.key == "run"
+
+
+def test_bad_seed_batch_and_exact_max_are_refused_naming_the_argument(problem):
+    """A negative or non-integer ``seed``, a ``batch`` below 1 or not an integer and an ``exact_max`` that is not an
+    integer are refused naming the argument: they got numpy's 'expected non-negative integer', 'SeedSequence expects
+    int', torch's "'float' object cannot be interpreted as an integer" or a TypeError of '<=' from inside."""
+    for seed in (-1, 1.5, "0", True):
+        with pytest.raises(ValueError, match=r"^seed: expected an integer seed >= 0"):
+            sampled_shapley(toy_game, 5, 8, seed=seed)
+    for batch in (0, 1.5, "2"):
+        for call in (exact_shapley, one_at_a_time, lambda g, n, batch: sampled_shapley(g, n, 4, batch=batch)):
+            with pytest.raises(ValueError, match=r"^batch: expected a number of coalitions >= 1"):
+                call(toy_game, 3, batch=batch)
+    est = sampled_shapley(toy_game, 5, 8, seed=np.uint64(2**64 - 1), batch=np.int64(3))  # integers of any kind
+    torch.testing.assert_close(est.phi, sampled_shapley(toy_game, 5, 8, seed=2**64 - 1).phi, rtol=0, atol=0)
+    for kwargs, name in (({"exact_max": "3"}, "exact_max"), ({"exact_max": 2.5}, "exact_max"),
+                         ({"exact_max": 0, "seed": -1}, "seed"), ({"batch": 0}, "batch")):  # fmt: skip
+        with pytest.raises(ValueError, match=rf"^{name}: expected"):
+            agent_contributions(problem, problem.init, **kwargs)

@@ -30,9 +30,11 @@ import numpy as np
 import torch
 
 from marlcrash.analysis.shapley import (
-    MAX_EXACT_PLAYERS,
     Attribution,
+    check_batch,
+    check_exact_max,
     check_permutations,
+    check_seed,
     exact_shapley,
     from_table,
     one_at_a_time,
@@ -211,16 +213,17 @@ def agent_contributions(
 
     Raises:
         ValueError: parameters of the wrong shape, non-finite, or changed in cells no agent owns (then no agent
-            can be credited with the change); a bad ``exact_max`` or ``n_permutations``.
+            can be credited with the change); a bad ``exact_max``, ``n_permutations``, ``seed`` or ``batch``
+            (named).
         ModelError: (a :class:`ValueError`) parameters the simulator refuses (``E_x <= 0``, a negative transmission
             factor of an active cell), named ``initial`` or ``calibrated`` and by the cell, before any simulation.
             Also parameters that pass those checks but simulate to a non-finite metric or score, naming the
             quantities and the first coalition that gave one (a guard: since link stiffnesses are clamped, no
             accepted parameters are known to do so; ``E_s`` times 1e200 did before).
     """
-    if not 0 <= exact_max <= MAX_EXACT_PLAYERS:
-        raise ValueError(f"exact_max: expected 0 to {MAX_EXACT_PLAYERS} agents, got {exact_max}")
+    exact_max = check_exact_max(exact_max)
     n_permutations = check_permutations(n_permutations)
+    seed, batch = check_seed(seed), check_batch(batch)  # up front: when nothing moved, neither is used
     init = problem.init if initial is None else _check_params(problem, "initial", initial)
     cal = _check_params(problem, "calibrated", calibrated)
     for name, p in (("initial", init), ("calibrated", cal)):

@@ -81,6 +81,31 @@ def check_permutations(n_permutations: int) -> int:
     return k
 
 
+def check_exact_max(exact_max: int) -> int:
+    """``exact_max`` as an int; :class:`ValueError` naming it unless an integer of 0 to :data:`MAX_EXACT_PLAYERS`
+    (the most moving players whose coalitions are all enumerated)."""
+    k = _integer(exact_max)
+    if k is None or not 0 <= k <= MAX_EXACT_PLAYERS:
+        raise ValueError(f"exact_max: expected an integer of 0 to {MAX_EXACT_PLAYERS} agents, got {exact_max!r}")
+    return k
+
+
+def check_seed(seed: int) -> int:
+    """``seed`` as an int; :class:`ValueError` naming it unless an integer >= 0 (the orderings' generator's seed)."""
+    k = _integer(seed)
+    if k is None or k < 0:
+        raise ValueError(f"seed: expected an integer seed >= 0, got {seed!r}")
+    return k
+
+
+def check_batch(batch: int) -> int:
+    """``batch`` as an int; :class:`ValueError` naming it unless an integer >= 1 (coalitions per call of a game)."""
+    k = _integer(batch)
+    if k is None or k < 1:
+        raise ValueError(f"batch: expected a number of coalitions >= 1 per call of the value function, got {batch!r}")
+    return k
+
+
 def from_table(table: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """Leave-one-out and add-one effects ``[n, Q]`` read from an exact table ``[2**n, Q]`` (:class:`Attribution`)."""
     n = round(math.log2(table.shape[0]))
@@ -97,8 +122,7 @@ def evaluate(value: ValueFn, masks: torch.Tensor, batch: int) -> torch.Tensor:
     Raises:
         ValueError: a bad batch size, or a value function that returns another number of rows or a non-2D tensor.
     """
-    if batch < 1:
-        raise ValueError(f"expected a batch of at least 1 coalition, got {batch}")
+    batch = check_batch(batch)
     out = []
     for i in range(0, masks.shape[0], batch):
         chunk = masks[i : i + batch]
@@ -121,9 +145,10 @@ def exact_shapley(value: ValueFn, n: int, *, batch: int = 256) -> Attribution:
     """Shapley values from all ``2**n`` coalitions (``n <= MAX_EXACT_PLAYERS``).
 
     Raises:
-        ValueError: ``n`` outside ``[1, MAX_EXACT_PLAYERS]``.
+        ValueError: ``n`` outside ``[1, MAX_EXACT_PLAYERS]``, or ``batch`` not an integer >= 1.
     """
     n = _check_players(n)
+    batch = check_batch(batch)
     if n > MAX_EXACT_PLAYERS:
         raise ValueError(f"exact Shapley values of {n} players need 2**{n} coalitions; at most {MAX_EXACT_PLAYERS} "
                          "players are enumerated (use sampled_shapley)")  # fmt: skip
@@ -156,10 +181,12 @@ def sampled_shapley(value: ValueFn, n: int, n_permutations: int, *, seed: int = 
         The estimates and their standard errors (over the antithetic pairs' means).
 
     Raises:
-        ValueError: fewer than 4 or an odd number of orderings.
+        ValueError: fewer than 4 or an odd number of orderings, a ``seed`` that is not an integer >= 0, or a
+            ``batch`` that is not an integer >= 1.
     """
     n = _check_players(n)
     n_permutations = check_permutations(n_permutations)
+    seed, batch = check_seed(seed), check_batch(batch)
     rng = np.random.default_rng(seed)
     half = np.stack([rng.permutation(n) for _ in range(n_permutations // 2)])
     perms = np.concatenate([half, half[:, ::-1]])  # [P, n]: pair p is rows p and p + P/2
@@ -187,8 +214,12 @@ def one_at_a_time(value: ValueFn, n: int, *, batch: int = 256) -> tuple[torch.Te
     Returns:
         ``(leave_one_out [n, Q], add_one [n, Q], values of (empty, full) [2, Q])``: ``v(N) - v(N - i)`` and
         ``v({i}) - v({})``.
+
+    Raises:
+        ValueError: ``n`` not an integer >= 1, or ``batch`` not an integer >= 1.
     """
     n = _check_players(n)
+    batch = check_batch(batch)
     eye = torch.eye(n, dtype=torch.bool)
     masks = torch.cat([torch.zeros(1, n, dtype=torch.bool), torch.ones(1, n, dtype=torch.bool), ~eye, eye])
     v = evaluate(value, masks, batch)
