@@ -498,3 +498,43 @@ def test_bad_seed_batch_and_exact_max_are_refused_naming_the_argument(problem):
                          ({"exact_max": 0, "seed": -1}, "seed"), ({"batch": 0}, "batch")):  # fmt: skip
         with pytest.raises(ValueError, match=rf"^{name}: expected"):
             agent_contributions(problem, problem.init, **kwargs)
+
+
+def test_tables_and_plots_give_each_quantitys_unit(problem, tmp_path, monkeypatch):
+    """Areas are in m, DFD and RMSE in m/s (the project's convention: DFD of (t [s], v [m/s]) points), the score has
+    none: the Markdown tables, the CSV and both pictures said no unit at all (bars without an axis label, a colour
+    bar of an area in no unit), and the module docstring called the DFD dimensionless."""
+    import csv
+
+    import matplotlib.figure
+
+    from marlcrash.analysis.contributions import quantity_unit
+
+    assert [quantity_unit(q) for q in ("area/tunnel", "dfd/upfront_left", "rmse/tunnel", "score")] == [
+        "m", "m/s", "m/s", "-"
+    ]  # fmt: skip
+    with pytest.raises(ValueError, match="unknown quantity 'energy/tunnel'"):
+        quantity_unit("energy/tunnel")
+    calibrated, _ = _three_agents_at_the_truth(problem)
+    c = agent_contributions(problem, calibrated)
+    assert c.markdown("area/tunnel").startswith("area/tunnel [m]: ")
+    assert c.markdown("rmse/upfront_left").startswith("rmse/upfront_left [m/s]: ")
+    assert c.markdown("score").startswith("score [-]: ")
+    rows = list(csv.DictReader(c.write_csv(tmp_path / "c.csv").open()))
+    assert {(r["quantity"], r["unit"]) for r in rows if r["quantity"] in ("dfd/tunnel", "score")} == {
+        ("dfd/tunnel", "m/s"), ("score", "-")
+    }  # fmt: skip
+    labels: list[str] = []
+    real = matplotlib.figure.Figure.savefig
+
+    def record(fig, *args, **kwargs):  # every axis label and colour-bar label of the saved figure
+        labels.extend(ax.get_xlabel() for ax in fig.axes)
+        labels.extend(ax.get_ylabel() for ax in fig.axes)
+        return real(fig, *args, **kwargs)
+
+    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", record)
+    plot_contributions(c, tmp_path / "bars.png", quantities=["score", "area/tunnel", "dfd/tunnel"])
+    assert {"contribution [-]", "contribution [m]", "contribution [m/s]"} <= set(labels), labels
+    labels.clear()
+    plot_cells_by_contribution(problem, c, tmp_path / "3d.png", quantity="area/tunnel")
+    assert any(lab.endswith("-area/tunnel [m] (> 0 improves)") for lab in labels), labels

@@ -3,8 +3,8 @@
 A calibration moves the cell parameters from ``initial`` to ``calibrated``; every agent owns some cells. The
 game: a coalition ``S`` of agents is the parameter set with the cells of the agents in ``S`` at their
 calibrated values and every other cell at its initial one; its value is every metric of every sensor
-(area [m], DFD [-] on (s, m/s) points, RMSE [m/s] against the problem's reference, as the evaluation computes
-them) and the fit score (higher is better), all from one batched simulation of the coalitions. Then:
+(area [m], DFD [m/s] of the (t [s], v [m/s]) curves, RMSE [m/s] against the problem's reference, as the evaluation
+computes them) and the fit score [-] (higher is better), all from one batched simulation of the coalitions. Then:
 
 - Shapley values (:mod:`marlcrash.analysis.shapley`): exact for up to ``exact_max`` moving agents, sampled
   orderings otherwise. They add up to the whole calibration's change of each quantity, split fairly over
@@ -46,6 +46,8 @@ from marlcrash.errors import ConfigError, ModelError
 from marlcrash.outputs import atomic_output, read_npz, write_text
 
 METRICS = ("area", "dfd", "rmse")
+UNITS = {"area": "m", "dfd": "m/s", "rmse": "m/s", "score": "-"}
+"""Unit of each metric and of the score (DFD: of the (t [s], v [m/s]) curves, as the evaluation's tables say)."""
 MOVE_RTOL = 1e-6
 """A cell parameter counts as moved when it differs from the initial one by more than this relative amount: a run
 simulated in float32 stores parameters rounded at about 6e-8 (its unowned cells must not look moved)."""
@@ -110,9 +112,10 @@ class Contributions:
         return sorted(rows, key=lambda r: sign * r[1])
 
     def rows(self) -> list[dict[str, object]]:
-        """One row per agent and quantity: ``agent, quantity, shapley, shapley_stderr, leave_one_out, add_one``."""
+        """One row per agent and quantity: ``agent, quantity, unit, shapley, shapley_stderr, leave_one_out,
+        add_one`` (the values in the quantity's unit, :func:`quantity_unit`)."""
         return [
-            {"agent": a, "quantity": q, "shapley": float(self.shapley[i, j]),
+            {"agent": a, "quantity": q, "unit": quantity_unit(q), "shapley": float(self.shapley[i, j]),
              "shapley_stderr": float(self.shapley_stderr[i, j]), "leave_one_out": float(self.leave_one_out[i, j]),
              "add_one": float(self.add_one[i, j])}
             for i, a in enumerate(self.agents) for j, q in enumerate(self.quantities)
@@ -128,11 +131,12 @@ class Contributions:
         return Path(path)
 
     def markdown(self, quantity: str = "score") -> str:
-        """A Markdown table of one quantity: the moving agents' contributions, largest improvement first."""
+        """A Markdown table of one quantity (its unit in brackets): the moving agents' contributions, largest
+        improvement first."""
         j = self.column(quantity)
         how = "exact" if self.exact else "sampled, ± one standard error"
         lines = [
-            f"{quantity}: {float(self.initial[j]):.6g} -> {float(self.calibrated[j]):.6g} "
+            f"{quantity} [{quantity_unit(quantity)}]: {float(self.initial[j]):.6g} -> {float(self.calibrated[j]):.6g} "
             f"(Shapley values {how}; {self.n_simulations} simulations)",
             "",
             "| agent | Shapley | leave-one-out | add-one |",
@@ -156,6 +160,16 @@ class Contributions:
 def quantity_names(sensors: list[str]) -> list[str]:
     """``<metric>/<sensor>`` for every metric and sensor, then ``score`` (the columns of :class:`Contributions`)."""
     return [f"{m}/{s}" for m in METRICS for s in sensors] + ["score"]
+
+
+def quantity_unit(quantity: str) -> str:
+    """Unit of a quantity of :func:`quantity_names` (``m`` for ``area/<sensor>``, ``m/s`` for DFD and RMSE, ``-``
+    for ``score``); :class:`ValueError` naming an unknown one."""
+    metric = quantity.split("/", 1)[0] if quantity.count("/") == 1 else quantity
+    if metric not in UNITS or (metric == "score") != (quantity == "score"):
+        raise ValueError(f"unknown quantity {quantity!r}; expected <metric>/<sensor> with a metric of {METRICS}, "
+                         "or score")  # fmt: skip
+    return UNITS[metric]
 
 
 def _check_params(problem: CalibrationProblem, name: str, p: torch.Tensor | np.ndarray) -> torch.Tensor:

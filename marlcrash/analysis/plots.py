@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from marlcrash.analysis.contributions import Contributions
+from marlcrash.analysis.contributions import Contributions, quantity_unit
 from marlcrash.calibrate.problem import CalibrationProblem
 from marlcrash.outputs import atomic_output
 
@@ -22,7 +22,7 @@ def _figure_out(fig, path: str | Path) -> Path:
 
 def plot_contributions(contrib: Contributions, path: str | Path, quantities: list[str] | None = None) -> Path:
     """Horizontal bars of the moving agents' Shapley values (with standard errors when sampled) and the
-    leave-one-out effects, one panel per quantity (default: ``score`` and every sensor's area).
+    leave-one-out effects, one panel per quantity (default: ``score`` and every sensor's area), each in its unit.
 
     Raises:
         ValueError: an empty list of quantities or an unknown one (:meth:`Contributions.selected`).
@@ -49,6 +49,7 @@ def plot_contributions(contrib: Contributions, path: str | Path, quantities: lis
         change = float(contrib.calibrated[j] - contrib.initial[j])
         ax.set_title(f"{q}\n{float(contrib.initial[j]):.4g} -> {float(contrib.calibrated[j]):.4g} ({change:+.3g})",
                      fontsize=9)  # fmt: skip
+        ax.set_xlabel(f"contribution [{quantity_unit(q)}]", fontsize=8)
         ax.grid(axis="x", alpha=0.3)
     axes[0, 0].set_yticks(y, agents, fontsize=8)
     axes[0, 0].invert_yaxis()
@@ -99,6 +100,8 @@ def plot_cells_by_contribution(
     ax.set_box_aspect(np.ptp(xyz, axis=0) + 1e-3)
     ax.view_init(elev=25, azim=-125)
     what = "score" if quantity == "score" else f"-{quantity}"
-    fig.colorbar(sc, ax=ax, shrink=0.6, label=f"agent's Shapley value of {what} (> 0 improves)")
+    fig.colorbar(
+        sc, ax=ax, shrink=0.6, label=f"agent's Shapley value of {what} [{quantity_unit(quantity)}] (> 0 improves)"
+    )
     ax.set_title(f"cells coloured by their agent's contribution to {quantity}", fontsize=10)
     return _figure_out(fig, path)
