@@ -538,3 +538,17 @@ def test_tables_and_plots_give_each_quantitys_unit(problem, tmp_path, monkeypatc
     labels.clear()
     plot_cells_by_contribution(problem, c, tmp_path / "3d.png", quantity="area/tunnel")
     assert any(lab.endswith("-area/tunnel [m] (> 0 improves)") for lab in labels), labels
+
+
+def test_agent_changes_refuse_parameters_whose_log_factor_is_not_a_number(problem):
+    """A non-finite, zero or negative ``E_x`` or ``E_s`` of an owned cell is refused naming ``params``, the step and
+    the cell (the simulator's check, as :func:`agent_contributions` names its arrays): the table of mean log factors
+    held a silent NaN or -inf for that agent."""
+    cell = int(torch.nonzero(problem.layout.agent_of_cell >= 0)[0])
+    for value in (float("nan"), 0.0, -1.0):
+        p = torch.stack([problem.init, problem.init.clone()])
+        p[1, cell, 1] = value
+        with pytest.raises(ModelError, match=rf"^params: params\[1, {cell}, 1\] \(E_s\) of active cell {cell}"):
+            agent_changes(problem, p)
+    torch.testing.assert_close(torch.as_tensor(agent_changes(problem, problem.init)["E_s"]),
+                               torch.zeros(1, problem.n_agents, dtype=torch.float64), rtol=0, atol=0)  # fmt: skip

@@ -317,12 +317,21 @@ def agent_changes(problem: CalibrationProblem, params: torch.Tensor | np.ndarray
         (``log(E / E0)``, 0.1 = +10.5 %); ``"transmission"``: ``[I, A]`` mean share of load moved to other
         directions (half the L1 change of a cell's five factors, 0 to 1); ``"step"``: ``[I, A]`` the root mean
         square log change of ``E_x, E_s`` from the previous iteration (0 for the first).
+
+    Raises:
+        ValueError: ``params`` of another shape.
+        ModelError: (a :class:`ValueError`) parameters the simulator refuses (non-finite, ``E_x`` or ``E_s <= 0``, a
+            negative transmission factor of an active cell), named by iteration and cell.
     """
     p = torch.as_tensor(np.asarray(params), dtype=torch.float64)
     if p.dim() == 2:
         p = p[None]
     if p.dim() != 3 or tuple(p.shape[1:]) != tuple(problem.init.shape):
         raise ValueError(f"params: expected [iterations, {problem.init.shape[0]}, 7], got {tuple(p.shape)}")
+    try:  # the simulator's check: a log factor of E <= 0 or NaN would be a silent NaN or -inf in the table
+        problem.sim.check_params(p)
+    except ModelError as e:
+        raise ModelError(f"params: {e} (the first index is the iteration)") from None
     agent = problem.layout.agent_of_cell
     owned = agent >= 0
     A = problem.n_agents
