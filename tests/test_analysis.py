@@ -552,3 +552,18 @@ def test_agent_changes_refuse_parameters_whose_log_factor_is_not_a_number(proble
             agent_changes(problem, p)
     torch.testing.assert_close(torch.as_tensor(agent_changes(problem, problem.init)["E_s"]),
                                torch.zeros(1, problem.n_agents, dtype=torch.float64), rtol=0, atol=0)  # fmt: skip
+
+
+def test_coalition_params_names_parameters_of_the_wrong_shape(problem):
+    """``initial`` and ``calibrated`` are ``[n_cells, 7]`` (a tensor or an array, as :func:`agent_contributions`
+    takes them): another shape got torch's 'The size of tensor a (518) must match ...' from inside ``where``, and a
+    numpy array a TypeError listing ``where``'s overloads."""
+    members = torch.ones(2, problem.n_agents, dtype=torch.bool)
+    want = coalition_params(problem, problem.init, problem.true_params, members)
+    got = coalition_params(problem, problem.init.numpy(), problem.true_params.numpy(), members)
+    torch.testing.assert_close(got, want, rtol=0, atol=0)
+    n = problem.init.shape[0]
+    with pytest.raises(ValueError, match=rf"^calibrated: expected cell parameters of shape \({n}, 7\), got \(5, 7\)"):
+        coalition_params(problem, problem.init, problem.true_params[:5], members)
+    with pytest.raises(ValueError, match=rf"^initial: expected cell parameters of shape \({n}, 7\), got \(1, {n}, 7\)"):
+        coalition_params(problem, problem.init[None], problem.true_params, members)

@@ -183,13 +183,18 @@ def _check_params(problem: CalibrationProblem, name: str, p: torch.Tensor | np.n
 
 
 def coalition_params(
-    problem: CalibrationProblem, initial: torch.Tensor, calibrated: torch.Tensor, members: torch.Tensor
+    problem: CalibrationProblem,
+    initial: torch.Tensor | np.ndarray,
+    calibrated: torch.Tensor | np.ndarray,
+    members: torch.Tensor,
 ) -> torch.Tensor:
-    """Cell parameters ``[C, n_cells, 7]`` of coalitions ``members [C, A]`` (bool over every agent).
+    """Cell parameters ``[C, n_cells, 7]`` (float64) of coalitions ``members [C, A]`` (bool over every agent).
 
     Raises:
-        ValueError: ``members`` not bool ``[C, A]`` with one column per agent of the layout.
+        ValueError: ``initial`` or ``calibrated`` not finite ``[n_cells, 7]``, or ``members`` not bool ``[C, A]``
+            with one column per agent of the layout.
     """
+    initial, calibrated = _check_params(problem, "initial", initial), _check_params(problem, "calibrated", calibrated)
     shape_ok = isinstance(members, torch.Tensor) and members.dim() == 2 and members.shape[1] == problem.n_agents
     if not shape_ok or members.dtype != torch.bool:
         got = f"{members.dtype} {list(members.shape)}" if isinstance(members, torch.Tensor) else type(members).__name__
