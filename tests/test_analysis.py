@@ -84,6 +84,27 @@ def test_sampled_shapley_is_efficient_unbiased_and_exact_on_additive_games():
     torch.testing.assert_close(again.phi, est.phi, rtol=0, atol=0)  # seeded
 
 
+def glove_game(masks: torch.Tensor) -> torch.Tensor:
+    """Players 0 and 1 hold left gloves, 2 and 3 right ones (a pair is worth 1), player 4 holds nothing."""
+    m = masks.to(torch.float64)
+    return torch.minimum(m[:, :2].sum(1), m[:, 2:4].sum(1))[:, None]
+
+
+def test_shapley_axioms_symmetry_and_null_player_exact_and_sampled():
+    """Symmetric players get equal values, a null player exactly zero (no sampling error either), and the values
+    add up; different seeds draw other orderings (other estimates of a game with three-way interactions), the same
+    seed the same ones."""
+    exact = exact_shapley(glove_game, 5)
+    np.testing.assert_allclose(exact.phi[:, 0].numpy(), [0.5, 0.5, 0.5, 0.5, 0.0], rtol=0, atol=1e-12)
+    for seed in (0, 1):
+        est = sampled_shapley(glove_game, 5, 6, seed=seed)
+        assert float(est.phi[4, 0]) == 0.0 and float(est.stderr[4, 0]) == 0.0  # null player
+        assert float(est.phi.sum()) == pytest.approx(2.0, abs=1e-12)  # v(N) - v({}) = 2 pairs
+    a, b = sampled_shapley(toy_game, 5, 6, seed=0), sampled_shapley(toy_game, 5, 6, seed=1)
+    assert not torch.equal(a.phi[:, 0], b.phi[:, 0])
+    torch.testing.assert_close(sampled_shapley(toy_game, 5, 6, seed=1).phi, b.phi, rtol=0, atol=0)
+
+
 def test_one_at_a_time_effects_and_bad_arguments():
     loo, add, ends = one_at_a_time(toy_game, 5)
     full, empty = toy_game(torch.ones(1, 5, dtype=torch.bool))[0], toy_game(torch.zeros(1, 5, dtype=torch.bool))[0]
