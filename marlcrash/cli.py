@@ -305,9 +305,9 @@ def cmd_pulse(args: argparse.Namespace) -> int:
         plot_pulse(shift_time(work, t0), args.plot, title=Path(args.file).name)
         summary["plot"] = str(args.plot)
     if args.cfc:
-        from marlcrash.pulse.cfc import f_h
+        from marlcrash.pulse.cfc import f_n
 
-        settle = 2.0 / f_h(args.cfc)  # two periods of the -3 dB frequency: 20 ms for CFC 60
+        settle = 2.0 / f_n(args.cfc)  # two periods of the -3 dB frequency: 20 ms for CFC 60
         after = work.time[-1] - t0
         if after < settle:
             print(

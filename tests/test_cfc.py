@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 import pytest
@@ -10,7 +11,7 @@ import scipy.signal
 import torch
 
 from marlcrash.errors import ConfigError, PulseError
-from marlcrash.pulse.cfc import CFC_CLASSES, cfc_coefficients, cfc_filter, cfc_filter_torch, cfc_matrix, f_h
+from marlcrash.pulse.cfc import CFC_CLASSES, cfc_coefficients, cfc_filter, cfc_filter_torch, cfc_matrix, f_h, f_n
 
 
 def j211_coefficients(cfc: float, T: float) -> tuple[float, float, float, float, float]:
@@ -73,23 +74,25 @@ def _gain_db(cfc: int, fs: float, n: int = 2**16) -> tuple[np.ndarray, np.ndarra
 
 
 @pytest.mark.parametrize("cfc", CFC_CLASSES)
-def test_minus_3db_at_f_h_and_flat_passband(cfc):
+def test_minus_3db_at_f_n_and_flat_passband_to_f_h(cfc):
     fs = 50_000.0
     f, g, h = _gain_db(cfc, fs)
     i = int(np.argmax(g < -3.0))
     f3 = f[i - 1] + (-3.0 - g[i - 1]) / (g[i] - g[i - 1]) * (f[i] - f[i - 1])
-    assert f_h(cfc) == pytest.approx(5 / 3 * cfc)
-    assert f3 == pytest.approx(f_h(cfc), rel=5e-3)  # J211: F_H = 100 Hz for CFC 60 at -3 dB
-    band = f <= cfc
+    # J211's table: F_H (passband edge) is the class; F_N (-3 dB) 100, 300, 1000, 1650 Hz (1667 rounded)
+    assert f_h(cfc) == cfc
+    assert f_n(cfc) == pytest.approx({60: 100, 180: 300, 600: 1000, 1000: 1650}[cfc], rel=0.011)
+    assert f3 == pytest.approx(f_n(cfc), rel=5e-3)
+    band = f <= f_h(cfc)
     assert g[band].max() <= 0.5 and g[band].min() >= -1.0  # J211 passband corridor +0.5 / -1 dB
-    # 4 poles: -24 dB/octave far above F_H, about -48 dB two octaves above the design frequency
+    # 4 poles: -24 dB/octave far above F_N, about -48 dB two octaves above the design frequency
     assert g[np.searchsorted(f, 8 * 2.0775 * cfc)] < -45.0
     # zero phase: the impulse response is symmetric about the impulse
     n = len(h)
     np.testing.assert_allclose(h[n // 2 + 1 : n // 2 + 2000], h[n // 2 - 1 : n // 2 - 2000 : -1], atol=1e-13)
 
 
-def test_cfc60_f_h_is_100_hz_at_10_khz():
+def test_cfc60_f_n_is_100_hz_at_10_khz():
     f, g, _ = _gain_db(60, 10_000.0)
     i = int(np.argmax(g < -3.0))
     f3 = f[i - 1] + (-3.0 - g[i - 1]) / (g[i] - g[i - 1]) * (f[i] - f[i - 1])
@@ -190,8 +193,21 @@ def test_bad_inputs():
         cfc_filter(np.array([0.0, np.nan, 1.0, 2.0]), 1e-4, 60)
     with pytest.raises(PulseError, match="positive"):
         cfc_filter(np.zeros(10), -1.0, 60)
-    with pytest.warns(UserWarning, match="10 x F_H"):
-        cfc_coefficients(60, 1 / 800.0)
+    with pytest.warns(UserWarning, match="10 x F_H = 600 Hz"):
+        cfc_coefficients(60, 1 / 500.0)
+
+
+@pytest.mark.parametrize("cfc", CFC_CLASSES)
+def test_sampling_at_ten_times_the_class_keeps_the_j211_corridor_and_does_not_warn(cfc):
+    """The sampling-rate note fires below 10 x F_H = 10 x CFC (10 kHz for CFC 1000, the customary rate). It fired
+    below 10 x 5/3 CFC (the -3 dB frequency mislabelled F_H): every CFC 1000 record at 10 kHz got it."""
+    fs = 10.0 * cfc
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        f, g, _ = _gain_db(cfc, fs)
+    band = f <= f_h(cfc)
+    assert g[band].max() <= 0.5 and g[band].min() >= -1.0  # J211 passband corridor +0.5 / -1 dB up to F_H
+    assert -4.0 < np.interp(f_n(cfc), f, g) < -2.0  # -3 dB at F_N within 1 dB (-2.45 dB: the bilinear warp)
 
 
 @pytest.mark.parametrize("pad_time", [float("nan"), float("inf"), -0.001, "10 ms"])

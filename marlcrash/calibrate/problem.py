@@ -70,7 +70,7 @@ from marlcrash.envs.core import (
 from marlcrash.envs.masking import ImpactRegions
 from marlcrash.errors import ConfigError, ModelError
 from marlcrash.metrics import Metrics, area_between, compute_metrics, rmse
-from marlcrash.pulse.cfc import f_h
+from marlcrash.pulse.cfc import f_n
 from marlcrash.pulse.signal import DEFAULT_COMPARE_MARGIN, compared_velocity, compared_window, margin_samples
 from marlcrash.references import ReferenceBatch, ReferenceSampler, require_file_scenario
 from marlcrash.reward import Reward, TerminationConfig, load_reward_config, require_reward, termination
@@ -635,9 +635,9 @@ def build_problem(config: ProblemConfig, cells: CellModel | None = None) -> Cali
                 key="problem.duration",
             )
         cfc = env.reference.compare_cfc
-        if cfc is not None and config.duration < 1.0 / f_h(cfc) - 1e-12:  # as filter_pulse asks of a record
+        if cfc is not None and config.duration < 1.0 / f_n(cfc) - 1e-12:  # as filter_pulse asks of a record
             raise ConfigError(
-                f"expected a window of at least {1.0 / f_h(cfc)} s, one period of the {f_h(cfc):.0f} Hz -3 dB "
+                f"expected a window of at least {1.0 / f_n(cfc)} s, one period of the {f_n(cfc):.0f} Hz -3 dB "
                 f"frequency of the compared signal's CFC {cfc} (reference.compare_cfc), got {config.duration}",
                 key="problem.duration",
             )

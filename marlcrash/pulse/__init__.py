@@ -5,7 +5,7 @@ vehicle's forward speed and acceleration its derivative, so a frontal crash
 pulse is negative.
 """
 
-from marlcrash.pulse.cfc import CFC_CLASSES, cfc_coefficients, cfc_filter, cfc_filter_torch, cfc_matrix, f_h
+from marlcrash.pulse.cfc import CFC_CLASSES, cfc_coefficients, cfc_filter, cfc_filter_torch, cfc_matrix, f_h, f_n
 from marlcrash.pulse.io import (
     mme_channels,
     plot_pulse,
@@ -51,6 +51,7 @@ __all__ = [
     "compared_velocity",
     "compared_window",
     "f_h",
+    "f_n",
     "filter_pulse",
     "find_onset",
     "find_time_zero",

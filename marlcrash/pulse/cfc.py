@@ -10,8 +10,10 @@ recursion
 
 with ``a0 = wa^2/(1+sqrt(2)*wa+wa^2)``, ``a1 = 2*a0``, ``a2 = a0``,
 ``b1 = -2*(wa^2-1)/(1+sqrt(2)*wa+wa^2)``, ``b2 = (-1+sqrt(2)*wa-wa^2)/(1+sqrt(2)*wa+wa^2)``.
-Run twice, the magnitude is squared: the -3 dB point ``F_H`` lies at
-``2.0775*C*(sqrt(2)-1)^(1/4) = 5/3*C`` (100 Hz for CFC 60) and the phase is zero.
+Run twice, the magnitude is squared: the -3 dB point lies at
+``2.0775*C*(sqrt(2)-1)^(1/4) = 5/3*C`` (100 Hz for CFC 60; J211's ``F_N``, whose table rounds
+CFC 1000's to 1650 Hz) and the phase is zero. J211's ``F_H`` is the passband's upper edge, the class
+itself (60 Hz for CFC 60), where the gain stays within +0.5 / -1 dB.
 
 End handling (a documented choice; J211 asks that start-up transients be kept
 out of the data): before filtering, each end is padded with ``pad_time``
@@ -59,7 +61,14 @@ def check_cfc(cfc: int) -> int:
 
 
 def f_h(cfc: int) -> float:
-    """The J211 -3 dB frequency ``F_H = 5/3 * CFC`` [Hz] (100 Hz for CFC 60)."""
+    """J211's ``F_H`` [Hz], the upper edge of the passband (gain within +0.5 / -1 dB): the class itself (60 Hz for
+    CFC 60). The -3 dB frequency is :func:`f_n`."""
+    return float(check_cfc(cfc))
+
+
+def f_n(cfc: int) -> float:
+    """J211's ``F_N`` [Hz], the -3 dB frequency of the CFC filter: ``5/3 * CFC`` (100 Hz for CFC 60; J211's table
+    rounds CFC 1000's 1667 Hz to 1650)."""
     return 5.0 / 3.0 * check_cfc(cfc)
 
 
@@ -72,10 +81,10 @@ def _check_dt(dt: float, cfc: int) -> float:
             f"CFC {cfc} needs a sampling rate above {2 * fd:.0f} Hz (its design frequency {fd:.1f} Hz "
             f"must lie below Nyquist); got {1 / dt:.1f} Hz"
         )
-    if 1.0 / dt < 10.0 * f_h(cfc):
+    if 1.0 / dt < 10.0 * f_h(cfc):  # the customary minimum: 10 kHz for CFC 1000
         warnings.warn(
             f"sampling rate {1 / dt:.0f} Hz is below 10 x F_H = {10 * f_h(cfc):.0f} Hz for CFC {cfc}; the filter's "
-            f"response departs from the analog J211 corridor as F_H nears Nyquist",
+            f"response departs from the analog J211 corridor as its -3 dB frequency nears Nyquist",
             stacklevel=3,
         )
     return float(dt)

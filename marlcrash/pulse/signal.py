@@ -51,7 +51,7 @@ from marlcrash.pulse.cfc import (
     cfc_filter,
     cfc_filter_torch,
     check_cfc,
-    f_h,
+    f_n,
 )
 from marlcrash.units import G0
 
@@ -326,10 +326,10 @@ def filter_pulse(pulse: Pulse, cfc: int = 60, pad_time: float = DEFAULT_PAD_TIME
     """
     cfc = check_cfc(cfc)
     span = pulse.n_samples * pulse.dt
-    if span < 1.0 / f_h(cfc):
+    if span < 1.0 / f_n(cfc):
         raise PulseError(
             f"{pulse.source or 'pulse'}: a record of {span * 1e3:.3g} ms is too short for CFC {cfc}; expected at "
-            f"least {1e3 / f_h(cfc):.3g} ms (one period of its {f_h(cfc):.0f} Hz -3 dB frequency)"
+            f"least {1e3 / f_n(cfc):.3g} ms (one period of its {f_n(cfc):.0f} Hz -3 dB frequency)"
         )
     if not pulse.is_uniform:
         raise PulseError(
@@ -590,7 +590,7 @@ def _channel_onset(
             continue
         end = _first_crossing(t, y, top, i_from)
         if end is not None:
-            t_end = max(end[1] + (0.0 if c is None else 0.25 / f_h(c)), t_cross)
+            t_end = max(end[1] + (0.0 if c is None else 0.25 / f_n(c)), t_cross)
             break
     j = min(t.size, int(np.searchsorted(t, t_end, side="right")) + 2)  # and two samples on
     i = n_lead if quiet is not None else 0  # a measured zero level is fitted along; else 0, the lead-in known
