@@ -544,3 +544,54 @@ def test_cross_fidelity_benchmark_prints_its_rows_as_json():
     assert by["env config"]["to_fine_rmse"] == 0.0  # the "finer" pair given is the env config's own
     assert by["sim.yaml"]["added_kg"] > 20 * by["env config"]["added_kg"] and by["sim.yaml"]["to_fine_rmse"] > 0.5
     assert all(len(r["gap_rmse"]) == 3 for r in got["rows"])
+
+
+@pytest.mark.parametrize("dt", [0.0, -5e-4, float("nan"), float("inf"), "5e-4", None, True])
+def test_the_compared_signal_refuses_a_step_that_is_not_a_positive_number_of_seconds(dt):
+    """A step of 0 raised ZeroDivisionError, a negative one torch's 'negative dimension', NaN 'cannot convert float
+    NaN to integer'; sampled_acceleration returned inf for 0. Each now names dt and what was expected."""
+    from marlcrash.pulse.signal import sampled_acceleration
+
+    v = 10.0 - torch.cumsum(torch.rand(2, 60, dtype=torch.float64), -1) * 0.1
+    for call in (lambda: compared_velocity(v, dt, 60), lambda: sampled_acceleration(v, dt),
+                 lambda: compared_window(v[None], dt, 60, 40, 5)):  # fmt: skip
+        with pytest.raises(PulseError, match=r"dt > 0 \[s\]"):
+            call()
+
+
+def test_the_compared_signal_takes_a_step_given_as_a_tensor_or_numpy_number():
+    """``result.time[1] - result.time[0]`` is a 0-d tensor: it raised "type Tensor doesn't define __round__"."""
+    v = 10.0 - torch.cumsum(torch.rand(2, 60, dtype=torch.float64), -1) * 0.1
+    want = compared_velocity(v, 5e-4, 60)
+    torch.testing.assert_close(compared_velocity(v, torch.tensor(5e-4, dtype=torch.float64), 60), want, rtol=0, atol=0)
+    torch.testing.assert_close(compared_velocity(v, np.float64(5e-4), 60), want, rtol=0, atol=0)
+
+
+def test_the_compared_signal_names_the_velocity_it_expected():
+    """A 0-d tensor raised IndexError from deep inside, a numpy array torch's "expected Tensor as element 0"."""
+    from marlcrash.pulse.signal import sampled_acceleration
+
+    for call in (compared_velocity, sampled_acceleration):
+        with pytest.raises(PulseError, match=r"expected velocity as a \[\.\.\., T\] tensor.*got a scalar"):
+            call(torch.tensor(11.0), 5e-4)
+        with pytest.raises(PulseError, match=r"expected velocity as a \[\.\.\., T\] tensor.*got ndarray"):
+            call(np.full(60, 11.0), 5e-4)
+    with pytest.raises(PulseError, match=r"expected real velocity.*complex"):
+        compared_velocity(torch.ones(60, dtype=torch.complex128), 5e-4)
+
+
+@pytest.mark.parametrize("n", [0, -3, 2.5, True, "40"])
+def test_compared_window_refuses_a_window_that_is_not_a_whole_number_of_samples(n):
+    """``n = -3`` returned 24 of 30 samples (a slice from the end), ``n = 0`` named the acceleration's 2 samples."""
+    v = 10.0 - torch.cumsum(torch.rand(2, 1, 30, dtype=torch.float64), -1) * 0.1
+    with pytest.raises(PulseError, match=r"expected the window n as a whole number of samples >= 1"):
+        compared_window(v, 5e-4, 60, n)
+
+
+@pytest.mark.parametrize("margin", [2.5, True, torch.tensor([1.0, 2.0]), [0.5, 1]])
+def test_compared_window_refuses_margins_that_are_not_whole_numbers_of_samples(margin):
+    """A margin of 2.5 was cut to 2 samples (and True taken as 1) without a word."""
+    v = 10.0 - torch.cumsum(torch.rand(2, 1, 30, dtype=torch.float64), -1) * 0.1
+    with pytest.raises(PulseError, match=r"expected margins as whole numbers of samples"):
+        compared_window(v, 5e-4, 60, 20, margin)
+    torch.testing.assert_close(compared_window(v, 5e-4, 60, 20, np.int64(2)), compared_window(v, 5e-4, 60, 20, 2))

@@ -201,6 +201,31 @@ def integrate_torch(acc: torch.Tensor, dt: float, v0: float | torch.Tensor = 0.0
     return torch.cat([zero, torch.cumsum(inc, dim=-1)], dim=-1) + v0.unsqueeze(-1)
 
 
+def _check_step(dt: object) -> float:
+    """``dt`` as seconds: a finite number > 0 (a Python or numpy number, or a one-element tensor)."""
+    try:
+        step = math.nan if isinstance(dt, bool | str) else float(dt)  # a bool or text is no step
+    except (TypeError, ValueError, RuntimeError):
+        step = math.nan
+    if not (math.isfinite(step) and step > 0):
+        raise PulseError(f"expected a finite sampling interval dt > 0 [s], got {dt!r}")
+    return step
+
+
+def _check_velocity(velocity: object) -> torch.Tensor:
+    """``velocity`` as it may be differentiated: a real tensor with a time axis ``[..., T]``."""
+    if not isinstance(velocity, torch.Tensor):
+        raise PulseError(
+            f"expected velocity as a [..., T] tensor [m/s] (e.g. SimResult.velocity), got {type(velocity).__name__}; "
+            "convert it with torch.as_tensor"
+        )
+    if velocity.dim() == 0:
+        raise PulseError("expected velocity as a [..., T] tensor [m/s] (e.g. SimResult.velocity), got a scalar")
+    if velocity.is_complex():
+        raise PulseError(f"expected real velocity samples [m/s], got {velocity.dtype}")
+    return velocity
+
+
 def compared_velocity(
     velocity: torch.Tensor, dt: float, cfc: int | None = 60, pre_time: float = PRE_IMPACT_TIME
 ) -> torch.Tensor:
@@ -230,7 +255,13 @@ def compared_velocity(
 
     Returns:
         ``[..., T]`` velocity [m/s].
+
+    Raises:
+        PulseError: ``velocity`` is not a real ``[..., T]`` tensor, ``dt`` is not a finite step > 0 s, or
+            ``pre_time`` is not a duration >= 0 s.
     """
+    velocity = _check_velocity(velocity)
+    dt = _check_step(dt)
     if cfc is None:
         return velocity
     if not (math.isfinite(pre_time) and pre_time >= 0):
@@ -268,10 +299,22 @@ def compared_window(
         ``[B, ..., n]`` velocity [m/s].
 
     Raises:
-        PulseError: a negative margin, ``[B]`` margins for a batch of another size, or ``velocity`` shorter
-            than the window and a row's margin.
+        PulseError: a window ``n`` or margins that are not whole numbers of samples, a negative margin, ``[B]``
+            margins for a batch of another size, or ``velocity`` shorter than the window and a row's margin.
     """
-    m = torch.as_tensor(margin, dtype=torch.int64)
+    velocity = _check_velocity(velocity)
+    if isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 1:
+        raise PulseError(f"expected the window n as a whole number of samples >= 1, got {n!r}")
+    n = int(n)
+    try:
+        m = torch.as_tensor(margin)
+    except (TypeError, ValueError, RuntimeError):
+        m = torch.tensor(math.nan)
+    if m.numel() == 0:  # no rows: an empty list reads as floats
+        m = m.to(torch.int64)
+    if m.dtype == torch.bool or m.is_floating_point() or m.is_complex():  # 2.5 was cut to 2, True taken as 1
+        raise PulseError(f"expected margins as whole numbers of samples (an int or [B] integers), got {margin!r}")
+    m = m.to(torch.int64)
     if m.numel() and int(m.min()) < 0:
         raise PulseError(f"margins are samples past the window, >= 0; got {m.tolist()}")
     if m.ndim > 1 or (m.ndim == 1 and (velocity.ndim < 2 or m.shape[0] != velocity.shape[0])):
@@ -308,7 +351,13 @@ def sampled_acceleration(velocity: torch.Tensor, dt: float) -> torch.Tensor:
 
     Returns:
         ``[..., T]`` acceleration [m/s^2] (differentiable).
+
+    Raises:
+        PulseError: ``velocity`` is not a real ``[..., T]`` tensor of at least 2 samples, or ``dt`` is not a finite
+            step > 0 s.
     """
+    velocity = _check_velocity(velocity)
+    dt = _check_step(dt)
     if velocity.shape[-1] < 2:
         raise PulseError(f"need at least 2 velocity samples for an acceleration, got {velocity.shape[-1]}")
     v = torch.cat([velocity[..., :1], velocity], dim=-1)
