@@ -127,6 +127,21 @@ def test_prepare_velocity_gives_2_khz_from_time_zero(analytic):
     assert -0.001 < t0 < 0.001
 
 
+@pytest.mark.parametrize("duration", [0.0, -0.01, float("nan"), float("inf"), "0.15"])
+def test_prepare_velocity_refuses_a_window_that_is_not_a_duration(analytic, duration):
+    """A window of -10 ms returned no samples without a word (a metric over it compares nothing) and NaN raised
+    "cannot convert float NaN to integer" from inside; each now names the duration and what was expected."""
+    with pytest.raises(PulseError, match=r"duration: expected a window > 0 s after time zero"):
+        prepare_velocity(analytic, duration=duration, time_zero="file")
+
+
+@pytest.mark.parametrize("rate", [0.0, -2000.0, float("nan"), "2000"])
+def test_prepare_velocity_refuses_a_rate_that_is_not_a_number_of_hz(analytic, rate):
+    """A rate of 0 raised ZeroDivisionError, one given as text "can't multiply sequence by non-int"."""
+    with pytest.raises(PulseError, match=r"rate_hz: expected a finite output rate > 0 Hz"):
+        prepare_velocity(analytic, rate_hz=rate, duration=0.15, time_zero="file")
+
+
 def test_resample_is_linear_interpolation(analytic):
     r = resample(analytic, 2000.0, 0.0, 0.1)
     assert r.n_samples == 201 and r.time[-1] == pytest.approx(0.1)

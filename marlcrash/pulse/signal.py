@@ -945,6 +945,11 @@ def filtered_from_time_zero(
     raise PulseError(f"time_zero must be 'threshold' or 'file', got {time_zero!r}")
 
 
+def _is_real(x: object) -> bool:
+    """Whether ``x`` is a real number (a Python or numpy number; not a bool or text)."""
+    return isinstance(x, int | float | np.integer | np.floating) and not isinstance(x, bool)
+
+
 def prepare_velocity(
     pulse: Pulse,
     *,
@@ -976,9 +981,18 @@ def prepare_velocity(
 
     Returns:
         ``time [T]`` from 0 at ``rate_hz`` and ``velocity [K, T]`` [m/s].
+
+    Raises:
+        PulseError: a ``duration`` that is not a window > 0 s, a ``rate_hz`` that is not a rate > 0 Hz, a
+            ``beyond`` < 0 s, or a record that ends before the window does (naming the file).
     """
     if not (math.isfinite(beyond) and beyond >= 0):
         raise PulseError(f"beyond must be a duration >= 0 s, got {beyond!r}")
+    if duration is not None and not (_is_real(duration) and math.isfinite(duration) and duration > 0):
+        raise PulseError(f"duration: expected a window > 0 s after time zero (or None: to the record's end), "
+                         f"got {duration!r}")  # fmt: skip
+    if not (_is_real(rate_hz) and math.isfinite(rate_hz) and rate_hz > 0):
+        raise PulseError(f"rate_hz: expected a finite output rate > 0 Hz, got {rate_hz!r}")
     p, t0 = filtered_from_time_zero(pulse, cfc, time_zero, threshold_g)
     t_end = p.time[-1] if duration is None else t0 + float(duration)
     if t_end > p.time[-1] + 1e-9:
