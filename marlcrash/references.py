@@ -24,7 +24,7 @@ surrogate's sign convention (forward speed, starting at the impact speed). Three
   subtracted as the channel's zero level). ``time_zero: threshold`` finds the pulse's onset
   instead, for records whose clock is not aligned to contact
   (:func:`marlcrash.pulse.signal.find_onset`: each channel's zero level and noise measured on
-  its samples before its onset, whatever the clock; the pulse detected on the CFC-filtered
+  its samples before the record's time zero, whatever the clock; the pulse detected on the CFC-filtered
   channel against 0.5 g or 5x that noise; its onset the start of a line fitted to it); a
   channel far from the front (the tunnel) starts milliseconds after the contact, and one with
   too little pre-trigger data is named in a warning. The file must be filtered with the

@@ -392,11 +392,11 @@ def test_time_zero_is_the_onset_not_where_the_zero_phase_filter_spreads_it(rate_
             assert spread < -2e-3 if peak_g >= 300 and noise == 0 else spread < t0 + 1e-3
 
 
-def test_find_onset_measures_each_channel_before_its_onset():
+def test_find_onset_measures_each_channel_before_time_zero():
     """Two channels of one record at 10 kHz: a ramp of 1 g/ms from 30 ms on a 0.8 g offset with 1 g rms noise, and a
     later one (a tunnel) from 33 ms with 0.2 g rms. Each zero level and noise is measured on the channel's own
-    samples before its onset, the detection level is 5x that noise as CFC 60 passes it (0.5 g where higher), each
-    onset lies at its ramp's start, and time zero is the earliest."""
+    samples before the record's time zero (the earliest onset, the contact), the detection level is 5x that noise as
+    CFC 60 passes it (0.5 g where higher), each onset lies at its ramp's start, and time zero is the earliest."""
     from marlcrash.pulse.signal import NOISE_LEVELS, find_onset
 
     t = np.arange(2000) / 1e4  # no negative times: the clock is not the contact's
@@ -406,14 +406,44 @@ def test_find_onset_measures_each_channel_before_its_onset():
     onset = find_onset(Pulse(t, np.stack([front, tunnel]), ("front", "tunnel"), source="two.csv"), 60)
     np.testing.assert_allclose(onset.onsets, [0.030, 0.033], atol=0.6e-3)  # 0.6 ms per g of noise at 1 g/ms
     assert onset.time == onset.onsets[0] and onset.measured.all()
-    np.testing.assert_allclose(onset.pre_trigger, onset.onsets)
-    n = np.round((onset.onsets - 0.0005) * 1e4)  # samples measured, up to 0.5 ms before each onset
+    np.testing.assert_allclose(onset.pre_trigger, [onset.time, onset.time])
+    n = np.round((onset.time - 0.0005) * 1e4)  # samples measured, up to 0.5 ms before time zero
     assert np.all(np.abs(onset.zero_level / G0 - [0.8, 0.0]) <= 4 * np.array([1.0, 0.2]) / np.sqrt(n))  # 4 sigma
     np.testing.assert_allclose(onset.noise / G0, [1.0, 0.2], rtol=0.15)
     gain = 0.144  # rms of unit white noise at 10 kHz after CFC 60
     np.testing.assert_allclose(onset.level / G0, [NOISE_LEVELS * gain * onset.noise[0] / G0, 0.5], rtol=0.02)
     with pytest.raises(PulseError, match="threshold must be > 0 g"):
         find_onset(Pulse(t, front[None], ("front",)), 60, threshold_g=0.0)
+
+
+def test_a_channel_that_decelerates_before_its_onset_takes_its_zero_level_before_time_zero():
+    """A lab export at 10 kHz (clock not the contact's, ``time_zero: threshold``) with a 0.3 g offset on both
+    channels: the front stops in a 30 g, 80 ms half-sine from 20 ms on; the tunnel decelerates at 1.5 g from the
+    contact on (reached in 1 ms), and its main pulse, a 20 g, 60 ms half-sine, starts 6 ms later (a simulated
+    tunnel's first milliseconds: 2.6 g on the default car). The tunnel is not at rest between the contact and the
+    onset found for it (its main pulse), so its zero level is the mean of its samples before the record's time zero:
+    the offset alone. It was measured up to that onset: 0.12 g taken for the 0.3 g offset, and the 0.18 g left
+    integrated into a drift of 0.3 m/s over 150 ms."""
+    from marlcrash.pulse.signal import find_onset, shift_time, without_zero_offset
+
+    rate, t_c = 1e4, 0.020
+    t = np.arange(round(0.2 * rate)) / rate
+    s = t - t_c
+    front = np.where((s >= 0) & (s <= 0.08), -30.0 * np.sin(np.pi * np.clip(s, 0, 0.08) / 0.08), 0.0)
+    main = np.where((s >= 0.006) & (s <= 0.066), -20.0 * np.sin(np.pi * np.clip(s - 0.006, 0, 0.06) / 0.06), 0.0)
+    tunnel = main - 1.5 * np.interp(s, [0.0, 0.001, 0.1, 0.1001], [0.0, 1.0, 1.0, 0.0], left=0.0, right=0.0)
+    acc = (np.stack([front, tunnel]) + 0.3) * G0
+    pulse = Pulse(t, acc, ("front", "tunnel"), source="lab.csv")
+    onset = find_onset(pulse, 60)
+    assert abs(onset.time - t_c) < 0.2e-3 and onset.measured.all()
+    np.testing.assert_allclose(onset.zero_level / G0, [0.3, 0.3], atol=1e-9)  # before time zero, not the 1.5 g
+    np.testing.assert_allclose(onset.pre_trigger, onset.time)  # what was measured: the samples before time zero
+    clean = Pulse(t, acc - 0.3 * G0, pulse.channels)
+    _, got = prepare_velocity(without_zero_offset(pulse, "threshold"), duration=0.15, v0=DV)
+    _, ref = prepare_velocity(shift_time(clean, onset.time), duration=0.15, time_zero="file", v0=DV)
+    np.testing.assert_allclose(got, ref, atol=1e-6)  # the record less its offset, from the same time zero
+    dv = 2 * 20 * G0 * 0.06 / math.pi + 1.5 * G0 * (0.1 - 0.0005 + 0.00005)  # the main pulse and the 1.5 g
+    assert DV - got[1, -1] == pytest.approx(dv, rel=2e-3)
 
 
 @pytest.mark.parametrize("cfc", [60, 180, 600, 1000])

@@ -20,7 +20,8 @@ grid -> integrate to velocity (:func:`prepare_velocity`).
 Time zero of a record whose clock is not aligned to the contact (``time_zero:
 threshold``; a documented choice, :func:`find_onset`): where the pulse of the
 earliest channel starts. Each channel's zero level and noise are measured on its
-samples before its onset (its pre-trigger data, whatever the clock); the pulse
+samples before that time zero (its pre-trigger data, whatever the clock; after the
+contact no channel is at rest, also one whose own pulse starts later); the pulse
 is detected on the CFC-filtered channel where it leaves ``threshold_g`` (0.5 g)
 or 5x its pre-trigger noise after that filter, where higher; and the onset is
 the start of a straight line fitted with the zero level to the record's samples
@@ -465,7 +466,8 @@ on them (those up to :data:`ONSET_GAP` before it: 2 ms, 20 samples at 10 kHz; an
 lab export's 5-20 ms of pre-trigger data are enough; the zero level's own uncertainty is the noise over the root
 of their number (3 g rms over 5 ms at 10 kHz: 0.4 g)."""
 ONSET_GAP = 0.0005
-"""[s] A channel's zero level and noise are measured on its samples up to this long before its onset."""
+"""[s] A channel's zero level and noise are measured on its samples up to this long before the record's time zero
+(:func:`find_onset`)."""
 ONSET_FIT_FRACTION = 0.4
 """The onset line is fitted up to where the pulse reaches this fraction of its peak (or 3x the onset level of the
 band it is found on, where higher; at most half the peak): long enough to average the noise, short enough that a
@@ -488,13 +490,14 @@ class Onset:
         time: time zero [s] on the record's clock: the earliest channel onset, not before the first sample.
         onsets: ``[K]`` each channel's onset [s] (``inf``: the channel never leaves its noise).
         zero_level: ``[K]`` each channel's zero level [m/s^2]: the mean of its samples up to :data:`ONSET_GAP`
-            before its onset; 0 where not measured.
+            before the record's time zero; 0 where not measured.
         noise: ``[K]`` rms deviation of those samples [m/s^2]; 0 where not measured.
         level: ``[K]`` the detection level [m/s^2]: ``threshold_g``, or :data:`NOISE_LEVELS` times the noise as the
             detection filter passes it, where that is higher.
-        pre_trigger: ``[K]`` seconds of samples before each channel's onset (before time zero for a channel without).
+        pre_trigger: ``[K]`` seconds of samples before the record's time zero, which each zero level is measured on
+            (the same for every channel).
         measured: ``[K]`` whether the zero level and noise were measured (at least :data:`MIN_PRE_TRIGGER` of
-            samples before the onset, and :data:`MIN_SAMPLES` samples).
+            samples before time zero, and :data:`MIN_SAMPLES` samples).
     """
 
     time: float
@@ -662,8 +665,11 @@ def find_onset(pulse: Pulse, cfc: int | None = 60, threshold_g: float = DEFAULT_
     SAE J211 / ISO 6487 practice, for records whose clock is not aligned to the contact (``time_zero: threshold``):
 
     1. A channel's zero level and noise are the mean and rms deviation of its samples from the first one to
-       :data:`ONSET_GAP` before its onset (its pre-trigger data), whatever the record's clock: no negative times
-       are needed, and a transducer offset above ``threshold_g`` is measured like any other.
+       :data:`ONSET_GAP` before the record's time zero (its pre-trigger data), whatever the record's clock: no
+       negative times are needed, and a transducer offset above ``threshold_g`` is measured like any other. Not
+       up to the channel's own onset where that comes later: after the contact no channel is at rest (a simulated
+       tunnel decelerates at 2.6 g while its main pulse is 6 ms away), and those samples counted as offset left a
+       1.5 g decelerating one 0.18 g off, a drift of 0.3 m/s over 150 ms.
     2. The pulse is detected where the channel less its zero level, CFC-filtered at ``cfc``, first leaves
        ``threshold_g`` or :data:`NOISE_LEVELS` times its pre-trigger noise after that filter (where higher), in the
        pulse's direction (its largest excursion); filtered with a resting lead-out after the record, so that the
@@ -674,10 +680,10 @@ def find_onset(pulse: Pulse, cfc: int | None = 60, threshold_g: float = DEFAULT_
        (5 g over a 1.2 g/ms half-sine: 4 ms), the fitted line's start at it.
 
     Steps 1 and 3 depend on each other: the first pass measures up to a rough start (the filtered channel at a
-    fifth of its peak), each further one before the onsets of the last, until they stay within a sample (at most
+    fifth of its peak), each further one before the time zero of the last, until it stays within a sample (at most
     :data:`_ONSET_PASSES` passes; two, usually).
 
-    A channel with less than :data:`MIN_PRE_TRIGGER` of samples before its onset has no pre-trigger data to measure:
+    A channel with less than :data:`MIN_PRE_TRIGGER` of samples before time zero has no pre-trigger data to measure:
     its zero level is taken as 0, the threshold is its level, and a warning names the file and channel (a record
     that starts at the contact is read with ``time_zero: file``). The record's time zero is the earliest channel
     onset, not before its first sample.
@@ -752,14 +758,16 @@ def find_onset(pulse: Pulse, cfc: int | None = 60, threshold_g: float = DEFAULT_
                 f"{where}: no channel leaves its pre-trigger noise ({threshold_g:g} g, or {NOISE_LEVELS:g} x its "
                 f"noise where higher): {each}"
             )
-        # a channel without an onset is at rest before the record's time zero
+        # every channel is at rest before the record's time zero (the contact), none after it: a channel whose own
+        # onset comes later (a tunnel) already decelerates in between, and its mean there is no transducer offset
         t_zero = float(onsets.min())
+        ends = np.minimum(ends, t_zero - ONSET_GAP)
         ends[np.isinf(onsets)] = t_zero - ONSET_GAP
-        if n_pass > 0 and np.all(np.abs(ends - before) < dt):  # measured before the onsets found with it
+        if n_pass > 0 and np.all(np.abs(ends - before) < dt):  # measured before the time zero found with it
             break
-    pre = np.where(np.isinf(onsets), t_zero, onsets) - first
+    pre = np.full(k_n, t_zero - first)  # the samples each zero level is measured on: those before time zero
     for k in np.flatnonzero(~measured).tolist():
-        at = f"its onset at t = {_ms(onsets[k])} ms" if math.isfinite(onsets[k]) else (
+        at = f"its onset at t = {_ms(onsets[k])} ms" if onsets[k] == t_zero else (
             f"the record's time zero at t = {_ms(t_zero)} ms")  # fmt: skip
         warnings.warn(
             f"{where}: channel {u.channels[k]!r} has {max(pre[k], 0.0) * 1e3:.1f} ms of samples before {at}, "
@@ -848,11 +856,12 @@ def without_zero_offset(
 
     With ``time_zero="file"`` (the file's t = 0 is the contact) the pre-trigger samples are those at negative
     times (:func:`remove_zero_offset`). With ``"threshold"`` the file's clock is not trusted: each channel's offset
-    is the mean of its samples before its onset (:func:`find_onset`), whatever the record's clock, also where it
-    is above the threshold. A channel with too few samples before its onset (less than :data:`MIN_PRE_TRIGGER`) is
-    left as recorded; :func:`filtered_from_time_zero`, which finds time zero on the result, warns about it, naming
-    the channel. A threshold-mode offset above :data:`MAX_ZERO_OFFSET_G` (by more than three standard errors of the
-    mean) is subtracted all the same (those samples precede the onset), with a warning naming the channel.
+    is the mean of its samples before the pulse's onset, the record's time zero (:func:`find_onset`), whatever the
+    record's clock, also where it is above the threshold. A channel with too few samples before it (less than
+    :data:`MIN_PRE_TRIGGER`) is left as recorded; :func:`filtered_from_time_zero`, which finds time zero on the
+    result, warns about it, naming the channel. A threshold-mode offset above :data:`MAX_ZERO_OFFSET_G` (by more than
+    three standard errors of the mean) is subtracted all the same (those samples precede the onset), with a warning
+    naming the channel.
     """
     if time_zero != "threshold":
         return remove_zero_offset(pulse)
@@ -864,8 +873,9 @@ def without_zero_offset(
     n = np.maximum((onset.pre_trigger - ONSET_GAP) / pulse.dt, 1.0)
     for k in np.flatnonzero(np.abs(level) - 3.0 * onset.noise / np.sqrt(n) > MAX_ZERO_OFFSET_G * G0).tolist():
         warnings.warn(
-            f"{pulse.source or 'pulse'}: channel {pulse.channels[k]!r} averages {level[k] / G0:.3g} g before its "
-            f"onset at t = {_ms(onset.onsets[k])} ms, more than a transducer offset ({MAX_ZERO_OFFSET_G:g} g): "
+            f"{pulse.source or 'pulse'}: channel {pulse.channels[k]!r} averages {level[k] / G0:.3g} g before "
+            f"{'its onset' if onset.onsets[k] == onset.time else 'the pulse onset'} at t = {_ms(onset.time)} ms, "
+            f"more than a transducer offset ({MAX_ZERO_OFFSET_G:g} g): "
             "subtracted as its zero level all the same; check the channel",
             UserWarning,
             stacklevel=2,
