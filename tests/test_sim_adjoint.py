@@ -98,3 +98,18 @@ def test_adjoint_refuses_what_it_does_not_cover(default_cells):
         single.run(p, SC, duration=0.001, backend="adjoint")
     with pytest.raises(ModelError, match="backend must be one of"):
         relief.run(p, SC, duration=0.001, backend="jax")
+
+
+def test_adjoint_refuses_a_second_derivative_instead_of_dropping_its_curvature(default_sim, default_cells):
+    """The reverse pass is not differentiable itself: ``create_graph`` gradients must not give second derivatives
+    that leave out the simulation's curvature (on a 10 ms window 3e5 against torch autograd's 4e17)."""
+    sim, car = default_sim, default_cells
+    p = _params(car, 1, seed=6).requires_grad_(True)
+    res = sim.run(p, SC, duration=0.002, record_cells="none", backend="adjoint")
+    (g,) = torch.autograd.grad(res.velocity.sum(), p, create_graph=True)
+    (plain,) = torch.autograd.grad(
+        sim.run(p, SC, duration=0.002, record_cells="none", backend="adjoint").velocity.sum(), p
+    )
+    assert torch.equal(g.detach(), plain)  # the first derivatives are the same with or without a graph
+    with pytest.raises(ModelError, match=r"first derivatives only.*backend .torch."):
+        torch.autograd.grad(g.sum(), p)

@@ -24,7 +24,8 @@ torch autograd. The wall's contact properties and the impact speed depend on no 
 
 Only the sensor velocities are differentiable on this path; the energies and the other outputs of its
 :class:`~marlcrash.sim.surrogate.SimResult` are the fast kernel's, without gradients. Springback relief is not
-supported here (``ModelError``); the torch path covers it.
+supported here (``ModelError``); the torch path covers it. First derivatives only: differentiating the gradients
+again (``create_graph=True``) raises ``ModelError``; the torch path gives second derivatives.
 """
 
 from __future__ import annotations
@@ -350,8 +351,25 @@ def forward_velocity(props: tuple[torch.Tensor, ...], st: dict) -> torch.Tensor:
     return torch.from_numpy(vel)
 
 
+class _FirstDerivativeOnly(torch.autograd.Function):
+    """The adjoint's gradients ``[B, L]`` or ``[B, n]`` where a graph of them is asked for (``create_graph=True``):
+    differentiating them again raises instead of giving second derivatives without the simulation's curvature."""
+
+    @staticmethod
+    def forward(ctx, grad, *props):
+        return grad.clone()
+
+    @staticmethod
+    def backward(ctx, *_):
+        raise ModelError(
+            "backend 'adjoint' gives first derivatives only: its gradients cannot be differentiated again "
+            "(create_graph=True); use backend 'torch' for second derivatives"
+        )
+
+
 class _SensorVelocity(torch.autograd.Function):
-    """Sensor velocities as a function of the link properties; backward by the compiled reverse pass."""
+    """Sensor velocities as a function of the link properties; backward by the compiled reverse pass (first
+    derivatives: :class:`_FirstDerivativeOnly`)."""
 
     @staticmethod
     def forward(ctx, yc, yt, k, kd, c, es, velocity, st):
@@ -369,6 +387,8 @@ class _SensorVelocity(torch.autograd.Function):
         g = np.ascontiguousarray(gvel.detach().to(torch.float64).numpy())
         _backward_batch(*args, g, *grads)
         out = [torch.from_numpy(a).to(p.dtype) if p.requires_grad else None for a, p in zip(grads, props, strict=True)]
+        if torch.is_grad_enabled():  # create_graph: the gradients depend on the properties, through no graph here
+            out = [None if g is None else _FirstDerivativeOnly.apply(g, *props) for g in out]
         return (*out, None, None)
 
 
