@@ -113,3 +113,19 @@ def test_adjoint_refuses_a_second_derivative_instead_of_dropping_its_curvature(d
     assert torch.equal(g.detach(), plain)  # the first derivatives are the same with or without a graph
     with pytest.raises(ModelError, match=r"first derivatives only.*backend .torch."):
         torch.autograd.grad(g.sum(), p)
+
+
+@pytest.mark.parametrize("name", ["speed", "overlap"])
+def test_adjoint_refuses_scenario_tensors_that_require_grad(default_sim, default_cells, name):
+    """The adjoint differentiates the cell parameters only: a speed or overlap that requires grad got none (its
+    ``.grad`` stayed None, so an optimizer silently never moved it); torch autograd differentiates it."""
+    sim, car = default_sim, default_cells
+    p = _params(car, 2, seed=7).requires_grad_(True)
+    value = {"speed": torch.tensor([15.0, 12.0]), "overlap": torch.tensor([1.0, 0.6])}[name].requires_grad_(True)
+    with pytest.raises(ModelError, match=rf"{name}.*backend .torch."):
+        sim.run(p, SC, duration=0.002, record_cells="none", backend="adjoint", **{name: value})
+    res = sim.run(p, SC, duration=0.002, record_cells="none", backend="torch", **{name: value})
+    res.velocity.sum().backward()
+    assert value.grad is not None  # reached by torch autograd
+    with torch.no_grad():  # no gradient asked: the fast result, as for parameters that require grad
+        sim.run(p, SC, duration=0.002, record_cells="none", backend="adjoint", **{name: value})

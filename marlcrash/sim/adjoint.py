@@ -20,7 +20,8 @@ numba loops, one simulation per thread:
 
 Gradients flow to the link properties (crush and tensile yield force, intact and dense stiffness, damping)
 and the cells' saturation energies; :meth:`Surrogate.link_props` maps them back to the parameters with
-torch autograd. The wall's contact properties and the impact speed depend on no parameter and get none.
+torch autograd. The wall's contact properties and the impact speed depend on no parameter and get none: a
+``speed``, ``overlap`` or ``side`` that requires grad is refused (``ModelError``; the torch path differentiates it).
 
 Only the sensor velocities are differentiable on this path; the energies and the other outputs of its
 :class:`~marlcrash.sim.surrogate.SimResult` are the fast kernel's, without gradients. Springback relief is not
@@ -406,13 +407,22 @@ def run_adjoint(sim, props, wall, n_out: int, sensor_idx, record_cells: str, sna
     """:func:`~marlcrash.sim.kernels.run_numba`'s result with sensor velocities differentiable by the adjoint.
 
     Raises:
-        ModelError: the simulator's config is one the adjoint does not cover (:func:`unsupported`).
+        ModelError: the simulator's config is one the adjoint does not cover (:func:`unsupported`), or a scenario
+            tensor (``speed``, ``overlap``, ``side``) requires grad: the adjoint differentiates the cell
+            parameters only, so it would get no gradient.
     """
     from marlcrash.sim.kernels import run_numba
 
     why = unsupported(sim.config)
     if why is not None:
         raise ModelError(why)
+    if torch.is_grad_enabled():
+        asked = [name for name, t in (("speed", wall.speed), ("overlap or side", wall.k)) if t.requires_grad]
+        if asked:
+            raise ModelError(
+                f"backend 'adjoint' differentiates the cell parameters only, but the {asked[0]} tensor requires "
+                "grad (it would get none); use backend 'torch', or pass it without requires_grad"
+            )
     res = run_numba(sim, props, wall, n_out, sensor_idx, record_cells, snap=snap)
     tensors = (props.yield_c, props.yield_t, props.k, props.k_dense, props.damping, props.e_s)
     if torch.is_grad_enabled() and any(t.requires_grad for t in tensors):
