@@ -129,3 +129,13 @@ def test_adjoint_refuses_scenario_tensors_that_require_grad(default_sim, default
     assert value.grad is not None  # reached by torch autograd
     with torch.no_grad():  # no gradient asked: the fast result, as for parameters that require grad
         sim.run(p, SC, duration=0.002, record_cells="none", backend="adjoint", **{name: value})
+
+
+def test_auto_backend_differentiates_a_speed_that_requires_grad(default_sim, default_cells):
+    """``auto`` is numba "unless gradients are required": a speed that requires grad (parameters that do not) got
+    the no-grad fast result, so ``backward`` failed or the speed silently kept no gradient."""
+    sim, car = default_sim, default_cells
+    speed = torch.tensor([15.0], dtype=torch.float64, requires_grad=True)
+    res = sim.run(_params(car, 1, seed=8), SC, speed=speed, duration=0.005, record_cells="none", backend="auto")
+    res.velocity.sum().backward()
+    assert speed.grad is not None and float(speed.grad.abs()) > 0

@@ -587,7 +587,8 @@ class Surrogate:
             backend: ``torch`` (differentiable reference), ``numba`` (fast no-grad), ``adjoint`` (the
                 ``numba`` result with sensor velocities differentiable by a compiled reverse pass,
                 :mod:`marlcrash.sim.adjoint`), ``auto``
-                (numba unless gradients are required); default from the config.
+                (numba unless gradients are required: of ``params`` or of a ``speed``, ``overlap`` or ``side`` that
+                requires grad); default from the config.
             cells_at: time [s] of the ``final`` per-cell energies, ``cell_plastic`` and ``saturated``, an
                 output sample's (default: the end), e.g. a compared window's end when the simulation runs on
                 past it to filter the pulse over a longer record.
@@ -621,8 +622,9 @@ class Surrogate:
                 )
             snap = round(at)
         backend = backend or self.config.backend
-        if backend == "auto":
-            backend = "torch" if (torch.is_grad_enabled() and p.requires_grad) else "numba"
+        if backend == "auto":  # gradients are required by the parameters or by a scenario tensor (speed, overlap, side)
+            graded = p.requires_grad or wall.speed.requires_grad or wall.k.requires_grad
+            backend = "torch" if (torch.is_grad_enabled() and graded) else "numba"
         if backend == "adjoint":
             from marlcrash.sim.adjoint import run_adjoint
 
