@@ -1011,3 +1011,32 @@ def test_an_iso_mme_number_of_samples_given_as_novalue_is_not_a_count(tmp_path, 
     _edit(ch, "Number of samples           :NOVALUE", "Number of samples           :many")
     with pytest.raises(PulseError, match=r"B\.001 line 8: 'Number of samples': expected a number, got 'many'"):
         read_mme(tmp_path / "B")
+
+
+@pytest.mark.parametrize(
+    ("header", "named"),
+    [
+        ("time [s],acc [mg]", "acc [mg]"),  # milli-g: 1000x off when read as g
+        ("time [s],acc [mm/ms2]", "acc [mm/ms2]"),  # LS-DYNA's mm-ms units: 1000 m/s^2
+        ("time [s],acc [ft/s^2]", "acc [ft/s^2]"),
+        ("time [us],acc [g]", "time [us]"),  # microseconds read as seconds
+    ],
+)
+def test_a_header_unit_the_reader_does_not_know_is_warned_about_naming_the_column(tmp_path, header, named):
+    """A unit written in the header that is not the one read used to be refused only when it was a known unit:
+    ``acc [mg]`` was read as g, ``time [us]`` as seconds, without a word."""
+    path = tmp_path / "p.csv"
+    path.write_text(header + "\n" + "\n".join(f"{k * 1e-4:.4f},{-20.0 * (k % 7)}" for k in range(60)) + "\n")
+    with pytest.warns(UserWarning, match=rf"p\.csv line 1: column '{re.escape(named)}' gives the unit"):
+        read_csv(path)
+
+
+@pytest.mark.parametrize(
+    "header", ["time [s],acc [g]", "Time (sec),a_x [m/s2] (filtered)", "t (ms),ACC [CH1]", "time,acc (x)"]
+)
+def test_known_units_and_remarks_in_a_header_read_without_a_unit_warning(tmp_path, header):
+    path = tmp_path / "p.csv"
+    path.write_text(header + "\n" + "\n".join(f"{k * 1e-4:.4f},{-20.0 * (k % 7)}" for k in range(60)) + "\n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        read_csv(path, time_unit="ms" if header.startswith("t (ms)") else "s")

@@ -114,6 +114,26 @@ def _header_unit(name: str) -> str | None:
     return m.group(2) if m else None
 
 
+_UNIT_LIKE = re.compile(r"[^\W\d_]{2,3}|.*[/^²*].*")
+"""What a bracketed header suffix must look like to be taken for a unit the reader does not know (``mg``, ``km/h``,
+``ft/s2``, ``us``), not a remark (``(filtered)``, ``[CH1]``, ``(x)``)."""
+
+
+def _unknown_unit_warning(name: str, said: str, known: list[str], read_in: str, path: Path, line: int) -> None:
+    """Warn that column ``name`` gives a unit ``said`` in its header that is none of ``known``, and is read in
+    ``read_in``: a column of ``mg`` or ``km/h`` read as g or m/s is off by a factor the results do not show."""
+    if _UNIT_LIKE.fullmatch(said.strip()) is not None:
+        warnings.warn(
+            _located(
+                f"column {name!r} gives the unit {said!r} in its header, none of {known}; it is read in {read_in}: "
+                "convert the column, or rename its header if that is no unit",
+                path,
+                line,
+            ),
+            stacklevel=3,
+        )
+
+
 def _with_unit(name: str, unit: str) -> str:
     """``name`` with the unit at its end replaced by ``unit``; unchanged without one."""
     m = _UNIT_AT_END.search(name)
@@ -152,6 +172,9 @@ def read_csv(
         acc_col: name (or names) of the acceleration column(s) (default: every other column).
         unit: acceleration unit of the file, ``g`` or ``m/s2``.
         time_unit: time unit of the file, ``s`` or ``ms``.
+
+            A unit at the end of a column's header (``a_x [m/s2]``, ``time (ms)``) must be the one the column is read
+            in; one the reader does not know (``acc [mg]``, ``time [us]``) is warned about, naming the column.
         sign: ``+1`` or ``-1``, multiplies the acceleration (module docstring).
         max_gap: largest sampling interval, as a multiple of the median one, before a warning names the gap (a
             longer one that also exceeds :data:`MIN_GAP_S`); ``None``: no check.
@@ -192,7 +215,9 @@ def read_csv(
             raise _err(f"column {header[ti]!r} is chosen as both time and acceleration", path, first + 1)
     for j in ai:  # a unit written in the header ('a_x [m/s2]', 'ACC (g)') must be the unit the column is read in
         said = _header_unit(header[j])
-        if said is not None and acc_unit_key(said) in ACC_UNITS and ACC_UNITS[acc_unit_key(said)] != factor:
+        if said is not None and acc_unit_key(said) not in ACC_UNITS:
+            _unknown_unit_warning(header[j], said, sorted(ACC_UNITS), unit, path, first + 1)
+        elif said is not None and ACC_UNITS[acc_unit_key(said)] != factor:
             raise _err(
                 f"column {header[j]!r} is in {said} by its header, but is read in {unit}: give that unit "
                 f"(--unit {said}; unit: {said})",
@@ -200,7 +225,11 @@ def read_csv(
                 first + 1,
             )
     said = _header_unit(header[ti])
-    if said is not None and said.strip().lower() in _TIME_UNITS and said.strip().lower() != time_unit:
+    if said is not None:
+        said = {"sec": "s", "secs": "s", "msec": "ms"}.get(said.strip().lower(), said)
+    if said is not None and said.strip().lower() not in _TIME_UNITS:
+        _unknown_unit_warning(header[ti], said, sorted(_TIME_UNITS), time_unit, path, first + 1)
+    elif said is not None and said.strip().lower() != time_unit:
         raise _err(
             f"column {header[ti]!r} is in {said} by its header, but is read in {time_unit}: give that unit "
             f"(--time-unit {said.strip().lower()}; time_unit: {said.strip().lower()})",
