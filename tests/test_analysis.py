@@ -199,10 +199,16 @@ def test_contributions_refuse_changes_no_agent_owns(problem):
         agent_contributions(problem, calibrated[:5])
     nothing = agent_contributions(problem, problem.init)
     assert not bool(nothing.players.any()) and float(nothing.shapley.abs().max()) == 0.0
+    # the table says so rather than showing a header without rows; the CSV tells "never moved" from "no effect"
+    assert "no agent's cells moved" in nothing.markdown("score")
+    assert {r["moved"] for r in nothing.rows()} == {False}
     # parameters stored by a float32 run differ from the initial ones by rounding everywhere: not moves
     three, agents = _three_agents_at_the_truth(problem)
     rounded = agent_contributions(problem, three.float().double())
     assert sorted(np.flatnonzero(rounded.players.numpy()).tolist()) == sorted(agents)
+    moved_rows = {r["agent"] for r in rounded.rows() if r["moved"]}
+    assert moved_rows == {rounded.agents[i] for i in agents}
+    assert "no agent's cells moved" not in rounded.markdown("score")
     for kwargs in ({"exact_max": 17}, {"n_permutations": 2}):
         with pytest.raises(ValueError, match=next(iter(kwargs))):
             agent_contributions(problem, three, **kwargs)

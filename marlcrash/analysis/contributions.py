@@ -112,10 +112,12 @@ class Contributions:
         return sorted(rows, key=lambda r: sign * r[1])
 
     def rows(self) -> list[dict[str, object]]:
-        """One row per agent and quantity: ``agent, quantity, unit, shapley, shapley_stderr, leave_one_out,
-        add_one`` (the values in the quantity's unit, :func:`quantity_unit`)."""
+        """One row per agent and quantity: ``agent, moved, quantity, unit, shapley, shapley_stderr, leave_one_out,
+        add_one`` (the values in the quantity's unit, :func:`quantity_unit`; ``moved``: whether the agent's cells
+        moved, so a zero of an agent that never moved reads apart from a move without effect)."""
         return [
-            {"agent": a, "quantity": q, "unit": quantity_unit(q), "shapley": float(self.shapley[i, j]),
+            {"agent": a, "moved": bool(self.players[i]), "quantity": q, "unit": quantity_unit(q),
+             "shapley": float(self.shapley[i, j]),
              "shapley_stderr": float(self.shapley_stderr[i, j]), "leave_one_out": float(self.leave_one_out[i, j]),
              "add_one": float(self.add_one[i, j])}
             for i, a in enumerate(self.agents) for j, q in enumerate(self.quantities)
@@ -142,7 +144,10 @@ class Contributions:
             "| agent | Shapley | leave-one-out | add-one |",
             "|---|---|---|---|",
         ]
-        for a, _ in self.ranking(quantity):
+        ranked = self.ranking(quantity)
+        if not ranked:
+            lines.append("| (no agent's cells moved: nothing to credit) | 0 | 0 | 0 |")
+        for a, _ in ranked:
             i = self.agents.index(a)
             se = "" if self.exact else f" ± {float(self.shapley_stderr[i, j]):.3g}"
             lines.append(f"| {a} | {float(self.shapley[i, j]):.4g}{se} | {float(self.leave_one_out[i, j]):.4g} "
