@@ -548,3 +548,18 @@ def test_a_comparison_whose_folder_another_process_writes_is_refused(short_confi
     with run_lock(cfg.run_dir, "name", create=True), pytest.raises(ConfigError, match="in use") as e:
         run_comparison(cfg)
     assert e.value.key == "name" and not (cfg.run_dir / "compare.json").exists()
+
+
+def test_the_recorder_stores_a_single_gradient_candidate_as_one_of_a_batch(short, problem0):
+    """``CalibrationProblem.loss`` takes one ``[n_agents, 7]`` candidate as a batch of one; the comparison's recorder
+    stored it unchecked, so the best candidate became one agent's row ``[7]``."""
+    from marlcrash.calibrate.budget import Progress
+    from marlcrash.calibrate.compare import _Recorder
+    from marlcrash.calibrate.problem import SmoothLoss
+
+    rec = _Recorder(problem0, Progress(2), max_wall_s=None)
+    x = problem0.zeros(1)[0].requires_grad_()
+    loss, _ = rec.loss(x, SmoothLoss())
+    loss.sum().backward()
+    assert tuple(rec.progress.best_x.shape) == (problem0.n_agents, 7) and rec.progress.used == 1
+    assert x.grad is not None and bool(torch.isfinite(x.grad).all())

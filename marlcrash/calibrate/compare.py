@@ -359,7 +359,7 @@ class _Recorder:
     def loss(self, x: torch.Tensor, weights: SmoothLoss, backend: str = "adjoint") -> tuple[torch.Tensor, Metrics]:
         self._gate()
         loss, m = self._problem.loss(x, weights, backend)
-        self._record(x, m)
+        self._record(self._problem.check_x(x.detach()), m)  # one [n_agents, 7] candidate is a batch of one
         return loss, m
 
     def residuals(self, x: torch.Tensor | np.ndarray) -> tuple[torch.Tensor, Metrics]:
