@@ -63,47 +63,50 @@ def _integer(x: object) -> int | None:
         return None
 
 
+def _checked(x: object, ok: Callable[[int], bool], message: str) -> int:
+    """``x`` as an int where it is an integer (:func:`_integer`) that passes ``ok``, else :class:`ValueError`."""
+    k = _integer(x)
+    if k is None or not ok(k):
+        raise ValueError(message)
+    return k
+
+
 def _check_players(n: int) -> int:
     """``n`` as an int >= 1 (a numpy integer, e.g. a count of moving agents, is one), else :class:`ValueError`."""
-    k = _integer(n)
-    if k is None or k < 1:
-        raise ValueError(f"expected a number of players >= 1, got {n!r}")
-    return k
+    return _checked(n, lambda k: k >= 1, f"expected a number of players >= 1, got {n!r}")
 
 
 def check_permutations(n_permutations: int) -> int:
     """``n_permutations`` as an int; :class:`ValueError` unless an even number >= 4 (:func:`sampled_shapley`)."""
-    k = _integer(n_permutations)
-    if k is None or k < 4 or k % 2:
-        raise ValueError(
-            f"n_permutations: expected an even number of orderings >= 4 (antithetic pairs), got {n_permutations!r}"
-        )
-    return k
+    return _checked(
+        n_permutations,
+        lambda k: k >= 4 and k % 2 == 0,
+        f"n_permutations: expected an even number of orderings >= 4 (antithetic pairs), got {n_permutations!r}",
+    )
 
 
 def check_exact_max(exact_max: int) -> int:
     """``exact_max`` as an int; :class:`ValueError` naming it unless an integer of 0 to :data:`MAX_EXACT_PLAYERS`
     (the most moving players whose coalitions are all enumerated)."""
-    k = _integer(exact_max)
-    if k is None or not 0 <= k <= MAX_EXACT_PLAYERS:
-        raise ValueError(f"exact_max: expected an integer of 0 to {MAX_EXACT_PLAYERS} agents, got {exact_max!r}")
-    return k
+    return _checked(
+        exact_max,
+        lambda k: 0 <= k <= MAX_EXACT_PLAYERS,
+        f"exact_max: expected an integer of 0 to {MAX_EXACT_PLAYERS} agents, got {exact_max!r}",
+    )
 
 
 def check_seed(seed: int) -> int:
     """``seed`` as an int; :class:`ValueError` naming it unless an integer >= 0 (the orderings' generator's seed)."""
-    k = _integer(seed)
-    if k is None or k < 0:
-        raise ValueError(f"seed: expected an integer seed >= 0, got {seed!r}")
-    return k
+    return _checked(seed, lambda k: k >= 0, f"seed: expected an integer seed >= 0, got {seed!r}")
 
 
 def check_batch(batch: int) -> int:
     """``batch`` as an int; :class:`ValueError` naming it unless an integer >= 1 (coalitions per call of a game)."""
-    k = _integer(batch)
-    if k is None or k < 1:
-        raise ValueError(f"batch: expected a number of coalitions >= 1 per call of the value function, got {batch!r}")
-    return k
+    return _checked(
+        batch,
+        lambda k: k >= 1,
+        f"batch: expected a number of coalitions >= 1 per call of the value function, got {batch!r}",
+    )
 
 
 def from_table(table: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
