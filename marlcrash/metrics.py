@@ -130,11 +130,13 @@ def _check_device(q: torch.Tensor, p: torch.Tensor) -> None:
         raise PulseError(f"expected q and p on one device, got {q.device} and {p.device}; move one with .to()")
 
 
-def _check_dt(dt: float) -> float:
+def check_step(dt: object) -> float:
+    """``dt`` as seconds: a finite number > 0 (a Python or numpy number, or a one-element tensor), else a
+    :class:`PulseError`."""
     try:
-        step = float(dt)
-    except (TypeError, ValueError):
-        raise PulseError(f"expected dt as a number of seconds, got {dt!r}") from None
+        step = math.nan if isinstance(dt, bool | str) else float(dt)  # a bool or text is no step
+    except (TypeError, ValueError, RuntimeError):
+        step = math.nan
     if not (math.isfinite(step) and step > 0):
         raise PulseError(f"expected a finite sampling interval dt > 0 [s], got {dt!r}")
     return step
@@ -177,7 +179,7 @@ def _steps(time: torch.Tensor | None, dt: float | None, like: torch.Tensor) -> t
     if (time is None) == (dt is None):
         raise PulseError("pass exactly one of time (sample times [s]) or dt (uniform step [s])")
     if time is None:
-        return torch.full_like(like[..., 1:], _check_dt(dt))
+        return torch.full_like(like[..., 1:], check_step(dt))
     time = _check_time(time, like)
     return time[..., 1:] - time[..., :-1]
 
@@ -244,7 +246,7 @@ def curve_points(
         raise PulseError("pass exactly one of time (sample times [s]) or dt (uniform step [s])")
     values = _as_signal(values, "values")
     if time is None:
-        time = torch.arange(values.shape[-1], dtype=values.dtype, device=values.device) * _check_dt(dt)
+        time = torch.arange(values.shape[-1], dtype=values.dtype, device=values.device) * check_step(dt)
     time = _check_time(time, values).expand(values.shape)
     return torch.stack([time * time_scale, values * value_scale], dim=-1)
 

@@ -198,7 +198,7 @@ def test_metric_input_errors():
             f(torch.zeros(2, 3, 301), torch.zeros(2, 4, 301), dt=5e-4)
 
 
-@pytest.mark.parametrize("dt", [0.0, -5e-4, float("nan"), float("inf"), "fast"])
+@pytest.mark.parametrize("dt", [0.0, -5e-4, float("nan"), float("inf"), "fast", "5e-4", True, torch.ones(2)])
 def test_a_step_that_is_not_a_positive_number_of_seconds_is_refused(dt):
     # a zero or negative step gave zero or negative areas without a word
     q, p = torch.rand(2, 30, dtype=torch.float64), torch.rand(2, 30, dtype=torch.float64)

@@ -45,6 +45,7 @@ import numpy as np
 import torch
 
 from marlcrash.errors import PulseError
+from marlcrash.metrics import check_step
 from marlcrash.pulse.cfc import (
     CFC_CLASSES,
     DEFAULT_PAD_TIME,
@@ -202,17 +203,6 @@ def integrate_torch(acc: torch.Tensor, dt: float, v0: float | torch.Tensor = 0.0
     return torch.cat([zero, torch.cumsum(inc, dim=-1)], dim=-1) + v0.unsqueeze(-1)
 
 
-def _check_step(dt: object) -> float:
-    """``dt`` as seconds: a finite number > 0 (a Python or numpy number, or a one-element tensor)."""
-    try:
-        step = math.nan if isinstance(dt, bool | str) else float(dt)  # a bool or text is no step
-    except (TypeError, ValueError, RuntimeError):
-        step = math.nan
-    if not (math.isfinite(step) and step > 0):
-        raise PulseError(f"expected a finite sampling interval dt > 0 [s], got {dt!r}")
-    return step
-
-
 def _check_velocity(velocity: object) -> torch.Tensor:
     """``velocity`` as it may be differentiated: a real tensor with a time axis ``[..., T]``."""
     if not isinstance(velocity, torch.Tensor):
@@ -262,7 +252,7 @@ def compared_velocity(
             ``pre_time`` is not a duration >= 0 s.
     """
     velocity = _check_velocity(velocity)
-    dt = _check_step(dt)
+    dt = check_step(dt)
     if cfc is None:
         return velocity
     if not (math.isfinite(pre_time) and pre_time >= 0):
@@ -358,7 +348,7 @@ def sampled_acceleration(velocity: torch.Tensor, dt: float) -> torch.Tensor:
             step > 0 s.
     """
     velocity = _check_velocity(velocity)
-    dt = _check_step(dt)
+    dt = check_step(dt)
     if velocity.shape[-1] < 2:
         raise PulseError(f"need at least 2 velocity samples for an acceleration, got {velocity.shape[-1]}")
     v = torch.cat([velocity[..., :1], velocity], dim=-1)
