@@ -256,6 +256,34 @@ def test_save_load_round_trip(optimized, tmp_path):
     assert back.meta["n_cells_uniform"] == optimized.meta["n_cells_uniform"]
 
 
+@pytest.mark.parametrize(
+    ("damage", "match"),
+    [
+        ("drop grid_edges_y", r"lacks \['grid_edges_y'\]"),
+        ("header not JSON", "header is not JSON"),
+        ("header not UTF-8", "header is not JSON"),
+        ("header a list", "header is not a JSON object"),
+    ],
+)
+def test_a_damaged_cell_model_file_is_a_model_error_naming_the_file(optimized, tmp_path, damage, match):
+    """A file missing a grid-edge member, or whose header is not a JSON object, failed with a bare KeyError,
+    JSONDecodeError, UnicodeDecodeError or TypeError; a file missing any other member already said which."""
+    good = tmp_path / "good.npz"
+    optimized.save(good)
+    with np.load(good) as z:
+        arrays = {k: z[k] for k in z.files}
+    if damage.startswith("drop "):
+        del arrays[damage.split()[1]]
+    else:
+        text = {"header not JSON": b"{not json", "header not UTF-8": b"\xff\xfe", "header a list": b"[1]"}[damage]
+        arrays["__header__"] = np.frombuffer(text, dtype=np.uint8)
+    bad = tmp_path / "bad.npz"
+    np.savez(bad, **arrays)
+    with pytest.raises(ModelError, match=match) as info:
+        CellModel.load(bad)
+    assert str(info.value).startswith(f"{bad}: ")
+
+
 def _corrupt(cells, field):
     """``cells`` with one field made inconsistent (what a hand-edited or mismatched file holds)."""
     null = int(np.flatnonzero(cells.is_null)[0])

@@ -269,16 +269,26 @@ class CellModel:
             raise ModelError(f"{path}: not a readable CellModel file ({e})") from None
         if "__header__" not in arrays:
             raise ModelError(f"{path}: not a CellModel file (no header)")
-        header = json.loads(arrays.pop("__header__").tobytes().decode())
+        try:  # UnicodeDecodeError and JSONDecodeError are ValueErrors
+            header = json.loads(arrays.pop("__header__").tobytes().decode())
+        except ValueError as e:
+            raise ModelError(f"{path}: not a CellModel file (its header is not JSON text: {e})") from None
+        if not isinstance(header, dict):
+            raise ModelError(f"{path}: not a CellModel file (its header is not a JSON object)")
         if header.pop("format_version", None) != FORMAT_VERSION:
             raise ModelError(f"{path}: unsupported CellModel format version")
         kwargs = dict(header)
-        kwargs["grid_edges"] = tuple(arrays.pop(f"grid_edges_{a}") for a in "xyz")
+        edges = [f"grid_edges_{a}" for a in "xyz"]
+        if all(e in arrays for e in edges):
+            kwargs["grid_edges"] = tuple(arrays.pop(e) for e in edges)
         kwargs.update(arrays)
         names = {f.name for f in fields(cls)}
         missing = names - set(kwargs)
-        if missing:
-            raise ModelError(f"{path}: CellModel file lacks {sorted(missing)}")
+        if missing:  # the grid edges named by the members that hold them
+            listed = sorted(missing - {"grid_edges"})
+            if "grid_edges" in missing:
+                listed += [e for e in edges if e not in arrays]
+            raise ModelError(f"{path}: CellModel file lacks {sorted(listed)}")
         out = cls(**{k: v for k, v in kwargs.items() if k in names})
         out.validate()
         return out
