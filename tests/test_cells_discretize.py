@@ -17,6 +17,7 @@ from marlcrash.cells import (
     discretize,
     format_discretization_summary,
     load_discretization_config,
+    summarize_cells,
 )
 from marlcrash.cells.plot import plot_cells
 from marlcrash.config import config_dir, from_dict
@@ -336,6 +337,20 @@ def test_summary_and_plot(car, cfg, optimized, tmp_path):
         assert lines[at].split()[-1] == str(summary["n_null_cells"])
     png = plot_cells(optimized, tmp_path / "cells.png")
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_the_summary_of_a_per_block_uniform_model_does_not_call_its_cells_split(uniform_blocks, optimized):
+    """``uniform_cells: per_block`` splits no block: its count differs from the grid's blocks by the compartment
+    (a cell of its own, and the blocks of compartment material it takes in). The table printed it as "blocks split by
+    sub-assembly", the other setting's row."""
+    s = summarize_cells(uniform_blocks, optimized.n_cells)
+    assert s["n_cells"] != s["n_cells_uniform"]
+    lines = format_discretization_summary(s).splitlines()
+    assert not any("split by sub-assembly" in line for line in lines), lines
+    at = next(i for i, line in enumerate(lines) if "of which null cells" in line)
+    assert lines[at - 1].startswith("cells, uniform discretization (one per block")
+    assert lines[at - 1].split()[-1] == str(uniform_blocks.n_cells)
+    assert s["uniform_cells"] == "per_block"
 
 
 def test_config_file_and_errors():

@@ -24,7 +24,8 @@ def summarize_cells(cells: CellModel, n_cells_optimized: int | None = None) -> d
         optimized model: non-null, null, sensor and compartment), ``n_null_cells`` and ``n_sensor_cells``
         (this model), ``roi_mass_kg``, ``cell_mass_kg`` (cells without the compartment),
         ``compartment_mass_kg``, ``total_mass_kg``, ``n_subassemblies``, ``n_sensors``,
-        ``n_links`` and ``cells_per_subassembly`` (name -> count).
+        ``n_links``, ``cells_per_subassembly`` (name -> count) and ``uniform_cells`` (a uniform model's
+        ``uniform_cells`` setting, ``per_subassembly`` or ``per_block``; ``None`` for an optimized one).
     """
     comp = cells.compartment
     counts = {name: int((cells.subassembly == i).sum()) for i, name in enumerate(cells.subassembly_names)}
@@ -49,6 +50,7 @@ def summarize_cells(cells: CellModel, n_cells_optimized: int | None = None) -> d
         "n_sensors": len(cells.sensor_names),
         "n_links": cells.n_links,
         "cells_per_subassembly": counts,
+        "uniform_cells": None if cells.method == "optimized" else cells.meta.get("config", {}).get("uniform_cells"),
     }
 
 
@@ -80,8 +82,12 @@ def format_discretization_summary(s: dict) -> str:
     ]
     if s["method"] != "optimized":
         counts.reverse()
-        if s["n_cells"] != s["n_cells_uniform"]:  # blocks shared by sub-assemblies are split (uniform_cells)
-            counts.append(("cells, uniform discretization (blocks split by sub-assembly)", f"{s['n_cells']}", ""))
+        if s["n_cells"] != s["n_cells_uniform"]:  # this model's own count (the "of which" rows below are its)
+            how = {  # per_block splits nothing: it differs from the blocks by the compartment alone
+                "per_block": "one per block, plus the compartment",
+                "per_subassembly": "blocks split by sub-assembly",
+            }.get(s.get("uniform_cells"), "this model")
+            counts.append((f"cells, uniform discretization ({how})", f"{s['n_cells']}", ""))
     rows = [
         ("model", s["name"], ""),
         ("method", s["method"], ""),
