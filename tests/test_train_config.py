@@ -97,6 +97,35 @@ def test_command_line_values_win_over_the_ci_block_and_ci_errors_name_it():
     assert cfg.algorithm.minibatch_size == ippo["ci"]["algorithm.minibatch_size"]
 
 
+def test_a_ci_entry_given_as_a_mapping_changes_only_its_keys():
+    """``+ci.env_overrides.max_step=0.05`` (the command line's only way to add a nested ``ci`` entry; Hydra makes it
+    ``{"env_overrides": {"max_step": 0.05}}``) replaced the run's whole ``env_overrides``: the observation scales
+    of train.yaml fell back to the env file's 1.0 without a word. ``+ci.eval.iterations=2`` replaced the whole
+    ``eval`` section, refused as a missing ``eval.scenario``; a bad key inside one was not named ``ci.<key>``."""
+    full = load_train_config(composed(), ci=False)
+    cfg = load_train_config(composed(["+ci.env_overrides.max_step=0.05"]), ci=True)
+    assert cfg.env_overrides["max_step"] == 0.05
+    assert make_env_config(cfg).observation == make_env_config(full).observation  # the block's other keys kept
+    cfg = load_train_config(composed(["+ci.eval.iterations=2", "+ci.algorithm.lr=3e-4"]), ci=True)
+    assert cfg.eval.iterations == 2 and cfg.eval.scenario == full.eval.scenario
+    assert cfg.algorithm.lr == 3e-4 and cfg.algorithm.minibatch_size == composed()["ci"]["algorithm.minibatch_size"]
+    for override, key in (
+        ("+ci.algorithm.lrr=1", "ci.algorithm.lrr"),
+        ("+ci.env_overrides.max_step=7", "ci.env_overrides.max_step"),
+        ("+ci.env_overrides.masking.mode=all", "ci.env_overrides.masking.mode"),
+    ):
+        with pytest.raises(ConfigError, match="MARLCRASH_CI=1 applied it") as e:
+            load_train_config(composed([override]), source="configs/train/train.yaml", ci=True)
+        assert e.value.key == key
+    # a command-line value keeps winning over a nested ci entry of the same key
+    data = composed(["+ci.eval.iterations=2", "eval.iterations=9"])
+    assert load_train_config(data, ci=True, explicit=["eval.iterations"]).eval.iterations == 9
+    # an env section set in both places: the ci block's key joins the command line's others
+    data = composed(["+env_overrides.masking.min_fraction=0.5", "+ci.env_overrides.masking.mode=primary"])
+    masking = make_env_config(load_train_config(data, ci=True, explicit=["env_overrides.masking.min_fraction"])).masking
+    assert (masking.mode, masking.min_fraction) == ("primary", 0.5)
+
+
 def test_ci_reads_the_environment(monkeypatch):
     data = composed()
     monkeypatch.setenv("MARLCRASH_CI", "1")

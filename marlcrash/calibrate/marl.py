@@ -76,6 +76,7 @@ from marlcrash.calibrate.problem import SuccessConfig
 from marlcrash.calibrate.runlock import claim_dir, run_lock
 from marlcrash.config import (
     config_dir,
+    flatten_overrides,
     from_dict,
     load_config,
     load_yaml,
@@ -291,6 +292,28 @@ def _set_dotted(data: dict[str, Any], dotted: str, value: Any) -> None:
     node[parts[-1]] = value
 
 
+def _ci_items(over: dict[str, Any]) -> dict[str, Any]:
+    """The ``ci`` block as dotted keys. A mapping in it (``+ci.eval.iterations=2`` on the command line is
+    ``{"eval": {"iterations": 2}}``) changes only the keys it gives, of a section and of ``env_overrides`` alike;
+    applied whole, it replaced the section (``env_overrides`` lost train.yaml's observation scales silently)."""
+    out: dict[str, Any] = {}
+    for k, v in flatten_overrides(TrainConfig, over).items():
+        if k == "env_overrides" and isinstance(v, dict):  # dotted env keys (EnvConfig's sections spread): merged
+            out.update({f"{k}.{ek}": ev for ek, ev in flatten_overrides(EnvConfig, v).items()})
+        else:
+            out[k] = v
+    return out
+
+
+def _apply_ci(data: dict[str, Any], key: str, value: Any) -> None:
+    """Set one ``ci`` entry of :func:`_ci_items`; an env key stays one dotted key of ``env_overrides``."""
+    env = data.get("env_overrides")
+    if key.startswith("env_overrides.") and isinstance(env, dict):
+        env[key.removeprefix("env_overrides.")] = value
+    else:
+        _set_dotted(data, key, value)
+
+
 def value_keys(keys: Sequence[str]) -> list[str]:
     """The command-line override keys that set values, for ``load_train_config(explicit=...)``.
 
@@ -325,9 +348,9 @@ def load_train_config(
         over = data.get("ci") or {}
         if not isinstance(over, dict):
             raise ConfigError(f"expected a mapping of dotted overrides, got {over!r}", key="ci", path=source)
-        for k, v in over.items():
+        for k, v in _ci_items(over).items():
             if not any(k == e or k.startswith(e + ".") for e in explicit):
-                _set_dotted(data, k, v)
+                _apply_ci(data, k, v)
                 applied.append(k)
     try:
         if source is not None:
@@ -339,7 +362,7 @@ def load_train_config(
             raise nested_error(e, "", source) from None
         return config
     except ConfigError as e:
-        if e.key in applied:
+        if e.key is not None and any(e.key == k or e.key.startswith(k + ".") for k in applied):
             raise ConfigError(f"{e.reason} ({CI_ENV}=1 applied it)", key=f"ci.{e.key}", path=e.path) from None
         raise
 
