@@ -53,6 +53,25 @@ def test_an_unknown_group_option_lists_the_files_of_the_group():
     assert m == f"train.yaml key 'algorithm': no config 'sac' in configs/train/algorithm/; expected one of {options}"
 
 
+@pytest.mark.parametrize(
+    ("name", "override", "key", "words"),
+    [
+        # Hydra's ValueError: a traceback from inside Hydra instead of an error naming the key
+        ("train", "algorithm=null", "algorithm", "expected one of ['ippo', 'mappo', 'ppo_single']"),
+        ("ablate", "algorithm@ippo=null", "algorithm@ippo", "expected one of ['ippo', 'mappo', 'ppo_single']"),
+        # Hydra's messages named no key (an empty choice, the second of a list, a group the file does not use)
+        ("train", "algorithm=", "algorithm", "no config '' in configs/train/algorithm/; expected one of ["),
+        ("train", "algorithm=[mappo,sac]", "algorithm", "no config 'sac' in configs/train/algorithm/"),
+        ("train", "baseline@cmaes=cmaes", "baseline@cmaes", "Could not override 'baseline@cmaes'"),
+    ],
+)
+def test_a_bad_group_choice_is_named_with_its_key(name, override, key, words):
+    with pytest.raises(ConfigError) as e:  # beside another override, itself bad (ablate.yaml has seeds, not seed)
+        check_overrides(TRAIN_CONFIGS, name, ["seed=1", override])
+    assert e.value.key == key, str(e.value)
+    assert words in str(e.value)
+
+
 def test_an_unparsable_override_is_named_with_its_key():
     m = message("train", ["seed=1", "algorithm.hidden=[16,16"])
     assert m.startswith("train.yaml key 'algorithm.hidden': cannot parse the override 'algorithm.hidden=[16,16'")

@@ -75,12 +75,16 @@ def check_overrides(config_dir: str | Path, config_name: str, overrides: Sequenc
         with initialize_config_dir(config_dir=str(config_dir), version_base=None):
             return compose(config_name, overrides=list(ov))
 
+    def named(e: Exception) -> str | None:  # the key a message quotes, else that of the override it fails at
+        return _named(e) or _culprit(composed, overrides, e)
+
     try:
         composed(overrides)
     except MissingConfigException as e:
-        found = re.search(r"Could not find '([^']+)/([^'/]+)'", str(e))
+        # an unknown choice, an empty one (algorithm=) and one of a list (algorithm=[mappo,sac]) alike
+        found = re.search(r"Could not (?:find|load) '([^']+)/([^'/]*)'", str(e))
         if found is None:
-            raise ConfigError(_whole(e), key=_named(e), path=source) from None
+            raise ConfigError(_whole(e), key=named(e), path=source) from None
         group, option = found.groups()
         raise ConfigError(
             f"no config '{option}' in configs/train/{group}/; expected one of {_options(config_dir, group)}",
@@ -90,7 +94,7 @@ def check_overrides(config_dir: str | Path, config_name: str, overrides: Sequenc
     except ConfigCompositionException as e:
         key = getattr(e.__cause__, "full_key", None)
         if not key:
-            raise ConfigError(_whole(e), key=_named(e), path=source) from None
+            raise ConfigError(_whole(e), key=named(e), path=source) from None
         parent, _, _ = str(key).rpartition(".")
         groups = [o for o in overrides if (config_dir / _key(o)).is_dir()]  # the group files the user picked
         try:
@@ -112,13 +116,36 @@ def check_overrides(config_dir: str | Path, config_name: str, overrides: Sequenc
     except HydraException as e:  # a malformed override (OverrideParseException) and the rest of Hydra's errors
         bad = _unparsable(overrides)
         if bad is None:
-            raise ConfigError(_whole(e), key=_named(e), path=source) from None
+            raise ConfigError(_whole(e), key=named(e), path=source) from None
         raise ConfigError(
             f"cannot parse the override {bad!r}: {_first_line(e)}; expected key=value in Hydra's override grammar "
             f"(quote values with brackets, commas or spaces: key='[1, 2]')",
             key=_key(bad),
             path=source,
         ) from None
+    except ValueError as e:  # Hydra's check of a config-group choice (algorithm=null) is not a HydraException
+        key = named(e)
+        group = None if key is None else key.split("@")[0]  # algorithm@mappo: a choice of algorithm/
+        is_group = group is not None and (config_dir / group).is_dir()
+        expected = f"; expected one of {_options(config_dir, group)}" if is_group else ""
+        raise ConfigError(f"{_whole(e)}{expected}", key=key, path=source) from None
+
+
+def _culprit(composed: Callable[[Sequence[str]], Any], overrides: Sequence[str], error: Exception) -> str | None:
+    """The key of the override behind a Hydra ``error`` that quotes none: the one that alone fails with the same
+    message, else the first that composition fails at."""
+    for o in overrides:
+        try:
+            composed([o])
+        except Exception as e:  # any failure: compared with the one to explain
+            if type(e) is type(error) and str(e) == str(error):
+                return _key(o)
+    for i in range(len(overrides)):
+        try:
+            composed(overrides[: i + 1])
+        except Exception:  # any failure: this override is the first that breaks the composition
+            return _key(overrides[i])
+    return None
 
 
 def _unparsable(overrides: Sequence[str]) -> str | None:
