@@ -159,6 +159,9 @@ def test_ci_reads_the_environment(monkeypatch):
         # an infinite initial scale: the first update's loss was NaN, refused as a diverged 'algorithm.lr'
         (["algorithm.init_std=100"], "algorithm.init_std", "softplus head can represent in float32"),
         (["algorithm.mean_init_gain=nan"], "algorithm.mean_init_gain", "expected a finite number"),
+        # a floor <= 0 on its own was named algorithm.init_std, the key the user had not touched
+        (["algorithm.min_std=0"], "algorithm.min_std", "expected a standard deviation floor > 0, got 0.0"),
+        (["algorithm.min_std=0.5"], "algorithm.init_std", "min_std (0.5) < init_std (0.3)"),
         (["resume=1"], "resume", "expected true or false or a string, got 1"),  # one message for the union
     ],
 )

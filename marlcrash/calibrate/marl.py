@@ -149,7 +149,8 @@ class AlgorithmConfig:
         for k in ("entropy_coef", "entropy_coef_final", "critic_coef"):
             v = getattr(self, k)
             require(math.isfinite(v) and v >= 0, k, f"expected a coefficient >= 0, got {v}")
-        require(0 < self.min_std < self.init_std, "init_std",
+        require(self.min_std > 0, "min_std", f"expected a standard deviation floor > 0, got {self.min_std}")
+        require(self.min_std < self.init_std, "init_std",
                 f"expected 0 < min_std ({self.min_std}) < init_std ({self.init_std})")  # fmt: skip
         require(math.isfinite(initial_std(self.init_std, self.min_std)), "init_std",
                 f"expected an initial standard deviation the policy's softplus head can represent in float32 "
