@@ -1026,6 +1026,37 @@ def test_set_card_errors_name_the_field_as_the_manual_does(tmp_path, card, patte
         _read(_write(tmp_path, HEAD + NODES + SHELL + card))
 
 
+@pytest.mark.parametrize(
+    ("card", "pattern"),
+    [
+        (
+            "*SET_NODE_LIST_GENERATE\n         6\n        14        11\n",
+            r"line 21: \*SET_NODE_LIST_GENERATE expects B1BEG <= B1END \(a range from first to last id\), got 14 > 11",
+        ),
+        (
+            "*SET_PART_LIST_GENERATE\n         7\n         1         1\n         1         1         9         3\n",
+            r"line 22: \*SET_PART_LIST_GENERATE expects B2BEG <= B2END \(a range from first to last id\), got 9 > 3",
+        ),
+        (
+            "*SET_PART_LIST_GENERATE\n         7\n         0         1\n",
+            r"line 21: \*SET_PART_LIST_GENERATE expects positive ids B1BEG and B1END, got 0 and 1",
+        ),
+        (
+            "*SET_NODE_LIST_GENERATE\n         6\n         1         4         2\n",
+            r"line 21: \*SET_NODE_LIST_GENERATE expects positive ids B2BEG and B2END, got 2 and 0",
+        ),
+    ],
+    ids=["swapped", "swapped-second-line", "zero-begin", "blank-end"],
+)
+def test_a_generated_set_range_must_run_from_first_to_last_id(tmp_path, card, pattern):
+    """A *SET_..._GENERATE range with its ends swapped (14 11) or one end blank or zero gave no ids, or id 0, without
+    a word: a set that then names nothing (an initial velocity that moves no node); now an error names the range."""
+    with pytest.raises(DeckError, match=r"deck\.k " + pattern):
+        _read(_write(tmp_path, HEAD + NODES + SHELL + card))
+    good = "*SET_NODE_LIST_GENERATE\n         6\n         1         2         4         4\n"
+    assert _read(_write(tmp_path, HEAD + NODES + SHELL + good)).n_nodes == 4  # a one-id range (4 4) is fine
+
+
 def test_a_utf8_byte_order_mark_is_no_data(tmp_path):
     """A deck saved by a Windows editor starts with a byte-order mark; it was refused ('expected a keyword line
     starting with '*', got data '\\ufeff*KEYWORD'), in an included file too."""

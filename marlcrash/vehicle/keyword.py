@@ -1507,8 +1507,19 @@ def _read_id_set(block: _Block, opts: set[str], out: dict[int, tuple[str, list[i
         v = _table(block, body, layout, params)
         vals = np.stack([v[f.name] for f in layout], axis=1)  # [lines, 8], blanks 0
         if "GENERATE" in opts:
-            for a, b in vals.reshape(-1, 2).tolist():
-                if a or b:
+            for row, line in zip(body.tolist(), vals.tolist(), strict=True):
+                for k in range(4):
+                    a, b = line[2 * k], line[2 * k + 1]
+                    if not (a or b):
+                        continue
+                    beg, end = f"B{k + 1}BEG", f"B{k + 1}END"
+                    if a <= 0 or b <= 0:
+                        raise block.err(f"*{block.keyword} expects positive ids {beg} and {end}, got {a} and {b}", row)
+                    if a > b:
+                        raise block.err(
+                            f"*{block.keyword} expects {beg} <= {end} (a range from first to last id), got {a} > {b}",
+                            row,
+                        )
                     ids.extend(range(a, b + 1))
         else:
             ids = [int(x) for x in vals.ravel().tolist() if x]
