@@ -10,6 +10,7 @@ import re
 import numpy as np
 import pytest
 import torch
+from test_cells_helpers import drawn_figures, drawn_turn_from_x_to_y
 
 from marlcrash.analysis import (
     agent_changes,
@@ -303,6 +304,18 @@ def test_plots_and_tables_are_written(problem, tmp_path):
         assert path.stat().st_size > 200
     rows = (tmp_path / "c.csv").read_text().splitlines()
     assert len(rows) == 1 + problem.n_agents * len(c.quantities)
+
+
+def test_the_contribution_view_draws_the_cars_left_on_its_left(problem, tmp_path, monkeypatch):
+    """The cells coloured by contribution were drawn mirrored (matplotlib's axes are right-handed, marlcrash's frame
+    x rearward, y left, z up is not): a left offset impact's agents were coloured on the car's right side."""
+    calibrated, _ = _three_agents_at_the_truth(problem)
+    figs = drawn_figures(monkeypatch)
+    plot_cells_by_contribution(problem, agent_contributions(problem, calibrated), tmp_path / "3d.png")
+    ax = figs[0].axes[0]
+    xyz = np.concatenate([np.column_stack([np.asarray(a) for a in c._offsets3d]) for c in ax.collections])
+    np.testing.assert_allclose(np.sort(xyz, axis=0), np.sort(np.asarray(problem.cells.centroid), axis=0), atol=1e-12)
+    assert drawn_turn_from_x_to_y(ax) == -1.0
 
 
 def test_cells_are_coloured_only_by_contributions_of_the_problems_agents(problem, tmp_path):

@@ -6,7 +6,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from test_cells_helpers import build_model, mini_car, plate, tube_x
+from test_cells_helpers import build_model, drawn_figures, drawn_turn_from_x_to_y, mini_car, plate, tube_x
 from test_cells_transmission import check_invariants
 
 from marlcrash.cells import (
@@ -351,6 +351,23 @@ def test_the_summary_of_a_per_block_uniform_model_does_not_call_its_cells_split(
     assert lines[at - 1].startswith("cells, uniform discretization (one per block")
     assert lines[at - 1].split()[-1] == str(uniform_blocks.n_cells)
     assert s["uniform_cells"] == "per_block"
+
+
+def test_the_3d_view_draws_the_cars_left_on_its_left(optimized, tmp_path, monkeypatch):
+    """marlcrash's frame (x rearward, y left, z up) is left-handed and matplotlib draws its 3D axes right-handed:
+    the cells were drawn mirrored, the car's left (the up-front left sensor, +y) on its right side."""
+    figs = drawn_figures(monkeypatch)
+    plot_cells(optimized, tmp_path / "cells.png")
+    ax = figs[0].axes[0]
+    # the drawn points are the voxels' own centres: the left sensor's cell on the left (+y)
+    xs, ys, zs = (np.asarray(a) for a in ax.collections[-1]._offsets3d)  # the sensor cells, drawn last
+    ix, iy, iz = np.nonzero(optimized.grid_labels == optimized.sensor_cell[0])
+    centre = [0.5 * (np.asarray(e)[1:] + np.asarray(e)[:-1]) for e in optimized.grid_edges]
+    left = np.column_stack([centre[0][ix], centre[1][iy], centre[2][iz]])
+    assert (left[:, 1] > 0).all()
+    drawn = {tuple(p) for p in np.round(np.column_stack([xs, ys, zs]), 9).tolist()}
+    assert {tuple(p) for p in np.round(left, 9).tolist()} <= drawn
+    assert drawn_turn_from_x_to_y(ax) == -1.0  # ... and the frame drawn as the left-handed frame it is
 
 
 def test_config_file_and_errors():

@@ -152,6 +152,39 @@ def _tube_y(x0, x1, y0, y1, z0, z1):
     return nodes[:, [1, 0, 2]], quads[:, [0, 3, 2, 1]]
 
 
+def drawn_figures(monkeypatch) -> list:
+    """The matplotlib figures saved from now on (``Figure.savefig`` records its figure, then saves as before)."""
+    from matplotlib.figure import Figure
+
+    figs, save = [], Figure.savefig
+
+    def recording(fig, *args, **kwargs):
+        figs.append(fig)
+        return save(fig, *args, **kwargs)
+
+    monkeypatch.setattr(Figure, "savefig", recording)
+    return figs
+
+
+def drawn_turn_from_x_to_y(ax) -> float:
+    """The turn from the drawn +x axis to the drawn +y axis of 3D ``ax`` seen from above (+z toward the viewer):
+    +1 counter-clockwise (a right-handed frame, as matplotlib draws its axes), -1 clockwise (a left-handed one).
+
+    marlcrash's frame (x rearward, y left, z up) is left-handed: drawn as it is, a car seen from above with its
+    nose up the page has its left (+y) on the page's left, and x turns clockwise to y. The view is restored.
+    """
+    from mpl_toolkits.mplot3d import proj3d
+
+    elev, azim = ax.elev, ax.azim
+    ax.view_init(elev=89.0, azim=azim)  # from above; 90 exactly leaves the screen's up direction undefined
+    lims = np.array([ax.get_xlim3d(), ax.get_ylim3d(), ax.get_zlim3d()])
+    c, d = lims.mean(axis=1), 0.1 * np.abs(lims[:, 1] - lims[:, 0])
+    pts = c + np.vstack([np.zeros(3), np.diag(d)[:2]])  # the centre, a step along x, a step along y
+    u, v, _ = proj3d.proj_transform(pts[:, 0], pts[:, 1], pts[:, 2], ax.get_proj())
+    ax.view_init(elev=elev, azim=azim)
+    return float(np.sign((u[1] - u[0]) * (v[2] - v[0]) - (v[1] - v[0]) * (u[2] - u[0])))
+
+
 def test_tube_mass_matches_closed_form():
     nodes, quads = tube_x(0.0, 0.6, -0.05, 0.05, 0.0, 0.08, 12, 5)
     m = build_model([("rail", "shell", (nodes, quads), 2e-3, 1)])

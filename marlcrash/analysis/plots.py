@@ -8,6 +8,7 @@ import numpy as np
 
 from marlcrash.analysis.contributions import Contributions, quantity_unit
 from marlcrash.calibrate.problem import CalibrationProblem
+from marlcrash.cells.plot import draw_vehicle_frame
 from marlcrash.outputs import atomic_output
 
 
@@ -97,6 +98,7 @@ def plot_cells_by_contribution(
     ax.set_xlabel("x (rearward) [m]")
     ax.set_ylabel("y (left) [m]")
     ax.set_zlabel("z (up) [m]")
+    draw_vehicle_frame(ax)
     ax.set_box_aspect(np.ptp(xyz, axis=0) + 1e-3)
     ax.view_init(elev=25, azim=-125)
     what = "score" if quantity == "score" else f"-{quantity}"

@@ -9,6 +9,16 @@ import numpy as np
 from marlcrash.cells.model import CellModel
 
 
+def draw_vehicle_frame(ax) -> None:
+    """Draw 3D ``ax``'s data in marlcrash's vehicle frame as it is (x rearward, y left, z up; call after plotting).
+
+    That frame is left-handed and matplotlib draws its 3D axes right-handed, so the plain points showed the vehicle
+    mirrored, its left (+y) on its right side. The y axis is drawn reversed, which makes the drawn frame the
+    vehicle's: seen from the front, the vehicle's left is on the viewer's right.
+    """
+    ax.invert_yaxis()
+
+
 def plot_cells(cells: CellModel, path: str | Path, max_points: int = 60000) -> Path:
     """Write a 3D scatter PNG of the cells' voxels coloured by sub-assembly (null cells omitted).
 
@@ -48,6 +58,7 @@ def plot_cells(cells: CellModel, path: str | Path, max_points: int = 60000) -> P
     ax.set_xlabel("x [m] (rearward)")
     ax.set_ylabel("y [m] (left)")
     ax.set_zlabel("z [m]")
+    draw_vehicle_frame(ax)
     ax.set_title(f"{cells.name}: {cells.method}, {cells.n_cells} cells ({cells.n_null} null)")
     ax.legend(loc="upper left", fontsize=6, markerscale=3, ncol=2)
     ax.view_init(elev=25, azim=-130)
