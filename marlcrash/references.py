@@ -371,7 +371,16 @@ class ReferenceSampler:
 
     # ----------------------------------------------------------------------------------- sampling
     def sample(self, rng: np.random.Generator, n: int) -> ReferenceBatch:
-        """Draw ``n`` references (scenario by weight, then the reference) with ``rng``."""
+        """Draw ``n`` references (scenario by weight, then the reference) with ``rng``.
+
+        The draws come in this order: the ``n`` scenario picks (``file``: test picks), then the ``[n, S, 7]``
+        standard normals of the twin perturbations (``twin``) or the ``n`` vehicle-seed picks (``cross_fidelity``).
+        A row's reference therefore depends on ``n``: from generators in the same state, the first four rows of
+        ``sample(rng, 8)`` have the scenarios of ``sample(rng, 4)`` but not its twin perturbations (nor, in general,
+        its vehicle-seed picks).
+        A reference that depends on a seed alone is ``sample(numpy.random.default_rng(seed), 1)``: the one
+        :meth:`pinned` repeats and :func:`~marlcrash.calibrate.problem.build_problem` calibrates.
+        """
         pick = rng.choice(len(self.choices), size=n, p=self.weights)
         names = [self.choices[i] for i in pick]
         scs = [self.scenarios[s] for s in names]

@@ -24,7 +24,14 @@ from marlcrash.pulse.signal import (
     compared_window,
     margin_samples,
 )
-from marlcrash.references import FileReference, ReferenceConfig, ReferenceSampler, TwinConfig, perturb_twin
+from marlcrash.references import (
+    FileReference,
+    ReferenceConfig,
+    ReferenceSampler,
+    TwinConfig,
+    perturb_twin,
+    twin_increments,
+)
 from marlcrash.sim import Surrogate, get_scenario
 
 DATA = Path(__file__).resolve().parent / "data"
@@ -136,6 +143,22 @@ def test_twin_perturbation_is_per_subassembly_feasible_and_seeded(cells, sim):
                     overlap=torch.tensor([x.overlap for x in sc], dtype=f64),
                     side=torch.tensor([x.side_sign for x in sc], dtype=f64))  # fmt: skip
     torch.testing.assert_close(a.velocity, s.compared(again.velocity), rtol=0, atol=1e-12)
+
+
+def test_a_batch_draws_its_scenarios_first_then_its_references_as_documented(cells, sim):
+    """sample()'s docstring: the n scenario picks, then the [n, S, 7] twin normals; so a row's twin depends on n
+    (rows 0-3 of a batch of 8 are not a batch of 4 from the same seed), while one draw is the seed's own reference."""
+    s = sampler(cells, sim, scenarios={"offset40_left": 1.0, "small_overlap_right": 2.0})
+    eight, four = s.sample(np.random.default_rng(3), 8), s.sample(np.random.default_rng(3), 4)
+    for n, ref in ((8, eight), (4, four)):
+        rng = np.random.default_rng(3)
+        pick = rng.choice(2, size=n, p=[1 / 3, 2 / 3])
+        noise = torch.as_tensor(rng.standard_normal((n, s.n_subassemblies, 7)))
+        assert ref.scenario == [["offset40_left", "small_overlap_right"][i] for i in pick]
+        torch.testing.assert_close(ref.true_increments, twin_increments(noise, s.config.twin), rtol=0, atol=0)
+    assert eight.scenario[:4] == four.scenario and not torch.equal(eight.true_increments[:4], four.true_increments)
+    one = s.sample(np.random.default_rng(3), 1)
+    torch.testing.assert_close(s.pinned(3, 2).true_params, one.true_params.expand(2, -1, -1), rtol=0, atol=0)
 
 
 def test_perturb_twin_bounds_clip_the_behaviour_factors(cells):

@@ -21,7 +21,9 @@ re-seeds the core first, exactly as the PettingZoo door's ``reset(seed=s)``.
 Seeding copies: every env starts from its config's ``seed`` (reproducible by default), so copies run side by side
 (``SerialEnv``, ``ParallelEnv``) draw the same episodes until seeded: call ``set_seed(s)`` on the batched env (TorchRL
 gives each worker its own seed from ``s``), or give each copy its own ``seed``. One env with ``batch_size=B`` needs
-neither: its rows draw from one generator.
+neither: its rows draw from one generator, all rows of a reset in one draw
+(:meth:`~marlcrash.references.ReferenceSampler.sample`), so a row's references depend on ``B`` and on which rows reset
+together: the same seed reproduces a run of the same ``B``, and ``reference.pin_seed`` gives every row one reference.
 
 Worker processes: a ``ParallelEnv`` needs the ``spawn`` start method (TorchRL's default). With
 ``mp_start_method="fork"`` in a process that has already simulated, the workers die at start ("fork() called from
