@@ -781,7 +781,8 @@ def test_materials_and_sections_of_a_full_vehicle_deck(tmp_path):
         return _write(tmp_path, HEAD + NODES + SHELL + FULL_VEHICLE_EXTRAS + FULL_VEHICLE_ELEMENTS + sheet, name)
 
     # a part with elements the reader reads still needs a section, a material and a density it reads
-    with pytest.raises(DeckError, match=r"used.k line \d+: \*PART 18 refers to undefined section 13"):
+    with pytest.raises(DeckError, match=r"used.k line \d+: \*PART 18 refers to section 13, a \*SECTION_DISCRETE "
+                                        r"\(used.k line 35\) that the reader does not read"):  # fmt: skip
         _read(with_sheet("used.k", 13, 1))
     with pytest.raises(DeckError, match=r"spring.k line 37: material 13 \(\*MAT_SPRING_ELASTIC\) is a spring, .* "
                                         r"yet part 18 uses it"):  # fmt: skip
@@ -952,6 +953,58 @@ def test_a_blank_density_is_named_at_its_card(tmp_path):
         with pytest.raises(DeckError, match=r"deck.k line 11: \*MAT card 1 expects a numeric density RO in columns "
                            r"11-20, got blank \(\*MAT_ELASTIC, used by part 1\)"):  # fmt: skip
             _read(_write(tmp_path, blank), units=units)
+
+
+@pytest.mark.parametrize(
+    ("card1", "card2", "area_mm2"),
+    [
+        ("1,1,1.0,2,0,0.0", "20.0,20.0,10.0,10.0,0.0,0.0", 200.0),  # TS1 TS2 TT1 TT2 NSLOC NTLOC: 20 x 10
+        ("1,1,1.0,2,1,0.0", "20.0,20.0,10.0,10.0,0.0,0.0", math.pi / 4 * (20.0**2 - 10.0**2)),  # a tube
+        ("1,2,1.0,2,0,0.0,0.0", "50.0,100.0,100.0,200.0,0.0,1", 50.0),  # A ISS ITT J SA IST
+        ("1,3", "50.0,0.0,0.0", 50.0),  # A RAMPT STRESS
+        ("1,9,1.0,2,1", "5.0,5.0,0.0,0.0,1.0", math.pi / 4 * 25.0),  # spot weld: TS1 TS2 TT1 TT2 PRINT
+    ],
+)
+def test_section_beam_second_cards_of_each_formulation_are_read(tmp_path, card1, card2, area_mm2):
+    """*SECTION_BEAM's second card depends on ELFORM (all its fields, fixed or free format, in one block with a
+    second section): each gives its area."""
+
+    def fixed(line: str) -> str:
+        return "".join(f"{v:>10}" for v in line.split(","))
+
+    for c1, c2 in ((card1, card2), (fixed(card1), fixed(card2))):
+        deck = (
+            f"*KEYWORD\n*PART\nbar\n         1         1         1\n*SECTION_BEAM\n{c1}\n{c2}\n2,3\n60.0\n"
+            "*MAT_ELASTIC\n         1  7.85e-09  210000.0       0.3\n*NODE\n1,0,0,0\n2,100,0,0\n"
+            "*ELEMENT_BEAM\n       1       1       1       2\n"
+        )
+        m = _read(_write(tmp_path, deck))
+        np.testing.assert_allclose(m.beam_area, [area_mm2 * 1e-6], rtol=1e-12)
+
+
+@pytest.mark.parametrize(
+    ("section", "line"),
+    [
+        ("*SECTION_BEAM_AISC\n         1W14X90\n         2       1.0       0.0\n", 6),  # a standard shape's name
+        ("*SECTION_BEAM_AISC_TITLE\nbeam\n1,W14X90\n2,1.0,0.0\n", 7),
+        ("*SECTION_DISCRETE\n         1         0\n       0.0       0.0\n", 6),  # a spring's section
+    ],
+)
+def test_a_beam_section_the_reader_does_not_read_is_named_not_called_undefined(tmp_path, section, line):
+    """Beams whose *PART names a *SECTION_BEAM_AISC (or a *SECTION_DISCRETE) were refused with 'refers to undefined
+    section 1', though the deck defines it: the reader skips those cards (it has no AISC shape table)."""
+    deck = (
+        "*KEYWORD\n*PART\nbar\n         1         1         1\n" + section
+        + "*MAT_ELASTIC\n         1  7.85e-09  210000.0       0.3\n*NODE\n1,0,0,0\n2,100,0,0\n"
+        + "*ELEMENT_BEAM\n       1       1       1       2\n"
+    )  # fmt: skip
+    pattern = (rf"deck\.k line 4: \*PART 1 refers to section 1, a \*SECTION_\w+ \(deck\.k line {line}\) that the "
+               r"reader does not read; its shell, solid or beam elements need a \*SECTION_SHELL, \*SECTION_SOLID or "
+               r"\*SECTION_BEAM$")  # fmt: skip
+    with pytest.raises(DeckError, match=pattern):
+        _read(_write(tmp_path, deck))
+    with pytest.raises(DeckError, match=r"deck\.k line 4: \*PART 1 refers to undefined section 1$"):
+        _read(_write(tmp_path, deck.replace(section, section.replace("1", "7", 1))))  # section 7: none is 1
 
 
 def test_element_beam_section_reads_its_section_type_card(tmp_path):

@@ -165,6 +165,7 @@ _PART = _card("pid", "secid", "mid", kinds="iii")
 _SEC_SHELL_1 = _card("secid", "elform", "shrf", "nip", "propt", "qr", "icomp", kinds="iifffff")
 _SEC_SHELL_2 = _card("t1", "t2", "t3", "t4", "nloc", "marea")
 _SEC_SOLID = _card("secid", "elform", kinds="if")
+_SEC_ID = _card("secid", kinds="i")  # the first field of every *SECTION card
 _SEC_BEAM_1 = _card("secid", "elform", "shrf", "qr", "cst", "scoor", "nsm", kinds="iffffff")
 _SEC_BEAM_2 = _card("a1", "a2", "a3", "a4")
 _MAT_1 = _card("mid", "c1", "c2", "c3", "c4", "c5", "c6", "c7", kinds="ifffffff")
@@ -1066,6 +1067,7 @@ class _Tables:
     nodal_bodies: list[_NodalBody] = field(default_factory=list)
     extra_nodes: dict[int, list[tuple[int, bool, tuple[Path, int]]]] = field(default_factory=dict)  # pid -> (id, set)
     unread_stypes: Counter = field(default_factory=Counter)  # *ELEMENT_BEAM_SECTION types without an area -> count
+    unread_sections: dict[int, tuple[str, Path, int]] = field(default_factory=dict)  # SECID -> (keyword, file, line)
 
 
 @dataclass
@@ -1346,6 +1348,22 @@ def _read_section(block: _Block, kind: str, opts: set[str], t: _Tables, params: 
             i += 2
             if opts - {"TITLE"}:
                 break
+
+
+def _note_unread_section(block: _Block, t: _Tables) -> None:
+    """Where the first SECID of a ``*SECTION_...`` card the reader does not read is, for the error of a part that
+    uses it (a SECID given as a label, or unreadable, is not noted)."""
+    rows = _nonblank(block, block.rows)
+    rows = rows[1:] if "TITLE" in block.keyword.split("_") else rows
+    if rows.size:
+        text = block.src.text(int(rows[0]))
+        tok = text.split(",")[0] if "," in text else text[: _widths(_SEC_ID, block.fmt)[0]]
+        try:  # read as written: a parameter here is not resolved (nor marked used) for a card that is skipped
+            secid = int(tok.strip())
+        except ValueError:
+            return
+        if secid > 0:
+            t.unread_sections.setdefault(secid, (block.keyword, block.src.path, block.lineno(int(rows[0]))))
 
 
 def _beam_area(elform: int, cst: int, a1: float, a2: float, a3: float, a4: float, qr: float = 0.0) -> float | None:
@@ -1739,8 +1757,13 @@ def _dispatch(block: _Block, t: _Tables, deck: _Deck) -> None:
             if opts <= {"TITLE"} or (kind == "shell" and opts <= {"TITLE", "ALE", "MISC", "EFG", "XFEM"}):
                 _read_section(block, kind, opts, t, params)
             else:
+                _note_unread_section(block, t)
                 deck.skipped[kw] += 1
             return
+    if kw.startswith("SECTION_"):  # *SECTION_DISCRETE, _SEATBELT, _TSHELL, ...
+        _note_unread_section(block, t)
+        deck.skipped[kw] += 1
+        return
     if kw.startswith("MAT_"):
         mk = _material_kind(kw)
         if mk is None:
@@ -1978,6 +2001,11 @@ def _assemble(deck: _Deck, t: _Tables, units: str | None, main: Path) -> tuple[V
                          f"cannot be read ({why})")  # fmt: skip
     parts: dict[int, Part] = {}
     for pid, (title, secid, mid, where) in t.parts.items():
+        if secid not in t.sections and secid in t.unread_sections:
+            kw, path, line = t.unread_sections[secid]
+            raise DeckError(f"*PART {pid} refers to section {secid}, a *{kw} ({path.name} line {line}) that the reader "
+                            "does not read; its shell, solid or beam elements need a *SECTION_SHELL, *SECTION_SOLID "
+                            "or *SECTION_BEAM", *where)  # fmt: skip
         if secid not in t.sections:
             raise DeckError(f"*PART {pid} refers to undefined section {secid}", *where)
         if mid not in materials:
