@@ -67,18 +67,27 @@ def test_twin_without_spread_is_the_model_itself(cells, sim):
 
 def test_compared_signal_is_the_integral_of_the_cfc60_acceleration(cells, sim):
     """DESIGN 1.5: the compared velocity integrates the CFC-filtered acceleration of the record led in by
-    PRE_IMPACT_TIME at the impact speed (zero acceleration before contact); raw on request."""
+    PRE_IMPACT_TIME at the impact speed (zero acceleration before contact); with ``compare_cfc: null`` the same
+    integral unfiltered (what a record of that acceleration read with ``cfc: null`` integrates to)."""
     raw = sampler(cells, sim, twin=TwinConfig(0.0, 0.0, 0.0), compare_cfc=None).sample(np.random.default_rng(0), 1)
     cfc = sampler(cells, sim, twin=TwinConfig(0.0, 0.0, 0.0)).sample(np.random.default_rng(0), 1)
     dt = 5e-4
     n = round(PRE_IMPACT_TIME / dt)
-    led = torch.cat([raw.velocity[..., :1].expand(-1, -1, n), raw.velocity], -1)
+    v = raw.raw_velocity
+    led = torch.cat([v[..., :1].expand(-1, -1, n), v], -1)
     acc = torch.gradient(led, spacing=dt, dim=-1)[0]
+
+    def integral(a):  # trapezoid from the impact speed at the lead-in's first sample
+        inc = 0.5 * (a[..., 1:] + a[..., :-1]) * dt
+        return v[..., :1] + torch.cat([torch.zeros_like(a[..., :1]), torch.cumsum(inc, -1)], -1)
+
     filtered = torch.as_tensor(cfc_filter(acc.numpy(), dt, 60).copy())
-    expected = raw.velocity[..., :1] + torch.cat(
-        [torch.zeros_like(acc[..., :1]), torch.cumsum(0.5 * (filtered[..., 1:] + filtered[..., :-1]) * dt, -1)], -1
-    )
-    torch.testing.assert_close(cfc.velocity, expected[..., n:], rtol=0, atol=1e-9)
+    torch.testing.assert_close(cfc.velocity, integral(filtered)[..., n:], rtol=0, atol=1e-9)
+    torch.testing.assert_close(raw.velocity, integral(acc)[..., n:], rtol=0, atol=1e-9)
+    # unfiltered, the integral of the central differences is the velocity averaged [1, 2, 1] / 4
+    pad = torch.cat([v[..., :1], v, v[..., -1:]], -1)
+    smooth = (pad[..., :-2] + 2 * pad[..., 1:-1] + pad[..., 2:]) / 4
+    torch.testing.assert_close(raw.velocity[..., :-1], smooth[..., :-1], rtol=0, atol=1e-9)
     assert not torch.allclose(cfc.velocity, raw.velocity, atol=1e-3)  # the filter does act on the up-front sensors
 
 
@@ -88,7 +97,7 @@ def test_compared_signal_has_no_offset_from_the_first_contact(cells, sim):
     sensor of the default car while it sat at the wall); with it, the compared signal follows the raw
     velocity once the filter's few-millisecond spread is over."""
     raw = sampler(cells, sim, twin=TwinConfig(0.0, 0.0, 0.0), compare_cfc=None).sample(np.random.default_rng(0), 1)
-    v = raw.velocity[0]
+    v = raw.raw_velocity[0]
     window = slice(60, 120)  # 30-60 ms: the up-front cells rest against the barrier, the tunnel decelerates
     assert float(v[0, :10].min()) < 1.0  # the up-front sensor stops within 5 ms
     now = compared_velocity(v, 5e-4, 60)
@@ -214,6 +223,29 @@ def test_a_simulation_written_as_csv_and_read_as_a_file_reference_is_the_simulat
     model = compared_velocity(result.velocity.double(), sc.output_dt, 60)
     assert float(ref[0, 0, 0]) < sc.speed - 3.0  # the up-front sensors' first millisecond, as the model's
     torch.testing.assert_close(ref, model, rtol=0, atol=1e-6)  # the CSV's 17 significant digits, filtered
+
+
+def test_an_unfiltered_comparison_of_a_simulation_read_back_as_a_file_is_exact(cells, sim, tmp_path):
+    """``compare_cfc: null`` with the model's own simulation as the test (``cfc: null``): the candidate at the test's
+    parameters meets it exactly. The file holds the sampled acceleration (central differences), and its integral is
+    the velocity averaged [1, 2, 1] / 4 over neighbouring samples; the candidate was compared as its raw velocity,
+    which missed the up-front sensors by a DFD of 2.4 m/s (they stop within 2 ms)."""
+    from marlcrash.calibrate.problem import ProblemConfig, build_problem
+    from marlcrash.pulse.simulation import write_crash_csv
+
+    sc = get_scenario("full_width_40")
+    result = sim.run(torch.as_tensor(cells.params)[None], sc, record_cells="none")
+    path = write_crash_csv(result, tmp_path / "sim.csv")
+    channels = {s: f"{s}_acc_g" for s in cells.sensor_names}
+    spec = FileReference(path=str(path), scenario=sc.name, channels=channels, cfc=None)
+    s = sampler(cells, sim, kind="file", files=[spec], compare_cfc=None)
+    ref = s.sample(np.random.default_rng(0), 1).velocity
+    torch.testing.assert_close(ref, s.compared(result.velocity), rtol=0, atol=1e-9)
+    files = [{"path": str(path), "scenario": sc.name, "channels": channels, "cfc": None}]
+    over = {"reference.files": files, "reference.compare_cfc": None}
+    problem = build_problem(ProblemConfig(reference="file", env_overrides=over), cells)
+    m = problem.evaluate(problem.zeros(1))
+    assert float(m.dfd.max()) < 1e-6 and float(m.area.max()) < 1e-9
 
 
 def test_a_test_record_with_pre_trigger_samples_and_an_offset_is_the_simulation(cells, sim, tmp_path):

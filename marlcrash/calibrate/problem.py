@@ -189,7 +189,7 @@ class CalibrationProblem:
         box_radius: search box half-width [-].
         sim_backend, metrics_backend: engines of :meth:`evaluate`.
         compare_cfc: CFC class of the compared signal (the integral of the filtered acceleration;
-            ``ReferenceConfig.compare_cfc``), ``None`` for raw velocity.
+            ``ReferenceConfig.compare_cfc``), ``None`` for the integral of the unfiltered acceleration.
         compare_margin: [s] a measured reference's record goes on past the window and was filtered over
             it, so candidates are simulated up to this much longer, as far as the record reaches
             (:attr:`margin`; ``ReferenceConfig.compare_margin``); simulated references are cut at the window
