@@ -34,7 +34,9 @@ surrogate's sign convention (forward speed, starting at the impact speed). Three
   it, so the filter's end handling never reaches the window's last samples; candidates compared with
   it are simulated up to ``compare_margin`` (10 ms) longer, as far as the record reaches, filtered and
   cut at the window alike (:attr:`ReferenceBatch.margin`; without it a candidate at the test's own
-  parameters missed it by a DFD of up to 0.24 m/s over 150 ms and 3.3 m/s over 30 ms).
+  parameters missed it by a DFD of up to 0.24 m/s over 150 ms and 3.3 m/s over 30 ms). Compared unfiltered
+  (``compare_cfc: null``) the margin is one sample, the one the acceleration's central difference at the window's
+  last sample needs (a backward difference there missed by up to 0.62 m/s over 30 ms).
 
 One :class:`ReferenceSampler` draws a reference per episode (:meth:`ReferenceSampler.sample`)
 from a :class:`ReferenceConfig`; the scenario distribution (names and weights) is
@@ -218,7 +220,8 @@ class ReferenceBatch:
             shorter comparison window can be filtered alike); ``None`` for measured files,
             which are filtered when read.
         margin: ``[B]`` int64 samples past the window that a measured record holds (at most
-            ``ReferenceConfig.compare_margin``): it was filtered over them, so a candidate compared with it
+            ``ReferenceConfig.compare_margin``, one sample compared unfiltered): it was filtered (its acceleration
+            differenced) over them, so a candidate compared with it
             is simulated that much longer and cut after filtering
             (:func:`~marlcrash.pulse.signal.compared_window`); 0 for simulated references, which end at the
             window as the candidates do. ``None``: all 0.
@@ -493,8 +496,9 @@ class ReferenceSampler:
         pulse = pulse.select([unique.index(c) for c in channels])
         sc = self.scenarios[spec.scenario]
         # the samples before the contact are at rest: their mean is the offset (as `marlcrash pulse` removes it)
-        # unfiltered comparisons (compare_cfc null) have no filter end handling to match: no margin
-        most = 0 if self.config.compare_cfc is None else margin_samples(self.config.compare_margin, sc.output_rate)
+        most = margin_samples(self.config.compare_margin, sc.output_rate)
+        if self.config.compare_cfc is None:  # no filter: only the central difference at the window's end reaches past
+            most = min(most, 1)
         with drawn_without_noise(spec.breakpoints):
             pulse = without_zero_offset(pulse, spec.time_zero, spec.cfc, spec.threshold_g)
             _, vel = prepare_velocity(pulse, cfc=spec.cfc, rate_hz=sc.output_rate, duration=sc.duration,

@@ -338,8 +338,9 @@ def test_a_test_record_that_goes_on_past_the_window_is_compared_as_filtered_over
     ref = s.sample(np.random.default_rng(0), 2)
     assert ref.margin.tolist() == [20, 20] and ref.velocity.shape[-1] == sc.n_outputs
     assert ref.repeat(3).margin.tolist() == [20] * 3
-    raw = [FileReference(**{**vars(files[0]), "cfc": None})]  # unfiltered comparisons have no end handling to match
-    assert sampler(cells, sim, kind="file", files=raw, compare_cfc=None).max_margin == 0
+    # unfiltered, only the acceleration's central difference at the window's last sample needs the sample after it
+    raw = [FileReference(**{**vars(files[0]), "cfc": None})]
+    assert sampler(cells, sim, kind="file", files=raw, compare_cfc=None).max_margin == 1
 
     def problem(duration, margin, file=0):
         over = {"reference.files": [vars(files[file])], "reference.compare_margin": margin}
@@ -352,6 +353,11 @@ def test_a_test_record_that_goes_on_past_the_window_is_compared_as_filtered_over
         assert float(p.evaluate(p.zeros(1)).dfd.max()) < fits
         assert float(problem(duration, 0.0).evaluate(p.zeros(1)).dfd.max()) > misses
     unfiltered = {"reference.files": [{**vars(files[0]), "cfc": None}], "reference.compare_cfc": None}
+    for duration in (None, 0.03):  # the candidate's last sample was a backward difference: a DFD of 0.017 and 0.62
+        p = build_problem(ProblemConfig(scenario=sc.name, reference="file", duration=duration,
+                                        env_overrides=unfiltered), cells)  # fmt: skip
+        assert p.margin == 1 and float(p.evaluate(p.zeros(1)).dfd.max()) < 1e-6
+    unfiltered["reference.compare_margin"] = 0.0  # no margin asked: none
     assert build_problem(ProblemConfig(scenario=sc.name, reference="file", env_overrides=unfiltered), cells).margin == 0
     short = problem(0.03, 0.01, file=1)  # the window-length record still goes on past a 30 ms window
     assert short.margin == 20 and float(short.evaluate(short.zeros(1)).dfd.max()) < 0.02

@@ -192,7 +192,8 @@ class CalibrationProblem:
             ``ReferenceConfig.compare_cfc``), ``None`` for the integral of the unfiltered acceleration.
         compare_margin: [s] a measured reference's record goes on past the window and was filtered over
             it, so candidates are simulated up to this much longer, as far as the record reaches
-            (:attr:`margin`; ``ReferenceConfig.compare_margin``); simulated references are cut at the window
+            (:attr:`margin`; ``ReferenceConfig.compare_margin``; one sample at most with ``compare_cfc=None``, for
+            the acceleration's central difference at the window's end); simulated references are cut at the window
             as the candidates are, and get none.
 
     Raises:
@@ -247,8 +248,10 @@ class CalibrationProblem:
         else:  # a measured pulse, filtered when read over its whole record
             self.ref_velocity = reference.velocity[0, :, : self.T].to(torch.float64)
             past = reference.velocity.shape[-1] - self.T + (0 if reference.margin is None else int(reference.margin[0]))
-            if compare_cfc is not None:  # unfiltered comparisons have no filter end handling to match
-                self.margin = min(past, margin_samples(compare_margin, 1.0 / self.dt))
+            most = margin_samples(compare_margin, 1.0 / self.dt)
+            if compare_cfc is None:  # no filter: only the central difference at the window's end reaches past it
+                most = min(most, 1)
+            self.margin = min(past, most)
         self.speed, self.overlap, self.side = (
             t[:1].to(torch.float64) for t in (reference.speed, reference.overlap, reference.side)
         )
