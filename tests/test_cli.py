@@ -397,3 +397,24 @@ def test_json_output_is_standard_json(capsys):
 
     out = json.loads(capsys.readouterr().out, parse_constant=refuse)
     assert out == {"a": None, "b": [1.0, None, {"c": None}], "d": 2.5, "e": "x", "f": 3}
+
+
+def test_pulse_reads_a_csv_file_once(capsys, monkeypatch):
+    """``marlcrash pulse`` on a CSV file without ``--acc-col`` read the whole file twice: once for the header's
+    first acceleration column, once for the samples. Now once, with the same figures."""
+    from marlcrash.cli import main
+
+    path = DATA / "halfsine_40kmh.csv"
+    assert main(["pulse", str(path), "--json"]) == 0
+    want = json.loads(capsys.readouterr().out)
+    reads = []
+    read_bytes = Path.read_bytes
+
+    def counted(self):
+        reads.append(self)
+        return read_bytes(self)
+
+    monkeypatch.setattr(Path, "read_bytes", counted)
+    assert main(["pulse", str(path), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out) == want
+    assert reads == [path]

@@ -130,7 +130,7 @@ def _unknown_unit_warning(name: str, said: str, known: list[str], read_in: str, 
                 path,
                 line,
             ),
-            stacklevel=3,
+            stacklevel=4,
         )
 
 
@@ -189,6 +189,24 @@ def read_csv(
             cell, time not strictly increasing, too few samples, or a table of breakpoints longer
             than :data:`MAX_BREAKPOINT_SPAN_S`.
     """
+    return _read_csv(path, time_col=time_col, acc_col=acc_col, unit=unit, time_unit=time_unit, sign=sign,
+                     max_gap=max_gap, breakpoints=breakpoints)  # fmt: skip
+
+
+def _read_csv(
+    path: str | Path,
+    *,
+    time_col: str | None = None,
+    acc_col: str | Sequence[str] | None = None,
+    unit: str = "g",
+    time_unit: str = "s",
+    sign: float = 1.0,
+    max_gap: float | None = 4.0,
+    breakpoints: bool = False,
+    first_only: bool = False,
+) -> Pulse:
+    """:func:`read_csv`; ``first_only`` (without ``acc_col``): the first acceleration column only, the first column
+    that is not the time column, as ``marlcrash pulse`` reads it (found in the same reading of the file)."""
     path = Path(path)
     factor = acc_unit_factor(unit)
     if time_unit not in _TIME_UNITS:
@@ -199,6 +217,8 @@ def read_csv(
         raise PulseError(f"max_gap: expected a multiple of the median sampling interval > 1 or None, got {max_gap!r}")
     lines = _read_text_lines(path)
     first, delim, header, ti = _csv_header(path, lines, time_col)
+    if acc_col is None and first_only:
+        acc_col = header[next(j for j in range(len(header)) if j != ti)]
     # '0,5;-2,25': European spreadsheets separate by ';' because the comma is their decimal mark. Not with tabs:
     # a tab export of an English spreadsheet may hold thousands separators ('-1,005' is -1005 there).
     decimal_comma = delim == ";"
@@ -301,7 +321,7 @@ def read_csv(
             reason = (f"rows {rows_apart:g} s apart (median) are a sampled record, not a table of breakpoints; "
                       f"sampling them at {BREAKPOINT_RATE_HZ:g} Hz drops samples (read the file without --breakpoints "
                       "/ breakpoints: true)")  # fmt: skip
-            warnings.warn(_located(reason, path), stacklevel=2)
+            warnings.warn(_located(reason, path), stacklevel=3)
         grid = time[0] + np.arange(n) / BREAKPOINT_RATE_HZ
         dense = np.stack([np.interp(grid, time, a) for a in acc])
         return Pulse(time=grid, acc=dense, channels=channels, source=str(path))
@@ -315,7 +335,7 @@ def read_csv(
             "bridges a gap with a straight line, right for a table of breakpoints (read it as one: --breakpoints, "
             "breakpoints: true), wrong for a recorder's dropout"
         )
-        warnings.warn(_located(reason, path, line_of[i + 1], header[ti]), stacklevel=2)
+        warnings.warn(_located(reason, path, line_of[i + 1], header[ti]), stacklevel=3)
     return Pulse(time=time, acc=acc, channels=channels, source=str(path))
 
 
@@ -355,14 +375,6 @@ def _csv_column(header: list[str], name: str, path: Path, line: int) -> int:
     if name.lower() in low:
         return low.index(name.lower())
     raise _err(f"column {name!r} not found; the header has {header}", path, line)
-
-
-def _first_acc_column(path: str | Path, time_col: str | None = None) -> str:
-    """The name of a CSV file's first acceleration column: the first column that is not the time column
-    (:func:`read_csv`'s rule), the channel ``marlcrash pulse`` summarizes by default."""
-    path = Path(path)
-    _, _, header, ti = _csv_header(path, _read_text_lines(path), time_col)
-    return header[next(j for j in range(len(header)) if j != ti)]
 
 
 def _read_text_lines(path: Path) -> list[str]:
@@ -844,7 +856,7 @@ def processed_pulse(
     if acc_col is not None:
         kwargs["acc_col"] = acc_col
     elif not mme:  # the first acceleration column only, as of an ISO-MME test: the others are not read
-        kwargs["acc_col"] = _first_acc_column(p, time_col)
+        kwargs["first_only"] = True
     else:  # the first acceleration channel only: others may have their own time base
         listed = mme_channels(p)
         k = next((i for i, c in enumerate(listed) if c["acceleration"]), len(listed))
@@ -857,7 +869,12 @@ def processed_pulse(
             )
         if k < len(listed):
             kwargs["acc_col"] = listed[k]["file"].name
-    pulse = read_pulse(p, **kwargs).select(0)
+    if mme:
+        pulse = read_pulse(p, **kwargs).select(0)
+    elif p.suffix.lower() in (".csv", ".txt"):  # the file read once, its first acceleration column found in it
+        pulse = _read_csv(p, **kwargs).select(0)
+    else:
+        raise _err("expected a .csv/.txt file, a .mme file or an ISO-MME test folder", p)
     check_record_rate(pulse, p, time_unit=time_unit)
     try:
         # the transducer offset, from the samples before the contact, as a file reference removes it
