@@ -418,3 +418,19 @@ def test_pulse_reads_a_csv_file_once(capsys, monkeypatch):
     assert main(["pulse", str(path), "--json"]) == 0
     assert json.loads(capsys.readouterr().out) == want
     assert reads == [path]
+
+
+def test_pulse_warns_of_a_frontal_pulse_that_speeds_the_vehicle_up(tmp_path):
+    """A record of the committed frontal half-sine with its deceleration positive: the JSON gives the same magnitudes,
+    and stderr names the file, the channel and ``--deceleration-positive`` (it said nothing)."""
+    rows = [line for line in (DATA / "halfsine_40kmh.csv").read_text().splitlines() if not line.startswith("#")]
+    data = np.array([[float(x) for x in r.split(",")] for r in rows[1:]])
+    flipped = tmp_path / "flipped.csv"
+    flipped.write_text("time,tunnel_acx\n" + "".join(f"{t:.6f},{-a:.9g}\n" for t, a in data[:, :2]))
+    proc = run_cli("pulse", str(flipped), "--json")
+    ref = json.loads(run_cli("pulse", str(DATA / "halfsine_40kmh.csv"), "--json").stdout)
+    assert json.loads(proc.stdout)["delta_v_ms"] == pytest.approx(ref["delta_v_ms"], rel=1e-6)
+    assert "warning: " in proc.stderr and "flipped.csv: channel 'tunnel_acx' speeds up" in proc.stderr
+    assert "--deceleration-positive" in proc.stderr
+    again = run_cli("pulse", str(flipped), "--json", "--deceleration-positive")
+    assert "speeds up" not in again.stderr

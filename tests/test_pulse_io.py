@@ -1040,3 +1040,24 @@ def test_known_units_and_remarks_in_a_header_read_without_a_unit_warning(tmp_pat
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         read_csv(path, time_unit="ms" if header.startswith("t (ms)") else "s")
+
+
+def test_a_frontal_pulse_read_with_the_other_sign_is_named_in_a_warning(tmp_path, analytic):
+    """A frontal record whose file gives deceleration as positive, read with the default (SAE J211) sign: its velocity
+    change speeds the vehicle up by 40 km/h, and ``marlcrash pulse`` said nothing, its figures being magnitudes. A
+    warning now names the file, the channel and the option that flips the sign; the figures keep their meaning (the
+    same magnitudes), and read with that sign nothing is said."""
+    path = write_csv(Pulse(analytic.time, -analytic.acc, analytic.channels), tmp_path / "decel_positive.csv")
+    with pytest.warns(UserWarning) as caught:
+        s = pulse_summary(path)
+    said = [str(w.message) for w in caught if "speeds up" in str(w.message)]
+    assert len(said) == 1, [str(w.message) for w in caught]
+    assert re.search(r"decel_positive\.csv: channel 'tunnel' speeds up by 11\.1 m/s .*negative.*"
+                     r"--deceleration-positive.*sign=-1", said[0]), said[0]  # fmt: skip
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        right = pulse_summary(path, sign=-1)
+        pulse_summary(write_csv(analytic, tmp_path / "j211.csv"))
+    for key in ("t0_ms", "peak_g", "t_peak_ms", "delta_v_ms", "delta_v_max_ms", "delta_v_150ms_ms"):
+        assert s[key] == pytest.approx(right[key], rel=1e-12, abs=1e-12), key
+    assert right["delta_v_ms"] == pytest.approx(DV, rel=0.01)

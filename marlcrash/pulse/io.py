@@ -752,6 +752,11 @@ def pulse_summary(path: str | Path, **options: Any) -> dict[str, Any]:
     return pulse_figures(*processed_pulse(path, **options), path=path)
 
 
+SPEED_UP_NOTE = 0.5
+"""[m/s] A velocity gain above this (the channel speeding up) is named in a warning by :func:`pulse_figures`; a crash
+changes the velocity by 10 m/s and more; the drift of a 0.3 g transducer offset over 150 ms stays below it."""
+
+
 def pulse_figures(pulse: Pulse, work: Pulse, t0: float, path: str | Path = "") -> dict[str, Any]:
     """Key figures of a channel prepared by :func:`processed_pulse` (filtered acceleration integrated from time zero).
 
@@ -768,6 +773,10 @@ def pulse_figures(pulse: Pulse, work: Pulse, t0: float, path: str | Path = "") -
         magnitude reached), ``delta_v_150ms_ms`` (at 150 ms after time zero; ``None`` if the record
         ends before) and ``delta_v_kmh`` (``delta_v_ms`` in km/h).
 
+    A channel whose largest velocity change is a gain of more than :data:`SPEED_UP_NOTE` is named in a warning: a
+    frontal crash pulse is negative in the module's sign (SAE J211), and one read with the other sign convention
+    gave the same figures without a word.
+
     "Before the impact" is :data:`~marlcrash.pulse.signal.PRE_IMPACT_TIME` before time zero, or the
     start of the filtered record (which includes the lead-in of :func:`filtered_from_time_zero`): the
     zero-phase filter spreads the first deceleration before time zero, and a velocity change counted
@@ -778,6 +787,16 @@ def pulse_figures(pulse: Pulse, work: Pulse, t0: float, path: str | Path = "") -
     v = work.velocity()[0]
     v_rel = v - np.interp(max(t0 - PRE_IMPACT_TIME, float(work.time[0])), work.time, v)
     after = work.time >= t0
+    largest = float(v_rel[after][np.argmax(np.abs(v_rel[after]))])
+    if largest > SPEED_UP_NOTE:  # a frontal crash slows the vehicle: SAE J211's frame, the module's convention
+        warnings.warn(
+            f"{path or pulse.source or 'pulse'}: channel {pulse.channels[0]!r} speeds up by {largest:.3g} m/s (its "
+            "largest velocity change is positive); in marlcrash's sign (SAE J211, x forward) a frontal crash pulse is "
+            "negative. If this is one, the file records deceleration as positive: read it with the other sign "
+            "(--deceleration-positive, sign=-1; or without it, if given). The figures are magnitudes either way",
+            UserWarning,
+            stacklevel=2,
+        )
     i_peak = int(np.argmax(np.abs(acc)))
     t150 = t0 + 0.150
     dv150 = float(abs(np.interp(t150, work.time, v_rel))) if t150 <= work.time[-1] + 1e-12 else None
