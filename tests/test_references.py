@@ -248,6 +248,49 @@ def test_an_unfiltered_comparison_of_a_simulation_read_back_as_a_file_is_exact(c
     assert float(m.dfd.max()) < 1e-6 and float(m.area.max()) < 1e-9
 
 
+def test_the_limits_of_a_threshold_time_zero_on_a_simulated_2khz_record(cells, sim, tmp_path):
+    """The two limits of ``time_zero: threshold`` the README names, on the model's own simulation at 2 kHz; neither
+    is a fault of the record, and ``time_zero: file`` reads both records exactly.
+
+    1. An onset is placed to about a sample: the up-front sensors' first sample (the central difference at the
+       contact) already holds 480 g, and the line through the first samples starts 0.56 ms before the contact. The
+       velocity change is the same, but sensors that stop within 2 ms then miss their simulation by a DFD of 1.5 m/s.
+    2. Zero levels are measured before the earliest onset: the tunnel, read alone, decelerates at 2.6 g from 1.5 ms,
+       6 ms before its main pulse and below 5x the noise measured with it, which is taken as its zero level (1.9 m/s of
+       its velocity change lost from a record that starts at the contact, 0.45 m/s after 20 ms of rest); read with
+       the up-front channels, whose onset is the contact, it keeps all of it.
+    """
+    from marlcrash.calibrate.problem import ProblemConfig, build_problem
+    from marlcrash.pulse.io import pulse_summary, read_pulse, write_csv
+    from marlcrash.pulse.signal import Pulse, find_onset, prepare_velocity
+
+    sc = get_scenario("full_width_40")
+    result = sim.run(torch.as_tensor(cells.params)[None], sc, record_cells="none")
+    t, acc, names = result.time.double().numpy(), result.acceleration[0].double().numpy(), result.sensor_names
+    n = round(0.02 / sc.output_dt)  # 20 ms of rest before the contact
+    rest = write_csv(Pulse(np.r_[np.arange(-n, 0) * sc.output_dt, t], np.c_[np.zeros((3, n)), acc], names),
+                     tmp_path / "rest.csv")  # fmt: skip
+    contact = write_csv(Pulse(t, acc, names), tmp_path / "contact.csv")
+    assert -0.75e-3 < find_onset(read_pulse(rest), 60).time < -0.4e-3
+    channels = {s: s for s in names}
+
+    def worst_dfd(time_zero):
+        files = [{"path": str(rest), "scenario": sc.name, "channels": channels, "time_zero": time_zero}]
+        p = build_problem(ProblemConfig(reference="file", env_overrides={"reference.files": files}), cells)
+        return float(p.evaluate(p.zeros(1)).dfd.max())
+
+    assert worst_dfd("file") < 1e-6 and worst_dfd("threshold") > 1.0
+    for path, lost in ((contact, (1.5, 2.3)), (rest, (0.3, 0.7))):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # the up-front sensors' record from the contact: no pre-trigger data
+            alone = pulse_summary(path, acc_col="tunnel")
+            whole = pulse_summary(path, acc_col="tunnel", time_zero="file")["delta_v_ms"]
+            assert lost[0] < whole - alone["delta_v_ms"] < lost[1] and 5.5 < alone["t0_ms"] < 6.5
+            for time_zero in ("threshold", "file"):  # with every channel: the earliest onset is the contact's
+                _, v = prepare_velocity(read_pulse(path), time_zero=time_zero)
+                assert float(v[2, 0] - v[2, -1]) == pytest.approx(whole, abs=0.01)
+
+
 def test_a_test_record_with_pre_trigger_samples_and_an_offset_is_the_simulation(cells, sim, tmp_path):
     """A lab export: 20 ms of pre-trigger samples at negative times, t = 0 at the contact, and a 0.3 g transducer
     offset on every sample. With the default ``time_zero: file`` the offset is the pre-trigger mean and is removed

@@ -682,6 +682,12 @@ def find_onset(pulse: Pulse, cfc: int | None = 60, threshold_g: float = DEFAULT_
     that starts at the contact is read with ``time_zero: file``). The record's time zero is the earliest channel
     onset, not before its first sample.
 
+    Limits of the method (README, "Calibrating against a measured test"): an onset is placed to about a sample (a
+    2 kHz simulated up-front sensor, 480 g in its first sample: 0.56 ms before the contact); and a channel read alone
+    whose pulse starts with a pre-pulse below 5x the noise measured with it takes that as its zero level (the
+    simulated tunnel's 2.6 g over the 6 ms before its main pulse: 1.9 m/s of its velocity change lost). A record
+    whose t = 0 is the contact is read with ``time_zero: file``; the channels of a test are read together.
+
     Args:
         pulse: the record (resampled at its mean rate here if non-uniform).
         cfc: the detection filter class (the class the record is filtered with), ``None`` for data filtered
