@@ -496,9 +496,7 @@ class ReferenceSampler:
         pulse = pulse.select([unique.index(c) for c in channels])
         sc = self.scenarios[spec.scenario]
         # the samples before the contact are at rest: their mean is the offset (as `marlcrash pulse` removes it)
-        most = margin_samples(self.config.compare_margin, sc.output_rate)
-        if self.config.compare_cfc is None:  # no filter: only the central difference at the window's end reaches past
-            most = min(most, 1)
+        most = margin_samples(self.config.compare_margin, sc.output_rate, self.config.compare_cfc)
         with drawn_without_noise(spec.breakpoints):
             pulse = without_zero_offset(pulse, spec.time_zero, spec.cfc, spec.threshold_g)
             _, vel = prepare_velocity(pulse, cfc=spec.cfc, rate_hz=sc.output_rate, duration=sc.duration,

@@ -440,6 +440,8 @@ def test_compared_window_filters_each_row_over_its_margin():
         compared_window(v, 5e-4, 60, 40, torch.tensor([0, 1]))
     # the loader and the problem count a margin's samples alike, whatever the float rounding of the seconds
     assert [margin_samples(x, 2000.0) for x in (0.01, 0.0099999999, 0.03 - 0.02, 0.00049, 0.0)] == [20, 20, 20, 0, 0]
+    # unfiltered (compare_cfc null), only the central difference at the window's last sample reaches past it
+    assert [margin_samples(x, 2000.0, None) for x in (0.01, 0.0005, 0.00049)] == [1, 1, 0]
 
 
 def test_file_reference_settings_that_cannot_line_up_are_refused(cells, sim, tmp_path):

@@ -248,10 +248,7 @@ class CalibrationProblem:
         else:  # a measured pulse, filtered when read over its whole record
             self.ref_velocity = reference.velocity[0, :, : self.T].to(torch.float64)
             past = reference.velocity.shape[-1] - self.T + (0 if reference.margin is None else int(reference.margin[0]))
-            most = margin_samples(compare_margin, 1.0 / self.dt)
-            if compare_cfc is None:  # no filter: only the central difference at the window's end reaches past it
-                most = min(most, 1)
-            self.margin = min(past, most)
+            self.margin = min(past, margin_samples(compare_margin, 1.0 / self.dt, compare_cfc))
         self.speed, self.overlap, self.side = (
             t[:1].to(torch.float64) for t in (reference.speed, reference.overlap, reference.side)
         )
