@@ -460,6 +460,35 @@ def test_parameter_validation_errors():
             sim.run(_params(cells), FW40, record_cells="all", backend=backend)
 
 
+def test_a_scenario_made_in_python_is_checked_as_a_file_is():
+    """``run`` takes a :class:`CrashScenario` built in Python as it takes a registered one: checked, naming the key.
+
+    Unchecked, a side of ``up`` failed with ``KeyError: 'up'``, a speed given as text with a ``TypeError`` from the
+    km/h conversion, a sensor list given as one name was split into letters (``unknown sensors ['t', 'u', ...]``)
+    and a barrier the surrogate does not model ran as the rigid wall without a word."""
+    from dataclasses import replace
+
+    from marlcrash.sim import CrashScenario
+
+    cells = block()
+    sim = Surrogate(cells)
+    sc = get_scenario("full_width_40", {"duration": 0.005})
+    for change, key in (
+        ({"side": "up"}, "side"),
+        ({"speed_kmh": "56"}, "speed_kmh"),
+        ({"sensors": "tunnel"}, "sensors"),
+        ({"barrier": "deformable"}, "barrier"),
+        ({"overlap": 0.0}, "overlap"),
+    ):
+        for backend in ("torch", "numba"):
+            with pytest.raises(ConfigError, match=f"key '{key}'"):
+                sim.run(_params(cells), replace(sc, **change), backend=backend, record_cells="none")
+    with pytest.raises(ModelError, match="scenario must be a CrashScenario"):
+        sim.run(_params(cells), "full_width_40")
+    out = sim.run(_params(cells), CrashScenario(duration=0.005, sensors=["tunnel"]), record_cells="none")
+    assert out.sensor_names == ["tunnel"]
+
+
 def test_sim_config_validation_names_key():
     with pytest.raises(ConfigError, match="substeps"):
         load_sim_config(overrides={"substeps": 0})

@@ -317,6 +317,24 @@ class WallProps:
     speed: torch.Tensor  # [B] impact speed [m/s]
 
 
+def _checked_scenario(scenario: CrashScenario | None) -> CrashScenario | None:
+    """``scenario`` checked as a registered file's values are (a :class:`CrashScenario` built in Python skipped that:
+    a side of ``up`` failed with a ``KeyError``, a sensor list given as one name was split into letters).
+
+    Raises:
+        ModelError: not a :class:`CrashScenario`.
+        ConfigError: a wrong type or value, naming the key.
+    """
+    if scenario is None:
+        return None
+    if not isinstance(scenario, CrashScenario):
+        raise ModelError(
+            f"scenario must be a CrashScenario (marlcrash.sim.get_scenario(name)), got {type(scenario).__name__} "
+            f"{scenario!r}"
+        )
+    return checked(scenario)
+
+
 class Surrogate:
     """Batched cell-surrogate simulator of one :class:`CellModel`.
 
@@ -519,8 +537,13 @@ class Surrogate:
             speed: ``[B]`` impact speed [m/s]; overlap: ``[B]`` in (0, 1]; side: ``[B]`` +1 left, -1 right.
 
         Raises:
-            ModelError: tensors of the wrong shape or out of range.
+            ModelError: tensors of the wrong shape or out of range, a scenario that is no :class:`CrashScenario`.
+            ConfigError: a scenario value of the wrong type or out of range, naming the key.
         """
+        return self._wall(batch, _checked_scenario(scenario), speed, overlap, side)
+
+    def _wall(self, batch, scenario, speed, overlap, side) -> WallProps:
+        """:meth:`scenario_tensors` of a checked scenario (:meth:`prepare` checks it once)."""
 
         def vec(x, default, name):
             if x is None:
@@ -599,6 +622,7 @@ class Surrogate:
         Raises:
             ModelError: an unknown backend or ``record_cells``, ``cells_at`` outside the simulated time or between
                 samples.
+            ConfigError: a scenario value of the wrong type or out of range (one built in Python), naming the key.
         """
         if backend not in (None, "torch", "numba", "adjoint", "auto"):
             raise ModelError(f"backend must be one of torch, numba, adjoint, auto; got {backend!r}")
@@ -652,6 +676,7 @@ class Surrogate:
             ``(params [B, n, 7], LinkProps, WallProps, n_out, (sensor names, [K] cell indices))``.
         """
         p = self.check_params(params)
+        scenario = _checked_scenario(scenario)
         if scenario is not None and abs(scenario.output_dt - self.output_dt) > 1e-12:
             raise ModelError(
                 f"scenario output step {scenario.output_dt} s differs from the surrogate's {self.output_dt} s; "
@@ -669,7 +694,7 @@ class Surrogate:
         return (
             p,
             self.link_props(p),
-            self.scenario_tensors(p.shape[0], scenario, speed, overlap, side),
+            self._wall(p.shape[0], scenario, speed, overlap, side),
             n_out,
             sensor_idx,
         )
