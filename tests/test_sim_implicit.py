@@ -85,3 +85,6 @@ def test_uncapped_surrogate_refuses_the_explicit_paths_and_bad_arguments_are_nam
                     ({"newton_rtol": -1.0}, "newton_rtol")):  # fmt: skip
         with pytest.raises(ModelError, match=key):
             run_implicit(sim, p, get_scenario("full_width_40"), **kw)
+    # as Surrogate.run: an unknown mode is refused, not run as "none" (no per-cell energies, without a word)
+    with pytest.raises(ModelError, match="record_cells must be one of series, final, none; got 'all'"):
+        run_implicit(sim, p, get_scenario("full_width_40", {"duration": 0.001}), record_cells="all")

@@ -86,8 +86,8 @@ def run_implicit(
         iterations per step of one simulation) and ``n_links`` (links with a non-zero share in some row).
 
     Raises:
-        ModelError: an argument out of range, a float32 surrogate, and every input error of
-            :meth:`Surrogate.run`.
+        ModelError: an argument out of range, an unknown ``record_cells``, a float32 surrogate, and every input
+            error of :meth:`Surrogate.run`.
     """
     if int(max_newton) != max_newton or max_newton < 1:
         raise ModelError(f"max_newton must be an integer >= 1, got {max_newton!r}")
@@ -97,6 +97,8 @@ def run_implicit(
     for name, val in (("newton_rtol", newton_rtol), ("cg_rtol", cg_rtol)):
         if not val > 0:
             raise ModelError(f"{name} must be > 0, got {val!r}")
+    if record_cells not in ("series", "final", "none"):  # as Surrogate.run: "all" ran as "none" without a word
+        raise ModelError(f"record_cells must be one of series, final, none; got {record_cells!r}")
     if sim.dtype != torch.float64:
         raise ModelError("the implicit study integrator runs in float64; set dtype: float64")
     _, props, wall, n_out, sensor_idx = sim.prepare(params, scenario, speed, overlap, side, duration, sensors)
