@@ -460,6 +460,27 @@ def test_parameter_validation_errors():
             sim.run(_params(cells), FW40, record_cells="all", backend=backend)
 
 
+def test_bad_per_row_scenario_tensors_are_named_with_what_was_wrong():
+    """A NaN speed was reported as a wrong shape ("must be a finite tensor of shape [2], got [2]"), a speed given as
+    text failed inside torch ("new(): invalid data type 'str'"), and an out-of-range row was reported by printing
+    all three tensors. Each message now names the tensor, the row and the value."""
+    cells = block()
+    sim = Surrogate(cells)
+    p = _params(cells, 2)
+    sc = get_scenario("full_width_40", {"duration": 0.002})
+    for kw, msg in (
+        ({"speed": torch.tensor([10.0, float("nan")])}, r"'speed' must be finite, got nan in row 1"),
+        ({"speed": "10"}, r"'speed' must be a number or a tensor of numbers \[m/s\], got '10'"),
+        ({"speed": [10.0]}, r"'speed' must be of shape \[2\] \(one value per batch row\), got \[1\]"),
+        ({"speed": torch.tensor([10.0, 0.0])}, r"'speed' must be > 0 m/s, got 0 in row 1"),
+        ({"overlap": torch.tensor([1.0, 1.5])}, r"'overlap' must be in \(0, 1\], got 1.5 in row 1"),
+        ({"side": torch.tensor([1, 0])}, r"'side' must be \+1 \(left\) or -1 \(right\), got 0 in row 1"),
+    ):
+        for backend in ("torch", "numba"):
+            with pytest.raises(ModelError, match=msg):
+                sim.run(p, sc, backend=backend, record_cells="none", **kw)
+
+
 def test_a_scenario_made_in_python_is_checked_as_a_file_is():
     """``run`` takes a :class:`CrashScenario` built in Python as it takes a registered one: checked, naming the key.
 

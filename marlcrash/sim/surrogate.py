@@ -544,24 +544,36 @@ class Surrogate:
 
     def _wall(self, batch, scenario, speed, overlap, side) -> WallProps:
         """:meth:`scenario_tensors` of a checked scenario (:meth:`prepare` checks it once)."""
+        unit = {"speed": "[m/s]", "overlap": "[-]", "side": "(+1 left, -1 right)"}
+
+        def refuse(name, bad, x, what):  # names the tensor, the first bad row and its value
+            if bool(bad.any()):
+                row = int(torch.nonzero(bad)[0])
+                raise ModelError(f"'{name}' {what}, got {float(x[row]):g} in row {row}")
 
         def vec(x, default, name):
             if x is None:
                 if scenario is None:
                     raise ModelError(f"give a scenario or the per-batch tensor '{name}'")
                 x = default
-            x = torch.as_tensor(x, dtype=self.dtype)
+            try:
+                x = torch.as_tensor(x, dtype=self.dtype)
+            except (TypeError, ValueError, RuntimeError):  # text, None in a list: torch's "invalid data type"
+                raise ModelError(f"'{name}' must be a number or a tensor of numbers {unit[name]}, got {x!r}") from None
             if x.ndim == 0:
                 x = x.expand(batch)
-            if x.shape != (batch,) or not bool(torch.isfinite(x).all()):
-                raise ModelError(f"'{name}' must be a finite tensor of shape [{batch}], got {list(x.shape)}")
+            if x.shape != (batch,):
+                raise ModelError(f"'{name}' must be of shape [{batch}] (one value per batch row), got {list(x.shape)}")
+            refuse(name, ~torch.isfinite(x), x, "must be finite")
             return x
 
         sp = vec(speed, None if scenario is None else scenario.speed, "speed")
         ov = vec(overlap, None if scenario is None else scenario.overlap, "overlap")
         sd = vec(side, None if scenario is None else scenario.side_sign, "side")
-        if bool((sp <= 0).any()) or bool(((ov <= 0) | (ov > 1)).any()) or bool((sd.abs() != 1).any()):
-            raise ModelError(f"need speed > 0 m/s, overlap in (0, 1], side in {{+1, -1}}; got {sp}, {ov}, {sd}")
+        with torch.no_grad():
+            refuse("speed", sp <= 0, sp, "must be > 0 m/s")
+            refuse("overlap", (ov <= 0) | (ov > 1), ov, "must be in (0, 1]")
+            refuse("side", sd.abs() != 1, sd, "must be +1 (left) or -1 (right)")
         frac = barrier_fraction(self.lo_y, self.hi_y, self.width, ov, sd, centre_y=self.centre_y) * self.exposed
         covered = frac > 0
         if not bool(covered.any(dim=1).all()):
