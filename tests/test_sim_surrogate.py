@@ -481,6 +481,19 @@ def test_bad_per_row_scenario_tensors_are_named_with_what_was_wrong():
                 sim.run(p, sc, backend=backend, record_cells="none", **kw)
 
 
+def test_sensor_names_given_to_run_are_checked_as_a_scenario_checks_them():
+    """``sensors="tunnel"`` was split into letters ("unknown sensors ['t', 'u', 'n', ...]") and a name given twice
+    recorded the same signal twice, where a scenario file with a duplicate is refused."""
+    cells = block()
+    sim = Surrogate(cells)
+    sc = get_scenario("full_width_40", {"duration": 0.002})
+    with pytest.raises(ModelError, match=r"sensors must be a list of sensor names, got 'tunnel'"):
+        sim.run(_params(cells), sc, sensors="tunnel")
+    with pytest.raises(ModelError, match=r"duplicate sensor names in \['tunnel', 'front_left', 'tunnel'\]"):
+        sim.run(_params(cells), sc, sensors=["tunnel", "front_left", "tunnel"])
+    assert sim.run(_params(cells), sc, sensors=("tunnel",), record_cells="none").sensor_names == ["tunnel"]
+
+
 def test_a_scenario_made_in_python_is_checked_as_a_file_is():
     """``run`` takes a :class:`CrashScenario` built in Python as it takes a registered one: checked, naming the key.
 

@@ -712,6 +712,10 @@ class Surrogate:
         )
 
     def _sensor_index(self, names: list[str]) -> tuple[list[str], torch.Tensor]:
+        if isinstance(names, str | bytes):  # one name was split into letters: "unknown sensors ['t', 'u', ...]"
+            raise ModelError(f"sensors must be a list of sensor names, got {names!r}")
+        if len(set(names)) != len(names):  # as a scenario file's list: the same signal twice
+            raise ModelError(f"duplicate sensor names in {list(names)}")
         all_names = list(self.cells.sensor_names)
         if not names:
             names = all_names
