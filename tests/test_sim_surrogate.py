@@ -611,3 +611,7 @@ def test_a_sim_config_made_in_python_is_checked_as_a_file_is():
     for change, key in (({"substeps": 0}, "substeps"), ({"substeps": 2.5}, "substeps"), ({"dtype": "half"}, "dtype")):
         with pytest.raises(ConfigError, match=f"key '{key}'"):
             Surrogate(cells, replace(cfg, **change))
+    # a path or a mapping of overrides failed inside dataclasses: "must be called with a dataclass type or instance"
+    for wrong in ("configs/sim.yaml", {"substeps": 4}):
+        with pytest.raises(ModelError, match=r"config must be a SimConfig \(load_sim_config\(path, overrides\)\)"):
+            Surrogate(cells, wrong)

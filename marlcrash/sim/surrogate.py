@@ -353,14 +353,18 @@ class Surrogate:
             (:mod:`marlcrash.sim.implicit`) can run such a surrogate; :meth:`run` refuses.
 
     Raises:
-        ModelError: links touching null cells or owned by the compartment, no mass, or an output step that is
-            not a positive whole number of integration steps.
+        ModelError: links touching null cells or owned by the compartment, no mass, an output step that is
+            not a positive whole number of integration steps, or a ``config`` that is no :class:`SimConfig`.
     """
 
     def __init__(
         self, cells: CellModel, config: SimConfig | None = None, output_dt: float = 5e-4, stability_caps: bool = True
     ):
         cells.validate()
+        if config is not None and not isinstance(config, SimConfig):  # a path or overrides failed inside dataclasses
+            raise ModelError(
+                f"config must be a SimConfig (load_sim_config(path, overrides)), got {type(config).__name__} {config!r}"
+            )
         self.stability_caps = bool(stability_caps)
         self.cells = cells
         self.config = cfg = checked(config) if config is not None else load_sim_config()
