@@ -180,6 +180,27 @@ def test_per_cell_ledger_on_chain():
     assert float(ab[-1]) > 0 and float(ab[-1]) <= float(inp[0, -1]) + 1e-6
 
 
+def test_behaviour_curve_needs_the_per_cell_series_and_a_cell_of_the_model():
+    """The paper's behaviour relation (absorbed vs input energy) of one cell over time. From a result recorded with
+    ``final`` it returned one point and with ``none`` two empty tensors, without a word; a negative cell index
+    gave another cell's curve (``-1``: the last cell's)."""
+    from marlcrash.sim import behaviour_curve
+
+    cells = chain(4)
+    sim = Surrogate(cells)
+    sc = get_scenario("full_width_40", {"duration": 0.01})
+    out = sim.run(_params(cells, 2), sc, record_cells="series")
+    inp, ab = behaviour_curve(out, 1, batch=1)
+    assert inp.shape == ab.shape == out.time.shape
+    assert torch.equal(inp, out.cell_input[1, 1]) and torch.equal(ab, out.cell_absorbed[1, 1])
+    for mode in ("final", "none"):
+        with pytest.raises(ModelError, match=f"per-cell energy series.*record_cells='{mode}'"):
+            behaviour_curve(sim.run(_params(cells), sc, record_cells=mode), 0)
+    for cell, batch, what in ((-1, 0, "cell -1"), (cells.n_cells, 0, f"cell {cells.n_cells}"), (0, 2, "batch row 2")):
+        with pytest.raises(ModelError, match=what):
+            behaviour_curve(out, cell, batch=batch)
+
+
 # ------------------------------------------------------------------ locality
 def test_null_cell_params_change_nothing():
     cells = block()

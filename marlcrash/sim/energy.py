@@ -27,7 +27,10 @@ difference is its own work. So for a cell ``c``:
 
 from __future__ import annotations
 
+import numpy as np
 import torch
+
+from marlcrash.errors import ModelError
 
 
 def scatter_sum(values: torch.Tensor, index: torch.Tensor, n: int) -> torch.Tensor:
@@ -96,5 +99,19 @@ def behaviour_curve(result, cell: int, batch: int = 0) -> tuple[torch.Tensor, to
 
     Returns:
         ``(input [T], absorbed [T])`` [J].
+
+    Raises:
+        ModelError: a result without per-cell series (``record_cells`` ``final`` or ``none``: one point or none), or
+            a cell or batch row outside the result.
     """
+    B, n, records = result.cell_input.shape
+    if records != result.time.shape[0]:
+        mode = "final" if records == 1 else "none"
+        raise ModelError(
+            f"the behaviour curve needs the per-cell energy series: run with record_cells='series' (this result "
+            f"has {records} per-cell record{'s' if records != 1 else ''}, record_cells='{mode}')"
+        )
+    for name, i, size in (("cell", cell, n), ("batch row", batch, B)):
+        if isinstance(i, bool) or not isinstance(i, int | np.integer) or not 0 <= i < size:
+            raise ModelError(f"{name} {i!r} is not in [0, {size}) of this result")
     return result.cell_input[batch, cell], result.cell_absorbed[batch, cell]
