@@ -170,7 +170,12 @@ def scenario_from_args(args: argparse.Namespace):
 
     from marlcrash.sim.scenario import get_scenario, list_scenarios
 
-    scenario = get_scenario("full_width_40" if args.scenario is None else args.scenario)
+    try:
+        scenario = get_scenario("full_width_40" if args.scenario is None else args.scenario)
+    except ConfigError as e:  # an unknown name said as the option the user typed, as --speed's are
+        if e.key != "scenario":
+            raise
+        raise ConfigError(e.reason, key="--scenario") from None
     ms = getattr(args, "duration", None)
     if ms is not None:
         try:

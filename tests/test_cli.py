@@ -323,6 +323,7 @@ def test_simulate_overrides_and_errors():
     assert proc.returncode == 2 and "key '--overlap'" in proc.stderr and "got 1.5" in proc.stderr
     proc = run_cli("simulate", "--scenario", "moon_landing", check=False)
     assert proc.returncode == 2 and "full_width_40" in proc.stderr  # lists the registered ones
+    assert "key '--scenario': unknown scenario 'moon_landing'" in proc.stderr  # the option typed, as --speed's
     proc = run_cli("simulate", "--scenario", "", check=False)  # ran full_width_40
     assert proc.returncode == 2 and "unknown scenario ''" in proc.stderr
     for size in ("0", "-1"):  # argparse's own message, before any simulation
