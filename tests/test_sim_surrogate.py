@@ -544,6 +544,22 @@ def test_a_scenario_made_in_python_is_checked_as_a_file_is():
     assert out.sensor_names == ["tunnel"]
 
 
+def test_tensors_off_the_cpu_are_refused_by_name():
+    """The simulator runs on the CPU (configs/train/train.yaml: the policy may sit on a GPU, the simulator does
+    not). A parameter or scenario tensor on another device failed deep inside torch ("Tensor.item() cannot be called
+    on meta tensors", or with CUDA "Expected all tensors to be on the same device"). The meta device stands in for a
+    GPU here: it is not the CPU on every machine."""
+    cells = block()
+    sim = Surrogate(cells)
+    sc = get_scenario("full_width_40", {"duration": 0.002})
+    p = _params(cells)
+    with pytest.raises(ModelError, match=r"params must be on the CPU \(the surrogate runs there\), got device meta"):
+        sim.run(p.to("meta"), sc)
+    for name in ("speed", "overlap", "side"):
+        with pytest.raises(ModelError, match=f"'{name}' must be on the CPU .*, got device meta"):
+            sim.run(p, sc, **{name: torch.ones(1, device="meta")})
+
+
 def test_sim_config_validation_names_key():
     with pytest.raises(ConfigError, match="substeps"):
         load_sim_config(overrides={"substeps": 0})

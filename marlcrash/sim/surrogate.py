@@ -457,10 +457,12 @@ class Surrogate:
         Null and rigid cells' rows are ignored (not checked, replaced by neutral values).
 
         Raises:
-            ModelError: wrong shape, non-finite values, ``E_x <= 0`` or ``E_s <= 0`` or
+            ModelError: wrong shape, not on the CPU, non-finite values, ``E_x <= 0`` or ``E_s <= 0`` or
                 negative transmission factors in an active cell (named by index and parameter).
         """
         p = torch.as_tensor(params)
+        if p.device.type != "cpu":  # with CUDA: "Expected all tensors to be on the same device" from deep inside
+            raise ModelError(f"params must be on the CPU (the surrogate runs there), got device {p.device}")
         if p.ndim == 2:
             p = p[None]
         if p.ndim != 3 or p.shape[1:] != (self.n, N_PARAMS):
@@ -541,7 +543,8 @@ class Surrogate:
             speed: ``[B]`` impact speed [m/s]; overlap: ``[B]`` in (0, 1]; side: ``[B]`` +1 left, -1 right.
 
         Raises:
-            ModelError: tensors of the wrong shape or out of range, a scenario that is no :class:`CrashScenario`.
+            ModelError: tensors of the wrong shape, out of range or not on the CPU, a scenario that is no
+                :class:`CrashScenario`.
             ConfigError: a scenario value of the wrong type or out of range, naming the key.
         """
         return self._wall(batch, _checked_scenario(scenario), speed, overlap, side)
@@ -560,6 +563,8 @@ class Surrogate:
                 if scenario is None:
                     raise ModelError(f"give a scenario or the per-batch tensor '{name}'")
                 x = default
+            if isinstance(x, torch.Tensor) and x.device.type != "cpu":
+                raise ModelError(f"'{name}' must be on the CPU (the surrogate runs there), got device {x.device}")
             try:
                 x = torch.as_tensor(x, dtype=self.dtype)
             except (TypeError, ValueError, RuntimeError):  # text, None in a list: torch's "invalid data type"
