@@ -513,6 +513,11 @@ def test_sensor_names_given_to_run_are_checked_as_a_scenario_checks_them():
     with pytest.raises(ModelError, match=r"duplicate sensor names in \['tunnel', 'front_left', 'tunnel'\]"):
         sim.run(_params(cells), sc, sensors=["tunnel", "front_left", "tunnel"])
     assert sim.run(_params(cells), sc, sensors=("tunnel",), record_cells="none").sensor_names == ["tunnel"]
+    # a scenario's list (a registered file's sensors key) is named as such: the message named no file or key
+    wrong = get_scenario("full_width_40", {"duration": 0.002, "sensors": ["tunnel", "upfront_left"]})
+    with pytest.raises(ModelError, match=r"unknown sensors \['upfront_left'\] \(scenario 'full_width_40', key "
+                       r"'sensors'\); the cell model has \['front_left', 'front_right', 'tunnel'\]"):  # fmt: skip
+        sim.run(_params(cells), wrong)
 
 
 def test_a_scenario_made_in_python_is_checked_as_a_file_is():

@@ -711,7 +711,9 @@ class Surrogate:
             )
         n_out = round(steps) + 1
         names = sensors if sensors is not None else (list(scenario.sensors) if scenario is not None else [])
-        sensor_idx = self._sensor_index(names) if probe_cells is None else self._probe_index(probe_cells)
+        # names from the scenario: the message says where they came from (a registered file's key)
+        where = f" (scenario {scenario.name!r}, key 'sensors')" if sensors is None and scenario is not None else ""
+        sensor_idx = self._sensor_index(names, where) if probe_cells is None else self._probe_index(probe_cells)
         return (
             p,
             self.link_props(p),
@@ -720,7 +722,7 @@ class Surrogate:
             sensor_idx,
         )
 
-    def _sensor_index(self, names: list[str]) -> tuple[list[str], torch.Tensor]:
+    def _sensor_index(self, names: list[str], where: str = "") -> tuple[list[str], torch.Tensor]:
         if isinstance(names, str | bytes):  # one name was split into letters: "unknown sensors ['t', 'u', ...]"
             raise ModelError(f"sensors must be a list of sensor names, got {names!r}")
         if len(set(names)) != len(names):  # as a scenario file's list: the same signal twice
@@ -730,7 +732,7 @@ class Surrogate:
             names = all_names
         missing = [s for s in names if s not in all_names]
         if missing:
-            raise ModelError(f"unknown sensors {missing}; the cell model has {all_names}")
+            raise ModelError(f"unknown sensors {missing}{where}; the cell model has {all_names}")
         idx = [int(self.cells.sensor_cell[all_names.index(s)]) for s in names]
         return list(names), torch.tensor(idx, dtype=torch.int64)
 
