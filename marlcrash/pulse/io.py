@@ -130,7 +130,7 @@ def _unknown_unit_warning(name: str, said: str, known: list[str], read_in: str, 
                 path,
                 line,
             ),
-            stacklevel=4,
+            stacklevel=3,
         )
 
 
@@ -162,6 +162,7 @@ def read_csv(
     sign: float = 1.0,
     max_gap: float | None = 4.0,
     breakpoints: bool = False,
+    first_only: bool = False,
 ) -> Pulse:
     """Read a pulse from a CSV file with a header row.
 
@@ -180,6 +181,8 @@ def read_csv(
             longer one that also exceeds :data:`MIN_GAP_S`); ``None``: no check.
         breakpoints: the rows are the corners of a piecewise linear pulse, not samples: two rows or more, no gap
             check, and the result is sampled at :data:`BREAKPOINT_RATE_HZ` from the first to the last row.
+        first_only: without ``acc_col``, read the first acceleration column only (the first column that is not the
+            time column), as ``marlcrash pulse`` does: the others are neither parsed nor checked.
 
     Returns:
         A :class:`Pulse` with one channel per acceleration column, named by its header.
@@ -189,24 +192,6 @@ def read_csv(
             cell, time not strictly increasing, too few samples, or a table of breakpoints longer
             than :data:`MAX_BREAKPOINT_SPAN_S`.
     """
-    return _read_csv(path, time_col=time_col, acc_col=acc_col, unit=unit, time_unit=time_unit, sign=sign,
-                     max_gap=max_gap, breakpoints=breakpoints)  # fmt: skip
-
-
-def _read_csv(
-    path: str | Path,
-    *,
-    time_col: str | None = None,
-    acc_col: str | Sequence[str] | None = None,
-    unit: str = "g",
-    time_unit: str = "s",
-    sign: float = 1.0,
-    max_gap: float | None = 4.0,
-    breakpoints: bool = False,
-    first_only: bool = False,
-) -> Pulse:
-    """:func:`read_csv`; ``first_only`` (without ``acc_col``): the first acceleration column only, the first column
-    that is not the time column, as ``marlcrash pulse`` reads it (found in the same reading of the file)."""
     path = Path(path)
     factor = acc_unit_factor(unit)
     if time_unit not in _TIME_UNITS:
@@ -321,7 +306,7 @@ def _read_csv(
             reason = (f"rows {rows_apart:g} s apart (median) are a sampled record, not a table of breakpoints; "
                       f"sampling them at {BREAKPOINT_RATE_HZ:g} Hz drops samples (read the file without --breakpoints "
                       "/ breakpoints: true)")  # fmt: skip
-            warnings.warn(_located(reason, path), stacklevel=3)
+            warnings.warn(_located(reason, path), stacklevel=2)
         grid = time[0] + np.arange(n) / BREAKPOINT_RATE_HZ
         dense = np.stack([np.interp(grid, time, a) for a in acc])
         return Pulse(time=grid, acc=dense, channels=channels, source=str(path))
@@ -335,7 +320,7 @@ def _read_csv(
             "bridges a gap with a straight line, right for a table of breakpoints (read it as one: --breakpoints, "
             "breakpoints: true), wrong for a recorder's dropout"
         )
-        warnings.warn(_located(reason, path, line_of[i + 1], header[ti]), stacklevel=3)
+        warnings.warn(_located(reason, path, line_of[i + 1], header[ti]), stacklevel=2)
     return Pulse(time=time, acc=acc, channels=channels, source=str(path))
 
 
@@ -891,7 +876,7 @@ def processed_pulse(
     if mme:
         pulse = read_pulse(p, **kwargs).select(0)
     elif p.suffix.lower() in (".csv", ".txt"):  # the file read once, its first acceleration column found in it
-        pulse = _read_csv(p, **kwargs).select(0)
+        pulse = read_csv(p, **kwargs).select(0)
     else:
         raise _err("expected a .csv/.txt file, a .mme file or an ISO-MME test folder", p)
     check_record_rate(pulse, p, time_unit=time_unit)
