@@ -1052,7 +1052,8 @@ def test_a_frontal_pulse_read_with_the_other_sign_is_named_in_a_warning(tmp_path
         s = pulse_summary(path)
     said = [str(w.message) for w in caught if "speeds up" in str(w.message)]
     assert len(said) == 1, [str(w.message) for w in caught]
-    assert re.search(r"decel_positive\.csv: channel 'tunnel' speeds up by 11\.1 m/s .*negative.*"
+    gain = re.escape(f"{DV:.3g}")  # the analytic pulse's whole velocity change, gained
+    assert re.search(rf"decel_positive\.csv: channel 'tunnel' speeds up by {gain} m/s .*negative.*"
                      r"--deceleration-positive.*sign=-1", said[0]), said[0]  # fmt: skip
     with warnings.catch_warnings():
         warnings.simplefilter("error")
