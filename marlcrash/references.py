@@ -376,25 +376,32 @@ class ReferenceSampler:
     def sample(self, rng: np.random.Generator, n: int) -> ReferenceBatch:
         """Draw ``n`` references (scenario by weight, then the reference) with ``rng``.
 
-        The draws come in this order: the ``n`` scenario picks (``file``: test picks), then the ``[n, S, 7]``
-        standard normals of the twin perturbations (``twin``) or the ``n`` vehicle-seed picks (``cross_fidelity``).
-        A row's reference therefore depends on ``n``: from generators in the same state, the first four rows of
-        ``sample(rng, 8)`` have the scenarios of ``sample(rng, 4)`` but not its twin perturbations (nor, in general,
-        its vehicle-seed picks).
+        The draws come row by row: row ``i``'s scenario pick (``file``: test pick), then its ``[S, 7]`` standard
+        normals of the twin perturbation (``twin``) or its vehicle-seed pick (``cross_fidelity``), then row
+        ``i + 1``'s. So a row's reference does not depend on ``n``: from generators in the same state, the first
+        four rows of ``sample(rng, 8)`` are ``sample(rng, 4)``, and a run with more parallel episodes sees the same
+        references in its first rows.
         A reference that depends on a seed alone is ``sample(numpy.random.default_rng(seed), 1)``: the one
         :meth:`pinned` repeats and :func:`~marlcrash.calibrate.problem.build_problem` calibrates.
         """
-        pick = rng.choice(len(self.choices), size=n, p=self.weights)
+        kind = self.config.kind
+        n_draws = (self.n_subassemblies, 7) if kind == "twin" else ()
+        pick, draws = np.empty(n, dtype=np.int64), []
+        for i in range(n):  # row by row, so that row i's draws do not depend on n
+            pick[i] = rng.choice(len(self.choices), p=self.weights)
+            if kind == "twin":
+                draws.append(rng.standard_normal(n_draws))
+            elif kind == "cross_fidelity":
+                draws.append(rng.integers(0, len(self.config.cross_fidelity.vehicle_seeds)))
         names = [self.choices[i] for i in pick]
         scs = [self.scenarios[s] for s in names]
         speed = torch.tensor([s.speed for s in scs], dtype=torch.float64)
         overlap = torch.tensor([s.overlap for s in scs], dtype=torch.float64)
         side = torch.tensor([s.side_sign for s in scs], dtype=torch.float64)
-        kind = self.config.kind
         truth = increments = None
         margin = torch.zeros(n, dtype=torch.int64)
         if kind == "twin":
-            noise = torch.as_tensor(rng.standard_normal((n, self.n_subassemblies, 7)))
+            noise = torch.as_tensor(np.asarray(draws, dtype=np.float64).reshape(n, *n_draws))
             truth = perturb_twin(
                 self._params, self._sub, self._feasible, noise, self.config.twin, self.bounds, self.floor
             )
@@ -406,7 +413,7 @@ class ReferenceSampler:
             increments = twin_increments(noise, self.config.twin)
         elif kind == "cross_fidelity":
             seeds = self.config.cross_fidelity.vehicle_seeds
-            seed_pick = rng.integers(0, len(seeds), size=n)
+            seed_pick = [int(k) for k in draws]
             pairs = [self._fine_reference(seeds[k], s) for k, s in zip(seed_pick, names, strict=True)]
             raw = torch.as_tensor(np.stack([p[0] for p in pairs]))
             acc = torch.as_tensor(np.stack([p[1] for p in pairs]))

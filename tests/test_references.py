@@ -25,6 +25,7 @@ from marlcrash.pulse.signal import (
     margin_samples,
 )
 from marlcrash.references import (
+    CrossFidelityConfig,
     FileReference,
     ReferenceConfig,
     ReferenceSampler,
@@ -154,20 +155,61 @@ def test_twin_perturbation_is_per_subassembly_feasible_and_seeded(cells, sim):
     torch.testing.assert_close(a.velocity, s.compared(again.velocity), rtol=0, atol=1e-12)
 
 
-def test_a_batch_draws_its_scenarios_first_then_its_references_as_documented(cells, sim):
-    """sample()'s docstring: the n scenario picks, then the [n, S, 7] twin normals; so a row's twin depends on n
-    (rows 0-3 of a batch of 8 are not a batch of 4 from the same seed), while one draw is the seed's own reference."""
+def test_a_batch_draws_row_by_row_so_a_row_does_not_depend_on_the_batch_size(cells, sim):
+    """sample()'s docstring: row i's scenario pick, then its [S, 7] twin normals, then row i + 1's; so the first
+    rows of a larger batch are the smaller batch from the same seed, and one draw is the seed's own reference."""
     s = sampler(cells, sim, scenarios={"offset40_left": 1.0, "small_overlap_right": 2.0})
     eight, four = s.sample(np.random.default_rng(3), 8), s.sample(np.random.default_rng(3), 4)
-    for n, ref in ((8, eight), (4, four)):
+    for n, ref in ((8, eight), (4, four)):  # the documented order, drawn here independently
         rng = np.random.default_rng(3)
-        pick = rng.choice(2, size=n, p=[1 / 3, 2 / 3])
-        noise = torch.as_tensor(rng.standard_normal((n, s.n_subassemblies, 7)))
+        pick, noise = [], []
+        for _ in range(n):
+            pick.append(rng.choice(2, p=[1 / 3, 2 / 3]))
+            noise.append(rng.standard_normal((s.n_subassemblies, 7)))
         assert ref.scenario == [["offset40_left", "small_overlap_right"][i] for i in pick]
-        torch.testing.assert_close(ref.true_increments, twin_increments(noise, s.config.twin), rtol=0, atol=0)
-    assert eight.scenario[:4] == four.scenario and not torch.equal(eight.true_increments[:4], four.true_increments)
+        expected = twin_increments(torch.as_tensor(np.stack(noise)), s.config.twin)
+        torch.testing.assert_close(ref.true_increments, expected, rtol=0, atol=0)
+    assert len(set(eight.scenario)) == 2  # both scenarios drawn: the rows differ in more than their twins
+    assert eight.scenario[:4] == four.scenario
+    for name in ("true_increments", "true_params", "velocity", "acceleration", "speed", "overlap", "side"):
+        torch.testing.assert_close(getattr(eight, name)[:4], getattr(four, name), rtol=0, atol=0, msg=name)
     one = s.sample(np.random.default_rng(3), 1)
+    torch.testing.assert_close(one.true_params[0], four.true_params[0], rtol=0, atol=0)
     torch.testing.assert_close(s.pinned(3, 2).true_params, one.true_params.expand(2, -1, -1), rtol=0, atol=0)
+
+
+def test_file_and_cross_fidelity_picks_do_not_depend_on_the_batch_size(cells, sim, tmp_path, monkeypatch):
+    """Test picks (kind file) and vehicle-seed picks (cross_fidelity) are drawn row by row too."""
+    from marlcrash.pulse.simulation import write_crash_csv
+
+    files = []
+    for k, name in enumerate(("full_width_40", "offset40_left", "small_overlap_right")):
+        result = sim.run(torch.as_tensor(cells.params)[None], get_scenario(name), record_cells="none")
+        path = write_crash_csv(result, tmp_path / f"{name}.csv")
+        files.append(FileReference(path=str(path), scenario=name, weight=1.0 + k,
+                                   channels={s: f"{s}_acc_g" for s in cells.sensor_names}))  # fmt: skip
+    s = sampler(cells, sim, kind="file", files=files)
+    eight, three = s.sample(np.random.default_rng(11), 8), s.sample(np.random.default_rng(11), 3)
+    assert len(set(eight.source)) > 1 and eight.source[:3] == three.source
+    torch.testing.assert_close(eight.velocity[:3], three.velocity, rtol=0, atol=0)
+    rng = np.random.default_rng(11)
+    assert eight.source == [files[rng.choice(3, p=[1 / 6, 2 / 6, 3 / 6])].path for _ in range(8)]
+
+    seeds = [None, 1, 2]
+    cross = sampler(cells, sim, kind="cross_fidelity", scenarios={"full_width_40": 1.0, "offset40_left": 1.0},
+                    cross_fidelity=CrossFidelityConfig(vehicle_seeds=seeds))  # fmt: skip
+    fake = np.zeros((len(cells.sensor_names), cross.n_outputs))  # the pick order only: no fine model is built
+    monkeypatch.setattr(cross, "_fine_reference", lambda seed, scenario: (fake + 11.0, fake))
+    drawn = {n: cross.sample(np.random.default_rng(4), n) for n in (1, 2, 6)}
+    assert drawn[6].source[:2] == drawn[2].source and drawn[2].source[:1] == drawn[1].source
+    assert drawn[6].scenario[:2] == drawn[2].scenario
+    rng = np.random.default_rng(4)
+    expected = []
+    for _ in range(6):
+        scenario = ("full_width_40", "offset40_left")[rng.choice(2, p=[0.5, 0.5])]
+        expected.append((scenario, f"uniform:seed={seeds[rng.integers(0, 3)]}"))
+    assert list(zip(drawn[6].scenario, drawn[6].source, strict=True)) == expected
+    assert len({e[1] for e in expected}) > 1
 
 
 def test_perturb_twin_bounds_clip_the_behaviour_factors(cells):

@@ -3,8 +3,8 @@
 One :class:`CalibrationCore` holds ``B`` independent episodes of calibrating one
 :class:`~marlcrash.cells.model.CellModel` against references. Both front doors (the
 PettingZoo ``ParallelEnv`` with ``B = 1`` and the batched TorchRL ``EnvBase``) are thin
-layers over it, so they give the same numbers for the same seed and actions (the TorchRL door with ``B = 1``:
-a row's references depend on the batch size, :meth:`CalibrationCore.reset`).
+layers over it, so they give the same numbers for the same seed and actions (the TorchRL door with ``B = 1``;
+with a larger ``B`` the first reset's rows are the first episodes of a smaller one, :meth:`CalibrationCore.reset`).
 
 Episode (per environment row):
 
@@ -440,9 +440,10 @@ class CalibrationCore:
         Draws scenario and reference per row with the core's generator (re-seeded first when
         ``seed`` is given; with ``reference.pin_seed`` every row gets the pinned reference instead),
         resets parameters, fixes the active agents and simulates once. The rows of ``mask`` are drawn in
-        one :meth:`~marlcrash.references.ReferenceSampler.sample` call, so which reference a row gets depends
-        on the batch size and on which rows reset together: the same seed gives the same episodes for the same
-        ``B`` and actions, not row 0 of a batch of 8 the episodes of a batch of 4 (pin the reference for that).
+        one :meth:`~marlcrash.references.ReferenceSampler.sample` call, row by row, so after ``reset(seed=s)``
+        rows 0-3 of a batch of 8 have the references of a batch of 4; later resets go on from where the
+        generator stands, so from then on which reference a row gets depends on ``B`` and on which rows reset
+        together (pin the reference to keep it).
 
         Raises:
             ActionError: a bad ``seed`` or ``mask``; a refused call changes nothing (the generator included).
