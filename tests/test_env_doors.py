@@ -238,3 +238,17 @@ def test_actions_taken_with_gradients_are_used_as_values(cells):
     obs, rew, _, _, _ = pz.step(act)
     obs0, rew0, _, _, _ = plain.step({a: np.full(7, 0.5, np.float32) for a in plain.agents})
     assert rew == rew0 and all(np.array_equal(obs[a], obs0[a]) for a in obs0)
+
+
+def test_space_lookup_of_an_unknown_agent_names_it_and_the_possible_agents(cells):
+    """``observation_space``/``action_space`` of a name not in ``possible_agents``: a bare ``KeyError: 'nose'``
+    from a private dict; now the env's API error naming the agent and listing the possible agents, as step() does."""
+    env = CalibrationParallelEnv(cfg(), cells)
+    for lookup in (env.observation_space, env.action_space):
+        with pytest.raises(ActionError, match=r"unknown agent 'nose'; possible agents are \['") as err:
+            lookup("nose")
+        assert all(a in str(err.value) for a in env.possible_agents)
+        assert lookup.__name__ in str(err.value)
+        with pytest.raises(ActionError, match=r"unknown agent \['nose'\]"):  # unhashable: was a TypeError
+            lookup(["nose"])
+    assert env.action_space(env.possible_agents[0]).shape == (7,)

@@ -85,10 +85,18 @@ class CalibrationParallelEnv(ParallelEnv):
         self._started = False
 
     def observation_space(self, agent: str) -> spaces.Box:
-        return self._obs_spaces[agent]
+        """The agent's observation space; :class:`ActionError` naming the agent if it is not a possible agent."""
+        return self._space(self._obs_spaces, agent, "observation_space")
 
     def action_space(self, agent: str) -> spaces.Box:
-        return self._act_spaces[agent]
+        """The agent's action space; :class:`ActionError` naming the agent if it is not a possible agent."""
+        return self._space(self._act_spaces, agent, "action_space")
+
+    def _space(self, table: dict[str, spaces.Box], agent: str, what: str) -> spaces.Box:
+        try:
+            return table[agent]
+        except (KeyError, TypeError):  # TypeError: an unhashable name
+            raise ActionError(f"{what}: unknown agent {agent!r}; possible agents are {self.possible_agents}") from None
 
     # -------------------------------------------------------------------------------- helpers
     def _observations(self, agents: list[str]) -> dict[str, np.ndarray]:
