@@ -360,6 +360,19 @@ def test_bad_configs_name_the_key(run_dir, tmp_path):
         small_config(run_dir, reference_seeds=[101, 2**64])
 
 
+@pytest.mark.parametrize("name", ["cmaes", "random_search", "gradient"])
+def test_an_empty_budget_list_is_refused_naming_the_key(name, tmp_path):
+    """``budgets.<optimizer>=[]`` was accepted and ran nothing for that optimizer, while its settings were recorded
+    in the comparison's meta as if it took part (and ``gradient: []`` still ran the adjoint check); leaving the key
+    out (``~budgets.<optimizer>``) is the documented way to skip one."""
+    budgets = {"cmaes": [1, 2], "random_search": [1], "gradient": [1], name: []}
+    with pytest.raises(ConfigError, match=rf"key 'budgets\.{name}': expected at least one budget multiple.*"
+                                          rf"~budgets\.{name}"):  # fmt: skip
+        small_config(tmp_path, budgets=budgets)
+    del budgets[name]
+    assert name not in small_config(tmp_path, budgets=budgets).budgets  # left out: skipped
+
+
 def test_the_yaml_config_loads_through_hydra():
     from hydra import compose, initialize_config_dir
 

@@ -107,7 +107,8 @@ class AmortizedConfig:
         scenario: evaluation scenario (registered name).
         iterations: policy calibration steps; ``None`` = the run's ``eval.iterations``.
         target: the policy iterate whose score the optimizers must reach: ``best`` or ``last``.
-        budgets: per optimizer, budgets as multiples of the policy's nominal simulation count ``iterations + 1``.
+        budgets: per optimizer, budgets as multiples of the policy's nominal simulation count ``iterations + 1``
+            (at least one each; an optimizer left out is skipped).
         seed: the optimizers' seed.
         out_dir: folder of the output files; ``None`` = the run folder.
         resume: continue the comparison in that folder: its finished pieces are kept, the others run.
@@ -141,6 +142,10 @@ class AmortizedConfig:
         for name, mults in self.budgets.items():
             require(name in optimizers, f"budgets.{name}",
                     f"unknown optimizer {name!r}; expected one of {optimizers}")  # fmt: skip
+            # an empty list ran nothing for the optimizer while its settings went into the comparison's meta
+            require(len(mults) >= 1, f"budgets.{name}",
+                    f"expected at least one budget multiple, got []; leave the optimizer out to skip it "
+                    f"(command line: ~budgets.{name})")  # fmt: skip
             for i, m in enumerate(mults):
                 require(math.isfinite(m) and m > 0, f"budgets.{name}[{i}]",
                         f"expected a budget multiple > 0 of the policy's simulations, got {m}")  # fmt: skip
