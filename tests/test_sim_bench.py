@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import pytest
+import torch
 
 from marlcrash.sim.bench import (
+    PARTIAL,
     dtype_study,
     format_dtype_study,
     format_implicit_study,
@@ -14,9 +16,11 @@ from marlcrash.sim.bench import (
     implicit_study,
     lane_study,
     noalias_study,
+    plausibility_checks,
     run_benchmark,
     substep_study,
 )
+from marlcrash.sim.scenario import get_scenario
 
 
 @pytest.mark.slow
@@ -201,3 +205,25 @@ def test_noalias_study_times_both_compilations_and_finds_the_same_numbers():
     assert "kernel   noalias" in format_noalias_study(res)
     with pytest.raises(ValueError, match="dtype must be one of"):
         noalias_study(batch=1, dtype="float16")
+
+
+def test_plausibility_checks_simulate_the_scenarios_exact_speed_and_overlap(default_sim):
+    """The cases were handed to the simulator as float32 tensors: 40 km/h ran (and was graded) at 39.9999986 km/h,
+    overlap 0.4 at 0.40000001. The simulated rows now start at the scenarios' speeds exactly (SI, float64)."""
+    seen = {}
+
+    def run(sim, p, **kw):
+        seen.update(kw)
+        seen["result"] = sim.run(p, backend="numba", **kw)
+        return seen["result"]
+
+    plausibility_checks(default_sim, run=run)
+    scs = [get_scenario("full_width_40")] + [get_scenario(n, {"speed_kmh": 40.0}) for n in PARTIAL]
+    scs.append(get_scenario("full_width_56"))
+    for key, want in (("speed", [s.speed for s in scs]), ("overlap", [s.overlap for s in scs]),
+                      ("side", [s.side_sign for s in scs])):  # fmt: skip
+        assert seen[key].dtype == torch.float64, key
+        assert seen[key].tolist() == want, key
+    res = seen["result"]
+    assert res.compartment_velocity[:, 0].tolist() == [s.speed for s in scs]  # the speed simulated, to the bit
+    assert res.compartment_velocity[0, 0].item() * 3.6 == 40.0

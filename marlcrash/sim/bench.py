@@ -533,9 +533,10 @@ def plausibility_checks(sim: Surrogate, params: torch.Tensor | None = None, run=
     res = run(
         sim,
         p,
-        speed=torch.tensor([s.speed for s in scs]),
-        overlap=torch.tensor([s.overlap for s in scs]),
-        side=torch.tensor([s.side_sign for s in scs]),
+        # float64: torch's default float32 ran 40 km/h at 39.9999986 km/h (the simulator casts to its own dtype)
+        speed=torch.tensor([s.speed for s in scs], dtype=torch.float64),
+        overlap=torch.tensor([s.overlap for s in scs], dtype=torch.float64),
+        side=torch.tensor([s.side_sign for s in scs], dtype=torch.float64),
         duration=scs[0].duration,
         record_cells="final",
     )
