@@ -17,10 +17,11 @@ and a chunk within the cache (:func:`default_lanes`); chunks run in parallel (``
 
 Chunk width matters more than any other choice here (``benchmarks/bench_lanes.py``, table at
 :data:`LANE_EFFICIENCY`). The per-chunk body is compiled ``noalias`` (:mod:`marlcrash.sim.noalias`), so a lane
-loop starts without runtime overlap tests; since then 8-16 lanes are the fastest chunk in both precisions (16 float64
-lanes 1.18x as fast per simulation as 32, 16 float32 lanes 1.11x as fast as 64, at B = 256). Before, each link's
-lane loops paid about a hundred scalar instructions of such tests, and only wide chunks (32 float64, 64 float32
-lanes) amortized them. The link loop reads four property streams and no per-link scalar inside the lane loop.
+loop starts without runtime overlap tests; since then 16 lanes are the fastest chunk in both precisions, 8 float64
+lanes tie with them (16 float64 lanes 1.18x as fast per simulation as 32, 16 float32 lanes 1.28x as fast as 64, at
+B = 256: the table's 0.85 and 0.78). Before, each link's lane loops paid about a hundred scalar instructions of such
+tests, and only wide chunks (32 float64, 64 float32 lanes) amortized them. The link loop reads four property
+streams and no per-link scalar inside the lane loop.
 
 Energy ledgers without per-link work arrays: with ``r = v0 dt - ds`` the rearward increment
 of a node in the frame moving at the impact speed, a link's work ``fbar (ds_dst - ds_src)``
