@@ -6,6 +6,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+from sim_fixtures import grid_model
 from test_cells_helpers import build_model, drawn_figures, drawn_turn_from_x_to_y, mini_car, plate, tube_x
 from test_cells_transmission import check_invariants
 
@@ -351,6 +352,24 @@ def test_the_summary_of_a_per_block_uniform_model_does_not_call_its_cells_split(
     assert lines[at - 1].startswith("cells, uniform discretization (one per block")
     assert lines[at - 1].split()[-1] == str(uniform_blocks.n_cells)
     assert s["uniform_cells"] == "per_block"
+
+
+def test_the_summary_of_a_hand_built_model_leaves_the_discretizers_block_count_unknown():
+    """A model not built by the discretizer (built in Python, or a file without its notes) has no
+    ``meta["n_cells_uniform"]``, the count of the discretizer's grid blocks: summarize_cells failed with a bare
+    ``KeyError: 'n_cells_uniform'``. The block count is not a property of the cells, so it is ``None`` (JSON null)
+    and the table prints ``-``; everything else is counted from the model."""
+    cells = grid_model(3, 2, 2, null_cells=((2, 1, 1),), sensors=(("tunnel", None), ("front", (0, 0, 0))))
+    assert "n_cells_uniform" not in cells.meta
+    s = summarize_cells(cells)
+    assert s["n_cells_uniform"] is None and s["n_cells_optimized"] is None and s["uniform_cells"] is None
+    assert s["n_cells"] == 3 * 2 * 2 + 1 and s["n_null_cells"] == 1 and s["n_sensor_cells"] == 2
+    assert s["compartment_mass_kg"] == pytest.approx(1200.0) and s["cell_mass_kg"] == pytest.approx(400.0)
+    assert s["cells_per_subassembly"] == {"right": 6, "centre": 5, "left": 0, "compartment": 1}  # j 0, 1 of 2
+    lines = format_discretization_summary(s).splitlines()
+    assert not any("None" in line for line in lines), lines
+    assert next(line for line in lines if "(grid blocks)" in line).split()[-1] == "-"
+    assert next(line for line in lines if "optimized discretization" in line).split()[-1] == "-"
 
 
 def test_the_3d_view_draws_the_cars_left_on_its_left(optimized, tmp_path, monkeypatch):

@@ -20,7 +20,8 @@ def summarize_cells(cells: CellModel, n_cells_optimized: int | None = None) -> d
         A JSON-serialisable dict: ``method``, ``n_cells`` (this model, all cells),
         ``roi_volume_mm3``, ``target_cell_volume_mm3``, ``n_cells_uniform`` (uniform grid
         blocks over the ROI, the paper's count; the uniform model splits a block shared by sub-assemblies, so its
-        ``n_cells`` is larger with ``uniform_cells: per_subassembly``), ``n_cells_optimized`` (all cells of the
+        ``n_cells`` is larger with ``uniform_cells: per_subassembly``; ``None`` for a model the discretizer did not
+        build, whose ``meta`` does not record it), ``n_cells_optimized`` (all cells of the
         optimized model: non-null, null, sensor and compartment), ``n_null_cells`` and ``n_sensor_cells``
         (this model), ``roi_mass_kg``, ``cell_mass_kg`` (cells without the compartment),
         ``compartment_mass_kg``, ``total_mass_kg``, ``n_subassemblies``, ``n_sensors``,
@@ -30,6 +31,7 @@ def summarize_cells(cells: CellModel, n_cells_optimized: int | None = None) -> d
     comp = cells.compartment
     counts = {name: int((cells.subassembly == i).sum()) for i, name in enumerate(cells.subassembly_names)}
     non_comp = np.arange(cells.n_cells) != comp
+    blocks = cells.meta.get("n_cells_uniform")  # the discretizer's grid: not in a model built by hand
     if cells.method == "optimized":
         n_cells_optimized = cells.n_cells
     return {
@@ -38,7 +40,7 @@ def summarize_cells(cells: CellModel, n_cells_optimized: int | None = None) -> d
         "n_cells": cells.n_cells,
         "roi_volume_mm3": cells.roi_volume * 1e9,
         "target_cell_volume_mm3": cells.target_cell_volume * 1e9,
-        "n_cells_uniform": int(cells.meta["n_cells_uniform"]),
+        "n_cells_uniform": None if blocks is None else int(blocks),
         "n_cells_optimized": n_cells_optimized,
         "n_null_cells": cells.n_null,
         "n_sensor_cells": int(cells.is_sensor.sum()),
@@ -75,10 +77,14 @@ def discretization_summary(
 
 
 def format_discretization_summary(s: dict) -> str:
-    """Render a summary as the paper's Table 2 plus cells per sub-assembly."""
+    """Render a summary as the paper's Table 2 plus cells per sub-assembly; a count not known is ``-``."""
+
+    def count(n: int | None) -> str:
+        return "-" if n is None else f"{n}"
+
     counts = [
-        ("cells, uniform discretization (grid blocks)", f"{s['n_cells_uniform']}", ""),
-        ("cells, optimized discretization", f"{s['n_cells_optimized']}", ""),
+        ("cells, uniform discretization (grid blocks)", count(s["n_cells_uniform"]), ""),
+        ("cells, optimized discretization", count(s["n_cells_optimized"]), ""),
     ]
     if s["method"] != "optimized":
         counts.reverse()
