@@ -372,6 +372,17 @@ def test_the_summary_of_a_hand_built_model_leaves_the_discretizers_block_count_u
     assert next(line for line in lines if "optimized discretization" in line).split()[-1] == "-"
 
 
+@pytest.mark.parametrize("bad", [0, -5, 2.5, True, "100"])
+def test_plot_cells_refuses_a_max_points_that_is_not_a_positive_whole_number(bad, tmp_path):
+    """``max_points=0`` wrote a picture without a single voxel and a negative one failed inside numpy ("Number of
+    samples, -5, must be non-negative"); now the argument is named before anything is drawn."""
+    cells = grid_model(3, 2, 2)
+    with pytest.raises(ValueError, match=r"max_points: expected a whole number of voxels >= 1, got"):
+        plot_cells(cells, tmp_path / "cells.png", max_points=bad)
+    assert not (tmp_path / "cells.png").exists()
+    assert plot_cells(cells, tmp_path / "one.png", max_points=1).read_bytes()[:4] == b"\x89PNG"
+
+
 def test_the_3d_view_draws_the_cars_left_on_its_left(optimized, tmp_path, monkeypatch):
     """marlcrash's frame (x rearward, y left, z up) is left-handed and matplotlib draws its 3D axes right-handed:
     the cells were drawn mirrored, the car's left (the up-front left sensor, +y) on its right side."""

@@ -25,11 +25,16 @@ def plot_cells(cells: CellModel, path: str | Path, max_points: int = 60000) -> P
     Args:
         cells: the cell model (its ``grid_labels`` give the voxels).
         path: output ``.png`` path.
-        max_points: at most this many voxels are drawn (an even subsample beyond it).
+        max_points: at most this many voxels are drawn (an even subsample beyond it); a whole number >= 1.
 
     Returns:
         The path written. Sensor cells are drawn in black, larger.
+
+    Raises:
+        ValueError: ``max_points`` is not a whole number >= 1 (0 drew no voxel at all).
     """
+    if isinstance(max_points, bool) or not isinstance(max_points, int | np.integer) or max_points < 1:
+        raise ValueError(f"max_points: expected a whole number of voxels >= 1, got {max_points!r}")
     import matplotlib
 
     matplotlib.use("Agg")
