@@ -283,6 +283,31 @@ def test_result_rows_by_integer_keep_the_batch_dimension():
     assert crash_summary(out, cells, sc, row=-1) == crash_summary(out, cells, sc, row=2)
 
 
+def test_crash_outputs_name_a_row_outside_the_batch(tmp_path):
+    """crash_summary, plot_crash, write_crash_csv and subassembly_absorbed of ``row=2`` on a 2-row result failed inside
+    torch ("index 2 is out of bounds for dimension 0 with size 2", a float row with "only integers, slices ... are
+    valid indices"), naming no argument; negative rows still count from the end."""
+    from marlcrash.pulse.simulation import crash_summary, plot_crash, subassembly_absorbed, write_crash_csv
+
+    cells = chain(3)
+    sc = get_scenario("full_width_40", {"duration": 0.02})
+    out = Surrogate(cells).run(_random_params(cells, 2, seed=3), sc, backend="numba", record_cells="final")
+    calls = {
+        "crash_summary": lambda row: crash_summary(out, cells, sc, row=row),
+        "plot_crash": lambda row: plot_crash(out, cells, tmp_path / "crash.png", row=row),
+        "write_crash_csv": lambda row: write_crash_csv(out, tmp_path / "crash.csv", row=row),
+        "subassembly_absorbed": lambda row: subassembly_absorbed(out, cells, row=row),
+    }
+    for name, call in calls.items():
+        for bad, what in ((2, r"batch row 2 out of range for a result of 2 rows"), (-3, r"batch row -3 out of range"),
+                          (1.0, r"expected an integer batch row, got 1\.0")):  # fmt: skip
+            with pytest.raises(IndexError, match=rf"^row: {what}"):
+                call(bad)
+        assert not (tmp_path / "crash.png").exists() and not (tmp_path / "crash.csv").exists(), name
+    assert crash_summary(out, cells, sc, row=-1) == crash_summary(out, cells, sc, row=1)
+    assert crash_summary(out, cells, sc, row=np.int64(0)) == crash_summary(out, cells, sc, row=0)
+
+
 def test_crash_figure_draws_a_single_per_cell_record_as_bars():
     """With ``record_cells='final'`` the energy panel shows each sub-assembly's absorbed energy at the record as a
     bar; it used to stack the one record as a curve at t = 0 (an empty area at the left edge of the time axis).

@@ -10,6 +10,7 @@ the forward (travel) speed, so a frontal crash pulse is negative.
 from __future__ import annotations
 
 import csv
+import operator
 from pathlib import Path
 
 import numpy as np
@@ -78,6 +79,22 @@ def bottoming_note(budget: dict[str, float]) -> str | None:
     )
 
 
+def checked_row(result: SimResult, row: int) -> int:
+    """``row`` as an index ``0..B-1`` into ``result``'s batch (a negative row counts from the end).
+
+    Raises:
+        IndexError: not an integer, or outside the batch (it failed inside torch, naming no argument).
+    """
+    try:
+        r = operator.index(row)  # an int or a numpy integer
+    except TypeError:
+        raise IndexError(f"row: expected an integer batch row, got {row!r}") from None
+    B = result.initial.shape[0]
+    if not -B <= r < B:
+        raise IndexError(f"row: batch row {r} out of range for a result of {B} rows")
+    return r % B
+
+
 def crash_summary(result: SimResult, cells: CellModel, scenario: CrashScenario, cfc: int = 60, row: int = 0) -> dict:
     """Key figures of one simulated crash (batch row ``row``).
 
@@ -91,7 +108,11 @@ def crash_summary(result: SimResult, cells: CellModel, scenario: CrashScenario, 
         ``energy_balance_max_rel_error``, ``absorbed_energy_kj`` (sub-assembly -> kJ at the end;
         present when per-cell energies were recorded), and ``sensors`` (name -> ``peak_g``,
         ``t_peak_ms``, ``delta_v_ms``).
+
+    Raises:
+        IndexError: ``row`` is not a batch row of ``result`` (negative rows count from the end).
     """
+    row = checked_row(result, row)
     t = result.time.detach().cpu().numpy()
     dt = float(t[1] - t[0])
     v_comp = result.compartment_velocity[row].detach().cpu().numpy()
@@ -139,6 +160,7 @@ def crash_summary(result: SimResult, cells: CellModel, scenario: CrashScenario, 
 
 def subassembly_absorbed(result: SimResult, cells: CellModel, row: int = 0) -> dict[str, np.ndarray] | None:
     """Energy [J] absorbed per sub-assembly, ``name -> [T']``; ``None`` without per-cell records."""
+    row = checked_row(result, row)
     e = result.cell_absorbed[row].detach().cpu().numpy()  # [n, T']
     if e.shape[-1] == 0:
         return None
@@ -151,6 +173,7 @@ def subassembly_absorbed(result: SimResult, cells: CellModel, row: int = 0) -> d
 
 def write_crash_csv(result: SimResult, path: str | Path, row: int = 0) -> Path:
     """Write time [s], per-sensor acceleration [g] and velocity [m/s], crush [m] as CSV (atomically)."""
+    row = checked_row(result, row)
     path = Path(path)
     t = result.time.detach().cpu().numpy()
     cols = {"time_s": t}
@@ -172,7 +195,7 @@ def plot_crash(result: SimResult, cells: CellModel, path: str | Path, title: str
     With per-cell energy series (``record_cells='series'``) the third panel stacks each sub-assembly's absorbed
     energy over time under the vehicle's kinetic energy; with a single per-cell record (``'final'``, at the end or
     at ``cells_at``) it is a bar per sub-assembly at that record; without per-cell records (``'none'``) it is left
-    out.
+    out. ``row``: the batch row drawn (:func:`checked_row`: an :class:`IndexError` naming it outside the batch).
     """
     import matplotlib
 
@@ -192,6 +215,8 @@ def plot_crash(result: SimResult, cells: CellModel, path: str | Path, title: str
 def crash_figure(result: SimResult, cells: CellModel, title: str = "", cfc: int = 60, row: int = 0):
     """The matplotlib figure :func:`plot_crash` saves (the caller closes it)."""
     import matplotlib.pyplot as plt
+
+    row = checked_row(result, row)
 
     t = result.time.detach().cpu().numpy()
     dt = float(t[1] - t[0])
