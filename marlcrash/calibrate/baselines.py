@@ -38,8 +38,8 @@ import csv
 import itertools
 import json
 import os
+import secrets
 import shutil
-import tempfile
 import warnings
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
@@ -622,7 +622,7 @@ def write_run(
     final = run_path(config)
     check_output_dir(final, "out_dir")
     final.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{config.name}.", dir=final.parent))
+    tmp = _temporary_sibling(final)
     try:
         summary = result.summary()
         summary.update(
@@ -647,6 +647,17 @@ def write_run(
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return final
+
+
+def _temporary_sibling(folder: Path) -> Path:
+    """A new hidden folder beside ``folder`` with the mode ``mkdir`` gives every other folder (``0o777`` less the
+    umask): ``tempfile.mkdtemp`` made it ``0o700``, and renamed into place it kept nobody else out of a run whose
+    files they could read."""
+    for _ in range(100):
+        tmp = folder.with_name(f".{folder.name}.{secrets.token_hex(4)}")
+        if claim_dir(tmp):
+            return tmp
+    raise FileExistsError(f"no free temporary folder name beside {folder}")
 
 
 def _claim_free(folder: Path) -> Path:
