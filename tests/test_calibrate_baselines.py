@@ -313,3 +313,32 @@ def test_a_baseline_run_folder_gets_the_permissions_of_any_other_folder(tmp_path
     assert folder.stat().st_mode & 0o777 == 0o755
     assert (folder / "summary.json").stat().st_mode & 0o777 == 0o644
     assert sorted(p.name for p in folder.parent.iterdir()) == ["perm"]  # no temporary folder left
+
+
+def test_gradient_descent_goes_on_past_a_candidate_whose_gradient_is_not_finite(problem, monkeypatch):
+    """A candidate whose simulation diverges has a NaN gradient; Adam made its log-scales NaN and the next step's
+    simulation refused them ("candidate 1: x[0, 0] ... is not finite"), ending the run with a ModelError after part
+    of the budget was spent. That candidate's gradient is dropped for the step; the others move as before."""
+    loss = problem.loss
+    seen: list[torch.Tensor] = []
+
+    def watched(nan_row):
+        def fn(x, weights, backend="adjoint"):
+            seen.append(x.detach().clone())
+            if nan_row is not None:
+                x.register_hook(lambda g: torch.where(torch.arange(g.shape[0])[:, None, None] == nan_row, torch.nan, g))
+            return loss(x, weights, backend)
+
+        return fn
+
+    config = GradientConfig(batch_size=2)
+    monkeypatch.setattr(problem, "loss", watched(None))
+    BASELINES["gradient"][1](problem, 6, config, 0)
+    clean, seen[:] = list(seen), []
+    monkeypatch.setattr(problem, "loss", watched(1))
+    got = BASELINES["gradient"][1](problem, 6, config, 0)
+    assert got.simulations == 6 and len(seen) == 3 and all(bool(torch.isfinite(x).all()) for x in seen)
+    for a, b in zip(clean, seen, strict=True):
+        assert torch.equal(a[0], b[0])  # the other candidate's steps are those of the clean run
+    assert not torch.equal(seen[1][0], seen[0][0])  # ... which do move it
+    assert torch.equal(seen[1][1], seen[0][1])  # the diverged one is held (Adam has no momentum yet)

@@ -18,7 +18,8 @@ and the first history row are measured, not assumed.
   :class:`~marlcrash.calibrate.problem.SmoothLoss` through the differentiable simulator (``backend``:
   the compiled adjoint of :mod:`marlcrash.sim.adjoint` by default, or torch autograd, the same
   gradients). Cost: one simulation per candidate per step (the forward pass; its backward pass is not
-  charged separately). The metrics of each step's forward pass rank the candidates.
+  charged separately). The metrics of each step's forward pass rank the candidates. A candidate whose
+  gradient is not finite (its simulation diverged) gets none for that step (Adam's momentum alone moves it).
 - :func:`levenberg_marquardt`: least squares on the velocity residuals of every sensor
   (:mod:`~marlcrash.calibrate.leastsq`: a finite-difference Jacobian of ``n_free`` simulations
   and six damped steps per iteration, ``n_free + 6`` simulations in two batches). It fits the
@@ -351,6 +352,8 @@ def _adam_loop(
         if progress.done:
             break
         loss.sum().backward()
+        with torch.no_grad():  # a diverged candidate's NaN gradient made its log-scales NaN: drop it for this step
+            z.grad[~torch.isfinite(z.grad).all(1)] = 0.0
         opt.step()
         with torch.no_grad():
             z.copy_(torch.minimum(torch.maximum(z, lo), hi))
