@@ -9,9 +9,11 @@ stray one. :func:`read_npz` reads a ``.npz`` file back, saying in words what is 
 
 from __future__ import annotations
 
+import errno
 import json
 import math
 import os
+import secrets
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -123,8 +125,10 @@ def atomic_output(path: str | Path, key: str | None = None) -> Iterator[Path]:
     """Yield a temporary path next to ``path``; on success it is flushed to disk and replaces ``path``, on failure it
     is removed.
 
-    The temporary name keeps ``path``'s suffix (``.name.tmp.png``), so writers that pick a format by suffix
-    (matplotlib) see the right one.
+    The temporary name keeps ``path``'s suffix (``.name.<8 hex>.tmp.png``), so writers that pick a format by suffix
+    (matplotlib) see the right one. It is created empty here (``0o666`` less the umask) under a name no other writer
+    has: with one name per path, two writers of one output at once wrote into one file, and the first to finish
+    renamed the other's partial writing into place.
 
     Raises:
         ConfigError: ``path`` cannot be written (see :func:`check_output_file`); the message names the path
@@ -132,7 +136,7 @@ def atomic_output(path: str | Path, key: str | None = None) -> Iterator[Path]:
         OSError: writing failed (disk full, no permission); its ``filename`` is ``path``, not the temporary file.
     """
     final = check_output_file(path, key)
-    tmp = final.with_name(f".{final.stem}.tmp{final.suffix}")
+    tmp = _new_sibling(final)
     try:
         yield tmp
         with open(tmp, "rb+") as fh:  # on disk before the name points at it: a system crash leaves old or new
@@ -148,6 +152,24 @@ def atomic_output(path: str | Path, key: str | None = None) -> Iterator[Path]:
         raise
     finally:
         tmp.unlink(missing_ok=True)
+
+
+def _new_sibling(final: Path) -> Path:
+    """Create an empty, hidden temporary file beside ``final`` that no other writer has (:func:`atomic_output`).
+
+    Raises:
+        OSError: it cannot be created; the message and ``filename`` name ``final``.
+    """
+    for _ in range(100):
+        tmp = final.with_name(f".{final.stem}.{secrets.token_hex(4)}.tmp{final.suffix}")
+        try:
+            os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+        except FileExistsError:
+            continue
+        except OSError as e:
+            raise OSError(e.errno, f"cannot write {final}: {e.strerror or e}", str(final)) from e
+        return tmp
+    raise FileExistsError(errno.EEXIST, f"cannot write {final}: no free temporary name beside it", str(final))
 
 
 _ZIP_STARTS = (b"PK\x03\x04", b"PK\x05\x06")  # a zip's first member, or an empty zip

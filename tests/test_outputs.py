@@ -169,3 +169,19 @@ def test_atomic_output_flushes_the_file_to_disk_before_it_replaces_the_old_one(t
     with atomic_output(tmp_path / "summary.json") as tmp:
         tmp.write_text('{"a": 1}')
     assert events == [("fsync", 8), ("replace", "summary.json")]
+
+
+def test_two_writers_of_one_file_each_write_it_whole(tmp_path):
+    """Every writer of a path got the same temporary name (``.summary.tmp.json``), so two writers of one output at
+    once (two processes) wrote into one file: the first to finish renamed it into place whatever the other had
+    written into it meanwhile, and the other then failed ("cannot write ...: No such file or directory"). Each writer
+    has a temporary file of its own now; each replaces the target whole, the last one to finish last."""
+    target = tmp_path / "summary.json"
+    with atomic_output(target) as first:
+        first.write_text('{"first": "a longer text than the second"}')
+        with atomic_output(target) as second:
+            second.write_text('{"second": 2}')
+        assert target.read_text() == '{"second": 2}'
+    assert target.read_text() == '{"first": "a longer text than the second"}'
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["summary.json"]
+    assert second != first and second.suffix == ".json" and second.name.startswith(".summary.")
