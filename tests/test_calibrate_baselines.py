@@ -201,7 +201,7 @@ def test_adjoint_gradient_on_a_float32_env_fails_at_load_naming_the_backend():
         load_run_config({"method": "gradient", **f32})
     assert e.value.key == "gradient.backend"
     load_run_config({"method": "gradient", "gradient": {"backend": "torch"}, **f32})  # the torch path takes float32
-    load_run_config({"method": "lm", **f32})  # another method does not use the backend
+    load_run_config({"method": "lm", "lm": {"fd_step": 1e-3}, **f32})  # another method does not use the backend
 
 
 def test_the_largest_seed_runs_every_seeded_method(problem):
@@ -342,3 +342,33 @@ def test_gradient_descent_goes_on_past_a_candidate_whose_gradient_is_not_finite(
         assert torch.equal(a[0], b[0])  # the other candidate's steps are those of the clean run
     assert not torch.equal(seen[1][0], seen[0][0])  # ... which do move it
     assert torch.equal(seen[1][1], seen[0][1])  # the diverged one is held (Adam has no momentum yet)
+
+
+def test_lm_on_a_float32_env_needs_a_finite_difference_step_above_its_rounding(problem):
+    """At the default step (1e-5) a float32 simulation's finite differences are rounding noise: the Jacobian's
+    columns came out 4.5x off float64's, and lm ran on a noise Jacobian without a word. Refused at load (key
+    ``lm.fd_step``), as the adjoint's float32 limit is; from 1e-3 its error is within a fifth."""
+    f32 = {"problem": {"env_overrides": {"sim_dtype": "float32"}}}
+    with pytest.raises(ConfigError, match=r"float32 .* at least 0\.001") as e:
+        load_run_config({"method": "lm", **f32})
+    assert e.value.key == "lm.fd_step"
+    assert load_run_config({"method": "lm", "lm": {"fd_step": 1e-3}, **f32}).lm.fd_step == 1e-3
+    load_run_config({"method": "cmaes", **f32})  # other methods take no finite differences
+    load_run_config({"method": "lm"})  # float64: the default step
+
+    single = build_problem(from_dict(ProblemConfig, {"duration": 0.05, "env_overrides": {"sim_dtype": "float32"}}),
+                           cells=problem.cells)  # fmt: skip
+    double = build_problem(from_dict(ProblemConfig, {"duration": 0.05}), cells=problem.cells)
+    n = 12
+
+    def jacobian(p, h):
+        z = torch.cat([torch.zeros(1, p.n_free, dtype=torch.float64), h * torch.eye(p.n_free)[:n]])
+        r = p.residuals(p.unflat(z))[0].flatten(1)
+        return (r[1:] - r[0]) / h
+
+    exact = jacobian(double, 1e-5)
+
+    def error(h):
+        return float((jacobian(single, h) - exact).norm() / exact.norm())
+
+    assert error(1e-5) > 1.0 and error(1e-3) < 0.2

@@ -454,7 +454,8 @@ def test_ppo_env_overrides_that_change_the_reference_fail_before_any_run(short, 
     assert e.value.key == key and "shapes the reference pulse" in str(e.value)
     assert "top-level env_overrides" in str(e.value)
     # the same setting for every method is fine, and so are the PPO runs' own settings and restatements
-    tiny(tmp_path, env_overrides=override, **{"ppo.env_overrides": override, "gradient.backend": "torch"})
+    fine = {"ppo.env_overrides": override, "gradient.backend": "torch", "lm.fd_step": 1e-3}  # float32: see below
+    tiny(tmp_path, env_overrides=override, **fine)
     tiny(tmp_path, **{"ppo.env_overrides": {"sim_backend": "numba", "reward": "paper_factor", "max_step": 0.05}})
 
 
@@ -468,6 +469,11 @@ def test_adjoint_gradient_on_a_float32_env_fails_before_any_run(short, tmp_path)
     assert not (tmp_path / "runs").exists()
     tiny(tmp_path, methods=["random_search", "gradient"], **{"gradient.backend": "torch"}, **f32)
     tiny(tmp_path, methods=["random_search", "cmaes"], **f32)
+    # lm's finite differences at the default step are float32 rounding noise (tests/test_calibrate_baselines.py)
+    with pytest.raises(ConfigError, match=r"float32 .* at least 0\.001") as e:
+        tiny(tmp_path, methods=["random_search", "lm"], **f32)
+    assert e.value.key == "lm.fd_step"
+    tiny(tmp_path, methods=["random_search", "lm"], **{"lm.fd_step": 1e-3}, **f32)
 
 
 def test_config_file_registers_every_method(short, tmp_path):

@@ -384,6 +384,28 @@ def check_gradient_backend(config: GradientConfig, sim_dtype: str, key: str = "g
         raise ConfigError(f"{why} (the env's sim_dtype is {sim_dtype})", key=key, path=source)
 
 
+FLOAT32_FD_STEP = 1e-3
+"""Smallest finite-difference step of ``lm`` on a ``float32`` env [-]: at 1e-5 a float32 simulation's differences
+are rounding noise (Jacobian 4.5x off float64's over 50 ms), at 1e-3 within a fifth of it."""
+
+
+def check_lm_fd_step(config: LMConfig, sim_dtype: str, key: str = "lm.fd_step", source: str | None = None) -> None:
+    """Refuse ``lm``'s finite-difference step where the env's simulations round more than it resolves, before any
+    simulation.
+
+    Raises:
+        ConfigError: (``key``) a ``float32`` env and ``fd_step`` below :data:`FLOAT32_FD_STEP`.
+    """
+    if sim_dtype == "float32" and config.fd_step < FLOAT32_FD_STEP:
+        raise ConfigError(
+            f"the env simulates in float32 (sim_dtype), whose rounding swamps a finite difference of "
+            f"{config.fd_step:g} (the Jacobian came out several times off float64's); expected a step of at least "
+            f"{FLOAT32_FD_STEP:g}, or a float64 env",
+            key=key,
+            path=source,
+        )
+
+
 def check_lm_budget(problem: CalibrationProblem, budget: int) -> None:
     """Refuse a budget below lm's first iteration (it spent 1 simulation and reported stop reason "budget").
 
@@ -511,7 +533,8 @@ def load_run_config(data: dict[str, Any], source: str | None = None) -> Baseline
     """Validate a run config mapping (e.g. Hydra's, without its ``hydra`` node).
 
     Also loads the problem's env config with its overrides, so a bad env key fails here, and checks that gradient
-    descent's backend can differentiate that env's simulator (:func:`check_gradient_backend`).
+    descent's backend can differentiate that env's simulator (:func:`check_gradient_backend`) and that ``lm``'s
+    finite-difference step is above its rounding (:func:`check_lm_fd_step`).
 
     Raises:
         ConfigError: unknown key, wrong type or bad value, naming the dotted key.
@@ -526,6 +549,8 @@ def load_run_config(data: dict[str, Any], source: str | None = None) -> Baseline
         raise nested_error(e, "problem", source) from None
     if config.method == "gradient":
         check_gradient_backend(config.gradient, env.sim_dtype, source=source)
+    if config.method == "lm":
+        check_lm_fd_step(config.lm, env.sim_dtype, source=source)
     return config
 
 

@@ -70,6 +70,7 @@ from marlcrash.calibrate.baselines import (
     RandomSearchConfig,
     check_gradient_backend,
     check_lm_budget,
+    check_lm_fd_step,
 )
 from marlcrash.calibrate.budget import Progress
 from marlcrash.calibrate.evaluate import param_errors
@@ -241,7 +242,8 @@ def load_compare_config(data: dict[str, Any], source: str | None = None) -> Comp
 
     Also loads the env config with ``env_overrides`` (and the PPO ones), so a bad env key fails here, and checks that
     gradient descent's backend can differentiate that env's simulator
-    (:func:`~marlcrash.calibrate.baselines.check_gradient_backend`).
+    (:func:`~marlcrash.calibrate.baselines.check_gradient_backend`) and that ``lm``'s finite-difference step is above
+    its rounding (:func:`~marlcrash.calibrate.baselines.check_lm_fd_step`).
 
     Raises:
         ConfigError: unknown key, wrong type or bad value, naming the dotted key -- before any run.
@@ -251,9 +253,11 @@ def load_compare_config(data: dict[str, Any], source: str | None = None) -> Comp
         require_complete(CompareConfig, data, source)
     config = from_dict(CompareConfig, data, path=source)
     check_env_overrides(config.env, config.env_overrides, config.ppo.env_overrides, source)
+    sim_dtype = load_env_config(config.env, config.env_overrides).sim_dtype
     if "gradient" in config.methods:
-        check_gradient_backend(config.gradient, load_env_config(config.env, config.env_overrides).sim_dtype,
-                               source=source)  # fmt: skip
+        check_gradient_backend(config.gradient, sim_dtype, source=source)
+    if "lm" in config.methods:
+        check_lm_fd_step(config.lm, sim_dtype, source=source)
     return config
 
 
