@@ -1062,3 +1062,35 @@ def test_a_frontal_pulse_read_with_the_other_sign_is_named_in_a_warning(tmp_path
     for key in ("t0_ms", "peak_g", "t_peak_ms", "delta_v_ms", "delta_v_max_ms", "delta_v_150ms_ms"):
         assert s[key] == pytest.approx(right[key], rel=1e-12, abs=1e-12), key
     assert right["delta_v_ms"] == pytest.approx(DV, rel=0.01)
+
+
+def test_an_iso_mme_test_reads_each_channel_file_once(tmp_path, analytic, monkeypatch):
+    """``read_mme`` and ``marlcrash pulse`` read each file of an ISO-MME test once, its header and its samples
+    together: the channel list was read (every file, whole) and then each chosen channel file again, and ``marlcrash
+    pulse`` listed the channels twice more (three readings of a file that may hold 100 000 samples). Same results."""
+    import pathlib
+
+    write_mme(Pulse(analytic.time, np.stack([analytic.acc[0] * 1e3, *analytic.acc]), ("11BELT0000FOXA", "tunnel",
+                    "radsup")), tmp_path / "T", "T")  # fmt: skip
+    _edit(tmp_path / "T" / "Channel" / "T.001", "Unit                        :g", "Unit                        :N")
+    expected_all = read_mme(tmp_path / "T", channels=["tunnel", "radsup"])
+    expected_summary = pulse_summary(_write_plain(tmp_path / "p.csv", analytic))
+    reads: list[str] = []  # the files opened, however they are read
+    path_open = pathlib.Path.open
+
+    def counted(self, *args, **kwargs):
+        reads.append(self.name)
+        return path_open(self, *args, **kwargs)
+
+    monkeypatch.setattr(pathlib.Path, "open", counted)
+    with pytest.warns(UserWarning, match=r"skipped T\.001 \(N\)"):
+        got = read_mme(tmp_path / "T")
+    assert got.channels == ("tunnel", "radsup") and np.array_equal(got.acc, expected_all.acc)
+    assert sorted(reads) == ["T.001", "T.002", "T.003", "T.mme"]
+    reads.clear()
+    assert read_mme(tmp_path / "T", channels="radsup").channels == ("radsup",)
+    assert sorted(reads) == ["T.001", "T.002", "T.003", "T.mme"]
+    reads.clear()
+    s = pulse_summary(tmp_path / "T")  # the first acceleration channel: the files after it are not needed
+    assert s["channel"] == "tunnel" and s["delta_v_ms"] == pytest.approx(expected_summary["delta_v_ms"])
+    assert sorted(reads) == ["T.001", "T.002", "T.mme"]

@@ -475,9 +475,9 @@ def _header_float(path: Path, header: dict[str, tuple[str, int]], key: str) -> f
     return v
 
 
-def _read_mme_channel(path: Path) -> dict[str, Any]:
-    lines = _read_lines(path)
-    header, start = _parse_header(path, lines)
+def _read_mme_channel(path: Path, lines: list[str], header: dict[str, tuple[str, int]], start: int) -> dict[str, Any]:
+    """The samples of a channel file whose ``lines`` were read and whose ``header`` ends at line index ``start``
+    (:func:`_parse_header`): the file is read once for its header and its samples."""
     t_first = _header_float(path, header, "time of first sample")
     dt = _header_float(path, header, "sampling interval")
     if dt <= 0:
@@ -546,6 +546,31 @@ def _mme_paths(path: Path) -> tuple[Path, Path]:
     return mme, folder
 
 
+def _mme_channel_files(path: Path) -> tuple[Path, list[Path]]:
+    """(test .mme file, its channel files ``<test>.001``, ``<test>.002``, ... in order) of a test or .mme file."""
+    mme, folder = _mme_paths(path)
+    test = mme.stem
+    _read_lines(mme)  # the test description must at least be readable
+    files = sorted(p for p in folder.iterdir() if p.is_file() and re.fullmatch(r"\d{3}", p.suffix[1:] or ""))
+    files = [p for p in files if p.stem.lower() == test.lower()]
+    if not files:
+        raise _err(f"no channel files {test}.001, {test}.002, ... in the Channel folder", mme)
+    return mme, files
+
+
+def _mme_entry(path: Path, header: dict[str, tuple[str, int]]) -> dict[str, Any]:
+    """One channel of :func:`mme_channels`, from its file's parsed header."""
+    code = header.get("channel code", ("", 0))[0]
+    unit = header["unit"][0] if "unit" in header else None
+    return {
+        "file": path,
+        "code": "" if code.upper() == "NOVALUE" else code,
+        "name": header.get("name of the channel", ("", 0))[0],
+        "unit": unit,
+        "acceleration": unit is not None and acc_unit_key(unit) in ACC_UNITS,
+    }
+
+
 def mme_channels(path: str | Path) -> list[dict[str, Any]]:
     """The channels of an ISO-MME test from their headers alone (no samples parsed), in file order.
 
@@ -560,28 +585,13 @@ def mme_channels(path: str | Path) -> list[dict[str, Any]]:
     Raises:
         PulseError: no test, no ``Channel`` folder or no channel files (naming the path).
     """
-    mme, folder = _mme_paths(Path(path))
-    test = mme.stem
-    _read_lines(mme)  # the test description must at least be readable
-    files = sorted(p for p in folder.iterdir() if p.is_file() and re.fullmatch(r"\d{3}", p.suffix[1:] or ""))
-    files = [p for p in files if p.stem.lower() == test.lower()]
-    if not files:
-        raise _err(f"no channel files {test}.001, {test}.002, ... in the Channel folder", mme)
-    out = []
-    for p in files:
-        h, _ = _parse_header(p, _read_lines(p)[:200])
-        code = h.get("channel code", ("", 0))[0]
-        unit = h["unit"][0] if "unit" in h else None
-        out.append(
-            {
-                "file": p,
-                "code": "" if code.upper() == "NOVALUE" else code,
-                "name": h.get("name of the channel", ("", 0))[0],
-                "unit": unit,
-                "acceleration": unit is not None and acc_unit_key(unit) in ACC_UNITS,
-            }
-        )
-    return out
+    _, files = _mme_channel_files(Path(path))
+    return [_mme_entry(p, _parse_header(p, _read_lines(p)[:200])[0]) for p in files]
+
+
+def _matches(wanted: str, entry: dict[str, Any]) -> bool:
+    """Whether channel name ``wanted`` is the channel code, the name or the file name of ``entry``, ignoring case."""
+    return wanted.lower() in (entry["code"].lower(), entry["name"].lower(), entry["file"].name.lower())
 
 
 def read_mme(path: str | Path, *, channels: str | Sequence[str] | None = None, sign: float = 1.0) -> Pulse:
@@ -602,42 +612,69 @@ def read_mme(path: str | Path, *, channels: str | Sequence[str] | None = None, s
     Raises:
         PulseError: missing files, malformed headers or samples, a non-acceleration unit,
             unknown channels, or channels with different time bases.
+
+    Each file of the test is read once: a channel's header and samples together.
     """
-    path = Path(path)
+    return _read_mme(Path(path), channels, sign)
+
+
+def _read_mme(
+    path: Path, channels: str | Sequence[str] | None, sign: float, *, first_acceleration: bool = False
+) -> Pulse:
+    """:func:`read_mme`; with ``first_acceleration`` (and no ``channels``) the first acceleration channel alone, as
+    ``marlcrash pulse`` reads a test: the files after it are not read, and a channel file before it without a
+    ``Unit`` line is refused (it may be the channel meant)."""
     if sign not in (1, -1, 1.0, -1.0):
         raise PulseError(f"sign: expected +1 or -1, got {sign!r}")
-    mme, _ = _mme_paths(path)
-    info = mme_channels(mme)
-    if channels is None:
-        no_unit = next((c["file"] for c in info if c["unit"] is None), None)
-        if no_unit is not None:  # not known to be something else: never skipped silently
-            raise _err("missing header line 'Unit' (expected 'Name :value')", no_unit)
-        chosen = [c["file"] for c in info if c["acceleration"]]
-        if not chosen:
+    mme, files = _mme_channel_files(path)
+    wanted = None if channels is None else ([channels] if isinstance(channels, str) else list(channels))
+    info: list[dict[str, Any]] = []
+    read: dict[Path, dict[str, Any]] = {}  # the chosen channels' samples, parsed from the reading of their header
+    for p in files:
+        lines = _read_lines(p)
+        header, start = _parse_header(p, lines)
+        entry = _mme_entry(p, header)
+        info.append(entry)
+        if wanted is not None:  # a file is read for the first name it matches (the first file that matches it)
+            chosen = any(_matches(w, entry) and not any(_matches(w, c) for c in info[:-1]) for w in wanted)
+        elif entry["unit"] is None:  # not known to be something else: never skipped silently
+            if first_acceleration:
+                raise _err(
+                    f"channel file {p.name} has no 'Unit' header line, so the reader cannot tell whether it is the "
+                    "first acceleration channel; give the channel with --acc-col (acc_col=)",
+                    path,
+                )
+            raise _err("missing header line 'Unit' (expected 'Name :value')", p)
+        else:
+            chosen = entry["acceleration"]
+        if chosen:
+            read[p] = _read_mme_channel(p, lines, header, start)
+            if first_acceleration and wanted is None:
+                break
+    if wanted is None:
+        chosen_files = [c["file"] for c in info if c["acceleration"]]
+        if not chosen_files:
             units = sorted({c["unit"] for c in info})
             known = sorted(ACC_UNITS)
             raise _err(
                 f"no acceleration channel in the test (channel units: {units}; acceleration units: {known})", mme
             )
         skipped = [f"{c['file'].name} ({c['unit']})" for c in info if not c["acceleration"]]
-        if skipped:
+        if skipped and not first_acceleration:
             warnings.warn(
-                f"{mme.name}: read the acceleration channels only; skipped {', '.join(skipped)}", stacklevel=2
+                f"{mme.name}: read the acceleration channels only; skipped {', '.join(skipped)}", stacklevel=3
             )
     else:
-        wanted = [channels] if isinstance(channels, str) else list(channels)
-        chosen = []
+        chosen_files = []
         for w in wanted:
-            hit = [
-                c["file"] for c in info if w.lower() in (c["code"].lower(), c["name"].lower(), c["file"].name.lower())
-            ]
+            hit = [c["file"] for c in info if _matches(w, c)]
             if not hit:
                 known = sorted({n for c in info for n in (c["code"], c["name"], c["file"].name) if n})
                 raise _err(f"channel {w!r} not found; the test has {known}", mme)
-            chosen.append(hit[0])
-    chans = [_read_mme_channel(p) for p in chosen]
+            chosen_files.append(hit[0])
+    chans = [read[p] for p in chosen_files]
     ref = chans[0]
-    for p, c in zip(chosen[1:], chans[1:], strict=True):
+    for p, c in zip(chosen_files[1:], chans[1:], strict=True):
         if (
             c["n"] != ref["n"]
             or abs(c["dt"] - ref["dt"]) > 1e-9 * ref["dt"]
@@ -645,12 +682,13 @@ def read_mme(path: str | Path, *, channels: str | Sequence[str] | None = None, s
         ):
             raise _err(
                 f"time base (first sample {c['t_first']} s, interval {c['dt']} s, {c['n']} samples) differs from "
-                f"{chosen[0].name} ({ref['t_first']} s, {ref['dt']} s, {ref['n']} samples); read them separately",
+                f"{chosen_files[0].name} ({ref['t_first']} s, {ref['dt']} s, {ref['n']} samples); read them "
+                "separately",
                 p,
             )
     time = ref["t_first"] + np.arange(ref["n"]) * ref["dt"]
     acc = np.stack([c["acc"] for c in chans]) * float(sign)
-    names = tuple(c["code"] or c["name"] or p.name for c, p in zip(chans, chosen, strict=True))
+    names = tuple(c["code"] or c["name"] or p.name for c, p in zip(chans, chosen_files, strict=True))
     # 'Channel frequency class' is not trusted as a record of filtering already applied (labs use it for
     # the class a channel *should* be filtered with), so the pulse counts as unfiltered (cfc=None).
     return Pulse(time=time, acc=acc, channels=names, source=str(mme))
@@ -861,20 +899,8 @@ def processed_pulse(
         kwargs["acc_col"] = acc_col
     elif not mme:  # the first acceleration column only, as of an ISO-MME test: the others are not read
         kwargs["first_only"] = True
-    else:  # the first acceleration channel only: others may have their own time base
-        listed = mme_channels(p)
-        k = next((i for i, c in enumerate(listed) if c["acceleration"]), len(listed))
-        blind = [c["file"].name for c in listed[:k] if c["unit"] is None]
-        if blind:  # it may be the acceleration channel meant: say so rather than pick a later one
-            raise _err(
-                f"channel file {blind[0]} has no 'Unit' header line, so the reader cannot tell whether it is the "
-                "first acceleration channel; give the channel with --acc-col (acc_col=)",
-                p,
-            )
-        if k < len(listed):
-            kwargs["acc_col"] = listed[k]["file"].name
-    if mme:
-        pulse = read_pulse(p, **kwargs).select(0)
+    if mme:  # the first acceleration channel only (others may have their own time base), each file read once
+        pulse = _read_mme(p, acc_col, sign, first_acceleration=acc_col is None).select(0)
     elif p.suffix.lower() in (".csv", ".txt"):  # the file read once, its first acceleration column found in it
         pulse = read_csv(p, **kwargs).select(0)
     else:
