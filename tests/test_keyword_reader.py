@@ -1110,6 +1110,35 @@ def test_a_generated_set_range_must_run_from_first_to_last_id(tmp_path, card, pa
     assert _read(_write(tmp_path, HEAD + NODES + SHELL + good)).n_nodes == 4  # a one-id range (4 4) is fine
 
 
+@pytest.mark.parametrize(
+    ("card", "pattern"),
+    [
+        (
+            "*SET_NODE_LIST_GENERATE\n         6\n         11000000000\n",
+            r"line 21: \*SET_NODE_LIST_GENERATE expects at most 10000000 ids in a set .*, got 1000000000 from "
+            r"B1BEG = 1 to B1END = 1000000000",
+        ),
+        (  # one over the cap: B1 alone is fine, B2 takes the set past it
+            "*SET_PART_LIST_GENERATE\n         7\n         1   5000000   5000001  10000001\n",
+            r"line 21: \*SET_PART_LIST_GENERATE expects at most 10000000 ids in a set .*, got 5000001 from "
+            r"B2BEG = 5000001 to B2END = 10000001 after 5000000",
+        ),
+    ],
+    ids=["typo", "two-ranges"],
+)
+def test_a_generated_set_range_larger_than_any_deck_is_refused(tmp_path, card, pattern):
+    """A *SET_..._GENERATE range had no upper bound on its size: a typo such as ``1 1000000000`` made the reader
+    build a list of a billion ids (tens of GB) before anything was said. A set of more ids than
+    :data:`MAX_GENERATED_IDS` (ten million, more than a full-vehicle model's nodes) is refused naming the range."""
+    with pytest.raises(DeckError, match=r"deck\.k " + pattern):
+        _read(_write(tmp_path, HEAD + NODES + SHELL + card))
+    from marlcrash.vehicle.keyword import MAX_GENERATED_IDS
+
+    assert MAX_GENERATED_IDS == 10_000_000
+    fine = "*SET_NODE_LIST_GENERATE\n         6\n         1    100000\n"  # a hundred thousand ids: read
+    assert _read(_write(tmp_path, HEAD + NODES + SHELL + fine)).n_nodes == 4
+
+
 def test_a_utf8_byte_order_mark_is_no_data(tmp_path):
     """A deck saved by a Windows editor starts with a byte-order mark; it was refused ('expected a keyword line
     starting with '*', got data '\\ufeff*KEYWORD'), in an included file too."""

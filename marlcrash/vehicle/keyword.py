@@ -55,7 +55,7 @@ Coverage:
   LS-DYNA); ``*ELEMENT_MASS_PART`` LCID and MWD are not read; ``*ELEMENT_MASS_MATRIX`` is not read (skipped and
   counted like any card);
 - ``*SET_PART``, ``*SET_PART_LIST`` and ``*SET_PART_LIST_GENERATE`` (usable as
-  ``"set:<id>"`` in sub-assembly maps);
+  ``"set:<id>"`` in sub-assembly maps; a generated set holds at most :data:`MAX_GENERATED_IDS` ids);
 - ``*CONSTRAINED_RIGID_BODIES`` (which rigid parts move as one body), ``*SET_NODE``/
   ``*SET_NODE_LIST`` (``_TITLE``, ``_GENERATE``) and ``*INITIAL_VELOCITY``,
   ``_NODE``, ``_GENERATION`` (part, part set or node set) and ``_RIGID_BODY``, for which
@@ -116,6 +116,9 @@ MAX_VEHICLE_EXTENT = 50.0  # m: the kept structure spans more only by a coordina
 OUTLIER_SIZE_RATIO = 100.0  # an element this many times its part's median size is noted ...
 OUTLIER_MIN_SIZE = 0.5  # m: ... when it is also at least this large
 _NO_FAILURE = 1e20  # LS-DYNA's conventional "never fails" strain
+MAX_GENERATED_IDS = 10_000_000
+"""Most ids a ``*SET_..._GENERATE`` set may hold: more than a full-vehicle model's nodes (a few million). A range
+beyond it is a typo (``1 1000000000`` was a list of a billion ids, tens of GB, before anything was said)."""
 
 # --------------------------------------------------------------------------- layouts
 
@@ -1536,6 +1539,13 @@ def _read_id_set(block: _Block, opts: set[str], out: dict[int, tuple[str, list[i
                     if a > b:
                         raise block.err(
                             f"*{block.keyword} expects {beg} <= {end} (a range from first to last id), got {a} > {b}",
+                            row,
+                        )
+                    if len(ids) + (b - a + 1) > MAX_GENERATED_IDS:
+                        so_far = f" after {len(ids)}" if ids else ""
+                        raise block.err(
+                            f"*{block.keyword} expects at most {MAX_GENERATED_IDS} ids in a set (more than a vehicle "
+                            f"model defines; a typo?), got {b - a + 1} from {beg} = {a} to {end} = {b}{so_far}",
                             row,
                         )
                     ids.extend(range(a, b + 1))
