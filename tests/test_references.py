@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 import warnings
@@ -323,14 +324,20 @@ def test_the_limits_of_a_threshold_time_zero_on_a_simulated_2khz_record(cells, s
 
     assert worst_dfd("file") < 1e-6 and worst_dfd("threshold") > 1.0
     for path, lost in ((contact, (1.5, 2.3)), (rest, (0.3, 0.7))):
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # the up-front sensors' record from the contact: no pre-trigger data
+        with warnings.catch_warnings(record=True) as said:
+            warnings.simplefilter("always")  # the up-front sensors' record from the contact: no pre-trigger data
             alone = pulse_summary(path, acc_col="tunnel")
             whole = pulse_summary(path, acc_col="tunnel", time_zero="file")["delta_v_ms"]
             assert lost[0] < whole - alone["delta_v_ms"] < lost[1] and 5.5 < alone["t0_ms"] < 6.5
+            # the loss is no longer silent: a warning names the channel and about how much it loses
+            named = [re.search(r"channel 'tunnel' is not at rest .* about (\d\.\d+) m/s short", str(w.message))
+                     for w in said]  # fmt: skip
+            assert [float(m.group(1)) for m in named if m] == [pytest.approx(whole - alone["delta_v_ms"], abs=0.3)]
+            said.clear()
             for time_zero in ("threshold", "file"):  # with every channel: the earliest onset is the contact's
                 _, v = prepare_velocity(read_pulse(path), time_zero=time_zero)
                 assert float(v[2, 0] - v[2, -1]) == pytest.approx(whole, abs=0.01)
+            assert not [w for w in said if "is not at rest" in str(w.message)]
 
 
 def test_a_test_record_with_pre_trigger_samples_and_an_offset_is_the_simulation(cells, sim, tmp_path):

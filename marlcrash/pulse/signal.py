@@ -480,6 +480,25 @@ _FIT_STEPS = 8
 """Candidate onsets per sampling interval in :func:`_hinge_fit`."""
 _ONSET_PASSES = 4
 """Most passes of :func:`find_onset` (zero level and noise measured before the onset of the previous pass)."""
+PRE_PULSE_NOTE = 0.2
+"""[m/s] :func:`find_onset` names a channel in a warning when its samples before time zero step to another level (its
+pulse starting before the onset found: a pre-pulse below the onset level) and their mean, taken as its zero level,
+puts its velocity change this far off to the record's end. Four times the calibration's success DFD (0.05 m/s); the
+simulated tunnel read alone is 1.9 m/s off from a record that starts at the contact, 0.45 m/s after 20 ms of rest."""
+
+
+def _level_step(y: np.ndarray) -> tuple[int, float, float, float]:
+    """The least-squares split of samples ``y`` into two levels: ``(samples before the split, level before, level
+    after, rms deviation from the two levels)``; at least two samples on either side (``len(y) >= 4``)."""
+    n = y.size
+    c = np.cumsum(y)
+    s = np.arange(2, n - 1)
+    m1 = c[s - 1] / s
+    m2 = (c[-1] - c[s - 1]) / (n - s)
+    gain = s * (n - s) / n * (m1 - m2) ** 2  # the squared deviation the split removes
+    j = int(np.argmax(gain))
+    rest = float(np.sum((y - y.mean()) ** 2) - gain[j])
+    return int(s[j]), float(m1[j]), float(m2[j]), math.sqrt(max(rest, 0.0) / n)
 
 
 @dataclass(frozen=True)
@@ -692,7 +711,9 @@ def find_onset(pulse: Pulse, cfc: int | None = 60, threshold_g: float = DEFAULT_
     2 kHz simulated up-front sensor, 480 g in its first sample: 0.56 ms before the contact); and a channel read alone
     whose pulse starts with a pre-pulse below 5x the noise measured with it takes that as its zero level (the
     simulated tunnel's 2.6 g over the 6 ms before its main pulse: 1.9 m/s of its velocity change lost). A record
-    whose t = 0 is the contact is read with ``time_zero: file``; the channels of a test are read together.
+    whose t = 0 is the contact is read with ``time_zero: file``; the channels of a test are read together. Such a loss
+    is named in a warning (the channel, where its samples before time zero step, and about how much its velocity
+    change loses to the record's end, where that is :data:`PRE_PULSE_NOTE` or more).
 
     Args:
         pulse: the record (resampled at its mean rate here if non-uniform).
@@ -735,10 +756,11 @@ def find_onset(pulse: Pulse, cfc: int | None = 60, threshold_g: float = DEFAULT_
     zero, noise, level = np.zeros(k_n), np.zeros(k_n), np.full(k_n, level0)
     measured = np.zeros(k_n, dtype=bool)
     onsets = np.full(k_n, math.inf)
+    quiet_of = [np.zeros(t.size, dtype=bool)] * k_n  # the samples each zero level is the mean of
     for n_pass in range(_ONSET_PASSES):
         before = ends.copy()
         for k in range(k_n):
-            quiet = (t >= first) & (t < ends[k])
+            quiet = quiet_of[k] = (t >= first) & (t < ends[k])
             measured[k] = quiet.sum() >= MIN_SAMPLES and ends[k] - first >= need - ONSET_GAP - 0.5 * dt
             zero[k] = float(led.acc[k, quiet].mean()) if measured[k] else 0.0
             noise[k] = float(led.acc[k, quiet].std()) if measured[k] else 0.0
@@ -783,10 +805,45 @@ def find_onset(pulse: Pulse, cfc: int | None = 60, threshold_g: float = DEFAULT_
             UserWarning,
             stacklevel=2,
         )
+    _warn_pre_pulse(where, u.channels, t, led.acc, quiet_of, measured, zero, max(t_zero, first), first, level0)
     return Onset(
         time=max(t_zero, first), onsets=onsets, zero_level=zero, noise=noise, level=level,
         pre_trigger=np.maximum(pre, 0.0), measured=measured.copy(),
     )  # fmt: skip
+
+
+def _warn_pre_pulse(
+    where: str, channels: Sequence[str], t: np.ndarray, acc: np.ndarray, quiet_of: list[np.ndarray],
+    measured: np.ndarray, zero: np.ndarray, t_zero: float, first: float, level0: float,
+) -> None:  # fmt: skip
+    """Name in a warning each channel whose samples before time zero (``quiet_of``, the zero level's) are not at rest:
+    they step to another level, by more than ``level0`` and :data:`NOISE_LEVELS` times their deviation from the two
+    levels, and their mean, its zero level, puts the velocity change at least :data:`PRE_PULSE_NOTE` off to the
+    record's end against the level before the step. A pre-pulse below the onset level (the simulated tunnel read
+    alone: 2.6 g from 1.5 ms, its main pulse at 6 ms) was taken as a transducer offset without a word."""
+    span = float(t[-1]) - max(t_zero - PRE_IMPACT_TIME, first)  # the zero level is subtracted from the integral over it
+    for k in np.flatnonzero(measured).tolist():
+        y, ty = acc[k, quiet_of[k]], t[quiet_of[k]]
+        if y.size < 4:
+            continue
+        split, rest, later, dev = _level_step(y)
+        if not abs(later - rest) > max(level0, NOISE_LEVELS * dev):
+            continue
+        off = (zero[k] - rest) * span  # the integral of the zero level less the level at rest
+        if abs(off) < PRE_PULSE_NOTE:
+            continue
+        change = float(np.sum(acc[k, t >= t_zero] - zero[k]))  # the velocity change's direction
+        side = "short" if off * change > 0 else "too large"
+        warnings.warn(
+            f"{where}: channel {channels[k]!r} is not at rest before the record's time zero at t = {_ms(t_zero)} ms: "
+            f"its samples there step by {(later - rest) / G0:.3g} g at t = {_ms(ty[split])} ms (its pulse starts "
+            "before the onset found, a pre-pulse below its onset level) and their mean is taken as its zero level: "
+            f"its velocity change comes out about {abs(off):.2g} m/s {side} over the {span * 1e3:.0f} ms to the "
+            "record's end. A record whose t = 0 is the contact is read with time_zero file (--time-zero file); a "
+            "test's channels are read together (a file reference: the earliest onset is the contact)",
+            UserWarning,
+            stacklevel=3,
+        )
 
 
 SHORT_PRE_TRIGGER = "too few to measure its zero level and noise"
