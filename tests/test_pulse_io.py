@@ -416,6 +416,22 @@ def test_find_onset_measures_each_channel_before_time_zero():
         find_onset(Pulse(t, front[None], ("front",)), 60, threshold_g=0.0)
 
 
+_LAB_CONTACT = 0.020
+"""[s] The contact's time in :func:`_lab_front_and_tunnel`'s record."""
+
+
+def _lab_front_and_tunnel() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A lab record's time [s] and two channels [g] at 10 kHz, the contact at :data:`_LAB_CONTACT`: the front
+    decelerates at up to 30 g over 80 ms from the contact; the tunnel at 1.5 g from the contact and its main pulse
+    (20 g, 60 ms) 6 ms later."""
+    rate = 1e4
+    t = np.arange(round(0.2 * rate)) / rate
+    s = t - _LAB_CONTACT
+    front = np.where((s >= 0) & (s <= 0.08), -30.0 * np.sin(np.pi * np.clip(s, 0, 0.08) / 0.08), 0.0)
+    main = np.where((s >= 0.006) & (s <= 0.066), -20.0 * np.sin(np.pi * np.clip(s - 0.006, 0, 0.06) / 0.06), 0.0)
+    return t, front, main - 1.5 * np.interp(s, [0.0, 0.001, 0.1, 0.1001], [0.0, 1.0, 1.0, 0.0], left=0.0, right=0.0)
+
+
 def test_a_channel_that_decelerates_before_its_onset_takes_its_zero_level_before_time_zero():
     """A lab export at 10 kHz (clock not the contact's, ``time_zero: threshold``) with a 0.3 g offset on both
     channels: the front stops in a 30 g, 80 ms half-sine from 20 ms on; the tunnel decelerates at 1.5 g from the
@@ -426,16 +442,11 @@ def test_a_channel_that_decelerates_before_its_onset_takes_its_zero_level_before
     integrated into a drift of 0.3 m/s over 150 ms."""
     from marlcrash.pulse.signal import find_onset, shift_time, without_zero_offset
 
-    rate, t_c = 1e4, 0.020
-    t = np.arange(round(0.2 * rate)) / rate
-    s = t - t_c
-    front = np.where((s >= 0) & (s <= 0.08), -30.0 * np.sin(np.pi * np.clip(s, 0, 0.08) / 0.08), 0.0)
-    main = np.where((s >= 0.006) & (s <= 0.066), -20.0 * np.sin(np.pi * np.clip(s - 0.006, 0, 0.06) / 0.06), 0.0)
-    tunnel = main - 1.5 * np.interp(s, [0.0, 0.001, 0.1, 0.1001], [0.0, 1.0, 1.0, 0.0], left=0.0, right=0.0)
+    t, front, tunnel = _lab_front_and_tunnel()
     acc = (np.stack([front, tunnel]) + 0.3) * G0
     pulse = Pulse(t, acc, ("front", "tunnel"), source="lab.csv")
     onset = find_onset(pulse, 60)
-    assert abs(onset.time - t_c) < 0.2e-3 and onset.measured.all()
+    assert abs(onset.time - _LAB_CONTACT) < 0.2e-3 and onset.measured.all()
     np.testing.assert_allclose(onset.zero_level / G0, [0.3, 0.3], atol=1e-9)  # before time zero, not the 1.5 g
     np.testing.assert_allclose(onset.pre_trigger, onset.time)  # what was measured: the samples before time zero
     clean = Pulse(t, acc - 0.3 * G0, pulse.channels)
@@ -1107,12 +1118,7 @@ def test_a_channel_whose_pulse_starts_before_its_onset_is_named_with_the_velocit
     constant offset with white noise of up to 3 g."""
     from marlcrash.pulse.signal import find_onset, without_zero_offset
 
-    rate, t_c = 1e4, 0.020
-    t = np.arange(round(0.2 * rate)) / rate
-    s = t - t_c
-    front = np.where((s >= 0) & (s <= 0.08), -30.0 * np.sin(np.pi * np.clip(s, 0, 0.08) / 0.08), 0.0)
-    main = np.where((s >= 0.006) & (s <= 0.066), -20.0 * np.sin(np.pi * np.clip(s - 0.006, 0, 0.06) / 0.06), 0.0)
-    tunnel = main - 1.5 * np.interp(s, [0.0, 0.001, 0.1, 0.1001], [0.0, 1.0, 1.0, 0.0], left=0.0, right=0.0)
+    t, front, tunnel = _lab_front_and_tunnel()
     acc = (np.stack([front, tunnel]) + 0.3 + np.random.default_rng(0).normal(0.0, 0.1, (2, t.size))) * G0
     dv = 2 * 20 * G0 * 0.06 / math.pi + 1.5 * G0 * (0.1 - 0.0005)  # the main pulse and the 1.5 g
     alone = write_csv(Pulse(t, acc[1:], ("tunnel",)), tmp_path / "alone.csv")
@@ -1128,7 +1134,7 @@ def test_a_channel_whose_pulse_starts_before_its_onset_is_named_with_the_velocit
     with warnings.catch_warnings():
         warnings.filterwarnings("error", message=".*is not at rest")
         _, v = prepare_velocity(without_zero_offset(both, "threshold"))
-        assert abs(find_onset(both, 60).time - t_c) < 0.3e-3
+        assert abs(find_onset(both, 60).time - _LAB_CONTACT) < 0.3e-3
         for noise_g in (1.0, 3.0):
             for pre_s in (0.005, 0.02, 0.05):
                 for seed in range(3):
