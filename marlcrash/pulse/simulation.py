@@ -10,7 +10,6 @@ the forward (travel) speed, so a frontal crash pulse is negative.
 from __future__ import annotations
 
 import csv
-import operator
 from pathlib import Path
 
 import numpy as np
@@ -80,19 +79,15 @@ def bottoming_note(budget: dict[str, float]) -> str | None:
 
 
 def checked_row(result: SimResult, row: int) -> int:
-    """``row`` as an index ``0..B-1`` into ``result``'s batch (a negative row counts from the end).
+    """``row`` as an index ``0..B-1`` into ``result``'s batch (:meth:`SimResult.batch_row`), errors keyed ``row``.
 
     Raises:
         IndexError: not an integer, or outside the batch (it failed inside torch, naming no argument).
     """
     try:
-        r = operator.index(row)  # an int or a numpy integer
-    except TypeError:
-        raise IndexError(f"row: expected an integer batch row, got {row!r}") from None
-    B = result.initial.shape[0]
-    if not -B <= r < B:
-        raise IndexError(f"row: batch row {r} out of range for a result of {B} rows")
-    return r % B
+        return result.batch_row(row)
+    except IndexError as e:
+        raise IndexError(f"row: {e}") from None
 
 
 def crash_summary(result: SimResult, cells: CellModel, scenario: CrashScenario, cfc: int = 60, row: int = 0) -> dict:

@@ -253,6 +253,21 @@ class SimResult:
 
         return sampled_acceleration(self.velocity, float(self.time[1] - self.time[0]))
 
+    def batch_row(self, row: int) -> int:
+        """``row`` as an index ``0..B-1`` into the batch (a negative row counts from the end).
+
+        Raises:
+            IndexError: not an integer (an int or numpy integer), or outside the batch.
+        """
+        try:
+            r = operator.index(row)
+        except TypeError:
+            raise IndexError(f"expected an integer batch row, got {row!r}") from None
+        B = self.initial.shape[0]
+        if not -B <= r < B:
+            raise IndexError(f"batch row {r} out of range for a result of {B} rows")
+        return r % B
+
     def __getitem__(self, idx) -> SimResult:
         """Select batch rows (``result[3]``, ``result[-1]``, ``result[2:5]``), keeping the batch dimension.
 
@@ -260,14 +275,12 @@ class SimResult:
             IndexError: an integer row outside the batch.
         """
         try:
-            row = operator.index(idx)  # an int or numpy integer: one row (result[-1] was the empty slice -1:0)
+            operator.index(idx)  # an int or numpy integer: one row (result[-1] was the empty slice -1:0)
         except TypeError:
-            row = None  # a slice, or an index tensor or list of rows
-        if row is not None:
-            B = self.initial.shape[0]
-            if not -B <= row < B:
-                raise IndexError(f"batch row {row} out of range for a result of {B} rows")
-            idx = slice(row % B, row % B + 1)
+            pass  # a slice, or an index tensor or list of rows
+        else:
+            row = self.batch_row(idx)
+            idx = slice(row, row + 1)
         out = {}
         for f in fields(self):
             v = getattr(self, f.name)
