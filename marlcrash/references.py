@@ -73,7 +73,7 @@ from marlcrash.pulse.signal import (
     prepare_velocity,
     without_zero_offset,
 )
-from marlcrash.sim.scenario import CrashScenario, get_scenario, list_scenarios
+from marlcrash.sim.scenario import CrashScenario, get_scenario, list_scenarios, scenario_tensors
 from marlcrash.sim.surrogate import SimConfig, Surrogate
 
 if TYPE_CHECKING:
@@ -395,9 +395,8 @@ class ReferenceSampler:
                 draws.append(rng.integers(0, len(self.config.cross_fidelity.vehicle_seeds)))
         names = [self.choices[i] for i in pick]
         scs = [self.scenarios[s] for s in names]
-        speed = torch.tensor([s.speed for s in scs], dtype=torch.float64)
-        overlap = torch.tensor([s.overlap for s in scs], dtype=torch.float64)
-        side = torch.tensor([s.side_sign for s in scs], dtype=torch.float64)
+        rows = scenario_tensors(scs)
+        speed, overlap, side = rows["speed"], rows["overlap"], rows["side"]
         truth = increments = None
         margin = torch.zeros(n, dtype=torch.int64)
         if kind == "twin":

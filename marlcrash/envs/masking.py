@@ -37,7 +37,7 @@ import torch
 from marlcrash.cells.model import DIRECTIONS, CellModel
 from marlcrash.config import require
 from marlcrash.envs.agents import AgentLayout
-from marlcrash.sim.scenario import CrashScenario, barrier_fraction
+from marlcrash.sim.scenario import CrashScenario, barrier_fraction, scenario_tensors
 
 
 @dataclass
@@ -148,10 +148,8 @@ class ImpactRegions:
         """
         if not scenarios or self.config.mode == "none":
             return []
-        f64 = torch.float64
-        ov = torch.tensor([s.overlap for s in scenarios], dtype=f64)
-        sd = torch.tensor([s.side_sign for s in scenarios], dtype=f64)
-        sp = torch.tensor([s.speed for s in scenarios], dtype=f64)
+        rows = scenario_tensors(scenarios)
+        ov, sd, sp = rows["overlap"], rows["side"], rows["speed"]
         active = self.active(ov, sd, sp).any(dim=1)
         struck = self.primary(ov, sd, sp).sum(dim=1)
         total, mode, frac = int(self.deformable.sum()), self.config.mode, self.config.min_fraction

@@ -31,7 +31,7 @@ import torch
 
 from marlcrash.sim import kernels
 from marlcrash.sim.noalias import njit_noalias
-from marlcrash.sim.scenario import get_scenario
+from marlcrash.sim.scenario import get_scenario, scenario_tensors
 from marlcrash.sim.surrogate import Surrogate, load_sim_config
 
 SCENARIO = "full_width_56"
@@ -533,10 +533,7 @@ def plausibility_checks(sim: Surrogate, params: torch.Tensor | None = None, run=
     res = run(
         sim,
         p,
-        # float64: torch's default float32 ran 40 km/h at 39.9999986 km/h (the simulator casts to its own dtype)
-        speed=torch.tensor([s.speed for s in scs], dtype=torch.float64),
-        overlap=torch.tensor([s.overlap for s in scs], dtype=torch.float64),
-        side=torch.tensor([s.side_sign for s in scs], dtype=torch.float64),
+        **scenario_tensors(scs),
         duration=scs[0].duration,
         record_cells="final",
     )
