@@ -6,16 +6,19 @@ environments read the rest at run time from ``configs/``: the env config, ``sim.
 resumed or evaluated after one of them changed would silently mix two physics. So every run folder
 gets ``provenance.json`` when it starts: the SHA-256 of every file under ``configs/`` except
 ``configs/train/`` (saved resolved in the run), of a vehicle deck or reference pulse named by a path
-outside ``configs/``, and of the package's source (plus the git commit where there is one).
+outside ``configs/``, of the package's source and of the ``train/`` entry scripts beside it (plus the git commit
+where there is one), and the versions of Python and of the libraries that make the numbers (torch, numpy, cma,
+numba).
 
 :func:`check_run` compares a run folder's record with the files now:
 
 - changed, added or removed config files (``kind="configs"``): a resume refuses them, naming the
   files; an evaluation warns and reports them in its summary;
-- changed code (``kind="code"``): always a warning, because a resumed run is still that run's
-  training (but no longer bit-identical to an uninterrupted one).
+- changed code (``kind="code"``: the package's source or a ``train/`` script): always a warning, because a
+  resumed run is still that run's training (but no longer bit-identical to an uninterrupted one).
 
-A folder without a record (written before this module existed) is resumed and evaluated with a warning.
+A folder without a record (written before this module existed) is resumed and evaluated with a warning; a record
+written before the ``train/`` scripts were hashed is compared on what it holds.
 Deleting a run's ``provenance.json`` is how to resume it anyway after a deliberate config change.
 """
 
@@ -97,10 +100,25 @@ def _package_root() -> Path:
     return Path(__file__).resolve().parent
 
 
+def _train_root() -> Path:
+    return _package_root().parent / "train"
+
+
 def source_digest() -> str:
     """SHA-256 over the package's Python sources (relative path and contents of each, sorted)."""
+    return _tree_digest(_package_root())
+
+
+def train_digest() -> str | None:
+    """SHA-256 over the ``train/`` entry scripts beside the package (as :func:`source_digest`), or ``None`` where
+    there is no such folder (an installed copy)."""
+    root = _train_root()
+    return _tree_digest(root) if root.is_dir() else None
+
+
+def _tree_digest(root: Path) -> str:
+    """SHA-256 over the ``*.py`` files under ``root`` (relative path and contents of each, sorted)."""
     h = hashlib.sha256()
-    root = _package_root()
     for p in sorted(root.rglob("*.py")):
         h.update(p.relative_to(root).as_posix().encode())
         h.update(b"\0")
@@ -124,6 +142,8 @@ def git_commit() -> str | None:
 
 def record(extra: Iterable[str | Path] = ()) -> dict[str, Any]:
     """The provenance of a run starting now (see the module docstring); ``extra`` as in :func:`config_digests`."""
+    import cma
+    import numba
     import numpy
     import torch
 
@@ -131,10 +151,17 @@ def record(extra: Iterable[str | Path] = ()) -> dict[str, Any]:
 
     return {
         "configs": config_digests(extra),
-        "code": {"marlcrash": __version__, "source_sha256": source_digest(), "git_commit": git_commit()},
+        "code": {
+            "marlcrash": __version__,
+            "source_sha256": source_digest(),
+            "train_sha256": train_digest(),
+            "git_commit": git_commit(),
+        },
         "python": platform.python_version(),
         "torch": torch.__version__,
         "numpy": numpy.__version__,
+        "cma": cma.__version__,
+        "numba": numba.__version__,
     }
 
 
@@ -175,7 +202,7 @@ class ProvenanceCheck:
     configs: list[str]
     """Changed, added or removed input files, e.g. ``"configs/sim.yaml changed"``."""
     code: list[str]
-    """Code changes, e.g. ``"marlcrash source changed (git 1c27aa5 -> 5d0f473)"``."""
+    """Code changes, e.g. ``"marlcrash source changed (git 1c27aa5 -> 5d0f473)"``, ``"train/ scripts changed"``."""
     note: str | None = None
     """The record's note (:data:`RESUME_NOTE`: written at a resume, not when the run started)."""
 
@@ -230,9 +257,13 @@ def check_run(run_dir: str | Path, extra: Iterable[str | Path] = (), key: str | 
     configs = config_changes(saved_configs, config_digests(extra))
     code: list[str] = []
     if saved_code.get("source_sha256") != source_digest():
+        code.append("marlcrash source")
+    if "train_sha256" in saved_code and saved_code["train_sha256"] != train_digest():  # older records lack it
+        code.append("train/ scripts")
+    if code:
         then, now = saved_code.get("git_commit"), git_commit()
         where = f" (git {str(then)[:7]} -> {str(now)[:7]})" if then or now else ""
-        code.append(f"marlcrash source changed{where}")
+        code = [f"{what} changed{where}" for what in code]
     note = saved.get("note") if isinstance(saved, dict) else None
     return ProvenanceCheck(recorded=True, configs=configs, code=code, note=None if note is None else str(note))
 

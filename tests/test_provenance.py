@@ -84,6 +84,43 @@ def test_check_run_finds_config_edits_and_code_changes(configs, tmp_path, monkey
     assert "marlcrash source changed" in caplog.text
 
 
+def test_a_record_names_cma_and_numba_and_a_changed_train_script_warns_like_changed_source(
+    configs, tmp_path, monkeypatch, caplog
+):
+    """CMA-ES (``cma``) and the compiled kernels (``numba``) make the numbers too, and the ``train/`` entry scripts
+    hold logic of their own (which library calls, in which order): a record left them out, so a resume after a
+    script changed said nothing. A changed script warns, as changed package source does; an old record without the
+    new fields is read as before."""
+    import cma
+    import numba
+
+    run = tmp_path / "run"
+    run.mkdir()
+    rec = provenance.write_record(run)
+    assert rec["cma"] == cma.__version__ and rec["numba"] == numba.__version__
+    assert rec["code"]["train_sha256"] == provenance.train_digest() is not None  # this checkout has train/
+
+    scripts = tmp_path / "train"
+    scripts.mkdir()
+    (scripts / "train.py").write_text("print('train')\n")
+    monkeypatch.setattr(provenance, "_train_root", lambda: scripts)
+    provenance.write_record(run)
+    assert provenance.check_run(run).code == []
+    (scripts / "train.py").write_text("print('train, differently')\n")
+    with caplog.at_level(logging.WARNING, logger="marlcrash.provenance"):
+        check = provenance.require_unchanged(run)  # warned, not refused
+    assert check.configs == [] and len(check.code) == 1 and check.code[0].startswith("train/ scripts changed")
+    assert "train/ scripts changed" in caplog.text
+
+    old = json.loads((run / provenance.PROVENANCE_FILE).read_text())  # a record of before these fields
+    for k in ("cma", "numba"):
+        del old[k]
+    del old["code"]["train_sha256"]
+    (run / provenance.PROVENANCE_FILE).write_text(json.dumps(old))
+    check = provenance.require_unchanged(run)
+    assert check.recorded and check.configs == [] and check.code == []
+
+
 def test_a_folder_without_a_record_warns_and_a_broken_record_is_named(configs, tmp_path, caplog):
     run = tmp_path / "old_run"
     run.mkdir()
