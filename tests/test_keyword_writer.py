@@ -2,17 +2,21 @@
 
 from __future__ import annotations
 
+import os
+import stat
+import sys
 import warnings
 from dataclasses import replace
 
 import numpy as np
 import pytest
 
-from marlcrash.errors import ModelError
+from marlcrash.errors import ConfigError, ModelError
 from marlcrash.vehicle.keyword import read_deck
 from marlcrash.vehicle.keyword_writer import write_deck
 from marlcrash.vehicle.materials import MATERIAL_FIELDS, Material, complete_material
 from marlcrash.vehicle.model import Part, VehicleModel
+from marlcrash.vehicle.subassembly_map import dump_subassembly_map
 
 
 def _model() -> VehicleModel:
@@ -229,3 +233,25 @@ def test_a_set_mass_the_cards_cannot_carry_is_warned_and_the_deck_reads_back(tmp
         deck = write_deck(m, tmp_path / "ok.k")
     back = read_deck(deck, subassemblies=tmp_path / "ok.subassemblies.yaml")
     assert back.part_mass == {13: pytest.approx(2.0, rel=1e-12)}
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="POSIX permission bits")
+def test_a_written_deck_and_map_get_the_umask_mode_and_a_missing_folder_is_named(tmp_path):
+    """tempfile.mkstemp made the deck and its sub-assembly map 0o600 whatever the umask (every other output of
+    marlcrash gets 0o666 less the umask, marlcrash.outputs.atomic_output): a deck written for a colleague could not
+    be read by the group. A missing folder raised FileNotFoundError naming the temporary file."""
+    m = _model()
+    old = os.umask(0o022)
+    try:
+        write_deck(m, tmp_path / "car.k")
+        os.umask(0o027)
+        dump_subassembly_map({"hood": [10]}, tmp_path / "map.yaml")
+    finally:
+        os.umask(old)
+    assert stat.S_IMODE((tmp_path / "car.k").stat().st_mode) == 0o644
+    assert stat.S_IMODE((tmp_path / "car.subassemblies.yaml").stat().st_mode) == 0o644
+    assert stat.S_IMODE((tmp_path / "map.yaml").stat().st_mode) == 0o640  # the umask still decides
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["car.k", "car.subassemblies.yaml", "map.yaml"]
+    for write in (lambda p: write_deck(m, p), lambda p: dump_subassembly_map({"hood": [10]}, p)):
+        with pytest.raises(ConfigError, match=r"the folder of .*missing/out\.k does not exist"):
+            write(tmp_path / "missing" / "out.k")

@@ -26,8 +26,6 @@ E and nu, a set mass (:attr:`VehicleModel.part_mass`) of a deformable part or a 
 from __future__ import annotations
 
 import math
-import os
-import tempfile
 import warnings
 from collections.abc import Iterable
 from dataclasses import replace
@@ -36,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from marlcrash.errors import ModelError
+from marlcrash.outputs import atomic_output
 from marlcrash.units import get_unit_system
 from marlcrash.vehicle.materials import MATERIAL_FIELDS, Material, complete_material
 from marlcrash.vehicle.model import VehicleModel
@@ -163,7 +162,7 @@ def write_deck(model: VehicleModel, path: str | Path, *, units: str = "mm-t-s", 
 
     Args:
         model: a valid model (SI units).
-        path: the deck file to write (written atomically: a temporary file, then renamed).
+        path: the deck file to write (written atomically, :func:`marlcrash.outputs.atomic_output`).
         units: unit system of the deck: ``mm-t-s``, ``mm-kg-ms`` or ``m-kg-s``.
         subassembly_yaml: also write ``<stem>.subassemblies.yaml`` beside the deck.
 
@@ -173,7 +172,7 @@ def write_deck(model: VehicleModel, path: str | Path, *, units: str = "mm-t-s", 
     Raises:
         ModelError: the model is invalid, a part mixes element kinds, or a material is
             incomplete.
-        ConfigError: unknown ``units``.
+        ConfigError: unknown ``units``, or ``path`` cannot be written (its folder is missing or not writable).
     """
     u = get_unit_system(units)
     model.validate()
@@ -181,52 +180,44 @@ def write_deck(model: VehicleModel, path: str | Path, *, units: str = "mm-t-s", 
     kinds = _part_kinds(model)
     lost: dict[int, list[str]] = {}
     cannot: list[str] = []  # what else the cards cannot carry
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", newline="\n") as f:
-            f.write(f"$ written by marlcrash from model {model.name!r}, units {u.name}\n*KEYWORD\n*TITLE\n")
-            f.write((model.name or "vehicle").replace("\n", " ")[:80] + "\n")
-            for mid in sorted(model.materials):
-                text, miss = _material_cards(model.materials[mid], u)
-                f.write(text)
-                if miss:
-                    lost[mid] = miss
-            used_secids: set[int] = set()
-            fresh = max([p.section_id or 0 for p in model.parts.values()] + list(model.parts) + [0]) + 1
-            for pid in sorted(model.parts):
-                p = model.parts[pid]
-                secid = p.section_id if p.section_id is not None and p.section_id not in used_secids else None
-                if secid is None:
-                    secid, fresh = fresh, fresh + 1
-                used_secids.add(secid)
-                kind = kinds.get(pid, "shell")
-                inertia = pid in model.part_mass and _inertia_carries(model, pid, cannot)
-                if inertia:
-                    f.write(
-                        f"*PART_INERTIA+\n{p.name.replace(chr(10), ' ')[:80]}\n" + _card([pid, secid, p.material_id])
-                    )
-                    f.write(_inertia_cards(model, pid, u))
-                else:
-                    f.write(f"*PART\n{p.name.replace(chr(10), ' ')[:80]}\n")
-                    f.write(f"{pid:10d}{secid:10d}{p.material_id:10d}\n")
-                if kind == "shell":
-                    t = (p.thickness or 0.0) / u.length
-                    f.write("*SECTION_SHELL+\n" + _card([secid, 2, 1.0, 2, 0.0]) + _card([t, t, t, t]))
-                elif kind == "solid":
-                    f.write("*SECTION_SOLID+\n" + _card([secid, 1]))
-                else:
-                    sel = model.beam_part == pid
-                    a = p.beam_area if p.beam_area else float(np.median(model.beam_area[sel])) if sel.any() else 0.0
-                    a /= u.area
-                    i = a * a / (4 * math.pi)  # solid circular section of that area
-                    f.write("*SECTION_BEAM+\n" + _card([secid, 2, 1.0, 2.0, 0.0]) + _card([a, i, i, 2 * i]))
-            _write_geometry(f, model, u)
-            _write_masses(f, model, u)
-            f.write("*END\n")
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_output(path) as tmp, open(tmp, "w", newline="\n") as f:
+        f.write(f"$ written by marlcrash from model {model.name!r}, units {u.name}\n*KEYWORD\n*TITLE\n")
+        f.write((model.name or "vehicle").replace("\n", " ")[:80] + "\n")
+        for mid in sorted(model.materials):
+            text, miss = _material_cards(model.materials[mid], u)
+            f.write(text)
+            if miss:
+                lost[mid] = miss
+        used_secids: set[int] = set()
+        fresh = max([p.section_id or 0 for p in model.parts.values()] + list(model.parts) + [0]) + 1
+        for pid in sorted(model.parts):
+            p = model.parts[pid]
+            secid = p.section_id if p.section_id is not None and p.section_id not in used_secids else None
+            if secid is None:
+                secid, fresh = fresh, fresh + 1
+            used_secids.add(secid)
+            kind = kinds.get(pid, "shell")
+            inertia = pid in model.part_mass and _inertia_carries(model, pid, cannot)
+            if inertia:
+                f.write(f"*PART_INERTIA+\n{p.name.replace(chr(10), ' ')[:80]}\n" + _card([pid, secid, p.material_id]))
+                f.write(_inertia_cards(model, pid, u))
+            else:
+                f.write(f"*PART\n{p.name.replace(chr(10), ' ')[:80]}\n")
+                f.write(f"{pid:10d}{secid:10d}{p.material_id:10d}\n")
+            if kind == "shell":
+                t = (p.thickness or 0.0) / u.length
+                f.write("*SECTION_SHELL+\n" + _card([secid, 2, 1.0, 2, 0.0]) + _card([t, t, t, t]))
+            elif kind == "solid":
+                f.write("*SECTION_SOLID+\n" + _card([secid, 1]))
+            else:
+                sel = model.beam_part == pid
+                a = p.beam_area if p.beam_area else float(np.median(model.beam_area[sel])) if sel.any() else 0.0
+                a /= u.area
+                i = a * a / (4 * math.pi)  # solid circular section of that area
+                f.write("*SECTION_BEAM+\n" + _card([secid, 2, 1.0, 2.0, 0.0]) + _card([a, i, i, 2 * i]))
+        _write_geometry(f, model, u)
+        _write_masses(f, model, u)
+        f.write("*END\n")
     if subassembly_yaml:
         dump_subassembly_map(model.subassemblies, path.with_name(path.stem + ".subassemblies.yaml"))
     if lost or cannot:

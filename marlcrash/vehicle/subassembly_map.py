@@ -20,13 +20,12 @@ key (``subassemblies.hood[0]``).
 from __future__ import annotations
 
 import fnmatch
-import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
 from marlcrash.config import load_yaml
 from marlcrash.errors import ConfigError
+from marlcrash.outputs import write_text
 from marlcrash.vehicle.model import VehicleModel, default_group_part
 
 __all__ = ["dump_subassembly_map", "load_subassembly_map", "resolve_subassemblies"]
@@ -158,10 +157,14 @@ def load_subassembly_map(
 
 
 def dump_subassembly_map(mapping: dict[str, list[int]], path: str | Path) -> Path:
-    """Write ``mapping`` (name -> part ids) as a sub-assembly YAML file, atomically.
+    """Write ``mapping`` (name -> part ids) as a sub-assembly YAML file, atomically
+    (:func:`marlcrash.outputs.write_text`).
 
     Returns:
         The path written.
+
+    Raises:
+        ConfigError: ``path`` cannot be written (its folder is missing or not writable).
     """
     path = Path(path)
     lines = [
@@ -172,15 +175,7 @@ def dump_subassembly_map(mapping: dict[str, list[int]], path: str | Path) -> Pat
         ids = ", ".join(str(int(p)) for p in pids)
         lines.append(f"  {_yaml_key(name)}: [{ids}]")
     text = "\n".join(lines) + "\n"
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+    return write_text(path, text)
 
 
 def _yaml_key(name: str) -> str:
