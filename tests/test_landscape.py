@@ -6,6 +6,7 @@ import json
 import math
 import subprocess
 import sys
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -238,6 +239,25 @@ def test_local_fit_rejects_bad_settings():
     assert problem.n_simulations == 0
 
 
+def test_finite_differences_of_a_float32_problem_need_a_step_above_its_rounding():
+    """At the default step (1e-5) a float32 simulation's finite differences are rounding noise (the Jacobian's
+    columns came out 4.5x off float64's, test_calibrate_baselines): the ``lm`` baseline refuses such a step, but
+    ``local_fit`` and ``sensitivity_spectrum`` fitted and reported singular values of that noise without a word.
+    They refuse it by the same rule (key ``fd_step``), before any simulation."""
+    problem = build_problem(ProblemConfig(duration=SHORT_DURATION, env_overrides={"sim_dtype": "float32"}))
+    for run in (
+        lambda **kw: local_fit(problem, start_radius=1e-2, **kw),
+        lambda **kw: sensitivity_spectrum(problem, **kw),
+    ):
+        for kw in ({}, {"fd_step": 5e-4}):
+            with pytest.raises(ConfigError, match=r"float32 .* at least 0\.001") as e:
+                run(**kw)
+            assert e.value.key == "fd_step"
+    assert problem.n_simulations == 0
+    assert len(local_fit(problem, start_radius=1e-2, iterations=1, fd_step=1e-3)) == 2
+    assert sensitivity_spectrum(problem, fd_step=1e-3)["n_free"] == problem.n_free
+
+
 class LinearResidualToy:
     """Residuals exactly ``A (z - z_true)`` over 14 free coordinates; ``A`` has known singular values."""
 
@@ -252,6 +272,7 @@ class LinearResidualToy:
         self.n_agents, self.free = 2, torch.ones(2, 7, dtype=torch.bool)
         self.true_x = torch.full((2, 7), 0.05, dtype=torch.float64)
         self.n_simulations = 0
+        self.sim = SimpleNamespace(config=SimpleNamespace(dtype="float64"))  # what the step check reads
 
     def check_x(self, x):
         x = torch.as_tensor(x, dtype=torch.float64)

@@ -52,7 +52,8 @@ import torch
 
 from marlcrash import provenance
 from marlcrash.calibrate.budget import Progress
-from marlcrash.calibrate.leastsq import STEP_FACTORS, lm_iteration
+from marlcrash.calibrate.leastsq import FLOAT32_FD_STEP as FLOAT32_FD_STEP  # its home until landscape shared it
+from marlcrash.calibrate.leastsq import STEP_FACTORS, check_fd_step, lm_iteration
 from marlcrash.calibrate.problem import CalibrationProblem, ProblemConfig, SmoothLoss, problem_env_config
 from marlcrash.calibrate.runlock import claim_dir
 from marlcrash.config import from_dict, nested_error, require, require_complete, require_seed
@@ -384,26 +385,15 @@ def check_gradient_backend(config: GradientConfig, sim_dtype: str, key: str = "g
         raise ConfigError(f"{why} (the env's sim_dtype is {sim_dtype})", key=key, path=source)
 
 
-FLOAT32_FD_STEP = 1e-3
-"""Smallest finite-difference step of ``lm`` on a ``float32`` env [-]: at 1e-5 a float32 simulation's differences
-are rounding noise (Jacobian 4.5x off float64's over 50 ms), at 1e-3 within a fifth of it."""
-
-
 def check_lm_fd_step(config: LMConfig, sim_dtype: str, key: str = "lm.fd_step", source: str | None = None) -> None:
     """Refuse ``lm``'s finite-difference step where the env's simulations round more than it resolves, before any
     simulation.
 
     Raises:
-        ConfigError: (``key``) a ``float32`` env and ``fd_step`` below :data:`FLOAT32_FD_STEP`.
+        ConfigError: (``key``) a ``float32`` env and ``fd_step`` below
+            :data:`~marlcrash.calibrate.leastsq.FLOAT32_FD_STEP` (:func:`~marlcrash.calibrate.leastsq.check_fd_step`).
     """
-    if sim_dtype == "float32" and config.fd_step < FLOAT32_FD_STEP:
-        raise ConfigError(
-            f"the env simulates in float32 (sim_dtype), whose rounding swamps a finite difference of "
-            f"{config.fd_step:g} (the Jacobian came out several times off float64's); expected a step of at least "
-            f"{FLOAT32_FD_STEP:g}, or a float64 env",
-            key=key,
-            path=source,
-        )
+    check_fd_step(config.fd_step, sim_dtype, key, source)
 
 
 def check_lm_budget(problem: CalibrationProblem, budget: int) -> None:

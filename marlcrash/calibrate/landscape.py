@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from marlcrash.calibrate.leastsq import fd_points, jacobian, lm_iteration
+from marlcrash.calibrate.leastsq import check_fd_step, fd_points, jacobian, lm_iteration
 from marlcrash.calibrate.problem import CalibrationProblem
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics, area_between
@@ -282,7 +282,9 @@ def local_fit(
         x0: instead, start at this candidate ``[n_agents, 7]`` (e.g. another calibrator's result),
             clipped to the search box.
         iterations: Levenberg-Marquardt iterations.
-        fd_step: finite-difference step in log-scale [-].
+        fd_step: finite-difference step in log-scale [-]; at least
+            :data:`~marlcrash.calibrate.leastsq.FLOAT32_FD_STEP` on a ``float32`` problem (its rounding swamps a
+            smaller one).
         damping: initial ``lambda`` [-].
         seed: seed of the start point's draw.
 
@@ -292,8 +294,8 @@ def local_fit(
         ``area``, ``dfd``, ``rmse``, ``passed``.
 
     Raises:
-        ConfigError: no twin truth, ``iterations`` not an integer >= 1, a non-positive ``fd_step`` or ``damping``,
-            or a negative or non-finite ``start_radius`` (key named).
+        ConfigError: no twin truth, ``iterations`` not an integer >= 1, a non-positive ``fd_step`` (or one below
+            the float32 limit) or ``damping``, or a negative or non-finite ``start_radius`` (key named).
     """
     _check(problem, ())
     iterations = _require_count(iterations, "iterations")
@@ -302,6 +304,7 @@ def local_fit(
     for key, val in (("fd_step", fd_step), ("damping", damping)):
         if not (_is_number(val) and np.isfinite(val) and val > 0):
             raise ConfigError(f"expected {key} > 0, got {val!r}", key=key)
+    check_fd_step(fd_step, problem.sim.config.dtype, "fd_step")
     lo, hi = problem.flat_box()
     truth = problem.flat(problem.true_x[None])[0]
     if x0 is not None:
@@ -385,7 +388,8 @@ def sensitivity_spectrum(
         x: ``[n_agents, 7]`` the point (``None``: the twin truth ``true_x``).
         candidate: optionally another ``[n_agents, 7]`` point (e.g. a calibration result): how its
             difference ``d`` from ``x`` splits over the bands, and whether the linear model holds there.
-        fd_step: finite-difference step in log-scale [-].
+        fd_step: finite-difference step in log-scale [-]; at least
+            :data:`~marlcrash.calibrate.leastsq.FLOAT32_FD_STEP` on a ``float32`` problem.
         bands: decreasing relative singular-value thresholds.
 
     Returns:
@@ -399,13 +403,15 @@ def sensitivity_spectrum(
         ``residual_at_x`` (``|r(x)|``); and ``band_labels``.
 
     Raises:
-        ConfigError: no truth and no ``x``, a non-positive ``fd_step``, or bands not decreasing in (0, 1).
+        ConfigError: no truth and no ``x``, a non-positive ``fd_step`` (or one below the float32 limit), or bands
+            not decreasing in (0, 1).
     """
     if x is None:
         _check(problem, ())
         x = problem.true_x
     if not (_is_number(fd_step) and np.isfinite(fd_step) and fd_step > 0):
         raise ConfigError(f"expected fd_step > 0, got {fd_step!r}", key="fd_step")
+    check_fd_step(fd_step, problem.sim.config.dtype, "fd_step")
     if isinstance(bands, str) or not all(map(_is_number, bands)):
         raise ConfigError(f"expected decreasing thresholds in (0, 1), got {bands!r}", key="bands")
     b = [float(v) for v in bands]
