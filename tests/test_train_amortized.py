@@ -373,6 +373,20 @@ def test_an_empty_budget_list_is_refused_naming_the_key(name, tmp_path):
     assert name not in small_config(tmp_path, budgets=budgets).budgets  # left out: skipped
 
 
+def test_no_optimizer_at_all_is_refused_naming_budgets(tmp_path):
+    """``budgets: {}`` (every optimizer left out, e.g. ``~budgets.cmaes ~budgets.random_search ~budgets.gradient``)
+    was accepted and gave a table of the policy alone, headed "policy vs optimizers", with nothing to compare it
+    with, where an empty list of one optimizer and an empty list of reference seeds are refused. Refused before
+    any work, saying how to keep the policy's rows (one small budget) or evaluate it alone (train/evaluate.py)."""
+    with pytest.raises(ConfigError, match=r"key 'budgets': expected at least one optimizer.*"
+                                          r"budgets\.random_search=\[1\].*train/evaluate\.py") as e:  # fmt: skip
+        small_config(tmp_path, budgets={})
+    assert e.value.key == "budgets"
+    with pytest.raises(ConfigError, match=r"key 'budgets'"):  # a config made in Python is refused the same way
+        AmortizedConfig(run=str(tmp_path), budgets={}).validate()
+    assert small_config(tmp_path, budgets={"random_search": [1]}).budgets == {"random_search": [1]}
+
+
 def test_the_yaml_config_loads_through_hydra():
     from hydra import compose, initialize_config_dir
 

@@ -108,7 +108,7 @@ class AmortizedConfig:
         iterations: policy calibration steps; ``None`` = the run's ``eval.iterations``.
         target: the policy iterate whose score the optimizers must reach: ``best`` or ``last``.
         budgets: per optimizer, budgets as multiples of the policy's nominal simulation count ``iterations + 1``
-            (at least one each; an optimizer left out is skipped).
+            (at least one each; an optimizer left out is skipped, but at least one must stay).
         seed: the optimizers' seed.
         out_dir: folder of the output files; ``None`` = the run folder.
         resume: continue the comparison in that folder: its finished pieces are kept, the others run.
@@ -139,6 +139,13 @@ class AmortizedConfig:
         require(self.iterations is None or self.iterations >= 1, "iterations",
                 f"expected >= 1 calibration steps or null, got {self.iterations}")  # fmt: skip
         optimizers = sorted(f.name for f in fields(self) if f.name in BASELINES)  # those with settings here
+        # with none, the tables held the policy alone under "policy vs optimizers", nothing to compare it with
+        require(len(self.budgets) >= 1, "budgets",
+                f"expected at least one optimizer of {optimizers} with budgets, got none: the comparison measures the "
+                f"policy against optimizers from scratch. To keep the policy's rows on the held-out references at "
+                f"little cost, keep one with a small budget (e.g. budgets.random_search=[1]: as many simulations as "
+                f"the policy's); to evaluate the policy alone on its run's reference: python train/evaluate.py "
+                f"run=<run>")  # fmt: skip
         for name, mults in self.budgets.items():
             require(name in optimizers, f"budgets.{name}",
                     f"unknown optimizer {name!r}; expected one of {optimizers}")  # fmt: skip
