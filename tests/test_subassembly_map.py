@@ -37,3 +37,15 @@ def test_a_group_named_like_another_parts_default_group_is_refused(car, tmp_path
     ok = car.with_subassemblies({"part_2": [2, 1], "part_99": [3]}).with_default_subassemblies()
     assert ok.subassemblies["part_2"] == [2, 1] and ok.subassemblies["part_99"] == [3]
     assert ok.subassembly_of_part()[1] == "part_2" and ok.subassembly_of_part()[4] == "part_4"
+
+
+def test_a_dumped_map_reads_back_whatever_the_group_names(car, tmp_path):
+    """A long group name with spaces was folded over two lines by the YAML emitter (its 80-column default), so the
+    map written beside a deck (write_deck) could not be read back: 'mapping values are not allowed here'."""
+    from marlcrash.vehicle.subassembly_map import dump_subassembly_map
+
+    pids = sorted(car.parts)
+    names = ["front " * 16 + "rail", "a: b", "#x", "null", "- x", "é", "x" * 200]
+    mapping = {n: [p] for n, p in zip(names, pids, strict=False)}
+    path = dump_subassembly_map(mapping, tmp_path / "map.yaml")
+    assert load_subassembly_map(path, car) == mapping

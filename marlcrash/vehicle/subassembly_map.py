@@ -20,6 +20,7 @@ key (``subassemblies.hood[0]``).
 from __future__ import annotations
 
 import fnmatch
+import math
 from pathlib import Path
 from typing import Any
 
@@ -181,4 +182,6 @@ def dump_subassembly_map(mapping: dict[str, list[int]], path: str | Path) -> Pat
 def _yaml_key(name: str) -> str:
     import yaml
 
-    return yaml.safe_dump(str(name), default_style=None).strip().removesuffix("\n...").strip()
+    # one line whatever its length: at the emitter's default width (80) a long name with spaces was folded over two
+    # lines, which broke the map's "name: [ids]" line
+    return yaml.safe_dump(str(name), default_style=None, width=math.inf).strip().removesuffix("\n...").strip()
