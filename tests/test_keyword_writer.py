@@ -255,3 +255,18 @@ def test_a_written_deck_and_map_get_the_umask_mode_and_a_missing_folder_is_named
     for write in (lambda p: write_deck(m, p), lambda p: dump_subassembly_map({"hood": [10]}, p)):
         with pytest.raises(ConfigError, match=r"the folder of .*missing/out\.k does not exist"):
             write(tmp_path / "missing" / "out.k")
+
+
+def test_titles_that_begin_as_a_comment_or_a_keyword_read_back(tmp_path):
+    """A title line is read whole, but a line that begins with ``$`` is a comment and one that begins with ``*`` a
+    keyword: a deck whose titles were indented (`` $ mild steel``, `` *** bumper``) read fine, its titles stripped,
+    and writing that model back gave a deck nobody could read. The writer indents such a title by one space."""
+    m = _model()
+    m.name = "*round trip car"
+    m.parts = {pid: replace(p, name=("*** " if pid % 2 else "$ ") + p.name) for pid, p in m.parts.items()}
+    m.materials = {mid: replace(mat, name="$" + mat.name) for mid, mat in m.materials.items()}
+    deck = write_deck(m, tmp_path / "c.k")
+    back = read_deck(deck, subassemblies=tmp_path / "c.subassemblies.yaml")
+    assert back.name == m.name
+    assert {pid: p.name for pid, p in back.parts.items()} == {pid: p.name for pid, p in m.parts.items()}
+    assert {mid: x.name for mid, x in back.materials.items()} == {mid: x.name for mid, x in m.materials.items()}

@@ -54,6 +54,13 @@ def _f20(x: float) -> str:
     return f"{x:20.12e}"
 
 
+def _title(name: str) -> str:
+    """A title line (80 columns, one line). One that would begin with ``$`` (a comment) or ``*`` (a keyword) is
+    indented by a space: readers strip titles, so it reads back as written."""
+    text = name.replace("\r", " ").replace("\n", " ")[:80]
+    return " " + text[:79] if text.startswith(("$", "*")) else text
+
+
 def _card(values: Iterable[float | int]) -> str:
     """One long-format card: integers (Python or numpy) as integer fields, everything else as a float."""
     out = []
@@ -78,7 +85,7 @@ def _material_cards(m: Material, u) -> tuple[str, list[str]]:
     """Keyword text of one material and the 8-vector entries it cannot carry."""
     ro, e, nu = m.density / u.density, m.youngs_modulus / u.stress, m.poisson_ratio
     sy, su, sf = (m.yield_strength / u.stress, m.ultimate_strength / u.stress, m.fracture_strength / u.stress)
-    title = m.name.replace("\n", " ")[:80]
+    title = _title(m.name)
     kind = m.kind
     rebuilt = Material(m.id, m.name, kind, m.density, m.youngs_modulus, poisson_ratio=nu)
     if kind in ("elastic", "other"):
@@ -182,7 +189,7 @@ def write_deck(model: VehicleModel, path: str | Path, *, units: str = "mm-t-s", 
     cannot: list[str] = []  # what else the cards cannot carry
     with atomic_output(path) as tmp, open(tmp, "w", newline="\n") as f:
         f.write(f"$ written by marlcrash from model {model.name!r}, units {u.name}\n*KEYWORD\n*TITLE\n")
-        f.write((model.name or "vehicle").replace("\n", " ")[:80] + "\n")
+        f.write(_title(model.name or "vehicle") + "\n")
         for mid in sorted(model.materials):
             text, miss = _material_cards(model.materials[mid], u)
             f.write(text)
@@ -199,10 +206,10 @@ def write_deck(model: VehicleModel, path: str | Path, *, units: str = "mm-t-s", 
             kind = kinds.get(pid, "shell")
             inertia = pid in model.part_mass and _inertia_carries(model, pid, cannot)
             if inertia:
-                f.write(f"*PART_INERTIA+\n{p.name.replace(chr(10), ' ')[:80]}\n" + _card([pid, secid, p.material_id]))
+                f.write(f"*PART_INERTIA+\n{_title(p.name)}\n" + _card([pid, secid, p.material_id]))
                 f.write(_inertia_cards(model, pid, u))
             else:
-                f.write(f"*PART\n{p.name.replace(chr(10), ' ')[:80]}\n")
+                f.write(f"*PART\n{_title(p.name)}\n")
                 f.write(f"{pid:10d}{secid:10d}{p.material_id:10d}\n")
             if kind == "shell":
                 t = (p.thickness or 0.0) / u.length
