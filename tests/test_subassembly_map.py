@@ -49,3 +49,12 @@ def test_a_dumped_map_reads_back_whatever_the_group_names(car, tmp_path):
     mapping = {n: [p] for n, p in zip(names, pids, strict=False)}
     path = dump_subassembly_map(mapping, tmp_path / "map.yaml")
     assert load_subassembly_map(path, car) == mapping
+
+
+def test_unknown_top_level_keys_of_mixed_types_are_named(car, tmp_path):
+    """Two unknown top-level keys, one a number (``1:`` and ``groups:``), raised TypeError from sorting them."""
+    y = tmp_path / "map.yaml"
+    y.write_text("subassemblies:\n  front: [1]\n1: x\ngroups: y\n")
+    with pytest.raises(ConfigError, match=r"map\.yaml key '1': unknown key; expected only 'subassemblies'") as err:
+        load_subassembly_map(y, car)
+    assert err.value.key == "1"

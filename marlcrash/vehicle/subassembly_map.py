@@ -151,7 +151,8 @@ def load_subassembly_map(
     data = load_yaml(path)
     unknown = set(data) - {"subassemblies"}
     if unknown:
-        raise ConfigError("unknown key; expected only 'subassemblies'", key=sorted(unknown)[0], path=path)
+        first = sorted(map(str, unknown))[0]  # YAML keys may be numbers too: sorted as text
+        raise ConfigError("unknown key; expected only 'subassemblies'", key=first, path=path)
     if "subassemblies" not in data:
         raise ConfigError("missing; expected a mapping name -> list of parts", key="subassemblies", path=path)
     return resolve_subassemblies(data["subassemblies"], model, part_sets=part_sets, path=path)
