@@ -1110,33 +1110,75 @@ def test_a_generated_set_range_must_run_from_first_to_last_id(tmp_path, card, pa
     assert _read(_write(tmp_path, HEAD + NODES + SHELL + good)).n_nodes == 4  # a one-id range (4 4) is fine
 
 
-@pytest.mark.parametrize(
-    ("card", "pattern"),
-    [
-        (
-            "*SET_NODE_LIST_GENERATE\n         6\n         11000000000\n",
-            r"line 21: \*SET_NODE_LIST_GENERATE expects at most 10000000 ids in a set .*, got 1000000000 from "
-            r"B1BEG = 1 to B1END = 1000000000",
-        ),
-        (  # one over the cap: B1 alone is fine, B2 takes the set past it
-            "*SET_PART_LIST_GENERATE\n         7\n         1   5000000   5000001  10000001\n",
-            r"line 21: \*SET_PART_LIST_GENERATE expects at most 10000000 ids in a set .*, got 5000001 from "
-            r"B2BEG = 5000001 to B2END = 10000001 after 5000000",
-        ),
-    ],
-    ids=["typo", "two-ranges"],
-)
-def test_a_generated_set_range_larger_than_any_deck_is_refused(tmp_path, card, pattern):
-    """A *SET_..._GENERATE range had no upper bound on its size: a typo such as ``1 1000000000`` made the reader
-    build a list of a billion ids (tens of GB) before anything was said. A set of more ids than
-    :data:`MAX_GENERATED_IDS` (ten million, more than a full-vehicle model's nodes) is refused naming the range."""
-    with pytest.raises(DeckError, match=r"deck\.k " + pattern):
-        _read(_write(tmp_path, HEAD + NODES + SHELL + card))
-    from marlcrash.vehicle.keyword import MAX_GENERATED_IDS
+def _generated_sets_deck(node_range: str, part_range: str) -> str:
+    """The plate deck with a node set 6 and a part set 7 generated from the given ranges (``BEG END`` fields): 2 kg
+    shared by set 6's nodes (*ELEMENT_MASS_NODE_SET) and 1 kg added to set 7's parts (*ELEMENT_MASS_PART_SET)."""
+    return (
+        HEAD
+        + NODES
+        + SHELL
+        + f"*SET_NODE_LIST_GENERATE\n         6\n{node_range}\n*SET_PART_LIST_GENERATE\n         7\n{part_range}\n"
+        + "*ELEMENT_MASS_NODE_SET\n       9       6       2.000e-03\n*ELEMENT_MASS_PART_SET\n       7       1.000e-03\n"
+    )
 
-    assert MAX_GENERATED_IDS == 10_000_000
-    fine = "*SET_NODE_LIST_GENERATE\n         6\n         1    100000\n"  # a hundred thousand ids: read
-    assert _read(_write(tmp_path, HEAD + NODES + SHELL + fine)).n_nodes == 4
+
+@pytest.mark.parametrize(
+    ("node_range", "part_range"),
+    [
+        ("         11000000000", "         1         1"),  # a billion node ids over a deck of 4 nodes
+        ("         2         3         3 999999999         1         1", "         1 999999999"),  # overlapping
+        ("   9999996  99999999         1         4", "        99       100         1         1"),  # empty, then all
+        ("         1       100", "         1        50"),  # a small range over ids the deck lacks
+    ],
+    ids=["billion", "overlapping", "gap-first", "beyond-the-deck"],
+)
+def test_a_generated_set_holds_the_defined_ids_of_its_ranges_whatever_their_size(tmp_path, node_range, part_range):
+    """A *SET_..._GENERATE set holds every id the deck defines between BnBEG and BnEND (LS-DYNA: the ranges are
+    limits on the ids, resolved after all input is read, so gaps in the numbering are no problem). The reader
+    expanded each range into a Python list of every id in it: ten million ids (its cap then) cost about 0.4 GB,
+    ``1 1000000000`` was refused as a typo, and a range over ids the deck lacks (``1 100`` over nodes 1-4) was
+    refused by *ELEMENT_MASS_NODE_SET ('lists undefined node 5') and by a sub-assembly map. Ranges are now held as
+    their ends and resolved against the deck's ids: the billion-id set is the deck's 4 nodes, at a cost in memory
+    that does not grow with the range."""
+    import tracemalloc
+
+    ref = _read(_write(tmp_path, _generated_sets_deck("         1         4", "         1         1"), "ref.k"))
+    deck = _write(tmp_path, _generated_sets_deck(node_range, part_range))
+    tracemalloc.start()
+    try:
+        m = _read(deck, subassemblies={"front": ["set:7"]})
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 20e6, f"reading a 4-node deck took {peak / 1e6:.0f} MB at its peak"
+    assert m.subassemblies == {"front": [1]}
+    assert np.array_equal(m.point_mass_nodes, ref.point_mass_nodes) and m.point_mass.tolist() == [0.5] * 4
+    assert m.part_added_mass == ref.part_added_mass == pytest.approx({1: 1.0})
+    assert m.total_mass() == pytest.approx(ref.total_mass(), rel=1e-12)
+
+
+def test_a_generated_set_range_just_under_the_former_cap_costs_no_memory_of_its_size(tmp_path):
+    """Ten million ids less four (just under the cap the reader had, MAX_GENERATED_IDS) in the node set an
+    *INITIAL_VELOCITY sets moving, over a 4-node deck: the reader built a list of every id in the range (hundreds of
+    MB at its peak); now it holds the range's ends and resolves them against the deck's nodes."""
+    import tracemalloc
+
+    sets = "*SET_NODE_LIST_GENERATE\n         6\n         1   9999996\n*INITIAL_VELOCITY\n         6\n  -15640.0\n"
+    deck = _write(tmp_path, HEAD + NODES + SHELL + sets)
+    tracemalloc.start()
+    try:
+        m = _read(deck)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 20e6, f"reading a 4-node deck took {peak / 1e6:.0f} MB at its peak"
+    assert m.n_nodes == 4 and m.left_out == {} and not any("initial velocit" in w for w in m.warnings)
+
+
+def test_a_generated_set_that_holds_no_defined_id_is_named(tmp_path):
+    """A generated node set whose ranges hold none of the deck's nodes is empty: what refers to it says so."""
+    with pytest.raises(DeckError, match=r"\*ELEMENT_MASS_NODE_SET 9 refers to empty node set 6"):
+        _read(_write(tmp_path, _generated_sets_deck("       100       200", "         1         1")))
 
 
 def test_a_utf8_byte_order_mark_is_no_data(tmp_path):

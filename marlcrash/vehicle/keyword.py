@@ -55,7 +55,9 @@ Coverage:
   LS-DYNA); ``*ELEMENT_MASS_PART`` LCID and MWD are not read; ``*ELEMENT_MASS_MATRIX`` is not read (skipped and
   counted like any card);
 - ``*SET_PART``, ``*SET_PART_LIST`` and ``*SET_PART_LIST_GENERATE`` (usable as
-  ``"set:<id>"`` in sub-assembly maps; a generated set holds at most :data:`MAX_GENERATED_IDS` ids);
+  ``"set:<id>"`` in sub-assembly maps); a ``_GENERATE`` set holds the ids the deck defines in its ranges, as in
+  LS-DYNA (the ranges are limits on the ids: ``1 1000000000`` over a deck of a million nodes is those nodes, held
+  as the range's two ends);
 - ``*CONSTRAINED_RIGID_BODIES`` (which rigid parts move as one body), ``*SET_NODE``/
   ``*SET_NODE_LIST`` (``_TITLE``, ``_GENERATE``) and ``*INITIAL_VELOCITY``,
   ``_NODE``, ``_GENERATION`` (part, part set or node set) and ``_RIGID_BODY``, for which
@@ -116,9 +118,6 @@ MAX_VEHICLE_EXTENT = 50.0  # m: the kept structure spans more only by a coordina
 OUTLIER_SIZE_RATIO = 100.0  # an element this many times its part's median size is noted ...
 OUTLIER_MIN_SIZE = 0.5  # m: ... when it is also at least this large
 _NO_FAILURE = 1e20  # LS-DYNA's conventional "never fails" strain
-MAX_GENERATED_IDS = 10_000_000
-"""Most ids a ``*SET_..._GENERATE`` set may hold: more than a full-vehicle model's nodes (a few million). A range
-beyond it is a typo (``1 1000000000`` was a list of a billion ids, tens of GB, before anything was said)."""
 
 # --------------------------------------------------------------------------- layouts
 
@@ -1059,8 +1058,10 @@ class _Tables:
     dropped: dict[int, str] = field(default_factory=dict)  # parts left out by _drop_unread_parts -> why
     sections: dict[int, _Section] = field(default_factory=dict)
     materials: dict[int, _RawMaterial] = field(default_factory=dict)
-    sets: dict[int, tuple[str, list[int]]] = field(default_factory=dict)
-    node_sets: dict[int, tuple[str, list[int]]] = field(default_factory=dict)
+    set_cards: dict[int, _IdSet] = field(default_factory=dict)  # *SET_PART cards, as read
+    node_set_cards: dict[int, _IdSet] = field(default_factory=dict)  # *SET_NODE cards, as read
+    sets: dict[int, tuple[str, list[int]]] = field(default_factory=dict)  # part sets, resolved (_resolve_sets)
+    node_sets: dict[int, tuple[str, np.ndarray]] = field(default_factory=dict)  # node sets, resolved
     curves: dict[int, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
     velocities: list[_Velocity] = field(default_factory=list)
     rigid_merges: list[tuple[int, int]] = field(default_factory=list)  # (PIDM, PIDS) pairs
@@ -1071,6 +1072,43 @@ class _Tables:
     extra_nodes: dict[int, list[tuple[int, bool, tuple[Path, int]]]] = field(default_factory=dict)  # pid -> (id, set)
     unread_stypes: Counter = field(default_factory=Counter)  # *ELEMENT_BEAM_SECTION types without an area -> count
     unread_sections: dict[int, tuple[str, Path, int]] = field(default_factory=dict)  # SECID -> (keyword, file, line)
+
+
+@dataclass
+class _IdSet:
+    """A ``*SET_PART``/``*SET_NODE`` card as read: the ids it lists, or the ``[k, 2]`` first and last ids of its
+    ``_GENERATE`` ranges. A range holds the ids the deck defines in it (LS-DYNA resolves the ranges after all input
+    is read, so gaps in the numbering do not matter); it is kept as its two ends, so a range of a billion ids over
+    a small deck costs what the deck does (:meth:`members`)."""
+
+    title: str
+    ids: np.ndarray
+    ranges: np.ndarray
+
+    def members(self, defined: np.ndarray) -> np.ndarray:
+        """The set's ids: those listed, as listed, then each range's ids among ``defined`` (sorted, unique), each
+        once, in the order of the ranges."""
+        if not self.ranges.size:
+            return self.ids
+        lo = np.searchsorted(defined, self.ranges[:, 0], side="left")
+        hi = np.searchsorted(defined, self.ranges[:, 1], side="right")
+        taken = np.zeros(defined.size, dtype=bool)
+        parts = [self.ids]
+        for a, b in zip(lo.tolist(), hi.tolist(), strict=True):
+            new = a + np.flatnonzero(~taken[a:b])
+            taken[a:b] = True
+            parts.append(defined[new])
+        return np.concatenate(parts)
+
+
+def _resolve_sets(t: _Tables, node_ids: np.ndarray) -> None:
+    """Fill ``t.sets`` (part ids as a list) and ``t.node_sets`` (node ids as an array) from the set cards read:
+    the ranges of ``_GENERATE`` sets hold the deck's nodes (``node_ids``) and the parts its ``*PART`` cards define
+    (those left out too)."""
+    parts = np.array(sorted({*t.parts, *t.dropped}), dtype=np.int64)
+    t.sets = {sid: (s.title, s.members(parts).tolist()) for sid, s in t.set_cards.items()}
+    nodes = np.unique(node_ids)
+    t.node_sets = {sid: (s.title, s.members(nodes)) for sid, s in t.node_set_cards.items()}
 
 
 @dataclass
@@ -1507,8 +1545,8 @@ def _read_material(block: _Block, kind: str, title: bool, t: _Tables, params: _P
         t.materials[int(mid)].ro_at = _field_where(block, r, cards[0], 1)
 
 
-def _read_id_set(block: _Block, opts: set[str], out: dict[int, tuple[str, list[int]]], params: _Params) -> None:
-    """A ``*SET_PART``/``*SET_NODE`` ``[_LIST][_TITLE][_GENERATE]`` block into ``out[sid] = (title, ids)``."""
+def _read_id_set(block: _Block, opts: set[str], out: dict[int, _IdSet], params: _Params) -> None:
+    """A ``*SET_PART``/``*SET_NODE`` ``[_LIST][_TITLE][_GENERATE]`` block into ``out[sid]``."""
     rows = block.rows.tolist()
     title = ""
     if "TITLE" in opts:
@@ -1521,13 +1559,15 @@ def _read_id_set(block: _Block, opts: set[str], out: dict[int, tuple[str, list[i
         raise block.err(
             f"*{block.keyword} expects a positive SID {_field_where(block, rows[0], _SET_HEAD, 0)}", rows[0]
         )
-    ids: list[int] = []
+    ids = np.zeros(0, dtype=np.int64)
+    ranges = np.zeros((0, 2), dtype=np.int64)
     body = _nonblank(block, np.asarray(rows[1:], dtype=np.int64))
     if body.size:
         layout = _SET_RANGES if "GENERATE" in opts else _SET_NIDS if block.keyword.startswith("SET_NODE") else _SET_PIDS
         v = _table(block, body, layout, params)
         vals = np.stack([v[f.name] for f in layout], axis=1)  # [lines, 8], blanks 0
         if "GENERATE" in opts:
+            ends: list[tuple[int, int]] = []
             for row, line in zip(body.tolist(), vals.tolist(), strict=True):
                 for k in range(4):
                     a, b = line[2 * k], line[2 * k + 1]
@@ -1541,17 +1581,12 @@ def _read_id_set(block: _Block, opts: set[str], out: dict[int, tuple[str, list[i
                             f"*{block.keyword} expects {beg} <= {end} (a range from first to last id), got {a} > {b}",
                             row,
                         )
-                    if len(ids) + (b - a + 1) > MAX_GENERATED_IDS:
-                        so_far = f" after {len(ids)}" if ids else ""
-                        raise block.err(
-                            f"*{block.keyword} expects at most {MAX_GENERATED_IDS} ids in a set (more than a vehicle "
-                            f"model defines; a typo?), got {b - a + 1} from {beg} = {a} to {end} = {b}{so_far}",
-                            row,
-                        )
-                    ids.extend(range(a, b + 1))
+                    ends.append((a, b))
+            ranges = np.array(ends, dtype=np.int64).reshape(-1, 2)
         else:
-            ids = [int(x) for x in vals.ravel().tolist() if x]
-    out[int(sid)] = (title, ids)
+            ids = vals.ravel()
+            ids = ids[ids != 0]
+    out[int(sid)] = _IdSet(title, ids, ranges)
 
 
 def _read_velocity(block: _Block, opts: set[str], t: _Tables, params: _Params) -> bool:
@@ -1781,7 +1816,7 @@ def _dispatch(block: _Block, t: _Tables, deck: _Deck) -> None:
         else:
             _read_material(block, mk[0], mk[1], t, params)
         return
-    for base, sets in (("SET_PART", t.sets), ("SET_NODE", t.node_sets)):
+    for base, sets in (("SET_PART", t.set_cards), ("SET_NODE", t.node_set_cards)):
         if kw == base or kw.startswith(base + "_"):
             opts = _split_options(kw, base)
             if opts <= {"LIST", "TITLE", "GENERATE"}:
@@ -2327,7 +2362,7 @@ def _point_masses(
         return idx
 
     def set_nodes(sid: int, what: str, where: tuple[Path, int]) -> np.ndarray:
-        if sid not in t.node_sets or not t.node_sets[sid][1]:
+        if sid not in t.node_sets or not len(t.node_sets[sid][1]):
             kind = "undefined" if sid not in t.node_sets else "empty"
             raise DeckError(f"{what} refers to {kind} node set {sid}", *where)
         members = np.unique(np.asarray(t.node_sets[sid][1], dtype=np.int64))
@@ -2627,6 +2662,7 @@ def read_deck(
         if deck.unread_includes and "undefined" in e.reason:  # the id may well be defined in the unread file
             raise DeckError(f"{e.reason}; note: {deck.unread_includes[0]}", e.path, e.line) from None
         raise
+    _resolve_sets(tables, model.node_ids)
     model = _deck_masses(model, tables)
     if name is not None:
         model.name = name
