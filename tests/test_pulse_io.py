@@ -1107,6 +1107,71 @@ def test_an_iso_mme_test_reads_each_channel_file_once(tmp_path, analytic, monkey
     assert sorted(reads) == ["T.001", "T.002", "T.mme"]
 
 
+def test_listing_the_channels_of_an_iso_mme_test_reads_their_headers_not_their_samples(tmp_path, analytic, monkeypatch):
+    """``mme_channels`` parses the first 200 lines of each channel file as its header, but read every file whole
+    first: listing a test whose channel holds three million samples (18 MB) read all of it (and held it, as text and
+    as a list of lines). It now reads a channel file only up to the end of its header; the channels it lists are the
+    same, and ``read_mme`` still reads each file once, header and samples together."""
+    import pathlib
+    import tracemalloc
+
+    from marlcrash.pulse import mme_channels
+
+    write_mme(analytic, tmp_path / "T", "T")
+    expected = mme_channels(tmp_path / "T")
+    big = tmp_path / "T" / "Channel" / "T.002"
+    head = big.read_text(encoding="latin-1").split("\n")[:8]  # the header lines write_mme writes
+    head[-1] = "Number of samples           :3000000"
+    with big.open("wb") as f:
+        f.write(("\n".join(head) + "\n").encode("latin-1"))
+        for _ in range(30):
+            f.write(b"-1.25\n" * 100_000)
+    assert big.stat().st_size > 18_000_000
+    read_bytes: dict[str, int] = {}  # bytes read per file, however it is read
+    path_open = pathlib.Path.open
+
+    class Counted:
+        def __init__(self, f, name):
+            self._f, self._name = f, name
+
+        def _count(self, data):
+            read_bytes[self._name] = read_bytes.get(self._name, 0) + len(data)
+            return data
+
+        def read(self, *args):
+            return self._count(self._f.read(*args))
+
+        def readline(self, *args):
+            return self._count(self._f.readline(*args))
+
+        def __iter__(self):
+            return (self._count(line) for line in self._f)
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            return self._f.__exit__(*exc)
+
+        def __getattr__(self, name):
+            return getattr(self._f, name)
+
+    monkeypatch.setattr(pathlib.Path, "open", lambda self, *a, **k: Counted(path_open(self, *a, **k), self.name))
+    tracemalloc.start()
+    try:
+        got = mme_channels(tmp_path / "T")
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert got == expected
+    assert read_bytes["T.002"] < 100_000, f"read {read_bytes['T.002']} bytes of T.002 to list its header"
+    assert peak < 2_000_000, f"listing the channels took {peak / 1e6:.1f} MB at its peak"
+    read_bytes.clear()
+    samples = read_mme(tmp_path / "T", channels="radsup")  # header and samples: the file read once, whole
+    assert samples.n_samples == 3_000_000 and np.all(samples.acc == -1.25 * G0)
+    assert read_bytes["T.002"] == big.stat().st_size
+
+
 def test_a_channel_whose_pulse_starts_before_its_onset_is_named_with_the_velocity_change_it_loses(tmp_path):
     """The tunnel of a lab export (10 kHz, 20 ms of rest, a 0.3 g offset, 0.1 g rms noise) decelerates at 1.5 g from
     the contact, its main pulse (20 g, 60 ms) 6 ms later. Read alone (``marlcrash pulse --acc-col``, a file of that

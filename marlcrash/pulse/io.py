@@ -462,6 +462,38 @@ def _read_lines(path: Path) -> list[str]:
         raise _err(f"cannot read ({e.strerror})", path) from None
 
 
+MME_HEADER_LINES = 200
+"""Most lines of a channel file :func:`mme_channels` reads as its header (ISO-MME headers have a few dozen)."""
+
+
+_LINE_BREAK = re.compile(rb"[\n\r\x0b\x0c\x1c\x1d\x1e\x85]")
+"""The bytes at which ``str.splitlines`` breaks a latin-1 text (:func:`_read_lines`)."""
+
+
+def _read_header_lines(path: Path, most: int = MME_HEADER_LINES) -> list[str]:
+    """The first lines of a channel file up to the first that is no ``Name :value`` line (the first sample), at
+    most ``most``, as :func:`_read_lines` splits them: what :func:`_parse_header` reads, without reading the samples
+    after it (a channel may hold millions)."""
+    lines: list[str] = []
+    rest = b""  # the last line read so far, which may go on in the next chunk
+    try:
+        with path.open("rb") as f:
+            while len(lines) < most and all(":" in s for s in lines):
+                chunk = f.read(16384)
+                if not chunk:
+                    lines += rest.decode("latin-1").splitlines()
+                    break
+                rest += chunk
+                if _LINE_BREAK.search(chunk) is None:
+                    continue
+                parts = rest.decode("latin-1").splitlines(keepends=True)
+                rest = parts.pop().encode("latin-1")  # "...\r" may be followed by "\n"
+                lines += [q.splitlines()[0] for q in parts]
+    except OSError as e:
+        raise _err(f"cannot read ({e.strerror})", path) from None
+    return lines[:most]
+
+
 def _header_float(path: Path, header: dict[str, tuple[str, int]], key: str) -> float:
     if key not in header:
         raise _err(f"missing header line {key.capitalize()!r} (expected 'Name :value')", path)
@@ -572,7 +604,7 @@ def _mme_entry(path: Path, header: dict[str, tuple[str, int]]) -> dict[str, Any]
 
 
 def mme_channels(path: str | Path) -> list[dict[str, Any]]:
-    """The channels of an ISO-MME test from their headers alone (no samples parsed), in file order.
+    """The channels of an ISO-MME test from their headers alone (the samples are not read), in file order.
 
     Args:
         path: the test folder or its ``<test>.mme`` file.
@@ -586,7 +618,7 @@ def mme_channels(path: str | Path) -> list[dict[str, Any]]:
         PulseError: no test, no ``Channel`` folder or no channel files (naming the path).
     """
     _, files = _mme_channel_files(Path(path))
-    return [_mme_entry(p, _parse_header(p, _read_lines(p)[:200])[0]) for p in files]
+    return [_mme_entry(p, _parse_header(p, _read_header_lines(p))[0]) for p in files]
 
 
 def _matches(wanted: str, entry: dict[str, Any]) -> bool:
