@@ -1210,6 +1210,32 @@ def test_a_fixed_format_parameter_expression_may_hold_commas(tmp_path):
         assert m.shell_thickness[0] == pytest.approx(t3 * 1e-3), line
 
 
+@pytest.mark.parametrize(
+    ("expr", "value"),
+    [
+        ("mod(7.5,2)+mod(-7,3)", 1.5 - 1.0),  # Fortran's MOD takes the sign of its first argument: -1, not 2
+        ("sign(3,-1)+sign(-2,5)*2", -3.0 + 4.0),  # |a| with the sign of b
+        ("sinh(1)+cosh(1)-tanh(0.5)", math.sinh(1) + math.cosh(1) - math.tanh(0.5)),
+        ("MOD(10, 4)", 2.0),  # names of functions in any case
+    ],
+)
+def test_a_parameter_expression_calls_mod_sign_and_the_hyperbolic_functions(tmp_path, expr, value):
+    """*PARAMETER_EXPRESSION takes Fortran's intrinsic functions; MOD, SIGN, SINH, COSH and TANH were refused ('expects
+    an arithmetic expression')."""
+    params = f"*PARAMETER_EXPRESSION\nR t3,10+{expr}\n"
+    head = HEAD.replace("       2.0       2.0       2.0       2.0\n", "       &t3\n")
+    m = _read(_write(tmp_path, params + head.replace("*KEYWORD\n", "") + NODES + SHELL))
+    assert m.shell_thickness[0] == pytest.approx((10 + value) * 1e-3, rel=1e-12)
+
+
+def test_mod_by_zero_in_a_parameter_expression_is_named(tmp_path):
+    params = "*PARAMETER_EXPRESSION\nR t3,mod(1,0)\n"
+    head = HEAD.replace("       2.0       2.0       2.0       2.0\n", "       &t3\n")
+    with pytest.raises(DeckError, match=r"deck\.k line 2: \*PARAMETER_EXPRESSION expects an arithmetic expression, "
+                       r"got 'mod\(1,0\)'"):  # fmt: skip
+        _read(_write(tmp_path, params + head.replace("*KEYWORD\n", "") + NODES + SHELL))
+
+
 def test_nint_in_a_parameter_expression_rounds_halves_away_from_zero_as_fortran(tmp_path):
     """NINT(2.5) is 3 in Fortran (and LS-DYNA); it was Python's round, which gives 2 (halves to even)."""
     params = "*PARAMETER_EXPRESSION\nR t3,nint(2.5)-nint(-0.5)-nint(-1.5)+nint(0.4)\n"  # 3 - (-1) - (-2) + 0 = 6

@@ -12,7 +12,9 @@ Coverage:
   and ``*INCLUDE_PATH_RELATIVE``;
 - ``*PARAMETER`` (``R``/``I``/``C`` typed), ``*PARAMETER_EXPRESSION`` and their ``_LOCAL`` forms (values of
   the defining file and the files it includes, before the deck's of the same name: component files may each
-  define their own); ``&name`` and ``-&name`` in any numeric field. A name defined
+  define their own; expressions of arithmetic, ``pi`` and Fortran's intrinsic functions ``abs``, ``aint``, ``int``,
+  ``nint``, ``mod``, ``sign``, ``min``, ``max``, ``sqrt``, ``exp``, ``log``, ``log10``, the trigonometric,
+  inverse trigonometric and hyperbolic ones); ``&name`` and ``-&name`` in any numeric field. A name defined
   twice keeps its first definition with a note where the value may differ, as LS-DYNA's default
   ``*PARAMETER_DUPLICATION`` (DFLAG 1) does; the deck's own ``*PARAMETER_DUPLICATION`` DFLAG 2-5
   applies to the definitions after it.
@@ -499,6 +501,9 @@ _FUNCS = {
     "acos": math.acos,
     "atan": math.atan,
     "atan2": math.atan2,
+    "sinh": math.sinh,
+    "cosh": math.cosh,
+    "tanh": math.tanh,
     "sqrt": math.sqrt,
     "exp": math.exp,
     "log": math.log,
@@ -509,7 +514,11 @@ _FUNCS = {
     "int": int,
     "aint": math.trunc,
     "nint": lambda x: math.copysign(math.floor(abs(x) + 0.5), x),  # Fortran's NINT: halves away from zero
+    "mod": math.fmod,  # Fortran's MOD: a - int(a / b) * b, the sign of a (Python's % takes the sign of b)
+    "sign": lambda a, b: abs(a) if b >= 0 else -abs(a),  # Fortran's SIGN: |a| with the sign of b
 }
+"""The functions a ``*PARAMETER_EXPRESSION`` may call (Fortran's intrinsics, as LS-DYNA evaluates them), by
+lower-case name."""
 _BINOPS = {
     ast.Add: operator.add,
     ast.Sub: operator.sub,
