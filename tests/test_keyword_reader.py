@@ -1228,6 +1228,17 @@ def test_a_parameter_expression_calls_mod_sign_and_the_hyperbolic_functions(tmp_
     assert m.shell_thickness[0] == pytest.approx((10 + value) * 1e-3, rel=1e-12)
 
 
+def test_a_parameter_expression_may_use_parameters_named_as_python_keywords(tmp_path):
+    """Expressions were parsed as Python: a parameter named ``in`` (an inch), ``lambda`` or ``as`` made the expression
+    a syntax error ('expects an arithmetic expression'), and one named ``True`` read as 1."""
+    params = (
+        "*PARAMETER\nR in      25.4\nR lambda  0.5\nR True    3.0\n*PARAMETER_EXPRESSION\nR t3,in*0.1*lambda+True\n"
+    )
+    head = HEAD.replace("       2.0       2.0       2.0       2.0\n", "       &t3\n")
+    m = _read(_write(tmp_path, params + head.replace("*KEYWORD\n", "") + NODES + SHELL))
+    assert m.shell_thickness[0] == pytest.approx((25.4 * 0.1 * 0.5 + 3.0) * 1e-3, rel=1e-12)
+
+
 def test_mod_by_zero_in_a_parameter_expression_is_named(tmp_path):
     params = "*PARAMETER_EXPRESSION\nR t3,mod(1,0)\n"
     head = HEAD.replace("       2.0       2.0       2.0       2.0\n", "       &t3\n")

@@ -104,6 +104,7 @@ import re
 import warnings
 from collections import Counter
 from dataclasses import dataclass, field, replace
+from keyword import iskeyword
 from pathlib import Path
 
 import numpy as np
@@ -529,9 +530,16 @@ _BINOPS = {
 }
 
 
+_NAME = re.compile(r"[A-Za-z_]\w*")
+_KEYWORD_NAME = "_kw_"
+"""Prefix given to a parameter name that is a Python keyword (``in``, ``lambda``, ``True``) before an expression is
+parsed as Python, and taken off again when it is looked up."""
+
+
 def _eval_expr(text: str, params: _Params, path: Path, line: int, at: _Source | None = None) -> float:
     """Evaluate a ``*PARAMETER_EXPRESSION`` right-hand side (arithmetic only) written in the file ``at``."""
     src = text.strip().replace("^", "**").replace("&", "")
+    src = _NAME.sub(lambda m: _KEYWORD_NAME + m[0] if iskeyword(m[0]) else m[0], src)
 
     def ev(node: ast.AST) -> float:
         if isinstance(node, ast.Expression):
@@ -539,11 +547,14 @@ def _eval_expr(text: str, params: _Params, path: Path, line: int, at: _Source | 
         if isinstance(node, ast.Constant) and isinstance(node.value, int | float):
             return float(node.value)
         if isinstance(node, ast.Name):
-            if node.id.lower() == "pi":
+            name = node.id
+            if name.startswith(_KEYWORD_NAME) and iskeyword(name[len(_KEYWORD_NAME) :]):
+                name = name[len(_KEYWORD_NAME) :]
+            if name.lower() == "pi":
                 return math.pi
-            v = params.get(node.id, path, line, at)
+            v = params.get(name, path, line, at)
             if isinstance(v, str):
-                raise DeckError(f"*PARAMETER_EXPRESSION uses character parameter {node.id!r} as a number", path, line)
+                raise DeckError(f"*PARAMETER_EXPRESSION uses character parameter {name!r} as a number", path, line)
             return float(v)
         if isinstance(node, ast.BinOp) and type(node.op) in _BINOPS:
             return _BINOPS[type(node.op)](ev(node.left), ev(node.right))
