@@ -1172,6 +1172,23 @@ def test_listing_the_channels_of_an_iso_mme_test_reads_their_headers_not_their_s
     assert read_bytes["T.002"] == big.stat().st_size
 
 
+def test_an_iso_mme_header_may_hold_a_windows_1252_ellipsis(tmp_path, analytic):
+    """ISO-MME files are read as Latin-1, and their lines were split by ``str.splitlines``, which also breaks at
+    U+0085 (byte 0x85, the ellipsis of Windows-1252), form feeds and other control characters: a comment 'run 2 ...'
+    written by a Windows tool ended the header there, and the channel lost the header lines after it ('missing
+    header line 'Unit''). Lines end at line feeds and carriage returns only."""
+    from marlcrash.pulse import mme_channels
+
+    write_mme(analytic, tmp_path / "T", "T")
+    ref = read_mme(tmp_path / "T")
+    for f in sorted((tmp_path / "T" / "Channel").glob("T.00?")):
+        data = f.read_bytes()
+        f.write_bytes(data.replace(b"\n", b"\nComments                    :run 2\x85 again\x0c\n", 1))
+    got = read_mme(tmp_path / "T")
+    assert got.channels == ref.channels and np.array_equal(got.acc, ref.acc)
+    assert [c["unit"] for c in mme_channels(tmp_path / "T")] == ["g", "g"]
+
+
 def test_a_channel_whose_pulse_starts_before_its_onset_is_named_with_the_velocity_change_it_loses(tmp_path):
     """The tunnel of a lab export (10 kHz, 20 ms of rest, a 0.3 g offset, 0.1 g rms noise) decelerates at 1.5 g from
     the contact, its main pulse (20 g, 60 ms) 6 ms later. Read alone (``marlcrash pulse --acc-col``, a file of that

@@ -454,10 +454,19 @@ def _parse_header(path: Path, lines: list[str]) -> tuple[dict[str, tuple[str, in
     return header, start
 
 
+def _split_lines(text: str) -> list[str]:
+    """``text`` split at line feeds, carriage returns and CR LF pairs, as ``str.splitlines`` without its other breaks
+    (form feed, U+0085 ...): an ISO-MME file decoded as Latin-1 holds Windows-1252's ellipsis as U+0085."""
+    lines = text.replace("\r\n", "\n").replace("\r", "\n").split("\n")
+    if lines[-1] == "":
+        lines.pop()
+    return lines
+
+
 def _read_lines(path: Path) -> list[str]:
     try:
         # MME files come from many labs and tools; latin-1 never fails to decode.
-        return path.read_text(encoding="latin-1").splitlines()
+        return _split_lines(path.read_text(encoding="latin-1"))
     except OSError as e:
         raise _err(f"cannot read ({e.strerror})", path) from None
 
@@ -466,29 +475,25 @@ MME_HEADER_LINES = 200
 """Most lines of a channel file :func:`mme_channels` reads as its header (ISO-MME headers have a few dozen)."""
 
 
-_LINE_BREAK = re.compile(rb"[\n\r\x0b\x0c\x1c\x1d\x1e\x85]")
-"""The bytes at which ``str.splitlines`` breaks a latin-1 text (:func:`_read_lines`)."""
-
-
 def _read_header_lines(path: Path, most: int = MME_HEADER_LINES) -> list[str]:
     """The first lines of a channel file up to the first that is no ``Name :value`` line (the first sample), at
     most ``most``, as :func:`_read_lines` splits them: what :func:`_parse_header` reads, without reading the samples
     after it (a channel may hold millions)."""
     lines: list[str] = []
-    rest = b""  # the last line read so far, which may go on in the next chunk
+    rest = bytearray()  # the last line read so far, which may go on in the next chunk
     try:
         with path.open("rb") as f:
             while len(lines) < most and all(":" in s for s in lines):
                 chunk = f.read(16384)
                 if not chunk:
-                    lines += rest.decode("latin-1").splitlines()
+                    lines += _split_lines(rest.decode("latin-1"))
                     break
+                new = max(len(rest) - 1, 0)  # rest holds no line break but a last "\r", which may go on with "\n"
                 rest += chunk
-                if _LINE_BREAK.search(chunk) is None:
-                    continue
-                parts = rest.decode("latin-1").splitlines(keepends=True)
-                rest = parts.pop().encode("latin-1")  # "...\r" may be followed by "\n"
-                lines += [q.splitlines()[0] for q in parts]
+                end = max(rest.rfind(b"\n", new), rest.rfind(b"\r", new, len(rest) - 1))
+                if end >= 0:
+                    lines += _split_lines(rest[: end + 1].decode("latin-1"))
+                    del rest[: end + 1]
     except OSError as e:
         raise _err(f"cannot read ({e.strerror})", path) from None
     return lines[:most]
