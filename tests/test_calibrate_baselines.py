@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import re
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -372,3 +373,19 @@ def test_lm_on_a_float32_env_needs_a_finite_difference_step_above_its_rounding(p
         return float((jacobian(single, h) - exact).norm() / exact.norm())
 
     assert error(1e-5) > 1.0 and error(1e-3) < 0.2
+
+
+def test_cmaes_says_when_its_budget_cannot_complete_a_generation(problem):
+    """A budget below 1 + popsize (the amortized comparison's "cmaes 1x": 13 simulations, popsize 32) simulated the
+    start and part of one population and never told CMA-ES anything: a random sample around the start, reported as a
+    CMA-ES run without a word. It warns, naming the key and the budget, and the result counts the generations."""
+    config = CMAESConfig(popsize=16)
+    with pytest.warns(UserWarning, match=r"budget of 13 simulations .* cmaes\.popsize = 16 .* 1 \+ 16 = 17"):
+        short = BASELINES["cmaes"][1](problem, 13, config, 0)
+    assert short.simulations == 13 and short.generations == 0 and short.summary()["generations"] == 0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a budget that pays for a generation says nothing
+        full = BASELINES["cmaes"][1](problem, 1 + 16, config, 0)
+        partial = BASELINES["cmaes"][1](problem, 1 + 2 * 16 + 5, config, 0)  # the last 5 are no whole generation
+    assert full.generations == 1 and partial.generations == 2 and partial.summary()["generations"] == 2
+    assert BASELINES["random_search"][1](problem, 4, RandomSearchConfig(batch_size=2), 0).generations is None

@@ -13,6 +13,10 @@ and the first history row are measured, not assumed.
 - :func:`cmaes`: the ``cma`` package's ask/tell loop, one generation simulated as one batch,
   box bounds by its ``BoundTransform``; normal draws come from the run's numpy Generator
   (``cma``'s own seeding of the global RNG is switched off, and the global state is restored).
+  Only a whole population is told to CMA-ES: what is left of the budget after the last whole generation is
+  simulated (its candidates can still be the best) but updates nothing. A budget below ``1 + popsize``
+  completes no generation at all (a random sample around the start); the run warns, and
+  :attr:`CalibrationResult.generations` counts the generations completed.
 - :func:`gradient_descent`: projected Adam on the free log-scales of ``batch_size`` starting
   points at once (the first at ``x = 0``, the others uniform within ``start_radius``), loss
   :class:`~marlcrash.calibrate.problem.SmoothLoss` through the differentiable simulator (``backend``:
@@ -163,6 +167,8 @@ class CalibrationResult:
         sims_to_success: simulations until the first candidate passing the success test, else ``None``.
         param_error, initial_param_error: ``{sub-assembly: {E_x, E_s, transmission}}`` relative errors
             of ``best_x`` and of ``x = 0`` against a twin's truth (``None`` for other references).
+        generations: CMA-ES generations completed (whole populations told to it, over all restarts); ``None``
+            for the other methods.
     """
 
     method: str
@@ -179,6 +185,7 @@ class CalibrationResult:
     sims_to_success: int | None
     param_error: dict[str, dict[str, float]] | None = None
     initial_param_error: dict[str, dict[str, float]] | None = None
+    generations: int | None = None
 
     def summary(self) -> dict[str, Any]:
         """JSON-ready summary: metrics per sensor ``{area, dfd, rmse}`` (SI), budget use, errors."""
@@ -195,6 +202,8 @@ class CalibrationResult:
         if self.param_error is not None:
             out["param_error"] = self.param_error
             out["initial_param_error"] = self.initial_param_error
+        if self.generations is not None:
+            out["generations"] = self.generations
         return out
 
 
@@ -206,7 +215,9 @@ def _evaluate(problem: CalibrationProblem, progress: Progress, x: torch.Tensor) 
     return s
 
 
-def _finish(method: str, problem: CalibrationProblem, progress: Progress, initial: Metrics) -> CalibrationResult:
+def _finish(
+    method: str, problem: CalibrationProblem, progress: Progress, initial: Metrics, generations: int | None = None
+) -> CalibrationResult:
     best_x = progress.best_x
     x0 = problem.zeros(1)
     truth = problem.true_params is not None
@@ -225,6 +236,7 @@ def _finish(method: str, problem: CalibrationProblem, progress: Progress, initia
         sims_to_success=progress.sims_to_success,
         param_error=problem.param_error_table(best_x) if truth else None,
         initial_param_error=problem.param_error_table(x0[0]) if truth else None,
+        generations=generations,
     )
 
 
@@ -267,9 +279,20 @@ def random_search(
 def cmaes(
     problem: CalibrationProblem, budget: int, config: CMAESConfig, seed: int, stop_on_success: bool = False
 ) -> CalibrationResult:
-    """CMA-ES (``cma`` package) with one batched simulation per generation (module docstring)."""
+    """CMA-ES (``cma`` package) with one batched simulation per generation (module docstring).
+
+    Warns where ``budget`` cannot pay for the start and one whole population (``1 + popsize``).
+    """
     import cma
 
+    if budget < 1 + config.popsize:
+        warnings.warn(
+            f"cmaes: a budget of {budget} simulations cannot complete one generation of cmaes.popsize = "
+            f"{config.popsize} (that needs 1 + {config.popsize} = {1 + config.popsize}: the start, then a whole "
+            f"population); the run is {budget - 1} candidates drawn around the start, which CMA-ES never learns "
+            f"from (generations: 0). Give a budget of at least {1 + config.popsize} or a smaller cmaes.popsize",
+            stacklevel=2,
+        )
     rng = np.random.default_rng(seed)
     progress = Progress(budget, stop_on_success)
     initial = _start(problem, progress)
@@ -290,6 +313,7 @@ def cmaes(
     global_state = np.random.get_state()  # noqa: NPY002 -- restored below: cma must not disturb the global RNG
     try:
         es = cma.CMAEvolutionStrategy(np.zeros(lo.size), config.sigma0, opts)
+        generations = 0
         while not progress.done:
             if es.stop():
                 if not config.restarts:
@@ -301,9 +325,10 @@ def cmaes(
             if n == config.popsize:
                 f = -s.numpy()
                 es.tell(list(pop), np.where(np.isfinite(f), f, 1e30).tolist())
+                generations += 1
     finally:
         np.random.set_state(global_state)  # noqa: NPY002
-    return _finish("cmaes", problem, progress, initial)
+    return _finish("cmaes", problem, progress, initial, generations)
 
 
 def gradient_descent(
