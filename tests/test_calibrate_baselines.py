@@ -389,3 +389,24 @@ def test_cmaes_says_when_its_budget_cannot_complete_a_generation(problem):
         partial = BASELINES["cmaes"][1](problem, 1 + 2 * 16 + 5, config, 0)  # the last 5 are no whole generation
     assert full.generations == 1 and partial.generations == 2 and partial.summary()["generations"] == 2
     assert BASELINES["random_search"][1](problem, 4, RandomSearchConfig(batch_size=2), 0).generations is None
+
+
+@pytest.mark.parametrize(
+    ("over", "key", "bound"),
+    [
+        ({"cmaes": {"popsize": 10**9}}, "cmaes.popsize", "10000"),
+        ({"gradient": {"batch_size": 10**9}}, "gradient.batch_size", "10000"),
+        ({"gradient": {"threads": 10**6}}, "gradient.threads", "os.cpu_count"),
+    ],
+)
+def test_population_batch_and_thread_counts_have_an_upper_bound(over, key, bound):
+    """A population of 10**9 (one batched simulation, cma's arrays) or a gradient batch of 10**9 (its starting points
+    are drawn at once) ran out of memory deep inside cma or torch after the problem was built; 10**6 torch threads were
+    set as given. Refused at load, naming the key and the bound."""
+    with pytest.raises(ConfigError, match=re.escape(bound)) as e:
+        load_run_config(over)
+    assert e.value.key == key
+    import os
+
+    cpus = os.cpu_count() or 1
+    assert load_run_config({"cmaes": {"popsize": 10_000}, "gradient": {"threads": cpus, "batch_size": 10_000}})

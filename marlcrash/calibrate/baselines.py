@@ -67,6 +67,17 @@ from marlcrash.outputs import check_output_dir, json_text, require_run_name
 
 # ----------------------------------------------------------------------------------------- configs
 
+MAX_BATCH = 10_000
+"""Most candidates of one batched simulation a setting may ask for (``cmaes.popsize``, ``gradient.batch_size``) [-]:
+a batch is simulated at once (about 0.3 MB per candidate at the default 150 ms, more with gradients) and ``cma`` and
+the gradient's starting points hold arrays of it, so 10**9 ran out of memory deep inside them; 10,000 is far above any
+population CMA-ES is run with (its own default is ``4 + 3 ln n``, 18 for 127 free coordinates)."""
+
+
+def _max_threads() -> int:
+    """Most torch threads ``gradient.threads`` may ask for: this machine's CPUs (``os.cpu_count()``)."""
+    return os.cpu_count() or 1
+
 
 @dataclass
 class RandomSearchConfig:
@@ -96,7 +107,9 @@ class CMAESConfig:
     restarts: bool = True
 
     def validate(self) -> None:
-        require(self.popsize >= 2, "popsize", f"expected a population >= 2, got {self.popsize}")
+        require(2 <= self.popsize <= MAX_BATCH, "popsize",
+                f"expected a population in [2, {MAX_BATCH}] (one generation is one batched simulation; CMA-ES's "
+                f"own default is 4 + 3 ln n), got {self.popsize}")  # fmt: skip
         require(np.isfinite(self.sigma0) and self.sigma0 > 0, "sigma0", f"expected a step > 0, got {self.sigma0}")
 
 
@@ -114,12 +127,17 @@ class GradientConfig:
     loss: SmoothLoss = field(default_factory=SmoothLoss)
 
     def validate(self) -> None:
-        require(self.batch_size >= 1, "batch_size", f"expected >= 1 starting points, got {self.batch_size}")
+        require(1 <= self.batch_size <= MAX_BATCH, "batch_size",
+                f"expected [1, {MAX_BATCH}] starting points (each step simulates them in one batch; "
+                f"MAX_BATCH = {MAX_BATCH}), got {self.batch_size}")  # fmt: skip
         require(np.isfinite(self.lr) and self.lr > 0, "lr", f"expected a learning rate > 0, got {self.lr}")
         for k in ("beta1", "beta2"):
             require(0 <= getattr(self, k) < 1, k, f"expected a decay in [0, 1), got {getattr(self, k)}")
         require(self.start_radius >= 0, "start_radius", f"expected >= 0, got {self.start_radius}")
-        require(self.threads >= 0, "threads", f"expected a thread count >= 0 (0: torch's setting), got {self.threads}")
+        cpus = _max_threads()
+        require(0 <= self.threads <= cpus, "threads",
+                f"expected a thread count in [0, {cpus}] (0: torch's setting; {cpus} = os.cpu_count(), this "
+                f"machine's CPUs: more threads than CPUs only wait on each other), got {self.threads}")  # fmt: skip
         require(self.backend in ("adjoint", "torch"), "backend", f"expected adjoint or torch, got {self.backend!r}")
 
 
