@@ -410,3 +410,22 @@ def test_population_batch_and_thread_counts_have_an_upper_bound(over, key, bound
 
     cpus = os.cpu_count() or 1
     assert load_run_config({"cmaes": {"popsize": 10_000}, "gradient": {"threads": cpus, "batch_size": 10_000}})
+
+
+def test_lm_simulates_nothing_outside_a_box_narrower_than_its_finite_difference_step(problem, monkeypatch):
+    """``problem.box_radius`` below ``lm.fd_step`` (both valid): the finite-difference points stepped out of the box
+    by the whole step (to -1e-5 in a box of +-2e-6). Every candidate lm simulates is now inside it."""
+    narrow = build_problem(from_dict(ProblemConfig, {"duration": DURATION, "box_radius": 2e-6}), cells=problem.cells)
+    seen: list[torch.Tensor] = []
+    residuals = narrow.residuals
+
+    def watched(x):
+        seen.append(torch.as_tensor(x).clone())
+        return residuals(x)
+
+    monkeypatch.setattr(narrow, "residuals", watched)
+    result = BASELINES["lm"][1](narrow, 1 + 2 * (narrow.n_free + 6), LMConfig(iterations=2, restart_radius=0.0), 0)
+    x = torch.cat(seen)
+    assert x.shape[0] == result.simulations
+    outside = (x < narrow.lower) | (x > narrow.upper)
+    assert not bool(outside.any()), f"{int(outside.any(2).sum())} candidates outside the box, e.g. {x[outside][:3]}"

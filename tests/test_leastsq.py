@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import torch
 
-from marlcrash.calibrate.leastsq import damped_steps, lm_iteration
+from marlcrash.calibrate.leastsq import damped_steps, fd_points, jacobian, lm_iteration
 
 
 def _linear(seed: int = 0, n: int = 4, m: int = 20):
@@ -58,3 +58,41 @@ def test_damped_steps_never_propose_a_non_finite_candidate():
         assert bool(torch.isfinite(cand).all())
     # a Jacobian the pulses do not see at all, after the damping shrank far: no step (it raised a singular solve)
     torch.testing.assert_close(damped_steps(torch.zeros_like(a), r, z, 1e-12, lo, hi), z.expand(6, 4))
+
+
+def test_finite_difference_points_stay_in_a_box_narrower_than_the_step():
+    """Where the box is narrower than ``fd_step`` along a coordinate (``problem.box_radius`` below it), the backward
+    point left the box on the other side (``-1e-5`` in a box of ``+-2e-6``): lm simulated candidates outside its
+    search box. A step that fits neither way goes to the farther bound (a shorter one-sided step); a box of zero
+    width gives no step and a zero Jacobian column."""
+    f64 = torch.float64
+    lo, hi = torch.tensor([-2e-6, -2e-6, -2e-6, -2e-6, 0.0], dtype=f64), torch.tensor([2e-6] * 4 + [0.0], dtype=f64)
+    z = torch.tensor([0.0, 1.5e-6, -2e-6, 2e-6, 0.0], dtype=f64)
+    points, h = fd_points(z, lo, hi, 1e-5)
+    assert bool(((points >= lo) & (points <= hi)).all()), points
+    torch.testing.assert_close(h, torch.tensor([2e-6, -3.5e-6, 4e-6, -4e-6, 0.0], dtype=f64), rtol=0, atol=1e-20)
+    torch.testing.assert_close(points, z + torch.diag(h), rtol=0, atol=1e-20)
+    a = torch.arange(15, dtype=f64).reshape(3, 5)
+    jac = jacobian(points @ a.T, z @ a.T, h)
+    assert bool(torch.isfinite(jac).all()) and bool((jac[:, 4] == 0).all())
+    torch.testing.assert_close(jac[:, :4], a[:, :4])
+    # a box wider than twice the step: forward, or backward at the upper bound, exactly as before
+    lo, hi = -torch.ones(3, dtype=f64), torch.ones(3, dtype=f64)
+    z = torch.tensor([0.3, 1.0 - 1e-6, -1.0], dtype=f64)
+    points, h = fd_points(z, lo, hi, 1e-5)
+    assert torch.equal(h, torch.tensor([1e-5, -1e-5, 1e-5], dtype=f64)) and torch.equal(points, z + torch.diag(h))
+
+
+def test_an_iteration_in_a_narrow_box_simulates_only_points_inside_it():
+    a, truth, _ = _linear()
+    lo, hi = torch.full((4,), -3e-6, dtype=torch.float64), torch.full((4,), 3e-6, dtype=torch.float64)
+    simulated = []
+
+    def run(zs):
+        simulated.append(zs.clone())
+        return (zs - truth) @ a.T, None
+
+    z = torch.tensor([0.0, 3e-6, -3e-6, 1e-6], dtype=torch.float64)
+    lm_iteration(run, z, run(z[None])[0][0], 1e-6, lo, hi, 1e-5)
+    zs = torch.cat(simulated)
+    assert bool(((zs >= lo) & (zs <= hi)).all()), zs

@@ -418,10 +418,10 @@ def sensitivity_spectrum(
     if not b or any(not 0 < v < 1 for v in b) or any(a <= c for a, c in itertools.pairwise(b)):
         raise ConfigError(f"expected decreasing thresholds in (0, 1), got {bands}", key="bands")
     before = problem.n_simulations
-    hi = problem.flat_box()[1]
+    lo, hi = problem.flat_box()
     z = problem.flat(problem.clip(problem.check_x(x)))[0]
     r0 = problem.residuals(problem.unflat(z[None]))[0].reshape(-1)
-    points, h = fd_points(z, hi, fd_step)
+    points, h = fd_points(z, lo, hi, fd_step)
     r_fd = problem.residuals(problem.unflat(points))[0].reshape(len(h), -1)
     jac = jacobian(r_fd, r0, h)
     _, s, vt = torch.linalg.svd(jac, full_matrices=True)  # vt [n, n]: with fewer residuals than n, the rest is null

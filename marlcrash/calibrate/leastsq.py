@@ -6,7 +6,8 @@ output samples of a window, so the cost ``|r|^2`` is the summed ``integral (v - 
 One iteration:
 
 1. :func:`fd_points`: a forward finite-difference Jacobian over the ``n`` free log-scale
-   coordinates, ``n`` simulations in one batch (backward at the upper bound of the box; the
+   coordinates, ``n`` simulations in one batch (backward at the upper bound of the box, a shorter
+   one-sided step where the box is narrower than the step: every point stays in the box; the
    current point's residual is reused).
 2. :func:`damped_steps`: candidates ``z + s(lambda f)`` for the damping factors ``f`` of
    ``STEP_FACTORS`` in one more batch, ``s`` solving ``(J^T J + lambda f D) s = -J^T r``, clipped
@@ -66,18 +67,29 @@ def check_fd_step(fd_step: float, sim_dtype: str, key: str, source: str | None =
         )
 
 
-def fd_points(z: torch.Tensor, hi: torch.Tensor, fd_step: float) -> tuple[torch.Tensor, torch.Tensor]:
-    """Finite-difference points ``[n, n]`` around ``z [n]`` and their signed steps ``h [n]``.
+def fd_points(z: torch.Tensor, lo: torch.Tensor, hi: torch.Tensor, fd_step: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """Finite-difference points ``[n, n]`` around ``z [n]`` (in the box ``[lo, hi]``) and their signed steps ``h [n]``.
 
-    Row ``i`` is ``z + h_i e_i``; ``h_i = fd_step``, or ``-fd_step`` where that would leave the box.
+    Row ``i`` is ``z + h_i e_i``, inside the box: ``h_i = fd_step``, or ``-fd_step`` where that would leave the box
+    above; where neither fits (a box narrower than ``fd_step`` along ``i``: the whole step backward left it below)
+    the point is the farther bound, a shorter one-sided step, and ``h_i = 0`` where the box has no width there
+    (:func:`jacobian` gives that column zero).
     """
-    h = torch.where(z + fd_step > hi, -fd_step, fd_step)
-    return z + torch.diag(h), h
+    fwd = z + fd_step <= hi
+    bwd = ~fwd & (z - fd_step >= lo)
+    edge = torch.where(hi - z >= z - lo, hi, lo)  # the farther bound
+    point = torch.where(fwd, z + fd_step, torch.where(bwd, z - fd_step, edge))
+    h = torch.where(fwd, fd_step, torch.where(bwd, -fd_step, edge - z))
+    points = z.expand(z.numel(), -1).clone()
+    points.diagonal().copy_(point)
+    return points, h
 
 
 def jacobian(r_fd: torch.Tensor, r: torch.Tensor, h: torch.Tensor) -> torch.Tensor:
-    """``[m, n]`` Jacobian from the residuals ``r_fd [n, m]`` of :func:`fd_points` and ``r [m]`` at ``z``."""
-    return (r_fd - r).T / h
+    """``[m, n]`` Jacobian from the residuals ``r_fd [n, m]`` of :func:`fd_points` and ``r [m]`` at ``z`` (a zero
+    column where ``h`` is zero: a coordinate whose box has no width)."""
+    moved = h != 0
+    return torch.where(moved, (r_fd - r).T / torch.where(moved, h, torch.ones_like(h)), 0.0)
 
 
 def damped_steps(
@@ -138,7 +150,7 @@ def lm_iteration(
     (``aux``); it is called twice, for the ``n`` finite-difference points and the ``len(STEP_FACTORS)``
     candidates.
     """
-    points, h = fd_points(z, hi, fd_step)
+    points, h = fd_points(z, lo, hi, fd_step)
     r_fd, _ = run(points)
     cand = damped_steps(jacobian(r_fd, r, h), r, z, lam, lo, hi)
     r_c, aux = run(cand)
