@@ -4,7 +4,8 @@
 where a path can never be written (its folder is missing or not writable, it names a folder, a file stands where
 a folder must be). :func:`atomic_output` writes through a temporary sibling that replaces the target only once it
 is complete and is removed if writing fails, so an interrupted or failed write leaves neither a partial file nor a
-stray one. :func:`read_npz` reads a ``.npz`` file back, saying in words what is wrong with a damaged or foreign one.
+stray one; :func:`sync_folder` puts a folder assembled that way on disk before it is renamed into place.
+:func:`read_npz` reads a ``.npz`` file back, saying in words what is wrong with a damaged or foreign one.
 """
 
 from __future__ import annotations
@@ -170,6 +171,29 @@ def _new_sibling(final: Path) -> Path:
             raise OSError(e.errno, f"cannot write {final}: {e.strerror or e}", str(final)) from e
         return tmp
     raise FileExistsError(errno.EEXIST, f"cannot write {final}: no free temporary name beside it", str(final))
+
+
+def sync_folder(folder: str | Path, files: bool = True) -> None:
+    """Flush ``folder``'s own entries to disk and, with ``files``, every file directly in it first: before a folder
+    assembled beside its final name is renamed there (a system crash after the rename then leaves the old state or
+    the whole new folder, never empty files), and after, on its parent (the rename itself).
+
+    A file system that cannot flush a folder (``EINVAL``, ``ENOTSUP``: some network and virtual ones) is skipped.
+    """
+    folder = Path(folder)
+    if files:
+        for p in sorted(folder.iterdir()):
+            if p.is_file() and not p.is_symlink():
+                with open(p, "rb") as fh:
+                    os.fsync(fh.fileno())
+    fd = os.open(folder, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    except OSError as e:
+        if e.errno not in (errno.EINVAL, errno.ENOTSUP):
+            raise
+    finally:
+        os.close(fd)
 
 
 _ZIP_STARTS = (b"PK\x03\x04", b"PK\x05\x06")  # a zip's first member, or an empty zip

@@ -429,3 +429,72 @@ def test_lm_simulates_nothing_outside_a_box_narrower_than_its_finite_difference_
     assert x.shape[0] == result.simulations
     outside = (x < narrow.lower) | (x > narrow.upper)
     assert not bool(outside.any()), f"{int(outside.any(2).sum())} candidates outside the box, e.g. {x[outside][:3]}"
+
+
+def _small_run(tmp_path, name, plot):
+    from marlcrash.calibrate import build_problem
+    from marlcrash.calibrate.baselines import BaselineRunConfig
+
+    cfg = BaselineRunConfig(method="random_search", name=name, out_dir=str(tmp_path / "runs"), plot=plot,
+                            problem=ProblemConfig(duration=0.01))  # fmt: skip
+    problem = build_problem(cfg.problem)
+    return cfg, problem, BASELINES["random_search"][1](problem, 2, RandomSearchConfig(batch_size=2), 0)
+
+
+RESULT_FILES = ["best.pt", "config.json", "history.csv", "provenance.json", "summary.json"]
+
+
+def test_a_baseline_run_folder_is_on_disk_before_its_name_points_at_it(tmp_path, monkeypatch):
+    """The files were written and the folder renamed into place without an fsync: a system crash after the rename
+    could leave a run folder of empty files, after the whole budget was spent."""
+    import os
+
+    from marlcrash.calibrate import write_run
+
+    if not Path("/proc/self/fd").is_dir():
+        pytest.skip("needs /proc/self/fd to name a file descriptor")
+    events: list[tuple[str, str]] = []
+    fsync, replace = os.fsync, os.replace
+
+    def synced(fd):
+        events.append(("fsync", os.readlink(f"/proc/self/fd/{fd}")))
+        return fsync(fd)
+
+    def renamed(src, dst):
+        events.append(("replace", str(Path(src).resolve())))
+        return replace(src, dst)
+
+    cfg, problem, result = _small_run(tmp_path, "sync", plot=False)
+    monkeypatch.setattr(os, "fsync", synced)
+    monkeypatch.setattr(os, "replace", renamed)
+    folder = write_run(cfg, problem, result)
+    monkeypatch.undo()
+    assert sorted(p.name for p in folder.iterdir()) == RESULT_FILES
+    (move,) = [i for i, (what, _) in enumerate(events) if what == "replace"]
+    tmp = Path(events[move][1])
+    before = {Path(p) for what, p in events[:move] if what == "fsync"}
+    assert {tmp / f for f in RESULT_FILES} | {tmp} <= before, events
+    assert ("fsync", str(folder.parent.resolve())) in events[move:]  # the rename itself
+
+
+def test_a_plot_that_fails_keeps_the_baseline_results(tmp_path, monkeypatch):
+    """The plot was drawn before the folder was renamed into place, so a plotting failure (matplotlib, a backend, the
+    re-simulation) discarded a run whose budget was spent. The results are written first; the failure is a warning
+    naming the file."""
+    from marlcrash.calibrate import baselines, write_run
+
+    def broken(problem, result, path):
+        Path(path).write_bytes(b"half a png")
+        raise RuntimeError("no font cache")
+
+    cfg, problem, result = _small_run(tmp_path, "plotfail", plot=True)
+    monkeypatch.setattr(baselines, "plot_velocities", broken)
+    failed = r"velocity\.png was not written: plotting failed \(RuntimeError: no font cache\)"
+    with pytest.warns(UserWarning, match=failed):
+        folder = write_run(cfg, problem, result)
+    assert sorted(p.name for p in folder.iterdir()) == RESULT_FILES  # no partial plot, no temporary file
+    assert (folder / "summary.json").stat().st_size > 100
+    assert sorted(p.name for p in folder.parent.iterdir()) == ["plotfail"]
+    monkeypatch.undo()
+    cfg, problem, result = _small_run(tmp_path, "plotted", plot=True)
+    assert (write_run(cfg, problem, result) / "velocity.png").stat().st_size > 1000

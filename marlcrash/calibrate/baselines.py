@@ -63,7 +63,7 @@ from marlcrash.calibrate.runlock import claim_dir
 from marlcrash.config import from_dict, nested_error, require, require_complete, require_seed
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics
-from marlcrash.outputs import check_output_dir, json_text, require_run_name
+from marlcrash.outputs import atomic_output, check_output_dir, json_text, require_run_name, sync_folder
 
 # ----------------------------------------------------------------------------------------- configs
 
@@ -666,13 +666,16 @@ def write_run(
     result: CalibrationResult,
     record: dict[str, Any] | None = None,
 ) -> Path:
-    """Write ``<out_dir>/<method>/<name>/``: ``summary.json``, ``history.csv``, ``velocity.png``, ``config.json``,
-    ``provenance.json`` (``record``: :func:`run_record` taken when the run started; default: now).
+    """Write ``<out_dir>/<method>/<name>/``: ``summary.json``, ``history.csv``, ``best.pt``, ``config.json``,
+    ``provenance.json`` (``record``: :func:`run_record` taken when the run started; default: now), then
+    ``velocity.png``.
 
-    The folder is assembled in a temporary sibling and renamed into place, so a failed run
-    leaves nothing half-written. Where another run took the folder's name while this one ran (two runs of one
-    name, or of the default launch-second name, at once), the results go to the first free ``<name>-<n>`` beside
-    it, with a warning, rather than being lost after the budget was spent.
+    The results are assembled in a temporary sibling, flushed to disk and renamed into place, so a failed run
+    leaves nothing half-written and a system crash after the rename cannot leave empty files. Where another run
+    took the folder's name while this one ran (two runs of one name, or of the default launch-second name, at
+    once), the results go to the first free ``<name>-<n>`` beside it, with a warning, rather than being lost after
+    the budget was spent. The plot (``config.plot``) is drawn into the written folder afterwards: a plotting
+    failure is a warning naming the file, never the loss of the results.
 
     Returns:
         The run folder written.
@@ -696,8 +699,7 @@ def write_run(
         (tmp / provenance.PROVENANCE_FILE).write_text(json.dumps(rec, indent=1))
         write_history_csv(result, tmp / "history.csv")
         torch.save({"best_x": result.best_x, "best_params": result.best_params}, tmp / "best.pt")
-        if config.plot:
-            plot_velocities(problem, result, tmp / "velocity.png")
+        sync_folder(tmp)  # on disk before a name points at it
         final = _claim_free(final)
         try:
             os.replace(tmp, final)  # onto the empty folder just claimed
@@ -707,7 +709,20 @@ def write_run(
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+    sync_folder(final.parent, files=False)  # the rename
+    if config.plot:
+        _plot_into(problem, result, final / "velocity.png")
     return final
+
+
+def _plot_into(problem: CalibrationProblem, result: CalibrationResult, path: Path) -> None:
+    """:func:`plot_velocities` to ``path`` (whole or not at all); a failure is a warning naming the file."""
+    try:
+        with atomic_output(path) as tmp:
+            plot_velocities(problem, result, tmp)
+    except Exception as e:  # matplotlib, its backend, the re-simulation: the written results stay
+        warnings.warn(f"{path} was not written: plotting failed ({type(e).__name__}: {e}); the run's results are "
+                      f"in {path.parent}", stacklevel=3)  # fmt: skip
 
 
 def _temporary_sibling(folder: Path) -> Path:
