@@ -15,7 +15,7 @@ import json
 import math
 import os
 import secrets
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -155,22 +155,41 @@ def atomic_output(path: str | Path, key: str | None = None) -> Iterator[Path]:
         tmp.unlink(missing_ok=True)
 
 
+def new_sibling(target: Path, name: Callable[[str], str], create: Callable[[Path], bool]) -> Path:
+    """A new hidden temporary entry beside ``target`` that no other writer has: the first of up to 100 random names
+    ``name(token)`` (``token``: 8 hex digits) that ``create`` makes, in one step that fails where the name exists
+    (``create`` returns False where it is taken, True where it made it).
+
+    :func:`atomic_output` makes an empty file with it, ``write_run`` of the baselines a folder.
+
+    Raises:
+        FileExistsError: every name tried was taken; the message and ``filename`` name ``target``.
+        OSError: what ``create`` raises.
+    """
+    for _ in range(100):
+        tmp = target.with_name(name(secrets.token_hex(4)))
+        if create(tmp):
+            return tmp
+    raise FileExistsError(errno.EEXIST, f"cannot write {target}: no free temporary name beside it", str(target))
+
+
 def _new_sibling(final: Path) -> Path:
     """Create an empty, hidden temporary file beside ``final`` that no other writer has (:func:`atomic_output`).
 
     Raises:
         OSError: it cannot be created; the message and ``filename`` name ``final``.
     """
-    for _ in range(100):
-        tmp = final.with_name(f".{final.stem}.{secrets.token_hex(4)}.tmp{final.suffix}")
+
+    def create(tmp: Path) -> bool:
         try:
             os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
         except FileExistsError:
-            continue
+            return False
         except OSError as e:
             raise OSError(e.errno, f"cannot write {final}: {e.strerror or e}", str(final)) from e
-        return tmp
-    raise FileExistsError(errno.EEXIST, f"cannot write {final}: no free temporary name beside it", str(final))
+        return True
+
+    return new_sibling(final, lambda token: f".{final.stem}.{token}.tmp{final.suffix}", create)
 
 
 def sync_folder(folder: str | Path, files: bool = True) -> None:

@@ -43,7 +43,6 @@ import csv
 import itertools
 import json
 import os
-import secrets
 import shutil
 import warnings
 from collections.abc import Callable
@@ -63,7 +62,14 @@ from marlcrash.calibrate.runlock import claim_dir
 from marlcrash.config import from_dict, nested_error, require, require_complete, require_seed
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics
-from marlcrash.outputs import atomic_output, check_output_dir, json_text, require_run_name, sync_folder
+from marlcrash.outputs import (
+    atomic_output,
+    check_output_dir,
+    json_text,
+    new_sibling,
+    require_run_name,
+    sync_folder,
+)
 
 # ----------------------------------------------------------------------------------------- configs
 
@@ -726,14 +732,10 @@ def _plot_into(problem: CalibrationProblem, result: CalibrationResult, path: Pat
 
 
 def _temporary_sibling(folder: Path) -> Path:
-    """A new hidden folder beside ``folder`` with the mode ``mkdir`` gives every other folder (``0o777`` less the
-    umask): ``tempfile.mkdtemp`` made it ``0o700``, and renamed into place it kept nobody else out of a run whose
-    files they could read."""
-    for _ in range(100):
-        tmp = folder.with_name(f".{folder.name}.{secrets.token_hex(4)}")
-        if claim_dir(tmp):
-            return tmp
-    raise FileExistsError(f"no free temporary folder name beside {folder}")
+    """A new hidden folder beside ``folder`` (:func:`marlcrash.outputs.new_sibling`) with the mode ``mkdir`` gives
+    every other folder (``0o777`` less the umask): ``tempfile.mkdtemp`` made it ``0o700``, and renamed into place it
+    kept nobody else out of a run whose files they could read."""
+    return new_sibling(folder, lambda token: f".{folder.name}.{token}", claim_dir)
 
 
 def _claim_free(folder: Path) -> Path:
