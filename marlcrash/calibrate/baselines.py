@@ -80,9 +80,10 @@ the gradient's starting points hold arrays of it, so 10**9 ran out of memory dee
 population CMA-ES is run with (its own default is ``4 + 3 ln n``, 18 for 127 free coordinates)."""
 
 
-def _max_threads() -> int:
-    """Most torch threads ``gradient.threads`` may ask for: this machine's CPUs (``os.cpu_count()``)."""
-    return os.cpu_count() or 1
+MAX_THREADS = 1024
+"""Most torch threads ``gradient.threads`` may ask for [-]: a fixed bound, not this machine's CPU count, so that a
+config written on one machine loads on another; torch starts a pool of that many threads as asked (10**6 were set as
+given). More threads than CPUs only wait on each other: 1 is fastest for the small tensors here."""
 
 
 @dataclass
@@ -140,10 +141,9 @@ class GradientConfig:
         for k in ("beta1", "beta2"):
             require(0 <= getattr(self, k) < 1, k, f"expected a decay in [0, 1), got {getattr(self, k)}")
         require(self.start_radius >= 0, "start_radius", f"expected >= 0, got {self.start_radius}")
-        cpus = _max_threads()
-        require(0 <= self.threads <= cpus, "threads",
-                f"expected a thread count in [0, {cpus}] (0: torch's setting; {cpus} = os.cpu_count(), this "
-                f"machine's CPUs: more threads than CPUs only wait on each other), got {self.threads}")  # fmt: skip
+        require(0 <= self.threads <= MAX_THREADS, "threads",
+                f"expected a thread count in [0, {MAX_THREADS}] (0: torch's setting; MAX_THREADS = {MAX_THREADS}), "
+                f"got {self.threads}")  # fmt: skip
         require(self.backend in ("adjoint", "torch"), "backend", f"expected adjoint or torch, got {self.backend!r}")
 
 
