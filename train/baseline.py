@@ -4,7 +4,7 @@
     python train/baseline.py method=gradient problem.duration=0.05 gradient.lr=0.01 name=try1
     python train/baseline.py method=lm budget=20000 lm.restart_radius=0.1
 
-Writes ``<out_dir>/<method>/<name>/``: summary.json, history.csv, config.json, best.pt, velocity.png.
+Writes ``<out_dir>/<method>/<name>/``: summary.json, history.csv, config.json, provenance.json, best.pt, velocity.png.
 """
 
 from __future__ import annotations

@@ -9,7 +9,7 @@ and the first history row are measured, not assumed.
 
 - :func:`random_search`: batches drawn uniformly in a box around the best point so far
   (``recenter``), the box shrinking by ``shrink`` after a batch without improvement; with
-  ``recenter: false`` and ``shrink: 1`` it is pure uniform sampling of the search box.
+  ``recenter: false`` it is pure uniform sampling of the search box (``shrink`` then has no effect).
 - :func:`cmaes`: the ``cma`` package's ask/tell loop, one generation simulated as one batch,
   box bounds by its ``BoundTransform``; normal draws come from the run's numpy Generator
   (``cma``'s own seeding of the global RNG is switched off, and the global state is restored).
