@@ -591,6 +591,29 @@ def test_csv_dialects_of_spreadsheets_and_lab_tools(tmp_path, analytic):
         read_csv(mixed)
 
 
+def test_a_csv_line_ends_at_line_feeds_and_carriage_returns_only(tmp_path, analytic):
+    """The CSV reader split its lines with ``str.splitlines``, which also breaks at form feeds, U+0085, U+2028 and
+    other separators: a comment holding one ('# rig 2<U+2028>second take') went on as a line without '#', which was
+    taken for the header ('expected a header with at least two columns'); a form feed in a row split it into two
+    ragged rows. Lines end at line feeds, carriage returns and CR LF, as an ISO-MME file's do."""
+    ref = read_csv(_write_plain(tmp_path / "plain.csv", analytic))
+    rows = _plain_rows(analytic).splitlines(keepends=True)
+    for sep in ("\x0c", "\x85", "\u2028", "\u2029", "\x1c", "\x0b"):
+        text = (
+            f"# rig 2{sep}second take\r\ntime,acc\n"
+            + "".join(rows[:5])
+            + rows[5].replace(",", f",{sep}")
+            + "".join(rows[6:])
+        )
+        for codec in ("utf-8", "utf-16"):
+            f = tmp_path / f"sep-{ord(sep)}-{codec}.csv"
+            f.write_bytes(text.encode(codec))
+            p = read_csv(f)
+            assert p.channels == ("acc",)
+            np.testing.assert_array_equal(p.acc, ref.acc)
+            np.testing.assert_array_equal(p.time, ref.time)
+
+
 def _plain_rows(pulse: Pulse) -> str:
     return "".join(f"{t:.9f},{a / 9.80665:.9f}\n" for t, a in zip(pulse.time, pulse.acc[0], strict=True))
 

@@ -365,7 +365,8 @@ def _csv_column(header: list[str], name: str, path: Path, line: int) -> int:
 def _read_text_lines(path: Path) -> list[str]:
     """The lines of a text file: UTF-8 (with or without a byte-order mark) or UTF-16/32 with one; a line that is not
     UTF-8 is read as Windows-1252 / Latin-1, the encodings lab and spreadsheet exports use (``m/s²`` in a header
-    must not turn into a replacement character)."""
+    must not turn into a replacement character). Lines end at line feeds, carriage returns and CR LF
+    (:func:`_split_lines`), not at the form feeds, U+0085 or U+2028 that ``str.splitlines`` also breaks at."""
     try:
         raw = path.read_bytes()
     except OSError as e:
@@ -379,12 +380,12 @@ def _read_text_lines(path: Path) -> list[str]:
     ):  # Excel's "Unicode Text" is UTF-16 with its byte-order mark
         if raw.startswith(bom):
             try:
-                return raw.decode(codec).splitlines()
+                return _split_lines(raw.decode(codec))
             except UnicodeDecodeError as e:
                 raise _err(f"starts with a {codec.upper()} byte-order mark but is not {codec.upper()} text "
                            f"({e.reason})", path) from None  # fmt: skip
     try:
-        return raw.decode("utf-8").splitlines()
+        return _split_lines(raw.decode("utf-8"))
     except UnicodeDecodeError:  # line by line: one Latin-1 comment must not turn a UTF-8 header into mojibake
         return [_decode_line(b) for b in raw.splitlines()]
 
@@ -456,7 +457,8 @@ def _parse_header(path: Path, lines: list[str]) -> tuple[dict[str, tuple[str, in
 
 def _split_lines(text: str) -> list[str]:
     """``text`` split at line feeds, carriage returns and CR LF pairs, as ``str.splitlines`` without its other breaks
-    (form feed, U+0085 ...): an ISO-MME file decoded as Latin-1 holds Windows-1252's ellipsis as U+0085."""
+    (form feed, U+0085, U+2028 ...): an ISO-MME file decoded as Latin-1 holds Windows-1252's ellipsis as U+0085, and
+    a CSV comment or cell may hold any of them. CSV and ISO-MME lines alike."""
     lines = text.replace("\r\n", "\n").replace("\r", "\n").split("\n")
     if lines[-1] == "":
         lines.pop()
