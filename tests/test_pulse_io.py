@@ -78,6 +78,25 @@ def test_mme_round_trip_delta_v_within_one_percent(tmp_path, analytic):
     assert one.channels == ("radsup",)
 
 
+def test_mme_header_text_outside_latin_1_is_refused_naming_the_field(tmp_path, analytic):
+    """ISO-MME files are written and read in Latin-1 (ISO 8859-1). A channel name read from a UTF-8 CSV header
+    ('a_x Σ') crashed ``write_mme`` with a bare UnicodeEncodeError, after the .mme file was written; a name holding a
+    line break wrote a file whose header ended there. Both are refused, naming the channel and the character, before
+    anything is written; a Latin-1 name ('Beschl. m/s²') is written and read back."""
+    greek = Pulse(analytic.time, analytic.acc, ("tunnel", "a_x \u03a3"))
+    with pytest.raises(PulseError, match=r"channel 2 name 'a_x Σ': 'Σ' \(U\+03A3\) is not a Latin-1 character"):
+        write_mme(greek, tmp_path / "G", "G")
+    assert not (tmp_path / "G").exists()
+    with pytest.raises(PulseError, match=r"test name 'T\u2013 1': '\u2013' \(U\+2013\) is not a Latin-1"):
+        write_mme(analytic, tmp_path / "D", "T\u2013 1")
+    broken = Pulse(analytic.time, analytic.acc, ("tunnel", "rad\nsup"))
+    with pytest.raises(PulseError, match=r"channel 2 name 'rad\\nsup': '\\n' \(U\+000A\) is a line break"):
+        write_mme(broken, tmp_path / "B", "B")
+    latin = Pulse(analytic.time, analytic.acc, ("tunnel", "Beschl. m/s²"))
+    write_mme(latin, tmp_path / "L", "Prüfung")
+    assert read_mme(tmp_path / "L").channels == ("tunnel", "Beschl. m/s²")
+
+
 def test_committed_csv_and_mme_examples_agree_and_give_40_kmh():
     csv = read_pulse(DATA / "halfsine_40kmh.csv")
     mme = read_pulse(DATA / "HS40")

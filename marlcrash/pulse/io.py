@@ -733,6 +733,19 @@ def _read_mme(
     return Pulse(time=time, acc=acc, channels=names, source=str(mme))
 
 
+def _mme_text(text: str, what: str) -> None:
+    """Refuse header text that an ISO-MME file, Latin-1 (ISO 8859-1) text of one ``Name :value`` per line, cannot
+    hold: a character outside Latin-1, or a line break (which would end the header line there)."""
+    for ch in text:
+        if ch in "\n\r":
+            why = "is a line break, which would end the header line there"
+        elif ord(ch) > 0xFF:
+            why = "is not a Latin-1 character; ISO-MME files are Latin-1 (ISO 8859-1) text"
+        else:
+            continue
+        raise PulseError(f"write_mme: {what} {text!r}: {ch!r} (U+{ord(ch):04X}) {why}; rename it")
+
+
 def write_mme(pulse: Pulse, folder: str | Path, test: str = "TEST", *, unit: str = "g") -> Path:
     """Write a uniformly sampled pulse as an ISO-MME test folder that :func:`read_mme` reads.
 
@@ -744,10 +757,18 @@ def write_mme(pulse: Pulse, folder: str | Path, test: str = "TEST", *, unit: str
 
     Returns:
         The path of ``<folder>/<test>.mme``.
+
+    Raises:
+        PulseError: non-uniform sampling, an unknown unit, or a test or channel name that an ISO-MME file cannot hold
+            (a character outside Latin-1, or a line break), naming it and the character; nothing is written then.
     """
     if not pulse.is_uniform:
         raise PulseError("ISO-MME needs uniform sampling; resample the pulse first")
     factor = acc_unit_factor(unit)
+    _mme_text(test, "test name")  # everything written is checked before anything is
+    _mme_text(unit, "unit")
+    for k, name in enumerate(pulse.channels, start=1):
+        _mme_text(name, f"channel {k} name")
     folder = Path(folder)
     chan_dir = folder / "Channel"
     chan_dir.mkdir(parents=True, exist_ok=True)
