@@ -97,6 +97,19 @@ def test_mme_header_text_outside_latin_1_is_refused_naming_the_field(tmp_path, a
     assert read_mme(tmp_path / "L").channels == ("tunnel", "Beschl. m/s²")
 
 
+def test_write_mme_refuses_more_channels_than_its_files_can_number(tmp_path):
+    """Channel files are numbered with three digits, ``<test>.001`` to ``<test>.999``, the files ``read_mme`` finds.
+    A pulse of 1000 channels was written with a 1000th file ``T.1000``, which ``read_mme`` does not read: 999
+    channels came back without a word. It is refused before anything is written; 999 channels round-trip."""
+    t = np.arange(8) * 1e-4  # the fewest samples a pulse may have
+    many = Pulse(t, np.ones((1000, t.size)), tuple(f"c{i}" for i in range(1000)))
+    with pytest.raises(PulseError, match=r"1000 channels; ISO-MME numbers its channel files \.001 to \.999"):
+        write_mme(many, tmp_path / "M", "M")
+    assert not (tmp_path / "M").exists()
+    write_mme(many.select(list(range(999))), tmp_path / "N", "N")
+    assert read_mme(tmp_path / "N").channels == many.channels[:999]
+
+
 def test_committed_csv_and_mme_examples_agree_and_give_40_kmh():
     csv = read_pulse(DATA / "halfsine_40kmh.csv")
     mme = read_pulse(DATA / "HS40")
