@@ -37,6 +37,7 @@ class LinearToy:
         self.free[2, 4:] = False
         self.true_x = torch.full((3, 7), 0.1, dtype=torch.float64) * self.free if truth else None
         self.success_cfg = TerminationConfig(success_area=0.05, success_dfd=None, success_rmse=None)
+        self.sim = SimpleNamespace(config=SimpleNamespace(dtype="float64"))  # what the radius check reads
 
     def clip(self, x):
         return torch.where(self.free, x.clamp(-1.0, 1.0), 0.0)
@@ -110,6 +111,38 @@ def test_real_problem_is_exact_at_the_truth_and_worsens_away_from_it():
     assert max(max(v) for v in res["at_truth"].values()) < 1e-12
     area = res["groups"]["all"]["area"]
     assert 0 < area[0] < 1e-4 < area[1]
+
+
+def test_radii_of_a_float32_problem_must_rise_above_its_rounding():
+    """A float32 simulation's rounding swamps the pulse change of a parameter change below
+    :data:`~marlcrash.calibrate.leastsq.FLOAT32_FD_STEP`, as it swamps a finite difference. On the full-width twin
+    (150 ms) moving E_x by r = 1e-6 and 1e-5 gave float32 areas 23x and 5x float64's, and the slope 0.3-0.4 where
+    float64's is 1.00: the module's sign that "the pulse jumps", read off rounding. ``truth_neighbourhood`` and
+    ``cluster_sensor_study`` ran such radii (the defaults) without a word; they now refuse them on a float32
+    problem (key ``radii``) before any simulation, as ``local_fit`` refuses such an ``fd_step``."""
+    radii = [1e-6, 1e-5, 1e-3]
+    area = {}
+    for dtype in ("float64", "float32"):
+        p = build_problem(ProblemConfig(env_overrides={"sim_dtype": dtype}))
+        m = p.evaluate(neighbourhood_points(p, radii, "E_x", draws=2, seed=0))
+        area[dtype] = m.area.amax(-1).reshape(len(radii), 2).median(dim=1).values.tolist()
+    assert loglog_slopes(radii[:2], area["float64"][:2])[0] == pytest.approx(1.0, abs=0.05)
+    assert loglog_slopes(radii[:2], area["float32"][:2])[0] < 0.7  # rounding, not the landscape
+    assert area["float32"][0] > 3 * area["float64"][0]
+    assert area["float32"][2] == pytest.approx(area["float64"][2], rel=0.05)  # at the floor: the landscape again
+
+    problem = build_problem(ProblemConfig(duration=SHORT_DURATION, env_overrides={"sim_dtype": "float32"}))
+    for run in (
+        lambda **kw: truth_neighbourhood(problem, **kw),
+        lambda **kw: cluster_sensor_study(problem, cluster_radii=[0.0], **kw),
+    ):
+        for kw in ({}, {"radii": [5e-4, 1e-2]}):
+            with pytest.raises(ConfigError, match=r"float32 .* radii of at least 0\.001") as e:
+                run(**kw)
+            assert e.value.key == "radii"
+    assert problem.n_simulations == 0
+    res = truth_neighbourhood(problem, [1e-3, 1e-2], groups=["E_x"], draws=1)
+    assert len(res["groups"]["E_x"]["slope"]) == 1
 
 
 def test_script_prints_json():

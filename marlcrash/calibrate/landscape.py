@@ -14,6 +14,12 @@ success test. Two figures answer whether a threshold is reachable:
   small radii means the pulse jumps (discrete events such as a cell bottoming out one explicit
   step earlier), so no calibrator gets below that floor by refining its parameters.
 
+A ``float32`` problem (``sim_dtype``) needs radii of at least
+:data:`~marlcrash.calibrate.leastsq.FLOAT32_FD_STEP`, as its finite differences need such a step: below it the
+simulation's rounding swamps the pulse change (on the full-width twin, E_x moved by 1e-6 and 1e-5 gave 23x and 5x the
+float64 area and a slope of 0.3-0.4, which would read as a jumping pulse). The default radii, from 1e-6, are for
+float64; on float32 they are refused (key ``radii``).
+
 Every candidate counts one simulation of the problem; one batched simulation per group.
 """
 
@@ -26,7 +32,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from marlcrash.calibrate.leastsq import check_fd_step, fd_points, jacobian, lm_iteration
+from marlcrash.calibrate.leastsq import FLOAT32_FD_STEP, check_fd_step, fd_points, jacobian, lm_iteration
 from marlcrash.calibrate.problem import CalibrationProblem
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics, area_between
@@ -56,12 +62,21 @@ def _require_count(value: Any, key: str) -> int:
     return int(value)
 
 
-def _check_radii(radii, draws) -> tuple[list[float], int]:
+def _check_radii(radii, draws, problem: CalibrationProblem) -> tuple[list[float], int]:
+    """``radii`` as floats and ``draws`` as an int, else a :class:`ConfigError` naming the key; on a ``float32``
+    problem the radii start at :data:`~marlcrash.calibrate.leastsq.FLOAT32_FD_STEP` (module docstring)."""
     if isinstance(radii, str) or not isinstance(radii, list | tuple | np.ndarray) or not all(map(_is_number, radii)):
         raise ConfigError(f"expected a list of strictly increasing radii > 0, got {radii!r}", key="radii")
     radii = [float(r) for r in radii]
     if not radii or any(not (np.isfinite(r) and r > 0) for r in radii) or sorted(set(radii)) != radii:
         raise ConfigError(f"expected strictly increasing radii > 0, got {radii}", key="radii")
+    if problem.sim.config.dtype == "float32" and radii[0] < FLOAT32_FD_STEP:
+        raise ConfigError(
+            f"the env simulates in float32 (sim_dtype), whose rounding swamps the pulse change of a parameter change "
+            f"below {FLOAT32_FD_STEP:g} (a slope near 0 there is rounding, not a jumping pulse); got radii {radii}, "
+            f"expected radii of at least {FLOAT32_FD_STEP:g}, or a float64 env",
+            key="radii",
+        )
     return radii, _require_count(draws, "draws")
 
 
@@ -104,7 +119,8 @@ def truth_neighbourhood(
 
     Args:
         problem: a twin calibration problem (:func:`~marlcrash.calibrate.problem.build_problem`).
-        radii: increasing log-scale radii ``> 0`` (rms per coordinate).
+        radii: increasing log-scale radii ``> 0`` (rms per coordinate); at least
+            :data:`~marlcrash.calibrate.leastsq.FLOAT32_FD_STEP` on a ``float32`` problem (module docstring).
         groups: parameter groups to move: ``E_x``, ``E_s``, ``transmission``, ``all``.
         draws: random directions per radius.
         seed: seed of the directions.
@@ -115,9 +131,10 @@ def truth_neighbourhood(
         "pass_share": [R], "slope": [R - 1], "radius_needed"}}}``.
 
     Raises:
-        ConfigError: no ground truth, an unknown group, radii not increasing and positive, draws < 1.
+        ConfigError: no ground truth, an unknown group, radii not increasing and positive (or below the float32
+            limit on a float32 problem), draws < 1.
     """
-    radii, draws = _check_radii(radii, draws)
+    radii, draws = _check_radii(radii, draws, problem)
     thresholds = {
         "area": problem.success_cfg.success_area,
         "dfd": problem.success_cfg.success_dfd,
@@ -205,10 +222,10 @@ def cluster_sensor_study(
 
     Raises:
         ConfigError: no ground truth, an unknown group, negative cluster radii, radii not increasing and
-            positive, draws < 1.
+            positive (or below the float32 limit on a float32 problem, as for :func:`truth_neighbourhood`), draws < 1.
     """
     _check(problem, [group])
-    radii, draws = _check_radii(radii, draws)
+    radii, draws = _check_radii(radii, draws, problem)
     if (
         isinstance(cluster_radii, str)
         or not cluster_radii
