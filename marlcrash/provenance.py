@@ -17,6 +17,10 @@ numba).
 - changed code (``kind="code"``: the package's source or a ``train/`` script): always a warning, because a
   resumed run is still that run's training (but no longer bit-identical to an uninterrupted one).
 
+A deck or pulse named by a relative path is read from the working directory, by the run (``chdir: false``) and by
+the record alike, which keeps that directory (``cwd``): a resume or evaluation started in another folder reads
+another file (or none), and the check names the relative path, the file then and now, and where to start the run.
+
 A folder without a record (written before this module existed) is resumed and evaluated with a warning; a record
 written before the ``train/`` scripts were hashed is compared on what it holds.
 Deleting a run's ``provenance.json`` is how to resume it anyway after a deliberate config change.
@@ -151,6 +155,7 @@ def record(extra: Iterable[str | Path] = ()) -> dict[str, Any]:
 
     return {
         "configs": config_digests(extra),
+        "cwd": _cwd(),  # where the inputs named by relative paths were read from (check_run)
         "code": {
             "marlcrash": __version__,
             "source_sha256": source_digest(),
@@ -163,6 +168,14 @@ def record(extra: Iterable[str | Path] = ()) -> dict[str, Any]:
         "cma": cma.__version__,
         "numba": numba.__version__,
     }
+
+
+def _cwd() -> str | None:
+    """The working directory, resolved; ``None`` where it is gone."""
+    try:
+        return str(Path.cwd().resolve())
+    except OSError:
+        return None
 
 
 def env_inputs(env_config: Any) -> list[str]:
@@ -227,6 +240,40 @@ def config_changes(saved: dict[str, str], now: dict[str, str]) -> list[str]:
     return out
 
 
+def _explained(changes: list[str], extra: list[str | Path], started_in: Any) -> list[str]:
+    """:func:`config_changes` told as the run reads its inputs.
+
+    An input named by a relative path (a vehicle deck ``decks/car.k``) is read from the working directory, by the
+    run as by :func:`config_digests`: from another folder than the run started in (``started_in``, the record's
+    ``cwd``) it is another file, or none. That is one entry, naming the path, both files and where to start, in
+    place of the old file and its includes "removed" and the new ones "added". A file outside ``configs/`` that is
+    still there but no longer read (an include the deck dropped) is said so, not "removed".
+    """
+    out: list[str] = []
+    covered: set[str] = set()
+    here = _cwd()
+    if isinstance(started_in, str) and here is not None and Path(started_in) != Path(here):
+        for e in extra:
+            if Path(e).is_absolute():
+                continue
+            then, now = (Path(started_in) / e).resolve(), Path(e).resolve()
+            if then == now:
+                continue
+            covered |= {f"{p} removed" for p in _with_includes(then)} | {f"{p} added" for p in _with_includes(now)}
+            missing = "" if now.is_file() else " (no such file)"
+            out.append(f"{str(e)!r} is a relative path, read from the working directory: {then} where the run "
+                       f"started, {now} here{missing}; start it from {started_in}, or name it by an absolute "
+                       "path")  # fmt: skip
+    for change in changes:
+        if change in covered:
+            continue
+        name, _, what = change.rpartition(" ")
+        if what == "removed" and not name.startswith("configs/") and Path(name).is_file():
+            change = f"{name} is no longer read (the file is still there)"
+        out.append(change)
+    return out
+
+
 def check_run(run_dir: str | Path, extra: Iterable[str | Path] = (), key: str | None = "resume") -> ProvenanceCheck:
     """Compare a run folder's ``provenance.json`` with the configs and code of this process.
 
@@ -237,11 +284,14 @@ def check_run(run_dir: str | Path, extra: Iterable[str | Path] = (), key: str | 
             (an evaluation only reports changes, so a damaged record need not stop it).
 
     Returns:
-        The differences; ``recorded`` is false (and both lists empty) for a folder without a (readable) record.
+        The differences; ``recorded`` is false (and both lists empty) for a folder without a (readable) record. An
+        input named by a relative path that names another file from this working directory than from the record's
+        is one entry saying so (:func:`_explained`).
 
     Raises:
         ConfigError: (key ``key``) the record exists but cannot be read.
     """
+    extra = list(extra)
     path = Path(run_dir) / PROVENANCE_FILE
     if not path.exists():
         return ProvenanceCheck(recorded=False, configs=[], code=[])
@@ -254,7 +304,7 @@ def check_run(run_dir: str | Path, extra: Iterable[str | Path] = (), key: str | 
             return ProvenanceCheck(recorded=False, configs=[], code=[])
         raise ConfigError(f"{path} cannot be read as a provenance record; delete it to go on without one",
                           key=key) from None  # fmt: skip
-    configs = config_changes(saved_configs, config_digests(extra))
+    configs = _explained(config_changes(saved_configs, config_digests(extra)), extra, saved.get("cwd"))
     code: list[str] = []
     if saved_code.get("source_sha256") != source_digest():
         code.append("marlcrash source")

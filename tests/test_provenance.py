@@ -219,6 +219,51 @@ def test_a_deck_outside_configs_is_recorded_with_its_includes_by_tables_and_base
     assert names <= set(rec["configs"])
 
 
+def test_a_deck_named_by_a_relative_path_is_read_from_the_working_directory_and_so_said(configs, tmp_path, monkeypatch):
+    """A run reads a vehicle deck named by a relative path from the working directory (Hydra's ``chdir: false``:
+    ``load_vehicle`` opens ``Path('decks/car.k')``), and provenance resolves it alike: a resume started in another
+    folder reads another file, or none, and is refused. But the refusal said the deck and its include were
+    "removed", though both were still where the run started: nothing told the user the path was relative. Now the
+    record keeps its working directory, and a resume elsewhere names the relative path, the file it named then and
+    the one it names now, and where to start; a file still on disk that the run no longer reads is not "removed"."""
+    from marlcrash.calibrate.compare import open_run_dir
+    from marlcrash.envs.core import load_env_config
+
+    proj, elsewhere = tmp_path / "proj", tmp_path / "elsewhere"
+    (proj / "decks" / "sub").mkdir(parents=True)
+    elsewhere.mkdir()
+    (proj / "decks" / "car.k").write_text("*KEYWORD\n*INCLUDE\nsub/part.k\n*END\n")
+    (proj / "decks" / "sub" / "part.k").write_text("*KEYWORD\n$ shells of the bumper\n*END\n")
+    env = ("default", {"vehicle": "decks/car.k"})
+    run = tmp_path / "table"
+    monkeypatch.chdir(proj)
+    open_run_dir(run, "compare.json", {"a": 1}, False, lambda rows: [], env, ("method",))
+    (run / "compare.json").write_text(json.dumps({"config": {"a": 1}, "rows": []}))
+    open_run_dir(run, "compare.json", {"a": 1}, True, lambda rows: [], env, ("method",))  # same folder: resumes
+
+    monkeypatch.chdir(elsewhere)
+    with pytest.raises(ConfigError) as e:
+        open_run_dir(run, "compare.json", {"a": 1}, True, lambda rows: [], env, ("method",))
+    assert e.value.key == "resume"
+    said = str(e.value)
+    then, now = (proj / "decks" / "car.k").resolve(), (elsewhere / "decks" / "car.k").resolve()
+    hint = (f"'decks/car.k' is a relative path, read from the working directory: {then} where the run started, "
+            f"{now} here (no such file); start it from {proj.resolve()}, or name it by an absolute path")  # fmt: skip
+    assert f"was started with other configs ({hint});" in said  # one entry: the deck and its include alike
+    assert "removed" not in said
+
+    shutil.copytree(proj / "decks", elsewhere / "decks")  # a copy here: another file all the same, named so
+    check = provenance.check_run(run, provenance.env_inputs(load_env_config(*env)), key=None)
+    assert check.configs == [hint.replace(" (no such file)", "")]
+    monkeypatch.chdir(proj)
+    assert provenance.check_run(run, ["decks/car.k"]).configs == []  # back where it started
+    (proj / "decks" / "car.k").write_text("*KEYWORD\n*END\n")  # the include dropped: still there, no longer read
+    assert provenance.check_run(run, ["decks/car.k"]).configs == [
+        f"{then} changed",
+        f"{(proj / 'decks' / 'sub' / 'part.k').resolve()} is no longer read (the file is still there)",
+    ]
+
+
 @pytest.mark.parametrize(
     ("rows", "says"),
     [([{"method": "cmaes"}], r"row 0 of .*compare\.json lacks seed, score"),
