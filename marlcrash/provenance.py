@@ -5,8 +5,8 @@ environments read the rest at run time from ``configs/``: the env config, ``sim.
 ``materials.yaml``, the vehicle, the scenarios, the reward forms and measured reference pulses. A run
 resumed or evaluated after one of them changed would silently mix two physics. So every run folder
 gets ``provenance.json`` when it starts: the SHA-256 of every file under ``configs/`` except
-``configs/train/`` (saved resolved in the run), of a vehicle deck or reference pulse named by a path
-outside ``configs/``, of the package's source and of the ``train/`` entry scripts beside it (plus the git commit
+``configs/train/`` (saved resolved in the run), of an env config, vehicle deck or reference pulse named by a
+path outside ``configs/``, of the package's source and of the ``train/`` entry scripts beside it (plus the git commit
 where there is one), and the versions of Python and of the libraries that make the numbers (torch, numpy, cma,
 numba).
 
@@ -179,9 +179,12 @@ def _cwd() -> str | None:
 
 
 def env_inputs(env_config: Any) -> list[str]:
-    """Input files of an env config named by a path outside ``configs/``: a vehicle file, its sub-assembly map,
-    measured pulses."""
+    """Input files of an env config named by a path outside ``configs/``: the env config file itself, a vehicle file,
+    its sub-assembly map, measured pulses."""
     paths: list[str] = []
+    source = getattr(env_config, "_source", None)  # the YAML file it was loaded from (load_env_config)
+    if source is not None and not Path(source).resolve().is_relative_to(config_dir().resolve()):
+        paths.append(str(source))  # one under configs/ is recorded with configs/
     vehicle = str(getattr(env_config, "vehicle", ""))
     if Path(vehicle).suffix:  # a registered vehicle has no suffix; its YAML is under configs/ already
         paths.append(vehicle)

@@ -146,6 +146,24 @@ def test_env_inputs_are_files_named_by_path():
     assert provenance.env_inputs(load_env_config("default")) == []  # a registered vehicle lives in configs/
 
 
+def test_an_env_config_file_outside_configs_is_an_input(configs, tmp_path):
+    """An env config named by its path (``env=my_env.yaml``) holds the vehicle, scenarios, reward and reference a
+    run reads at a resume, but was not recorded: editing it changed a resumed run's physics without a word."""
+    from marlcrash.envs.core import load_env_config
+
+    mine = tmp_path / "my_env.yaml"
+    mine.write_text((configs / "env" / "default.yaml").read_text())
+    inputs = provenance.env_inputs(load_env_config(str(mine)))
+    assert str(mine.resolve()) in provenance.config_digests(inputs)
+    run = tmp_path / "run"
+    run.mkdir()
+    provenance.write_record(run, inputs)
+    _touch(mine)
+    with pytest.raises(ConfigError, match=r"my_env\.yaml changed"):
+        provenance.require_unchanged(run, provenance.env_inputs(load_env_config(str(mine))))
+    assert provenance.env_inputs(load_env_config("default")) == []  # a registered env is under configs/ already
+
+
 def test_a_training_resume_refuses_changed_configs_and_an_evaluation_reports_them(configs, tmp_path):
     from test_train_marl import tiny
 
