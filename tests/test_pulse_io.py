@@ -97,17 +97,17 @@ def test_mme_header_text_outside_latin_1_is_refused_naming_the_field(tmp_path, a
     assert read_mme(tmp_path / "L").channels == ("tunnel", "Beschl. m/s²")
 
 
-def test_write_mme_refuses_more_channels_than_its_files_can_number(tmp_path):
-    """Channel files are numbered with three digits, ``<test>.001`` to ``<test>.999``, the files ``read_mme`` finds.
-    A pulse of 1000 channels was written with a 1000th file ``T.1000``, which ``read_mme`` does not read: 999
-    channels came back without a word. It is refused before anything is written; 999 channels round-trip."""
+def test_mme_channel_files_past_999_are_read_in_numeric_order(tmp_path):
+    """Channel files are numbered with at least three digits: the 1000th is ``<test>.1000`` (as pyisomme writes it).
+    ``read_mme`` found only three-digit suffixes, so a pulse of 1000 channels came back with 999 without a word; the
+    files are read in numeric order (a name sort puts ``.1000`` before ``.101``)."""
     t = np.arange(8) * 1e-4  # the fewest samples a pulse may have
-    many = Pulse(t, np.ones((1000, t.size)), tuple(f"c{i}" for i in range(1000)))
-    with pytest.raises(PulseError, match=r"1000 channels; ISO-MME numbers its channel files \.001 to \.999"):
-        write_mme(many, tmp_path / "M", "M")
-    assert not (tmp_path / "M").exists()
-    write_mme(many.select(list(range(999))), tmp_path / "N", "N")
-    assert read_mme(tmp_path / "N").channels == many.channels[:999]
+    many = Pulse(t, np.arange(1000.0)[:, None] * np.ones((1000, t.size)), tuple(f"c{i}" for i in range(1000)))
+    write_mme(many, tmp_path / "M", "M")
+    assert (tmp_path / "M" / "Channel" / "M.1000").is_file()
+    back = read_mme(tmp_path / "M")
+    assert back.channels == many.channels
+    np.testing.assert_allclose(back.acc, many.acc, rtol=1e-6, atol=1e-6)
 
 
 def test_committed_csv_and_mme_examples_agree_and_give_40_kmh():

@@ -17,7 +17,7 @@ linear interpolation, so it is filtered and integrated like a record.
 
 ISO-MME (ISO/TS 13499): a test folder with ``<test>.mme`` and a ``Channel``
 folder holding ``<test>.chn`` (the channel list) and one file per channel,
-``<test>.001``, ``<test>.002``, ... (three digits: :data:`MME_MAX_CHANNELS` channels at most).
+``<test>.001``, ``<test>.002``, ... (at least three digits: ``<test>.1000`` follows ``<test>.999``).
 Each channel file starts with ``Name  :value`` header lines; the samples follow, one value per line. Time is
 ``Time of first sample + i * Sampling interval`` [s]; ``Unit`` gives the
 acceleration unit (``g`` or ``m/s**2``). ``Channel frequency class`` is
@@ -473,9 +473,6 @@ def _read_lines(path: Path) -> list[str]:
         raise _err(f"cannot read ({e.strerror})", path) from None
 
 
-MME_MAX_CHANNELS = 999
-"""Most channels of an ISO-MME test: its channel files are numbered with three digits, ``.001`` to ``.999``."""
-
 MME_HEADER_LINES = 200
 """Most lines of a channel file :func:`mme_channels` reads as its header (ISO-MME headers have a few dozen)."""
 
@@ -593,9 +590,9 @@ def _mme_channel_files(path: Path) -> tuple[Path, list[Path]]:
     mme, folder = _mme_paths(path)
     test = mme.stem
     _read_lines(mme)  # the test description must at least be readable
-    # numbered with three digits, .001 to .999 (MME_MAX_CHANNELS)
-    files = sorted(p for p in folder.iterdir() if p.is_file() and re.fullmatch(r"\d{3}", p.suffix[1:] or ""))
-    files = [p for p in files if p.stem.lower() == test.lower()]
+    # numbered with at least three digits, in numeric order: .001 to .999, then .1000 (as pyisomme writes them)
+    files = [p for p in folder.iterdir() if p.is_file() and re.fullmatch(r"\d{3,}", p.suffix[1:] or "")]
+    files = sorted((p for p in files if p.stem.lower() == test.lower()), key=lambda p: int(p.suffix[1:]))
     if not files:
         raise _err(f"no channel files {test}.001, {test}.002, ... in the Channel folder", mme)
     return mme, files
@@ -763,18 +760,13 @@ def write_mme(pulse: Pulse, folder: str | Path, test: str = "TEST", *, unit: str
         The path of ``<folder>/<test>.mme``.
 
     Raises:
-        PulseError: non-uniform sampling, an unknown unit, more than :data:`MME_MAX_CHANNELS` channels, or a test or
-            channel name that an ISO-MME file cannot hold (a character outside Latin-1, or a line break), naming it
-            and the character; nothing is written then.
+        PulseError: non-uniform sampling, an unknown unit, or a test or channel name that an ISO-MME file cannot
+            hold (a character outside Latin-1, or a line break), naming it and the character; nothing is written
+            then.
     """
     if not pulse.is_uniform:
         raise PulseError("ISO-MME needs uniform sampling; resample the pulse first")
     factor = acc_unit_factor(unit)
-    if pulse.n_channels > MME_MAX_CHANNELS:  # a file <test>.1000 would not be read back (_mme_channel_files)
-        raise PulseError(
-            f"write_mme: the pulse has {pulse.n_channels} channels; ISO-MME numbers its channel files .001 to "
-            f".{MME_MAX_CHANNELS} (three digits): write at most {MME_MAX_CHANNELS} per test (Pulse.select)"
-        )
     _mme_text(test, "test name")  # everything written is checked before anything is
     _mme_text(unit, "unit")
     for k, name in enumerate(pulse.channels, start=1):
