@@ -1124,10 +1124,12 @@ class _IdSet:
 def _resolve_sets(t: _Tables, node_ids: np.ndarray) -> None:
     """Fill ``t.sets`` (part ids as a list) and ``t.node_sets`` (node ids as an array) from the set cards read:
     the ranges of ``_GENERATE`` sets hold the deck's nodes (``node_ids``) and the parts its ``*PART`` cards define
-    (those left out too)."""
+    (those left out too). ``node_ids`` are unique (:func:`_check_duplicates`): they are sorted, not passed through
+    ``np.unique`` (numpy 2's hash-based one takes seconds per million ids), and only where a node set has ranges."""
     parts = np.array(sorted({*t.parts, *t.dropped}), dtype=np.int64)
     t.sets = {sid: (s.title, s.members(parts).tolist()) for sid, s in t.set_cards.items()}
-    nodes = np.unique(node_ids)
+    ranged = any(s.ranges.size for s in t.node_set_cards.values())
+    nodes = np.sort(node_ids) if ranged else node_ids  # members() reads them for ranges only
     t.node_sets = {sid: (s.title, s.members(nodes)) for sid, s in t.node_set_cards.items()}
 
 
