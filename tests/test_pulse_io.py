@@ -97,6 +97,27 @@ def test_mme_header_text_outside_latin_1_is_refused_naming_the_field(tmp_path, a
     assert read_mme(tmp_path / "L").channels == ("tunnel", "Beschl. m/s²")
 
 
+@pytest.mark.parametrize(
+    ("test", "says"),
+    [
+        ("", r"test name '' is empty"),
+        ("run/2", r"test name 'run/2': '/' \(U\+002F\) is a path separator"),
+        ("run\x002", r"test name 'run\\x002': '\\x00' \(U\+0000\) cannot stand in a file name"),
+    ],
+    ids=["empty", "slash", "nul"],
+)
+def test_a_test_name_that_cannot_name_the_files_is_refused_before_anything_is_written(tmp_path, analytic, test, says):
+    """The test name is the stem of every file of the test (``<test>.mme``, ``Channel/<test>.001``). An empty one
+    wrote ``.mme`` and ``Channel/.001``, a test ``read_mme`` then refused ('found 0' .mme files); one holding ``/``
+    raised a bare FileNotFoundError after the Channel folder was made, and one holding a NUL a bare ValueError
+    ('embedded null byte'). Each is refused naming the name, before anything is written."""
+    with pytest.raises(PulseError, match=r"write_mme: " + says):
+        write_mme(analytic, tmp_path / "T", test)
+    assert not (tmp_path / "T").exists()
+    write_mme(analytic, tmp_path / "ok", "run 2.v1")  # spaces and dots are fine
+    assert read_mme(tmp_path / "ok").channels == analytic.channels
+
+
 def test_mme_channel_files_past_999_are_read_in_numeric_order(tmp_path):
     """Channel files are numbered with at least three digits: the 1000th is ``<test>.1000`` (as pyisomme writes it).
     ``read_mme`` found only three-digit suffixes, so a pulse of 1000 channels came back with 999 without a word; the

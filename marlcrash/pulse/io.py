@@ -747,6 +747,18 @@ def _mme_text(text: str, what: str) -> None:
         raise PulseError(f"write_mme: {what} {text!r}: {ch!r} (U+{ord(ch):04X}) {why}; rename it")
 
 
+def _mme_test_name(test: str) -> None:
+    """Refuse a test name that cannot be the stem of the test's files (``<test>.mme``, ``Channel/<test>.001``):
+    empty, or holding a path separator or a NUL; then as :func:`_mme_text`."""
+    if not test:
+        raise PulseError("write_mme: test name '' is empty; it is the stem of the test's files (<test>.mme)")
+    for ch, why in (("/", "is a path separator"), ("\0", "cannot stand in a file name")):
+        if ch in test:
+            raise PulseError(f"write_mme: test name {test!r}: {ch!r} (U+{ord(ch):04X}) {why}, and the test name is "
+                             "the stem of its files (<test>.mme, Channel/<test>.001); rename it")  # fmt: skip
+    _mme_text(test, "test name")
+
+
 def write_mme(pulse: Pulse, folder: str | Path, test: str = "TEST", *, unit: str = "g") -> Path:
     """Write a uniformly sampled pulse as an ISO-MME test folder that :func:`read_mme` reads.
 
@@ -761,13 +773,13 @@ def write_mme(pulse: Pulse, folder: str | Path, test: str = "TEST", *, unit: str
 
     Raises:
         PulseError: non-uniform sampling, an unknown unit, or a test or channel name that an ISO-MME file cannot
-            hold (a character outside Latin-1, or a line break), naming it and the character; nothing is written
-            then.
+            hold (a character outside Latin-1, or a line break), or a test name that cannot name its files (empty,
+            holding ``/`` or a NUL), naming it and the character; nothing is written then.
     """
     if not pulse.is_uniform:
         raise PulseError("ISO-MME needs uniform sampling; resample the pulse first")
     factor = acc_unit_factor(unit)
-    _mme_text(test, "test name")  # everything written is checked before anything is
+    _mme_test_name(test)  # everything written is checked before anything is
     _mme_text(unit, "unit")
     for k, name in enumerate(pulse.channels, start=1):
         _mme_text(name, f"channel {k} name")
