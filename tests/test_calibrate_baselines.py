@@ -395,6 +395,7 @@ def test_cmaes_says_when_its_budget_cannot_complete_a_generation(problem):
     ("over", "key", "bound"),
     [
         ({"cmaes": {"popsize": 10**9}}, "cmaes.popsize", "10000"),
+        ({"random_search": {"batch_size": 10**9}}, "random_search.batch_size", "10000"),
         ({"gradient": {"batch_size": 10**9}}, "gradient.batch_size", "10000"),
         ({"gradient": {"threads": 10**6}}, "gradient.threads", "1024"),
     ],
@@ -402,11 +403,13 @@ def test_cmaes_says_when_its_budget_cannot_complete_a_generation(problem):
 def test_population_batch_and_thread_counts_have_an_upper_bound(over, key, bound):
     """A population of 10**9 (one batched simulation, cma's arrays) or a gradient batch of 10**9 (its starting points
     are drawn at once) ran out of memory deep inside cma or torch after the problem was built; 10**6 torch threads were
-    set as given. Refused at load, naming the key and the bound."""
+    set as given. A random-search batch is one batched simulation too (of at most the budget's candidates): it was
+    left unbounded. Refused at load, naming the key and the bound."""
     with pytest.raises(ConfigError, match=re.escape(bound)) as e:
         load_run_config(over)
     assert e.value.key == key
-    assert load_run_config({"cmaes": {"popsize": 10_000}, "gradient": {"threads": 1024, "batch_size": 10_000}})
+    assert load_run_config({"cmaes": {"popsize": 10_000}, "gradient": {"threads": 1024, "batch_size": 10_000},
+                            "random_search": {"batch_size": 10_000}})  # fmt: skip
 
 
 def test_lm_simulates_nothing_outside_a_box_narrower_than_its_finite_difference_step(problem, monkeypatch):

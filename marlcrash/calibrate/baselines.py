@@ -74,9 +74,10 @@ from marlcrash.outputs import (
 # ----------------------------------------------------------------------------------------- configs
 
 MAX_BATCH = 10_000
-"""Most candidates of one batched simulation a setting may ask for (``cmaes.popsize``, ``gradient.batch_size``) [-]:
-a batch is simulated at once (about 0.3 MB per candidate at the default 150 ms, more with gradients) and ``cma`` and
-the gradient's starting points hold arrays of it, so 10**9 ran out of memory deep inside them; 10,000 is far above any
+"""Most candidates of one batched simulation a setting may ask for (``cmaes.popsize``, ``gradient.batch_size``,
+``random_search.batch_size``) [-]: a batch is simulated at once (about 0.3 MB per candidate at the default 150 ms,
+more with gradients) and ``cma`` and the gradient's starting points hold arrays of it, so 10**9 ran out of memory
+deep inside them (a random-search batch is at most the budget's candidates); 10,000 is far above any
 population CMA-ES is run with (its own default is ``4 + 3 ln n``, 18 for 127 free coordinates)."""
 
 
@@ -97,7 +98,9 @@ class RandomSearchConfig:
     min_radius: float = 0.02
 
     def validate(self) -> None:
-        require(self.batch_size >= 1, "batch_size", f"expected >= 1 candidates per batch, got {self.batch_size}")
+        require(1 <= self.batch_size <= MAX_BATCH, "batch_size",
+                f"expected [1, {MAX_BATCH}] candidates per batch (one batched simulation; MAX_BATCH = {MAX_BATCH}), "
+                f"got {self.batch_size}")  # fmt: skip
         require(0 < self.radius <= 1, "radius", f"expected a fraction of the box in (0, 1], got {self.radius}")
         require(0 < self.shrink <= 1, "shrink", f"expected a factor in (0, 1], got {self.shrink}")
         require(0 < self.min_radius <= self.radius, "min_radius",
