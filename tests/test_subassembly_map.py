@@ -51,6 +51,20 @@ def test_a_dumped_map_reads_back_whatever_the_group_names(car, tmp_path):
     assert load_subassembly_map(path, car) == mapping
 
 
+def test_a_dumped_map_reads_back_group_names_holding_line_breaks(car, tmp_path):
+    """A group name holding a line break (a key quoted in the user's map, or a name given in Python) was dumped as a
+    single-quoted scalar over several lines, so the map (the one written beside a deck too) could not be read back:
+    'mapping values are not allowed here'. Such a name is written on one line, double-quoted with its escapes."""
+    from marlcrash.vehicle.subassembly_map import dump_subassembly_map
+
+    pids = sorted(car.parts)
+    names = ["front\nrail", "a " * 60 + "\nb", "rear\r\nrail", "hood"]
+    mapping = {n: [p] for n, p in zip(names, pids, strict=False)}
+    path = dump_subassembly_map(mapping, tmp_path / "map.yaml")
+    assert len(path.read_text().splitlines()) == 2 + len(names)  # two header lines, then a line per group
+    assert load_subassembly_map(path, car) == mapping
+
+
 def test_unknown_top_level_keys_of_mixed_types_are_named(car, tmp_path):
     """Two unknown top-level keys, one a number (``1:`` and ``groups:``), raised TypeError from sorting them."""
     y = tmp_path / "map.yaml"

@@ -184,5 +184,9 @@ def _yaml_key(name: str) -> str:
     import yaml
 
     # one line whatever its length: at the emitter's default width (80) a long name with spaces was folded over two
-    # lines, which broke the map's "name: [ids]" line
-    return yaml.safe_dump(str(name), default_style=None, width=math.inf).strip().removesuffix("\n...").strip()
+    # lines, which broke the map's "name: [ids]" line; a name holding a line break is double-quoted (escaped as \n),
+    # not a single-quoted scalar over several lines
+    text = yaml.safe_dump(str(name), default_style=None, width=math.inf).strip().removesuffix("\n...").strip()
+    if "\n" in text:
+        text = yaml.safe_dump(str(name), default_style='"', width=math.inf).strip()
+    return text
