@@ -17,9 +17,11 @@ numba).
 - changed code (``kind="code"``: the package's source or a ``train/`` script): always a warning, because a
   resumed run is still that run's training (but no longer bit-identical to an uninterrupted one).
 
-A deck or pulse named by a relative path is read from the working directory, by the run (``chdir: false``) and by
-the record alike, which keeps that directory (``cwd``): a resume or evaluation started in another folder reads
-another file (or none), and the check names the relative path, the file then and now, and where to start the run.
+A vehicle deck (its sub-assembly map, an env config file) named by a relative path is read from the working
+directory, by the run (``chdir: false``) and by the record alike, which keeps that directory (``cwd``): a resume or
+evaluation started in another folder reads another file (or none), and the check names the relative path, the file
+then and now, and where to start the run. A measured reference pulse named by a relative path is read from
+``configs/`` wherever the run starts (:func:`env_inputs`).
 
 A folder without a record (written before this module existed) is resumed and evaluated with a warning; a record
 written before the ``train/`` scripts were hashed is compared on what it holds.
