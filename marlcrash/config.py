@@ -348,6 +348,21 @@ def require_seed(value: int, key: str) -> None:
     require(0 <= value <= MAX_SEED, key, f"expected a seed in [0, 2**64 - 1], got {value}")
 
 
+MAX_THREADS = 1024
+"""Most torch intra-op threads a setting may ask for (``threads`` of training, comparison and ablation PPO runs,
+``gradient.threads``) [-]: a fixed bound, not this machine's CPU count, so that a config written on one machine loads
+on another. torch starts a pool of as many threads as asked: 100,000 crashed the process at the first matrix product
+(a segmentation fault under a process limit), 10**6 were set as given. More threads than CPUs only wait on each
+other."""
+
+
+def require_threads(value: int, key: str) -> None:
+    """Refuse, naming ``key``, a torch thread count outside ``[0, MAX_THREADS]`` (0: torch's own setting)."""
+    require(0 <= value <= MAX_THREADS, key,
+            f"expected a thread count in [0, {MAX_THREADS}] (0: torch's setting; MAX_THREADS = {MAX_THREADS}), "
+            f"got {value}")  # fmt: skip
+
+
 def require(condition: bool, key: str, message: str) -> None:
     """Raise :class:`ConfigError` for ``key`` unless ``condition`` holds (for ``validate()``).
 

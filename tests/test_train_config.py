@@ -163,6 +163,8 @@ def test_ci_reads_the_environment(monkeypatch):
         (["algorithm.min_std=0"], "algorithm.min_std", "expected a standard deviation floor > 0, got 0.0"),
         (["algorithm.min_std=0.5"], "algorithm.init_std", "min_std (0.5) < init_std (0.3)"),
         (["resume=1"], "resume", "expected true or false or a string, got 1"),  # one message for the union
+        # torch starts as many threads as asked: 100,000 crashed the process at the first matrix product
+        (["threads=100000"], "threads", "thread count in [0, 1024]"),
     ],
 )
 def test_bad_values_name_the_key(overrides, key, words):

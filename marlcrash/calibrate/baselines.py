@@ -59,7 +59,7 @@ from marlcrash.calibrate.leastsq import FLOAT32_FD_STEP as FLOAT32_FD_STEP  # it
 from marlcrash.calibrate.leastsq import STEP_FACTORS, check_fd_step, lm_iteration
 from marlcrash.calibrate.problem import CalibrationProblem, ProblemConfig, SmoothLoss, problem_env_config
 from marlcrash.calibrate.runlock import claim_dir
-from marlcrash.config import from_dict, nested_error, require, require_complete, require_seed
+from marlcrash.config import from_dict, nested_error, require, require_complete, require_seed, require_threads
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics
 from marlcrash.outputs import (
@@ -79,12 +79,6 @@ MAX_BATCH = 10_000
 more with gradients) and ``cma`` and the gradient's starting points hold arrays of it, so 10**9 ran out of memory
 deep inside them (a random-search batch is at most the budget's candidates); 10,000 is far above any
 population CMA-ES is run with (its own default is ``4 + 3 ln n``, 18 for 127 free coordinates)."""
-
-
-MAX_THREADS = 1024
-"""Most torch threads ``gradient.threads`` may ask for [-]: a fixed bound, not this machine's CPU count, so that a
-config written on one machine loads on another; torch starts a pool of that many threads as asked (10**6 were set as
-given). More threads than CPUs only wait on each other: 1 is fastest for the small tensors here."""
 
 
 @dataclass
@@ -144,9 +138,7 @@ class GradientConfig:
         for k in ("beta1", "beta2"):
             require(0 <= getattr(self, k) < 1, k, f"expected a decay in [0, 1), got {getattr(self, k)}")
         require(self.start_radius >= 0, "start_radius", f"expected >= 0, got {self.start_radius}")
-        require(0 <= self.threads <= MAX_THREADS, "threads",
-                f"expected a thread count in [0, {MAX_THREADS}] (0: torch's setting; MAX_THREADS = {MAX_THREADS}), "
-                f"got {self.threads}")  # fmt: skip
+        require_threads(self.threads, "threads")
         require(self.backend in ("adjoint", "torch"), "backend", f"expected adjoint or torch, got {self.backend!r}")
 
 

@@ -100,6 +100,7 @@ from marlcrash.config import (
     require,
     require_complete,
     require_seed,
+    require_threads,
 )
 from marlcrash.envs.core import EnvConfig, env_config_of, load_env_config, require_env, require_env_keys_unset
 from marlcrash.errors import ConfigError
@@ -166,7 +167,7 @@ class PPOBudgetConfig:
     def validate(self) -> None:
         require(self.n_envs >= 1, "n_envs", f"expected >= 1 parallel episodes, got {self.n_envs}")
         require(self.episode_length >= 1, "episode_length", f"expected >= 1 steps, got {self.episode_length}")
-        require(self.threads >= 0, "threads", f"expected >= 0 (0: torch's setting), got {self.threads}")
+        require_threads(self.threads, "threads")
         require_env_keys_unset(self.env_overrides, _PPO_ENV_KEYS)
 
 

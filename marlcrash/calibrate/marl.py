@@ -84,6 +84,7 @@ from marlcrash.config import (
     require,
     require_complete,
     require_seed,
+    require_threads,
 )
 from marlcrash.envs.core import EnvConfig, env_config_of, require_env, require_env_keys_unset
 from marlcrash.envs.torchrl_env import GROUP, CalibrationTorchEnv
@@ -238,7 +239,7 @@ class TrainConfig:
         require_seed(self.seed, "seed")  # torch.manual_seed takes 64 bits
         require(self.time_limit_s is None or self.time_limit_s > 0, "time_limit_s",
                 f"expected a limit > 0 s or null, got {self.time_limit_s}")  # fmt: skip
-        require(self.threads >= 0, "threads", f"expected >= 0 (0: torch's default), got {self.threads}")
+        require_threads(self.threads, "threads")
         require(self.logger in LOGGERS, "logger", f"unknown logger {self.logger!r}; expected one of {list(LOGGERS)}")
         require_env(self.env, "env")
         require_env_keys_unset(self.env_overrides, TRAINING_ENV_KEYS)
