@@ -498,3 +498,18 @@ def test_a_plot_that_fails_keeps_the_baseline_results(tmp_path, monkeypatch):
     monkeypatch.undo()
     cfg, problem, result = _small_run(tmp_path, "plotted", plot=True)
     assert (write_run(cfg, problem, result) / "velocity.png").stat().st_size > 1000
+
+
+def test_lm_called_from_python_refuses_a_float32_problem_with_a_step_below_its_rounding(problem):
+    """``load_run_config`` and ``compare`` refuse ``lm.fd_step`` below the float32 limit, but ``levenberg_marquardt``
+    called from Python with a float32 problem ran its finite differences on rounding noise without a word. The
+    function itself refuses now, before any simulation; a step from 1e-3 runs."""
+    single = build_problem(from_dict(ProblemConfig, {"duration": DURATION, "env_overrides": {"sim_dtype": "float32"}}),
+                           cells=problem.cells)  # fmt: skip
+    before = single.n_simulations
+    with pytest.raises(ConfigError, match=r"float32 .* at least 0\.001") as e:
+        BASELINES["lm"][1](single, 1 + single.n_free + 6, LMConfig(), 0)
+    assert e.value.key == "lm.fd_step" and single.n_simulations == before
+    run = BASELINES["lm"][1](single, 1 + single.n_free + 6, LMConfig(fd_step=1e-3, iterations=1), 0)
+    assert run.simulations == 1 + single.n_free + 6
+    BASELINES["lm"][1](problem, 1 + problem.n_free + 6, LMConfig(iterations=1), 0)  # float64: the default step

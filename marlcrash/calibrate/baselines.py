@@ -456,10 +456,17 @@ def check_lm_budget(problem: CalibrationProblem, budget: int) -> None:
 def levenberg_marquardt(
     problem: CalibrationProblem, budget: int, config: LMConfig, seed: int, stop_on_success: bool = False
 ) -> CalibrationResult:
-    """Levenberg-Marquardt on the velocity residuals over growing windows, then restarts (module docstring)."""
+    """Levenberg-Marquardt on the velocity residuals over growing windows, then restarts (module docstring).
+
+    Raises:
+        ConfigError: before any simulation: ``config.fd_step`` below the rounding of a ``float32`` problem (key
+            ``lm.fd_step``, :func:`check_lm_fd_step`), or a budget below one iteration (key ``budget``,
+            :func:`check_lm_budget`).
+    """
+    check_lm_fd_step(config, problem.sim.config.dtype)  # called from Python: no config loading checked it
+    check_lm_budget(problem, budget)
     gen = torch.Generator().manual_seed(seed)
     progress = Progress(budget, stop_on_success)
-    check_lm_budget(problem, budget)
     lo, hi = problem.flat_box()
     per_iter = lo.numel() + len(STEP_FACTORS)
     r0, m0 = _residuals(problem, progress, problem.zeros(1))
