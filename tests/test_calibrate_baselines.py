@@ -513,3 +513,21 @@ def test_lm_called_from_python_refuses_a_float32_problem_with_a_step_below_its_r
     run = BASELINES["lm"][1](single, 1 + single.n_free + 6, LMConfig(fd_step=1e-3, iterations=1), 0)
     assert run.simulations == 1 + single.n_free + 6
     BASELINES["lm"][1](problem, 1 + problem.n_free + 6, LMConfig(iterations=1), 0)  # float64: the default step
+
+
+@pytest.mark.parametrize("method", sorted(BASELINES))
+def test_a_problem_whose_masking_leaves_no_agent_active_is_refused_by_every_baseline(problem, method):
+    """Masking that leaves no agent active in the problem's scenario (here every agent must lie wholly in a shallow
+    struck band) gives a problem of zero free coordinates: cmaes failed deep inside ``cma`` (ZeroDivisionError) and lm
+    in a reshape of its empty Jacobian, after simulating the start; random search and gradient descent spent their
+    budget on the start alone. Every baseline refuses it before simulating, naming the masking and the ways out."""
+    strict = {"masking.min_fraction": 1.0, "masking.primary_depth": 0.01, "masking.secondary_hops": 0}
+    idle = build_problem(from_dict(ProblemConfig, {"duration": DURATION, "scenario": "small_overlap_left",
+                                                   "env_overrides": strict}), cells=problem.cells)  # fmt: skip
+    assert idle.n_free == 0 and not bool(idle.active.any())
+    config, _ = SMALL[method]
+    before = idle.n_simulations
+    with pytest.raises(ConfigError, match=r"no free coordinate.* none of its 21 agents is active in scenario "
+                                          r"'small_overlap_left'.*problem\.masking: false") as e:  # fmt: skip
+        BASELINES[method][1](idle, 20, config, 0)
+    assert e.value.key == "problem.masking" and idle.n_simulations == before

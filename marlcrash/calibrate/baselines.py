@@ -35,6 +35,9 @@ and the first history row are measured, not assumed.
   the budget cannot pay for a whole iteration, leaving up to ``n_free + 6`` simulations unspent;
   with ``restart_radius: 0`` it stops after the last window, possibly far below the budget.
   Deterministic for a seed (restart noise).
+
+Every method refuses a problem with no free coordinate (its masking left no agent active in the scenario:
+:func:`check_free_coordinates`) before it simulates anything.
 """
 
 from __future__ import annotations
@@ -226,6 +229,26 @@ class CalibrationResult:
         return out
 
 
+def check_free_coordinates(problem: CalibrationProblem, method: str) -> None:
+    """Refuse a problem with no free coordinate, before any simulation: its masking left no agent active.
+
+    Raises:
+        ConfigError: (key ``problem.masking``) ``problem.n_free`` is 0 (cmaes failed inside ``cma`` with a
+            ZeroDivisionError, lm in a reshape of its empty Jacobian; random search and gradient descent spent the
+            budget on the start alone).
+    """
+    if problem.n_free > 0:
+        return
+    raise ConfigError(
+        f"{method}: the problem has no free coordinate to search: none of its {problem.n_agents} agents is active in "
+        f"scenario {problem.scenario.name!r}, as the env's impact-region rule (masking.mode, masking.min_fraction, "
+        f"masking.primary_depth, masking.secondary_depth) leaves them; turn masking off (problem.masking: false, "
+        f"a comparison's masking: false; every agent active), loosen the env's masking (in its file or "
+        f"problem.env_overrides), or choose another problem.scenario",
+        key="problem.masking",
+    )
+
+
 def _evaluate(problem: CalibrationProblem, progress: Progress, x: torch.Tensor) -> torch.Tensor:
     """Simulate and record a batch ``x [N, n_agents, 7]`` (``N`` already granted); return its ``[N]`` scores."""
     m = problem.evaluate(x)
@@ -274,6 +297,7 @@ def random_search(
     problem: CalibrationProblem, budget: int, config: RandomSearchConfig, seed: int, stop_on_success: bool = False
 ) -> CalibrationResult:
     """Batched random search (module docstring) with a seeded numpy Generator."""
+    check_free_coordinates(problem, "random_search")
     rng = np.random.default_rng(seed)
     progress = Progress(budget, stop_on_success)
     initial = _start(problem, progress)
@@ -304,6 +328,7 @@ def cmaes(
     """
     import cma
 
+    check_free_coordinates(problem, "cmaes")
     if budget < 1 + config.popsize:
         warnings.warn(
             f"cmaes: a budget of {budget} simulations cannot complete one generation of cmaes.popsize = "
@@ -354,6 +379,7 @@ def gradient_descent(
     problem: CalibrationProblem, budget: int, config: GradientConfig, seed: int, stop_on_success: bool = False
 ) -> CalibrationResult:
     """Projected Adam through the differentiable surrogate (module docstring), seeded torch Generator."""
+    check_free_coordinates(problem, "gradient")
     gen = torch.Generator().manual_seed(seed)
     progress = Progress(budget, stop_on_success)
     lo, hi = problem.flat_box()
@@ -443,6 +469,13 @@ def check_lm_fd_step(config: LMConfig, sim_dtype: str, key: str = "lm.fd_step", 
 def check_lm_budget(problem: CalibrationProblem, budget: int) -> None:
     """Refuse a budget below lm's first iteration (it spent 1 simulation and reported stop reason "budget").
 
+    The minimum needs the problem: its free coordinates follow from the cell model (the vehicle's discretization),
+    the agent layout and, with masking, the scenario's impact region, so no config loader can know it without
+    building those (the discretization is most of a problem's cost). :func:`levenberg_marquardt` checks it first
+    thing, ``compare`` on its first problem before it makes its folder; both before any simulation of lm's. A
+    problem lm runs has at least 2 free coordinates (an active agent's ``E_x`` and ``E_s``; one without an active agent
+    is refused, :func:`check_free_coordinates`), so no budget below ``1 + 2 + len(STEP_FACTORS)`` = 9 can ever do.
+
     Raises:
         ConfigError: (key ``budget``) fewer than 1 + free coordinates + step sizes simulations.
     """
@@ -460,10 +493,12 @@ def levenberg_marquardt(
 
     Raises:
         ConfigError: before any simulation: ``config.fd_step`` below the rounding of a ``float32`` problem (key
-            ``lm.fd_step``, :func:`check_lm_fd_step`), or a budget below one iteration (key ``budget``,
+            ``lm.fd_step``, :func:`check_lm_fd_step`), a problem with no free coordinate (key ``problem.masking``,
+            :func:`check_free_coordinates`), or a budget below one iteration (key ``budget``,
             :func:`check_lm_budget`).
     """
     check_lm_fd_step(config, problem.sim.config.dtype)  # called from Python: no config loading checked it
+    check_free_coordinates(problem, "lm")
     check_lm_budget(problem, budget)
     gen = torch.Generator().manual_seed(seed)
     progress = Progress(budget, stop_on_success)
