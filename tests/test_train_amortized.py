@@ -439,3 +439,34 @@ def test_a_median_of_counts_keeps_its_half():
 
     # ".0f" rounds halves to even: a median of 2 and 3 simulations read "2" in the tables, 2.5 in the JSON
     assert [_fmt(v, ".0f") for v in (2.5, 3.5, 1500.0, None)] == ["2.5", "3.5", "1500", "-"]
+
+
+def test_cmaes_rows_count_their_generations_and_the_tables_mark_those_without_one(comparison, run_dir, tmp_path):
+    """``CalibrationResult.generations`` (0: a budget below 1 + popsize, a random sample around the start) reached no
+    table: "cmaes 1x" read as CMA-ES. The rows hold it (JSON, CSV; ``None`` for other methods), the Markdown marks
+    the CMA-ES rows without a generation, and a comparison written before the column resumes with it filled in."""
+    import marlcrash.calibrate.amortized as amortized
+
+    popsize = comparison.meta["optimizers"]["cmaes"]["popsize"]  # 4: 1x = 3 simulations, 2x = 6
+    gens = {(r["method"], r["multiplier"]): r["generations"] for r in comparison.rows}
+    assert gens == {("policy_best", None): None, ("policy_last", None): None, ("cmaes", 1): 0, ("cmaes", 2): 1,
+                    ("random_search", 1): None, ("gradient", 1): None}  # fmt: skip
+    assert all(r["generations"] == (r["simulations"] - 1) // popsize for r in comparison.rows if r["method"] == "cmaes")
+    paths = write_comparison(comparison, tmp_path / "new")
+    back = list(csv.DictReader(paths["amortized.csv"].open()))
+    assert [b["generations"] for b in back[:6]] == ["", "", "0", "1", "", ""]
+    assert [r["generations"] for r in json.loads(paths["amortized.json"].read_text())["rows"]][:4] == [None, None, 0, 1]
+    md = paths["amortized.md"].read_text()
+    assert "| 101 | cmaes 1x † |" in md and "| 101 | cmaes 2x |" in md and "| cmaes 1x † |" in md
+    assert f"† CMA-ES completed no generation: a budget below 1 + cmaes.popsize ({1 + popsize})" in md
+
+    old = tmp_path / "old"  # amortized.json of before the column: resumed, its generations filled in
+    paths = write_comparison(comparison, old)
+    record = json.loads(paths["amortized.json"].read_text())
+    for r in record["rows"]:
+        del r["generations"]
+    paths["amortized.json"].write_text(json.dumps(record))
+    done = amortized.read_comparison(old)
+    assert done.rows == json.loads(json.dumps(comparison.rows)) and all(tuple(r) == COLUMNS for r in done.rows)
+    again = amortized_comparison(small_config(run_dir), done=done)  # nothing left to run
+    assert again.rows == done.rows

@@ -21,7 +21,10 @@ training references, and from ``reference.pin_seed`` of a run trained on that on
 Metrics in the tables are sensor means (area [m], DFD [m/s], RMSE [m/s]); ``score`` is the reward
 form's fit score (higher is better); ``passed``: every sensor below every success threshold
 (``eval.thresholds`` of the run); ``param_error``: mean relative error of the per-sub-assembly
-``E_x``, ``E_s`` and transmission factors against the twin's truth.
+``E_x``, ``E_s`` and transmission factors against the twin's truth; ``generations`` (CSV and JSON rows): the
+CMA-ES generations a run completed (:attr:`~marlcrash.calibrate.baselines.CalibrationResult.generations`), ``None``
+for the other methods; 0 where the budget is below ``1 + popsize`` (a random sample around the start), marked
+:data:`NO_GENERATION` in the Markdown tables with a footnote.
 
 :func:`write_comparison` writes ``amortized.csv`` (one row per reference and method/budget),
 ``amortized.md`` (per-reference and aggregated tables: mean and standard deviation over
@@ -86,10 +89,13 @@ FILES = ("amortized.csv", "amortized.md", "amortized.json")
 """What :func:`write_comparison` writes."""
 
 COLUMNS = (
-    "reference_seed", "method", "multiplier", "budget", "simulations", "iteration", "area", "dfd", "rmse", "score",
-    "initial_score", "passed", "param_error", "initial_param_error", "sims_to_policy", "wall_time_s",
+    "reference_seed", "method", "multiplier", "budget", "simulations", "generations", "iteration", "area", "dfd",
+    "rmse", "score", "initial_score", "passed", "param_error", "initial_param_error", "sims_to_policy", "wall_time_s",
 )  # fmt: skip
-"""Columns of ``amortized.csv``, in order."""
+"""Columns of ``amortized.csv``, in order (the keys of the rows of ``amortized.json``)."""
+
+NO_GENERATION = "†"
+"""Mark of the Markdown tables' CMA-ES rows that completed no generation (``generations`` 0), with a footnote."""
 
 
 # ------------------------------------------------------------------------------------------- config
@@ -242,7 +248,8 @@ def policy_rows(problem: CalibrationProblem, result: EvalResult, seed: int, wall
             init_err = _mean_param_error(param_errors(problem, result.params[0], result.true_params))
         rows.append({
             "reference_seed": seed, "method": method, "multiplier": None, "budget": sims, "simulations": sims,
-            "iteration": i, **_sensor_mean(m), "score": float(scores[i]), "initial_score": float(scores[0]),
+            "generations": None, "iteration": i, **_sensor_mean(m), "score": float(scores[i]),
+            "initial_score": float(scores[0]),
             "passed": bool(passed[i]), "param_error": err, "initial_param_error": init_err, "sims_to_policy": None,
             "wall_time_s": wall_time_s,
         })  # fmt: skip
@@ -267,7 +274,8 @@ def baseline_row(
     passed = bool(problem.success(Metrics(*(m[None] for m in result.final_metrics)))[0])
     return {
         "reference_seed": seed, "method": result.method, "multiplier": multiplier, "budget": budget,
-        "simulations": result.simulations, "iteration": None, **_sensor_mean(result.final_metrics),
+        "simulations": result.simulations, "generations": result.generations, "iteration": None,
+        **_sensor_mean(result.final_metrics),
         "score": result.best_score, "initial_score": result.initial_score,
         "passed": passed, "param_error": _mean_param_error(result.param_error),
         "initial_param_error": _mean_param_error(result.initial_param_error),
@@ -460,7 +468,8 @@ def read_comparison(out_dir: str | Path) -> Comparison:
     """The comparison in ``out_dir``'s ``amortized.json`` (finished or not), to continue with ``done=``.
 
     A number written as ``null`` because it was not finite is read back as the comparison held it: a score as
-    ``-inf`` (no candidate's simulation gave one), a metric as NaN.
+    ``-inf`` (no candidate's simulation gave one), a metric as NaN. Rows written before the ``generations`` column get
+    it as a fresh run gives it (:func:`_generations`), so an older comparison resumes with every row alike.
 
     Raises:
         ConfigError: (key ``resume``) no ``amortized.json`` there, or one that is not a comparison's.
@@ -471,8 +480,10 @@ def read_comparison(out_dir: str | Path) -> Comparison:
     try:
         record = json.loads(path.read_text())
         rows, meta = record["rows"], record["meta"]
-        if not (isinstance(rows, list) and all(isinstance(r, dict) and set(r) == set(COLUMNS) for r in rows)):
+        older = set(COLUMNS) - {"generations"}  # written before the column
+        if not (isinstance(rows, list) and all(isinstance(r, dict) and set(r) in (set(COLUMNS), older) for r in rows)):
             raise ValueError(f"expected rows with the columns {list(COLUMNS)}")
+        rows = [{k: r[k] if k in r else _generations(r, meta) for k in COLUMNS} for r in rows]
     except (ValueError, KeyError, TypeError) as e:
         raise ConfigError(f"{path} is not a comparison this tool wrote: {e}", key="resume") from None
     for r in rows:
@@ -481,6 +492,15 @@ def read_comparison(out_dir: str | Path) -> Comparison:
             if r[k] is None:
                 r[k] = gone
     return Comparison(rows=rows, aggregate=aggregate(rows), meta=meta)
+
+
+def _generations(row: dict[str, Any], meta: dict[str, Any]) -> int | None:
+    """The ``generations`` of a row of a comparison written before that column: a CMA-ES run tells CMA-ES every whole
+    population after its start and nothing else, so ``(simulations - 1) // popsize`` (``popsize`` of ``meta``'s CMA-ES
+    settings, which a resume must share); ``None`` for the other methods."""
+    if row["method"] != "cmaes":
+        return None
+    return (int(row["simulations"]) - 1) // int(meta["optimizers"]["cmaes"]["popsize"])
 
 
 def aggregate(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -572,30 +592,43 @@ def markdown(comparison: Comparison, command: str | None = None, date: str | Non
     def of_n(v: int | None) -> str:
         return "-" if v is None else f"{v}/{n}"
 
+    idle = {(r["method"], r["multiplier"]) for r in comparison.rows if r.get("generations") == 0}
+
+    def label(method: str, mult: Any) -> str:
+        return _label(method, mult) + (f" {NO_GENERATION}" if (method, mult) in idle else "")
+
     for a in comparison.aggregate:
         budget = _fmt(a["budget_mean"], ".0f")
         lines.append(
-            f"| {_label(a['method'], a['multiplier'])} | {budget} | {pm(a, 'area')} | {pm(a, 'dfd')} | "
+            f"| {label(a['method'], a['multiplier'])} | {budget} | {pm(a, 'area')} | {pm(a, 'dfd')} | "
             f"{pm(a, 'rmse')} | {pm(a, 'score')} | {pm(a, 'param_error', '.3f')} | {a['passed']}/{n} | "
             f"{of_n(a['reached'])} | {_fmt(a['sims_to_policy_median'], '.0f')} | "
             f"{of_n(a['beats_policy'])} | {pm(a, 'wall_time_s', '.1f')} |"
         )
-    lines += [
+    popsize = (meta.get("optimizers") or {}).get("cmaes", {}).get("popsize")
+    footnote = [] if not idle else [
+        "",
+        f"{NO_GENERATION} CMA-ES completed no generation: a budget below 1 + cmaes.popsize ({1 + popsize}) simulates "
+        "the start and part of one population, which CMA-ES never learns from (a random sample around the start; "
+        "generations 0 in the CSV and JSON)",
+    ]  # fmt: skip
+    lines += [*footnote,
         "",
         "## Per reference",
         "",
         "| seed | method | simulations | area | DFD | RMSE | score | initial score | param err | passed "
         "| sims to policy | wall [s] |",
         "|---|---|---|---|---|---|---|---|---|---|---|---|",
-    ]
+    ]  # fmt: skip
     for r in comparison.rows:
+        mark = f" {NO_GENERATION}" if r.get("generations") == 0 else ""
         lines.append(
-            f"| {r['reference_seed']} | {_label(r['method'], r['multiplier'])} | {r['simulations']} | "
+            f"| {r['reference_seed']} | {_label(r['method'], r['multiplier'])}{mark} | {r['simulations']} | "
             f"{_fmt(r['area'])} | {_fmt(r['dfd'])} | {_fmt(r['rmse'])} | {_fmt(r['score'])} | "
             f"{_fmt(r['initial_score'])} | {_fmt(r['param_error'], '.3f')} | {_fmt(r['passed'])} | "
             f"{_fmt(r['sims_to_policy'])} | {_fmt(r['wall_time_s'], '.1f')} |"
         )
-    return "\n".join(lines) + "\n"
+    return "\n".join([*lines, *footnote]) + "\n"
 
 
 def csv_text(comparison: Comparison) -> str:
