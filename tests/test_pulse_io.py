@@ -1299,3 +1299,48 @@ def test_a_channel_whose_pulse_starts_before_its_onset_is_named_with_the_velocit
                     pulse_summary(_lab_record(tmp_path / "lab.csv", "halfsine", noise_g=noise_g, pre_s=pre_s,
                                               seed=seed)[0])  # fmt: skip
     assert v[1, 0] - v[1, -1] == pytest.approx(dv, abs=0.05)  # all of it, from the contact
+
+
+def test_an_iso_mme_test_written_as_utf8_is_read_as_utf8(tmp_path, analytic):
+    """ISO-MME files were read as Latin-1 only: a channel file a tool wrote as UTF-8 with ``Unit :m/s²`` read as
+    ``m/sÂ²`` and was refused as an unknown unit. A line is decoded as UTF-8 where its bytes are UTF-8, else as Latin-1
+    (line by line, as the CSV reader does; a UTF-8 byte-order mark is dropped), and ``mme_channels``, which reads a
+    header in 16 KiB chunks, decodes alike where a chunk ends inside a UTF-8 character. Latin-1 files read as
+    before."""
+    from marlcrash.pulse import mme_channels
+
+    write_mme(analytic, tmp_path / "L", "T", unit="m/s**2")
+    write_mme(analytic, tmp_path / "U", "T", unit="m/s**2")
+    ref = read_mme(tmp_path / "L")
+    files = sorted((tmp_path / "U" / "Channel").glob("T.00?"))
+    for k, f in enumerate(files):
+        head, _, body = f.read_text(encoding="latin-1").partition("Reference system")
+        head = head.replace(":m/s**2", ":m/s²").replace(f":{ref.channels[k]}\n", f":Beschl. Σ {k}\n", 1)
+        if k == 0:  # a Latin-1 comment in a UTF-8 file stays Latin-1; the UTF-8 lines after it stay UTF-8
+            data = b"Comments                    :Pr\xfcfung\n" + (head + "Reference system" + body).encode()
+        else:  # a byte-order mark, and a comment that puts a chunk's end between the two bytes of '²'
+            data = ("\ufeff" + head).encode()
+            split = 16384 - 1 - data.index("²".encode())
+            comment = "Comments                    :" + "x" * (split - 30) + "\n"
+            data = ("\ufeff" + comment + head + "Reference system" + body).encode()
+            assert data[16383:16385] == "²".encode()
+        f.write_bytes(data)
+    got = read_mme(tmp_path / "U")
+    assert got.channels == ref.channels and np.array_equal(got.acc, ref.acc)
+    listed = mme_channels(tmp_path / "U")
+    assert [(c["name"], c["unit"], c["acceleration"]) for c in listed] == [
+        ("Beschl. Σ 0", "m/s²", True), ("Beschl. Σ 1", "m/s²", True)]  # fmt: skip
+    assert read_mme(tmp_path / "U", channels="Beschl. Σ 1").channels == (ref.channels[1],)
+    assert [c["unit"] for c in mme_channels(tmp_path / "L")] == ["m/s**2", "m/s**2"]  # Latin-1, as before
+
+
+def test_mme_header_text_whose_latin_1_bytes_read_as_utf8_is_refused(tmp_path, analytic):
+    """ISO-MME lines are read as UTF-8 where their bytes are UTF-8: ``write_mme`` writes Latin-1, and a name whose
+    Latin-1 bytes happen to be UTF-8 ('Maß²': DF B2, one UTF-8 character) would read back as another name. Refused
+    before anything is written, naming what it would read as; the Latin-1 names of real tests are not UTF-8 and are
+    written as before."""
+    with pytest.raises(PulseError, match=r"channel 2 name 'Maß²': .* read it back as 'Ma\u07f2'"):
+        write_mme(Pulse(analytic.time, analytic.acc, ("tunnel", "Maß²")), tmp_path / "M", "M")
+    assert not (tmp_path / "M").exists()
+    write_mme(Pulse(analytic.time, analytic.acc, ("Fläche m²", "Größe µ")), tmp_path / "L", "Prüfung")
+    assert read_mme(tmp_path / "L").channels == ("Fläche m²", "Größe µ")

@@ -18,8 +18,9 @@ linear interpolation, so it is filtered and integrated like a record.
 ISO-MME (ISO/TS 13499): a test folder with ``<test>.mme`` and a ``Channel``
 folder holding ``<test>.chn`` (the channel list) and one file per channel,
 ``<test>.001``, ``<test>.002``, ... (at least three digits: ``<test>.1000`` follows ``<test>.999``).
-Each channel file starts with ``Name  :value`` header lines; the samples follow, one value per line. Time is
-``Time of first sample + i * Sampling interval`` [s]; ``Unit`` gives the
+Each channel file starts with ``Name  :value`` header lines; the samples follow, one value per line. Latin-1 text
+(written so), or UTF-8 as some tools write it: a line is read as UTF-8 where its bytes are UTF-8, else as Latin-1.
+Time is ``Time of first sample + i * Sampling interval`` [s]; ``Unit`` gives the
 acceleration unit (``g`` or ``m/s**2``). ``Channel frequency class`` is
 information only: samples read from ISO-MME count as unfiltered.
 
@@ -384,20 +385,28 @@ def _read_text_lines(path: Path) -> list[str]:
             except UnicodeDecodeError as e:
                 raise _err(f"starts with a {codec.upper()} byte-order mark but is not {codec.upper()} text "
                            f"({e.reason})", path) from None  # fmt: skip
+    return _decode_lines(raw, ("cp1252",))
+
+
+def _decode_lines(raw: bytes, legacy: tuple[str, ...]) -> list[str]:
+    """The lines of ``raw`` (:func:`_split_lines`): UTF-8 where ``raw`` is UTF-8 text, else line by line (one Latin-1
+    comment must not turn a UTF-8 header into mojibake), a line that is not UTF-8 in the first of ``legacy`` that
+    decodes it, else Latin-1. Either way a line is read as UTF-8 exactly when its bytes are UTF-8; a line break is a
+    byte no UTF-8 character holds, so whole lines decode alike read at once or in chunks (:func:`_read_header_lines`).
+    The CSV reader takes Windows-1252 before Latin-1, ISO-MME Latin-1 alone (the encoding :func:`write_mme` writes)."""
     try:
         return _split_lines(raw.decode("utf-8"))
-    except UnicodeDecodeError:  # line by line: one Latin-1 comment must not turn a UTF-8 header into mojibake
-        return [_decode_line(b) for b in raw.splitlines()]
-
-
-def _decode_line(raw: bytes) -> str:
-    try:
-        return raw.decode("utf-8")
     except UnicodeDecodeError:
+        return [_decode_line(b, legacy) for b in raw.splitlines()]
+
+
+def _decode_line(raw: bytes, legacy: tuple[str, ...]) -> str:
+    for codec in ("utf-8", *legacy):
         try:
-            return raw.decode("cp1252")
+            return raw.decode(codec)
         except UnicodeDecodeError:
-            return raw.decode("latin-1")  # never fails: every byte is a character
+            pass
+    return raw.decode("latin-1")  # never fails: every byte is a character
 
 
 def _delimiter(lines: list[str], first: int, path: Path) -> str:
@@ -466,11 +475,17 @@ def _split_lines(text: str) -> list[str]:
 
 
 def _read_lines(path: Path) -> list[str]:
+    """The lines of an ISO-MME file: UTF-8 where a line is UTF-8 (a byte-order mark dropped), else Latin-1, the
+    encoding of the standard (:func:`_decode_lines`); MME files come from many labs and tools, and Latin-1 never fails
+    to decode."""
     try:
-        # MME files come from many labs and tools; latin-1 never fails to decode.
-        return _split_lines(path.read_text(encoding="latin-1"))
+        raw = path.read_bytes()
     except OSError as e:
         raise _err(f"cannot read ({e.strerror})", path) from None
+    return _decode_lines(raw.removeprefix(_UTF8_BOM), ())
+
+
+_UTF8_BOM = b"\xef\xbb\xbf"
 
 
 MME_HEADER_LINES = 200
@@ -479,22 +494,26 @@ MME_HEADER_LINES = 200
 
 def _read_header_lines(path: Path, most: int = MME_HEADER_LINES) -> list[str]:
     """The first lines of a channel file up to the first that is no ``Name :value`` line (the first sample), at
-    most ``most``, as :func:`_read_lines` splits them: what :func:`_parse_header` reads, without reading the samples
-    after it (a channel may hold millions)."""
+    most ``most``, as :func:`_read_lines` splits and decodes them: what :func:`_parse_header` reads, without reading
+    the samples after it (a channel may hold millions). Only whole lines are decoded, so a chunk ending inside a UTF-8
+    character leaves it whole for the next."""
     lines: list[str] = []
     rest = bytearray()  # the last line read so far, which may go on in the next chunk
+    first = True
     try:
         with path.open("rb") as f:
             while len(lines) < most and all(":" in s for s in lines):
                 chunk = f.read(16384)
+                if first:
+                    chunk, first = chunk.removeprefix(_UTF8_BOM), False
                 if not chunk:
-                    lines += _split_lines(rest.decode("latin-1"))
+                    lines += _decode_lines(bytes(rest), ())
                     break
                 new = max(len(rest) - 1, 0)  # rest holds no line break but a last "\r", which may go on with "\n"
                 rest += chunk
                 end = max(rest.rfind(b"\n", new), rest.rfind(b"\r", new, len(rest) - 1))
                 if end >= 0:
-                    lines += _split_lines(rest[: end + 1].decode("latin-1"))
+                    lines += _decode_lines(bytes(rest[: end + 1]), ())
                     del rest[: end + 1]
     except OSError as e:
         raise _err(f"cannot read ({e.strerror})", path) from None
@@ -736,7 +755,8 @@ def _read_mme(
 
 def _mme_text(text: str, what: str) -> None:
     """Refuse header text that an ISO-MME file, Latin-1 (ISO 8859-1) text of one ``Name :value`` per line, cannot
-    hold: a character outside Latin-1, or a line break (which would end the header line there)."""
+    hold: a character outside Latin-1, a line break (which would end the header line there), or text whose Latin-1
+    bytes are also UTF-8 for other text (``Maß²``: DF B2), which :func:`read_mme` would read as UTF-8."""
     for ch in text:
         if ch in "\n\r":
             why = "is a line break, which would end the header line there"
@@ -745,6 +765,10 @@ def _mme_text(text: str, what: str) -> None:
         else:
             continue
         raise PulseError(f"write_mme: {what} {text!r}: {ch!r} (U+{ord(ch):04X}) {why}; rename it")
+    back = _decode_line(text.encode("latin-1"), ())
+    if back != text:
+        raise PulseError(f"write_mme: {what} {text!r}: its Latin-1 bytes are also UTF-8 text, so a reader (read_mme "
+                         f"among them) would read it back as {back!r}; rename it")  # fmt: skip
 
 
 def _mme_test_name(test: str) -> None:
