@@ -252,3 +252,26 @@ def test_space_lookup_of_an_unknown_agent_names_it_and_the_possible_agents(cells
         with pytest.raises(ActionError, match=r"unknown agent \['nose'\]"):  # unhashable: was a TypeError
             lookup(["nose"])
     assert env.action_space(env.possible_agents[0]).shape == (7,)
+
+
+def test_the_pettingzoo_wrapper_rounds_the_info_metrics_to_float32_as_documented(cells):
+    """The PettingZoo infos hold float64 metrics and a bool ``action_entries``; TorchRL's ``PettingZooWrapper`` builds
+    its info spec without a dtype (float32) and has no option to set one, so it hands every info entry on as float32:
+    the metrics rounded (relative 6e-8 at most, 2**-24) and ``action_entries`` as 1.0 / 0.0. The env's docstring and
+    the README say so; this pins what they say."""
+    env = CalibrationParallelEnv(cfg(), cells)
+    _, infos = env.reset(seed=3)
+    wrapped = PettingZooWrapper(CalibrationParallelEnv(cfg(), cells), use_mask=True, done_on_any=False,
+                                group_map=MarlGroupMapType.ALL_IN_ONE_GROUP)  # fmt: skip
+    group = next(iter(wrapped.group_map))
+    td = wrapped.reset(seed=3)
+    for i, a in enumerate(env.possible_agents):
+        for k in ("area", "dfd", "rmse"):
+            exact = torch.as_tensor(infos[a][k])
+            got = td[group, "info", k][i]
+            assert exact.dtype == torch.float64 and got.dtype == torch.float32
+            assert torch.equal(got, exact.float())  # the float32 nearest to the float64 value
+            assert float(((got.double() - exact) / exact).abs().max()) <= 2.0**-24
+        entries = td[group, "info", "action_entries"][i]
+        assert entries.dtype == torch.float32
+        assert torch.equal(entries.bool(), torch.as_tensor(infos[a]["action_entries"]))

@@ -23,6 +23,10 @@
   region; all ``False`` for an agent inactive in the episode). Not named ``action_mask``: PettingZoo's API test
   samples each agent's space with an info of that name as the mask, which a ``Box`` refuses. TorchRL's
   ``PettingZooWrapper`` gives it as ``(group, "info", "action_entries")``.
+- TorchRL's ``PettingZooWrapper`` hands every info entry on as float32: it builds the info spec without a dtype
+  (TorchRL 0.14: no option sets one, and it writes the values into float32 buffers), so the float64 metrics come out
+  rounded to float32 (relative error at most 6e-8, 2**-24) and ``action_entries`` as 1.0 / 0.0 (``.bool()`` gives
+  the mask back). The float64 metrics are this env's infos, or the native env's ``("metrics", ...)``.
 - Seeding: ``reset(seed=...)`` re-seeds the core's own generator only.
 """
 
