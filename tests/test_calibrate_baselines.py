@@ -293,10 +293,9 @@ def test_a_baseline_whose_candidates_all_diverged_writes_standard_json(tmp_path)
     assert s["best_score"] is None and s["initial_score"] is None
 
 
-def test_a_baseline_run_folder_gets_the_permissions_of_any_other_folder(tmp_path):
+def test_a_baseline_run_folder_gets_the_permissions_of_any_other_folder(tmp_path, umask):
     """The folder was assembled in ``tempfile.mkdtemp`` (mode ``0o700``) and renamed into place, so nobody else could
     read a run whose files were ``0o644``; it gets ``0o777`` less the umask, as ``mkdir`` makes every other folder."""
-    import os
 
     from marlcrash.calibrate import BASELINES, build_problem, write_run
     from marlcrash.calibrate.baselines import BaselineRunConfig, RandomSearchConfig
@@ -306,11 +305,8 @@ def test_a_baseline_run_folder_gets_the_permissions_of_any_other_folder(tmp_path
                             problem=ProblemConfig(duration=0.01))  # fmt: skip
     problem = build_problem(cfg.problem)
     result = BASELINES["random_search"][1](problem, 2, RandomSearchConfig(batch_size=2), 0)
-    old = os.umask(0o022)
-    try:
-        folder = write_run(cfg, problem, result)
-    finally:
-        os.umask(old)
+    umask(0o022)
+    folder = write_run(cfg, problem, result)
     assert folder.stat().st_mode & 0o777 == 0o755
     assert (folder / "summary.json").stat().st_mode & 0o777 == 0o644
     assert sorted(p.name for p in folder.parent.iterdir()) == ["perm"]  # no temporary folder left

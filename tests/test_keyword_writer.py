@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 import stat
 import sys
 import warnings
@@ -236,18 +235,15 @@ def test_a_set_mass_the_cards_cannot_carry_is_warned_and_the_deck_reads_back(tmp
 
 
 @pytest.mark.skipif(sys.platform == "win32", reason="POSIX permission bits")
-def test_a_written_deck_and_map_get_the_umask_mode_and_a_missing_folder_is_named(tmp_path):
+def test_a_written_deck_and_map_get_the_umask_mode_and_a_missing_folder_is_named(tmp_path, umask):
     """tempfile.mkstemp made the deck and its sub-assembly map 0o600 whatever the umask (every other output of
     marlcrash gets 0o666 less the umask, marlcrash.outputs.atomic_output): a deck written for a colleague could not
     be read by the group. A missing folder raised FileNotFoundError naming the temporary file."""
     m = _model()
-    old = os.umask(0o022)
-    try:
-        write_deck(m, tmp_path / "car.k")
-        os.umask(0o027)
-        dump_subassembly_map({"hood": [10]}, tmp_path / "map.yaml")
-    finally:
-        os.umask(old)
+    umask(0o022)
+    write_deck(m, tmp_path / "car.k")
+    umask(0o027)
+    dump_subassembly_map({"hood": [10]}, tmp_path / "map.yaml")
     assert stat.S_IMODE((tmp_path / "car.k").stat().st_mode) == 0o644
     assert stat.S_IMODE((tmp_path / "car.subassemblies.yaml").stat().st_mode) == 0o644
     assert stat.S_IMODE((tmp_path / "map.yaml").stat().st_mode) == 0o640  # the umask still decides

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
 import shutil
 import stat
 import sys
@@ -317,18 +316,15 @@ class _RunsCode:
 
 
 @pytest.mark.skipif(sys.platform == "win32", reason="POSIX permission bits")
-def test_a_checkpoint_is_as_readable_as_the_other_files_of_its_run(tmp_path):
+def test_a_checkpoint_is_as_readable_as_the_other_files_of_its_run(tmp_path, umask):
     """tempfile.mkstemp made every checkpoint 0o600 whatever the umask: on a shared machine the run's summary and
     plots could be read by the group, its checkpoints not, so nobody else could evaluate them."""
-    old = os.umask(0o022)
-    try:
-        save_checkpoint(tmp_path / "checkpoint.pt", {"a": 1})
-        save_checkpoint(tmp_path / "checkpoint.pt", {"a": 2})  # replaced: the new file's mode
-        (tmp_path / "summary.json").write_text("{}")
-        os.umask(0o077)
-        save_checkpoint(tmp_path / "private.pt", {"a": 3})
-    finally:
-        os.umask(old)
+    umask(0o022)
+    save_checkpoint(tmp_path / "checkpoint.pt", {"a": 1})
+    save_checkpoint(tmp_path / "checkpoint.pt", {"a": 2})  # replaced: the new file's mode
+    (tmp_path / "summary.json").write_text("{}")
+    umask(0o077)
+    save_checkpoint(tmp_path / "private.pt", {"a": 3})
     assert stat.S_IMODE((tmp_path / "checkpoint.pt").stat().st_mode) == 0o644
     assert stat.S_IMODE((tmp_path / "summary.json").stat().st_mode) == 0o644
     assert stat.S_IMODE((tmp_path / "private.pt").stat().st_mode) == 0o600  # the umask still decides
