@@ -58,7 +58,6 @@ import torch
 
 from marlcrash import provenance
 from marlcrash.calibrate.budget import Progress
-from marlcrash.calibrate.leastsq import FLOAT32_FD_STEP as FLOAT32_FD_STEP  # its home until landscape shared it
 from marlcrash.calibrate.leastsq import STEP_FACTORS, check_fd_step, lm_iteration
 from marlcrash.calibrate.problem import CalibrationProblem, ProblemConfig, SmoothLoss, problem_env_config
 from marlcrash.calibrate.runlock import claim_dir
