@@ -115,11 +115,16 @@ def source_digest() -> str:
     return _tree_digest(_package_root())
 
 
+#: Entry scripts that mark a ``train/`` folder beside the package as marlcrash's own (an installed copy sits in
+#: ``site-packages``, where a ``train`` folder, if any, belongs to another distribution).
+TRAIN_SCRIPTS = ("train.py", "baseline.py")
+
+
 def train_digest() -> str | None:
     """SHA-256 over the ``train/`` entry scripts beside the package (as :func:`source_digest`), or ``None`` where
-    there is no such folder (an installed copy)."""
+    there is no such folder holding :data:`TRAIN_SCRIPTS` (an installed copy)."""
     root = _train_root()
-    return _tree_digest(root) if root.is_dir() else None
+    return _tree_digest(root) if all((root / name).is_file() for name in TRAIN_SCRIPTS) else None
 
 
 def _tree_digest(root: Path) -> str:

@@ -102,8 +102,12 @@ def test_a_record_names_cma_and_numba_and_a_changed_train_script_warns_like_chan
 
     scripts = tmp_path / "train"
     scripts.mkdir()
-    (scripts / "train.py").write_text("print('train')\n")
+    (scripts / "other.py").write_text("print('another distribution')\n")
     monkeypatch.setattr(provenance, "_train_root", lambda: scripts)
+    assert provenance.train_digest() is None  # a site-packages/train of another distribution is not ours
+    (scripts / "baseline.py").write_text("print('baseline')\n")
+    (scripts / "train.py").write_text("print('train')\n")
+    assert provenance.train_digest() is not None
     provenance.write_record(run)
     assert provenance.check_run(run).code == []
     (scripts / "train.py").write_text("print('train, differently')\n")
