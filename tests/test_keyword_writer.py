@@ -266,3 +266,28 @@ def test_titles_that_begin_as_a_comment_or_a_keyword_read_back(tmp_path):
     assert back.name == m.name
     assert {pid: p.name for pid, p in back.parts.items()} == {pid: p.name for pid, p in m.parts.items()}
     assert {mid: x.name for mid, x in back.materials.items()} == {mid: x.name for mid, x in m.materials.items()}
+
+
+def test_titles_longer_than_their_field_are_cut_with_a_warning(tmp_path):
+    """*TITLE and a material's title are one line of 80 characters, a part's heading 70 (LS-DYNA reads no more):
+    the writer cut them to 80 without a word, so a long name came back shortened; and a part heading of 71-80
+    characters was written whole, past its field. What is cut (or a line break joined) is named in the warning."""
+    m = _model()
+    m.name = "a vehicle model whose name runs on " + "and on " * 10  # 105 characters
+    m.parts = {pid: replace(p, name=p.name + " " + "x" * 64) if pid == 11 else p for pid, p in m.parts.items()}
+    m.materials = {mid: replace(x, name="line one\nline two") if mid == 3 else x for mid, x in m.materials.items()}
+    with pytest.warns(UserWarning) as caught:
+        deck = write_deck(m, tmp_path / "c.k")
+    text = " ".join(str(w.message) for w in caught)
+    assert f"*TITLE {m.name!r} is cut to its 80 columns: it reads back as {m.name[:80].strip()!r}" in text
+    assert f"part 11: its heading {m.parts[11].name!r} is cut to its 70 columns" in text
+    assert "material 3: its title 'line one\\nline two' is written on one line: it reads back as 'line one line" in text
+    assert "part 10" not in text and "material 1" not in text  # what fits goes through without a word
+    lines = deck.read_text().splitlines()
+    titles = [lines[k + 1] for k, s in enumerate(lines) if s == "*TITLE" or s.endswith("_TITLE+")]
+    assert len(titles) == 5 and max(len(s) for s in titles) == 80
+    headings = [lines[k + 1] for k, s in enumerate(lines) if s.startswith("*PART")]
+    assert len(headings) == 4 and max(len(s) for s in headings) == 70
+    back = read_deck(deck, subassemblies=tmp_path / "c.subassemblies.yaml")
+    assert back.name == m.name[:80].strip() and back.parts[11].name == m.parts[11].name[:70]
+    assert back.materials[3].name == "line one line two"

@@ -19,8 +19,10 @@ What the cards cannot carry: strengths of elastic and rigid materials (the reade
 re-derives them with :func:`complete_material`), a fracture strength different from
 the ultimate one for ``plastic_kinematic``, shear and bulk moduli inconsistent with
 E and nu, a set mass (:attr:`VehicleModel.part_mass`) of a deformable part or a zero one
-(``*PART_INERTIA`` TM is read for rigid parts only, and must be positive). The writer warns
-(:class:`UserWarning`) when a model holds such values.
+(``*PART_INERTIA`` TM is read for rigid parts only, and must be positive), and names that do not fit their title
+line: ``*TITLE`` and a material's title are one line of 80 characters, a part's heading one of 70 (LS-DYNA reads
+no more), so a longer name is cut to its field and a line break in one becomes a space. The writer warns
+(:class:`UserWarning`) when a model holds such values, naming each and what it reads back as.
 """
 
 from __future__ import annotations
@@ -54,11 +56,21 @@ def _f20(x: float) -> str:
     return f"{x:20.12e}"
 
 
-def _title(name: str) -> str:
-    """A title line (80 columns, one line). One that would begin with ``$`` (a comment) or ``*`` (a keyword) is
-    indented by a space: readers strip titles, so it reads back as written."""
-    text = name.replace("\r", " ").replace("\n", " ")[:80]
-    return " " + text[:79] if text.startswith(("$", "*")) else text
+def _title(name: str, what: str, cannot: list[str], width: int = 80) -> str:
+    """A title line: one line of ``width`` columns (80 for ``*TITLE`` and a material's title, 70 for a part's
+    heading: LS-DYNA reads no more). One that would begin with ``$`` (a comment) or ``*`` (a keyword) is indented by
+    a space: readers strip titles, so it reads back as written. A name that does not read back whole (longer than
+    the field, with a line break, or with blanks around it) is noted in ``cannot`` as ``what``, with what it reads
+    back as."""
+    text = name.replace("\r", " ").replace("\n", " ")
+    line = " " + text if text.startswith(("$", "*")) else text
+    back = line[:width].strip()
+    if back != name:
+        how = [f"is cut to its {width} columns"] if len(line.rstrip()) > width else []
+        if text != name:
+            how.insert(0, "is written on one line")
+        cannot.append(f"{what} {name!r} {' and '.join(how) or 'loses the blanks around it'}: it reads back as {back!r}")
+    return line[:width]
 
 
 def _card(values: Iterable[float | int]) -> str:
@@ -81,11 +93,12 @@ def _id_format(max_id: int) -> tuple[str, int]:
     return ("", 8) if max_id < 10**8 else ("+", 20)
 
 
-def _material_cards(m: Material, u) -> tuple[str, list[str]]:
-    """Keyword text of one material and the 8-vector entries it cannot carry."""
+def _material_cards(m: Material, u, cannot: list[str]) -> tuple[str, list[str]]:
+    """Keyword text of one material and the 8-vector entries it cannot carry (a title it cannot carry whole goes
+    to ``cannot``)."""
     ro, e, nu = m.density / u.density, m.youngs_modulus / u.stress, m.poisson_ratio
     sy, su, sf = (m.yield_strength / u.stress, m.ultimate_strength / u.stress, m.fracture_strength / u.stress)
-    title = _title(m.name)
+    title = _title(m.name, f"material {m.id}: its title", cannot)
     kind = m.kind
     rebuilt = Material(m.id, m.name, kind, m.density, m.youngs_modulus, poisson_ratio=nu)
     if kind in ("elastic", "other"):
@@ -189,9 +202,9 @@ def write_deck(model: VehicleModel, path: str | Path, *, units: str = "mm-t-s", 
     cannot: list[str] = []  # what else the cards cannot carry
     with atomic_output(path) as tmp, open(tmp, "w", newline="\n") as f:
         f.write(f"$ written by marlcrash from model {model.name!r}, units {u.name}\n*KEYWORD\n*TITLE\n")
-        f.write(_title(model.name or "vehicle") + "\n")
+        f.write((_title(model.name, "*TITLE", cannot) if model.name else "vehicle") + "\n")
         for mid in sorted(model.materials):
-            text, miss = _material_cards(model.materials[mid], u)
+            text, miss = _material_cards(model.materials[mid], u, cannot)
             f.write(text)
             if miss:
                 lost[mid] = miss
@@ -204,12 +217,13 @@ def write_deck(model: VehicleModel, path: str | Path, *, units: str = "mm-t-s", 
                 secid, fresh = fresh, fresh + 1
             used_secids.add(secid)
             kind = kinds.get(pid, "shell")
+            heading = _title(p.name, f"part {pid}: its heading", cannot, width=70)
             inertia = pid in model.part_mass and _inertia_carries(model, pid, cannot)
             if inertia:
-                f.write(f"*PART_INERTIA+\n{_title(p.name)}\n" + _card([pid, secid, p.material_id]))
+                f.write(f"*PART_INERTIA+\n{heading}\n" + _card([pid, secid, p.material_id]))
                 f.write(_inertia_cards(model, pid, u))
             else:
-                f.write(f"*PART\n{_title(p.name)}\n")
+                f.write(f"*PART\n{heading}\n")
                 f.write(f"{pid:10d}{secid:10d}{p.material_id:10d}\n")
             if kind == "shell":
                 t = (p.thickness or 0.0) / u.length
