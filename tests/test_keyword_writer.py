@@ -291,3 +291,29 @@ def test_titles_longer_than_their_field_are_cut_with_a_warning(tmp_path):
     back = read_deck(deck, subassemblies=tmp_path / "c.subassemblies.yaml")
     assert back.name == m.name[:80].strip() and back.parts[11].name == m.parts[11].name[:70]
     assert back.materials[3].name == "line one line two"
+
+
+def _renumbered(m: VehicleModel, pids: dict[int, int], mids: dict[int, int] | None = None) -> VehicleModel:
+    """``m`` with parts (and materials) renumbered by the maps given, section ids following the part ids."""
+    mids = mids or {k: k for k in m.materials}
+    m.materials = {mids[k]: replace(x, id=mids[k]) for k, x in m.materials.items()}
+    m.parts = {
+        pids[k]: replace(p, id=pids[k], material_id=mids[p.material_id], section_id=pids[k]) for k, p in m.parts.items()
+    }
+    for kind in ("shell", "solid", "beam"):
+        setattr(m, f"{kind}_part", np.array([pids[k] for k in getattr(m, f"{kind}_part").tolist()], dtype=np.int64))
+    m.subassemblies = {name: [pids[k] for k in v] for name, v in m.subassemblies.items()}
+    return m
+
+
+def test_part_ids_too_wide_for_the_part_card_go_long_format(tmp_path):
+    """*PART's card has 10-column fields: a part, section or material id of 11 digits was written past its column
+    (``12345678901         1``) and the deck read back as SECID '1         1', or a wrong section."""
+    big = 12_345_678_901
+    m = _renumbered(_model(), {10: big, 11: 11, 12: 9_999_999_999, 13: 13}, {1: 1, 2: 2, 3: big + 7, 4: 4})
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        deck = write_deck(m, tmp_path / "c.k")
+    _same(m, read_deck(deck, subassemblies=tmp_path / "c.subassemblies.yaml"))
+    heads = [s for s in deck.read_text().splitlines() if s.startswith("*PART")]
+    assert heads == ["*PART+", "*PART", "*PART", "*PART+"]  # parts 11 (material big + 7), 13, 9999999999, big

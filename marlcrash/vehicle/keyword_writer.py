@@ -8,11 +8,13 @@ The deck holds ``*NODE`` (16-character coordinates, 10 significant digits),
 ``piecewise_linear`` -> ``*MAT_PIECEWISE_LINEAR_PLASTICITY``, ``rigid`` ->
 ``*MAT_RIGID`` (``other`` is written as ``*MAT_ELASTIC``). Sections and materials use
 per-keyword long format (``+``, 20-character fields) so their values survive a round
-trip to 13 significant digits. A ``<stem>.subassemblies.yaml`` beside the deck holds
-the sub-assemblies. :func:`marlcrash.vehicle.keyword.read_deck` reads the pair back
-to the same model. Added masses go as the reader takes them: a rigid part's set structural mass as
-``*PART_INERTIA`` (its inertia tensor that of its elements as lumped masses), non-structural
-mass as ``*ELEMENT_MASS_PART`` ADDMASS, point masses as ``*ELEMENT_MASS`` (renumbered where
+trip to 13 significant digits; ``*PART`` does where an id needs more than its 10 columns, and
+``*NODE``, ``*ELEMENT_*`` and ``*ELEMENT_MASS`` where one needs more than 8. A
+``<stem>.subassemblies.yaml`` beside the deck holds the sub-assemblies.
+:func:`marlcrash.vehicle.keyword.read_deck` reads the pair back to the same model. Added
+masses go as the reader takes them: a rigid part's set structural mass as ``*PART_INERTIA``
+(its inertia tensor that of its elements as lumped masses), non-structural mass as
+``*ELEMENT_MASS_PART`` ADDMASS, point masses as ``*ELEMENT_MASS`` (renumbered where
 ids repeat, as a node set's share does).
 
 What the cards cannot carry: strengths of elastic and rigid materials (the reader
@@ -222,9 +224,10 @@ def write_deck(model: VehicleModel, path: str | Path, *, units: str = "mm-t-s", 
             if inertia:
                 f.write(f"*PART_INERTIA+\n{heading}\n" + _card([pid, secid, p.material_id]))
                 f.write(_inertia_cards(model, pid, u))
-            else:
-                f.write(f"*PART\n{heading}\n")
-                f.write(f"{pid:10d}{secid:10d}{p.material_id:10d}\n")
+            elif max(pid, secid, p.material_id) < 10**10:
+                f.write(f"*PART\n{heading}\n{pid:10d}{secid:10d}{p.material_id:10d}\n")
+            else:  # an id too wide for the card's 10 columns
+                f.write(f"*PART+\n{heading}\n" + _card([pid, secid, p.material_id]))
             if kind == "shell":
                 t = (p.thickness or 0.0) / u.length
                 f.write("*SECTION_SHELL+\n" + _card([secid, 2, 1.0, 2, 0.0]) + _card([t, t, t, t]))
