@@ -317,3 +317,62 @@ def test_part_ids_too_wide_for_the_part_card_go_long_format(tmp_path):
     _same(m, read_deck(deck, subassemblies=tmp_path / "c.subassemblies.yaml"))
     heads = [s for s in deck.read_text().splitlines() if s.startswith("*PART")]
     assert heads == ["*PART+", "*PART", "*PART", "*PART+"]  # parts 11 (material big + 7), 13, 9999999999, big
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        (
+            lambda m: m.node_ids.__setitem__(0, -123_456_789),
+            r"node id -123456789 is not positive \(\*NODE takes ids from 1\)",
+        ),
+        (
+            lambda m: m.shell_ids.__setitem__(1, 0),
+            r"shell id 0 is not positive \(\*ELEMENT_SHELL_THICKNESS takes ids from 1\)",
+        ),
+        (
+            lambda m: m.solid_ids.__setitem__(0, -20),
+            r"solid id -20 is not positive \(\*ELEMENT_SOLID takes ids from 1\)",
+        ),
+        (
+            lambda m: m.beam_ids.__setitem__(0, 0),
+            r"beam id 0 is not positive \(\*ELEMENT_BEAM_THICKNESS takes ids from 1\)",
+        ),
+        (
+            lambda m: _renumbered(m, {10: 10, 11: -11, 12: 12, 13: 13}),
+            r"part id -11 is not positive \(\*PART takes ids from 1\)",
+        ),
+        (lambda m: _renumbered(m, {k: k for k in m.parts}, {1: 1, 2: 2, 3: 3, 4: 0}), r"material id 0 is not pos"),
+        (
+            lambda m: m.parts.__setitem__(12, replace(m.parts[12], section_id=-4)),
+            r"part 12's section id -4 is not positive \(\*SECTION_SOLID takes ids from 1\)",
+        ),
+    ],
+)
+def test_ids_ls_dyna_does_not_take_are_refused_by_name(tmp_path, change, message):
+    """Every id of a keyword deck is a positive integer. The writer wrote a negative or zero id as it came, a deck
+    its own reader refused ('*NODE expects a positive node id'); a negative node id of 9 characters ran into the x
+    column, and the reader complained of a bad coordinate."""
+    m = _model()
+    m.node_ids, m.shell_ids, m.solid_ids, m.beam_ids = (
+        a.copy() for a in (m.node_ids, m.shell_ids, m.solid_ids, m.beam_ids)
+    )
+    change(m)
+    with pytest.raises(ModelError, match=message):
+        write_deck(m, tmp_path / "c.k")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_point_mass_ids_that_are_not_positive_are_renumbered(tmp_path):
+    """A point mass's id labels its *ELEMENT_MASS card only (the model refers to none): ids that repeat were renumbered
+    from 1, ids of 0 or below went into the deck as they came and it could not be read back."""
+    m = _model()
+    m.point_mass_ids, m.point_mass_nodes, m.point_mass = np.array([0, -7]), np.array([2, 5]), np.array([1.5, 2.5])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        deck = write_deck(m, tmp_path / "c.k")
+    back = read_deck(deck, subassemblies=tmp_path / "c.subassemblies.yaml")
+    _same(m, back)
+    assert back.point_mass_ids.tolist() == [1, 2]
+    np.testing.assert_array_equal(back.node_ids[back.point_mass_nodes], m.node_ids[m.point_mass_nodes])
+    np.testing.assert_allclose(back.point_mass, m.point_mass, rtol=1e-9)

@@ -14,8 +14,9 @@ trip to 13 significant digits; ``*PART`` does where an id needs more than its 10
 :func:`marlcrash.vehicle.keyword.read_deck` reads the pair back to the same model. Added
 masses go as the reader takes them: a rigid part's set structural mass as ``*PART_INERTIA``
 (its inertia tensor that of its elements as lumped masses), non-structural mass as
-``*ELEMENT_MASS_PART`` ADDMASS, point masses as ``*ELEMENT_MASS`` (renumbered where
-ids repeat, as a node set's share does).
+``*ELEMENT_MASS_PART`` ADDMASS, point masses as ``*ELEMENT_MASS`` (renumbered from 1 where
+ids repeat, as a node set's share does, or one is not positive). Every other id must be positive, as LS-DYNA
+wants: :func:`write_deck` refuses a model with one that is not.
 
 What the cards cannot carry: strengths of elastic and rigid materials (the reader
 re-derives them with :func:`complete_material`), a fracture strength different from
@@ -179,6 +180,28 @@ def _part_kinds(model: VehicleModel) -> dict[int, str]:
     return kinds
 
 
+def _check_ids(model: VehicleModel, kinds: dict[int, str]) -> None:
+    """Refuse an id LS-DYNA does not take: every id of a keyword deck is a positive integer."""
+    for what, keyword, ids in (
+        ("node", "*NODE", model.node_ids),
+        ("shell", "*ELEMENT_SHELL_THICKNESS", model.shell_ids),
+        ("solid", "*ELEMENT_SOLID", model.solid_ids),
+        ("beam", "*ELEMENT_BEAM_THICKNESS", model.beam_ids),
+        ("part", "*PART", list(model.parts)),
+        ("material", "*MAT", list(model.materials)),
+    ):
+        a = np.asarray(ids, dtype=np.int64)
+        if a.size and a.min() <= 0:
+            bad = int(a[a <= 0][0])
+            raise ModelError(f"{model.name}: {what} id {bad} is not positive ({keyword} takes ids from 1)")
+    for pid, p in model.parts.items():
+        if p.section_id is not None and p.section_id <= 0:
+            keyword = f"*SECTION_{kinds.get(pid, 'shell').upper()}"
+            raise ModelError(
+                f"{model.name}: part {pid}'s section id {p.section_id} is not positive ({keyword} takes ids from 1)"
+            )
+
+
 def write_deck(model: VehicleModel, path: str | Path, *, units: str = "mm-t-s", subassembly_yaml: bool = True) -> Path:
     """Write ``model`` as a fixed-format keyword deck in ``units``.
 
@@ -192,14 +215,15 @@ def write_deck(model: VehicleModel, path: str | Path, *, units: str = "mm-t-s", 
         The deck path.
 
     Raises:
-        ModelError: the model is invalid, a part mixes element kinds, or a material is
-            incomplete.
+        ModelError: the model is invalid, a part mixes element kinds, a material is
+            incomplete, or a node, element, part, section or material id is not positive.
         ConfigError: unknown ``units``, or ``path`` cannot be written (its folder is missing or not writable).
     """
     u = get_unit_system(units)
     model.validate()
     path = Path(path)
     kinds = _part_kinds(model)
+    _check_ids(model, kinds)
     lost: dict[int, list[str]] = {}
     cannot: list[str] = []  # what else the cards cannot carry
     with atomic_output(path) as tmp, open(tmp, "w", newline="\n") as f:
@@ -324,7 +348,7 @@ def _write_masses(f, model: VehicleModel, u) -> None:
             f.write(_card([pid, mass / u.mass, 0.0]))
     if model.point_mass.size:
         ids = model.point_mass_ids
-        if np.unique(ids).size < ids.size:
+        if np.unique(ids).size < ids.size or ids.min() <= 0:
             ids = np.arange(1, ids.size + 1)
         nid = model.node_ids[model.point_mass_nodes]
         sfx, w = _id_format(max(int(ids.max()), int(nid.max())))
