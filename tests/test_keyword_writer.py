@@ -10,7 +10,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from marlcrash.errors import ConfigError, ModelError
+from marlcrash.errors import ConfigError, DeckError, ModelError
 from marlcrash.vehicle.keyword import read_deck
 from marlcrash.vehicle.keyword_writer import write_deck
 from marlcrash.vehicle.materials import MATERIAL_FIELDS, Material, complete_material
@@ -376,3 +376,22 @@ def test_point_mass_ids_that_are_not_positive_are_renumbered(tmp_path):
     assert back.point_mass_ids.tolist() == [1, 2]
     np.testing.assert_array_equal(back.node_ids[back.point_mass_nodes], m.node_ids[m.point_mass_nodes])
     np.testing.assert_allclose(back.point_mass, m.point_mass, rtol=1e-9)
+
+
+def test_a_coordinate_too_wide_for_its_column_goes_long_format(tmp_path):
+    """*NODE's coordinates have 16 columns: -2e100 mm written as ``-2.000000000e+100`` took 17 and pushed the rest
+    of the line one column on, so a fixed-column reader took z for -2e+07 mm (``-2.000000000e+10`` and a ``0``
+    left over). A block holding a value that needs a 3-digit exponent is written in long format (20 columns)."""
+    m = _model()
+    m.coords = m.coords.copy()
+    m.coords[3, 2] = -2e97  # m: -2e100 mm
+    deck = write_deck(m, tmp_path / "c.k")
+    lines = deck.read_text().splitlines()
+    k = next(i for i, s in enumerate(lines) if s.startswith("*NODE"))
+    w, cw = (20, 20) if lines[k] == "*NODE+" else (8, 16)
+    row = lines[k + 4]  # the fourth node
+    assert int(row[:w]) == m.node_ids[3]
+    assert [float(row[w + j * cw : w + (j + 1) * cw]) for j in range(3)] == pytest.approx(m.coords[3] * 1e3, rel=1e-9)
+    # the reader takes it as written, and names the node as lying where the model has it (too far for a vehicle)
+    with pytest.raises(DeckError, match=rf"node {m.node_ids[3]} at \(.*, -2e\+97\) m"):
+        read_deck(deck, subassemblies=tmp_path / "c.subassemblies.yaml")

@@ -9,7 +9,8 @@ The deck holds ``*NODE`` (16-character coordinates, 10 significant digits),
 ``*MAT_RIGID`` (``other`` is written as ``*MAT_ELASTIC``). Sections and materials use
 per-keyword long format (``+``, 20-character fields) so their values survive a round
 trip to 13 significant digits; ``*PART`` does where an id needs more than its 10 columns, and
-``*NODE``, ``*ELEMENT_*`` and ``*ELEMENT_MASS`` where one needs more than 8. A
+``*NODE``, ``*ELEMENT_*`` and ``*ELEMENT_MASS`` where one needs more than 8 or a value a
+3-digit exponent (1e100 or more in the deck's units). A
 ``<stem>.subassemblies.yaml`` beside the deck holds the sub-assemblies.
 :func:`marlcrash.vehicle.keyword.read_deck` reads the pair back to the same model. Added
 masses go as the reader takes them: a rigid part's set structural mass as ``*PART_INERTIA``
@@ -91,9 +92,12 @@ def _write_rows(f, fmt: str, *cols: np.ndarray) -> None:
         f.write("".join(fmt % r for r in rows))
 
 
-def _id_format(max_id: int) -> tuple[str, int]:
-    """Keyword suffix and id width for ids up to ``max_id``."""
-    return ("", 8) if max_id < 10**8 else ("+", 20)
+def _id_format(max_id: int, *values: np.ndarray) -> tuple[str, int]:
+    """Keyword suffix and id width for ids up to ``max_id``: long format (``+``, 20 columns) where an id needs more
+    than 8 columns or one of ``values`` more than the 16 of a fixed-format real (a 3-digit exponent,
+    ``-1.000000000e+100``: :func:`_tidy` leaves none below 1e-99)."""
+    wide = any(v.size and float(np.abs(v).max()) >= 1e100 for v in values)
+    return ("", 8) if max_id < 10**8 and not wide else ("+", 20)
 
 
 def _material_cards(m: Material, u, cannot: list[str]) -> tuple[str, list[str]]:
@@ -276,17 +280,17 @@ def write_deck(model: VehicleModel, path: str | Path, *, units: str = "mm-t-s", 
 
 def _write_geometry(f, model: VehicleModel, u) -> None:
     ids = model.node_ids
-    sfx, w = _id_format(int(ids.max()) if ids.size else 0)
+    c = _tidy(model.coords / u.length)
+    sfx, w = _id_format(int(ids.max()) if ids.size else 0, c)
     cw = 20 if sfx else 16
     f.write(f"*NODE{sfx}\n")
-    c = _tidy(model.coords / u.length)
     _write_rows(f, f"%{w}d%{cw}.9e%{cw}.9e%{cw}.9e\n", ids, c[:, 0], c[:, 1], c[:, 2])
     nid = model.node_ids
     if model.n_shells:
         n = nid[model.shell_nodes]
-        sfx, w = _id_format(max(int(n.max()), int(model.shell_ids.max()), int(model.shell_part.max())))
-        tw = 20 if sfx else 16
         t = _tidy(model.shell_thickness / u.length)
+        sfx, w = _id_format(max(int(n.max()), int(model.shell_ids.max()), int(model.shell_part.max())), t)
+        tw = 20 if sfx else 16
         f.write(f"*ELEMENT_SHELL_THICKNESS{sfx}\n")
         fmt = f"%{w}d" * 6 + "\n" + f"%{tw}.9e" * 4 + "\n"
         _write_rows(f, fmt, model.shell_ids, model.shell_part, n[:, 0], n[:, 1], n[:, 2], n[:, 3], t, t, t, t)
@@ -297,10 +301,10 @@ def _write_geometry(f, model: VehicleModel, u) -> None:
         _write_rows(f, f"%{w}d" * 10 + "\n", model.solid_ids, model.solid_part, *(n[:, k] for k in range(8)))
     if model.n_beams:
         n = nid[model.beam_nodes]
-        sfx, w = _id_format(max(int(n.max()), int(model.beam_ids.max()), int(model.beam_part.max())))
-        tw = 20 if sfx else 16
         a = _tidy(model.beam_area / u.area)
-        i = a * a / (4 * math.pi)
+        i = _tidy(a * a / (4 * math.pi))
+        sfx, w = _id_format(max(int(n.max()), int(model.beam_ids.max()), int(model.beam_part.max())), a, 2 * i)
+        tw = 20 if sfx else 16
         f.write(f"*ELEMENT_BEAM_THICKNESS{sfx}\n")
         fmt = f"%{w}d" * 4 + "\n" + f"%{tw}.9e" * 4 + "\n"
         _write_rows(f, fmt, model.beam_ids, model.beam_part, n[:, 0], n[:, 1], a, i, i, 2 * i)
@@ -351,10 +355,11 @@ def _write_masses(f, model: VehicleModel, u) -> None:
         if np.unique(ids).size < ids.size or ids.min() <= 0:
             ids = np.arange(1, ids.size + 1)
         nid = model.node_ids[model.point_mass_nodes]
-        sfx, w = _id_format(max(int(ids.max()), int(nid.max())))
+        pm = _tidy(model.point_mass / u.mass)
+        sfx, w = _id_format(max(int(ids.max()), int(nid.max())), pm)
         f.write(f"*ELEMENT_MASS{sfx}\n")
         mw = 20 if sfx else 16
-        _write_rows(f, f"%{w}d%{w}d%{mw}.9e%{w}d\n", ids, nid, model.point_mass / u.mass, np.zeros_like(ids))
+        _write_rows(f, f"%{w}d%{w}d%{mw}.9e%{w}d\n", ids, nid, pm, np.zeros_like(ids))
 
 
 def _tidy(x: np.ndarray) -> np.ndarray:
