@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import stat
 import sys
 import warnings
@@ -395,3 +396,22 @@ def test_a_coordinate_too_wide_for_its_column_goes_long_format(tmp_path):
     # the reader takes it as written, and names the node as lying where the model has it (too far for a vehicle)
     with pytest.raises(DeckError, match=rf"node {m.node_ids[3]} at \(.*, -2e\+97\) m"):
         read_deck(deck, subassemblies=tmp_path / "c.subassemblies.yaml")
+
+
+@pytest.mark.parametrize(
+    ("pid", "field", "value", "message"),
+    [
+        (10, "thickness", math.nan, r"part 10's thickness nan m is not finite and >= 0 \(\*SECTION_SHELL T1"),
+        (11, "thickness", -1e-3, r"part 11's thickness -0.001 m is not finite and >= 0 \(\*SECTION_SHELL T1"),
+        (13, "beam_area", math.inf, r"part 13's beam area inf m\^2 is not finite and >= 0 \(\*SECTION_BEAM A\)"),
+    ],
+)
+def test_a_section_value_ls_dyna_cannot_read_is_refused_by_part(tmp_path, pid, field, value, message):
+    """A part's thickness or beam area goes into its section card as it is: NaN or a negative thickness gave a deck
+    its own reader refused (``*SECTION_SHELL expects thicknesses T1..T4 >= 0, got [nan, ...]``) and an infinite
+    area one that read back as ``inf``. The writer names the part instead."""
+    m = _model()
+    m.parts = {k: replace(p, **{field: value}) if k == pid else p for k, p in m.parts.items()}
+    with pytest.raises(ModelError, match=message):
+        write_deck(m, tmp_path / "c.k")
+    assert list(tmp_path.iterdir()) == []

@@ -185,7 +185,8 @@ def _part_kinds(model: VehicleModel) -> dict[int, str]:
 
 
 def _check_ids(model: VehicleModel, kinds: dict[int, str]) -> None:
-    """Refuse an id LS-DYNA does not take: every id of a keyword deck is a positive integer."""
+    """Refuse an id LS-DYNA does not take (every id of a keyword deck is a positive integer), and a part's section
+    value it cannot read (a shell part's thickness, a beam part's area: finite and >= 0)."""
     for what, keyword, ids in (
         ("node", "*NODE", model.node_ids),
         ("shell", "*ELEMENT_SHELL_THICKNESS", model.shell_ids),
@@ -199,11 +200,20 @@ def _check_ids(model: VehicleModel, kinds: dict[int, str]) -> None:
             bad = int(a[a <= 0][0])
             raise ModelError(f"{model.name}: {what} id {bad} is not positive ({keyword} takes ids from 1)")
     for pid, p in model.parts.items():
+        kind = kinds.get(pid, "shell")
         if p.section_id is not None and p.section_id <= 0:
-            keyword = f"*SECTION_{kinds.get(pid, 'shell').upper()}"
             raise ModelError(
-                f"{model.name}: part {pid}'s section id {p.section_id} is not positive ({keyword} takes ids from 1)"
+                f"{model.name}: part {pid}'s section id {p.section_id} is not positive "
+                f"(*SECTION_{kind.upper()} takes ids from 1)"
             )
+        checks = {"shell": ("thickness", p.thickness, "m", "T1..T4"), "beam": ("beam area", p.beam_area, "m^2", "A")}
+        if kind in checks:
+            what, value, unit, field = checks[kind]
+            if value is not None and not (math.isfinite(value) and value >= 0):
+                raise ModelError(
+                    f"{model.name}: part {pid}'s {what} {value} {unit} is not finite and >= 0 "
+                    f"(*SECTION_{kind.upper()} {field})"
+                )
 
 
 def write_deck(model: VehicleModel, path: str | Path, *, units: str = "mm-t-s", subassembly_yaml: bool = True) -> Path:
@@ -220,7 +230,8 @@ def write_deck(model: VehicleModel, path: str | Path, *, units: str = "mm-t-s", 
 
     Raises:
         ModelError: the model is invalid, a part mixes element kinds, a material is
-            incomplete, or a node, element, part, section or material id is not positive.
+            incomplete, a node, element, part, section or material id is not positive, or a part's
+            thickness or beam area is not finite and >= 0.
         ConfigError: unknown ``units``, or ``path`` cannot be written (its folder is missing or not writable).
     """
     u = get_unit_system(units)
