@@ -197,3 +197,53 @@ def test_an_up_front_sensor_with_no_material_near_it_on_its_side_is_named(lsopt_
     left, right = cells.sensor_position[:2]
     assert left[1] > 0 > right[1]
     assert np.hypot(left[0] - cfg.upfront_sensor_x, left[1] - float(y)) <= far  # the nearest the message named
+
+
+def _renumbered(m, shift: int):
+    """``m`` with every node, shell, part, section and material id moved up by ``shift``."""
+    from dataclasses import replace
+
+    m = replace(m)
+    m.node_ids = m.node_ids + shift
+    m.shell_ids, m.shell_part = m.shell_ids + shift, m.shell_part + shift
+    m.materials = {k + shift: replace(x, id=k + shift) for k, x in m.materials.items()}
+    m.parts = {
+        k + shift: replace(p, id=k + shift, material_id=p.material_id + shift, section_id=p.section_id + shift)
+        for k, p in m.parts.items()
+    }
+    m.subassemblies = {name: [k + shift for k in v] for name, v in m.subassemblies.items()}
+    return m
+
+
+@pytest.mark.parametrize(("units", "shift"), [("mm-t-s", 0), ("m-kg-s", 0), ("mm-t-s", 123_456_789_000)])
+def test_the_deck_written_back_reads_as_the_same_model(lsopt_deck, tmp_path, units, shift):
+    """read -> write_deck -> read gives the model the surrogate is built from: nodes, shells, parts, sections,
+    materials and masses, to the 10 significant digits of a fixed-format coordinate. Shifted, every id needs more
+    columns than the fixed format has (12 digits: *NODE's and the elements' 8, *PART's 10), so a field written past
+    its column would read back as another id or a wrong value."""
+    from marlcrash.vehicle.keyword_writer import write_deck
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # the deck's skipped cards and left-out barrier
+        m = _renumbered(read_deck(lsopt_deck, params=PARAMS, axis_map=AxisMap(x="+x", y="+z", z="+y")), shift)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the cards carry every value of this model
+        deck = write_deck(m, tmp_path / "car.k", units=units)
+        back = read_deck(deck, subassemblies=tmp_path / "car.subassemblies.yaml")
+    assert back.units == units and back.skipped_cards == {} and back.left_out == {}
+    np.testing.assert_array_equal(back.node_ids, m.node_ids)
+    np.testing.assert_allclose(back.coords, m.coords, rtol=1e-9, atol=1e-12)
+    for attr in ("shell_ids", "shell_part", "shell_nodes"):
+        np.testing.assert_array_equal(getattr(back, attr), getattr(m, attr))
+    np.testing.assert_allclose(back.shell_thickness, m.shell_thickness, rtol=1e-9)
+    assert back.parts.keys() == m.parts.keys() and back.materials.keys() == m.materials.keys()
+    for pid, p in m.parts.items():
+        q = back.parts[pid]
+        assert (q.name, q.material_id, q.section_id) == (p.name, p.material_id, p.section_id)
+        assert q.thickness == pytest.approx(p.thickness, rel=1e-12)
+    for mid, x in m.materials.items():
+        assert back.materials[mid].kind == x.kind
+        np.testing.assert_allclose(back.materials[mid].vector(), x.vector(), rtol=1e-10)
+    assert back.subassemblies == m.subassemblies
+    assert back.part_masses() == pytest.approx(m.part_masses(), rel=1e-9)
+    assert sum(m.part_masses().values()) == pytest.approx(4443.797, rel=1e-6)  # parts 1-5, as read from the deck
