@@ -3,10 +3,13 @@
 from __future__ import annotations
 
 import math
+import os
 import stat
+import subprocess
 import sys
 import warnings
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,6 +20,8 @@ from marlcrash.vehicle.keyword_writer import write_deck
 from marlcrash.vehicle.materials import MATERIAL_FIELDS, Material, complete_material
 from marlcrash.vehicle.model import Part, VehicleModel
 from marlcrash.vehicle.subassembly_map import dump_subassembly_map
+
+REPO = Path(__file__).resolve().parents[1]
 
 
 def _model() -> VehicleModel:
@@ -415,3 +420,28 @@ def test_a_section_value_ls_dyna_cannot_read_is_refused_by_part(tmp_path, pid, f
     with pytest.raises(ModelError, match=message):
         write_deck(m, tmp_path / "c.k")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_non_ascii_name_is_written_in_utf8_and_its_columns_are_bytes(tmp_path):
+    """The deck was opened in the locale's encoding: under an ASCII locale (``LC_ALL=C`` without UTF-8 mode) a part
+    named "Stoßfänger" stopped the writer with a UnicodeEncodeError, and on a cp1252 system it went out in a code
+    page the reader takes for Latin-1. It is UTF-8 now, as the reader reads first; and a title's 80 columns are 80
+    bytes, as a fixed-format reader counts them (50 "ä" are 100 bytes: 40 of them fit)."""
+    script = (
+        "import sys; from dataclasses import replace; sys.path.insert(0, 'tests');"
+        "from test_keyword_writer import _model; from marlcrash.vehicle.keyword_writer import write_deck;"
+        "m = _model(); m.parts = {k: replace(p, name=%s) if k == 10 else p for k, p in m.parts.items()};"
+        f"write_deck(m, {str(tmp_path / 'c.k')!r})"
+    ) % ascii("Stoßfänger 前")  # the command line itself in ASCII, as the locale wants
+    env = {**os.environ, "LC_ALL": "C", "LANG": "C", "PYTHONUTF8": "0", "PYTHONPATH": str(REPO)}
+    run = subprocess.run([sys.executable, "-X", "utf8=0", "-c", script], cwd=REPO, env=env, capture_output=True)
+    assert run.returncode == 0, run.stderr.decode(errors="replace")[-400:]
+    back = read_deck(tmp_path / "c.k", subassemblies=tmp_path / "c.subassemblies.yaml")
+    assert back.parts[10].name == "Stoßfänger 前"
+    m = _model()
+    m.materials = {k: replace(x, name="ä" * 50) if k == 1 else x for k, x in m.materials.items()}
+    with pytest.warns(UserWarning, match=r"material 1: its title 'ä{50}' is cut to its 80 columns: it reads back as"):
+        deck = write_deck(m, tmp_path / "d.k")
+    lines = deck.read_bytes().splitlines()
+    assert lines[lines.index(b"*MAT_ELASTIC_TITLE+") + 1] == ("ä" * 40).encode()
+    assert read_deck(deck, subassemblies=tmp_path / "d.subassemblies.yaml").materials[1].name == "ä" * 40

@@ -24,8 +24,9 @@ re-derives them with :func:`complete_material`), a fracture strength different f
 the ultimate one for ``plastic_kinematic``, shear and bulk moduli inconsistent with
 E and nu, a set mass (:attr:`VehicleModel.part_mass`) of a deformable part or a zero one
 (``*PART_INERTIA`` TM is read for rigid parts only, and must be positive), and names that do not fit their title
-line: ``*TITLE`` and a material's title are one line of 80 characters, a part's heading one of 70 (LS-DYNA reads
-no more), so a longer name is cut to its field and a line break in one becomes a space. The writer warns
+line: ``*TITLE`` and a material's title are one line of 80 columns, a part's heading one of 70 (LS-DYNA reads
+no more; the deck is UTF-8, and a column is a byte), so a longer name is cut to its field and a line break in one
+becomes a space. The writer warns
 (:class:`UserWarning`) when a model holds such values, naming each and what it reads back as.
 """
 
@@ -61,20 +62,21 @@ def _f20(x: float) -> str:
 
 
 def _title(name: str, what: str, cannot: list[str], width: int = 80) -> str:
-    """A title line: one line of ``width`` columns (80 for ``*TITLE`` and a material's title, 70 for a part's
-    heading: LS-DYNA reads no more). One that would begin with ``$`` (a comment) or ``*`` (a keyword) is indented by
-    a space: readers strip titles, so it reads back as written. A name that does not read back whole (longer than
-    the field, with a line break, or with blanks around it) is noted in ``cannot`` as ``what``, with what it reads
-    back as."""
+    """A title line: one line of ``width`` columns, bytes of its UTF-8 (80 for ``*TITLE`` and a material's title,
+    70 for a part's heading: LS-DYNA reads no more). One that would begin with ``$`` (a comment) or ``*`` (a keyword)
+    is indented by a space: readers strip titles, so it reads back as written. A name that does not read back whole
+    (longer than the field, with a line break, or with blanks around it) is noted in ``cannot`` as ``what``, with
+    what it reads back as."""
     text = name.replace("\r", " ").replace("\n", " ")
     line = " " + text if text.startswith(("$", "*")) else text
-    back = line[:width].strip()
+    cut = line.encode("utf-8")[:width].decode("utf-8", "ignore")  # columns are bytes; no character split
+    back = cut.strip()
     if back != name:
-        how = [f"is cut to its {width} columns"] if len(line.rstrip()) > width else []
+        how = [f"is cut to its {width} columns"] if len(line.rstrip().encode("utf-8")) > width else []
         if text != name:
             how.insert(0, "is written on one line")
         cannot.append(f"{what} {name!r} {' and '.join(how) or 'loses the blanks around it'}: it reads back as {back!r}")
-    return line[:width]
+    return cut
 
 
 def _card(values: Iterable[float | int]) -> str:
@@ -241,7 +243,7 @@ def write_deck(model: VehicleModel, path: str | Path, *, units: str = "mm-t-s", 
     _check_ids(model, kinds)
     lost: dict[int, list[str]] = {}
     cannot: list[str] = []  # what else the cards cannot carry
-    with atomic_output(path) as tmp, open(tmp, "w", newline="\n") as f:
+    with atomic_output(path) as tmp, open(tmp, "w", encoding="utf-8", newline="\n") as f:
         f.write(f"$ written by marlcrash from model {model.name!r}, units {u.name}\n*KEYWORD\n*TITLE\n")
         f.write((_title(model.name, "*TITLE", cannot) if model.name else "vehicle") + "\n")
         for mid in sorted(model.materials):
