@@ -67,7 +67,7 @@ def load_yaml(path: str | Path) -> dict[str, Any]:
     """Read a YAML mapping; raise :class:`ConfigError` naming the file on any problem."""
     path = Path(path)
     try:
-        text = path.read_text()
+        text = path.read_text(encoding="utf-8")
     except OSError as e:
         raise ConfigError(f"cannot read config file ({e.strerror})", path=path) from None
     except UnicodeDecodeError as e:  # binary junk, a file of another kind

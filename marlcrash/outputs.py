@@ -117,7 +117,7 @@ def json_text(obj: Any, indent: int | None = 2) -> str:
 def write_text(path: str | Path, text: str) -> Path:
     """Write ``text`` to ``path`` through :func:`atomic_output` (whole or not at all)."""
     with atomic_output(path) as tmp:
-        tmp.write_text(text)
+        tmp.write_text(text, encoding="utf-8")
     return Path(path)
 
 

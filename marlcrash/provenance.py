@@ -306,7 +306,7 @@ def check_run(run_dir: str | Path, extra: Iterable[str | Path] = (), key: str | 
     if not path.exists():
         return ProvenanceCheck(recorded=False, configs=[], code=[])
     try:
-        saved = json.loads(path.read_text())
+        saved = json.loads(path.read_text(encoding="utf-8"))
         saved_configs, saved_code = dict(saved["configs"]), dict(saved["code"])
     except (OSError, ValueError, KeyError, TypeError):
         if key is None:

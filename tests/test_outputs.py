@@ -2,13 +2,18 @@
 
 from __future__ import annotations
 
+import os
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
 
 from marlcrash.errors import ConfigError
 from marlcrash.outputs import atomic_output, check_output_dir, check_output_file, require_run_name
+
+REPO = Path(__file__).resolve().parents[1]
 
 
 def test_check_output_file_names_the_key(tmp_path):
@@ -185,3 +190,24 @@ def test_two_writers_of_one_file_each_write_it_whole(tmp_path):
     assert target.read_text() == '{"first": "a longer text than the second"}'
     assert sorted(p.name for p in tmp_path.iterdir()) == ["summary.json"]
     assert second != first and second.suffix == ".json" and second.name.startswith(".summary.")
+
+
+def test_text_outputs_and_configs_are_utf8_whatever_the_locale(tmp_path):
+    """Files were written and configs read in the locale's encoding, while the log reader (a resume) decodes UTF-8
+    and the YAML reader's error says "not UTF-8": under an ASCII locale (``LC_ALL=C`` without UTF-8 mode) the
+    comparison tables' "±" stopped the write with a UnicodeEncodeError, a config with "ß" in a comment could not be
+    read, and on a cp1252 system a log's non-ASCII column came back as another name on resume. All are UTF-8 now."""
+    (tmp_path / "c.yaml").write_bytes("# Stoßfänger: the bumper\nname: Stoßfänger\n".encode())
+    script = (
+        "import sys; from marlcrash.outputs import write_text; from marlcrash.config import load_yaml;"
+        "from marlcrash.calibrate.logging import CSVLogger;"
+        f"d = {str(tmp_path)!r};"
+        "write_text(d + '/t.md', %s);"
+        "assert load_yaml(d + '/c.yaml') == {'name': %s}, load_yaml(d + '/c.yaml');"
+        "log = CSVLogger(d); log.log({%s: 1.0}); log.truncate(1); assert CSVLogger(d).columns == [%s]"
+    ) % (ascii("-1.84 ± 0.22 †"), ascii("Stoßfänger"), ascii("area_Stoßfänger"), ascii("area_Stoßfänger"))
+    env = {**os.environ, "LC_ALL": "C", "LANG": "C", "PYTHONUTF8": "0", "PYTHONPATH": str(REPO)}
+    run = subprocess.run([sys.executable, "-X", "utf8=0", "-c", script], cwd=REPO, env=env, capture_output=True)
+    assert run.returncode == 0, run.stderr.decode(errors="replace")[-600:]
+    assert (tmp_path / "t.md").read_bytes() == "-1.84 ± 0.22 †".encode()
+    assert (tmp_path / "log.csv").read_bytes().splitlines()[0] == "area_Stoßfänger".encode()

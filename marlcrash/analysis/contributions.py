@@ -126,7 +126,7 @@ class Contributions:
     def write_csv(self, path: str | Path) -> Path:
         """All :meth:`rows` as CSV (written atomically)."""
         rows = self.rows()
-        with atomic_output(path) as tmp, open(tmp, "w", newline="") as f:
+        with atomic_output(path) as tmp, open(tmp, "w", newline="", encoding="utf-8") as f:
             w = csv.DictWriter(f, fieldnames=list(rows[0]))
             w.writeheader()
             w.writerows(rows)

@@ -478,7 +478,7 @@ def read_comparison(out_dir: str | Path) -> Comparison:
     if not path.is_file():
         raise ConfigError(f"no comparison to continue in {Path(out_dir)} (no amortized.json)", key="resume")
     try:
-        record = json.loads(path.read_text())
+        record = json.loads(path.read_text(encoding="utf-8"))
         rows, meta = record["rows"], record["meta"]
         older = set(COLUMNS) - {"generations"}  # written before the column
         if not (isinstance(rows, list) and all(isinstance(r, dict) and set(r) in (set(COLUMNS), older) for r in rows)):

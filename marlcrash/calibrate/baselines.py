@@ -640,7 +640,7 @@ def run_baseline(config: BaselineRunConfig, problem: CalibrationProblem) -> Cali
 
 def write_history_csv(result: CalibrationResult, path: Path) -> None:
     """``iteration, simulations, best_score, batch_best_score`` per recorded batch."""
-    with open(path, "w", newline="") as fh:
+    with open(path, "w", newline="", encoding="utf-8") as fh:
         w = csv.writer(fh)
         w.writerow(["iteration", "simulations", "best_score", "batch_best_score"])
         for i, (sims, best, batch) in enumerate(result.history):
@@ -735,10 +735,10 @@ def write_run(
             {"seed": config.seed, "budget": config.budget, "scenario": problem.scenario.name,
              "reference": problem.reference.source[0], "agents": problem.agent_names, "n_free": problem.n_free}
         )  # fmt: skip
-        (tmp / "summary.json").write_text(json_text(summary))
-        (tmp / "config.json").write_text(json.dumps(asdict(config), indent=2))
+        (tmp / "summary.json").write_text(json_text(summary), encoding="utf-8")
+        (tmp / "config.json").write_text(json.dumps(asdict(config), indent=2), encoding="utf-8")
         rec = run_record(config) if record is None else record
-        (tmp / provenance.PROVENANCE_FILE).write_text(json.dumps(rec, indent=1))
+        (tmp / provenance.PROVENANCE_FILE).write_text(json.dumps(rec, indent=1), encoding="utf-8")
         write_history_csv(result, tmp / "history.csv")
         torch.save({"best_x": result.best_x, "best_params": result.best_params}, tmp / "best.pt")
         sync_folder(tmp)  # on disk before a name points at it

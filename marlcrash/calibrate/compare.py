@@ -784,7 +784,7 @@ def open_run_dir(
         raise ConfigError(f"resume=true but {path} does not exist", key="resume")
     rows = _saved_rows(path)
     try:
-        saved = json.loads(path.read_text())["config"]
+        saved = json.loads(path.read_text(encoding="utf-8"))["config"]
     except (OSError, ValueError, KeyError, TypeError):
         rows = None
     if rows is None or not isinstance(saved, dict):
@@ -829,7 +829,7 @@ def _saved_rows(path: Path) -> list[dict[str, Any]] | None:
     An unreadable record is kept: it is not ours to overwrite.
     """
     try:
-        return list(json.loads(path.read_text())["rows"])
+        return list(json.loads(path.read_text(encoding="utf-8"))["rows"])
     except (OSError, ValueError, KeyError, TypeError):
         return None
 

@@ -268,7 +268,7 @@ def metrics_rows(result: EvalResult) -> list[dict[str, Any]]:
 def write_metrics_tables(result: EvalResult, csv_path: Path, md_path: Path) -> None:
     """Per-iteration metrics as CSV (long format) and Markdown (one Table-3-like block per sensor)."""
     rows = metrics_rows(result)
-    with open(csv_path, "w", newline="") as fh:
+    with open(csv_path, "w", newline="", encoding="utf-8") as fh:
         w = csv.DictWriter(fh, fieldnames=list(rows[0]))
         w.writeheader()
         w.writerows(rows)
@@ -288,7 +288,7 @@ def write_metrics_tables(result: EvalResult, csv_path: Path, md_path: Path) -> N
         lines += ["", f"## {s}", "", head, sep]
         for key in ("area", "dfd", "rmse", "factor"):
             lines.append(f"| {label[key]} | " + " | ".join(fmt[key].format(r[key]) for r in sub) + " |")
-    md_path.write_text("\n".join(lines) + "\n")
+    md_path.write_text("\n".join(lines) + "\n", encoding="utf-8")
 
 
 # ------------------------------------------------------------------------------------------- plots
@@ -374,7 +374,7 @@ def plot_learning_curves(log_rows: list[dict[str, float]], result: EvalResult, p
 def update_summary(run_dir: str | Path, **entries: Any) -> dict[str, Any]:
     """Add entries to a run's ``summary.json`` (rewritten atomically); return the new summary."""
     path = Path(run_dir) / SUMMARY_FILE
-    summary = json.loads(path.read_text())
+    summary = json.loads(path.read_text(encoding="utf-8"))
     summary.update(entries)
     write_text(path, json_text(summary))
     return summary
@@ -526,7 +526,7 @@ def evaluate_run(
         old = out_dir / SUMMARY_FILE
         if old.is_file():  # the training process's wall time (train/train.py) is not the evaluation's to drop
             with contextlib.suppress(ValueError, OSError, AttributeError):
-                earlier = json.loads(old.read_text()).get(KEPT_SUMMARY_KEY)
+                earlier = json.loads(old.read_text(encoding="utf-8")).get(KEPT_SUMMARY_KEY)
                 if earlier is not None:
                     summary[KEPT_SUMMARY_KEY] = earlier
         write_text(out_dir / SUMMARY_FILE, json_text(summary))

@@ -60,11 +60,11 @@ class CSVLogger:
         """
         if self.columns is None:
             self.columns = list(row)
-            with open(self.path, "w", newline="") as fh:
+            with open(self.path, "w", newline="", encoding="utf-8") as fh:
                 csv.writer(fh).writerow(self.columns)
         if list(row) != self.columns:
             raise ValueError(f"log row keys {sorted(row)} differ from the columns of {self.path}: {self.columns}")
-        with open(self.path, "a", newline="") as fh:
+        with open(self.path, "a", newline="", encoding="utf-8") as fh:
             csv.writer(fh).writerow([_fmt(row[c]) for c in self.columns])
             fh.flush()
             os.fsync(fh.fileno())
@@ -93,7 +93,7 @@ class CSVLogger:
             return
         columns = _header(self.path, *lines[0])
         keep = [columns] + [_values(self.path, n, text, columns) for n, text in lines[1:]]
-        with atomic_output(self.path) as tmp, open(tmp, "w", newline="") as fh:
+        with atomic_output(self.path) as tmp, open(tmp, "w", newline="", encoding="utf-8") as fh:
             csv.writer(fh).writerows(keep)
         self.position = len(keep) - 1
         self.columns = keep[0]

@@ -177,7 +177,7 @@ def write_crash_csv(result: SimResult, path: str | Path, row: int = 0) -> Path:
         cols[f"{name}_acc_g"] = acc[k] / G0
         cols[f"{name}_vel_ms"] = result.velocity[row, k].detach().cpu().numpy()
     cols["crush_m"] = result.crush[row].detach().cpu().numpy()
-    with atomic_output(path) as tmp, open(tmp, "w", newline="") as fh:
+    with atomic_output(path) as tmp, open(tmp, "w", newline="", encoding="utf-8") as fh:
         w = csv.writer(fh)
         w.writerow(list(cols))
         w.writerows(np.stack(list(cols.values()), axis=1).tolist())
