@@ -570,3 +570,20 @@ def test_the_recorder_stores_a_single_gradient_candidate_as_one_of_a_batch(short
     loss.sum().backward()
     assert tuple(rec.progress.best_x.shape) == (problem0.n_agents, 7) and rec.progress.used == 1
     assert x.grad is not None and bool(torch.isfinite(x.grad).all())
+
+
+@pytest.mark.parametrize("methods", [["random_search"], ["cmaes", "lm"]])
+def test_a_comparison_whose_masking_leaves_no_agent_active_names_its_own_key_before_its_folder(
+    short, tmp_path, methods
+):
+    """Masking that leaves no agent active in the comparison's scenario: the optimizers' refusal named the key
+    ``problem.masking``, which compare.yaml does not have (its key is ``masking``), and came after the run folder
+    was made; with lm it was lm's budget minimum (1 + 0 free coordinates + 6), not the masking, that was named. Now
+    the comparison names its own ``masking`` and ``env_overrides`` before it makes its folder."""
+    strict = {"masking.min_fraction": 1.0, "masking.primary_depth": 0.01, "masking.secondary_hops": 0}
+    cfg = tiny(tmp_path, methods=methods, scenario="small_overlap_left", env_overrides=strict, budget=5)
+    with pytest.raises(ConfigError, match=r"no free coordinate") as e:
+        run_comparison(cfg)
+    assert e.value.key == "masking", str(e.value)
+    assert "masking: false" in str(e.value) and "problem." not in str(e.value)
+    assert "env_overrides" in str(e.value) and not (tmp_path / "runs").exists()

@@ -228,23 +228,33 @@ class CalibrationResult:
         return out
 
 
-def check_free_coordinates(problem: CalibrationProblem, method: str) -> None:
+def check_free_coordinates(
+    problem: CalibrationProblem, method: str, key: str = "problem.masking", source: str | None = None
+) -> None:
     """Refuse a problem with no free coordinate, before any simulation: its masking left no agent active.
 
+    Args:
+        problem: the problem to search.
+        method: who refuses it, for the message.
+        key: the masking switch's dotted key in the config the user ran (``problem.masking`` in a baseline run,
+            ``masking`` in a comparison); the message names its siblings (``env_overrides``, ``scenario``) alike.
+        source: that config file, for the message.
+
     Raises:
-        ConfigError: (key ``problem.masking``) ``problem.n_free`` is 0 (cmaes failed inside ``cma`` with a
-            ZeroDivisionError, lm in a reshape of its empty Jacobian; random search and gradient descent spent the
-            budget on the start alone).
+        ConfigError: (``key``) ``problem.n_free`` is 0 (cmaes failed inside ``cma`` with a ZeroDivisionError, lm in a
+            reshape of its empty Jacobian; random search and gradient descent spent the budget on the start alone).
     """
     if problem.n_free > 0:
         return
+    node = key.rpartition(".")[0]
+    at = f"{node}." if node else ""
     raise ConfigError(
         f"{method}: the problem has no free coordinate to search: none of its {problem.n_agents} agents is active in "
         f"scenario {problem.scenario.name!r}, as the env's impact-region rule (masking.mode, masking.min_fraction, "
-        f"masking.primary_depth, masking.secondary_depth) leaves them; turn masking off (problem.masking: false, "
-        f"a comparison's masking: false; every agent active), loosen the env's masking (in its file or "
-        f"problem.env_overrides), or choose another problem.scenario",
-        key="problem.masking",
+        f"masking.primary_depth, masking.secondary_depth) leaves them; turn masking off ({key}: false; every agent "
+        f"active), loosen the env's masking (in its file or {at}env_overrides), or choose another {at}scenario",
+        key=key,
+        path=source,
     )
 
 

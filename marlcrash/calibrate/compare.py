@@ -68,6 +68,7 @@ from marlcrash.calibrate.baselines import (
     GradientConfig,
     LMConfig,
     RandomSearchConfig,
+    check_free_coordinates,
     check_gradient_backend,
     check_lm_budget,
     check_lm_fd_step,
@@ -842,6 +843,16 @@ def _lookup(d: dict[str, Any], dotted: str) -> Any:
     return d
 
 
+def check_searchable(config: CompareConfig, problem: CalibrationProblem, optimizers: list[str]) -> None:
+    """Refuse a problem the comparison's ``optimizers`` cannot search, naming the comparison's keys: one with no free
+    coordinate (key ``masking``: :func:`~marlcrash.calibrate.baselines.check_free_coordinates`; each optimizer
+    refused it as ``problem.masking``, a key of baseline runs, after the run folder was made), then a budget below
+    lm's first iteration (key ``budget``: :func:`~marlcrash.calibrate.baselines.check_lm_budget`)."""
+    check_free_coordinates(problem, ", ".join(optimizers), key="masking")
+    if "lm" in optimizers:
+        check_lm_budget(problem, config.budget)
+
+
 def run_comparison(
     config: CompareConfig, command: str | None = None, progress: Callable[[str], None] | None = None
 ) -> tuple[Path, list[dict[str, Any]]]:
@@ -856,13 +867,15 @@ def run_comparison(
         The run folder and all rows (finished earlier and now).
 
     Raises:
-        ConfigError: the run folder exists (without ``resume``), or ``resume`` with other protocol settings.
+        ConfigError: the run folder exists (without ``resume``), or ``resume`` with other protocol settings; before
+            the folder is made, a problem the optimizers cannot search (:func:`check_searchable`).
     """
     say = progress or (lambda _msg: None)
-    first = None  # lm's budget is checked before the run folder is made: a refused run must not block its name
-    if "lm" in config.methods and config.seeds:
+    optimizers = [m for m in config.methods if m in BASELINES]
+    first = None  # the optimizers' problem is checked before the run folder is made: a refused run must not block
+    if optimizers and config.seeds:  # its name
         first = build_problem(problem_config(config, config.seeds[0]))
-        check_lm_budget(first, config.budget)
+        check_searchable(config, first, optimizers)
     with hold_run_dir(config.run_dir, config.resume):  # one process per run folder
         run_dir, rows = _start_run_dir(config)
         done = {(r["method"], r["seed"]) for r in rows}
@@ -874,6 +887,8 @@ def run_comparison(
             problem = (
                 first if first is not None and seed == config.seeds[0] else build_problem(problem_config(config, seed))
             )
+            if optimizers and problem is not first:
+                check_searchable(config, problem, optimizers)
             initial = initial_score(problem)
             for method in todo:
                 out = run_method(config, method, seed, problem, run_dir)
