@@ -527,3 +527,21 @@ def test_a_problem_whose_masking_leaves_no_agent_active_is_refused_by_every_base
                                           r"'small_overlap_left'.*problem\.masking: false") as e:  # fmt: skip
         BASELINES[method][1](idle, 20, config, 0)
     assert e.value.key == "problem.masking" and idle.n_simulations == before
+
+
+def test_a_budget_is_any_whole_number_and_anything_else_is_named_as_such(problem):
+    """A numpy integer budget (``np.arange``, ``np.geomspace(...).astype(int)``) was refused as "expected a simulation
+    budget >= 1, got 40", a message its own value contradicts; a float budget read alike. A whole number of any integer
+    type runs; a float or a bool is refused as not a whole number."""
+    from marlcrash.calibrate.budget import Progress
+
+    before = problem.n_simulations
+    run = BASELINES["random_search"][1](problem, np.int64(40), RandomSearchConfig(batch_size=16), 0)
+    assert run.simulations == 40 and problem.n_simulations - before == 40 and type(run.simulations) is int
+    assert Progress(np.int32(3)).budget == 3 and type(Progress(np.int32(3)).budget) is int
+    for bad in (40.0, True, "40"):
+        with pytest.raises(ConfigError, match=r"key 'budget': expected a whole number of simulations >= 1, got") as e:
+            Progress(bad)
+        assert repr(bad) in str(e.value)
+    with pytest.raises(ConfigError, match=r"expected a whole number of simulations >= 1, got 0"):
+        Progress(np.int64(0))

@@ -11,6 +11,7 @@ count at which a candidate first passed the success test.
 
 from __future__ import annotations
 
+import numbers
 import time
 from dataclasses import dataclass, field
 
@@ -47,7 +48,7 @@ class Progress:
     :meth:`marlcrash.calibrate.problem.CalibrationProblem.score`).
 
     Args:
-        budget: the number of simulations the run may use (>= 1).
+        budget: the number of simulations the run may use, a whole number (any integer type, a numpy one too) >= 1.
         stop_on_success: end the run (``done``) as soon as a candidate passes the success test.
 
     Attributes:
@@ -71,8 +72,11 @@ class Progress:
     started: float = field(default_factory=time.perf_counter)
 
     def __post_init__(self) -> None:
-        if isinstance(self.budget, bool) or not isinstance(self.budget, int) or self.budget < 1:
-            raise ConfigError(f"expected a simulation budget >= 1, got {self.budget!r}", key="budget")
+        whole = isinstance(self.budget, numbers.Integral) and not isinstance(self.budget, (bool, np.bool_))
+        if not whole or self.budget < 1:  # a numpy integer is a whole number too (np.arange, astype(int))
+            got = int(self.budget) if whole else repr(self.budget)
+            raise ConfigError(f"expected a whole number of simulations >= 1, got {got}", key="budget")
+        self.budget = int(self.budget)
 
     @property
     def remaining(self) -> int:
