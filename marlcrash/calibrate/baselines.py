@@ -8,8 +8,15 @@ first candidate of every run is the initial parameters (``x = 0``), so ``initial
 and the first history row are measured, not assumed.
 
 - :func:`random_search`: batches drawn uniformly in a box around the best point so far
-  (``recenter``), the box shrinking by ``shrink`` after a batch without improvement; with
-  ``recenter: false`` it is pure uniform sampling of the search box (``shrink`` then has no effect).
+  (``recenter``; half-widths ``radius`` times the search box's), the box shrinking by ``shrink``
+  after a batch without improvement, to ``min_radius`` at least; with ``recenter: false`` it is pure
+  uniform sampling of the search box (``shrink`` then has no effect). A coordinate drawn beyond the
+  search box is clipped onto its face, the projection every method's candidates get: where the
+  sampling box crosses a bound, the draws beyond it lie on it, so the sampling is uniform in the
+  search box only where the sampling box lies inside it. In a 2000-simulation run of the default
+  problem (twin of ``full_width_40``, 127 free coordinates, a 20 ms window) at most 4 % of a batch's
+  coordinates lie on a bound, and no candidate repeats (that takes every coordinate of two draws
+  clipped alike).
 - :func:`cmaes`: the ``cma`` package's ask/tell loop, one generation simulated as one batch,
   box bounds by its ``BoundTransform``; normal draws come from the run's numpy Generator
   (``cma``'s own seeding of the global RNG is switched off, and the global state is restored).
