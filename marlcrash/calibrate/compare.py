@@ -17,7 +17,9 @@ Protocol (the paper's: calibration of ONE reference per run):
   ``Trainer.simulations`` counts; training stops before an iteration whose nominal cost
   ``n_envs * (episode_length + 1)`` exceeds what is left (the learning-rate and entropy schedules
   span ``budget // cost`` iterations); candidates of rare extra in-place resets beyond the budget are
-  not counted for the result. Optimizers stop exactly at the budget.
+  not counted for the result. Random search, CMA-ES and gradient descent stop exactly at the budget;
+  lm when the rest cannot pay for a whole iteration, up to ``n_free + 6`` simulations below it
+  (:func:`~marlcrash.calibrate.baselines.levenberg_marquardt`).
 - Wall cap: a run stops before a batch (an optimizer batch, a PPO iteration) that would end after
   ``max_wall_s``, judged by the previous batch's duration; such a run is kept, with the simulations
   it used and ``stop = wall_cap`` ("stopped by wall cap" in the table). Gradient descent through the
