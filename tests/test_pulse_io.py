@@ -1344,3 +1344,24 @@ def test_mme_header_text_whose_latin_1_bytes_read_as_utf8_is_refused(tmp_path, a
     assert not (tmp_path / "M").exists()
     write_mme(Pulse(analytic.time, analytic.acc, ("Fläche m²", "Größe µ")), tmp_path / "L", "Prüfung")
     assert read_mme(tmp_path / "L").channels == ("Fläche m²", "Größe µ")
+
+
+@pytest.mark.parametrize(("existing", "added"), [("T.001", "T.0001"), ("T.001", "T.01"), ("T.002", "t.002")])
+def test_two_files_for_one_iso_mme_channel_number_are_refused_naming_both(tmp_path, analytic, existing, added):
+    """A channel file is ``<test>.<number>``, the number of at least three digits. ``T.001`` and ``T.0001`` (both
+    channel 1) were both read, the channel twice; ``T.01`` beside ``T.001`` was passed over without a word; and
+    ``t.002`` (the stem matched in any case) was read beside ``T.002``. Two files for one channel number are
+    ambiguous: refused, naming both, by ``read_mme`` and ``mme_channels`` alike."""
+    from marlcrash.pulse import mme_channels
+
+    write_mme(analytic, tmp_path / "T", "T")
+    chan = tmp_path / "T" / "Channel"
+    (chan / added).write_bytes((chan / existing).read_bytes())
+    a, b = sorted((existing, added))
+    said = rf"Channel: channel {int(existing[2:])} has two files, {re.escape(a)} and {re.escape(b)}; a channel is one"
+    with pytest.raises(PulseError, match=said):
+        read_mme(tmp_path / "T")
+    with pytest.raises(PulseError, match=said):
+        mme_channels(tmp_path / "T")
+    (chan / added).unlink()
+    assert read_mme(tmp_path / "T").channels == analytic.channels

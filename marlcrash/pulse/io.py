@@ -17,7 +17,8 @@ linear interpolation, so it is filtered and integrated like a record.
 
 ISO-MME (ISO/TS 13499): a test folder with ``<test>.mme`` and a ``Channel``
 folder holding ``<test>.chn`` (the channel list) and one file per channel,
-``<test>.001``, ``<test>.002``, ... (at least three digits: ``<test>.1000`` follows ``<test>.999``).
+``<test>.001``, ``<test>.002``, ... (at least three digits: ``<test>.1000`` follows ``<test>.999``; two files
+for one number, ``<test>.001`` and ``<test>.0001`` or ``<test>.01``, are refused as ambiguous).
 Each channel file starts with ``Name  :value`` header lines; the samples follow, one value per line. Latin-1 text
 (written so), or UTF-8 as some tools write it: a line is read as UTF-8 where its bytes are UTF-8, else as Latin-1.
 Time is ``Time of first sample + i * Sampling interval`` [s]; ``Unit`` gives the
@@ -610,8 +611,18 @@ def _mme_channel_files(path: Path) -> tuple[Path, list[Path]]:
     test = mme.stem
     _read_lines(mme)  # the test description must at least be readable
     # numbered with at least three digits, in numeric order: .001 to .999, then .1000 (as pyisomme writes them)
-    files = [p for p in folder.iterdir() if p.is_file() and re.fullmatch(r"\d{3,}", p.suffix[1:] or "")]
-    files = sorted((p for p in files if p.stem.lower() == test.lower()), key=lambda p: int(p.suffix[1:]))
+    numbered = [p for p in folder.iterdir() if p.is_file() and p.stem.lower() == test.lower()
+                and re.fullmatch(r"\d+", p.suffix[1:] or "")]  # fmt: skip
+    by_number: dict[int, list[Path]] = {}
+    for p in numbered:
+        by_number.setdefault(int(p.suffix[1:]), []).append(p)
+    for number, same in sorted(by_number.items()):
+        if len(same) > 1:  # T.001 and T.0001, T.01 and T.001, T.002 and t.002: which is the channel is not known
+            names = sorted(p.name for p in same)
+            listed = ", ".join(names[:-1]) + f" and {names[-1]}"
+            raise _err(f"channel {number} has {'two' if len(same) == 2 else len(same)} files, {listed}; a channel "
+                       f"is one file {test}.{number:03d}: remove the others", folder)  # fmt: skip
+    files = sorted((p for p in numbered if len(p.suffix) > 3), key=lambda p: int(p.suffix[1:]))
     if not files:
         raise _err(f"no channel files {test}.001, {test}.002, ... in the Channel folder", mme)
     return mme, files
@@ -669,8 +680,8 @@ def read_mme(path: str | Path, *, channels: str | Sequence[str] | None = None, s
         the channel codes where given, else the channel names.
 
     Raises:
-        PulseError: missing files, malformed headers or samples, a non-acceleration unit,
-            unknown channels, or channels with different time bases.
+        PulseError: missing files, two files for one channel number, malformed headers or samples, a
+            non-acceleration unit, unknown channels, or channels with different time bases.
 
     Each file of the test is read once: a channel's header and samples together.
     """
