@@ -1365,3 +1365,58 @@ def test_two_files_for_one_iso_mme_channel_number_are_refused_naming_both(tmp_pa
         mme_channels(tmp_path / "T")
     (chan / added).unlink()
     assert read_mme(tmp_path / "T").channels == analytic.channels
+
+
+@pytest.mark.parametrize("codec", ["utf-16", "utf-16-be", "utf-32"])
+def test_an_iso_mme_test_written_as_utf16_with_its_byte_order_mark_is_read(tmp_path, analytic, codec):
+    """ISO-MME files are Latin-1, or UTF-8 as some tools write them; a Windows tool may write UTF-16 (or UTF-32) with
+    a byte-order mark, as the CSV reader takes it. Such a channel file was read byte by byte as Latin-1 ('ÿþN\\x00a'),
+    its header names were not found and the test was refused as "missing header line 'Unit'", and ``mme_channels``
+    listed its channels with no name and no unit. The byte-order mark is read and the text decoded by it; the header
+    listing, read in 16 KiB chunks, alike where a chunk ends inside a UTF-16 surrogate pair or a CR LF. The samples
+    are those of the Latin-1 test."""
+    from marlcrash.pulse import mme_channels
+
+    write_mme(analytic, tmp_path / "L", "T", unit="m/s**2")
+    write_mme(analytic, tmp_path / "U", "T", unit="m/s**2")
+    ref, listed = read_mme(tmp_path / "L"), mme_channels(tmp_path / "L")
+    bom, encoding = {"utf-16": (b"\xff\xfe", "utf-16-le"), "utf-16-be": (b"\xfe\xff", "utf-16-be"),
+                     "utf-32": (b"\xff\xfe\x00\x00", "utf-32-le")}[codec]  # fmt: skip
+    unit = len("x".encode(encoding))  # bytes per character: 2 or 4
+    for f in [tmp_path / "U" / "T.mme", *sorted((tmp_path / "U" / "Channel").glob("T.*"))]:
+        first, _, text = f.read_text(encoding="latin-1").replace(":m/s**2", ":m/s²").partition("\n")
+        data = bom + (first + "\r\n").encode(encoding)
+        for end, at in (("\U0001d6f4 (Σ)\n", 16384), ("\r\n", 32768)):  # where the 16 KiB chunks end
+            comment = "Comments                    :Prüfung "
+            fill = (at - unit - len(data) - len(comment.encode(encoding))) // unit
+            data += (comment + "Σ" * fill + end).encode(encoding)
+            assert data[at - unit : at + unit].decode(encoding) in ("\U0001d6f4", "\U0001d6f4 ", "\r\n")
+        f.write_bytes(data + text.encode(encoding))
+    got = read_mme(tmp_path / "U")
+    assert got.channels == ref.channels and np.array_equal(got.acc, ref.acc) and np.array_equal(got.time, ref.time)
+    assert [(c["name"], c["unit"]) for c in mme_channels(tmp_path / "U")] == [(c["name"], "m/s²") for c in listed]
+
+
+def test_an_iso_mme_file_in_utf16_without_byte_order_mark_or_broken_is_refused_naming_it(tmp_path, analytic):
+    """UTF-16 without a byte-order mark cannot be told from other text by its bytes alone; ISO-MME headers start with
+    a Latin letter, so a NUL byte after it is UTF-16's. Refused naming the file and the encodings read, where it was
+    "missing header line 'Unit'"; a file whose byte-order mark says UTF-16 but whose bytes are not is refused alike."""
+    from marlcrash.pulse import mme_channels
+
+    write_mme(analytic, tmp_path / "T", "T")
+    ch = tmp_path / "T" / "Channel" / "T.002"
+    text = ch.read_text(encoding="latin-1")
+    for codec in ("utf-16-le", "utf-16-be"):
+        ch.write_bytes(text.encode(codec))
+        said = r"T\.002: looks like UTF-16 text without a byte-order mark .*expected Latin-1 or UTF-8"
+        with pytest.raises(PulseError, match=said):
+            read_mme(tmp_path / "T")
+        with pytest.raises(PulseError, match=said):
+            mme_channels(tmp_path / "T")
+    ch.write_bytes(text.encode("utf-16") + b"\x00")  # an odd number of bytes
+    said = r"T\.002: starts with a UTF-16 byte-order mark but is not UTF-16 text \(truncated data\)"
+    with pytest.raises(PulseError, match=said):
+        read_mme(tmp_path / "T")
+    ch.write_bytes(text.encode("utf-16")[:60] + b"\x00\xd8" + text.encode("utf-16")[60:])  # a lone surrogate
+    with pytest.raises(PulseError, match=r"T\.002: starts with a UTF-16 byte-order mark but is not UTF-16 text"):
+        mme_channels(tmp_path / "T")

@@ -20,7 +20,8 @@ folder holding ``<test>.chn`` (the channel list) and one file per channel,
 ``<test>.001``, ``<test>.002``, ... (at least three digits: ``<test>.1000`` follows ``<test>.999``; two files
 for one number, ``<test>.001`` and ``<test>.0001`` or ``<test>.01``, are refused as ambiguous).
 Each channel file starts with ``Name  :value`` header lines; the samples follow, one value per line. Latin-1 text
-(written so), or UTF-8 as some tools write it: a line is read as UTF-8 where its bytes are UTF-8, else as Latin-1.
+(written so), or UTF-8 as some tools write it: a line is read as UTF-8 where its bytes are UTF-8, else as Latin-1;
+UTF-16 or UTF-32 with its byte-order mark (UTF-16 without one is refused, naming the file).
 Time is ``Time of first sample + i * Sampling interval`` [s]; ``Unit`` gives the
 acceleration unit (``g`` or ``m/s**2``). ``Channel frequency class`` is
 information only: samples read from ISO-MME count as unfiltered.
@@ -31,6 +32,7 @@ file, the line (and column) and what was expected.
 
 from __future__ import annotations
 
+import codecs
 import csv
 import io
 import math
@@ -373,20 +375,34 @@ def _read_text_lines(path: Path) -> list[str]:
         raw = path.read_bytes()
     except OSError as e:
         raise _err(f"cannot read pulse file ({e.strerror})", path) from None
-    raw = raw.removeprefix(b"\xef\xbb\xbf")
-    for bom, codec in (
-        (b"\xff\xfe\x00\x00", "utf-32"),
-        (b"\x00\x00\xfe\xff", "utf-32"),
-        (b"\xff\xfe", "utf-16"),
-        (b"\xfe\xff", "utf-16"),
-    ):  # Excel's "Unicode Text" is UTF-16 with its byte-order mark
-        if raw.startswith(bom):
-            try:
-                return _split_lines(raw.decode(codec))
-            except UnicodeDecodeError as e:
-                raise _err(f"starts with a {codec.upper()} byte-order mark but is not {codec.upper()} text "
-                           f"({e.reason})", path) from None  # fmt: skip
+    raw = raw.removeprefix(_UTF8_BOM)
+    codec = _bom_codec(raw)  # Excel's "Unicode Text" is UTF-16 with its byte-order mark
+    if codec is not None:
+        try:
+            return _split_lines(raw.decode(codec))
+        except UnicodeDecodeError as e:
+            raise _not_bom_text(codec, e, path) from None
     return _decode_lines(raw, ("cp1252",))
+
+
+_UTF8_BOM = b"\xef\xbb\xbf"
+_BOMS = (
+    (b"\xff\xfe\x00\x00", "utf-32"),
+    (b"\x00\x00\xfe\xff", "utf-32"),
+    (b"\xff\xfe", "utf-16"),
+    (b"\xfe\xff", "utf-16"),
+)
+"""The byte-order marks of UTF-32 and UTF-16 and the codec each names; UTF-32's first, as its little-endian mark
+starts with UTF-16's."""
+
+
+def _bom_codec(raw: bytes) -> str | None:
+    """The codec (``utf-16``, ``utf-32``) whose byte-order mark ``raw`` starts with, else ``None``."""
+    return next((codec for bom, codec in _BOMS if raw.startswith(bom)), None)
+
+
+def _not_bom_text(codec: str, e: UnicodeDecodeError, path: Path) -> PulseError:
+    return _err(f"starts with a {codec.upper()} byte-order mark but is not {codec.upper()} text ({e.reason})", path)
 
 
 def _decode_lines(raw: bytes, legacy: tuple[str, ...]) -> list[str]:
@@ -478,15 +494,31 @@ def _split_lines(text: str) -> list[str]:
 def _read_lines(path: Path) -> list[str]:
     """The lines of an ISO-MME file: UTF-8 where a line is UTF-8 (a byte-order mark dropped), else Latin-1, the
     encoding of the standard (:func:`_decode_lines`); MME files come from many labs and tools, and Latin-1 never fails
-    to decode."""
+    to decode. A file that starts with a UTF-16 or UTF-32 byte-order mark is decoded by it (:func:`_mme_codec`)."""
     try:
         raw = path.read_bytes()
     except OSError as e:
         raise _err(f"cannot read ({e.strerror})", path) from None
-    return _decode_lines(raw.removeprefix(_UTF8_BOM), ())
+    codec = _mme_codec(raw[:4], path)
+    if codec is None:
+        return _decode_lines(raw.removeprefix(_UTF8_BOM), ())
+    try:
+        return _split_lines(raw.decode(codec))
+    except UnicodeDecodeError as e:
+        raise _not_bom_text(codec, e, path) from None
 
 
-_UTF8_BOM = b"\xef\xbb\xbf"
+def _mme_codec(head: bytes, path: Path) -> str | None:
+    """The codec of an ISO-MME file whose first bytes are ``head``: UTF-16 or UTF-32 where they are its byte-order
+    mark, else ``None`` (Latin-1 or UTF-8 lines, :func:`_decode_lines`). UTF-16 without one is refused: a header
+    starts with a Latin letter, and a NUL byte after it (or before it) is UTF-16's, which read as Latin-1 gave header
+    names no reader finds ("missing header line 'Unit'")."""
+    codec = _bom_codec(head)
+    nul = [b == 0 for b in head[:4]]
+    if codec is None and nul in ([False, True, False, True], [True, False, True, False]):
+        raise _err("looks like UTF-16 text without a byte-order mark (NUL bytes between its first characters); "
+                   "expected Latin-1 or UTF-8 text, or UTF-16/32 with its byte-order mark", path)  # fmt: skip
+    return codec
 
 
 MME_HEADER_LINES = 200
@@ -497,27 +529,37 @@ def _read_header_lines(path: Path, most: int = MME_HEADER_LINES) -> list[str]:
     """The first lines of a channel file up to the first that is no ``Name :value`` line (the first sample), at
     most ``most``, as :func:`_read_lines` splits and decodes them: what :func:`_parse_header` reads, without reading
     the samples after it (a channel may hold millions). Only whole lines are decoded, so a chunk ending inside a UTF-8
-    character leaves it whole for the next."""
+    character leaves it whole for the next; a UTF-16/32 file is decoded chunk by chunk by an incremental decoder,
+    which keeps a character split between chunks for the next, and goes on as the UTF-8 of its text."""
     lines: list[str] = []
     rest = bytearray()  # the last line read so far, which may go on in the next chunk
-    first = True
     try:
         with path.open("rb") as f:
-            while len(lines) < most and all(":" in s for s in lines):
-                chunk = f.read(16384)
-                if first:
-                    chunk, first = chunk.removeprefix(_UTF8_BOM), False
+            chunk = f.read(16384)
+            codec = _mme_codec(chunk[:4], path)
+            if codec is None:
+                chunk = chunk.removeprefix(_UTF8_BOM)
+                decoder = None
+            else:
+                decoder = codecs.getincrementaldecoder(codec)()
+            while True:
+                text = chunk if decoder is None else decoder.decode(chunk, final=not chunk).encode("utf-8")
                 if not chunk:
-                    lines += _decode_lines(bytes(rest), ())
+                    lines += _decode_lines(bytes(rest + text), ())
                     break
                 new = max(len(rest) - 1, 0)  # rest holds no line break but a last "\r", which may go on with "\n"
-                rest += chunk
+                rest += text
                 end = max(rest.rfind(b"\n", new), rest.rfind(b"\r", new, len(rest) - 1))
                 if end >= 0:
                     lines += _decode_lines(bytes(rest[: end + 1]), ())
                     del rest[: end + 1]
+                if len(lines) >= most or not all(":" in s for s in lines):
+                    break
+                chunk = f.read(16384)
     except OSError as e:
         raise _err(f"cannot read ({e.strerror})", path) from None
+    except UnicodeDecodeError as e:
+        raise _not_bom_text(str(codec), e, path) from None
     return lines[:most]
 
 
