@@ -703,19 +703,19 @@ def test_mme_reads_acceleration_channels_and_the_summary_takes_the_first(tmp_pat
 
     slow = resample(analytic, 5000.0)  # another time base
     write_mme(Pulse(analytic.time, np.stack([analytic.acc[0] / 9.80665 * 1e3, analytic.acc[0]]),
-                    ("11BELT0000FOXA", "10VEHC0000ACXP")), tmp_path / "T", "T")  # fmt: skip
+                    ("11SEBE0000B3FO0D", "10VEHC000000ACXP")), tmp_path / "T", "T")  # fmt: skip
     _edit(tmp_path / "T" / "Channel" / "T.001", "Unit                        :g", "Unit                        :N")
     write_mme(slow, tmp_path / "S", "S")
     for f in (tmp_path / "S" / "Channel").glob("S.001"):
         f.rename(tmp_path / "T" / "Channel" / "T.003")
     info = mme_channels(tmp_path / "T")
     assert [(c["code"], c["unit"], c["acceleration"]) for c in info] == [
-        ("11BELT0000FOXA", "N", False), ("10VEHC0000ACXP", "g", True), (slow.channels[0], "g", True)]  # fmt: skip
+        ("11SEBE0000B3FO0D", "N", False), ("10VEHC000000ACXP", "g", True), ("", "g", True)]  # fmt: skip
     with pytest.raises(PulseError, match="time base"), pytest.warns(UserWarning, match="skipped T.001"):
         read_mme(tmp_path / "T")  # the two accelerations differ in time base
-    assert read_mme(tmp_path / "T", channels="10VEHC0000ACXP").channels == ("10VEHC0000ACXP",)
+    assert read_mme(tmp_path / "T", channels="10VEHC000000ACXP").channels == ("10VEHC000000ACXP",)
     s = pulse_summary(tmp_path / "T")
-    assert s["channel"] == "10VEHC0000ACXP"
+    assert s["channel"] == "10VEHC000000ACXP"
     assert s["delta_v_ms"] == pytest.approx(pulse_summary(_write_plain(tmp_path / "p.csv", analytic))["delta_v_ms"])
 
 
@@ -1326,11 +1326,11 @@ def test_an_iso_mme_test_written_as_utf8_is_read_as_utf8(tmp_path, analytic):
             assert data[16383:16385] == "²".encode()
         f.write_bytes(data)
     got = read_mme(tmp_path / "U")
-    assert got.channels == ref.channels and np.array_equal(got.acc, ref.acc)
+    assert got.channels == ("Beschl. Σ 0", "Beschl. Σ 1") and np.array_equal(got.acc, ref.acc)
     listed = mme_channels(tmp_path / "U")
     assert [(c["name"], c["unit"], c["acceleration"]) for c in listed] == [
         ("Beschl. Σ 0", "m/s²", True), ("Beschl. Σ 1", "m/s²", True)]  # fmt: skip
-    assert read_mme(tmp_path / "U", channels="Beschl. Σ 1").channels == (ref.channels[1],)
+    assert read_mme(tmp_path / "U", channels="Beschl. Σ 1").channels == ("Beschl. Σ 1",)
     assert [c["unit"] for c in mme_channels(tmp_path / "L")] == ["m/s**2", "m/s**2"]  # Latin-1, as before
 
 
@@ -1420,3 +1420,26 @@ def test_an_iso_mme_file_in_utf16_without_byte_order_mark_or_broken_is_refused_n
     ch.write_bytes(text.encode("utf-16")[:60] + b"\x00\xd8" + text.encode("utf-16")[60:])  # a lone surrogate
     with pytest.raises(PulseError, match=r"T\.002: starts with a UTF-16 byte-order mark but is not UTF-16 text"):
         mme_channels(tmp_path / "T")
+
+
+def test_write_mme_writes_a_channel_code_only_where_the_name_is_one(tmp_path, analytic):
+    """An ISO-MME channel code is 16 characters (test object, position, main and fine locations, physical dimension,
+    direction, filter class: ``11HEAD0000H3ACXP``). ``write_mme`` wrote every channel's name as its 'Channel code'
+    ('tunnel', '10VEHC0000ACXP'), an invalid code in a file that claims to be ISO-MME, which a reader of codes takes
+    apart by position. A name that is a code (16 capital letters and digits, as a pulse read from a test is named) is
+    written as such, any other name only as 'Name of the channel', the code as NOVALUE (ISO-MME's "not given": where
+    the sensor sat is not known to write_mme). ``read_mme`` names the channels as before."""
+    from marlcrash.pulse import mme_channels
+
+    names = ("tunnel", "10VEHC0000ACXP", "11HEAD0000H3ACXP")  # a name, a 14-character near-code, a code
+    write_mme(Pulse(analytic.time, np.stack([analytic.acc[0]] * 3), names), tmp_path / "T", "T")
+    codes = []
+    for k in (1, 2, 3):
+        head = (tmp_path / "T" / "Channel" / f"T.00{k}").read_text(encoding="latin-1").splitlines()
+        codes += [line.partition(":")[2] for line in head if line.startswith("Channel code ")]
+    assert codes == ["NOVALUE", "NOVALUE", "11HEAD0000H3ACXP"]
+    assert all(len(c) == 16 for c in codes if c != "NOVALUE")
+    assert read_mme(tmp_path / "T").channels == names
+    assert [(c["code"], c["name"]) for c in mme_channels(tmp_path / "T")] == [
+        ("", "tunnel"), ("", "10VEHC0000ACXP"), ("11HEAD0000H3ACXP", "11HEAD0000H3ACXP")]  # fmt: skip
+    assert read_mme(tmp_path / "T", channels="10vehc0000acxp").channels == ("10VEHC0000ACXP",)  # by its name

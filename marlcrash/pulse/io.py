@@ -712,7 +712,7 @@ def read_mme(path: str | Path, *, channels: str | Sequence[str] | None = None, s
     Args:
         path: the test folder or its ``<test>.mme`` file.
         channels: channel(s) to read, each matched (case-insensitively) against the channel
-            code (e.g. ``10VEHC0000ACXP``), the ``Name of the channel`` or the file name
+            code (e.g. ``10VEHC000000ACXP``), the ``Name of the channel`` or the file name
             (``<test>.001``); default: every acceleration channel (a test also holds forces,
             displacements ...: :func:`mme_channels` lists them).
         sign: ``+1`` or ``-1``, multiplies the acceleration (module docstring).
@@ -836,6 +836,16 @@ def _mme_test_name(test: str) -> None:
     _mme_text(test, "test name")
 
 
+_CHANNEL_CODE = re.compile(r"[0-9A-Z]{16}")
+"""An ISO-MME channel code: 16 capital letters and digits (test object, position, main location [4], fine locations
+1-3 [2 each], physical dimension [2], direction, filter class), e.g. ``11HEAD0000H3ACXP``."""
+
+
+def _is_channel_code(name: str) -> bool:
+    """Whether ``name`` has the form of an ISO-MME channel code (:data:`_CHANNEL_CODE`)."""
+    return _CHANNEL_CODE.fullmatch(name) is not None
+
+
 def write_mme(pulse: Pulse, folder: str | Path, test: str = "TEST", *, unit: str = "g") -> Path:
     """Write a uniformly sampled pulse as an ISO-MME test folder that :func:`read_mme` reads.
 
@@ -844,6 +854,12 @@ def write_mme(pulse: Pulse, folder: str | Path, test: str = "TEST", *, unit: str
         folder: the test folder to create (its parent must exist).
         test: the test name (file stem).
         unit: acceleration unit of the channel files, ``g`` or ``m/s**2``.
+
+    Each channel's name is written as its ``Name of the channel``, and as its ``Channel code`` where it is one (16
+    capital letters and digits, ``11HEAD0000H3ACXP``, as the channels of a pulse read from a test are named); any other
+    name gets the code ``NOVALUE``, ISO-MME's "not given". A code made up for it would claim a test object, a position
+    and a location on the vehicle that ``write_mme`` does not know, and :func:`read_mme` names a channel by its code,
+    where given, else by its name: the names read back as written either way.
 
     Returns:
         The path of ``<folder>/<test>.mme``.
@@ -878,7 +894,7 @@ def write_mme(pulse: Pulse, folder: str | Path, test: str = "TEST", *, unit: str
     for k, name in enumerate(pulse.channels, start=1):
         head = [
             f"Name of the channel         :{name}",
-            f"Channel code                :{name}",
+            f"Channel code                :{name if _is_channel_code(name) else 'NOVALUE'}",
             f"Channel frequency class     :{pulse.cfc if pulse.cfc is not None else 'NOVALUE'}",
             f"Unit                        :{unit}",
             "Reference system            :SAE",
