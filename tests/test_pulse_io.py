@@ -1443,3 +1443,31 @@ def test_write_mme_writes_a_channel_code_only_where_the_name_is_one(tmp_path, an
     assert [(c["code"], c["name"]) for c in mme_channels(tmp_path / "T")] == [
         ("", "tunnel"), ("", "10VEHC0000ACXP"), ("11HEAD0000H3ACXP", "11HEAD0000H3ACXP")]  # fmt: skip
     assert read_mme(tmp_path / "T", channels="10vehc0000acxp").channels == ("10VEHC0000ACXP",)  # by its name
+
+
+@pytest.mark.parametrize("left", ["T.003", "T.0002", "t.001", "T.000"])
+def test_write_mme_refuses_a_folder_whose_other_channel_files_would_be_read_as_this_test(tmp_path, analytic, left):
+    """``write_mme`` over a test of the same name wrote its channel files and left the others: a 2-channel pulse
+    written where a 3-channel test was read back with 3 channels, the third the old test's, without a word; a
+    ``T.0002`` (or ``t.001`` beside ``T.001``) left there made the test unreadable (two files for one channel). Such a
+    file is refused, named, before anything is written; a test written over one of the same channels is fine. The
+    test's channel folder is the one ``read_mme`` reads, in whatever case it is spelled."""
+    three = Pulse(analytic.time, np.stack([*analytic.acc, analytic.acc[0]]), ("a", "b", "c"))
+    write_mme(three, tmp_path / "T", "T")
+    write_mme(three, tmp_path / "T", "T")  # over the same channels: fine
+    chan = tmp_path / "T" / "Channel"
+    if left == "t.001" and (chan / left).exists():
+        pytest.skip("a file system that ignores case: t.001 is T.001")
+    (chan / "T.003").rename(chan / left)
+    before = {p.name: p.read_bytes() for p in (tmp_path / "T").rglob("*") if p.is_file()}
+    with pytest.raises(PulseError, match=rf"write_mme: the Channel folder holds {re.escape(left)}, which read_mme "
+                       r"would read as a channel of test 'T' \(the pulse has 2 channels\); remove it"):  # fmt: skip
+        write_mme(analytic, tmp_path / "T", "T")
+    assert {p.name: p.read_bytes() for p in (tmp_path / "T").rglob("*") if p.is_file()} == before
+    (chan / left).unlink()
+    write_mme(analytic, tmp_path / "T", "T")
+    assert read_mme(tmp_path / "T").channels == analytic.channels
+    chan.rename(tmp_path / "T" / "CHANNEL")  # the folder as another tool spells it
+    write_mme(analytic, tmp_path / "T", "T")
+    assert [p.name for p in (tmp_path / "T").iterdir() if p.is_dir()] == ["CHANNEL"]
+    assert read_mme(tmp_path / "T").channels == analytic.channels

@@ -647,14 +647,20 @@ def _mme_paths(path: Path) -> tuple[Path, Path]:
     return mme, folder
 
 
+def _numbered_files(folder: Path, test: str) -> list[Path]:
+    """The files ``<test>.<digits>`` in a channel folder, the stem in any case: each is read as a channel of the test
+    where its number has at least three digits, and one with fewer makes its number ambiguous."""
+    return [p for p in folder.iterdir() if p.is_file() and p.stem.lower() == test.lower()
+            and re.fullmatch(r"\d+", p.suffix[1:] or "")]  # fmt: skip
+
+
 def _mme_channel_files(path: Path) -> tuple[Path, list[Path]]:
     """(test .mme file, its channel files ``<test>.001``, ``<test>.002``, ... in order) of a test or .mme file."""
     mme, folder = _mme_paths(path)
     test = mme.stem
     _read_lines(mme)  # the test description must at least be readable
     # numbered with at least three digits, in numeric order: .001 to .999, then .1000 (as pyisomme writes them)
-    numbered = [p for p in folder.iterdir() if p.is_file() and p.stem.lower() == test.lower()
-                and re.fullmatch(r"\d+", p.suffix[1:] or "")]  # fmt: skip
+    numbered = _numbered_files(folder, test)
     by_number: dict[int, list[Path]] = {}
     for p in numbered:
         by_number.setdefault(int(p.suffix[1:]), []).append(p)
@@ -867,7 +873,10 @@ def write_mme(pulse: Pulse, folder: str | Path, test: str = "TEST", *, unit: str
     Raises:
         PulseError: non-uniform sampling, an unknown unit, or a test or channel name that an ISO-MME file cannot
             hold (a character outside Latin-1, or a line break), or a test name that cannot name its files (empty,
-            holding ``/`` or a NUL), naming it and the character; nothing is written then.
+            holding ``/`` or a NUL), naming it and the character, or a channel folder that holds a file of the
+            test that is not one of its channels (``<test>.003`` left from a 3-channel test where the pulse has two,
+            ``<test>.0001`` beside the ``<test>.001`` it writes), which :func:`read_mme` would read as one of its
+            channels; nothing is written then.
     """
     if not pulse.is_uniform:
         raise PulseError("ISO-MME needs uniform sampling; resample the pulse first")
@@ -878,6 +887,14 @@ def write_mme(pulse: Pulse, folder: str | Path, test: str = "TEST", *, unit: str
         _mme_text(name, f"channel {k} name")
     folder = Path(folder)
     chan_dir = folder / "Channel"
+    if folder.is_dir():  # the channel folder read_mme reads, as another tool may have spelled it ('CHANNEL')
+        chan_dir = next((d for d in folder.iterdir() if d.is_dir() and d.name.lower() == "channel"), chan_dir)
+    for p in sorted(_numbered_files(chan_dir, test)) if chan_dir.is_dir() else ():
+        mine = chan_dir / f"{test}.{int(p.suffix[1:]):03d}"  # a file this test writes over is no other channel
+        if not (1 <= int(p.suffix[1:]) <= pulse.n_channels and mine.is_file() and mine.samefile(p)):
+            raise PulseError(f"write_mme: the {chan_dir.name} folder holds {p.name}, which read_mme would read as a "
+                             f"channel of test {test!r} (the pulse has {pulse.n_channels} channels); remove it or "
+                             "write the test to another folder")  # fmt: skip
     chan_dir.mkdir(parents=True, exist_ok=True)
     mme = folder / f"{test}.mme"
     mme.write_text(
