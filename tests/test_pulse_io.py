@@ -1471,3 +1471,22 @@ def test_write_mme_refuses_a_folder_whose_other_channel_files_would_be_read_as_t
     write_mme(analytic, tmp_path / "T", "T")
     assert [p.name for p in (tmp_path / "T").iterdir() if p.is_dir()] == ["CHANNEL"]
     assert read_mme(tmp_path / "T").channels == analytic.channels
+
+
+def test_an_iso_mme_test_folder_with_two_channel_folders_is_refused_naming_both(tmp_path, analytic):
+    """The channel folder is found in any case ('Channel', 'CHANNEL'). A test folder holding two ('Channel' and
+    'channel', as another tool wrote it beside) was read from whichever the file system listed first, the other
+    passed over without a word. Refused naming both, by ``read_mme`` and ``write_mme`` (before writing anything)."""
+    import shutil
+
+    write_mme(analytic, tmp_path / "T", "T")
+    if (tmp_path / "T" / "channel").exists():
+        pytest.skip("a file system that ignores case: 'channel' is 'Channel'")
+    shutil.copytree(tmp_path / "T" / "Channel", tmp_path / "T" / "channel")
+    said = r"T\.mme: the test folder holds two channel folders, 'Channel' and 'channel'; keep one"
+    with pytest.raises(PulseError, match=said):
+        read_mme(tmp_path / "T")
+    with pytest.raises(PulseError, match=said):
+        read_mme(tmp_path / "T" / "T.mme")
+    with pytest.raises(PulseError, match=r"write_mme: T: the test folder holds two channel folders, 'Channel' and"):
+        write_mme(analytic, tmp_path / "T", "T")

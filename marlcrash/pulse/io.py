@@ -641,10 +641,22 @@ def _mme_paths(path: Path) -> tuple[Path, Path]:
         mme = path
     else:
         raise _err("no such ISO-MME test folder or .mme file", path)
-    folder = next((d for d in mme.parent.iterdir() if d.is_dir() and d.name.lower() == "channel"), None)
-    if folder is None:
+    folders = _channel_folders(mme.parent)
+    if not folders:
         raise _err("expected a 'Channel' folder next to the .mme file", mme)
-    return mme, folder
+    if len(folders) > 1:
+        raise _err(_two_channel_folders(folders), mme)
+    return mme, folders[0]
+
+
+def _channel_folders(folder: Path) -> list[Path]:
+    """The folders of a test folder named ``Channel`` in any case (``CHANNEL`` as some tools write it), by name."""
+    return sorted(d for d in folder.iterdir() if d.is_dir() and d.name.lower() == "channel")
+
+
+def _two_channel_folders(folders: list[Path]) -> str:
+    listed = ", ".join(repr(d.name) for d in folders[:-1]) + f" and {folders[-1].name!r}"
+    return f"the test folder holds {'two' if len(folders) == 2 else len(folders)} channel folders, {listed}; keep one"
 
 
 def _numbered_files(folder: Path, test: str) -> list[Path]:
@@ -876,7 +888,8 @@ def write_mme(pulse: Pulse, folder: str | Path, test: str = "TEST", *, unit: str
             holding ``/`` or a NUL), naming it and the character, or a channel folder that holds a file of the
             test that is not one of its channels (``<test>.003`` left from a 3-channel test where the pulse has two,
             ``<test>.0001`` beside the ``<test>.001`` it writes), which :func:`read_mme` would read as one of its
-            channels; nothing is written then.
+            channels, or a test folder holding two channel folders (``Channel`` and ``channel``); nothing is
+            written then.
     """
     if not pulse.is_uniform:
         raise PulseError("ISO-MME needs uniform sampling; resample the pulse first")
@@ -886,9 +899,10 @@ def write_mme(pulse: Pulse, folder: str | Path, test: str = "TEST", *, unit: str
     for k, name in enumerate(pulse.channels, start=1):
         _mme_text(name, f"channel {k} name")
     folder = Path(folder)
-    chan_dir = folder / "Channel"
-    if folder.is_dir():  # the channel folder read_mme reads, as another tool may have spelled it ('CHANNEL')
-        chan_dir = next((d for d in folder.iterdir() if d.is_dir() and d.name.lower() == "channel"), chan_dir)
+    folders = _channel_folders(folder) if folder.is_dir() else []
+    if len(folders) > 1:
+        raise PulseError(f"write_mme: {file_label(folder)}: {_two_channel_folders(folders)}")
+    chan_dir = folders[0] if folders else folder / "Channel"  # as another tool may have spelled it ('CHANNEL')
     for p in sorted(_numbered_files(chan_dir, test)) if chan_dir.is_dir() else ():
         mine = chan_dir / f"{test}.{int(p.suffix[1:]):03d}"  # a file this test writes over is no other channel
         if not (1 <= int(p.suffix[1:]) <= pulse.n_channels and mine.is_file() and mine.samefile(p)):
