@@ -869,7 +869,7 @@ def write_mme(pulse: Pulse, folder: str | Path, test: str = "TEST", *, unit: str
 
     Args:
         pulse: the pulse (uniform sampling required).
-        folder: the test folder to create (its parent must exist).
+        folder: the test folder (created with its parents where missing; an existing one is written into).
         test: the test name (file stem).
         unit: acceleration unit of the channel files, ``g`` or ``m/s**2``.
 
