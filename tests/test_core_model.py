@@ -184,6 +184,32 @@ def test_validate_refuses_a_negative_or_non_finite_beam_area(area):
         bad.validate()
 
 
+@pytest.mark.parametrize(
+    ("kind", "ids", "message"),
+    [
+        ("node", np.array([1, 2, 3, 4, 5, 6, 7, 1]), r"node id 1 is given twice \(node indices 0 and 7\)"),
+        ("shell", np.array([10, 10]), r"shell id 10 is given twice \(shell indices 0 and 1\)"),
+        ("solid", np.array([21, 21]), r"solid id 21 is given twice \(solid indices 0 and 1\)"),
+    ],
+)
+def test_validate_refuses_a_repeated_node_or_element_id(tmp_path, kind, ids, message):
+    """Node and element ids were not checked: a model made in Python with one id on two nodes (or two shells)
+    passed, and the writer wrote a deck its own reader refused ('node id 1 is defined twice'). Ids of different
+    element kinds may coincide, as the reader allows."""
+    from marlcrash.vehicle.keyword_writer import write_deck
+
+    bad = _box_model()
+    setattr(bad, f"{kind}_ids", ids)
+    with pytest.raises(ModelError, match=message + r"; expected each \w+ id once"):
+        bad.validate()
+    with pytest.raises(ModelError, match=message):
+        write_deck(bad, tmp_path / "car.k")
+    assert list(tmp_path.iterdir()) == []
+    shared = _box_model()
+    shared.solid_ids = shared.shell_ids.copy()  # a shell and a solid with one id: both LS-DYNA and the reader take it
+    shared.validate()
+
+
 def test_default_subassemblies_and_lookup():
     m = _box_model().with_default_subassemblies()
     assert m.subassemblies == {"front": [1, 2], "part_3": [3]}

@@ -440,6 +440,7 @@ class VehicleModel:
             raise ModelError(
                 f"{self.name}: node {int(self.node_ids[i])} has a non-finite coordinate {self.coords[i].tolist()}"
             )
+        _refuse_repeated_ids(self.name, "node", self.node_ids)
         for kind, ids, parts, nodes, width in (
             ("shell", self.shell_ids, self.shell_part, self.shell_nodes, 4),
             ("solid", self.solid_ids, self.solid_part, self.solid_nodes, 8),
@@ -449,6 +450,7 @@ class VehicleModel:
                 raise ModelError(
                     f"{self.name}: {kind} arrays disagree: ids {ids.shape}, parts {parts.shape}, nodes {nodes.shape}"
                 )
+            _refuse_repeated_ids(self.name, kind, ids)
             if nodes.size and (nodes.min() < 0 or nodes.max() >= n):
                 i = int(np.flatnonzero(((nodes < 0) | (nodes >= n)).any(axis=1))[0])
                 raise ModelError(f"{self.name}: {kind} {int(ids[i])} refers to a node index outside 0..{n - 1}")
@@ -563,6 +565,21 @@ class VehicleModel:
         tri = np.concatenate([tri_s, tri_v])
         used, inv = np.unique(tri.ravel(), return_inverse=True)
         return trimesh.Trimesh(self.coords[used], inv.reshape(-1, 3), process=False)
+
+
+def _refuse_repeated_ids(name: str, what: str, ids: np.ndarray) -> None:
+    """Raise :class:`ModelError` naming the first id ``ids`` holds twice, with both indices. Ids a deck or a builder
+    numbers in order cost one pass; others are sorted, not passed through ``np.unique`` (numpy 2's hash-based one
+    takes seconds per million ids)."""
+    if ids.size < 2 or (ids[1:] > ids[:-1]).all():
+        return
+    s = np.sort(ids)
+    dup = np.flatnonzero(s[1:] == s[:-1])
+    if dup.size:
+        i, j = np.flatnonzero(ids == s[dup[0]])[:2].tolist()
+        raise ModelError(
+            f"{name}: {what} id {int(ids[i])} is given twice ({what} indices {i} and {j}); expected each {what} id once"
+        )
 
 
 def empty_int(*shape: int) -> np.ndarray:
