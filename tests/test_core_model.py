@@ -184,6 +184,16 @@ def test_validate_refuses_a_negative_or_non_finite_beam_area(area):
         bad.validate()
 
 
+@pytest.mark.parametrize("thickness", [-1e-3, math.nan, -math.inf])
+def test_validate_names_the_shell_whose_thickness_is_negative_or_not_finite(thickness):
+    """The message said 'shell thickness must be finite and >= 0' and no more: which of a million shells, and what
+    value, was left to find. It names the shell and its value now, as the beam area's does."""
+    bad = _box_model()
+    bad.shell_thickness[1] = thickness
+    with pytest.raises(ModelError, match=rf"shell 11's thickness must be finite and >= 0 m, got {thickness}$"):
+        bad.validate()
+
+
 @pytest.mark.parametrize(
     ("kind", "ids", "message"),
     [

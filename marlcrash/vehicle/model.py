@@ -481,8 +481,13 @@ class VehicleModel:
                                   ("beam area", self.beam_area, self.beam_ids)):  # fmt: skip
             if values.shape != ids.shape:
                 raise ModelError(f"{self.name}: {what} is {values.shape}, expected one value per element {ids.shape}")
-        if (self.shell_thickness < 0).any() or not np.isfinite(self.shell_thickness).all():
-            raise ModelError(f"{self.name}: shell thickness must be finite and >= 0")
+        bad = ~(np.isfinite(self.shell_thickness) & (self.shell_thickness >= 0))
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            raise ModelError(
+                f"{self.name}: shell {int(self.shell_ids[i])}'s thickness must be finite and >= 0 m, "
+                f"got {float(self.shell_thickness[i])}"
+            )
         bad = ~(np.isfinite(self.beam_area) & (self.beam_area >= 0))
         if bad.any():
             i = int(np.flatnonzero(bad)[0])
