@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -191,6 +192,32 @@ def test_validate_names_the_shell_whose_thickness_is_negative_or_not_finite(thic
     bad = _box_model()
     bad.shell_thickness[1] = thickness
     with pytest.raises(ModelError, match=rf"shell 11's thickness must be finite and >= 0 m, got {thickness}$"):
+        bad.validate()
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "message"),
+    [
+        ("density", -7850.0, r"density must be finite and >= 0 kg/m\^3, got -7850.0"),
+        ("density", math.nan, r"density must be finite and >= 0 kg/m\^3, got nan \(missing: complete_material"),
+        ("youngs_modulus", 0.0, r"Young's modulus must be finite and > 0 Pa, got 0.0"),
+        ("shear_modulus", -1.0, r"shear modulus must be finite and > 0 Pa, got -1.0"),
+        ("bulk_modulus", math.inf, r"bulk modulus must be finite and > 0 Pa, got inf"),
+        ("yield_strength", -3.5e8, r"yield strength must be finite and > 0 Pa, got -350000000.0"),
+        ("ultimate_strength", math.nan, r"ultimate strength must be finite and > 0 Pa, got nan \(missing"),
+        ("fracture_strength", 0.0, r"fracture strength must be finite and > 0 Pa, got 0.0"),
+        ("poisson_ratio", 0.5, r"Poisson's ratio must lie in \(-1, 0.5\), got 0.5"),
+    ],
+)
+def test_validate_refuses_a_material_value_that_is_not_physical(field, value, message):
+    """Materials were not checked: one made in Python with a negative yield strength or a zero Young's modulus
+    passed, and the default car discretized with it without a word; a NaN strength stopped the discretizer with
+    'CellModel.params contains non-finite values' and a negative density with 'their density or thickness is 0',
+    neither naming the material. validate names the material, the value and what was expected, as
+    complete_material does for a read one."""
+    bad = _box_model()
+    bad.materials = {1: dataclasses.replace(bad.materials[1], **{field: value})}
+    with pytest.raises(ModelError, match=r"vehicle: material 1 \(steel\)'s " + message):
         bad.validate()
 
 

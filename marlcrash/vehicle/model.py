@@ -20,7 +20,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from marlcrash.errors import ConfigError, ModelError
-from marlcrash.vehicle.materials import Material
+from marlcrash.vehicle.materials import MATERIAL_FIELDS, Material
 
 COMPARTMENT = "compartment"
 """Name of the sub-assembly treated as the rigid passenger compartment."""
@@ -54,6 +54,17 @@ class Part:
     beam_area: float | None = None
 
 
+# What validate expects of each entry of a material's 8-vector (MATERIAL_FIELDS order): label, rule.
+_MATERIAL_RULES = (
+    ("density", "be finite and >= 0 kg/m^3"),
+    ("Young's modulus", "be finite and > 0 Pa"),
+    ("shear modulus", "be finite and > 0 Pa"),
+    ("bulk modulus", "be finite and > 0 Pa"),
+    ("yield strength", "be finite and > 0 Pa"),
+    ("ultimate strength", "be finite and > 0 Pa"),
+    ("fracture strength", "be finite and > 0 Pa"),
+    ("Poisson's ratio", "lie in (-1, 0.5)"),
+)
 _AXIS_RE = re.compile(r"^([+-]?)([xyz])$")
 _DEFAULT_GROUP_RE = re.compile(r"part_([1-9][0-9]*)")
 
@@ -461,6 +472,7 @@ class VehicleModel:
         for pid, p in self.parts.items():
             if p.material_id not in self.materials:
                 raise ModelError(f"{self.name}: part {pid} refers to unknown material {p.material_id}")
+        self._check_materials()
         seen: dict[int, str] = {}
         for name, pids in self.subassemblies.items():
             if not len(pids):
@@ -516,6 +528,27 @@ class VehicleModel:
                     raise ModelError(f"{self.name}: {what} {mass:.4g} kg is given for unknown part {pid}")
                 if not (math.isfinite(mass) and mass >= 0):
                     raise ModelError(f"{self.name}: part {pid}'s {what} must be finite and >= 0 kg, got {mass}")
+
+    def _check_materials(self) -> None:
+        """Refuse a material value that is missing or not physical, as :func:`complete_material` would: density
+        finite and >= 0 (0: a massless material), moduli and strengths finite and > 0, Poisson's ratio in
+        (-1, 0.5)."""
+        if not self.materials:
+            return
+        mats = list(self.materials.values())
+        vec = np.array([m.vector() for m in mats])  # [n_materials, 8]
+        lo = np.zeros(len(MATERIAL_FIELDS))
+        lo[-1] = -1.0
+        ok = np.isfinite(vec) & (vec > lo)
+        ok[:, 0] |= vec[:, 0] == 0.0  # density may be 0
+        ok[:, -1] &= vec[:, -1] < 0.5
+        if ok.all():
+            return
+        i, j = (int(k) for k in np.argwhere(~ok)[0])
+        m, v = mats[i], float(vec[i, j])
+        label, expected = _MATERIAL_RULES[j]
+        missing = " (missing: complete_material derives or defaults it)" if math.isnan(v) else ""
+        raise ModelError(f"{self.name}: material {m.id} ({m.name})'s {label} must {expected}, got {v}{missing}")
 
     # --------------------------------------------------------------- meshes
     def shell_triangles(self, mask: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
