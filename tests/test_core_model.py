@@ -221,6 +221,25 @@ def test_validate_refuses_a_material_value_that_is_not_physical(field, value, me
         bad.validate()
 
 
+def test_validate_refuses_a_part_or_material_filed_under_another_id(tmp_path):
+    """``parts`` and ``materials`` map an id to the part or material of that id, and nothing checked it: a material
+    filed under 1 with id 7 passed, and write_deck (which writes the card's own id) gave a deck its reader refused
+    ('*PART 1 refers to undefined material 1'); a part filed under 3 with id 9 read back as part 3 without a word."""
+    from marlcrash.vehicle.keyword_writer import write_deck
+
+    bad = _box_model()
+    bad.materials = {1: dataclasses.replace(bad.materials[1], id=7)}
+    with pytest.raises(ModelError, match=r"vehicle: materials\[1\] is material 7 \('steel'\); expected material 1"):
+        bad.validate()
+    with pytest.raises(ModelError, match=r"materials\[1\] is material 7"):
+        write_deck(bad, tmp_path / "car.k")
+    assert list(tmp_path.iterdir()) == []
+    bad = _box_model()
+    bad.parts = {**bad.parts, 3: dataclasses.replace(bad.parts[3], id=9)}
+    with pytest.raises(ModelError, match=r"vehicle: parts\[3\] is part 9 \('rod'\); expected part 3"):
+        bad.validate()
+
+
 @pytest.mark.parametrize(
     ("kind", "ids", "message"),
     [

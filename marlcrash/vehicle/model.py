@@ -469,6 +469,11 @@ class VehicleModel:
             if unknown.size:
                 i = int(np.flatnonzero(parts == unknown[0])[0])
                 raise ModelError(f"{self.name}: {kind} {int(ids[i])} refers to unknown part {int(unknown[0])}")
+        for what, table in (("part", self.parts), ("material", self.materials)):
+            wrong = [k for k, x in table.items() if x.id != k]
+            if wrong:
+                k, x = wrong[0], table[wrong[0]]
+                raise ModelError(f"{self.name}: {what}s[{k}] is {what} {x.id} ({x.name!r}); expected {what} {k}")
         for pid, p in self.parts.items():
             if p.material_id not in self.materials:
                 raise ModelError(f"{self.name}: part {pid} refers to unknown material {p.material_id}")
