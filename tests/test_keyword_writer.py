@@ -445,3 +445,24 @@ def test_a_non_ascii_name_is_written_in_utf8_and_its_columns_are_bytes(tmp_path)
     lines = deck.read_bytes().splitlines()
     assert lines[lines.index(b"*MAT_ELASTIC_TITLE+") + 1] == ("ä" * 40).encode()
     assert read_deck(deck, subassemblies=tmp_path / "d.subassemblies.yaml").materials[1].name == "ä" * 40
+
+
+def test_parts_that_share_a_section_keep_it_and_one_whose_values_differ_is_named(tmp_path):
+    """LS-DYNA lets parts share a *SECTION card. The writer gave every part its own, so the second of two parts
+    sharing section 10 read back with section 14, unsaid, where the deck could have carried the shared id. Parts
+    whose section values agree share the card now; one whose values differ gets a fresh id, with a warning."""
+    m = _model()
+    m.parts = {**m.parts, 11: replace(m.parts[11], section_id=10, thickness=1.7e-3)}
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the cards carry the shared section
+        deck = write_deck(m, tmp_path / "c.k")
+    back = read_deck(deck, subassemblies=tmp_path / "c.subassemblies.yaml")
+    _same(m, back)
+    assert deck.read_text().count("*SECTION_SHELL") == 1
+    m.parts = {**m.parts, 11: replace(m.parts[11], thickness=2.25e-3)}
+    with pytest.warns(UserWarning, match=r"part 11: its section 10 \(shared with part 10, whose section values differ"
+                                         r"\) is written as section 14"):  # fmt: skip
+        deck = write_deck(m, tmp_path / "d.k")
+    back = read_deck(deck, subassemblies=tmp_path / "d.subassemblies.yaml")
+    assert back.parts[10].section_id == 10 and back.parts[11].section_id == 14
+    assert back.parts[11].thickness == pytest.approx(2.25e-3, rel=1e-12)

@@ -3,7 +3,9 @@
 The deck holds ``*NODE`` (16-character coordinates, 10 significant digits),
 ``*ELEMENT_SHELL_THICKNESS`` (element thickness on every shell), ``*ELEMENT_SOLID``,
 ``*ELEMENT_BEAM_THICKNESS`` (element area as PARM1 of a resultant beam),
-``*PART``, one ``*SECTION_SHELL/SOLID/BEAM`` per part, and materials by kind:
+``*PART``, ``*SECTION_SHELL/SOLID/BEAM`` (one card per section id: parts that share an id and whose section values
+agree share its card, as LS-DYNA lets them; a part whose values differ from those of the first part with its id gets
+a fresh id, with a warning, and a part with no section id a fresh one), and materials by kind:
 ``elastic`` -> ``*MAT_ELASTIC``, ``plastic_kinematic`` -> ``*MAT_PLASTIC_KINEMATIC``,
 ``piecewise_linear`` -> ``*MAT_PIECEWISE_LINEAR_PLASTICITY``, ``rigid`` ->
 ``*MAT_RIGID`` (``other`` is written as ``*MAT_ELASTIC``). Sections and materials use
@@ -251,15 +253,19 @@ def write_deck(model: VehicleModel, path: str | Path, *, units: str = "mm-t-s", 
             f.write(text)
             if miss:
                 lost[mid] = miss
-        used_secids: set[int] = set()
+        written: dict[int, tuple[int, str]] = {}  # section id -> (first part, its section cards less the id)
         fresh = max([p.section_id or 0 for p in model.parts.values()] + list(model.parts) + [0]) + 1
         for pid in sorted(model.parts):
             p = model.parts[pid]
-            secid = p.section_id if p.section_id is not None and p.section_id not in used_secids else None
+            kind = kinds.get(pid, "shell")
+            section = _section_cards(model, pid, kind, u)
+            secid = p.section_id
+            if secid is not None and secid in written and written[secid][1] != section(0):
+                cannot.append(f"part {pid}: its section {secid} (shared with part {written[secid][0]}, whose section "
+                              f"values differ) is written as section {fresh}")  # fmt: skip
+                secid = None
             if secid is None:
                 secid, fresh = fresh, fresh + 1
-            used_secids.add(secid)
-            kind = kinds.get(pid, "shell")
             heading = _title(p.name, f"part {pid}: its heading", cannot, width=70)
             inertia = pid in model.part_mass and _inertia_carries(model, pid, cannot)
             if inertia:
@@ -269,17 +275,9 @@ def write_deck(model: VehicleModel, path: str | Path, *, units: str = "mm-t-s", 
                 f.write(f"*PART\n{heading}\n{pid:10d}{secid:10d}{p.material_id:10d}\n")
             else:  # an id too wide for the card's 10 columns
                 f.write(f"*PART+\n{heading}\n" + _card([pid, secid, p.material_id]))
-            if kind == "shell":
-                t = (p.thickness or 0.0) / u.length
-                f.write("*SECTION_SHELL+\n" + _card([secid, 2, 1.0, 2, 0.0]) + _card([t, t, t, t]))
-            elif kind == "solid":
-                f.write("*SECTION_SOLID+\n" + _card([secid, 1]))
-            else:
-                sel = model.beam_part == pid
-                a = p.beam_area if p.beam_area else float(np.median(model.beam_area[sel])) if sel.any() else 0.0
-                a /= u.area
-                i = a * a / (4 * math.pi)  # solid circular section of that area
-                f.write("*SECTION_BEAM+\n" + _card([secid, 2, 1.0, 2.0, 0.0]) + _card([a, i, i, 2 * i]))
+            if secid not in written:  # parts whose section values agree share the card, as LS-DYNA lets them
+                written[secid] = (pid, section(0))
+                f.write(section(secid))
         _write_geometry(f, model, u)
         _write_masses(f, model, u)
         f.write("*END\n")
@@ -289,6 +287,21 @@ def write_deck(model: VehicleModel, path: str | Path, *, units: str = "mm-t-s", 
         listing = "; ".join([f"material {mid}: {', '.join(v)}" for mid, v in sorted(lost.items())] + cannot)
         warnings.warn(f"{path.name}: the keyword cards cannot carry {listing}", UserWarning, stacklevel=2)
     return path
+
+
+def _section_cards(model: VehicleModel, pid: int, kind: str, u):
+    """``secid -> text`` of part ``pid``'s ``*SECTION_SHELL/SOLID/BEAM`` (long format) with section id ``secid``."""
+    p = model.parts[pid]
+    if kind == "shell":
+        t = (p.thickness or 0.0) / u.length
+        return lambda secid: "*SECTION_SHELL+\n" + _card([secid, 2, 1.0, 2, 0.0]) + _card([t, t, t, t])
+    if kind == "solid":
+        return lambda secid: "*SECTION_SOLID+\n" + _card([secid, 1])
+    sel = model.beam_part == pid
+    a = p.beam_area if p.beam_area else float(np.median(model.beam_area[sel])) if sel.any() else 0.0
+    a /= u.area
+    i = a * a / (4 * math.pi)  # solid circular section of that area
+    return lambda secid: "*SECTION_BEAM+\n" + _card([secid, 2, 1.0, 2.0, 0.0]) + _card([a, i, i, 2 * i])
 
 
 def _write_geometry(f, model: VehicleModel, u) -> None:
