@@ -607,3 +607,22 @@ def test_coalition_params_names_parameters_of_the_wrong_shape(problem):
         coalition_params(problem, problem.init, problem.true_params[:5], members)
     with pytest.raises(ValueError, match=rf"^initial: expected cell parameters of shape \({n}, 7\), got \(1, {n}, 7\)"):
         coalition_params(problem, problem.init[None], problem.true_params, members)
+
+
+def test_pictures_are_written_to_a_path_without_a_suffix_and_a_failed_one_leaves_no_figure_open(problem, tmp_path):
+    """A picture path without a suffix is written as PNG, as matplotlib writes one: the temporary name beside it
+    ends in ``.tmp``, and matplotlib read that as the format ('Format 'tmp' is not supported'), a name the user
+    never gave. A save that fails (a suffix matplotlib has no writer for) closes its figure: it stayed open, one more
+    per failed call in a session."""
+    import matplotlib.pyplot as plt
+
+    c = agent_contributions(problem, problem.init)  # nothing moved: one simulation
+    plt.close("all")
+    for draw in (lambda p: plot_contributions(c, p), lambda p: plot_cells_by_contribution(problem, c, p)):
+        path = tmp_path / "picture"
+        assert draw(path) == path and path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+        path.unlink()
+        with pytest.raises(ValueError, match="Format 'xyz' is not supported"):
+            draw(tmp_path / "picture.xyz")
+        assert plt.get_fignums() == []
+    assert not any(tmp_path.iterdir())  # no picture and no temporary file stays

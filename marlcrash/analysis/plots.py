@@ -13,17 +13,27 @@ from marlcrash.outputs import atomic_output
 
 
 def _figure_out(fig, path: str | Path) -> Path:
+    """Save ``fig`` to ``path`` atomically, in the format its suffix names (where it has none, matplotlib's
+    ``savefig.format``: PNG), and close it, saved or not.
+
+    The format is passed: the temporary file's name ends in ``.tmp`` where ``path`` has no suffix, which matplotlib
+    would read as the format.
+    """
     import matplotlib.pyplot as plt
 
-    with atomic_output(path) as tmp:
-        fig.savefig(tmp, dpi=110)
-    plt.close(fig)
+    try:
+        fmt = Path(path).suffix[1:].lower() or plt.rcParams["savefig.format"]
+        with atomic_output(path) as tmp:
+            fig.savefig(tmp, dpi=110, format=fmt)
+    finally:
+        plt.close(fig)
     return Path(path)
 
 
 def plot_contributions(contrib: Contributions, path: str | Path, quantities: list[str] | None = None) -> Path:
     """Horizontal bars of the moving agents' Shapley values (with standard errors when sampled) and the
     leave-one-out effects, one panel per quantity (default: ``score`` and every sensor's area), each in its unit.
+    Written atomically to ``path``, in the format its suffix names (PNG where it has none).
 
     Raises:
         ValueError: an empty list of quantities or an unknown one (:meth:`Contributions.selected`).
@@ -64,7 +74,8 @@ def plot_cells_by_contribution(
     problem: CalibrationProblem, contrib: Contributions, path: str | Path, quantity: str = "score"
 ) -> Path:
     """The cells in 3D (centroids, size by mass), coloured by their agent's Shapley value of ``quantity``;
-    cells of no agent or of agents that did not move are grey. Improvement is green for every quantity.
+    cells of no agent or of agents that did not move are grey. Improvement is green for every quantity. Written
+    atomically to ``path``, in the format its suffix names (PNG where it has none).
 
     Raises:
         ValueError: ``contrib`` is not of the problem's agents (another layout: its values would colour the cells of
