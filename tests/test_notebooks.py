@@ -59,3 +59,16 @@ def test_agent_contributions_notebook_analyses_a_run(tmp_path):
     text = _stdout(nb)
     assert f"analysing the calibration of {run} (its iterate 1)" in text and "largest per-step move" in text
     assert (tmp_path / "out" / f"{tmp_path.name}_run" / "contributions.csv").is_file()
+
+
+def test_a_picture_that_cannot_be_written_does_not_lose_the_tables(tmp_path):
+    """The contributions' tables are written as soon as they are computed: they were written by the last cell, after
+    both pictures, so a picture that could not be written (here: a folder where contributions.png goes) stopped the
+    notebook with the minutes of simulations done and no table on disk."""
+    out = tmp_path / "out"
+    (out / "twin_truth" / "contributions.png").mkdir(parents=True)
+    path = next(p for p in NOTEBOOKS if p.name == "agent_contributions.ipynb")
+    with pytest.raises(nbclient.exceptions.CellExecutionError, match=r"contributions\.png is a folder"):
+        execute(path, f"{SMALL[path.name]}\nOUT = {str(out)!r}")
+    written = {p.name for p in (out / "twin_truth").iterdir()}
+    assert {"contributions.csv", "contributions.md"} <= written
