@@ -72,3 +72,19 @@ def test_a_picture_that_cannot_be_written_does_not_lose_the_tables(tmp_path):
         execute(path, f"{SMALL[path.name]}\nOUT = {str(out)!r}")
     written = {p.name for p in (out / "twin_truth").iterdir()}
     assert {"contributions.csv", "contributions.md"} <= written
+
+
+def test_re_evaluations_of_two_runs_go_to_two_folders(tmp_path):
+    """A re-evaluation folder (``<run>/eval/<checkpoint>/``, which the analysis reads with its run's config) is
+    analysed into ``OUT/<algorithm>_<run>_eval_<checkpoint>/``: its folder was named by its last two parts only
+    (``eval_<checkpoint>``), the same for every run's re-evaluation of that name, so analysing a second run's
+    replaced the first one's pictures and tables without a word."""
+    run = tmp_path / "mappo" / "run"
+    run.mkdir(parents=True)
+    write_evaluated_run(run)
+    again = run / "eval" / "checkpoint_steps2"
+    again.mkdir(parents=True)
+    (again / "calibrated.npz").write_bytes((run / "calibrated.npz").read_bytes())
+    path = next(p for p in NOTEBOOKS if p.name == "agent_contributions.ipynb")
+    execute(path, f"N_PERMUTATIONS = 4\nRUN = {str(again)!r}\nOUT = {str(tmp_path / 'out')!r}")
+    assert [p.name for p in (tmp_path / "out").iterdir()] == ["mappo_run_eval_checkpoint_steps2"]
