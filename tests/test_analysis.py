@@ -626,3 +626,24 @@ def test_pictures_are_written_to_a_path_without_a_suffix_and_a_failed_one_leaves
             draw(tmp_path / "picture.xyz")
         assert plt.get_fignums() == []
     assert not any(tmp_path.iterdir())  # no picture and no temporary file stays
+
+
+def test_the_truth_in_calibrated_npz_is_checked_when_the_run_is_loaded(tmp_path):
+    """``true`` (the twin's hidden parameters, which the notebook tabulates beside the calibrated ones) is checked as
+    ``initial`` and ``calibrated`` are, naming the file: it was returned unchecked, so one of another shape or with a
+    NaN failed later as ``params: expected [iterations, 518, 7]`` or ``params: params[0, ...]``, naming no file."""
+    problem = write_evaluated_run(tmp_path)
+    keep = dict(np.load(tmp_path / "calibrated.npz"))
+    nan = keep["true"].copy()
+    cell = int(torch.nonzero(problem.layout.agent_of_cell >= 0)[0])
+    nan[cell, 0] = np.nan
+    for bad, words in [
+        (keep["true"][:5], r"\[true\]: expected cell parameters of shape"),
+        (nan, r"\[true\]: parameters must be finite"),
+    ]:
+        np.savez(tmp_path / "calibrated.npz", **{**keep, "true": bad})
+        with pytest.raises(ConfigError, match=r"calibrated\.npz" + words) as e:
+            run_calibration(tmp_path)
+        assert e.value.key == "run"
+    np.savez(tmp_path / "calibrated.npz", **{k: v for k, v in keep.items() if k != "true"})  # no truth: a test's
+    assert run_calibration(tmp_path).true is None

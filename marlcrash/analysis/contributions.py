@@ -397,7 +397,9 @@ def run_calibration(run_dir: str | Path) -> RunCalibration:
 
     Raises:
         ConfigError: (key ``run``) no run folder, no ``config.yaml`` or no ``calibrated.npz`` (the run was not
-            evaluated yet: ``python train/evaluate.py run=<run>``), or an unreadable one.
+            evaluated yet: ``python train/evaluate.py run=<run>``), or an unreadable one: a member missing, of
+            another shape, or parameters the simulator refuses (``initial``, ``calibrated``, ``per_iteration`` and,
+            where present, ``true``), named.
     """
     from marlcrash import provenance
     from marlcrash.calibrate.evaluate import EVAL_DIR, evaluation_problem
@@ -424,7 +426,9 @@ def run_calibration(run_dir: str | Path) -> RunCalibration:
         raise ConfigError(f"{path} lacks {missing}; expected the evaluation's calibrated.npz: {again}", key="run")
     problem = evaluation_problem(config)
     t = {k: torch.as_tensor(v, dtype=torch.float64) for k, v in arrays.items() if k != "selected_iteration"}
-    for k in ("initial", "calibrated"):
+    for k in ("initial", "calibrated", "true"):
+        if k not in t:  # no truth: a run evaluated on a test, not a twin
+            continue
         try:
             _check_params(problem, f"{path}[{k}]", t[k])
         except ValueError as e:
@@ -433,7 +437,14 @@ def run_calibration(run_dir: str | Path) -> RunCalibration:
     if per_it.ndim != len(shape) + 1 or tuple(per_it.shape[1:]) != shape or per_it.shape[0] < 1:
         raise ConfigError(f"{path}[per_iteration]: expected cell parameters of shape [iterations, {shape[0]}, "
                           f"{shape[1]}], got {tuple(per_it.shape)}: {again}", key="run")  # fmt: skip
-    for name, p in (("initial", t["initial"][None]), ("calibrated", t["calibrated"][None]), ("per_iteration", per_it)):
+    checked = [
+        ("initial", t["initial"][None]),
+        ("calibrated", t["calibrated"][None]),
+        ("per_iteration", per_it),
+    ]
+    if "true" in t:
+        checked.append(("true", t["true"][None]))
+    for name, p in checked:
         try:  # the simulator's own check, before any simulation: its batch index is then the step, not a coalition
             problem.sim.check_params(p)
         except ModelError as e:
