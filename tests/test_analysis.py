@@ -647,3 +647,15 @@ def test_the_truth_in_calibrated_npz_is_checked_when_the_run_is_loaded(tmp_path)
         assert e.value.key == "run"
     np.savez(tmp_path / "calibrated.npz", **{k: v for k, v in keep.items() if k != "true"})  # no truth: a test's
     assert run_calibration(tmp_path).true is None
+
+
+def test_one_quantity_name_given_as_quantities_is_refused_naming_the_list_expected(problem, tmp_path):
+    """``quantities="score"`` (one name where a list is expected) is refused naming ``quantities`` and the string:
+    it was read letter by letter, as "unknown quantity 's'"."""
+    c = agent_contributions(problem, problem.init)  # nothing moved: one simulation
+    for call in (lambda: plot_contributions(c, tmp_path / "bars.png", quantities="score"),
+                 lambda: c.write_markdown(tmp_path / "c.md", quantities="score")):  # fmt: skip
+        with pytest.raises(ValueError, match=r"^quantities: expected a list of quantity names, got the string 'score'"):
+            call()
+    assert not any(tmp_path.iterdir())
+    assert c.selected(("score",)) == ["score"]  # any sequence of names

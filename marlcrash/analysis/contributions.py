@@ -91,10 +91,14 @@ class Contributions:
         """``quantities`` checked by name, or where ``None`` the default ones: ``score`` and every sensor's area.
 
         Raises:
-            ValueError: an empty list (no panel, no table: not the default's stand-in), or an unknown name.
+            ValueError: an empty list (no panel, no table: not the default's stand-in), one name given as a string
+                (not read letter by letter), or an unknown name.
         """
         if quantities is None:
             return ["score", *(q for q in self.quantities if q.startswith("area/"))]
+        if isinstance(quantities, str):
+            raise ValueError(f"quantities: expected a list of quantity names, got the string {quantities!r} "
+                             f"(for one quantity: [{quantities!r}])")  # fmt: skip
         qs = list(quantities)
         if not qs:
             raise ValueError(f"quantities: expected at least one quantity of {self.quantities}, or None for the "
