@@ -12,8 +12,9 @@ below asks the game for coalitions in batches and never loops over players in Py
   Returns the standard error of every estimate.
 - :func:`one_at_a_time`: leave-one-out (``v(N) - v(N - i)``) and add-one (``v({i}) - v({})``) effects.
 
-All three satisfy, or estimate, ``sum_i phi_i = v(N) - v({})`` (efficiency; exact for the exact and sampled
-Shapley values, because every ordering's marginals telescope).
+Both Shapley estimates satisfy ``sum_i phi_i = v(N) - v({})`` exactly (efficiency; the sampled ones too, because
+every ordering's marginals telescope). The one-at-a-time effects need not add up to it where players interact: a
+bonus that two players earn only together is in the leave-one-out effect of each and in the add-one effect of neither.
 """
 
 from __future__ import annotations
