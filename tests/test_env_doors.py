@@ -275,3 +275,54 @@ def test_the_pettingzoo_wrapper_rounds_the_info_metrics_to_float32_as_documented
         entries = td[group, "info", "action_entries"][i]
         assert entries.dtype == torch.float32
         assert torch.equal(entries.bool(), torch.as_tensor(infos[a]["action_entries"]))
+
+
+def test_a_partial_step_moves_only_the_rows_it_names(cells):
+    """TorchRL steps a batch-locked env with a ``"_step"`` mask (``rollout(..., break_when_all_done=True)`` sets it to
+    the rows whose episodes go on) and trusts ``_step`` to step only those rows. The env stepped every row: a row whose
+    episode had ended went on past ``max_iterations`` (its parameters, metrics and iteration moved, its candidates
+    reached the simulation hooks), and a row held back by ``_step=False`` moved like the others."""
+    env = CalibrationTorchEnv(cfg(), batch_size=2, cells=cells)
+    whole = CalibrationTorchEnv(cfg(), batch_size=2, cells=cells)
+    seen = []
+    env.core.simulation_hooks.append(lambda p, m: seen.append(p.shape[0]))
+    td, ref = env.reset(seed=1), whole.reset(seed=1)
+    before = env._observation_td()
+    params, metrics = env.core.params.clone(), [m.clone() for m in env.core.metrics]
+    act = torch.rand(2, env.core.A, env.core.act_dim, generator=torch.Generator().manual_seed(0)) * 2 - 1
+    act[1] = float("nan")  # a row that is not stepped: its actions are not used
+    seen.clear()
+    out = env.step(td.set(("agents", "action"), act).set("_step", torch.tensor([True, False])))["next"]
+    full = whole.step(ref.set(("agents", "action"), act.nan_to_num(0.0)))["next"]
+    assert seen == [1]  # one candidate simulated, the stepped row's
+    assert env.core.iteration.tolist() == [1, 0]
+    assert torch.equal(env.core.params[1], params[1]) and not torch.equal(env.core.params[0], params[0])
+    assert all(torch.equal(m[1], m0[1]) for m, m0 in zip(env.core.metrics, metrics, strict=True))
+    for k in (("agents", "observation"), ("agents", "mask"), ("agents", "action_mask"), "state", ("metrics", "rmse")):
+        assert torch.equal(out[k][1], before[k][1]), k  # the held row: as it stood
+        assert torch.equal(out[k][0], full[k][0]), k  # the stepped row: as a whole step gives it
+    assert float(out["reward"][1]) == 0.0 and float(out["reward"][0]) == float(full["reward"][0])
+    assert not bool(out["done"][1])
+    with pytest.raises(ActionError, match=r"step mask must be \[2\] bool, got shape \[3\]"):
+        env.core.step(act, mask=torch.ones(3, dtype=torch.bool))
+
+    # rows that end at different iterations: a rollout to the end of all of them steps no row past its end
+    env.core.simulation_hooks.clear()
+    td = env.step_mdp(env.rand_step(env.reset(seed=1)))
+    td = env.reset(td.set("_reset", torch.tensor([[True], [False]])))  # row 1 one iteration ahead of row 0
+    roll = env.rollout(6, tensordict=td, auto_reset=False, break_when_all_done=True, break_when_any_done=False)
+    assert roll.shape == (2, 4) and env.core.iteration.tolist() == [4, 4]  # cfg(): max_iterations 4
+    assert roll["next", "truncated"][:, -1].all()
+
+
+def test_the_joint_action_view_passes_a_partial_step_on(cells):
+    """``ppo_single``'s :class:`~marlcrash.calibrate.marl.JointActionEnv` hands its ``"_step"`` rows to the
+    multi-agent env it wraps (it stepped every row)."""
+    from marlcrash.calibrate.marl import JointActionEnv
+
+    env = JointActionEnv(CalibrationTorchEnv(cfg(), batch_size=2, cells=cells))
+    td = env.reset(seed=1)
+    params = env.core.params.clone()
+    env.rand_step(td.set("_step", torch.tensor([False, True])))
+    assert env.core.iteration.tolist() == [0, 1]
+    assert torch.equal(env.core.params[0], params[0]) and not torch.equal(env.core.params[1], params[1])

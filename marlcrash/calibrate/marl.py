@@ -444,6 +444,8 @@ class JointActionEnv(EnvBase):
         c = self.core
         a = tensordict.get((GROUP, "action")).reshape(c.B, c.A, c.act_dim)
         inner = TensorDict({GROUP: TensorDict({"action": a}, batch_size=(c.B, c.A))}, batch_size=self.batch_size)
+        if "_step" in tensordict:  # TorchRL's partial step: the base steps only these rows
+            inner.set("_step", tensordict.get("_step"))
         return self._convert(self.base._step(inner))
 
     def _set_seed(self, seed: int | None) -> None:

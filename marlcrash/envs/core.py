@@ -20,7 +20,8 @@ Episode (per environment row):
   per-cell log increments (``* max_step``; zero for inactive agents; behaviour changes
   of saturated cells damped when the saturation preference is on), applies them
   (:func:`apply_increments`), runs ONE batched no-grad simulation for all ``B`` rows
-  (``record_cells="final"``), and computes metrics, team reward and end flags.
+  (``record_cells="final"``; only the rows of its ``mask`` where one is given, TorchRL's partial
+  step), and computes metrics, team reward and end flags.
 
 Actions: ``subassembly`` granularity, ``act_dim = 7`` log-scale increments applied to
 all the agent's cells; ``cell`` granularity, ``act_dim = 7 * max_cells``: per cell (in
@@ -448,13 +449,7 @@ class CalibrationCore:
         Raises:
             ActionError: a bad ``seed`` or ``mask``; a refused call changes nothing (the generator included).
         """
-        if mask is None:
-            rows = torch.arange(self.B)
-        else:
-            mask = torch.as_tensor(mask, dtype=torch.bool).reshape(-1)
-            if mask.shape != (self.B,):
-                raise ActionError(f"reset mask must be [{self.B}] bool, got shape {list(mask.shape)}")
-            rows = torch.nonzero(mask).flatten()
+        rows = torch.arange(self.B) if mask is None else torch.nonzero(self._row_mask(mask, "reset")).flatten()
         if seed is not None:
             self.seed(seed)
         if rows.numel() == 0:
@@ -508,8 +503,11 @@ class CalibrationCore:
                           "termination.failure_* or set them to null", stacklevel=3)  # fmt: skip
 
     # ------------------------------------------------------------------------------------ actions
-    def check_actions(self, actions: torch.Tensor | np.ndarray) -> torch.Tensor:
+    def check_actions(self, actions: torch.Tensor | np.ndarray, rows: torch.Tensor | None = None) -> torch.Tensor:
         """Validate ``[B, n_agents, act_dim]`` float actions; return them clipped to [-1, 1] as float64.
+
+        ``rows`` (``[B]`` bool; every row if ``None``): the rows that act; the others' actions are ignored as an
+        inactive agent's are.
 
         The actions are detached from any autograd graph: the simulation is not differentiated through, and a
         policy's output taken with gradients (``env.rollout(n, policy)`` outside ``torch.no_grad()``) would
@@ -534,6 +532,8 @@ class CalibrationCore:
         if not actions.is_floating_point():
             raise ActionError(f"actions must be floating point (float32 or float64), got {actions.dtype}")
         used = self.action_mask()  # inactive agents' and padded entries are ignored (as the PettingZoo door does)
+        if rows is not None:
+            used = used & rows[:, None, None]
         bad = ~torch.isfinite(actions) & used
         if bool(bad.any()):
             b, a, j = (int(x) for x in torch.nonzero(bad)[0])
@@ -562,12 +562,14 @@ class CalibrationCore:
             inc = torch.cat([inc[..., :2] * damp[..., None], inc[..., 2:]], dim=-1)
         return inc
 
-    def apply_actions(self, actions: torch.Tensor | np.ndarray) -> None:
-        """Check and apply actions to the parameters, without simulating."""
-        inc = self.increments(self.check_actions(actions))
+    def apply_actions(self, actions: torch.Tensor | np.ndarray, rows: torch.Tensor | None = None) -> None:
+        """Check and apply actions to the parameters, without simulating (``rows``: ``[B]`` bool, the rows that
+        act; the others keep their parameters bit for bit; every row if ``None``)."""
+        inc = self.increments(self.check_actions(actions, rows))
         lo, hi = self.config.behaviour_bounds
-        self.params = apply_increments(self.params, inc, self.init, self.feasible, (lo, hi),
-                                       self.config.transmission_floor)  # fmt: skip
+        params = apply_increments(self.params, inc, self.init, self.feasible, (lo, hi),
+                                  self.config.transmission_floor)  # fmt: skip
+        self.params = params if rows is None else torch.where(rows[:, None, None], params, self.params)
 
     def action_mask(self) -> torch.Tensor:
         """``[B, n_agents, act_dim]`` bool: entries that act (active agent; per cell, a valid slot and a feasible
@@ -584,25 +586,56 @@ class CalibrationCore:
         return mask
 
     # --------------------------------------------------------------------------------------- step
-    def step(self, actions: torch.Tensor | np.ndarray) -> None:
-        """Apply actions, simulate all ``B`` rows once, update metrics, reward and end flags.
+    def step(self, actions: torch.Tensor | np.ndarray, mask: torch.Tensor | None = None) -> None:
+        """Apply actions, simulate the rows of ``mask`` once, update their metrics, reward and end flags.
+
+        ``mask``: ``[B]`` bool, the rows to step (all rows if ``None``; TorchRL's ``"_step"`` entry, which a
+        ``rollout(..., break_when_all_done=True)`` sets to the rows whose episodes go on). The other rows are
+        not simulated and keep their parameters, metrics, iteration and end flags; their actions are ignored
+        and their reward is 0.
 
         Raises:
-            ActionError: bad actions (:meth:`check_actions`), or a row that was never reset (no reference yet).
+            ActionError: bad actions (:meth:`check_actions`), a bad ``mask``, or a stepped row that was never reset
+                (no reference yet).
         """
-        if not bool(self.started.all()):
-            rows = torch.nonzero(~self.started).flatten().tolist()
-            raise ActionError(f"call reset() before step(): rows {rows} of {self.B} have no episode yet")
-        prev = self.metrics
-        self.apply_actions(actions)
-        m = self._simulate(slice(None))
-        self.metrics = m
-        self.iteration += 1
-        self.reward = self.reward_fn(m, prev).to(torch.float64)
-        term = self.reward_fn.termination(m, self.iteration)
-        self.success = term.success
-        self.terminated = term.success | term.failure
-        self.truncated = term.truncated & ~self.terminated
+        rows = None if mask is None else self._row_mask(mask, "step")
+        ready = self.started if rows is None else self.started | ~rows
+        if not bool(ready.all()):
+            bad = torch.nonzero(~ready).flatten().tolist()
+            raise ActionError(f"call reset() before step(): rows {bad} of {self.B} have no episode yet")
+        if rows is None:
+            prev = self.metrics
+            self.apply_actions(actions)
+            m = self._simulate(slice(None))
+            self.metrics = m
+            self.iteration += 1
+            self.reward = self.reward_fn(m, prev).to(torch.float64)
+            term = self.reward_fn.termination(m, self.iteration)
+            self.success = term.success
+            self.terminated = term.success | term.failure
+            self.truncated = term.truncated & ~self.terminated
+            return
+        idx = torch.nonzero(rows).flatten()
+        self.apply_actions(actions, rows)  # checked first: a refused step changes nothing
+        self.reward = torch.zeros(self.B, dtype=torch.float64)
+        if idx.numel() == 0:
+            return
+        prev = Metrics(*(t[idx] for t in self.metrics))
+        m = self._simulate(idx)
+        self.metrics = Metrics(*(t.index_put((idx,), v) for t, v in zip(self.metrics, m, strict=True)))
+        self.iteration[idx] += 1
+        self.reward[idx] = self.reward_fn(m, prev).to(torch.float64)
+        term = self.reward_fn.termination(m, self.iteration[idx])
+        self.success = self.success.index_put((idx,), term.success)
+        self.terminated = self.terminated.index_put((idx,), term.success | term.failure)
+        self.truncated = self.truncated.index_put((idx,), term.truncated & ~(term.success | term.failure))
+
+    def _row_mask(self, mask: torch.Tensor, what: str) -> torch.Tensor:
+        """``mask`` as ``[B]`` bool (a ``[B, 1]`` one too); :class:`ActionError` naming ``what`` otherwise."""
+        mask = torch.as_tensor(mask, dtype=torch.bool).reshape(-1)
+        if mask.shape != (self.B,):
+            raise ActionError(f"{what} mask must be [{self.B}] bool, got shape {list(mask.shape)}")
+        return mask
 
     @property
     def done(self) -> torch.Tensor:

@@ -16,7 +16,9 @@ as ``MultiAgentMLP`` expects). Keys:
   ``"truncated"``: ``[B, 1]`` bool at the root.
 
 Partial resets (``"_reset"`` ``[B, 1]``) restart only the flagged rows; ``reset(seed=s)``
-re-seeds the core first, exactly as the PettingZoo door's ``reset(seed=s)``.
+re-seeds the core first, exactly as the PettingZoo door's ``reset(seed=s)``. Partial steps (``"_step"`` ``[B]``, which
+``rollout(..., break_when_all_done=True)`` sets to the rows whose episodes go on) step only the flagged rows; the others
+keep their state (observation and end flags as they stood, reward 0) and are not simulated.
 
 Seeding copies: every env starts from its config's ``seed`` (reproducible by default), so copies run side by side
 (``SerialEnv``, ``ParallelEnv``) draw the same episodes until seeded: call ``set_seed(s)`` on the batched env (TorchRL
@@ -139,7 +141,8 @@ class CalibrationTorchEnv(EnvBase):
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         c = self.core
-        c.step(tensordict.get((GROUP, "action")))
+        rows = tensordict.get("_step", None)  # TorchRL's partial step: only these rows go on
+        c.step(tensordict.get((GROUP, "action")), mask=None if rows is None else rows.reshape(c.B))
         out = self._observation_td()
         out.set("reward", c.reward.to(torch.float32)[:, None])
         out.set("done", c.done[:, None].clone())
