@@ -111,3 +111,21 @@ def test_secondary_region_definition(cells, layout):
     assert (cells.hi[prim, 1] > cells.vehicle_width / 2 - 0.25 * cells.vehicle_width).all()
     none = ImpactRegions(cells, layout, MaskingConfig(secondary_hops=0)).regions(t(0.25), t(1.0), t(17.8))[1]
     assert not none.any()
+
+
+def test_an_agent_with_exactly_min_fraction_of_its_cells_in_the_region_is_active(cells):
+    """ "At least ``min_fraction`` of its cells": 15 of 50 cells is 0.3 exactly, but the rule compared 15 with
+    ``0.3 * 50`` taken in float32 (a Python float times the int64 cell counts), ``15.000001``, so an agent with
+    exactly that share was left inactive (0.15 of 100 cells, 0.3 of 90, ... too)."""
+    from marlcrash.envs.agents import AgentLayout
+
+    own = torch.as_tensor(np.flatnonzero(~cells.is_null & ~cells.is_rigid)[:50])
+    one = AgentLayout(names=["a"], subassemblies=[("a",)], cells=own[None], valid=torch.ones(1, 50, dtype=torch.bool),
+                      count=torch.tensor([50]), agent_of_cell=torch.full((cells.n_cells,), -1),
+                      slot_of_cell=torch.full((cells.n_cells,), -1))  # fmt: skip
+    region = torch.zeros(2, cells.n_cells, dtype=torch.bool)
+    region[0, own[:15]] = True  # 15 of 50: the share asked for
+    region[1, own[:14]] = True  # 14 of 50: below it
+    t = torch.ones(2, dtype=torch.float64)
+    reg = ImpactRegions(cells, one, MaskingConfig(mode="primary", min_fraction=0.3))
+    assert reg.active(t, t, t, region=region)[:, 0].tolist() == [True, False]

@@ -137,7 +137,10 @@ class ImpactRegions:
         region = self.region(overlap, side, speed) if region is None else region
         inside = region[:, self.layout.cells] & self.layout.valid  # [B, A, M]
         n_in = inside.sum(-1)
-        return (n_in > 0) & (n_in >= self.config.min_fraction * self.layout.count)
+        # the share in float64, a correctly rounded quotient: 15 / 50 is the float 0.3 exactly, where 0.3 * 50 (float32
+        # from a Python float times int64 counts) was 15.000001 and left an agent with exactly min_fraction inactive
+        share = n_in.to(torch.float64) / self.layout.count.to(torch.float64)
+        return (n_in > 0) & (share >= self.config.min_fraction)
 
     def idle_scenarios(self, scenarios: list[CrashScenario]) -> list[str]:
         """Sentences for the scenarios whose episodes would activate no agent (empty where every one has some).
