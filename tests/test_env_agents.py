@@ -129,3 +129,21 @@ def test_an_agent_with_exactly_min_fraction_of_its_cells_in_the_region_is_active
     t = torch.ones(2, dtype=torch.float64)
     reg = ImpactRegions(cells, one, MaskingConfig(mode="primary", min_fraction=0.3))
     assert reg.active(t, t, t, region=region)[:, 0].tolist() == [True, False]
+
+
+def test_a_cell_on_the_secondary_depth_limit_is_in_the_region_whatever_its_round_off(cells, layout):
+    """In the shipped small overlaps a subframe cell that the load reaches has its centroid 0.6 m
+    (``secondary_depth``) behind the struck front, stored as 0.6000000000000019 m: "at most ``secondary_depth``
+    behind" left it out on round-off (the compartment's cells on that plane sit at 0.6 exactly). A hair more depth
+    now changes nothing, and the cell is in the secondary region."""
+    t = lambda v: torch.tensor([v], dtype=torch.float64)  # noqa: E731
+    shipped = load_env_config().masking
+    hair = MaskingConfig(**{**shipped.__dict__, "secondary_depth": shipped.secondary_depth + 1e-7})
+    for side in (1.0, -1.0):
+        prim, sec = (r[0] for r in ImpactRegions(cells, layout, shipped).regions(t(0.25), t(side), t(17.8)))
+        more = ImpactRegions(cells, layout, hair).regions(t(0.25), t(side), t(17.8))[1][0]
+        assert torch.equal(sec, more), side
+        front = float(cells.lo[prim.numpy(), 0].min())
+        on = np.abs(cells.centroid[:, 0] - front - shipped.secondary_depth) < 1e-12
+        sub = on & (cells.subassembly == cells.subassembly_names.index("subframe"))
+        assert bool(sec[torch.as_tensor(sub)].any()), side  # the struck side's one of the two on that plane

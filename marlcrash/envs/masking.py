@@ -67,6 +67,10 @@ class MaskingConfig:
                 f"must be in [0, 1], got {self.saturation_damping}")  # fmt: skip
 
 
+_ON_DEPTH_LIMIT = 1e-9
+"""[m] A cell this close to a region's depth limit lies on it, inside the region."""
+
+
 class ImpactRegions:
     """Batched impact regions and agent activity for one cell model and agent layout.
 
@@ -93,7 +97,8 @@ class ImpactRegions:
         self.n = cells.n_cells
 
     def _depth(self, base: float, speed: torch.Tensor) -> torch.Tensor:
-        return base + self.config.speed_depth_time * speed.to(torch.float64)  # [B]
+        # a cell on the limit within round-off lies inside (a centroid 0.6 m behind the front came out 0.6 + 2e-15 m)
+        return base + self.config.speed_depth_time * speed.to(torch.float64) + _ON_DEPTH_LIMIT  # [B]
 
     def primary(self, overlap: torch.Tensor, side: torch.Tensor, speed: torch.Tensor) -> torch.Tensor:
         """``[B, n_cells]`` bool primary region for ``[B]`` overlaps, sides (+1 left, -1 right), speeds [m/s]."""
