@@ -494,24 +494,17 @@ class VehicleModel:
                 if pid in seen:
                     raise ModelError(f"{self.name}: part {pid} is in two sub-assemblies, {seen[pid]!r} and {name!r}")
                 seen[pid] = name
-        for what, values, ids in (("shell thickness", self.shell_thickness, self.shell_ids),
-                                  ("beam area", self.beam_area, self.beam_ids)):  # fmt: skip
+        element_values = (("shell", "thickness", "m", self.shell_thickness, self.shell_ids),
+                          ("beam", "cross-sectional area", "m^2", self.beam_area, self.beam_ids))  # fmt: skip
+        for kind, what, unit, values, ids in element_values:
             if values.shape != ids.shape:
-                raise ModelError(f"{self.name}: {what} is {values.shape}, expected one value per element {ids.shape}")
-        bad = ~(np.isfinite(self.shell_thickness) & (self.shell_thickness >= 0))
-        if bad.any():
-            i = int(np.flatnonzero(bad)[0])
-            raise ModelError(
-                f"{self.name}: shell {int(self.shell_ids[i])}'s thickness must be finite and >= 0 m, "
-                f"got {float(self.shell_thickness[i])}"
-            )
-        bad = ~(np.isfinite(self.beam_area) & (self.beam_area >= 0))
-        if bad.any():
-            i = int(np.flatnonzero(bad)[0])
-            raise ModelError(
-                f"{self.name}: beam {int(self.beam_ids[i])}'s cross-sectional area must be finite and >= 0 m^2, "
-                f"got {float(self.beam_area[i])}"
-            )
+                raise ModelError(f"{self.name}: {kind} {what} is {values.shape}, expected one value per element "
+                                 f"{ids.shape}")  # fmt: skip
+            bad = ~(np.isfinite(values) & (values >= 0))
+            if bad.any():
+                i = int(np.flatnonzero(bad)[0])
+                raise ModelError(f"{self.name}: {kind} {int(ids[i])}'s {what} must be finite and >= 0 {unit}, "
+                                 f"got {float(values[i])}")  # fmt: skip
         m = self.point_mass.shape[0]
         if self.point_mass_nodes.shape != (m,) or self.point_mass_ids.shape != (m,):
             raise ModelError(
