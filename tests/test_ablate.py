@@ -127,6 +127,19 @@ def test_bad_config_fails_naming_the_key(short, tmp_path, override, key, words):
     assert words in str(e.value)
 
 
+def test_a_masking_level_that_activates_no_agent_on_a_scenario_is_refused(short, tmp_path, monkeypatch):
+    """With a 5 cm primary region and min_fraction 1, no agent of the default deck has all its cells in the region:
+    ``primary`` trained with every action masked and reported a gain of exactly 0 as its result (the env only
+    warned, inside the run). It is refused before any run, naming the level and the scenario."""
+    monkeypatch.setattr(ablate, "run_cell", lambda *a, **kw: pytest.fail("ran a cell"))
+    over = {"masking.min_fraction": 1.0, "masking.primary_depth": 0.05}
+    with pytest.raises(ConfigError) as e:
+        tiny(tmp_path, env_overrides=over, masking=["none", "primary"])
+    assert e.value.key == "masking[1]", str(e.value)
+    assert "'offset40_left' activates no agent" in str(e.value) and "'primary'" in str(e.value)
+    tiny(tmp_path, env_overrides={"masking.min_fraction": 1.0})  # every scenario keeps an agent: accepted
+
+
 def test_reward_forms_must_measure_as_the_score_form_does(short, tmp_path):
     path = short / "reward" / "paper_factor.yaml"  # an edited registered form: another scaling of the Frechet points
     text = path.read_text()

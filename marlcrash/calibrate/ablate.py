@@ -75,12 +75,12 @@ from marlcrash.calibrate.marl import ALGORITHMS, AlgorithmConfig
 from marlcrash.calibrate.problem import CalibrationProblem, SuccessConfig, build_problem
 from marlcrash.config import from_dict, merge_overrides, require, require_complete, require_seed
 from marlcrash.envs.agents import build_agents
-from marlcrash.envs.core import EnvConfig, load_env_config, require_env, require_env_keys_unset
+from marlcrash.envs.core import EnvConfig, build_cells, load_env_config, require_env, require_env_keys_unset
 from marlcrash.envs.masking import ImpactRegions
 from marlcrash.errors import ConfigError
 from marlcrash.outputs import atomic_output, finite_or_null, json_text, require_run_name, write_text
 from marlcrash.reward import load_reward_config
-from marlcrash.sim.scenario import list_scenarios
+from marlcrash.sim.scenario import get_scenario, list_scenarios
 
 FACTORS: tuple[str, ...] = ("algorithm", "masking", "scenario", "granularity", "reward")
 """The factors of a cell, in the order of its name (``mappo-none-offset40_left-subassembly-log_ratio``)."""
@@ -297,6 +297,34 @@ def require_distinct_masking(config: AblationConfig, finished: Iterable[str] = (
                               "and compared", key=f"masking[{i}]")  # fmt: skip
 
 
+def require_active_agents(config: AblationConfig) -> None:
+    """Refuse a masking level under which a scenario of the ablation activates no agent (the env's own test,
+    :meth:`~marlcrash.envs.masking.ImpactRegions.idle_scenarios`, with ``env_overrides`` and ``ppo.env_overrides``).
+
+    Its runs would spend their budget with every action masked and report a gain of 0 as a result; the env only
+    warns, inside each run.
+
+    Raises:
+        ConfigError: naming ``masking[i]``, the level and the scenarios it leaves idle.
+    """
+    over = merge_overrides(EnvConfig, config.env_overrides, config.ppo.env_overrides)
+    levels = [(i, lv) for i, lv in enumerate(config.masking) if masking_overrides(lv)["masking.mode"] != "none"]
+    if not levels:  # mode none: every agent acts
+        return
+    env = load_env_config(config.env, over)  # the masking keys do not change the cells or the agents
+    cells = build_cells(env.vehicle, env.vehicle_seed, env.discretization, env.vehicle_options)
+    layout = build_agents(cells, env.agents)
+    scenarios = [get_scenario(s) for s in config.scenarios]
+    for i, lv in levels:
+        masking = load_env_config(config.env, {**over, **masking_overrides(lv)}).masking
+        idle = ImpactRegions(cells, layout, masking).idle_scenarios(scenarios)
+        if idle:
+            raise ConfigError(f"masking level {lv!r}: {'; '.join(idle)}; its runs would calibrate nothing (every "
+                              "action masked) and report a gain of 0: lower masking.min_fraction or widen the depths "
+                              "in env_overrides, or leave the level or the scenario out",
+                              key=f"masking[{i}]")  # fmt: skip
+
+
 def factor_overrides(cell: dict[str, Any]) -> dict[str, Any]:
     """The env overrides the env factors of ``cell`` set (:data:`ENV_KEYS`)."""
     return {**masking_overrides(cell["masking"]), "granularity": cell["granularity"], "reward": cell["reward"]}
@@ -313,7 +341,7 @@ def load_ablation_config(data: dict[str, Any], source: str | None = None) -> Abl
     Every level of an env factor is loaded into the env config (with ``env_overrides`` and the PPO
     ones), so an unknown masking level (mode or modifier), granularity or reward form fails here, naming
     its list entry; so does a masking level that runs the setting of an earlier one
-    (:func:`require_distinct_masking`).
+    (:func:`require_distinct_masking`) or activates no agent on a scenario (:func:`require_active_agents`).
 
     Raises:
         ConfigError: unknown key, wrong type or bad value, naming the dotted key -- before any run.
@@ -343,6 +371,7 @@ def load_ablation_config(data: dict[str, Any], source: str | None = None) -> Abl
                 raise ConfigError(e.reason, key=f"{LEVEL_KEYS[factor]}[{i}]", path=source) from None
     try:
         require_distinct_masking(config)
+        require_active_agents(config)
     except ConfigError as e:
         raise ConfigError(e.reason, key=e.key, path=source) from None
     return config
