@@ -121,6 +121,24 @@ def write_text(path: str | Path, text: str) -> Path:
     return Path(path)
 
 
+def save_figure(fig: Any, path: str | Path, key: str | None = None, dpi: float | str = 110) -> Path:
+    """Save a matplotlib ``fig`` to ``path`` through :func:`atomic_output` (``key`` as there), in the format its
+    suffix names (where it has none, matplotlib's ``savefig.format``: PNG), and close it, saved or not.
+
+    The format is passed: the temporary file's name ends in ``.tmp`` where ``path`` has no suffix, which matplotlib
+    would read as the format.
+    """
+    import matplotlib.pyplot as plt
+
+    try:
+        fmt = Path(path).suffix[1:].lower() or plt.rcParams["savefig.format"]
+        with atomic_output(path, key=key) as tmp:
+            fig.savefig(tmp, dpi=dpi, format=fmt)
+    finally:
+        plt.close(fig)
+    return Path(path)
+
+
 @contextmanager
 def atomic_output(path: str | Path, key: str | None = None) -> Iterator[Path]:
     """Yield a temporary path next to ``path``; on success it is flushed to disk and replaces ``path``, on failure it

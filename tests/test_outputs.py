@@ -211,3 +211,23 @@ def test_text_outputs_and_configs_are_utf8_whatever_the_locale(tmp_path):
     assert run.returncode == 0, run.stderr.decode(errors="replace")[-600:]
     assert (tmp_path / "t.md").read_bytes() == "-1.84 ± 0.22 †".encode()
     assert (tmp_path / "log.csv").read_bytes().splitlines()[0] == "area_Stoßfänger".encode()
+
+
+def test_save_figure_writes_the_format_its_suffix_names_and_closes_the_figure_whatever_happens(tmp_path):
+    """One figure writer for every picture (analysis, ablation, crash and pulse plots): the ablation's left its
+    figure open when the save failed, and the pulse plot wrote PNG bytes into a file named ``.svg``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from marlcrash.outputs import save_figure
+
+    fig = plt.figure()
+    assert save_figure(fig, tmp_path / "picture") == tmp_path / "picture"
+    assert (tmp_path / "picture").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and not plt.get_fignums()
+    save_figure(plt.figure(), tmp_path / "picture.svg")
+    assert b"<svg" in (tmp_path / "picture.svg").read_bytes()[:400]
+    with pytest.raises(ValueError, match="xyz"):
+        save_figure(plt.figure(), tmp_path / "picture.xyz")
+    assert not plt.get_fignums() and sorted(p.name for p in tmp_path.iterdir()) == ["picture", "picture.svg"]

@@ -9,25 +9,7 @@ import numpy as np
 from marlcrash.analysis.contributions import Contributions, quantity_unit
 from marlcrash.calibrate.problem import CalibrationProblem
 from marlcrash.cells.plot import draw_vehicle_frame
-from marlcrash.outputs import atomic_output
-
-
-def _figure_out(fig, path: str | Path) -> Path:
-    """Save ``fig`` to ``path`` atomically, in the format its suffix names (where it has none, matplotlib's
-    ``savefig.format``: PNG), and close it, saved or not.
-
-    The format is passed: the temporary file's name ends in ``.tmp`` where ``path`` has no suffix, which matplotlib
-    would read as the format.
-    """
-    import matplotlib.pyplot as plt
-
-    try:
-        fmt = Path(path).suffix[1:].lower() or plt.rcParams["savefig.format"]
-        with atomic_output(path) as tmp:
-            fig.savefig(tmp, dpi=110, format=fmt)
-    finally:
-        plt.close(fig)
-    return Path(path)
+from marlcrash.outputs import save_figure
 
 
 def plot_contributions(contrib: Contributions, path: str | Path, quantities: list[str] | None = None) -> Path:
@@ -67,7 +49,7 @@ def plot_contributions(contrib: Contributions, path: str | Path, quantities: lis
     axes[0, 0].legend(fontsize=7, loc="lower right")
     fig.suptitle("per-agent contributions (green: improves the fit)", fontsize=10)
     fig.tight_layout()
-    return _figure_out(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_cells_by_contribution(
@@ -117,4 +99,4 @@ def plot_cells_by_contribution(
         sc, ax=ax, shrink=0.6, label=f"agent's Shapley value of {what} [{quantity_unit(quantity)}] (> 0 improves)"
     )
     ax.set_title(f"cells coloured by their agent's contribution to {quantity}", fontsize=10)
-    return _figure_out(fig, path)
+    return save_figure(fig, path)

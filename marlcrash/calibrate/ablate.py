@@ -78,7 +78,7 @@ from marlcrash.envs.agents import build_agents
 from marlcrash.envs.core import EnvConfig, build_cells, load_env_config, require_env, require_env_keys_unset
 from marlcrash.envs.masking import ImpactRegions
 from marlcrash.errors import ConfigError
-from marlcrash.outputs import atomic_output, finite_or_null, json_text, require_run_name, write_text
+from marlcrash.outputs import finite_or_null, json_text, require_run_name, save_figure, write_text
 from marlcrash.reward import load_reward_config
 from marlcrash.sim.scenario import get_scenario, list_scenarios
 
@@ -677,10 +677,7 @@ def plot_ablation(config: AblationConfig, rows: list[dict[str, Any]], path: Path
             ax.grid(alpha=0.3)
             ax.tick_params(labelsize=7)
     fig.tight_layout()
-    with atomic_output(path, key="out_dir") as tmp:
-        fig.savefig(tmp, dpi=110)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, key="out_dir")
 
 
 # ------------------------------------------------------------------------------------------- driver

@@ -45,7 +45,7 @@ from typing import Any
 import numpy as np
 
 from marlcrash.errors import PulseError, file_label
-from marlcrash.outputs import atomic_output
+from marlcrash.outputs import atomic_output, save_figure
 from marlcrash.pulse.signal import (
     DEFAULT_THRESHOLD_G,
     MIN_SAMPLES,
@@ -1201,6 +1201,4 @@ def plot_pulse(
     ax_a.legend(loc="best", fontsize=8)
     fig.suptitle(title if title is not None else (Path(pulse.source).name if pulse.source else "pulse"))
     fig.tight_layout()
-    with atomic_output(path) as tmp:
-        fig.savefig(tmp, format="png")
-    return path
+    return save_figure(fig, path, dpi="figure")

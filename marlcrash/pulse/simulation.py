@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from marlcrash.cells.model import PARAM_NAMES, CellModel
-from marlcrash.outputs import atomic_output
+from marlcrash.outputs import atomic_output, save_figure
 from marlcrash.pulse.signal import filtered_acceleration, sampled_acceleration
 from marlcrash.sim.energy import max_balance_error
 from marlcrash.sim.scenario import CrashScenario
@@ -195,16 +195,9 @@ def plot_crash(result: SimResult, cells: CellModel, path: str | Path, title: str
     import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     fig = crash_figure(result, cells, title=title, cfc=cfc, row=row)
-    path = Path(path)
-    try:
-        with atomic_output(path) as tmp:
-            fig.savefig(tmp, dpi=110)
-    finally:
-        plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def crash_figure(result: SimResult, cells: CellModel, title: str = "", cfc: int = 60, row: int = 0):
