@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -381,6 +382,33 @@ def test_plot_cells_refuses_a_max_points_that_is_not_a_positive_whole_number(bad
         plot_cells(cells, tmp_path / "cells.png", max_points=bad)
     assert not (tmp_path / "cells.png").exists()
     assert plot_cells(cells, tmp_path / "one.png", max_points=1).read_bytes()[:4] == b"\x89PNG"
+
+
+def test_plot_cells_writes_the_picture_whole_or_not_at_all(tmp_path, monkeypatch):
+    """``marlcrash discretize --plot`` wrote its picture straight to the user's path: a failed write (disk full) left
+    a truncated PNG in place of the earlier picture, and the figure open. Now it goes through a temporary sibling
+    (:func:`marlcrash.outputs.atomic_output`), as every other output does: the earlier file stays as it was, nothing
+    else is left in the folder, and the figure is closed."""
+    import errno
+
+    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
+
+    cells = grid_model(3, 2, 2)
+    png = plot_cells(cells, tmp_path / "cells.png")
+    before = png.read_bytes()
+
+    def full_disk(self, fname, *args, **kwargs):
+        Path(fname).write_bytes(b"\x89PNG\r\n\x1a\npartial")
+        raise OSError(errno.ENOSPC, "No space left on device", str(fname))
+
+    monkeypatch.setattr(Figure, "savefig", full_disk)
+    open_before = set(plt.get_fignums())
+    with pytest.raises(OSError):
+        plot_cells(cells, png)
+    assert png.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cells.png"]
+    assert set(plt.get_fignums()) == open_before
 
 
 def test_the_3d_view_draws_the_cars_left_on_its_left(optimized, tmp_path, monkeypatch):
