@@ -93,11 +93,16 @@ def load_model_from_args(args: argparse.Namespace):
                 f"{args.seed} given for the deck {Path(target).name}; only synthetic cars have variants", key="--seed"
             )
 
+        try:
+            axis_map = AxisMap.parse(args.axis_map) if args.axis_map else None
+        except ConfigError as e:  # said as the option the user typed, not the library's argument
+            axis = (e.key or "").removeprefix("axis_map").removeprefix(".")  # the marlcrash axis, where one is meant
+            raise ConfigError(f"{axis}: {e.reason}" if axis else e.reason, key="--axis-map") from None
         return read_deck(
             target,
             params=_parse_params(args.param),
             units=args.units,
-            axis_map=AxisMap.parse(args.axis_map) if args.axis_map else None,
+            axis_map=axis_map,
             subassemblies=args.subassemblies,
         )
     for flag in ("param", "units", "axis_map"):

@@ -41,6 +41,19 @@ def test_inspect_table_and_bad_param(lsopt_deck):
     assert proc.returncode == 2 and "--param" in proc.stderr
 
 
+def test_a_malformed_axis_map_is_said_as_the_option_typed(tmp_path):
+    """``--axis-map x=+x,y=+z`` (z left out) said ``key 'axis_map.z': deck axis 'z' is used twice in AxisMap(x='+x',
+    y='+z', z='+z', ...)``: a key the user never typed, and a z=+z nobody wrote (an axis left out keeps the identity).
+    The message now names ``--axis-map`` and says that z was not given and kept as +z."""
+    deck = tmp_path / "car.k"  # the map is read before the deck
+    proc = run_cli("inspect", str(deck), "--axis-map", "x=+x,y=+z", check=False)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert proc.stderr.startswith("error: key '--axis-map")
+    assert "z not given" in proc.stderr and "+z" in proc.stderr
+    proc = run_cli("inspect", str(deck), "--axis-map", "x=+q,y=+z,z=+y", check=False)
+    assert proc.returncode == 2 and proc.stderr.startswith("error: key '--axis-map") and "'+q'" in proc.stderr
+
+
 def test_discretize_default_car_json(tmp_path):
     plot = tmp_path / "cells.png"
     out = json.loads(run_cli("discretize", "--json", "--plot", str(plot)).stdout)

@@ -116,7 +116,13 @@ class AxisMap:
                                   key="axis_map")  # fmt: skip
             fields[key] = value.strip()
         out = cls(**fields)
-        out.matrix()  # validates
+        try:
+            out.matrix()  # validates
+        except ConfigError as e:  # an axis left out keeps the identity: say so, the clash may come from it
+            kept = [f"{k} not given, kept as {getattr(out, k)}" for k in ("x", "y", "z") if k not in fields]
+            if not kept:
+                raise
+            raise ConfigError(f"{e.reason} ({'; '.join(kept)})", key=e.key) from None
         return out
 
     def matrix(self) -> np.ndarray:
