@@ -93,6 +93,13 @@ def load_model_from_args(args: argparse.Namespace):
                 f"{args.seed} given for the deck {Path(target).name}; only synthetic cars have variants", key="--seed"
             )
 
+        if args.units is not None:  # before the deck is read, said as the option the user typed
+            from marlcrash.units import get_unit_system
+
+            try:
+                get_unit_system(args.units)
+            except ConfigError as e:
+                raise ConfigError(e.reason, key="--units") from None
         try:
             axis_map = AxisMap.parse(args.axis_map) if args.axis_map else None
         except ConfigError as e:  # said as the option the user typed, not the library's argument

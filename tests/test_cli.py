@@ -54,6 +54,14 @@ def test_a_malformed_axis_map_is_said_as_the_option_typed(tmp_path):
     assert proc.returncode == 2 and proc.stderr.startswith("error: key '--axis-map") and "'+q'" in proc.stderr
 
 
+def test_an_unknown_unit_system_is_said_as_the_option_typed(tmp_path):
+    """``--units furlong`` said ``key 'units'``, the library's argument, not the option typed (and only once the deck
+    had been read): now ``key '--units'``, before the deck is read."""
+    proc = run_cli("inspect", str(tmp_path / "car.k"), "--units", "furlong", check=False)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert proc.stderr.startswith("error: key '--units': unknown unit system 'furlong'; expected one of"), proc.stderr
+
+
 def test_discretize_default_car_json(tmp_path):
     plot = tmp_path / "cells.png"
     out = json.loads(run_cli("discretize", "--json", "--plot", str(plot)).stdout)
