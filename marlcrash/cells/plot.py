@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from marlcrash.cells.model import CellModel
-from marlcrash.outputs import atomic_output
+from marlcrash.outputs import save_figure
 
 
 def draw_vehicle_frame(ax) -> None:
@@ -68,10 +68,4 @@ def plot_cells(cells: CellModel, path: str | Path, max_points: int = 60000) -> P
     ax.set_title(f"{cells.name}: {cells.method}, {cells.n_cells} cells ({cells.n_null} null)")
     ax.legend(loc="upper left", fontsize=6, markerscale=3, ncol=2)
     ax.view_init(elev=25, azim=-130)
-    path = Path(path)
-    try:  # whole or not at all: a failed write leaves an earlier picture as it was, and no partial one
-        with atomic_output(path) as tmp:
-            fig.savefig(tmp, dpi=110, format=path.suffix[1:].lower() or "png")
-    finally:
-        plt.close(fig)
-    return path
+    return save_figure(fig, path)  # whole or not at all: a failed write leaves an earlier picture as it was
