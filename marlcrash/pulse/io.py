@@ -655,8 +655,12 @@ def _channel_folders(folder: Path) -> list[Path]:
 
 
 def _two_channel_folders(folders: list[Path]) -> str:
-    listed = ", ".join(repr(d.name) for d in folders[:-1]) + f" and {folders[-1].name!r}"
-    return f"the test folder holds {'two' if len(folders) == 2 else len(folders)} channel folders, {listed}; keep one"
+    return f"the test folder holds {_counted('channel folders', [repr(d.name) for d in folders])}; keep one"
+
+
+def _counted(noun: str, names: list[str]) -> str:
+    """``"two <noun>, A and B"`` (the count in figures from three on), for a message naming what clashes."""
+    return f"{'two' if len(names) == 2 else len(names)} {noun}, {', '.join(names[:-1])} and {names[-1]}"
 
 
 def _numbered_files(folder: Path, test: str) -> list[Path]:
@@ -678,10 +682,8 @@ def _mme_channel_files(path: Path) -> tuple[Path, list[Path]]:
         by_number.setdefault(int(p.suffix[1:]), []).append(p)
     for number, same in sorted(by_number.items()):
         if len(same) > 1:  # T.001 and T.0001, T.01 and T.001, T.002 and t.002: which is the channel is not known
-            names = sorted(p.name for p in same)
-            listed = ", ".join(names[:-1]) + f" and {names[-1]}"
-            raise _err(f"channel {number} has {'two' if len(same) == 2 else len(same)} files, {listed}; a channel "
-                       f"is one file {test}.{number:03d}: remove the others", folder)  # fmt: skip
+            raise _err(f"channel {number} has {_counted('files', sorted(p.name for p in same))}; a channel is one "
+                       f"file {test}.{number:03d}: remove the others", folder)  # fmt: skip
     files = sorted((p for p in numbered if len(p.suffix) > 3), key=lambda p: int(p.suffix[1:]))
     if not files:
         raise _err(f"no channel files {test}.001, {test}.002, ... in the Channel folder", mme)
