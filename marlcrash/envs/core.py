@@ -276,6 +276,14 @@ _CELLS_KEPT = 4
 
 
 # ------------------------------------------------------------------------------------------ the core
+def _put(t: torch.Tensor, rows: torch.Tensor | slice, values: torch.Tensor) -> torch.Tensor:
+    """A copy of ``t`` with ``values`` in ``rows`` (the state tensors are replaced, never written in place: a caller
+    may hold the previous ones)."""
+    out = t.clone()
+    out[rows] = values
+    return out
+
+
 class CalibrationCore:
     """``B`` batched calibration episodes (module docstring).
 
@@ -603,32 +611,20 @@ class CalibrationCore:
         if not bool(ready.all()):
             bad = torch.nonzero(~ready).flatten().tolist()
             raise ActionError(f"call reset() before step(): rows {bad} of {self.B} have no episode yet")
-        if rows is None:
-            prev = self.metrics
-            self.apply_actions(actions)
-            m = self._simulate(slice(None))
-            self.metrics = m
-            self.iteration += 1
-            self.reward = self.reward_fn(m, prev).to(torch.float64)
-            term = self.reward_fn.termination(m, self.iteration)
-            self.success = term.success
-            self.terminated = term.success | term.failure
-            self.truncated = term.truncated & ~self.terminated
-            return
-        idx = torch.nonzero(rows).flatten()
         self.apply_actions(actions, rows)  # checked first: a refused step changes nothing
+        idx = slice(None) if rows is None else torch.nonzero(rows).flatten()
         self.reward = torch.zeros(self.B, dtype=torch.float64)
-        if idx.numel() == 0:
+        if rows is not None and idx.numel() == 0:
             return
         prev = Metrics(*(t[idx] for t in self.metrics))
         m = self._simulate(idx)
-        self.metrics = Metrics(*(t.index_put((idx,), v) for t, v in zip(self.metrics, m, strict=True)))
+        self.metrics = Metrics(*(_put(t, idx, v) for t, v in zip(self.metrics, m, strict=True)))
         self.iteration[idx] += 1
         self.reward[idx] = self.reward_fn(m, prev).to(torch.float64)
         term = self.reward_fn.termination(m, self.iteration[idx])
-        self.success = self.success.index_put((idx,), term.success)
-        self.terminated = self.terminated.index_put((idx,), term.success | term.failure)
-        self.truncated = self.truncated.index_put((idx,), term.truncated & ~(term.success | term.failure))
+        self.success = _put(self.success, idx, term.success)
+        self.terminated = _put(self.terminated, idx, term.success | term.failure)
+        self.truncated = _put(self.truncated, idx, term.truncated & ~(term.success | term.failure))
 
     def _row_mask(self, mask: torch.Tensor, what: str) -> torch.Tensor:
         """``mask`` as ``[B]`` bool (a ``[B, 1]`` one too); :class:`ActionError` naming ``what`` otherwise."""
