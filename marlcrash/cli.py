@@ -101,7 +101,7 @@ def load_model_from_args(args: argparse.Namespace):
             except ConfigError as e:
                 raise ConfigError(e.reason, key="--units") from None
         try:
-            axis_map = AxisMap.parse(args.axis_map) if args.axis_map else None
+            axis_map = AxisMap.parse(args.axis_map) if args.axis_map is not None else None  # "" is refused
         except ConfigError as e:  # said as the option the user typed, not the library's argument
             axis = (e.key or "").removeprefix("axis_map").removeprefix(".")  # the marlcrash axis, where one is meant
             raise ConfigError(f"{axis}: {e.reason}" if axis else e.reason, key="--axis-map") from None
@@ -113,7 +113,7 @@ def load_model_from_args(args: argparse.Namespace):
             subassemblies=args.subassemblies,
         )
     for flag in ("param", "units", "axis_map"):
-        if getattr(args, flag):
+        if getattr(args, flag) is not None:  # given, if empty: `--axis-map ""` too
             raise ConfigError(f"--{flag.replace('_', '-')} only applies to keyword decks ({', '.join(DECK_SUFFIXES)})")
     from marlcrash.vehicle.registry import VehicleOptions, load_configured_vehicle
 

@@ -54,6 +54,22 @@ def test_a_malformed_axis_map_is_said_as_the_option_typed(tmp_path):
     assert proc.returncode == 2 and proc.stderr.startswith("error: key '--axis-map") and "'+q'" in proc.stderr
 
 
+def test_an_empty_axis_map_is_refused_not_read_as_none(tmp_path):
+    """``--axis-map ""`` (a shell variable left unset, a quoting slip) was read as no map at all, without a word: the
+    deck was read with its own axes. Now an error names ``--axis-map`` and the form expected, for a deck and for a
+    synthetic car (where it does not apply)."""
+    deck = tmp_path / "car.k"  # the map is read before the deck
+    for text in ("", " ", ","):
+        for target in ((str(deck),), ()):
+            proc = run_cli("discretize", *target, "--axis-map", text, check=False)
+            assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
+            if target:
+                assert proc.stderr.startswith("error: key '--axis-map': no axis given"), proc.stderr
+                assert "expected items like 'x=+x,y=+z,z=+y'" in proc.stderr
+            else:
+                assert proc.stderr.startswith("error: --axis-map only applies to keyword decks"), proc.stderr
+
+
 def test_an_unknown_unit_system_is_said_as_the_option_typed(tmp_path):
     """``--units furlong`` said ``key 'units'``, the library's argument, not the option typed (and only once the deck
     had been read): now ``key '--units'``, before the deck is read."""

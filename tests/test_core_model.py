@@ -287,7 +287,8 @@ def test_axis_map_parse_and_transform():
     assert flipped.bounds()[0][0] == pytest.approx(0.0)
     # the last: z=+y meant, y typed twice; the identity z must not be kept without a word
     cases = [("x=+q", "deck axis"), ("x=+x,y=+x", "used twice"), ("w=+x", "expected items"),
-             ("x=-x,y=+z,y=+y", "axis 'y' is given twice")]  # fmt: skip
+             ("x=-x,y=+z,y=+y", "axis 'y' is given twice"),
+             ("", "no axis given"), (" , ", "no axis given")]  # fmt: skip
     for text, match in cases:
         with pytest.raises(ConfigError, match=match):
             AxisMap.parse(text)

@@ -104,7 +104,9 @@ class AxisMap:
 
     @classmethod
     def parse(cls, text: str) -> AxisMap:
-        """Parse ``"x=+x,y=+z,z=+y"`` (missing axes keep the identity)."""
+        """Parse ``"x=+x,y=+z,z=+y"`` (missing axes keep the identity; text naming no axis at all is refused)."""
+        if not any(t.strip() for t in str(text).split(",")):  # "" read as the identity would be a silent no-op
+            raise ConfigError(f"no axis given in {text!r}; expected items like 'x=+x,y=+z,z=+y'", key="axis_map")
         fields: dict[str, str] = {}
         for item in filter(None, (t.strip() for t in text.split(","))):
             key, sep, value = item.partition("=")
