@@ -221,6 +221,24 @@ def test_validate_refuses_a_material_value_that_is_not_physical(field, value, me
         bad.validate()
 
 
+def test_validate_refuses_a_part_whose_elements_weigh_nothing():
+    """A density of 0 passed validate: the part's elements weighed nothing and own no cell, and the discretizer said
+    so only as 'sub-assembly ... has no mass' (or, for a part grouped with heavier ones, not at all: its strength
+    dropped out of the cells). validate names the part and its material now; a material of density 0 that no part
+    with elements uses, or whose part's mass is set (``part_mass``, a rigid part's *PART_INERTIA), stays valid."""
+    bad = _box_model()
+    bad.materials = {1: bad.materials[1], 2: dataclasses.replace(bad.materials[1], id=2, name="foam", density=0.0)}
+    bad.validate()  # used by no part
+    bad.parts[2] = Part(2, "skin", 2, thickness=0.002)
+    with pytest.raises(ModelError, match=r"vehicle: part 2 \('skin', 2 elements\) is of material 2 \(foam\), whose "
+                       r"density is 0, and no part mass sets its own: its elements would weigh nothing; expected a "
+                       r"density > 0 kg/m\^3"):  # fmt: skip
+        bad.validate()
+    bad.part_mass = {2: 1.5}
+    bad.validate()
+    assert bad.part_masses()[2] == pytest.approx(1.5)
+
+
 def test_validate_refuses_a_part_or_material_filed_under_another_id(tmp_path):
     """``parts`` and ``materials`` map an id to the part or material of that id, and nothing checked it: a material
     filed under 1 with id 7 passed, and write_deck (which writes the card's own id) gave a deck its reader refused

@@ -955,6 +955,34 @@ def test_a_blank_density_is_named_at_its_card(tmp_path):
             _read(_write(tmp_path, blank), units=units)
 
 
+def test_a_zero_density_is_refused_at_its_card(tmp_path):
+    """RO = 0 was read without a word: the part weighed nothing, and the error came only from the discretizer, far
+    from the card (a sub-assembly 'has no mass', or, grouped with a heavy part, 'the mass floor ... a deck read in the
+    wrong unit system'). It is refused at the *MAT card now, naming the part that uses it."""
+    zero = (HEAD + NODES + SHELL).replace("  7.85e-09  210000.0", "       0.0  210000.0")
+    said = (
+        r"deck.k line 11: material 1 \(\*MAT_ELASTIC\) has density RO 0, yet part 1 \('front plate', 1 elements\) "
+        r"uses it: its elements would weigh nothing; expected RO > 0"
+    )
+    with pytest.raises(DeckError, match=said):
+        _read(_write(tmp_path, zero), units="mm-t-s")
+    # a fixed barrier of RO 0 is left out of the vehicle, not refused; a rigid part's *PART_INERTIA TM sets its mass
+    barrier = _with_rigid_block("1.0", "7", "7").replace("         2  7.85e-09", "         2       0.0")
+    m = _read(_write(tmp_path, barrier), units="mm-t-s")
+    assert sorted(m.parts) == [1] and 2 in m.left_out
+    inertia = (
+        barrier.replace("*PART\nrigid block", "*PART_INERTIA\nrigid block")
+        .replace(
+            "         2         1         2\n",
+            "         2         1         2\n     -55.0     150.0       0.0     0.005\n"
+            "       1.0       0.0       0.0       1.0       0.0       1.0\n\n",
+        )
+        .replace("       1.0         7         7", "       0.0         0         0")
+    )
+    m = _read(_write(tmp_path, inertia), units="mm-t-s")
+    assert m.part_masses()[2] == pytest.approx(5.0) and m.left_out == {}
+
+
 @pytest.mark.parametrize(
     ("card1", "card2", "area_mm2"),
     [

@@ -2450,6 +2450,26 @@ def _point_masses(
 _CON1_AXES = {0: "", 1: "x", 2: "y", 3: "z", 4: "xy", 5: "yz", 6: "zx", 7: "xyz"}
 
 
+def _refuse_weightless_parts(model: VehicleModel, t: _Tables) -> None:
+    """Refuse, at its *MAT card, a material of density RO 0 that a kept part with elements uses when no
+    ``*PART_INERTIA`` TM sets that part's mass: its elements would weigh nothing (LS-DYNA needs a mass to integrate
+    them), own no cell and leave the part's strength out of the cells (:meth:`VehicleModel._check_weightless_parts`
+    says the same of a model made in Python, without the card)."""
+    zero = {mid for mid, m in model.materials.items() if m.density == 0.0}
+    if not zero:
+        return
+    counts = _element_counts(model)
+    for pid, part in sorted(model.parts.items()):
+        if part.material_id in zero and counts.get(pid) and not model.part_mass.get(pid, 0.0) > 0:
+            raw = t.materials[part.material_id]
+            raise DeckError(
+                f"material {raw.mid} ({_mat_label(raw)}) has density RO 0, yet part {pid} ({part.name!r}, "
+                f"{counts[pid]} elements) uses it: its elements would weigh nothing; expected RO > 0 (a rigid part's "
+                "mass may come from *PART_INERTIA TM)",
+                *raw.where,
+            )
+
+
 def _element_counts(model: VehicleModel) -> dict[int, int]:
     """Part id -> number of elements (shells, solids and beams)."""
     pids, n = np.unique(np.concatenate([model.shell_part, model.solid_part, model.beam_part]), return_counts=True)
@@ -2688,10 +2708,6 @@ def read_deck(
     model = _deck_masses(model, tables)
     if name is not None:
         model.name = name
-    try:
-        model.validate()
-    except ModelError as e:
-        raise DeckError(str(e), main) from None
     axis_map = axis_map if axis_map is not None else AxisMap()
     fixed, notes = _fixed_parts(model, tables, axis_map)
     at_rest, more = _stationary_parts(model, tables, skip=set(fixed))
@@ -2703,6 +2719,11 @@ def read_deck(
             raise DeckError(f"no vehicle structure is left: {'; '.join(fixed.values())}", main)
         for why in fixed.values():
             warnings.warn(f"{main.name}: {why}", UserWarning, stacklevel=2)
+    _refuse_weightless_parts(model, tables)  # the vehicle's: a barrier left out may weigh nothing
+    try:
+        model.validate()
+    except ModelError as e:
+        raise DeckError(str(e), main) from None
     for note in [*deck.unread_includes, *_check_extent(model, tables)]:
         model.warnings.append(note)
         warnings.warn(f"{main.name}: {note}", UserWarning, stacklevel=2)

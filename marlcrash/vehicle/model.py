@@ -486,6 +486,7 @@ class VehicleModel:
             if p.material_id not in self.materials:
                 raise ModelError(f"{self.name}: part {pid} refers to unknown material {p.material_id}")
         self._check_materials()
+        self._check_weightless_parts()
         seen: dict[int, str] = {}
         for name, pids in self.subassemblies.items():
             if not len(pids):
@@ -537,7 +538,8 @@ class VehicleModel:
 
     def _check_materials(self) -> None:
         """Refuse a material value that is missing or not physical, as :func:`complete_material` would: density
-        finite and >= 0 (0: a massless material), moduli and strengths finite and > 0, Poisson's ratio in
+        finite and >= 0 (0: a massless material, refused for a part it would leave weightless:
+        :meth:`_check_weightless_parts`), moduli and strengths finite and > 0, Poisson's ratio in
         (-1, 0.5)."""
         if not self.materials:
             return
@@ -555,6 +557,26 @@ class VehicleModel:
         label, expected = _MATERIAL_RULES[j]
         missing = " (missing: complete_material derives or defaults it)" if math.isnan(v) else ""
         raise ModelError(f"{self.name}: material {m.id} ({m.name})'s {label} must {expected}, got {v}{missing}")
+
+    def _check_weightless_parts(self) -> None:
+        """Refuse a part with elements whose material has density 0 and whose mass nothing else sets
+        (:attr:`part_mass`): its elements would weigh nothing, own no cell and leave its strength out of the cells.
+        A material of density 0 is valid as such (one no part with elements uses, a rigid body's whose mass is
+        set)."""
+        zero = {mid for mid, m in self.materials.items() if m.density == 0.0}
+        if not zero:
+            return
+        for pid, p in sorted(self.parts.items()):
+            if p.material_id not in zero or self.part_mass.get(pid, 0.0) > 0:
+                continue
+            n = sum(int((getattr(self, f"{k}_part") == pid).sum()) for k in ("shell", "solid", "beam"))
+            if n:
+                m = self.materials[p.material_id]
+                raise ModelError(
+                    f"{self.name}: part {pid} ({p.name!r}, {n} elements) is of material {m.id} ({m.name}), whose "
+                    "density is 0, and no part mass sets its own: its elements would weigh nothing; expected a "
+                    "density > 0 kg/m^3"
+                )
 
     # --------------------------------------------------------------- meshes
     def shell_triangles(self, mask: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
