@@ -612,6 +612,36 @@ def test_summary_counts_the_nodes_the_vehicle_uses(tmp_path):
     assert format_vehicle_summary(plate).splitlines()[1] == "nodes      4"
 
 
+def test_summary_table_shows_long_names_in_full_and_aligned(tmp_path):
+    """The inspect table cut part names at 28 characters and material labels at 24: two rails whose titles differ
+    only at their end ('... inner left', '... inner right') read alike, and a part id over 6 digits pushed its row
+    out of line. Each column is now as wide as its longest entry: every name in full, every row's columns where the
+    header's are."""
+    left, right = "front longitudinal rail, inner panel, left", "front longitudinal rail, inner panel, right"
+    mat = "*MAT_ELASTIC_TITLE\nDP600 dual-phase steel, 1.5 mm coil, batch 7\n"
+    two = (
+        HEAD.replace("front plate", left).replace("*MAT_ELASTIC\n", mat)
+        + f"*PART\n{right}\n  12345678         1         1\n"
+        + NODES
+        + "      11           100.0           200.0\n      12                           200.0\n"
+        + SHELL
+        + "       212345678       4       3      11      12\n"
+    )
+    table = format_vehicle_summary(vehicle_summary(_read(_write(tmp_path, two))))
+    lines = table.splitlines()
+    head = next(i for i, ln in enumerate(lines) if ln.lstrip().startswith("part  name"))
+    rows = lines[head + 1 : head + 3]
+    assert [r.split()[0] for r in rows] == ["1", "12345678"]  # an id of 8 digits: the id column widens too
+    assert left in rows[0] and right in rows[1] and right not in rows[0]
+    assert all("DP600 dual-phase steel, 1.5 mm coil, batch 7 (elastic)" in r for r in rows)
+    for col in ("name", "material"):  # each column starts where its header does
+        at = lines[head].index(col)
+        assert rows[0][at:].startswith((left, "DP600")[col == "material"]) and rows[1][at:].startswith(
+            (right, "DP600")[col == "material"]
+        )
+    assert {len(r) for r in rows} == {len(lines[head])}  # the numbers end under 'mass [kg]'
+
+
 # part 2: a deformable block (a honeycomb barrier) 50 mm in front of the plate, on nodes 11-14
 AT_REST = _with_rigid_block("", "", "").replace("*MAT_RIGID", "*MAT_ELASTIC").replace("rigid block", "honeycomb")
 V = f"{-15640.0:10.1f}"  # 56 km/h in mm/s, toward -x

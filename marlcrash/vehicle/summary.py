@@ -84,14 +84,17 @@ def format_vehicle_summary(s: dict) -> str:
         ext = [h - l for l, h in zip(lo, hi, strict=True)]
         lines.append(f"extent     x {ext[0]:.3f} m, y {ext[1]:.3f} m, z {ext[2]:.3f} m")
     lines.append("")
-    lines.append(f"{'part':>6}  {'name':<28} {'material':<24} {'t [mm]':>7} {'elements':>9} {'mass [kg]':>11}")
-    for pid, d in s["part_details"].items():
+    # names in full (two titles may differ only at their end), each column as wide as its longest entry
+    details = s["part_details"]
+    materials = {pid: f"{d['material']} ({d['material_kind']})" for pid, d in details.items()}
+    wp = max([6, *(len(pid) for pid in details)])
+    wn = max([28, *(len(d["name"]) for d in details.values())])
+    wm = max([24, *(len(m) for m in materials.values())])
+    lines.append(f"{'part':>{wp}}  {'name':<{wn}} {'material':<{wm}} {'t [mm]':>7} {'elements':>9} {'mass [kg]':>11}")
+    for pid, d in details.items():
         t = "-" if d["thickness_mm"] is None else f"{d['thickness_mm']:.3g}"
         n = d["n_shells"] + d["n_solids"] + d["n_beams"]
-        lines.append(
-            f"{pid:>6}  {d['name'][:28]:<28} {(d['material'] + ' (' + d['material_kind'] + ')')[:24]:<24} "
-            f"{t:>7} {n:>9} {d['mass_kg']:>11.3f}"
-        )
+        lines.append(f"{pid:>{wp}}  {d['name']:<{wn}} {materials[pid]:<{wm}} {t:>7} {n:>9} {d['mass_kg']:>11.3f}")
     lines.append("")
     lines.append("sub-assemblies")
     for name, pids in s["subassemblies"].items():
