@@ -985,6 +985,23 @@ def test_a_blank_density_is_named_at_its_card(tmp_path):
             _read(_write(tmp_path, blank), units=units)
 
 
+@pytest.mark.parametrize(
+    "card", ["       2.0      -2.0       2.0       2.0", "       2.0       2.0       2.0      -0.5"]
+)
+def test_a_negative_section_thickness_t2_to_t4_is_refused(tmp_path, card):
+    """A blank or zero T2..T4 of *SECTION_SHELL is T1, as in LS-DYNA; a negative one was taken as T1 as well, without
+    a word, while a negative T1 and any negative *ELEMENT_SHELL_THICKNESS value were refused. Now refused alike, with
+    the values as written."""
+    deck = _write(tmp_path, (HEAD + NODES + SHELL).replace("       2.0       2.0       2.0       2.0", card))
+    written = "[" + ", ".join(f"{float(v)}" for v in card.split()) + "]"
+    with pytest.raises(DeckError, match=rf"deck.k line 9: \*SECTION_SHELL expects thicknesses T1..T4 >= 0, got "
+                       rf"{re.escape(written)}"):  # fmt: skip
+        _read(deck)
+    blank = _read(_write(tmp_path, (HEAD + NODES + SHELL).replace("       2.0       2.0       2.0       2.0",
+                                                                    "       2.0")))  # fmt: skip
+    assert blank.shell_thickness[0] == pytest.approx(2e-3)  # blank T2..T4: T1
+
+
 def test_a_zero_density_is_refused_at_its_card(tmp_path):
     """RO = 0 was read without a word: the part weighed nothing, and the error came only from the discretizer, far
     from the card (a sub-assembly 'has no mass', or, grouped with a heavy part, 'the mass floor ... a deck read in the

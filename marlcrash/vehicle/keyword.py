@@ -1385,10 +1385,10 @@ def _read_section(block: _Block, kind: str, opts: set[str], t: _Tables, params: 
         if kind == "shell":
             secid, elform, _shrf, nip, _propt, _qr, icomp = _read_line(block, r, _SEC_SHELL_1, params)
             *ts, _nloc, marea = (x or 0.0 for x in _read_line(block, rows[i + 1], _SEC_SHELL_2, params))
-            t1 = ts[0]
-            ts = [x if x > 0 else t1 for x in ts]
-            if any(x < 0 for x in ts) or not all(math.isfinite(x) for x in ts):
+            if any(x < 0 for x in ts) or not all(math.isfinite(x) for x in ts):  # as written: before T1 fills in
                 raise block.err(f"*{block.keyword} expects thicknesses T1..T4 >= 0, got {ts}", rows[i + 1])
+            t1 = ts[0]
+            ts = [x if x > 0 else t1 for x in ts]  # a blank or zero T2..T4 is T1, as in LS-DYNA
             if not (math.isfinite(marea) and marea >= 0):
                 at = _field_where(block, rows[i + 1], _SEC_SHELL_2, 5)
                 raise block.err(f"*{block.keyword} expects a mass per area MAREA >= 0 {at}", rows[i + 1])
