@@ -1002,6 +1002,27 @@ def test_a_negative_section_thickness_t2_to_t4_is_refused(tmp_path, card):
     assert blank.shell_thickness[0] == pytest.approx(2e-3)  # blank T2..T4: T1
 
 
+def test_elements_of_a_composite_part_name_the_card_the_reader_skips(tmp_path):
+    """*PART_COMPOSITE is skipped (a layup, not one section and material), and its elements were refused as
+    'shell element 2 refers to undefined part 2', though the deck defines part 2: now the error names the card, its
+    file and line, and that the reader does not read it."""
+    comp = (
+        "*PART_COMPOSITE\ncomposite panel\n         2         2       0.0         0       0.0         0         0"
+        "         0\n         1       1.0       0.0         0         1       1.0       0.0         0\n"
+        "*NODE\n      11           100.0           200.0\n      12                           200.0\n"
+        "*ELEMENT_SHELL\n       2       2       4       3      11      12\n"
+    )
+    with pytest.raises(DeckError, match=r"deck.k line 27: shell element 2 refers to part 2, a \*PART_COMPOSITE "
+                       r"\(deck.k line 21\) that the reader does not read; expected a \*PART"):  # fmt: skip
+        _read(_write(tmp_path, HEAD + NODES + SHELL + comp))
+    with pytest.raises(DeckError, match=r"deck.k line 27: shell element 2 refers to undefined part 7$"):
+        _read(
+            _write(
+                tmp_path, HEAD + NODES + SHELL + comp.replace("       2       2       4", "       2       7       4")
+            )
+        )
+
+
 def test_a_zero_density_is_refused_at_its_card(tmp_path):
     """RO = 0 was read without a word: the part weighed nothing, and the error came only from the discretizer, far
     from the card (a sub-assembly 'has no mass', or, grouped with a heavy part, 'the mass floor ... a deck read in the

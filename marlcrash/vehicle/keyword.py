@@ -1092,6 +1092,7 @@ class _Tables:
     extra_nodes: dict[int, list[tuple[int, bool, tuple[Path, int]]]] = field(default_factory=dict)  # pid -> (id, set)
     unread_stypes: Counter = field(default_factory=Counter)  # *ELEMENT_BEAM_SECTION types without an area -> count
     unread_sections: dict[int, tuple[str, Path, int]] = field(default_factory=dict)  # SECID -> (keyword, file, line)
+    unread_parts: dict[int, tuple[str, Path, int]] = field(default_factory=dict)  # PID -> (keyword, file, line)
 
 
 @dataclass
@@ -1352,6 +1353,21 @@ def _read_part(block: _Block, opts: set[str], t: _Tables, params: _Params) -> No
                 t.velocities.append(_Velocity("part", np.array([pid]), np.array([True]), where))
             i += 3 + (ircs == 1)
         i += sum(o in opts for o in ("CONTACT", "PRINT", "ATTACHMENT", "AVERAGED"))
+
+
+def _note_unread_part(block: _Block, t: _Tables) -> None:
+    """Where the PID of a ``*PART_COMPOSITE`` (a title line, then PID first) is, for the error of an element that
+    refers to it (a PID given as a label, or unreadable, is not noted)."""
+    rows = block.rows[1:]
+    if rows.size:
+        text = block.src.text(int(rows[0]))
+        tok = text.split(",")[0] if "," in text else text[: _widths(_PART, block.fmt)[0]]
+        try:  # read as written: a parameter here is not resolved (nor marked used) for a card that is skipped
+            pid = int(tok.strip())
+        except ValueError:
+            return
+        if pid > 0:
+            t.unread_parts.setdefault(pid, (block.keyword, block.src.path, block.lineno(int(rows[0]))))
 
 
 def _add_section(block: _Block, t: _Tables, secid: int | None, sec: _Section, row: int) -> None:
@@ -1816,6 +1832,8 @@ def _dispatch(block: _Block, t: _Tables, deck: _Deck) -> None:
         if opts <= {"CONTACT", "PRINT", "ATTACHMENT", "AVERAGED", "INERTIA"}:
             _read_part(block, opts, t, params)
         else:
+            if "COMPOSITE" in opts:  # a title line and PID first, as *PART's: named if its elements refer to it
+                _note_unread_part(block, t)
             deck.skipped[kw] += 1
         return
     for base, kind in (("SECTION_SHELL", "shell"), ("SECTION_SOLID", "solid"), ("SECTION_BEAM", "beam")):
@@ -2089,9 +2107,12 @@ def _assemble(deck: _Deck, t: _Tables, units: str | None, main: Path) -> tuple[V
         pos, found = _lookup(part_keys, np.arange(part_keys.size), pid)
         if not found.all():
             row = int(np.flatnonzero(~found)[0])
-            raise DeckError(
-                f"{kind} element {int(ids[row])} refers to undefined part {int(pid[row])}", *elems.locs.where(row)
-            )
+            p = int(pid[row])
+            if p in t.unread_parts:  # defined by a card the reader skips: "undefined" would send the user looking
+                kw, path, line = t.unread_parts[p]
+                why = f"a *{kw} ({path.name} line {line}) that the reader does not read; expected a *PART"
+                raise DeckError(f"{kind} element {int(ids[row])} refers to part {p}, {why}", *elems.locs.where(row))
+            raise DeckError(f"{kind} element {int(ids[row])} refers to undefined part {p}", *elems.locs.where(row))
         wrong = np.flatnonzero(sec_kind[pos] != kind) if pos.size else np.zeros(0, int)
         if wrong.size:
             row = int(wrong[0])
