@@ -8,6 +8,7 @@ print ``error: ...`` on stderr and exit with status 2, never a traceback.
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import warnings
 from pathlib import Path
@@ -26,9 +27,12 @@ def _parse_params(items: list[str] | None) -> dict[str, float]:
         if not sep or not name.strip():
             raise ConfigError(f"expected NAME=VALUE, got {item!r}", key="--param")
         try:
-            out[name.strip()] = float(value)
+            number = float(value)
         except ValueError:
             raise ConfigError(f"value of {name.strip()!r} must be a number, got {value!r}", key="--param") from None
+        if not math.isfinite(number):  # nan, inf, 1e400: refused here, not at whatever card uses it
+            raise ConfigError(f"value of {name.strip()!r} must be a finite number, got {value!r}", key="--param")
+        out[name.strip()] = number
     return out
 
 

@@ -70,6 +70,18 @@ def test_an_empty_axis_map_is_refused_not_read_as_none(tmp_path):
                 assert proc.stderr.startswith("error: --axis-map only applies to keyword decks"), proc.stderr
 
 
+def test_a_param_value_that_is_not_finite_is_said_as_the_option_typed(tmp_path):
+    """``--param tbumper=nan`` (or inf, or 1e400) was taken: the deck then failed at whatever card used the value
+    ('*SECTION_SHELL expects thicknesses T1..T4 >= 0, got [nan, nan, nan, nan]'), naming a deck line the user did not
+    write and not the option. It is refused as the option typed, before the deck is read, as vehicle_options.params
+    of a config is."""
+    for value in ("nan", "inf", "-inf", "1e400"):
+        proc = run_cli("inspect", str(tmp_path / "car.k"), "--param", f"tbumper={value}", check=False)
+        assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
+        assert proc.stderr.startswith(f"error: key '--param': value of 'tbumper' must be a finite number, got "
+                                      f"'{value}'"), proc.stderr  # fmt: skip
+
+
 def test_an_unknown_unit_system_is_said_as_the_option_typed(tmp_path):
     """``--units furlong`` said ``key 'units'``, the library's argument, not the option typed (and only once the deck
     had been read): now ``key '--units'``, before the deck is read."""
