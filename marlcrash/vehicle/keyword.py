@@ -2473,22 +2473,17 @@ _CON1_AXES = {0: "", 1: "x", 2: "y", 3: "z", 4: "xy", 5: "yz", 6: "zx", 7: "xyz"
 
 def _refuse_weightless_parts(model: VehicleModel, t: _Tables) -> None:
     """Refuse, at its *MAT card, a material of density RO 0 that a kept part with elements uses when no
-    ``*PART_INERTIA`` TM sets that part's mass: its elements would weigh nothing (LS-DYNA needs a mass to integrate
-    them), own no cell and leave the part's strength out of the cells (:meth:`VehicleModel._check_weightless_parts`
-    says the same of a model made in Python, without the card)."""
-    zero = {mid for mid, m in model.materials.items() if m.density == 0.0}
-    if not zero:
-        return
-    counts = _element_counts(model)
-    for pid, part in sorted(model.parts.items()):
-        if part.material_id in zero and counts.get(pid) and not model.part_mass.get(pid, 0.0) > 0:
-            raw = t.materials[part.material_id]
-            raise DeckError(
-                f"material {raw.mid} ({_mat_label(raw)}) has density RO 0, yet part {pid} ({part.name!r}, "
-                f"{counts[pid]} elements) uses it: its elements would weigh nothing; expected RO > 0 (a rigid part's "
-                "mass may come from *PART_INERTIA TM)",
-                *raw.where,
-            )
+    ``*PART_INERTIA`` TM sets that part's mass (:meth:`VehicleModel.weightless_parts`; ``validate`` says the same of
+    a model made in Python, without the card)."""
+    for pid, n in model.weightless_parts()[:1]:
+        part = model.parts[pid]
+        raw = t.materials[part.material_id]
+        raise DeckError(
+            f"material {raw.mid} ({_mat_label(raw)}) has density RO 0, yet part {pid} ({part.name!r}, "
+            f"{n} elements) uses it: its elements would weigh nothing; expected RO > 0 (a rigid part's "
+            "mass may come from *PART_INERTIA TM)",
+            *raw.where,
+        )
 
 
 def _element_counts(model: VehicleModel) -> dict[int, int]:

@@ -558,25 +558,33 @@ class VehicleModel:
         missing = " (missing: complete_material derives or defaults it)" if math.isnan(v) else ""
         raise ModelError(f"{self.name}: material {m.id} ({m.name})'s {label} must {expected}, got {v}{missing}")
 
-    def _check_weightless_parts(self) -> None:
-        """Refuse a part with elements whose material has density 0 and whose mass nothing else sets
-        (:attr:`part_mass`): its elements would weigh nothing, own no cell and leave its strength out of the cells.
-        A material of density 0 is valid as such (one no part with elements uses, a rigid body's whose mass is
-        set)."""
+    def weightless_parts(self) -> list[tuple[int, int]]:
+        """``(part id, elements)`` of every part with elements whose material has density 0 and whose mass nothing
+        else sets (:attr:`part_mass`): its elements would weigh nothing, own no cell and leave its strength out of
+        the cells. A material of density 0 is valid as such (one no part with elements uses, a rigid body's whose
+        mass is set)."""
         zero = {mid for mid, m in self.materials.items() if m.density == 0.0}
         if not zero:
-            return
+            return []
+        found = []
         for pid, p in sorted(self.parts.items()):
             if p.material_id not in zero or self.part_mass.get(pid, 0.0) > 0:
                 continue
             n = sum(int((getattr(self, f"{k}_part") == pid).sum()) for k in ("shell", "solid", "beam"))
             if n:
-                m = self.materials[p.material_id]
-                raise ModelError(
-                    f"{self.name}: part {pid} ({p.name!r}, {n} elements) is of material {m.id} ({m.name}), whose "
-                    "density is 0, and no part mass sets its own: its elements would weigh nothing; expected a "
-                    "density > 0 kg/m^3"
-                )
+                found.append((pid, n))
+        return found
+
+    def _check_weightless_parts(self) -> None:
+        """Refuse the first of :meth:`weightless_parts`, naming the part and its material."""
+        for pid, n in self.weightless_parts()[:1]:
+            p = self.parts[pid]
+            m = self.materials[p.material_id]
+            raise ModelError(
+                f"{self.name}: part {pid} ({p.name!r}, {n} elements) is of material {m.id} ({m.name}), whose "
+                "density is 0, and no part mass sets its own: its elements would weigh nothing; expected a "
+                "density > 0 kg/m^3"
+            )
 
     # --------------------------------------------------------------- meshes
     def shell_triangles(self, mask: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
