@@ -526,6 +526,18 @@ def test_resume_refuses_rows_of_another_reference_or_metric(finished, tmp_path):
     assert e.value.key == "resume" and "would not compare" in str(e.value)
 
 
+def test_a_picture_of_an_earlier_run_does_not_survive_plots_false(finished, tmp_path):
+    """``plots=false`` kept the ablate.png an earlier run drew in the folder, beside tables it no longer showed: it
+    looked like this run's picture."""
+    _, run_dir, _ = finished
+    dst = tmp_path / "runs" / "ablate" / "t"
+    shutil.copytree(run_dir, dst)
+    assert (dst / "ablate.png").is_file()  # the finished run's picture
+    _, rows = run_ablation(load_ablation_config(tiny_data(tmp_path, resume=True, plots=False), source="test"))
+    assert len(rows) == 2 and (dst / "ablate.md").is_file()
+    assert not (dst / "ablate.png").exists()
+
+
 def test_resume_of_an_unreadable_record_names_it(short, tmp_path):
     cfg = tiny(tmp_path, resume=True)
     cfg.run_dir.mkdir(parents=True)

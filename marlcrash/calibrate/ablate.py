@@ -33,8 +33,9 @@ Protocol (the results table's, :mod:`marlcrash.calibrate.compare`, so the number
   worst-sensor area.
 
 :func:`run_ablation` rewrites ``ablate.json``, ``ablate.csv`` and ``ablate.md`` atomically after every
-finished run and draws ``ablate.png`` at the end, so a kill loses nothing finished; ``resume`` skips
-finished runs (levels and seeds may be added, the protocol may not change). As in the results table
+finished run and draws ``ablate.png`` at the end (a picture an earlier run left in the folder is removed when
+the run starts, so with ``plots=false`` none stays beside tables it does not show), so a kill loses nothing finished;
+``resume`` skips finished runs (levels and seeds may be added, the protocol may not change). As in the results table
 (:mod:`marlcrash.calibrate.compare`), a non-finite number (the score and gain of a run whose every candidate
 diverged) is ``None`` in a row, ``null`` in ``ablate.json``, an empty field in the CSV and ``-`` in the tables; a
 run without a gain loses to a paired run with one.
@@ -719,6 +720,8 @@ def run_ablation(
                 r.setdefault(c, None)
         require_distinct_masking(config, [r["masking"] for r in rows])
         done = {(r["cell"], r["seed"]) for r in rows}
+        # an earlier run's picture is not this run's: drawn anew at the end (plots), else none stays beside the tables
+        (run_dir / "ablate.png").unlink(missing_ok=True)
         write_results(config, rows, run_dir, command)
         cells = config.cells()
         for seed in config.seeds:
