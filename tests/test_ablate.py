@@ -538,6 +538,28 @@ def test_a_picture_of_an_earlier_run_does_not_survive_plots_false(finished, tmp_
     assert not (dst / "ablate.png").exists()
 
 
+def test_a_plotting_failure_keeps_the_results_and_names_the_picture(finished, tmp_path, monkeypatch):
+    """An error of matplotlib's (not of marlcrash) while drawing ablate.png came out as its raw traceback; the tables
+    are written before it, and the failure is a warning that names the picture."""
+    import matplotlib.figure
+
+    _, run_dir, rows = finished
+    dst = tmp_path / "runs" / "ablate" / "t"
+    shutil.copytree(run_dir, dst)
+
+    def broken(*a, **kw):
+        raise RuntimeError("backend exploded")
+
+    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", broken)
+    with pytest.warns(UserWarning, match=r"ablate\.png was not drawn: RuntimeError: backend exploded") as w:
+        _, again = run_ablation(load_ablation_config(tiny_data(tmp_path, resume=True), source="test"))
+    assert "ablate.json" in str(w[0].message)
+    assert again == json.loads(json.dumps(rows))
+    assert json.loads((dst / "ablate.json").read_text())["rows"] == again
+    assert not (dst / "ablate.png").exists()  # neither a partial picture nor the earlier run's
+    assert not [p.name for p in dst.iterdir() if p.name.endswith(".tmp.png")]
+
+
 def test_resume_of_an_unreadable_record_names_it(short, tmp_path):
     cfg = tiny(tmp_path, resume=True)
     cfg.run_dir.mkdir(parents=True)

@@ -35,7 +35,8 @@ Protocol (the results table's, :mod:`marlcrash.calibrate.compare`, so the number
 :func:`run_ablation` rewrites ``ablate.json``, ``ablate.csv`` and ``ablate.md`` atomically after every
 finished run and draws ``ablate.png`` at the end (a picture an earlier run left in the folder is removed when
 the run starts, so with ``plots=false`` none stays beside tables it does not show), so a kill loses nothing finished;
-``resume`` skips finished runs (levels and seeds may be added, the protocol may not change). As in the results table
+``resume`` skips finished runs (levels and seeds may be added, the protocol may not change). A picture that cannot be
+drawn (matplotlib failing) is a warning naming it; the tables, written before it, stay. As in the results table
 (:mod:`marlcrash.calibrate.compare`), a non-finite number (the score and gain of a run whose every candidate
 diverged) is ``None`` in a row, ``null`` in ``ablate.json``, an empty field in the CSV and ``-`` in the tables; a
 run without a gain loses to a paired run with one.
@@ -46,6 +47,7 @@ from __future__ import annotations
 import copy
 import itertools
 import math
+import warnings
 from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass, field
 from datetime import UTC, datetime
@@ -749,5 +751,15 @@ def run_ablation(
                         f"stop {row['stop']}, "
                         f"{_fmt(row['wall_time_s'], '.1f')} s")  # fmt: skip
         if config.plots and rows:
-            plot_ablation(config, rows, run_dir / "ablate.png")
+            _draw(config, rows, run_dir / "ablate.png")
         return run_dir, rows
+
+
+def _draw(config: AblationConfig, rows: list[dict[str, Any]], path: Path) -> None:
+    """:func:`plot_ablation` to ``path`` (whole or not at all) after the tables are written; a failure of the picture
+    (matplotlib, its backend, a full disk) is a warning naming it, not a traceback that hides the finished tables."""
+    try:
+        plot_ablation(config, rows, path)
+    except Exception as e:  # the rows are in ablate.json, ablate.csv and ablate.md already
+        warnings.warn(f"{path} was not drawn: {type(e).__name__}: {e}; the results are in "
+                      f"{path.with_name('ablate.json')}, ablate.csv and ablate.md beside it", stacklevel=3)  # fmt: skip
