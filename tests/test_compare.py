@@ -260,6 +260,31 @@ def test_lm_run_is_recorded_through_its_residual_batches(short, problem0, tmp_pa
     assert capped.stop == "wall_cap" and capped.progress.used == 1
 
 
+def test_an_optimizer_that_ends_on_its_own_is_not_labelled_budget(short, problem0, tmp_path):
+    """cmaes without restarts ends when CMA-ES's own criteria fire, lm without restarts (restart_radius 0) after its
+    windows; both left most of the budget unused and were labelled ``stop = budget``, as if it had run out."""
+    from marlcrash.calibrate.compare import markdown
+    from marlcrash.calibrate.leastsq import STEP_FACTORS
+
+    problem = problem0
+    cfg = tiny(tmp_path, **{"cmaes.restarts": False, "cmaes.sigma0": 1e-13})  # tolx fires after one generation
+    out = run_optimizer(cfg, "cmaes", 0, problem)
+    assert out.progress.used == 1 + 8 < cfg.budget  # the start and one population of 8
+    assert out.stop == "ended"
+    per_iter = problem.n_free + len(STEP_FACTORS)  # one lm iteration
+    budget = 1 + 3 * per_iter
+    lm_cfg = tiny(tmp_path, budget=budget, **{"lm.restart_radius": 0.0, "lm.iterations": 1})
+    lm = run_optimizer(lm_cfg, "lm", 0, problem)
+    assert lm.progress.used == 1 + per_iter and lm.stop == "ended"  # one iteration, two more paid for
+    row = outcome_row(lm_cfg, problem, lm)
+    assert row["stop"] == "ended"
+    md = markdown(lm_cfg, [row], None, "today")
+    assert f"| {1 + per_iter} | ended on its own |" in md and "ended on its own (1/1)" in md
+    # the same settings with the budget spent: budget
+    short_lm = run_optimizer(tiny(tmp_path, budget=1 + per_iter + 3, **{"lm.restart_radius": 0.0}), "lm", 0, problem)
+    assert short_lm.progress.used == 1 + per_iter and short_lm.stop == "budget"  # 3 left: not an iteration
+
+
 def test_ppo_run_keeps_the_budget_and_reports_its_best(short, problem0, tmp_path):
     cfg, problem = tiny(tmp_path, budget=20), problem0  # 2 x (3 + 1) = 8 per iteration: 2 iterations, 16 sims
     out = run_ppo(cfg, "mappo", 0, problem, tmp_path / "run")

@@ -24,6 +24,8 @@ Protocol (the paper's: calibration of ONE reference per run):
   ``max_wall_s``, judged by the previous batch's duration; such a run is kept, with the simulations
   it used and ``stop = wall_cap`` ("stopped by wall cap" in the table). Gradient descent through the
   torch simulator (~4 s per simulation at 150 ms) is the method that hits it.
+- An optimizer that stops by its own rule while the budget could pay for its next batch (cmaes with
+  ``restarts: false``, lm with ``restart_radius: 0``) is kept with ``stop = ended`` ("ended on its own").
 - Success: the paper's thresholds (:class:`~marlcrash.calibrate.problem.SuccessConfig`: every sensor
   A < 0.0015 m, DFD < 0.335 m/s, RMSE < 0.1511 m/s), the same test for all methods;
   ``sims_to_success``: the simulation count at which a candidate first passed it.
@@ -77,6 +79,7 @@ from marlcrash.calibrate.baselines import (
 )
 from marlcrash.calibrate.budget import Progress
 from marlcrash.calibrate.evaluate import param_errors
+from marlcrash.calibrate.leastsq import STEP_FACTORS
 from marlcrash.calibrate.marl import (
     ALGORITHMS,
     TRAIN_ENV_OVERRIDES,
@@ -123,6 +126,9 @@ COLUMNS = (
     "initial_param_error", "wall_time_s", "iterations", "env_steps", "trained_simulations",
 )  # fmt: skip
 """Columns of ``compare.csv``, in order (empty field: not applicable, never reached, or not a finite number)."""
+
+STOP_LABELS = {"wall_cap": "stopped by wall cap", "ended": "ended on its own"}
+"""How the tables say a run's ``stop`` (``budget`` as it is): :class:`RunOutcome`."""
 
 _PROTOCOL = "the comparison protocol (scenario, seeds, ppo.episode_length)"
 _SHARED_ENV_KEYS = dict.fromkeys(("scenarios", "reference.kind", "reference.pin_seed", "seed",
@@ -385,7 +391,8 @@ class RunOutcome:
         method, seed: the run.
         progress: budget and best-so-far record (``best_x``: ``[n_agents, 7]`` for optimizers).
         best_params: ``[n_cells, 7]`` cell parameters of the best candidate.
-        stop: ``budget`` (spent, or the next batch would not fit) or ``wall_cap``.
+        stop: ``budget`` (spent, or the next batch would not fit), ``wall_cap``, or ``ended`` (an optimizer that
+            stopped by its own rule with budget left: :func:`run_optimizer`).
         wall_time_s: [s].
         extra: PPO counters (``iterations``, ``env_steps``, ``trained_simulations``).
     """
@@ -399,8 +406,23 @@ class RunOutcome:
     extra: dict[str, Any] = field(default_factory=dict)
 
 
+def next_batch(config: CompareConfig, method: str, problem: CalibrationProblem) -> int:
+    """The fewest simulations optimizer ``method`` would spend on its next batch: 1 for random search, CMA-ES and
+    gradient descent (each runs a batch cut to what is left), one iteration for lm (free coordinates plus step sizes;
+    one more for the restart's start point where it restarts, ``lm.restart_radius > 0``)."""
+    if method != "lm":
+        return 1
+    per_iter = problem.flat_box()[0].numel() + len(STEP_FACTORS)
+    return per_iter + (1 if config.lm.restart_radius > 0 else 0)
+
+
 def run_optimizer(config: CompareConfig, method: str, seed: int, problem: CalibrationProblem) -> RunOutcome:
-    """One optimizer run (``random_search``, ``cmaes``, ``gradient``, ``lm``) with the wall cap."""
+    """One optimizer run (``random_search``, ``cmaes``, ``gradient``, ``lm``) with the wall cap.
+
+    Its ``stop`` is ``wall_cap``, ``budget`` (what is left cannot pay for its next batch, :func:`next_batch`), or
+    ``ended``: it stopped by its own rule with budget left for more (cmaes without restarts, once CMA-ES's
+    termination criteria fire; lm without restarts, ``lm.restart_radius = 0``, after its windows).
+    """
     t0 = time.perf_counter()
     rec = _Recorder(problem, Progress(config.budget), config.max_wall_s)
     _, fn = BASELINES[method]
@@ -414,6 +436,8 @@ def run_optimizer(config: CompareConfig, method: str, seed: int, problem: Calibr
             raise RuntimeError(f"{method}: the record ({rec.progress.used} simulations, best "
                                f"{rec.progress.best_score}) disagrees with the optimizer's ({result.simulations}, "
                                f"{result.best_score})")  # fmt: skip
+        if rec.progress.remaining >= next_batch(config, method, problem):
+            stop = "ended"
     prog = rec.progress
     best = problem.params(prog.best_x[None])[0].detach()
     return RunOutcome(method, seed, prog, best, stop, time.perf_counter() - t0)
@@ -649,6 +673,9 @@ def markdown(config: CompareConfig, rows: list[dict[str, Any]], command: str | N
     ]
     for a in agg:
         note = f"stopped by wall cap ({a['wall_capped']}/{a['seeds']})" if a["wall_capped"] else ""
+        ended = sum(r["stop"] == "ended" for r in rows if r["method"] == a["method"])
+        if ended:
+            note = (note + "; " if note else "") + f"ended on its own ({ended}/{a['seeds']})"
         if a["seeds"] < n:
             note = (note + "; " if note else "") + f"{a['seeds']}/{n} references run"
         lines.append(
@@ -683,7 +710,7 @@ def markdown(config: CompareConfig, rows: list[dict[str, Any]], command: str | N
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in sorted(rows, key=lambda r: (seeds.index(r["seed"]), methods.index(r["method"]))):
-        stop = "stopped by wall cap" if r["stop"] == "wall_cap" else r["stop"]
+        stop = STOP_LABELS.get(r["stop"], r["stop"])
         lines.append(
             f"| {r['seed']} | {r['method']} | {r['simulations']} | {stop} | {_fmt(r['area_mean'])} | "
             f"{_fmt(r['dfd_mean'])} | {_fmt(r['rmse_mean'])} | {_fmt(r['area_worst'])} | {_fmt(r['dfd_worst'])} | "
