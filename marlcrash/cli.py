@@ -409,9 +409,8 @@ def cmd_contributions(args: argparse.Namespace) -> int:
     for p in ours:  # --replace: none of the earlier analysis stays beside this one (its pictures with --no-plots)
         p.unlink(missing_ok=True)
     areas = [q for q in contrib.quantities if q.startswith("area/")]
-    how = "exact" if contrib.exact else f"{args.permutations} sampled orderings, seed {args.seed}"
-    table, text, bars, cells = ours
-    files = [contrib.write_csv(table), contrib.write_markdown(text, heading=f"Contributions: {what} ({how})")]
+    table, text, bars, cells = ours  # the tables' heading lists the settings (Contributions.settings_lines)
+    files = [contrib.write_csv(table), contrib.write_markdown(text, heading=f"Contributions: {what}")]
     if not args.no_plots:
         worst = max(areas, key=lambda q: float(contrib.initial[contrib.column(q)]))
         files += [plot_contributions(contrib, bars),

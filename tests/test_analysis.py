@@ -306,6 +306,27 @@ def test_plots_and_tables_are_written(problem, tmp_path):
     assert len(rows) == 1 + problem.n_agents * len(c.quantities)
 
 
+def test_the_markdown_tables_are_headed_by_the_settings_they_were_computed_with(problem, tmp_path):
+    """contributions.md as the notebook writes it (no heading given) had no heading at all and no word of how the
+    Shapley values were computed (exact, or how many orderings of which seed); the command's heading was one plain
+    line. Now a title, the settings as a list, and one section per quantity, as compare.md and ablate.md are laid
+    out."""
+    calibrated, _ = _three_agents_at_the_truth(problem)
+    sampled = agent_contributions(problem, calibrated, exact_max=2, n_permutations=6, seed=5)
+    text = sampled.write_markdown(tmp_path / "s.md").read_text()
+    lines = text.splitlines()
+    assert lines[0] == "# Per-agent contributions" and lines[1] == ""
+    settings = [x for x in lines if x.startswith("- ")]
+    assert any("sampled" in x and "6 orderings" in x and "seed 5" in x and "exact_max 2" in x for x in settings), text
+    assert any("3 of 21 agents moved" in x and f"{sampled.n_simulations} simulations" in x for x in settings), text
+    sections = [x for x in lines if x.startswith("## ")]
+    assert [x.split(" ")[1] for x in sections] == sampled.selected()  # score, then every sensor's area
+    exact = agent_contributions(problem, calibrated, exact_max=3, n_permutations=6, seed=5)
+    text = exact.write_markdown(tmp_path / "e.md", heading="Contributions: the truth").read_text()
+    assert text.startswith("# Contributions: the truth\n\n- ")
+    assert "exact: all 2**3 coalitions of the 3 agents that moved (exact_max 3)" in text and "seed" not in text
+
+
 def test_the_contribution_view_draws_the_cars_left_on_its_left(problem, tmp_path, monkeypatch):
     """The cells coloured by contribution were drawn mirrored (matplotlib's axes are right-handed, marlcrash's frame
     x rearward, y left, z up is not): a left offset impact's agents were coloured on the car's right side."""
@@ -468,7 +489,7 @@ def test_contributions_command_analyses_a_run_and_names_bad_arguments(tmp_path, 
     assert "key '--out'" in (err := capsys.readouterr().err) and "holds an earlier analysis" in err
     assert main(["contributions", str(run), "--iteration", "0", "--no-plots", "--out", str(out), "--replace"]) == 0
     assert sorted(p.name for p in out.iterdir() if p.is_file()) == ["contributions.csv", "contributions.md"]
-    assert (out / "contributions.md").read_text().startswith(f"Contributions: {run}, calibration step 0 (")
+    assert (out / "contributions.md").read_text().startswith(f"# Contributions: {run}, calibration step 0\n\n- ")
     capsys.readouterr()
     monkeypatch.chdir(again)  # a re-evaluation folder named as '.' (no config.yaml of its own) is one still
     assert main(["contributions", ".", "--iteration", "0", "--no-plots", "--out", str(out / "dot"), "--json"]) == 0

@@ -48,6 +48,8 @@ def test_notebook_executes(path, tmp_path):
     assert "analysing the twin's hidden perturbation" in _stdout(nb)
     written = {p.name for p in (out / "twin_truth").iterdir()}  # a run's analysis goes beside it, never over it
     assert {"contributions.csv", "contributions.md", "contributions.png", "cells.png"} <= written
+    head = (out / "twin_truth" / "contributions.md").read_text().split("\n## ")[0]  # what, and with which settings
+    assert head.startswith("# Contributions: the twin's hidden perturbation") and "4 orderings" in head, head
 
 
 def test_agent_contributions_notebook_analyses_a_run(tmp_path):

@@ -67,6 +67,8 @@ class Contributions:
         exact: whether the Shapley values were enumerated.
         leave_one_out, add_one: ``[A, Q]`` one-at-a-time effects.
         n_simulations: coalitions simulated.
+        settings: ``exact_max``, ``n_permutations`` and ``seed`` the values were computed with
+            (:func:`agent_contributions`; ``None`` where not known), listed at the head of :meth:`write_markdown`.
     """
 
     agents: list[str]
@@ -80,6 +82,7 @@ class Contributions:
     leave_one_out: torch.Tensor
     add_one: torch.Tensor
     n_simulations: int
+    settings: dict[str, int] | None = None
 
     def column(self, quantity: str) -> int:
         """Index of a quantity by name; :class:`ValueError` listing the names if unknown."""
@@ -158,12 +161,31 @@ class Contributions:
                          f"| {float(self.add_one[i, j]):.4g} |")  # fmt: skip
         return "\n".join(lines) + "\n"
 
+    def settings_lines(self) -> list[str]:
+        """The settings the values were computed with, as Markdown list items: how the Shapley values were computed
+        (exact over all coalitions, or how many orderings of which seed, and ``exact_max``), the agents that moved and
+        the simulations."""
+        s = self.settings or {}
+        moved, cap = int(self.players.sum()), f"exact_max {s['exact_max']}" if "exact_max" in s else None
+        if moved == 0:
+            how = "none to compute: no agent's cells moved"
+        elif self.exact:
+            how = f"exact: all 2**{moved} coalitions of the {moved} agents that moved" + (f" ({cap})" if cap else "")
+        elif "n_permutations" in s:
+            how = (f"sampled: {s['n_permutations']} orderings in antithetic pairs, seed {s['seed']}"
+                   + (f" (more agents moved than {cap})" if cap else "") + "; ± one standard error")  # fmt: skip
+        else:
+            how = "sampled (orderings and seed not recorded); ± one standard error"
+        return [f"- Shapley values: {how}",
+                f"- {moved} of {len(self.agents)} agents moved; {self.n_simulations} simulations"]  # fmt: skip
+
     def write_markdown(self, path: str | Path, quantities: list[str] | None = None, heading: str | None = None) -> Path:
-        """:meth:`markdown` of ``quantities`` (default: ``score`` and every sensor's area), written atomically, after
-        ``heading`` (e.g. what was analysed, with which settings) where given."""
+        """``# heading`` (default: ``Per-agent contributions``; e.g. what was analysed), the settings
+        (:meth:`settings_lines`), then a ``##`` section of :meth:`markdown` per quantity of ``quantities`` (default:
+        ``score`` and every sensor's area); written atomically."""
         qs = self.selected(quantities)
-        head = [] if heading is None else [heading, ""]
-        return write_text(path, "\n".join([*head, *(self.markdown(q) for q in qs)]))
+        head = [f"# {heading or 'Per-agent contributions'}", "", *self.settings_lines(), ""]
+        return write_text(path, "\n".join([*head, *(f"## {self.markdown(q)}" for q in qs)]))
 
 
 def quantity_names(sensors: list[str]) -> list[str]:
@@ -292,12 +314,13 @@ def agent_contributions(
         return v
 
     Q = len(names)
+    settings = {"exact_max": exact_max, "n_permutations": n_permutations, "seed": seed}
     zeros = torch.zeros(A, Q, dtype=torch.float64)
     n = int(idx.numel())
     if n == 0:  # nothing moved
         v = value(torch.zeros(1, 0, dtype=torch.bool))[0]
         return Contributions(list(problem.agent_names), names, players, v, v.clone(), zeros, zeros.clone(), True,
-                             zeros.clone(), zeros.clone(), counted)  # fmt: skip
+                             zeros.clone(), zeros.clone(), counted, settings)  # fmt: skip
     if n <= exact_max:
         att: Attribution = exact_shapley(value, n, batch=batch)
         loo, add = from_table(att.table)
@@ -314,7 +337,7 @@ def agent_contributions(
     return Contributions(
         agents=list(problem.agent_names), quantities=names, players=players, initial=att.empty, calibrated=att.full,
         shapley=spread(att.phi), shapley_stderr=spread(att.stderr), exact=att.stderr is None,
-        leave_one_out=spread(loo), add_one=spread(add), n_simulations=counted,
+        leave_one_out=spread(loo), add_one=spread(add), n_simulations=counted, settings=settings,
     )  # fmt: skip
 
 
