@@ -106,6 +106,54 @@ def test_shapley_axioms_symmetry_and_null_player_exact_and_sampled():
     torch.testing.assert_close(sampled_shapley(toy_game, 5, 6, seed=1).phi, b.phi, rtol=0, atol=0)
 
 
+def cubic_game(masks: torch.Tensor) -> torch.Tensor:
+    """``(sum of the members' weights 1, 2, 3, ...)**3``: three-way interactions, which antithetic pairs do not
+    cancel."""
+    m = masks.to(torch.float64)
+    w = torch.arange(1, m.shape[1] + 1, dtype=torch.float64)
+    return ((m @ w) ** 3)[:, None]
+
+
+def test_a_sampled_standard_error_is_never_zero_for_an_estimate_that_is_off():
+    """With few orderings of few players two antithetic pairs can give one player the same value (an end of one
+    ordering is an end of its reverse): their spread, 0, was reported as a standard error of 0 beside an estimate
+    off by 6 (3 players, 4 orderings, seed 0). Where the player's marginals differ yet every pair agrees, the sample
+    cannot tell the spread: NaN (unavailable), never 0."""
+    for n in (3, 4, 5):
+        exact = exact_shapley(cubic_game, n).phi[:, 0]
+        for seed in range(8):
+            est = sampled_shapley(cubic_game, n, 4, seed=seed)
+            off = (est.phi[:, 0] - exact).abs() > 1e-9
+            se = est.stderr[:, 0]
+            assert not bool((off & (se == 0)).any()), (n, seed, est.phi[:, 0] - exact, se)
+            assert bool((torch.isnan(se) | (se > 0) | ~off).all())
+    est = sampled_shapley(cubic_game, 3, 4, seed=0)  # the case of the docstring: player 2 at an end in both pairs
+    assert float((est.phi[2, 0] - exact_shapley(cubic_game, 3).phi[2, 0]).abs()) == pytest.approx(6.0)
+    assert math.isnan(float(est.stderr[2, 0])) and bool((est.stderr[:2, 0] > 0).all())
+    # two players: the one antithetic pair is every ordering, the estimate exact, its error 0
+    two = sampled_shapley(cubic_game, 2, 4, seed=0)
+    torch.testing.assert_close(two.phi, exact_shapley(cubic_game, 2).phi, rtol=0, atol=1e-12)
+    assert float(two.stderr.abs().max()) == 0.0
+
+
+def test_contributions_say_a_standard_error_they_cannot_tell(problem, tmp_path):
+    """Three agents, 3 antithetic pairs (seed 5): every pair puts bumper_beam_left at an end, so it read
+    ``0.00226 ± 0`` as if exact, its add-one and leave-one-out effects 0.0001 and 0.0044 apart. Now ``± n/a`` with a
+    note, an empty CSV field (``None``), ``null`` in JSON; the others keep theirs."""
+    calibrated, _ = _three_agents_at_the_truth(problem)
+    c = agent_contributions(problem, calibrated, exact_max=2, n_permutations=6, seed=5)
+    i, j = c.agents.index("bumper_beam_left"), c.column("score")
+    assert math.isnan(float(c.shapley_stderr[i, j])) and float(c.add_one[i, j]) != float(c.leave_one_out[i, j])
+    assert bool((c.shapley_stderr[c.players][:, j].nan_to_num(1.0) > 0).all())
+    md = c.markdown("score")
+    assert "| bumper_beam_left | " in md and " ± n/a |" in md and "\nn/a: no standard error" in md
+    assert " ± nan" not in md and md.count(" ± n/a") == 1
+    row = next(r for r in c.rows() if r["agent"] == "bumper_beam_left" and r["quantity"] == "score")
+    assert row["shapley_stderr"] is None
+    text = c.write_csv(tmp_path / "c.csv").read_text()
+    assert "nan" not in text.lower()
+
+
 def test_one_at_a_time_effects_and_bad_arguments():
     loo, add, ends = one_at_a_time(toy_game, 5)
     full, empty = toy_game(torch.ones(1, 5, dtype=torch.bool))[0], toy_game(torch.zeros(1, 5, dtype=torch.bool))[0]

@@ -23,6 +23,7 @@ problem it was evaluated on.
 from __future__ import annotations
 
 import csv
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -63,7 +64,8 @@ class Contributions:
         players: ``[A]`` bool, agents whose cells moved (the others contribute exactly zero).
         initial, calibrated: ``[Q]`` values with no agent's and with every agent's changes.
         shapley: ``[A, Q]`` Shapley values.
-        shapley_stderr: ``[A, Q]`` their standard errors (zero for exact values and null players).
+        shapley_stderr: ``[A, Q]`` their standard errors (zero for exact values and null players; NaN where the
+            sampled orderings cannot tell it: :func:`~marlcrash.analysis.shapley.sampled_shapley`).
         exact: whether the Shapley values were enumerated.
         leave_one_out, add_one: ``[A, Q]`` one-at-a-time effects.
         n_simulations: coalitions simulated.
@@ -121,11 +123,12 @@ class Contributions:
     def rows(self) -> list[dict[str, object]]:
         """One row per agent and quantity: ``agent, moved, quantity, unit, shapley, shapley_stderr, leave_one_out,
         add_one`` (the values in the quantity's unit, :func:`quantity_unit`; ``moved``: whether the agent's cells
-        moved, so a zero of an agent that never moved reads apart from a move without effect)."""
+        moved, so a zero of an agent that never moved reads apart from a move without effect; ``shapley_stderr``
+        ``None`` where the sampled orderings cannot tell it, an empty field in the CSV)."""
         return [
             {"agent": a, "moved": bool(self.players[i]), "quantity": q, "unit": quantity_unit(q),
              "shapley": float(self.shapley[i, j]),
-             "shapley_stderr": float(self.shapley_stderr[i, j]), "leave_one_out": float(self.leave_one_out[i, j]),
+             "shapley_stderr": _stderr(self.shapley_stderr[i, j]), "leave_one_out": float(self.leave_one_out[i, j]),
              "add_one": float(self.add_one[i, j])}
             for i, a in enumerate(self.agents) for j, q in enumerate(self.quantities)
         ]  # fmt: skip
@@ -154,11 +157,17 @@ class Contributions:
         ranked = self.ranking(quantity)
         if not ranked:
             lines.append("| (no agent's cells moved: nothing to credit) | 0 | 0 | 0 |")
+        unknown = False
         for a, _ in ranked:
             i = self.agents.index(a)
-            se = "" if self.exact else f" ± {float(self.shapley_stderr[i, j]):.3g}"
+            err = _stderr(self.shapley_stderr[i, j])
+            unknown |= err is None and not self.exact
+            se = "" if self.exact else " ± n/a" if err is None else f" ± {err:.3g}"
             lines.append(f"| {a} | {float(self.shapley[i, j]):.4g}{se} | {float(self.leave_one_out[i, j]):.4g} "
                          f"| {float(self.add_one[i, j]):.4g} |")  # fmt: skip
+        if unknown:
+            lines += ["", "n/a: no standard error can be told from these orderings (every antithetic pair gave the "
+                      "agent one value, by the draw); more orderings give one"]  # fmt: skip
         return "\n".join(lines) + "\n"
 
     def settings_lines(self) -> list[str]:
@@ -186,6 +195,12 @@ class Contributions:
         qs = self.selected(quantities)
         head = [f"# {heading or 'Per-agent contributions'}", "", *self.settings_lines(), ""]
         return write_text(path, "\n".join([*head, *(f"## {self.markdown(q)}" for q in qs)]))
+
+
+def _stderr(x: torch.Tensor) -> float | None:
+    """A standard error as a float, ``None`` where it is NaN (the orderings cannot tell it)."""
+    v = float(x)
+    return None if math.isnan(v) else v
 
 
 def quantity_names(sensors: list[str]) -> list[str]:

@@ -9,7 +9,13 @@ below asks the game for coalitions in batches and never loops over players in Py
   ``sum over S not containing i of |S|! (n - |S| - 1)! / n! * (v(S + i) - v(S))``.
 - :func:`sampled_shapley`: random orderings of the players (Castro, Gomez, Tejada 2009), drawn in antithetic
   pairs (an ordering and its reverse); each ordering costs ``n + 1`` coalitions, shared ones are asked once.
-  Returns the standard error of every estimate.
+  Returns the standard error of every estimate: the spread (ddof 1) of the pairs' means, the independent draws,
+  over the square root of their number. It is 0 where every marginal of the player was the same (a null or additive
+  player: the estimate is exact) and for 2 players (the one pair is every ordering), and NaN (unavailable) where the
+  marginals differ yet every pair's mean agrees: with few pairs of few players that happens by chance (an end of an
+  ordering is an end of its reverse, so 2 pairs of 3 players give an end player one value), and the estimate may be
+  far off while the spread of the draws is 0. So is one whose every pair splits the other players around it alike
+  (its predecessors and its successors, as one unordered pair of sets): its pairs agree whatever the game.
 - :func:`one_at_a_time`: leave-one-out (``v(N) - v(N - i)``) and add-one (``v({i}) - v({})``) effects.
 
 Both Shapley estimates satisfy ``sum_i phi_i = v(N) - v({})`` exactly (efficiency; the sampled ones too, because
@@ -33,6 +39,10 @@ ValueFn = Callable[[torch.Tensor], torch.Tensor]
 MAX_EXACT_PLAYERS = 16
 """Most players :func:`exact_shapley` enumerates (65,536 coalitions)."""
 
+STDERR_RTOL = 1e-9
+"""Marginals (and antithetic pairs' means) of a player that differ by no more than this fraction of the largest value
+of the quantity count as equal in :func:`sampled_shapley`'s test of whether a standard error can be estimated."""
+
 
 @dataclass
 class Attribution:
@@ -40,7 +50,8 @@ class Attribution:
 
     Attributes:
         phi: ``[n, Q]`` the attribution of every player to every quantity.
-        stderr: ``[n, Q]`` standard error of a sampled estimate, ``None`` when exact.
+        stderr: ``[n, Q]`` standard error of a sampled estimate (NaN where the sample cannot tell it:
+            :func:`sampled_shapley`), ``None`` when exact.
         empty, full: ``[Q]`` the values of the empty and of the grand coalition.
         n_evaluations: coalitions the game was asked for.
         table: ``[2**n, Q]`` the value of every coalition (row ``c`` as in :func:`all_coalitions`) when exact.
@@ -182,7 +193,8 @@ def sampled_shapley(value: ValueFn, n: int, n_permutations: int, *, seed: int = 
         batch: coalitions per call of ``value``.
 
     Returns:
-        The estimates and their standard errors (over the antithetic pairs' means).
+        The estimates and their standard errors (over the antithetic pairs' means; NaN where the pairs agree while
+        the marginals differ, so the sample cannot tell the spread: module docstring).
 
     Raises:
         ValueError: fewer than 4 or an odd number of orderings, a ``seed`` that is not an integer >= 0, or a
@@ -208,8 +220,30 @@ def sampled_shapley(value: ValueFn, n: int, n_permutations: int, *, seed: int = 
     pairs = 0.5 * (per_player[: P // 2] + per_player[P // 2 :])  # [P/2, n, Q]
     phi = pairs.mean(0)
     stderr = pairs.std(0, unbiased=True) / math.sqrt(pairs.shape[0])
+    if n <= 2:  # the one antithetic pair holds every ordering: the estimate is exact
+        stderr = torch.zeros_like(phi)
+    else:  # pairs that agree by the draw, not by the game, say nothing of the spread (module docstring)
+        tol = STDERR_RTOL * v.abs().amax((0, 1)).clamp_min(torch.finfo(torch.float64).tiny)  # [Q]
+        agree = (pairs.amax(0) - pairs.amin(0)) <= tol  # [n, Q]
+        vary = (per_player.amax(0) - per_player.amin(0)) > tol
+        stderr = torch.where(agree & (vary | _one_split(chain, perms)[:, None]), torch.nan, stderr)
     empty = v[0, 0]
     return Attribution(phi=phi, stderr=stderr, empty=empty, full=v[0, -1], n_evaluations=int(unique.shape[0]))
+
+
+def _one_split(chain: np.ndarray, perms: np.ndarray) -> torch.Tensor:
+    """``[n]`` bool: every antithetic pair of ``perms [P, n]`` (prefixes ``chain [P, n + 1, n]``) splits the other
+    players around player ``i`` alike (its predecessors in the ordering and those in the reverse, ``S`` and
+    ``N - S - i``, as one unordered pair of sets): then every pair gives it one value, whatever the game."""
+    P, n = perms.shape
+    half = P // 2
+    pos = np.argsort(perms[:half], axis=1)  # [H, n]: where player i stands in ordering p
+    before = chain[np.arange(half)[:, None], pos]  # [H, n, n]: the players before i in ordering p
+    after = ~before & ~np.eye(n, dtype=bool)[None]  # the players before i in the reverse
+    first = np.where(np.arange(n) == 0, 1, 0)  # the lowest player other than i names the part it is in
+    side = before[:, np.arange(n), first]  # [H, n]
+    key = np.where(side[..., None], before, after)  # [H, n, n]: the part that holds that player
+    return torch.as_tensor((key == key[:1]).all(axis=(0, 2)))
 
 
 def one_at_a_time(value: ValueFn, n: int, *, batch: int = 256) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
