@@ -80,13 +80,13 @@ def config_digests(extra: Iterable[str | Path] = ()) -> dict[str, str]:
             if p.is_file() and rel.parts[0] not in _SKIPPED_DIRS and not any(s.startswith(".") for s in rel.parts):
                 out[f"configs/{rel.as_posix()}"] = _sha256(p)
     for e in extra:
-        for p in _with_includes(Path(e).resolve()):
+        for p in with_includes(Path(e).resolve()):
             if p.is_file() and not p.is_relative_to(root.resolve()):
                 out[str(p)] = _sha256(p)
     return out
 
 
-def _with_includes(path: Path) -> list[Path]:
+def with_includes(path: Path) -> list[Path]:
     """``path`` and, for a keyword deck, the files it ``*INCLUDE``s (a deck that cannot be split: itself only;
     reading the vehicle reports the problem)."""
     from marlcrash.errors import MarlcrashError
@@ -269,7 +269,7 @@ def _explained(changes: list[str], extra: list[str | Path], started_in: Any) -> 
             then, now = (Path(started_in) / e).resolve(), Path(e).resolve()
             if then == now:
                 continue
-            covered |= {f"{p} removed" for p in _with_includes(then)} | {f"{p} added" for p in _with_includes(now)}
+            covered |= {f"{p} removed" for p in with_includes(then)} | {f"{p} added" for p in with_includes(now)}
             missing = "" if now.is_file() else " (no such file)"
             out.append(f"{str(e)!r} is a relative path, read from the working directory: {then} where the run "
                        f"started, {now} here{missing}; start it from {started_in}, or name it by an absolute "

@@ -651,3 +651,27 @@ def test_the_cell_model_cache_follows_the_configs_folder(tmp_path, monkeypatch):
     assert coarse.n_cells < first.n_cells
     monkeypatch.delenv("MARLCRASH_CONFIGS")
     assert build_cells("b_segment", 0, "optimized") is first
+
+
+def test_the_cell_model_cache_reads_a_changed_vehicle_file_again(tmp_path, monkeypatch):
+    """A vehicle file edited in the same process, or one named by a relative path after a change of folder, gets its own
+    cells: the cache was keyed by the path as typed and gave the first file's cells (DESIGN 3: a deck is read anew)."""
+    import yaml
+
+    from marlcrash.config import config_dir
+    from marlcrash.vehicle.registry import vehicle_config_path
+
+    data = yaml.safe_load(vehicle_config_path("b_segment").read_text())
+    data["materials"] = str((config_dir() / data["materials"]).resolve())  # the copies are read outside configs/
+    heavy = dict(data, total_mass=1800.0)
+    for folder, car in (("a", data), ("b", heavy)):
+        (tmp_path / folder).mkdir()
+        (tmp_path / folder / "car.yaml").write_text(yaml.safe_dump(car))
+    monkeypatch.chdir(tmp_path / "a")
+    first = build_cells("car.yaml", None, "optimized")
+    monkeypatch.chdir(tmp_path / "b")
+    other = build_cells("car.yaml", None, "optimized")  # the same path as typed, another file
+    assert other.total_mass == pytest.approx(1800.0) and first.total_mass == pytest.approx(1600.0)
+    assert build_cells("car.yaml", None, "optimized") is other  # unchanged: kept
+    (tmp_path / "b" / "car.yaml").write_text(yaml.safe_dump(dict(data, total_mass=1700.0)))
+    assert build_cells("car.yaml", None, "optimized").total_mass == pytest.approx(1700.0)

@@ -255,23 +255,58 @@ def check_env_args(config: Any, batch_size: Any) -> int:
 def build_cells(vehicle: str, seed: int | None, method: str, options: VehicleOptions | None = None) -> CellModel:
     """Discretize a registered vehicle (or a vehicle file, read with ``options``) once per process and cache it
     (the :data:`_CELLS_KEPT` used last), keyed by the configs folder and ``cells.yaml``'s values too (a changed
-    ``MARLCRASH_CONFIGS`` used to get the model built from the folder before)."""
+    ``MARLCRASH_CONFIGS`` used to get the model built from the folder before), by a vehicle file's and a sub-assembly
+    map's resolved paths (a relative path read after a change of folder names another file), and rebuilt when a file
+    it was built from (under the configs folder, the deck and its ``*INCLUDE``s, the map) changed since: it was kept
+    by the path as typed, so an edited deck read again in the same process gave the old deck's cells."""
     from marlcrash.cells.discretize import discretize, load_discretization_config
     from marlcrash.vehicle.registry import load_configured_vehicle
 
     options = options or VehicleOptions()
     cell_config = load_discretization_config()
-    key = (vehicle, seed, method, options.key(), str(config_dir().resolve()), repr(cell_config))
-    if key in _CELLS:
-        _CELLS[key] = _CELLS.pop(key)  # the most recently used last: the least recently used goes first
-    else:
-        _CELLS[key] = discretize(load_configured_vehicle(vehicle, seed, options), cell_config, method=method)
-        while len(_CELLS) > _CELLS_KEPT:
-            _CELLS.pop(next(iter(_CELLS)))
-    return _CELLS[key]
+    where = str(Path(vehicle).resolve()) if Path(vehicle).suffix else vehicle  # a registered name has no suffix
+    sub = None if options.subassemblies is None else str(Path(options.subassemblies).resolve())
+    key = (where, seed, method, options.key(), sub, str(config_dir().resolve()), repr(cell_config))
+    kept = _CELLS.pop(key, None)  # put back last: the least recently used goes first
+    if kept is not None and _files_state(kept[1]) == kept[2]:
+        _CELLS[key] = kept
+        return kept[0]
+    files = _input_files(vehicle, options)
+    state = _files_state(files)  # before reading: a file changed while it is read is read again next time
+    cells = discretize(load_configured_vehicle(vehicle, seed, options), cell_config, method=method)
+    _CELLS[key] = (cells, files, state)
+    while len(_CELLS) > _CELLS_KEPT:
+        _CELLS.pop(next(iter(_CELLS)))
+    return cells
 
 
-_CELLS: dict[tuple, CellModel] = {}
+def _input_files(vehicle: str, options: VehicleOptions) -> list[Path]:
+    """The files a cell model of ``vehicle`` is built from: those under the configs folder (a registered car's YAML,
+    the materials, ``cells.yaml``), a vehicle file with its ``*INCLUDE``s and a sub-assembly map."""
+    from marlcrash.provenance import with_includes
+
+    root = config_dir()
+    files = [p for p in sorted(root.rglob("*")) if p.is_file()] if root.is_dir() else []
+    if Path(vehicle).suffix:
+        files += with_includes(Path(vehicle).resolve())
+    if options.subassemblies is not None:
+        files.append(Path(options.subassemblies).resolve())
+    return files
+
+
+def _files_state(files: list[Path]) -> tuple:
+    """Modification time and size of every file (``None`` for one that is gone): what tells that it changed."""
+    out = []
+    for p in files:
+        try:
+            st = p.stat()
+            out.append((st.st_mtime_ns, st.st_size))
+        except OSError:
+            out.append(None)
+    return tuple(out)
+
+
+_CELLS: dict[tuple, tuple[CellModel, list[Path], tuple]] = {}
 _CELLS_KEPT = 4
 
 
