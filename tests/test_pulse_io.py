@@ -1490,3 +1490,18 @@ def test_an_iso_mme_test_folder_with_two_channel_folders_is_refused_naming_both(
         read_mme(tmp_path / "T" / "T.mme")
     with pytest.raises(PulseError, match=r"write_mme: T: the test folder holds two channel folders, 'Channel' and"):
         write_mme(analytic, tmp_path / "T", "T")
+
+
+def test_an_iso_mme_channel_header_longer_than_200_lines_is_listed_as_read(tmp_path, analytic):
+    """A channel header is every ``Name :value`` line before the first sample, however many comment lines it holds.
+    ``mme_channels`` parsed the first 200 lines only, so a channel with 250 comment lines before its 'Unit' was
+    listed with no unit and no name (not an acceleration), while ``read_mme`` read it whole as one."""
+    from marlcrash.pulse import mme_channels
+
+    write_mme(analytic, tmp_path / "T", "T")
+    expected = mme_channels(tmp_path / "T")
+    chan = tmp_path / "T" / "Channel" / "T.001"
+    comments = "".join(f"Comments                    :rig note {i}\n" for i in range(250))
+    chan.write_text(comments + chan.read_text(encoding="latin-1"), encoding="latin-1")
+    assert mme_channels(tmp_path / "T") == expected
+    assert read_mme(tmp_path / "T").channels == analytic.channels

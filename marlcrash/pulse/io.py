@@ -521,17 +521,14 @@ def _mme_codec(head: bytes, path: Path) -> str | None:
     return codec
 
 
-MME_HEADER_LINES = 200
-"""Most lines of a channel file :func:`mme_channels` reads as its header (ISO-MME headers have a few dozen)."""
-
-
-def _read_header_lines(path: Path, most: int = MME_HEADER_LINES) -> list[str]:
-    """The first lines of a channel file up to the first that is no ``Name :value`` line (the first sample), at
-    most ``most``, as :func:`_read_lines` splits and decodes them: what :func:`_parse_header` reads, without reading
+def _read_header_lines(path: Path) -> list[str]:
+    """The first lines of a channel file up to the first that is no ``Name :value`` line (the first sample), however
+    many there are, as :func:`_read_lines` splits and decodes them: what :func:`_parse_header` reads, without reading
     the samples after it (a channel may hold millions). Only whole lines are decoded, so a chunk ending inside a UTF-8
     character leaves it whole for the next; a UTF-16/32 file is decoded chunk by chunk by an incremental decoder,
     which keeps a character split between chunks for the next, and goes on as the UTF-8 of its text."""
     lines: list[str] = []
+    checked = 0  # lines[:checked] are header lines
     rest = bytearray()  # the last line read so far, which may go on in the next chunk
     try:
         with path.open("rb") as f:
@@ -553,14 +550,15 @@ def _read_header_lines(path: Path, most: int = MME_HEADER_LINES) -> list[str]:
                 if end >= 0:
                     lines += _decode_lines(bytes(rest[: end + 1]), ())
                     del rest[: end + 1]
-                if len(lines) >= most or not all(":" in s for s in lines):
+                if not all(":" in s for s in lines[checked:]):  # the first sample: the header ends before it
                     break
+                checked = len(lines)
                 chunk = f.read(16384)
     except OSError as e:
         raise _err(f"cannot read ({e.strerror})", path) from None
     except UnicodeDecodeError as e:
         raise _not_bom_text(str(codec), e, path) from None
-    return lines[:most]
+    return lines
 
 
 def _header_float(path: Path, header: dict[str, tuple[str, int]], key: str) -> float:
