@@ -1445,7 +1445,7 @@ def test_write_mme_writes_a_channel_code_only_where_the_name_is_one(tmp_path, an
     assert read_mme(tmp_path / "T", channels="10vehc0000acxp").channels == ("10VEHC0000ACXP",)  # by its name
 
 
-@pytest.mark.parametrize("left", ["T.003", "T.0002", "t.001", "T.000"])
+@pytest.mark.parametrize("left", ["T.003", "T.0002", "t.001"])  # T.000: ..._numbered_zero_is_no_channel
 def test_write_mme_refuses_a_folder_whose_other_channel_files_would_be_read_as_this_test(tmp_path, analytic, left):
     """``write_mme`` over a test of the same name wrote its channel files and left the others: a 2-channel pulse
     written where a 3-channel test was read back with 3 channels, the third the old test's, without a word; a
@@ -1505,3 +1505,30 @@ def test_an_iso_mme_channel_header_longer_than_200_lines_is_listed_as_read(tmp_p
     chan.write_text(comments + chan.read_text(encoding="latin-1"), encoding="latin-1")
     assert mme_channels(tmp_path / "T") == expected
     assert read_mme(tmp_path / "T").channels == analytic.channels
+
+
+@pytest.mark.parametrize("zero", ["T.000", "T.0000", "T.00"])
+def test_an_iso_mme_file_numbered_zero_is_no_channel(tmp_path, analytic, zero):
+    """ISO-MME numbers channel files from 001. A ``<test>.000`` beside them was read as channel 0, before channel 1:
+    listed first, read by default as an acceleration (a time base differing from the others' refused the whole test)
+    and taken by ``marlcrash pulse`` as the first acceleration channel. It is no channel, and is named in a warning;
+    ``write_mme`` refuses a folder holding one saying so, not that it would be read as a channel."""
+    from marlcrash.pulse import mme_channels
+
+    write_mme(analytic, tmp_path / "T", "T")
+    chan = tmp_path / "T" / "Channel"
+    other = Pulse(analytic.time[:1000], analytic.acc[:1, :1000] * 2, ("stray",))
+    write_mme(other, tmp_path / "S", "T")
+    (tmp_path / "S" / "Channel" / "T.001").rename(chan / zero)
+    said = rf"T\.mme: {re.escape(zero)} is no channel file \(ISO-MME numbers them from 001\); not read"
+    with pytest.warns(UserWarning, match=said):
+        assert [c["file"].name for c in mme_channels(tmp_path / "T")] == ["T.001", "T.002"]
+    with pytest.warns(UserWarning, match=said):
+        back = read_mme(tmp_path / "T")
+    assert back.channels == analytic.channels
+    np.testing.assert_allclose(back.acc, analytic.acc, rtol=1e-12, atol=1e-9)
+    with pytest.warns(UserWarning, match=said):
+        assert pulse_summary(tmp_path / "T")["channel"] == "tunnel"
+    no_channel = r"which is no channel file \(ISO-MME numbers them from 001\) and read_mme would warn about; remove it"
+    with pytest.raises(PulseError, match=rf"write_mme: the Channel folder holds {re.escape(zero)}, {no_channel}"):
+        write_mme(analytic, tmp_path / "T", "T")

@@ -18,7 +18,8 @@ linear interpolation, so it is filtered and integrated like a record.
 ISO-MME (ISO/TS 13499): a test folder with ``<test>.mme`` and a ``Channel``
 folder holding ``<test>.chn`` (the channel list) and one file per channel,
 ``<test>.001``, ``<test>.002``, ... (at least three digits: ``<test>.1000`` follows ``<test>.999``; two files
-for one number, ``<test>.001`` and ``<test>.0001`` or ``<test>.01``, are refused as ambiguous).
+for one number, ``<test>.001`` and ``<test>.0001`` or ``<test>.01``, are refused as ambiguous; channels are numbered
+from 001, and a ``<test>.000`` is named in a warning, not read).
 Each channel file starts with ``Name  :value`` header lines; the samples follow, one value per line. Latin-1 text
 (written so), or UTF-8 as some tools write it: a line is read as UTF-8 where its bytes are UTF-8, else as Latin-1;
 UTF-16 or UTF-32 with its byte-order mark (UTF-16 without one is refused, naming the file).
@@ -668,6 +669,9 @@ def _numbered_files(folder: Path, test: str) -> list[Path]:
             and re.fullmatch(r"\d+", p.suffix[1:] or "")]  # fmt: skip
 
 
+_NUMBERED_ZERO = "no channel file (ISO-MME numbers them from 001)"
+
+
 def _mme_channel_files(path: Path) -> tuple[Path, list[Path]]:
     """(test .mme file, its channel files ``<test>.001``, ``<test>.002``, ... in order) of a test or .mme file."""
     mme, folder = _mme_paths(path)
@@ -675,6 +679,9 @@ def _mme_channel_files(path: Path) -> tuple[Path, list[Path]]:
     _read_lines(mme)  # the test description must at least be readable
     # numbered with at least three digits, in numeric order: .001 to .999, then .1000 (as pyisomme writes them)
     numbered = _numbered_files(folder, test)
+    for p in sorted(p for p in numbered if int(p.suffix[1:]) == 0):  # was read as channel 0, before channel 1
+        warnings.warn(f"{file_label(mme)}: {p.name} is {_NUMBERED_ZERO}; not read", stacklevel=3)
+    numbered = [p for p in numbered if int(p.suffix[1:]) != 0]
     by_number: dict[int, list[Path]] = {}
     for p in numbered:
         by_number.setdefault(int(p.suffix[1:]), []).append(p)
@@ -888,8 +895,8 @@ def write_mme(pulse: Pulse, folder: str | Path, test: str = "TEST", *, unit: str
             holding ``/`` or a NUL), naming it and the character, or a channel folder that holds a file of the
             test that is not one of its channels (``<test>.003`` left from a 3-channel test where the pulse has two,
             ``<test>.0001`` beside the ``<test>.001`` it writes), which :func:`read_mme` would read as one of its
-            channels, or a test folder holding two channel folders (``Channel`` and ``channel``); nothing is
-            written then.
+            channels, or a ``<test>.000``, which it would warn about, or a test folder holding two channel folders
+            (``Channel`` and ``channel``); nothing is written then.
     """
     if not pulse.is_uniform:
         raise PulseError("ISO-MME needs uniform sampling; resample the pulse first")
@@ -905,6 +912,9 @@ def write_mme(pulse: Pulse, folder: str | Path, test: str = "TEST", *, unit: str
     chan_dir = folders[0] if folders else folder / "Channel"  # as another tool may have spelled it ('CHANNEL')
     for p in sorted(_numbered_files(chan_dir, test)) if chan_dir.is_dir() else ():
         mine = chan_dir / f"{test}.{int(p.suffix[1:]):03d}"  # a file this test writes over is no other channel
+        if int(p.suffix[1:]) == 0:
+            raise PulseError(f"write_mme: the {chan_dir.name} folder holds {p.name}, which is {_NUMBERED_ZERO} and "
+                             "read_mme would warn about; remove it or write the test to another folder")  # fmt: skip
         if not (1 <= int(p.suffix[1:]) <= pulse.n_channels and mine.is_file() and mine.samefile(p)):
             raise PulseError(f"write_mme: the {chan_dir.name} folder holds {p.name}, which read_mme would read as a "
                              f"channel of test {test!r} (the pulse has {pulse.n_channels} channels); remove it or "
