@@ -147,6 +147,11 @@ def test_pulse_json_and_plot(tmp_path):
     assert plot.stat().st_size > 10_000
     mme = json.loads(run_cli("pulse", str(DATA / "HS40"), "--json").stdout)
     assert mme["delta_v_ms"] == pytest.approx(40 / 3.6, rel=0.01)
+    # CSV options on an ISO-MME test are named as typed, those given alone (it said 'time_col/unit/time_unit')
+    proc = run_cli("pulse", str(DATA / "HS40"), "--unit", "m/s2", "--json")
+    assert json.loads(proc.stdout) == mme
+    assert ("warning: HS40: ISO-MME channels carry their own time base and unit; --unit m/s2 (unit='m/s2') applies "
+            "to CSV files only and is ignored") in proc.stderr, proc.stderr  # fmt: skip
     # the plot never replaces the record it reads, and is a PNG by name
     record = tmp_path / "record.csv"
     record.write_bytes((DATA / "halfsine_40kmh.csv").read_bytes())

@@ -388,6 +388,10 @@ def test_csv_only_options_on_an_iso_mme_test_are_reported_not_silently_dropped()
     mme = Path(__file__).parent / "data" / "HS40"
     with pytest.warns(UserWarning, match="HS40: ISO-MME channels carry their own time base and unit"):
         _, work, _ = processed_pulse(mme, unit="m/s2")
+    # named as typed, on the command line and in Python, those given alone (it said 'time_col/unit/time_unit')
+    given = r"--time-col zeit \(time_col='zeit'\), --time-unit ms \(time_unit='ms'\) apply to CSV files only and are"
+    with pytest.warns(UserWarning, match=r"channels carry their own time base and unit; " + given + " ignored$"):
+        processed_pulse(mme, time_col="zeit", time_unit="ms")
     plain = processed_pulse(mme)[1]
     np.testing.assert_array_equal(work.acc, plain.acc)  # ignored, as the warning says
 

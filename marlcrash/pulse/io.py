@@ -1097,12 +1097,14 @@ def processed_pulse(
         kwargs.update(time_col=time_col, unit=unit, time_unit=time_unit, breakpoints=breakpoints)
     elif breakpoints:
         raise _err("an ISO-MME channel is sampled, not a table of breakpoints (CSV only)", p)
-    elif time_col is not None or unit != "g" or time_unit != "s":
-        warnings.warn(
-            f"{p.name}: ISO-MME channels carry their own time base and unit; time_col/unit/time_unit apply to CSV "
-            "files only and are ignored",
-            stacklevel=2,
-        )
+    else:  # named as typed, on the command line (marlcrash pulse) and in Python
+        given = [f"--{name.replace('_', '-')} {value} ({name}={value!r})"
+                 for name, value, default in (("time_col", time_col, None), ("unit", unit, "g"),
+                                              ("time_unit", time_unit, "s")) if value != default]  # fmt: skip
+        if given:
+            verb = "applies to CSV files only and is" if len(given) == 1 else "apply to CSV files only and are"
+            warnings.warn(f"{p.name}: ISO-MME channels carry their own time base and unit; {', '.join(given)} {verb} "
+                          "ignored", stacklevel=2)  # fmt: skip
     if acc_col is not None:
         kwargs["acc_col"] = acc_col
     elif not mme:  # the first acceleration column only, as of an ISO-MME test: the others are not read
