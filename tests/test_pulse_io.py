@@ -1536,3 +1536,42 @@ def test_an_iso_mme_file_numbered_zero_is_no_channel(tmp_path, analytic, zero):
     no_channel = r"which is no channel file \(ISO-MME numbers them from 001\) and read_mme would warn about; remove it"
     with pytest.raises(PulseError, match=rf"write_mme: the Channel folder holds {re.escape(zero)}, {no_channel}"):
         write_mme(analytic, tmp_path / "T", "T")
+
+
+def test_write_mme_that_fails_midway_leaves_the_folder_as_it_was(tmp_path, analytic, monkeypatch):
+    """``write_mme`` wrote the ``.mme`` file, the channel list and the channel files one by one into the folder: a
+    disk that filled up at the second channel left a test whose ``.mme`` and first channel were there, which
+    ``read_mme`` read as a one-channel test. The test is written beside the folder and moved into place whole: a
+    failure leaves a new folder absent, an existing one as it was, and no temporary file or folder behind."""
+    import errno
+    import pathlib
+
+    def tree(root: Path) -> dict[str, bytes | None]:
+        return {str(p.relative_to(root)): p.read_bytes() if p.is_file() else None for p in sorted(root.rglob("*"))}
+
+    old = Pulse(analytic.time[:500], analytic.acc[:, :500] * 0.5, ("old a", "old b"))
+    write_mme(old, tmp_path / "same", "T")  # an earlier run of the test, written over
+    (tmp_path / "other").mkdir()  # a test folder holding a report only, no channel folder yet
+    (tmp_path / "other" / "report.txt").write_text("kept\n")
+    before = tree(tmp_path)
+    path_open = pathlib.Path.open
+
+    def full_disk(self, mode="r", *args, **kwargs):
+        if "002" in self.name and "w" in mode:
+            raise OSError(errno.ENOSPC, "No space left on device", str(self))
+        return path_open(self, mode, *args, **kwargs)
+
+    monkeypatch.setattr(pathlib.Path, "open", full_disk)
+    for folder in ("new", "same", "other"):
+        with pytest.raises(OSError, match="No space left on device"):
+            write_mme(analytic, tmp_path / folder, "T")
+        assert tree(tmp_path) == before, folder
+    monkeypatch.undo()
+    for folder in ("new", "same", "other"):
+        write_mme(analytic, tmp_path / folder, "T")
+        back = read_mme(tmp_path / folder)
+        assert back.channels == analytic.channels
+        np.testing.assert_allclose(back.acc, analytic.acc, rtol=1e-12, atol=1e-9)
+    assert (tmp_path / "other" / "report.txt").read_text() == "kept\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["new", "other", "same"]
+    assert sorted(p.name for p in (tmp_path / "same").iterdir()) == ["Channel", "T.mme"]

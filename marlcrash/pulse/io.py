@@ -876,7 +876,8 @@ def write_mme(pulse: Pulse, folder: str | Path, test: str = "TEST", *, unit: str
 
     Args:
         pulse: the pulse (uniform sampling required).
-        folder: the test folder (created with its parents where missing; an existing one is written into).
+        folder: the test folder (created with its parents where missing; an existing one is written into). The
+            test is written whole or not at all: a failure midway (a full disk) leaves the folder as it was.
         test: the test name (file stem).
         unit: acceleration unit of the channel files, ``g`` or ``m/s**2``.
 
@@ -919,19 +920,15 @@ def write_mme(pulse: Pulse, folder: str | Path, test: str = "TEST", *, unit: str
             raise PulseError(f"write_mme: the {chan_dir.name} folder holds {p.name}, which read_mme would read as a "
                              f"channel of test {test!r} (the pulse has {pulse.n_channels} channels); remove it or "
                              "write the test to another folder")  # fmt: skip
-    chan_dir.mkdir(parents=True, exist_ok=True)
     mme = folder / f"{test}.mme"
-    mme.write_text(
-        "Data format edition number  :1.6\n"
-        f"Laboratory test ref. number :{test}\n"
-        "Title                       :written by marlcrash\n"
-        f"Number of channels          :{pulse.n_channels}\n",
-        encoding="latin-1",
-    )
+    files = {mme.name: "Data format edition number  :1.6\n"
+                       f"Laboratory test ref. number :{test}\n"
+                       "Title                       :written by marlcrash\n"
+                       f"Number of channels          :{pulse.n_channels}\n"}  # fmt: skip
     lines = ["Instrumentation standard    :ISO 6487", f"Number of channels          :{pulse.n_channels}"]
     for k, name in enumerate(pulse.channels, start=1):
         lines.append(f"Name of channel {k:03d}         :{name}")
-    (chan_dir / f"{test}.chn").write_text("\n".join(lines) + "\n", encoding="latin-1")
+    channel_files = {f"{test}.chn": "\n".join(lines) + "\n"}
     for k, name in enumerate(pulse.channels, start=1):
         head = [
             f"Name of the channel         :{name}",
@@ -944,8 +941,58 @@ def write_mme(pulse: Pulse, folder: str | Path, test: str = "TEST", *, unit: str
             f"Number of samples           :{pulse.n_samples}",
         ]
         body = "\n".join(f"{v!r}" for v in (pulse.acc[k - 1] / factor).tolist())
-        (chan_dir / f"{test}.{k:03d}").write_text("\n".join(head) + "\n" + body + "\n", encoding="latin-1")
+        channel_files[f"{test}.{k:03d}"] = "\n".join(head) + "\n" + body + "\n"
+    _write_mme_files(folder, chan_dir.name, files, channel_files)
     return mme
+
+
+def _write_mme_files(folder: Path, chan_name: str, files: dict[str, str], channel_files: dict[str, str]) -> None:
+    """Write ``files`` into ``folder`` and ``channel_files`` into its channel folder ``chan_name``, whole or not at
+    all: into a new hidden folder (beside ``folder`` where it is new, inside it where it exists, on the same file
+    system either way), flushed to disk, then renamed into place: the new folder at once, into an existing one the
+    channel folder at once where it is new, else the channel files, then the test's ``.mme`` file last. A failure
+    while writing (a full disk) leaves a new folder absent and an existing one as it was; the hidden one is removed.
+    """
+    import shutil
+
+    from marlcrash.outputs import new_sibling, sync_folder
+
+    def made(tmp: Path) -> bool:
+        try:
+            tmp.mkdir()
+        except FileExistsError:
+            return False
+        return True
+
+    existed = folder.is_dir()
+    if existed:
+        first = folder / next(iter(files))  # <test>.mme, named where no temporary name is free
+        stage = new_sibling(first, lambda token: f".{first.stem}.{token}.tmp", made)
+    else:
+        folder.parent.mkdir(parents=True, exist_ok=True)
+        stage = new_sibling(folder, lambda token: f".{folder.name}.{token}.tmp", made)
+    try:
+        (stage / chan_name).mkdir()
+        for where, written in ((stage, files), (stage / chan_name, channel_files)):
+            for name, text in written.items():
+                (where / name).write_text(text, encoding="latin-1")
+            sync_folder(where)  # on disk before a name points at them
+        if not existed:
+            stage.rename(folder)  # refused where a folder was made there meanwhile: nothing is replaced then
+            sync_folder(folder.parent, files=False)
+            return
+        chan_dir = folder / chan_name
+        if not chan_dir.exists():
+            (stage / chan_name).rename(chan_dir)
+        else:
+            for name in channel_files:
+                (stage / chan_name / name).replace(chan_dir / name)
+            sync_folder(chan_dir, files=False)
+        for name in files:
+            (stage / name).replace(folder / name)
+        sync_folder(folder, files=False)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
 
 
 def read_pulse(path: str | Path, **kwargs: Any) -> Pulse:
