@@ -712,6 +712,9 @@ def test_mme_reads_acceleration_channels_and_the_summary_takes_the_first(tmp_pat
     write_mme(slow, tmp_path / "S", "S")
     for f in (tmp_path / "S" / "Channel").glob("S.001"):
         f.rename(tmp_path / "T" / "Channel" / "T.003")
+    _edit(tmp_path / "T" / "Channel" / "T.chn", "channels          :2", "channels          :3")  # and listed
+    with (tmp_path / "T" / "Channel" / "T.chn").open("a", encoding="latin-1") as f:
+        f.write("Name of channel 003         :NOVALUE\n")
     info = mme_channels(tmp_path / "T")
     assert [(c["code"], c["unit"], c["acceleration"]) for c in info] == [
         ("11SEBE0000B3FO0D", "N", False), ("10VEHC000000ACXP", "g", True), ("", "g", True)]  # fmt: skip
@@ -1177,14 +1180,14 @@ def test_an_iso_mme_test_reads_each_channel_file_once(tmp_path, analytic, monkey
     with pytest.warns(UserWarning, match=r"skipped T\.001 \(N\)"):
         got = read_mme(tmp_path / "T")
     assert got.channels == ("tunnel", "radsup") and np.array_equal(got.acc, expected_all.acc)
-    assert sorted(reads) == ["T.001", "T.002", "T.003", "T.mme"]
+    assert sorted(reads) == ["T.001", "T.002", "T.003", "T.chn", "T.mme"]
     reads.clear()
     assert read_mme(tmp_path / "T", channels="radsup").channels == ("radsup",)
-    assert sorted(reads) == ["T.001", "T.002", "T.003", "T.mme"]
+    assert sorted(reads) == ["T.001", "T.002", "T.003", "T.chn", "T.mme"]
     reads.clear()
     s = pulse_summary(tmp_path / "T")  # the first acceleration channel: the files after it are not needed
     assert s["channel"] == "tunnel" and s["delta_v_ms"] == pytest.approx(expected_summary["delta_v_ms"])
-    assert sorted(reads) == ["T.001", "T.002", "T.mme"]
+    assert sorted(reads) == ["T.001", "T.002", "T.chn", "T.mme"]
 
 
 def test_listing_the_channels_of_an_iso_mme_test_reads_their_headers_not_their_samples(tmp_path, analytic, monkeypatch):
@@ -1575,3 +1578,83 @@ def test_write_mme_that_fails_midway_leaves_the_folder_as_it_was(tmp_path, analy
     assert (tmp_path / "other" / "report.txt").read_text() == "kept\n"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["new", "other", "same"]
     assert sorted(p.name for p in (tmp_path / "same").iterdir()) == ["Channel", "T.mme"]
+
+
+def _three_channel_test(tmp_path: Path, analytic: Pulse) -> Path:
+    three = Pulse(analytic.time, np.stack([*analytic.acc, analytic.acc[0]]), ("tunnel", "radsup", "11HEADCG0000ACXP"))
+    write_mme(three, tmp_path / "T", "T")
+    return tmp_path / "T" / "Channel"
+
+
+def test_an_iso_mme_channel_list_names_what_its_channel_files_do_not(tmp_path, analytic):
+    """``<test>.chn`` lists the channels of the test, ``Name of channel 001 :<code> / <name>`` as labs write it. It was
+    never read: a channel file without 'Name of the channel' and 'Channel code' was named by its file, ``T.001``, and
+    could not be chosen by the name its test gives it. The list names it now; a channel file's own names come first."""
+    from marlcrash.pulse import mme_channels
+
+    chan = _three_channel_test(tmp_path, analytic)
+    _edit(chan / "T.001", "Name of the channel         :tunnel\n", "")
+    _edit(chan / "T.chn", "channel 001         :tunnel", "channel 001         :10TUNNCG0000ACXP / Tunnel X")
+    _edit(chan / "T.chn", "channel 003         :11HEADCG0000ACXP", "channel 003         :11CHSTCG0000ACXP / C")
+    listed = mme_channels(tmp_path / "T")
+    assert [(c["code"], c["name"]) for c in listed] == [("10TUNNCG0000ACXP", "Tunnel X"), ("", "radsup"),
+                                                        ("11HEADCG0000ACXP", "11HEADCG0000ACXP")]  # fmt: skip
+    assert read_mme(tmp_path / "T").channels == ("10TUNNCG0000ACXP", "radsup", "11HEADCG0000ACXP")
+    one = read_mme(tmp_path / "T", channels="tunnel x")
+    assert one.channels == ("10TUNNCG0000ACXP",)
+    np.testing.assert_allclose(one.acc[0], analytic.acc[0], rtol=1e-12, atol=1e-9)
+    (chan / "T.chn").unlink()  # a test without a channel list is read as before, without a word
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert read_mme(tmp_path / "T").channels == ("T.001", "radsup", "11HEADCG0000ACXP")
+
+
+def test_an_iso_mme_channel_list_and_its_channel_files_must_agree(tmp_path, analytic):
+    """A channel file the list does not hold (``T.003`` left from an earlier test, beside a list of two) was read as
+    a channel of the test; it is refused now, naming the list, its line and the file. A channel listed whose file is
+    missing is named in a warning, and the test read without it. A list that says one count and lists another, or
+    no number, is refused naming its line."""
+    from marlcrash.pulse import mme_channels
+
+    chan = _three_channel_test(tmp_path, analytic)
+    listing = (chan / "T.chn").read_text(encoding="latin-1")
+    _edit(chan / "T.chn", "Number of channels          :3", "Number of channels          :2")
+    _edit(chan / "T.chn", "Name of channel 003         :11HEADCG0000ACXP\n", "")
+    unlisted = (r"T\.chn line 2: the Channel folder holds T\.003, a channel file the channel list does not hold "
+                r"\(it lists 2 channels\); remove it, or list it in T\.chn")  # fmt: skip
+    with pytest.raises(PulseError, match=unlisted):
+        read_mme(tmp_path / "T")
+    with pytest.raises(PulseError, match=unlisted):
+        mme_channels(tmp_path / "T")
+    (chan / "T.chn").write_text(listing, encoding="latin-1")
+    (chan / "T.002").unlink()
+    missing = r"T\.chn line 4: lists channel 002 \('radsup'\), but the Channel folder holds no T\.002; read without it"
+    with pytest.warns(UserWarning, match=missing):
+        assert read_mme(tmp_path / "T").channels == ("tunnel", "11HEADCG0000ACXP")
+    with pytest.warns(UserWarning, match=missing):
+        assert [c["file"].name for c in mme_channels(tmp_path / "T")] == ["T.001", "T.003"]
+    for old, new, said in (
+        (":3", ":two", r"2: 'Number of channels': expected a whole number, got 'two'"),
+        (":3", ":4", r"2: 'Number of channels' says 4, the list names 3 channels"),
+        ("channel 002", "channel 001", r"4: channel 001 is listed twice, on lines 3 and 4"),
+    ):
+        (chan / "T.chn").write_text(listing.replace(old, new), encoding="latin-1")
+        with pytest.raises(PulseError, match=r"T\.chn line " + said):
+            read_mme(tmp_path / "T")
+
+
+def test_an_iso_mme_channel_folder_with_two_channel_lists_is_refused(tmp_path, analytic):
+    """``T.chn`` and ``t.CHN`` (another tool's spelling) beside it: which lists the channels is not known. Refused
+    naming both by ``read_mme``, and by ``write_mme`` before it writes ``T.chn`` beside the other."""
+    write_mme(analytic, tmp_path / "T", "T")
+    chan = tmp_path / "T" / "Channel"
+    if (chan / "t.CHN").exists():
+        pytest.skip("a file system that ignores case: t.CHN is T.chn")
+    (chan / "T.chn").rename(chan / "t.CHN")
+    assert read_mme(tmp_path / "T").channels == analytic.channels  # found in any case
+    with pytest.raises(PulseError, match=r"write_mme: the Channel folder holds t\.CHN, a channel list of test 'T' "
+                       r"beside the T\.chn it writes; remove it"):  # fmt: skip
+        write_mme(analytic, tmp_path / "T", "T")
+    (chan / "T.chn").write_bytes((chan / "t.CHN").read_bytes())
+    with pytest.raises(PulseError, match=r"Channel: the folder holds two channel lists of test 'T', T\.chn and t\.CHN"):
+        read_mme(tmp_path / "T")

@@ -19,7 +19,9 @@ ISO-MME (ISO/TS 13499): a test folder with ``<test>.mme`` and a ``Channel``
 folder holding ``<test>.chn`` (the channel list) and one file per channel,
 ``<test>.001``, ``<test>.002``, ... (at least three digits: ``<test>.1000`` follows ``<test>.999``; two files
 for one number, ``<test>.001`` and ``<test>.0001`` or ``<test>.01``, are refused as ambiguous; channels are numbered
-from 001, and a ``<test>.000`` is named in a warning, not read).
+from 001, and a ``<test>.000`` is named in a warning, not read). The channel list, where the test has one, is
+checked against the channel files (one it does not list is refused, one it lists that is missing is named in a
+warning), and its ``Name of channel 001 :<code> / <name>`` names a channel whose file gives no code or no name.
 Each channel file starts with ``Name  :value`` header lines; the samples follow, one value per line. Latin-1 text
 (written so), or UTF-8 as some tools write it: a line is read as UTF-8 where its bytes are UTF-8, else as Latin-1;
 UTF-16 or UTF-32 with its byte-order mark (UTF-16 without one is refused, naming the file).
@@ -672,8 +674,9 @@ def _numbered_files(folder: Path, test: str) -> list[Path]:
 _NUMBERED_ZERO = "no channel file (ISO-MME numbers them from 001)"
 
 
-def _mme_channel_files(path: Path) -> tuple[Path, list[Path]]:
-    """(test .mme file, its channel files ``<test>.001``, ``<test>.002``, ... in order) of a test or .mme file."""
+def _mme_channel_files(path: Path) -> tuple[Path, list[Path], dict[Path, tuple[str, str]]]:
+    """(test .mme file, its channel files ``<test>.001``, ``<test>.002``, ... in order, and the names the channel
+    list gives them, :func:`_listed_names`) of a test or .mme file."""
     mme, folder = _mme_paths(path)
     test = mme.stem
     _read_lines(mme)  # the test description must at least be readable
@@ -692,17 +695,103 @@ def _mme_channel_files(path: Path) -> tuple[Path, list[Path]]:
     files = sorted((p for p in numbered if len(p.suffix) > 3), key=lambda p: int(p.suffix[1:]))
     if not files:
         raise _err(f"no channel files {test}.001, {test}.002, ... in the Channel folder", mme)
-    return mme, files
+    return mme, files, _listed_names(folder, test, files)
 
 
-def _mme_entry(path: Path, header: dict[str, tuple[str, int]]) -> dict[str, Any]:
-    """One channel of :func:`mme_channels`, from its file's parsed header."""
+_LISTED_CHANNEL = re.compile(r"name of channel (\d+)")
+"""A channel of the channel list ``<test>.chn``: ``Name of channel 001 :<code> / <name>`` (the key's case and
+spaces as :func:`_mme_channel_list` normalizes them)."""
+
+
+def _mme_channel_list(folder: Path, test: str) -> tuple[Path, dict[int, tuple[str, int]], tuple[int, int] | None]:
+    """The channel list ``<test>.chn`` of a channel folder (its name in any case): its path, {channel number: (value
+    of its ``Name of channel`` line, line number)} and its ``Number of channels`` (count, line number), ``None``
+    where not given. ``(folder, {}, None)`` without one: a test may come without it.
+
+    Raises:
+        PulseError: two lists, a count that is no whole number or differs from the channels named, a channel named
+            twice or numbered 000 (naming the file and line).
+    """
+    found = sorted(p for p in folder.iterdir() if p.is_file() and p.stem.lower() == test.lower()
+                   and p.suffix.lower() == ".chn")  # fmt: skip
+    if not found:
+        return folder, {}, None
+    if len(found) > 1:
+        raise _err(f"the folder holds {_counted(f'channel lists of test {test!r}', [p.name for p in found])}; "
+                   "keep one", folder)  # fmt: skip
+    chn = found[0]
+    names: dict[int, tuple[str, int]] = {}
+    count = None
+    for i, raw in enumerate(_read_lines(chn), start=1):
+        key, colon, value = raw.partition(":")
+        key, value = " ".join(key.split()).lower(), value.strip()
+        listed = _LISTED_CHANNEL.fullmatch(key)
+        if colon and listed:
+            k = int(listed.group(1))
+            if k == 0:
+                raise _err(f"'Name of channel {listed.group(1)}': {_NUMBERED_ZERO}", chn, i)
+            if k in names:
+                raise _err(f"channel {k:03d} is listed twice, on lines {names[k][1]} and {i}", chn, i)
+            names[k] = (value, i)
+        elif colon and key == "number of channels" and count is None and value.upper() != "NOVALUE":
+            if not value.isdigit():
+                raise _err(f"'Number of channels': expected a whole number, got {value!r}", chn, i)
+            count = (int(value), i)
+    if count is not None and names and count[0] != len(names):
+        raise _err(f"'Number of channels' says {count[0]}, the list names {len(names)} channels", chn, count[1])
+    return chn, names, count
+
+
+def _listed_names(folder: Path, test: str, files: list[Path]) -> dict[Path, tuple[str, str]]:
+    """{channel file: (channel code, channel name)} as the channel list ``<test>.chn`` names them
+    (:func:`_mme_channel_list`), checked against the channel ``files`` found; empty without a list.
+
+    Raises:
+        PulseError: a channel file the list does not hold (``<test>.003`` beside a list of two, as an earlier test
+            left it), naming the list and its line; a channel listed whose file is missing is named in a warning.
+    """
+    chn, names, count = _mme_channel_list(folder, test)
+    if not names and count is None:
+        return {}
+    listed = set(names) if names else set(range(1, count[0] + 1))
+    line = count[1] if count is not None else min(i for _, i in names.values())
+    by_number = {int(p.suffix[1:]): p for p in files}
+    unlisted = [by_number[k].name for k in sorted(set(by_number) - listed)]
+    if unlisted:
+        shown = ", ".join(unlisted[:5]) + (f" and {len(unlisted) - 5} more" if len(unlisted) > 5 else "")
+        what = "a channel file" if len(unlisted) == 1 else "channel files"
+        raise _err(f"the {folder.name} folder holds {shown}, {what} the channel list does not hold (it lists "
+                   f"{len(listed)} channels); remove {'it' if len(unlisted) == 1 else 'them'}, or list "
+                   f"{'it' if len(unlisted) == 1 else 'them'} in {chn.name}", chn, line)  # fmt: skip
+    for k in sorted(listed - set(by_number)):
+        value, at = names.get(k, ("", line))
+        said = f" ({value!r})" if value else ""
+        warnings.warn(_located(f"lists channel {k:03d}{said}, but the {folder.name} folder holds no {test}.{k:03d}; "
+                               "read without it", chn, at), stacklevel=4)  # fmt: skip
+    return {by_number[k]: _listed_channel(value) for k, (value, _) in names.items() if k in by_number}
+
+
+def _listed_channel(value: str) -> tuple[str, str]:
+    """(channel code, channel name) of a channel list's ``Name of channel`` value: ``<code> / <name>``, as labs write
+    it, or a channel code alone, or a name alone; ``("", "")`` for ``NOVALUE``."""
+    if value.upper() in ("", "NOVALUE"):
+        return "", ""
+    code, slash, name = value.partition("/")
+    if slash and _is_channel_code(code.strip()):
+        name = name.strip()
+        return code.strip(), "" if name.upper() == "NOVALUE" else name
+    return (value, "") if _is_channel_code(value) else ("", value)
+
+
+def _mme_entry(path: Path, header: dict[str, tuple[str, int]], listed: tuple[str, str] = ("", "")) -> dict[str, Any]:
+    """One channel of :func:`mme_channels`, from its file's parsed header, and where that gives no code or no name,
+    those of the channel list (``listed``, :func:`_listed_names`)."""
     code = header.get("channel code", ("", 0))[0]
     unit = header["unit"][0] if "unit" in header else None
     return {
         "file": path,
-        "code": "" if code.upper() == "NOVALUE" else code,
-        "name": header.get("name of the channel", ("", 0))[0],
+        "code": ("" if code.upper() == "NOVALUE" else code) or listed[0],
+        "name": header.get("name of the channel", ("", 0))[0] or listed[1],
         "unit": unit,
         "acceleration": unit is not None and acc_unit_key(unit) in ACC_UNITS,
     }
@@ -720,10 +809,11 @@ def mme_channels(path: str | Path) -> list[dict[str, Any]]:
         unit is an acceleration unit).
 
     Raises:
-        PulseError: no test, no ``Channel`` folder or no channel files (naming the path).
+        PulseError: no test, no ``Channel`` folder or no channel files (naming the path), or a channel list
+            ``<test>.chn`` that does not list a channel file (naming its line).
     """
-    _, files = _mme_channel_files(Path(path))
-    return [_mme_entry(p, _parse_header(p, _read_header_lines(p))[0]) for p in files]
+    _, files, listed = _mme_channel_files(Path(path))
+    return [_mme_entry(p, _parse_header(p, _read_header_lines(p))[0], listed.get(p, ("", ""))) for p in files]
 
 
 def _matches(wanted: str, entry: dict[str, Any]) -> bool:
@@ -747,8 +837,9 @@ def read_mme(path: str | Path, *, channels: str | Sequence[str] | None = None, s
         the channel codes where given, else the channel names.
 
     Raises:
-        PulseError: missing files, two files for one channel number, malformed headers or samples, a
-            non-acceleration unit, unknown channels, or channels with different time bases.
+        PulseError: missing files, two files for one channel number, a channel file the channel list
+            ``<test>.chn`` does not list, malformed headers or samples, a non-acceleration unit, unknown channels, or
+            channels with different time bases.
 
     Each file of the test is read once: a channel's header and samples together.
     """
@@ -763,14 +854,14 @@ def _read_mme(
     ``Unit`` line is refused (it may be the channel meant)."""
     if sign not in (1, -1, 1.0, -1.0):
         raise PulseError(f"sign: expected +1 or -1, got {sign!r}")
-    mme, files = _mme_channel_files(path)
+    mme, files, listed = _mme_channel_files(path)
     wanted = None if channels is None else ([channels] if isinstance(channels, str) else list(channels))
     info: list[dict[str, Any]] = []
     read: dict[Path, dict[str, Any]] = {}  # the chosen channels' samples, parsed from the reading of their header
     for p in files:
         lines = _read_lines(p)
         header, start = _parse_header(p, lines)
-        entry = _mme_entry(p, header)
+        entry = _mme_entry(p, header, listed.get(p, ("", "")))
         info.append(entry)
         if wanted is not None:  # a file is read for the first name it matches (the first file that matches it)
             chosen = any(_matches(w, entry) and not any(_matches(w, c) for c in info[:-1]) for w in wanted)
@@ -825,7 +916,8 @@ def _read_mme(
             )
     time = ref["t_first"] + np.arange(ref["n"]) * ref["dt"]
     acc = np.stack([c["acc"] for c in chans]) * float(sign)
-    names = tuple(c["code"] or c["name"] or p.name for c, p in zip(chans, chosen_files, strict=True))
+    entries = {c["file"]: c for c in info}  # the names of the channel file, else of the channel list
+    names = tuple(entries[p]["code"] or entries[p]["name"] or p.name for p in chosen_files)
     # 'Channel frequency class' is not trusted as a record of filtering already applied (labs use it for
     # the class a channel *should* be filtered with), so the pulse counts as unfiltered (cfc=None).
     return Pulse(time=time, acc=acc, channels=names, source=str(mme))
@@ -896,8 +988,9 @@ def write_mme(pulse: Pulse, folder: str | Path, test: str = "TEST", *, unit: str
             holding ``/`` or a NUL), naming it and the character, or a channel folder that holds a file of the
             test that is not one of its channels (``<test>.003`` left from a 3-channel test where the pulse has two,
             ``<test>.0001`` beside the ``<test>.001`` it writes), which :func:`read_mme` would read as one of its
-            channels, or a ``<test>.000``, which it would warn about, or a test folder holding two channel folders
-            (``Channel`` and ``channel``); nothing is written then.
+            channels, or a ``<test>.000``, which it would warn about, or a channel list of the test spelled
+            otherwise (``<TEST>.CHN``), or a test folder holding two channel folders (``Channel`` and ``channel``);
+            nothing is written then.
     """
     if not pulse.is_uniform:
         raise PulseError("ISO-MME needs uniform sampling; resample the pulse first")
@@ -920,6 +1013,12 @@ def write_mme(pulse: Pulse, folder: str | Path, test: str = "TEST", *, unit: str
             raise PulseError(f"write_mme: the {chan_dir.name} folder holds {p.name}, which read_mme would read as a "
                              f"channel of test {test!r} (the pulse has {pulse.n_channels} channels); remove it or "
                              "write the test to another folder")  # fmt: skip
+    for p in sorted(chan_dir.iterdir()) if chan_dir.is_dir() else ():
+        mine = chan_dir / f"{test}.chn"  # the list this test writes over is no other list
+        if p.suffix.lower() == ".chn" and p.stem.lower() == test.lower() and not (mine.is_file() and mine.samefile(p)):
+            raise PulseError(f"write_mme: the {chan_dir.name} folder holds {p.name}, a channel list of test "
+                             f"{test!r} beside the {mine.name} it writes; remove it or write the test to another "
+                             "folder")  # fmt: skip
     mme = folder / f"{test}.mme"
     files = {mme.name: "Data format edition number  :1.6\n"
                        f"Laboratory test ref. number :{test}\n"
