@@ -1658,3 +1658,14 @@ def test_an_iso_mme_channel_folder_with_two_channel_lists_is_refused(tmp_path, a
     (chan / "T.chn").write_bytes((chan / "t.CHN").read_bytes())
     with pytest.raises(PulseError, match=r"Channel: the folder holds two channel lists of test 'T', T\.chn and t\.CHN"):
         read_mme(tmp_path / "T")
+
+
+@pytest.mark.parametrize("where", ["afile", "afile/T"])
+def test_write_mme_to_a_file_is_refused_naming_it(tmp_path, analytic, where):
+    """A test folder that is a file, or inside one, was an OSError naming a temporary folder beside it
+    (``.afile.<hex>.tmp -> afile: Not a directory``) or the file without saying what was expected; now a
+    :class:`PulseError` naming the file, before anything is written."""
+    (tmp_path / "afile").write_text("x")
+    with pytest.raises(PulseError, match=r"write_mme: .*afile is a file; expected a test folder"):
+        write_mme(analytic, tmp_path / where, "T")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["afile"]

@@ -989,8 +989,8 @@ def write_mme(pulse: Pulse, folder: str | Path, test: str = "TEST", *, unit: str
             test that is not one of its channels (``<test>.003`` left from a 3-channel test where the pulse has two,
             ``<test>.0001`` beside the ``<test>.001`` it writes), which :func:`read_mme` would read as one of its
             channels, or a ``<test>.000``, which it would warn about, or a channel list of the test spelled
-            otherwise (``<TEST>.CHN``), or a test folder holding two channel folders (``Channel`` and ``channel``);
-            nothing is written then.
+            otherwise (``<TEST>.CHN``), or a test folder holding two channel folders (``Channel`` and ``channel``),
+            or a ``folder`` that is a file or inside one; nothing is written then.
     """
     if not pulse.is_uniform:
         raise PulseError("ISO-MME needs uniform sampling; resample the pulse first")
@@ -1000,6 +1000,12 @@ def write_mme(pulse: Pulse, folder: str | Path, test: str = "TEST", *, unit: str
     for k, name in enumerate(pulse.channels, start=1):
         _mme_text(name, f"channel {k} name")
     folder = Path(folder)
+    for q in (folder, *folder.parents):  # the nearest that exists must be a folder
+        if q.exists():
+            if not q.is_dir():
+                raise PulseError(f"write_mme: {q} is a file; expected a test folder" + ("" if q == folder else
+                                 f" or a folder to make {folder} in"))  # fmt: skip
+            break
     folders = _channel_folders(folder) if folder.is_dir() else []
     if len(folders) > 1:
         raise PulseError(f"write_mme: {file_label(folder)}: {_two_channel_folders(folders)}")
