@@ -1669,3 +1669,16 @@ def test_write_mme_to_a_file_is_refused_naming_it(tmp_path, analytic, where):
     with pytest.raises(PulseError, match=r"write_mme: .*afile is a file; expected a test folder"):
         write_mme(analytic, tmp_path / where, "T")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["afile"]
+
+
+def test_read_pulse_refuses_csv_time_options_for_an_iso_mme_test():
+    """``read_pulse`` (a ``kind: file`` reference's reader) dropped ``time_unit`` and ``time_col`` for an ISO-MME test
+    without a word, where it refuses ``unit``: a reference given ``time_unit: ms`` for a test was read in seconds
+    as if nothing had been said. Refused, naming the option; the defaults pass."""
+    with pytest.raises(PulseError, match=r"HS40: ISO-MME channels carry their own time base .*; do not pass "
+                       r"time_unit='ms'"):  # fmt: skip
+        read_pulse(DATA / "HS40", time_unit="ms")
+    with pytest.raises(PulseError, match=r"HS40: ISO-MME channels carry their own time base .*; do not pass "
+                       r"time_col='zeit'"):  # fmt: skip
+        read_pulse(DATA / "HS40", time_col="zeit")
+    assert read_pulse(DATA / "HS40", time_unit="s", time_col=None, unit="g").n_channels == 2

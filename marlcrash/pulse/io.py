@@ -1104,17 +1104,21 @@ def read_pulse(path: str | Path, **kwargs: Any) -> Pulse:
     """Read a CSV file (``.csv``/``.txt``) or an ISO-MME test (folder or ``.mme``) by its path.
 
     ``kwargs`` go to :func:`read_csv` or :func:`read_mme`; ``acc_col`` is accepted for both
-    (for ISO-MME it selects channels).
+    (for ISO-MME it selects channels). For ISO-MME the CSV options ``unit``, ``time_unit`` and ``time_col`` are
+    refused unless left at their defaults (a channel carries its unit and time base), as is ``breakpoints``.
     """
     path = Path(path)
     if path.is_dir() or path.suffix.lower() == ".mme":
         if "acc_col" in kwargs:
             kwargs["channels"] = kwargs.pop("acc_col")
-        kwargs.pop("time_col", None)
         unit = kwargs.pop("unit", None)
         if unit not in (None, "g"):
             raise PulseError(f"{path.name}: ISO-MME channels carry their own 'Unit'; do not pass unit={unit!r}")
-        kwargs.pop("time_unit", None)
+        for key, default in (("time_unit", "s"), ("time_col", None)):  # were dropped without a word
+            value = kwargs.pop(key, default)
+            if value != default:
+                raise PulseError(f"{path.name}: ISO-MME channels carry their own time base ('Time of first sample', "
+                                 f"'Sampling interval', in s); do not pass {key}={value!r}")  # fmt: skip
         if kwargs.pop("breakpoints", False):
             raise PulseError(f"{path.name}: an ISO-MME channel is sampled, not a table of breakpoints (CSV only)")
         return read_mme(path, **kwargs)
