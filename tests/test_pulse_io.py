@@ -1682,3 +1682,12 @@ def test_read_pulse_refuses_csv_time_options_for_an_iso_mme_test():
                        r"time_col='zeit'"):  # fmt: skip
         read_pulse(DATA / "HS40", time_col="zeit")
     assert read_pulse(DATA / "HS40", time_unit="s", time_col=None, unit="g").n_channels == 2
+
+
+def test_read_mme_of_no_channels_is_a_clear_error():
+    """``channels=[]`` (an empty selection, as a list built from a filter that matched nothing) was an IndexError
+    from inside ``read_mme``; now a PulseError saying what was expected."""
+    with pytest.raises(PulseError, match=r"channels: expected at least one channel name, got \[\]"):
+        read_mme(DATA / "HS40", channels=[])
+    with pytest.raises(PulseError, match=r"channels: expected at least one channel name, got \(\)"):
+        read_pulse(DATA / "HS40", acc_col=())

@@ -854,8 +854,10 @@ def _read_mme(
     ``Unit`` line is refused (it may be the channel meant)."""
     if sign not in (1, -1, 1.0, -1.0):
         raise PulseError(f"sign: expected +1 or -1, got {sign!r}")
-    mme, files, listed = _mme_channel_files(path)
     wanted = None if channels is None else ([channels] if isinstance(channels, str) else list(channels))
+    if wanted == []:  # was an IndexError after reading the test
+        raise PulseError(f"channels: expected at least one channel name, got {channels!r}")
+    mme, files, listed = _mme_channel_files(path)
     info: list[dict[str, Any]] = []
     read: dict[Path, dict[str, Any]] = {}  # the chosen channels' samples, parsed from the reading of their header
     for p in files:
