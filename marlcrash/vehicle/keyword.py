@@ -1357,17 +1357,24 @@ def _read_part(block: _Block, opts: set[str], t: _Tables, params: _Params) -> No
 
 def _note_unread_part(block: _Block, t: _Tables) -> None:
     """Where the PID of a ``*PART_COMPOSITE`` (a title line, then PID first) is, for the error of an element that
-    refers to it (a PID given as a label, or unreadable, is not noted)."""
-    rows = block.rows[1:]
+    refers to it."""
+    _note_unread_id(block, block.rows[1:], _PART, t.unread_parts)
+
+
+def _note_unread_id(
+    block: _Block, rows: np.ndarray, layout: tuple[_Field, ...], table: dict[int, tuple[str, Path, int]]
+) -> None:
+    """Note in ``table`` the id in the first field (of ``layout``) of the first of ``rows`` of a card the reader skips:
+    its keyword, file and line (an id given as a label, or unreadable, is not noted)."""
     if rows.size:
         text = block.src.text(int(rows[0]))
-        tok = text.split(",")[0] if "," in text else text[: _widths(_PART, block.fmt)[0]]
+        tok = text.split(",")[0] if "," in text else text[: _widths(layout, block.fmt)[0]]
         try:  # read as written: a parameter here is not resolved (nor marked used) for a card that is skipped
-            pid = int(tok.strip())
+            key = int(tok.strip())
         except ValueError:
             return
-        if pid > 0:
-            t.unread_parts.setdefault(pid, (block.keyword, block.src.path, block.lineno(int(rows[0]))))
+        if key > 0:
+            table.setdefault(key, (block.keyword, block.src.path, block.lineno(int(rows[0]))))
 
 
 def _add_section(block: _Block, t: _Tables, secid: int | None, sec: _Section, row: int) -> None:
@@ -1431,18 +1438,9 @@ def _read_section(block: _Block, kind: str, opts: set[str], t: _Tables, params: 
 
 def _note_unread_section(block: _Block, t: _Tables) -> None:
     """Where the first SECID of a ``*SECTION_...`` card the reader does not read is, for the error of a part that
-    uses it (a SECID given as a label, or unreadable, is not noted)."""
+    uses it."""
     rows = _nonblank(block, block.rows)
-    rows = rows[1:] if "TITLE" in block.keyword.split("_") else rows
-    if rows.size:
-        text = block.src.text(int(rows[0]))
-        tok = text.split(",")[0] if "," in text else text[: _widths(_SEC_ID, block.fmt)[0]]
-        try:  # read as written: a parameter here is not resolved (nor marked used) for a card that is skipped
-            secid = int(tok.strip())
-        except ValueError:
-            return
-        if secid > 0:
-            t.unread_sections.setdefault(secid, (block.keyword, block.src.path, block.lineno(int(rows[0]))))
+    _note_unread_id(block, rows[1:] if "TITLE" in block.keyword.split("_") else rows, _SEC_ID, t.unread_sections)
 
 
 def _beam_area(elform: int, cst: int, a1: float, a2: float, a3: float, a4: float, qr: float = 0.0) -> float | None:
