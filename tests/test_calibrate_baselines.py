@@ -545,3 +545,21 @@ def test_a_budget_is_any_whole_number_and_anything_else_is_named_as_such(problem
         assert repr(bad) in str(e.value)
     with pytest.raises(ConfigError, match=r"expected a whole number of simulations >= 1, got 0"):
         Progress(np.int64(0))
+
+
+def test_stiffnesses_frozen_by_the_behaviour_bounds_are_no_search_coordinates(problem):
+    """``behaviour_bounds: [1.0, 1.0]`` (the env accepts it: E_x, E_s stay at their initial values) gives E_x, E_s a
+    search box of no width. They were still counted free: cmaes failed inside ``cma`` with a ValueError ("Lower bounds
+    need to be smaller than upper bounds") after simulating the start, and lm simulated a finite-difference point per
+    frozen coordinate that moved nothing (42 of its 127 per iteration). Now a coordinate whose box has no width is
+    fixed like any other that cannot change anything; every baseline runs on the transmission factors alone."""
+    frozen = build_problem(from_dict(ProblemConfig, {"duration": DURATION, "env_overrides": {
+        "behaviour_bounds": [1.0, 1.0]}}), cells=problem.cells)  # fmt: skip
+    assert not bool(frozen.free[:, :2].any()) and torch.equal(frozen.free[:, 2:], problem.free[:, 2:])
+    lo, hi = frozen.flat_box()
+    assert frozen.n_free == int(problem.free[:, 2:].sum()) and bool((lo < hi).all())
+    for method in sorted(BASELINES):
+        config, _ = SMALL[method]
+        budget = {"lm": frozen.n_free + 7, "gradient": 4}.get(method, 20)
+        run = BASELINES[method][1](frozen, budget, config, 0)
+        assert run.simulations == budget and bool((run.best_x[:, :2] == 0).all()), method

@@ -489,8 +489,9 @@ def check_lm_budget(problem: CalibrationProblem, budget: int) -> None:
     the agent layout and, with masking, the scenario's impact region, so no config loader can know it without
     building those (the discretization is most of a problem's cost). :func:`levenberg_marquardt` checks it first
     thing, ``compare`` on its first problem before it makes its folder; both before any simulation of lm's. A
-    problem lm runs has at least 2 free coordinates (an active agent's ``E_x`` and ``E_s``; one without an active agent
-    is refused, :func:`check_free_coordinates`), so no budget below ``1 + 2 + len(STEP_FACTORS)`` = 9 can ever do.
+    problem lm runs has at least 2 free coordinates (an active agent's ``E_x`` and ``E_s``, or where the behaviour
+    bounds freeze those, two transmission directions of a cell: one alone never moves; a problem with none is refused,
+    :func:`check_free_coordinates`), so no budget below ``1 + 2 + len(STEP_FACTORS)`` = 9 can ever do.
 
     Raises:
         ConfigError: (key ``budget``) fewer than 1 + free coordinates + step sizes simulations.

@@ -41,8 +41,9 @@ the least-squares ``true_x`` is fitted over the cells each agent reaches.
 The search box: ``|x| <= box_radius`` per coordinate, and for ``E_x``, ``E_s`` also within
 the environment's behaviour bounds (``log lo <= x <= log hi``). Coordinates that cannot
 change anything are fixed at zero (:attr:`CalibrationProblem.free`): agents inactive in the
-scenario (impact-region rule, when ``masking`` is on) and transmission directions
-no increment can change in any cell an agent reaches (infeasible there, or the cell's only feasible one).
+scenario (impact-region rule, when ``masking`` is on), transmission directions
+no increment can change in any cell an agent reaches (infeasible there, or the cell's only feasible one), and
+``E_x``, ``E_s`` where the environment's behaviour bounds are ``[1, 1]`` (a box of no width).
 """
 
 from __future__ import annotations
@@ -270,11 +271,14 @@ class CalibrationProblem:
         feas_agent = torch.zeros(A, 5, dtype=f64).index_add_(
             0, self._agent_of, (movable_factors(self.feasible) & owned[:, None]).to(f64)
         )
-        self.free = torch.cat([torch.ones(A, 2, dtype=torch.bool), feas_agent > 0], dim=1) & self.active[:, None]
+        free = torch.cat([torch.ones(A, 2, dtype=torch.bool), feas_agent > 0], dim=1) & self.active[:, None]
         r = float(box_radius)
         lo_e, hi_e = max(-r, float(np.log(self.bounds[0]))), min(r, float(np.log(self.bounds[1])))
         lower = torch.tensor([lo_e, lo_e] + [-r] * 5, dtype=f64).expand(A, 7)
         upper = torch.tensor([hi_e, hi_e] + [r] * 5, dtype=f64).expand(A, 7)
+        # E_x, E_s whose behaviour bounds are [1, 1] have a box of no width: no increment changes them either (cma
+        # refused such a box, lm simulated a finite-difference point per coordinate that moved nothing)
+        self.free = free & (upper > lower)
         self.lower = torch.where(self.free, lower, 0.0)  # [A, 7]
         self.upper = torch.where(self.free, upper, 0.0)  # [A, 7]
 
