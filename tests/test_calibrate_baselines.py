@@ -563,3 +563,26 @@ def test_stiffnesses_frozen_by_the_behaviour_bounds_are_no_search_coordinates(pr
         budget = {"lm": frozen.n_free + 7, "gradient": 4}.get(method, 20)
         run = BASELINES[method][1](frozen, budget, config, 0)
         assert run.simulations == budget and bool((run.best_x[:, :2] == 0).all()), method
+
+
+def test_lm_stops_on_success_found_by_a_finite_difference_point(problem):
+    """With ``stop_on_success`` a run ends with the batch that holds the first passing candidate. lm's iteration is
+    two batches, the Jacobian's finite-difference points and then the damped steps; where a finite-difference point
+    passed, lm still simulated the damped steps (6 more simulations past the success). A threshold between the
+    initial fit and the best finite-difference point's makes the first pass one of those points."""
+    from marlcrash.calibrate.leastsq import fd_points
+
+    lo, hi = problem.flat_box()
+    points, _ = fd_points(torch.zeros_like(lo), lo, hi, LMConfig().fd_step)
+    init = float(problem.evaluate(problem.zeros(1)).area.max())
+    best = float(problem.evaluate(problem.unflat(points)).area.max(-1).values.min())
+    assert best < init
+    mid = build_problem(
+        from_dict(ProblemConfig, {"duration": DURATION, "success": {"area": 0.5 * (best + init), "dfd": None,
+                                                                     "rmse": None}}),
+        cells=problem.cells,
+    )  # fmt: skip
+    run = BASELINES["lm"][1](mid, 1 + 3 * (mid.n_free + 6), LMConfig(), 0, stop_on_success=True)
+    assert run.sims_to_success is not None and 1 < run.sims_to_success <= 1 + mid.n_free
+    assert run.simulations == 1 + mid.n_free  # the start and the finite-difference batch, no damped steps
+    assert run.history[-1, 0] == run.simulations and mid.n_simulations == run.simulations

@@ -562,6 +562,9 @@ def _lm_window(
     lam, stalled = float(config.damping), 0
 
     def run(zs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:  # window residuals, full residuals
+        if progress.done:  # a finite-difference point passed (stop_on_success): the damped steps are not simulated;
+            full = torch.full((zs.shape[0], *r.shape), float("nan"), dtype=torch.float64)  # NaN: never accepted
+            return full[:, :, :end].reshape(zs.shape[0], -1), full
         full = _residuals(problem, progress, problem.unflat(zs))[0]
         return full[:, :, :end].reshape(zs.shape[0], -1), full
 
