@@ -470,3 +470,16 @@ def test_cmaes_rows_count_their_generations_and_the_tables_mark_those_without_on
     assert done.rows == json.loads(json.dumps(comparison.rows)) and all(tuple(r) == COLUMNS for r in done.rows)
     again = amortized_comparison(small_config(run_dir), done=done)  # nothing left to run
     assert again.rows == done.rows
+
+
+def test_the_script_without_a_run_says_so_even_when_resuming(tmp_path):
+    """``resume=true`` without ``run=`` looked for a comparison in the launch folder and failed with "key 'resume': no
+    comparison to continue in ." (or, where the launch folder held one, went on to the missing run only then); without
+    ``resume`` a launch folder holding an ``amortized.json`` was refused as "key 'out_dir'". The missing run is said."""
+    (tmp_path / "amortized.json").write_text("{}")  # an earlier comparison in the launch folder
+    for extra in (["resume=true"], []):
+        out = subprocess.run([sys.executable, str(REPO / "train" / "amortized.py"), *extra], capture_output=True,
+                             text=True, cwd=tmp_path, timeout=300)  # fmt: skip
+        assert out.returncode == 2 and "key 'run'" in out.stderr and "run=runs/mappo/<name>" in out.stderr, extra
+        assert "Traceback" not in out.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["amortized.json"]

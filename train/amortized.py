@@ -31,7 +31,7 @@ from marlcrash.calibrate.amortized import (
     write_comparison,
 )
 from marlcrash.calibrate.entry import exit_on_bad_overrides
-from marlcrash.errors import MarlcrashError
+from marlcrash.errors import ConfigError, MarlcrashError
 from marlcrash.outputs import check_output_dir
 
 
@@ -40,7 +40,9 @@ def main(cfg: DictConfig) -> None:
     command = "python train/amortized.py " + " ".join(shlex.quote(a) for a in sys.argv[1:])
     try:
         config = load_amortized_config(OmegaConf.to_container(cfg, resolve=True), source="configs/train/amortized.yaml")
-        where = config.out_dir or config.run or "."
+        if config.run is None:  # a resume looked for its comparison in the launch folder and named key 'resume'
+            raise ConfigError("expected a training run folder, e.g. run=runs/mappo/<name>", key="run")
+        where = config.out_dir or config.run
         # before the work, not after it: a new comparison needs a folder without one, a resumed one its record
         done = read_comparison(where) if config.resume else None
         out = check_output_dir(where, "out_dir") if config.resume else check_comparison_dir(where)
