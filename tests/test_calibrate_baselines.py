@@ -21,6 +21,7 @@ from marlcrash.calibrate import (
     build_problem,
     load_run_config,
 )
+from marlcrash.calibrate.problem import SmoothLoss
 from marlcrash.config import config_dir, from_dict, load_yaml
 from marlcrash.envs.core import build_cells
 from marlcrash.errors import ConfigError
@@ -586,3 +587,27 @@ def test_lm_stops_on_success_found_by_a_finite_difference_point(problem):
     assert run.sims_to_success is not None and 1 < run.sims_to_success <= 1 + mid.n_free
     assert run.simulations == 1 + mid.n_free  # the start and the finite-difference batch, no damped steps
     assert run.history[-1, 0] == run.simulations and mid.n_simulations == run.simulations
+
+
+@pytest.mark.parametrize(
+    ("method", "config", "key"),
+    [
+        ("cmaes", CMAESConfig(sigma0=-1.0), "cmaes.sigma0"),  # ran, with a negative step
+        ("cmaes", CMAESConfig(popsize=0), "cmaes.popsize"),  # ValueError inside cma after the start
+        ("gradient", GradientConfig(batch_size=0), "gradient.batch_size"),  # IndexError
+        ("gradient", GradientConfig(loss=SmoothLoss(area_scale=0.0)), "gradient.loss.area_scale"),
+        ("lm", LMConfig(windows=[0.5]), "lm.windows"),  # fitted half the window and stopped
+        ("random_search", RandomSearchConfig(radius=0.0), "random_search.radius"),  # drew the centre alone
+        ("random_search", RandomSearchConfig(batch_size=0), "random_search.batch_size"),  # never ended
+    ],
+)
+def test_settings_made_in_python_are_checked_before_any_simulation(problem, method, config, key):
+    """The loaders check a config file's settings; a baseline called from Python with settings made there ran them
+    unchecked: random search with batch_size 0 granted 0 candidates per batch forever, cmaes with popsize 0 failed
+    inside ``cma``, gradient descent with batch_size 0 in an IndexError, and cmaes with sigma0 -1, lm with windows
+    [0.5] or random search with radius 0 ran without a word. Each is refused before the start is simulated, naming the
+    key as the config file has it."""
+    before = problem.n_simulations
+    with pytest.raises(ConfigError) as e:
+        BASELINES[method][1](problem, problem.n_free + 7, config, 0)  # one lm iteration
+    assert e.value.key == key and problem.n_simulations == before

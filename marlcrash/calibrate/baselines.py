@@ -44,7 +44,8 @@ and the first history row are measured, not assumed.
   Deterministic for a seed (restart noise).
 
 Every method refuses a problem with no free coordinate (its masking left no agent active in the scenario:
-:func:`check_free_coordinates`) before it simulates anything.
+:func:`check_free_coordinates`) and settings made in Python that a config file could not hold (checked as the
+loaders check a file's, keys named ``<method>.<key>``) before it simulates anything.
 """
 
 from __future__ import annotations
@@ -68,7 +69,15 @@ from marlcrash.calibrate.budget import Progress
 from marlcrash.calibrate.leastsq import STEP_FACTORS, check_fd_step, lm_iteration
 from marlcrash.calibrate.problem import CalibrationProblem, ProblemConfig, SmoothLoss, problem_env_config
 from marlcrash.calibrate.runlock import claim_dir
-from marlcrash.config import from_dict, nested_error, require, require_complete, require_seed, require_threads
+from marlcrash.config import (
+    checked,
+    from_dict,
+    nested_error,
+    require,
+    require_complete,
+    require_seed,
+    require_threads,
+)
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics
 from marlcrash.outputs import (
@@ -313,6 +322,7 @@ def random_search(
     problem: CalibrationProblem, budget: int, config: RandomSearchConfig, seed: int, stop_on_success: bool = False
 ) -> CalibrationResult:
     """Batched random search (module docstring) with a seeded numpy Generator."""
+    config = checked(config, "random_search")  # settings made in Python: no loader checked them
     check_free_coordinates(problem, "random_search")
     rng = np.random.default_rng(seed)
     progress = Progress(budget, stop_on_success)
@@ -344,6 +354,7 @@ def cmaes(
     """
     import cma
 
+    config = checked(config, "cmaes")  # settings made in Python: no loader checked them
     check_free_coordinates(problem, "cmaes")
     if budget < 1 + config.popsize:
         warnings.warn(
@@ -395,6 +406,7 @@ def gradient_descent(
     problem: CalibrationProblem, budget: int, config: GradientConfig, seed: int, stop_on_success: bool = False
 ) -> CalibrationResult:
     """Projected Adam through the differentiable surrogate (module docstring), seeded torch Generator."""
+    config = checked(config, "gradient")  # settings made in Python: no loader checked them
     check_free_coordinates(problem, "gradient")
     gen = torch.Generator().manual_seed(seed)
     progress = Progress(budget, stop_on_success)
@@ -514,7 +526,8 @@ def levenberg_marquardt(
             :func:`check_free_coordinates`), or a budget below one iteration (key ``budget``,
             :func:`check_lm_budget`).
     """
-    check_lm_fd_step(config, problem.sim.config.dtype)  # called from Python: no config loading checked it
+    config = checked(config, "lm")  # settings made in Python: no loader checked them
+    check_lm_fd_step(config, problem.sim.config.dtype)  # nor the step against the problem's precision
     check_free_coordinates(problem, "lm")
     check_lm_budget(problem, budget)
     gen = torch.Generator().manual_seed(seed)
