@@ -1691,3 +1691,14 @@ def test_read_mme_of_no_channels_is_a_clear_error():
         read_mme(DATA / "HS40", channels=[])
     with pytest.raises(PulseError, match=r"channels: expected at least one channel name, got \(\)"):
         read_pulse(DATA / "HS40", acc_col=())
+
+
+def test_read_csv_of_no_acceleration_columns_is_a_clear_error(tmp_path, analytic):
+    """``acc_col=[]`` (an empty selection) returned a pulse of no channels, which failed later far from the option;
+    now a PulseError naming the option and what was expected, as ``read_mme`` does for ``channels=[]``."""
+    path = write_csv(analytic, tmp_path / "p.csv")
+    with pytest.raises(PulseError, match=r"acc_col: expected at least one column name, got \[\]"):
+        read_csv(path, acc_col=[])
+    with pytest.raises(PulseError, match=r"acc_col: expected at least one column name, got \(\)"):
+        read_pulse(path, acc_col=())
+    assert read_csv(path, acc_col=["radsup"]).channels == ("radsup",)

@@ -207,6 +207,8 @@ def read_csv(
         raise PulseError(f"sign: expected +1 or -1, got {sign!r}")
     if max_gap is not None and not (math.isfinite(max_gap) and max_gap > 1):
         raise PulseError(f"max_gap: expected a multiple of the median sampling interval > 1 or None, got {max_gap!r}")
+    if acc_col is not None and not isinstance(acc_col, str) and len(acc_col) == 0:  # was a pulse of no channels
+        raise PulseError(f"acc_col: expected at least one column name, got {acc_col!r}")
     lines = _read_text_lines(path)
     first, delim, header, ti = _csv_header(path, lines, time_col)
     if acc_col is None and first_only:
