@@ -232,6 +232,12 @@ def test_pulse_reads_a_table_of_breakpoints(tmp_path):
     assert got["peak_g"] == pytest.approx(20.0, rel=0.02)
     proc = run_cli("pulse", str(corners), "--breakpoints", check=False)  # ms read as s: 200 s of 20 g
     assert proc.returncode == 2 and "the breakpoints span 200 s" in proc.stderr and "Traceback" not in proc.stderr
+    proc = run_cli("pulse", str(DATA / "HS40"), "--breakpoints", check=False)  # named no option
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert (
+        "error: HS40: --breakpoints (breakpoints=True) applies to CSV files only: an ISO-MME channel is sampled, "
+        "not a table of breakpoints"
+    ) in proc.stderr
 
 
 def test_pulse_notes_a_record_too_short_for_its_filter(tmp_path):

@@ -769,8 +769,11 @@ def test_a_table_of_breakpoints_is_sampled_between_its_corners(tmp_path):
     one.write_text("time,acc\n0,-1\n")
     with pytest.raises(PulseError, match=r"one\.csv: expected at least 2 breakpoints, got 1"):
         read_csv(one, breakpoints=True)
-    with pytest.raises(PulseError, match="HS40: an ISO-MME channel is sampled, not a table of breakpoints"):
+    with pytest.raises(PulseError, match=r"HS40: --breakpoints \(breakpoints=True\) applies to CSV files only: an "
+                       "ISO-MME channel is sampled, not a table of breakpoints"):  # fmt: skip
         processed_pulse(Path(__file__).parent / "data" / "HS40", breakpoints=True)
+    with pytest.raises(PulseError, match=r"HS40: breakpoints=True applies to CSV files only"):
+        read_pulse(Path(__file__).parent / "data" / "HS40", breakpoints=True)
     square = tmp_path / "square.csv"  # vertical edges: two rows of one time; the last corner off the 0.1 ms grid
     square.write_text("time,acc\n0,0\n0.01,0\n0.01,-20\n0.05,-20\n0.05,0\n0.08005,-4\n")
     q = read_csv(square, breakpoints=True)

@@ -1124,7 +1124,8 @@ def read_pulse(path: str | Path, **kwargs: Any) -> Pulse:
                 raise PulseError(f"{path.name}: ISO-MME channels carry their own time base ('Time of first sample', "
                                  f"'Sampling interval', in s); do not pass {key}={value!r}")  # fmt: skip
         if kwargs.pop("breakpoints", False):
-            raise PulseError(f"{path.name}: an ISO-MME channel is sampled, not a table of breakpoints (CSV only)")
+            raise PulseError(f"{path.name}: breakpoints=True applies to CSV files only: an ISO-MME channel is "
+                             "sampled, not a table of breakpoints")  # fmt: skip
         return read_mme(path, **kwargs)
     if path.suffix.lower() in (".csv", ".txt"):
         return read_csv(path, **kwargs)
@@ -1256,7 +1257,8 @@ def processed_pulse(
     if not mme:
         kwargs.update(time_col=time_col, unit=unit, time_unit=time_unit, breakpoints=breakpoints)
     elif breakpoints:
-        raise _err("an ISO-MME channel is sampled, not a table of breakpoints (CSV only)", p)
+        raise _err("--breakpoints (breakpoints=True) applies to CSV files only: an ISO-MME channel is sampled, not "
+                   "a table of breakpoints", p)  # fmt: skip
     else:  # named as typed, on the command line (marlcrash pulse) and in Python
         given = [f"--{name.replace('_', '-')} {value} ({name}={value!r})"
                  for name, value, default in (("time_col", time_col, None), ("unit", unit, "g"),
