@@ -178,6 +178,11 @@ class ReferenceConfig:
         require(self.kind != "file" or bool(self.files), "files", "kind 'file' needs at least one entry in files")
         if self.kind == "file" and self.file_scenario is not None:
             require_file_scenario(self, self.file_scenario, "file_scenario")
+        require(  # before the tests' cfc, which names compare_cfc's value as the one expected
+            self.compare_cfc in (None, 60, 180, 600, 1000),
+            "compare_cfc",
+            f"expected a CFC class (60, 180, 600, 1000) or null, got {self.compare_cfc!r}",
+        )
         for i, f in enumerate(self.files):  # the file and the simulation must be compared as the same signal
             require(f.cfc is None or f.cfc == self.compare_cfc, f"files[{i}].cfc",
                     f"expected the compared signal's class, compare_cfc = {self.compare_cfc} (or null: the file is "
@@ -186,11 +191,6 @@ class ReferenceConfig:
                 f"expected a duration in [0, 0.1] s, got {self.compare_margin}")  # fmt: skip
         require(self.pin_seed is None or self.pin_seed >= 0, "pin_seed",
                 f"expected a reference seed >= 0 or null, got {self.pin_seed}")  # fmt: skip
-        require(
-            self.compare_cfc in (None, 60, 180, 600, 1000),
-            "compare_cfc",
-            f"expected a CFC class (60, 180, 600, 1000) or null, got {self.compare_cfc!r}",
-        )
 
 
 def require_file_scenario(config: ReferenceConfig, scenario: str, key: str) -> None:

@@ -499,6 +499,10 @@ def test_file_reference_settings_that_cannot_line_up_are_refused(cells, sim, tmp
         from_dict(ReferenceConfig, {"kind": "file", "files": [{**spec, "cfc": 180}]})
     assert e.value.key == "files[0].cfc"
     from_dict(ReferenceConfig, {"kind": "file", "compare_cfc": 180, "files": [{**spec, "cfc": 180}]})
+    for cfc in (100, 0):  # not a class: named as compare_cfc, not as the test's cfc that matches the default
+        with pytest.raises(ConfigError, match=rf"expected a CFC class \(60, 180, 600, 1000\) or null, got {cfc}") as e:
+            from_dict(ReferenceConfig, {"kind": "file", "compare_cfc": cfc, "files": [spec]})
+        assert e.value.key == "compare_cfc"
     with pytest.raises(ConfigError, match=r"unknown scenario 'full_width_30'; registered: \[") as e:
         from_dict(ReferenceConfig, {"kind": "file", "files": [{**spec, "scenario": "full_width_30"}]})
     assert e.value.key == "files[0].scenario"  # was 'scenario', when the env was built
