@@ -501,7 +501,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--time-col", help="CSV time column; default: the first column named like time, else the first")
     p.add_argument("--time-unit", choices=["s", "ms"], default="s", help="CSV time unit (default s)")
     p.add_argument("--acc-col", help="acceleration column / ISO-MME channel; default: the first acceleration")
-    p.add_argument("--unit", choices=["g", "m/s2"], default="g", help="CSV acceleration unit (default g)")
+    p.add_argument("--unit", choices=["g", "m/s2", "mm/s2"], default="g", help="CSV acceleration unit (default g)")
     p.add_argument("--cfc", type=int, default=60, choices=[0, 60, 180, 600, 1000], help="CFC class, 0 for none")
     p.add_argument(
         "--breakpoints",

@@ -223,6 +223,28 @@ def test_pulse_column_unit_and_filter_options(tmp_path):
         assert proc.returncode == 2 and "is the time column in ms (--time-unit ms" in proc.stderr
 
 
+def test_pulse_header_units_are_read_with_an_option_the_command_takes(tmp_path):
+    """A column whose header gives its unit as m/s^2 or mm/s2 (both known to the reader) read in g was refused with
+    the hint '--unit m/s^2' / '--unit mm/s2', which ``marlcrash pulse`` refused in turn (its --unit took g and m/s2
+    only): a CSV of mm/s2 could not be read by the command at all. The hint now spells the unit as --unit takes it,
+    and --unit takes mm/s2."""
+    t = np.arange(0.0, 0.2, 1e-4)
+    acc = np.where(t <= 0.08, -30 * 9.80665 * np.sin(np.pi * np.clip(t, 0, 0.08) / 0.08), 0.0)  # [m/s^2]
+    files = {}
+    for name, unit, scale in (("ms2", "m/s^2", 1.0), ("mm", "mm/s2", 1e3)):
+        files[name] = tmp_path / f"{name}.csv"
+        rows = "".join(f"{a:.5f},{b * scale:.6f}\n" for a, b in zip(t, acc, strict=True))
+        files[name].write_text(f"time,acc [{unit}]\n" + rows)
+    for name, said, typed in (("ms2", "m/s^2", "m/s2"), ("mm", "mm/s2", "mm/s2")):
+        proc = run_cli("pulse", str(files[name]), check=False)
+        assert proc.returncode == 2 and "Traceback" not in proc.stderr
+        assert f"is in {said} by its header, but is read in g: give that unit (--unit {typed}; unit: {typed})" in (
+            proc.stderr
+        ), proc.stderr
+        got = json.loads(run_cli("pulse", str(files[name]), "--unit", typed, "--time-zero", "file", "--json").stdout)
+        assert got["delta_v_ms"] == pytest.approx(2 * 30 * 9.80665 * 0.08 / np.pi, rel=1e-3)  # half-sine: 2 A tau/pi
+
+
 def test_pulse_reads_a_table_of_breakpoints(tmp_path):
     corners = tmp_path / "corners.csv"  # a 20 g trapezoid given by its corners, time in ms
     corners.write_text("time,acc\n0,0\n10,-20\n60,-20\n80,0\n200,0\n")

@@ -61,6 +61,7 @@ from marlcrash.pulse.signal import (
 from marlcrash.units import G0
 
 ACC_UNITS = {"g": G0, "m/s2": 1.0, "m/s^2": 1.0, "m/s**2": 1.0, "m/s²": 1.0, "m/(s*s)": 1.0, "mm/s2": 1e-3}
+"""SI factor of each acceleration unit spelling; a factor's first spelling is the one ``pulse --unit`` takes."""
 _TIME_UNITS = {"s": 1.0, "ms": 1e-3}
 _TIME_NAMES = ("time", "t", "zeit", "time_s", "time [s]", "time (s)")
 MIN_GAP_S = 2.5e-3
@@ -232,9 +233,10 @@ def read_csv(
         if said is not None and acc_unit_key(said) not in ACC_UNITS:
             _unknown_unit_warning(header[j], said, sorted(ACC_UNITS), unit, path, first + 1)
         elif said is not None and ACC_UNITS[acc_unit_key(said)] != factor:
+            typed = next(k for k, v in ACC_UNITS.items() if v == ACC_UNITS[acc_unit_key(said)])  # as --unit takes it
             raise _err(
                 f"column {header[j]!r} is in {said} by its header, but is read in {unit}: give that unit "
-                f"(--unit {said}; unit: {said})",
+                f"(--unit {typed}; unit: {typed})",
                 path,
                 first + 1,
             )
