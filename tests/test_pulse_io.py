@@ -1070,6 +1070,22 @@ def test_write_csv_quotes_channel_names_that_hold_a_comma_or_a_quote(tmp_path):
     assert back.channels == p.channels
 
 
+def test_write_csv_keeps_a_remark_at_the_end_of_a_name_and_writes_the_unit_over_a_unit(tmp_path):
+    """``write_csv`` wrote its unit over any bracketed end of a name, a remark too: channels ``acc [CH1]`` and ``acc
+    [CH2]`` became two columns ``acc [g]``, a header read_csv refused ('duplicate column name'), and ``tunnel
+    (filtered)`` came back as ``tunnel (g)``. A remark is kept (read_csv reads it as no unit); a unit, known or not,
+    is replaced by the one written."""
+    t = np.arange(0.0, 0.05, 1e-4)
+    acc = np.stack([-9.80665 * np.sin(40 * t), 2 * 9.80665 * np.cos(40 * t), np.ones_like(t), -np.ones_like(t)])
+    p = Pulse(t, acc, ("acc [CH1]", "acc [CH2]", "tunnel (filtered)", "a_x [m/s2]"))
+    back = read_csv(write_csv(p, tmp_path / "remarks.csv", time_col="t (ms)"))
+    assert back.channels == ("acc [CH1]", "acc [CH2]", "tunnel (filtered)", "a_x [g]")
+    np.testing.assert_allclose(back.acc, acc, rtol=1e-12)
+    np.testing.assert_allclose(back.time, t, rtol=0, atol=1e-15)
+    path = write_csv(Pulse(t, acc[:2], ("acc [mg]", "b (x)")), tmp_path / "si.csv", unit="m/s2", time_col="t [run 2]")
+    assert path.read_text().splitlines()[0] == "t [run 2],acc [m/s2],b (x)"
+
+
 def test_the_pulse_summary_reads_only_the_first_acceleration_column_of_a_csv(tmp_path):
     """``marlcrash pulse FILE`` summarizes the first acceleration column (as it reads only the first acceleration
     channel of an ISO-MME test); a lab export's other columns, a remark column left empty or a channel that ends

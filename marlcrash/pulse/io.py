@@ -143,9 +143,14 @@ def _unknown_unit_warning(name: str, said: str, known: list[str], read_in: str, 
 
 
 def _with_unit(name: str, unit: str) -> str:
-    """``name`` with the unit at its end replaced by ``unit``; unchanged without one."""
+    """``name`` with the unit at its end replaced by ``unit``; unchanged without one. A bracketed end that is no unit
+    (``[CH1]``, ``(filtered)``, which :func:`read_csv` reads as none) is a remark, and kept."""
     m = _UNIT_AT_END.search(name)
-    return name if m is None else f"{name[: m.start()]}{m.group(1)}{unit}{m.group(3)}"
+    if m is None:
+        return name
+    said = m.group(2).strip()
+    is_unit = acc_unit_key(said) in ACC_UNITS or said.lower() in _TIME_UNITS or _UNIT_LIKE.fullmatch(said)
+    return f"{name[: m.start()]}{m.group(1)}{unit}{m.group(3)}" if is_unit else name
 
 
 def acc_unit_factor(unit: str, path: str | Path | None = None, line: int | None = None) -> float:
