@@ -576,6 +576,25 @@ def test_a_threshold_reference_of_a_noisy_record_with_an_offset_is_its_pulse(cel
     assert np.max(np.abs(v - analytic)) < (0.03 if noise_g == 0 else 0.3)
 
 
+@pytest.mark.parametrize("start", [1.0, 0.1])
+def test_a_file_time_zero_outside_the_record_is_named_as_such(cells, sim, tmp_path, start):
+    """A record on a clock that starts after its t = 0 (a logger's clock from 1 s), read with ``time_zero: file``,
+    was refused for something else: 'resampling window [0.98, 0.16] s must lie inside the record', or, from 0.1 s,
+    'expected 301 samples after time zero, got 160; the record is too short' of a record of 400 ms. Now the time
+    zero outside the record is said, with the option that reads such a record; read so, it is the pulse."""
+    t = np.arange(0.0, 0.4, 1e-4) + start
+    acc_g = np.where((t > start + 0.01) & (t < start + 0.09), -20 * np.sin(np.pi * (t - start - 0.01) / 0.08), 0.0)
+    path = tmp_path / "clock.csv"
+    path.write_text("time,acc\n" + "".join(f"{a:.5f},{b:.6f}\n" for a, b in zip(t, acc_g, strict=True)))
+    spec = {"path": str(path), "scenario": "full_width_40", "channels": dict.fromkeys(cells.sensor_names, "acc")}
+    with pytest.raises(PulseError, match=rf"clock\.csv: time zero t = 0 ms \(the file's t = 0, time_zero: file\) "
+                       rf"lies outside the record \[{start * 1e3:g}, .*\] ms.*time_zero: threshold"):  # fmt: skip
+        sampler(cells, sim, kind="file", files=[FileReference(**spec)])
+    v = sampler(cells, sim, kind="file", files=[FileReference(**spec, time_zero="threshold")]).sample(
+        np.random.default_rng(0), 1).velocity[0, 0].numpy()  # fmt: skip
+    assert v[-1] == pytest.approx(40 / 3.6 - 2 * 20 * 9.80665 * 0.08 / np.pi, abs=0.01)
+
+
 def test_file_reference_errors(cells, sim, tmp_path):
     spec = FileReference(
         path=str(DATA / "halfsine_40kmh.csv"), scenario="full_width_40", channels={"tunnel": "tunnel_acx"}

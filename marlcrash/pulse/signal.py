@@ -1057,7 +1057,8 @@ def prepare_velocity(
 
     Raises:
         PulseError: a ``duration`` that is not a window > 0 s, a ``rate_hz`` that is not a rate > 0 Hz, a
-            ``beyond`` < 0 s, or a record that ends before the window does (naming the file).
+            ``beyond`` < 0 s, time zero outside the record (the file's t = 0 of a record on another clock), or a
+            record that ends before the window does (naming the file).
     """
     if not (math.isfinite(beyond) and beyond >= 0):
         raise PulseError(f"beyond must be a duration >= 0 s, got {beyond!r}")
@@ -1067,6 +1068,13 @@ def prepare_velocity(
     if not (_is_real(rate_hz) and math.isfinite(rate_hz) and rate_hz > 0):
         raise PulseError(f"rate_hz: expected a finite output rate > 0 Hz, got {rate_hz!r}")
     p, t0 = filtered_from_time_zero(pulse, cfc, time_zero, threshold_g)
+    if not p.time[0] <= t0 < p.time[-1]:  # the file's t = 0 off a record on another clock
+        what, hint = ("its onset", "")
+        if time_zero == "file":
+            what = "the file's t = 0, time_zero: file"
+            hint = ": its clock does not start at the contact; read it with time_zero: threshold (the pulse's onset)"
+        raise PulseError(f"{pulse.source or 'pulse'}: time zero t = {t0 * 1e3:.4g} ms ({what}) lies outside the record "
+                         f"[{pulse.time[0] * 1e3:.6g}, {pulse.time[-1] * 1e3:.6g}] ms{hint}")  # fmt: skip
     t_end = p.time[-1] if duration is None else t0 + float(duration)
     if t_end > p.time[-1] + 1e-9:
         raise PulseError(
