@@ -338,8 +338,16 @@ def test_time_zero_outside_the_record_names_the_record_as_written(tmp_path):
 
     early = tmp_path / "early.csv"  # ends 50 ms before the file's time zero
     early.write_text("time,acc\n" + "".join(f"{-0.2 + k * 5e-4:.4f},-1.0\n" for k in range(301)))
-    with pytest.raises(PulseError, match=r"early\.csv: time zero 0 s lies outside the record \[-0\.2, -0\.05\] s"):
+    with pytest.raises(PulseError, match=r"early\.csv: time zero 0 s \(the file's t = 0, --time-zero file; "
+                       r"time_zero='file'\) lies outside the record \[-0\.2, -0\.05\] s"):  # fmt: skip
         processed_pulse(early, time_zero="file")
+    # the file's t = 0 of a record on a clock from 1 s: the option that reads it is named (the error named none)
+    late = tmp_path / "late.csv"
+    late.write_text("time,acc\n" + "".join(f"{1 + k * 5e-4:.4f},-1.0\n" for k in range(301)))
+    with pytest.raises(PulseError, match=r"late\.csv: time zero 0 s \(the file's t = 0, --time-zero file; "
+                       r"time_zero='file'\) lies outside the record \[1, 1\.15\] s: its clock does not start at the "
+                       r"contact; read it with --time-zero threshold \(time_zero='threshold'\)"):  # fmt: skip
+        processed_pulse(late, time_zero="file")
 
 
 def test_pulse_rejects_non_increasing_time_and_nan():

@@ -1295,7 +1295,13 @@ def processed_pulse(
             raise _err(str(e), p) from None
         raise
     if not work.time[0] <= t0 < work.time[-1]:
-        raise _err(f"time zero {t0:.6g} s lies outside the record [{pulse.time[0]:.6g}, {pulse.time[-1]:.6g}] s", p)
+        what = hint = ""
+        if time_zero == "file":  # named as typed, on the command line and in Python
+            what = " (the file's t = 0, --time-zero file; time_zero='file')"
+            hint = (": its clock does not start at the contact; read it with --time-zero threshold "
+                    "(time_zero='threshold')")  # fmt: skip
+        raise _err(f"time zero {t0:.6g} s{what} lies outside the record [{pulse.time[0]:.6g}, "
+                   f"{pulse.time[-1]:.6g}] s{hint}", p)  # fmt: skip
     return pulse, work, t0
 
 
