@@ -337,7 +337,10 @@ def cmd_pulse(args: argparse.Namespace) -> int:
                 "--cfc 0 for unfiltered figures)",
                 file=sys.stderr,
             )
-    if summary["delta_v_150ms_ms"] is None:
+    if summary["delta_v_150ms_ms"] is None and args.time_zero == "file":  # the option the note below names
+        print("note: delta_v_150ms_ms is null: the record ends less than 150 ms after time zero (the file's t = 0)",
+              file=sys.stderr)  # fmt: skip
+    elif summary["delta_v_150ms_ms"] is None:
         print(
             f"note: delta_v_150ms_ms is null: the record ends less than 150 ms after time zero "
             f"(t0 = {summary['t0_ms']:.2f} ms on the file's clock); if the file's t = 0 is the impact "

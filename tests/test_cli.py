@@ -186,6 +186,13 @@ def test_pulse_plot_of_a_non_uniform_record_and_a_short_record_note(tmp_path):
     assert json.loads(proc.stdout)["delta_v_150ms_ms"] is None and "--time-zero file" in proc.stderr
     proc = run_cli("pulse", str(short), "--json", "--time-zero", "file")
     assert json.loads(proc.stdout)["delta_v_150ms_ms"] is not None and "note" not in proc.stderr
+    shorter = tmp_path / "shorter.csv"  # 100 ms from the file's t = 0: read with --time-zero file, which it named
+    keep = ts <= 0.1
+    shorter.write_text("time,acc\n" + "".join(f"{a:.9g},{b:.9g}\n" for a, b in zip(ts[keep], acc_s[keep], strict=True)))
+    proc = run_cli("pulse", str(shorter), "--json", "--time-zero", "file")
+    assert json.loads(proc.stdout)["delta_v_150ms_ms"] is None
+    said = "note: delta_v_150ms_ms is null: the record ends less than 150 ms after time zero (the file's t = 0)"
+    assert said in proc.stderr and "use --time-zero file" not in proc.stderr, proc.stderr
 
 
 def test_pulse_column_unit_and_filter_options(tmp_path):
