@@ -506,6 +506,20 @@ def test_parameter_validation_errors():
             sim.run(_params(cells), FW40, record_cells="all", backend=backend)
 
 
+def test_params_that_are_not_numbers_are_refused_by_name():
+    """Parameters given as text, None or a ragged nested list failed inside torch ("new(): invalid data type 'str'",
+    "Could not infer dtype of NoneType", "expected sequence of length 7 at dim 2 (got 6)"), naming no argument."""
+    cells = block()
+    sim = Surrogate(cells)
+    ragged = _params(cells)[0].tolist()
+    ragged[4] = ragged[4][:6]
+    for bad in ("params.npy", None, ragged, [[object()] * 7] * cells.n_cells):
+        with pytest.raises(ModelError, match=r"params must be an array or tensor of numbers \[B, 41, 7\], got "):
+            sim.run(bad, FW40, duration=0.002)
+    out = sim.run(_params(cells)[0].tolist(), FW40, duration=0.002)  # a nested list of numbers is fine
+    assert out.velocity.shape[0] == 1
+
+
 def test_bad_per_row_scenario_tensors_are_named_with_what_was_wrong():
     """A NaN speed was reported as a wrong shape ("must be a finite tensor of shape [2], got [2]"), a speed given as
     text failed inside torch ("new(): invalid data type 'str'"), and an out-of-range row was reported by printing

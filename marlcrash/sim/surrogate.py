@@ -330,6 +330,12 @@ class WallProps:
     speed: torch.Tensor  # [B] impact speed [m/s]
 
 
+def _short(x, limit: int = 80) -> str:
+    """``repr(x)``, cut to ``limit`` characters for a message (a parameter list repeats thousands of numbers)."""
+    r = repr(x)
+    return r if len(r) <= limit else r[: limit - 3] + "..."
+
+
 def _checked_scenario(scenario: CrashScenario | None) -> CrashScenario | None:
     """``scenario`` checked as a registered file's values are (a :class:`CrashScenario` built in Python skipped that:
     a side of ``up`` failed with a ``KeyError``, a sensor list given as one name was split into letters).
@@ -470,10 +476,16 @@ class Surrogate:
         Null and rigid cells' rows are ignored (not checked, replaced by neutral values).
 
         Raises:
-            ModelError: wrong shape, not on the CPU, non-finite values, ``E_x <= 0`` or ``E_s <= 0`` or
+            ModelError: not numbers, wrong shape, not on the CPU, non-finite values, ``E_x <= 0`` or ``E_s <= 0`` or
                 negative transmission factors in an active cell (named by index and parameter).
         """
-        p = torch.as_tensor(params)
+        try:
+            p = torch.as_tensor(params)
+        except (TypeError, ValueError, RuntimeError):  # text, None, a ragged list: torch's "invalid data type 'str'"
+            raise ModelError(
+                f"params must be an array or tensor of numbers [B, {self.n}, {N_PARAMS}], got "
+                f"{type(params).__name__} {_short(params)}"
+            ) from None
         if p.device.type != "cpu":  # with CUDA: "Expected all tensors to be on the same device" from deep inside
             raise ModelError(f"params must be on the CPU (the surrogate runs there), got device {p.device}")
         if p.ndim == 2:
