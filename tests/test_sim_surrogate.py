@@ -541,6 +541,28 @@ def test_bad_per_row_scenario_tensors_are_named_with_what_was_wrong():
                 sim.run(p, sc, backend=backend, record_cells="none", **kw)
 
 
+def test_complex_or_boolean_scenario_tensors_are_refused():
+    """A complex speed was cast to its real part with only torch's warning (12 + 5j m/s ran at 12 m/s) and a boolean
+    was taken as a number (``speed=True`` ran at 1 m/s, ``side=[True, True]`` as +1): each is refused by name."""
+    cells = block()
+    sim = Surrogate(cells)
+    p = _params(cells, 2)
+    sc = get_scenario("full_width_40", {"duration": 0.002})
+    for kw in (
+        {"speed": torch.tensor([10.0 + 0j, 12.0 + 5j])},
+        {"speed": np.array([10.0, 12.0 + 5j])},
+        {"speed": True},
+        {"side": torch.tensor([True, True])},
+        {"overlap": np.array([True, True])},
+    ):
+        (name,) = kw
+        with pytest.raises(ModelError, match=rf"'{name}' must be a number or a tensor of numbers .*, got "):
+            sim.run(p, sc, record_cells="none", **kw)
+    # real numbers of any kind still go: Python floats, integers, numpy and torch arrays
+    for kw in ({"speed": 11}, {"speed": np.array([11, 12])}, {"side": torch.tensor([1, -1])}, {"overlap": [1.0, 0.5]}):
+        assert sim.run(p, sc, record_cells="none", **kw).velocity.shape[0] == 2
+
+
 def test_sensor_names_given_to_run_are_checked_as_a_scenario_checks_them():
     """``sensors="tunnel"`` was split into letters ("unknown sensors ['t', 'u', 'n', ...]") and a name given twice
     recorded the same signal twice, where a scenario file with a duplicate is refused."""

@@ -590,10 +590,18 @@ class Surrogate:
                 x = default
             if isinstance(x, torch.Tensor) and x.device.type != "cpu":
                 raise ModelError(f"'{name}' must be on the CPU (the surrogate runs there), got device {x.device}")
-            try:
+            try:  # real numbers: a complex one was cast to its real part (only torch warned), a bool taken as 1 or 0
+                if isinstance(x, torch.Tensor):
+                    real = not (x.dtype.is_complex or x.dtype == torch.bool)
+                else:
+                    real = np.asarray(x).dtype.kind in "iuf"  # numpy's dtype: torch's is float32 for Python floats
+                if not real:
+                    raise TypeError
                 x = torch.as_tensor(x, dtype=self.dtype)
             except (TypeError, ValueError, RuntimeError):  # text, None in a list: torch's "invalid data type"
-                raise ModelError(f"'{name}' must be a number or a tensor of numbers {unit[name]}, got {x!r}") from None
+                raise ModelError(
+                    f"'{name}' must be a number or a tensor of numbers {unit[name]}, got {_short(x)}"
+                ) from None
             if x.ndim == 0:
                 x = x.expand(batch)
             if x.shape != (batch,):
