@@ -683,6 +683,26 @@ def test_cells_at_takes_the_per_cell_energies_and_saturation_at_that_sample(back
             run(0.06, record_cells="final", cells_at=bad)
 
 
+def test_duration_and_cells_at_that_are_not_numbers_are_refused_by_name():
+    """``duration="0.01"`` ran (float() reads text), ``duration=True`` ran 1 s, and ``duration=[0.01]`` or
+    ``cells_at="end"`` failed with float()'s own TypeError or ValueError, naming no argument."""
+    cells = block()
+    sim = Surrogate(cells)
+    p = _params(cells)
+    for key in ("duration", "cells_at"):
+        for bad in ("0.01", [0.01], None if key == "duration" else "end", True, 0.01 + 0j):
+            if bad is None:
+                continue
+            kw = {"duration": 0.01, key: bad}
+            with pytest.raises(ModelError, match=rf"^{key} must be a time in s \(a real number\), got "):
+                sim.run(p, FW40, record_cells="final", **kw)
+    # numbers of any kind still go: an int, a numpy scalar, a 0-d array or tensor
+    for d in (np.float64(0.01), np.array(0.01), torch.tensor(0.01, dtype=torch.float64)):
+        out = sim.run(p, FW40, duration=d, cells_at=d / 2, record_cells="final")
+        assert out.time[-1].item() == pytest.approx(0.01)
+    assert sim.run(p, FW40, duration=0.01, cells_at=0, record_cells="final").cell_plastic.abs().max() == 0
+
+
 def test_float32_per_cell_energies_follow_float64():
     """In float32 the per-cell ledgers sum a step's transmitted work per source cell in single precision and
     accumulate the steps in float64: the cell energies stay within float32 rounding of the float64 run, at every

@@ -84,6 +84,7 @@ trajectories chaotic: 1e-12 parameter changes moved the stop time). The released
 from __future__ import annotations
 
 import math
+import numbers
 import operator
 from dataclasses import dataclass, fields
 from pathlib import Path
@@ -334,6 +335,23 @@ def _short(x, limit: int = 80) -> str:
     """``repr(x)``, cut to ``limit`` characters for a message (a parameter list repeats thousands of numbers)."""
     r = repr(x)
     return r if len(r) <= limit else r[: limit - 3] + "..."
+
+
+def _seconds(value, name: str) -> float:
+    """``value`` [s] as a float: a real number (an int, float, numpy scalar, or 0-d real array or tensor).
+
+    Raises:
+        ModelError: text (``float("0.01")`` read it), a bool (ran as 1 s), a list or a complex number, naming ``name``.
+    """
+    if isinstance(value, torch.Tensor):
+        real = value.ndim == 0 and not (value.dtype.is_complex or value.dtype == torch.bool)
+    elif isinstance(value, np.ndarray):
+        real = value.ndim == 0 and value.dtype.kind in "iuf"
+    else:
+        real = isinstance(value, numbers.Real) and not isinstance(value, bool | np.bool_)
+    if not real:
+        raise ModelError(f"{name} must be a time in s (a real number), got {_short(value)}")
+    return float(value)
 
 
 def _checked_scenario(scenario: CrashScenario | None) -> CrashScenario | None:
@@ -692,7 +710,7 @@ class Surrogate:
         )
         snap = n_out - 1
         if cells_at is not None:
-            at = float(cells_at) / self.output_dt
+            at = _seconds(cells_at, "cells_at") / self.output_dt
             if not (np.isfinite(at) and abs(at - round(at)) <= 1e-6 * max(1.0, at) and 0 <= round(at) < n_out):
                 raise ModelError(
                     f"cells_at must be an output sample's time in [0, {(n_out - 1) * self.output_dt:.6g}] s "
@@ -737,7 +755,7 @@ class Surrogate:
                 "build the Surrogate with output_dt=scenario.output_dt"
             )
         dur = duration if duration is not None else (scenario.duration if scenario is not None else 0.150)
-        steps = float(dur) / self.output_dt
+        steps = _seconds(dur, "duration") / self.output_dt
         if not (np.isfinite(steps) and steps >= 0.5 and abs(steps - round(steps)) <= 1e-6 * steps):
             raise ModelError(
                 f"duration must be > 0 s and a whole number of {self.output_dt:.6g} s output steps, got {dur}"
