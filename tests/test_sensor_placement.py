@@ -151,3 +151,24 @@ def test_an_up_front_sensor_outside_the_region_is_refused_naming_it(cfg, method)
     tunnel = dataclasses.replace(cfg, sensors=[SensorSpec("t", "position", [2.0, 0.0, 0.5])])
     cells = discretize(car, tunnel, method=method)
     assert cells.subassembly_names[cells.subassembly[cells.sensor_cell[0]]] == COMPARTMENT
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_a_sensor_position_off_the_vehicle_is_refused_naming_it(cfg, method):
+    """A 'position' or 'compartment' sensor given in mm ([2000, 0, 500] for a tunnel at [2.0, 0.0, 0.5] m) became a
+    compartment sensor recorded 2 km behind the car without a word; a position outside the vehicle's bounding box
+    (by more than sensor_snap_distance) is refused, naming the sensor, its position and the vehicle's bounds."""
+    car = _car(left_inner=True)
+    for rule in ("position", "compartment"):
+        mm = dataclasses.replace(cfg, sensors=[SensorSpec("t", rule, [2000.0, 0.0, 500.0])])
+        with pytest.raises(
+            ModelError,
+            match=rf"sensor 't' \(rule '{rule}'\): position \[2000\.000, 0\.000, 500\.000\] m lies outside the "
+            r"vehicle \[0\.000, -0\.800, 0\.050\] to \[3\.200, 0\.800, 1\.300\] m",
+        ):
+            discretize(car, mm, method=method)
+    # just outside the bounds, within the snap distance (a sensor on the skin), and inside them: accepted
+    for p in ([3.25, 0.0, 0.5], [2.0, 0.0, 0.5]):
+        cells = discretize(car, dataclasses.replace(cfg, sensors=[SensorSpec("t", "position", p)]), method=method)
+        assert cells.subassembly_names[cells.subassembly[cells.sensor_cell[0]]] == COMPARTMENT
+        np.testing.assert_allclose(cells.sensor_position[0], p)

@@ -44,7 +44,8 @@ class SensorSpec:
             ``y = y0 +- upfront_sensor_y_fraction * W`` about the centre line ``y0``, z at the ROI
             mid-height, snapped to the nearest voxel with material), ``compartment`` (the rigid
             compartment cell) or ``position`` (the explicit position; inside the ROI snapped like
-            up-front sensors, outside it the compartment). An up-front rule's position must lie inside the ROI.
+            up-front sensors, outside it the compartment). An up-front rule's position must lie inside the ROI;
+            any other given position inside the vehicle's bounding box (give or take ``sensor_snap_distance``).
         position: ``[x, y, z]`` [m] overriding the rule's position, or ``None``.
 
     Snapping keeps a sensor on its side of the centre line (one requested on the line may go either
@@ -371,6 +372,28 @@ def _sensor_requests(cfg: DiscretizationConfig, roi: Roi) -> list[tuple[str, np.
             )
         out.append((s.name, p if (inside and s.rule != "compartment") else None))
     return out
+
+
+def _refuse_off_vehicle(cfg: DiscretizationConfig, model: VehicleModel) -> None:
+    """Refuse a ``position`` or ``compartment`` sensor whose given position lies outside the vehicle's bounding box by
+    more than ``sensor_snap_distance`` (a position in mm: outside the ROI such a sensor is the compartment's, and it
+    was recorded kilometres behind the car without a word). Up-front sensors are checked against the ROI later.
+
+    Raises:
+        ModelError: naming the sensor, its position and the vehicle's bounds, in the model's own frame.
+    """
+    lo, hi = model.coords.min(axis=0), model.coords.max(axis=0)
+    pad = cfg.sensor_snap_distance
+    for s in cfg.sensors:
+        if s.position is None or s.rule in ("upfront_left", "upfront_right"):
+            continue
+        p = np.asarray(s.position, dtype=np.float64)
+        if ((p < lo - pad) | (p > hi + pad)).any():
+            raise ModelError(
+                f"sensor {s.name!r} (rule {s.rule!r}): position {_fmt(p)} m lies outside the vehicle {_fmt(lo)} to "
+                f"{_fmt(hi)} m by more than sensor_snap_distance = {pad:g} m; positions are in m, x rearward from the "
+                "front (a position in mm?)"
+            )
 
 
 def _fmt(p: np.ndarray, frame_y: float = 0.0) -> str:
@@ -888,6 +911,7 @@ def discretize(model: VehicleModel, config: DiscretizationConfig | None = None, 
         t0 = t1
 
     model.validate()
+    _refuse_off_vehicle(cfg, model)
     roi = region_of_interest(model, cfg.roi_depth, cfg.overlaps)
     # Discretize in the frame centred on the vehicle's centre line, where the grid's mirror rules hold (ties fall
     # away from y = 0, the bisection mirrors about it): a model read with AxisMap.y_center off its middle, 1 mm
