@@ -703,6 +703,16 @@ def test_duration_and_cells_at_that_are_not_numbers_are_refused_by_name():
     assert sim.run(p, FW40, duration=0.01, cells_at=0, record_cells="final").cell_plastic.abs().max() == 0
 
 
+def test_an_output_step_that_is_not_a_number_is_refused_by_name():
+    """``Surrogate(cells, output_dt=None)`` failed with float()'s TypeError, and ``output_dt="5e-4"`` was read as
+    text; both are refused naming output_dt. A numpy scalar still goes."""
+    cells = block()
+    for bad in (None, "5e-4", True, [5e-4]):
+        with pytest.raises(ModelError, match=r"^output_dt must be a time in s \(a real number\), got "):
+            Surrogate(cells, output_dt=bad)
+    assert Surrogate(cells, output_dt=np.float64(1e-3)).substeps == 2 * Surrogate(cells).substeps
+
+
 def test_float32_per_cell_energies_follow_float64():
     """In float32 the per-cell ledgers sum a step's transmitted work per source cell in single precision and
     accumulate the steps in float64: the cell energies stay within float32 rounding of the float64 run, at every

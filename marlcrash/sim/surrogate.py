@@ -391,7 +391,8 @@ class Surrogate:
 
     Raises:
         ModelError: links touching null cells or owned by the compartment, no mass, an output step that is
-            not a positive whole number of integration steps, or a ``config`` that is no :class:`SimConfig`.
+            not a positive whole number of integration steps (or not a number), or a ``config`` that is no
+            :class:`SimConfig`.
     """
 
     def __init__(
@@ -405,7 +406,7 @@ class Surrogate:
         self.stability_caps = bool(stability_caps)
         self.cells = cells
         self.config = cfg = checked(config) if config is not None else load_sim_config()
-        self.output_dt = float(output_dt)
+        self.output_dt = _seconds(output_dt, "output_dt")
         self.dt = BASE_OUTPUT_DT / cfg.substeps
         per = self.output_dt / self.dt if math.isfinite(self.output_dt) else math.nan
         if not (per >= 1 - 1e-9 and abs(per - round(per)) <= 1e-6 * per):
