@@ -1729,3 +1729,31 @@ def test_read_csv_of_no_acceleration_columns_is_a_clear_error(tmp_path, analytic
     with pytest.raises(PulseError, match=r"acc_col: expected at least one column name, got \(\)"):
         read_pulse(path, acc_col=())
     assert read_csv(path, acc_col=["radsup"]).channels == ("radsup",)
+
+
+def test_a_trailing_delimiter_on_every_line_is_an_empty_column_that_is_ignored(tmp_path, analytic):
+    """Some lab exports end every line with the delimiter (``time;acc;`` / ``0,001;2,3;``): the file was refused with
+    "header column 3 is empty". A trailing column empty in the header and in every row is no column; an empty header
+    column with data under it is still refused, naming the line and the column."""
+    rows = [f"{t:.4f};{a / G0:.6f};".replace(".", ",") for t, a in zip(analytic.time, analytic.acc[0], strict=True)]
+    path = tmp_path / "lab.csv"
+    path.write_text("time;acc;\n" + "\n".join(rows) + "\n")
+    p = read_csv(path)
+    assert p.channels == ("acc",) and p.n_samples == analytic.n_samples
+    np.testing.assert_allclose(p.acc[0], analytic.acc[0], atol=1e-5 * G0)
+    assert read_pulse(path, acc_col="acc").channels == ("acc",)
+    # two trailing delimiters, and rows that end without it, alike
+    path.write_text("time,acc,,\n" + "".join(f"{i * 1e-4:.4f},{-float(i)}{',,' if i % 2 else ''}\n"
+                                             for i in range(20)))  # fmt: skip
+    assert read_csv(path).channels == ("acc",)
+    # data under the empty name is refused, naming where
+    rows[40] = rows[40] + "7"
+    path.write_text("time;acc;\n" + "\n".join(rows) + "\n")
+    with pytest.raises(PulseError, match=r"lab\.csv line 42: column 3 has no name in the header but holds '7'"):
+        read_csv(path)
+    path.write_text("time;;acc\n" + "\n".join(rows) + "\n")  # an empty name before the last is refused as before
+    with pytest.raises(PulseError, match=r"lab\.csv line 1: header column 2 is empty"):
+        read_csv(path)
+    path.write_text("0;1;\n" + "\n".join(rows) + "\n")  # a header of numbers is no header, trailing ';' or not
+    with pytest.raises(PulseError, match=r"lab\.csv line 1: expected a header row naming the columns"):
+        read_csv(path)

@@ -9,8 +9,9 @@ data that records deceleration as positive.
 CSV: an optional block of ``#`` comment lines, one header row, then one row per sample. Time in seconds
 (``time_unit="ms"`` for milliseconds), acceleration in g (``unit="m/s2"`` for SI). Columns are chosen by name;
 the delimiter (``,``, ``;`` or tab) is the one that splits the header and the first rows alike; with ``;`` a
-decimal comma (``-2,5``) is read as a decimal point. UTF-8, Windows-1252, or UTF-16/32 with its byte-order
-mark. A gap in the time column (``max_gap``) is reported as a warning: resampling bridges it with a straight
+decimal comma (``-2,5``) is read as a decimal point. A delimiter ending the lines (``time;acc;``) adds no column: a
+trailing column with no name in the header must be empty in every row. UTF-8, Windows-1252, or UTF-16/32 with its
+byte-order mark. A gap in the time column (``max_gap``) is reported as a warning: resampling bridges it with a straight
 line. A table of breakpoints (a pulse given by its corners, e.g. a trapezoid from a specification) is read
 with ``breakpoints=True``: at least two rows, no gap warning, and sampled at :data:`BREAKPOINT_RATE_HZ` by
 linear interpolation, so it is filtered and integrated like a record.
@@ -216,7 +217,7 @@ def read_csv(
     if acc_col is not None and not isinstance(acc_col, str) and len(acc_col) == 0:  # was a pulse of no channels
         raise PulseError(f"acc_col: expected at least one column name, got {acc_col!r}")
     lines = _read_text_lines(path)
-    first, delim, header, ti = _csv_header(path, lines, time_col)
+    first, delim, header, ti, width = _csv_header(path, lines, time_col)
     if acc_col is None and first_only:
         acc_col = header[next(j for j in range(len(header)) if j != ti)]
     # '0,5;-2,25': European spreadsheets separate by ';' because the comma is their decimal mark. Not with tabs:
@@ -263,8 +264,12 @@ def read_csv(
     for lineno, row in enumerate(csv.reader(lines[first + 1 :], delimiter=delim), start=first + 2):
         if not row or all(not c.strip() for c in row) or row[0].lstrip().startswith("#"):
             continue
-        if len(row) != len(header):
+        if len(row) not in (len(header), width):
             raise _err(f"expected {len(header)} fields as in the header, got {len(row)}", path, lineno)
+        for j in range(len(header), len(row)):  # under the header's trailing empty names
+            if row[j].strip():
+                raise _err(f"column {j + 1} has no name in the header but holds {row[j].strip()!r}; every column "
+                           "with data needs a name", path, lineno)  # fmt: skip
         vals = []
         for j in wanted:
             cell = row[j].strip()
@@ -340,14 +345,19 @@ def read_csv(
     return Pulse(time=time, acc=acc, channels=channels, source=str(path))
 
 
-def _csv_header(path: Path, lines: list[str], time_col: str | None) -> tuple[int, str, list[str], int]:
-    """The header of a CSV file's ``lines``: its index, the delimiter, the column names, and the time column's
-    index (``time_col``, else the first column named like ``time``, else the first column)."""
+def _csv_header(path: Path, lines: list[str], time_col: str | None) -> tuple[int, str, list[str], int, int]:
+    """The header of a CSV file's ``lines``: its index, the delimiter, the column names, the time column's
+    index (``time_col``, else the first column named like ``time``, else the first column), and the number of
+    fields the header line holds: more than names where it ends in empty ones (a trailing delimiter, ``time;acc;``),
+    which are no columns (:func:`read_csv` checks that the rows hold nothing under them)."""
     first = next((i for i, s in enumerate(lines) if s.strip() and not s.lstrip().startswith("#")), None)
     if first is None:
         raise _err("expected a header row and samples, found no data", path)
     delim = _delimiter(lines, first, path)
     header = [h.strip() for h in next(csv.reader([lines[first]], delimiter=delim))]
+    width = len(header)
+    while len(header) > 1 and not header[-1]:  # 'time;acc;': a trailing delimiter (the rows' cells: read_csv)
+        header.pop()
     if all(_is_number(h) for h in header):  # reading it as names would silently drop the first sample
         raise _err(
             "expected a header row naming the columns (e.g. 'time,acc'), got only numbers; lines starting with "
@@ -365,7 +375,7 @@ def _csv_header(path: Path, lines: list[str], time_col: str | None) -> tuple[int
         ti = next((j for j, h in enumerate(low) if h in _TIME_NAMES or h.startswith("time")), 0)
     else:
         ti = _csv_column(header, time_col, path, first + 1)
-    return first, delim, header, ti
+    return first, delim, header, ti, width
 
 
 def _csv_column(header: list[str], name: str, path: Path, line: int) -> int:
