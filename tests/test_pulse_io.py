@@ -1757,3 +1757,20 @@ def test_a_trailing_delimiter_on_every_line_is_an_empty_column_that_is_ignored(t
     path.write_text("0;1;\n" + "\n".join(rows) + "\n")  # a header of numbers is no header, trailing ';' or not
     with pytest.raises(PulseError, match=r"lab\.csv line 1: expected a header row naming the columns"):
         read_csv(path)
+
+
+@pytest.mark.parametrize(("kwargs", "key"), [({"acc_col": 1}, "acc_col"), ({"acc_col": ["acc", 2]}, "acc_col"),
+                                             ({"time_col": 0}, "time_col")])  # fmt: skip
+def test_a_column_given_by_number_is_refused_naming_the_option(tmp_path, kwargs, key):
+    """Columns are chosen by name: ``read_csv(acc_col=1)`` raised ``TypeError: object of type 'int' has no len()``
+    (and ``time_col=0`` an AttributeError from inside the reader)."""
+    with pytest.raises(PulseError, match=rf"^{key}: expected a column name"):
+        read_csv(_csv(tmp_path, "time,acc\n" + GOOD_ROWS), **kwargs)
+
+
+def test_an_iso_mme_channel_given_by_number_is_refused_naming_the_option(tmp_path, analytic):
+    write_mme(analytic, tmp_path / "B", "B")
+    with pytest.raises(PulseError, match=r"^channels: expected a channel name"):
+        read_mme(tmp_path / "B", channels=1)
+    with pytest.raises(PulseError, match=r"^acc_col: expected a channel name"):
+        read_pulse(tmp_path / "B", acc_col=[1])

@@ -214,6 +214,9 @@ def read_csv(
         raise PulseError(f"sign: expected +1 or -1, got {sign!r}")
     if max_gap is not None and not (math.isfinite(max_gap) and max_gap > 1):
         raise PulseError(f"max_gap: expected a multiple of the median sampling interval > 1 or None, got {max_gap!r}")
+    if time_col is not None and not isinstance(time_col, str):  # was an AttributeError from inside the reader
+        raise PulseError(f"time_col: expected a column name (columns are chosen by name), got {time_col!r}")
+    _names(acc_col, "acc_col", "column")
     if acc_col is not None and not isinstance(acc_col, str) and len(acc_col) == 0:  # was a pulse of no channels
         raise PulseError(f"acc_col: expected at least one column name, got {acc_col!r}")
     lines = _read_text_lines(path)
@@ -343,6 +346,17 @@ def read_csv(
         )
         warnings.warn(_located(reason, path, line_of[i + 1], header[ti]), stacklevel=2)
     return Pulse(time=time, acc=acc, channels=channels, source=str(path))
+
+
+def _names(value: Any, key: str, what: str) -> None:
+    """Refuse, naming ``key``, a choice of columns or channels that is not ``None``, a name or a list of names (a
+    number, ``acc_col=1``, raised a TypeError or an AttributeError from inside the reader)."""
+    if value is None or isinstance(value, str):
+        return
+    if isinstance(value, (list, tuple)) and all(isinstance(v, str) for v in value):
+        return
+    raise PulseError(f"{key}: expected a {what} name or a list of {what} names ({what}s are chosen by name), "
+                     f"got {value!r}")  # fmt: skip
 
 
 def _csv_header(path: Path, lines: list[str], time_col: str | None) -> tuple[int, str, list[str], int, int]:
@@ -873,6 +887,7 @@ def _read_mme(
     ``Unit`` line is refused (it may be the channel meant)."""
     if sign not in (1, -1, 1.0, -1.0):
         raise PulseError(f"sign: expected +1 or -1, got {sign!r}")
+    _names(channels, "channels", "channel")
     wanted = None if channels is None else ([channels] if isinstance(channels, str) else list(channels))
     if wanted == []:  # was an IndexError after reading the test
         raise PulseError(f"channels: expected at least one channel name, got {channels!r}")
@@ -1131,6 +1146,7 @@ def read_pulse(path: str | Path, **kwargs: Any) -> Pulse:
     path = Path(path)
     if path.is_dir() or path.suffix.lower() == ".mme":
         if "acc_col" in kwargs:
+            _names(kwargs["acc_col"], "acc_col", "channel")  # named as given
             kwargs["channels"] = kwargs.pop("acc_col")
         unit = kwargs.pop("unit", None)
         if unit not in (None, "g"):
