@@ -1774,3 +1774,17 @@ def test_an_iso_mme_channel_given_by_number_is_refused_naming_the_option(tmp_pat
         read_mme(tmp_path / "B", channels=1)
     with pytest.raises(PulseError, match=r"^acc_col: expected a channel name"):
         read_pulse(tmp_path / "B", acc_col=[1])
+
+
+@pytest.mark.parametrize("sign", [True, False, "1", 2])
+def test_a_sign_that_is_not_plus_or_minus_one_is_refused(tmp_path, analytic, sign):
+    """``sign=True`` was read as +1 (``True == 1``): a bool is not a sign (a flag like ``deceleration_positive``
+    passed in its place would read every such file the wrong way round)."""
+    path = write_csv(analytic, tmp_path / "a.csv")
+    write_mme(analytic, tmp_path / "B", "B")
+    for read in (read_csv, read_pulse):
+        with pytest.raises(PulseError, match=r"^sign: expected \+1 or -1"):
+            read(path, sign=sign)
+    with pytest.raises(PulseError, match=r"^sign: expected \+1 or -1"):
+        read_mme(tmp_path / "B", sign=sign)
+    np.testing.assert_array_equal(read_csv(path, sign=np.float64(-1.0)).acc, -read_csv(path).acc)  # a numpy -1 is

@@ -210,8 +210,7 @@ def read_csv(
     factor = acc_unit_factor(unit)
     if time_unit not in _TIME_UNITS:
         raise PulseError(f"time_unit: expected one of {sorted(_TIME_UNITS)}, got {time_unit!r}")
-    if sign not in (1, -1, 1.0, -1.0):
-        raise PulseError(f"sign: expected +1 or -1, got {sign!r}")
+    _check_sign(sign)
     if max_gap is not None and not (math.isfinite(max_gap) and max_gap > 1):
         raise PulseError(f"max_gap: expected a multiple of the median sampling interval > 1 or None, got {max_gap!r}")
     if time_col is not None and not isinstance(time_col, str):  # was an AttributeError from inside the reader
@@ -346,6 +345,12 @@ def read_csv(
         )
         warnings.warn(_located(reason, path, line_of[i + 1], header[ti]), stacklevel=2)
     return Pulse(time=time, acc=acc, channels=channels, source=str(path))
+
+
+def _check_sign(sign: Any) -> None:
+    """Refuse a ``sign`` that is not +1 or -1; a bool too (``True == 1``: a flag is not a sign)."""
+    if isinstance(sign, (bool, np.bool_)) or sign not in (1, -1):
+        raise PulseError(f"sign: expected +1 or -1, got {sign!r}")
 
 
 def _names(value: Any, key: str, what: str) -> None:
@@ -885,8 +890,7 @@ def _read_mme(
     """:func:`read_mme`; with ``first_acceleration`` (and no ``channels``) the first acceleration channel alone, as
     ``marlcrash pulse`` reads a test: the files after it are not read, and a channel file before it without a
     ``Unit`` line is refused (it may be the channel meant)."""
-    if sign not in (1, -1, 1.0, -1.0):
-        raise PulseError(f"sign: expected +1 or -1, got {sign!r}")
+    _check_sign(sign)
     _names(channels, "channels", "channel")
     wanted = None if channels is None else ([channels] if isinstance(channels, str) else list(channels))
     if wanted == []:  # was an IndexError after reading the test
