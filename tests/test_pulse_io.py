@@ -1788,3 +1788,17 @@ def test_a_sign_that_is_not_plus_or_minus_one_is_refused(tmp_path, analytic, sig
     with pytest.raises(PulseError, match=r"^sign: expected \+1 or -1"):
         read_mme(tmp_path / "B", sign=sign)
     np.testing.assert_array_equal(read_csv(path, sign=np.float64(-1.0)).acc, -read_csv(path).acc)  # a numpy -1 is
+
+
+@pytest.mark.parametrize("acc_col", [["tunnel", "radsup"], ("radsup",), 1])
+def test_processed_pulse_takes_one_channel_by_name(tmp_path, analytic, acc_col):
+    """:func:`processed_pulse` prepares one channel (``acc_col``: the channel); a list of two was read and all but its
+    first silently dropped (and 1 raised a TypeError from inside the reader)."""
+    from marlcrash.pulse.io import processed_pulse
+
+    for path in (write_csv(analytic, tmp_path / "a.csv"), write_mme(analytic, tmp_path / "M", "M").parent):
+        with pytest.raises(PulseError, match=r"^acc_col: expected one channel name .*got "):
+            processed_pulse(path, acc_col=acc_col)
+        with pytest.raises(PulseError, match=r"^acc_col: expected one channel name"):
+            pulse_summary(path, acc_col=acc_col)
+    assert processed_pulse(tmp_path / "a.csv", acc_col="radsup")[0].channels == ("radsup",)

@@ -1271,7 +1271,7 @@ def processed_pulse(
     Args:
         path: CSV file, ``.mme`` file or ISO-MME test folder.
         time_col: CSV time column (see :func:`read_csv`).
-        acc_col: the channel (CSV column or MME channel); default the first acceleration channel.
+        acc_col: the channel (CSV column or MME channel), one name; default the first acceleration channel.
         unit: CSV acceleration unit, ``g`` or ``m/s2``.
         time_unit: CSV time unit, ``s`` or ``ms``.
         cfc: CFC class, or ``None`` for no filtering.
@@ -1288,6 +1288,9 @@ def processed_pulse(
         PulseError: unreadable file, bad channel, a sampling rate below :data:`MIN_RECORD_RATE_HZ` (a time
             column in ms read as s, typically), or time zero outside the record (naming the file).
     """
+    if acc_col is not None and not isinstance(acc_col, str):  # a list was read and all but its first dropped
+        raise PulseError(f"acc_col: expected one channel name (a CSV column or an ISO-MME channel; one channel is "
+                         f"prepared), got {acc_col!r}")  # fmt: skip
     kwargs: dict[str, Any] = {"sign": sign}
     p = Path(path)
     mme = p.is_dir() or p.suffix.lower() == ".mme"
