@@ -492,6 +492,16 @@ class ReferenceSampler:
         if not path.exists():
             raise ConfigError(f"no such file or ISO-MME folder: {path} (a relative path is read from configs/)",
                               key=f"{key}.path")  # fmt: skip
+        if path.is_dir() or path.suffix.lower() == ".mme":  # named by key here, not as read_pulse's keyword
+            if acc_unit_key(spec.unit) != "g":
+                raise ConfigError(f"an ISO-MME test's channels carry their own 'Unit' and are read in it; leave unit "
+                                  f"at g (the default), got {spec.unit!r}", key=f"{key}.unit")  # fmt: skip
+            if spec.time_unit != "s":
+                raise ConfigError("an ISO-MME test's channels carry their own time base (in s); leave time_unit at s "
+                                  f"(the default), got {spec.time_unit!r}", key=f"{key}.time_unit")  # fmt: skip
+            if spec.breakpoints:
+                raise ConfigError("breakpoints: true applies to CSV files only: an ISO-MME channel is sampled, not a "
+                                  "table of breakpoints", key=f"{key}.breakpoints")  # fmt: skip
         channels = [spec.channels[s] for s in self.sensors]
         unique = list(dict.fromkeys(channels))
         pulse = read_pulse(path, acc_col=unique, unit=spec.unit, time_unit=spec.time_unit, sign=spec.sign,

@@ -773,3 +773,27 @@ def test_compared_window_refuses_margins_that_are_not_whole_numbers_of_samples(m
     with pytest.raises(PulseError, match=r"expected margins as whole numbers of samples"):
         compared_window(v, 5e-4, 60, 20, margin)
     torch.testing.assert_close(compared_window(v, 5e-4, 60, 20, np.int64(2)), compared_window(v, 5e-4, 60, 20, 2))
+
+
+def test_an_iso_mme_file_reference_takes_the_units_its_config_check_takes(cells, sim):
+    """``unit: G`` passed the config check (units in any case, as the CSV reader takes them) and was then refused
+    reading an ISO-MME test ("do not pass unit='G'"); a unit an ISO-MME test cannot take (its channels carry their
+    own ``Unit`` and time base) is refused naming the key, not as a PulseError of the reader."""
+    channels = dict.fromkeys(cells.sensor_names, "10TUNN0000ACXP")
+    ref = {}
+    for unit in ("g", "G", " g"):
+        spec = FileReference(path=str(DATA / "HS40"), scenario="full_width_40", channels=channels, unit=unit)
+        spec.validate()
+        ref[unit] = sampler(cells, sim, kind="file", files=[spec]).sample(np.random.default_rng(0), 1).velocity
+    torch.testing.assert_close(ref["G"], ref["g"], rtol=0, atol=0)
+    torch.testing.assert_close(ref[" g"], ref["g"], rtol=0, atol=0)
+    for key, value in (("unit", "m/s2"), ("time_unit", "ms")):
+        spec = FileReference(path=str(DATA / "HS40"), scenario="full_width_40", channels=channels, **{key: value})
+        spec.validate()  # the check cannot tell a folder from a CSV file without looking: at the read
+        with pytest.raises(ConfigError, match=r"ISO-MME .* carry their own") as e:
+            sampler(cells, sim, kind="file", files=[spec])
+        assert e.value.key == f"reference.files[0].{key}"
+    spec = FileReference(path=str(DATA / "HS40"), scenario="full_width_40", channels=channels, breakpoints=True)
+    with pytest.raises(ConfigError, match=r"applies to CSV files only") as e:
+        sampler(cells, sim, kind="file", files=[spec])
+    assert e.value.key == "reference.files[0].breakpoints"

@@ -1153,7 +1153,7 @@ def read_pulse(path: str | Path, **kwargs: Any) -> Pulse:
             _names(kwargs["acc_col"], "acc_col", "channel")  # named as given
             kwargs["channels"] = kwargs.pop("acc_col")
         unit = kwargs.pop("unit", None)
-        if unit not in (None, "g"):
+        if unit is not None and not (isinstance(unit, str) and acc_unit_key(unit) == "g"):  # 'G' as read_csv takes it
             raise PulseError(f"{path.name}: ISO-MME channels carry their own 'Unit'; do not pass unit={unit!r}")
         for key, default in (("time_unit", "s"), ("time_col", None)):  # were dropped without a word
             value = kwargs.pop(key, default)
@@ -1302,7 +1302,8 @@ def processed_pulse(
     else:  # named as typed, on the command line (marlcrash pulse) and in Python
         given = [f"--{name.replace('_', '-')} {value} ({name}={value!r})"
                  for name, value, default in (("time_col", time_col, None), ("unit", unit, "g"),
-                                              ("time_unit", time_unit, "s")) if value != default]  # fmt: skip
+                                              ("time_unit", time_unit, "s"))
+                 if value != default and not (name == "unit" and acc_unit_key(str(value)) == "g")]  # fmt: skip
         if given:
             verb = "applies to CSV files only and is" if len(given) == 1 else "apply to CSV files only and are"
             warnings.warn(f"{p.name}: ISO-MME channels carry their own time base and unit; {', '.join(given)} {verb} "
