@@ -245,6 +245,8 @@ def curve_points(
     if (time is None) == (dt is None):
         raise PulseError("pass exactly one of time (sample times [s]) or dt (uniform step [s])")
     values = _as_signal(values, "values")
+    if values.shape[-1] == 0:  # was torch's "cannot reshape tensor of 0 elements" from the time check
+        raise PulseError(f"expected at least one sample per curve, got 0 (values of shape {tuple(values.shape)})")
     if time is None:
         time = torch.arange(values.shape[-1], dtype=values.dtype, device=values.device) * check_step(dt)
     time = _check_time(time, values).expand(values.shape)

@@ -316,3 +316,17 @@ def test_frechet_refuses_both_sample_times_and_a_step():
         discrete_frechet(q, p, t, dt=0.1)
     with pytest.raises(PulseError, match="exactly one of time"):
         discrete_frechet(q, p, time_p=t, dt=0.1)
+
+
+def test_an_empty_curve_is_refused_by_name_and_a_one_point_curve_has_its_distance():
+    """A curve of no samples raised torch's "cannot reshape tensor of 0 elements" from inside the time check; one
+    sample is a curve of one point, whose Frechet distance is the longest distance to the other curve's points."""
+    for q, p in ((torch.zeros(0), torch.zeros(3)), (torch.zeros(3), torch.zeros(2, 0))):
+        with pytest.raises(PulseError, match=r"expected at least one sample per curve, got 0"):
+            discrete_frechet(q, p, dt=1e-3)
+    with pytest.raises(PulseError, match=r"expected at least one sample per curve, got 0"):
+        discrete_frechet(torch.zeros(0), torch.zeros(0), torch.zeros(0))
+    with pytest.raises(PulseError, match=r"expected at least one sample per curve, got 0"):
+        curve_points(torch.zeros(4, 0), dt=1e-3)
+    got = discrete_frechet(torch.tensor([3.0], dtype=torch.float64), torch.tensor([0.0, 1.0, 5.0]), dt=1.0)
+    assert float(got) == pytest.approx(max(3.0, math.hypot(1.0, 2.0), math.hypot(2.0, 2.0)), abs=1e-12)
