@@ -464,7 +464,18 @@ def discrete_frechet_uniform_numba(
     Returns:
         ``[...]`` float64 distances.
     """
-    q, p = torch.broadcast_tensors(q.detach().double().cpu(), p.detach().double().cpu())
+    q, p = _as_signal(q, "q").detach().double().cpu(), _as_signal(p, "p").detach().double().cpu()
+    if q.shape[-1] != p.shape[-1]:  # were torch's broadcasting, reshaping and attribute errors, and a number of dt = 0
+        raise PulseError(f"expected q and p on common time samples (same last dimension), got shapes "
+                         f"{tuple(q.shape)} and {tuple(p.shape)}; resample first")  # fmt: skip
+    if q.shape[-1] == 0:
+        raise PulseError(f"expected at least one sample per curve, got 0 (shape {tuple(q.shape)})")
+    try:
+        q, p = torch.broadcast_tensors(q, p)
+    except RuntimeError:
+        raise PulseError(f"expected q and p with broadcastable batch dimensions, got shapes {tuple(q.shape)} and "
+                         f"{tuple(p.shape)}") from None  # fmt: skip
+    dt = check_step(dt)
     shape = q.shape[:-1]
     qa = np.ascontiguousarray(q.reshape(-1, q.shape[-1]).numpy())
     pa = np.ascontiguousarray(p.reshape(-1, p.shape[-1]).numpy())

@@ -330,3 +330,20 @@ def test_an_empty_curve_is_refused_by_name_and_a_one_point_curve_has_its_distanc
         curve_points(torch.zeros(4, 0), dt=1e-3)
     got = discrete_frechet(torch.tensor([3.0], dtype=torch.float64), torch.tensor([0.0, 1.0, 5.0]), dt=1.0)
     assert float(got) == pytest.approx(max(3.0, math.hypot(1.0, 2.0), math.hypot(2.0, 2.0)), abs=1e-12)
+
+
+def test_the_compiled_frechet_kernel_names_what_it_cannot_take():
+    """:func:`discrete_frechet_uniform_numba` took no input check: curves of two lengths and empty ones raised torch's
+    broadcasting or reshaping errors, an array an AttributeError, and dt = 0 or nan gave a number (the distance of the
+    values alone, or nan) where :func:`discrete_frechet` refuses the step."""
+    from marlcrash.metrics import discrete_frechet_uniform_numba as dfd
+
+    with pytest.raises(PulseError, match=r"common time samples.*\(50,\) and \(40,\)"):
+        dfd(torch.zeros(50), torch.zeros(40), 1e-3)
+    with pytest.raises(PulseError, match=r"at least one sample per curve, got 0"):
+        dfd(torch.zeros(3, 0), torch.zeros(3, 0), 1e-3)
+    for dt in (0.0, float("nan"), -1e-3):
+        with pytest.raises(PulseError, match=r"sampling interval dt > 0"):
+            dfd(torch.zeros(5), torch.ones(5), dt)
+    q, p = np.random.default_rng(1).random((2, 3, 20))
+    torch.testing.assert_close(dfd(q, p, 1e-3), discrete_frechet(q, p, dt=1e-3), rtol=1e-12, atol=1e-12)
