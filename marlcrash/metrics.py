@@ -101,13 +101,7 @@ def _check_pair(q: object, p: object) -> tuple[torch.Tensor, torch.Tensor]:
     """``q`` and ``p`` as tensors on common time samples, or a :class:`PulseError` saying what was expected.
 
     An array or list is placed on the device of the other signal, when that one is a tensor."""
-    given_q, given_p = isinstance(q, torch.Tensor), isinstance(p, torch.Tensor)
-    q, p = _as_signal(q, "q"), _as_signal(p, "p")
-    if given_q and not given_p:
-        p = p.to(q.device)
-    elif given_p and not given_q:
-        q = q.to(p.device)
-    _check_device(q, p)
+    q, p = _as_pair(q, p)
     if q.shape[-1] != p.shape[-1]:
         raise PulseError(
             f"expected q and p on common time samples (same last dimension), got shapes {tuple(q.shape)} "
@@ -122,6 +116,19 @@ def _check_pair(q: object, p: object) -> tuple[torch.Tensor, torch.Tensor]:
             f"expected q and p with broadcastable batch dimensions (e.g. [B, n_sensors, T] and [n_sensors, T]), "
             f"got shapes {tuple(q.shape)} and {tuple(p.shape)}"
         ) from None
+    return q, p
+
+
+def _as_pair(q: object, p: object) -> tuple[torch.Tensor, torch.Tensor]:
+    """``q`` and ``p`` as floating tensors (:func:`_as_signal`) on one device: an array or list is placed on the
+    device of the other, when that one is a tensor."""
+    given_q, given_p = isinstance(q, torch.Tensor), isinstance(p, torch.Tensor)
+    q, p = _as_signal(q, "q"), _as_signal(p, "p")
+    if given_q and not given_p:
+        p = p.to(q.device)
+    elif given_p and not given_q:
+        q = q.to(p.device)
+    _check_device(q, p)
     return q, p
 
 
@@ -268,9 +275,9 @@ def discrete_frechet_points(q: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
     Returns:
         ``[...]`` distances (Euclidean, in the points' units).
     """
+    q, p = _as_pair(q, p)  # integer points or arrays were torch's cast or type errors
     if q.ndim < 2 or p.ndim < 2 or q.shape[-1] != p.shape[-1]:
         raise PulseError(f"expected points [..., n, D] and [..., m, D], got {tuple(q.shape)} and {tuple(p.shape)}")
-    _check_device(q, p)
     n, m = q.shape[-2], p.shape[-2]
     if n < 1 or m < 1:
         raise PulseError(f"expected at least one point per curve, got n={n}, m={m}")
@@ -386,13 +393,26 @@ def discrete_frechet_ragged(qs: Sequence[torch.Tensor], ps: Sequence[torch.Tenso
     partner's current point at no extra cost), and the batch is computed at once.
 
     Args:
-        qs: ``B`` tensors ``[n_b, D]``; ps: ``B`` tensors ``[m_b, D]``.
+        qs: ``B`` tensors ``[n_b, D]``; ps: ``B`` tensors ``[m_b, D]`` (arrays accepted, as by the other metrics).
 
     Returns:
         ``[B]`` distances.
     """
     if len(qs) != len(ps) or not qs:
         raise PulseError(f"expected two equally long, non-empty lists of curves, got {len(qs)} and {len(ps)}")
+    dims: list[int] = []
+
+    def curve(c: object, key: str, n: str) -> torch.Tensor:  # torch's cat and stack errors named no curve
+        t = _as_signal(c, key)
+        if t.dim() != 2 or t.shape[0] < 1 or (dims and t.shape[1] != dims[0]):
+            d = f"{dims[0]}" if dims else "D"
+            like = " (D as qs[0]'s)" if dims else ""
+            raise PulseError(f"expected {key} as [{n}, {d}] points{like}, at least one, got shape {tuple(t.shape)}")
+        dims.append(t.shape[1])
+        return t
+
+    qs = [curve(c, f"qs[{b}]", "n") for b, c in enumerate(qs)]
+    ps = [curve(c, f"ps[{b}]", "m") for b, c in enumerate(ps)]
 
     def stack(curves: Sequence[torch.Tensor]) -> torch.Tensor:
         size = max(c.shape[0] for c in curves)

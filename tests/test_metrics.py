@@ -347,3 +347,19 @@ def test_the_compiled_frechet_kernel_names_what_it_cannot_take():
             dfd(torch.zeros(5), torch.ones(5), dt)
     q, p = np.random.default_rng(1).random((2, 3, 20))
     torch.testing.assert_close(dfd(q, p, 1e-3), discrete_frechet(q, p, dt=1e-3), rtol=1e-12, atol=1e-12)
+
+
+def test_point_sequences_are_read_as_numbers_and_malformed_ones_refused_by_name():
+    """:func:`discrete_frechet_points` raised torch's "result type Float can't be cast to ... Long" for integer points
+    and a TypeError for numpy arrays; :func:`discrete_frechet_ragged` raised torch's cat/stack errors for a curve of
+    values ``[n]`` or curves of other dimensions."""
+    ints = discrete_frechet_points(torch.tensor([[0, 1], [1, 2]]), torch.tensor([[0, 1], [1, 5]]))
+    assert float(ints) == 3.0
+    arrays = discrete_frechet_points(np.array([[0.0, 1.0], [1.0, 2.0]]), np.array([[0.0, 1.0], [1.0, 5.0]]))
+    assert float(arrays) == 3.0
+    with pytest.raises(PulseError, match=r"expected qs\[0\] as \[n, D\] points, at least one, got shape \(3,\)"):
+        discrete_frechet_ragged([torch.zeros(3)], [torch.zeros(4, 2)])
+    with pytest.raises(PulseError, match=r"expected ps\[1\] as \[m, 2\] points .*got shape \(4, 3\)"):
+        discrete_frechet_ragged([torch.zeros(3, 2), torch.zeros(2, 2)], [torch.zeros(4, 2), torch.zeros(4, 3)])
+    got = discrete_frechet_ragged([np.zeros((3, 2)), [[0, 0]]], [np.zeros((4, 2)), [[0, 2], [0, 0]]])
+    torch.testing.assert_close(got, torch.tensor([0.0, 2.0], dtype=torch.float64))
