@@ -379,7 +379,12 @@ def discrete_frechet(
     else:
         if time_q is None:
             raise PulseError("pass time_q (and time_p if it differs) or dt")
-        time_p = time_q if time_p is None else time_p
+        if time_p is None:
+            n_q, n_p = _as_signal(q, "q").shape[-1], _as_signal(p, "p").shape[-1]
+            if n_p != n_q:  # was "time has n samples, the signals m", naming neither
+                raise PulseError(f"q has {n_q} samples, p {n_p}: pass time_p (p's sample times [s]; it defaults to "
+                                 "time_q) for curves of two lengths")  # fmt: skip
+            time_p = time_q
         pq = curve_points(q, time_q, time_scale=time_scale, value_scale=value_scale)
         pp = curve_points(p, time_p, time_scale=time_scale, value_scale=value_scale)
     return discrete_frechet_points(pq, pp)

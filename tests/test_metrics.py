@@ -363,3 +363,15 @@ def test_point_sequences_are_read_as_numbers_and_malformed_ones_refused_by_name(
         discrete_frechet_ragged([torch.zeros(3, 2), torch.zeros(2, 2)], [torch.zeros(4, 2), torch.zeros(4, 3)])
     got = discrete_frechet_ragged([np.zeros((3, 2)), [[0, 0]]], [np.zeros((4, 2)), [[0, 2], [0, 0]]])
     torch.testing.assert_close(got, torch.tensor([0.0, 2.0], dtype=torch.float64))
+
+
+def test_curves_of_two_lengths_without_time_p_are_told_to_pass_it():
+    """``time_p`` defaults to ``time_q``: for curves of two lengths the error was "time has 50 samples, the signals
+    40", naming neither the curve nor the option."""
+    t = torch.arange(50, dtype=torch.float64) * 1e-3
+    with pytest.raises(PulseError, match=r"q has 50 samples, p 40: pass time_p"):
+        discrete_frechet(torch.zeros(50), torch.zeros(40), t)
+    tp = t[:40] * 50 / 40
+    want = ref_frechet(np.stack([t.numpy(), np.zeros(50)], 1), np.stack([tp.numpy(), np.zeros(40)], 1))
+    got = discrete_frechet(torch.zeros(50, dtype=torch.float64), torch.zeros(40, dtype=torch.float64), t, tp)
+    assert float(got) == pytest.approx(want, rel=1e-12)
