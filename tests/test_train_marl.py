@@ -782,3 +782,21 @@ def test_a_resume_of_an_unreadable_checkpoint_says_how_to_go_on_from_a_kept_snap
     assert e.value.key == "resume"
     shutil.copyfile(part.run_dir / "checkpoints" / "iter_00002.pt", part.run_dir / "checkpoint.pt")
     assert train(tiny(tmp_path, name="damaged", resume=str(part.run_dir)), evaluate=False).iterations == 4
+
+
+def test_evaluating_a_live_trainer_with_other_iterations_leaves_its_config_as_it_was(short, tmp_path):
+    """``evaluate_run(trainer=..., iterations=n)`` set ``trainer.config.eval.iterations = n``: the caller's config
+    (and every later evaluation or checkpoint of that trainer) changed under it."""
+    from marlcrash.calibrate.evaluate import evaluate_run
+    from marlcrash.calibrate.marl import build_trainer
+
+    cfg = tiny(tmp_path, name="live", iterations=1)
+    run_dir = tmp_path / "live"
+    run_dir.mkdir()
+    tr = build_trainer(cfg, run_dir)
+    try:
+        s = evaluate_run(run_dir, trainer=tr, iterations=1)
+    finally:
+        tr.logger.close()
+    assert s["eval_iterations"] == 1
+    assert tr.config is cfg and cfg.eval.iterations == 2

@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import dataclasses
 import hashlib
 import json
 import time
@@ -443,7 +444,8 @@ def evaluate_run(
     if iterations is not None:
         if iterations < 1:
             raise ConfigError(f"expected >= 1 calibration steps, got {iterations}", key="iterations")
-        config.eval.iterations = iterations
+        # a copy: a live trainer's config (the caller's) keeps its own eval.iterations
+        config = dataclasses.replace(config, eval=dataclasses.replace(config.eval, iterations=iterations))
     check = provenance.check_run(run_dir, provenance.env_inputs(make_env_config(config)), key=None)
     if trainer is not None:
         policy, counters = trainer.policy, trainer.state_dict()
