@@ -459,6 +459,8 @@ def test_cmaes_rows_count_their_generations_and_the_tables_mark_those_without_on
     md = paths["amortized.md"].read_text()
     assert "| 101 | cmaes 1x † |" in md and "| 101 | cmaes 2x |" in md and "| cmaes 1x † |" in md
     assert f"† CMA-ES completed no generation: a budget below 1 + cmaes.popsize ({1 + popsize})" in md
+    assert md.count("† CMA-ES completed no generation") == 1  # once, under the first table that uses the mark
+    assert md.index("† CMA-ES completed no generation") < md.index("## Per reference")
 
     old = tmp_path / "old"  # amortized.json of before the column: resumed, its generations filled in
     paths = write_comparison(comparison, old)

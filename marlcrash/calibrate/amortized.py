@@ -628,7 +628,7 @@ def markdown(comparison: Comparison, command: str | None = None, date: str | Non
             f"{_fmt(r['initial_score'])} | {_fmt(r['param_error'], '.3f')} | {_fmt(r['passed'])} | "
             f"{_fmt(r['sims_to_policy'])} | {_fmt(r['wall_time_s'], '.1f')} |"
         )
-    return "\n".join([*lines, *footnote]) + "\n"
+    return "\n".join(lines) + "\n"
 
 
 def csv_text(comparison: Comparison) -> str:
