@@ -360,6 +360,25 @@ def test_bad_configs_name_the_key(run_dir, tmp_path):
         small_config(run_dir, reference_seeds=[101, 2**64])
 
 
+def test_a_budget_multiple_beyond_an_exact_simulation_count_is_refused_before_any_simulation(run_dir, monkeypatch):
+    """``budgets.cmaes=[1e308]`` passed validation; ``round(1e308 * 13)`` then raised "OverflowError: cannot convert
+    float infinity to integer" after the policy had run. A budget is counted in float64 (the history's simulations
+    column), exact only up to 2**53: a multiple above that is refused naming it, before any simulation -- also when
+    the policy's simulation count comes from the run (``iterations: null``)."""
+    import marlcrash.calibrate.amortized as amortized
+
+    def no_simulation(*args, **kwargs):
+        raise AssertionError("simulated before the budgets were checked")
+
+    monkeypatch.setattr(amortized, "evaluate_policy", no_simulation)
+    with pytest.raises(ConfigError, match=r"key 'budgets\.cmaes\[1\]': .*1e\+308 x 3 simulations.*2\*\*53"):
+        small_config(run_dir, budgets={"cmaes": [1, 1e308]})  # iterations 2: 3 simulations, known at once
+    cfg = small_config(run_dir, iterations=None, budgets={"random_search": [4e15]})  # the run's eval.iterations
+    with pytest.raises(ConfigError, match=r"key 'budgets\.random_search\[0\]': .*4e\+15 x 3 simulations"):
+        amortized_comparison(cfg)
+    assert small_config(run_dir, budgets={"cmaes": [1e15]}).budget(1e15, 3) == 3 * 10**15  # exact: accepted
+
+
 @pytest.mark.parametrize("name", ["cmaes", "random_search", "gradient"])
 def test_an_empty_budget_list_is_refused_naming_the_key(name, tmp_path):
     """``budgets.<optimizer>=[]`` was accepted and ran nothing for that optimizer, while its settings were recorded

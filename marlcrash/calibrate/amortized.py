@@ -99,6 +99,9 @@ NO_GENERATION = "†"
 
 
 # ------------------------------------------------------------------------------------------- config
+MAX_BUDGET = 2**53
+"""Most simulations a budget may have: the best-score history counts them in float64, exact up to 2**53."""
+
 DEFAULT_BUDGETS = {"cmaes": [1.0, 10.0, 40.0], "random_search": [1.0, 10.0], "gradient": [1.0, 10.0, 40.0]}
 """``budgets`` of ``configs/train/amortized.yaml``, the default of an :class:`AmortizedConfig` made in Python."""
 
@@ -166,6 +169,8 @@ class AmortizedConfig:
                 require(m not in mults[:i], f"budgets.{name}[{i}]",
                         f"expected distinct budget multiples, got {m} twice in {mults}")  # fmt: skip
 
+        if self.iterations is not None:  # else the run's eval.iterations: checked by amortized_comparison
+            self.check_budgets(self.iterations + 1)
         # the optimizers' generators: numpy refused a negative seed only after the policy had run
         require_seed(self.seed, "seed")
         if self.out_dir is not None:  # before any work, not at the end; a missing folder is made when writing
@@ -174,6 +179,20 @@ class AmortizedConfig:
     def budget(self, multiplier: float, policy_sims: int) -> int:
         """Simulations of a budget: ``max(1, round(multiplier * policy_sims))``."""
         return max(1, round(multiplier * policy_sims))
+
+    def check_budgets(self, policy_sims: int) -> None:
+        """Refuse a multiple whose budget is beyond :data:`MAX_BUDGET` simulations (``1e308`` overflowed to
+        ``inf``: an ``OverflowError`` after the policy had run).
+
+        Raises:
+            ConfigError: (key ``budgets.<optimizer>[i]``) the first such multiple.
+        """
+        for name, mults in self.budgets.items():
+            for i, m in enumerate(mults):
+                require(m * policy_sims <= MAX_BUDGET, f"budgets.{name}[{i}]",
+                        f"a budget of {m:g} x {policy_sims} simulations is beyond 2**53 = {MAX_BUDGET}, the largest "
+                        f"count the best-score history (float64) holds exactly; expected a multiple <= "
+                        f"{MAX_BUDGET / policy_sims:g}")  # fmt: skip
 
 
 def load_amortized_config(data: dict[str, Any], source: str | None = None) -> AmortizedConfig:
@@ -357,6 +376,7 @@ def amortized_comparison(
                               key=f"reference_seeds[{i}]")  # fmt: skip
     iterations = config.iterations if config.iterations is not None else train_config.eval.iterations
     nominal = iterations + 1
+    config.check_budgets(nominal)  # before any simulation: the run's eval.iterations is known only now
     say = progress or (lambda _msg: None)
     meta = {
         "run": None if config.run is None else str(config.run),
