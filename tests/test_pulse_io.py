@@ -1662,6 +1662,7 @@ def test_an_iso_mme_channel_list_and_its_channel_files_must_agree(tmp_path, anal
         assert [c["file"].name for c in mme_channels(tmp_path / "T")] == ["T.001", "T.003"]
     for old, new, said in (
         (":3", ":two", r"2: 'Number of channels': expected a whole number, got 'two'"),
+        (":3", ":\u00b3", r"2: 'Number of channels': expected a whole number, got '\u00b3'"),  # isdigit, no int
         (":3", ":4", r"2: 'Number of channels' says 4, the list names 3 channels"),
         ("channel 002", "channel 001", r"4: channel 001 is listed twice, on lines 3 and 4"),
     ):

@@ -800,3 +800,17 @@ def test_evaluating_a_live_trainer_with_other_iterations_leaves_its_config_as_it
         tr.logger.close()
     assert s["eval_iterations"] == 1
     assert tr.config is cfg and cfg.eval.iterations == 2
+
+
+def test_a_checkpoint_named_by_a_digit_int_cannot_read_is_no_iteration(tmp_path):
+    """``checkpoint=²``: ``str.isdigit`` takes a superscript two, ``int()`` refuses it (a ValueError from deep inside);
+    it is a file name like any other, refused naming the key."""
+    from marlcrash.calibrate.checkpoint import find_checkpoint, snapshot_path
+
+    with pytest.raises(ConfigError, match="no checkpoint") as e:
+        find_checkpoint(tmp_path, "\u00b2")
+    assert e.value.key == "checkpoint"
+    kept = snapshot_path(tmp_path, 40)  # the iteration form still finds a kept snapshot by its number
+    kept.parent.mkdir(parents=True)
+    kept.write_bytes(b"")
+    assert find_checkpoint(tmp_path, "40") == kept

@@ -51,7 +51,7 @@ def find_checkpoint(run_dir: str | Path, which: str | int | None = None) -> Path
     run_dir = Path(run_dir)
     if which is None or which == "latest":
         path = run_dir / CHECKPOINT_FILE
-    elif isinstance(which, int) or (isinstance(which, str) and which.isdigit()):
+    elif isinstance(which, int) or (isinstance(which, str) and which.isdecimal()):
         path = snapshot_path(run_dir, int(which))
     else:
         path = Path(which) if Path(which).is_file() else run_dir / which

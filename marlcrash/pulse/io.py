@@ -772,7 +772,7 @@ def _mme_channel_list(folder: Path, test: str) -> tuple[Path, dict[int, tuple[st
                 raise _err(f"channel {k:03d} is listed twice, on lines {names[k][1]} and {i}", chn, i)
             names[k] = (value, i)
         elif colon and key == "number of channels" and count is None and value.upper() != "NOVALUE":
-            if not value.isdigit():
+            if not value.isdecimal():  # isdigit takes '³', which int() refuses
                 raise _err(f"'Number of channels': expected a whole number, got {value!r}", chn, i)
             count = (int(value), i)
     if count is not None and names and count[0] != len(names):
