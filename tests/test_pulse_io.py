@@ -1717,7 +1717,7 @@ def test_read_mme_of_no_channels_is_a_clear_error():
     from inside ``read_mme``; now a PulseError saying what was expected."""
     with pytest.raises(PulseError, match=r"channels: expected at least one channel name, got \[\]"):
         read_mme(DATA / "HS40", channels=[])
-    with pytest.raises(PulseError, match=r"channels: expected at least one channel name, got \(\)"):
+    with pytest.raises(PulseError, match=r"acc_col: expected at least one channel name, got \(\)"):  # as typed
         read_pulse(DATA / "HS40", acc_col=())
 
 

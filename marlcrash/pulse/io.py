@@ -216,8 +216,6 @@ def read_csv(
     if time_col is not None and not isinstance(time_col, str):  # was an AttributeError from inside the reader
         raise PulseError(f"time_col: expected a column name (columns are chosen by name), got {time_col!r}")
     _names(acc_col, "acc_col", "column")
-    if acc_col is not None and not isinstance(acc_col, str) and len(acc_col) == 0:  # was a pulse of no channels
-        raise PulseError(f"acc_col: expected at least one column name, got {acc_col!r}")
     lines = _read_text_lines(path)
     first, delim, header, ti, width = _csv_header(path, lines, time_col)
     if acc_col is None and first_only:
@@ -355,10 +353,13 @@ def _check_sign(sign: Any) -> None:
 
 def _names(value: Any, key: str, what: str) -> None:
     """Refuse, naming ``key``, a choice of columns or channels that is not ``None``, a name or a list of names (a
-    number, ``acc_col=1``, raised a TypeError or an AttributeError from inside the reader)."""
+    number, ``acc_col=1``, raised a TypeError or an AttributeError from inside the reader), or an empty list (a CSV
+    read as a pulse of no channels, an ISO-MME test as an IndexError after reading it)."""
     if value is None or isinstance(value, str):
         return
     if isinstance(value, (list, tuple)) and all(isinstance(v, str) for v in value):
+        if not value:
+            raise PulseError(f"{key}: expected at least one {what} name, got {value!r}")
         return
     raise PulseError(f"{key}: expected a {what} name or a list of {what} names ({what}s are chosen by name), "
                      f"got {value!r}")  # fmt: skip
@@ -893,8 +894,6 @@ def _read_mme(
     _check_sign(sign)
     _names(channels, "channels", "channel")
     wanted = None if channels is None else ([channels] if isinstance(channels, str) else list(channels))
-    if wanted == []:  # was an IndexError after reading the test
-        raise PulseError(f"channels: expected at least one channel name, got {channels!r}")
     mme, files, listed = _mme_channel_files(path)
     info: list[dict[str, Any]] = []
     read: dict[Path, dict[str, Any]] = {}  # the chosen channels' samples, parsed from the reading of their header
