@@ -97,8 +97,9 @@ def _as_signal(x: object, name: str) -> torch.Tensor:
     return t
 
 
-def _check_pair(q: object, p: object) -> tuple[torch.Tensor, torch.Tensor]:
-    """``q`` and ``p`` as tensors on common time samples, or a :class:`PulseError` saying what was expected.
+def _check_pair(q: object, p: object, min_samples: int = 2) -> tuple[torch.Tensor, torch.Tensor]:
+    """``q`` and ``p`` as tensors on common time samples, at least ``min_samples`` of them, with broadcastable batch
+    dimensions, or a :class:`PulseError` saying what was expected.
 
     An array or list is placed on the device of the other signal, when that one is a tensor."""
     q, p = _as_pair(q, p)
@@ -107,8 +108,9 @@ def _check_pair(q: object, p: object) -> tuple[torch.Tensor, torch.Tensor]:
             f"expected q and p on common time samples (same last dimension), got shapes {tuple(q.shape)} "
             f"and {tuple(p.shape)}; resample first"
         )
-    if q.shape[-1] < 2:
-        raise PulseError(f"expected at least 2 time samples, got {q.shape[-1]}")
+    if q.shape[-1] < min_samples:
+        least = "one sample per curve" if min_samples == 1 else f"{min_samples} time samples"
+        raise PulseError(f"expected at least {least}, got {q.shape[-1]} (shape {tuple(q.shape)})")
     try:
         torch.broadcast_shapes(q.shape, p.shape)
     except RuntimeError:
@@ -489,18 +491,9 @@ def discrete_frechet_uniform_numba(
     Returns:
         ``[...]`` float64 distances.
     """
-    q, p = _as_signal(q, "q").detach().double().cpu(), _as_signal(p, "p").detach().double().cpu()
-    if q.shape[-1] != p.shape[-1]:  # were torch's broadcasting, reshaping and attribute errors, and a number of dt = 0
-        raise PulseError(f"expected q and p on common time samples (same last dimension), got shapes "
-                         f"{tuple(q.shape)} and {tuple(p.shape)}; resample first")  # fmt: skip
-    if q.shape[-1] == 0:
-        raise PulseError(f"expected at least one sample per curve, got 0 (shape {tuple(q.shape)})")
-    try:
-        q, p = torch.broadcast_tensors(q, p)
-    except RuntimeError:
-        raise PulseError(f"expected q and p with broadcastable batch dimensions, got shapes {tuple(q.shape)} and "
-                         f"{tuple(p.shape)}") from None  # fmt: skip
-    dt = check_step(dt)
+    q, p = _check_pair(q, p, min_samples=1)  # were torch's broadcasting, reshaping and attribute errors
+    q, p = torch.broadcast_tensors(q.detach().double().cpu(), p.detach().double().cpu())
+    dt = check_step(dt)  # dt = 0 or nan gave a number
     shape = q.shape[:-1]
     qa = np.ascontiguousarray(q.reshape(-1, q.shape[-1]).numpy())
     pa = np.ascontiguousarray(p.reshape(-1, p.shape[-1]).numpy())
