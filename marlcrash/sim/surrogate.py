@@ -84,7 +84,6 @@ trajectories chaotic: 1e-12 parameter changes moved the stop time). The released
 from __future__ import annotations
 
 import math
-import numbers
 import operator
 from dataclasses import dataclass, fields
 from pathlib import Path
@@ -337,19 +336,24 @@ def _short(x, limit: int = 80) -> str:
     return r if len(r) <= limit else r[: limit - 3] + "..."
 
 
+def _is_real(x) -> bool:
+    """``x`` holds real numbers (ints or floats): not text, bools, complex numbers or objects; numpy's dtype for what is
+    no tensor (torch's is float32 for Python floats, and casts a complex number to its real part)."""
+    if isinstance(x, torch.Tensor):
+        return not (x.dtype.is_complex or x.dtype == torch.bool)
+    try:
+        return np.asarray(x).dtype.kind in "iuf"
+    except (TypeError, ValueError):  # a ragged list
+        return False
+
+
 def _seconds(value, name: str) -> float:
     """``value`` [s] as a float: a real number (an int, float, numpy scalar, or 0-d real array or tensor).
 
     Raises:
         ModelError: text (``float("0.01")`` read it), a bool (ran as 1 s), a list or a complex number, naming ``name``.
     """
-    if isinstance(value, torch.Tensor):
-        real = value.ndim == 0 and not (value.dtype.is_complex or value.dtype == torch.bool)
-    elif isinstance(value, np.ndarray):
-        real = value.ndim == 0 and value.dtype.kind in "iuf"
-    else:
-        real = isinstance(value, numbers.Real) and not isinstance(value, bool | np.bool_)
-    if not real:
+    if not (_is_real(value) and np.ndim(value) == 0):
         raise ModelError(f"{name} must be a time in s (a real number), got {_short(value)}")
     return float(value)
 
@@ -610,11 +614,7 @@ class Surrogate:
             if isinstance(x, torch.Tensor) and x.device.type != "cpu":
                 raise ModelError(f"'{name}' must be on the CPU (the surrogate runs there), got device {x.device}")
             try:  # real numbers: a complex one was cast to its real part (only torch warned), a bool taken as 1 or 0
-                if isinstance(x, torch.Tensor):
-                    real = not (x.dtype.is_complex or x.dtype == torch.bool)
-                else:
-                    real = np.asarray(x).dtype.kind in "iuf"  # numpy's dtype: torch's is float32 for Python floats
-                if not real:
+                if not _is_real(x):
                     raise TypeError
                 x = torch.as_tensor(x, dtype=self.dtype)
             except (TypeError, ValueError, RuntimeError):  # text, None in a list: torch's "invalid data type"
