@@ -64,7 +64,7 @@ from marlcrash.cells.model import CellModel
 from marlcrash.cells.parameterization import apply_increments
 from marlcrash.config import config_dir, require
 from marlcrash.errors import ConfigError, PulseError
-from marlcrash.pulse.io import ACC_UNITS, acc_unit_key, check_record_rate, read_pulse
+from marlcrash.pulse.io import ACC_UNITS, acc_unit_key, check_record_rate, is_mme, read_pulse
 from marlcrash.pulse.signal import (
     DEFAULT_COMPARE_MARGIN,
     compared_window,
@@ -492,7 +492,7 @@ class ReferenceSampler:
         if not path.exists():
             raise ConfigError(f"no such file or ISO-MME folder: {path} (a relative path is read from configs/)",
                               key=f"{key}.path")  # fmt: skip
-        if path.is_dir() or path.suffix.lower() == ".mme":  # named by key here, not as read_pulse's keyword
+        if is_mme(path):  # named by key here, not as read_pulse's keyword
             if acc_unit_key(spec.unit) != "g":
                 raise ConfigError(f"an ISO-MME test's channels carry their own 'Unit' and are read in it; leave unit "
                                   f"at g (the default), got {spec.unit!r}", key=f"{key}.unit")  # fmt: skip

@@ -1139,6 +1139,11 @@ def _write_mme_files(folder: Path, chan_name: str, files: dict[str, str], channe
         shutil.rmtree(stage, ignore_errors=True)
 
 
+def is_mme(path: Path) -> bool:
+    """``path`` names an ISO-MME test (its folder or its ``.mme`` file), not a CSV file."""
+    return path.is_dir() or path.suffix.lower() == ".mme"
+
+
 def read_pulse(path: str | Path, **kwargs: Any) -> Pulse:
     """Read a CSV file (``.csv``/``.txt``) or an ISO-MME test (folder or ``.mme``) by its path.
 
@@ -1147,7 +1152,7 @@ def read_pulse(path: str | Path, **kwargs: Any) -> Pulse:
     refused unless left at their defaults (a channel carries its unit and time base), as is ``breakpoints``.
     """
     path = Path(path)
-    if path.is_dir() or path.suffix.lower() == ".mme":
+    if is_mme(path):
         if "acc_col" in kwargs:
             _names(kwargs["acc_col"], "acc_col", "channel")  # named as given
             kwargs["channels"] = kwargs.pop("acc_col")
@@ -1292,7 +1297,7 @@ def processed_pulse(
                          f"prepared), got {acc_col!r}")  # fmt: skip
     kwargs: dict[str, Any] = {"sign": sign}
     p = Path(path)
-    mme = p.is_dir() or p.suffix.lower() == ".mme"
+    mme = is_mme(p)
     if not mme:
         kwargs.update(time_col=time_col, unit=unit, time_unit=time_unit, breakpoints=breakpoints)
     elif breakpoints:
@@ -1363,7 +1368,7 @@ def check_record_rate(pulse: Pulse, path: str | Path, *, time_unit: str = "s") -
         )
     if pulse.sample_rate_hz >= MIN_RECORD_RATE_HZ:
         return
-    mme = p.is_dir() or p.suffix.lower() == ".mme"
+    mme = is_mme(p)
     if mme:
         cause = "is the channel's 'Sampling interval' in seconds?"
     elif time_unit == "s":
