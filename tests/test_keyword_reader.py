@@ -227,6 +227,20 @@ def test_nested_includes_relative_to_including_file(tmp_path):
         _read(tmp_path / "loop.k")
 
 
+def test_an_include_without_a_file_name_is_refused_where_it_stands(tmp_path):
+    """An *INCLUDE whose file name card is blank, or missing, read as including nothing: the file meant was silently
+    left out of the vehicle. It is refused naming the file and line, as an *INCLUDE_<option> without its name is."""
+    cases = {
+        "blank.k": (HEAD + NODES + SHELL + "*INCLUDE\n\n*END\n", 20),
+        "none.k": (HEAD + NODES + SHELL + "*INCLUDE\n$ the file name was here\n*END\n", 19),
+        "last.k": (HEAD + NODES + SHELL + "*INCLUDE\n", 19),
+        "option.k": (HEAD + NODES + SHELL + "*INCLUDE_TRANSFORM\n   \n         0         0         0\n", 20),
+    }
+    for name, (text, line) in cases.items():
+        with pytest.raises(DeckError, match=rf"{name} line {line}: \*INCLUDE\w* expects a file name, got "):
+            _read(_write(tmp_path, text, name))
+
+
 def test_shell_thickness_rules_and_triangles(tmp_path):
     nodes = NODES + "       5           200.0\n"
     shells = """*ELEMENT_SHELL_THICKNESS

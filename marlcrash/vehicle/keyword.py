@@ -860,13 +860,14 @@ def _scan(
                 p = Path(src.text(r).strip())
                 deck.include_paths.append(p if p.is_absolute() else path.parent / p)
         elif name == "INCLUDE":
-            for r, fname in _include_names(src, rows):
+            for r, fname in _include_names(src, rows, k):
                 target = _resolve_include(fname, path, deck, r)
                 if target in stack:
                     raise DeckError(f"*INCLUDE {fname!r} includes itself (cycle through {target.name})", path, r + 1)
                 _scan(target, deck, fmt, (*stack, target), (path, r + 1), src)
         elif name.startswith("INCLUDE_"):  # _TRANSFORM, _AUTO_OFFSET, _STAMPED_PART, _NASTRAN, ...
-            for r, fname in _include_names(src, rows)[:1]:  # the file name is the first card; the rest are options
+            names = _include_names(src, rows, k, first=True)
+            for r, fname in names[:1]:  # the file name is the first card; the rest are options
                 deck.unread_includes.append(
                     f"*{name} {fname!r} ({path.name} line {r + 1}) is not read: the nodes, elements and masses of "
                     "that file are missing from the vehicle (merge it into the deck, or include it with *INCLUDE)"
@@ -882,7 +883,11 @@ def _scan(
             deck.blocks.append(block)
 
 
-def _include_names(src: _Source, rows: np.ndarray) -> list[tuple[int, str]]:
+def _include_names(src: _Source, rows: np.ndarray, k: int, first: bool = False) -> list[tuple[int, str]]:
+    """The file names of the ``*INCLUDE`` keyword at line ``k`` (0-based): ``(line, name)`` per name, a name
+    continued on the next line where it ends in `` +``. A block without a name (``first``: whose first card is no
+    name, as an ``*INCLUDE_<option>``'s must be) is refused at its first blank card, or at the keyword where it has
+    no card."""
     out: list[tuple[int, str]] = []
     pending: tuple[int, str] | None = None
     for r in rows.tolist():
@@ -898,6 +903,9 @@ def _include_names(src: _Source, rows: np.ndarray) -> list[tuple[int, str]]:
             out.append((first, t))
     if pending is not None:
         out.append(pending)
+    if not out or (first and out[0][0] != rows[0]):
+        at, got = (int(rows[0]), "a blank card") if rows.size else (k, "no card")
+        raise DeckError(f"*{_keyword_line(src.text(k))[0]} expects a file name, got {got}", src.path, at + 1)
     return out
 
 
