@@ -376,6 +376,27 @@ curve driven
         read_deck(_write(tmp_path, base + "*PART\np1\n         1         1         1\n" + kinematic + shells[:59]))
 
 
+def test_curve_offsets_apply_before_the_scale_factors(tmp_path):
+    """*DEFINE_CURVE scales after the offsets (LS-DYNA manual, *DEFINE_CURVE remark 1): abscissa SFA (x + OFFA),
+    ordinate SFO (y + OFFO). The reader took x SFA + OFFA and y SFO + OFFO, the same only where an offset is 0."""
+    curve = """*MAT_024
+         1  7.85e-09  210000.0       0.3       0.0       0.0       0.4
+       0.0       0.0        77
+*DEFINE_CURVE_TITLE
+scaled and offset
+        77         0       2.0    1000.0      0.05       0.1
+                 0.0                0.25
+                 0.1                0.35
+                 0.2                0.45
+"""
+    deck = HEAD.replace("*MAT_ELASTIC\n         1  7.85e-09  210000.0       0.3\n", curve) + NODES + SHELL
+    mat = _read(_write(tmp_path, deck)).materials[1]
+    x, y = 2.0 * (np.array([0.0, 0.1, 0.2]) + 0.05), 1000.0 * (np.array([0.25, 0.35, 0.45]) + 0.1)  # 0.1..0.5, 350..550
+    assert mat.yield_strength == pytest.approx(y[0] * 1e6)
+    assert mat.ultimate_strength == pytest.approx(y[-1] * 1e6)
+    assert mat.fracture_strength == pytest.approx(np.interp(0.4, x, y) * 1e6)  # FAIL 0.4 on the scaled abscissa
+
+
 def test_skipped_cards_counted_in_one_warning(tmp_path):
     extra = (
         "*CONTROL_TERMINATION\n0.1\n*DATABASE_GLSTAT\n1e-4\n*DATABASE_GLSTAT\n1e-4\n*FOO_BAR\nx\n"

@@ -1799,8 +1799,9 @@ def _read_curve(block: _Block, opts: set[str], t: _Tables, params: _Params) -> N
     if lcid is None or lcid <= 0:
         raise block.err(f"*{block.keyword} expects a positive LCID in columns 1-10, got {lcid!r}", rows[0])
     pts = np.array([[x or 0.0 for x in _read_line(block, r, _CURVE_PT, params)] for r in rows[1:]]).reshape(-1, 2)
-    x = pts[:, 0] * (sfa or 1.0) + (offa or 0.0)
-    y = pts[:, 1] * (sfo or 1.0) + (offo or 0.0)
+    # scaled after the offsets are applied (LS-DYNA manual, *DEFINE_CURVE); SFA, SFO 0 (or blank) mean 1
+    x = (pts[:, 0] + (offa or 0.0)) * (sfa or 1.0)
+    y = (pts[:, 1] + (offo or 0.0)) * (sfo or 1.0)
     t.curves[int(lcid)] = (x, y)
 
 
