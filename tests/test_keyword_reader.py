@@ -397,6 +397,18 @@ scaled and offset
     assert mat.fracture_strength == pytest.approx(np.interp(0.4, x, y) * 1e6)  # FAIL 0.4 on the scaled abscissa
 
 
+def test_a_curve_defined_twice_is_refused(tmp_path):
+    """Two *DEFINE_CURVE of one LCID: the last silently replaced the first, so an LCSS stress-strain curve could be
+    another than the one meant; refused naming both, as duplicate material and section ids are (and as LS-DYNA does)."""
+    mat = "*MAT_024\n         1  7.85e-09  210000.0       0.3\n       0.0       0.0        77\n"
+    curves = "*DEFINE_CURVE\n        77\n0.0,300.0\n1.0,400.0\n*DEFINE_CURVE_TITLE\nagain\n        77\n0.0,100.0\n"
+    deck = HEAD.replace("*MAT_ELASTIC\n         1  7.85e-09  210000.0       0.3\n", mat + curves) + NODES + SHELL
+    with pytest.raises(
+        DeckError, match=r"deck.k line 19: \*DEFINE_CURVE_TITLE LCID 77 is defined twice \(first in deck.k line 14\)"
+    ):
+        _read(_write(tmp_path, deck))
+
+
 def test_skipped_cards_counted_in_one_warning(tmp_path):
     extra = (
         "*CONTROL_TERMINATION\n0.1\n*DATABASE_GLSTAT\n1e-4\n*DATABASE_GLSTAT\n1e-4\n*FOO_BAR\nx\n"

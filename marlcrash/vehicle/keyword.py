@@ -87,7 +87,7 @@ Errors:
     DeckError: every problem in the deck -- a file or include that cannot be read,
         a line that is not a keyword where one is needed, a non-numeric or blank
         required field, an undefined parameter, duplicate node/element/part/section/
-        material ids, elements or parts referring to unknown nodes, parts, sections or
+        material/curve ids, elements or parts referring to unknown nodes, parts, sections or
         materials, non-finite coordinates, undetectable units. The message names the
         file and 1-based line and says what was expected and what was found, e.g.
         ``car.k line 812: *NODE expects a numeric x coordinate in columns 9-24, got 'abc'``.
@@ -1091,6 +1091,7 @@ class _Tables:
     sets: dict[int, tuple[str, list[int]]] = field(default_factory=dict)  # part sets, resolved (_resolve_sets)
     node_sets: dict[int, tuple[str, np.ndarray]] = field(default_factory=dict)  # node sets, resolved
     curves: dict[int, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    curve_at: dict[int, tuple[Path, int]] = field(default_factory=dict)  # LCID -> where its *DEFINE_CURVE is
     velocities: list[_Velocity] = field(default_factory=list)
     rigid_merges: list[tuple[int, int]] = field(default_factory=list)  # (PIDM, PIDS) pairs
     point_masses: list[_PointMasses] = field(default_factory=list)
@@ -1798,6 +1799,12 @@ def _read_curve(block: _Block, opts: set[str], t: _Tables, params: _Params) -> N
     lcid, _sidr, sfa, sfo, offa, offo = _read_line(block, rows[0], _CURVE_HEAD, params)
     if lcid is None or lcid <= 0:
         raise block.err(f"*{block.keyword} expects a positive LCID in columns 1-10, got {lcid!r}", rows[0])
+    prev = t.curve_at.get(int(lcid))
+    if prev is not None:
+        raise block.err(
+            f"*{block.keyword} LCID {lcid} is defined twice (first in {prev[0].name} line {prev[1]})", rows[0]
+        )
+    t.curve_at[int(lcid)] = (block.src.path, rows[0] + 1)
     pts = np.array([[x or 0.0 for x in _read_line(block, r, _CURVE_PT, params)] for r in rows[1:]]).reshape(-1, 2)
     # scaled after the offsets are applied (LS-DYNA manual, *DEFINE_CURVE); SFA, SFO 0 (or blank) mean 1
     x = (pts[:, 0] + (offa or 0.0)) * (sfa or 1.0)
