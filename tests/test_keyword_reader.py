@@ -223,8 +223,13 @@ def test_nested_includes_relative_to_including_file(tmp_path):
     ):
         _read(p)
     _write(tmp_path, "*KEYWORD\n*INCLUDE\nloop.k\n", "loop.k")
-    with pytest.raises(DeckError, match="cycle"):
+    with pytest.raises(DeckError, match=r"loop.k line 3: \*INCLUDE 'loop.k' makes a cycle: loop.k -> loop.k"):
         _read(tmp_path / "loop.k")
+    # a cycle through two files names the chain, not "includes itself"
+    _write(tmp_path, "*KEYWORD\n*INCLUDE\nsub/b.k\n", "a.k")
+    _write(sub, "*KEYWORD\n$ back up\n*INCLUDE\n../a.k\n", "b.k")
+    with pytest.raises(DeckError, match=r"b.k line 4: \*INCLUDE '../a.k' makes a cycle: main.k -> a.k -> b.k -> a.k"):
+        _read(_write(tmp_path, HEAD + "*INCLUDE\na.k\n", "main.k"))
 
 
 def test_an_include_without_a_file_name_is_refused_where_it_stands(tmp_path):

@@ -863,7 +863,8 @@ def _scan(
             for r, fname in _include_names(src, rows, k):
                 target = _resolve_include(fname, path, deck, r)
                 if target in stack:
-                    raise DeckError(f"*INCLUDE {fname!r} includes itself (cycle through {target.name})", path, r + 1)
+                    chain = " -> ".join(p.name for p in (*stack, target))  # from the main deck
+                    raise DeckError(f"*INCLUDE {fname!r} makes a cycle: {chain}", path, r + 1)
                 _scan(target, deck, fmt, (*stack, target), (path, r + 1), src)
         elif name.startswith("INCLUDE_"):  # _TRANSFORM, _AUTO_OFFSET, _STAMPED_PART, _NASTRAN, ...
             names = _include_names(src, rows, k, first=True)
