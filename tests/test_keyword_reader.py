@@ -437,7 +437,7 @@ def test_skipped_cards_counted_in_one_warning(tmp_path):
         (NODES + "       1             1.0\n", r"line 17: node id 1 is defined twice \(first in deck.k line 13\)"),
         (
             NODES.replace("           100.0           100.0", "             nan           100.0"),
-            r"line 15: \*NODE expects finite",
+            r"line 15: \*NODE expects a finite x coordinate in columns 9-24, got 'nan'",
         ),
         (NODES + SHELL.replace("       4\n", "       9\n"), r"line 18: shell element 1 refers to undefined node 9"),
         (
@@ -461,6 +461,36 @@ def test_skipped_cards_counted_in_one_warning(tmp_path):
 def test_errors_name_file_line_and_what(tmp_path, body, pattern):
     with pytest.raises(DeckError, match=r"deck.k " + pattern):
         _read(_write(tmp_path, HEAD + body))
+
+
+@pytest.mark.parametrize("word", ["nan", "inf", "-Infinity", "1e999"])
+def test_a_non_finite_number_is_refused_where_it_is_written(tmp_path, word):
+    """A field reading as NaN or infinity (a script that wrote ``nan`` into the deck, an exponent typo) is refused
+    naming its line and columns. A material's PR or SIGY of 'inf' read as "missing" (NaN is the reader's mark for a
+    field not given): defaulted to 0.3 or 0.12 % of E with a note saying the deck had no value."""
+    cases = {
+        "pr": (
+            HEAD.replace("  210000.0       0.3", f"  210000.0{word:>10}"),
+            r"line 11: \*MAT_ELASTIC expects a finite PR in columns 31-40",
+        ),
+        "sigy": (
+            HEAD.replace(
+                "*MAT_ELASTIC\n         1  7.85e-09  210000.0       0.3",
+                f"*MAT_024\n         1  7.85e-09  210000.0       0.3{word:>10}",
+            ),
+            r"line 11: \*MAT_024 expects a finite SIGY in columns 41-50",
+        ),
+        "param": (
+            HEAD.replace("*KEYWORD\n", f"*KEYWORD\n*PARAMETER\nR t       {word:>10}\n"),
+            r"line 3: \*PARAMETER expects a R value for 't'",
+        ),
+    }
+    for name, (head, pattern) in cases.items():
+        with pytest.raises(DeckError, match=rf"{name}.k {pattern}, got '{re.escape(word)}'"):
+            _read(_write(tmp_path, head + NODES + SHELL, f"{name}.k"))
+    nodes = NODES.replace("           100.0           100.0", f"{word:>16}           100.0")
+    with pytest.raises(DeckError, match=rf"line 15: \*NODE expects a finite x coordinate .*, got '{re.escape(word)}'"):
+        _read(_write(tmp_path, HEAD + nodes + SHELL))
 
 
 def test_reference_errors_on_parts(tmp_path):

@@ -580,8 +580,14 @@ _FORTRAN_REAL = re.compile(r"([+-]?(?:\d+\.?\d*|\.\d+))(?:[dDeE]([+-]?\d+)|([+-]
 signed exponent without its letter (``7.85-9``, ``2.1+5``: E is optional before a sign)."""
 
 
+class _NonFinite(ValueError):
+    """A real field that reads as NaN or infinity (``nan``, ``inf``, ``1e999``): no value a deck can mean (the reader
+    marks fields not given with NaN)."""
+
+
 def _to_number(tok: str, kind: str) -> float | int:
-    """Convert a stripped token; raises ValueError when it is not a number of that kind."""
+    """Convert a stripped token; raises ValueError when it is not a number of that kind (:class:`_NonFinite` where
+    it reads as NaN or infinity)."""
     if kind == "i":
         try:
             return int(tok)
@@ -591,12 +597,15 @@ def _to_number(tok: str, kind: str) -> float | int:
                 raise
             return int(v)
     try:
-        return float(tok)
+        v = float(tok)
     except ValueError:
         m = _FORTRAN_REAL.fullmatch(tok)
         if m is None:
             raise
-        return float(f"{m.group(1)}e{m.group(2) or m.group(3)}")
+        v = float(f"{m.group(1)}e{m.group(2) or m.group(3)}")
+    if not math.isfinite(v):
+        raise _NonFinite(tok)
+    return v
 
 
 def _columns(widths: list[int]) -> list[tuple[int, int]]:
@@ -659,11 +668,11 @@ def _read_line(
             if f.kind == "i" and abs(val) >= 2**62:
                 raise OverflowError
             out.append(val)
-        except (ValueError, OverflowError):
+        except (ValueError, OverflowError) as e:
             if lenient:
                 out.append(None)
                 continue
-            what = "an integer" if f.kind == "i" else "a numeric"
+            what = "an integer" if f.kind == "i" else "a finite" if isinstance(e, _NonFinite) else "a numeric"
             raise block.err(f"*{block.keyword} expects {what} {f.label} {wh}, got {tok!r}", row) from None
     return out
 
@@ -736,6 +745,8 @@ def _table(
             b = blank[fast]
             s[b, -1] = ord("0")
             vals, bad = _convert(s, dtype)
+            if dtype is np.float64:
+                bad |= ~np.isfinite(vals)  # "1e999": the per-line parser refuses it, naming the columns
             col[fast] = vals
             slow[fast[bad]] = True
         out[f.name] = col
