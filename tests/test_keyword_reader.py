@@ -1011,6 +1011,21 @@ def test_fortran_exponents_without_the_letter_read_as_ls_dyna_reads_them(tmp_pat
         _read(_write(tmp_path, bad, "bad.k"))
 
 
+def test_a_line_of_tabs_and_spaces_is_a_blank_line(tmp_path):
+    """A line holding only whitespace with a tab in it (an editor's indentation) was taken for a card in *NODE and
+    *ELEMENT_SHELL blocks ('expects node id in columns 1-8, got blank'), while a line of spaces is skipped there."""
+    ref = _read(_write(tmp_path, HEAD + NODES + SHELL))
+    nodes = NODES.replace("       2 ", "\t\n  \t  \n       2 ")
+    m = _read(_write(tmp_path, HEAD + nodes + SHELL + " \t \n", "tabs.k"))
+    assert m.n_nodes == 4 and m.n_shells == 1 and m.total_mass() == ref.total_mass()
+    solid = HEAD.replace("*SECTION_SHELL\n         1         2\n       2.0       2.0       2.0       2.0\n",
+                         "*SECTION_SOLID\n         1         1\n")  # fmt: skip
+    nodes = "*NODE\n1,0,0,0\n2,10,0,0\n3,10,20,0\n4,0,20,0\n5,0,0,30\n6,10,0,30\n7,10,20,30\n8,0,20,30\n"
+    one = "       1       1       1       2       3       4       5       6       7       8\n"
+    m = _read(_write(tmp_path, solid + nodes + "*ELEMENT_SOLID\n\t\n" + one, "solid.k"))
+    assert m.n_solids == 1
+
+
 @pytest.mark.parametrize(
     ("card", "pattern"),
     [

@@ -782,7 +782,7 @@ def _nonblank(block: _Block, rows: np.ndarray) -> np.ndarray:
         w = int(lengths.max())
         if w <= 256:
             arr = src.padded(rows[cand], w)
-            keep[cand] = ~(arr == 32).all(axis=1)
+            keep[cand] = ~((arr == 32) | (arr == 9)).all(axis=1)  # spaces and tabs
         else:
             keep[cand] = [bool(src.text(int(r)).strip()) for r in rows[cand]]
     return rows[keep]
