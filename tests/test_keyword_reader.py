@@ -99,6 +99,37 @@ def test_free_long_i10_and_mixed_formats_agree(tmp_path):
         assert m.total_mass() == pytest.approx(ref.total_mass())
 
 
+def test_an_include_suffix_sets_the_format_of_the_included_file(tmp_path):
+    """LS-DYNA reads an include file in the including deck's format unless the *INCLUDE keyword has a format suffix
+    ('+' long, '%' I10, '-' standard), which then holds for the whole included file. The suffix was ignored: a
+    long-format file under '*INCLUDE +' was read in 8/16-column fields."""
+    ref = _read(_write(tmp_path, HEAD + NODES + SHELL))
+    xy = ((1, 0, 0), (2, 100, 0), (3, 100, 100), (4, 0, 100))
+    long_mesh = "*KEYWORD\n*NODE\n" + "".join(f"{i:20d}{x:20.4f}{y:20.4f}{0.0:20.4f}\n" for i, x, y in xy)
+    long_mesh += "*ELEMENT_SHELL\n" + "".join(f"{v:20d}" for v in (1, 1, 1, 2, 3, 4)) + "\n"
+    _write(tmp_path, long_mesh, "long_mesh.k")
+    i10_mesh = "*KEYWORD\n*NODE\n" + "".join(f"{i:10d}{x:16.4f}{y:16.4f}{0.0:16.4f}\n" for i, x, y in xy)
+    i10_mesh += "*ELEMENT_SHELL\n" + "".join(f"{v:10d}" for v in (1, 1, 1, 2, 3, 4)) + "\n"
+    _write(tmp_path, i10_mesh, "i10_mesh.k")
+    _write(tmp_path, "*KEYWORD\n" + NODES + SHELL, "std_mesh.k")
+    long_head = "*KEYWORD LONG=Y\n" + HEAD.replace("*KEYWORD\n", "").replace(
+        "\n         1         1         1", "\n" + "".join(f"{1:20d}" for _ in range(3))
+    ).replace(
+        "         1         2\n       2.0       2.0       2.0       2.0", f"{1:20d}{2:20d}\n" + f"{2.0:20.1f}" * 4
+    )
+    long_head = long_head.replace(
+        "         1  7.85e-09  210000.0       0.3", f"{1:20d}{7.85e-9:20.3e}{210000.0:20.1f}{0.3:20.2f}"
+    )
+    for name, deck in (
+        ("long.k", HEAD + "*INCLUDE +\nlong_mesh.k\n*END\n"),
+        ("i10.k", HEAD + "*INCLUDE%\ni10_mesh.k\n*END\n"),
+        ("std.k", long_head + "*INCLUDE -\nstd_mesh.k\n*END\n"),
+    ):
+        m = _read(_write(tmp_path, deck, name))
+        np.testing.assert_allclose(m.coords, ref.coords, err_msg=name)
+        assert m.n_shells == 1 and m.total_mass() == pytest.approx(ref.total_mass()), name
+
+
 def test_fast_and_slow_paths_agree_on_a_large_block(tmp_path):
     rng = np.random.default_rng(0)
     n = 3000

@@ -5,7 +5,8 @@ Coverage:
 - formats: fixed (8/10/16-character fields), long (20-character fields; a keyword
   suffix ``+`` or ``*KEYWORD LONG=Y``), I10 (fields under 10 characters widened to
   10; suffix ``%`` or ``*KEYWORD I10=Y``) and free format (comma-separated lines,
-  which may stand between fixed-format lines of one block); ``$`` comments; reals as Fortran reads them
+  which may stand between fixed-format lines of one block); an include file is read in its includer's format, or
+  in the one its ``*INCLUDE`` suffix (``+``, ``%``, ``-``) names; ``$`` comments; reals as Fortran reads them
   (``1.0D+03``, and ``7.85-9``: a signed exponent needs no E);
 - structure: ``*KEYWORD``, ``*TITLE``, ``*END`` (ends the current file),
   ``*INCLUDE`` (paths relative to the including file, nested), ``*INCLUDE_PATH``
@@ -876,7 +877,7 @@ def _scan(
                 if target in stack:
                     chain = " -> ".join(p.name for p in (*stack, target))  # from the main deck
                     raise DeckError(f"*INCLUDE {fname!r} makes a cycle: {chain}", path, r + 1)
-                _scan(target, deck, fmt, (*stack, target), (path, r + 1), src)
+                _scan(target, deck, bfmt, (*stack, target), (path, r + 1), src)  # "*INCLUDE +": a long file
         elif name.startswith("INCLUDE_"):  # _TRANSFORM, _AUTO_OFFSET, _STAMPED_PART, _NASTRAN, ...
             names = _include_names(src, rows, k, first=True)
             for r, fname in names[:1]:  # the file name is the first card; the rest are options
