@@ -1494,6 +1494,19 @@ def test_a_parameter_expression_may_use_parameters_named_as_python_keywords(tmp_
     assert m.shell_thickness[0] == pytest.approx((25.4 * 0.1 * 0.5 + 3.0) * 1e-3, rel=1e-12)
 
 
+def test_an_expression_using_a_later_expression_says_so(tmp_path):
+    """Expressions are evaluated in deck order; one using a parameter that a later expression defines was refused as
+    'used but not defined in the deck; define it with *PARAMETER', though the deck defines it. The message now names
+    the later definition."""
+    params = "*PARAMETER_EXPRESSION\nR t3,2*t4\n$ t4 is defined below\nR t4,1.5\n"
+    head = HEAD.replace("       2.0       2.0       2.0       2.0\n", "       &t3\n")
+    with pytest.raises(DeckError, match=r"deck\.k line 2: parameter 't4' is used before it is defined: its "
+                       r"\*PARAMETER_EXPRESSION \(deck\.k line 4\) comes later"):  # fmt: skip
+        _read(_write(tmp_path, params + head.replace("*KEYWORD\n", "") + NODES + SHELL))
+    with pytest.raises(DeckError, match=r"deck\.k line 2: \*PARAMETER_EXPRESSION 't3' uses itself"):
+        _read(_write(tmp_path, "*PARAMETER_EXPRESSION\nR t3,t3+1\n" + head.replace("*KEYWORD\n", "") + NODES + SHELL))
+
+
 def test_mod_by_zero_in_a_parameter_expression_is_named(tmp_path):
     params = "*PARAMETER_EXPRESSION\nR t3,mod(1,0)\n"
     head = HEAD.replace("       2.0       2.0       2.0       2.0\n", "       &t3\n")

@@ -479,14 +479,26 @@ class _Params:
         self.used.add(key)
         if key in self.user:
             return self.user[key]
-        f = src
+        f, seen = src, [None]
         while f is not None:
             local = self.local.get(id(f))
             if local is not None and key in local[1].values:
                 return local[1].values[key]
+            seen.append(id(f))
             f = f.parent
         if key in self.values:
             return self.values[key]
+        for skey in seen:  # an expression not yet evaluated: it comes later in the deck
+            if (skey, key) in self.exprs:
+                p, at = self.exprs[(skey, key)][3:5]
+                if (p, at) == (path, line):
+                    raise DeckError(f"*PARAMETER_EXPRESSION {key!r} uses itself", path, line)
+                raise DeckError(
+                    f"parameter {key!r} is used before it is defined: its *PARAMETER_EXPRESSION ({p.name} line {at}) "
+                    "comes later; expressions are evaluated in deck order",
+                    path,
+                    line,
+                )
         raise DeckError(
             f"parameter {key!r} is used but not defined in the deck; define it with *PARAMETER, or give its value in "
             f"the deck's units: --param {key}=VALUE on the command line, params={{{key!r}: value}} in Python",
