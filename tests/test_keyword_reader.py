@@ -1303,6 +1303,31 @@ def test_set_card_errors_name_the_field_as_the_manual_does(tmp_path, card, patte
         _read(_write(tmp_path, HEAD + NODES + SHELL + card))
 
 
+def test_a_set_id_defined_twice_is_refused(tmp_path):
+    """Two part sets (or two node sets) of one SID: the last silently replaced the first, so a sub-assembly map's
+    set:<id>, an *INITIAL_VELOCITY_GENERATION or a *CONSTRAINED_NODAL_RIGID_BODY could take another set than the one
+    meant. Refused naming both, as other duplicate ids are; a part set and a node set may share an id."""
+    parts = "*SET_PART_LIST\n        10\n         1\n"
+    parts += "*SET_PART_LIST_GENERATE_TITLE\nagain\n        10\n         1         1\n"
+    with pytest.raises(DeckError, match=r"line 24: \*SET_PART_LIST_GENERATE_TITLE SID 10 is defined twice "
+                       r"\(first in deck.k line 20\)"):  # fmt: skip
+        _read(_write(tmp_path, HEAD + NODES + SHELL + parts))
+    nodes = "*SET_NODE_LIST\n        10\n         1         2\n*SET_NODE\n        10\n         3\n"
+    with pytest.raises(DeckError, match=r"line 23: \*SET_NODE SID 10 is defined twice \(first in deck.k line 20\)"):
+        _read(_write(tmp_path, HEAD + NODES + SHELL + nodes))
+    m = _read(
+        _write(
+            tmp_path,
+            HEAD
+            + NODES
+            + SHELL
+            + parts[: parts.index("*SET_PART_LIST_GENERATE")]
+            + nodes[: nodes.index("*SET_NODE\n")],
+        )
+    )
+    assert m.n_shells == 1
+
+
 @pytest.mark.parametrize(
     ("card", "pattern"),
     [

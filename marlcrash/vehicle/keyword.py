@@ -1139,6 +1139,7 @@ class _IdSet:
     title: str
     ids: np.ndarray
     ranges: np.ndarray
+    where: tuple[Path, int] | None = None  # the SID card
 
     def members(self, defined: np.ndarray) -> np.ndarray:
         """The set's ids: those listed, as listed, then each range's ids among ``defined`` (sorted, unique), each
@@ -1656,7 +1657,13 @@ def _read_id_set(block: _Block, opts: set[str], out: dict[int, _IdSet], params: 
         else:
             ids = vals.ravel()
             ids = ids[ids != 0]
-    out[int(sid)] = _IdSet(title, ids, ranges)
+    where = (block.src.path, rows[0] + 1)
+    prev = out[int(sid)].where if int(sid) in out else None
+    if prev is not None:
+        raise block.err(
+            f"*{block.keyword} SID {sid} is defined twice (first in {prev[0].name} line {prev[1]})", rows[0]
+        )
+    out[int(sid)] = _IdSet(title, ids, ranges, where)
 
 
 def _read_velocity(block: _Block, opts: set[str], t: _Tables, params: _Params) -> bool:
