@@ -748,3 +748,11 @@ def test_a_sim_config_made_in_python_is_checked_as_a_file_is():
     for wrong in ("configs/sim.yaml", {"substeps": 4}):
         with pytest.raises(ModelError, match=r"config must be a SimConfig \(load_sim_config\(path, overrides\)\)"):
             Surrogate(cells, wrong)
+
+
+def test_a_surrogate_of_no_cell_model_is_refused_by_name():
+    """``Surrogate(None)`` and ``Surrogate("car.k")`` failed with ``AttributeError: 'NoneType' object has no
+    attribute 'validate'``; they are refused naming ``cells`` and how to make a cell model."""
+    for wrong in (None, "car.k", {"n_cells": 3}):
+        with pytest.raises(ModelError, match=r"^cells must be a CellModel \(marlcrash.cells.discretize"):
+            Surrogate(wrong)

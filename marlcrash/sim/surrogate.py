@@ -394,14 +394,19 @@ class Surrogate:
             (:mod:`marlcrash.sim.implicit`) can run such a surrogate; :meth:`run` refuses.
 
     Raises:
-        ModelError: links touching null cells or owned by the compartment, no mass, an output step that is
-            not a positive whole number of integration steps (or not a number), or a ``config`` that is no
-            :class:`SimConfig`.
+        ModelError: ``cells`` that is no :class:`CellModel`, links touching null cells or owned by the compartment,
+            no mass, an output step that is not a positive whole number of integration steps (or not a number), or a
+            ``config`` that is no :class:`SimConfig`.
     """
 
     def __init__(
         self, cells: CellModel, config: SimConfig | None = None, output_dt: float = 5e-4, stability_caps: bool = True
     ):
+        if not isinstance(cells, CellModel):  # None or a deck path failed with "'NoneType' has no attribute 'validate'"
+            raise ModelError(
+                f"cells must be a CellModel (marlcrash.cells.discretize(model)), got {type(cells).__name__} "
+                f"{_short(cells)}"
+            )
         cells.validate()
         if config is not None and not isinstance(config, SimConfig):  # a path or overrides failed inside dataclasses
             raise ModelError(
