@@ -756,3 +756,13 @@ def test_a_surrogate_of_no_cell_model_is_refused_by_name():
     for wrong in (None, "car.k", {"n_cells": 3}):
         with pytest.raises(ModelError, match=r"^cells must be a CellModel \(marlcrash.cells.discretize"):
             Surrogate(wrong)
+
+
+def test_stability_caps_that_is_not_true_or_false_is_refused():
+    """``stability_caps="no"`` was read as true (a non-empty string) and ``None`` as false, without a word."""
+    cells = single_cell()
+    for wrong in ("no", "false", None, 0, 1.0):
+        with pytest.raises(ModelError, match=r"^stability_caps must be True or False, got "):
+            Surrogate(cells, stability_caps=wrong)
+    assert Surrogate(cells, stability_caps=np.bool_(False)).stability_caps is False
+    assert Surrogate(cells, stability_caps=True).stability_caps is True

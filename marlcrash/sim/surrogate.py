@@ -394,9 +394,9 @@ class Surrogate:
             (:mod:`marlcrash.sim.implicit`) can run such a surrogate; :meth:`run` refuses.
 
     Raises:
-        ModelError: ``cells`` that is no :class:`CellModel`, links touching null cells or owned by the compartment,
-            no mass, an output step that is not a positive whole number of integration steps (or not a number), or a
-            ``config`` that is no :class:`SimConfig`.
+        ModelError: ``cells`` that is no :class:`CellModel`, a ``stability_caps`` that is no bool, links touching
+            null cells or owned by the compartment, no mass, an output step that is not a positive whole number of
+            integration steps (or not a number), or a ``config`` that is no :class:`SimConfig`.
     """
 
     def __init__(
@@ -412,6 +412,8 @@ class Surrogate:
             raise ModelError(
                 f"config must be a SimConfig (load_sim_config(path, overrides)), got {type(config).__name__} {config!r}"
             )
+        if not isinstance(stability_caps, bool | np.bool_):  # bool("no") is True, bool(None) False
+            raise ModelError(f"stability_caps must be True or False, got {stability_caps!r}")
         self.stability_caps = bool(stability_caps)
         self.cells = cells
         self.config = cfg = checked(config) if config is not None else load_sim_config()
