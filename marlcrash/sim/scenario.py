@@ -92,6 +92,8 @@ class CrashScenario:
             "duration",
             f"duration {self.duration} s is not a whole number of {self.output_dt} s output steps",
         )
+        for i, s in enumerate(self.sensors):  # '' passed here and failed at the run as an unknown sensor
+            require(bool(s.strip()), f"sensors[{i}]", f"expected a sensor name, got {s!r}")
         require(len(set(self.sensors)) == len(self.sensors), "sensors", f"duplicate sensor names in {self.sensors}")
 
     @property
