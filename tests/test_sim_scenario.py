@@ -152,3 +152,16 @@ def test_the_output_rate_samples_the_same_crash(default_cells):
     assert torch.equal(vel[4000.0][..., ::2], vel[2000.0]) and torch.equal(vel[500.0], vel[2000.0][..., ::4])
     with pytest.raises(ModelError, match=r"output_rate 10000 Hz\) must be a whole number >= 1 of the 62.5 us"):
         Surrogate(default_cells, output_dt=1e-4)
+
+
+def test_an_output_rate_that_fits_no_integration_step_is_refused_when_the_scenario_is_loaded():
+    """A scenario whose output step is no whole number of the integration steps of configs/sim.yaml (0.5 ms / 8 at
+    10 or 2.5 kHz) loaded, and was refused only where a Surrogate was built for it, after the deck was read and cut
+    into cells, without naming the scenario file or key. Now loading it is refused, naming output_rate."""
+    for rate in (10000.0, 2500.0, 3000.0):
+        with pytest.raises(ConfigError, match=r"must be a whole number >= 1 of the 62.5 us integration steps") as e:
+            get_scenario("full_width_40", {"output_rate": rate})
+        assert e.value.key == "output_rate" and e.value.path == str(scenario_dir() / "full_width_40.yaml")
+        assert f"output_rate {rate:g} Hz" in str(e.value) and "e.g. output rates of 4000, 2000, 1000 Hz" in str(e.value)
+    for rate in (500.0, 1000.0, 4000.0, 16000.0):
+        assert get_scenario("full_width_40", {"output_rate": rate}).output_rate == rate

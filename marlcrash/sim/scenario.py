@@ -15,6 +15,7 @@ as a real barrier face does. :func:`barrier_mask` gives each cell's covered fron
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -34,6 +35,29 @@ SIDES: tuple[str, ...] = ("left", "right")
 """Struck sides; ``SIDE_SIGN[side]`` is +1 for left (+y) and -1 for right (-y)."""
 SIDE_SIGN: dict[str, float] = {"left": 1.0, "right": -1.0}
 _PLANE_TOL = 1e-6  # lateral distance [m] below which a cell face counts as lying on a barrier edge
+BASE_OUTPUT_DT = 5e-4
+"""[s] The output step ``substeps`` (configs/sim.yaml) divides: the integration step is ``BASE_OUTPUT_DT / substeps``
+at any output rate (the 2 kHz sensor rate of DESIGN 1.4 the caps were tuned at)."""
+
+
+def steps_per_output(output_dt: float, substeps: int) -> int | None:
+    """Integration steps (``BASE_OUTPUT_DT / substeps`` each) in one output step ``output_dt`` [s]; ``None`` where
+    that is no whole number >= 1 (or ``output_dt`` is not finite)."""
+    per = output_dt * substeps / BASE_OUTPUT_DT if math.isfinite(output_dt) else math.nan
+    if not (per >= 1 - 1e-9 and abs(per - round(per)) <= 1e-6 * per):
+        return None
+    return round(per)
+
+
+def output_step_rule(substeps: int) -> str:
+    """The end of a message refusing an output step that is no whole number of the integration steps of
+    ``substeps``: what those steps are and which output rates fit them."""
+    dt = BASE_OUTPUT_DT / substeps
+    fits = ", ".join(f"{1 / (k * dt):.6g}" for k in (max(substeps // 2, 1), substeps, 2 * substeps))
+    return (
+        f"must be a whole number >= 1 of the {dt * 1e6:.6g} us integration steps (configs/sim.yaml substeps: "
+        f"{substeps} per {BASE_OUTPUT_DT * 1e3:g} ms); e.g. output rates of {fits} Hz"
+    )
 
 
 @dataclass
@@ -143,7 +167,8 @@ def get_scenario(name: str, overrides: dict | None = None) -> CrashScenario:
     """Load a registered scenario by name, with optional dotted-key overrides.
 
     Raises:
-        ConfigError: unknown name (the message lists the known ones), or an invalid file.
+        ConfigError: unknown name (the message lists the known ones), an invalid file, or an ``output_rate`` whose
+            output step is no whole number of the integration steps of ``configs/sim.yaml``.
     """
     if not isinstance(name, str) or name not in list_scenarios():
         # checked against the registry, not the file system: "" and "../other/x" named files outside it
@@ -155,6 +180,16 @@ def get_scenario(name: str, overrides: dict | None = None) -> CrashScenario:
     if sc.name != name:
         raise ConfigError(
             f"scenario file {path.name} declares name {sc.name!r}; expected {name!r}", key="name", path=path
+        )
+    from marlcrash.sim.surrogate import load_sim_config  # the simulator builds on this module
+
+    # now, not where a Surrogate is built for it (after the deck was read and cut into cells)
+    substeps = load_sim_config().substeps
+    if steps_per_output(sc.output_dt, substeps) is None:
+        raise ConfigError(
+            f"output_rate {sc.output_rate:g} Hz: the output step {sc.output_dt:.6g} s {output_step_rule(substeps)}",
+            key="output_rate",
+            path=path,
         )
     return sc
 

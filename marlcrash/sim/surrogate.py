@@ -96,7 +96,13 @@ from marlcrash.cells.model import N_PARAMS, PARAM_NAMES, CellModel
 from marlcrash.config import checked, config_dir, load_config, require
 from marlcrash.errors import ModelError
 from marlcrash.sim.energy import cell_energies
-from marlcrash.sim.scenario import CrashScenario, barrier_fraction
+from marlcrash.sim.scenario import (
+    BASE_OUTPUT_DT,
+    CrashScenario,
+    barrier_fraction,
+    output_step_rule,
+    steps_per_output,
+)
 
 _BIG = 1e30  # "infinite" yield force of a bottomed-out link [N]
 _EPS_F = 1e-12  # floor of a cell's largest transmission factor [-] (all-zero rows stay zero)
@@ -105,9 +111,6 @@ MAX_LINK_DAMPING_RATIO = 0.15
 """Largest accepted ``link_damping_ratio`` [-]. The damping force is explicit and each element's stiffness may sit
 at its stability cap, so damping adds to a node's step-stability budget: on the default car with 0.5x-2x random
 energies, 0.15 peaks at 7 500 g (0.05: 5 900 g), 0.2 at 15 000 g and 0.25 diverges (1e30 g)."""
-BASE_OUTPUT_DT = 5e-4
-"""[s] The output step ``substeps`` (configs/sim.yaml) divides: the integration step is ``BASE_OUTPUT_DT / substeps``
-at any output rate (the 2 kHz sensor rate of DESIGN 1.4 the caps were tuned at)."""
 MAX_STIFFNESS_CAP = 1.2
 """Largest accepted ``stiffness_cap`` [-]: stable together with the largest accepted damping ratios (link 0.15,
 contact and wall 1.0: peaks of 6 600 g on the same test); 1.5 with link damping 0.15 diverges, and 1.9 with the
@@ -419,18 +422,13 @@ class Surrogate:
         self.config = cfg = checked(config) if config is not None else load_sim_config()
         self.output_dt = _seconds(output_dt, "output_dt")
         self.dt = BASE_OUTPUT_DT / cfg.substeps
-        per = self.output_dt / self.dt if math.isfinite(self.output_dt) else math.nan
-        if not (per >= 1 - 1e-9 and abs(per - round(per)) <= 1e-6 * per):
+        per = steps_per_output(self.output_dt, cfg.substeps)
+        if per is None:
             rate = f"{1.0 / self.output_dt:.6g}" if self.output_dt else "inf"
-            fits = ", ".join(
-                f"{1 / (k * self.dt):.6g}" for k in (max(cfg.substeps // 2, 1), cfg.substeps, 2 * cfg.substeps)
-            )
             raise ModelError(
-                f"output step {output_dt!r} s (a scenario's output_rate {rate} Hz) must be a whole number >= 1 of the "
-                f"{self.dt * 1e6:.6g} us integration steps (configs/sim.yaml substeps: {cfg.substeps} per "
-                f"{BASE_OUTPUT_DT * 1e3:g} ms); e.g. output rates of {fits} Hz"
+                f"output step {output_dt!r} s (a scenario's output_rate {rate} Hz) {output_step_rule(cfg.substeps)}"
             )
-        self.substeps = round(per)
+        self.substeps = per
         """Integration steps per output sample."""
         dtype = self.dtype = cfg.torch_dtype
         n, L = cells.n_cells, cells.n_links
