@@ -165,3 +165,19 @@ def test_an_output_rate_that_fits_no_integration_step_is_refused_when_the_scenar
         assert f"output_rate {rate:g} Hz" in str(e.value) and "e.g. output rates of 4000, 2000, 1000 Hz" in str(e.value)
     for rate in (500.0, 1000.0, 4000.0, 16000.0):
         assert get_scenario("full_width_40", {"output_rate": rate}).output_rate == rate
+
+
+def test_an_output_rate_that_fits_no_substeps_is_named_not_the_duration():
+    """``output_rate: 2000.5`` (a typo) was reported as ``duration 0.15 s is not a whole number of
+    0.000499875 s output steps``, keyed ``duration``. No ``substeps`` in [1, 1000] gives an integration step that
+    divides that output step: the rate itself is refused, naming output_rate."""
+    for rate in (2000.5, 2001.0, 3333.0):
+        with pytest.raises(ConfigError) as e:
+            from_dict(CrashScenario, {"output_rate": rate})
+        assert e.value.key == "output_rate" and f"output_rate {rate:g} Hz" in str(e.value), str(e.value)
+    # a rate that fits some substeps (2.5 kHz: 0.4 ms = 5 steps at substeps 5) passes the schema's own check;
+    # the duration is then checked against it
+    assert from_dict(CrashScenario, {"output_rate": 2500.0}).n_outputs == 376
+    with pytest.raises(ConfigError) as e:
+        from_dict(CrashScenario, {"output_rate": 4000.0, "duration": 0.15010})
+    assert e.value.key == "duration"

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from fractions import Fraction
 from pathlib import Path
 from typing import Literal
 
@@ -38,6 +39,8 @@ _PLANE_TOL = 1e-6  # lateral distance [m] below which a cell face counts as lyin
 BASE_OUTPUT_DT = 5e-4
 """[s] The output step ``substeps`` (configs/sim.yaml) divides: the integration step is ``BASE_OUTPUT_DT / substeps``
 at any output rate (the 2 kHz sensor rate of DESIGN 1.4 the caps were tuned at)."""
+MAX_SUBSTEPS = 1000
+"""Most integration steps per ``BASE_OUTPUT_DT`` a sim config may ask for (``substeps``) [-]."""
 
 
 def steps_per_output(output_dt: float, substeps: int) -> int | None:
@@ -109,6 +112,16 @@ class CrashScenario:
             np.isfinite(self.output_rate) and 100.0 <= self.output_rate <= 1e5,
             "output_rate",
             f"output_rate must be in [100, 1e5] Hz, got {self.output_rate}",
+        )
+        # the closest fraction of BASE_OUTPUT_DT with at most MAX_SUBSTEPS in the denominator is the one that fits,
+        # if any does: 2000.5 Hz was refused as a duration that is not a whole number of its output steps
+        near = Fraction(self.output_dt / BASE_OUTPUT_DT).limit_denominator(MAX_SUBSTEPS)
+        require(
+            steps_per_output(self.output_dt, near.denominator) is not None,
+            "output_rate",
+            f"output_rate {self.output_rate:g} Hz: the output step {self.output_dt:.6g} s must be a whole number of "
+            f"integration steps ({BASE_OUTPUT_DT * 1e3:g} ms / substeps, configs/sim.yaml), which no substeps in "
+            f"[1, {MAX_SUBSTEPS}] gives; e.g. output rates of 500, 1000, 2000, 4000 Hz",
         )
         steps = self.duration * self.output_rate
         require(

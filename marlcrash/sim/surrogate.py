@@ -98,6 +98,7 @@ from marlcrash.errors import ModelError
 from marlcrash.sim.energy import cell_energies
 from marlcrash.sim.scenario import (
     BASE_OUTPUT_DT,
+    MAX_SUBSTEPS,
     CrashScenario,
     barrier_fraction,
     output_step_rule,
@@ -142,7 +143,11 @@ class SimConfig:
 
     def validate(self) -> None:
         """Range checks; raise :class:`~marlcrash.errors.ConfigError` naming the key."""
-        require(1 <= self.substeps <= 1000, "substeps", f"substeps must be in [1, 1000], got {self.substeps}")
+        require(
+            1 <= self.substeps <= MAX_SUBSTEPS,
+            "substeps",
+            f"substeps must be in [1, {MAX_SUBSTEPS}], got {self.substeps}",
+        )
         require(
             0.0 < self.stiffness_cap <= MAX_STIFFNESS_CAP,
             "stiffness_cap",
