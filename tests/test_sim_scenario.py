@@ -27,7 +27,7 @@ REQUIRED = {
 
 
 def test_every_yaml_is_registered_and_required_ones_exist():
-    files = {p.stem for p in scenario_dir().glob("*.yaml")}
+    files = {p.stem for p in scenario_dir().glob("*.yaml")} | {p.stem for p in scenario_dir().glob("*.yml")}
     assert files == set(list_scenarios())
     assert files >= REQUIRED
 
@@ -181,3 +181,20 @@ def test_an_output_rate_that_fits_no_substeps_is_named_not_the_duration():
     with pytest.raises(ConfigError) as e:
         from_dict(CrashScenario, {"output_rate": 4000.0, "duration": 0.15010})
     assert e.value.key == "duration"
+
+
+def test_a_scenario_file_ending_in_yml_is_registered(tmp_path, monkeypatch):
+    """``configs/scenarios/extra.yml`` was left out of the registry without a word (only ``*.yaml`` was read), so
+    ``scenarios: {extra: 1.0}`` was an unknown scenario although its file was there. Both endings are read; a name
+    given by two files is refused, naming both."""
+    dst = tmp_path / "configs"
+    shutil.copytree(config_dir(), dst)
+    text = (dst / "scenarios" / "full_width_40.yaml").read_text().replace("name: full_width_40", "name: extra")
+    (dst / "scenarios" / "extra.yml").write_text(text)
+    monkeypatch.setenv("MARLCRASH_CONFIGS", str(dst))
+    assert "extra" in list_scenarios() and "full_width_40" in list_scenarios()
+    assert get_scenario("extra").speed_kmh == 40.0
+    (dst / "scenarios" / "extra.yaml").write_text(text)
+    with pytest.raises(ConfigError, match=r"scenario 'extra' is given by two files, extra.yaml and extra.yml") as e:
+        get_scenario("extra")
+    assert e.value.key == "scenario"

@@ -1,7 +1,7 @@
 """Crash scenarios (DESIGN 1.2, 4): impact speed, barrier overlap and side, output timing.
 
 A :class:`CrashScenario` is a validated schema whose values live in
-``configs/scenarios/<name>.yaml`` (km/h there, m/s inside). The registry maps
+``configs/scenarios/<name>.yaml`` (or ``.yml``; km/h there, m/s inside). The registry maps
 file names to scenarios: :func:`list_scenarios`, :func:`get_scenario`.
 
 Barrier geometry: x points rearward, +y is the vehicle's left. A rigid wall
@@ -171,9 +171,20 @@ def scenario_dir() -> Path:
     return config_dir() / "scenarios"
 
 
+def _scenario_files() -> dict[str, list[Path]]:
+    """The files of each scenario name (file stem): ``<name>.yaml`` or ``<name>.yml`` (a ``.yml`` file was left out
+    of the registry without a word)."""
+    found: dict[str, list[Path]] = {}
+    for suffix in (".yaml", ".yml"):
+        for p in sorted(scenario_dir().glob(f"*{suffix}")):
+            if p.is_file():
+                found.setdefault(p.stem, []).append(p)
+    return found
+
+
 def list_scenarios() -> list[str]:
-    """Names of all registered scenarios (the YAML file stems), sorted."""
-    return sorted(p.stem for p in scenario_dir().glob("*.yaml"))
+    """Names of all registered scenarios (the stems of the ``.yaml`` or ``.yml`` files), sorted."""
+    return sorted(_scenario_files())
 
 
 def get_scenario(name: str, overrides: dict | None = None) -> CrashScenario:
@@ -183,12 +194,16 @@ def get_scenario(name: str, overrides: dict | None = None) -> CrashScenario:
         ConfigError: unknown name (the message lists the known ones), an invalid file, or an ``output_rate`` whose
             output step is no whole number of the integration steps of ``configs/sim.yaml``.
     """
-    if not isinstance(name, str) or name not in list_scenarios():
+    files = _scenario_files()
+    if not isinstance(name, str) or name not in files:
         # checked against the registry, not the file system: "" and "../other/x" named files outside it
-        raise ConfigError(f"unknown scenario {name!r}; registered: {list_scenarios()}", key="scenario")
-    path = scenario_dir() / f"{name}.yaml"
-    if not path.is_file():
-        raise ConfigError(f"unknown scenario {name!r}; registered: {list_scenarios()}", key="scenario")
+        raise ConfigError(f"unknown scenario {name!r}; registered: {sorted(files)}", key="scenario")
+    if len(files[name]) > 1:
+        raise ConfigError(
+            f"scenario {name!r} is given by two files, {' and '.join(p.name for p in files[name])}; keep one",
+            key="scenario",
+        )
+    path = files[name][0]
     sc = load_config(CrashScenario, path, overrides, complete=True)
     if sc.name != name:
         raise ConfigError(
