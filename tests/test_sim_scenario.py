@@ -198,3 +198,27 @@ def test_a_scenario_file_ending_in_yml_is_registered(tmp_path, monkeypatch):
     with pytest.raises(ConfigError, match=r"scenario 'extra' is given by two files, extra.yaml and extra.yml") as e:
         get_scenario("extra")
     assert e.value.key == "scenario"
+
+
+def test_scenario_tensors_and_barrier_mask_refuse_what_is_no_checked_scenario():
+    """``scenario_tensors([None])`` failed with ``AttributeError: 'NoneType' object has no attribute 'speed'``,
+    ``scenario_tensors(scenario)`` with "'CrashScenario' object is not iterable", and a scenario made in Python with
+    side ``up`` with ``KeyError: 'up'``; ``barrier_mask`` of an overlap of 0 covered nothing without a word."""
+    from marlcrash.errors import ModelError
+    from marlcrash.sim.scenario import scenario_tensors
+
+    sc = get_scenario("offset40_left")
+    with pytest.raises(ModelError, match=r"^scenarios must be a list of CrashScenario, got CrashScenario"):
+        scenario_tensors(sc)
+    with pytest.raises(ModelError, match=r"^scenarios\[1\] must be a CrashScenario .*, got NoneType None"):
+        scenario_tensors([sc, None])
+    with pytest.raises(ConfigError, match=r"key 'side': .*\['left', 'right'\], got 'up'"):
+        scenario_tensors([sc, CrashScenario(side="up")])
+    assert scenario_tensors([sc, sc])["side"].tolist() == [1.0, 1.0]
+    cells = block()
+    for wrong in ("offset40_left", None):
+        with pytest.raises(ModelError, match=rf"^scenario must be a CrashScenario .*, got \w+ {wrong!r}"):
+            barrier_mask(cells, wrong)
+    for change, key in (({"side": "up"}, "side"), ({"overlap": 0.0}, "overlap")):
+        with pytest.raises(ConfigError, match=f"key '{key}'"):
+            barrier_mask(cells, CrashScenario(**change))

@@ -26,8 +26,8 @@ import torch
 
 from marlcrash.cells.model import CellModel
 from marlcrash.cells.roi import barrier_edge
-from marlcrash.config import config_dir, load_config, require
-from marlcrash.errors import ConfigError
+from marlcrash.config import checked, config_dir, load_config, require
+from marlcrash.errors import ConfigError, ModelError
 
 KMH = 1.0 / 3.6
 """One km/h in m/s."""
@@ -154,10 +154,43 @@ class CrashScenario:
         return SIDE_SIGN[self.side]
 
 
+def _not_a_scenario(value, what: str) -> ModelError:
+    return ModelError(
+        f"{what} must be a CrashScenario (marlcrash.sim.get_scenario(name)), got {type(value).__name__} {value!r}"
+    )
+
+
+def checked_scenario(scenario: CrashScenario | None) -> CrashScenario | None:
+    """``scenario`` checked as a registered file's values are (a :class:`CrashScenario` built in Python skipped that:
+    a side of ``up`` failed with a ``KeyError``, a sensor list given as one name was split into letters).
+
+    Raises:
+        ModelError: not a :class:`CrashScenario`.
+        ConfigError: a wrong type or value, naming the key.
+    """
+    if scenario is None:
+        return None
+    if not isinstance(scenario, CrashScenario):
+        raise _not_a_scenario(scenario, "scenario")
+    return checked(scenario)
+
+
 def scenario_tensors(scenarios: list[CrashScenario]) -> dict[str, torch.Tensor]:
     """The per-row ``speed`` [m/s], ``overlap`` [-] and ``side`` [-] ``[B]`` float64 tensors of ``scenarios``, the
     per-row arguments of :meth:`~marlcrash.sim.surrogate.Surrogate.run` (float64: torch's default float32 ran 40 km/h
-    at 39.9999986 km/h; the simulator casts to its own precision)."""
+    at 39.9999986 km/h; the simulator casts to its own precision).
+
+    Raises:
+        ModelError: ``scenarios`` is no list or tuple, or holds something that is no :class:`CrashScenario`.
+        ConfigError: a scenario value of the wrong type or out of range (one made in Python), naming the key.
+    """
+    if not isinstance(scenarios, list | tuple):  # one scenario: "'CrashScenario' object is not iterable"
+        raise ModelError(f"scenarios must be a list of CrashScenario, got {type(scenarios).__name__} {scenarios!r}")
+    for i, sc in enumerate(scenarios):
+        if not isinstance(sc, CrashScenario):
+            raise _not_a_scenario(sc, f"scenarios[{i}]")
+    for sc in {id(sc): sc for sc in scenarios}.values():  # each once: a sampled batch repeats a few scenarios
+        checked(sc)
     f64 = torch.float64
     return {
         "speed": torch.tensor([s.speed for s in scenarios], dtype=f64),
@@ -268,7 +301,14 @@ def barrier_mask(cells: CellModel, scenario: CrashScenario) -> np.ndarray:
 
     Returns:
         ``[n_cells]`` float in [0, 1]; zero for cells with no front area, null and rigid cells.
+
+    Raises:
+        ModelError: ``scenario`` is no :class:`CrashScenario`.
+        ConfigError: a scenario value of the wrong type or out of range (one made in Python), naming the key.
     """
+    if not isinstance(scenario, CrashScenario):
+        raise _not_a_scenario(scenario, "scenario")
+    scenario = checked(scenario)
     frac = barrier_fraction(
         torch.as_tensor(cells.lo[:, 1], dtype=torch.float64),
         torch.as_tensor(cells.hi[:, 1], dtype=torch.float64),

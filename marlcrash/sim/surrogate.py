@@ -101,6 +101,7 @@ from marlcrash.sim.scenario import (
     MAX_SUBSTEPS,
     CrashScenario,
     barrier_fraction,
+    checked_scenario,
     output_step_rule,
     steps_per_output,
 )
@@ -366,24 +367,6 @@ def _seconds(value, name: str) -> float:
     return float(value)
 
 
-def _checked_scenario(scenario: CrashScenario | None) -> CrashScenario | None:
-    """``scenario`` checked as a registered file's values are (a :class:`CrashScenario` built in Python skipped that:
-    a side of ``up`` failed with a ``KeyError``, a sensor list given as one name was split into letters).
-
-    Raises:
-        ModelError: not a :class:`CrashScenario`.
-        ConfigError: a wrong type or value, naming the key.
-    """
-    if scenario is None:
-        return None
-    if not isinstance(scenario, CrashScenario):
-        raise ModelError(
-            f"scenario must be a CrashScenario (marlcrash.sim.get_scenario(name)), got {type(scenario).__name__} "
-            f"{scenario!r}"
-        )
-    return checked(scenario)
-
-
 class Surrogate:
     """Batched cell-surrogate simulator of one :class:`CellModel`.
 
@@ -605,7 +588,7 @@ class Surrogate:
                 :class:`CrashScenario`.
             ConfigError: a scenario value of the wrong type or out of range, naming the key.
         """
-        return self._wall(batch, _checked_scenario(scenario), speed, overlap, side)
+        return self._wall(batch, checked_scenario(scenario), speed, overlap, side)
 
     def _wall(self, batch, scenario, speed, overlap, side) -> WallProps:
         """:meth:`scenario_tensors` of a checked scenario (:meth:`prepare` checks it once)."""
@@ -759,7 +742,7 @@ class Surrogate:
             ``(params [B, n, 7], LinkProps, WallProps, n_out, (sensor names, [K] cell indices))``.
         """
         p = self.check_params(params)
-        scenario = _checked_scenario(scenario)
+        scenario = checked_scenario(scenario)
         if scenario is not None and abs(scenario.output_dt - self.output_dt) > 1e-12:
             raise ModelError(
                 f"scenario output step {scenario.output_dt} s differs from the surrogate's {self.output_dt} s; "
