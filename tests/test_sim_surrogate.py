@@ -766,3 +766,14 @@ def test_stability_caps_that_is_not_true_or_false_is_refused():
             Surrogate(cells, stability_caps=wrong)
     assert Surrogate(cells, stability_caps=np.bool_(False)).stability_caps is False
     assert Surrogate(cells, stability_caps=True).stability_caps is True
+
+
+def test_scenario_tensors_of_a_batch_that_is_no_count_is_refused():
+    """``Surrogate.scenario_tensors(-1, sc)`` failed inside torch ("numel: integer multiplication overflow") and
+    ``scenario_tensors(2.5, sc)`` with expand()'s TypeError; the batch size is refused by name."""
+    cells = block()
+    sim = Surrogate(cells)
+    for wrong in (-1, 2.5, "2", None, True):
+        with pytest.raises(ModelError, match=r"^batch must be a number of rows >= 0 \(an integer\), got "):
+            sim.scenario_tensors(wrong, FW40)
+    assert sim.scenario_tensors(np.int64(3), FW40).k.shape == (3, cells.n_cells)

@@ -584,11 +584,17 @@ class Surrogate:
             speed: ``[B]`` impact speed [m/s]; overlap: ``[B]`` in (0, 1]; side: ``[B]`` +1 left, -1 right.
 
         Raises:
-            ModelError: tensors of the wrong shape, out of range or not on the CPU, a scenario that is no
-                :class:`CrashScenario`.
+            ModelError: a ``batch`` that is no integer >= 0, tensors of the wrong shape, out of range or not on the
+                CPU, a scenario that is no :class:`CrashScenario`.
             ConfigError: a scenario value of the wrong type or out of range, naming the key.
         """
-        return self._wall(batch, checked_scenario(scenario), speed, overlap, side)
+        try:  # -1 failed inside torch ("numel: integer multiplication overflow"), 2.5 in expand()
+            rows = None if isinstance(batch, bool) else operator.index(batch)
+        except TypeError:
+            rows = None
+        if rows is None or rows < 0:
+            raise ModelError(f"batch must be a number of rows >= 0 (an integer), got {_short(batch)}")
+        return self._wall(rows, checked_scenario(scenario), speed, overlap, side)
 
     def _wall(self, batch, scenario, speed, overlap, side) -> WallProps:
         """:meth:`scenario_tensors` of a checked scenario (:meth:`prepare` checks it once)."""
