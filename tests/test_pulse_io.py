@@ -721,6 +721,7 @@ def test_mme_reads_acceleration_channels_and_the_summary_takes_the_first(tmp_pat
     for f in (tmp_path / "S" / "Channel").glob("S.001"):
         f.rename(tmp_path / "T" / "Channel" / "T.003")
     _edit(tmp_path / "T" / "Channel" / "T.chn", "channels          :2", "channels          :3")  # and listed
+    _edit(tmp_path / "T" / "T.mme", "channels          :2", "channels          :3")  # and counted
     with (tmp_path / "T" / "Channel" / "T.chn").open("a", encoding="latin-1") as f:
         f.write("Name of channel 003         :NOVALUE\n")
     info = mme_channels(tmp_path / "T")
@@ -1803,3 +1804,43 @@ def test_processed_pulse_takes_one_channel_by_name(tmp_path, analytic, acc_col):
         with pytest.raises(PulseError, match=r"^acc_col: expected one channel name"):
             pulse_summary(path, acc_col=acc_col)
     assert processed_pulse(tmp_path / "a.csv", acc_col="radsup")[0].channels == ("radsup",)
+
+
+def test_an_iso_mme_number_of_channels_must_agree_with_its_channel_files(tmp_path, analytic):
+    """The test's ``<test>.mme`` says how many channels it has (``Number of channels``). It was read for nothing: a
+    ``T.003`` left from an earlier test beside a test of two channels without a channel list was read as its third
+    channel. The count is checked as the channel list is: a channel file it does not count is refused, naming the
+    ``.mme`` file and line; a channel it counts whose file is missing is named in a warning; a count that is no whole
+    number, or that differs from the channel list's, is refused naming its line."""
+    from marlcrash.pulse import mme_channels
+
+    chan = _three_channel_test(tmp_path, analytic)
+    mme = tmp_path / "T" / "T.mme"
+    (chan / "T.chn").unlink()  # the count of the .mme file is all the test says of its channels
+    _edit(mme, "Number of channels          :3", "Number of channels          :2")
+    unlisted = (r"T\.mme line 4: the Channel folder holds T\.003, a channel file the test does not count \('Number "
+                r"of channels' says 2\); remove it, or count it in T\.mme")  # fmt: skip
+    with pytest.raises(PulseError, match=unlisted):
+        read_mme(tmp_path / "T")
+    with pytest.raises(PulseError, match=unlisted):
+        mme_channels(tmp_path / "T")
+    _edit(mme, "Number of channels          :2", "Number of channels          :4")
+    missing = r"T\.mme line 4: counts channel 004, but the Channel folder holds no T\.004; read without it"
+    with pytest.warns(UserWarning, match=missing):
+        assert read_mme(tmp_path / "T").channels == ("tunnel", "radsup", "11HEADCG0000ACXP")
+    for value, said in (
+        ("two", "expected a whole number, got 'two'"),
+        ("\u00b3", "expected a whole number, got '\u00b3'"),
+    ):
+        _edit(mme, "Number of channels          :4", f"Number of channels          :{value}")
+        with pytest.raises(PulseError, match=rf"T\.mme line 4: 'Number of channels': {said}"):
+            read_mme(tmp_path / "T")
+        _edit(mme, f"Number of channels          :{value}", "Number of channels          :4")
+    _edit(mme, "Number of channels          :4", "Number of channels          :NOVALUE")  # not given
+    assert read_mme(tmp_path / "T").channels == ("tunnel", "radsup", "11HEADCG0000ACXP")
+    _three_channel_test(tmp_path, analytic)  # with the channel list, the two counts must agree
+    _edit(mme, "Number of channels          :3", "Number of channels          :2")
+    with pytest.raises(
+        PulseError, match=r"T\.mme line 4: 'Number of channels' says 2, the channel list T\.chn lists 3"
+    ):
+        read_mme(tmp_path / "T")

@@ -22,7 +22,9 @@ folder holding ``<test>.chn`` (the channel list) and one file per channel,
 for one number, ``<test>.001`` and ``<test>.0001`` or ``<test>.01``, are refused as ambiguous; channels are numbered
 from 001, and a ``<test>.000`` is named in a warning, not read). The channel list, where the test has one, is
 checked against the channel files (one it does not list is refused, one it lists that is missing is named in a
-warning), and its ``Name of channel 001 :<code> / <name>`` names a channel whose file gives no code or no name.
+warning), and its ``Name of channel 001 :<code> / <name>`` names a channel whose file gives no code or no name. The
+``.mme`` file's ``Number of channels`` must agree with the list; without a list, the channel files are checked against
+it as against a list of channels 001 to that count.
 Each channel file starts with ``Name  :value`` header lines; the samples follow, one value per line. Latin-1 text
 (written so), or UTF-8 as some tools write it: a line is read as UTF-8 where its bytes are UTF-8, else as Latin-1;
 UTF-16 or UTF-32 with its byte-order mark (UTF-16 without one is refused, naming the file).
@@ -718,7 +720,7 @@ def _mme_channel_files(path: Path) -> tuple[Path, list[Path], dict[Path, tuple[s
     list gives them, :func:`_listed_names`) of a test or .mme file."""
     mme, folder = _mme_paths(path)
     test = mme.stem
-    _read_lines(mme)  # the test description must at least be readable
+    count = _mme_channel_count(mme, _read_lines(mme))  # the test description must at least be readable
     # numbered with at least three digits, in numeric order: .001 to .999, then .1000 (as pyisomme writes them)
     numbered = _numbered_files(folder, test)
     for p in sorted(p for p in numbered if int(p.suffix[1:]) == 0):  # was read as channel 0, before channel 1
@@ -734,7 +736,7 @@ def _mme_channel_files(path: Path) -> tuple[Path, list[Path], dict[Path, tuple[s
     files = sorted((p for p in numbered if len(p.suffix) > 3), key=lambda p: int(p.suffix[1:]))
     if not files:
         raise _err(f"no channel files {test}.001, {test}.002, ... in the Channel folder", mme)
-    return mme, files, _listed_names(folder, test, files)
+    return mme, files, _listed_names(folder, test, files, (mme, count))
 
 
 _LISTED_CHANNEL = re.compile(r"name of channel (\d+)")
@@ -772,26 +774,51 @@ def _mme_channel_list(folder: Path, test: str) -> tuple[Path, dict[int, tuple[st
             if k in names:
                 raise _err(f"channel {k:03d} is listed twice, on lines {names[k][1]} and {i}", chn, i)
             names[k] = (value, i)
-        elif colon and key == "number of channels" and count is None and value.upper() != "NOVALUE":
-            if not value.isdecimal():  # isdigit takes '³', which int() refuses
-                raise _err(f"'Number of channels': expected a whole number, got {value!r}", chn, i)
-            count = (int(value), i)
+        elif colon and key == "number of channels" and count is None:
+            count = _channel_count(value, chn, i)
     if count is not None and names and count[0] != len(names):
         raise _err(f"'Number of channels' says {count[0]}, the list names {len(names)} channels", chn, count[1])
     return chn, names, count
 
 
-def _listed_names(folder: Path, test: str, files: list[Path]) -> dict[Path, tuple[str, str]]:
+def _channel_count(value: str, path: Path, line: int) -> tuple[int, int] | None:
+    """A ``Number of channels`` value of ``path`` at ``line``: (count, line), ``None`` for ISO-MME's ``NOVALUE``."""
+    if value.upper() == "NOVALUE":
+        return None
+    if not value.isdecimal():  # isdigit takes '³', which int() refuses
+        raise _err(f"'Number of channels': expected a whole number, got {value!r}", path, line)
+    return int(value), line
+
+
+def _mme_channel_count(mme: Path, lines: list[str]) -> tuple[int, int] | None:
+    """The ``Number of channels`` of a test's ``.mme`` file (its ``lines``): (count, line number), ``None`` where not
+    given (:func:`_channel_count`)."""
+    for i, raw in enumerate(lines, start=1):
+        key, colon, value = raw.partition(":")
+        if colon and " ".join(key.split()).lower() == "number of channels":
+            return _channel_count(value.strip(), mme, i)
+    return None
+
+
+def _listed_names(
+    folder: Path, test: str, files: list[Path], counted: tuple[Path, tuple[int, int] | None]
+) -> dict[Path, tuple[str, str]]:
     """{channel file: (channel code, channel name)} as the channel list ``<test>.chn`` names them
-    (:func:`_mme_channel_list`), checked against the channel ``files`` found; empty without a list.
+    (:func:`_mme_channel_list`), checked against the channel ``files`` found; empty without a list. ``counted`` is
+    the test's ``.mme`` file and its ``Number of channels`` (:func:`_mme_channel_count`): it must agree with the
+    list, and without one the files are checked against it as against a list of channels 001 to that count.
 
     Raises:
-        PulseError: a channel file the list does not hold (``<test>.003`` beside a list of two, as an earlier test
-            left it), naming the list and its line; a channel listed whose file is missing is named in a warning.
+        PulseError: a channel file the list (or the count) does not hold (``<test>.003`` beside a list of two, as an
+            earlier test left it), naming the list (or the ``.mme`` file) and its line, or a count that differs from
+            the list's; a channel listed (counted) whose file is missing is named in a warning.
     """
     chn, names, count = _mme_channel_list(folder, test)
+    mme, test_count = counted
     if not names and count is None:
-        return {}
+        if test_count is None:
+            return {}
+        chn, count = mme, test_count  # the .mme file's count is all the test says of its channels
     listed = set(names) if names else set(range(1, count[0] + 1))
     line = count[1] if count is not None else min(i for _, i in names.values())
     by_number = {int(p.suffix[1:]): p for p in files}
@@ -799,13 +826,20 @@ def _listed_names(folder: Path, test: str, files: list[Path]) -> dict[Path, tupl
     if unlisted:
         shown = ", ".join(unlisted[:5]) + (f" and {len(unlisted) - 5} more" if len(unlisted) > 5 else "")
         what = "a channel file" if len(unlisted) == 1 else "channel files"
-        raise _err(f"the {folder.name} folder holds {shown}, {what} the channel list does not hold (it lists "
-                   f"{len(listed)} channels); remove {'it' if len(unlisted) == 1 else 'them'}, or list "
-                   f"{'it' if len(unlisted) == 1 else 'them'} in {chn.name}", chn, line)  # fmt: skip
+        it = "it" if len(unlisted) == 1 else "them"
+        if chn == mme:
+            held = f"the test does not count ('Number of channels' says {len(listed)}); remove {it}, or count {it}"
+        else:
+            held = f"the channel list does not hold (it lists {len(listed)} channels); remove {it}, or list {it}"
+        raise _err(f"the {folder.name} folder holds {shown}, {what} {held} in {chn.name}", chn, line)
+    if test_count is not None and chn != mme and test_count[0] != len(listed):
+        raise _err(f"'Number of channels' says {test_count[0]}, the channel list {chn.name} lists {len(listed)}",
+                   mme, test_count[1])  # fmt: skip
     for k in sorted(listed - set(by_number)):
         value, at = names.get(k, ("", line))
         said = f" ({value!r})" if value else ""
-        warnings.warn(_located(f"lists channel {k:03d}{said}, but the {folder.name} folder holds no {test}.{k:03d}; "
+        verb = "counts" if chn == mme else "lists"
+        warnings.warn(_located(f"{verb} channel {k:03d}{said}, but the {folder.name} folder holds no {test}.{k:03d}; "
                                "read without it", chn, at), stacklevel=4)  # fmt: skip
     return {by_number[k]: _listed_channel(value) for k, (value, _) in names.items() if k in by_number}
 
@@ -849,7 +883,8 @@ def mme_channels(path: str | Path) -> list[dict[str, Any]]:
 
     Raises:
         PulseError: no test, no ``Channel`` folder or no channel files (naming the path), or a channel list
-            ``<test>.chn`` that does not list a channel file (naming its line).
+            ``<test>.chn`` (or, without one, the ``.mme`` file's ``Number of channels``) that does not hold a channel
+            file, or a ``Number of channels`` that differs from the list's (naming its line).
     """
     _, files, listed = _mme_channel_files(Path(path))
     return [_mme_entry(p, _parse_header(p, _read_header_lines(p))[0], listed.get(p, ("", ""))) for p in files]
@@ -877,8 +912,8 @@ def read_mme(path: str | Path, *, channels: str | Sequence[str] | None = None, s
 
     Raises:
         PulseError: missing files, two files for one channel number, a channel file the channel list
-            ``<test>.chn`` does not list, malformed headers or samples, a non-acceleration unit, unknown channels, or
-            channels with different time bases.
+            ``<test>.chn`` (or the ``.mme`` file's ``Number of channels``) does not hold, malformed headers or
+            samples, a non-acceleration unit, unknown channels, or channels with different time bases.
 
     Each file of the test is read once: a channel's header and samples together.
     """
