@@ -1844,3 +1844,24 @@ def test_an_iso_mme_number_of_channels_must_agree_with_its_channel_files(tmp_pat
         PulseError, match=r"T\.mme line 4: 'Number of channels' says 2, the channel list T\.chn lists 3"
     ):
         read_mme(tmp_path / "T")
+
+
+@pytest.mark.parametrize("short", ["T.01", "T.1"])
+def test_an_iso_mme_channel_file_numbered_with_fewer_than_three_digits_is_read(tmp_path, analytic, short):
+    """A channel file ``T.01`` (or ``T.1``), as a tool that does not pad the number to three digits writes it, was
+    passed over (without a word where the test gives no channel list or count): the test was read without its first
+    channel. It is channel 1, read as ``T.001`` is (two files for one number, ``T.01`` beside ``T.001``, are refused as
+    before)."""
+    from marlcrash.pulse import mme_channels
+
+    write_mme(analytic, tmp_path / "T", "T")
+    chan = tmp_path / "T" / "Channel"
+    (chan / "T.001").rename(chan / short)
+    (chan / "T.chn").unlink()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert [c["file"].name for c in mme_channels(tmp_path / "T")] == [short, "T.002"]
+        back = read_mme(tmp_path / "T")
+    assert back.channels == analytic.channels
+    np.testing.assert_allclose(back.acc, analytic.acc, rtol=1e-12, atol=1e-9)
+    assert read_mme(tmp_path / "T", channels=short).channels == ("tunnel",)

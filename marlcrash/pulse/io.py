@@ -18,9 +18,10 @@ linear interpolation, so it is filtered and integrated like a record.
 
 ISO-MME (ISO/TS 13499): a test folder with ``<test>.mme`` and a ``Channel``
 folder holding ``<test>.chn`` (the channel list) and one file per channel,
-``<test>.001``, ``<test>.002``, ... (at least three digits: ``<test>.1000`` follows ``<test>.999``; two files
-for one number, ``<test>.001`` and ``<test>.0001`` or ``<test>.01``, are refused as ambiguous; channels are numbered
-from 001, and a ``<test>.000`` is named in a warning, not read). The channel list, where the test has one, is
+``<test>.001``, ``<test>.002``, ... (``<test>.1000`` follows ``<test>.999``, and a number written with fewer digits,
+``<test>.01``, is read as the same channel; two files for one number, ``<test>.001`` and ``<test>.0001`` or
+``<test>.01``, are refused as ambiguous; channels are numbered from 001, and a ``<test>.000`` is named in a warning,
+not read). The channel list, where the test has one, is
 checked against the channel files (one it does not list is refused, one it lists that is missing is named in a
 warning), and its ``Name of channel 001 :<code> / <name>`` names a channel whose file gives no code or no name. The
 ``.mme`` file's ``Number of channels`` must agree with the list; without a list, the channel files are checked against
@@ -706,8 +707,8 @@ def _counted(noun: str, names: list[str]) -> str:
 
 
 def _numbered_files(folder: Path, test: str) -> list[Path]:
-    """The files ``<test>.<digits>`` in a channel folder, the stem in any case: each is read as a channel of the test
-    where its number has at least three digits, and one with fewer makes its number ambiguous."""
+    """The files ``<test>.<digits>`` in a channel folder, the stem in any case: each is read as the channel of its
+    number (``<test>.001``, or ``<test>.01`` or ``<test>.1`` unpadded), and two for one number are ambiguous."""
     return [p for p in folder.iterdir() if p.is_file() and p.stem.lower() == test.lower()
             and re.fullmatch(r"\d+", p.suffix[1:] or "")]  # fmt: skip
 
@@ -721,7 +722,7 @@ def _mme_channel_files(path: Path) -> tuple[Path, list[Path], dict[Path, tuple[s
     mme, folder = _mme_paths(path)
     test = mme.stem
     count = _mme_channel_count(mme, _read_lines(mme))  # the test description must at least be readable
-    # numbered with at least three digits, in numeric order: .001 to .999, then .1000 (as pyisomme writes them)
+    # in numeric order: .001 to .999, then .1000 (as pyisomme writes them); .01 or .1 (unpadded) is channel 1 too
     numbered = _numbered_files(folder, test)
     for p in sorted(p for p in numbered if int(p.suffix[1:]) == 0):  # was read as channel 0, before channel 1
         warnings.warn(f"{file_label(mme)}: {p.name} is {_NUMBERED_ZERO}; not read", stacklevel=3)
@@ -733,7 +734,7 @@ def _mme_channel_files(path: Path) -> tuple[Path, list[Path], dict[Path, tuple[s
         if len(same) > 1:  # T.001 and T.0001, T.01 and T.001, T.002 and t.002: which is the channel is not known
             raise _err(f"channel {number} has {_counted('files', sorted(p.name for p in same))}; a channel is one "
                        f"file {test}.{number:03d}: remove the others", folder)  # fmt: skip
-    files = sorted((p for p in numbered if len(p.suffix) > 3), key=lambda p: int(p.suffix[1:]))
+    files = sorted(numbered, key=lambda p: int(p.suffix[1:]))
     if not files:
         raise _err(f"no channel files {test}.001, {test}.002, ... in the Channel folder", mme)
     return mme, files, _listed_names(folder, test, files, (mme, count))
