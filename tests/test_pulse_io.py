@@ -1608,6 +1608,46 @@ def test_write_mme_that_fails_midway_leaves_the_folder_as_it_was(tmp_path, analy
     assert sorted(p.name for p in (tmp_path / "same").iterdir()) == ["Channel", "T.mme"]
 
 
+@pytest.mark.parametrize("failing", [1, 2, 3, 4])
+def test_write_mme_whose_renames_fail_midway_puts_back_the_files_it_replaced(tmp_path, analytic, monkeypatch, failing):
+    """Into an existing test folder, ``write_mme`` moved its files into place one by one (the channel list, each
+    channel file, then the ``.mme`` file): a rename that failed midway (``os.replace`` refused, the disk went away)
+    left the new channel list and first channels beside the old others and the old ``.mme`` file, a test of mixed
+    runs that ``read_mme`` read without a word. The files replaced are put back: the folder is as it was, and no
+    temporary file or folder is left behind."""
+    import errno
+    import os
+
+    def tree(root: Path) -> dict[str, bytes | None]:
+        return {str(p.relative_to(root)): p.read_bytes() if p.is_file() else None for p in sorted(root.rglob("*"))}
+
+    old = Pulse(analytic.time[:500], analytic.acc[:, :500] * 0.5, ("old a", "old b"))
+    write_mme(old, tmp_path / "same", "T")  # an earlier run of the test, written over: 4 files replaced
+    (tmp_path / "other").mkdir()  # a test folder without a channel folder: the folder moved, then the .mme file
+    (tmp_path / "other" / "report.txt").write_text("kept\n")
+    before = tree(tmp_path)
+    os_replace, calls = os.replace, []
+
+    def fails(src, dst, *args, **kwargs):
+        calls.append(dst)
+        if len(calls) == failing:
+            raise OSError(errno.EIO, "Input/output error", str(dst))
+        return os_replace(src, dst, *args, **kwargs)
+
+    monkeypatch.setattr(os, "replace", fails)
+    for folder in ("same", "other") if failing == 1 else ("same",):
+        calls.clear()
+        with pytest.raises(OSError, match="Input/output error"):
+            write_mme(analytic, tmp_path / folder, "T")
+        assert tree(tmp_path) == before, folder
+    monkeypatch.undo()
+    back = read_mme(tmp_path / "same")
+    assert back.channels == old.channels
+    np.testing.assert_allclose(back.acc, old.acc, rtol=1e-12, atol=1e-9)
+    write_mme(analytic, tmp_path / "same", "T")
+    assert read_mme(tmp_path / "same").channels == analytic.channels
+
+
 def _three_channel_test(tmp_path: Path, analytic: Pulse) -> Path:
     three = Pulse(analytic.time, np.stack([*analytic.acc, analytic.acc[0]]), ("tunnel", "radsup", "11HEADCG0000ACXP"))
     write_mme(three, tmp_path / "T", "T")

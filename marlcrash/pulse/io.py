@@ -43,6 +43,7 @@ import codecs
 import csv
 import io
 import math
+import os
 import re
 import warnings
 from collections.abc import Sequence
@@ -1132,6 +1133,7 @@ def _write_mme_files(folder: Path, chan_name: str, files: dict[str, str], channe
     system either way), flushed to disk, then renamed into place: the new folder at once, into an existing one the
     channel folder at once where it is new, else the channel files, then the test's ``.mme`` file last. A failure
     while writing (a full disk) leaves a new folder absent and an existing one as it was; the hidden one is removed.
+    A failure among the renames into an existing folder (:func:`_move_into`) puts back what they replaced.
     """
     import shutil
 
@@ -1162,17 +1164,53 @@ def _write_mme_files(folder: Path, chan_name: str, files: dict[str, str], channe
             sync_folder(folder.parent, files=False)
             return
         chan_dir = folder / chan_name
-        if not chan_dir.exists():
-            (stage / chan_name).rename(chan_dir)
-        else:
-            for name in channel_files:
-                (stage / chan_name / name).replace(chan_dir / name)
+        new_chan = not chan_dir.exists()
+        moves = [] if new_chan else [(stage / chan_name / name, chan_dir / name) for name in channel_files]
+        moves += [(stage / name, folder / name) for name in files]  # the .mme file last
+        _move_into(moves, stage / ".old", (stage / chan_name, chan_dir) if new_chan else None)
+        if not new_chan:
             sync_folder(chan_dir, files=False)
-        for name in files:
-            (stage / name).replace(folder / name)
         sync_folder(folder, files=False)
     finally:
         shutil.rmtree(stage, ignore_errors=True)
+
+
+def _move_into(moves: list[tuple[Path, Path]], old: Path, new_folder: tuple[Path, Path] | None) -> None:
+    """Rename the files ``moves`` (source, target) into place, after the folder ``new_folder`` (source, target) where
+    given, all or none: each target there is first linked (else copied) into the new folder ``old``, and where a rename
+    fails, those done are undone, in reverse order, before the error goes on (one that cannot be undone is added to
+    its notes). The renames are not atomic as a set for a reader that looks meanwhile, nor across a system crash."""
+    import shutil
+
+    old.mkdir()
+    kept: dict[Path, Path] = {}
+    for i, (_, target) in enumerate(moves):
+        if target.exists() or target.is_symlink():
+            try:
+                os.link(target, old / str(i), follow_symlinks=False)  # no copy, on the file system of the target
+            except (OSError, NotImplementedError):  # a file system (or platform) without hard links
+                shutil.copy2(target, old / str(i), follow_symlinks=False)
+            kept[target] = old / str(i)
+    done: list[Path] = []
+    try:
+        if new_folder is not None:
+            new_folder[0].rename(new_folder[1])
+            done.append(new_folder[1])
+        for source, target in moves:
+            source.replace(target)
+            done.append(target)
+    except BaseException as e:
+        for target in reversed(done):
+            try:
+                if new_folder is not None and target == new_folder[1]:
+                    target.rename(new_folder[0])
+                elif target in kept:
+                    kept[target].replace(target)
+                else:
+                    target.unlink()
+            except OSError as undo:
+                e.add_note(f"write_mme: could not put back {target} as it was: {undo}")
+        raise
 
 
 def is_mme(path: Path) -> bool:
