@@ -152,9 +152,12 @@ def check_step(dt: object) -> float:
 
 
 def _check_time(time: object, like: torch.Tensor) -> torch.Tensor:
-    """Sample times ``[T]``/``[..., T]`` [s] as a tensor like ``like``: finite and strictly increasing."""
+    """Sample times ``[T]``/``[..., T]`` [s] as a tensor on the device of ``like``: finite and strictly increasing, of
+    ``like``'s dtype or their own floating one where that is more precise (float64 times of float32 signals: rounded
+    to float32 first, the 50 us steps of a clock at 1000 s became 0 or 61 us)."""
     try:
-        t = torch.as_tensor(time, dtype=like.dtype, device=like.device)
+        t = time if isinstance(time, torch.Tensor) else torch.as_tensor(np.asarray(time))  # a list: float64
+        t = t.to(like.device, torch.promote_types(t.dtype, like.dtype) if t.is_floating_point() else like.dtype)
     except (TypeError, ValueError, RuntimeError):
         raise PulseError(f"expected time as a tensor or array of sample times [s], got {type(time).__name__}") from None
     if t.dim() == 0:
@@ -190,7 +193,7 @@ def _steps(time: torch.Tensor | None, dt: float | None, like: torch.Tensor) -> t
     if time is None:
         return torch.full_like(like[..., 1:], check_step(dt))
     time = _check_time(time, like)
-    return time[..., 1:] - time[..., :-1]
+    return (time[..., 1:] - time[..., :-1]).to(like.dtype)  # the steps in the times' precision, then the signals'
 
 
 def area_between(
@@ -258,7 +261,7 @@ def curve_points(
         raise PulseError(f"expected at least one sample per curve, got 0 (values of shape {tuple(values.shape)})")
     if time is None:
         time = torch.arange(values.shape[-1], dtype=values.dtype, device=values.device) * check_step(dt)
-    time = _check_time(time, values).expand(values.shape)
+    time = _check_time(time, values).to(values.dtype).expand(values.shape)
     return torch.stack([time * time_scale, values * value_scale], dim=-1)
 
 

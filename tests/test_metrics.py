@@ -375,3 +375,21 @@ def test_curves_of_two_lengths_without_time_p_are_told_to_pass_it():
     want = ref_frechet(np.stack([t.numpy(), np.zeros(50)], 1), np.stack([tp.numpy(), np.zeros(40)], 1))
     got = discrete_frechet(torch.zeros(50, dtype=torch.float64), torch.zeros(40, dtype=torch.float64), t, tp)
     assert float(got) == pytest.approx(want, rel=1e-12)
+
+
+def test_area_of_float32_signals_takes_its_widths_from_float64_times_unrounded():
+    """Float32 signals on a float64 clock (a 20 kHz record stamped from 1000 s): the times were rounded to float32
+    before their steps were taken, so the widths were multiples of float32's 61 us there (0 or 61 us for 50 us steps)
+    and the area was refused as of non-increasing times. The widths are the float64 steps, the area float32 as the
+    signals."""
+    time = 1000.0 + torch.arange(601, dtype=torch.float64) * 5e-5
+    q = torch.sin(torch.linspace(0.0, 20.0, 601))  # float32
+    p = torch.zeros(601)
+    want = area_between(q.double(), p.double(), time)
+    for t in (time, time.numpy(), time.tolist()):
+        got = area_between(q, p, t)
+        assert got.dtype == torch.float32
+        torch.testing.assert_close(got.double(), want, rtol=1e-6, atol=0.0)
+        trap = area_between(q, p, t, method="trapezoid")
+        torch.testing.assert_close(trap.double(), area_between(q.double(), p.double(), time, method="trapezoid"),
+                                   rtol=1e-6, atol=0.0)  # fmt: skip
