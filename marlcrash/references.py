@@ -208,8 +208,8 @@ class ReferenceBatch:
         scenario: ``[B]`` scenario names.
         speed, overlap, side: ``[B]`` float64 impact speed [m/s], overlap [-], side (+1 left, -1 right).
         velocity: ``[B, K, T]`` float64 reference velocity [m/s] (forward speed) as compared:
-            the integral of the CFC-filtered acceleration (``ReferenceConfig.compare_cfc``).
-        acceleration: ``[B, K, T]`` float64 reference acceleration [m/s^2].
+            the integral of the CFC-filtered acceleration (``ReferenceConfig.compare_cfc``); the acceleration as
+            compared is its time derivative.
         true_params: ``[B, n_cells, 7]`` ground truth of a twin, else ``None``.
         true_increments: ``[B, S, 7]`` the twin's log-scale increments per sub-assembly (index of
             ``CellModel.subassembly_names``) that :func:`perturb_twin` applied, else ``None``: a
@@ -232,7 +232,6 @@ class ReferenceBatch:
     overlap: torch.Tensor
     side: torch.Tensor
     velocity: torch.Tensor
-    acceleration: torch.Tensor
     true_params: torch.Tensor | None
     source: list[str]
     raw_velocity: torch.Tensor | None = None
@@ -246,7 +245,7 @@ class ReferenceBatch:
             return None if t is None else t[:1].repeat(n, *([1] * (t.ndim - 1)))
 
         return ReferenceBatch([self.scenario[0]] * n, rows(self.speed), rows(self.overlap), rows(self.side),
-                              rows(self.velocity), rows(self.acceleration), rows(self.true_params),
+                              rows(self.velocity), rows(self.true_params),
                               [self.source[0]] * n, rows(self.raw_velocity), rows(self.true_increments),
                               rows(self.margin))  # fmt: skip
 
@@ -364,7 +363,7 @@ class ReferenceSampler:
         self._params = torch.as_tensor(cells.params, dtype=torch.float64)
         self._feasible = torch.as_tensor(cells.feasible)
         self._fine: dict[int | None, tuple[CellModel, Surrogate]] = {}
-        self._cache: dict[tuple[int | None, str], tuple[np.ndarray, np.ndarray]] = {}
+        self._cache: dict[tuple[int | None, str], np.ndarray] = {}
         self._files = [self._load_file(i, config.files[i]) for i in self._file_index]  # empty unless kind file
         self._pinned: dict[int, ReferenceBatch] = {}
 
@@ -407,25 +406,23 @@ class ReferenceSampler:
             with torch.no_grad():
                 res = self.sim.run(truth, speed=speed, overlap=overlap, side=side, duration=self.duration,
                                    sensors=self.sensors, record_cells="none", backend=self.backend)  # fmt: skip
-            raw, acc = res.velocity.to(torch.float64), res.acceleration.to(torch.float64)
+            raw = res.velocity.to(torch.float64)
             source = ["twin"] * n
             increments = twin_increments(noise, self.config.twin)
         elif kind == "cross_fidelity":
             seeds = self.config.cross_fidelity.vehicle_seeds
             seed_pick = [int(k) for k in draws]
-            pairs = [self._fine_reference(seeds[k], s) for k, s in zip(seed_pick, names, strict=True)]
-            raw = torch.as_tensor(np.stack([p[0] for p in pairs]))
-            acc = torch.as_tensor(np.stack([p[1] for p in pairs]))
+            raw = torch.as_tensor(np.stack([self._fine_reference(seeds[k], s)
+                                            for k, s in zip(seed_pick, names, strict=True)]))  # fmt: skip
             source = [f"{self.config.cross_fidelity.method}:seed={seeds[k]}" for k in seed_pick]
         else:
             raw = None
             vel = torch.as_tensor(np.stack([self._files[i][0] for i in pick]))
-            acc = torch.as_tensor(np.stack([self._files[i][1] for i in pick]))
-            margin = torch.tensor([self._files[i][2] for i in pick], dtype=torch.int64)
+            margin = torch.tensor([self._files[i][1] for i in pick], dtype=torch.int64)
             source = [self.config.files[self._file_index[i]].path for i in pick]
         if raw is not None:
             vel = self.compared(raw)
-        return ReferenceBatch(names, speed, overlap, side, vel, acc, truth, source, raw, increments, margin)
+        return ReferenceBatch(names, speed, overlap, side, vel, truth, source, raw, increments, margin)
 
     def pinned(self, seed: int, n: int) -> ReferenceBatch:
         """The pinned reference of ``seed`` for ``n`` episodes (module docstring); drawn once, then cached.
@@ -439,7 +436,7 @@ class ReferenceSampler:
     @property
     def max_margin(self) -> int:
         """The most samples past the window that a reference of this sampler holds (:attr:`ReferenceBatch.margin`)."""
-        return max((f[2] for f in self._files), default=0)
+        return max((f[1] for f in self._files), default=0)
 
     def compared(self, velocity: torch.Tensor, margin: torch.Tensor | int = 0) -> torch.Tensor:
         """Simulated ``[B, K, T + max(margin)]`` velocity as it is compared over the ``T`` samples of the window.
@@ -468,19 +465,20 @@ class ReferenceSampler:
             self._fine[seed] = (fine, Surrogate(fine, sim_cfg, output_dt=1.0 / self.output_rate))
         return self._fine[seed]
 
-    def _fine_reference(self, seed: int | None, scenario: str) -> tuple[np.ndarray, np.ndarray]:
+    def _fine_reference(self, seed: int | None, scenario: str) -> np.ndarray:
+        """The raw velocity ``[K, T]`` of the fine model of ``seed`` in ``scenario`` (simulated once)."""
         key = (seed, scenario)
         if key not in self._cache:
             fine, sim = self.fine_model(seed)
             with torch.no_grad():
                 res = sim.run(torch.as_tensor(fine.params)[None], self.scenarios[scenario], duration=self.duration,
                               sensors=self.sensors, record_cells="none", backend=self.backend)  # fmt: skip
-            self._cache[key] = (res.velocity[0].double().numpy(), res.acceleration[0].double().numpy())
+            self._cache[key] = res.velocity[0].double().numpy()
         return self._cache[key]
 
     # ------------------------------------------------------------------------------------- files
-    def _load_file(self, i: int, spec: FileReference) -> tuple[np.ndarray, np.ndarray, int]:
-        """Velocity ``[K, T]`` and acceleration of test ``i`` over the window, and its margin (samples past it)."""
+    def _load_file(self, i: int, spec: FileReference) -> tuple[np.ndarray, int]:
+        """Velocity ``[K, T]`` of test ``i`` over the window, and its margin (samples past it)."""
         key = f"reference.files[{i}]"
         missing = [s for s in self.sensors if s not in spec.channels]
         if missing:
@@ -519,7 +517,6 @@ class ReferenceSampler:
                                       time_zero=spec.time_zero, threshold_g=spec.threshold_g, v0=sc.speed,
                                       beyond=most / sc.output_rate)  # fmt: skip
         margin = vel.shape[1] - self.n_outputs
-        acc = np.gradient(vel, 1.0 / sc.output_rate, axis=1)[:, : self.n_outputs]  # central at the window's end
         vel = vel[:, : self.n_outputs]
         rise = float(vel.max()) - sc.speed
         if rise > max(1.0, 0.1 * sc.speed):  # a frontal impact slows the vehicle; rebound never exceeds the speed
@@ -534,4 +531,4 @@ class ReferenceSampler:
                 f"{path.name}: expected {self.n_outputs} samples ({sc.duration} s at {sc.output_rate} Hz) after time "
                 f"zero, got {vel.shape[1]}; the record is too short for scenario {sc.name!r}"
             )
-        return vel, acc, margin
+        return vel, margin

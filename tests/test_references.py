@@ -67,6 +67,20 @@ def test_twin_without_spread_is_the_model_itself(cells, sim):
     assert float(v0[:, :2].max()) < -1.0 and float(v0[:, 2].abs().max()) < 0.01  # up-front sensors, tunnel
 
 
+def test_a_reference_batch_holds_the_compared_velocity_and_no_acceleration_that_disagrees_with_it():
+    """``ReferenceBatch.acceleration`` was read by nothing (the env, the problems and the plots differentiate the
+    compared velocity), and it was not that velocity's derivative: a simulated reference stored the simulator's
+    unfiltered acceleration beside its CFC-filtered velocity, a file reference the derivative of its filtered one. A
+    batch holds the velocity as compared (and a simulated one its raw velocity) only."""
+    from dataclasses import fields
+
+    from marlcrash.references import ReferenceBatch
+
+    names = {f.name for f in fields(ReferenceBatch)}
+    assert "velocity" in names and "raw_velocity" in names
+    assert "acceleration" not in names
+
+
 def test_compared_signal_is_the_integral_of_the_cfc60_acceleration(cells, sim):
     """DESIGN 1.5: the compared velocity integrates the CFC-filtered acceleration of the record led in by
     PRE_IMPACT_TIME at the impact speed (zero acceleration before contact); with ``compare_cfc: null`` the same
@@ -172,7 +186,7 @@ def test_a_batch_draws_row_by_row_so_a_row_does_not_depend_on_the_batch_size(cel
         torch.testing.assert_close(ref.true_increments, expected, rtol=0, atol=0)
     assert len(set(eight.scenario)) == 2  # both scenarios drawn: the rows differ in more than their twins
     assert eight.scenario[:4] == four.scenario
-    for name in ("true_increments", "true_params", "velocity", "acceleration", "speed", "overlap", "side"):
+    for name in ("true_increments", "true_params", "velocity", "speed", "overlap", "side"):
         torch.testing.assert_close(getattr(eight, name)[:4], getattr(four, name), rtol=0, atol=0, msg=name)
     one = s.sample(np.random.default_rng(3), 1)
     torch.testing.assert_close(one.true_params[0], four.true_params[0], rtol=0, atol=0)
@@ -200,7 +214,7 @@ def test_file_and_cross_fidelity_picks_do_not_depend_on_the_batch_size(cells, si
     cross = sampler(cells, sim, kind="cross_fidelity", scenarios={"full_width_40": 1.0, "offset40_left": 1.0},
                     cross_fidelity=CrossFidelityConfig(vehicle_seeds=seeds))  # fmt: skip
     fake = np.zeros((len(cells.sensor_names), cross.n_outputs))  # the pick order only: no fine model is built
-    monkeypatch.setattr(cross, "_fine_reference", lambda seed, scenario: (fake + 11.0, fake))
+    monkeypatch.setattr(cross, "_fine_reference", lambda seed, scenario: fake + 11.0)
     drawn = {n: cross.sample(np.random.default_rng(4), n) for n in (1, 2, 6)}
     assert drawn[6].source[:2] == drawn[2].source and drawn[2].source[:1] == drawn[1].source
     assert drawn[6].scenario[:2] == drawn[2].scenario
