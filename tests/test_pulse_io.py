@@ -1508,6 +1508,28 @@ def test_write_mme_refuses_a_folder_whose_other_channel_files_would_be_read_as_t
     assert read_mme(tmp_path / "T").channels == analytic.channels
 
 
+@pytest.mark.parametrize("other", ["A.mme", "t.MME"])
+def test_write_mme_refuses_a_folder_holding_the_mme_file_of_another_test(tmp_path, analytic, other):
+    """A test folder holds one test: ``read_mme`` of the folder takes its one ``.mme`` file. ``write_mme`` of test
+    ``T`` into a folder holding ``A.mme`` (or ``t.MME``, test T as another tool spells it) wrote ``T.mme`` beside
+    it, a folder that ``read_mme`` refused ("expected exactly one <test>.mme file"). It is refused before anything is
+    written, naming the file; a test written over its own ``.mme`` file is fine."""
+    write_mme(analytic, tmp_path / "T", "T")
+    mme = tmp_path / "T" / "T.mme"
+    if other == "t.MME" and mme.with_name(other).exists():
+        pytest.skip("a file system that ignores case: t.MME is T.mme")
+    mme.rename(mme.with_name(other))
+    before = {p.name: p.read_bytes() for p in (tmp_path / "T").rglob("*") if p.is_file()}
+    with pytest.raises(PulseError, match=rf"write_mme: the test folder holds {re.escape(other)}, the \.mme file of "
+                       r"a test beside the T\.mme it writes; read_mme reads a test folder of one test: remove it or "
+                       "write the test to another folder"):  # fmt: skip
+        write_mme(analytic, tmp_path / "T", "T")
+    assert {p.name: p.read_bytes() for p in (tmp_path / "T").rglob("*") if p.is_file()} == before
+    mme.with_name(other).rename(mme)
+    write_mme(analytic, tmp_path / "T", "T")
+    assert read_mme(tmp_path / "T").channels == analytic.channels
+
+
 def test_an_iso_mme_test_folder_with_two_channel_folders_is_refused_naming_both(tmp_path, analytic):
     """The channel folder is found in any case ('Channel', 'CHANNEL'). A test folder holding two ('Channel' and
     'channel', as another tool wrote it beside) was read from whichever the file system listed first, the other

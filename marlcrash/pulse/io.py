@@ -1066,6 +1066,7 @@ def write_mme(pulse: Pulse, folder: str | Path, test: str = "TEST", *, unit: str
             ``<test>.0001`` beside the ``<test>.001`` it writes), which :func:`read_mme` would read as one of its
             channels, or a ``<test>.000``, which it would warn about, or a channel list of the test spelled
             otherwise (``<TEST>.CHN``), or a test folder holding two channel folders (``Channel`` and ``channel``),
+            or the ``.mme`` file of another test (or of the test spelled otherwise),
             or a ``folder`` that is a file or inside one; nothing is written then.
     """
     if not pulse.is_uniform:
@@ -1102,6 +1103,11 @@ def write_mme(pulse: Pulse, folder: str | Path, test: str = "TEST", *, unit: str
                              f"{test!r} beside the {mine.name} it writes; remove it or write the test to another "
                              "folder")  # fmt: skip
     mme = folder / f"{test}.mme"
+    for p in sorted(folder.iterdir()) if folder.is_dir() else ():  # read_mme of the folder takes its one .mme file
+        if p.is_file() and p.suffix.lower() == ".mme" and not (mme.is_file() and mme.samefile(p)):
+            raise PulseError(f"write_mme: the test folder holds {p.name}, the .mme file of a test beside the "
+                             f"{mme.name} it writes; read_mme reads a test folder of one test: remove it or write the "
+                             "test to another folder")  # fmt: skip
     files = {mme.name: "Data format edition number  :1.6\n"
                        f"Laboratory test ref. number :{test}\n"
                        "Title                       :written by marlcrash\n"
