@@ -331,6 +331,30 @@ def test_paired_effects_match_a_hand_computation():
     assert s["pairs"] == 2 and s["gain_diff_mean"] == pytest.approx(np.mean([-2.0, -1.5])) and s["wins"] == 0
 
 
+def _table_row(seed, gain, area, **cell):
+    """A finished row with every key ``ablate.md`` reads."""
+    r = _row(seed, gain, area, **cell)
+    r.update(active_agents=21, n_agents=21, acting_cells=300, simulations=24, stop="budget", score=gain - 2.0,
+             initial_score=-2.0, dfd_worst=0.5, rmse_worst=0.4, passed=False, sims_to_success=None,
+             param_error=0.1, wall_time_s=1.0)  # fmt: skip
+    return r
+
+
+def test_ablate_md_gives_every_tables_units_and_the_pairs_of_the_area_ratio():
+    """The per-run table gave the worst area, DFD and RMSE without units (the per-cell table has them), and the
+    worst-area ratio of the paired effects, taken over the pairs whose areas are both > 0, read as over every pair
+    where fewer had one (a zero area: 1 of 2 pairs)."""
+    rows = [_table_row(0, -1.0, 0.04), _table_row(1, -2.0, 0.0), _table_row(2, -1.0, 0.02),
+            _table_row(0, -0.5, 0.01, masking="primary"), _table_row(1, -2.5, 0.04, masking="primary"),
+            _table_row(0, -1.5, 0.01, scenario="s2"), _table_row(2, -0.5, 0.01, scenario="s2")]  # fmt: skip
+    cfg = ablate.AblationConfig(masking=["none", "primary"], scenarios=["s1", "s2"])
+    md = ablate.markdown(cfg, rows, None, "today")
+    per_run = md.split("## Per run")[1]
+    assert "| area worst [m] | DFD worst [m/s] | RMSE worst [m/s] |" in per_run
+    assert "| masking | primary vs none | 2 | +0.0000 ± 0.5000 | 1/2 | 0.250 (1 of 2 pairs) |" in md
+    assert "| scenario | s2 vs s1 | 2 | +0.0000 ± 0.5000 | 1/2 | 0.354 |" in md  # every pair: no count
+
+
 # ------------------------------------------------------------------------------------------- runs
 @pytest.fixture(scope="module")
 def finished(short, tmp_path_factory):

@@ -566,9 +566,12 @@ def markdown(config: AblationConfig, rows: list[dict[str, Any]], command: str | 
             diff = _fmt(e["gain_diff_mean"], "+.4f")
             if e["gain_diff_se"] is not None:
                 diff += f" ± {_fmt(e['gain_diff_se'], '.4f')}"
+            ratio = _fmt(e["area_worst_ratio"], ".3f")
+            if e["area_worst_ratio"] is not None and e["ratio_pairs"] < e["pairs"]:  # a zero or missing area
+                ratio += f" ({e['ratio_pairs']} of {e['pairs']} pairs)"
             lines.append(
                 f"| {e['factor']} | {e['level']} vs {e['baseline']} | {e['pairs']} | {diff} | {e['wins']}/{e['pairs']} "
-                f"| {_fmt(e['area_worst_ratio'], '.3f')} | {_fmt(e['gain_mean'], '.4f')} / "
+                f"| {ratio} | {_fmt(e['gain_mean'], '.4f')} / "
                 f"{_fmt(e['baseline_gain_mean'], '.4f')} |"
             )
         lines.append("")
@@ -594,8 +597,8 @@ def markdown(config: AblationConfig, rows: list[dict[str, Any]], command: str | 
         "",
         "## Per run",
         "",
-        "| cell | seed | simulations | stop | gain | score | initial score | area worst | DFD worst | RMSE worst "
-        "| passed | sims to success | param err | wall [s] |",
+        "| cell | seed | simulations | stop | gain | score | initial score | area worst [m] | DFD worst [m/s] "
+        "| RMSE worst [m/s] | passed | sims to success | param err | wall [s] |",
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     order = [cell_name(c) for c in cells]
