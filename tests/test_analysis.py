@@ -3,6 +3,7 @@ surrogate against direct simulations."""
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 import re
@@ -728,3 +729,33 @@ def test_one_quantity_name_given_as_quantities_is_refused_naming_the_list_expect
             call()
     assert not any(tmp_path.iterdir())
     assert c.selected(("score",)) == ["score"]  # any sequence of names
+
+
+def test_the_bars_say_what_their_whiskers_are_and_where_none_can_be_told(tmp_path, monkeypatch):
+    """Sampled Shapley values are drawn with whiskers of one standard error, but nothing said so (the legend read
+    'Shapley'), and an agent whose standard error the orderings cannot tell (NaN, ``± n/a`` in the Markdown) was drawn
+    without a whisker: as if exact. Now the legend names the whiskers and such a bar is marked ``s.e. n/a``; exact
+    values keep a plain legend and no mark."""
+    from marlcrash.analysis.contributions import Contributions
+
+    nan = float("nan")
+    t = lambda x: torch.tensor(x, dtype=torch.float64)  # noqa: E731
+    sampled = Contributions(agents=["a", "b", "c"], quantities=["area/tunnel", "score"],
+                            players=torch.tensor([True, True, False]), initial=t([0.1, -2.0]),
+                            calibrated=t([0.05, -1.0]), shapley=t([[-0.02, 0.6], [-0.03, 0.4], [0.0, 0.0]]),
+                            shapley_stderr=t([[0.01, nan], [nan, 0.1], [0.0, 0.0]]), exact=False,
+                            leave_one_out=t([[-0.02, 0.6], [-0.03, 0.4], [0.0, 0.0]]),
+                            add_one=t([[-0.02, 0.6], [-0.03, 0.4], [0.0, 0.0]]), n_simulations=10)  # fmt: skip
+    figs = drawn_figures(monkeypatch)
+    plot_contributions(sampled, tmp_path / "bars.png")
+    score, area = figs[0].axes[:2]
+    legend = [tx.get_text() for tx in score.get_legend().get_texts()]
+    assert "Shapley ± one standard error" in legend, legend
+    for ax, unknown in ((score, "a"), (area, "b")):  # the bars run in the score's ranking: a, then b
+        marks = [(tx.get_text(), tx.xy[1]) for tx in ax.texts]
+        assert marks == [("s.e. n/a", ["a", "b"].index(unknown))], marks
+    exact = dataclasses.replace(sampled, exact=True, shapley_stderr=torch.zeros(3, 2, dtype=torch.float64))
+    plot_contributions(exact, tmp_path / "exact.png")
+    score = figs[1].axes[0]
+    assert sorted(tx.get_text() for tx in score.get_legend().get_texts()) == ["Shapley", "leave-one-out"]
+    assert not any(ax.texts for ax in figs[1].axes)

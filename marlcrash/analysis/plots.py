@@ -13,9 +13,10 @@ from marlcrash.outputs import save_figure
 
 
 def plot_contributions(contrib: Contributions, path: str | Path, quantities: list[str] | None = None) -> Path:
-    """Horizontal bars of the moving agents' Shapley values (with standard errors when sampled) and the
-    leave-one-out effects, one panel per quantity (default: ``score`` and every sensor's area), each in its unit.
-    Written atomically to ``path``, in the format its suffix names (PNG where it has none).
+    """Horizontal bars of the moving agents' Shapley values (when sampled, with whiskers of one standard error, and
+    ``s.e. n/a`` beside a bar whose standard error the orderings cannot tell) and the leave-one-out effects, one
+    panel per quantity (default: ``score`` and every sensor's area), each in its unit. Written
+    atomically to ``path``, in the format its suffix names (PNG where it has none).
 
     Raises:
         ValueError: an empty list of quantities or an unknown one (:meth:`Contributions.selected`).
@@ -36,7 +37,11 @@ def plot_contributions(contrib: Contributions, path: str | Path, quantities: lis
         phi = contrib.shapley[rows, j].numpy()
         err = None if contrib.exact else contrib.shapley_stderr[rows, j].numpy()
         good = phi > 0 if q == "score" else phi < 0
-        ax.barh(y, phi, xerr=err, color=np.where(good, "tab:green", "tab:red"), alpha=0.8, label="Shapley")
+        label = "Shapley" if err is None else "Shapley ± one standard error"
+        ax.barh(y, phi, xerr=err, color=np.where(good, "tab:green", "tab:red"), alpha=0.8, label=label)
+        for k in [] if err is None else np.flatnonzero(np.isnan(err)):  # no whisker drawn: not an exact value
+            ax.annotate("s.e. n/a", (phi[k], y[k]), xytext=(3 if phi[k] >= 0 else -3, 0), textcoords="offset points",
+                        ha="left" if phi[k] >= 0 else "right", va="center", fontsize=6)  # fmt: skip
         ax.plot(contrib.leave_one_out[rows, j].numpy(), y, "k|", markersize=9, label="leave-one-out")
         ax.axvline(0.0, color="0.3", lw=0.8)
         change = float(contrib.calibrated[j] - contrib.initial[j])
