@@ -423,11 +423,14 @@ def cmd_contributions(args: argparse.Namespace) -> int:
         for q in contrib.quantities:
             j = contrib.column(q)
             ranked = contrib.ranking(q)
+            rows = [(a, contrib.agents.index(a)) for a, _ in ranked]
             quantities[q] = {
                 "initial": float(contrib.initial[j]),
                 "calibrated": float(contrib.calibrated[j]),
                 "shapley": dict(ranked),
-                "shapley_stderr": {a: float(contrib.shapley_stderr[contrib.agents.index(a), j]) for a, _ in ranked},
+                "shapley_stderr": {a: float(contrib.shapley_stderr[i, j]) for a, i in rows},
+                "leave_one_out": {a: float(contrib.leave_one_out[i, j]) for a, i in rows},
+                "add_one": {a: float(contrib.add_one[i, j]) for a, i in rows},
             }
         _print_json({"analysed": what, "iteration": iteration, "provenance": None if args.run is None else
                      run.provenance, "agents_moved": int(contrib.players.sum()),

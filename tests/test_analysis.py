@@ -759,3 +759,23 @@ def test_the_bars_say_what_their_whiskers_are_and_where_none_can_be_told(tmp_pat
     score = figs[1].axes[0]
     assert sorted(tx.get_text() for tx in score.get_legend().get_texts()) == ["Shapley", "leave-one-out"]
     assert not any(ax.texts for ax in figs[1].axes)
+
+
+def test_contributions_json_gives_the_one_at_a_time_effects_beside_the_shapley_values(tmp_path, capsys):
+    """``marlcrash contributions --json`` (for scripts) gave every quantity's Shapley values and their standard
+    errors, but not the leave-one-out and add-one effects that the tables give beside them: a script had to read them
+    back from the CSV. Now both are there, per moving agent, as in the CSV."""
+    import csv
+    import json
+
+    from marlcrash.cli import main
+
+    out = tmp_path / "c"
+    assert main(["contributions", "--permutations", "4", "--no-plots", "--out", str(out), "--json"]) == 0
+    s = json.loads(capsys.readouterr().out)
+    table = {(r["agent"], r["quantity"]): r for r in csv.DictReader((out / "contributions.csv").open())}
+    for q, v in s["quantities"].items():
+        assert list(v["leave_one_out"]) == list(v["add_one"]) == list(v["shapley"]), q  # the moving agents, ranked
+        for a in v["shapley"]:
+            assert v["leave_one_out"][a] == float(table[a, q]["leave_one_out"])
+            assert v["add_one"][a] == float(table[a, q]["add_one"])
