@@ -334,7 +334,8 @@ def test_paired_effects_match_a_hand_computation():
 def _table_row(seed, gain, area, **cell):
     """A finished row with every key ``ablate.md`` reads."""
     r = _row(seed, gain, area, **cell)
-    r.update(active_agents=21, n_agents=21, acting_cells=300, simulations=24, stop="budget", score=gain - 2.0,
+    r.update(active_agents=21, n_agents=21, acting_cells=300, simulations=24, stop="budget",
+             score=None if gain is None else gain - 2.0,
              initial_score=-2.0, dfd_worst=0.5, rmse_worst=0.4, passed=False, sims_to_success=None,
              param_error=0.1, wall_time_s=1.0)  # fmt: skip
     return r
@@ -353,6 +354,23 @@ def test_ablate_md_gives_every_tables_units_and_the_pairs_of_the_area_ratio():
     assert "| area worst [m] | DFD worst [m/s] | RMSE worst [m/s] |" in per_run
     assert "| masking | primary vs none | 2 | +0.0000 ± 0.5000 | 1/2 | 0.250 (1 of 2 pairs) |" in md
     assert "| scenario | s2 vs s1 | 2 | +0.0000 ± 0.5000 | 1/2 | 0.354 |" in md  # every pair: no count
+
+
+def test_a_tied_pair_is_not_counted_as_a_loss():
+    """A level that changes nothing on a reference (``+nosat`` where no cell saturates, ``+region`` where every
+    acting cell is in the region) gains exactly what the baseline gains; ``wins`` counted that pair with the losses, so
+    '1/3' read as two losses where one pair was a tie. So was a pair where neither run has a gain (both diverged)."""
+    rows = [_table_row(0, -1.0, 0.04), _table_row(1, -2.0, 0.02), _table_row(2, None, 0.02),
+            _table_row(0, -0.5, 0.01, masking="primary"), _table_row(1, -2.0, 0.02, masking="primary"),
+            _table_row(2, None, 0.02, masking="primary")]  # fmt: skip
+    levels = {"algorithm": ["mappo"], "masking": ["none", "primary"], "scenario": ["s1"],
+              "granularity": ["subassembly"], "reward": ["log_ratio"]}  # fmt: skip
+    [e] = paired_effects(rows, levels)
+    assert (e["pairs"], e["wins"], e["ties"]) == (3, 1, 2)
+    md = ablate.markdown(ablate.AblationConfig(masking=["none", "primary"], scenarios=["s1"]), rows, None, "today")
+    assert "| masking | primary vs none | 3 | - | 1/3 (2 ties) |" in md
+    e1 = paired_effects(rows[:2] + rows[3:5], levels)[0]  # one tie
+    assert (e1["wins"], e1["ties"]) == (1, 1)
 
 
 # ------------------------------------------------------------------------------------------- runs

@@ -29,7 +29,7 @@ Protocol (the results table's, :mod:`marlcrash.calibrate.compare`, so the number
 - Paired effects: for every factor with more than one level, each level is compared with the factor's
   first level (the baseline) on runs that agree in every other factor and in the seed (same reference,
   same other settings; for the scenario factor, the same seed): the mean difference of the gain with its
-  standard error over those pairs, how many pairs the level wins, and the geometric mean ratio of the
+  standard error over those pairs, how many pairs the level wins (and ties), and the geometric mean ratio of the
   worst-sensor area.
 
 :func:`run_ablation` rewrites ``ablate.json``, ``ablate.csv`` and ``ablate.md`` atomically after every
@@ -472,7 +472,8 @@ def paired_effects(rows: list[dict[str, Any]], levels: dict[str, list[Any]]) -> 
     Returns:
         One entry per (factor, non-baseline level): ``pairs`` (runs matched on every other factor and the
         seed), ``gain_diff_mean`` and ``gain_diff_se`` (standard error, ddof 1; ``None`` below 2 pairs),
-        ``wins`` (pairs where the level gains more), ``area_worst_ratio`` (geometric mean of the level's
+        ``wins`` (pairs where the level gains more), ``ties`` (pairs where both gain the same, or neither has a
+        gain: neither a win nor a loss), ``area_worst_ratio`` (geometric mean of the level's
         worst-sensor area over the baseline's, over the ``ratio_pairs`` pairs where both are finite
         and > 0), and ``gain_mean`` / ``baseline_gain_mean`` over the pairs. A run without a gain (``None``:
         every candidate diverged) loses to one with a gain, and leaves the means and the standard error
@@ -502,6 +503,7 @@ def paired_effects(rows: list[dict[str, Any]], levels: dict[str, list[Any]]) -> 
                 "gain_diff_mean": float(d.mean()) if n and whole else None,
                 "gain_diff_se": float(d.std(ddof=1) / math.sqrt(n)) if n >= 2 and whole else None,
                 "wins": sum(ranked(r["gain"]) > ranked(b["gain"]) for r, b in pairs),
+                "ties": sum(ranked(r["gain"]) == ranked(b["gain"]) for r, b in pairs),
                 "area_worst_ratio": float(np.exp(np.log(ratio).mean())) if ratio.size else None,
                 "ratio_pairs": int(ok.sum()),
                 "gain_mean": float(gains[:, 0].mean()) if n else None,
@@ -567,10 +569,13 @@ def markdown(config: AblationConfig, rows: list[dict[str, Any]], command: str | 
             if e["gain_diff_se"] is not None:
                 diff += f" ± {_fmt(e['gain_diff_se'], '.4f')}"
             ratio = _fmt(e["area_worst_ratio"], ".3f")
+            wins = f"{e['wins']}/{e['pairs']}" + (
+                f" ({e['ties']} tie{'s' if e['ties'] > 1 else ''})" if e["ties"] else ""
+            )
             if e["area_worst_ratio"] is not None and e["ratio_pairs"] < e["pairs"]:  # a zero or missing area
                 ratio += f" ({e['ratio_pairs']} of {e['pairs']} pairs)"
             lines.append(
-                f"| {e['factor']} | {e['level']} vs {e['baseline']} | {e['pairs']} | {diff} | {e['wins']}/{e['pairs']} "
+                f"| {e['factor']} | {e['level']} vs {e['baseline']} | {e['pairs']} | {diff} | {wins} "
                 f"| {ratio} | {_fmt(e['gain_mean'], '.4f')} / "
                 f"{_fmt(e['baseline_gain_mean'], '.4f')} |"
             )
