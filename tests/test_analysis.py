@@ -779,3 +779,16 @@ def test_contributions_json_gives_the_one_at_a_time_effects_beside_the_shapley_v
         for a in v["shapley"]:
             assert v["leave_one_out"][a] == float(table[a, q]["leave_one_out"])
             assert v["add_one"][a] == float(table[a, q]["add_one"])
+
+
+def test_the_settings_of_one_moving_agent_read_in_the_singular():
+    """One agent that moved was 'the 1 agents that moved' in the heading of contributions.md."""
+    from marlcrash.analysis.contributions import Contributions
+
+    z = torch.zeros(2, 1, dtype=torch.float64)
+    c = Contributions(agents=["a", "b"], quantities=["score"], players=torch.tensor([True, False]),
+                      initial=torch.zeros(1, dtype=torch.float64), calibrated=torch.ones(1, dtype=torch.float64),
+                      shapley=z, shapley_stderr=z, exact=True, leave_one_out=z, add_one=z, n_simulations=2,
+                      settings={"exact_max": 10, "n_permutations": 64, "seed": 0})  # fmt: skip
+    want = "- Shapley values: exact: all 2**1 coalitions of the 1 agent that moved (exact_max 10)"
+    assert c.settings_lines()[0] == want

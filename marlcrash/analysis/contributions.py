@@ -179,7 +179,8 @@ class Contributions:
         if moved == 0:
             how = "none to compute: no agent's cells moved"
         elif self.exact:
-            how = f"exact: all 2**{moved} coalitions of the {moved} agents that moved" + (f" ({cap})" if cap else "")
+            who = f"the {moved} agent{'s' if moved > 1 else ''} that moved"
+            how = f"exact: all 2**{moved} coalitions of {who}" + (f" ({cap})" if cap else "")
         elif "n_permutations" in s:
             how = (f"sampled: {s['n_permutations']} orderings in antithetic pairs, seed {s['seed']}"
                    + (f" (more agents moved than {cap})" if cap else "") + "; ± one standard error")  # fmt: skip
