@@ -363,6 +363,21 @@ def require_threads(value: int, key: str) -> None:
             f"got {value}")  # fmt: skip
 
 
+def require_device(value: Any, key: str) -> None:
+    """Refuse, naming ``key``, a torch device that is not ``cpu`` or a CUDA device this machine has."""
+    import torch  # here, not at the top: reading a config needs no torch
+
+    try:
+        dev = torch.device(value)
+    except (RuntimeError, TypeError):
+        raise ConfigError(f"expected a torch device such as 'cpu' or 'cuda:0', got {value!r}", key=key) from None
+    n_cuda = torch.cuda.device_count() if dev.type == "cuda" else 0
+    require(dev.type in ("cpu", "cuda"), key, f"expected a cpu or cuda device, got {value!r}")
+    require(dev.type == "cpu" or (n_cuda > 0 and (dev.index is None or dev.index < n_cuda)), key,
+            f"device {value!r} is not available here ({n_cuda} CUDA devices); expected 'cpu'"
+            + (f" or cuda:0..{n_cuda - 1}" if n_cuda else ""))  # fmt: skip
+
+
 def require(condition: bool, key: str, message: str) -> None:
     """Raise :class:`ConfigError` for ``key`` unless ``condition`` holds (for ``validate()``).
 

@@ -15,6 +15,7 @@ from torchrl.envs.utils import MarlGroupMapType, check_env_specs
 from marlcrash.envs.core import ActionError, build_cells, load_env_config
 from marlcrash.envs.pettingzoo_env import CalibrationParallelEnv
 from marlcrash.envs.torchrl_env import CalibrationTorchEnv
+from marlcrash.errors import ConfigError
 
 
 @pytest.fixture(scope="session")
@@ -326,3 +327,43 @@ def test_the_joint_action_view_passes_a_partial_step_on(cells):
     env.rand_step(td.set("_step", torch.tensor([False, True])))
     assert env.core.iteration.tolist() == [0, 1]
     assert torch.equal(env.core.params[0], params[0]) and not torch.equal(env.core.params[1], params[1])
+
+
+_DEVICES = ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA"))]
+
+
+@pytest.mark.parametrize("device", _DEVICES)
+def test_the_native_env_puts_its_specs_and_outputs_on_its_device(cells, device):
+    """``CalibrationTorchEnv(device=...)``, as TorchRL's ``EnvBase(device=...)``: specs and every output on that device,
+    actions and ``"_reset"``/``"_step"`` masks taken from it; the simulation stays on the CPU and gives the numbers a
+    CPU env gives. The constructor took no ``device`` (a TypeError), and its env was always on the CPU."""
+    from marlcrash.calibrate.marl import JointActionEnv
+
+    dev = torch.device(device)
+    env = CalibrationTorchEnv(cfg(), batch_size=2, cells=cells, device=device)
+    ref = CalibrationTorchEnv(cfg(), batch_size=2, cells=cells)
+    assert env.device == dev
+    for spec in (env.full_observation_spec, env.full_action_spec, env.full_reward_spec, env.full_done_spec):
+        assert {leaf.device for leaf in spec.values(True, True)} == {dev}
+    check_env_specs(env, seed=0)
+    check_env_specs(JointActionEnv(env), seed=0)  # ppo_single's view: on the device of the env it wraps
+    td, td0 = env.reset(seed=2), ref.reset(seed=2)
+    assert td.device == dev and {t.device for t in td.values(True, True)} == {dev}
+    act = torch.rand(2, env.core.A, env.core.act_dim, generator=torch.Generator().manual_seed(0)) * 2 - 1
+    out = env.step(td.set(("agents", "action"), act.to(dev)).set("_step", torch.tensor([True, False], device=dev)))
+    out0 = ref.step(td0.set(("agents", "action"), act).set("_step", torch.tensor([True, False])))
+    assert {t.device for t in out["next"].values(True, True)} == {dev}
+    assert (out["next"].cpu() == out0["next"]).all()
+    reset = env.reset(out["next"].set("_reset", torch.tensor([[False], [True]], device=dev)))
+    assert reset.device == dev and env.core.iteration.tolist() == [1, 0]
+    assert JointActionEnv(env).reset(seed=2).device == dev
+
+
+def test_a_bad_device_is_named(cells):
+    with pytest.raises(ConfigError, match="torch device") as e:
+        CalibrationTorchEnv(cfg(), batch_size=1, cells=cells, device="gpu0")
+    assert e.value.key == "device"
+    if not torch.cuda.is_available():
+        with pytest.raises(ConfigError, match=r"'cuda' is not available here \(0 CUDA devices\)") as e:
+            CalibrationTorchEnv(cfg(), batch_size=1, cells=cells, device="cuda")
+        assert e.value.key == "device"

@@ -145,6 +145,31 @@ def test_joint_action_env_is_the_multi_agent_env(short, tmp_path):
     assert torch.equal(nj["agents", "mask"][:, 0], nm["agents", "mask"].any(-1))
 
 
+@pytest.mark.parametrize(
+    "device", ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA"))]
+)
+def test_the_env_of_a_run_is_on_the_runs_device(short, tmp_path, monkeypatch, device):
+    """``device`` of a run places the env's specs and outputs too (TorchRL's ``EnvBase(device=...)``), so a collected
+    batch is where the policy and the PPO update are; the env was built on the CPU whatever the run's device."""
+    import marlcrash.calibrate.marl as marl
+
+    built = []
+
+    class Recorded(marl.CalibrationTorchEnv):
+        def __init__(self, *args, **kwargs):
+            built.append(kwargs.get("device"))
+            super().__init__(*args, **kwargs)
+
+    monkeypatch.setattr(marl, "CalibrationTorchEnv", Recorded)
+    for name in ("mappo", "ppo_single"):
+        cfg = tiny(tmp_path, name, device=device)
+        env = make_env(cfg)
+        assert built[-1] == device and env.device == torch.device(device), name
+        policy = make_policy(env, cfg.algorithm).to(device)
+        data, _ = collect(env, policy, 2)
+        assert data.device == torch.device(device) and data.get(("next", "reward")).device == torch.device(device)
+
+
 def test_expand_team_and_masked_standardize(short, tmp_path):
     cfg = tiny(tmp_path)
     env = make_env(cfg)

@@ -83,6 +83,7 @@ from marlcrash.config import (
     nested_error,
     require,
     require_complete,
+    require_device,
     require_seed,
     require_threads,
 )
@@ -250,17 +251,7 @@ class TrainConfig:
                 f"expected >= 0 iterations (0: only the latest checkpoint), got {self.snapshot_every}")  # fmt: skip
         require_run_name(self.name)
         require(bool(self.out_dir), "out_dir", "expected an output folder")
-        try:
-            dev = torch.device(self.device)
-        except RuntimeError:
-            raise ConfigError(
-                f"expected a torch device such as 'cpu' or 'cuda:0', got {self.device!r}", "device"
-            ) from None
-        n_cuda = torch.cuda.device_count() if dev.type == "cuda" else 0
-        require(dev.type in ("cpu", "cuda"), "device", f"expected a cpu or cuda device, got {self.device!r}")
-        require(dev.type == "cpu" or (n_cuda > 0 and (dev.index is None or dev.index < n_cuda)), "device",
-                f"device {self.device!r} is not available here ({n_cuda} CUDA devices); expected 'cpu'"
-                + (f" or cuda:0..{n_cuda - 1}" if n_cuda else ""))  # fmt: skip
+        require_device(self.device, "device")
         mb = self.algorithm.minibatch_size
         require(self.frames_per_batch % mb == 0, "algorithm.minibatch_size",
                 f"expected a divisor of the batch n_envs * episode_length = {self.n_envs} * {self.episode_length} "
@@ -453,9 +444,10 @@ class JointActionEnv(EnvBase):
 
 
 def make_env(config: TrainConfig, n_envs: int | None = None, overrides: dict[str, Any] | None = None) -> EnvBase:
-    """The training (or evaluation) environment of a run, ``ppo_single`` wrapped in :class:`JointActionEnv`."""
+    """The training (or evaluation) environment of a run on the run's ``device`` (its specs and outputs; the
+    simulator runs on the CPU), ``ppo_single`` wrapped in :class:`JointActionEnv`."""
     env_cfg = make_env_config(config, overrides)
-    env = CalibrationTorchEnv(env_cfg, batch_size=n_envs or config.n_envs)
+    env = CalibrationTorchEnv(env_cfg, batch_size=n_envs or config.n_envs, device=config.device)
     return JointActionEnv(env) if config.algorithm.name == "ppo_single" else env
 
 
@@ -648,8 +640,8 @@ def module_device(module: torch.nn.Module) -> torch.device:
 
 
 def act(policy: TensorDictModuleBase, td: TensorDictBase) -> TensorDictBase:
-    """Run the policy on the env's tensordict ``td``: moved to the policy's device and back (the simulator
-    and the env stay on CPU; ``device`` only places the networks)."""
+    """Run the policy on the env's tensordict ``td``, moved to the policy's device and back where the two differ (a
+    policy read onto the CPU for an env of a GPU run; a run's env and networks are both on its ``device``)."""
     dev = module_device(policy)
     if dev == td.device:
         return policy(td)

@@ -547,7 +547,8 @@ class CalibrationCore:
 
     # ------------------------------------------------------------------------------------ actions
     def check_actions(self, actions: torch.Tensor | np.ndarray, rows: torch.Tensor | None = None) -> torch.Tensor:
-        """Validate ``[B, n_agents, act_dim]`` float actions; return them clipped to [-1, 1] as float64.
+        """Validate ``[B, n_agents, act_dim]`` float actions (on any device); return them clipped to [-1, 1] as
+        float64 on the CPU.
 
         ``rows`` (``[B]`` bool; every row if ``None``): the rows that act; the others' actions are ignored as an
         inactive agent's are.
@@ -574,6 +575,7 @@ class CalibrationCore:
             )
         if not actions.is_floating_point():
             raise ActionError(f"actions must be floating point (float32 or float64), got {actions.dtype}")
+        actions = actions.detach().cpu()  # the simulation's device: a TorchRL env's actions may come from a GPU
         used = self.action_mask()  # inactive agents' and padded entries are ignored (as the PettingZoo door does)
         if rows is not None:
             used = used & rows[:, None, None]
@@ -584,7 +586,7 @@ class CalibrationCore:
                 f"actions must be finite; actions[{b}, {a}, {j}] (agent {self.layout.names[a]!r}) is "
                 f"{float(actions[b, a, j])} ({int(bad.sum())} non-finite entries)"
             )
-        actions = actions.detach().to(torch.float64)
+        actions = actions.to(torch.float64)
         return torch.where(used | torch.isfinite(actions), actions.clamp(-1.0, 1.0), 0.0)  # finite ones: as given
 
     def increments(self, actions: torch.Tensor) -> torch.Tensor:
@@ -663,7 +665,7 @@ class CalibrationCore:
 
     def _row_mask(self, mask: torch.Tensor, what: str) -> torch.Tensor:
         """``mask`` as ``[B]`` bool (a ``[B, 1]`` one too); :class:`ActionError` naming ``what`` otherwise."""
-        mask = torch.as_tensor(mask, dtype=torch.bool).reshape(-1)
+        mask = torch.as_tensor(mask, dtype=torch.bool, device="cpu").reshape(-1)
         if mask.shape != (self.B,):
             raise ActionError(f"{what} mask must be [{self.B}] bool, got shape {list(mask.shape)}")
         return mask

@@ -15,6 +15,11 @@ as ``MultiAgentMLP`` expects). Keys:
 - ``"reward"``: ``[B, 1]`` float32 team reward; ``"done"``, ``"terminated"``,
   ``"truncated"``: ``[B, 1]`` bool at the root.
 
+Device: ``CalibrationTorchEnv(..., device="cuda")`` puts the specs and every returned tensor on that device and takes
+actions and the ``"_reset"``/``"_step"`` masks from it (TorchRL's ``EnvBase(device=...)``); the simulation and the
+core's state stay on the CPU, so each step moves its actions there and its outputs back. A training run builds its env
+on its ``device`` (``configs/train/train.yaml``).
+
 Partial resets (``"_reset"`` ``[B, 1]``) restart only the flagged rows; ``reset(seed=s)``
 re-seeds the core first, exactly as the PettingZoo door's ``reset(seed=s)``. Partial steps (``"_step"`` ``[B]``, which
 ``rollout(..., break_when_all_done=True)`` sets to the rows whose episodes go on) step only the flagged rows; the others
@@ -41,6 +46,7 @@ from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
 from marlcrash.cells.model import CellModel
+from marlcrash.config import require_device
 from marlcrash.envs.core import CalibrationCore, EnvConfig, check_env_args, load_env_config
 from marlcrash.sim.surrogate import SimConfig
 
@@ -56,6 +62,12 @@ class CalibrationTorchEnv(EnvBase):
         batch_size: number ``B`` of parallel episodes.
         cells: the model to calibrate (``None``: discretize ``config.vehicle``).
         sim_config: simulator settings (``None``: ``configs/sim.yaml``).
+        device: the torch device of the specs and of every tensor the env returns (``"cpu"``, ``"cuda:0"``);
+            actions and ``"_reset"``/``"_step"`` masks are taken from it. The simulation runs on the CPU whatever
+            the device: each step's actions move to the CPU and its outputs to the device.
+
+    Raises:
+        ConfigError: a bad argument, named (``config``, ``batch_size``, ``device``), or an invalid config.
     """
 
     batch_locked = True
@@ -66,10 +78,12 @@ class CalibrationTorchEnv(EnvBase):
         batch_size: int = 1,
         cells: CellModel | None = None,
         sim_config: SimConfig | None = None,
+        device: torch.device | str = "cpu",
     ):
         config = config if config is not None else load_env_config()
         batch_size = check_env_args(config, batch_size)
-        super().__init__(device="cpu", batch_size=torch.Size([batch_size]))
+        require_device(device, "device")
+        super().__init__(device=device, batch_size=torch.Size([batch_size]))
         self.core = CalibrationCore(config, batch_size, cells, sim_config)
         self._make_specs()
 
@@ -126,6 +140,7 @@ class CalibrationTorchEnv(EnvBase):
                 ),
             },
             batch_size=self.batch_size,
+            device=self.device,
         )
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
