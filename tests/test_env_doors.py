@@ -367,3 +367,24 @@ def test_a_bad_device_is_named(cells):
         with pytest.raises(ConfigError, match=r"'cuda' is not available here \(0 CUDA devices\)") as e:
             CalibrationTorchEnv(cfg(), batch_size=1, cells=cells, device="cuda")
         assert e.value.key == "device"
+
+
+def test_stepping_an_ended_episode_is_refused_naming_its_rows(cells):
+    """A row whose episode ended (terminated or truncated) and was not reset: the native env stepped it on past
+    ``max_iterations`` (iterations 2, 3, ... of a one-step episode), moving its parameters and giving rewards of no
+    episode, where the PettingZoo door refuses ("the episode is over"). Now refused, naming the rows, until they are
+    reset; an ended row held back by ``"_step"`` is fine (TorchRL's ``rollout(..., break_when_all_done=True)``)."""
+    env = CalibrationTorchEnv(cfg(**{"termination.max_iterations": 1}), batch_size=2, cells=cells)
+    td = env.step_mdp(env.rand_step(env.reset(seed=0)))
+    assert td["done"].all()
+    params = env.core.params.clone()
+    with pytest.raises(ActionError, match=r"rows \[0, 1\] of 2 have ended .*; reset them"):
+        env.rand_step(td)
+    assert torch.equal(env.core.params, params) and env.core.iteration.tolist() == [1, 1]  # a refused step: nothing
+    td = env.reset(td.set("_reset", torch.tensor([[True], [False]])))
+    with pytest.raises(ActionError, match=r"rows \[1\] of 2 have ended"):
+        env.rand_step(td)
+    env.rand_step(td.set("_step", torch.tensor([True, False])))
+    assert env.core.iteration.tolist() == [1, 1]
+    roll = env.rollout(3, break_when_any_done=False)  # TorchRL resets ended rows itself
+    assert roll.shape == (2, 3) and env.core.iteration.tolist() == [1, 1]

@@ -641,13 +641,19 @@ class CalibrationCore:
 
         Raises:
             ActionError: bad actions (:meth:`check_actions`), a bad ``mask``, or a stepped row that was never reset
-                (no reference yet).
+                (no reference yet) or whose episode has ended (:attr:`done`) and was not reset since.
         """
         rows = None if mask is None else self._row_mask(mask, "step")
         ready = self.started if rows is None else self.started | ~rows
         if not bool(ready.all()):
             bad = torch.nonzero(~ready).flatten().tolist()
             raise ActionError(f"call reset() before step(): rows {bad} of {self.B} have no episode yet")
+        ended = self.done if rows is None else self.done & rows
+        if bool(ended.any()):  # stepped on, an episode went past its end, its steps part of no episode
+            bad = torch.nonzero(ended).flatten().tolist()
+            raise ActionError(f"rows {bad} of {self.B} have ended (terminated or truncated); reset them before "
+                              "stepping them again (TorchRL: a '_reset' entry, step_and_maybe_reset or a rollout reset "
+                              "them) or leave them out of the step ('_step')")  # fmt: skip
         self.apply_actions(actions, rows)  # checked first: a refused step changes nothing
         idx = slice(None) if rows is None else torch.nonzero(rows).flatten()
         self.reward = torch.zeros(self.B, dtype=torch.float64)

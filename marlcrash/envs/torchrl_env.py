@@ -23,7 +23,9 @@ on its ``device`` (``configs/train/train.yaml``).
 Partial resets (``"_reset"`` ``[B, 1]``) restart only the flagged rows; ``reset(seed=s)``
 re-seeds the core first, exactly as the PettingZoo door's ``reset(seed=s)``. Partial steps (``"_step"`` ``[B]``, which
 ``rollout(..., break_when_all_done=True)`` sets to the rows whose episodes go on) step only the flagged rows; the others
-keep their state (observation and end flags as they stood, reward 0) and are not simulated.
+keep their state (observation and end flags as they stood, reward 0) and are not simulated. A row whose episode ended
+(``"done"``) is reset before it is stepped again (``step_and_maybe_reset``, a rollout, a ``"_reset"`` entry): stepping
+it is refused (:class:`~marlcrash.envs.core.ActionError` naming the rows), as the PettingZoo door refuses.
 
 Seeding copies: every env starts from its config's ``seed`` (reproducible by default), so copies run side by side
 (``SerialEnv``, ``ParallelEnv``) draw the same episodes until seeded: call ``set_seed(s)`` on the batched env (TorchRL
