@@ -388,3 +388,26 @@ def test_stepping_an_ended_episode_is_refused_naming_its_rows(cells):
     assert env.core.iteration.tolist() == [1, 1]
     roll = env.rollout(3, break_when_any_done=False)  # TorchRL resets ended rows itself
     assert roll.shape == (2, 3) and env.core.iteration.tolist() == [1, 1]
+
+
+def test_actions_outside_the_box_act_as_its_bound_and_non_finite_ones_are_refused(cells):
+    """As both doors' docstrings say: an action value outside ``[-1, 1]`` is clipped to the bound (the step is the
+    clipped action's, bit for bit), a NaN in an entry that acts is an :class:`ActionError` naming the entry."""
+    env, ref = (CalibrationTorchEnv(cfg(), batch_size=1, cells=cells) for _ in range(2))
+    act = (torch.rand(1, env.core.A, env.core.act_dim, generator=torch.Generator().manual_seed(1)) * 2 - 1) * 3
+    assert (act.abs() > 1).any()
+    out = env.step(env.reset(seed=4).set(("agents", "action"), act))["next"]
+    out0 = ref.step(ref.reset(seed=4).set(("agents", "action"), act.clamp(-1, 1)))["next"]
+    assert (out == out0).all() and torch.equal(env.core.params, ref.core.params)
+    td = env.reset(seed=4)
+    a, j = (int(x) for x in torch.nonzero(td["agents", "action_mask"][0])[0])
+    act[0, a, j] = float("nan")
+    with pytest.raises(ActionError, match=rf"actions\[0, {a}, {j}\] \(agent '{env.agent_names[a]}'\) is nan"):
+        env.step(td.set(("agents", "action"), act))
+    pz, pz0 = CalibrationParallelEnv(cfg(), cells), CalibrationParallelEnv(cfg(), cells)
+    pz.reset(seed=4)
+    pz0.reset(seed=4)
+    big = {n: np.full(7, 5.0, np.float32) for n in pz.agents}
+    obs, rew, _, _, _ = pz.step(big)
+    obs0, rew0, _, _, _ = pz0.step({n: np.ones(7, np.float32) for n in pz0.agents})
+    assert rew == rew0 and all(np.array_equal(obs[n], obs0[n]) for n in obs0)

@@ -12,7 +12,8 @@
 - Spaces are fixed per agent (``gymnasium.spaces.Box``, float32): observations
   ``[obs_dim]``, actions ``[act_dim]`` in ``[-1, 1]``; the same objects on every call.
 - Actions of agents not in ``agents`` (inactive or finished) are ignored; missing actions
-  of live agents count as zero (no change).
+  of live agents count as zero (no change). A live agent's action values outside ``[-1, 1]`` are clipped to the
+  bound; a NaN or inf entry that acts (``action_entries``) is refused (:class:`~marlcrash.envs.core.ActionError`).
 - Every live agent receives the team reward. An agent inactive in the episode is not in ``agents``, so
   ``step`` returns no entry for it at all (PettingZoo's API has no "present but idle" agent; DESIGN 5's
   "inactive agents receive it too" holds in the native TorchRL env, whose team reward sits at the root for

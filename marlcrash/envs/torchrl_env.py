@@ -4,7 +4,9 @@ Batch ``[B]``; all agents in one group ``"agents"`` (``[*batch, n_agents, featur
 as ``MultiAgentMLP`` expects). Keys:
 
 - ``("agents", "observation")``: ``[B, n_agents, obs_dim]`` float32;
-- ``("agents", "action")``: ``[B, n_agents, act_dim]`` float32 in ``[-1, 1]``;
+- ``("agents", "action")``: ``[B, n_agents, act_dim]`` float32 in ``[-1, 1]``: a value outside is clipped to the
+  bound (an unsquashed policy's sample acts as the bound), a NaN or inf entry that acts (``"action_mask"``) is refused
+  (:class:`~marlcrash.envs.core.ActionError` naming its index; one that does not act is ignored);
 - ``("agents", "mask")``: ``[B, n_agents]`` bool, the agent is active this episode
   (set a loss's ``loss_mask_key`` to it: inactive agents' actions are ignored);
 - ``("agents", "action_mask")``: ``[B, n_agents, act_dim]`` bool, entries that act
