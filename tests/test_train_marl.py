@@ -827,6 +827,31 @@ def test_evaluating_a_live_trainer_with_other_iterations_leaves_its_config_as_it
     assert tr.config is cfg and cfg.eval.iterations == 2
 
 
+def test_evaluating_a_live_trainer_with_other_iterations_keeps_the_runs_own_results(short, tmp_path):
+    """``evaluate_run(trainer=..., iterations=n)`` with ``n`` other than the run's ``eval.iterations`` wrote into the
+    run folder, over the run's own evaluation; it goes beside it, into ``eval/iter_<iteration>_steps<n>/`` (the
+    folder an evaluation of the snapshot kept after that iteration with ``iterations=n`` writes), as a checkpoint's
+    re-evaluation with other settings does."""
+    from marlcrash.calibrate.evaluate import evaluate_run
+    from marlcrash.calibrate.marl import build_trainer
+
+    cfg = tiny(tmp_path, name="live", iterations=1)
+    run_dir = tmp_path / "live"
+    run_dir.mkdir()
+    tr = build_trainer(cfg, run_dir)
+    try:
+        own = evaluate_run(run_dir, trainer=tr)  # the run's own evaluation: eval.iterations = 2
+        before = {f: (run_dir / f).read_bytes() for f in ("summary.json", "eval_metrics.csv", "calibrated.npz")}
+        other = evaluate_run(run_dir, trainer=tr, iterations=1)
+    finally:
+        tr.logger.close()
+    assert own["eval_dir"] == str(run_dir) and own["eval_iterations"] == 2
+    out = run_dir / "eval" / "iter_00000_steps1"
+    assert other["eval_dir"] == str(out) and other["eval_iterations"] == 1
+    assert json.loads((out / "summary.json").read_text()) == other and (out / "calibrated.npz").is_file()
+    assert {f: (run_dir / f).read_bytes() for f in before} == before  # the run's own results stay
+
+
 def test_a_checkpoint_named_by_a_digit_int_cannot_read_is_no_iteration(tmp_path):
     """``checkpoint=²``: ``str.isdigit`` takes a superscript two, ``int()`` refuses it (a ValueError from deep inside);
     it is a file name like any other, refused naming the key."""

@@ -51,7 +51,13 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from marlcrash import provenance
 from marlcrash.calibrate.budget import ranked_scores
-from marlcrash.calibrate.checkpoint import CHECKPOINT_FILE, SNAPSHOT_DIR, find_checkpoint, load_training_checkpoint
+from marlcrash.calibrate.checkpoint import (
+    CHECKPOINT_FILE,
+    SNAPSHOT_DIR,
+    find_checkpoint,
+    load_training_checkpoint,
+    snapshot_path,
+)
 from marlcrash.calibrate.logging import LOG_FILE, read_log
 from marlcrash.calibrate.marl import (
     TrainConfig,
@@ -421,11 +427,12 @@ def evaluate_run(
             checkpoint file (:func:`find_checkpoint`), and the learning curves then end at that checkpoint's
             iteration.
 
-    Where the files go: the run's own evaluation (by ``trainer``, or of ``checkpoint.pt`` with the run's
-    ``eval.iterations`` and the inputs it started with, or its first) is written into ``run_dir``. Any other
-    never replaces it: it goes into ``run_dir/eval/<name>/`` (:func:`eval_name`), with ``_steps<n>`` added for
-    another ``iterations`` (``eval/checkpoint_steps40/``, ``eval/iter_00040/``), so a re-evaluation with other
-    settings or after ``configs/`` or the code changed (``provenance.json``) keeps the run's results.
+    Where the files go: the run's own evaluation (by ``trainer``, or of ``checkpoint.pt``, with the run's
+    ``eval.iterations``; of ``checkpoint.pt`` with the inputs it started with, or its first) is written into
+    ``run_dir``. Any other never replaces it: it goes into ``run_dir/eval/<name>/`` (:func:`eval_name`; a trainer's
+    networks after iteration ``i`` are those of the snapshot ``iter_<i>``), with ``_steps<n>`` added for another
+    ``iterations`` (``eval/checkpoint_steps40/``, ``eval/iter_00040/``), so a re-evaluation with other settings or
+    after ``configs/`` or the code changed (``provenance.json``) keeps the run's results.
 
     Returns:
         The summary written to ``summary.json`` (with ``checkpoint``: the file evaluated, ``None`` for a trainer,
@@ -449,20 +456,21 @@ def evaluate_run(
     check = provenance.check_run(run_dir, provenance.env_inputs(make_env_config(config)), key=None)
     if trainer is not None:
         policy, counters = trainer.policy, trainer.state_dict()
+        own, name = config.eval.iterations == own_steps, snapshot_path(run_dir, trainer.iteration).stem
     else:
         ckpt = find_checkpoint(run_dir, checkpoint)
         counters = load_training_checkpoint(ckpt, key="checkpoint")
         policy = policy_from_checkpoint(config, counters, ckpt, key="checkpoint")
-        own = checkpoint in (None, "latest") and config.eval.iterations == own_steps
+        own, name = checkpoint in (None, "latest") and config.eval.iterations == own_steps, eval_name(run_dir, ckpt)
         if own and (run_dir / SUMMARY_FILE).is_file():  # the run's results exist: only the same evaluation redoes them
             own = not (check.configs or check.code)
-        if not own:  # only once the checkpoint proved usable: no empty folders
-            steps = "" if config.eval.iterations == own_steps else f"_steps{config.eval.iterations}"
-            out_dir = run_dir / EVAL_DIR / f"{eval_name(run_dir, ckpt)}{steps}"
-            out_dir.mkdir(parents=True, exist_ok=True)
+    if not own:  # only once the checkpoint proved usable: no empty folders
+        steps = "" if config.eval.iterations == own_steps else f"_steps{config.eval.iterations}"
+        out_dir = run_dir / EVAL_DIR / f"{name}{steps}"
+        out_dir.mkdir(parents=True, exist_ok=True)
     # a trainer holds its run folder already; otherwise hold the folder written, so an evaluation neither writes a
     # run that still trains nor interleaves its files with another evaluation of the same checkpoint
-    with contextlib.nullcontext() if trainer is not None else run_lock(out_dir, "run"):
+    with contextlib.nullcontext() if out_dir == run_dir and trainer is not None else run_lock(out_dir, "run"):
         provenance.warn_changes(run_dir, check, "evaluate")
         log_path = run_dir / LOG_FILE  # read before the evaluation's work: a malformed row fails now
         position = counters.get("log_position")  # the rows the checkpoint counts; a torn one after them is not read
