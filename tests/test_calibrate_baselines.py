@@ -86,6 +86,33 @@ def test_seeded_runs_are_deterministic_and_leave_global_rng_alone(problem, metho
     assert torch.equal(torch.get_rng_state(), torch_state)
 
 
+def test_a_baseline_reports_why_it_stopped(problem):
+    """A result says why its run ended (``stop``, and in the summary): ``budget``, ``success`` (``stop_on_success``),
+    or ``ended`` by the method's own rule, which ``stop_reason`` names (CMA-ES's termination criteria, as
+    ``es.stop()`` keys them; lm's last window). Nothing reported it: a comparison inferred it from the budget left,
+    and an lm without restarts whose window ended by its own iteration cap with less than an iteration left was
+    ``budget``."""
+    per_iter = problem.n_free + 6
+    rs = BASELINES["random_search"][1](problem, 40, SMALL["random_search"][0], 0)
+    assert (rs.stop, rs.stop_reason) == ("budget", None) and rs.simulations == 40
+    cm = BASELINES["cmaes"][1](problem, 200, CMAESConfig(popsize=8, sigma0=1e-13, restarts=False), 0)
+    assert cm.stop == "ended" and "tolx" in cm.stop_reason.split(", ") and cm.simulations == 1 + 8
+    assert {k: cm.summary()[k] for k in ("stop", "stop_reason")} == {"stop": "ended", "stop_reason": cm.stop_reason}
+    restarted = BASELINES["cmaes"][1](problem, 40, CMAESConfig(popsize=8, sigma0=1e-13, restarts=True), 0)
+    assert (restarted.stop, restarted.stop_reason) == ("budget", None) and restarted.simulations == 40
+    lm = BASELINES["lm"][1](problem, 1 + per_iter + 3, LMConfig(iterations=1, restart_radius=0.0), 0)
+    assert lm.simulations == 1 + per_iter and (lm.stop, lm.stop_reason) == ("ended", "windows")  # its cap, not 3 left
+    cut = BASELINES["lm"][1](problem, 1 + per_iter + 3, LMConfig(iterations=12, restart_radius=0.0), 0)
+    assert cut.simulations == 1 + per_iter and (cut.stop, cut.stop_reason) == ("budget", None)  # 3 left: no iteration
+    loose = build_problem(
+        from_dict(ProblemConfig, {"duration": DURATION, "success": {"area": 10.0, "dfd": None, "rmse": None}}),
+        cells=problem.cells,
+    )
+    for method in ("random_search", "lm"):
+        won = BASELINES[method][1](loose, SMALL[method][1], SMALL[method][0], 0, stop_on_success=True)
+        assert (won.stop, won.stop_reason) == ("success", None), method
+
+
 def test_lm_is_seeded_and_its_restarts_use_the_seed(problem):
     """One iteration per window, so the budget goes to restarts, whose noise is the only random draw."""
     config = LMConfig(iterations=1, restart_radius=0.05)

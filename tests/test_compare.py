@@ -279,10 +279,35 @@ def test_an_optimizer_that_ends_on_its_own_is_not_labelled_budget(short, problem
     row = outcome_row(lm_cfg, problem, lm)
     assert row["stop"] == "ended"
     md = markdown(lm_cfg, [row], None, "today")
-    assert f"| {1 + per_iter} | ended on its own |" in md and "ended on its own (1/1)" in md
+    assert f"| {1 + per_iter} | ended on its own (windows) |" in md and "ended on its own (1/1)" in md
     # the same settings with the budget spent: budget
     short_lm = run_optimizer(tiny(tmp_path, budget=1 + per_iter + 3, **{"lm.restart_radius": 0.0}), "lm", 0, problem)
     assert short_lm.progress.used == 1 + per_iter and short_lm.stop == "budget"  # 3 left: not an iteration
+
+
+def test_the_stop_column_is_the_optimizers_own_report(short, problem0, tmp_path):
+    """``stop`` was inferred from the budget left after the run: lm without restarts whose one-iteration window ended
+    with 3 simulations left (less than an iteration) was ``budget``, though its own rule ended it; now every
+    optimizer reports why it stopped, and CMA-ES's criteria (``es.stop()`` keys) reach the CSV and the tables as
+    ``stop_reason``."""
+    from marlcrash.calibrate.compare import csv_text, markdown
+    from marlcrash.calibrate.leastsq import STEP_FACTORS
+
+    problem = problem0
+    per_iter = problem.n_free + len(STEP_FACTORS)
+    cfg = tiny(tmp_path, budget=1 + per_iter + 3, **{"lm.restart_radius": 0.0, "lm.iterations": 1})
+    lm = run_optimizer(cfg, "lm", 0, problem)
+    assert lm.progress.used == 1 + per_iter and (lm.stop, lm.stop_reason) == ("ended", "windows")
+    cm_cfg = tiny(tmp_path, **{"cmaes.restarts": False, "cmaes.sigma0": 1e-13})
+    cm = run_optimizer(cm_cfg, "cmaes", 0, problem)
+    assert cm.stop == "ended" and "tolx" in cm.stop_reason.split(", ")
+    row = outcome_row(cm_cfg, problem, cm)
+    assert (row["stop"], row["stop_reason"]) == ("ended", cm.stop_reason) and "stop_reason" in COLUMNS
+    (got,) = csv.DictReader(csv_text([row]).splitlines())
+    assert (got["stop"], got["stop_reason"]) == ("ended", cm.stop_reason)
+    assert f"| ended on its own ({cm.stop_reason}) |" in markdown(cm_cfg, [row], None, "today")
+    spent = run_optimizer(tiny(tmp_path), "random_search", 0, problem)
+    assert (spent.stop, spent.stop_reason) == ("budget", None)
 
 
 def test_ppo_run_keeps_the_budget_and_reports_its_best(short, problem0, tmp_path):
@@ -318,9 +343,13 @@ def test_comparison_resumes_and_refuses_changed_protocols(short, tmp_path):
     assert e.value.key == "cmaes.popsize"
     data = json.loads((run_dir / "compare.json").read_text())
     assert len(data["rows"]) == 2 and data["config"]["budget"] == 24
+    for r in data["rows"]:  # a record written before stop_reason was a column resumes, the reason unknown there
+        del r["stop_reason"]
+    (run_dir / "compare.json").write_text(json.dumps(data))
     # a resume with other seeds adds references: the table names every seed its rows cover
     _, rows5 = run_comparison(tiny(tmp_path, methods=["random_search"], seeds=[1], resume=True))
-    assert sorted({r["seed"] for r in rows5}) == [0, 1]
+    assert sorted({r["seed"] for r in rows5}) == [0, 1] and [r["stop_reason"] for r in rows5] == [None] * 3
+    assert [r["stop_reason"] for r in csv.DictReader((run_dir / "compare.csv").open())] == [""] * 3
     md = (run_dir / "compare.md").read_text()
     assert "with seeds [0, 1];" in md and "mean ± std over 2 references" in md
     moved = tmp_path / "moved"

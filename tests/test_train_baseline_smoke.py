@@ -37,7 +37,9 @@ def test_script_writes_a_run_folder(tmp_path, method, budget, spent):
     summary = json.loads((folder / "summary.json").read_text())
     for key in ("final_metrics", "initial_metrics", "simulations", "sims_to_success", "wall_time_s", "param_error"):
         assert key in summary
-    assert summary["simulations"] == spent
+    assert summary["simulations"] == spent and (summary["stop"], summary["stop_reason"]) == ("budget", None)
+    printed = json.loads(p.stdout.strip().splitlines()[-1])
+    assert (printed["stop"], printed["stop_reason"]) == ("budget", None)
     assert set(summary["final_metrics"]) == {"upfront_left", "upfront_right", "tunnel"}
     assert set(next(iter(summary["final_metrics"].values()))) == {"area", "dfd", "rmse"}
     assert all(set(v) == {"E_x", "E_s", "transmission"} for v in summary["param_error"].values())

@@ -35,7 +35,8 @@ def main(cfg: DictConfig) -> None:
         print(f"error: {e}", file=sys.stderr)
         sys.exit(2)
     s = result.summary()
-    print(json_text({"run": str(folder), "simulations": s["simulations"], "sims_to_success": s["sims_to_success"],
+    print(json_text({"run": str(folder), "simulations": s["simulations"], "stop": s["stop"],
+                      "stop_reason": s["stop_reason"], "sims_to_success": s["sims_to_success"],
                       "initial_score": s["initial_score"], "best_score": s["best_score"],
                       "wall_time_s": round(s["wall_time_s"], 2)}, indent=None))  # fmt: skip
 

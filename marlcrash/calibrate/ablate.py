@@ -128,8 +128,9 @@ FILES = ("ablate.json", "ablate.csv", "ablate.md", "ablate.png")
 """The results a finished ablation writes into its run folder (besides ``provenance.json`` and the PPO logs)."""
 
 CSV_COLUMNS = ("cell", *FACTORS, "active_agents", "n_agents", "acting_cells", "gain",
-               *(c for c in COLUMNS if c != "method"))  # fmt: skip
-"""Columns of ``ablate.csv``, in order (the results table's columns, with the factors for ``method``)."""
+               *(c for c in COLUMNS if c not in ("method", "stop_reason")))  # fmt: skip
+"""Columns of ``ablate.csv``, in order (the results table's columns, with the factors for ``method``; without
+``stop_reason``, which only an optimizer that ends by its own rule has)."""
 
 _ADDED_COLUMNS = ("acting_cells",)
 """Columns a finished row of an older ablation may lack (a resume reads it, the tables show ``-``)."""

@@ -43,6 +43,10 @@ and the first history row are measured, not assumed.
   with ``restart_radius: 0`` it stops after the last window, possibly far below the budget.
   Deterministic for a seed (restart noise).
 
+Every result says why its run ended (:attr:`CalibrationResult.stop`): the budget, success (``stop_on_success``), or
+the method's own rule with budget left (``ended``: cmaes without restarts once CMA-ES's termination criteria fire,
+lm without restarts after its windows), which :attr:`CalibrationResult.stop_reason` names.
+
 Every method refuses a problem with no free coordinate (its masking left no agent active in the scenario:
 :func:`check_free_coordinates`) and settings made in Python that a config file could not hold (checked as the
 loaders check a file's, keys named ``<method>.<key>``) before it simulates anything.
@@ -206,6 +210,12 @@ class CalibrationResult:
             of ``best_x`` and of ``x = 0`` against a twin's truth (``None`` for other references).
         generations: CMA-ES generations completed (whole populations told to it, over all restarts); ``None``
             for the other methods.
+        stop: why the run ended: ``budget`` (spent, or what was left cannot pay for the method's next batch),
+            ``success`` (a candidate passed, with ``stop_on_success``), or ``ended`` (the method's own rule, before
+            the budget ran out).
+        stop_reason: for ``ended``, the rule: the CMA-ES termination criteria that fired, as ``cma``'s
+            ``es.stop()`` names them (``tolx``, ``tolfun``, ...; comma-separated), or ``windows`` (lm without
+            restarts fitted its last window: its iteration cap or ``stall``); ``None`` otherwise.
     """
 
     method: str
@@ -223,6 +233,8 @@ class CalibrationResult:
     param_error: dict[str, dict[str, float]] | None = None
     initial_param_error: dict[str, dict[str, float]] | None = None
     generations: int | None = None
+    stop: str = "budget"
+    stop_reason: str | None = None
 
     def summary(self) -> dict[str, Any]:
         """JSON-ready summary: metrics per sensor ``{area, dfd, rmse}`` (SI), budget use, errors."""
@@ -235,6 +247,8 @@ class CalibrationResult:
             "simulations": self.simulations,
             "sims_to_success": self.sims_to_success,
             "wall_time_s": self.wall_time_s,
+            "stop": self.stop,
+            "stop_reason": self.stop_reason,
         }
         if self.param_error is not None:
             out["param_error"] = self.param_error
@@ -283,9 +297,20 @@ def _evaluate(problem: CalibrationProblem, progress: Progress, x: torch.Tensor) 
 
 
 def _finish(
-    method: str, problem: CalibrationProblem, progress: Progress, initial: Metrics, generations: int | None = None
+    method: str,
+    problem: CalibrationProblem,
+    progress: Progress,
+    initial: Metrics,
+    generations: int | None = None,
+    ended: str | None = None,
 ) -> CalibrationResult:
+    """The result of a run; ``ended``: the method's own rule that ended it with budget left
+    (:attr:`CalibrationResult.stop_reason`), ``None`` where the budget or success ended it."""
     best_x = progress.best_x
+    if ended is not None:
+        stop = "ended"
+    else:
+        stop = "success" if progress.stop_on_success and progress.sims_to_success is not None else "budget"
     x0 = problem.zeros(1)
     truth = problem.true_params is not None
     return CalibrationResult(
@@ -304,6 +329,8 @@ def _finish(
         param_error=problem.param_error_table(best_x) if truth else None,
         initial_param_error=problem.param_error_table(x0[0]) if truth else None,
         generations=generations,
+        stop=stop,
+        stop_reason=ended,
     )
 
 
@@ -384,10 +411,12 @@ def cmaes(
     global_state = np.random.get_state()  # noqa: NPY002 -- restored below: cma must not disturb the global RNG
     try:
         es = cma.CMAEvolutionStrategy(np.zeros(lo.size), config.sigma0, opts)
-        generations = 0
+        generations, ended = 0, None
         while not progress.done:
-            if es.stop():
+            stopped = es.stop()  # the termination criteria that fired: {"tolx": 1e-12, ...}
+            if stopped:
                 if not config.restarts:
+                    ended = ", ".join(stopped)
                     break
                 es = cma.CMAEvolutionStrategy(problem.flat(progress.best_x[None])[0].numpy(), config.sigma0, opts)
             n = progress.grant(config.popsize)
@@ -399,7 +428,7 @@ def cmaes(
                 generations += 1
     finally:
         np.random.set_state(global_state)  # noqa: NPY002
-    return _finish("cmaes", problem, progress, initial, generations)
+    return _finish("cmaes", problem, progress, initial, generations, ended)
 
 
 def gradient_descent(
@@ -539,19 +568,22 @@ def levenberg_marquardt(
     ends = [max(2, round(float(w) * (problem.T - 1)) + 1) for w in config.windows]
     z, r = torch.zeros_like(lo), r0[0]
     best_z, best_r = z, r
-    schedule = ends
+    schedule, ended = ends, None
     while True:
         for end in schedule:
-            z, r = _lm_window(problem, progress, config, z, r, end)
+            z, r, cut = _lm_window(problem, progress, config, z, r, end)
         if float((r**2).sum()) < float((best_r**2).sum()):
             best_z, best_r = z, r
-        if config.restart_radius == 0 or progress.done or progress.grant(1 + per_iter) < 1 + per_iter:
+        if config.restart_radius == 0:  # no restarts: its windows end it, unless the budget or success cut the last
+            ended = None if cut or progress.done else "windows"
+            break
+        if progress.done or progress.grant(1 + per_iter) < 1 + per_iter:
             break
         noise = torch.randn(lo.shape, generator=gen, dtype=torch.float64)
         z = torch.minimum(torch.maximum(best_z + config.restart_radius * noise, lo), hi)
         r = _residuals(problem, progress, problem.unflat(z[None]))[0][0]
         schedule = ends[-1:]
-    return _finish("lm", problem, progress, initial)
+    return _finish("lm", problem, progress, initial, ended=ended)
 
 
 def _residuals(problem: CalibrationProblem, progress: Progress, x: torch.Tensor) -> tuple[torch.Tensor, Metrics]:
@@ -563,12 +595,13 @@ def _residuals(problem: CalibrationProblem, progress: Progress, x: torch.Tensor)
 
 def _lm_window(
     problem: CalibrationProblem, progress: Progress, config: LMConfig, z: torch.Tensor, r: torch.Tensor, end: int
-) -> tuple[torch.Tensor, torch.Tensor]:
+) -> tuple[torch.Tensor, torch.Tensor, bool]:
     """Levenberg-Marquardt iterations on the first ``end`` output samples, from ``z [n]`` with residual ``r [K, T]``.
 
     Ends after ``config.iterations`` iterations, after ``config.stall`` successive iterations that each
     lowered the window's cost by less than ``config.rtol`` (a rejected step lowers it by 0), or when the
-    budget cannot pay for a whole iteration. Returns the last accepted point and its full residual.
+    budget cannot pay for a whole iteration (or a candidate passed, ``stop_on_success``). Returns the last accepted
+    point, its full residual, and whether the budget (or success) ended the window rather than its own rule.
     """
     lo, hi = problem.flat_box()
     n = lo.numel()
@@ -583,7 +616,7 @@ def _lm_window(
 
     for _ in range(config.iterations):
         if progress.done or progress.grant(n + len(STEP_FACTORS)) < n + len(STEP_FACTORS):
-            break
+            return z, r, True
         step = lm_iteration(run, z, r[:, :end].reshape(-1), lam, lo, hi, config.fd_step)
         lam = step.lam
         if step.accepted is not None:
@@ -591,7 +624,7 @@ def _lm_window(
         stalled = stalled + 1 if step.rel < config.rtol else 0
         if stalled >= config.stall:
             break
-    return z, r
+    return z, r, False
 
 
 BASELINES: dict[str, tuple[type, Callable[..., CalibrationResult]]] = {

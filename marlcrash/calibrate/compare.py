@@ -24,8 +24,10 @@ Protocol (the paper's: calibration of ONE reference per run):
   ``max_wall_s``, judged by the previous batch's duration; such a run is kept, with the simulations
   it used and ``stop = wall_cap`` ("stopped by wall cap" in the table). Gradient descent through the
   torch simulator (~4 s per simulation at 150 ms) is the method that hits it.
-- An optimizer that stops by its own rule while the budget could pay for its next batch (cmaes with
-  ``restarts: false``, lm with ``restart_radius: 0``) is kept with ``stop = ended`` ("ended on its own").
+- An optimizer that stops by its own rule before its budget ran out (cmaes with ``restarts: false`` once CMA-ES's
+  termination criteria fire, lm with ``restart_radius: 0`` after its windows) is kept with ``stop = ended``
+  ("ended on its own"), and ``stop_reason`` names the rule (the criteria, e.g. ``tolx``; ``windows``), as the
+  optimizer reports it (:attr:`~marlcrash.calibrate.baselines.CalibrationResult.stop`).
 - Success: the paper's thresholds (:class:`~marlcrash.calibrate.problem.SuccessConfig`: every sensor
   A < 0.0015 m, DFD < 0.335 m/s, RMSE < 0.1511 m/s), the same test for all methods;
   ``sims_to_success``: the simulation count at which a candidate first passed it.
@@ -79,7 +81,6 @@ from marlcrash.calibrate.baselines import (
 )
 from marlcrash.calibrate.budget import Progress
 from marlcrash.calibrate.evaluate import param_errors
-from marlcrash.calibrate.leastsq import STEP_FACTORS
 from marlcrash.calibrate.marl import (
     ALGORITHMS,
     TRAIN_ENV_OVERRIDES,
@@ -121,11 +122,14 @@ FILES = ("compare.json", "compare.csv", "compare.md")
 """What :func:`write_results` writes into the run folder."""
 
 COLUMNS = (
-    "method", "seed", "budget", "simulations", "stop", "area_mean", "area_worst", "dfd_mean", "dfd_worst",
-    "rmse_mean", "rmse_worst", "score", "initial_score", "passed", "sims_to_success", "param_error",
+    "method", "seed", "budget", "simulations", "stop", "stop_reason", "area_mean", "area_worst", "dfd_mean",
+    "dfd_worst", "rmse_mean", "rmse_worst", "score", "initial_score", "passed", "sims_to_success", "param_error",
     "initial_param_error", "wall_time_s", "iterations", "env_steps", "trained_simulations",
 )  # fmt: skip
 """Columns of ``compare.csv``, in order (empty field: not applicable, never reached, or not a finite number)."""
+
+ADDED_COLUMNS = ("stop_reason",)
+"""Columns a finished row of an older comparison may lack (a resume reads it, the tables show ``-``)."""
 
 STOP_LABELS = {"wall_cap": "stopped by wall cap", "ended": "ended on its own"}
 """How the tables say a run's ``stop`` (``budget`` as it is): :class:`RunOutcome`."""
@@ -395,6 +399,8 @@ class RunOutcome:
             stopped by its own rule with budget left: :func:`run_optimizer`).
         wall_time_s: [s].
         extra: PPO counters (``iterations``, ``env_steps``, ``trained_simulations``).
+        stop_reason: for ``ended``, the optimizer's rule (:attr:`~marlcrash.calibrate.baselines.CalibrationResult.
+            stop_reason`); ``None`` otherwise.
     """
 
     method: str
@@ -404,43 +410,34 @@ class RunOutcome:
     stop: str
     wall_time_s: float
     extra: dict[str, Any] = field(default_factory=dict)
-
-
-def next_batch(config: CompareConfig, method: str, problem: CalibrationProblem) -> int:
-    """The fewest simulations optimizer ``method`` would spend on its next batch: 1 for random search, CMA-ES and
-    gradient descent (each runs a batch cut to what is left), one iteration for lm (free coordinates plus step sizes;
-    one more for the restart's start point where it restarts, ``lm.restart_radius > 0``)."""
-    if method != "lm":
-        return 1
-    per_iter = problem.flat_box()[0].numel() + len(STEP_FACTORS)
-    return per_iter + (1 if config.lm.restart_radius > 0 else 0)
+    stop_reason: str | None = None
 
 
 def run_optimizer(config: CompareConfig, method: str, seed: int, problem: CalibrationProblem) -> RunOutcome:
     """One optimizer run (``random_search``, ``cmaes``, ``gradient``, ``lm``) with the wall cap.
 
-    Its ``stop`` is ``wall_cap``, ``budget`` (what is left cannot pay for its next batch, :func:`next_batch`), or
-    ``ended``: it stopped by its own rule with budget left for more (cmaes without restarts, once CMA-ES's
+    Its ``stop`` is ``wall_cap``, or what the optimizer reports
+    (:attr:`~marlcrash.calibrate.baselines.CalibrationResult.stop`): ``budget`` (what is left cannot pay for its next
+    batch), or ``ended`` with its ``stop_reason``: it stopped by its own rule (cmaes without restarts, once CMA-ES's
     termination criteria fire; lm without restarts, ``lm.restart_radius = 0``, after its windows).
     """
     t0 = time.perf_counter()
     rec = _Recorder(problem, Progress(config.budget), config.max_wall_s)
     _, fn = BASELINES[method]
-    stop = "budget"
+    stop, reason = "wall_cap", None
     try:
         result = fn(rec, config.budget, getattr(config, method), seed, False)
     except _WallCap:
-        stop = "wall_cap"
+        pass
     else:  # the recorder saw exactly what the optimizer recorded
         if result.simulations != rec.progress.used or result.best_score != rec.progress.best_score:
             raise RuntimeError(f"{method}: the record ({rec.progress.used} simulations, best "
                                f"{rec.progress.best_score}) disagrees with the optimizer's ({result.simulations}, "
                                f"{result.best_score})")  # fmt: skip
-        if rec.progress.remaining >= next_batch(config, method, problem):
-            stop = "ended"
+        stop, reason = result.stop, result.stop_reason
     prog = rec.progress
     best = problem.params(prog.best_x[None])[0].detach()
-    return RunOutcome(method, seed, prog, best, stop, time.perf_counter() - t0)
+    return RunOutcome(method, seed, prog, best, stop, time.perf_counter() - t0, stop_reason=reason)
 
 
 def ppo_train_config(config: CompareConfig, method: str, seed: int, run_root: Path) -> TrainConfig:
@@ -542,7 +539,7 @@ def outcome_row(
         err = _mean_param_error(param_errors(problem, out.best_params, problem.true_params))
         init_err = _mean_param_error(param_errors(problem, problem.init, problem.true_params))
     row: dict[str, Any] = {"method": out.method, "seed": out.seed, "budget": config.budget,
-                           "simulations": prog.used, "stop": out.stop}  # fmt: skip
+                           "simulations": prog.used, "stop": out.stop, "stop_reason": out.stop_reason}  # fmt: skip
     for k in ("area", "dfd", "rmse"):
         v = getattr(m, k)
         row[f"{k}_mean"], row[f"{k}_worst"] = float(v.mean()), float(v.max())
@@ -710,7 +707,7 @@ def markdown(config: CompareConfig, rows: list[dict[str, Any]], command: str | N
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in sorted(rows, key=lambda r: (seeds.index(r["seed"]), methods.index(r["method"]))):
-        stop = STOP_LABELS.get(r["stop"], r["stop"])
+        stop = STOP_LABELS.get(r["stop"], r["stop"]) + (f" ({r['stop_reason']})" if r["stop_reason"] else "")
         lines.append(
             f"| {r['seed']} | {r['method']} | {r['simulations']} | {stop} | {_fmt(r['area_mean'])} | "
             f"{_fmt(r['dfd_mean'])} | {_fmt(r['rmse_mean'])} | {_fmt(r['area_worst'])} | {_fmt(r['dfd_worst'])} | "
@@ -849,8 +846,12 @@ def _start_run_dir(config: CompareConfig) -> tuple[Path, list[dict[str, Any]]]:
         return [*_RESUMABLE_DIFF_OK, *(m for m in METHODS if m not in done)]
 
     env = (config.env, dict(config.env_overrides))
-    keys = (*COLUMNS, "metrics", "history")
-    return open_run_dir(config.run_dir, "compare.json", asdict(config), config.resume, free, env, keys)
+    keys = (*(c for c in COLUMNS if c not in ADDED_COLUMNS), "metrics", "history")
+    run_dir, rows = open_run_dir(config.run_dir, "compare.json", asdict(config), config.resume, free, env, keys)
+    for r in rows:  # rows of a comparison started before a column was added: unknown there
+        for c in ADDED_COLUMNS:
+            r.setdefault(c, None)
+    return run_dir, rows
 
 
 def _saved_rows(path: Path) -> list[dict[str, Any]] | None:
