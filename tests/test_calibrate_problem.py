@@ -347,6 +347,28 @@ def test_progress_keeps_a_perfect_fit_whose_score_is_infinite():
     assert ranked.dtype == torch.float64 and int(ranked.argmax()) == 1 and ranked[2] == float("-inf")
 
 
+def test_progress_keeps_a_passing_candidate_over_a_higher_scoring_one_that_fails():
+    """``passed`` (the kept candidate meets the success thresholds) and ``sims_to_success`` (some candidate met them)
+    disagreed where the best candidate by score missed a threshold that a lower-scoring one met: a run reported a
+    success count and a result that does not pass, and with ``stop_on_success`` the passing candidate it stopped for
+    was not the one it returned. A passing candidate now outranks every failing one; among passing (or among
+    failing) candidates the higher score wins."""
+    p = Progress(10)
+    x = torch.arange(6, dtype=torch.float64)[:, None, None].expand(6, 2, 7)
+    m = Metrics(*(torch.arange(6, dtype=torch.float64)[:, None].expand(6, 3) for _ in range(3)))
+
+    def record(i: slice, score: list[float], success: list[bool]) -> None:
+        p.record(x[i], Metrics(*(t[i] for t in m)), torch.tensor(score), torch.tensor(success))
+
+    record(slice(0, 2), [5.0, 1.0], [False, False])
+    record(slice(2, 4), [4.0, 2.0], [False, True])  # the passing candidate scores below the best so far
+    assert p.sims_to_success == 4 and float(p.best_x[0, 0]) == 3.0 and p.best_score == 2.0
+    assert float(p.best_metrics.area[0]) == 3.0
+    record(slice(4, 6), [9.0, 3.0], [False, True])  # a failing one never replaces it, a better passing one does
+    assert float(p.best_x[0, 0]) == 5.0 and p.best_score == 3.0 and p.sims_to_success == 4
+    assert p.history_array().tolist() == [[2.0, 5.0, 5.0], [4.0, 2.0, 2.0], [6.0, 3.0, 3.0]]
+
+
 def test_progress_records_an_empty_batch_as_nothing():
     p = Progress(3)
     empty = Metrics(*(torch.ones(0, 3) for _ in range(3)))

@@ -199,7 +199,10 @@ def test_progress_hook_success_count_and_budget_truncation(short, problem0, tmp_
             hook(p, m)
         assert hook.seen == 16 and progress.used == budget
         assert progress.sims_to_success == (first_pass if budget >= first_pass else None)
-        assert progress.best_score == float(problem.score(Metrics(*(t[:budget] for t in metrics))).max())
+        scores = problem.score(Metrics(*(t[:budget] for t in metrics)))
+        kept = scores[area[:budget] < limit] if budget >= first_pass else scores  # a passing candidate first
+        assert progress.best_score == float(kept.max())
+        assert bool(success(Metrics(*(t[None] for t in progress.best_metrics)))[0]) == (budget >= first_pass)
     assert tr.simulations == 16
 
 

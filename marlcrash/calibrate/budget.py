@@ -7,6 +7,12 @@ simulation per candidate). A :class:`Progress` hands out simulations (:meth:`Pro
 so that an optimizer stops exactly at its budget, and records after every batch the
 best fit score reached per simulation count, the best candidate, and the simulation
 count at which a candidate first passed the success test.
+
+The best candidate is the one a calibration keeps: a candidate that passes the success test
+outranks every one that does not, and the fit score ranks the rest. So a run's result passes
+exactly when some candidate passed (``sims_to_success`` is set), and a run stopped on success
+returns the candidate it stopped for; the best score can drop once, when the first passing
+candidate scores below the failing best before it.
 """
 
 from __future__ import annotations
@@ -45,7 +51,8 @@ class Progress:
     """Budget plus best-so-far record of one calibration run.
 
     Scores are "higher is better" (the reward form's score, see
-    :meth:`marlcrash.calibrate.problem.CalibrationProblem.score`).
+    :meth:`marlcrash.calibrate.problem.CalibrationProblem.score`); a candidate that passes the success test
+    outranks every one that does not (module docstring).
 
     Args:
         budget: the number of simulations the run may use, a whole number (any integer type, a numpy one too) >= 1.
@@ -53,8 +60,9 @@ class Progress:
 
     Attributes:
         used: simulations charged so far.
-        best_score: best score seen (``-inf`` before the first record).
-        best_x: ``[n_agents, 7]`` the best candidate (``None`` before the first record).
+        best_score: the best candidate's score (``-inf`` before the first record).
+        best_x: ``[n_agents, 7]`` the best candidate: the highest-scoring passing one once any passed, else the
+            highest-scoring one (``None`` before the first record).
         best_metrics: per-sensor :class:`Metrics` ``[K]`` of the best candidate.
         sims_to_success: simulation count (1-based, counting every candidate evaluated before it)
             at which the first successful candidate was evaluated; ``None`` if none yet.
@@ -115,11 +123,15 @@ class Progress:
         if n > self.remaining:
             raise RuntimeError(f"batch of {n} simulations exceeds the remaining budget of {self.remaining}")
         s = ranked_scores(score)  # a NaN never wins
-        k = int(torch.argmax(s))
-        if self.sims_to_success is None and bool(success.any()):
-            self.sims_to_success = self.used + int(torch.nonzero(success)[0, 0]) + 1
+        ok = success.to(torch.bool)
+        passing = torch.nonzero(ok)[:, 0]
+        k = int(passing[torch.argmax(s[passing])]) if passing.numel() else int(torch.argmax(s))  # the batch's best
+        had = self.sims_to_success is not None  # the best so far passes
+        if not had and passing.numel():
+            self.sims_to_success = self.used + int(passing[0]) + 1
         self.used += n
-        if float(s[k]) > self.best_score or self.best_x is None:
+        won = bool(ok[k])
+        if self.best_x is None or (won and not had) or (won == had and float(s[k]) > self.best_score):
             self.best_score = float(s[k])
             self.best_x = x[k].detach().clone()
             self.best_metrics = Metrics(*(m[k].detach().clone() for m in metrics))
@@ -128,5 +140,6 @@ class Progress:
         )
 
     def history_array(self) -> np.ndarray:
-        """``[H, 3]`` float64: simulations, best score so far, batch best score, per recorded batch."""
+        """``[H, 3]`` float64: simulations, best candidate's score so far, the batch's best candidate's score, per
+        recorded batch (best as :meth:`record` ranks: a passing candidate first)."""
         return np.array([[h.simulations, h.best, h.batch_best] for h in self.history], dtype=np.float64)

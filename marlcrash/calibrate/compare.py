@@ -30,7 +30,9 @@ Protocol (the paper's: calibration of ONE reference per run):
   optimizer reports it (:attr:`~marlcrash.calibrate.baselines.CalibrationResult.stop`).
 - Success: the paper's thresholds (:class:`~marlcrash.calibrate.problem.SuccessConfig`: every sensor
   A < 0.0015 m, DFD < 0.335 m/s, RMSE < 0.1511 m/s), the same test for all methods;
-  ``sims_to_success``: the simulation count at which a candidate first passed it.
+  ``sims_to_success``: the simulation count at which a candidate first passed it. A passing candidate outranks
+  every failing one in a run's record (:class:`~marlcrash.calibrate.budget.Progress`), so a run passed exactly
+  when it has a ``sims_to_success``.
 - Ranking: the fit score of the env's reward form (``CalibrationProblem.score``, higher is better)
   for every method; the winner of a reference is the method whose best candidate scores highest.
 
@@ -560,9 +562,8 @@ def aggregate(rows: list[dict[str, Any]], methods: list[str]) -> list[dict[str, 
     """Per method (in ``methods`` order): mean and std (ddof 0) over seeds, passed, median sims to success.
 
     ``passed``: runs whose best candidate meets the success thresholds; ``sims_to_success_median``: median over
-    the runs in which any candidate met them (usually the same runs: the best candidate by fit score can
-    miss the thresholds on one sensor where an earlier candidate met them); ``wall_capped``: runs stopped
-    by the wall cap.
+    the runs in which any candidate met them (the same runs: a passing candidate outranks every failing one,
+    :class:`~marlcrash.calibrate.budget.Progress`); ``wall_capped``: runs stopped by the wall cap.
     """
     keys = ("simulations", "area_mean", "area_worst", "dfd_mean", "dfd_worst", "rmse_mean", "rmse_worst", "score",
             "param_error", "wall_time_s")  # fmt: skip
@@ -652,9 +653,10 @@ def markdown(config: CompareConfig, rows: list[dict[str, Any]], command: str | N
         f"- budget: {config.budget} simulations per run (every simulated candidate counts one; PPO: one per env "
         f"step and one per episode reset, {config.ppo.n_envs} envs x {config.ppo.episode_length} steps per "
         f"iteration); wall cap {_fmt(config.max_wall_s, 'g')} s per run",
-        f"- result of a run: its best candidate by fit score; success = every sensor A < {th.area} m, "
-        f"DFD < {th.dfd} m/s, RMSE < {th.rmse} m/s (the paper's best Table 3 row); passed: the best candidate "
-        "meets it; sims to success: simulations until the first candidate met it (median over the runs where one did)",
+        f"- result of a run: its best candidate by fit score, a passing one before any other; success = every "
+        f"sensor A < {th.area} m, DFD < {th.dfd} m/s, RMSE < {th.rmse} m/s (the paper's best Table 3 row); passed: "
+        "the best candidate meets it; sims to success: simulations until the first candidate met it (median over the "
+        "runs where one did)",
         "- area [m], DFD [m/s], RMSE [m/s] of the best candidate: mean over sensors and worst sensor; score: fit "
         "score, higher is better; param err: mean relative error of the sub-assembly parameters vs the twin truth",
         "",
