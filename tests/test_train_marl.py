@@ -820,6 +820,10 @@ def test_evaluating_a_live_trainer_with_other_iterations_leaves_its_config_as_it
     run_dir.mkdir()
     tr = build_trainer(cfg, run_dir)
     try:
+        # a checkpoint beside a trainer was ignored: the trainer's networks were evaluated, the summary said none
+        with pytest.raises(ConfigError, match="either a live trainer or a checkpoint") as e:
+            evaluate_run(run_dir, trainer=tr, checkpoint="2")
+        assert e.value.key == "checkpoint" and not (run_dir / "summary.json").exists()
         s = evaluate_run(run_dir, trainer=tr, iterations=1)
     finally:
         tr.logger.close()

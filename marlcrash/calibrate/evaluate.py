@@ -425,7 +425,7 @@ def evaluate_run(
         iterations: override ``eval.iterations``.
         checkpoint: ``None`` or ``"latest"``: ``checkpoint.pt``; otherwise an iteration with a kept snapshot or a
             checkpoint file (:func:`find_checkpoint`), and the learning curves then end at that checkpoint's
-            iteration.
+            iteration. ``None`` with a ``trainer``, whose networks are evaluated.
 
     Where the files go: the run's own evaluation (by ``trainer``, or of ``checkpoint.pt``, with the run's
     ``eval.iterations``; of ``checkpoint.pt`` with the inputs it started with, or its first) is written into
@@ -439,11 +439,14 @@ def evaluate_run(
         and ``eval_dir``: the folder written).
 
     Raises:
-        ConfigError: no run config or no such checkpoint in ``run_dir``; the folder to write is in use by another
-            process (a run still training, or another evaluation of the same checkpoint:
-            :func:`marlcrash.calibrate.runlock.run_lock`).
+        ConfigError: a ``trainer`` and a ``checkpoint`` both (key ``checkpoint``); no run config or no such
+            checkpoint in ``run_dir``; the folder to write is in use by another process (a run still training, or
+            another evaluation of the same checkpoint: :func:`marlcrash.calibrate.runlock.run_lock`).
     """
     t0 = time.perf_counter()
+    if trainer is not None and checkpoint is not None:
+        raise ConfigError(f"evaluate either a live trainer or a checkpoint, got a trainer and checkpoint="
+                          f"{checkpoint!r}", key="checkpoint")  # fmt: skip
     run_dir = Path(run_dir)
     out_dir = run_dir
     config = trainer.config if trainer is not None else load_run_config(run_dir, device="cpu")  # policy on the CPU
