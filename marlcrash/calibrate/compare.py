@@ -401,8 +401,8 @@ class RunOutcome:
             stopped by its own rule with budget left: :func:`run_optimizer`).
         wall_time_s: [s].
         extra: PPO counters (``iterations``, ``env_steps``, ``trained_simulations``).
-        stop_reason: for ``ended``, the optimizer's rule (:attr:`~marlcrash.calibrate.baselines.CalibrationResult.
-            stop_reason`); ``None`` otherwise.
+        stop_reason: for ``ended``, the optimizer's rule
+            (:attr:`~marlcrash.calibrate.baselines.CalibrationResult.stop_reason`); ``None`` otherwise.
     """
 
     method: str
