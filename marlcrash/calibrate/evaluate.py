@@ -39,6 +39,7 @@ import csv
 import dataclasses
 import hashlib
 import json
+import numbers
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -452,8 +453,11 @@ def evaluate_run(
     config = trainer.config if trainer is not None else load_run_config(run_dir, device="cpu")  # policy on the CPU
     own_steps = config.eval.iterations
     if iterations is not None:
-        if iterations < 1:
-            raise ConfigError(f"expected >= 1 calibration steps, got {iterations}", key="iterations")
+        whole = isinstance(iterations, numbers.Integral) and not isinstance(iterations, (bool, np.bool_))
+        if not whole or iterations < 1:  # 1.5 was refused as the env file's termination.max_iterations
+            raise ConfigError(f"expected a whole number >= 1 of calibration steps, got {iterations!r}",
+                              key="iterations")  # fmt: skip
+        iterations = int(iterations)
         # a copy: a live trainer's config (the caller's) keeps its own eval.iterations
         config = dataclasses.replace(config, eval=dataclasses.replace(config.eval, iterations=iterations))
     check = provenance.check_run(run_dir, provenance.env_inputs(make_env_config(config)), key=None)
