@@ -130,8 +130,8 @@ COLUMNS = (
 )  # fmt: skip
 """Columns of ``compare.csv``, in order (empty field: not applicable, never reached, or not a finite number)."""
 
-ADDED_COLUMNS = ("stop_reason",)
-"""Columns a finished row of an older comparison may lack (a resume reads it, the tables show ``-``)."""
+_ADDED_COLUMNS = ("stop_reason",)
+"""Columns a finished row of an older comparison may lack (a resume reads it, the column ``None`` there: unknown)."""
 
 STOP_LABELS = {"wall_cap": "stopped by wall cap", "ended": "ended on its own"}
 """How the tables say a run's ``stop`` (``budget`` as it is): :class:`RunOutcome`."""
@@ -848,10 +848,10 @@ def _start_run_dir(config: CompareConfig) -> tuple[Path, list[dict[str, Any]]]:
         return [*_RESUMABLE_DIFF_OK, *(m for m in METHODS if m not in done)]
 
     env = (config.env, dict(config.env_overrides))
-    keys = (*(c for c in COLUMNS if c not in ADDED_COLUMNS), "metrics", "history")
+    keys = (*(c for c in COLUMNS if c not in _ADDED_COLUMNS), "metrics", "history")
     run_dir, rows = open_run_dir(config.run_dir, "compare.json", asdict(config), config.resume, free, env, keys)
     for r in rows:  # rows of a comparison started before a column was added: unknown there
-        for c in ADDED_COLUMNS:
+        for c in _ADDED_COLUMNS:
             r.setdefault(c, None)
     return run_dir, rows
 

@@ -475,8 +475,8 @@ def evaluate_run(
         steps = "" if config.eval.iterations == own_steps else f"_steps{config.eval.iterations}"
         out_dir = run_dir / EVAL_DIR / f"{name}{steps}"
         out_dir.mkdir(parents=True, exist_ok=True)
-    # a trainer holds its run folder already; otherwise hold the folder written, so an evaluation neither writes a
-    # run that still trains nor interleaves its files with another evaluation of the same checkpoint
+    # a trainer holds its run folder already (its own evaluation goes there); otherwise hold the folder written, so
+    # an evaluation neither writes a run that still trains nor interleaves its files with another of the same folder
     with contextlib.nullcontext() if out_dir == run_dir and trainer is not None else run_lock(out_dir, "run"):
         provenance.warn_changes(run_dir, check, "evaluate")
         log_path = run_dir / LOG_FILE  # read before the evaluation's work: a malformed row fails now
