@@ -98,6 +98,25 @@ def test_a_missing_folder_is_left_to_the_caller_unless_created(tmp_path, lock_se
         assert (d / LOCK_FILE).is_file()
 
 
+def test_a_folder_the_lock_cannot_be_written_in_is_named_with_the_key(tmp_path, monkeypatch):
+    """A run folder on a read-only file system, or without write permission (an archived or a colleague's run,
+    resumed or evaluated): creating its lock file raised a bare PermissionError naming ``.lock``, a traceback from
+    train.py and evaluate.py, which report only marlcrash's errors."""
+    real_open = os.open
+
+    def read_only(path, *args, **kwargs):  # root ignores chmod: simulate the folder that refuses a new file
+        if os.fspath(path).endswith(LOCK_FILE):
+            raise PermissionError(13, "Permission denied", os.fspath(path))
+        return real_open(path, *args, **kwargs)
+
+    monkeypatch.setattr(os, "open", read_only)
+    said = rf"cannot write in the run folder {tmp_path} \(Permission denied\)"
+    with pytest.raises(ConfigError, match=said) as e, run_lock(tmp_path, "resume"):
+        pass
+    assert e.value.key == "resume"
+    assert list(tmp_path.iterdir()) == []
+
+
 @pytest.mark.parametrize("lock_setup", ["windows"], indirect=True)
 def test_the_windows_lock_is_one_byte_past_the_pid(tmp_path, lock_setup):
     """On Windows a locked byte cannot be read by others, so the lock sits past the pid the refusal message reads;

@@ -68,7 +68,8 @@ def run_lock(run_dir: str | Path, key: str, create: bool = False) -> Iterator[Pa
             caller to report, and the block runs without a lock (there is nothing in it to protect).
 
     Raises:
-        ConfigError: another process holds the lock (with its process id), before anything is written.
+        ConfigError: another process holds the lock (with its process id), or the folder takes no lock file (read
+            only: no permission, a read-only file system), before anything is written.
     """
     run_dir = Path(run_dir)
     if create:
@@ -78,7 +79,14 @@ def run_lock(run_dir: str | Path, key: str, create: bool = False) -> Iterator[Pa
         return
     path = run_dir / LOCK_FILE
     while True:
-        fd = os.open(path, os.O_RDWR | os.O_CREAT | getattr(os, "O_BINARY", 0), 0o644)  # Windows: untranslated
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT | getattr(os, "O_BINARY", 0), 0o644)  # Windows: untranslated
+        except OSError as e:  # a read-only file system or folder: said as such, not as a traceback
+            raise ConfigError(
+                f"cannot write in the run folder {run_dir} ({e.strerror or e}); expected a folder this process may "
+                f"write in (its lock file {LOCK_FILE} and the results go there)",
+                key=key,
+            ) from None
         if not _try_lock(fd):
             os.lseek(fd, 0, os.SEEK_SET)
             holder = os.read(fd, 32).decode("ascii", "replace").strip() or "unknown"
