@@ -162,15 +162,25 @@ def atomic_output(path: str | Path, key: str | None = None) -> Iterator[Path]:
             os.fsync(fh.fileno())
         os.replace(tmp, final)
     except OSError as e:  # disk full, no permission: name the file the user asked for, not the temporary one
-        if e.filename is None or Path(e.filename) == tmp:
-            if e.errno is None:
-                err = OSError(f"cannot write {final}: {e}")
-                err.filename = str(final)
-                raise err from e
-            raise OSError(e.errno, f"cannot write {final}: {e.strerror or e}", str(final)) from e
-        raise
+        err = write_error(e, final, tmp)
+        if err is e:
+            raise
+        raise err from e
     finally:
         tmp.unlink(missing_ok=True)
+
+
+def write_error(e: OSError, final: Path, tmp: Path) -> OSError:
+    """The error to raise for ``e``, raised while ``final`` was written through its temporary sibling ``tmp``: one
+    naming ``final`` (``cannot write <final>: <reason>``, ``filename`` and ``errno`` as ``e``'s) where ``e`` names no
+    file or the temporary one; ``e`` itself where it names another file."""
+    if e.filename is not None and Path(e.filename) != tmp:
+        return e
+    if e.errno is None:
+        err = OSError(f"cannot write {final}: {e}")
+        err.filename = str(final)
+        return err
+    return OSError(e.errno, f"cannot write {final}: {e.strerror or e}", str(final))
 
 
 def new_sibling(target: Path, name: Callable[[str], str], create: Callable[[Path], bool]) -> Path:

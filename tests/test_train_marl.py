@@ -312,6 +312,40 @@ def test_checkpoint_is_atomic(tmp_path):
         load_checkpoint(tmp_path / "missing.pt")
 
 
+def test_a_checkpoint_write_that_fails_names_the_checkpoint(tmp_path, monkeypatch):
+    """A full disk (or a folder that takes no new file) at a checkpoint's write raised '[Errno 28] No space left on
+    device' naming no file, or naming the temporary '.checkpoint.pt.<hex>.tmp'; now the checkpoint, as
+    atomic_output names the output it writes, and the old checkpoint stays."""
+    import errno
+    import os
+
+    path = tmp_path / "checkpoint.pt"
+    save_checkpoint(path, {"a": torch.arange(3)})
+
+    def full(fd):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(os, "fsync", full)
+    with pytest.raises(OSError, match=rf"cannot write {path}: No space left on device") as e:
+        save_checkpoint(path, {"a": torch.arange(4)})
+    assert e.value.errno == errno.ENOSPC and e.value.filename == str(path)
+    monkeypatch.undo()
+    real_open = os.open
+
+    def denied(name, *args, **kwargs):
+        if os.fspath(name).endswith(".tmp"):
+            raise PermissionError(errno.EACCES, "Permission denied", os.fspath(name))
+        return real_open(name, *args, **kwargs)
+
+    monkeypatch.setattr(os, "open", denied)
+    with pytest.raises(PermissionError, match=rf"cannot write {path}: Permission denied") as e:
+        save_checkpoint(path, {"a": torch.arange(4)})
+    assert e.value.filename == str(path)
+    monkeypatch.undo()
+    assert torch.equal(load_checkpoint(path)["a"], torch.arange(3))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["checkpoint.pt"]
+
+
 def test_reading_a_checkpoint_runs_no_code_it_holds(tmp_path):
     """``train/evaluate.py checkpoint=<file>`` and the amortized comparison read a checkpoint named by the user with
     ``torch.load(weights_only=False)``: a file from elsewhere ran any code its pickle named. Checkpoints hold only

@@ -25,6 +25,7 @@ import numpy as np
 import torch
 
 from marlcrash.errors import ConfigError
+from marlcrash.outputs import write_error
 
 CHECKPOINT_FILE = "checkpoint.pt"
 """Name of the latest checkpoint inside a run folder."""
@@ -107,18 +108,27 @@ def save_checkpoint(path: str | Path, state: dict[str, Any]) -> Path:
 
     Returns:
         The path written.
+
+    Raises:
+        OSError: the write failed (disk full, no permission); the message and ``filename`` name ``path``, not the
+            temporary file (:func:`marlcrash.outputs.write_error`). The old checkpoint stays.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = _create_sibling(path)
+    try:
+        fd, tmp = _create_sibling(path)
+    except OSError as e:
+        raise write_error(e, path, Path(e.filename or path)) from e  # it names the temporary file or none
     try:
         with os.fdopen(fd, "wb") as fh:
             torch.save(state, fh)
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as e:
         Path(tmp).unlink(missing_ok=True)
+        if isinstance(e, OSError) and (err := write_error(e, path, Path(tmp))) is not e:
+            raise err from e  # disk full, no permission: the checkpoint named, not the temporary file or none
         raise
     return path
 
