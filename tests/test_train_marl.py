@@ -6,6 +6,7 @@ so that tiny training runs take seconds.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import json
 import shutil
@@ -564,6 +565,37 @@ def test_resuming_a_checkpoint_of_other_networks_names_the_file(short, tmp_path)
     save_checkpoint(part.run_dir / "checkpoint.pt", state)
     with pytest.raises(ConfigError, match=r"does not fit this run's mappo critic"):
         train(tiny(tmp_path, name="edited", resume=str(part.run_dir)))
+
+
+def test_resuming_the_checkpoint_of_a_run_with_other_settings_names_the_setting(short, tmp_path):
+    """A checkpoint.pt copied from another run whose networks have the same shapes (another n_envs, seed, learning
+    rate, env override) was resumed without a word: its weights, optimizer, generators, counters and log position
+    went on under this run's config.yaml, a run neither of the two configs describes. The checkpoint holds the config
+    it was written under; a setting that differs is named. Where the run folder is (name, out_dir: a moved or
+    renamed folder) and what only shows or keeps the numbers (progress bar, logger, checkpoint intervals, plots) may
+    differ."""
+    part = train(tiny(tmp_path, name="mine", iterations=2), stop_at=1, evaluate=False)
+    ckpt = part.run_dir / "checkpoint.pt"
+    mine, log = load_checkpoint(ckpt), (part.run_dir / "log.csv").read_text()
+    for key, value in (("n_envs", 8), ("algorithm.lr", 0.5), ("env_overrides", {"max_step": 0.2}),
+                       ("eval.thresholds.area", 1.0)):  # fmt: skip
+        other = copy.deepcopy(mine)
+        node, parts = other["config"], key.split(".")
+        for p in parts[:-1]:
+            node = node[p]
+        saved = node[parts[-1]]
+        node[parts[-1]] = value
+        save_checkpoint(ckpt, other)
+        with pytest.raises(ConfigError, match=rf"checkpoint\.pt was written by a run with other settings: {key} "
+                           rf"is {value!r} in it, {saved!r} in .*config\.yaml") as e:  # fmt: skip
+            train(tiny(tmp_path, name="mine", resume=str(part.run_dir)), evaluate=False)
+        assert e.value.key == "resume" and (part.run_dir / "log.csv").read_text() == log
+    moved = copy.deepcopy(mine)
+    moved["config"].update(name="old_name", out_dir="elsewhere", progress_bar=True, snapshot_every=5)
+    moved["config"]["eval"]["plots"] = True
+    save_checkpoint(ckpt, moved)
+    assert train(tiny(tmp_path, name="mine", resume=str(part.run_dir)), stop_at=1, evaluate=False).iterations == 1
+    save_checkpoint(ckpt, mine)
 
 
 def test_a_fresh_run_interrupted_before_its_first_checkpoint_leaves_no_folder(short, tmp_path, monkeypatch):

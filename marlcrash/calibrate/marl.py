@@ -854,6 +854,48 @@ def require_fits(own: dict[str, Any], saved: Any, what: str, path: Path, key: st
         raise ConfigError(f"{path} does not fit this run's {what}: {'; '.join(problems[:3])}{more}", key=key)
 
 
+RESUME_FREE_KEYS = ("name", "out_dir", "resume", "ci", "progress_bar", "logger", "checkpoint_every", "snapshot_every",
+                    "eval.plots")  # fmt: skip
+"""Settings a checkpoint's saved config may hold otherwise than the run's ``config.yaml`` (:func:`require_same_run`):
+where the run folder is (a moved or renamed folder), how the run shows its progress and which copies it keeps; none
+changes the numbers."""
+
+
+def _flat(config: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    """A saved config's settings as dotted keys (``env_overrides`` and ``ci`` stay one value each)."""
+    out: dict[str, Any] = {}
+    for k, v in config.items():
+        if isinstance(v, dict) and k not in ("env_overrides", "ci"):
+            out.update(_flat(v, f"{prefix}{k}."))
+        else:
+            out[f"{prefix}{k}"] = v
+    return out
+
+
+def require_same_run(saved: Any, config: TrainConfig, path: Path, key: str = "resume") -> None:
+    """Refuse a checkpoint written under other settings than ``config`` (the run's ``config.yaml``).
+
+    :func:`require_fits` refuses weights of other shapes only: a checkpoint copied from a run with another ``n_envs``,
+    seed or learning rate fits, and its optimizer, generators, counters and log position went on under settings that
+    are not its own. Settings of :data:`RESUME_FREE_KEYS` may differ, and so may one that only one of the two has (a
+    checkpoint written before the setting existed).
+
+    Raises:
+        ConfigError: (``key``) naming the file and the first setting that differs, with both values.
+    """
+    if not isinstance(saved, dict):  # no config saved in it: nothing to compare
+        return
+    a, b = _flat(saved), _flat(dataclasses.asdict(config))
+    for k in a:
+        if k in b and k not in RESUME_FREE_KEYS and a[k] != b[k]:
+            raise ConfigError(
+                f"{path} was written by a run with other settings: {k} is {a[k]!r} in it, {b[k]!r} in "
+                f"{path.parent / CONFIG_FILE}; expected this run's checkpoint (a kept snapshot in {SNAPSHOT_DIR}/ to "
+                "go back to), or start a new run with those settings",
+                key=key,
+            )
+
+
 # ------------------------------------------------------------------------------------- the trainer
 @dataclass
 class TrainResult:
@@ -1073,6 +1115,7 @@ def _train(
         for what, module in (("policy", tr.policy), ("critic", tr.critic)):
             name = f"{config.algorithm.name} {what}"
             require_fits(module.state_dict(), state[what], name, run_dir / CHECKPOINT_FILE, "resume")
+        require_same_run(state.get("config"), config, run_dir / CHECKPOINT_FILE)  # same shapes, another run's
         tr.load_state_dict(state)
     else:  # which configs and code this run's numbers come from, checked by a resume and an evaluation
         provenance.write_record(run_dir, provenance.env_inputs(make_env_config(config)))
