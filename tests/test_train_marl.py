@@ -681,6 +681,41 @@ def test_a_run_trained_on_a_gpu_is_evaluated_on_a_machine_without_one(short, tmp
     assert e.value.key == "device"
 
 
+def test_the_evaluation_keeps_its_results_when_a_picture_or_a_table_cannot_be_written(short, tmp_path, monkeypatch):
+    """The evaluation drew pulses.png and learning_curves.png before writing summary.json: a plotting failure (a
+    matplotlib error, a full disk) after the training and the evaluation's simulations left no summary.json, and a
+    picture or table cut short by the failure stayed as its file (eval_metrics.csv/.md and the pictures were written
+    in place, not atomically). Now a picture that cannot be drawn is a warning naming it, and every file is written
+    whole or not at all."""
+    import csv
+
+    import marlcrash.calibrate.evaluate as evaluate
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("matplotlib failed")
+
+    with (
+        monkeypatch.context() as m,
+        pytest.warns(UserWarning, match=r"pulses\.png was not drawn: RuntimeError: matplotlib failed; the results are"),
+    ):
+        m.setattr(evaluate, "plot_pulses", broken)
+        res = train(tiny(tmp_path, name="plots", iterations=1, **{"eval.plots": True, "eval.iterations": 1}))
+    assert json.loads((res.run_dir / "summary.json").read_text()) == res.summary
+    assert (res.run_dir / "learning_curves.png").stat().st_size > 0 and not (res.run_dir / "pulses.png").exists()
+    tables = {f: (res.run_dir / f).read_bytes() for f in ("eval_metrics.csv", "eval_metrics.md")}
+    real = csv.DictWriter.writerows
+
+    def full(self, rows):  # the disk fills while the table is written
+        real(self, rows[:1])
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(csv.DictWriter, "writerows", full)
+    with pytest.raises(OSError, match=r"eval_metrics\.csv: No space left on device"):
+        evaluate.evaluate_run(res.run_dir)
+    assert {f: (res.run_dir / f).read_bytes() for f in tables} == tables  # the earlier tables, whole
+    assert not [p.name for p in res.run_dir.iterdir() if p.name.endswith(".tmp") or ".tmp." in p.name]
+
+
 def test_kept_snapshots_are_evaluated_beside_the_run_results(short, tmp_path):
     from marlcrash.calibrate.evaluate import evaluate_run
 

@@ -41,6 +41,7 @@ import hashlib
 import json
 import numbers
 import time
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -75,7 +76,7 @@ from marlcrash.config import flatten_overrides, from_dict, require
 from marlcrash.envs import EnvConfig
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics
-from marlcrash.outputs import atomic_output, json_text, write_text
+from marlcrash.outputs import atomic_output, json_text, save_figure, write_text
 from marlcrash.references import require_file_scenario
 from marlcrash.reward import paper_factor
 from marlcrash.units import G0
@@ -276,7 +277,7 @@ def metrics_rows(result: EvalResult) -> list[dict[str, Any]]:
 def write_metrics_tables(result: EvalResult, csv_path: Path, md_path: Path) -> None:
     """Per-iteration metrics as CSV (long format) and Markdown (one Table-3-like block per sensor)."""
     rows = metrics_rows(result)
-    with open(csv_path, "w", newline="", encoding="utf-8") as fh:
+    with atomic_output(csv_path) as tmp, open(tmp, "w", newline="", encoding="utf-8") as fh:  # whole or not at all
         w = csv.DictWriter(fh, fieldnames=list(rows[0]))
         w.writeheader()
         w.writerows(rows)
@@ -296,7 +297,7 @@ def write_metrics_tables(result: EvalResult, csv_path: Path, md_path: Path) -> N
         lines += ["", f"## {s}", "", head, sep]
         for key in ("area", "dfd", "rmse", "factor"):
             lines.append(f"| {label[key]} | " + " | ".join(fmt[key].format(r[key]) for r in sub) + " |")
-    md_path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    write_text(md_path, "\n".join(lines) + "\n")
 
 
 # ------------------------------------------------------------------------------------------- plots
@@ -339,8 +340,7 @@ def plot_pulses(problem: CalibrationProblem, result: EvalResult, path: Path) -> 
     axes[1, 0].set_ylabel(f"velocity [m/s] ({filt}as compared)")
     axes[0, 0].legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def plot_learning_curves(log_rows: list[dict[str, float]], result: EvalResult, path: Path) -> None:
@@ -374,8 +374,17 @@ def plot_learning_curves(log_rows: list[dict[str, float]], result: EvalResult, p
     for ax in axes:
         ax.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path)
+
+
+def _draw(plot: Any, path: Path, *args: Any) -> None:
+    """``plot(*args, path)``; a failure (matplotlib, a full disk) is a warning naming the picture, so the evaluation's
+    results are still written (:func:`evaluate_run`)."""
+    try:
+        plot(*args, path)
+    except Exception as e:
+        warnings.warn(f"{path} was not drawn: {type(e).__name__}: {e}; the results are in {SUMMARY_FILE}, "
+                      "eval_metrics.csv/.md and calibrated.npz beside it", stacklevel=3)  # fmt: skip
 
 
 # --------------------------------------------------------------------------------------- run folder
@@ -535,9 +544,9 @@ def evaluate_run(
             arrays["true"] = result.true_params.numpy()
         with atomic_output(out_dir / "calibrated.npz") as tmp:
             np.savez(tmp, **arrays)
-        if config.eval.plots:
-            plot_pulses(problem, result, out_dir / "pulses.png")
-            plot_learning_curves(log_rows, result, out_dir / "learning_curves.png")
+        if config.eval.plots:  # a picture that cannot be drawn costs no result: summary.json is written after them
+            _draw(plot_pulses, out_dir / "pulses.png", problem, result)
+            _draw(plot_learning_curves, out_dir / "learning_curves.png", log_rows, result)
         summary["eval_wall_time_s"] = time.perf_counter() - t0
         summary["wall_time_s"] = train_time + summary["eval_wall_time_s"]
         old = out_dir / SUMMARY_FILE
