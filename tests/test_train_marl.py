@@ -716,6 +716,29 @@ def test_the_evaluation_keeps_its_results_when_a_picture_or_a_table_cannot_be_wr
     assert not [p.name for p in res.run_dir.iterdir() if p.name.endswith(".tmp") or ".tmp." in p.name]
 
 
+def test_evaluating_a_run_whose_folder_cannot_be_written_is_refused_before_the_work(short, tmp_path, monkeypatch):
+    """A read-only run folder (an archived or a colleague's run): the evaluation made eval/<checkpoint>_steps<n>/
+    (or, as root, went on), ran the policy and the baselines' problem, and only then failed to write its first file,
+    leaving an empty folder; where the folder refused it, mkdir raised a bare PermissionError. Now the folder is
+    checked first and named, with the key run."""
+    import tempfile
+
+    from marlcrash.calibrate.evaluate import evaluate_run
+
+    res = train(tiny(tmp_path, name="archived", iterations=1), evaluate=False)
+    before = sorted(p.relative_to(res.run_dir) for p in res.run_dir.rglob("*"))
+
+    def denied(*args, **kwargs):  # a folder without write permission (root ignores chmod, so simulate it)
+        raise PermissionError(13, "Permission denied")
+
+    monkeypatch.setattr(tempfile, "NamedTemporaryFile", denied)
+    for kw in ({"iterations": 3}, {}):  # into eval/checkpoint_steps3/, and the run's own evaluation
+        with pytest.raises(ConfigError, match=rf"cannot write in the folder {res.run_dir} \(Permission denied\)") as e:
+            evaluate_run(res.run_dir, **kw)
+        assert e.value.key == "run"
+        assert sorted(p.relative_to(res.run_dir) for p in res.run_dir.rglob("*")) == before
+
+
 def test_kept_snapshots_are_evaluated_beside_the_run_results(short, tmp_path):
     from marlcrash.calibrate.evaluate import evaluate_run
 

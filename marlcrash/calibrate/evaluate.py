@@ -76,7 +76,7 @@ from marlcrash.config import flatten_overrides, from_dict, require
 from marlcrash.envs import EnvConfig
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics
-from marlcrash.outputs import atomic_output, json_text, save_figure, write_text
+from marlcrash.outputs import atomic_output, check_output_dir, json_text, save_figure, write_text
 from marlcrash.references import require_file_scenario
 from marlcrash.reward import paper_factor
 from marlcrash.units import G0
@@ -450,8 +450,9 @@ def evaluate_run(
 
     Raises:
         ConfigError: a ``trainer`` and a ``checkpoint`` both (key ``checkpoint``); no run config or no such
-            checkpoint in ``run_dir``; the folder to write is in use by another process (a run still training, or
-            another evaluation of the same checkpoint: :func:`marlcrash.calibrate.runlock.run_lock`).
+            checkpoint in ``run_dir``; the folder to write cannot be written (key ``run``: a read-only run folder),
+            before the evaluation's work, or is in use by another process (a run still training, or another
+            evaluation of the same checkpoint: :func:`marlcrash.calibrate.runlock.run_lock`).
     """
     t0 = time.perf_counter()
     if trainer is not None and checkpoint is not None:
@@ -483,7 +484,8 @@ def evaluate_run(
     if not own:  # only once the checkpoint proved usable: no empty folders
         steps = "" if config.eval.iterations == own_steps else f"_steps{config.eval.iterations}"
         out_dir = run_dir / EVAL_DIR / f"{name}{steps}"
-        out_dir.mkdir(parents=True, exist_ok=True)
+    check_output_dir(out_dir, "run")  # a read-only run folder: said now, not after the work (or by mkdir)
+    out_dir.mkdir(parents=True, exist_ok=True)
     # a trainer holds its run folder already (its own evaluation goes there); otherwise hold the folder written, so
     # an evaluation neither writes a run that still trains nor interleaves its files with another of the same folder
     with contextlib.nullcontext() if out_dir == run_dir and trainer is not None else run_lock(out_dir, "run"):
