@@ -243,7 +243,8 @@ def sync_folder(folder: str | Path, files: bool = True) -> None:
         os.close(fd)
 
 
-_ZIP_STARTS = (b"PK\x03\x04", b"PK\x05\x06")  # a zip's first member, or an empty zip
+ZIP_STARTS = (b"PK\x03\x04", b"PK\x05\x06")
+"""How a zip archive begins: its first member, or an empty archive (``.npz`` files, ``torch.save``'s files)."""
 
 
 def read_npz(path: str | Path) -> dict[str, np.ndarray]:
@@ -262,7 +263,7 @@ def read_npz(path: str | Path) -> dict[str, np.ndarray]:
         raise ValueError(f"cannot read it ({e.strerror or e})") from None
     if not head:
         raise ValueError("the file is empty")
-    if head not in _ZIP_STARTS:  # numpy would try it as a pickle, and say so
+    if head not in ZIP_STARTS:  # numpy would try it as a pickle, and say so
         raise ValueError("not a .npz archive (it does not begin as a zip file does)")
     try:
         with np.load(path, allow_pickle=False) as z:

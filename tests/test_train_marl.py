@@ -313,6 +313,27 @@ def test_checkpoint_is_atomic(tmp_path):
         load_checkpoint(tmp_path / "missing.pt")
 
 
+def test_a_damaged_checkpoint_is_said_to_be_so_in_words(tmp_path):
+    """An empty checkpoint.pt (a crash before its data reached the disk, a copy that failed) read 'cannot read
+    checkpoint <file>: ' with nothing after the colon; one cut short '[Errno 22] Invalid argument' or torch's 'failed
+    finding central directory. This is an internal miniz error. If you are seeing this error, there is...'; a text
+    file (checkpoint=log.csv) got torch's advice to load it with weights_only=False. Now what is wrong, in words,
+    and no torch internals or advice."""
+    path = tmp_path / "checkpoint.pt"
+    save_checkpoint(path, {"a": torch.zeros(1000), "iteration": 3})
+    whole = path.read_bytes()
+    for data, said in ((b"", "the file is empty"),
+                       (b"iteration,reward\n1,2\n", "not a checkpoint: it does not begin as torch.save's files do"),
+                       (b"\x80\x02junk", "not a checkpoint: it does not begin as torch.save's files do"),
+                       (whole[: len(whole) // 2], "damaged, cut short or overwritten"),
+                       (whole[:-30], "damaged, cut short or overwritten"),
+                       (whole[:100] + b"\0" * 200 + whole[300:], "damaged, cut short or overwritten")):  # fmt: skip
+        path.write_bytes(data)
+        with pytest.raises(ConfigError, match=rf"cannot read checkpoint {path}: {said}") as e:
+            load_checkpoint(path)
+        assert not any(w in str(e.value) for w in ("miniz", "Errno", "weights_only"))
+
+
 def test_a_checkpoint_write_that_fails_names_the_checkpoint(tmp_path, monkeypatch):
     """A full disk (or a folder that takes no new file) at a checkpoint's write raised '[Errno 28] No space left on
     device' naming no file, or naming the temporary '.checkpoint.pt.<hex>.tmp'; now the checkpoint, as

@@ -25,7 +25,7 @@ import numpy as np
 import torch
 
 from marlcrash.errors import ConfigError
-from marlcrash.outputs import write_error
+from marlcrash.outputs import ZIP_STARTS, write_error
 
 CHECKPOINT_FILE = "checkpoint.pt"
 """Name of the latest checkpoint inside a run folder."""
@@ -183,26 +183,45 @@ def load_checkpoint(path: str | Path, key: str = "resume") -> dict[str, Any]:
     from elsewhere (``checkpoint=<file>``) must not run the code a full unpickling would.
 
     Raises:
-        ConfigError: the file is missing or unreadable, or holds other objects.
+        ConfigError: the file is missing, unreadable (empty, not a checkpoint, damaged: said in words), or holds
+            other objects.
     """
-    import pickle
-
     path = Path(path)
     if not path.is_file():
         raise ConfigError(f"no checkpoint at {path}; expected a run folder with {CHECKPOINT_FILE}", key=key)
     try:
         return torch.load(path, map_location="cpu", weights_only=True)
-    except pickle.UnpicklingError as e:  # torch's advice (load it with weights_only=False) is not for a foreign file
-        what = str(e).strip().splitlines()
+    except Exception as e:  # a torn or foreign file: say which and why, in words
+        raise ConfigError(f"cannot read checkpoint {path}: {_what_is_wrong(path, e)}", key=key) from None
+
+
+def _what_is_wrong(path: Path, error: Exception) -> str:
+    """What is wrong with a file ``torch.load`` refused (``error``), in words and without torch's advice (to load it
+    with ``weights_only=False``, which is not for a foreign file) or internals: torch said nothing for an empty file,
+    and for one cut short '[Errno 22] Invalid argument' or its zip reader's 'failed finding central directory. This is
+    an internal miniz error...'; a text file got the advice."""
+    import pickle
+
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(4)
+    except OSError as e:
+        return f"cannot read it ({e.strerror or e})"
+    if not head:
+        return "the file is empty"
+    foreign = "not a checkpoint: it does not begin as torch.save's files do; expected a checkpoint written by marlcrash"
+    if head not in ZIP_STARTS and not head.startswith(b"\x80"):  # torch.save's zip archive, an older torch's pickle
+        return foreign
+    if isinstance(error, pickle.UnpicklingError):  # the weights-only unpickler met an object it does not build
+        what = str(error).strip().splitlines()
         found = next((line.strip() for line in what if "Unsupported global" in line), what[0] if what else "")
         found = found.split(" Please use")[0]  # not torch's advice to allow the object's class
-        raise ConfigError(
-            f"cannot read checkpoint {path}: it holds objects other than tensors and plain data ({found}); expected "
-            f"a checkpoint written by marlcrash",
-            key=key,
-        ) from None
-    except Exception as e:  # a torn or foreign file: say which and why
-        raise ConfigError(f"cannot read checkpoint {path}: {e}", key=key) from None
+        return (
+            f"it holds objects other than tensors and plain data ({found}); expected a checkpoint written by marlcrash"
+        )
+    if head not in ZIP_STARTS:  # a pickle that torch cannot read
+        return foreign
+    return "damaged, cut short or overwritten (or a zip archive that torch.save did not write)"
 
 
 def load_training_checkpoint(path: str | Path, key: str = "resume") -> dict[str, Any]:
