@@ -246,6 +246,44 @@ def test_a_failing_optimizer_keeps_the_pieces_that_finished(run_dir, tmp_path, m
     assert "**incomplete**" in (tmp_path / "amortized.md").read_text()
 
 
+def test_the_policy_compared_is_the_one_whose_checkpoint_is_recorded(run_dir, tmp_path, monkeypatch):
+    """A comparison of a run that still trains: its next checkpoint.pt replaced the one just read (building the
+    policy's env takes seconds), and meta.checkpoint_sha256, taken after the policy was read, named the new file
+    while the rows were of the old policy; a resume after the run stopped on that checkpoint kept those rows as its
+    own. The checkpoint is read again until it stays the same while read."""
+    import hashlib
+    import shutil
+
+    import marlcrash.calibrate.amortized as amortized
+    from marlcrash.calibrate.checkpoint import load_checkpoint, save_checkpoint
+
+    run = Path(shutil.copytree(run_dir, tmp_path / "run"))
+    ckpt = run / "checkpoint.pt"
+    later = load_checkpoint(ckpt)  # the run's next checkpoint: other weights
+    later["policy"] = {k: v + 0.01 if v.is_floating_point() else v for k, v in later["policy"].items()}
+    later["iteration"] += 1
+    real_load, real_evaluate = amortized.load_policy, amortized.evaluate_policy
+    used = []
+
+    def training_goes_on(path):
+        out = real_load(path)
+        if not used:
+            save_checkpoint(ckpt, later)  # replaced while the first policy was read
+            used.append(None)
+        return out
+
+    def spy(policy, cfg):
+        used.append({k: v.clone() for k, v in policy.state_dict().items()})
+        return real_evaluate(policy, cfg)
+
+    monkeypatch.setattr(amortized, "load_policy", training_goes_on)
+    monkeypatch.setattr(amortized, "evaluate_policy", spy)
+    comp = amortized_comparison(small_config(run, reference_seeds=[SEEDS[0]], budgets={"random_search": [1]}))
+    assert comp.meta["checkpoint_sha256"] == hashlib.sha256(ckpt.read_bytes()).hexdigest()
+    for k, v in later["policy"].items():  # the rows are of the policy recorded
+        assert torch.equal(used[-1][k], v), k
+
+
 def _strip(rows):
     return [{k: v for k, v in r.items() if k != "wall_time_s"} for r in rows]
 

@@ -345,17 +345,28 @@ def amortized_comparison(
         A :class:`Comparison` (``meta["complete"]`` true).
 
     Raises:
-        ConfigError: no run folder (key ``run``), a reference seed that is not held out (key
+        ConfigError: no run folder (key ``run``) or a checkpoint replaced every time it was read (a run that still
+            trains checkpointing faster than the policy is read), a reference seed that is not held out (key
             ``reference_seeds[i]``), a policy without its training config, or gradient budgets with
             ``gradient.backend: adjoint`` on a simulator the adjoint does not cover (the run's float32
             ``sim_dtype``, springback relief; key ``gradient.backend``), or a ``done`` comparison of another
             policy or other settings (key ``resume``), all before any simulation.
     """
-    changes = None  # a policy given as an object: its run's files are not known
+    changes = digest = None  # a policy given as an object: its run's files are not known
     if policy is None:
         if config.run is None:
             raise ConfigError("expected a training run folder (or a policy and its training config)", key="run")
-        policy, train_config, check = load_policy(config.run)
+        for _ in range(READ_TRIES):  # a run that still trains replaces checkpoint.pt: record the policy read
+            digest = _checkpoint_digest(config.run)
+            policy, train_config, check = load_policy(config.run)
+            if _checkpoint_digest(config.run) == digest:
+                break
+        else:
+            raise ConfigError(
+                f"{Path(config.run) / CHECKPOINT_FILE} was replaced each of the {READ_TRIES} times its policy was read "
+                "(the run still trains); compare it once it has stopped",
+                key="run",
+            )
         changes = check.as_dict()
     elif train_config is None:
         raise ConfigError("a policy needs the training config it was trained with", key="train_config")
@@ -392,7 +403,7 @@ def amortized_comparison(
         "budgets": {k: list(v) for k, v in config.budgets.items()},
         "optimizers": {k: asdict(getattr(config, k)) for k in config.budgets},
         "thresholds": asdict(train_config.eval.thresholds),
-        "checkpoint_sha256": None if config.run is None else _checkpoint_digest(config.run),
+        "checkpoint_sha256": digest if digest is not None or config.run is None else _checkpoint_digest(config.run),
         "provenance": changes,  # configs or code changed since the policy's run started
         "complete": False,  # every reference and budget finished
     }
@@ -446,6 +457,10 @@ def amortized_comparison(
             say(f"seed {seed}: {name} budget {b}: best score {_fmt(res.best_score)} ({res.wall_time_s:.1f} s)")
     meta["complete"] = True
     return Comparison(rows=rows, aggregate=aggregate(rows), meta=meta)
+
+
+READ_TRIES = 3
+"""Times :func:`amortized_comparison` reads a run's policy, while another checkpoint replaces the one it read."""
 
 
 def _checkpoint_digest(run_dir: str | Path) -> str | None:
