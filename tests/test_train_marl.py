@@ -633,6 +633,28 @@ def test_a_fresh_run_interrupted_before_its_first_checkpoint_leaves_no_folder(sh
     assert train(tiny(tmp_path, name="ctrl_c", iterations=1), evaluate=False).iterations == 1
 
 
+def test_a_fresh_run_stopped_while_it_starts_leaves_no_folder(short, tmp_path, monkeypatch):
+    """Ctrl-C while a fresh run builds its env (discretizing a deck takes seconds: when a wrong option is noticed),
+    or a start-up file that cannot be written (config.yaml, provenance.json: a full disk), left the folder with
+    config.yaml and no checkpoint, and the same command was refused ('exists already; ... delete it')."""
+    import marlcrash.calibrate.marl as marl
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    def full(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    for target, name, stop, caught in ((marl, "build_trainer", interrupted, KeyboardInterrupt),
+                                       (marl.provenance, "write_record", full, OSError),
+                                       (marl, "save_run_config", full, OSError)):  # fmt: skip
+        with monkeypatch.context() as m:
+            m.setattr(target, name, stop)
+            with pytest.raises(caught):
+                train(tiny(tmp_path, name="stopped", iterations=1))
+        assert not any((tmp_path / "runs").rglob("*")), name  # nor the <out_dir>/<algorithm>/ it made
+
+
 def test_a_run_that_cannot_start_leaves_no_folder(short, tmp_path):
     """An env override the env config refuses fails when the config is loaded; one set after that fails while
     building, before training, and leaves no folder; the same name works after."""

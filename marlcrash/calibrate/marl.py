@@ -1090,9 +1090,10 @@ def _train(
         extra = provenance.env_inputs(make_env_config(config))
         provenance.require_unchanged(run_dir, extra, finished=bool(state.get("finished", False)))
     else:
-        save_run_config(config, run_dir)
         state = None
-    try:
+    try:  # a fresh run's start-up: its files, the evaluation's check and the networks
+        if resume is False:
+            save_run_config(config, run_dir)
         if evaluate:  # an evaluation that cannot be built is refused now, not after the training time
             from marlcrash.calibrate.evaluate import evaluation_overrides
 
@@ -1105,7 +1106,9 @@ def _train(
                     stacklevel=2,
                 )
         tr = build_trainer(config, run_dir)
-    except Exception:
+        if resume is False:  # which configs and code the run's numbers come from, checked by a resume, an evaluation
+            provenance.write_record(run_dir, provenance.env_inputs(make_env_config(config)))
+    except BaseException:  # Ctrl-C too: building the env (discretizing a deck) takes seconds
         if resume is False:  # a fresh run that cannot start leaves no folder behind to block a rerun
             shutil.rmtree(run_dir, ignore_errors=True)
             with contextlib.suppress(OSError):  # and no empty <out_dir>/<algorithm>/ it created
@@ -1117,8 +1120,6 @@ def _train(
             require_fits(module.state_dict(), state[what], name, run_dir / CHECKPOINT_FILE, "resume")
         require_same_run(state.get("config"), config, run_dir / CHECKPOINT_FILE)  # same shapes, another run's
         tr.load_state_dict(state)
-    else:  # which configs and code this run's numbers come from, checked by a resume and an evaluation
-        provenance.write_record(run_dir, provenance.env_inputs(make_env_config(config)))
     was_finished = tr.finished  # a finished run's checkpoint is its record: a resume only evaluates it again
     # with a time limit the iteration count is only a cap: say when training will stop
     desc = config.algorithm.name
