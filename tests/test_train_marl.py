@@ -593,8 +593,8 @@ def test_resuming_the_checkpoint_of_a_run_with_other_settings_names_the_setting(
     rate, env override) was resumed without a word: its weights, optimizer, generators, counters and log position
     went on under this run's config.yaml, a run neither of the two configs describes. The checkpoint holds the config
     it was written under; a setting that differs is named. Where the run folder is (name, out_dir: a moved or
-    renamed folder) and what only shows or keeps the numbers (progress bar, logger, checkpoint intervals, plots) may
-    differ."""
+    renamed folder), what only shows or keeps the numbers (progress bar, logger, checkpoint intervals, plots), the
+    time limit (a killed run given more time) and where it runs (threads, device) may differ."""
     part = train(tiny(tmp_path, name="mine", iterations=2), stop_at=1, evaluate=False)
     ckpt = part.run_dir / "checkpoint.pt"
     mine, log = load_checkpoint(ckpt), (part.run_dir / "log.csv").read_text()
@@ -612,7 +612,15 @@ def test_resuming_the_checkpoint_of_a_run_with_other_settings_names_the_setting(
             train(tiny(tmp_path, name="mine", resume=str(part.run_dir)), evaluate=False)
         assert e.value.key == "resume" and (part.run_dir / "log.csv").read_text() == log
     moved = copy.deepcopy(mine)
-    moved["config"].update(name="old_name", out_dir="elsewhere", progress_bar=True, snapshot_every=5)
+    moved["config"].update(
+        name="old_name",
+        out_dir="elsewhere",
+        progress_bar=True,
+        snapshot_every=5,
+        time_limit_s=1.0,
+        threads=1,
+        device="cuda",
+    )  # more time, another machine
     moved["config"]["eval"]["plots"] = True
     save_checkpoint(ckpt, moved)
     assert train(tiny(tmp_path, name="mine", resume=str(part.run_dir)), stop_at=1, evaluate=False).iterations == 1

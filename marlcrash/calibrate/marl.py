@@ -855,10 +855,12 @@ def require_fits(own: dict[str, Any], saved: Any, what: str, path: Path, key: st
 
 
 RESUME_FREE_KEYS = ("name", "out_dir", "resume", "ci", "progress_bar", "logger", "checkpoint_every", "snapshot_every",
-                    "eval.plots")  # fmt: skip
+                    "eval.plots", "time_limit_s", "threads", "device")  # fmt: skip
 """Settings a checkpoint's saved config may hold otherwise than the run's ``config.yaml`` (:func:`require_same_run`):
-where the run folder is (a moved or renamed folder), how the run shows its progress and which copies it keeps; none
-changes the numbers."""
+where the run folder is (a moved or renamed folder), how the run shows its progress and which copies it keeps, how
+long it may train (``time_limit_s``: a killed run given more time in its ``config.yaml``; the schedules follow
+``iterations``) and what it runs on (``threads``, ``device``: a run moved to another machine); none changes what an
+iteration computes beyond rounding."""
 
 
 def _flat(config: dict[str, Any], prefix: str = "") -> dict[str, Any]:
