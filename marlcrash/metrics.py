@@ -245,6 +245,14 @@ def rmse(q: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
     return _safe_sqrt(((q - p) ** 2).mean(-1))
 
 
+def _nonempty(values: torch.Tensor) -> torch.Tensor:
+    """``values`` if it has a sample per curve, else a :class:`PulseError` (was torch's "cannot reshape tensor of 0
+    elements" from the time check)."""
+    if values.shape[-1] == 0:
+        raise PulseError(f"expected at least one sample per curve, got 0 (values of shape {tuple(values.shape)})")
+    return values
+
+
 def curve_points(
     values: torch.Tensor,
     time: torch.Tensor | None = None,
@@ -256,9 +264,7 @@ def curve_points(
     """Points ``[..., T, 2]`` = ``(time_scale * t, value_scale * v)`` of a sampled curve ``values [..., T]``."""
     if (time is None) == (dt is None):
         raise PulseError("pass exactly one of time (sample times [s]) or dt (uniform step [s])")
-    values = _as_signal(values, "values")
-    if values.shape[-1] == 0:  # was torch's "cannot reshape tensor of 0 elements" from the time check
-        raise PulseError(f"expected at least one sample per curve, got 0 (values of shape {tuple(values.shape)})")
+    values = _nonempty(_as_signal(values, "values"))
     if time is None:
         time = torch.arange(values.shape[-1], dtype=values.dtype, device=values.device) * check_step(dt)
     time = _check_time(time, values).to(values.dtype).expand(values.shape)
@@ -390,8 +396,13 @@ def discrete_frechet(
                 raise PulseError(f"q has {n_q} samples, p {n_p}: pass time_p (p's sample times [s]; it defaults to "
                                  "time_q) for curves of two lengths")  # fmt: skip
             time_p = time_q
-        pq = curve_points(q, time_q, time_scale=time_scale, value_scale=value_scale)
-        pp = curve_points(p, time_p, time_scale=time_scale, value_scale=value_scale)
+        # the distance is that of the curves on a clock from their earliest sample: points are built in the signals'
+        # dtype, and float32 times 1000 s on are multiples of 61 us (samples 30 us apart were 61 us apart)
+        q, p = (_nonempty(c) for c in _as_pair(q, p))
+        time_q, time_p = _check_time(time_q, q), _check_time(time_p, p)
+        origin = torch.minimum(time_q.min(), time_p.min())
+        pq = curve_points(q, time_q - origin, time_scale=time_scale, value_scale=value_scale)
+        pp = curve_points(p, time_p - origin, time_scale=time_scale, value_scale=value_scale)
     return discrete_frechet_points(pq, pp)
 
 

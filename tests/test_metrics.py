@@ -393,3 +393,28 @@ def test_area_of_float32_signals_takes_its_widths_from_float64_times_unrounded()
         trap = area_between(q, p, t, method="trapezoid")
         torch.testing.assert_close(trap.double(), area_between(q.double(), p.double(), time, method="trapezoid"),
                                    rtol=1e-6, atol=0.0)  # fmt: skip
+
+
+def test_frechet_of_float32_signals_on_a_late_float64_clock_is_that_of_the_clock_from_its_start():
+    """Float32 signals stamped on a float64 clock far from 0 (a 20 kHz record from 1000 s, p's samples 30 us after q's):
+    the points were built in float32, whose times at 1000 s are multiples of 61 us, so the leash between samples 30 us
+    apart came out 61 us (time_scale 1000: 0.061 ms for 0.03). The distance is invariant under a shift of both clocks;
+    the points are built from the earliest sample time of both curves."""
+    rng = np.random.default_rng(7)
+    tq = np.arange(120) * 5e-5
+    tp = 3e-5 + np.arange(90) * 6.7e-5
+    q = np.cumsum(rng.normal(size=120)) * 1e-3
+    p = np.cumsum(rng.normal(size=90)) * 1e-3
+    want = ref_frechet(np.c_[tq * 1000, q.astype(np.float32)], np.c_[tp * 1000, p.astype(np.float32)])
+    for t0 in (0.0, 1000.0, -1000.0):
+        got = discrete_frechet(torch.tensor(q, dtype=torch.float32), torch.tensor(p, dtype=torch.float32),
+                               torch.tensor(t0 + tq), torch.tensor(t0 + tp), time_scale=1000.0)  # fmt: skip
+        assert got.dtype == torch.float32
+        assert float(got) == pytest.approx(want, rel=1e-5), t0
+    # one clock for both (compute_metrics): coupling neighbouring samples measures their 50 us, not 0 or 61 us
+    t = 1000.0 + torch.arange(120, dtype=torch.float64) * 5e-5
+    qs = torch.tensor(q, dtype=torch.float32)
+    ps = torch.roll(qs, 3)
+    want = ref_frechet(np.c_[tq * 1000, qs.numpy()], np.c_[tq * 1000, ps.numpy()])
+    got = compute_metrics(qs, ps, t, config=MetricsConfig(dfd_time_scale=1000.0)).dfd
+    assert float(got) == pytest.approx(want, rel=1e-5)
