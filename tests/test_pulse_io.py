@@ -360,6 +360,23 @@ def test_pulse_rejects_non_increasing_time_and_nan():
         Pulse(t, np.full(10, np.nan), ("a",))
 
 
+def test_a_pulse_with_nan_names_the_channel_and_the_sample():
+    """A pulse built in memory (the Python API, a simulation's record) with NaN in one channel said 'time and
+    acceleration must be finite; found NaN or inf', naming neither the channel nor where: it names both, as the
+    readers name a file's line and column."""
+    t = np.arange(10) * 1e-3
+    acc = np.zeros((2, 10))
+    acc[1, 7] = np.nan
+    with pytest.raises(PulseError, match=r"^x\.csv: channel 'tunnel' has a non-finite acceleration \(nan\) at "
+                       r"sample 7 \(t = 0\.007 s\); expected finite numbers$"):  # fmt: skip
+        Pulse(t, acc, ("front", "tunnel"), source="x.csv")
+    t[3] = np.inf
+    with pytest.raises(PulseError, match=r"^non-finite sample time \(inf\) at sample 3; expected finite times \[s\]$"):
+        Pulse(t, np.zeros((2, 10)), ("front", "tunnel"))
+    with pytest.raises(PulseError, match=r"channel 1 has a non-finite acceleration \(-inf\) at sample 0"):
+        Pulse(np.arange(10) * 1e-3, np.r_[np.zeros(10), -np.inf, np.zeros(9)].reshape(2, 10), ("a",))
+
+
 def test_a_time_column_in_ms_gets_a_hint_and_numbers_print_plainly(tmp_path):
     from marlcrash.pulse.io import processed_pulse
 

@@ -102,8 +102,14 @@ class Pulse:
             raise PulseError(f"{where}expected time [T] and acc [K, T], got shapes {time.shape} and {acc.shape}")
         if time.shape[0] < MIN_SAMPLES:
             raise PulseError(f"{where}expected at least {MIN_SAMPLES} samples, got {time.shape[0]}")
-        if not (np.all(np.isfinite(time)) and np.all(np.isfinite(acc))):
-            raise PulseError(f"{where}time and acceleration must be finite; found NaN or inf")
+        if not np.all(np.isfinite(time)):
+            i = int(np.argmin(np.isfinite(time)))
+            raise PulseError(f"{where}non-finite sample time ({time[i]}) at sample {i}; expected finite times [s]")
+        if not np.all(np.isfinite(acc)):
+            k, i = (int(v) for v in np.argwhere(~np.isfinite(acc))[0])
+            name = repr(str(self.channels[k])) if len(self.channels) == acc.shape[0] else str(k)
+            raise PulseError(f"{where}channel {name} has a non-finite acceleration ({acc[k, i]}) at sample {i} "
+                             f"(t = {float(time[i]):.6g} s); expected finite numbers")  # fmt: skip
         steps = np.diff(time)
         if np.any(steps <= 0):
             i = int(np.argmax(steps <= 0))
