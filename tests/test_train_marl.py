@@ -627,6 +627,37 @@ def test_resuming_the_checkpoint_of_a_run_with_other_settings_names_the_setting(
     save_checkpoint(ckpt, mine)
 
 
+def test_resuming_a_run_whose_log_has_other_columns_is_refused_before_training(short, tmp_path, monkeypatch):
+    """A run started by a version that logged other columns: the resume trained a whole iteration, then failed with a
+    bare ValueError from the logger (and did so again on every resume). It is refused before any training, naming
+    log.csv and the columns that differ; the log is left as it was."""
+    import marlcrash.calibrate.marl as marl
+
+    part = train(tiny(tmp_path, name="older", iterations=2), stop_at=1, evaluate=False)
+    path = part.run_dir / "log.csv"
+    lines = path.read_text().splitlines(keepends=True)
+    header = lines[0].rstrip("\r\n").split(",")
+    assert header == list(marl.LOG_ROW_COLUMNS)
+    old = [c for c in header if c != "grad_norm"] + ["old_stat"]  # one column gone, one added since
+    rows = [",".join([*line.rstrip("\r\n").split(",")[:-1], "1.0"]) + "\n" for line in lines[1:]]
+    path.write_text(",".join(old) + "\n" + "".join(rows))
+    log = path.read_text()
+
+    def trained(tr):
+        raise AssertionError("a resume that cannot log trained an iteration")
+
+    monkeypatch.setattr(marl, "train_iteration", trained)
+    differ = r"columns of .*older/log\.csv differ.*not written now: 'old_stat'; columns missing: 'grad_norm'"
+    with pytest.raises(ConfigError, match=differ) as e:
+        train(tiny(tmp_path, name="older", resume=str(part.run_dir)), evaluate=False)
+    assert e.value.key == "resume" and e.value.path == str(path)
+    assert path.read_text() == log
+    state = load_checkpoint(part.run_dir / "checkpoint.pt")
+    state["finished"] = True  # a finished run's resume only evaluates it again: it appends no row, and is not refused
+    save_checkpoint(part.run_dir / "checkpoint.pt", state)
+    assert train(tiny(tmp_path, name="older", resume=str(part.run_dir)), evaluate=False).iterations == 1
+
+
 def test_a_fresh_run_interrupted_before_its_first_checkpoint_leaves_no_folder(short, tmp_path, monkeypatch):
     import marlcrash.calibrate.marl as marl
 

@@ -70,6 +70,27 @@ class CSVLogger:
             os.fsync(fh.fileno())
         self.position += 1
 
+    def require_columns(self, columns: Sequence[str], key: str) -> None:
+        """Refuse a log whose columns are not ``columns``, the ones the rows to come have (a run started by a version
+        that logged others): no row could be appended to it. A log not yet written passes.
+
+        Raises:
+            ConfigError: (``key``) naming the file and the columns that differ.
+        """
+        if self.columns is None or self.columns == list(columns):
+            return
+        extra = [c for c in self.columns if c not in columns]
+        missing = [c for c in columns if c not in self.columns]
+        differ = [f"{what}: {', '.join(map(repr, cs))}" for what, cs in (("columns not written now", extra),
+                  ("columns missing", missing)) if cs] or ["the same columns in another order"]  # fmt: skip
+        raise ConfigError(
+            f"the columns of {self.path} differ from the ones this version of marlcrash writes ({'; '.join(differ)}), "
+            "so no row can be appended: the run was started by another version. Resume it with that version, or start "
+            "a new run",
+            key=key,
+            path=self.path,
+        )
+
     def truncate(self, position: int) -> None:
         """Keep only the first ``position`` rows (rows written after a checkpoint are cut on resume).
 

@@ -995,6 +995,13 @@ def build_trainer(config: TrainConfig, run_dir: Path) -> Trainer:
     return Trainer(config, run_dir, env, policy, critic, loss, gae, optimizer, logger)
 
 
+LOG_ROW_COLUMNS = ("iteration", "env_steps", "simulations", "wall_time_s", "env_steps_per_s", "lr", "entropy_coef",
+                   "reward_mean", "return_mean",
+                   *(f"{k}_{w}" for k in ("area", "dfd", "rmse") for w in ("initial", "final")),
+                   "loss_objective", "loss_critic", "loss_entropy", "entropy", "kl_approx", "grad_norm")  # fmt: skip
+"""Columns of the rows :func:`train_iteration` returns, in order: the columns of a run's ``log.csv``."""
+
+
 def train_iteration(tr: Trainer) -> dict[str, float]:
     """Collect one batch, update, advance the counters; return the log row."""
     cfg, algo = tr.config, tr.config.algorithm
@@ -1121,6 +1128,8 @@ def _train(
             name = f"{config.algorithm.name} {what}"
             require_fits(module.state_dict(), state[what], name, run_dir / CHECKPOINT_FILE, "resume")
         require_same_run(state.get("config"), config, run_dir / CHECKPOINT_FILE)  # same shapes, another run's
+        if not state.get("finished", False):  # rows will be appended (a finished run is only evaluated again)
+            tr.logger.require_columns(LOG_ROW_COLUMNS, key="resume")
         tr.load_state_dict(state)
     was_finished = tr.finished  # a finished run's checkpoint is its record: a resume only evaluates it again
     # with a time limit the iteration count is only a cap: say when training will stop
