@@ -14,6 +14,7 @@ import errno
 import json
 import math
 import os
+import re
 import secrets
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -217,7 +218,21 @@ def _new_sibling(final: Path) -> Path:
             raise OSError(e.errno, f"cannot write {final}: {e.strerror or e}", str(final)) from e
         return True
 
-    return new_sibling(final, lambda token: f".{final.stem}.{token}.tmp{final.suffix}", create)
+    return new_sibling(final, lambda token: _temporary_name(final.name, token), create)
+
+
+def _temporary_name(name: str, token: str) -> str:
+    """The name :func:`atomic_output` gives the temporary file of an output named ``name``: ``.<stem>.<token>.tmp``
+    and ``name``'s suffix."""
+    p = Path(name)
+    return f".{p.stem}.{token}.tmp{p.suffix}"
+
+
+def is_temporary_of(name: str, output: str) -> bool:
+    """Whether ``name`` is the name of a temporary file of :func:`atomic_output` writing the file named ``output``
+    (``.<stem>.<8 hex digits>.tmp<suffix>``; a kill during the write leaves it)."""
+    head, tail = _temporary_name(output, "\0").split("\0")  # no file name holds a NUL
+    return re.fullmatch(f"{re.escape(head)}[0-9a-f]{{8}}{re.escape(tail)}", name) is not None
 
 
 def sync_folder(folder: str | Path, files: bool = True) -> None:

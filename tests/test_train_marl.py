@@ -955,29 +955,41 @@ def test_a_training_resume_of_a_run_another_process_writes_is_refused_before_rea
 
 
 def test_only_the_temporaries_of_checkpoint_writes_are_removed(tmp_path):
+    """And those of the run's own files written through atomic_output (``.<stem>.<8 hex>.tmp<suffix>``, which a kill
+    during the write leaves) where their names are given: not those of other files, which a process that does not
+    hold the run folder (a user's output written there) may be writing."""
     from marlcrash.calibrate.checkpoint import remove_stale_temporaries
+    from marlcrash.outputs import atomic_output, is_temporary_of
 
     (tmp_path / "checkpoints").mkdir()
-    left = [".checkpoint.pt.0badf00d.tmp", "checkpoints/.iter_00020.pt.deadbeef.tmp"]
+    left = [".checkpoint.pt.0badf00d.tmp", "checkpoints/.iter_00020.pt.deadbeef.tmp", ".log.0badf00d.tmp.csv",
+            ".summary.deadbeef.tmp.json"]  # fmt: skip
     kept = ["checkpoint.pt", "checkpoints/iter_00020.pt", ".hidden", "notes.tmp", ".summary.tmp.json", ".lock",
-            ".x.0badf00d.tmpfile", ".y.NOTHEX00.tmp"]  # fmt: skip
+            ".x.0badf00d.tmpfile", ".y.NOTHEX00.tmp", ".contrib.0badf00d.tmp.csv", ".log.0badf00d.tmp.csv.bak",
+            ".log.0badf00d.tmp.json", "checkpoints/.log.0badf00d.tmp.csv"]  # fmt: skip
     for name in left + kept:
         (tmp_path / name).write_text("x")
-    assert sorted(p.relative_to(tmp_path).as_posix() for p in remove_stale_temporaries(tmp_path)) == sorted(left)
+    removed = remove_stale_temporaries(tmp_path, outputs=("log.csv", "summary.json"))
+    assert sorted(p.relative_to(tmp_path).as_posix() for p in removed) == sorted(left)
     assert sorted(p.relative_to(tmp_path).as_posix() for p in tmp_path.rglob("*") if p.is_file()) == sorted(kept)
+    with atomic_output(tmp_path / "checkpoints" / "log.csv") as tmp:  # the names matched are the ones it gives
+        assert is_temporary_of(tmp.name, "log.csv") and not is_temporary_of(tmp.name, "summary.json")
 
 
 def test_a_resume_removes_the_temporary_checkpoints_a_kill_left(short, tmp_path):
     """A kill during a checkpoint's write leaves ``.checkpoint.pt.<hex>.tmp`` (and, for a kept snapshot,
     ``checkpoints/.iter_<n>.pt.<hex>.tmp``): a whole checkpoint's size each, which no resume removed."""
     part = train(tiny(tmp_path, name="torn", snapshot_every=1), stop_at=1, evaluate=False)
-    stale = [part.run_dir / ".checkpoint.pt.0badf00d.tmp", part.run_dir / "checkpoints" / ".iter_00002.pt.deadbeef.tmp"]
+    stale = [part.run_dir / ".checkpoint.pt.0badf00d.tmp", part.run_dir / "checkpoints" / ".iter_00002.pt.deadbeef.tmp",
+             part.run_dir / ".log.0badf00d.tmp.csv"]  # fmt: skip
     for p in stale:
         p.write_bytes(b"half a checkpoint")
+    other = part.run_dir / ".notes.0badf00d.tmp.txt"  # a file the run does not write: another process's, kept
+    other.write_text("x")
     done = train(tiny(tmp_path, name="torn", resume=str(part.run_dir)), evaluate=False)
     assert done.iterations == 4
     assert not [p for p in stale if p.exists()]
-    assert not list(part.run_dir.rglob("*.tmp*"))
+    assert list(part.run_dir.rglob("*.tmp*")) == [other]
 
 
 def test_the_entries_train_py_adds_to_the_summary_are_written_while_the_run_is_held(short, tmp_path):

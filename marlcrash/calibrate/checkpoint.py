@@ -18,6 +18,7 @@ from __future__ import annotations
 import os
 import re
 import secrets
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -25,7 +26,7 @@ import numpy as np
 import torch
 
 from marlcrash.errors import ConfigError
-from marlcrash.outputs import ZIP_STARTS, write_error
+from marlcrash.outputs import ZIP_STARTS, is_temporary_of, write_error
 
 CHECKPOINT_FILE = "checkpoint.pt"
 """Name of the latest checkpoint inside a run folder."""
@@ -149,20 +150,24 @@ _TEMPORARY = re.compile(r"\..+\.[0-9a-f]{8}\.tmp")
 """Names :func:`_create_sibling` gives the temporary files of :func:`save_checkpoint`: ``.<name>.<8 hex>.tmp``."""
 
 
-def remove_stale_temporaries(run_dir: str | Path) -> list[Path]:
-    """Remove the temporary files of checkpoint writes that a kill interrupted; return them.
+def remove_stale_temporaries(run_dir: str | Path, outputs: Iterable[str] = ()) -> list[Path]:
+    """Remove the temporary files of checkpoint writes that a kill interrupted, and those of the files named
+    ``outputs`` in ``run_dir`` (written through :func:`marlcrash.outputs.atomic_output`); return them.
 
     A run killed while it wrote ``checkpoint.pt`` or a kept snapshot left ``.checkpoint.pt.<8 hex>.tmp`` (or
-    ``checkpoints/.iter_<n>.pt.<8 hex>.tmp``), a whole checkpoint's size, which nothing else ever removes. Call this
-    only while holding the run folder's lock (:func:`marlcrash.calibrate.runlock.run_lock`): only the run that holds
-    it writes checkpoints there.
+    ``checkpoints/.iter_<n>.pt.<8 hex>.tmp``), a whole checkpoint's size, which nothing else ever removes; one killed
+    while it wrote ``log.csv`` left ``.log.<8 hex>.tmp.csv``. Call this only while holding the run folder's lock
+    (:func:`marlcrash.calibrate.runlock.run_lock`), with ``outputs`` the files only the process holding it writes:
+    the temporaries of other files there may be another process's (a user's output written into the run folder).
     """
+    outputs = tuple(outputs)
     removed = []
     for folder in (Path(run_dir), Path(run_dir) / SNAPSHOT_DIR):
         if not folder.is_dir():
             continue
         for p in folder.iterdir():
-            if _TEMPORARY.fullmatch(p.name) and p.is_file() and not p.is_symlink():
+            own = folder == Path(run_dir) and any(is_temporary_of(p.name, o) for o in outputs)
+            if (_TEMPORARY.fullmatch(p.name) or own) and p.is_file() and not p.is_symlink():
                 p.unlink(missing_ok=True)
                 removed.append(p)
     return removed

@@ -86,6 +86,15 @@ if TYPE_CHECKING:
 
 SUMMARY_FILE = "summary.json"
 """Name of the evaluation summary inside a run folder."""
+EVAL_FILES = (
+    SUMMARY_FILE,
+    "eval_metrics.csv",
+    "eval_metrics.md",
+    "calibrated.npz",
+    "pulses.png",
+    "learning_curves.png",
+)
+"""Files :func:`evaluate_run` writes into the folder it evaluates into (each through :func:`atomic_output`)."""
 KEPT_SUMMARY_KEY = "process_wall_time_s"
 """Summary entry written by the training script, kept when a run is evaluated again."""
 EVAL_DIR = "eval"

@@ -71,7 +71,7 @@ from marlcrash.calibrate.checkpoint import (
     save_checkpoint,
     snapshot_path,
 )
-from marlcrash.calibrate.logging import LOGGERS, CSVLogger, make_logger
+from marlcrash.calibrate.logging import LOG_FILE, LOGGERS, CSVLogger, make_logger
 from marlcrash.calibrate.problem import SuccessConfig
 from marlcrash.calibrate.runlock import claim_dir, run_lock
 from marlcrash.config import (
@@ -1083,7 +1083,10 @@ def _train(
     """:func:`train` in its run folder, which this process holds."""
     from tqdm import tqdm
 
-    remove_stale_temporaries(run_dir)  # of checkpoint writes a kill interrupted: this process holds the folder
+    from marlcrash.calibrate.evaluate import EVAL_FILES
+
+    # of checkpoint writes and of the run's own files a kill interrupted: this process holds the folder
+    remove_stale_temporaries(run_dir, (CONFIG_FILE, LOG_FILE, provenance.PROVENANCE_FILE, *EVAL_FILES))
 
     resume = config.resume
     if resume is not False:
