@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import re
 import sys
 from pathlib import Path
 
@@ -269,6 +270,30 @@ def test_saved_run_config_round_trips(tmp_path):
     assert dataclasses.asdict(back) == dataclasses.asdict(cfg)
     assert yaml.safe_load((tmp_path / "config.yaml").read_text())["algorithm"]["name"] == "ippo"
     assert not list(Path(tmp_path).glob(".*tmp"))
+
+
+def test_the_eval_folder_of_a_run_given_as_the_run_names_the_re_evaluations_in_it(tmp_path):
+    """``<run>/eval`` given where ``<run>`` or ``<run>/eval/<checkpoint>`` belongs (contributions, evaluate): it said
+    only that there is no config.yaml in it."""
+    from marlcrash.analysis.contributions import run_calibration
+    from marlcrash.calibrate.marl import load_run_config
+
+    run = tmp_path / "run"
+    (run / "eval" / "iter_00002").mkdir(parents=True)
+    (run / "eval" / "checkpoint_steps2").mkdir()
+    (run / "eval" / "notes.txt").write_text("not a re-evaluation")
+    (run / "config.yaml").write_text("seed: 3\n")
+    eval_dir, again = run / "eval", [str(run / "eval" / n) for n in ("checkpoint_steps2", "iter_00002")]
+    words = f"found none in {eval_dir}, a folder inside the run {run}: name the run (train/evaluate.py, resume) or "
+    words = re.escape(words + f"one of its re-evaluations (marlcrash contributions): {', '.join(again)}") + "$"
+    for read in (load_run_config, run_calibration):
+        with pytest.raises(ConfigError, match=words) as e:
+            read(run / "eval")
+        assert e.value.key == "run"
+    with pytest.raises(
+        ConfigError, match=re.escape(f"found none in {tmp_path}") + "$"
+    ):  # not inside a run: nothing more to say
+        load_run_config(tmp_path)
 
 
 @pytest.mark.parametrize(

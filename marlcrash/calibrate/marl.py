@@ -822,7 +822,12 @@ def load_run_config(run_dir: str | Path, device: str | None = None) -> TrainConf
     """
     path = Path(run_dir) / CONFIG_FILE
     if not path.is_file():
-        raise ConfigError(f"expected a run folder with {CONFIG_FILE}, found none in {run_dir}", key="run")
+        hint, home = "", Path(run_dir).resolve().parent
+        if Path(run_dir).is_dir() and (home / CONFIG_FILE).is_file():  # <run>/eval: the run or <run>/eval/<checkpoint>
+            inside = sorted(str(Path(run_dir) / p.name) for p in Path(run_dir).iterdir() if p.is_dir())
+            hint = f", a folder inside the run {home}: name the run (train/evaluate.py, resume)"
+            hint += f" or one of its re-evaluations (marlcrash contributions): {', '.join(inside)}" if inside else ""
+        raise ConfigError(f"expected a run folder with {CONFIG_FILE}, found none in {run_dir}{hint}", key="run")
     data = load_yaml(path)  # a torn or hand-edited file: the file, the line and what was expected
     if not data:  # else every key would be reported missing, one at a time
         raise ConfigError("empty; expected the run's settings (a mapping) as train/train.py saved them", path=path)
