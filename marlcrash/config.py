@@ -250,7 +250,9 @@ def require_complete(cls: type, data: dict[str, Any], path: str | Path | None) -
     if missing:
         more = f" (and {len(missing) - 1} more: {', '.join(missing[1:4])}{', ...' if len(missing) > 4 else ''})"
         raise ConfigError(
-            "missing: every value lives in the config file; add this key" + (more if len(missing) > 1 else ""),
+            "missing: every value lives in the config file; add this key"
+            + (f" to {path}" if path is not None else "")  # the whole path: every run folder has a config.yaml
+            + (more if len(missing) > 1 else ""),
             key=missing[0],
             path=path,
         )

@@ -319,6 +319,21 @@ def test_a_bad_saved_run_config_names_the_file(tmp_path, text, words):
         load_run_config(tmp_path)
 
 
+def test_a_key_missing_from_an_older_runs_config_names_the_runs_file(tmp_path):
+    """A run saved by an older version lacks a key added since: 'config.yaml key ...: missing ... add this key' named
+    the file by its name only, which every run folder has."""
+    from marlcrash.calibrate.marl import load_run_config, save_run_config
+
+    run = tmp_path / "runs" / "mappo" / "old"
+    save_run_config(load_train_config(composed([]), ci=False), run)
+    data = yaml.safe_load((run / "config.yaml").read_text())
+    del data["time_limit_s"], data["algorithm"]["lr"]
+    (run / "config.yaml").write_text(yaml.safe_dump(data, sort_keys=False))
+    with pytest.raises(ConfigError, match=re.escape(f"add this key to {run / 'config.yaml'} (and 1 more")) as e:
+        load_run_config(run)
+    assert e.value.key == "algorithm.lr" and e.value.path == str(run / "config.yaml")
+
+
 @pytest.mark.parametrize(
     ("name", "drop"),
     [("train", "algorithm.lr"), ("train", "time_limit_s"), ("baseline", "gradient.lr"), ("compare", "budget"),
