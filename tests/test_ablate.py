@@ -373,6 +373,22 @@ def test_a_tied_pair_is_not_counted_as_a_loss():
     assert (e1["wins"], e1["ties"]) == (1, 1)
 
 
+def test_ablate_md_says_how_many_runs_are_planned_and_done():
+    """ablate.md is written before the first run finishes and after each run: it read 'varied: nothing; fixed:
+    nothing; reference seeds []' until a run finished, and never said how many runs the ablation has."""
+    cfg = ablate.AblationConfig(masking=["none", "primary"], scenarios=["s1", "s2"])  # 4 cells x 3 seeds
+    md = ablate.markdown(cfg, [], None, "today")
+    assert "- runs finished: 0 of 12 (4 cells x 3 reference seeds)\n" in md
+    assert "- varied: masking (none, primary); scenario (s1, s2); fixed: algorithm `mappo`," in md
+    assert "reference seeds [0, 1, 2]" in md and "nothing" not in md
+    md = ablate.markdown(cfg, [_table_row(0, -1.0, 0.04), _table_row(0, -0.5, 0.01, masking="primary")], None, "x")
+    assert "- runs finished: 2 of 12 (4 cells x 3 reference seeds)\n" in md
+    done = [_table_row(s, -1.0, 0.04, scenario=sc, masking=m) for s in (0, 1, 2) for sc in ("s1", "s2")
+            for m in ("none", "primary")]  # fmt: skip
+    extra = _table_row(5, -1.0, 0.04)  # a resumed run's row of a seed no longer in the config: counted too
+    assert "- runs finished: 13 of 13 (4 cells x 3 reference seeds" in ablate.markdown(cfg, [*done, extra], None, "x")
+
+
 # ------------------------------------------------------------------------------------------- runs
 @pytest.fixture(scope="module")
 def finished(short, tmp_path_factory):

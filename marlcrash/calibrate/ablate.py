@@ -535,15 +535,23 @@ def markdown(config: AblationConfig, rows: list[dict[str, Any]], command: str | 
     cells = _present_cells(config, rows)
     agg = aggregate_cells(rows, cells)
     th = config.success
-    fixed = [f"{f} `{lv[f][0]}`" for f in FACTORS if len(lv[f]) == 1]
-    varied = [f for f in FACTORS if len(lv[f]) > 1]
+    shown = lv if rows else {f: config.levels(f) for f in FACTORS}  # before the first run: the ablation planned
+    fixed = [f"{f} `{shown[f][0]}`" for f in FACTORS if len(shown[f]) == 1]
+    varied = [f for f in FACTORS if len(shown[f]) > 1]
+    seeds = sorted({r["seed"] for r in rows}) if rows else list(config.seeds)
+    plan = {(cell_name(c), s) for c in config.cells() for s in config.seeds}
+    outside = len({(r["cell"], r["seed"]) for r in rows} - plan)  # a resumed run's rows of levels or seeds dropped
     wall = "no wall cap" if config.max_wall_s is None else f"wall cap {config.max_wall_s:g} s"
     lines = ["# Ablation: masking level x scenario x action granularity x reward form", "", f"- date: {date}"]
     if command:
         lines.append(f"- command: `{command}`")
     lines += [
-        f"- varied: {'; '.join(f + ' (' + ', '.join(map(str, lv[f])) + ')' for f in varied) or 'nothing'}; "
-        f"fixed: {', '.join(fixed) or 'nothing'}; reference seeds {sorted({r['seed'] for r in rows})} (the twin of "
+        f"- runs finished: {len(rows)} of {len(plan) + outside} ({len(config.cells())} cells x {len(config.seeds)} "
+        "reference seeds"
+        + (f", and {outside} finished earlier of levels or seeds no longer in the config" if outside else "")
+        + ")",
+        f"- varied: {'; '.join(f + ' (' + ', '.join(map(str, shown[f])) + ')' for f in varied) or 'nothing'}; "
+        f"fixed: {', '.join(fixed) or 'nothing'}; reference seeds {seeds} (the twin of "
         "the cell's scenario drawn with the seed; the run's own seed is the same)",
         f"- every run: {config.budget} simulations of PPO training on its pinned reference ({config.ppo.n_envs} "
         f"envs x {config.ppo.episode_length} steps per iteration), {wall}; "
