@@ -274,6 +274,25 @@ def _field_type(cls: type, parts: list[str]) -> Any:
     return t
 
 
+def require_known_key(cls: type, dotted: str, key: str | None = None, path: str | Path | None = None) -> None:
+    """Refuse a dotted key that schema ``cls`` does not have (``eval.iteration``), as :func:`from_dict` would: for a
+    key held to be applied later (a ``ci`` block), checked now. A key inside a mapping-valued field (``scenarios``,
+    ``agents.merge``) is the user's to choose and passes.
+
+    Raises:
+        ConfigError: the first unknown part, keyed ``key`` (default ``dotted``), with the keys there are.
+    """
+    t: Any = cls
+    for p in dotted.split("."):
+        if not (isinstance(t, type) and dataclasses.is_dataclass(t)):
+            return  # inside a mapping (or a plain value, whose override fails when it is applied)
+        hints = typing.get_type_hints(t)
+        if p not in hints:
+            names = sorted(f.name for f in dataclasses.fields(t))
+            raise ConfigError(f"unknown key; expected one of {names}", key=key or dotted, path=path)
+        t = _field_type(t, [p])
+
+
 def flatten_overrides(cls: type, overrides: dict[str, Any]) -> dict[str, Any]:
     """Overrides with every mapping aimed at a section of schema ``cls`` spread into dotted keys.
 

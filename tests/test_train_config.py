@@ -110,8 +110,8 @@ def test_a_ci_entry_given_as_a_mapping_changes_only_its_keys():
     cfg = load_train_config(composed(["+ci.eval.iterations=2", "+ci.algorithm.lr=3e-4"]), ci=True)
     assert cfg.eval.iterations == 2 and cfg.eval.scenario == full.eval.scenario
     assert cfg.algorithm.lr == 3e-4 and cfg.algorithm.minibatch_size == composed()["ci"]["algorithm.minibatch_size"]
-    for override, key in (
-        ("+ci.algorithm.lrr=1", "ci.algorithm.lrr"),
+    for override, key in (  # a bad value, named as the ci entry (an unknown key fails on every run: next test)
+        ("+ci.algorithm.lr=-1", "ci.algorithm.lr"),
         ("+ci.env_overrides.max_step=7", "ci.env_overrides.max_step"),
         ("+ci.env_overrides.masking.mode=all", "ci.env_overrides.masking.mode"),
     ):
@@ -125,6 +125,26 @@ def test_a_ci_entry_given_as_a_mapping_changes_only_its_keys():
     data = composed(["+env_overrides.masking.min_fraction=0.5", "+ci.env_overrides.masking.mode=primary"])
     masking = make_env_config(load_train_config(data, ci=True, explicit=["env_overrides.masking.min_fraction"])).masking
     assert (masking.mode, masking.min_fraction) == ("primary", 0.5)
+
+
+def test_a_typo_in_the_ci_block_fails_on_every_run():
+    """The ``ci`` block was read only under MARLCRASH_CI=1: ``ci: {n_env: 8}`` or ``ci: {eval.iteration: 4}`` loaded
+    without a word on every other run, and CI then failed on a key nobody had run. Its keys are checked always; its
+    values apply only under MARLCRASH_CI."""
+    for override, key in (
+        ("+ci.n_env=8", "ci.n_env"),
+        ("+ci.eval.iteration=4", "ci.eval.iteration"),
+        ("+ci.algorithm.lrr=1", "ci.algorithm.lrr"),
+        ("+ci.env_overrides.masking.mod=all", "ci.env_overrides.masking.mod"),
+        ("+ci.env_overrides.max_stepp=0.1", "ci.env_overrides.max_stepp"),
+    ):
+        with pytest.raises(ConfigError, match="unknown key") as e:
+            load_train_config(composed([override]), source="configs/train/train.yaml", ci=False)
+        assert e.value.key == key and e.value.path == "configs/train/train.yaml"
+    # known keys (a mapping-valued env key among them) load, and apply only under ci
+    data = composed(["+ci.env_overrides.scenarios.full_width_56=1.0", "+ci.eval.iterations=2"])
+    assert load_train_config(data, ci=False).eval.iterations == data["eval"]["iterations"]
+    assert load_train_config(data, ci=True).eval.iterations == 2
 
 
 def test_ci_reads_the_environment(monkeypatch):

@@ -84,6 +84,7 @@ from marlcrash.config import (
     require,
     require_complete,
     require_device,
+    require_known_key,
     require_seed,
     require_threads,
 )
@@ -337,11 +338,18 @@ def load_train_config(
     if ci is None:
         ci = os.environ.get(CI_ENV, "") not in ("", "0")
     applied: list[str] = []
+    over = data.get("ci") or {}
+    if not isinstance(over, dict):
+        raise ConfigError(f"expected a mapping of dotted overrides, got {over!r}", key="ci", path=source)
+    items = _ci_items(over)
+    for k in items:  # on every run, so that a typo fails where it is made, not first in CI
+        env_key = k.removeprefix("env_overrides.")
+        if env_key != k:
+            require_known_key(EnvConfig, env_key, key=f"ci.{k}", path=source)
+        else:
+            require_known_key(TrainConfig, k, key=f"ci.{k}", path=source)
     if ci:
-        over = data.get("ci") or {}
-        if not isinstance(over, dict):
-            raise ConfigError(f"expected a mapping of dotted overrides, got {over!r}", key="ci", path=source)
-        for k, v in _ci_items(over).items():
+        for k, v in items.items():
             if not any(k == e or k.startswith(e + ".") for e in explicit):
                 _apply_ci(data, k, v)
                 applied.append(k)
