@@ -61,6 +61,37 @@ def reduce_sensors(metrics: Metrics, how: str) -> Metrics:
 
 # ------------------------------------------------------------------------------------- reward forms
 
+MAX_REWARD_WEIGHT = 1e6
+"""Largest weight of a metric in a reward form (``a``, ``b``, ``c``, ``w_*``) [-]. With :data:`MIN_REWARD_SCALE` and
+:data:`MIN_METRIC_FLOOR` it keeps every score finite in float32 (at most about 1e18 for velocity errors of 100 m/s);
+``w_area: 1e308`` made ``w * A / A0`` inf, and the reward NaN, without a word."""
+
+MIN_REWARD_SCALE = 1e-6
+"""Smallest typical metric size ``area_scale``, ``dfd_scale``, ``rmse_scale`` of a weighted sum [SI unit of the
+metric]: a thousandth of the paper's smallest success threshold (0.0015 m)."""
+
+MIN_METRIC_FLOOR = 1e-12
+"""Smallest ``min_metric`` of ``paper_factor`` [SI unit of the metric]: 1e-40 is 0 in float32, and a perfect fit's
+reciprocal inf."""
+
+
+def require_weights(params: Any, keys: tuple[str, ...], prefix: str = "params.") -> None:
+    """Refuse, naming ``<prefix><key>``, a metric weight of ``params`` outside ``[0, MAX_REWARD_WEIGHT]``."""
+    for k in keys:
+        v = getattr(params, k)
+        require(0 <= v <= MAX_REWARD_WEIGHT, f"{prefix}{k}",
+                f"expected a weight in [0, {MAX_REWARD_WEIGHT:g}] (MAX_REWARD_WEIGHT: a larger one overflows the "
+                f"reward to inf), got {v}")  # fmt: skip
+
+
+def require_scales(params: Any, keys: tuple[str, ...], prefix: str = "params.") -> None:
+    """Refuse, naming ``<prefix><key>``, a metric scale (divisor) of ``params`` below ``MIN_REWARD_SCALE``."""
+    for k in keys:
+        v = getattr(params, k)
+        require(v >= MIN_REWARD_SCALE, f"{prefix}{k}",
+                f"must be > 0, at least {MIN_REWARD_SCALE:g} (MIN_REWARD_SCALE: the reward divides by it and "
+                f"overflows to inf), got {v}")  # fmt: skip
+
 
 @dataclass
 class PaperFactorParams:
@@ -72,11 +103,12 @@ class PaperFactorParams:
     min_metric: float = 1e-6
 
     def validate(self) -> None:
-        """Weights must be >= 0 and not all 0; the floor > 0."""
-        for k in ("a", "b", "c"):
-            require(getattr(self, k) >= 0, f"params.{k}", f"must be >= 0, got {getattr(self, k)}")
+        """Weights in [0, MAX_REWARD_WEIGHT] and not all 0; the floor >= MIN_METRIC_FLOOR."""
+        require_weights(self, ("a", "b", "c"))
         require(self.a + self.b + self.c > 0, "params", "at least one of a, b, c must be > 0")
-        require(self.min_metric > 0, "params.min_metric", f"must be > 0, got {self.min_metric}")
+        require(self.min_metric >= MIN_METRIC_FLOOR, "params.min_metric",
+                f"must be >= {MIN_METRIC_FLOOR:g} (MIN_METRIC_FLOOR: the reciprocal of a smaller floor overflows "
+                f"float32), got {self.min_metric}")  # fmt: skip
 
 
 @dataclass
@@ -92,12 +124,10 @@ class WeightedSumParams:
     eps: float = 1e-9
 
     def validate(self) -> None:
-        """Weights >= 0 and not all 0; scales > 0; eps >= 0."""
-        for k in ("w_area", "w_dfd", "w_rmse"):
-            require(getattr(self, k) >= 0, f"params.{k}", f"must be >= 0, got {getattr(self, k)}")
+        """Weights in [0, MAX_REWARD_WEIGHT] and not all 0; scales >= MIN_REWARD_SCALE; eps >= 0."""
+        require_weights(self, ("w_area", "w_dfd", "w_rmse"))
         require(self.w_area + self.w_dfd + self.w_rmse > 0, "params", "at least one weight must be > 0")
-        for k in ("area_scale", "dfd_scale", "rmse_scale"):
-            require(getattr(self, k) > 0, f"params.{k}", f"must be > 0, got {getattr(self, k)}")
+        require_scales(self, ("area_scale", "dfd_scale", "rmse_scale"))
         require(self.eps >= 0, "params.eps", f"must be >= 0, got {self.eps}")
 
     def weighted_sum(self, m: Metrics) -> torch.Tensor:

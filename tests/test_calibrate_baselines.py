@@ -188,6 +188,8 @@ def test_success_counts_the_candidate_that_passed(problem):
         ({"gradient": {"backend": "numba"}}, "gradient.backend"),
         ({"gradient": {"loss": {"area_scale": 0.0}}}, "gradient.loss.area_scale"),
         ({"gradient": {"loss": {"w_area": float("inf")}}}, "gradient.loss.w_area"),
+        ({"gradient": {"loss": {"w_rmse": 1e308}}}, "gradient.loss.w_rmse"),  # the loss overflowed to inf
+        ({"gradient": {"loss": {"rmse_scale": 1e-310}}}, "gradient.loss.rmse_scale"),
         ({"random_search": {"radius": float("nan")}}, "random_search.radius"),
         ({"cmaes": {"popsize": 1}}, "cmaes.popsize"),
         ({"random_search": {"shrink": 1.5}}, "random_search.shrink"),

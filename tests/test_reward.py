@@ -104,6 +104,47 @@ def test_bad_params_name_the_key(tmp_path):
         load_reward_config("log_ratio", overrides={"termination.success_rmse": 5.0})
 
 
+@pytest.mark.parametrize(
+    "name, key, value",
+    [
+        ("log_ratio", "w_area", 1e308),
+        ("neg_weighted_sum", "w_rmse", 1e38),
+        ("paper_factor", "a", 1e308),
+        ("log_ratio", "area_scale", 1e-310),
+        ("neg_weighted_sum", "dfd_scale", 1e-30),
+        ("paper_factor", "min_metric", 1e-40),
+    ],
+)
+def test_weights_that_overflow_the_reward_are_refused(name, key, value):
+    """``w_area: 1e308`` (or a scale of 1e-310) made ``w * A / A0`` inf: log_ratio's reward was NaN, neg_weighted_sum's
+    -inf, the paper factor's NaN, fed to the PPO loss and the optimizers' ranking without a word; ``min_metric`` of
+    1e-40 is 0 in float32, and a perfect fit scored inf. The weights and scales are bounded, naming the key."""
+    with pytest.raises(ConfigError, match=rf"params\.{key}"):
+        get_reward(name, **{key: value})
+    with pytest.raises(ConfigError, match=rf"params\.{key}"):
+        load_reward_config(name, overrides={f"params.{key}": value})
+
+
+def test_the_bounds_of_the_weights_keep_every_reward_finite():
+    """At the bounds (largest weights, smallest scales and floor) the reward of float32 metrics from a perfect fit
+    to a hopeless one (velocity errors of 100 m/s) stays finite."""
+    from marlcrash.reward import MAX_REWARD_WEIGHT, MIN_METRIC_FLOOR, MIN_REWARD_SCALE
+
+    extreme = {
+        "paper_factor": {"a": MAX_REWARD_WEIGHT, "b": MAX_REWARD_WEIGHT, "c": MAX_REWARD_WEIGHT,
+                         "min_metric": MIN_METRIC_FLOOR},
+        "log_ratio": {"w_area": MAX_REWARD_WEIGHT, "w_dfd": MAX_REWARD_WEIGHT, "w_rmse": MAX_REWARD_WEIGHT,
+                      "area_scale": MIN_REWARD_SCALE, "dfd_scale": MIN_REWARD_SCALE, "rmse_scale": MIN_REWARD_SCALE},
+    }  # fmt: skip
+    extreme["neg_weighted_sum"] = extreme["log_ratio"]
+    worst = Metrics(*(torch.full((1,), x, dtype=torch.float32) for x in (15.0, 100.0, 100.0)))
+    zero = Metrics(*(torch.zeros(1, dtype=torch.float32) for _ in range(3)))
+    for name, params in extreme.items():
+        rw = get_reward(name, **params)
+        for m, prev in ((zero, worst), (worst, zero), (zero, zero)):
+            assert torch.isfinite(rw.reward(m, prev)).all(), name
+
+
 def test_log_ratio_is_scale_free():
     rw = get_reward("log_ratio", area_scale=0.02, dfd_scale=0.4, rmse_scale=0.25, eps=1e-15)
     m = Metrics(torch.tensor([0.02, 2e-4]), torch.tensor([0.4, 4e-3]), torch.tensor([0.25, 2.5e-3]))

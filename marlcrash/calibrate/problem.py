@@ -74,7 +74,15 @@ from marlcrash.metrics import Metrics, area_between, compute_metrics, rmse
 from marlcrash.pulse.cfc import f_n
 from marlcrash.pulse.signal import DEFAULT_COMPARE_MARGIN, compared_velocity, compared_window, margin_samples
 from marlcrash.references import ReferenceBatch, ReferenceSampler, require_file_scenario
-from marlcrash.reward import Reward, TerminationConfig, load_reward_config, require_reward, termination
+from marlcrash.reward import (
+    Reward,
+    TerminationConfig,
+    load_reward_config,
+    require_reward,
+    require_scales,
+    require_weights,
+    termination,
+)
 from marlcrash.sim.scenario import CrashScenario, get_scenario, list_scenarios
 from marlcrash.sim.surrogate import SimResult, Surrogate, load_sim_config
 
@@ -162,11 +170,9 @@ class SmoothLoss:
     rmse_scale: float = 0.25
 
     def validate(self) -> None:
-        for k in ("w_area", "w_rmse"):
-            require(getattr(self, k) >= 0, k, f"expected a weight >= 0, got {getattr(self, k)}")
+        require_weights(self, ("w_area", "w_rmse"), prefix="")
         require(self.w_area + self.w_rmse > 0, "w_area", "at least one of w_area, w_rmse must be > 0")
-        for k in ("area_scale", "rmse_scale"):
-            require(getattr(self, k) > 0, k, f"expected a scale > 0, got {getattr(self, k)}")
+        require_scales(self, ("area_scale", "rmse_scale"), prefix="")
 
 
 class CalibrationProblem:
