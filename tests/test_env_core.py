@@ -575,6 +575,26 @@ def test_env_calibrates_a_deck_read_with_its_vehicle_options(lsopt_deck, tmp_pat
     assert e.value.key == "vehicle_options.params"
 
 
+def test_a_vehicle_seed_for_a_deck_is_refused_when_the_config_loads(lsopt_deck):
+    """A deck has no variants: ``vehicle_seed: 1`` with a deck vehicle loaded and failed when the env was built,
+    named as the env's ``seed`` (another setting); a cross-fidelity ``vehicle_seeds: [null, 1]`` failed only when
+    seed 1 was first drawn, mid-training. Both are refused at load, naming the key; null (the nominal car) loads."""
+    deck = {"vehicle": str(lsopt_deck)}
+    with pytest.raises(ConfigError, match="keyword deck") as e:
+        load_env_config("default", {**deck, "vehicle_seed": 1})
+    assert e.value.key == "vehicle_seed"
+    cross = {**deck, "reference.kind": "cross_fidelity"}
+    with pytest.raises(ConfigError, match="keyword deck") as e:
+        load_env_config("default", {**cross, "reference.cross_fidelity.vehicle_seeds": [None, 1]})
+    assert e.value.key == "reference.cross_fidelity.vehicle_seeds[1]"
+    assert load_env_config("default", {**cross, "reference.cross_fidelity.vehicle_seeds": [None]}).vehicle == str(
+        lsopt_deck
+    )
+    # a synthetic car has variants: its seeds load
+    load_env_config("default", {"vehicle_seed": 1, "reference.kind": "cross_fidelity",
+                                "reference.cross_fidelity.vehicle_seeds": [None, 1]})  # fmt: skip
+
+
 def test_a_scenario_that_activates_no_agent_is_named_when_the_env_is_built(lsopt_deck, tmp_path, monkeypatch):
     """The deck read with its height as marlcrash's width (a wrong ``axis_map``) strikes almost nothing on the
     left: those scenarios' episodes would mask every action, and the env says so; read with its own axes, none.

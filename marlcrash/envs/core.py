@@ -76,7 +76,7 @@ from marlcrash.references import ReferenceConfig, ReferenceSampler
 from marlcrash.reward import Reward, TerminationConfig, load_reward_config, require_reward, shipped_termination
 from marlcrash.sim.scenario import list_scenarios
 from marlcrash.sim.surrogate import SimConfig, Surrogate, load_sim_config
-from marlcrash.vehicle.registry import VehicleOptions
+from marlcrash.vehicle.registry import VehicleOptions, is_deck
 
 
 class ActionError(MarlcrashError):
@@ -138,6 +138,14 @@ class EnvConfig:
             raise ConfigError(e.reason, key=f"vehicle_options.{e.key}") from None
         require(self.vehicle_seed is None or _is_int_at_least(self.vehicle_seed, 0), "vehicle_seed",
                 f"expected a seed >= 0 or null (the nominal car), got {self.vehicle_seed!r}")  # fmt: skip
+        if is_deck(self.vehicle):  # now, not when the env is built (or a cross-fidelity seed is first drawn)
+            variants = {"vehicle_seed": self.vehicle_seed}
+            if self.reference.kind == "cross_fidelity":
+                seeds = self.reference.cross_fidelity.vehicle_seeds
+                variants.update({f"reference.cross_fidelity.vehicle_seeds[{i}]": v for i, v in enumerate(seeds)})
+            for key, seed in variants.items():
+                require(seed is None, key, f"the vehicle {self.vehicle!r} is a keyword deck, which has no variants; "
+                                           f"expected null (the deck as read), got {seed!r}")  # fmt: skip
         require(_is_int_at_least(self.seed, 0), "seed", f"expected a seed >= 0, got {self.seed!r}")
         twice = sorted({s for s in self.sensors if self.sensors.count(s) > 1})
         require(not twice, "sensors", f"names {twice} more than once; each sensor is compared once (an empty list: "
