@@ -178,6 +178,9 @@ class ReferenceConfig:
         require(self.kind != "file" or bool(self.files), "files", "kind 'file' needs at least one entry in files")
         if self.kind == "file" and self.file_scenario is not None:
             require_file_scenario(self, self.file_scenario, "file_scenario")
+        require(self.kind == "file" or self.file_scenario is None, "file_scenario",  # else read by nothing
+                f"picks among the measured tests, so it is read only with kind 'file' (kind is {self.kind!r}); "
+                f"expected null, got {self.file_scenario!r}")  # fmt: skip
         require(  # before the tests' cfc, which names compare_cfc's value as the one expected
             self.compare_cfc in (None, 60, 180, 600, 1000),
             "compare_cfc",

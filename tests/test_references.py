@@ -420,6 +420,38 @@ def test_tests_of_several_load_cases_give_each_problem_the_test_of_its_scenario(
     assert e.value.key == "problem.scenario"
 
 
+def test_a_file_scenario_with_another_reference_kind_is_refused_naming_the_key():
+    """``reference.file_scenario`` picks among the measured tests: with ``kind: twin`` it was read by nothing and
+    loaded without a word, and a problem's ``env_overrides.reference.file_scenario`` was replaced by
+    ``problem.scenario`` as silently. Both are refused, naming the key. A run that trained on one scenario's tests
+    is still evaluated (and its problem built) on a twin: the evaluation drops the training's choice of test."""
+    from marlcrash.calibrate.evaluate import evaluation_overrides
+    from marlcrash.calibrate.marl import TrainConfig, make_env_config
+    from marlcrash.calibrate.problem import ProblemConfig, problem_env_config
+    from marlcrash.envs.core import load_env_config
+
+    with pytest.raises(ConfigError, match=r"only with kind 'file'.*kind is 'twin'") as e:
+        load_env_config("default", {"reference.file_scenario": "full_width_40"})
+    assert e.value.key == "reference.file_scenario"
+    files = [{"path": "test.csv", "scenario": "full_width_40", "channels": {"s": "c"}}]
+    measured = {"reference.kind": "file", "reference.files": files, "reference.file_scenario": "full_width_40"}
+    assert load_env_config("default", measured).reference.file_scenario == "full_width_40"
+    chosen = {"reference.files": files, "reference.file_scenario": "full_width_40"}
+    with pytest.raises(ConfigError, match=r"set by scenario") as e:
+        ProblemConfig(reference="file", env_overrides=chosen).validate()
+    assert e.value.key == "env_overrides.reference.file_scenario"
+    run = TrainConfig(env_overrides=measured, name="r")
+    run.eval.reference = "twin"
+    env = make_env_config(run, evaluation_overrides(run))
+    assert (env.reference.kind, env.reference.file_scenario) == ("twin", None)
+    over = {k: v for k, v in measured.items() if k != "reference.file_scenario"}
+    env = problem_env_config(ProblemConfig(reference="twin", env_overrides={**over, "reference.kind": "twin"}))
+    assert env.reference.file_scenario is None
+    assert problem_env_config(ProblemConfig(reference="file", env_overrides=over)).reference.file_scenario == (
+        "full_width_40"
+    )
+
+
 def test_a_test_record_that_goes_on_past_the_window_is_compared_as_filtered_over_it(cells, sim, tmp_path):
     """A test's record goes on past the compared window, and the filter ran over all of it; candidates are
     simulated ``compare_margin`` (10 ms) longer, filtered, and cut alike. The model's own 200 ms small-overlap

@@ -117,7 +117,8 @@ _PROTECTED_ENV_KEYS: dict[str, str] = {
     **{k: "the ablation's masking factor (a level's modifier: "
           f"{', '.join(m for m, (mk, _) in MASKING_MODIFIERS.items() if mk == k)}; e.g. primary+region)"
        for k in ENV_KEYS["masking"][1:]},
-    **dict.fromkeys(("scenarios", "reference.kind", "reference.pin_seed", "seed", "termination.max_iterations"),
+    **dict.fromkeys(("scenarios", "reference.kind", "reference.pin_seed", "reference.file_scenario", "seed",
+                     "termination.max_iterations"),
                     "the ablation's protocol (scenarios, seeds, ppo.episode_length)"),
 }  # fmt: skip
 """Env keys the factors or the protocol set (``env_overrides`` and ``ppo.env_overrides`` may not change them; the

@@ -137,8 +137,8 @@ STOP_LABELS = {"wall_cap": "stopped by wall cap", "ended": "ended on its own"}
 """How the tables say a run's ``stop`` (``budget`` as it is): :class:`RunOutcome`."""
 
 _PROTOCOL = "the comparison protocol (scenario, seeds, ppo.episode_length)"
-_SHARED_ENV_KEYS = dict.fromkeys(("scenarios", "reference.kind", "reference.pin_seed", "seed",
-                                  "termination.max_iterations"), _PROTOCOL)  # fmt: skip
+_SHARED_ENV_KEYS = dict.fromkeys(("scenarios", "reference.kind", "reference.pin_seed", "reference.file_scenario",
+                                  "seed", "termination.max_iterations"), _PROTOCOL)  # fmt: skip
 """Env keys the protocol sets for every method (an ``env_overrides`` entry may not change them)."""
 _PPO_ENV_KEYS = {**_SHARED_ENV_KEYS, "reference": f"{_PROTOCOL} for the pinned PPO runs; put shared env settings "
                  "in the top-level env_overrides"}  # fmt: skip
@@ -445,7 +445,8 @@ def run_optimizer(config: CompareConfig, method: str, seed: int, problem: Calibr
 def ppo_train_config(config: CompareConfig, method: str, seed: int, run_root: Path) -> TrainConfig:
     """The training config of a PPO method on pinned reference ``seed`` (module docstring)."""
     over = {**merge_overrides(EnvConfig, config.env_overrides, config.ppo.env_overrides),
-            "scenarios": {config.scenario: 1.0}, "reference.kind": "twin", "reference.pin_seed": seed}  # fmt: skip
+            "scenarios": {config.scenario: 1.0}, "reference.kind": "twin", "reference.pin_seed": seed,
+            "reference.file_scenario": None}  # fmt: skip
     p = config.ppo
     tc = TrainConfig(
         algorithm=copy.deepcopy(getattr(config, method)), env=config.env, env_overrides=over, n_envs=p.n_envs,

@@ -198,8 +198,8 @@ def evaluation_overrides(config: TrainConfig) -> dict[str, Any]:
         "termination.max_iterations": config.eval.iterations,
         "reference.pin_seed": None,  # the reset seed is eval.reference_seed, as the problem's draw (a pinned
     }  # training reference would replace it in the env only, and the two would differ)
-    if kind == "file":  # the test of the evaluation scenario, of a set that may hold several load cases
-        over["reference.file_scenario"] = config.eval.scenario
+    # the test of the evaluation scenario, of a set that may hold several load cases; none for a simulated reference
+    over["reference.file_scenario"] = config.eval.scenario if kind == "file" else None
     return over
 
 
@@ -249,6 +249,7 @@ def evaluation_problem(config: TrainConfig) -> CalibrationProblem:
     kind = evaluation_reference(config)
     over = flatten_overrides(EnvConfig, config.env_overrides)  # the evaluation's kind, not the training's
     over["reference.kind"] = kind
+    over.pop("reference.file_scenario", None)  # the problem's file test is the one of its scenario
     pc = ProblemConfig(env=config.env, env_overrides=over, scenario=config.eval.scenario, reference=kind,
                        reference_seed=config.eval.reference_seed, fit=env_cfg.reward,
                        success=config.eval.thresholds, **env_backends(env_cfg))  # fmt: skip

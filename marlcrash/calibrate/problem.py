@@ -152,7 +152,13 @@ class ProblemConfig:
         require(np.isfinite(self.box_radius) and 0 < self.box_radius <= 5.0, "box_radius",
                 f"expected a log-scale half-width in (0, 5], got {self.box_radius}")  # fmt: skip
         require_env(self.env, "env")
-        require_env_keys_unset(self.env_overrides, {"scenarios": "scenario"})
+        require_env_keys_unset(
+            self.env_overrides,
+            {
+                "scenarios": "scenario",
+                "reference.file_scenario": "scenario (a file reference is the test of the problem's scenario)",
+            },
+        )
         require_reward(self.fit, "fit")
 
 
@@ -601,6 +607,7 @@ def problem_env_config(config: ProblemConfig):
         raise ConfigError(f"the problem's reference is {config.reference!r}; set reference={kind} instead "
                           "(problem.reference picks the kind)", key="env_overrides.reference.kind")  # fmt: skip
     env = env_config_of(config.env, config.env_overrides, {"reference.kind": config.reference,
+                                                          "reference.file_scenario": None,  # set below for a file
                                                           "scenarios": {config.scenario: 1.0}})  # fmt: skip
     if config.reference == "file":  # the test of this scenario (a set of tests may hold several load cases)
         require_file_scenario(env.reference, config.scenario, "problem.scenario")
