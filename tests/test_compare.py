@@ -462,6 +462,8 @@ def test_a_run_without_a_finite_score_is_standard_json_ranks_last_and_resumes(sh
         ({"seeds": [0, 2**64]}, "seeds[1]", "2**64 - 1"),  # torch.manual_seed of a PPO run refused it mid-table
         ({"max_wall_s": -1.0}, "max_wall_s", "> 0"),
         ({"ppo.threads": 100_000}, "ppo.threads", "thread count in [0, 1024]"),  # torch started them as asked
+        ({"budget": 10**15, "ppo.n_envs": 10**12}, "ppo.n_envs", "[1, 10000] parallel episodes"),
+        ({"budget": 10**15, "ppo.episode_length": 10**12}, "ppo.episode_length", "at most 100000 env steps"),
         ({"budget": 7}, "budget", "at least one iteration"),
         ({"mappo.minibatch_size": 4}, "mappo.minibatch_size", "divisor"),
         ({"ppo.env_overrides": {"reference.pin_seed": 3}}, "ppo.env_overrides.reference.pin_seed", "protocol"),

@@ -161,7 +161,12 @@ def test_ci_reads_the_environment(monkeypatch):
         (["algorithm.lr=-0.001"], "algorithm.lr", "learning rate > 0"),
         (["algorithm.name=sac"], "algorithm.name", "unknown algorithm 'sac'"),
         (["algorithm.minibatch_size=7"], "algorithm.minibatch_size", "divisor of the batch"),
-        (["n_envs=0"], "n_envs", ">= 1"),
+        (["n_envs=0"], "n_envs", "[1, 10000] parallel episodes"),
+        # one batched simulation per step: 10**12 failed allocating 29 PB after the run folder existed
+        (["n_envs=1000000000000"], "n_envs", "[1, 10000] parallel episodes"),
+        # 4.8e13 env steps per iteration: the run never finished its first one (its rollout: 175 kB a step)
+        (["episode_length=1000000000000"], "episode_length", "at most 100000 env steps per iteration"),
+        (["n_envs=10000", "episode_length=11", "algorithm.minibatch_size=50"], "episode_length", "110000"),
         (["logger=wandb"], "logger", "unknown logger"),
         (["algorithm.gamma=1.5"], "algorithm.gamma", "[0, 1]"),
         (["algorithm.centralised_critic=false"], "algorithm.centralised_critic", "centralised critic"),

@@ -90,6 +90,7 @@ from marlcrash.calibrate.marl import (
     ProgressHook,
     TrainConfig,
     build_trainer,
+    require_batch_shape,
     train_iteration,
 )
 from marlcrash.calibrate.problem import (
@@ -180,8 +181,7 @@ class PPOBudgetConfig:
         return self.n_envs * (self.episode_length + 1)
 
     def validate(self) -> None:
-        require(self.n_envs >= 1, "n_envs", f"expected >= 1 parallel episodes, got {self.n_envs}")
-        require(self.episode_length >= 1, "episode_length", f"expected >= 1 steps, got {self.episode_length}")
+        require_batch_shape(self.n_envs, self.episode_length)
         require_threads(self.threads, "threads")
         require_env_keys_unset(self.env_overrides, _PPO_ENV_KEYS)
 

@@ -60,6 +60,7 @@ from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
 from marlcrash import provenance
+from marlcrash.calibrate.baselines import MAX_BATCH
 from marlcrash.calibrate.budget import Progress
 from marlcrash.calibrate.checkpoint import (
     CHECKPOINT_FILE,
@@ -109,6 +110,26 @@ TRAIN_ENV_OVERRIDES = {"max_step": 0.1, "observation.velocity_scale": 2.0, "obse
 defaults of the schemas built in Python (``tests/test_config_defaults.py`` keeps them equal to the files)."""
 
 _ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU}
+
+MAX_FRAMES_PER_BATCH = 100_000
+"""Most env steps one training iteration may collect, ``n_envs * episode_length`` [-]: the rollout holds them all
+(about 175 kB a step at the default env, so 17 GB here), and 4.8e13 (``episode_length: 10**12``) never finished its
+first iteration. The default batch is 288."""
+
+
+def require_batch_shape(n_envs: int, episode_length: int) -> None:
+    """Refuse, naming ``n_envs`` or ``episode_length`` (keys relative to the schema being validated), a PPO batch
+    beyond one batched simulation of :data:`~marlcrash.calibrate.baselines.MAX_BATCH` episodes per step or
+    :data:`MAX_FRAMES_PER_BATCH` env steps per iteration: ``n_envs: 10**12`` failed allocating 29 PB after the run
+    folder existed."""
+    require(1 <= n_envs <= MAX_BATCH, "n_envs",
+            f"expected [1, {MAX_BATCH}] parallel episodes (each step simulates them in one batch; "
+            f"MAX_BATCH = {MAX_BATCH}), got {n_envs}")  # fmt: skip
+    require(episode_length >= 1, "episode_length", f"expected >= 1 steps, got {episode_length}")
+    require(n_envs * episode_length <= MAX_FRAMES_PER_BATCH, "episode_length",
+            f"expected at most {MAX_FRAMES_PER_BATCH} env steps per iteration (MAX_FRAMES_PER_BATCH; the rollout "
+            f"holds them all), got n_envs * episode_length = {n_envs} * {episode_length} = "
+            f"{n_envs * episode_length}")  # fmt: skip
 
 
 # ---------------------------------------------------------------------------------------- configs
@@ -235,8 +256,7 @@ class TrainConfig:
         return self.n_envs * self.episode_length
 
     def validate(self) -> None:
-        require(self.n_envs >= 1, "n_envs", f"expected >= 1 parallel episodes, got {self.n_envs}")
-        require(self.episode_length >= 1, "episode_length", f"expected >= 1 steps, got {self.episode_length}")
+        require_batch_shape(self.n_envs, self.episode_length)
         require(self.iterations >= 1, "iterations", f"expected >= 1 training iterations, got {self.iterations}")
         require_seed(self.seed, "seed")  # torch.manual_seed takes 64 bits
         require(self.time_limit_s is None or self.time_limit_s > 0, "time_limit_s",
