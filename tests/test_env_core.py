@@ -412,6 +412,24 @@ def test_bad_input_raises_clear_errors(cells):
         load_env_config(overrides={"granularity": "part"})
 
 
+def test_an_observation_scale_that_overflows_float32_is_refused(cells):
+    """``observation.velocity_scale: 1e308`` loaded, and every observation and state was inf or NaN in float32, fed
+    to the policy without a word. The scales are bounded (MAX_OBSERVATION_SCALE), naming the key; at the bound the
+    observations stay finite."""
+    from marlcrash.envs.core import MAX_OBSERVATION_SCALE
+
+    for k in ("velocity_scale", "param_scale", "energy_scale"):
+        with pytest.raises(ConfigError, match=rf"key 'observation\.{k}': expected a finite scale in \(0, ") as e:
+            load_env_config(overrides={f"observation.{k}": 1e308})
+        assert "MAX_OBSERVATION_SCALE" in str(e.value)
+    scales = {f"observation.{k}": MAX_OBSERVATION_SCALE for k in ("velocity_scale", "param_scale", "energy_scale")}
+    core = make(cells, 2, **scales)
+    core.reset(seed=0)
+    core.step(torch.ones(2, core.A, core.act_dim))
+    obs, state = core.observations()
+    assert torch.isfinite(obs).all() and torch.isfinite(state).all()
+
+
 def test_constructor_arguments_are_checked_as_arguments(cells):
     """A bad batch size was reported as a key of the env's YAML file (``default.yaml key 'batch_size'``), a numpy
     integer was refused, a float or a string failed inside ``torch.Size`` (TorchRL door), and a config given by name

@@ -92,6 +92,12 @@ DEFAULT_SPLIT_LR = ("bumper_beam", "subframe", "cooling_module", "dash_firewall"
 """Sub-assemblies ``configs/env/default.yaml`` splits into left and right agents."""
 
 
+MAX_OBSERVATION_SCALE = 1e6
+"""Largest factor on an observation part [its inverse unit]: the observations are float32, and ``velocity_scale:
+1e308`` made every one inf or NaN, fed to the policy without a word. At this bound a 100 m/s velocity difference
+observes as 1e8, finite (and far past where a tanh network saturates)."""
+
+
 @dataclass
 class ObservationConfig:
     """Scales of the observation parts (values in ``configs/env``)."""
@@ -103,7 +109,9 @@ class ObservationConfig:
     def validate(self) -> None:
         for k in ("velocity_scale", "param_scale", "energy_scale"):
             v = getattr(self, k)
-            require(math.isfinite(v) and v > 0, k, f"expected a finite scale > 0, got {v}")
+            require(math.isfinite(v) and 0 < v <= MAX_OBSERVATION_SCALE, k,
+                    f"expected a finite scale in (0, {MAX_OBSERVATION_SCALE:g}] (MAX_OBSERVATION_SCALE: the "
+                    f"observations are float32), got {v}")  # fmt: skip
 
 
 @dataclass
