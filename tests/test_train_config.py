@@ -191,6 +191,8 @@ def test_ci_reads_the_environment(monkeypatch):
         (["resume=1"], "resume", "expected true or false or a string, got 1"),  # one message for the union
         # torch starts as many threads as asked: 100,000 crashed the process at the first matrix product
         (["threads=100000"], "threads", "thread count in [0, 1024]"),
+        # torch failed allocating 3.9 TB for the first layer, a traceback instead of the key
+        (["algorithm.hidden=[128,1000000000]"], "algorithm.hidden", "layer widths in [1, 16384]"),
     ],
 )
 def test_bad_values_name_the_key(overrides, key, words):

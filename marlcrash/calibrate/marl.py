@@ -111,6 +111,10 @@ defaults of the schemas built in Python (``tests/test_config_defaults.py`` keeps
 
 _ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU}
 
+MAX_HIDDEN_WIDTH = 16_384
+"""Widest hidden layer of a policy or critic network [-]: a square layer of it holds 1 GiB of float32 weights (the
+shipped networks are 128 wide); 10**9 failed allocating 3.9 TB with a torch traceback instead of naming the key."""
+
 MAX_FRAMES_PER_BATCH = 100_000
 """Most env steps one training iteration may collect, ``n_envs * episode_length`` [-]: the rollout holds them all
 (about 175 kB a step at the default env, so 17 GB here), and 4.8e13 (``episode_length: 10**12``) never finished its
@@ -165,8 +169,9 @@ class AlgorithmConfig:
                 "ippo has a decentralised critic by definition; expected false")  # fmt: skip
         require(self.name == "ippo" or self.centralised_critic, "centralised_critic",
                 f"{self.name} uses the centralised critic on the global state; expected true")  # fmt: skip
-        require(bool(self.hidden) and all(h >= 1 for h in self.hidden), "hidden",
-                f"expected a non-empty list of layer widths >= 1, got {self.hidden}")  # fmt: skip
+        require(bool(self.hidden) and all(1 <= h <= MAX_HIDDEN_WIDTH for h in self.hidden), "hidden",
+                f"expected a non-empty list of layer widths in [1, {MAX_HIDDEN_WIDTH}] (MAX_HIDDEN_WIDTH), "
+                f"got {self.hidden}")  # fmt: skip
         for k in ("lr", "lr_final"):
             v = getattr(self, k)
             require(math.isfinite(v) and v > 0, k, f"expected a learning rate > 0, got {v}")
