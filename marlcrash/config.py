@@ -274,15 +274,18 @@ def _field_type(cls: type, parts: list[str]) -> Any:
     return t
 
 
-def require_known_key(cls: type, dotted: str, key: str | None = None, path: str | Path | None = None) -> None:
-    """Refuse a dotted key that schema ``cls`` does not have (``eval.iteration``), as :func:`from_dict` would: for a
-    key held to be applied later (a ``ci`` block), checked now. A key inside a mapping-valued field (``scenarios``,
-    ``agents.merge``) is the user's to choose and passes.
+def check_override(cls: type, dotted: str, value: Any, key: str | None = None, path: str | Path | None = None) -> None:
+    """Refuse a dotted key that schema ``cls`` does not have (``eval.iteration``), or a value of the wrong type for it,
+    as :func:`from_dict` would: for an override held to be applied later (a ``ci`` block), checked now. A key inside
+    a mapping-valued field (``scenarios``, ``agents.merge``) is the user's to choose and passes; so does its value.
+    Cross-field checks (``validate()``) wait for the override to be applied.
 
     Raises:
-        ConfigError: the first unknown part, keyed ``key`` (default ``dotted``), with the keys there are.
+        ConfigError: the first unknown part, with the keys there are, or a wrong type; keyed ``key`` (default
+            ``dotted``).
     """
     t: Any = cls
+    hint: Any = None
     for p in dotted.split("."):
         if not (isinstance(t, type) and dataclasses.is_dataclass(t)):
             return  # inside a mapping (or a plain value, whose override fails when it is applied)
@@ -290,7 +293,9 @@ def require_known_key(cls: type, dotted: str, key: str | None = None, path: str 
         if p not in hints:
             names = sorted(f.name for f in dataclasses.fields(t))
             raise ConfigError(f"unknown key; expected one of {names}", key=key or dotted, path=path)
+        hint = hints[p]
         t = _field_type(t, [p])
+    _check_type(value, hint, key or dotted, path)
 
 
 def flatten_overrides(cls: type, overrides: dict[str, Any]) -> dict[str, Any]:

@@ -110,10 +110,10 @@ def test_a_ci_entry_given_as_a_mapping_changes_only_its_keys():
     cfg = load_train_config(composed(["+ci.eval.iterations=2", "+ci.algorithm.lr=3e-4"]), ci=True)
     assert cfg.eval.iterations == 2 and cfg.eval.scenario == full.eval.scenario
     assert cfg.algorithm.lr == 3e-4 and cfg.algorithm.minibatch_size == composed()["ci"]["algorithm.minibatch_size"]
-    for override, key in (  # a bad value, named as the ci entry (an unknown key fails on every run: next test)
+    for override, key in (  # a bad value, named as the ci entry (a bad key or type fails on every run: next test)
         ("+ci.algorithm.lr=-1", "ci.algorithm.lr"),
         ("+ci.env_overrides.max_step=7", "ci.env_overrides.max_step"),
-        ("+ci.env_overrides.masking.mode=all", "ci.env_overrides.masking.mode"),
+        ("+ci.env_overrides.masking.min_fraction=0.0", "ci.env_overrides.masking.min_fraction"),
     ):
         with pytest.raises(ConfigError, match="MARLCRASH_CI=1 applied it") as e:
             load_train_config(composed([override]), source="configs/train/train.yaml", ci=True)
@@ -141,6 +141,15 @@ def test_a_typo_in_the_ci_block_fails_on_every_run():
         with pytest.raises(ConfigError, match="unknown key") as e:
             load_train_config(composed([override]), source="configs/train/train.yaml", ci=False)
         assert e.value.key == key and e.value.path == "configs/train/train.yaml"
+    for override, key, words in (  # a value of the wrong type too
+        ("ci.n_envs=eight", "ci.n_envs", "expected an integer, got 'eight'"),
+        ("ci.time_limit_s=true", "ci.time_limit_s", "expected a number, got True"),
+        ("+ci.env_overrides.masking.mode=[1]", "ci.env_overrides.masking.mode", "expected one of"),
+        ("+ci.algorithm=ippo", "ci.algorithm", "expected a mapping, got 'ippo'"),
+    ):
+        with pytest.raises(ConfigError, match=re.escape(words)) as e:
+            load_train_config(composed([override]), source="configs/train/train.yaml", ci=False)
+        assert e.value.key == key
     # known keys (a mapping-valued env key among them) load, and apply only under ci
     data = composed(["+ci.env_overrides.scenarios.full_width_56=1.0", "+ci.eval.iterations=2"])
     assert load_train_config(data, ci=False).eval.iterations == data["eval"]["iterations"]

@@ -76,6 +76,7 @@ from marlcrash.calibrate.logging import LOG_FILE, LOGGERS, CSVLogger, make_logge
 from marlcrash.calibrate.problem import SuccessConfig
 from marlcrash.calibrate.runlock import claim_dir, run_lock
 from marlcrash.config import (
+    check_override,
     config_dir,
     flatten_overrides,
     from_dict,
@@ -85,7 +86,6 @@ from marlcrash.config import (
     require,
     require_complete,
     require_device,
-    require_known_key,
     require_seed,
     require_threads,
 )
@@ -367,12 +367,12 @@ def load_train_config(
     if not isinstance(over, dict):
         raise ConfigError(f"expected a mapping of dotted overrides, got {over!r}", key="ci", path=source)
     items = _ci_items(over)
-    for k in items:  # on every run, so that a typo fails where it is made, not first in CI
+    for k, v in items.items():  # keys and types on every run, so that a typo fails where it is made, not first in CI
         env_key = k.removeprefix("env_overrides.")
         if env_key != k:
-            require_known_key(EnvConfig, env_key, key=f"ci.{k}", path=source)
+            check_override(EnvConfig, env_key, v, key=f"ci.{k}", path=source)
         else:
-            require_known_key(TrainConfig, k, key=f"ci.{k}", path=source)
+            check_override(TrainConfig, k, v, key=f"ci.{k}", path=source)
     if ci:
         for k, v in items.items():
             if not any(k == e or k.startswith(e + ".") for e in explicit):
