@@ -52,6 +52,12 @@ class Metrics(NamedTuple):
         }
 
 
+MAX_DFD_SCALE = 1e6
+"""Largest factor on time or velocity before Frechet distances [-]: ``dfd_value_scale: 1e308`` made every distance
+NaN (1e160: inf, its square overflowing) and the reward with it. At this bound a 100 m/s difference is 1e8 and its
+square finite in float32."""
+
+
 @dataclass
 class MetricsConfig:
     """How the similarity metrics are computed (part of a reward config).
@@ -67,9 +73,13 @@ class MetricsConfig:
     dfd_value_scale: float = 1.0
 
     def validate(self) -> None:
-        """Raise :class:`~marlcrash.errors.ConfigError` for non-positive scales."""
-        require(self.dfd_time_scale > 0, "metrics.dfd_time_scale", f"must be > 0, got {self.dfd_time_scale}")
-        require(self.dfd_value_scale > 0, "metrics.dfd_value_scale", f"must be > 0, got {self.dfd_value_scale}")
+        """Raise :class:`~marlcrash.errors.ConfigError` for scales outside ``(0, MAX_DFD_SCALE]``."""
+        for k in ("dfd_time_scale", "dfd_value_scale"):
+            v = getattr(self, k)
+            require(v > 0, f"metrics.{k}", f"must be > 0, got {v}")
+            require(v <= MAX_DFD_SCALE, f"metrics.{k}",
+                    f"must be at most {MAX_DFD_SCALE:g} (MAX_DFD_SCALE: a larger factor overflows the distance), "
+                    f"got {v}")  # fmt: skip
 
 
 def _safe_sqrt(x: torch.Tensor) -> torch.Tensor:

@@ -125,6 +125,21 @@ def test_weights_that_overflow_the_reward_are_refused(name, key, value):
         load_reward_config(name, overrides={f"params.{key}": value})
 
 
+@pytest.mark.parametrize("key", ["dfd_time_scale", "dfd_value_scale"])
+def test_a_frechet_scale_that_overflows_the_distance_is_refused(key):
+    """``metrics.dfd_value_scale: 1e308`` made every discrete Frechet distance NaN (1e160: inf) and the reward NaN
+    or -inf without a word. The factors are bounded (MAX_DFD_SCALE), naming the key; at the bound the distance of
+    float32 curves and the reward stay finite."""
+    from marlcrash.metrics import MAX_DFD_SCALE
+
+    with pytest.raises(ConfigError, match=rf"key 'metrics\.{key}'.*MAX_DFD_SCALE"):
+        load_reward_config("log_ratio", overrides={f"metrics.{key}": 1e160})
+    rw = Reward(load_reward_config("log_ratio", overrides={f"metrics.{key}": MAX_DFD_SCALE}))
+    t = torch.linspace(0.0, 0.15, 301)
+    m = rw.metrics((20.0 - 100.0 * t)[None, None], (-80.0 + 0.0 * t)[None, None], t)
+    assert torch.isfinite(m.dfd).all() and torch.isfinite(rw.score(m)).all()
+
+
 def test_the_bounds_of_the_weights_keep_every_reward_finite():
     """At the bounds (largest weights, smallest scales and floor) the reward of float32 metrics from a perfect fit
     to a hopeless one (velocity errors of 100 m/s) stays finite."""
