@@ -40,6 +40,7 @@ def _add_vehicle_args(p: argparse.ArgumentParser, deck_required: bool) -> None:
     p.add_argument(
         "deck",
         nargs=None if deck_required else "?",
+        type=_path,
         help="LS-DYNA keyword deck (.k/.key/.dyn), a synthetic-vehicle YAML, or a registered vehicle name"
         + ("" if deck_required else " (default: the embedded synthetic B-segment car)"),
     )
@@ -55,7 +56,9 @@ def _add_vehicle_args(p: argparse.ArgumentParser, deck_required: bool) -> None:
         metavar="MAP",
         help="deck axes to marlcrash axes (x rearward, y left, z up), e.g. 'x=+x,y=+z,z=+y'",
     )
-    p.add_argument("--subassemblies", metavar="MAP.yaml", help="YAML file mapping parts to named sub-assemblies")
+    p.add_argument(
+        "--subassemblies", type=_path, metavar="MAP.yaml", help="YAML file mapping parts to named sub-assemblies"
+    )
     p.add_argument(
         "--seed", type=_seed, default=None, help="variant seed of a synthetic vehicle, integer >= 0 (default: nominal)"
     )
@@ -70,6 +73,14 @@ def _seed(text: str) -> int:
     if value < 0:
         raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}")
     return value
+
+
+def _path(text: str) -> str:
+    """argparse type of a file or folder argument: not empty. ``""`` (a shell variable left unset) is no path: taken
+    as none it chose the default (the embedded car, configs/cells.yaml), taken as ``Path("")`` the working folder."""
+    if not text:
+        raise argparse.ArgumentTypeError("expected a path, got an empty one")
+    return text
 
 
 def _positive_int(text: str) -> int:
@@ -461,10 +472,14 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("discretize", help="discretize a vehicle front into cells (paper Table 2)")
     _add_vehicle_args(p, deck_required=False)
     p.add_argument("--method", choices=["uniform", "optimized"], help="discretization method (default: config)")
-    p.add_argument("--config", help="cells config YAML giving every key of configs/cells.yaml (default: that file)")
+    p.add_argument(
+        "--config", type=_path, help="cells config YAML giving every key of configs/cells.yaml (default: that file)"
+    )
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
-    p.add_argument("--plot", metavar="FILE.png", help="write a 3D picture of the cells coloured by sub-assembly")
-    p.add_argument("--save", metavar="CELLS.npz", help="write the cell model")
+    p.add_argument(
+        "--plot", type=_path, metavar="FILE.png", help="write a 3D picture of the cells coloured by sub-assembly"
+    )
+    p.add_argument("--save", type=_path, metavar="CELLS.npz", help="write the cell model")
     p.set_defaults(func=cmd_discretize)
 
     p = sub.add_parser("simulate", help="simulate a frontal crash of a vehicle's cell surrogate")
@@ -477,10 +492,14 @@ def build_parser() -> argparse.ArgumentParser:
                    help="simulated time after first contact [ms] (default: the scenario's, 150); e.g. 200 for a "
                         "test record that goes on past the compared window, as a lab's does")  # fmt: skip
     p.add_argument("--method", choices=["uniform", "optimized"], help="discretization method (default: config)")
-    p.add_argument("--config", help="cells config YAML giving every key of configs/cells.yaml (default: that file)")
+    p.add_argument(
+        "--config", type=_path, help="cells config YAML giving every key of configs/cells.yaml (default: that file)"
+    )
     p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.add_argument("--csv", metavar="FILE.csv", help="write time, per-sensor acceleration and velocity, crush")
-    p.add_argument("--plot", metavar="FILE.png", help="plot pulses per sensor and energy per sub-assembly")
+    p.add_argument(
+        "--csv", type=_path, metavar="FILE.csv", help="write time, per-sensor acceleration and velocity, crush"
+    )
+    p.add_argument("--plot", type=_path, metavar="FILE.png", help="plot pulses per sensor and energy per sub-assembly")
     p.set_defaults(func=cmd_simulate)
 
     p = sub.add_parser("bench", help="simulations per second of the default car's surrogate, with a roofline")
@@ -503,7 +522,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_bench)
 
     p = sub.add_parser("pulse", help="read a measured crash pulse (CSV or ISO-MME), CFC-filter and integrate it")
-    p.add_argument("file", help="CSV file with a header row, an ISO-MME .mme file or test folder")
+    p.add_argument("file", type=_path, help="CSV file with a header row, an ISO-MME .mme file or test folder")
     p.add_argument("--time-col", help="CSV time column; default: the first column named like time, else the first")
     p.add_argument("--time-unit", choices=["s", "ms"], default="s", help="CSV time unit (default s)")
     p.add_argument("--acc-col", help="acceleration column / ISO-MME channel; default: the first acceleration")
@@ -528,7 +547,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="the file records deceleration as positive (default: SAE J211 sign, a frontal pulse is negative)",
     )
     p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.add_argument("--plot", metavar="FILE.png", help="write acceleration and velocity plots")
+    p.add_argument("--plot", type=_path, metavar="FILE.png", help="write acceleration and velocity plots")
     p.set_defaults(func=cmd_pulse)
 
     p = sub.add_parser(
@@ -538,6 +557,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "run",
         nargs="?",
+        type=_path,
         help="an evaluated training run folder (runs/<algorithm>/<name>, with calibrated.npz); default: the twin's "
         "hidden perturbation of the main job's evaluation reference (every agent at the truth)",
     )
@@ -549,7 +569,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--permutations", type=_positive_int, default=64, metavar="N",
                    help="sampled orderings otherwise (even, >= 4; default 64)")  # fmt: skip
     p.add_argument("--seed", type=_seed, default=0, help="seed of the sampled orderings (default 0)")
-    p.add_argument("--out", metavar="DIR",
+    p.add_argument("--out", type=_path, metavar="DIR",
                    help="output folder (default: RUN/contributions/iteration_<n>, or ./contributions)")  # fmt: skip
     p.add_argument("--no-plots", action="store_true", help="write the tables only")
     p.add_argument("--replace", action="store_true", help="write over an earlier analysis in the output folder")

@@ -524,3 +524,34 @@ def test_pulse_warns_of_a_frontal_pulse_that_speeds_the_vehicle_up(tmp_path):
     assert "--deceleration-positive" in proc.stderr
     again = run_cli("pulse", str(flipped), "--json", "--deceleration-positive")
     assert "speeds up" not in again.stderr
+
+
+def test_an_empty_path_is_refused_not_read_as_the_default_or_this_folder(tmp_path, monkeypatch, capsys):
+    """An empty path (a shell variable left unset: ``marlcrash inspect "$DECK"``) was taken as no path, or as the
+    working folder: ``inspect ""`` and ``discretize ""`` summarised the embedded car, ``--config ""`` read
+    configs/cells.yaml, ``contributions --out ""`` wrote into ./contributions and ``pulse ""`` read this folder as a
+    test. Each is now refused by the parser, naming the argument, before any work."""
+    from marlcrash.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    cases = [  # the trailing options fail fast where the empty path is taken (so the old behaviour is quick to see)
+        (("inspect", ""), "deck"),
+        (("discretize", "", "--save", "c.txt"), "deck"),
+        (("simulate", "", "--csv", "missing/x.csv"), "deck"),
+        (("discretize", "--config", "", "--save", "c.txt"), "--config"),
+        (("inspect", "b_segment", "--subassemblies", ""), "--subassemblies"),
+        (("discretize", "--save", ""), "--save"),
+        (("simulate", "--plot", ""), "--plot"),
+        (("simulate", "--csv", ""), "--csv"),
+        (("pulse", ""), "file"),
+        (("pulse", "x.csv", "--plot", ""), "--plot"),
+        (("contributions", "", "--permutations", "3"), "run"),
+        (("contributions", "--out", "", "--permutations", "3"), "--out"),
+    ]
+    for args, name in cases:
+        with pytest.raises(SystemExit) as e:
+            main(list(args))
+        err = capsys.readouterr().err
+        assert e.value.code == 2, (args, err)
+        assert f"error: argument {name}: expected a path, got an empty one" in err, (args, err)
+    assert list(tmp_path.iterdir()) == []
