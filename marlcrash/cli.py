@@ -22,6 +22,7 @@ DECK_SUFFIXES = (".k", ".key", ".dyn", ".kw")  # as marlcrash.vehicle.registry's
 # ----------------------------------------------------------------- helpers
 def _parse_params(items: list[str] | None) -> dict[str, float]:
     out: dict[str, float] = {}
+    typed: dict[str, str] = {}  # the item that gave each name, as the deck reads it (LS-DYNA's: case-insensitive)
     for item in items or []:
         name, sep, value = item.partition("=")
         if not sep or not name.strip():
@@ -32,7 +33,11 @@ def _parse_params(items: list[str] | None) -> dict[str, float]:
             raise ConfigError(f"value of {name.strip()!r} must be a number, got {value!r}", key="--param") from None
         if not math.isfinite(number):  # nan, inf, 1e400: refused here, not at whatever card uses it
             raise ConfigError(f"value of {name.strip()!r} must be a finite number, got {value!r}", key="--param")
-        out[name.strip()] = number
+        key = name.strip().lower()
+        if key in typed and out[key] != number:  # the last one was taken without a word
+            raise ConfigError(f"parameter {key!r} given twice, {typed[key]!r} and {item!r}; give it once",
+                              key="--param")  # fmt: skip
+        typed[key], out[key] = item, number
     return out
 
 

@@ -82,6 +82,19 @@ def test_a_param_value_that_is_not_finite_is_said_as_the_option_typed(tmp_path):
                                       f"'{value}'"), proc.stderr  # fmt: skip
 
 
+def test_a_param_given_twice_is_refused_not_the_last_one_taken(tmp_path):
+    """``--param tbumper=3 --param tbumper=5`` read the deck with 5 and said nothing of the 3; nor of ``TBUMPER=3``,
+    the same parameter as the deck reads names (LS-DYNA's are case-insensitive). Which one was meant is the user's
+    to say: refused as the option typed, naming both values, before the deck is read."""
+    for first, second in (("tbumper=3", "tbumper=5"), ("tbumper=3", " TBUMPER =5")):
+        proc = run_cli("inspect", str(tmp_path / "car.k"), "--param", first, "--param", second, check=False)
+        assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
+        assert proc.stderr.startswith("error: key '--param': parameter 'tbumper' given twice"), proc.stderr
+        assert f"{first!r} and {second!r}" in proc.stderr, proc.stderr
+    proc = run_cli("inspect", str(tmp_path / "car.k"), "--param", "tbumper=3", "--param", "TBUMPER=3.0", check=False)
+    assert proc.stderr.startswith("error: car.k: cannot read the deck"), proc.stderr  # one value, said twice: taken
+
+
 def test_an_unknown_unit_system_is_said_as_the_option_typed(tmp_path):
     """``--units furlong`` said ``key 'units'``, the library's argument, not the option typed (and only once the deck
     had been read): now ``key '--units'``, before the deck is read."""
