@@ -568,3 +568,14 @@ def test_an_empty_path_is_refused_not_read_as_the_default_or_this_folder(tmp_pat
         assert e.value.code == 2, (args, err)
         assert f"error: argument {name}: expected a path, got an empty one" in err, (args, err)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_the_package_runs_as_a_module():
+    """``python -m marlcrash`` (where the console script is not on PATH: a checkout run in place, another venv's
+    Python) said "'marlcrash' is a package and cannot be directly executed"; it is now the ``marlcrash`` command."""
+    proc = subprocess.run([sys.executable, "-m", "marlcrash", "inspect", "--help"], capture_output=True, text=True,
+                          timeout=120)  # fmt: skip
+    assert proc.returncode == 0 and proc.stdout.startswith("usage: marlcrash inspect"), proc.stderr
+    proc = subprocess.run([sys.executable, "-m", "marlcrash", "inspect", "b_segment", "--seed", "x"],
+                          capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert proc.returncode == 2 and "argument --seed: expected an integer >= 0" in proc.stderr
