@@ -302,6 +302,24 @@ def test_pulse_bad_file_is_a_clear_error(tmp_path):
     assert "bad.csv line 3" in proc.stderr and "Traceback" not in proc.stderr
 
 
+def test_pulse_of_a_missing_test_folder_says_it_is_missing(tmp_path):
+    """An ISO-MME test folder has no suffix, so a mistyped one (``marlcrash pulse tests/TEST01``) was told
+    'expected a .csv/.txt file, a .mme file or an ISO-MME test folder', which is what the user meant to give. It now
+    says there is no such file or folder, from the command and from read_pulse; an existing file of another kind is
+    told the kinds expected, as before."""
+    from marlcrash.errors import PulseError
+    from marlcrash.pulse.io import read_pulse
+
+    proc = run_cli("pulse", str(tmp_path / "TEST01"), check=False)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert proc.stderr.startswith("error: TEST01: no such file or folder"), proc.stderr
+    with pytest.raises(PulseError, match="TEST01: no such file or folder"):
+        read_pulse(tmp_path / "TEST01")
+    (tmp_path / "notes.dat").write_text("x")
+    with pytest.raises(PulseError, match=r"notes.dat: expected a .csv/.txt file, a .mme file or an ISO-MME test"):
+        read_pulse(tmp_path / "notes.dat")
+
+
 def test_simulate_json_csv_plot(tmp_path):
     csv_path, plot = tmp_path / "sim.csv", tmp_path / "sim.png"
     out = json.loads(

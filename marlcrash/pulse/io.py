@@ -1224,6 +1224,14 @@ def is_mme(path: Path) -> bool:
     return path.is_dir() or path.suffix.lower() == ".mme"
 
 
+def _not_a_pulse_file(path: Path) -> PulseError:
+    """The error for a path that is neither a CSV file nor an ISO-MME test by its name: a missing one (a mistyped
+    test folder has no suffix either) is said to be missing, not of the wrong kind."""
+    if not path.exists():
+        return _err("no such file or folder; expected a .csv/.txt file, a .mme file or an ISO-MME test folder", path)
+    return _err("expected a .csv/.txt file, a .mme file or an ISO-MME test folder", path)
+
+
 def read_pulse(path: str | Path, **kwargs: Any) -> Pulse:
     """Read a CSV file (``.csv``/``.txt``) or an ISO-MME test (folder or ``.mme``) by its path.
 
@@ -1250,7 +1258,7 @@ def read_pulse(path: str | Path, **kwargs: Any) -> Pulse:
         return read_mme(path, **kwargs)
     if path.suffix.lower() in (".csv", ".txt"):
         return read_csv(path, **kwargs)
-    raise _err("expected a .csv/.txt file, a .mme file or an ISO-MME test folder", path)
+    raise _not_a_pulse_file(path)
 
 
 # ------------------------------------------------------------------------------------- summary, plot
@@ -1401,7 +1409,7 @@ def processed_pulse(
     elif p.suffix.lower() in (".csv", ".txt"):  # the file read once, its first acceleration column found in it
         pulse = read_csv(p, **kwargs).select(0)
     else:
-        raise _err("expected a .csv/.txt file, a .mme file or an ISO-MME test folder", p)
+        raise _not_a_pulse_file(p)
     check_record_rate(pulse, p, time_unit=time_unit)
     try:
         # the transducer offset, from the samples before the contact, as a file reference removes it
