@@ -2,7 +2,8 @@
 
 Each sub-command is a thin layer over library calls: parse arguments, call the
 library, print a table or one JSON object. User errors (bad deck, bad config)
-print ``error: ...`` on stderr and exit with status 2, never a traceback.
+print ``error: ...`` on stderr and exit with status 2, never a traceback. Ctrl-C prints
+``interrupted`` and ends the process by SIGINT; outputs are written whole or not at all.
 """
 
 from __future__ import annotations
@@ -583,6 +584,18 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _end_by_sigint() -> None:
+    """End this process by SIGINT, as an uncaught KeyboardInterrupt does: a shell running it in a loop stops at the
+    interrupt, where an exit status (130) would go on to the next command."""
+    import os
+    import signal
+
+    if hasattr(signal, "SIGINT") and hasattr(os, "kill"):
+        sys.stdout.flush()
+        signal.signal(signal.SIGINT, signal.SIG_DFL)
+        os.kill(os.getpid(), signal.SIGINT)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``marlcrash`` console script."""
     parser = build_parser()
@@ -592,6 +605,10 @@ def main(argv: list[str] | None = None) -> int:
     warnings.formatwarning = lambda message, category, *a, **k: f"warning: {message}\n"
     try:
         return int(args.func(args) or 0)
+    except KeyboardInterrupt:  # Ctrl-C: no traceback from wherever the work was; outputs are written whole or not
+        print("interrupted", file=sys.stderr)
+        _end_by_sigint()
+        return 130  # where a process cannot end by a signal
     except BrokenPipeError:  # e.g. `marlcrash ... | head`
         sys.stderr.close()
         return 0

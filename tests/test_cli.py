@@ -597,3 +597,28 @@ def test_the_package_runs_as_a_module():
     proc = subprocess.run([sys.executable, "-m", "marlcrash", "inspect", "b_segment", "--seed", "x"],
                           capture_output=True, text=True, timeout=120)  # fmt: skip
     assert proc.returncode == 2 and "argument --seed: expected an integer >= 0" in proc.stderr
+
+
+def test_an_interrupt_ends_the_command_without_a_traceback(tmp_path):
+    """Ctrl-C in a long command (contributions, simulate) printed a Python traceback from wherever the work was. It
+    now prints one line and the process still ends by SIGINT, so a calling shell loop stops too (an exit status of
+    130 would let ``for f in *.csv; do marlcrash pulse "$f"; done`` go on to the next file). An output being written
+    is left as it was (atomic writes), and no temporary file stays beside it."""
+    import signal
+
+    target = tmp_path / "out.csv"
+    target.write_text("old\n")
+    script = (
+        "import sys\nfrom pathlib import Path\nimport marlcrash.cli as cli\n"
+        "from marlcrash.outputs import atomic_output\n"
+        "def interrupted(args):\n"
+        "    with atomic_output(Path(args.csv)) as tmp:\n"
+        "        tmp.write_text('half of the new')\n"
+        "        raise KeyboardInterrupt\n"
+        "cli.cmd_simulate = interrupted\n"
+        f"sys.exit(cli.main(['simulate', '--csv', {str(target)!r}]))\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert "Traceback" not in proc.stderr and proc.stderr == "interrupted\n", proc.stderr
+    assert proc.returncode == -signal.SIGINT
+    assert target.read_text() == "old\n" and sorted(p.name for p in tmp_path.iterdir()) == ["out.csv"]
