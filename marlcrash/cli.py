@@ -89,6 +89,15 @@ def _path(text: str) -> str:
     return text
 
 
+def _output_path(text: str) -> str:
+    """argparse type of an output file or folder: a path (:func:`_path`), not ``-``: outputs go to the files named,
+    never to standard output (it takes the summary), so '-' would be written as a file or folder named '-'."""
+    if text == "-":
+        raise argparse.ArgumentTypeError("expected a file or folder name, got '-' (outputs are not written to "
+                                         "standard output, which takes the summary)")  # fmt: skip
+    return _path(text)
+
+
 def _positive_int(text: str) -> int:
     """argparse type of a count: an integer >= 1."""
     try:
@@ -483,9 +492,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     p.add_argument(
-        "--plot", type=_path, metavar="FILE.png", help="write a 3D picture of the cells coloured by sub-assembly"
+        "--plot", type=_output_path, metavar="FILE.png", help="write a 3D picture of the cells coloured by sub-assembly"
     )
-    p.add_argument("--save", type=_path, metavar="CELLS.npz", help="write the cell model")
+    p.add_argument("--save", type=_output_path, metavar="CELLS.npz", help="write the cell model")
     p.set_defaults(func=cmd_discretize)
 
     p = sub.add_parser("simulate", help="simulate a frontal crash of a vehicle's cell surrogate")
@@ -503,9 +512,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument(
-        "--csv", type=_path, metavar="FILE.csv", help="write time, per-sensor acceleration and velocity, crush"
+        "--csv", type=_output_path, metavar="FILE.csv", help="write time, per-sensor acceleration and velocity, crush"
     )
-    p.add_argument("--plot", type=_path, metavar="FILE.png", help="plot pulses per sensor and energy per sub-assembly")
+    p.add_argument(
+        "--plot", type=_output_path, metavar="FILE.png", help="plot pulses per sensor and energy per sub-assembly"
+    )
     p.set_defaults(func=cmd_simulate)
 
     p = sub.add_parser("bench", help="simulations per second of the default car's surrogate, with a roofline")
@@ -553,7 +564,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="the file records deceleration as positive (default: SAE J211 sign, a frontal pulse is negative)",
     )
     p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.add_argument("--plot", type=_path, metavar="FILE.png", help="write acceleration and velocity plots")
+    p.add_argument("--plot", type=_output_path, metavar="FILE.png", help="write acceleration and velocity plots")
     p.set_defaults(func=cmd_pulse)
 
     p = sub.add_parser(
@@ -575,7 +586,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--permutations", type=_positive_int, default=64, metavar="N",
                    help="sampled orderings otherwise (even, >= 4; default 64)")  # fmt: skip
     p.add_argument("--seed", type=_seed, default=0, help="seed of the sampled orderings (default 0)")
-    p.add_argument("--out", type=_path, metavar="DIR",
+    p.add_argument("--out", type=_output_path, metavar="DIR",
                    help="output folder (default: RUN/contributions/iteration_<n>, or ./contributions)")  # fmt: skip
     p.add_argument("--no-plots", action="store_true", help="write the tables only")
     p.add_argument("--replace", action="store_true", help="write over an earlier analysis in the output folder")

@@ -622,3 +622,25 @@ def test_an_interrupt_ends_the_command_without_a_traceback(tmp_path):
     assert "Traceback" not in proc.stderr and proc.stderr == "interrupted\n", proc.stderr
     assert proc.returncode == -signal.SIGINT
     assert target.read_text() == "old\n" and sorted(p.name for p in tmp_path.iterdir()) == ["out.csv"]
+
+
+def test_an_output_named_dash_is_refused_not_written_as_a_file_named_dash(tmp_path, monkeypatch, capsys):
+    """``simulate --csv -`` (standard output, as many commands read '-') wrote a file named '-' into the working
+    folder, and the summary went to standard output as ever; ``contributions --out -`` made a folder '-'. An output
+    path '-' is refused by the parser, naming the option, before any work."""
+    from marlcrash.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    for args, name in (
+        (("simulate", "--csv", "-", "--plot", "x.txt"), "--csv"),
+        (("discretize", "--plot", "-"), "--plot"),
+        (("discretize", "--save", "-"), "--save"),
+        (("pulse", "x.csv", "--plot", "-"), "--plot"),
+        (("contributions", "--out", "-", "--permutations", "3"), "--out"),
+    ):
+        with pytest.raises(SystemExit) as e:
+            main(list(args))
+        err = capsys.readouterr().err
+        assert e.value.code == 2, (args, err)
+        assert f"error: argument {name}: expected a file or folder name, got '-'" in err, (args, err)
+    assert list(tmp_path.iterdir()) == []
