@@ -225,7 +225,8 @@ class ProvenanceCheck:
     configs: list[str]
     """Changed, added or removed input files, e.g. ``"configs/sim.yaml changed"``."""
     code: list[str]
-    """Code changes, e.g. ``"marlcrash source changed (git 1c27aa5 -> 5d0f473)"``, ``"train/ scripts changed"``."""
+    """Code changes, e.g. ``"marlcrash source changed (git 1c27aa5 -> 5d0f473)"``, ``"train/ scripts changed
+    (uncommitted changes at git 1c27aa5)"``."""
     note: str | None = None
     """The record's note (:data:`RESUME_NOTE`: written at a resume, not when the run started)."""
 
@@ -322,7 +323,10 @@ def check_run(run_dir: str | Path, extra: Iterable[str | Path] = (), key: str | 
         code.append("train/ scripts")
     if code:
         then, now = saved_code.get("git_commit"), git_commit()
-        where = f" (git {str(then)[:7]} -> {str(now)[:7]})" if then or now else ""
+        if then is not None and then == now:  # one commit: edits not committed (then, now or both)
+            where = f" (uncommitted changes at git {str(now)[:7]})"
+        else:
+            where = f" (git {str(then)[:7]} -> {str(now)[:7]})" if then or now else ""
         code = [f"{what} changed{where}" for what in code]
     note = saved.get("note") if isinstance(saved, dict) else None
     return ProvenanceCheck(recorded=True, configs=configs, code=code, note=None if note is None else str(note))

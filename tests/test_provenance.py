@@ -84,6 +84,23 @@ def test_check_run_finds_config_edits_and_code_changes(configs, tmp_path, monkey
     assert "marlcrash source changed" in caplog.text
 
 
+def test_changed_source_at_one_commit_is_said_to_be_uncommitted_changes(configs, tmp_path, monkeypatch):
+    """Source edited in a checkout without a commit (the usual case while developing) was said as
+    'marlcrash source changed (git 1c27aa5 -> 1c27aa5)': a change between a commit and itself, which reads as a
+    fault of the check. It now says the commit was the same and the change is uncommitted; other commits and no git
+    read as before."""
+    run = tmp_path / "run"
+    run.mkdir()
+    monkeypatch.setattr(provenance, "git_commit", lambda: "1c27aa5" + "0" * 33)
+    provenance.write_record(run)
+    monkeypatch.setattr(provenance, "source_digest", lambda: "0" * 64)
+    assert provenance.check_run(run).code == ["marlcrash source changed (uncommitted changes at git 1c27aa5)"]
+    monkeypatch.setattr(provenance, "git_commit", lambda: "5d0f473" + "0" * 33)
+    assert provenance.check_run(run).code == ["marlcrash source changed (git 1c27aa5 -> 5d0f473)"]
+    monkeypatch.setattr(provenance, "git_commit", lambda: None)
+    assert provenance.check_run(run).code == ["marlcrash source changed (git 1c27aa5 -> None)"]
+
+
 def test_a_record_names_cma_and_numba_and_a_changed_train_script_warns_like_changed_source(
     configs, tmp_path, monkeypatch, caplog
 ):
