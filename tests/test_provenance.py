@@ -101,6 +101,26 @@ def test_changed_source_at_one_commit_is_said_to_be_uncommitted_changes(configs,
     assert provenance.check_run(run).code == ["marlcrash source changed (git 1c27aa5 -> None)"]
 
 
+def test_the_source_digest_skips_editor_files_beside_the_sources(tmp_path, monkeypatch):
+    """Emacs marks a file being edited with a lock, ``.#cli.py``: a symbolic link to nowhere. The source digest hashed
+    every ``*.py`` under the package, hidden ones too, so with a source file open in Emacs every run start, resume and
+    evaluation failed with FileNotFoundError on the lock. Hidden files and folders are skipped, and only files are
+    hashed, so the digest is that of the sources alone."""
+    pkg = tmp_path / "marlcrash"
+    (pkg / "sub").mkdir(parents=True)
+    (pkg / "cli.py").write_text("x = 1\n")
+    (pkg / "sub" / "m.py").write_text("y = 2\n")
+    monkeypatch.setattr(provenance, "_package_root", lambda: pkg)
+    clean = provenance.source_digest()
+    (pkg / ".#cli.py").symlink_to("user@host.12345:1700000000")  # Emacs' lock: a dangling link
+    (pkg / ".ipynb_checkpoints").mkdir()
+    (pkg / ".ipynb_checkpoints" / "cli-checkpoint.py").write_text("x = 0\n")
+    (pkg / "sub" / "dir.py").mkdir()  # a folder whose name ends in .py: nothing to hash
+    assert provenance.source_digest() == clean
+    (pkg / "sub" / "m.py").write_text("y = 3\n")
+    assert provenance.source_digest() != clean
+
+
 def test_a_record_names_cma_and_numba_and_a_changed_train_script_warns_like_changed_source(
     configs, tmp_path, monkeypatch, caplog
 ):
