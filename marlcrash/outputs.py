@@ -44,6 +44,8 @@ def check_output_file(
     if path is None:
         return None
     p = Path(path)
+    if isinstance(path, str) and path.endswith(("/", os.sep)):  # Path drops it: 'results/' was written as a file
+        raise ConfigError(f"{path} ends in '/', so names a folder; expected a file name", key=key)
     if p.is_dir():
         raise ConfigError(f"{p} is a folder; expected a file name", key=key)
     if not p.parent.is_dir():

@@ -10,6 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from marlcrash.errors import ConfigError
+
 
 def run_cli(*args: str, check: bool = True) -> subprocess.CompletedProcess:
     proc = subprocess.run([sys.executable, "-m", "marlcrash.cli", *args], capture_output=True, text=True, timeout=600)
@@ -387,6 +389,23 @@ def test_output_paths_are_checked_before_the_work(tmp_path):
     assert proc.returncode == 2 and "--seed" in proc.stderr and "integer >= 0" in proc.stderr
     assert "Traceback" not in proc.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == ["adir"] and not any((tmp_path / "adir").iterdir())
+
+
+def test_an_output_file_name_ending_in_a_slash_is_refused_not_written_as_a_file(tmp_path, monkeypatch):
+    """``simulate --csv results/`` (a folder meant, not there yet) wrote the CSV as a file named ``results``, and
+    ``discretize --save cells.npz/`` a file ``cells.npz``: the trailing '/' was dropped by Path. A file name ending in
+    a path separator names a folder and is refused, naming the option, before the work (check_output_file)."""
+    from marlcrash.outputs import check_output_file
+
+    monkeypatch.chdir(tmp_path)
+    proc = run_cli("simulate", "--csv", "results/", check=False)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
+    assert proc.stderr.startswith("error: key '--csv': results/ ends in '/', so names a folder; expected a file name")
+    proc = run_cli("discretize", "--save", "cells.npz/", check=False)
+    assert proc.returncode == 2 and proc.stderr.startswith("error: key '--save': cells.npz/ ends in '/'")
+    with pytest.raises(ConfigError, match=r"key 'out': .*/a\.csv/ ends in '/'"):
+        check_output_file(str(tmp_path / "a.csv") + "/", "out")
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_outputs_never_replace_the_command_inputs(tmp_path, lsopt_deck):
