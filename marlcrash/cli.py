@@ -267,7 +267,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
     scenario = scenario_from_args(args)
     inputs = _input_files(args)
-    check_output_file(args.csv, "--csv", inputs=inputs)  # before the work: a typo in an output path costs nothing
+    # before the work: a typo in an output path costs nothing; .csv, the name marlcrash pulse reads it back by
+    check_output_file(args.csv, "--csv", suffix=".csv", inputs=inputs)
     check_output_file(args.plot, "--plot", suffix=".png", inputs=(*inputs, args.csv))
     model = load_model_from_args(args)
     cells = discretize(model, load_discretization_config(args.config), method=args.method)

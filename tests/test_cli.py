@@ -408,6 +408,17 @@ def test_an_output_file_name_ending_in_a_slash_is_refused_not_written_as_a_file(
     assert list(tmp_path.iterdir()) == []
 
 
+def test_simulate_csv_takes_a_csv_file_name_as_pulse_reads_back(tmp_path):
+    """``simulate --csv crash.dat`` (or ``--csv results``) was written, and ``marlcrash pulse`` then refused that very
+    file ('expected a .csv/.txt file'); ``--csv crash.png`` wrote CSV text under a picture's name. As --plot and
+    --save name their formats, --csv takes a .csv name (any case), checked before the work."""
+    for name in ("crash.dat", "results", "crash.png"):
+        proc = run_cli("simulate", "--csv", str(tmp_path / name), check=False)
+        assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
+        assert proc.stderr.startswith(f"error: key '--csv': {tmp_path / name}: expected a .csv file name"), proc.stderr
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_outputs_never_replace_the_command_inputs(tmp_path, lsopt_deck):
     """An output path that is the deck, the config or another output of the same command is refused before the work;
     the inputs are left as they were."""
