@@ -36,7 +36,7 @@ def check_output_file(
     """Raise :class:`ConfigError` (naming ``key``, if given) unless ``path`` can be written as a file (``None`` passes).
 
     The folder must exist and take a new file (it is not created for a single output file: a typo should not
-    create folders).
+    create folders); an existing ``path`` must be a regular file (a device or pipe would be replaced by one).
     With ``suffix`` (e.g. ``".png"``) the name must end in it (the file is written in that format); a path
     that is one of ``inputs`` (the files the command reads or writes otherwise) is refused, so an output
     never replaces them.
@@ -48,6 +48,8 @@ def check_output_file(
         raise ConfigError(f"{path} ends in '/', so names a folder; expected a file name", key=key)
     if p.is_dir():
         raise ConfigError(f"{p} is a folder; expected a file name", key=key)
+    if p.exists() and not p.is_file():  # a pipe, a device: the atomic write would rename a regular file over it
+        raise ConfigError(f"{p} is not a regular file (a device or a pipe); expected a file name", key=key)
     if not p.parent.is_dir():
         raise ConfigError(f"the folder of {p} does not exist", key=key)
     for other in inputs:

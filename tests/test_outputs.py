@@ -25,6 +25,19 @@ def test_check_output_file_names_the_key(tmp_path):
         check_output_file(tmp_path / "nope" / "a.png", "--plot")
 
 
+def test_an_output_that_is_a_device_or_a_pipe_is_refused_not_replaced(tmp_path):
+    """An output path naming a named pipe or a device (``/dev/null`` to throw a table away) passed the check, and the
+    atomic write then renamed its temporary file over it: the pipe (for root, ``/dev/null`` itself) was replaced by a
+    regular file. Such a path is refused, naming the key, and left as it was."""
+    fifo = tmp_path / "table.csv"
+    os.mkfifo(fifo)
+    with pytest.raises(ConfigError, match=r"key '--csv': .*table\.csv is not a regular file"):
+        check_output_file(fifo, "--csv")
+    with pytest.raises(ConfigError, match=r"table\.csv is not a regular file"), atomic_output(fifo) as tmp:
+        tmp.write_text("a,b\n")
+    assert fifo.is_fifo() and sorted(p.name for p in tmp_path.iterdir()) == ["table.csv"]
+
+
 def test_check_output_dir_refuses_a_file_on_the_way(tmp_path):
     f = tmp_path / "afile"
     f.write_text("x")
