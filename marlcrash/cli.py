@@ -191,8 +191,8 @@ def cmd_discretize(args: argparse.Namespace) -> int:
         from marlcrash.cells.plot import plot_cells
 
         plot_cells(cells, args.plot)
-    if args.json:
-        _print_json(summary)
+    if args.json:  # with the files written, as simulate's
+        _print_json({**summary, **{k: str(v) for k, v in (("save", args.save), ("plot", args.plot)) if v}})
     else:
         print(format_discretization_summary(summary))
         if args.save:

@@ -106,8 +106,10 @@ def test_an_unknown_unit_system_is_said_as_the_option_typed(tmp_path):
 
 
 def test_discretize_default_car_json(tmp_path):
-    plot = tmp_path / "cells.png"
-    out = json.loads(run_cli("discretize", "--json", "--plot", str(plot)).stdout)
+    plot, save = tmp_path / "cells.png", tmp_path / "cells.npz"
+    out = json.loads(run_cli("discretize", "--json", "--plot", str(plot), "--save", str(save)).stdout)
+    # the files written, as simulate's JSON gives its csv and plot (the table says them; the JSON did not)
+    assert (out["plot"], out["save"]) == (str(plot), str(save)) and save.stat().st_size > 10_000
     for key in (
         "roi_volume_mm3",
         "target_cell_volume_mm3",
