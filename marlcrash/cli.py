@@ -615,6 +615,10 @@ def main(argv: list[str] | None = None) -> int:
     # Warnings (skipped cards, defaulted material values) are messages for the user, not
     # for a developer: print them without the source line that raised them.
     warnings.formatwarning = lambda message, category, *a, **k: f"warning: {message}\n"
+    # A file name the system could not decode (latin-1 bytes under UTF-8) is printed back as the bytes given, as `ls`
+    # does: a strict standard output stopped at it with a traceback, after the work.
+    if getattr(sys.stdout, "errors", None) == "strict" and hasattr(sys.stdout, "reconfigure"):
+        sys.stdout.reconfigure(errors="surrogateescape")
     try:
         return int(args.func(args) or 0)
     except KeyboardInterrupt:  # Ctrl-C: no traceback from wherever the work was; outputs are written whole or not

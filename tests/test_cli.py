@@ -676,3 +676,19 @@ def test_an_output_named_dash_is_refused_not_written_as_a_file_named_dash(tmp_pa
         assert e.value.code == 2, (args, err)
         assert f"error: argument {name}: expected a file or folder name, got '-'" in err, (args, err)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_file_name_that_is_not_utf8_is_printed_not_a_traceback(tmp_path):
+    """A file named in another encoding than the system's (latin-1 'Prüfung.csv' from an old share or zip) is read,
+    but printing its name in the table stopped with a UnicodeEncodeError traceback under a UTF-8 locale (standard
+    output is strict there). Standard output now writes such a name back as the bytes it was given, as ``ls`` does."""
+    import os
+    import shutil
+
+    name = os.fsdecode(b"Pr\xfcfung.csv")  # latin-1 bytes: not UTF-8, so a surrogate escape in Python
+    shutil.copy(DATA / "halfsine_40kmh.csv", tmp_path / name)
+    env = {**os.environ, "PYTHONIOENCODING": "utf-8"}  # a UTF-8 locale's strict standard output
+    proc = subprocess.run([sys.executable, "-m", "marlcrash.cli", "pulse", str(tmp_path / name)], capture_output=True,
+                          env=env, timeout=120)  # fmt: skip
+    assert proc.returncode == 0 and b"Traceback" not in proc.stderr, proc.stderr.decode(errors="replace")
+    assert proc.stdout.startswith(b"file              " + os.fsencode(tmp_path) + b"/Pr\xfcfung.csv\n")
