@@ -33,6 +33,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import os
 import platform
 import subprocess
 from collections.abc import Iterable
@@ -150,9 +151,10 @@ def git_commit() -> str | None:
     repo = _package_root().parent
     if not (repo / ".git").exists():
         return None
+    env = {k: v for k, v in os.environ.items() if not k.startswith("GIT_")}  # GIT_DIR would name another repository
     try:
         out = subprocess.run(["git", "-C", str(repo), "rev-parse", "HEAD"], capture_output=True, text=True,
-                             timeout=10, check=False)  # fmt: skip
+                             timeout=10, check=False, env=env)  # fmt: skip
     except (OSError, subprocess.SubprocessError):
         return None
     return (out.stdout.strip() or None) if out.returncode == 0 else None

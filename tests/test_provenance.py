@@ -121,6 +121,25 @@ def test_the_source_digest_skips_editor_files_beside_the_sources(tmp_path, monke
     assert provenance.source_digest() != clean
 
 
+def test_the_git_commit_is_the_packages_whatever_git_variables_say(tmp_path, monkeypatch):
+    """``git -C <checkout> rev-parse HEAD`` obeys GIT_DIR (exported by dotfile managers, set in git hooks): with it
+    naming another repository the record took that repository's commit for marlcrash's. The commit is now read from
+    the package's own checkout, whatever GIT_* variables are set."""
+    import subprocess
+
+    if provenance.git_commit() is None:
+        pytest.skip("the package is not in a git checkout here")
+    ours = provenance.git_commit()
+    other = tmp_path / "other"
+    other.mkdir()
+    git = ["git", "-C", str(other), "-c", "user.name=t", "-c", "user.email=t@t"]
+    subprocess.run([*git, "init", "-q"], check=True)
+    subprocess.run([*git, "commit", "-q", "--allow-empty", "-m", "x"], check=True)
+    monkeypatch.setenv("GIT_DIR", str(other / ".git"))
+    monkeypatch.setenv("GIT_WORK_TREE", str(other))
+    assert provenance.git_commit() == ours
+
+
 def test_a_record_names_cma_and_numba_and_a_changed_train_script_warns_like_changed_source(
     configs, tmp_path, monkeypatch, caplog
 ):
