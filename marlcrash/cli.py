@@ -3,7 +3,8 @@
 Each sub-command is a thin layer over library calls: parse arguments, call the
 library, print a table or one JSON object. User errors (bad deck, bad config)
 print ``error: ...`` on stderr and exit with status 2, never a traceback. Ctrl-C prints
-``interrupted`` and ends the process by SIGINT; outputs are written whole or not at all.
+``interrupted`` and ends the process by SIGINT (``main(argv)`` called from Python raises
+KeyboardInterrupt to its caller instead); outputs are written whole or not at all.
 """
 
 from __future__ import annotations
@@ -609,7 +610,8 @@ def _end_by_sigint() -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the ``marlcrash`` console script."""
+    """Entry point of the ``marlcrash`` console script (``argv`` ``None``: ``sys.argv``; given, as by a notebook or
+    a test, an interrupt is raised to the caller instead of ending the process)."""
     parser = build_parser()
     args = parser.parse_args(argv)
     # Warnings (skipped cards, defaulted material values) are messages for the user, not
@@ -623,6 +625,8 @@ def main(argv: list[str] | None = None) -> int:
         return int(args.func(args) or 0)
     except KeyboardInterrupt:  # Ctrl-C: no traceback from wherever the work was; outputs are written whole or not
         print("interrupted", file=sys.stderr)
+        if argv is not None:  # called by Python code (a notebook, a test): the interrupt is the caller's to handle
+            raise
         _end_by_sigint()
         return 130  # where a process cannot end by a signal
     except BrokenPipeError:  # e.g. `marlcrash ... | head`

@@ -635,12 +635,13 @@ def test_an_interrupt_ends_the_command_without_a_traceback(tmp_path):
     """Ctrl-C in a long command (contributions, simulate) printed a Python traceback from wherever the work was. It
     now prints one line and the process still ends by SIGINT, so a calling shell loop stops too (an exit status of
     130 would let ``for f in *.csv; do marlcrash pulse "$f"; done`` go on to the next file). An output being written
-    is left as it was (atomic writes), and no temporary file stays beside it."""
+    is left as it was (atomic writes), and no temporary file stays beside it. ``main(argv)`` called in a process of
+    the caller's (a notebook, a test) leaves the interrupt to that caller: a Jupyter kernel is not ended by it."""
     import signal
 
     target = tmp_path / "out.csv"
     target.write_text("old\n")
-    script = (
+    common = (
         "import sys\nfrom pathlib import Path\nimport marlcrash.cli as cli\n"
         "from marlcrash.outputs import atomic_output\n"
         "def interrupted(args):\n"
@@ -648,11 +649,18 @@ def test_an_interrupt_ends_the_command_without_a_traceback(tmp_path):
         "        tmp.write_text('half of the new')\n"
         "        raise KeyboardInterrupt\n"
         "cli.cmd_simulate = interrupted\n"
-        f"sys.exit(cli.main(['simulate', '--csv', {str(target)!r}]))\n"
     )
-    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    argv = ["simulate", "--csv", str(target)]
+    console = common + f"sys.argv = {['marlcrash', *argv]!r}\nsys.exit(cli.main())\n"  # as the console script
+    proc = subprocess.run([sys.executable, "-c", console], capture_output=True, text=True, timeout=120)
     assert "Traceback" not in proc.stderr and proc.stderr == "interrupted\n", proc.stderr
     assert proc.returncode == -signal.SIGINT
+    assert target.read_text() == "old\n" and sorted(p.name for p in tmp_path.iterdir()) == ["out.csv"]
+    in_process = (
+        common + f"try:\n    cli.main({argv!r})\nexcept KeyboardInterrupt:\n    print('caught by the caller')\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", in_process], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0 and proc.stdout == "caught by the caller\n" and proc.stderr == "interrupted\n"
     assert target.read_text() == "old\n" and sorted(p.name for p in tmp_path.iterdir()) == ["out.csv"]
 
 
