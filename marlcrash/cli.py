@@ -503,8 +503,15 @@ def build_parser() -> argparse.ArgumentParser:
     _add_vehicle_args(p, deck_required=False)
     p.add_argument("--scenario", help="registered crash scenario (configs/scenarios; default full_width_40)")
     p.add_argument("--speed", type=float, metavar="KMH", help="impact speed [km/h] (overrides the scenario's)")
-    p.add_argument("--overlap", type=float, metavar="F", help="barrier overlap as a fraction of vehicle width")
-    p.add_argument("--side", choices=["left", "right"], help="struck side for partial overlaps")
+    p.add_argument(
+        "--overlap",
+        type=float,
+        metavar="F",
+        help="barrier overlap as a fraction of vehicle width (default: the scenario's)",
+    )
+    p.add_argument(
+        "--side", choices=["left", "right"], help="struck side for partial overlaps (default: the scenario's)"
+    )
     p.add_argument("--duration", type=float, metavar="MS",
                    help="simulated time after first contact [ms] (default: the scenario's, 150); e.g. 200 for a "
                         "test record that goes on past the compared window, as a lab's does")  # fmt: skip
@@ -546,7 +553,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--time-unit", choices=["s", "ms"], default="s", help="CSV time unit (default s)")
     p.add_argument("--acc-col", help="acceleration column / ISO-MME channel; default: the first acceleration")
     p.add_argument("--unit", choices=["g", "m/s2", "mm/s2"], default="g", help="CSV acceleration unit (default g)")
-    p.add_argument("--cfc", type=int, default=60, choices=[0, 60, 180, 600, 1000], help="CFC class, 0 for none")
+    p.add_argument(
+        "--cfc", type=int, default=60, choices=[0, 60, 180, 600, 1000], help="CFC class, 0 for none (default 60)"
+    )
     p.add_argument(
         "--breakpoints",
         action="store_true",

@@ -700,3 +700,18 @@ def test_a_file_name_that_is_not_utf8_is_printed_not_a_traceback(tmp_path):
                           env=env, timeout=120)  # fmt: skip
     assert proc.returncode == 0 and b"Traceback" not in proc.stderr, proc.stderr.decode(errors="replace")
     assert proc.stdout.startswith(b"file              " + os.fsencode(tmp_path) + b"/Pr\xfcfung.csv\n")
+
+
+def test_every_option_with_a_default_says_it_in_its_help():
+    """``pulse --cfc`` said 'CFC class, 0 for none' without the class used when it is not given (60), and
+    ``simulate --overlap/--side`` not that the scenario's apply: a user could not tell from --help what a run without
+    them does. Every option with a default value names it in its help, and --overlap/--side say the scenario's."""
+    from marlcrash.cli import build_parser
+
+    sub = next(a for a in build_parser()._actions if a.dest == "command")
+    for name, p in sub.choices.items():
+        for action in p._actions:
+            if action.option_strings and action.nargs != 0 and action.default is not None:
+                assert "default" in (action.help or ""), (name, action.option_strings, action.help)
+            if name == "simulate" and action.dest in ("overlap", "side"):
+                assert "(default: the scenario's)" in action.help, action.help
