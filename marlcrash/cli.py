@@ -627,8 +627,9 @@ def main(argv: list[str] | None = None) -> int:
     # for a developer: print them without the source line that raised them.
     warnings.formatwarning = lambda message, category, *a, **k: f"warning: {message}\n"
     # A file name the system could not decode (latin-1 bytes under UTF-8) is printed back as the bytes given, as `ls`
-    # does: a strict standard output stopped at it with a traceback, after the work.
-    if getattr(sys.stdout, "errors", None) == "strict" and hasattr(sys.stdout, "reconfigure"):
+    # does: a strict standard output stopped at it with a traceback, after the work. The command's own process only:
+    # a caller's (a notebook's) standard output is its own.
+    if argv is None and getattr(sys.stdout, "errors", None) == "strict" and hasattr(sys.stdout, "reconfigure"):
         sys.stdout.reconfigure(errors="surrogateescape")
     try:
         return int(args.func(args) or 0)
