@@ -126,6 +126,17 @@ def test_discretize_default_car_json(tmp_path):
     assert plot.stat().st_size > 10_000
 
 
+def _refused_by_the_parser(capsys, args: tuple[str, ...], message: str) -> None:
+    """``marlcrash args`` ends with argparse's exit status 2 and ``message`` on standard error."""
+    from marlcrash.cli import main
+
+    with pytest.raises(SystemExit) as e:
+        main(list(args))
+    err = capsys.readouterr().err
+    assert e.value.code == 2, (args, err)
+    assert message in err, (args, err)
+
+
 def _without_upfront_left(tmp_path: Path) -> Path:
     """A copy of configs/cells.yaml without the up-front left sensor: the LS-OPT car read with x=+x,y=+z,z=+y has no
     material within 0.76 m of its default position on its side of the centre line."""
@@ -594,8 +605,6 @@ def test_an_empty_path_is_refused_not_read_as_the_default_or_this_folder(tmp_pat
     working folder: ``inspect ""`` and ``discretize ""`` summarised the embedded car, ``--config ""`` read
     configs/cells.yaml, ``contributions --out ""`` wrote into ./contributions and ``pulse ""`` read this folder as a
     test. Each is now refused by the parser, naming the argument, before any work."""
-    from marlcrash.cli import main
-
     monkeypatch.chdir(tmp_path)
     cases = [  # the trailing options fail fast where the empty path is taken (so the old behaviour is quick to see)
         (("inspect", ""), "deck"),
@@ -612,11 +621,7 @@ def test_an_empty_path_is_refused_not_read_as_the_default_or_this_folder(tmp_pat
         (("contributions", "--out", "", "--permutations", "3"), "--out"),
     ]
     for args, name in cases:
-        with pytest.raises(SystemExit) as e:
-            main(list(args))
-        err = capsys.readouterr().err
-        assert e.value.code == 2, (args, err)
-        assert f"error: argument {name}: expected a path, got an empty one" in err, (args, err)
+        _refused_by_the_parser(capsys, args, f"error: argument {name}: expected a path, got an empty one")
     assert list(tmp_path.iterdir()) == []
 
 
@@ -668,8 +673,6 @@ def test_an_output_named_dash_is_refused_not_written_as_a_file_named_dash(tmp_pa
     """``simulate --csv -`` (standard output, as many commands read '-') wrote a file named '-' into the working
     folder, and the summary went to standard output as ever; ``contributions --out -`` made a folder '-'. An output
     path '-' is refused by the parser, naming the option, before any work."""
-    from marlcrash.cli import main
-
     monkeypatch.chdir(tmp_path)
     for args, name in (
         (("simulate", "--csv", "-", "--plot", "x.txt"), "--csv"),
@@ -678,11 +681,7 @@ def test_an_output_named_dash_is_refused_not_written_as_a_file_named_dash(tmp_pa
         (("pulse", "x.csv", "--plot", "-"), "--plot"),
         (("contributions", "--out", "-", "--permutations", "3"), "--out"),
     ):
-        with pytest.raises(SystemExit) as e:
-            main(list(args))
-        err = capsys.readouterr().err
-        assert e.value.code == 2, (args, err)
-        assert f"error: argument {name}: expected a file or folder name, got '-'" in err, (args, err)
+        _refused_by_the_parser(capsys, args, f"error: argument {name}: expected a file or folder name, got '-'")
     assert list(tmp_path.iterdir()) == []
 
 
