@@ -4,11 +4,11 @@ A run folder keeps its own resolved training config (``config.yaml``), but the s
 environments read the rest at run time from ``configs/``: the env config, ``sim.yaml``, ``cells.yaml``,
 ``materials.yaml``, the vehicle, the scenarios, the reward forms and measured reference pulses. A run
 resumed or evaluated after one of them changed would silently mix two physics. So every run folder
-gets ``provenance.json`` when it starts: the SHA-256 of every file under ``configs/`` except
-``configs/train/`` (saved resolved in the run), of an env config, vehicle deck or reference pulse named by a
-path outside ``configs/``, of the package's source and of the ``train/`` entry scripts beside it (plus the git commit
-where there is one), and the versions of Python and of the libraries that make the numbers (torch, numpy, cma,
-numba).
+gets ``provenance.json`` when it starts: the SHA-256 of every file under ``configs/`` except ``configs/train/``
+(saved resolved in the run) and an editor's leftovers (``sim.yaml~``, ``#sim.yaml#``, hidden files), of an env
+config, vehicle deck or reference pulse named by a path outside ``configs/``, of the package's source and of the
+``train/`` entry scripts beside it (plus the git commit where there is one), and the versions of Python and of the
+libraries that make the numbers (torch, numpy, cma, numba).
 
 :func:`check_run` compares a run folder's record with the files now:
 
@@ -62,7 +62,7 @@ def _sha256(path: Path) -> str:
 
 
 def config_digests(extra: Iterable[str | Path] = ()) -> dict[str, str]:
-    """SHA-256 of the files a simulation or an environment may read.
+    """SHA-256 of the files a simulation or an environment may read (:func:`config_files` and ``extra``).
 
     Args:
         extra: further input files (a vehicle deck, a measured pulse) named by paths outside ``configs/``;
@@ -70,21 +70,37 @@ def config_digests(extra: Iterable[str | Path] = ()) -> dict[str, str]:
             brings the files it ``*INCLUDE``s.
 
     Returns:
-        ``{name: hex digest}``: files under ``configs/`` (all but ``configs/train/``) named by their path
+        ``{name: hex digest}``: files under ``configs/`` (:func:`config_files`) named by their path
         relative to it, as ``configs/<path>``; ``extra`` files by their resolved path.
     """
     root = config_dir()
-    out: dict[str, str] = {}
-    if root.is_dir():
-        for p in sorted(root.rglob("*")):
-            rel = p.relative_to(root)
-            if p.is_file() and rel.parts[0] not in _SKIPPED_DIRS and not any(s.startswith(".") for s in rel.parts):
-                out[f"configs/{rel.as_posix()}"] = _sha256(p)
+    out = {f"configs/{p.relative_to(root).as_posix()}": _sha256(p) for p in config_files()}
     for e in extra:
         for p in with_includes(Path(e).resolve()):
             if p.is_file() and not p.is_relative_to(root.resolve()):
                 out[str(p)] = _sha256(p)
     return out
+
+
+def config_files() -> list[Path]:
+    """The input files under the configs folder, sorted: all but ``configs/train/`` (:data:`_SKIPPED_DIRS`) and an
+    editor's leftovers (:func:`_editor_leftover`), which no loader reads. The one rule for the run's record and the
+    cell-model cache (:func:`marlcrash.envs.core.build_cells`)."""
+    root = config_dir()
+    if not root.is_dir():
+        return []
+    out = []
+    for p in sorted(root.rglob("*")):
+        rel = p.relative_to(root)
+        if p.is_file() and rel.parts[0] not in _SKIPPED_DIRS and not any(_editor_leftover(s) for s in rel.parts):
+            out.append(p)
+    return out
+
+
+def _editor_leftover(name: str) -> bool:
+    """A hidden file or folder (a swap file ``.sim.yaml.swp``, an Emacs lock ``.#sim.yaml``), a backup ``sim.yaml~``,
+    an Emacs autosave ``#sim.yaml#`` or a swap file ``sim.yaml.swp``: deleting one is no config change."""
+    return name.startswith(".") or name.endswith(("~", ".swp", ".swo")) or (name.startswith("#") and name.endswith("#"))
 
 
 def with_includes(path: Path) -> list[Path]:

@@ -359,3 +359,27 @@ def test_a_resumed_record_with_a_malformed_row_is_refused_naming_the_row(tmp_pat
         open_run_dir(run, "compare.json", {"a": 1}, True, lambda rows: [r["method"] for r in rows], env,
                      ("method", "seed", "score"))  # fmt: skip
     assert e.value.key == "resume"
+
+
+def test_editor_leftovers_in_configs_are_no_inputs_of_a_run_or_of_the_cell_model(configs, tmp_path):
+    """An editor's backup ``sim.yaml~``, autosave ``#sim.yaml#`` or swap file beside the configs was hashed into the
+    record as an input, so deleting it refused the resume as "configs/sim.yaml~ removed"; no loader reads one."""
+    from marlcrash.envs.core import _input_files
+    from marlcrash.vehicle.registry import VehicleOptions
+
+    leftovers = [configs / "sim.yaml~", configs / "#sim.yaml#", configs / ".sim.yaml.swp",
+                 configs / "vehicle" / "b_segment.yaml.swp", configs / "reward" / "#default.yaml#"]  # fmt: skip
+    for p in leftovers:
+        p.write_text("sim: old\n")
+    run = tmp_path / "run"
+    run.mkdir()
+    rec = provenance.write_record(run)
+    assert not any("~" in n or "#" in n or n.endswith(".swp") for n in rec["configs"])
+    assert not any(p in leftovers for p in _input_files("b_segment", VehicleOptions()))
+    assert (configs / "materials.yaml") in _input_files("b_segment", VehicleOptions())
+    for p in leftovers:
+        p.unlink()
+    assert provenance.require_unchanged(run).configs == []  # resumes without refusal
+    _touch(configs / "sim.yaml")
+    with pytest.raises(ConfigError, match=r"configs/sim\.yaml changed"):  # a real config edit still refuses
+        provenance.require_unchanged(run)

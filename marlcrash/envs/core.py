@@ -298,11 +298,11 @@ def build_cells(vehicle: str, seed: int | None, method: str, options: VehicleOpt
 
 def _input_files(vehicle: str, options: VehicleOptions) -> list[Path]:
     """The files a cell model of ``vehicle`` is built from: those under the configs folder (a registered car's YAML,
-    the materials, ``cells.yaml``), a vehicle file with its ``*INCLUDE``s and a sub-assembly map."""
-    from marlcrash.provenance import with_includes
+    the materials, ``cells.yaml``: the run's recorded inputs, :func:`marlcrash.provenance.config_files`), a vehicle
+    file with its ``*INCLUDE``s and a sub-assembly map."""
+    from marlcrash.provenance import config_files, with_includes
 
-    root = config_dir()
-    files = [p for p in sorted(root.rglob("*")) if p.is_file()] if root.is_dir() else []
+    files = config_files()
     if Path(vehicle).suffix:
         files += with_includes(Path(vehicle).resolve())
     if options.subassemblies is not None:
