@@ -110,6 +110,18 @@ def _positive_int(text: str) -> int:
     return value
 
 
+def _batch_size(text: str) -> int:
+    """argparse type of a benchmark batch size: an integer in ``[1, MAX_BATCH]`` (one batch is simulated at once:
+    10**9 ran on into torch's "can't allocate memory")."""
+    from marlcrash.calibrate.baselines import MAX_BATCH
+
+    value = _positive_int(text)
+    if value > MAX_BATCH:
+        raise argparse.ArgumentTypeError(f"expected a batch size in [1, {MAX_BATCH}] (MAX_BATCH: one batch is "
+                                         f"simulated at once), got {text!r}")  # fmt: skip
+    return value
+
+
 def load_model_from_args(args: argparse.Namespace):
     """Load the vehicle named by CLI arguments (deck path, YAML, registered name or default)."""
     from marlcrash.vehicle.model import AxisMap
@@ -531,7 +543,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("bench", help="simulations per second of the default car's surrogate, with a roofline")
     p.add_argument(
         "--batch-sizes",
-        type=_positive_int,
+        type=_batch_size,
         nargs="+",
         default=[1, 64, 1024],
         metavar="B",

@@ -509,6 +509,16 @@ def test_simulate_duration_writes_a_longer_record_of_the_same_load_case(tmp_path
         assert "Traceback" not in proc.stderr
 
 
+def test_bench_refuses_a_batch_size_beyond_max_batch_before_any_work():
+    """``--batch-sizes 1000000000`` ran on into torch's "can't allocate memory" traceback; argparse refuses it."""
+    from marlcrash.calibrate.baselines import MAX_BATCH
+
+    for size in ("1000000000", str(MAX_BATCH + 1)):
+        proc = run_cli("bench", "--batch-sizes", "1", size, check=False)
+        assert proc.returncode == 2 and "argument --batch-sizes" in proc.stderr, proc.stderr
+        assert f"expected a batch size in [1, {MAX_BATCH}]" in proc.stderr and "Traceback" not in proc.stderr
+
+
 @pytest.mark.slow
 def test_bench_json_keys():
     args = ("--batch-sizes", "1", "4", "--skip-uniform", "--dtype", "float32", "--json")
