@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -369,6 +370,11 @@ def test_simulate_json_csv_plot(tmp_path):
         s = out["sensors"][sensor]
         assert back["delta_v_ms"] == pytest.approx(s["delta_v_ms"], rel=0.02), (sensor, back, s)
         assert back["peak_g"] == pytest.approx(s["peak_g"], rel=1e-3), (sensor, back, s)
+    # its columns give their unit as a suffix (time_s, <sensor>_acc_g): a contradicting --unit read g as m/s^2
+    proc = run_cli("pulse", str(csv_path), "--unit", "m/s2", check=False)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
+    assert re.search(r"column '\w+_acc_g' is in g by its header, but is read in m/s2: give that unit \(--unit g",
+                     proc.stderr), proc.stderr  # fmt: skip
 
 
 def test_simulate_a_keyword_deck(lsopt_deck, tmp_path):

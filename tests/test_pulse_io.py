@@ -1944,3 +1944,71 @@ def test_an_iso_mme_channel_file_numbered_with_fewer_than_three_digits_is_read(t
     assert back.channels == analytic.channels
     np.testing.assert_allclose(back.acc, analytic.acc, rtol=1e-12, atol=1e-9)
     assert read_mme(tmp_path / "T", channels=short).channels == ("tunnel",)
+
+
+def test_the_unit_suffix_simulate_writes_is_read_as_the_header_unit(tmp_path):
+    """``marlcrash simulate --csv`` names its columns ``time_s``, ``<sensor>_acc_g``, ``<sensor>_vel_ms``; the reader
+    knew only bracketed units (``acc [g]``), so reading that file with ``unit='m/s2'`` (``--unit m/s2``) took its g
+    for m/s^2 without a word (9.81x too small). The library's own suffixes are now the header's unit: read without a
+    unit the file gives the simulated acceleration in SI, and a unit that contradicts the suffix is refused, naming
+    the column and both units, as for a bracketed one."""
+    from sim_fixtures import chain
+
+    from marlcrash.pulse.simulation import write_crash_csv
+    from marlcrash.sim import Surrogate, get_scenario
+
+    cells = chain(3)
+    params = torch.as_tensor(cells.params, dtype=torch.float64)[None]
+    result = Surrogate(cells).run(
+        params, get_scenario("full_width_40", {"duration": 0.02}), backend="torch", record_cells="none"
+    )
+    path = write_crash_csv(result, tmp_path / "out.csv")
+    sensor = result.sensor_names[0]
+    back = read_csv(path, acc_col=f"{sensor}_acc_g")
+    np.testing.assert_allclose(back.time, result.time.numpy(), rtol=0, atol=1e-15)
+    np.testing.assert_allclose(back.acc[0], result.acceleration[0, 0].numpy(), rtol=1e-12, atol=1e-9)
+    with pytest.raises(PulseError, match=rf"out\.csv line 1: column '{sensor}_acc_g' is in g by its header, but is "
+                                         r"read in m/s2: give that unit \(--unit g; unit: g\)"):  # fmt: skip
+        read_csv(path, acc_col=f"{sensor}_acc_g", unit="m/s2")
+    with pytest.raises(PulseError, match=r"column 'time_s' is in s by its header, but is read in ms"):
+        read_csv(path, acc_col=f"{sensor}_acc_g", time_unit="ms")
+
+
+@pytest.mark.parametrize(
+    ("header", "kwargs", "message"),
+    [
+        ("time_ms,acc_g", {}, r"column 'time_ms' is in ms by its header, but is read in s"),
+        ("time,tunnel_acc_ms2", {}, r"column 'tunnel_acc_ms2' is in m/s2 by its header, but is read in g"),
+        ("time,tunnel_acc_m_s2", {}, r"column 'tunnel_acc_m_s2' is in m/s2 by its header, but is read in g"),
+        ("Time_S,Tunnel_Acc_G", {"unit": "m/s2"}, r"column 'Tunnel_Acc_G' is in g by its header, but is read in m/s2"),
+    ],
+)
+def test_a_unit_suffix_that_contradicts_the_unit_read_is_refused(tmp_path, header, kwargs, message):
+    path = tmp_path / "p.csv"
+    path.write_text(header + "\n" + "\n".join(f"{k * 1e-4:.4f},{-20.0 * (k % 7)}" for k in range(60)) + "\n")
+    with pytest.raises(PulseError, match=message):
+        read_csv(path, **kwargs)
+
+
+@pytest.mark.parametrize(
+    "header", ["time,fuel_g", "time,radsup_ms2", "time,mass_s", "runtime_ms,acc", "t,acceleration_g", "time,acc_ms"]
+)
+def test_a_name_that_merely_ends_like_a_unit_is_no_header_unit(tmp_path, header):
+    """Only the library's own patterns (``time_<s|ms>``, ``[<sensor>_]acc_<g|ms2|m_s2|mm_s2>``) give a unit: other
+    names ending in ``_g``, ``_s``, ``_ms2`` ... read in the unit asked for, refused or warned about by nothing."""
+    path = tmp_path / "p.csv"
+    path.write_text(header + "\n" + "\n".join(f"{k * 1e-4:.4f},{-20.0 * (k % 7)}" for k in range(60)) + "\n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        read_csv(path, unit="m/s2")
+        read_csv(path, unit="g")
+
+
+def test_write_csv_rewrites_a_unit_suffix_to_the_unit_it_writes(tmp_path, analytic):
+    """A channel read from a simulate CSV keeps its name (``tunnel_acc_g``); written in m/s^2 under that name, the
+    header would say g of m/s^2 values. The suffix is written as the unit written, and the file reads back."""
+    named = Pulse(analytic.time, analytic.acc, ("tunnel_acc_g", "radsup_acc_g"))
+    path = write_csv(named, tmp_path / "p.csv", unit="m/s2", time_col="time_ms")
+    assert path.read_text().splitlines()[0] == "time_s,tunnel_acc_ms2,radsup_acc_ms2"
+    back = read_csv(path, unit="m/s2")
+    np.testing.assert_allclose(back.acc, analytic.acc, rtol=1e-12, atol=1e-9)

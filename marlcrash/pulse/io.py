@@ -121,10 +121,28 @@ _UNIT_AT_END = re.compile(r"([\[(])\s*([^\[\]()]+?)\s*([\])])\s*$")
 """A unit in brackets or parentheses at the end of a column name (``'a_x [m/s2]'``, ``'time (ms)'``)."""
 
 
+_ACC_SUFFIXES = {"g": "g", "ms2": "m/s2", "m_s2": "m/s2", "mm_s2": "mm/s2"}
+"""The unit each acceleration suffix of :data:`_UNIT_SUFFIX` stands for, in the spelling ``--unit`` takes."""
+_TIME_SUFFIXES = {"s": "s", "ms": "ms"}
+"""The unit each time suffix of :data:`_UNIT_SUFFIX` stands for."""
+_UNIT_SUFFIX = re.compile(r"(?:(?:^|.*_)acc_(g|ms2|m_s2|mm_s2)|time_(s|ms))$", re.IGNORECASE)
+"""A unit as the library writes it, an underscore suffix (``marlcrash simulate --csv``: ``time_s``,
+``<sensor>_acc_g``): ``time_<s|ms>`` for a whole name, ``acc_<g|ms2|m_s2|mm_s2>`` for a whole name or the end of
+one after an underscore. No other name ending in ``_g``, ``_s`` or ``_ms2`` is read as giving a unit (``fuel_g``,
+``mass_s``, ``radsup_ms2``, ``runtime_ms``), nor ``<sensor>_vel_ms`` (m/s, no acceleration)."""
+
+
 def _header_unit(name: str) -> str | None:
-    """The unit a column name gives at its end (:data:`_UNIT_AT_END`), else ``None``."""
+    """The unit a column name gives at its end: in brackets (:data:`_UNIT_AT_END`) as written, else as an underscore
+    suffix of the library's own (:data:`_UNIT_SUFFIX`) in the spelling ``pulse --unit``/``--time-unit`` take,
+    else ``None``."""
     m = _UNIT_AT_END.search(name)
-    return m.group(2) if m else None
+    if m:
+        return m.group(2)
+    m = _UNIT_SUFFIX.fullmatch(name.strip())
+    if m is None:
+        return None
+    return _ACC_SUFFIXES[m.group(1).lower()] if m.group(1) else _TIME_SUFFIXES[m.group(2).lower()]
 
 
 _UNIT_LIKE = re.compile(r"[^\W\d_]{2,3}|.*[/^²*].*")
@@ -149,10 +167,18 @@ def _unknown_unit_warning(name: str, said: str, known: list[str], read_in: str, 
 
 def _with_unit(name: str, unit: str) -> str:
     """``name`` with the unit at its end replaced by ``unit``; unchanged without one. A bracketed end that is no unit
-    (``[CH1]``, ``(filtered)``, which :func:`read_csv` reads as none) is a remark, and kept."""
+    (``[CH1]``, ``(filtered)``, which :func:`read_csv` reads as none) is a remark, and kept. A unit suffix of the
+    library's own (:data:`_UNIT_SUFFIX`, ``tunnel_acc_g``, ``time_ms``) is replaced by the suffix of ``unit``."""
     m = _UNIT_AT_END.search(name)
     if m is None:
-        return name
+        m = _UNIT_SUFFIX.fullmatch(name)
+        if m is None:
+            return name
+        at, kind = (m.start(1), _ACC_SUFFIXES) if m.group(1) else (m.start(2), _TIME_SUFFIXES)
+        suffix_of = {u: k for k, u in reversed(kind.items())}  # a unit's first suffix
+        if kind is _ACC_SUFFIXES:  # as --unit spells it: the first spelling of its factor
+            unit = next(k for k, v in ACC_UNITS.items() if v == acc_unit_factor(unit))
+        return f"{name[:at]}{suffix_of[unit]}" if unit in suffix_of else name
     said = m.group(2).strip()
     is_unit = acc_unit_key(said) in ACC_UNITS or said.lower() in _TIME_UNITS or _UNIT_LIKE.fullmatch(said)
     return f"{name[: m.start()]}{m.group(1)}{unit}{m.group(3)}" if is_unit else name
@@ -192,8 +218,14 @@ def read_csv(
         unit: acceleration unit of the file, ``g`` or ``m/s2``.
         time_unit: time unit of the file, ``s`` or ``ms``.
 
-            A unit at the end of a column's header (``a_x [m/s2]``, ``time (ms)``) must be the one the column is read
-            in; one the reader does not know (``acc [mg]``, ``time [us]``) is warned about, naming the column.
+            A unit at the end of a column's header must be the one the column is read in (else a
+            :class:`PulseError` names the column and both units); one the reader does not know (``acc [mg]``,
+            ``time [us]``) is warned about, naming the column. A header gives a unit in brackets or parentheses
+            (``a_x [m/s2]``, ``time (ms)``), or as the library writes it (``marlcrash simulate --csv``), in an
+            underscore suffix: ``time_s``/``time_ms`` as the whole name, ``acc_<unit>`` as the whole name or its end
+            after an underscore (``tunnel_acc_g``), ``<unit>`` one of ``g``, ``ms2``/``m_s2`` (m/s^2), ``mm_s2``.
+            No other name ending in ``_g``, ``_s``, ``_ms2`` ... gives a unit (``fuel_g``, ``radsup_ms2``,
+            ``runtime_ms``; ``<sensor>_vel_ms`` is m/s).
         sign: ``+1`` or ``-1``, multiplies the acceleration (module docstring).
         max_gap: largest sampling interval, as a multiple of the median one, before a warning names the gap (a
             longer one that also exceeds :data:`MIN_GAP_S`); ``None``: no check.
