@@ -14,6 +14,7 @@ import os
 import re
 import types
 import typing
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -306,6 +307,13 @@ def flatten_overrides(cls: type, overrides: dict[str, Any]) -> dict[str, Any]:
     setting the mapping whole reset them to the schema's defaults. A mapping for a mapping-valued field
     (``scenarios``, ``agents.merge``) stays whole: it is the value.
     """
+    if not isinstance(overrides, Mapping):
+        # a list of "k=v" strings (the command line's form) failed with "'list' object has no attribute 'items'"
+        raise ConfigError(
+            f"expected a mapping of dotted keys to values ({{'termination.failure_dfd': 10.0}}), "
+            f"got {type(overrides).__name__} {overrides!r}",
+            key="overrides",
+        )
     out: dict[str, Any] = {}
 
     def spread(parts: list[str], value: Any) -> None:
@@ -346,7 +354,7 @@ def load_config(
     """
     data = load_yaml(path)
     applied: list[str] = []
-    for dotted, value in flatten_overrides(cls, overrides or {}).items():
+    for dotted, value in flatten_overrides(cls, {} if overrides is None else overrides).items():
         node = data
         parts = dotted.split(".")
         for i, p in enumerate(parts[:-1]):

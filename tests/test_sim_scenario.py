@@ -9,7 +9,7 @@ import pytest
 from sim_fixtures import block, vehicle_block
 
 from marlcrash.cells import load_discretization_config
-from marlcrash.config import config_dir, from_dict
+from marlcrash.config import config_dir, from_dict, load_config
 from marlcrash.envs.core import load_env_config
 from marlcrash.errors import ConfigError
 from marlcrash.reward import load_reward_config
@@ -75,6 +75,16 @@ def test_unknown_scenario_lists_known():
     for name in ("", "../sim", "scenarios/../full_width_40", "./full_width_40"):
         with pytest.raises(ConfigError, match=f"unknown scenario {name!r}; registered"):
             get_scenario(name)
+
+
+@pytest.mark.parametrize("overrides", [["speed_kmh=40"], "speed_kmh=40", ("speed_kmh", 40.0)])
+def test_overrides_that_are_no_mapping_are_refused_naming_them(overrides):
+    # a list of "k=v" strings failed with "'list' object has no attribute 'items'"
+    with pytest.raises(ConfigError, match=r"key 'overrides': expected a mapping of dotted keys to values") as e:
+        get_scenario("full_width_40", overrides)
+    assert e.value.key == "overrides"
+    with pytest.raises(ConfigError, match=r"key 'overrides': expected a mapping"):
+        load_config(CrashScenario, scenario_dir() / "full_width_40.yaml", overrides)
 
 
 def test_unknown_key_rejected(tmp_path):
