@@ -64,7 +64,7 @@ from marlcrash.cells.model import CellModel
 from marlcrash.cells.parameterization import apply_increments
 from marlcrash.config import config_dir, require
 from marlcrash.errors import ConfigError, PulseError
-from marlcrash.pulse.io import ACC_UNITS, acc_unit_key, check_record_rate, is_mme, read_pulse
+from marlcrash.pulse.io import ACC_UNITS, acc_unit_key, check_record_rate, is_mme, is_sign, read_pulse
 from marlcrash.pulse.signal import (
     DEFAULT_COMPARE_MARGIN,
     compared_window,
@@ -154,7 +154,7 @@ class FileReference:
         require(self.scenario in list_scenarios(), "scenario",  # named here, not as the env's 'scenario' at its build
                 f"unknown scenario {self.scenario!r}; registered: {list_scenarios()}")  # fmt: skip
         require(bool(self.channels), "channels", "expected a mapping sensor name -> channel name")
-        require(self.sign in (1.0, -1.0), "sign", f"expected +1 or -1, got {self.sign}")
+        require(is_sign(self.sign), "sign", f"expected +1 or -1, got {self.sign!r}")
         require(acc_unit_key(self.unit) in ACC_UNITS, "unit", f"expected one of {sorted(ACC_UNITS)}, got {self.unit!r}")
         require(self.time_unit in ("s", "ms"), "time_unit", f"expected s or ms, got {self.time_unit!r}")
         require(self.weight > 0, "weight", f"expected > 0, got {self.weight}")

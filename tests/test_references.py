@@ -843,3 +843,14 @@ def test_an_iso_mme_file_reference_takes_the_units_its_config_check_takes(cells,
     with pytest.raises(ConfigError, match=r"applies to CSV files only") as e:
         sampler(cells, sim, kind="file", files=[spec])
     assert e.value.key == "reference.files[0].breakpoints"
+
+
+@pytest.mark.parametrize("sign", [True, False, np.bool_(True), 0.5, "1"])
+def test_a_file_reference_sign_that_is_no_plus_or_minus_one_is_refused_naming_the_key(sign):
+    # True == 1.0 passed validate() and was refused only by the reader, in a message without the config key
+    spec = FileReference(path="x.csv", scenario="full_width_40", channels={"tunnel": "acc"}, sign=sign)
+    with pytest.raises(ConfigError, match=r"key 'sign': expected \+1 or -1") as e:
+        spec.validate()
+    assert e.value.key == "sign"
+    for good in (1, -1, 1.0, -1.0, np.float64(-1.0)):
+        FileReference(path="x.csv", scenario="full_width_40", channels={"tunnel": "acc"}, sign=good).validate()

@@ -381,9 +381,14 @@ def read_csv(
     return Pulse(time=time, acc=acc, channels=channels, source=str(path))
 
 
+def is_sign(sign: Any) -> bool:
+    """Whether ``sign`` is +1 or -1, a bool not (``True == 1``: a flag is not a sign)."""
+    return not isinstance(sign, (bool, np.bool_)) and sign in (1, -1)
+
+
 def _check_sign(sign: Any) -> None:
-    """Refuse a ``sign`` that is not +1 or -1; a bool too (``True == 1``: a flag is not a sign)."""
-    if isinstance(sign, (bool, np.bool_)) or sign not in (1, -1):
+    """Refuse a ``sign`` that is not +1 or -1 (:func:`is_sign`)."""
+    if not is_sign(sign):
         raise PulseError(f"sign: expected +1 or -1, got {sign!r}")
 
 
