@@ -113,12 +113,13 @@ def _positive_int(text: str) -> int:
 def _batch_size(text: str) -> int:
     """argparse type of a benchmark batch size: an integer in ``[1, MAX_BATCH]`` (one batch is simulated at once:
     10**9 ran on into torch's "can't allocate memory")."""
-    from marlcrash.calibrate.baselines import MAX_BATCH
+    from marlcrash.calibrate.baselines import require_batch_size
 
     value = _positive_int(text)
-    if value > MAX_BATCH:
-        raise argparse.ArgumentTypeError(f"expected a batch size in [1, {MAX_BATCH}] (MAX_BATCH: one batch is "
-                                         f"simulated at once), got {text!r}")  # fmt: skip
+    try:
+        require_batch_size(value, "batch_sizes")
+    except ConfigError as e:
+        raise argparse.ArgumentTypeError(e.reason) from None
     return value
 
 

@@ -5,6 +5,8 @@ from __future__ import annotations
 import pytest
 import torch
 
+from marlcrash.calibrate.baselines import MAX_BATCH
+from marlcrash.errors import ConfigError
 from marlcrash.sim.bench import (
     PARTIAL,
     dtype_study,
@@ -38,6 +40,23 @@ def test_run_benchmark_small_batches_reports_consistent_ratios():
     assert res["roofline_ratio"] == pytest.approx(res["sims_per_s_optimized"]["4"] / res["roofline_sims_per_s"])
     assert res["sims_per_s_uniform_b64"] is None
     assert 0 < res["n_links_live"] < res["n_links_optimized"]  # the default car has zero-share links
+
+
+@pytest.mark.parametrize(
+    ("batch_sizes", "key"), [((1, MAX_BATCH + 1), "batch_sizes[1]"), ((0,), "batch_sizes[0]"),
+                             ((True,), "batch_sizes[0]"), ((2.5,), "batch_sizes[0]"), ((), "batch_sizes")]
+)  # fmt: skip
+def test_run_benchmark_refuses_batch_sizes_it_cannot_run_naming_them(batch_sizes, key, monkeypatch):
+    # 10**9 ran on into torch's "can't allocate memory"; () into max() of an empty sequence after the timing
+    def reached(*args, **kwargs):
+        raise AssertionError("the batch sizes were not checked before the car was built")
+
+    monkeypatch.setattr("marlcrash.cells.discretize", reached)
+    with pytest.raises(ConfigError) as e:
+        run_benchmark(batch_sizes=batch_sizes, repeats=1, include_uniform=False)
+    assert e.value.key == key
+    if key != "batch_sizes":
+        assert f"expected a batch size in [1, {MAX_BATCH}]" in str(e.value)
 
 
 @pytest.mark.slow

@@ -103,6 +103,14 @@ deep inside them (a random-search batch is at most the budget's candidates); 10,
 population CMA-ES is run with (its own default is ``4 + 3 ln n``, 18 for 127 free coordinates)."""
 
 
+def require_batch_size(value: Any, key: str) -> None:
+    """Refuse, naming ``key``, a batch size of one batched simulation that is no integer in ``[1, MAX_BATCH]``
+    (10**9 ran on into torch's "can't allocate memory")."""
+    ok = isinstance(value, int | np.integer) and not isinstance(value, bool) and 1 <= value <= MAX_BATCH
+    require(ok, key, f"expected a batch size in [1, {MAX_BATCH}] (MAX_BATCH: one batch is simulated at once), "
+                     f"got {value!r}")  # fmt: skip
+
+
 @dataclass
 class RandomSearchConfig:
     """Random search settings; values in ``configs/train/baseline/random_search.yaml``."""

@@ -29,6 +29,7 @@ import numba
 import numpy as np
 import torch
 
+from marlcrash.config import require
 from marlcrash.sim import kernels
 from marlcrash.sim.noalias import njit_noalias
 from marlcrash.sim.scenario import get_scenario, scenario_tensors
@@ -142,7 +143,8 @@ def run_benchmark(
     """Throughput of the surrogate on the default car, with ratios measured in this run.
 
     Args:
-        batch_sizes: batch sizes ``B`` timed on the optimized model.
+        batch_sizes: batch sizes ``B`` timed on the optimized model, each in ``[1, MAX_BATCH]``
+            (:data:`~marlcrash.calibrate.baselines.MAX_BATCH`).
         repeats: timed runs per batch size (best is kept); the JIT is warmed up first.
         include_uniform: also time the uniform (fine) model at ``B = 64``.
         sim_overrides: dotted-key overrides of ``configs/sim.yaml`` (e.g. ``{"dtype": "float32"}``).
@@ -156,10 +158,17 @@ def run_benchmark(
         share of wall time outside the compiled kernel), ``roofline_sims_per_s`` (at the largest
         ``B``), ``roofline_ratio`` (achieved / roofline at the largest ``B``), ``target_sims_per_s``
         and ``target_ratio``.
+
+    Raises:
+        ConfigError: no batch size, or one that is no integer in ``[1, MAX_BATCH]`` (key ``batch_sizes[i]``).
     """
+    from marlcrash.calibrate.baselines import require_batch_size
     from marlcrash.cells import discretize
     from marlcrash.vehicle.synthetic import default_vehicle
 
+    require(len(batch_sizes) > 0, "batch_sizes", "expected at least one batch size")
+    for i, b in enumerate(batch_sizes):  # before the car is built: a huge one ran into torch's allocation error
+        require_batch_size(b, f"batch_sizes[{i}]")
     cfg = load_sim_config(overrides=sim_overrides)
     vehicle = default_vehicle()
     cells = discretize(vehicle)
