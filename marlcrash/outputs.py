@@ -16,7 +16,7 @@ import math
 import os
 import re
 import secrets
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -237,6 +237,23 @@ def is_temporary_of(name: str, output: str) -> bool:
     (``.<stem>.<8 hex digits>.tmp<suffix>``; a kill during the write leaves it)."""
     head, tail = _temporary_name(output, "\0").split("\0")  # no file name holds a NUL
     return re.fullmatch(f"{re.escape(head)}[0-9a-f]{{8}}{re.escape(tail)}", name) is not None
+
+
+def remove_temporaries_of(folder: str | Path, outputs: Iterable[str]) -> list[Path]:
+    """Remove the temporary files :func:`atomic_output` left in ``folder`` writing the files named ``outputs`` (a kill
+    during the write leaves them; :func:`is_temporary_of`); return them.
+
+    Call this only while holding ``folder`` (:func:`marlcrash.calibrate.runlock.run_lock`), with ``outputs`` the files
+    only the process holding it writes: the temporaries of other files there may be another process's, being written.
+    """
+    folder, outputs = Path(folder), tuple(outputs)
+    removed = []
+    if folder.is_dir():
+        for p in folder.iterdir():
+            if any(is_temporary_of(p.name, o) for o in outputs) and p.is_file() and not p.is_symlink():
+                p.unlink(missing_ok=True)
+                removed.append(p)
+    return removed
 
 
 def sync_folder(folder: str | Path, files: bool = True) -> None:

@@ -993,6 +993,28 @@ def test_a_resume_removes_the_temporary_checkpoints_a_kill_left(short, tmp_path)
     assert list(part.run_dir.rglob("*.tmp*")) == [other]
 
 
+def test_an_evaluation_removes_the_temporaries_of_its_files_a_kill_left(short, tmp_path):
+    """A kill during an evaluation's write leaves ``.summary.<hex>.tmp.json`` (``.calibrated.<hex>.tmp.npz``, ...)
+    in the folder it writes: no resume ever looks into ``eval/<checkpoint>/``, so nothing removed them. The
+    evaluation, which holds that folder, removes those of its own files there; other names stay."""
+    from marlcrash.calibrate.evaluate import evaluate_run
+
+    res = train(tiny(tmp_path, iterations=2, snapshot_every=1), evaluate=False)
+    out = res.run_dir / "eval" / "iter_00001"
+    out.mkdir(parents=True)
+    stale = [out / ".summary.0badf00d.tmp.json", out / ".calibrated.deadbeef.tmp.npz", out / ".pulses.0badf00d.tmp.png"]
+    stale_own = res.run_dir / ".eval_metrics.0badf00d.tmp.csv"  # the run's own evaluation, in the run folder
+    kept = [out / ".notes.0badf00d.tmp.txt", out / ".checkpoint.pt.0badf00d.tmp", res.run_dir / ".x.0badf00d.tmp.md"]
+    for p in [*stale, stale_own, *kept]:
+        p.write_bytes(b"half a file")
+    evaluate_run(res.run_dir, checkpoint="1")
+    assert not [p for p in stale if p.exists()] and stale_own.exists()  # the run folder is not the one written
+    assert (out / "summary.json").is_file()
+    evaluate_run(res.run_dir)
+    assert not stale_own.exists() and all(p.exists() for p in kept)
+    assert sorted(res.run_dir.rglob("*.tmp*")) == sorted(kept)
+
+
 def test_the_entries_train_py_adds_to_the_summary_are_written_while_the_run_is_held(short, tmp_path):
     """train/train.py added process_wall_time_s to summary.json after train() had released the run folder: an
     evaluation or a resume that took the folder then rewrote summary.json beside it, and one of the two lost."""

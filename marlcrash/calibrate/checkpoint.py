@@ -26,7 +26,7 @@ import numpy as np
 import torch
 
 from marlcrash.errors import ConfigError
-from marlcrash.outputs import ZIP_STARTS, is_temporary_of, write_error
+from marlcrash.outputs import ZIP_STARTS, remove_temporaries_of, write_error
 
 CHECKPOINT_FILE = "checkpoint.pt"
 """Name of the latest checkpoint inside a run folder."""
@@ -160,14 +160,12 @@ def remove_stale_temporaries(run_dir: str | Path, outputs: Iterable[str] = ()) -
     (:func:`marlcrash.calibrate.runlock.run_lock`), with ``outputs`` the files only the process holding it writes:
     the temporaries of other files there may be another process's (a user's output written into the run folder).
     """
-    outputs = tuple(outputs)
-    removed = []
+    removed = remove_temporaries_of(run_dir, outputs)
     for folder in (Path(run_dir), Path(run_dir) / SNAPSHOT_DIR):
         if not folder.is_dir():
             continue
         for p in folder.iterdir():
-            own = folder == Path(run_dir) and any(is_temporary_of(p.name, o) for o in outputs)
-            if (_TEMPORARY.fullmatch(p.name) or own) and p.is_file() and not p.is_symlink():
+            if _TEMPORARY.fullmatch(p.name) and p.is_file() and not p.is_symlink():
                 p.unlink(missing_ok=True)
                 removed.append(p)
     return removed

@@ -76,7 +76,14 @@ from marlcrash.config import flatten_overrides, from_dict, require
 from marlcrash.envs import EnvConfig
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics
-from marlcrash.outputs import atomic_output, check_output_dir, json_text, save_figure, write_text
+from marlcrash.outputs import (
+    atomic_output,
+    check_output_dir,
+    json_text,
+    remove_temporaries_of,
+    save_figure,
+    write_text,
+)
 from marlcrash.references import require_file_scenario
 from marlcrash.reward import paper_factor
 from marlcrash.units import G0
@@ -499,6 +506,7 @@ def evaluate_run(
     # a trainer holds its run folder already (its own evaluation goes there); otherwise hold the folder written, so
     # an evaluation neither writes a run that still trains nor interleaves its files with another of the same folder
     with contextlib.nullcontext() if out_dir == run_dir and trainer is not None else run_lock(out_dir, "run"):
+        remove_temporaries_of(out_dir, EVAL_FILES)  # of its files' writes a kill interrupted: this process holds it
         provenance.warn_changes(run_dir, check, "evaluate")
         log_path = run_dir / LOG_FILE  # read before the evaluation's work: a malformed row fails now
         position = counters.get("log_position")  # the rows the checkpoint counts; a torn one after them is not read
