@@ -596,6 +596,22 @@ def test_a_picture_of_an_earlier_run_does_not_survive_plots_false(finished, tmp_
     assert not (dst / "ablate.png").exists()
 
 
+def test_a_resume_removes_the_temporaries_of_the_results_a_kill_left(finished, tmp_path):
+    """A kill while ablate.json (.csv, .md, .png, provenance.json) was rewritten left ``.ablate.<hex>.tmp.json``
+    beside it, which nothing removed. The ablation, which holds its folder, removes those of its own files;
+    other names (another process's outputs) stay."""
+    _, run_dir, _ = finished
+    dst = tmp_path / "runs" / "ablate" / "t"
+    shutil.copytree(run_dir, dst)
+    stale = [dst / ".ablate.0badf00d.tmp.json", dst / ".ablate.deadbeef.tmp.png", dst / ".provenance.0badf00d.tmp.json"]
+    kept = [dst / ".notes.0badf00d.tmp.json", dst / ".ablate.0badf00d.tmp.txt"]
+    for p in [*stale, *kept]:
+        p.write_text("half a file")
+    _, rows = run_ablation(load_ablation_config(tiny_data(tmp_path, resume=True, plots=False), source="test"))
+    assert len(rows) == 2
+    assert sorted(p for p in dst.iterdir() if ".tmp" in p.name) == sorted(kept)
+
+
 def test_a_plotting_failure_keeps_the_results_and_names_the_picture(finished, tmp_path, monkeypatch):
     """An error of matplotlib's (not of marlcrash) while drawing ablate.png came out as its raw traceback; the tables
     are written before it, and the failure is a warning that names the picture."""

@@ -384,6 +384,21 @@ def test_a_first_run_that_failed_before_any_row_does_not_block_its_rerun(short, 
     assert e.value.key == "name" and (other.run_dir / "compare.json").read_text() == "{not json"
 
 
+def test_a_resume_removes_the_temporaries_of_the_tables_a_kill_left(short, tmp_path):
+    """A kill while compare.json (.csv, .md, provenance.json) was rewritten left ``.compare.<hex>.tmp.json``
+    beside it, which nothing removed. The comparison, which holds its folder, removes those of its own files;
+    other names (another process's outputs) stay."""
+    cfg = tiny(tmp_path, methods=["random_search"], seeds=[0])
+    run_dir, _ = run_comparison(cfg)
+    stale = [run_dir / ".compare.0badf00d.tmp.json", run_dir / ".compare.deadbeef.tmp.md",
+             run_dir / ".provenance.0badf00d.tmp.json"]  # fmt: skip
+    kept = [run_dir / ".notes.0badf00d.tmp.json", run_dir / ".compare.0badf00d.tmp.png"]
+    for p in [*stale, *kept]:
+        p.write_text("half a file")
+    run_comparison(tiny(tmp_path, methods=["random_search"], seeds=[0], resume=True))
+    assert sorted(p for p in run_dir.iterdir() if ".tmp" in p.name) == sorted(kept)
+
+
 def _diverging(real, method: str):
     """``run_method`` whose ``method`` runs as if every candidate had diverged: no finite score, NaN areas."""
 

@@ -732,7 +732,7 @@ def run_ablation(
         return [*_RESUMABLE_DIFF_OK, *(a for a in ALGORITHMS if a not in done)]
 
     env = (config.env, dict(config.env_overrides))
-    with hold_run_dir(config.run_dir, config.resume):  # one process per run folder
+    with hold_run_dir(config.run_dir, config.resume, FILES):  # one process per run folder
         keys = (*(c for c in CSV_COLUMNS if c not in _ADDED_COLUMNS), "metrics", "history")
         run_dir, rows = open_run_dir(config.run_dir, "ablate.json", asdict(config), config.resume, free, env, keys)
         for r in rows:  # rows of an ablation started before a column was added: unknown there

@@ -115,7 +115,14 @@ from marlcrash.config import (
 from marlcrash.envs.core import EnvConfig, env_config_of, load_env_config, require_env, require_env_keys_unset
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics
-from marlcrash.outputs import check_output_dir, finite_or_null, json_text, require_run_name, write_text
+from marlcrash.outputs import (
+    check_output_dir,
+    finite_or_null,
+    json_text,
+    remove_temporaries_of,
+    require_run_name,
+    write_text,
+)
 from marlcrash.sim.scenario import list_scenarios
 
 METHODS: tuple[str, ...] = (*ALGORITHMS, *BASELINES)
@@ -760,12 +767,16 @@ def _first_difference(a: Any, b: Any, key: str = "") -> str | None:
 
 
 @contextlib.contextmanager
-def hold_run_dir(run_dir: Path, resume: bool) -> Iterator[None]:
+def hold_run_dir(run_dir: Path, resume: bool, outputs: Iterable[str]) -> Iterator[None]:
     """Hold the run folder of a table of runs for the ``with`` block (:func:`marlcrash.calibrate.runlock.run_lock`):
     a second run of this name, or a second resume, fails there before it reads or writes a row. A fresh run's folder
-    is made here; a resumed one's must exist (:func:`open_run_dir` names it where it does not)."""
+    is made here; a resumed one's must exist (:func:`open_run_dir` names it where it does not).
+
+    The temporaries a kill left writing ``outputs`` (the files the run writes into the folder) or ``provenance.json``
+    there are removed once the folder is held (:func:`marlcrash.outputs.remove_temporaries_of`)."""
     check_output_dir(run_dir, "out_dir")  # before the folder is made: out_dir may be a file
     with run_lock(run_dir, "resume" if resume else "name", create=not resume):
+        remove_temporaries_of(run_dir, (*outputs, provenance.PROVENANCE_FILE))
         yield
 
 
@@ -909,7 +920,7 @@ def run_comparison(
     if optimizers and config.seeds:  # its name
         first = build_problem(problem_config(config, config.seeds[0]))
         check_searchable(config, first, optimizers)
-    with hold_run_dir(config.run_dir, config.resume):  # one process per run folder
+    with hold_run_dir(config.run_dir, config.resume, FILES):  # one process per run folder
         run_dir, rows = _start_run_dir(config)
         done = {(r["method"], r["seed"]) for r in rows}
         write_results(config, rows, run_dir, command)
