@@ -147,13 +147,13 @@ def train_digest() -> str | None:
 def _tree_digest(root: Path) -> str:
     """SHA-256 over the ``*.py`` files under ``root`` (relative path and contents of each, sorted).
 
-    Hidden files and folders are no source (as in :func:`config_digests`): an editor's, e.g. Emacs' lock
-    ``.#cli.py``, a symbolic link to nowhere, or ``.ipynb_checkpoints/``; nor is anything but a file.
+    An editor's leftovers are no source (:func:`_editor_leftover`, the rule of :func:`config_files`), e.g. Emacs'
+    lock ``.#cli.py``, a symbolic link to nowhere, or ``.ipynb_checkpoints/``; nor is anything but a file.
     """
     h = hashlib.sha256()
     for p in sorted(root.rglob("*.py")):
         rel = p.relative_to(root)
-        if any(s.startswith(".") for s in rel.parts) or not p.is_file():
+        if any(_editor_leftover(s) for s in rel.parts) or not p.is_file():
             continue
         h.update(rel.as_posix().encode())
         h.update(b"\0")
