@@ -34,6 +34,7 @@ from marlcrash.calibrate.compare import (
     run_comparison,
     run_optimizer,
     run_ppo,
+    winners,
 )
 from marlcrash.calibrate.logging import read_log
 from marlcrash.calibrate.marl import ProgressHook, build_trainer, train_iteration
@@ -661,3 +662,21 @@ def test_a_comparison_whose_masking_leaves_no_agent_active_names_its_own_key_bef
     assert e.value.key == "masking", str(e.value)
     assert "masking: false" in str(e.value) and "problem." not in str(e.value)
     assert "env_overrides" in str(e.value) and not (tmp_path / "runs").exists()
+
+
+def test_a_passing_run_wins_its_reference_over_a_higher_score():
+    """A run whose best candidate passes the success test wins its reference over one that scores higher without
+    passing, as a run's own record ranks its candidates (``Progress``): the winner used to be the highest score alone,
+    so a table could name a failing method the winner beside a method that met the paper's thresholds."""
+    rows = [
+        {"method": "cmaes", "seed": 0, "score": 2.0, "passed": False},
+        {"method": "lm", "seed": 0, "score": 1.0, "passed": True},
+        {"method": "random_search", "seed": 0, "score": 0.5, "passed": True},
+        {"method": "cmaes", "seed": 1, "score": 2.0, "passed": False},
+        {"method": "lm", "seed": 1, "score": 1.0, "passed": False},
+        {"method": "lm", "seed": 2, "score": None, "passed": False},
+    ]
+    w = {x["seed"]: x for x in winners(rows, [0, 1, 2])}
+    assert w[0]["winner"] == ["lm"] and w[0]["score"] == 1.0
+    assert w[1]["winner"] == ["cmaes"] and w[1]["score"] == 2.0
+    assert w[2]["winner"] == [] and w[2]["score"] is None

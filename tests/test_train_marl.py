@@ -1113,3 +1113,22 @@ def test_a_checkpoint_named_by_a_digit_int_cannot_read_is_no_iteration(tmp_path)
     kept.parent.mkdir(parents=True)
     kept.write_bytes(b"")
     assert find_checkpoint(tmp_path, "40") == kept
+
+
+def test_the_reported_iterate_passes_before_it_scores():
+    """``eval.select: best`` reports the highest-scoring iterate that passes the evaluation's thresholds where any
+    does, as a run's record ranks its candidates: it used to report the highest score alone, so an evaluation could
+    name a failing iterate (``passed`` false) while another of its iterates met every threshold."""
+    from marlcrash.calibrate.evaluate import select_iterate
+    from marlcrash.calibrate.problem import SuccessConfig
+    from marlcrash.metrics import Metrics
+
+    area = torch.tensor([[0.05, 0.05], [0.0016, 0.0001], [0.0014, 0.0014], [0.0010, 0.0012]], dtype=torch.float64)
+    m = Metrics(area, torch.full_like(area, 0.1), torch.full_like(area, 0.1))
+    scores = torch.tensor([-5.0, 3.0, 1.0, 2.0], dtype=torch.float64)  # I1 scores highest but fails on one sensor
+    th = SuccessConfig()
+    assert select_iterate(m, scores, th, "best") == 3  # the better of the passing I2, I3
+    assert select_iterate(m, scores, th, "last") == 3
+    assert select_iterate(m, scores, SuccessConfig(area=0.001), "best") == 1  # none passes: the highest score
+    nan = torch.tensor([float("nan"), 0.0, -1.0, float("nan")], dtype=torch.float64)
+    assert select_iterate(m, nan, SuccessConfig(area=0.001), "best") == 1  # a NaN score never wins

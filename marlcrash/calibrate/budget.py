@@ -35,6 +35,15 @@ def ranked_scores(score: torch.Tensor) -> torch.Tensor:
     return torch.where(s.isnan(), torch.full_like(s, float("-inf")), s)
 
 
+def best_index(score: torch.Tensor, success: torch.Tensor) -> int:
+    """Index of the best of ``[N]`` candidates: the highest-scoring one that passes (``success [N]`` bool) where any
+    does, else the highest-scoring one (a NaN score never wins, :func:`ranked_scores`). The one rule by which a
+    run's record, an evaluation's reported iterate and a comparison's winner rank candidates."""
+    s = ranked_scores(score)
+    passing = torch.nonzero(success.to(torch.bool))[:, 0]
+    return int(passing[torch.argmax(s[passing])]) if passing.numel() else int(torch.argmax(s))
+
+
 @dataclass
 class HistoryRow:
     """One line of the best-score log: after ``simulations`` simulations and ``iteration`` batches."""
@@ -125,7 +134,7 @@ class Progress:
         s = ranked_scores(score)  # a NaN never wins
         ok = success.to(torch.bool)
         passing = torch.nonzero(ok)[:, 0]
-        k = int(passing[torch.argmax(s[passing])]) if passing.numel() else int(torch.argmax(s))  # the batch's best
+        k = best_index(s, ok)  # the batch's best
         had = self.sims_to_success is not None  # the best so far passes
         if not had and passing.numel():
             self.sims_to_success = self.used + int(passing[0]) + 1

@@ -34,7 +34,8 @@ Protocol (the paper's: calibration of ONE reference per run):
   every failing one in a run's record (:class:`~marlcrash.calibrate.budget.Progress`), so a run passed exactly
   when it has a ``sims_to_success``.
 - Ranking: the fit score of the env's reward form (``CalibrationProblem.score``, higher is better)
-  for every method; the winner of a reference is the method whose best candidate scores highest.
+  for every method; the winner of a reference is the method whose best candidate passed the success test, before
+  any other, then scores highest.
 
 :func:`run_comparison` runs methods x seeds, each run independent; after every finished run it
 rewrites ``compare.json`` (config, rows, per-sensor metrics and best-so-far histories),
@@ -610,17 +611,19 @@ def ranked(score: float | None) -> float:
 
 
 def winners(rows: list[dict[str, Any]], seeds: list[int]) -> list[dict[str, Any]]:
-    """Per reference seed: every method's best score and the winner (highest score; ties name all; none where no
-    run of the reference has a score)."""
+    """Per reference seed: every method's best score and the winner (a run that passed before any other, then the
+    highest score, as a run's record ranks its candidates; ties name all; none where no run of the reference has a
+    score) with its ``score``."""
     out = []
     for s in seeds:
         g = [r for r in rows if r["seed"] == s]
         if not g:
             continue
-        best = max(ranked(r["score"]) for r in g)
-        win = [r["method"] for r in g if ranked(r["score"]) == best] if best > -math.inf else []
+        rank = [(bool(r["passed"]), ranked(r["score"])) for r in g]
+        best = max(rank)
+        win = [r["method"] for r, k in zip(g, rank, strict=True) if k == best] if best[1] > -math.inf else []
         out.append({"seed": s, "scores": {r["method"]: r["score"] for r in g}, "winner": win,
-                    "score": best if win else None})  # fmt: skip
+                    "score": best[1] if win else None})  # fmt: skip
     return out
 
 
@@ -693,7 +696,7 @@ def markdown(config: CompareConfig, rows: list[dict[str, Any]], command: str | N
         )
     lines += [
         "",
-        "## Winner per reference (highest fit score of the best candidate)",
+        "## Winner per reference (a run that passed first, then the highest fit score of the best candidate)",
         "",
         "| reference seed | " + " | ".join(methods) + " | winner |",
         "|---|" + "---|" * len(methods) + "---|",

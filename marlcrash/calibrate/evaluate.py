@@ -5,8 +5,9 @@ TanhNormal) for ``eval.iterations`` calibration steps on a single environment re
 fixed seed in the evaluation scenario (default: the env's reference kind, the twin reference at
 ``full_width_40``, seed 0 -- the same twin the baselines calibrate with ``reference_seed: 0``), and records the
 per-sensor metrics and the parameters after every iteration. The reported calibration is the
-``best`` iterate by the reward form's score (a calibration engineer keeps the best fit seen)
-or the ``last`` one (``eval.select``); ``summary.json`` says which (``selected_iteration``).
+``best`` iterate by the reward form's score, one that passes ``eval.thresholds`` before any other (a calibration
+engineer keeps the best fit seen; :func:`select_iterate`) or the ``last`` one (``eval.select``); ``summary.json``
+says which (``selected_iteration``).
 
 :func:`evaluate_run` writes into a run folder:
 
@@ -52,7 +53,7 @@ from tensordict.nn import TensorDictModuleBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from marlcrash import provenance
-from marlcrash.calibrate.budget import ranked_scores
+from marlcrash.calibrate.budget import best_index, ranked_scores
 from marlcrash.calibrate.checkpoint import (
     CHECKPOINT_FILE,
     SNAPSHOT_DIR,
@@ -70,7 +71,13 @@ from marlcrash.calibrate.marl import (
     make_policy,
     require_fits,
 )
-from marlcrash.calibrate.problem import CalibrationProblem, ProblemConfig, build_problem, env_backends
+from marlcrash.calibrate.problem import (
+    CalibrationProblem,
+    ProblemConfig,
+    SuccessConfig,
+    build_problem,
+    env_backends,
+)
 from marlcrash.calibrate.runlock import run_lock
 from marlcrash.config import flatten_overrides, from_dict, require
 from marlcrash.envs import EnvConfig
@@ -210,6 +217,15 @@ def evaluation_overrides(config: TrainConfig) -> dict[str, Any]:
     return over
 
 
+def select_iterate(metrics: Metrics, scores: torch.Tensor, thresholds: SuccessConfig, select: str) -> int:
+    """The reported iterate of per-iterate metrics ``[I, K]`` and ``scores [I]``: the ``last``, or the ``best``: the
+    highest-scoring one that passes ``thresholds`` where any does, else the highest-scoring one, as a run's record
+    ranks its candidates (:func:`~marlcrash.calibrate.budget.best_index`)."""
+    if select == "last":
+        return int(scores.shape[0]) - 1
+    return best_index(scores, thresholds.passes(metrics))
+
+
 def evaluate_policy(policy: TensorDictModuleBase, config: TrainConfig) -> EvalResult:
     """Run the policy's mean action for ``eval.iterations`` steps on the evaluation reference (module docstring).
 
@@ -232,7 +248,7 @@ def evaluate_policy(policy: TensorDictModuleBase, config: TrainConfig) -> EvalRe
             td = td.get("next")
     m = Metrics(*(torch.stack([x[j] for x in metrics]) for j in range(3)))
     scores = ranked_scores(core.reward_fn.score(m))
-    selected = int(torch.argmax(scores)) if ev.select == "best" else len(params) - 1
+    selected = select_iterate(m, scores, ev.thresholds, ev.select)
     truth = None if core.true_params is None else core.true_params[0].clone()
     return EvalResult(
         sensors=list(core.sensors), metrics=m, scores=scores, params=torch.stack(params), selected=selected,

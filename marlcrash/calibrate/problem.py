@@ -108,6 +108,15 @@ class SuccessConfig:
         require(any(getattr(self, k) is not None for k in ("area", "dfd", "rmse")), "area",
                 "at least one of area, dfd, rmse needs a threshold")  # fmt: skip
 
+    def passes(self, metrics: Metrics) -> torch.Tensor:
+        """``[*batch]`` bool: every sensor of per-sensor metrics ``[*batch, K]`` below every threshold set (a NaN
+        metric fails)."""
+        ok = torch.ones(metrics.area.shape[:-1], dtype=torch.bool, device=metrics.area.device)
+        for k in ("area", "dfd", "rmse"):
+            if getattr(self, k) is not None:
+                ok = ok & (getattr(metrics, k) < getattr(self, k)).all(-1)
+        return ok
+
 
 @dataclass
 class ProblemConfig:
