@@ -15,6 +15,7 @@ import sys
 import warnings
 from pathlib import Path
 
+from marlcrash import __version__
 from marlcrash.errors import ConfigError, MarlcrashError
 from marlcrash.outputs import check_output_file
 
@@ -492,6 +493,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog="marlcrash",
         description="Cell surrogates of vehicle frontal crash structures, calibrated with multi-agent RL.",
     )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("inspect", help="summarise an FE deck: nodes, elements, parts, masses, sub-assemblies")

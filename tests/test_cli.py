@@ -730,3 +730,17 @@ def test_every_option_with_a_default_says_it_in_its_help():
                 assert "default" in (action.help or ""), (name, action.option_strings, action.help)
             if name == "simulate" and action.dest in ("overlap", "side"):
                 assert "(default: the scenario's)" in action.help, action.help
+
+
+def test_version():
+    """``marlcrash --version`` names the package's version, the one pyproject.toml declares (what a bug report and a
+    run's provenance.json quote); it was refused as an unknown argument."""
+    import tomllib
+
+    import marlcrash
+
+    declared = tomllib.loads((Path(__file__).parents[1] / "pyproject.toml").read_text())["project"]["version"]
+    assert marlcrash.__version__ == declared
+    proc = subprocess.run([sys.executable, "-m", "marlcrash", "--version"], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == f"marlcrash {declared}"
