@@ -666,7 +666,7 @@ def test_script_runs_the_factor_product(short_configs, tmp_path):
         itertools.product(["mappo", "ippo"], ["none", "primary"])
     )
     assert (run_dir / "ablate.png").stat().st_size > 0
-    assert "| algorithm | ippo vs mappo | 2 |" in p.stdout and '"rows": 4' in p.stdout
+    assert "| algorithm | ippo vs mappo | 2 (1 reference) | " in p.stdout and '"rows": 4' in p.stdout
 
 
 @pytest.mark.slow
@@ -675,3 +675,33 @@ def test_script_rejects_bad_config_before_running(short_configs, tmp_path):
     assert p.returncode == 2
     assert "masking[1]" in p.stderr and "sideways" in p.stderr and "Traceback" not in p.stderr
     assert not (tmp_path / "runs").exists()
+
+
+def test_the_standard_error_counts_references_not_pairs():
+    """Pairs of one reference are not independent: the scenario factor's pairs at every masking level share the seed's
+    references (and a masking level's pairs at every reward form share the scenario's), so the standard error over
+    pairs treated them as independent samples and read 2-3x too small with three masking levels. The differences are
+    now averaged per reference, and the error is taken over references (``references``; ``None`` below two)."""
+    rows = [
+        _row(0, 0.0, 0.01), _row(0, 0.0, 0.01, masking="primary"),
+        _row(1, 0.0, 0.01), _row(1, 0.0, 0.01, masking="primary"),
+        _row(0, 1.0, 0.01, scenario="s2"), _row(0, 1.2, 0.01, scenario="s2", masking="primary"),
+        _row(1, -1.0, 0.01, scenario="s2"), _row(1, -0.8, 0.01, scenario="s2", masking="primary"),
+    ]  # fmt: skip
+    levels = {"algorithm": ["mappo"], "masking": ["none", "primary"], "scenario": ["s1", "s2"],
+              "granularity": ["subassembly"], "reward": ["log_ratio"]}  # fmt: skip
+    eff = {(e["factor"], e["level"]): e for e in paired_effects(rows, levels)}
+    s = eff["scenario", "s2"]  # 4 pairs over 2 seeds: per seed 1.1 and -0.9
+    assert (s["pairs"], s["references"]) == (4, 2)
+    assert s["gain_diff_mean"] == pytest.approx(0.1, abs=1e-15)
+    assert s["gain_diff_se"] == pytest.approx(np.std([1.1, -0.9], ddof=1) / math.sqrt(2), abs=1e-15)
+    m = eff["masking", "primary"]  # 4 pairs on 4 references (s1 and s2, seeds 0 and 1)
+    assert (m["pairs"], m["references"]) == (4, 4)
+    assert m["gain_diff_se"] == pytest.approx(np.std([0.0, 0.0, 0.2, 0.2], ddof=1) / 2.0, abs=1e-15)
+    one = {(e["factor"], e["level"]): e for e in paired_effects([r for r in rows if r["seed"] == 0], levels)}
+    assert one["scenario", "s2"]["references"] == 1 and one["scenario", "s2"]["gain_diff_se"] is None
+    md = ablate.markdown(ablate.AblationConfig(masking=["none", "primary"], scenarios=["s1", "s2"]),
+                         [_table_row(r["seed"], r["gain"], r["area_worst"], masking=r["masking"],
+                                     scenario=r["scenario"]) for r in rows], None, "today")  # fmt: skip
+    assert "| scenario | s2 vs s1 | 4 (2 references) | +0.1000 ± 1.0000 |" in md
+    assert "| masking | primary vs none | 4 | +0.1000 ± 0.0577 |" in md

@@ -29,8 +29,9 @@ Protocol (the results table's, :mod:`marlcrash.calibrate.compare`, so the number
 - Paired effects: for every factor with more than one level, each level is compared with the factor's
   first level (the baseline) on runs that agree in every other factor and in the seed (same reference,
   same other settings; for the scenario factor, the same seed): the mean difference of the gain with its
-  standard error over those pairs, how many pairs the level wins (and ties), and the geometric mean ratio of the
-  worst-sensor area.
+  standard error, how many pairs the level wins (and ties), and the geometric mean ratio of the worst-sensor area.
+  Pairs of one reference (a scenario's seed; for the scenario factor, a seed) are not independent, so the standard
+  error is taken over references, of the differences averaged per reference.
 
 :func:`run_ablation` rewrites ``ablate.json``, ``ablate.csv`` and ``ablate.md`` atomically after every
 finished run and draws ``ablate.png`` at the end (a picture an earlier run left in the folder is removed when
@@ -473,7 +474,9 @@ def paired_effects(rows: list[dict[str, Any]], levels: dict[str, list[Any]]) -> 
 
     Returns:
         One entry per (factor, non-baseline level): ``pairs`` (runs matched on every other factor and the
-        seed), ``gain_diff_mean`` and ``gain_diff_se`` (standard error, ddof 1; ``None`` below 2 pairs),
+        seed), ``references`` (the references they are on: a scenario and a seed, or for the scenario factor a seed;
+        pairs of one reference are not independent), ``gain_diff_mean`` and ``gain_diff_se`` (standard error over
+        references of the differences averaged per reference, ddof 1; ``None`` below 2 references),
         ``wins`` (pairs where the level gains more), ``ties`` (pairs where both gain the same, or neither has a
         gain: neither a win nor a loss), ``area_worst_ratio`` (geometric mean of the level's
         worst-sensor area over the baseline's, over the ``ratio_pairs`` pairs where both are finite
@@ -500,10 +503,15 @@ def paired_effects(rows: list[dict[str, Any]], levels: dict[str, list[Any]]) -> 
             ok = np.isfinite(areas).all(axis=1) & (areas > 0).all(axis=1)  # a ratio of zero areas says nothing
             ratio = areas[ok, 0] / areas[ok, 1]
             n = len(pairs)
+            # pairs of one reference share it (the scenario's pairs at every other level share the seed's two), so
+            # the error is over references: the differences averaged per reference, as independent samples
+            ref = [(r["seed"],) if factor == "scenario" else (r["scenario"], r["seed"]) for r, _ in pairs]
+            per_ref = np.array([d[[k == g for k in ref]].mean() for g in dict.fromkeys(ref)], dtype=np.float64)
+            m = per_ref.size
             out.append(finite_or_null({
-                "factor": factor, "baseline": lv[0], "level": level, "pairs": n,
+                "factor": factor, "baseline": lv[0], "level": level, "pairs": n, "references": m,
                 "gain_diff_mean": float(d.mean()) if n and whole else None,
-                "gain_diff_se": float(d.std(ddof=1) / math.sqrt(n)) if n >= 2 and whole else None,
+                "gain_diff_se": float(per_ref.std(ddof=1) / math.sqrt(m)) if m >= 2 and whole else None,
                 "wins": sum(ranked(r["gain"]) > ranked(b["gain"]) for r, b in pairs),
                 "ties": sum(ranked(r["gain"]) == ranked(b["gain"]) for r, b in pairs),
                 "area_worst_ratio": float(np.exp(np.log(ratio).mean())) if ratio.size else None,
@@ -584,8 +592,13 @@ def markdown(config: AblationConfig, rows: list[dict[str, Any]], command: str | 
             )
             if e["area_worst_ratio"] is not None and e["ratio_pairs"] < e["pairs"]:  # a zero or missing area
                 ratio += f" ({e['ratio_pairs']} of {e['pairs']} pairs)"
+            pairs = f"{e['pairs']}" + (
+                f" ({e['references']} reference{'s' if e['references'] > 1 else ''})"
+                if e["references"] < e["pairs"]
+                else ""
+            )
             lines.append(
-                f"| {e['factor']} | {e['level']} vs {e['baseline']} | {e['pairs']} | {diff} | {wins} "
+                f"| {e['factor']} | {e['level']} vs {e['baseline']} | {pairs} | {diff} | {wins} "
                 f"| {ratio} | {_fmt(e['gain_mean'], '.4f')} / "
                 f"{_fmt(e['baseline_gain_mean'], '.4f')} |"
             )
