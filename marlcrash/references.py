@@ -53,6 +53,8 @@ paper does, is then RL training on that reference.
 
 from __future__ import annotations
 
+import math
+import numbers
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Literal
@@ -157,8 +159,10 @@ class FileReference:
         require(is_sign(self.sign), "sign", f"expected +1 or -1, got {self.sign!r}")
         require(acc_unit_key(self.unit) in ACC_UNITS, "unit", f"expected one of {sorted(ACC_UNITS)}, got {self.unit!r}")
         require(self.time_unit in ("s", "ms"), "time_unit", f"expected s or ms, got {self.time_unit!r}")
-        require(self.weight > 0, "weight", f"expected > 0, got {self.weight}")
-        require(self.threshold_g > 0, "threshold_g", f"expected > 0 g, got {self.threshold_g}")
+        for key, unit in (("weight", ""), ("threshold_g", " g")):
+            v = getattr(self, key)
+            ok = isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v) and v > 0
+            require(ok, key, f"expected a finite number > 0{unit}, got {v!r}")
 
 
 @dataclass

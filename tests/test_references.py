@@ -854,3 +854,16 @@ def test_a_file_reference_sign_that_is_no_plus_or_minus_one_is_refused_naming_th
     assert e.value.key == "sign"
     for good in (1, -1, 1.0, -1.0, np.float64(-1.0)):
         FileReference(path="x.csv", scenario="full_width_40", channels={"tunnel": "acc"}, sign=good).validate()
+
+
+@pytest.mark.parametrize("key", ["weight", "threshold_g"])
+@pytest.mark.parametrize("bad", [float("inf"), float("nan"), True])
+def test_a_file_references_weight_and_onset_threshold_are_finite_numbers(key, bad):
+    """A test's ``weight`` and its onset ``threshold_g`` of ``.inf`` passed the check (> 0): the weight was refused
+    later under the env's ``scenarios`` key, the threshold found no onset in any record; ``true`` passed as 1."""
+    from marlcrash.errors import ConfigError
+
+    f = FileReference(path="x.csv", scenario="full_width_40", channels={"tunnel": "a"}, **{key: bad})
+    with pytest.raises(ConfigError, match=f"expected a finite number > 0.*got {bad!r}") as e:
+        f.validate()
+    assert e.value.key == key
