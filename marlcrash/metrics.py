@@ -315,7 +315,9 @@ def discrete_frechet_points(q: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
     # (sub)gradient of the whole dynamic program, without keeping n + m graphs of it.
     rows = torch.arange(qb.shape[0], device=qb.device)
     gap = qb[rows, arg // m] - pb[rows, arg % m]
-    return _safe_sqrt((gap**2).sum(-1)).reshape(batch)
+    # a NaN or infinite distance has no bottleneck pair (ties of infinite cells pick any, the padding's (0, 0) too):
+    # it is the program's value, as without a gradient (a NaN curve came out 0, a perfect fit)
+    return torch.where(value.isfinite(), _safe_sqrt((gap**2).sum(-1)), value).reshape(batch)
 
 
 def _frechet_dp(q: torch.Tensor, p: torch.Tensor, track: bool) -> tuple[torch.Tensor, torch.Tensor | None]:
@@ -349,21 +351,16 @@ def _frechet_dp(q: torch.Tensor, p: torch.Tensor, track: bool) -> tuple[torch.Te
     for k in range(1, n_diag):
         up, left, corner = prev1[:, :-1], prev1[:, 1:], prev2[:, :-1]  # c[i-1, j], c[i, j-1], c[i-1, j-1]
         d = diag[:, k]
+        best = torch.minimum(up, left)  # NaN propagates (the comparisons below skip it)
+        torch.minimum(best, corner, out=best)
         if track:
             left_best = left <= corner
-            best = torch.where(left_best, left, corner)
             best_arg = torch.where(left_best, arg1[:, 1:], arg2[:, :-1])
-            up_best = up < best
-            best = torch.where(up_best, up, best)
+            up_best = up < torch.where(left_best, left, corner)
             best_arg = torch.where(up_best, arg1[:, :-1], best_arg)
-            own = d >= best
-            torch.where(own, d, best, out=cur[:, 1:])
-            torch.where(own, own_arg[k], best_arg, out=argc[:, 1:])
+            torch.where(d >= best, own_arg[k], best_arg, out=argc[:, 1:])
             arg2, arg1, argc = arg1, argc, arg2
-        else:
-            best = torch.minimum(up, left)
-            torch.minimum(best, corner, out=best)
-            torch.maximum(d, best, out=cur[:, 1:])
+        torch.maximum(d, best, out=cur[:, 1:])
         cur[:, 1:].masked_fill_(invalid[k], math.inf)
         prev2, prev1, cur = prev1, cur, prev2
     return prev1[:, n].clone(), (arg1[:, n].clone() if track else None)

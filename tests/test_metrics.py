@@ -418,3 +418,30 @@ def test_frechet_of_float32_signals_on_a_late_float64_clock_is_that_of_the_clock
     want = ref_frechet(np.c_[tq * 1000, qs.numpy()], np.c_[tq * 1000, ps.numpy()])
     got = compute_metrics(qs, ps, t, config=MetricsConfig(dfd_time_scale=1000.0)).dfd
     assert float(got) == pytest.approx(want, rel=1e-5)
+
+
+def test_a_non_finite_curve_gets_the_same_frechet_distance_with_and_without_a_gradient():
+    """With a gradient to track (the gradient baseline's path) the dynamic program chose its predecessors by
+    comparisons that skip NaN, and ties of infinite cells picked the padding's pair (0, 0): a NaN estimate got a
+    distance of 0 (a perfect fit) and one with an infinite sample 0 instead of inf. Reference: the plain table of
+    :func:`ref_frechet` with NaN propagated, and inf where a point is infinitely far."""
+    nan, inf = math.nan, math.inf
+    zero = [0.0, 0.0, 0.0, 0.0]
+    cases = [
+        ([0.0, nan, 0.0, 0.0], zero, nan),
+        ([0.0, 0.0, 0.0, nan], zero, nan),
+        ([5.0, 0.0, 0.0, nan], zero, nan),
+        ([0.0, inf, 0.0, 0.0], zero, inf),
+        ([0.0, 1e300, 0.0, 0.0], zero, inf),  # finite, but its squared distance overflows float64
+        ([0.0, 3.0, 0.0, 0.0], zero, 3.0),
+    ]
+    for qv, pv, want in cases:
+        q = torch.tensor(qv, dtype=torch.float64)
+        p = torch.tensor(pv, dtype=torch.float64)
+        plain = float(discrete_frechet(q, p, dt=1.0))
+        tracked = discrete_frechet(q.clone().requires_grad_(), p, dt=1.0)
+        for got in (plain, float(tracked.detach())):
+            assert (math.isnan(got) and math.isnan(want)) or got == want, (qv, plain, float(tracked.detach()))
+    q = torch.tensor([0.0, 3.0, 1.0, 0.0], dtype=torch.float64, requires_grad=True)
+    discrete_frechet(q, torch.zeros(4, dtype=torch.float64), dt=1.0).backward()
+    assert q.grad.tolist() == [0.0, 1.0, 0.0, 0.0]  # a finite distance keeps its gradient
