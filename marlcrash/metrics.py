@@ -519,7 +519,14 @@ def discrete_frechet_uniform_numba(
     qa = np.ascontiguousarray(q.reshape(-1, q.shape[-1]).numpy())
     pa = np.ascontiguousarray(p.reshape(-1, p.shape[-1]).numpy())
     rows = _dfd_rows(qa, pa, float(dt), float(time_scale), float(value_scale))
-    rows[np.isnan(qa).any(axis=1) | np.isnan(pa).any(axis=1)] = np.nan  # the kernel's min/max skip NaN; torch's not
+    # the kernel's min/max skip NaN, torch's propagate it: NaN where a sample is NaN or the two curves are infinite
+    # with one sign (their distance inf - inf; a distance of 0 came out), on the values as the kernel scales them
+    with np.errstate(over="ignore", invalid="ignore"):
+        qs, ps = qa * float(value_scale), pa * float(value_scale)
+    nan = np.isnan(qs).any(axis=1) | np.isnan(ps).any(axis=1)
+    for side in (np.isposinf, np.isneginf):
+        nan |= side(qs).any(axis=1) & side(ps).any(axis=1)
+    rows[nan] = np.nan
     return torch.from_numpy(rows).reshape(shape)
 
 

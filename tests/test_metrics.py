@@ -445,3 +445,19 @@ def test_a_non_finite_curve_gets_the_same_frechet_distance_with_and_without_a_gr
     q = torch.tensor([0.0, 3.0, 1.0, 0.0], dtype=torch.float64, requires_grad=True)
     discrete_frechet(q, torch.zeros(4, dtype=torch.float64), dt=1.0).backward()
     assert q.grad.tolist() == [0.0, 1.0, 0.0, 0.0]  # a finite distance keeps its gradient
+
+
+def test_the_compiled_frechet_kernel_gives_nan_where_torch_does_for_infinite_samples():
+    """Both curves infinite at the same time made the compiled kernel's squared distance ``inf - inf`` = NaN, which
+    its ``max``/``min`` skip: a distance of 0 where the torch backend gives NaN (as for a NaN sample)."""
+    inf = math.inf
+    for qv, pv in (([0.0, inf, 0.0], [0.0, inf, 0.0]), ([0.0, -inf, 0.0], [-inf, 0.0, 0.0])):
+        q = torch.tensor([qv], dtype=torch.float64)
+        p = torch.tensor([pv], dtype=torch.float64)
+        slow = compute_metrics(q, p, dt=1e-3)
+        fast = compute_metrics(q, p, dt=1e-3, backend="numba")
+        assert math.isnan(float(slow.dfd[0])) and math.isnan(float(fast.dfd[0])), (qv, pv, slow.dfd, fast.dfd)
+    q = torch.tensor([[0.0, inf, 0.0]], dtype=torch.float64)
+    p = torch.tensor([[0.0, -inf, 0.0]], dtype=torch.float64)  # opposite infinities: infinitely far, not NaN
+    assert float(compute_metrics(q, p, dt=1e-3, backend="numba").dfd[0]) == inf
+    assert float(compute_metrics(q, p, dt=1e-3).dfd[0]) == inf
