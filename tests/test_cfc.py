@@ -222,3 +222,27 @@ def test_a_bad_pad_time_is_a_pulse_error_on_every_front_end(pad_time):
     with pytest.raises(PulseError, match=r"pad_time must be a duration >= 0 s"):
         cfc_matrix(200, 1e-4, 60, pad_time=pad_time)
     np.testing.assert_array_equal(cfc_filter(x, 1e-4, 60, pad_time=0), cfc_filter(x, 1e-4, 60, pad_time=0.0))
+
+
+def test_the_torch_filter_reads_integer_and_half_precision_records_and_names_what_it_cannot_take():
+    """An integer record came back filtered and truncated to integers (a ramp 0, 1, 2, ... as 0, 0, 1, 2, ...; the
+    matrix path, on a GPU, by an integer matrix of zeros), bfloat16 was numpy's 'unsupported ScalarType', an array
+    an AttributeError on ``.device`` and a scalar an IndexError."""
+    ramp = np.arange(60.0) ** 2 / 60.0
+    want = cfc_filter(ramp, 1e-4, 60)
+    y = cfc_filter_torch(torch.tensor(np.round(ramp)).to(torch.int64), 1e-4, 60)
+    assert y.dtype == torch.get_default_dtype()
+    np.testing.assert_allclose(y.double().numpy(), cfc_filter(np.round(ramp), 1e-4, 60), rtol=1e-6, atol=1e-6)
+    for dtype in (torch.bfloat16, torch.float16):
+        for grad in (False, True):
+            x = torch.tensor(ramp, dtype=dtype, requires_grad=grad)
+            y = cfc_filter_torch(x, 1e-4, 60)
+            assert y.dtype == dtype
+            np.testing.assert_allclose(y.detach().double().numpy(), want, rtol=2e-2, atol=0.2)
+    np.testing.assert_allclose(cfc_filter_torch(ramp, 1e-4, 60).numpy(), want, rtol=1e-12, atol=1e-12)
+    with pytest.raises(PulseError, match="scalar"):
+        cfc_filter_torch(torch.tensor(1.0), 1e-4)
+    with pytest.raises(PulseError, match="real"):
+        cfc_filter_torch(torch.zeros(60, dtype=torch.complex64), 1e-4)
+    with pytest.raises(PulseError, match="x"):
+        cfc_filter_torch("abc", 1e-4)

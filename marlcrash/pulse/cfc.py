@@ -44,6 +44,7 @@ import scipy.signal
 import torch
 
 from marlcrash.errors import ConfigError, PulseError
+from marlcrash.metrics import _as_signal
 
 CFC_CLASSES: tuple[int, ...] = (60, 180, 600, 1000)
 """The channel frequency classes of SAE J211 / ISO 6487."""
@@ -178,20 +179,22 @@ def cfc_filter_torch(x: torch.Tensor, dt: float, cfc: int = 60, pad_time: float 
     (:func:`cfc_matrix`), which agrees to about 1e-15 relative (module docstring).
 
     Args:
-        x: ``[..., T]`` uniformly sampled signals (e.g. ``[B, n_sensors, T]``).
+        x: ``[..., T]`` uniformly sampled signals (e.g. ``[B, n_sensors, T]``); an array or an integer tensor is read
+            as floating point numbers (float64, the default dtype).
         dt: sampling interval [s].
         cfc: channel frequency class.
         pad_time: end padding [s], as in :func:`cfc_filter`.
 
     Returns:
-        ``[..., T]`` filtered signals, on ``x``'s device and dtype.
+        ``[..., T]`` filtered signals, on ``x``'s device and floating dtype.
     """
+    x = _as_signal(x, "x")  # an integer record came back truncated to integers, an array was an AttributeError
     n = int(x.shape[-1])
     if x.device.type == "cpu" and not (x.requires_grad and torch.is_grad_enabled()):
         if n < 3:
             raise PulseError(f"CFC filtering needs at least 3 samples, got n={n}")
-        y = _filtfilt(
-            x.detach().numpy().astype(np.float64, copy=False), float(dt), check_cfc(cfc), -1, _check_pad_time(pad_time)
+        y = _filtfilt(  # through float64 in torch: numpy has no bfloat16
+            x.detach().to(torch.float64).numpy(), float(dt), check_cfc(cfc), -1, _check_pad_time(pad_time)
         )
         return torch.from_numpy(np.ascontiguousarray(y)).to(x.dtype)
     m = torch.as_tensor(cfc_matrix(n, dt, cfc, pad_time), dtype=x.dtype, device=x.device)
