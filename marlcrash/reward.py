@@ -30,7 +30,7 @@ from typing import Any, ClassVar, Literal, NamedTuple
 
 import torch
 
-from marlcrash.config import config_dir, from_dict, load_config, require
+from marlcrash.config import checked, config_dir, from_dict, load_config, require
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics, MetricsConfig, compute_metrics
 
@@ -380,7 +380,9 @@ class Reward:
     """
 
     def __init__(self, cfg: RewardConfig):
-        self.cfg = cfg
+        # a config made in Python skipped the loader's checks: a Frechet time scale of 0 or a success threshold
+        # above its failure limit was used as it was
+        self.cfg = cfg = checked(cfg)
         self.form = get_reward(cfg.name, **cfg.params)
 
     def metrics(self, q: torch.Tensor, p: torch.Tensor, time: torch.Tensor | None = None, *, dt=None) -> Metrics:

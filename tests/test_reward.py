@@ -243,3 +243,23 @@ def test_a_reward_config_made_in_python_takes_the_defaults_of_the_form_it_names(
     assert RewardConfig() == load_reward_config("paper_factor")  # the shipped default is unchanged
     with pytest.raises(ConfigError, match=r"key 'params.a'"):  # another form's key is still refused
         Reward(RewardConfig(name="log_ratio", params={"a": 1.0}))
+
+
+def test_a_reward_made_from_a_config_built_in_python_checks_every_key_of_it():
+    """``Reward(cfg)`` checked only the form's params: a config made in Python with a Frechet time scale of 0 (the
+    distance then ignores time), a success threshold above its failure limit or a misspelt sensor reduction was
+    used as it was (the last failed at the first reward, not where it was set)."""
+    from marlcrash.metrics import MetricsConfig
+
+    bad = [
+        (RewardConfig(metrics=MetricsConfig(dfd_time_scale=0.0)), "metrics.dfd_time_scale"),
+        (RewardConfig(metrics=MetricsConfig(area_method="simpson")), "metrics.area_method"),
+        (RewardConfig(termination=TerminationConfig(success_area=2.0, failure_area=1.0)), "termination.success_area"),
+        (RewardConfig(name="log_ratio", sensor_reduction="median"), "sensor_reduction"),
+        (RewardConfig(params={"a": "1"}), "params.a"),
+    ]
+    for cfg, key in bad:
+        with pytest.raises(ConfigError) as e:
+            Reward(cfg)
+        assert e.value.key == key, (key, e.value)
+    Reward(RewardConfig(name="log_ratio", params={"w_area": 2}))  # a good one still builds
