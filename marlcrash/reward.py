@@ -31,7 +31,7 @@ from typing import Any, ClassVar, Literal, NamedTuple
 import torch
 
 from marlcrash.config import checked, config_dir, from_dict, load_config, require
-from marlcrash.errors import ConfigError
+from marlcrash.errors import ConfigError, PulseError
 from marlcrash.metrics import Metrics, MetricsConfig, compute_metrics
 
 
@@ -50,8 +50,18 @@ def paper_factor(
     return a / area + b / dfd + c / rmse
 
 
+def _some_sensors(metrics: Metrics) -> Metrics:
+    """``metrics`` unless they are ``[*batch, 0]``, of no sensors: a :class:`PulseError` (every one of no sensors
+    met the success thresholds, and their mean was NaN)."""
+    if metrics.area.dim() and metrics.area.shape[-1] == 0:
+        raise PulseError(f"expected metrics per sensor [*batch, n_sensors], got no sensors (shape "
+                         f"{tuple(metrics.area.shape)}); compare at least one sensor")  # fmt: skip
+    return metrics
+
+
 def reduce_sensors(metrics: Metrics, how: str) -> Metrics:
     """Combine ``[*batch, n_sensors]`` metrics over the last dimension: ``mean`` or ``max``."""
+    metrics = _some_sensors(metrics)
     if how == "mean":
         return Metrics(*(m.mean(-1) for m in metrics))
     if how == "max":
@@ -348,8 +358,11 @@ def termination(metrics: Metrics, cfg: TerminationConfig, iteration: int | torch
     Returns:
         :class:`Termination`; ``success`` wins over ``failure`` (they cannot both hold when
         every success threshold is below its failure limit).
+
+    Raises:
+        PulseError: metrics of no sensors (``[*batch, 0]``).
     """
-    ref = metrics.area
+    ref = _some_sensors(metrics).area
     success = torch.ones(ref.shape[:-1], dtype=torch.bool, device=ref.device)
     failure = torch.zeros_like(success)
     checked = False

@@ -263,3 +263,20 @@ def test_a_reward_made_from_a_config_built_in_python_checks_every_key_of_it():
             Reward(cfg)
         assert e.value.key == key, (key, e.value)
     Reward(RewardConfig(name="log_ratio", params={"w_area": 2}))  # a good one still builds
+
+
+def test_metrics_of_no_sensors_are_refused_by_name():
+    """Metrics ``[B, 0]`` (no sensor compared) ended every episode in success at once (every one of no sensors is
+    below its threshold), scored a NaN reward with ``mean`` and raised torch's amax error with ``max``."""
+    from marlcrash.errors import PulseError
+
+    none = Metrics(*(torch.zeros(2, 0) for _ in range(3)))
+    for how in ("mean", "max"):
+        with pytest.raises(PulseError, match="no sensors"):
+            reduce_sensors(none, how)
+        with pytest.raises(PulseError, match="no sensors"):
+            Reward(RewardConfig(sensor_reduction=how))(none, None)
+    with pytest.raises(PulseError, match="no sensors"):
+        termination(none, TerminationConfig(success_area=1.0), 1)
+    one = Metrics(*(torch.zeros(2, 1) for _ in range(3)))
+    assert termination(one, TerminationConfig(success_area=1.0), 1).success.tolist() == [True, True]
