@@ -867,3 +867,11 @@ def test_a_file_references_weight_and_onset_threshold_are_finite_numbers(key, ba
     with pytest.raises(ConfigError, match=f"expected a finite number > 0.*got {bad!r}") as e:
         f.validate()
     assert e.value.key == key
+
+
+@pytest.mark.parametrize("pre_time", ["0.02", None, True, float("nan")])
+def test_a_lead_in_that_is_not_a_duration_is_refused_by_name(pre_time):
+    """Text or None as ``pre_time`` raised math.isfinite's TypeError ('must be real number'), naming nothing, and
+    True was taken as a lead-in of 1 s."""
+    with pytest.raises(PulseError, match="pre_time"):
+        compared_velocity(torch.linspace(11.0, 0.0, 60, dtype=torch.float64), 5e-4, 60, pre_time=pre_time)

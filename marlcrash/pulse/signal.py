@@ -263,7 +263,7 @@ def compared_velocity(
     """
     velocity = _check_velocity(velocity)
     dt = check_step(dt)
-    if not (math.isfinite(pre_time) and pre_time >= 0):
+    if not (_is_real(pre_time) and math.isfinite(pre_time) and pre_time >= 0):  # text was math's TypeError
         raise PulseError(f"pre_time must be a duration >= 0 s, got {pre_time!r}")
     n = round(pre_time / dt)
     acc = sampled_acceleration(velocity, dt)
