@@ -161,6 +161,15 @@ def check_step(dt: object) -> float:
     return step
 
 
+def _check_scale(value: object, name: str) -> float:
+    """A factor on time or values before Frechet distances: a finite real number > 0, else a :class:`PulseError`
+    naming ``name`` (0 dropped time or values from the distance, text was torch's index error)."""
+    real = isinstance(value, int | float | np.integer | np.floating) and not isinstance(value, bool)
+    if not (real and math.isfinite(value) and value > 0):
+        raise PulseError(f"{name}: expected a finite factor > 0 (1: unscaled SI), got {value!r}")
+    return float(value)
+
+
 def _check_time(time: object, like: torch.Tensor) -> torch.Tensor:
     """Sample times ``[T]``/``[..., T]`` [s] as a tensor on the device of ``like``: finite and strictly increasing, of
     ``like``'s dtype or their own floating one where that is more precise (float64 times of float32 signals: rounded
@@ -274,6 +283,7 @@ def curve_points(
     """Points ``[..., T, 2]`` = ``(time_scale * t, value_scale * v)`` of a sampled curve ``values [..., T]``."""
     if (time is None) == (dt is None):
         raise PulseError("pass exactly one of time (sample times [s]) or dt (uniform step [s])")
+    time_scale, value_scale = _check_scale(time_scale, "time_scale"), _check_scale(value_scale, "value_scale")
     values = _nonempty(_as_signal(values, "values"))
     if time is None:
         time = torch.arange(values.shape[-1], dtype=values.dtype, device=values.device) * check_step(dt)
@@ -515,6 +525,7 @@ def discrete_frechet_uniform_numba(
     q, p = _check_pair(q, p, min_samples=1)  # were torch's broadcasting, reshaping and attribute errors
     q, p = torch.broadcast_tensors(q.detach().double().cpu(), p.detach().double().cpu())
     dt = check_step(dt)  # dt = 0 or nan gave a number
+    time_scale, value_scale = _check_scale(time_scale, "time_scale"), _check_scale(value_scale, "value_scale")
     shape = q.shape[:-1]
     qa = np.ascontiguousarray(q.reshape(-1, q.shape[-1]).numpy())
     pa = np.ascontiguousarray(p.reshape(-1, p.shape[-1]).numpy())

@@ -18,6 +18,7 @@ from marlcrash.metrics import (
     discrete_frechet,
     discrete_frechet_points,
     discrete_frechet_ragged,
+    discrete_frechet_uniform_numba,
     rmse,
 )
 
@@ -461,3 +462,20 @@ def test_the_compiled_frechet_kernel_gives_nan_where_torch_does_for_infinite_sam
     p = torch.tensor([[0.0, -inf, 0.0]], dtype=torch.float64)  # opposite infinities: infinitely far, not NaN
     assert float(compute_metrics(q, p, dt=1e-3, backend="numba").dfd[0]) == inf
     assert float(compute_metrics(q, p, dt=1e-3).dfd[0]) == inf
+
+
+@pytest.mark.parametrize("scale", [0.0, -1.0, math.nan, math.inf, "2", None, True])
+@pytest.mark.parametrize("key", ["time_scale", "value_scale"])
+def test_a_frechet_scale_that_is_not_a_factor_above_zero_is_refused_by_name(key, scale):
+    """Called directly (not through a checked MetricsConfig), a scale of 0 dropped time or values from the distance
+    without a word, NaN gave NaN, text or None raised torch's 'only integer tensors of a single element can be
+    converted to an index', True counted as 1; in both the torch and the compiled kernel."""
+    q = torch.tensor([0.0, 1.0, 0.5], dtype=torch.float64)
+    p = torch.tensor([0.2, 0.8, 0.4], dtype=torch.float64)
+    for call in (
+        lambda: discrete_frechet(q, p, dt=1e-3, **{key: scale}),
+        lambda: discrete_frechet(q, p, torch.arange(3.0) * 1e-3, **{key: scale}),
+        lambda: discrete_frechet_uniform_numba(q, p, 1e-3, **{key: scale}),
+    ):
+        with pytest.raises(PulseError, match=key):
+            call()
