@@ -246,3 +246,15 @@ def test_the_torch_filter_reads_integer_and_half_precision_records_and_names_wha
         cfc_filter_torch(torch.zeros(60, dtype=torch.complex64), 1e-4)
     with pytest.raises(PulseError, match="x"):
         cfc_filter_torch("abc", 1e-4)
+
+
+def test_the_numpy_filter_names_samples_it_cannot_read():
+    """Complex samples lost their imaginary part with only numpy's ComplexWarning, text raised numpy's 'could not
+    convert string to float', and an axis the record does not have an IndexError."""
+    with pytest.raises(PulseError, match="real"):
+        cfc_filter(np.zeros(50) + 1j, 1e-4)
+    with pytest.raises(PulseError, match="numbers"):
+        cfc_filter(["a"] * 50, 1e-4)
+    with pytest.raises(PulseError, match="axis 5"):
+        cfc_filter(np.zeros((3, 50)), 1e-4, axis=5)
+    np.testing.assert_allclose(cfc_filter([[1] * 50], 1e-4), np.ones((1, 50)), rtol=1e-12)  # integers are numbers

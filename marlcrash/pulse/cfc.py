@@ -131,10 +131,20 @@ def cfc_filter(x: np.ndarray, dt: float, cfc: int = 60, *, axis: int = -1, pad_t
         The filtered array, same shape and dtype float64.
 
     Raises:
-        PulseError: non-finite samples, fewer than 3 samples, a bad ``dt`` or ``pad_time``.
+        PulseError: samples that are not real numbers, non-finite samples, an ``axis`` they lack, fewer than 3
+            samples, a bad ``dt`` or ``pad_time``.
         ConfigError: ``cfc`` is not a J211 class.
     """
-    x = np.asarray(x, dtype=np.float64)
+    try:
+        a = np.asarray(x)
+        real = not np.iscomplexobj(a)  # complex samples lost their imaginary part with a ComplexWarning
+        x = a.astype(np.float64) if real else a
+    except (TypeError, ValueError):  # text was numpy's 'could not convert string to float'
+        raise PulseError(f"CFC filtering needs samples as an array of numbers, got {type(x).__name__}") from None
+    if not real:
+        raise PulseError(f"CFC filtering needs real samples, got {a.dtype}")
+    if x.ndim and not -x.ndim <= axis < x.ndim:
+        raise PulseError(f"CFC filtering along axis {axis}: the samples have shape {x.shape}, no such axis")
     if x.ndim == 0 or x.shape[axis] < 3:
         raise PulseError(f"CFC filtering needs at least 3 samples along axis {axis}, got shape {x.shape}")
     if not np.all(np.isfinite(x)):
