@@ -195,6 +195,27 @@ def test_prepare_velocity_refuses_a_rate_that_is_not_a_number_of_hz(analytic, ra
         prepare_velocity(analytic, rate_hz=rate, duration=0.15, time_zero="file")
 
 
+@pytest.mark.parametrize(
+    ("key", "value"),
+    [("beyond", "0.01"), ("beyond", None), ("v0", float("nan")), ("v0", "11"), ("v0", [11.0, 11.0, 11.0]),
+     ("threshold_g", "0.5"), ("threshold_g", None)],
+)  # fmt: skip
+def test_prepare_velocity_names_a_setting_that_is_not_a_number(analytic, key, value):
+    """``beyond`` or ``threshold_g`` as text or None raised TypeErrors naming nothing ('must be real number', "'>' not
+    supported"); ``v0`` NaN gave a NaN reference, text was read as a number, and three speeds for the two channels
+    raised numpy's broadcast error (two speeds for one channel made the reference two channels without a word)."""
+    with pytest.raises(PulseError, match=key):
+        prepare_velocity(analytic, duration=0.15, **{key: value})
+
+
+def test_prepare_velocity_takes_one_speed_or_one_per_channel(analytic):
+    _, v = prepare_velocity(analytic, duration=0.15, v0=DV)
+    _, each = prepare_velocity(analytic, duration=0.15, v0=np.array([DV, DV + 1.0]))
+    np.testing.assert_allclose(each, v + np.array([[0.0], [1.0]]), atol=1e-12)
+    with pytest.raises(PulseError, match="v0"):
+        prepare_velocity(analytic.select("tunnel"), duration=0.15, v0=[DV, DV])
+
+
 def test_resample_is_linear_interpolation(analytic):
     r = resample(analytic, 2000.0, 0.0, 0.1)
     assert r.n_samples == 201 and r.time[-1] == pytest.approx(0.1)

@@ -441,8 +441,8 @@ def find_time_zero(pulse: Pulse, threshold_g: float = DEFAULT_THRESHOLD_G) -> fl
     Raises:
         PulseError: no channel reaches the threshold, or it is already exceeded at the first sample.
     """
-    if not threshold_g > 0:
-        raise PulseError(f"time-zero threshold must be > 0 g, got {threshold_g!r}")
+    if not (_is_real(threshold_g) and threshold_g > 0):  # text was "'>' not supported"
+        raise PulseError(f"threshold_g: time-zero threshold must be > 0 g, got {threshold_g!r}")
     level = threshold_g * G0
     mag = np.abs(pulse.acc)
     above = mag >= level
@@ -733,8 +733,8 @@ def find_onset(pulse: Pulse, cfc: int | None = 60, threshold_g: float = DEFAULT_
     Raises:
         PulseError: a threshold <= 0, or no channel leaves its noise (naming the file and each channel's level).
     """
-    if not threshold_g > 0:
-        raise PulseError(f"time-zero threshold must be > 0 g, got {threshold_g!r}")
+    if not (_is_real(threshold_g) and threshold_g > 0):  # text was "'>' not supported"
+        raise PulseError(f"threshold_g: time-zero threshold must be > 0 g, got {threshold_g!r}")
     where = pulse.source or "pulse"
     u = pulse if pulse.is_uniform else resample(pulse, pulse.sample_rate_hz)
     dt = float(u.time[1] - u.time[0])
@@ -1049,7 +1049,7 @@ def prepare_velocity(
         duration: length [s] of the window after time zero (default: to the end of the record).
         time_zero: ``"threshold"`` (the pulse's onset, :func:`find_onset`) or ``"file"`` (the file's t = 0).
         threshold_g: the lowest onset detection level [g] (:func:`find_onset`).
-        v0: forward speed [m/s] before the impact (0 gives the velocity change).
+        v0: forward speed [m/s] before the impact (0 gives the velocity change), or ``[K]`` one per channel.
         beyond: with a ``duration``, also return up to this long [s] past the window, as far as the record
             reaches (the filter ran over the whole record either way; :func:`compared_window`).
 
@@ -1063,11 +1063,21 @@ def prepare_velocity(
 
     Raises:
         PulseError: a ``duration`` that is not a window > 0 s, a ``rate_hz`` that is not a rate > 0 Hz, a
-            ``beyond`` < 0 s, time zero outside the record (the file's t = 0 of a record on another clock), or a
-            record that ends before the window does (naming the file).
+            ``beyond`` < 0 s, a ``v0`` that is not a finite speed (or one per channel), a ``threshold_g`` <= 0,
+            time zero outside the record (the file's t = 0 of a record on another clock), or a record that ends
+            before the window does (naming the file).
     """
-    if not (math.isfinite(beyond) and beyond >= 0):
+    if not (_is_real(beyond) and math.isfinite(beyond) and beyond >= 0):  # text was math's TypeError
         raise PulseError(f"beyond must be a duration >= 0 s, got {beyond!r}")
+    try:  # NaN gave a NaN reference, text was read as a number, a speed per channel of another count broadcast
+        speed = None if isinstance(v0, str | bool) else np.asarray(v0, dtype=np.float64)
+    except (TypeError, ValueError):
+        speed = None
+    if speed is not None and (speed.ndim > 1 or (speed.ndim == 1 and speed.shape[0] != pulse.n_channels)):
+        speed = None
+    if speed is None or not np.all(np.isfinite(speed)):
+        raise PulseError(f"v0: expected the forward speed before the impact [m/s], a finite number or one per "
+                         f"channel ({pulse.n_channels}), got {v0!r}")  # fmt: skip
     if duration is not None and not (_is_real(duration) and math.isfinite(duration) and duration > 0):
         raise PulseError(f"duration: expected a window > 0 s after time zero (or None: to the record's end), "
                          f"got {duration!r}")  # fmt: skip
@@ -1094,5 +1104,5 @@ def prepare_velocity(
     # sensor's velocity change came out 4.6 m/s short of the simulation's the file was written from)
     n_pre = int(np.floor((t0 - max(float(p.time[0]), t0 - PRE_IMPACT_TIME)) * rate_hz + 1e-9))
     q = resample(p, rate_hz, t0 - n_pre / rate_hz, t_end)
-    v = q.velocity(v0)[:, n_pre:]
+    v = q.velocity(speed)[:, n_pre:]
     return np.arange(v.shape[1]) / rate_hz, v
