@@ -542,3 +542,33 @@ def test_the_script_without_a_run_says_so_even_when_resuming(tmp_path):
         assert out.returncode == 2 and "key 'run'" in out.stderr and "run=runs/mappo/<name>" in out.stderr, extra
         assert "Traceback" not in out.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == ["amortized.json"]
+
+
+def test_a_resume_after_a_config_file_changed_is_refused_naming_it(run_dir, tmp_path, monkeypatch):
+    """The rows kept at a resume were made with the files of ``configs/`` (simulator, cells, scenarios, reward) as they
+    were then; a resume after one changed mixed two physics in one table without a word (the settings check saw only
+    the comparison's own settings). The comparison records their digests, and a resume refuses a changed file."""
+    import marlcrash.calibrate.amortized as amortized
+    from marlcrash import provenance
+    from marlcrash.calibrate.marl import make_env_config
+
+    config = small_config(run_dir, reference_seeds=[SEEDS[0]], budgets={"random_search": [1]})
+    first = amortized_comparison(config)
+    _, cfg, _ = load_policy(run_dir)
+    now = provenance.config_digests(provenance.env_inputs(make_env_config(cfg)))
+    assert first.meta["configs"] == now
+    write_comparison(first, tmp_path)
+    done = amortized.read_comparison(tmp_path)
+    assert amortized_comparison(config, done=done).rows == done.rows  # unchanged files: the rows stand
+
+    changed = dict(now, **{"configs/sim.yaml": "0" * 64})
+    monkeypatch.setattr(amortized.provenance, "config_digests", lambda extra=(): changed)
+    said: list[str] = []
+    with pytest.raises(ConfigError, match=r"key 'resume': cannot continue the comparison: .*configs/sim\.yaml changed"):
+        amortized_comparison(config, done=done, progress=said.append)
+    assert said == []  # refused before anything ran
+    added = dict(now, **{"configs/scenarios/new_one.yaml": "0" * 64})  # a file the earlier rows did not read
+    monkeypatch.setattr(amortized.provenance, "config_digests", lambda extra=(): added)
+    assert amortized_comparison(config, done=done).rows == done.rows
+    older = amortized.Comparison(done.rows, done.aggregate, {k: v for k, v in done.meta.items() if k != "configs"})
+    assert amortized_comparison(config, done=older).rows == done.rows  # written before the record: cannot tell

@@ -33,7 +33,8 @@ candidate diverged, is ``null``; an empty field in the CSV, ``-`` in the tables)
 default the run folder). The script
 writes them after every finished piece too (``meta.complete`` false, the Markdown says *incomplete*), so an
 optimizer that fails or a kill keeps what finished; ``resume=true`` continues such a comparison in its folder
-(:func:`read_comparison`, ``done=`` of :func:`amortized_comparison`), running only the pieces it lacks.
+(:func:`read_comparison`, ``done=`` of :func:`amortized_comparison`), running only the pieces it lacks; ``meta.configs``
+(the digests of the files of ``configs/`` the simulations read) refuses a resume after one of them changed.
 """
 
 from __future__ import annotations
@@ -350,7 +351,7 @@ def amortized_comparison(
             ``reference_seeds[i]``), a policy without its training config, or gradient budgets with
             ``gradient.backend: adjoint`` on a simulator the adjoint does not cover (the run's float32
             ``sim_dtype``, springback relief; key ``gradient.backend``), or a ``done`` comparison of another
-            policy or other settings (key ``resume``), all before any simulation.
+            policy, other settings or other files of ``configs/`` (key ``resume``), all before any simulation.
     """
     changes = digest = None  # a policy given as an object: its run's files are not known
     if policy is None:
@@ -404,6 +405,8 @@ def amortized_comparison(
         "optimizers": {k: asdict(getattr(config, k)) for k in config.budgets},
         "thresholds": asdict(train_config.eval.thresholds),
         "checkpoint_sha256": digest if digest is not None or config.run is None else _checkpoint_digest(config.run),
+        # the files the simulations read (simulator, cells, scenarios, reward): a resume after one changed mixed physics
+        "configs": provenance.config_digests(provenance.env_inputs(make_env_config(train_config))),
         "provenance": changes,  # configs or code changed since the policy's run started
         "complete": False,  # every reference and budget finished
     }
@@ -475,15 +478,17 @@ def _checkpoint_digest(run_dir: str | Path) -> str | None:
     return h.hexdigest()
 
 
-RESUME_FREE = ("run", "reference_seeds", "budgets", "optimizers", "provenance", "complete")
+RESUME_FREE = ("run", "reference_seeds", "budgets", "optimizers", "configs", "provenance", "complete")
 """Entries of ``meta`` a resumed comparison may change: how the run folder is spelled (``checkpoint_sha256`` names
 the policy), which pieces it asks for (the settings of the optimizers both ask for are compared), what changed since
-the policy's run started, and whether it finished."""
+the policy's run started, and whether it finished. ``configs`` (the digests of the input files) is compared file by
+file, naming the files that changed."""
 
 
 def resume_mismatch(earlier: dict[str, Any], now: dict[str, Any]) -> str | None:
     """Why the rows of comparison ``earlier`` (its ``meta``) cannot stand in a comparison with ``now``'s settings,
-    or ``None``: the policy (checkpoint digest) and every setting a row depends on must be equal."""
+    or ``None``: the policy (checkpoint digest), every setting a row depends on and the input files of ``configs/``
+    (``configs``: their digests; a comparison written before that record is not checked on them) must be equal."""
 
     def settings(meta: dict[str, Any]) -> dict[str, Any]:
         meta = json.loads(json_text(meta))  # as the JSON holds it
@@ -493,10 +498,17 @@ def resume_mismatch(earlier: dict[str, Any], now: dict[str, Any]) -> str | None:
     a, b = settings(earlier), settings(now)
     differ = [k for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k) and not (k.startswith("optimizers.")
               and (k not in a or k not in b))]  # fmt: skip
-    if not differ:
+    files = []
+    if isinstance(earlier.get("configs"), dict) and isinstance(now.get("configs"), dict):
+        # a file added since is one the earlier rows did not read (as a training resume, provenance.require_unchanged)
+        files = [c for c in provenance.config_changes(earlier["configs"], now["configs"]) if not c.endswith(" added")]
+    if not differ and not files:
         return None
-    said = "; ".join(f"{k}: {a.get(k)!r} then, {b.get(k)!r} now" for k in differ)
-    return f"its rows were made with other settings or another policy ({said}); start a new one in another folder"
+    said = "; ".join([f"{k}: {a.get(k)!r} then, {b.get(k)!r} now" for k in differ] + files)
+    return (
+        f"its rows were made with other settings, another policy or other input files ({said}); restore them or "
+        "start a new one in another folder"
+    )
 
 
 def read_comparison(out_dir: str | Path) -> Comparison:
