@@ -572,3 +572,25 @@ def test_a_resume_after_a_config_file_changed_is_refused_naming_it(run_dir, tmp_
     assert amortized_comparison(config, done=done).rows == done.rows
     older = amortized.Comparison(done.rows, done.aggregate, {k: v for k, v in done.meta.items() if k != "configs"})
     assert amortized_comparison(config, done=older).rows == done.rows  # written before the record: cannot tell
+
+
+@pytest.mark.parametrize(
+    "corrupt",
+    [
+        lambda r: r["rows"][0].update(score="abc"),  # numpy's "could not convert string to float" from aggregate
+        lambda r: r["rows"][2].update(simulations=[3]),
+        lambda r: r.update(rows=[x for x in r["rows"] if x["method"] != "policy_best"]),  # KeyError in aggregate
+        lambda r: r.update(meta=[]),  # AttributeError at the settings check
+    ],
+)
+def test_a_damaged_comparison_record_is_refused_naming_resume(comparison, tmp_path, corrupt):
+    """``read_comparison`` checked the rows' columns but not their values: an edited or damaged ``amortized.json``
+    failed with a traceback from deep in numpy (or a KeyError, an AttributeError) instead of naming the file."""
+    import marlcrash.calibrate.amortized as amortized
+
+    paths = write_comparison(comparison, tmp_path)
+    record = json.loads(paths["amortized.json"].read_text())
+    corrupt(record)
+    paths["amortized.json"].write_text(json.dumps(record))
+    with pytest.raises(ConfigError, match=r"key 'resume': .*amortized.json is not a comparison this tool wrote"):
+        amortized.read_comparison(tmp_path)

@@ -519,7 +519,8 @@ def read_comparison(out_dir: str | Path) -> Comparison:
     it as a fresh run gives it (:func:`_generations`), so an older comparison resumes with every row alike.
 
     Raises:
-        ConfigError: (key ``resume``) no ``amortized.json`` there, or one that is not a comparison's.
+        ConfigError: (key ``resume``) no ``amortized.json`` there, or one that is not a comparison's (its columns, or
+            values the tables cannot be made of).
     """
     path = Path(out_dir) / "amortized.json"
     if not path.is_file():
@@ -527,18 +528,23 @@ def read_comparison(out_dir: str | Path) -> Comparison:
     try:
         record = json.loads(path.read_text(encoding="utf-8"))
         rows, meta = record["rows"], record["meta"]
+        if not isinstance(meta, dict):
+            raise ValueError(f"expected an object as meta, got {type(meta).__name__}")
         older = set(COLUMNS) - {"generations"}  # written before the column
         if not (isinstance(rows, list) and all(isinstance(r, dict) and set(r) in (set(COLUMNS), older) for r in rows)):
             raise ValueError(f"expected rows with the columns {list(COLUMNS)}")
         rows = [{k: r[k] if k in r else _generations(r, meta) for k in COLUMNS} for r in rows]
+        for r in rows:
+            for k, gone in (("area", math.nan), ("dfd", math.nan), ("rmse", math.nan), ("score", -math.inf),
+                            ("initial_score", -math.inf)):  # fmt: skip
+                if r[k] is None:
+                    r[k] = gone
+        table = aggregate(rows)  # here: a damaged value failed deep in numpy ("could not convert string to float")
     except (ValueError, KeyError, TypeError) as e:
-        raise ConfigError(f"{path} is not a comparison this tool wrote: {e}", key="resume") from None
-    for r in rows:
-        for k, gone in (("area", math.nan), ("dfd", math.nan), ("rmse", math.nan), ("score", -math.inf),
-                        ("initial_score", -math.inf)):  # fmt: skip
-            if r[k] is None:
-                r[k] = gone
-    return Comparison(rows=rows, aggregate=aggregate(rows), meta=meta)
+        raise ConfigError(
+            f"{path} is not a comparison this tool wrote: {type(e).__name__}: {e}", key="resume"
+        ) from None
+    return Comparison(rows=rows, aggregate=table, meta=meta)
 
 
 def _generations(row: dict[str, Any], meta: dict[str, Any]) -> int | None:
