@@ -594,3 +594,29 @@ def test_a_damaged_comparison_record_is_refused_naming_resume(comparison, tmp_pa
     paths["amortized.json"].write_text(json.dumps(record))
     with pytest.raises(ConfigError, match=r"key 'resume': .*amortized.json is not a comparison this tool wrote"):
         amortized.read_comparison(tmp_path)
+
+
+def test_a_second_comparison_into_a_folder_in_use_is_refused(run_dir, short, tmp_path):
+    """Two comparisons into one folder at once (the jobs of a parallel multirun launcher with the default out_dir, the
+    run folder; a second ``resume=true`` in another terminal) both passed the check for an earlier amortized.json
+    before either had written one, then replaced each other's files after every piece: one's rows were lost. A
+    comparison holds its folder while it runs (its own lock file, not the run's ``.lock``: a run that still trains
+    may be compared)."""
+    import marlcrash.calibrate.amortized as amortized
+    from marlcrash.calibrate.runlock import LOCK_FILE
+
+    env = {**os.environ, "MARLCRASH_CONFIGS": str(short)}
+    cmd = [sys.executable, str(REPO / "train" / "amortized.py"), f"run={run_dir}", "reference_seeds=[101]",
+           "iterations=1", "budgets={cmaes: [1]}", "~budgets.random_search", "~budgets.gradient", "cmaes.popsize=2",
+           f"out_dir={tmp_path}"]  # fmt: skip
+    with amortized.hold_comparison_dir(tmp_path, key="out_dir"):
+        assert amortized.COMPARISON_LOCK != LOCK_FILE
+        out = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=REPO, timeout=300)
+    assert out.returncode == 2 and "key 'out_dir'" in out.stderr and "in use by another process" in out.stderr
+    assert "seed 101" not in out.stdout and not (tmp_path / "amortized.json").exists()  # nothing ran
+    assert sorted(p.name for p in tmp_path.iterdir()) == []  # the lock file went with its holder
+    fresh = tmp_path / "fresh"  # a folder made for a comparison that is refused is not left behind, empty
+    with pytest.raises(RuntimeError, match="refused"), amortized.hold_comparison_dir(fresh):
+        assert (fresh / amortized.COMPARISON_LOCK).is_file()
+        raise RuntimeError("refused")
+    assert not fresh.exists()

@@ -26,6 +26,7 @@ from omegaconf import DictConfig, OmegaConf
 from marlcrash.calibrate.amortized import (
     amortized_comparison,
     check_comparison_dir,
+    hold_comparison_dir,
     load_amortized_config,
     read_comparison,
     write_comparison,
@@ -42,17 +43,19 @@ def main(cfg: DictConfig) -> None:
         config = load_amortized_config(OmegaConf.to_container(cfg, resolve=True), source="configs/train/amortized.yaml")
         if config.run is None:  # a resume looked for its comparison in the launch folder and named key 'resume'
             raise ConfigError("expected a training run folder, e.g. run=runs/mappo/<name>", key="run")
-        where = config.out_dir or config.run
-        # before the work, not after it: a new comparison needs a folder without one, a resumed one its record
-        done = read_comparison(where) if config.resume else None
-        out = check_output_dir(where, "out_dir") if config.resume else check_comparison_dir(where)
+        where = check_output_dir(config.out_dir or config.run, "out_dir")
+        # one comparison per folder; the run folder (out_dir null) or a resumed one must exist: a missing one is said
+        with hold_comparison_dir(where, create=config.out_dir is not None and not config.resume):
+            # before the work, not after it: a new comparison needs a folder without one, a resumed one its record
+            done = read_comparison(where) if config.resume else None
+            out = where if config.resume else check_comparison_dir(where)
 
-        def keep(partial):  # the tables so far after every finished piece: a failure or kill keeps them
-            write_comparison(partial, out, command=command.strip(), replace=True)
+            def keep(partial):  # the tables so far after every finished piece: a failure or kill keeps them
+                write_comparison(partial, out, command=command.strip(), replace=True)
 
-        comparison = amortized_comparison(config, progress=lambda msg: print(msg, flush=True), partial=keep,
-                                          done=done)  # fmt: skip
-        paths = write_comparison(comparison, out, command=command.strip(), replace=True)
+            comparison = amortized_comparison(config, progress=lambda msg: print(msg, flush=True), partial=keep,
+                                              done=done)  # fmt: skip
+            paths = write_comparison(comparison, out, command=command.strip(), replace=True)
     except MarlcrashError as e:
         print(f"error: {e}", file=sys.stderr)
         sys.exit(2)

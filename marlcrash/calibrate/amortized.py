@@ -39,6 +39,7 @@ optimizer that fails or a kill keeps what finished; ``resume=true`` continues su
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import csv
 import hashlib
@@ -46,7 +47,7 @@ import io
 import json
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import asdict, dataclass, field, fields
 from datetime import UTC, datetime
 from pathlib import Path
@@ -75,10 +76,11 @@ from marlcrash.calibrate.evaluate import (
 )
 from marlcrash.calibrate.marl import TrainConfig, load_run_config, make_env_config
 from marlcrash.calibrate.problem import CalibrationProblem
+from marlcrash.calibrate.runlock import run_lock
 from marlcrash.config import from_dict, require, require_complete, require_seed
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics
-from marlcrash.outputs import check_output_dir, finite_or_null, json_text, write_text
+from marlcrash.outputs import check_output_dir, finite_or_null, json_text, remove_temporaries_of, write_text
 from marlcrash.sim import adjoint
 from marlcrash.sim.scenario import list_scenarios
 from marlcrash.sim.surrogate import load_sim_config
@@ -717,6 +719,36 @@ def check_comparison_dir(out_dir: str | Path) -> Path:
             key="out_dir",
         )
     return out
+
+
+COMPARISON_LOCK = ".amortized.lock"
+"""The lock file in a comparison's folder while a comparison writes it (:func:`hold_comparison_dir`); not the run's
+own ``.lock`` (:data:`~marlcrash.calibrate.runlock.LOCK_FILE`), since the folder may be that of a run still training."""
+
+
+@contextlib.contextmanager
+def hold_comparison_dir(out_dir: str | Path, key: str = "out_dir", create: bool = True) -> Iterator[Path]:
+    """One comparison per folder: hold ``out_dir``'s :data:`COMPARISON_LOCK` for the ``with`` block (made where
+    missing with ``create``, and removed again if the block fails leaving it empty); yields the folder.
+
+    Two comparisons into one folder at once (the jobs of a parallel multirun launcher with the default ``out_dir``, a
+    second ``resume=true``) both passed :func:`check_comparison_dir` before either wrote, then replaced each other's
+    files after every piece. The temporary files a kill left writing :data:`FILES` are removed here.
+
+    Raises:
+        ConfigError: (key ``key``) another process holds the folder (with its process id), or it takes no lock file.
+    """
+    out = Path(out_dir)
+    made = create and not out.exists()
+    try:
+        with run_lock(out, key, create=create, name=COMPARISON_LOCK):
+            remove_temporaries_of(out, FILES)
+            yield out
+    except BaseException:
+        if made:  # a refused or failed comparison leaves no empty folder behind
+            with contextlib.suppress(OSError):
+                out.rmdir()
+        raise
 
 
 def write_comparison(

@@ -58,7 +58,7 @@ def claim_dir(path: str | Path) -> bool:
 
 
 @contextlib.contextmanager
-def run_lock(run_dir: str | Path, key: str, create: bool = False) -> Iterator[Path]:
+def run_lock(run_dir: str | Path, key: str, create: bool = False, name: str = LOCK_FILE) -> Iterator[Path]:
     """Hold the run folder's lock for the ``with`` block; yields the folder.
 
     Args:
@@ -66,6 +66,8 @@ def run_lock(run_dir: str | Path, key: str, create: bool = False) -> Iterator[Pa
         key: the config key that chose the folder, named in the error (``name``, ``resume``, ...).
         create: make the folder (and its parents) where it is missing. Otherwise a missing folder is left to the
             caller to report, and the block runs without a lock (there is nothing in it to protect).
+        name: the lock file's name (:data:`LOCK_FILE`; another one for a writer beside the run, such as the
+            amortized comparison, which may write into the folder of a run that still trains).
 
     Raises:
         ConfigError: another process holds the lock (with its process id), or the folder takes no lock file (read
@@ -77,14 +79,14 @@ def run_lock(run_dir: str | Path, key: str, create: bool = False) -> Iterator[Pa
     if (fcntl is None and msvcrt is None) or not run_dir.is_dir():  # no lock; or a missing folder, for the caller
         yield run_dir
         return
-    path = run_dir / LOCK_FILE
+    path = run_dir / name
     while True:
         try:
             fd = os.open(path, os.O_RDWR | os.O_CREAT | getattr(os, "O_BINARY", 0), 0o644)  # Windows: untranslated
         except OSError as e:  # a read-only file system or folder: said as such, not as a traceback
             raise ConfigError(
                 f"cannot write in the run folder {run_dir} ({e.strerror or e}); expected a folder this process may "
-                f"write in (its lock file {LOCK_FILE} and the results go there)",
+                f"write in (its lock file {name} and the results go there)",
                 key=key,
             ) from None
         if not _try_lock(fd):
