@@ -620,3 +620,27 @@ def test_a_second_comparison_into_a_folder_in_use_is_refused(run_dir, short, tmp
         assert (fresh / amortized.COMPARISON_LOCK).is_file()
         raise RuntimeError("refused")
     assert not fresh.exists()
+
+
+def test_the_policys_best_iterate_passes_before_it_scores():
+    """``policy_best`` is the highest-scoring iterate that passes the success test where any does, as an optimizer's
+    best candidate is (``Progress``) and as the evaluation reports: it was the highest score alone, so the policy's row
+    could say ``passed: false`` beside an iterate of its own that passed, while the optimizers' rows put a passing
+    candidate first."""
+    from types import SimpleNamespace
+
+    from marlcrash.calibrate.amortized import policy_rows
+    from marlcrash.calibrate.evaluate import EvalResult
+    from marlcrash.calibrate.problem import SuccessConfig
+    from marlcrash.metrics import Metrics
+
+    area = torch.tensor([[0.05], [0.002], [0.001]], dtype=torch.float64)
+    m = Metrics(area, torch.full_like(area, 0.1), torch.full_like(area, 0.1))
+    scores = torch.tensor([-3.0, 2.0, 1.0], dtype=torch.float64)  # I1 scores highest, only I2 passes
+    problem = SimpleNamespace(score=lambda _: scores, success=SuccessConfig().passes)
+    result = EvalResult(sensors=["tunnel"], metrics=m, scores=scores, params=torch.zeros(3, 1, 7), selected=2,
+                        select="best", true_params=None, ref_velocity=torch.zeros(1, 5), scenario="full_width_40",
+                        seed=101)  # fmt: skip
+    best, last = policy_rows(problem, result, 101, 1.0)
+    assert (best["method"], best["iteration"], best["passed"], best["score"]) == ("policy_best", 2, True, 1.0)
+    assert (last["method"], last["iteration"]) == ("policy_last", 2)

@@ -9,7 +9,8 @@ training references, and from ``reference.pin_seed`` of a run trained on that on
 - the trained policy alone (:func:`~marlcrash.calibrate.evaluate.evaluate_policy`, the mean action)
   for ``iterations`` calibration steps; it uses ``iterations + 1`` simulations (the reset simulates the
   initial parameters, then one per step), the same accounting as the baselines, whose first candidate
-  is the initial point. Rows ``policy_best`` (best iterate by fit score) and ``policy_last``;
+  is the initial point. Rows ``policy_best`` (best iterate by fit score, a passing one before any other) and
+  ``policy_last``;
 - every optimizer of ``budgets`` (:data:`~marlcrash.calibrate.baselines.BASELINES`: CMA-ES, random
   search, gradient descent) on the SAME reference (:func:`~marlcrash.calibrate.evaluate.evaluation_problem`
   with that seed; the reference pulses are checked to agree), one fresh run per budget. A budget is a
@@ -65,7 +66,7 @@ from marlcrash.calibrate.baselines import (
     GradientConfig,
     RandomSearchConfig,
 )
-from marlcrash.calibrate.budget import ranked_scores
+from marlcrash.calibrate.budget import best_index, ranked_scores
 from marlcrash.calibrate.checkpoint import CHECKPOINT_FILE, load_training_checkpoint
 from marlcrash.calibrate.evaluate import (
     EvalResult,
@@ -262,7 +263,7 @@ def policy_rows(problem: CalibrationProblem, result: EvalResult, seed: int, wall
     passed = problem.success(result.metrics)  # [I + 1]
     sims = result.iterations + 1
     rows = []
-    for method, i in (("policy_best", int(torch.argmax(scores))), ("policy_last", result.iterations)):
+    for method, i in (("policy_best", best_index(scores, passed)), ("policy_last", result.iterations)):
         m = Metrics(*(t[i] for t in result.metrics))
         err = init_err = None
         if result.true_params is not None:
