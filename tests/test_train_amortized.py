@@ -644,3 +644,24 @@ def test_the_policys_best_iterate_passes_before_it_scores():
     best, last = policy_rows(problem, result, 101, 1.0)
     assert (best["method"], best["iteration"], best["passed"], best["score"]) == ("policy_best", 2, True, 1.0)
     assert (last["method"], last["iteration"]) == ("policy_last", 2)
+
+
+def test_a_resume_that_leaves_out_finished_rows_is_refused_naming_them(run_dir, tmp_path):
+    """A resume rewrites ``amortized.json`` with the pieces its config asks for, so one that left out a reference
+    seed or a budget of the earlier comparison deleted those finished rows from disk without a word. It is refused,
+    naming what it leaves out; adding seeds and budgets still works."""
+    import marlcrash.calibrate.amortized as amortized
+
+    config = small_config(run_dir, reference_seeds=[SEEDS[0]], budgets={"cmaes": [1, 2]})
+    write_comparison(amortized_comparison(config), tmp_path)
+    done = amortized.read_comparison(tmp_path)
+    for seeds, budgets, said in (
+        ([SEEDS[1]], {"cmaes": [1, 2]}, rf"reference_seeds: \[{SEEDS[0]}\]"),
+        ([SEEDS[0]], {"cmaes": [1]}, r"budgets\.cmaes: \[2\]\)"),
+        ([SEEDS[0]], {"random_search": [1]}, r"budgets\.cmaes: \[1, 2\]\)"),
+    ):
+        with pytest.raises(ConfigError, match=r"key 'resume': .*finished rows this config leaves out .*" + said):
+            amortized_comparison(small_config(run_dir, reference_seeds=seeds, budgets=budgets), done=done)
+    more = amortized_comparison(small_config(run_dir, reference_seeds=[SEEDS[0]], budgets={"cmaes": [1, 2, 3]}),
+                                done=done)  # fmt: skip
+    assert [r["multiplier"] for r in more.rows] == [None, None, 1, 2, 3]

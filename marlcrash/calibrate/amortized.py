@@ -342,7 +342,8 @@ def amortized_comparison(
             ``replace=True``, so a failure or a kill later keeps what finished.
         done: an earlier, interrupted comparison (:func:`read_comparison`) to continue: its rows of the pieces this
             config asks for are kept, in their places, and only the missing pieces run; the policy and the settings
-            must be its own (:func:`resume_mismatch`; reference seeds and budgets may be added or left out). Every
+            must be its own (:func:`resume_mismatch`; reference seeds and budgets may be added, not left out where they
+            have rows). Every
             piece is a fresh, seeded run, so the result equals an uninterrupted comparison's.
 
     Returns:
@@ -354,7 +355,8 @@ def amortized_comparison(
             ``reference_seeds[i]``), a policy without its training config, or gradient budgets with
             ``gradient.backend: adjoint`` on a simulator the adjoint does not cover (the run's float32
             ``sim_dtype``, springback relief; key ``gradient.backend``), or a ``done`` comparison of another
-            policy, other settings or other files of ``configs/`` (key ``resume``), all before any simulation.
+            policy, other settings or other files of ``configs/``, or one with rows of reference seeds or budgets
+            this config leaves out (key ``resume``), all before any simulation.
     """
     changes = digest = None  # a policy given as an object: its run's files are not known
     if policy is None:
@@ -419,6 +421,21 @@ def amortized_comparison(
         if why is not None:
             raise ConfigError(f"cannot continue the comparison: {why}", key="resume")
         kept = {(r["reference_seed"], r["method"], r["multiplier"]): r for r in done.rows}
+        # the comparison is rewritten with the pieces asked for: finished rows of others would be deleted from disk
+        gone_seeds = sorted({s for s, _, _ in kept} - set(config.reference_seeds))
+        gone: dict[str, list[Any]] = {}
+        for s, method, m in kept:
+            if s in config.reference_seeds and method not in POLICY_METHODS and m not in config.budgets.get(method, []):
+                gone.setdefault(method, []).append(m)
+        if gone_seeds or gone:
+            said = "; ".join([f"reference_seeds: {gone_seeds}"] if gone_seeds else []
+                             + [f"budgets.{k}: [{', '.join(f'{m:g}' for m in sorted(set(v)))}]"
+                                for k, v in gone.items()])  # fmt: skip
+            raise ConfigError(
+                f"cannot continue the comparison: it has finished rows this config leaves out ({said}), and a resume "
+                "rewrites amortized.json with the rows asked for; add them back or start a new one in another folder",
+                key="resume",
+            )
     rows: list[dict[str, Any]] = []
 
     def finished_piece() -> None:
