@@ -520,6 +520,20 @@ def test_params_that_are_not_numbers_are_refused_by_name():
     assert out.velocity.shape[0] == 1
 
 
+def test_numpy_arrays_with_negative_strides_are_taken_as_the_numbers_they_hold():
+    """A reversed batch (``params[::-1]``) or speeds in reverse order are numbers like any other array: torch cannot
+    wrap a numpy array with negative strides, and both were refused as "must be an array or tensor of numbers"."""
+    cells = block()
+    sim = Surrogate(cells)
+    sc = get_scenario("full_width_40", {"duration": 0.002})
+    p = np.stack([cells.params, cells.params * 1.2])
+    speed = np.array([10.0, 12.0])
+    flipped = sim.run(p[::-1], sc, speed=speed[::-1], record_cells="none", backend="torch")
+    copied = sim.run(p[::-1].copy(), sc, speed=speed[::-1].copy(), record_cells="none", backend="torch")
+    assert torch.equal(flipped.velocity, copied.velocity)
+    assert flipped.initial[0] > flipped.initial[1]  # row 0 is the 12 m/s one
+
+
 def test_bad_per_row_scenario_tensors_are_named_with_what_was_wrong():
     """A NaN speed was reported as a wrong shape ("must be a finite tensor of shape [2], got [2]"), a speed given as
     text failed inside torch ("new(): invalid data type 'str'"), and an out-of-range row was reported by printing

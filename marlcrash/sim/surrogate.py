@@ -356,6 +356,14 @@ def _is_real(x) -> bool:
         return False
 
 
+def _tensor(x, **kw) -> torch.Tensor:
+    """``torch.as_tensor(x, **kw)``; a numpy array with negative strides (``a[::-1]``, which torch cannot wrap:
+    "At least one stride in the given numpy array is negative") is copied first."""
+    if isinstance(x, np.ndarray) and any(st < 0 for st in x.strides):
+        x = x.copy()
+    return torch.as_tensor(x, **kw)
+
+
 def _seconds(value, name: str) -> float:
     """``value`` [s] as a float: a real number (an int, float, numpy scalar, or 0-d real array or tensor).
 
@@ -496,7 +504,7 @@ class Surrogate:
                 negative transmission factors in an active cell (named by index and parameter).
         """
         try:
-            p = torch.as_tensor(params)
+            p = _tensor(params)
         except (TypeError, ValueError, RuntimeError):  # text, None, a ragged list: torch's "invalid data type 'str'"
             raise ModelError(
                 f"params must be an array or tensor of numbers [B, {self.n}, {N_PARAMS}], got "
@@ -615,7 +623,7 @@ class Surrogate:
             try:  # real numbers: a complex one was cast to its real part (only torch warned), a bool taken as 1 or 0
                 if not _is_real(x):
                     raise TypeError
-                x = torch.as_tensor(x, dtype=self.dtype)
+                x = _tensor(x, dtype=self.dtype)
             except (TypeError, ValueError, RuntimeError):  # text, None in a list: torch's "invalid data type"
                 raise ModelError(
                     f"'{name}' must be a number or a tensor of numbers {unit[name]}, got {_short(x)}"
