@@ -534,6 +534,19 @@ def test_numpy_arrays_with_negative_strides_are_taken_as_the_numbers_they_hold()
     assert flipped.initial[0] > flipped.initial[1]  # row 0 is the 12 m/s one
 
 
+def test_probing_a_null_cell_is_refused_by_name():
+    """A null cell is empty space, an inert node without links or contact: probed, it "recorded" the impact speed
+    for the whole crash (no deceleration at all) as if it were a point of the structure."""
+    cells = block()  # null cell at grid (1, 2, 0)
+    null = int(np.flatnonzero(cells.is_null)[0])
+    sim = Surrogate(cells)
+    sc = get_scenario("full_width_40", {"duration": 0.01})
+    with pytest.raises(ModelError, match=rf"probe_cells must be cells with material: cell {null} is a null cell"):
+        sim.run(_params(cells), sc, probe_cells=[0, null], record_cells="none")
+    out = sim.run(_params(cells), sc, probe_cells=[0, cells.compartment], record_cells="none")
+    assert out.sensor_names == ["cell0", f"cell{cells.compartment}"]
+
+
 def test_bad_per_row_scenario_tensors_are_named_with_what_was_wrong():
     """A NaN speed was reported as a wrong shape ("must be a finite tensor of shape [2], got [2]"), a speed given as
     text failed inside torch ("new(): invalid data type 'str'"), and an out-of-range row was reported by printing

@@ -685,7 +685,8 @@ class Surrogate:
                 scenario's, without one 0.150).
             sensors: sensor names to record (default: the scenario's list, else all).
             probe_cells: record these cells' acceleration and velocity instead of the sensors (named
-                ``cell<i>`` in the result), e.g. to study sensor placement; indices into the cell model.
+                ``cell<i>`` in the result), e.g. to study sensor placement; indices into the cell model, of cells
+                with material (a null cell is refused).
             record_cells: per-cell energy series (``series``), final values only, or none.
             backend: ``torch`` (differentiable reference), ``numba`` (fast no-grad), ``adjoint`` (the
                 ``numba`` result with sensor velocities differentiable by a compiled reverse pass,
@@ -805,6 +806,12 @@ class Surrogate:
         idx = torch.as_tensor(raw.astype(np.int64))
         if idx.numel() == 0 or int(idx.min()) < 0 or int(idx.max()) >= self.n:
             raise ModelError(f"probe_cells must be cell indices in [0, {self.n}), got {idx.tolist()}")
+        null = [int(i) for i in idx if self.cells.is_null[int(i)]]
+        if null:  # an inert node: it "recorded" the impact speed for the whole crash
+            raise ModelError(
+                f"probe_cells must be cells with material: cell {null[0]} is a null cell (empty space, no links or "
+                f"contact, it keeps the impact speed); got {idx.tolist()}"
+            )
         return [f"cell{int(i)}" for i in idx], idx
 
     def _step(self, props, wall, f_el, o, plastic, yielded, s, ds, v_wall, tangent: bool = False) -> _Step:
