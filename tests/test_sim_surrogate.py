@@ -480,6 +480,20 @@ def test_extreme_accepted_energies_stay_finite_in_float32(column, factor):
         assert max_balance_error(out) < 1e-4
 
 
+def test_an_accepted_wall_stiffness_beyond_float32_stays_finite():
+    """``wall_stiffness`` is accepted at any finite value > 0 and stability-capped, as the link stiffnesses are; in
+    float32 one beyond its largest number (1e39 N/m^3) overflowed to inf, ``inf * cap / (inf + cap)`` was NaN, and
+    every output of the crash was NaN without a word."""
+    cells = block()
+    sim = Surrogate(cells, _cfg(dtype="float32", wall_stiffness=1e39))
+    sc = get_scenario("full_width_40", {"duration": 0.01})
+    assert bool(torch.isfinite(sim.scenario_tensors(1, sc).k).all())
+    for backend in ("numba", "torch"):
+        out = sim.run(_params(cells), sc, backend=backend, record_cells="none")
+        assert bool(torch.isfinite(out.velocity).all()) and bool(torch.isfinite(out.crush).all()), backend
+        assert max_balance_error(out) < 1e-4
+
+
 def test_parameter_validation_errors():
     cells = block()
     sim = Surrogate(cells)

@@ -427,6 +427,10 @@ class Surrogate:
         self.substeps = per
         """Integration steps per output sample."""
         dtype = self.dtype = cfg.torch_dtype
+        # Stiffnesses (links and wall) are clamped at sqrt(largest float), far above any stability cap (which then
+        # binds fully), so that k_raw * cap stays finite: in float32 E_x = 1e-20 J, 1e11 x E_s or a wall_stiffness of
+        # 1e39 N/m^3 overflowed to inf and gave NaN.
+        self.k_max = math.sqrt(torch.finfo(dtype).max)
         n, L = cells.n_cells, cells.n_links
         self.n, self.L = n, L
         src, dst = cells.link_src.astype(np.int64), cells.link_dst.astype(np.int64)
@@ -542,9 +546,7 @@ class Surrogate:
         B = params.shape[0]
         e_x, e_s = params[..., 0], params[..., 1]
         f_c = e_s / (cfg.stroke_fraction * self.crush_length)  # [B, n] crush force [N]
-        # Stiffnesses are clamped at sqrt(largest float), far above any stability cap (which then binds fully), so
-        # that k_raw * cap stays finite: in float32 E_x = 1e-20 J or 1e11 x E_s overflowed to inf and gave NaN.
-        k_max = math.sqrt(torch.finfo(self.dtype).max)
+        k_max = self.k_max
         k_c = (f_c * f_c / (2.0 * e_x)).clamp(max=k_max)  # [B, n] elastic stiffness [N/m]
         f = params[..., 2:]
         # Transmission factors are relative shares: the principal direction carries the full crush
@@ -653,7 +655,7 @@ class Surrogate:
             )
         first = torch.where(covered, self.lo_x, torch.full_like(frac, float("inf"))).amin(dim=1, keepdim=True)
         gap = torch.where(covered, self.lo_x - first, torch.zeros_like(frac))
-        k_raw = self.config.wall_stiffness * self.front_area * frac
+        k_raw = (self.config.wall_stiffness * self.front_area * frac).clamp(max=self.k_max)
         capped = k_raw * self.cap_wall / (k_raw + self.cap_wall) if self.stability_caps else k_raw
         k = torch.where(covered, capped, torch.zeros_like(frac))
         damping = 2.0 * self.config.wall_damping_ratio * torch.sqrt(k * self.mass)
