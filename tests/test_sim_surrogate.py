@@ -308,6 +308,25 @@ def test_crash_outputs_name_a_row_outside_the_batch(tmp_path):
     assert crash_summary(out, cells, sc, row=np.int64(0)) == crash_summary(out, cells, sc, row=0)
 
 
+def test_crash_summary_of_probed_cells():
+    """A result of ``probe_cells`` (signals named ``cell<i>``) made crash_summary fail with "ValueError: 'cell0' is
+    not in list" while it looked for a sensor on the compartment; its figures are those of the same crash's sensors,
+    where the probes record what they do, and each probe gets its own entry."""
+    from marlcrash.pulse.simulation import crash_summary
+
+    cells = block()
+    sim = Surrogate(cells)
+    sc = get_scenario("full_width_40", {"duration": 0.02})
+    p = _params(cells)
+    named = crash_summary(sim.run(p, sc, record_cells="none"), cells, sc)
+    comp = cells.compartment
+    for probes in ([0, 3], [0, comp]):
+        probed = crash_summary(sim.run(p, sc, probe_cells=probes, record_cells="none"), cells, sc)
+        assert list(probed["sensors"]) == [f"cell{i}" for i in probes]
+        assert {k: v for k, v in probed.items() if k != "sensors"} == {k: v for k, v in named.items() if k != "sensors"}
+    assert probed["sensors"][f"cell{comp}"] == named["sensors"]["tunnel"]  # block(): the tunnel is on the compartment
+
+
 def test_crash_figure_draws_a_single_per_cell_record_as_bars():
     """With ``record_cells='final'`` the energy panel shows each sub-assembly's absorbed energy at the record as a
     bar; it used to stack the one record as a curve at t = 0 (an empty area at the left edge of the time axis).

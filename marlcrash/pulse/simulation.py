@@ -36,9 +36,11 @@ def _first_crossing_ms(t: np.ndarray, v: np.ndarray) -> float | None:
 
 
 def compartment_sensor(result: SimResult, cells: CellModel) -> int | None:
-    """Index into ``result.sensor_names`` of a sensor on the rigid compartment, if any."""
+    """Index into ``result.sensor_names`` of a sensor on the rigid compartment, if any (the signals of a result of
+    ``probe_cells``, named ``cell<i>``, are no sensors of the model)."""
+    names = list(cells.sensor_names)
     for k, name in enumerate(result.sensor_names):
-        if int(cells.sensor_cell[list(cells.sensor_names).index(name)]) == cells.compartment:
+        if name in names and int(cells.sensor_cell[names.index(name)]) == cells.compartment:
             return k
     return None
 
