@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 import torch
@@ -537,6 +539,26 @@ def test_parameter_validation_errors():
     for backend in ("torch", "numba"):  # not a KeyError from the recording code
         with pytest.raises(ModelError, match="record_cells must be one of series, final, none; got 'all'"):
             sim.run(_params(cells), FW40, record_cells="all", backend=backend)
+
+
+def test_float64_params_outside_a_float32_simulation_are_named_as_such():
+    """A float32 simulation took float64 parameters by casting them first: a finite E_s of 1e39 J was refused as
+    "must be finite ..., got inf" and a positive E_x of 1e-50 J as "must be > 0, got 0.0", values the caller never
+    gave. The message now gives the value given and says that it does not fit the simulation's float32."""
+    cells = block()
+    sim = Surrogate(cells, _cfg(dtype="float32"))
+    sc = get_scenario("full_width_40", {"duration": 0.002})
+    for j, value in ((1, 1e39), (0, 1e-50)):
+        p = _params(cells)
+        p[0, 3, j] = value
+        with pytest.raises(
+            ModelError, match=rf"params\[0, 3, {j}\] .* got {re.escape(f'{value:g}')}, which float32 .*dtype"
+        ):
+            sim.run(p, sc, record_cells="none")
+    p = _params(cells)
+    p[0, 3, 1] = float("inf")  # not finite in any precision: the usual message
+    with pytest.raises(ModelError, match=r"params\[0, 3, 1\] \(E_s\) of active cell 3 must be finite and > 0, got inf"):
+        sim.run(p, sc, record_cells="none")
 
 
 def test_params_that_are_not_numbers_are_refused_by_name():

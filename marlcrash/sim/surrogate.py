@@ -505,7 +505,8 @@ class Surrogate:
 
         Raises:
             ModelError: not numbers, wrong shape, not on the CPU, non-finite values, ``E_x <= 0`` or ``E_s <= 0`` or
-                negative transmission factors in an active cell (named by index and parameter).
+                negative transmission factors in an active cell (named by index and parameter), also where only the
+                simulation's dtype makes them so (float32: ``E_s = 1e39`` is inf, ``E_x = 1e-50`` is 0).
         """
         try:
             p = _tensor(params)
@@ -524,19 +525,27 @@ class Surrogate:
             )
         if not p.is_floating_point():
             raise ModelError(f"params must be floating point, got {p.dtype}")
+        given = p
         p = p.to(self.dtype)
         with torch.no_grad():
-            act = p[:, self.active]
-            bad = ~torch.isfinite(act)
-            bad[..., :2] |= act[..., :2] <= 0
-            bad[..., 2:] |= act[..., 2:] < 0
-            if bool(bad.any()):
+            # the values given first, then as the simulation's dtype holds them (1e39 is inf in float32)
+            for q, cast in ((given, False), (p, True)):
+                act = q[:, self.active]
+                bad = ~torch.isfinite(act)
+                bad[..., :2] |= act[..., :2] <= 0
+                bad[..., 2:] |= act[..., 2:] < 0
+                if not bool(bad.any()):
+                    continue
                 b, i, j = (int(x) for x in torch.nonzero(bad)[0])
                 cell = int(torch.nonzero(self.active)[i])
-                raise ModelError(
-                    f"params[{b}, {cell}, {j}] ({PARAM_NAMES[j]}) of active cell {cell} must be finite and "
-                    f"{'> 0' if j < 2 else '>= 0'}, got {float(act[b, i, j])}"
-                )
+                where = f"params[{b}, {cell}, {j}] ({PARAM_NAMES[j]}) of active cell {cell}"
+                if cast:
+                    raise ModelError(
+                        f"{where}: got {float(given[b, cell, j]):g}, which {self.config.dtype} (the simulation's "
+                        f"dtype, configs/sim.yaml) holds as {float(act[b, i, j])}; it must be finite and "
+                        f"{'> 0' if j < 2 else '>= 0'} there"
+                    )
+                raise ModelError(f"{where} must be finite and {'> 0' if j < 2 else '>= 0'}, got {float(act[b, i, j])}")
         neutral = torch.tensor([1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0], dtype=self.dtype)
         return torch.where(self.active[None, :, None], p, neutral)
 
