@@ -840,6 +840,20 @@ def test_a_surrogate_of_no_cell_model_is_refused_by_name():
             Surrogate(wrong)
 
 
+def test_a_cell_of_negative_or_no_mass_is_named():
+    """A cell model with a negative cell mass passed: the mass floor lifted it to 0.5 kg without a word, paid by the
+    compartment; and a massless cell under ``mass_floor: 0`` was blamed on the compartment ("the mass floor of 0 kg
+    adds 0 kg to 0 light cells, more than the compartment's 1000 kg can pay for")."""
+    cells = chain()
+    cells.mass[2] = -1.0
+    with pytest.raises(ModelError, match=r"cell 2: mass must be >= 0 kg, got -1"):
+        Surrogate(cells)
+    cells.mass[2] = 0.0
+    with pytest.raises(ModelError, match=r"cell 2 has no mass \(0 kg\) and mass_floor \(sim config\) is 0 kg"):
+        Surrogate(cells, _cfg(mass_floor=0.0))
+    assert Surrogate(cells).mass[2].item() == 0.5  # the floor gives it one
+
+
 def test_stability_caps_that_is_not_true_or_false_is_refused():
     """``stability_caps="no"`` was read as true (a non-empty string) and ``None`` as false, without a word."""
     cells = single_cell()

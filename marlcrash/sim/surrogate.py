@@ -451,8 +451,17 @@ class Surrogate:
 
         # Mass scaling: light cells raised to the floor, the compartment pays for it.
         mass = np.where(null, 1.0, cells.mass.astype(np.float64))
+        if (mass < 0).any():  # the floor lifted it without a word, paid by the compartment
+            bad = int(np.flatnonzero(mass < 0)[0])
+            raise ModelError(f"{cells.name}: cell {bad}: mass must be >= 0 kg, got {mass[bad]:g}")
         added = np.where(active, np.maximum(cfg.mass_floor - mass, 0.0), 0.0)
         mass = mass + added
+        if (mass[active] <= 0).any():  # only with mass_floor 0; the message blamed the compartment
+            bad = int(np.flatnonzero(active & (mass <= 0))[0])
+            raise ModelError(
+                f"{cells.name}: cell {bad} has no mass (0 kg) and mass_floor (sim config) is 0 kg: the explicit step "
+                "needs a mass in every cell with material; give mass_floor > 0"
+            )
         mass[self.comp] -= added.sum()
         if (mass[~null] <= 0).any():
             total = float(cells.mass[~null].sum())
