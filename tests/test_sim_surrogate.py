@@ -854,6 +854,16 @@ def test_a_cell_of_negative_or_no_mass_is_named():
     assert Surrogate(cells).mass[2].item() == 0.5  # the floor gives it one
 
 
+def test_a_cell_model_with_negative_link_shares_gaps_or_front_areas_is_named():
+    """A negative link share (shares of a source's direction sum to one) made every output of the crash NaN without a
+    word; a negative gap or front area was taken as none. Each is refused, naming the field and the entry."""
+    for field, i in (("link_share", 1), ("link_gap", 1), ("front_area", 0)):
+        cells = chain()
+        getattr(cells, field)[i] = -0.5
+        with pytest.raises(ModelError, match=rf"CellModel.{field} must be >= 0, got -0.5 at {i}"):
+            Surrogate(cells)
+
+
 def test_stability_caps_that_is_not_true_or_false_is_refused():
     """``stability_caps="no"`` was read as true (a non-empty string) and ``None`` as false, without a word."""
     cells = single_cell()

@@ -200,6 +200,11 @@ class CellModel:
         for f in ("mass", "params", "material", "lo", "hi", "centroid", "link_gap", "link_share"):
             if not np.isfinite(getattr(self, f)).all():
                 raise ModelError(f"CellModel.{f} contains non-finite values")
+        for f in ("link_share", "link_gap", "front_area"):  # a negative share made every output of a crash NaN
+            a = getattr(self, f)
+            if (a < 0).any():
+                bad = int(np.flatnonzero(a < 0)[0])
+                raise ModelError(f"CellModel.{f} must be >= 0, got {a[bad]:g} at {bad}")
         if L and (
             min(self.link_src.min(), self.link_dst.min()) < 0 or max(self.link_src.max(), self.link_dst.max()) >= n
         ):
