@@ -283,6 +283,14 @@ def test_result_rows_by_integer_keep_the_batch_dimension():
         with pytest.raises(IndexError, match="batch row"):
             out[bad]
     assert crash_summary(out, cells, sc, row=-1) == crash_summary(out, cells, sc, row=2)
+    # a bool is no row: True was taken as row 1 (torch and numpy read x[True] as a new axis, not a row)
+    for bad in (True, np.bool_(False)):
+        with pytest.raises(IndexError, match=rf"expected an integer batch row, got {bad!r}"):
+            out.batch_row(bad)
+        with pytest.raises(IndexError, match=rf"expected an integer batch row, got {bad!r}"):
+            out[bad]
+        with pytest.raises(IndexError, match=rf"row: expected an integer batch row, got {bad!r}"):
+            crash_summary(out, cells, sc, row=bad)
 
 
 def test_crash_outputs_name_a_row_outside_the_batch(tmp_path):

@@ -266,9 +266,11 @@ class SimResult:
         """``row`` as an index ``0..B-1`` into the batch (a negative row counts from the end).
 
         Raises:
-            IndexError: not an integer (an int or numpy integer), or outside the batch.
+            IndexError: not an integer (an int or numpy integer; a bool is none), or outside the batch.
         """
         try:
+            if isinstance(row, bool | np.bool_):  # True was row 1
+                raise TypeError
             r = operator.index(row)
         except TypeError:
             raise IndexError(f"expected an integer batch row, got {row!r}") from None
@@ -281,8 +283,10 @@ class SimResult:
         """Select batch rows (``result[3]``, ``result[-1]``, ``result[2:5]``), keeping the batch dimension.
 
         Raises:
-            IndexError: an integer row outside the batch.
+            IndexError: an integer row outside the batch, or a bool.
         """
+        if isinstance(idx, bool | np.bool_):  # no row (batch_row raises): torch read x[True] as a new axis
+            self.batch_row(idx)
         try:
             operator.index(idx)  # an int or numpy integer: one row (result[-1] was the empty slice -1:0)
         except TypeError:
