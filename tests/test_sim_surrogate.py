@@ -337,6 +337,21 @@ def test_crash_summary_of_probed_cells():
     assert probed["sensors"][f"cell{comp}"] == named["sensors"]["tunnel"]  # block(): the tunnel is on the compartment
 
 
+def test_energy_budget_takes_one_parameter_set_and_names_another_shape():
+    """``energy_budget(cells, scenario, params)`` reshaped any array to ``[n_cells, -1]``: a batch of two sets
+    ``[2, n, 7]`` became ``[n, 14]`` rows of two cells each, and its 'E_s' column summed values of the wrong cells."""
+    from marlcrash.pulse.simulation import energy_budget
+
+    cells = chain(4)
+    p = np.asarray(cells.params)
+    want = energy_budget(cells, FW40)
+    assert energy_budget(cells, FW40, p) == want == energy_budget(cells, FW40, p[None])
+    assert energy_budget(cells, FW40, 2 * p)["crush_capacity_kj"] == pytest.approx(2 * want["crush_capacity_kj"])
+    for bad in (np.stack([p, 2 * p]), p[:, :6], p.reshape(-1)):
+        with pytest.raises(ModelError, match=rf"params must be \[{cells.n_cells}, 7\] \(one parameter set\), got "):
+            energy_budget(cells, FW40, bad)
+
+
 def test_crash_figure_draws_a_single_per_cell_record_as_bars():
     """With ``record_cells='final'`` the energy panel shows each sub-assembly's absorbed energy at the record as a
     bar; it used to stack the one record as a curve at t = 0 (an empty area at the left edge of the time axis).

@@ -14,7 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from marlcrash.cells.model import PARAM_NAMES, CellModel
+from marlcrash.cells.model import N_PARAMS, PARAM_NAMES, CellModel
+from marlcrash.errors import ModelError
 from marlcrash.outputs import atomic_output, save_figure
 from marlcrash.pulse.signal import filtered_acceleration, sampled_acceleration
 from marlcrash.sim.energy import max_balance_error
@@ -54,8 +55,14 @@ def energy_budget(cells: CellModel, scenario: CrashScenario, params: np.ndarray 
         ``crush_capacity_kj``: the sum of the crushing cells' ``E_s`` under ``params`` (default
         ``cells.params``), the plastic work they can take before they bottom out. Damping and the
         densified cells take energy beyond it, so the absorbed energy can exceed it.
+
+    Raises:
+        ModelError: ``params`` that are not one parameter set ``[n_cells, 7]`` (or ``[1, n_cells, 7]``).
     """
-    p = np.asarray(cells.params if params is None else params, dtype=float).reshape(cells.n_cells, -1)
+    p = np.asarray(cells.params if params is None else params, dtype=float)
+    if p.shape not in ((cells.n_cells, N_PARAMS), (1, cells.n_cells, N_PARAMS)):  # [2, n, 7] was read as [n, 14]
+        raise ModelError(f"params must be [{cells.n_cells}, {N_PARAMS}] (one parameter set), got {list(p.shape)}")
+    p = p.reshape(cells.n_cells, N_PARAMS)
     crushing = ~cells.is_null & ~cells.is_rigid
     return {
         "impact_energy_kj": 0.5 * cells.total_mass * scenario.speed**2 / 1e3,
