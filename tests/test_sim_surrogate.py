@@ -352,6 +352,26 @@ def test_energy_budget_takes_one_parameter_set_and_names_another_shape():
             energy_budget(cells, FW40, bad)
 
 
+def test_crash_outputs_of_another_cell_model_are_refused_by_name(tmp_path):
+    """A result summarised or drawn with another vehicle's cell model failed inside numpy ("boolean index did not
+    match indexed array along axis 0; size of axis is 5 but size of corresponding boolean axis is 41")."""
+    from marlcrash.pulse.simulation import crash_summary, plot_crash, subassembly_absorbed
+
+    cells, other = chain(4), block()
+    sc = get_scenario("full_width_40", {"duration": 0.01})
+    out = Surrogate(cells).run(_params(cells), sc, record_cells="final")
+    for call in (
+        lambda: crash_summary(out, other, sc),
+        lambda: subassembly_absorbed(out, other),
+        lambda: plot_crash(out, other, tmp_path / "crash.png"),
+    ):
+        with pytest.raises(
+            ModelError, match=r"cells: the result is of a model of 5 cells, this one \('block'\) has 41"
+        ):
+            call()
+    assert not (tmp_path / "crash.png").exists()
+
+
 def test_crash_figure_draws_a_single_per_cell_record_as_bars():
     """With ``record_cells='final'`` the energy panel shows each sub-assembly's absorbed energy at the record as a
     bar; it used to stack the one record as a curve at t = 0 (an empty area at the left edge of the time axis).

@@ -163,8 +163,15 @@ def crash_summary(result: SimResult, cells: CellModel, scenario: CrashScenario, 
 
 
 def subassembly_absorbed(result: SimResult, cells: CellModel, row: int = 0) -> dict[str, np.ndarray] | None:
-    """Energy [J] absorbed per sub-assembly, ``name -> [T']``; ``None`` without per-cell records."""
+    """Energy [J] absorbed per sub-assembly, ``name -> [T']``; ``None`` without per-cell records.
+
+    Raises:
+        ModelError: ``cells`` is not the model ``result`` was simulated on (another number of cells).
+    """
     row = checked_row(result, row)
+    n = result.cell_plastic.shape[1]
+    if n != cells.n_cells:  # failed inside numpy ("boolean index did not match indexed array")
+        raise ModelError(f"cells: the result is of a model of {n} cells, this one ({cells.name!r}) has {cells.n_cells}")
     e = result.cell_absorbed[row].detach().cpu().numpy()  # [n, T']
     if e.shape[-1] == 0:
         return None
