@@ -277,10 +277,20 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     import torch
 
     from marlcrash.cells import discretize, load_discretization_config
-    from marlcrash.pulse.simulation import bottoming_note, crash_summary, energy_budget, plot_crash, write_crash_csv
+    from marlcrash.pulse.simulation import (
+        bottoming_note,
+        crash_summary,
+        energy_budget,
+        plot_crash,
+        short_record,
+        write_crash_csv,
+    )
     from marlcrash.sim import Surrogate
 
     scenario = scenario_from_args(args)
+    why = short_record(scenario.duration, 60)  # the figures are CFC 60's: before the work
+    if why is not None and args.duration is not None:
+        raise ConfigError(f"{args.duration:g} ms: {why}", key="--duration")
     inputs = _input_files(args)
     # before the work: a typo in an output path costs nothing; .csv, the name marlcrash pulse reads it back by
     check_output_file(args.csv, "--csv", suffix=".csv", inputs=inputs)
@@ -528,8 +538,9 @@ def build_parser() -> argparse.ArgumentParser:
         "--side", choices=["left", "right"], help="struck side for partial overlaps (default: the scenario's)"
     )
     p.add_argument("--duration", type=float, metavar="MS",
-                   help="simulated time after first contact [ms] (default: the scenario's, 150); e.g. 200 for a "
-                        "test record that goes on past the compared window, as a lab's does")  # fmt: skip
+                   help="simulated time after first contact [ms] (default: the scenario's, 150; at least 10, the "
+                        "figures are CFC 60's); e.g. 200 for a test record that goes on past the compared window, as "
+                        "a lab's does")  # fmt: skip
     p.add_argument("--method", choices=["uniform", "optimized"], help="discretization method (default: config)")
     p.add_argument(
         "--config", type=_path, help="cells config YAML giving every key of configs/cells.yaml (default: that file)"

@@ -509,7 +509,8 @@ def test_simulate_duration_writes_a_longer_record_of_the_same_load_case(tmp_path
     assert rows.shape[0] == 401 and rows[-1, 0] == pytest.approx(0.2)  # 2 kHz from t = 0
     assert out["peak_decel_g"] == pytest.approx(base["peak_decel_g"], rel=1e-4)  # long before 150 ms
     assert out["max_crush_m"] == pytest.approx(base["max_crush_m"], rel=1e-9)
-    for bad, why in (("150.3", "not a whole number of 0.0005 s output steps"), ("0", "must be in (0, 1] s")):
+    for bad, why in (("150.3", "not a whole number of 0.0005 s output steps"), ("0", "must be in (0, 1] s"),
+                     ("2", "too short for the CFC 60 figures; expected at least 10 ms")):  # fmt: skip
         proc = run_cli("simulate", "--duration", bad, check=False)
         assert proc.returncode == 2 and f"key '--duration': {float(bad):g} ms: " in proc.stderr and why in proc.stderr
         assert "Traceback" not in proc.stderr

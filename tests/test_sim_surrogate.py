@@ -372,6 +372,28 @@ def test_crash_outputs_of_another_cell_model_are_refused_by_name(tmp_path):
     assert not (tmp_path / "crash.png").exists()
 
 
+def test_crash_summary_refuses_a_record_too_short_for_its_cfc():
+    """The figures are CFC-filtered (CFC 60 by default), and a record shorter than one period of the filter's -3 dB
+    frequency (10 ms) is mostly the filter's end handling: on the default car the up-front sensors peaked at 1596 g
+    over 1 ms and 137 g over 2 ms (315 g over 150 ms). filter_pulse and the calibration window refuse such a record;
+    crash_summary now does too, naming the duration."""
+    from marlcrash.pulse.simulation import crash_summary
+
+    cells = chain(4)
+    sim = Surrogate(cells)
+    for ms in (1.0, 9.5):
+        sc = get_scenario("full_width_40", {"duration": ms * 1e-3})
+        out = sim.run(_params(cells), sc, record_cells="none")
+        with pytest.raises(
+            ModelError,
+            match=rf"duration: a record of {ms:g} ms is too short for the CFC 60 figures; expected at least 10 ms",
+        ):
+            crash_summary(out, cells, sc)
+    assert crash_summary(out, cells, sc, cfc=180)["sensors"]  # 9.5 ms: CFC 180's 300 Hz period is 3.3 ms
+    sc = get_scenario("full_width_40", {"duration": 0.01})
+    assert crash_summary(sim.run(_params(cells), sc, record_cells="none"), cells, sc)["duration_ms"] == 10.0
+
+
 def test_crash_figure_draws_a_single_per_cell_record_as_bars():
     """With ``record_cells='final'`` the energy panel shows each sub-assembly's absorbed energy at the record as a
     bar; it used to stack the one record as a curve at t = 0 (an empty area at the left edge of the time axis).
