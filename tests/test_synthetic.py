@@ -373,6 +373,25 @@ def test_impossible_config_values_name_the_key(overrides, key):
     assert "b_segment.yaml" in str(err.value)
 
 
+@pytest.mark.parametrize(
+    ("section", "change", "key"),
+    [
+        ("body", {"dash_x": 0.3}, "body.dash_x"),  # built a car whose rails ran backwards, without a word
+        ("mesh", {"element_size": 1e-5}, "mesh.element_size"),  # a MemoryError for 92 GiB
+        ("powertrain", {"mass": "180"}, "powertrain.mass"),  # a TypeError deep in the builder
+    ],
+)
+def test_a_config_made_in_python_is_checked_as_a_file_is(config, section, change, key):
+    """``build_vehicle`` checked a config only for a seeded variant: a nominal car from a config made or changed in
+    Python (``dataclasses.replace``) skipped every check a file's values get, as ``discretize`` does not."""
+    import dataclasses
+
+    cfg = dataclasses.replace(config, **{section: dataclasses.replace(getattr(config, section), **change)})
+    with pytest.raises(ConfigError) as err:
+        build_vehicle(cfg)
+    assert err.value.key == key
+
+
 def test_unknown_or_non_rigid_material_is_a_config_error():
     cfg = load_synthetic_config(CONFIG, {"front_rail.material": "unobtainium"})
     with pytest.raises(ConfigError, match="unobtainium") as err:

@@ -22,7 +22,7 @@ from typing import Literal
 
 import numpy as np
 
-from marlcrash.config import config_dir, load_config, require, require_seed
+from marlcrash.config import checked, config_dir, load_config, require, require_seed
 from marlcrash.errors import ConfigError
 from marlcrash.vehicle import shapes
 from marlcrash.vehicle.materials import Material, complete_material
@@ -761,14 +761,16 @@ def build_vehicle(config: SyntheticCarConfig, seed: int | None = None) -> Vehicl
         mass of exactly ``config.total_mass``.
 
     Raises:
-        ConfigError: a seed that is not an integer in ``[0, 2**64 - 1]``, unknown material, a variant that is
-            geometrically impossible, or a front structure heavier than ``total_mass``.
+        ConfigError: a seed that is not an integer in ``[0, 2**64 - 1]``, a value of ``config`` (one made in Python
+            is checked as a file's values are) or a variant that is geometrically impossible, unknown material, or a
+            front structure heavier than ``total_mass``.
     """
     if seed is not None:
         if isinstance(seed, bool | np.bool_) or not isinstance(seed, int | np.integer):
             raise ConfigError(f"expected an integer seed (None: the nominal car), got {seed!r}", key="seed")
         seed = int(seed)
         require_seed(seed, "seed")  # the range every seed of the project takes
+    config = checked(config)  # one made or changed in Python skipped the checks a file's values get
     library = _resolve_materials(config)
     varied, draw = _vary(config, seed)
     geoms = _geometry(varied, draw)
