@@ -271,7 +271,8 @@ def _bisect(coords: np.ndarray, group: np.ndarray, n_pieces: np.ndarray, pitch: 
     Each piece with a target count ``n > 1`` is cut along its longest extent at the
     voxel-count quantile ``floor(n/2) / n`` (cut between voxel planes; lateral cuts
     counted from the side nearer y = 0, so mirrored pieces split alike), the halves
-    getting ``floor(n/2)`` and ``n - floor(n/2)`` pieces, until every piece has ``n = 1``.
+    getting ``floor(n/2)`` and ``n - floor(n/2)`` pieces, until every piece has ``n = 1``. A group gets at most
+    as many pieces as it has voxels.
 
     Args:
         coords: ``[m, 3]`` voxel centres [m].
@@ -283,7 +284,9 @@ def _bisect(coords: np.ndarray, group: np.ndarray, n_pieces: np.ndarray, pitch: 
         ``[m]`` piece index of each voxel (0..P-1, compact).
     """
     piece = group.copy()
-    n_of = n_pieces.astype(np.int64).copy()
+    # a piece holds at least one voxel: a group gets no more pieces than it has voxels
+    n_of = np.minimum(n_pieces.astype(np.int64), np.bincount(group, minlength=n_pieces.size))
+    levels = 0
     while True:
         act_p = n_of > 1
         if not act_p.any():
@@ -320,12 +323,16 @@ def _bisect(coords: np.ndarray, group: np.ndarray, n_pieces: np.ndarray, pitch: 
         use_le = left_strict == 0
         left = np.where(use_le[p], v <= t[p], v < t[p])
         split = (n_of[p] > 1) & ~left
-        new_id = np.arange(npc) + npc
+        # new slots only for the pieces split at this level, numbered in the order of their source: the final
+        # numbering is that of giving every slot a twin (which doubled the slot array of every group at every level,
+        # finished pieces too, and stopped a one-voxel-cell target with "bisection did not converge")
+        halves = n_of > 1
+        new_id = npc + np.cumsum(halves) - 1
         piece[idx[split]] = new_id[p[split]]
-        n_new = np.where(n_of > 1, n_of - n1, 0)
-        n_of = np.concatenate([np.where(n_of > 1, n1, n_of), n_new])
-        if n_of.size > 4 * piece.size + 16:
-            raise ModelError("bisection did not converge")  # defensive: cannot happen with integer halving
+        n_of = np.concatenate([np.where(halves, n1, n_of), (n_of - n1)[halves]])
+        levels += 1
+        if levels > 64:  # defensive: the largest count halves at every level
+            raise ModelError("bisection did not converge")
     _, compact = np.unique(piece, return_inverse=True)
     return compact.ravel()
 
