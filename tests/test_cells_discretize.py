@@ -474,6 +474,14 @@ def test_a_subassembly_target_of_one_voxel_gives_cells_of_one_voxel():
     assert pt.size > 5000 and np.median(voxels) <= 2
 
 
+def test_a_subassembly_target_finer_than_a_voxel_is_refused_naming_the_key():
+    """No cell is smaller than a fine voxel: a target below it gave one-voxel cells, larger than asked, without a word
+    (and, before the bisection was fixed, "bisection did not converge")."""
+    with pytest.raises(ConfigError, match="voxel") as err:
+        load_discretization_config(overrides={"subassembly_target_cell_volume": {"powertrain": 1e-7}})
+    assert err.value.key == "subassembly_target_cell_volume.powertrain"
+
+
 def test_scientific_notation_reads_as_a_number(tmp_path):
     """YAML 1.1 (PyYAML) reads 3e-4 as a string; the loader reads it as YAML 1.2 does."""
     text = (config_dir() / "cells.yaml").read_text()

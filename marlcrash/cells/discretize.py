@@ -136,6 +136,14 @@ class DiscretizationConfig:
         require(
             self.voxels_per_cell_edge <= 16, "voxels_per_cell_edge", f"expected <= 16, got {self.voxels_per_cell_edge}"
         )
+        voxel = self.target_cell_volume / self.voxels_per_cell_edge**3
+        for name, v in self.subassembly_target_cell_volume.items():
+            require(
+                v >= voxel * (1 - 1e-9),
+                f"subassembly_target_cell_volume.{name}",
+                f"expected at least the fine voxel's volume, target_cell_volume / voxels_per_cell_edge^3 = {voxel:.3g} "
+                f"m^3 (no cell is smaller than a voxel), got {v}",
+            )
         require(
             self.envelope_closing_iterations >= 0,
             "envelope_closing_iterations",
