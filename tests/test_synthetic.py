@@ -364,6 +364,15 @@ def test_default_vehicle_is_registered_b_segment(car):
         ({"wheel.radius": 0.4}, "wheel.radius"),
         ({"hood.colour": "red"}, "hood.colour"),
         ({"bumper_beam.width": "wide"}, "bumper_beam.width"),
+        # the wheel reached 0.24 m ahead of the bumper: the whole car moved back, the bumper face no longer at x = 0
+        ({"body.front_overhang": 0.05}, "body.front_overhang"),
+        # parts through the ground (z < 0) or through the hood were built without a word
+        ({"bumper_beam.z_center": 0.01}, "bumper_beam.z_center"),
+        ({"front_rail.z_center": 0.05}, "front_rail.z_center"),
+        ({"hood.z_rear": 0.5}, "hood.z_rear"),  # the hood sloped down through the powertrain and the upper rails
+        ({"hood.z_rear": 2.0}, "hood.z_rear"),  # above the 1.45 m roof
+        ({"cooling_module.z_center": 3.0}, "cooling_module.z_center"),  # floated 2.4 m above the hood
+        ({"shock_tower.z_top": 3.0}, "shock_tower.z_top"),  # through the hood and the roof
     ],
 )
 def test_impossible_config_values_name_the_key(overrides, key):

@@ -530,6 +530,35 @@ class SyntheticCarConfig:
             "the wheel overlaps the shock tower or the front rail laterally",
         )
         need(w.radius * 2 < u.z_center - 0.5 * u.height, "wheel.radius", "the wheel reaches the upper load path")
+        need(
+            bd.front_overhang > w.radius,
+            "body.front_overhang",
+            f"the wheel (front x={bd.front_overhang - w.radius:.3g}) reaches ahead of the bumper face at x=0",
+        )
+        # nothing below the ground (z = 0) or through the hood, whose lower edge is min(z_front, z_rear)
+        need(b.z_center > 0.5 * b.height, "bumper_beam.z_center", "the bumper beam reaches below the ground")
+        need(
+            r.z_center > 0.5 * max(r.height, cb.height),
+            "front_rail.z_center",
+            "the front rails or crash boxes reach below the ground",
+        )
+        need(
+            h.z_rear > pt.z_bottom + pt.height and h.z_rear > u.z_center + 0.5 * u.height,
+            "hood.z_rear",
+            f"{h.z_rear} cuts the powertrain or the upper load path",
+        )
+        need(
+            max(h.z_front, h.z_rear) <= bd.height,
+            "hood.z_rear" if h.z_rear >= h.z_front else "hood.z_front",
+            f"the hood (top z={max(h.z_front, h.z_rear)}) is above the body height {bd.height}",
+        )
+        hood_low = min(h.z_front, h.z_rear)
+        need(
+            cm.z_center + 0.5 * cm.height < hood_low,
+            "cooling_module.z_center",
+            f"the cooling module (top z={cm.z_center + 0.5 * cm.height}) reaches the hood at z={hood_low}",
+        )
+        need(st.z_top < hood_low, "shock_tower.z_top", f"{st.z_top} reaches the hood at z={hood_low}")
 
 
 def load_synthetic_config(path: str | Path, overrides: dict | None = None) -> SyntheticCarConfig:
