@@ -482,6 +482,15 @@ def test_a_subassembly_target_finer_than_a_voxel_is_refused_naming_the_key():
     assert err.value.key == "subassembly_target_cell_volume.powertrain"
 
 
+def test_a_roi_depth_in_mm_names_the_keys_that_set_the_grid():
+    """``roi_depth: 1200`` (mm given as m) asked for 4e8 voxels; the refusal blamed the deck's unit and a cell-size key
+    ``target_volume`` that does not exist, not the cells config's ``roi_depth`` and ``target_cell_volume``."""
+    cfg = dataclasses.replace(load_discretization_config(), roi_depth=1200.0)
+    with pytest.raises(ModelError, match="roi_depth") as err:
+        discretize(mini_car(), cfg)
+    assert "target_cell_volume" in str(err.value) and "target_volume " not in str(err.value)
+
+
 def test_scientific_notation_reads_as_a_number(tmp_path):
     """YAML 1.1 (PyYAML) reads 3e-4 as a string; the loader reads it as YAML 1.2 does."""
     text = (config_dir() / "cells.yaml").read_text()

@@ -184,8 +184,8 @@ def build_grid(
         raise ModelError(
             f"the region of interest, {' x '.join(f'{x:.4g}' for x in hi - lo)} m, would take "
             f"{' x '.join(map(str, per_axis))} cells of {h:.4g} m ({n_voxels:.3g} voxels, more than {MAX_VOXELS:.0e}); "
-            "a vehicle's front end is about 1-2 m: check the deck's length unit (--units) and the cell size "
-            "(target_volume of the cells config)"
+            "a vehicle's front end is about 1-2 m: check the deck's length unit (--units) and, in the cells config, "
+            f"roi_depth (the box's x length, {hi[0] - lo[0]:.4g} m) and target_cell_volume ({target_volume:.4g} m^3)"
         )
     ex, bx, _, nbx = _axis_edges(np.array([lo[0], hi[0]]), h, voxels_per_edge)
     ey, by, band, nby = _axis_edges(np.concatenate([[lo[1]], inner, [hi[1]]]), h, voxels_per_edge)
