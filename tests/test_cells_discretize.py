@@ -491,6 +491,21 @@ def test_a_roi_depth_in_mm_names_the_keys_that_set_the_grid():
     assert "target_cell_volume" in str(err.value) and "target_volume " not in str(err.value)
 
 
+@pytest.mark.parametrize(
+    ("args", "error", "said"),
+    [
+        ((None,), ModelError, "model must be a VehicleModel"),  # was "'NoneType' object has no attribute 'validate'"
+        (("car.k",), ModelError, "model must be a VehicleModel"),
+        (("mini", "configs/cells.yaml"), ConfigError, "config must be a DiscretizationConfig"),  # a dataclasses error
+        (("mini", {"roi_depth": 1.0}), ConfigError, "config must be a DiscretizationConfig"),
+    ],
+)
+def test_discretize_refuses_arguments_of_the_wrong_kind_in_words(args, error, said):
+    args = tuple(mini_car() if a == "mini" else a for a in args)
+    with pytest.raises(error, match=said):
+        discretize(*args)
+
+
 def test_scientific_notation_reads_as_a_number(tmp_path):
     """YAML 1.1 (PyYAML) reads 3e-4 as a string; the loader reads it as YAML 1.2 does."""
     text = (config_dir() / "cells.yaml").read_text()

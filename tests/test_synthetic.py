@@ -401,6 +401,13 @@ def test_a_config_made_in_python_is_checked_as_a_file_is(config, section, change
     assert err.value.key == key
 
 
+@pytest.mark.parametrize("bad", [str(CONFIG), {"name": "car"}, None])
+def test_build_vehicle_refuses_a_config_of_the_wrong_kind_in_words(bad):
+    """A path or a mapping failed with dataclasses' "must be called with a dataclass type or instance"."""
+    with pytest.raises(ConfigError, match="config must be a SyntheticCarConfig"):
+        build_vehicle(bad)
+
+
 def test_unknown_or_non_rigid_material_is_a_config_error():
     cfg = load_synthetic_config(CONFIG, {"front_rail.material": "unobtainium"})
     with pytest.raises(ConfigError, match="unobtainium") as err:

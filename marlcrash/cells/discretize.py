@@ -909,9 +909,20 @@ def discretize(model: VehicleModel, config: DiscretizationConfig | None = None, 
         The validated :class:`CellModel` (compartment last).
 
     Raises:
-        ConfigError: unknown method or invalid config.
-        ModelError: the vehicle is inconsistent or has no deformable material in the ROI.
+        ConfigError: unknown method, a config that is no :class:`DiscretizationConfig`, or an invalid one.
+        ModelError: ``model`` is no :class:`VehicleModel`, is inconsistent, or has no deformable material in the ROI.
     """
+    if not isinstance(model, VehicleModel):  # None or a deck path failed with "has no attribute 'validate'"
+        raise ModelError(
+            f"model must be a VehicleModel (marlcrash.vehicle.load_vehicle(name or path)), got {type(model).__name__} "
+            f"{model!r:.80}"
+        )
+    if config is not None and not isinstance(config, DiscretizationConfig):  # a path: a TypeError of dataclasses
+        raise ConfigError(
+            "config must be a DiscretizationConfig (load_discretization_config(path, overrides)), got "
+            f"{type(config).__name__} {config!r:.80}",
+            key="config",
+        )
     cfg = load_discretization_config() if config is None else checked(config)  # one made in Python: unchecked
     method = cfg.method if method is None else method
     if method not in ("optimized", "uniform"):

@@ -790,10 +790,17 @@ def build_vehicle(config: SyntheticCarConfig, seed: int | None = None) -> Vehicl
         mass of exactly ``config.total_mass``.
 
     Raises:
-        ConfigError: a seed that is not an integer in ``[0, 2**64 - 1]``, a value of ``config`` (one made in Python
-            is checked as a file's values are) or a variant that is geometrically impossible, unknown material, or a
-            front structure heavier than ``total_mass``.
+        ConfigError: a config that is no :class:`SyntheticCarConfig`, a seed that is not an integer in
+            ``[0, 2**64 - 1]``, a value of ``config`` (one made in Python is checked as a file's values are) or a
+            variant that is geometrically impossible, unknown material, or a front structure heavier than
+            ``total_mass``.
     """
+    if not isinstance(config, SyntheticCarConfig):  # a path or a mapping: a TypeError of dataclasses
+        raise ConfigError(
+            "config must be a SyntheticCarConfig (load_synthetic_config(path, overrides)), got "
+            f"{type(config).__name__} {config!r:.80}",
+            key="config",
+        )
     if seed is not None:
         if isinstance(seed, bool | np.bool_) or not isinstance(seed, int | np.integer):
             raise ConfigError(f"expected an integer seed (None: the nominal car), got {seed!r}", key="seed")
