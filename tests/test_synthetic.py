@@ -408,6 +408,18 @@ def test_build_vehicle_refuses_a_config_of_the_wrong_kind_in_words(bad):
         build_vehicle(bad)
 
 
+def test_a_fracture_strength_above_the_ultimate_is_refused_naming_the_key(tmp_path):
+    """Strengths are engineering values, and the ultimate strength is the largest engineering stress: a fracture
+    strength above it (MPa typed for the wrong field) was taken, and the deck writer then wrote it as the ultimate."""
+    text = (config_dir() / "materials.yaml").read_text()
+    text = text.replace("fracture_strength_mpa: 560.0", "fracture_strength_mpa: 6200.0", 1)
+    path = tmp_path / "materials.yaml"
+    path.write_text(text)
+    with pytest.raises(ConfigError, match="ultimate") as err:
+        load_material_library(path)
+    assert err.value.key == "materials.dp600.fracture_strength_mpa"
+
+
 def test_unknown_or_non_rigid_material_is_a_config_error():
     cfg = load_synthetic_config(CONFIG, {"front_rail.material": "unobtainium"})
     with pytest.raises(ConfigError, match="unobtainium") as err:

@@ -127,6 +127,12 @@ class MaterialLibraryConfig:
                 f"{key}.ultimate_strength_mpa",
                 f"ultimate strength {m.ultimate_strength_mpa} MPa is below yield {m.yield_strength_mpa} MPa",
             )
+            require(  # engineering values: the ultimate strength is the largest engineering stress
+                m.fracture_strength_mpa <= m.ultimate_strength_mpa,
+                f"{key}.fracture_strength_mpa",
+                f"fracture strength {m.fracture_strength_mpa} MPa is above the ultimate {m.ultimate_strength_mpa} MPa "
+                "(engineering stresses: the ultimate is the largest)",
+            )
 
 
 def load_material_library(path: str | Path | None = None) -> dict[str, Material]:
