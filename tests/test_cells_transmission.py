@@ -170,6 +170,20 @@ def test_factor_formula_min_share_and_ratios():
     np.testing.assert_allclose(share, 1.0)
 
 
+def test_a_principal_share_that_lets_a_lateral_factor_exceed_f_x_is_refused():
+    """Boundary condition 3 (DESIGN 1.3): with +x continuity f_x is higher than laterally. principal_min_share is
+    what enforces it, yet any share in [0, 1] was taken: at 0.4 the cell above got f_x 0.4 and f_y 0.45."""
+    from marlcrash.cells import DiscretizationConfig
+    from marlcrash.config import from_dict
+    from marlcrash.errors import ConfigError
+
+    for bad in (0.0, 0.4, 0.5):
+        with pytest.raises(ConfigError, match="boundary condition 3") as err:
+            from_dict(DiscretizationConfig, {"principal_min_share": bad})
+        assert err.value.key == "principal_min_share"
+    assert from_dict(DiscretizationConfig, {"principal_min_share": 0.51}).principal_min_share == 0.51
+
+
 def test_contact_fallback_and_link_shares():
     # no material at all: contact areas 1 (+x) and 1 (+z), equal weights -> 0.5/0.5, then x raised to 0.6;
     # two +x links with contact 1 and 3 share 1:3

@@ -149,10 +149,12 @@ class DiscretizationConfig:
             "envelope_closing_iterations",
             f"expected >= 0, got {self.envelope_closing_iterations}",
         )
-        require(
-            0 <= self.principal_min_share <= 1,
+        require(  # above 0.5, f_x exceeds the other four factors, which sum to at most 1 - f_x
+            0.5 < self.principal_min_share <= 1,
             "principal_min_share",
-            f"expected a share in [0, 1], got {self.principal_min_share}",
+            f"expected a share in (0.5, 1], got {self.principal_min_share}: boundary condition 3 (DESIGN 1.3) wants "
+            "f_x higher than any lateral or vertical factor where load continues rearward, which only a share above "
+            "0.5 ensures",
         )
         for key in ("weight_x", "weight_lateral", "weight_vertical"):
             require(getattr(self, key) > 0, key, f"expected a weight > 0, got {getattr(self, key)}")
