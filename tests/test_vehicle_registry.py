@@ -161,3 +161,25 @@ def test_bad_vehicle_options_name_the_key(options, key, match):
     with pytest.raises(ConfigError, match=match) as e:
         VehicleOptions(**options).validate()
     assert e.value.key == key
+
+
+@pytest.mark.parametrize(
+    "options,key",
+    [
+        ({"params": {"tbumper": float("nan"), "thood": 1.0}}, "params.tbumper"),  # was "*SECTION_SHELL ... nan"
+        ({"params": {"tbumper": 3.0, "thood": 1.0}, "units": "mm"}, "units"),
+        ({"axis_map": 5}, "axis_map"),  # was "'int' object has no attribute 'split'"
+    ],
+)
+def test_load_configured_vehicle_checks_options_made_in_python(lsopt_deck, options, key):
+    """``load_configured_vehicle`` used the options as given: one made in Python skipped the checks a config file's
+    ``vehicle_options`` get, and failed inside the reader, on whatever card came first."""
+    with pytest.raises(ConfigError) as e:
+        load_configured_vehicle(lsopt_deck, None, VehicleOptions(**options))
+    assert e.value.key == key
+
+
+@pytest.mark.parametrize("bad", ["units=mm", {"units": "mm"}])
+def test_load_configured_vehicle_refuses_options_of_the_wrong_kind_in_words(bad):
+    with pytest.raises(ConfigError, match="options must be a VehicleOptions"):
+        load_configured_vehicle(DEFAULT_VEHICLE, None, bad)

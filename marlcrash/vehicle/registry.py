@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from marlcrash.config import config_dir, require
+from marlcrash.config import checked, config_dir, require
 from marlcrash.errors import ConfigError
 from marlcrash.vehicle.model import AxisMap, VehicleModel
 
@@ -164,10 +164,15 @@ def load_configured_vehicle(
     vehicle with its options: a deck read with them, a synthetic car regrouped by the sub-assembly map.
 
     Raises:
-        ConfigError: as :func:`load_vehicle`; deck-only options for a synthetic car
+        ConfigError: as :func:`load_vehicle`; options that are no :class:`VehicleOptions` or hold a bad value (checked
+            as a config file's are, naming the key); deck-only options for a synthetic car
             (:meth:`VehicleOptions.require_fits`).
     """
-    opts = options or VehicleOptions()
+    if options is not None and not isinstance(options, VehicleOptions):  # a mapping: "has no attribute require_fits"
+        raise ConfigError(
+            f"options must be a VehicleOptions, got {type(options).__name__} {options!r:.80}", key="vehicle_options"
+        )
+    opts = VehicleOptions() if options is None else checked(options)  # one made in Python: as a file's are
     opts.require_fits(name_or_path)
     if is_deck(name_or_path):
         deck = {"params": dict(opts.params) or None, "units": opts.units, "subassemblies": opts.subassemblies,
