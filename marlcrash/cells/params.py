@@ -16,7 +16,8 @@ and aggregate material (mass-weighted 8-vector):
 - flow stress ``sigma_flow = (sigma_y + sigma_u) / 2`` [Pa];
 - mean crush force ``F_c = eta * sigma_flow * A`` [N], ``eta`` the volume-weighted
   mean of the sample kinds' efficiencies (thin walls and beams ``eta_shell``,
-  about 0.3 to 0.5 for progressive folding; solids ``eta_solid``);
+  0.22 in ``configs/cells.yaml``: superfolding theory gives 0.11 to 0.23 for car
+  sections, times a strain-rate factor; solids ``eta_solid``);
 - stroke ``s = (1 - c) * L_x`` [m], ``c`` the volume-weighted compaction
   (fraction of the length left as compacted material);
 - saturation energy ``E_s = F_c * s`` [J];
