@@ -579,6 +579,7 @@ def _optimized(
     # every sensor gets a cell of its own around its voxel: two on one voxel cannot
     _refuse_shared(reqs, snapped, np.arange(nvox), grid, "voxel", cfg.target_cell_volume ** (1 / 3), roi.frame_y)
     n_groups_base = n_sub * (int(grid.band_y.max()) + 1)
+    blocks = []
     for k, ((_, p), v) in enumerate(zip(reqs, snapped, strict=True)):  # loop over a handful of sensors
         if v is None:
             sensor_is_comp.append(True)
@@ -593,12 +594,19 @@ def _optimized(
         sl = tuple(slice(int(a), int(b)) for a, b in zip(lo, hi, strict=True))
         block = np.zeros(shape, dtype=bool)
         block[sl] = True
-        block = block.ravel() & (owner == owner[v]) & (band == band[v]) & (group < 0)
-        block[v] = True
-        group[block] = n_groups_base + k
+        blocks.append((k, v, np.flatnonzero(block.ravel() & (owner == owner[v]) & (band == band[v]))))
         sensor_groups.append(n_groups_base + k)
         sensor_is_comp.append(False)
         sensor_pos.append(grid.voxel_centers(np.array([v]))[0])
+    # A voxel in the blocks of several sensors goes to the nearest sensor's voxel, a tie to the smaller voxel index, so
+    # no sensor's cell depends on where the config lists it (the first listed took the shared voxels; its own voxel
+    # is nearest to every sensor)
+    near = np.full(nvox, np.inf)
+    for k, v, idx in sorted(blocks, key=lambda b: b[1]):
+        d = ((grid.voxel_centers(idx) - grid.voxel_centers(np.array([v]))) ** 2).sum(axis=1)
+        better = d < near[idx]
+        near[idx[better]] = d[better]
+        group[idx[better]] = n_groups_base + k
     # sub-assembly envelopes per y band, split into pieces of about the target volume
     owned = (owner >= 0) & (owner < n_sub) & (group < 0)
     group[owned] = owner[owned] * (int(grid.band_y.max()) + 1) + band[owned]
