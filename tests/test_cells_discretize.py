@@ -523,6 +523,15 @@ def test_the_cells_of_two_near_sensors_do_not_depend_on_their_order_in_the_confi
     assert got[0] == got[1]
 
 
+def test_a_sampling_density_that_would_take_gigabytes_names_its_keys():
+    """samples_per_pitch and max_subdivision had no bound: 40 and 80 on the default car ran a minute and died with
+    numpy's "Unable to allocate 19.8 GiB"; the sample count is now known before any is made."""
+    cfg = load_discretization_config(overrides={"samples_per_pitch": 1000, "max_subdivision": 4000})
+    with pytest.raises(ModelError, match="samples_per_pitch") as err:
+        discretize(mini_car(), cfg)
+    assert "max_subdivision" in str(err.value)
+
+
 def test_scientific_notation_reads_as_a_number(tmp_path):
     """YAML 1.1 (PyYAML) reads 3e-4 as a string; the loader reads it as YAML 1.2 does."""
     text = (config_dir() / "cells.yaml").read_text()

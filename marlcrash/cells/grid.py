@@ -30,6 +30,10 @@ KIND_SHELL, KIND_SOLID, KIND_BEAM = 0, 1, 2
 
 EDGE_TOL = 1e-9  # m: a sample point this close to a lateral grid edge is on it (mirror-symmetric binning)
 
+MAX_SAMPLES = 50_000_000
+"""Most material samples :func:`sample_elements` makes (the default car takes 1.1 million; this many take gigabytes):
+beyond it ``samples_per_pitch`` and ``max_subdivision`` ask for far more than the grid can tell apart."""
+
 MAX_VOXELS = 50_000_000
 """Largest fine grid :func:`build_grid` builds (the default car's has 0.45 million voxels; this one would take
 gigabytes): beyond it the ROI is far larger than a vehicle's front end for the cell size, which is what a deck
@@ -350,12 +354,26 @@ def sample_elements(
         )
 
     coords = model.coords
+    # subdivisions first: the sample count is known before any sample is made
+    s_idx, v_idx, b_idx = np.flatnonzero(shell_mask), np.flatnonzero(solid_mask), np.flatnonzero(beam_mask)
+    s_p, v_p, b_p = coords[model.shell_nodes[s_idx]], coords[model.solid_nodes[v_idx]], coords[model.beam_nodes[b_idx]]
+    s_edge = np.linalg.norm(s_p - np.roll(s_p, 1, axis=1), axis=2).max(axis=1, initial=0.0)
+    s_k = _subdivisions(s_edge, pitch, samples_per_pitch, max_subdivision)
+    v_k = _subdivisions((v_p.max(axis=1, initial=-np.inf) - v_p.min(axis=1, initial=np.inf)).max(axis=1, initial=0.0),
+                        pitch, samples_per_pitch, max(1, max_subdivision // 2))  # fmt: skip
+    b_length = np.linalg.norm(b_p[:, 1] - b_p[:, 0], axis=1)
+    b_k = _subdivisions(b_length, pitch, samples_per_pitch, max_subdivision)
+    n_samples = float((s_k.astype(np.float64) ** 2).sum() + (v_k.astype(np.float64) ** 3).sum() + b_k.sum())
+    if n_samples > MAX_SAMPLES:
+        raise ModelError(
+            f"sampling the region's {s_idx.size} shells, {v_idx.size} solids and {b_idx.size} beams would take "
+            f"{n_samples:.3g} samples, more than {MAX_SAMPLES:.0e} (gigabytes): lower samples_per_pitch "
+            f"({samples_per_pitch}) or max_subdivision ({max_subdivision}) of the cells config"
+        )
     # shells
-    idx = np.flatnonzero(shell_mask)
+    idx = s_idx
     if idx.size:
-        p = coords[model.shell_nodes[idx]]
-        edge = np.linalg.norm(p - np.roll(p, 1, axis=1), axis=2).max(axis=1)
-        k = _subdivisions(edge, pitch, samples_per_pitch, max_subdivision)
+        p, k = s_p, s_k
         nrm = np.cross(p[:, 2] - p[:, 0], p[:, 3] - p[:, 1])
         nn = np.linalg.norm(nrm, axis=1)
         nx = np.divide(np.abs(nrm[:, 0]), nn, out=np.zeros_like(nn), where=nn > 0)
@@ -366,24 +384,20 @@ def sample_elements(
             pos, w = _shell_samples(p[g], int(kk))
             emit(pos, w, idx[g], vol[g], ax[g], KIND_SHELL, model.shell_part[idx[g]])
     # solids
-    idx = np.flatnonzero(solid_mask)
+    idx = v_idx
     if idx.size:
-        p = coords[model.solid_nodes[idx]]
-        ext = (p.max(axis=1) - p.min(axis=1)).max(axis=1)
-        k = _subdivisions(ext, pitch, samples_per_pitch, max(1, max_subdivision // 2))
+        p, k = v_p, v_k
         vol = model.solid_volumes()[idx]
         for kk in np.unique(k):
             g = k == kk
             pos, w = _solid_samples(p[g], int(kk))
             emit(pos, w, idx[g], vol[g], np.ones(int(g.sum())), KIND_SOLID, model.solid_part[idx[g]])
     # beams
-    idx = np.flatnonzero(beam_mask)
+    idx = b_idx
     if idx.size:
-        p = coords[model.beam_nodes[idx]]
+        p, k, length = b_p, b_k, b_length
         d = p[:, 1] - p[:, 0]
-        length = np.linalg.norm(d, axis=1)
         ax = np.divide(np.abs(d[:, 0]), length, out=np.zeros_like(length), where=length > 0)
-        k = _subdivisions(length, pitch, samples_per_pitch, max_subdivision)
         vol = length * model.beam_area[idx]
         for kk in np.unique(k):
             g = k == kk
