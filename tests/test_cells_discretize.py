@@ -532,6 +532,15 @@ def test_a_sampling_density_that_would_take_gigabytes_names_its_keys():
     assert "max_subdivision" in str(err.value)
 
 
+def test_an_envelope_closing_beyond_a_few_cell_edges_is_refused_naming_the_key():
+    """envelope_closing_iterations had no upper bound: 400 (a gap of 800 voxels sealed, far beyond any vehicle's
+    front) ran the mini car for minutes on crops padded by 400 voxels a side, where 1 is the default."""
+    with pytest.raises(ConfigError, match="expected 0 to 16") as err:
+        from_dict(DiscretizationConfig, {"envelope_closing_iterations": 400})
+    assert err.value.key == "envelope_closing_iterations"
+    assert from_dict(DiscretizationConfig, {"envelope_closing_iterations": 16}).envelope_closing_iterations == 16
+
+
 def test_scientific_notation_reads_as_a_number(tmp_path):
     """YAML 1.1 (PyYAML) reads 3e-4 as a string; the loader reads it as YAML 1.2 does."""
     text = (config_dir() / "cells.yaml").read_text()

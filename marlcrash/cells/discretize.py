@@ -144,10 +144,11 @@ class DiscretizationConfig:
                 f"expected at least the fine voxel's volume, target_cell_volume / voxels_per_cell_edge^3 = {voxel:.3g} "
                 f"m^3 (no cell is smaller than a voxel), got {v}",
             )
-        require(
-            self.envelope_closing_iterations >= 0,
+        require(  # each iteration pads every sub-assembly's crop by a voxel a side: 400 ran for minutes
+            0 <= self.envelope_closing_iterations <= 16,
             "envelope_closing_iterations",
-            f"expected >= 0, got {self.envelope_closing_iterations}",
+            f"expected 0 to 16 voxels (n seals gaps up to 2n voxels wide; 16 is four cell edges of the default "
+            f"voxels_per_cell_edge), got {self.envelope_closing_iterations}",
         )
         require(  # above 0.5, f_x exceeds the other four factors, which sum to at most 1 - f_x
             0.5 < self.principal_min_share <= 1,
