@@ -373,6 +373,7 @@ def test_default_vehicle_is_registered_b_segment(car):
         ({"hood.z_rear": 2.0}, "hood.z_rear"),  # above the 1.45 m roof
         ({"cooling_module.z_center": 3.0}, "cooling_module.z_center"),  # floated 2.4 m above the hood
         ({"shock_tower.z_top": 3.0}, "shock_tower.z_top"),  # through the hood and the roof
+        ({"subframe.y_center": 0.7}, "subframe.y_center"),  # side members ran through the wheels
     ],
 )
 def test_impossible_config_values_name_the_key(overrides, key):

@@ -480,6 +480,12 @@ class SyntheticCarConfig:
         need(sf.x_front + 2 * sf.width < sf.x_rear, "subframe.x_rear", f"{sf.x_rear} too close to x_front")
         need(sf.x_rear <= bd.dash_x, "subframe.x_rear", f"{sf.x_rear} is behind the dash at {bd.dash_x}")
         need(sf.y_center > sf.width, "subframe.y_center", f"{sf.y_center} leaves no cross-member length")
+        need(
+            sf.y_center + 0.5 * sf.width < 0.5 * (w.track - w.width),
+            "subframe.y_center",
+            f"the side members (outer face y={sf.y_center + 0.5 * sf.width}) reach the wheel's inner face "
+            f"y={0.5 * (w.track - w.width)}",
+        )
         need(sf.z_center > 0.5 * sf.height, "subframe.z_center", "the subframe reaches below the ground")
         need(
             pt.z_bottom > sf.z_center + 0.5 * sf.height,
