@@ -108,14 +108,14 @@ class SuccessConfig:
         require(any(getattr(self, k) is not None for k in ("area", "dfd", "rmse")), "area",
                 "at least one of area, dfd, rmse needs a threshold")  # fmt: skip
 
+    def termination_config(self) -> TerminationConfig:
+        """The episode-end config whose success test is this one (no failure limits)."""
+        return TerminationConfig(success_area=self.area, success_dfd=self.dfd, success_rmse=self.rmse, max_iterations=1)
+
     def passes(self, metrics: Metrics) -> torch.Tensor:
         """``[*batch]`` bool: every sensor of per-sensor metrics ``[*batch, K]`` below every threshold set (a NaN
-        metric fails)."""
-        ok = torch.ones(metrics.area.shape[:-1], dtype=torch.bool, device=metrics.area.device)
-        for k in ("area", "dfd", "rmse"):
-            if getattr(self, k) is not None:
-                ok = ok & (getattr(metrics, k) < getattr(self, k)).all(-1)
-        return ok
+        metric fails), the environments' success test (:func:`marlcrash.reward.termination`)."""
+        return termination(metrics, self.termination_config(), 0).success
 
 
 @dataclass
@@ -274,9 +274,7 @@ class CalibrationProblem:
         self.speed, self.overlap, self.side = (
             t[:1].to(torch.float64) for t in (reference.speed, reference.overlap, reference.side)
         )
-        self.success_cfg = TerminationConfig(
-            success_area=success.area, success_dfd=success.dfd, success_rmse=success.rmse, max_iterations=1
-        )
+        self.success_cfg = success.termination_config()
         self.n_simulations = 0
 
         f64 = torch.float64
