@@ -1132,3 +1132,19 @@ def test_the_reported_iterate_passes_before_it_scores():
     assert select_iterate(m, scores, SuccessConfig(area=0.001), "best") == 1  # none passes: the highest score
     nan = torch.tensor([float("nan"), 0.0, -1.0, float("nan")], dtype=torch.float64)
     assert select_iterate(m, nan, SuccessConfig(area=0.001), "best") == 1  # a NaN score never wins
+
+
+def test_the_summary_says_per_sensor_which_thresholds_the_reported_iterate_meets(short, tmp_path):
+    """``passed`` (per sensor), ``all_passed`` and ``initial_passed`` of ``summary.json`` against the evaluation's
+    thresholds, recomputed here from the summary's own metrics: loose thresholds pass every sensor, before and after."""
+    loose = {"eval.thresholds.area": 10.0, "eval.thresholds.dfd": 100.0, "eval.thresholds.rmse": 100.0}
+    for over, everything in (({}, False), (loose, True)):
+        s = train(tiny(tmp_path, name=f"t{len(over)}", iterations=1, **{"eval.plots": False}, **over)).summary
+        th = s["thresholds"]
+
+        def meets(m, th=th):
+            return all(th[k] is None or m[k] < th[k] for k in ("area", "dfd", "rmse"))
+
+        assert s["passed"] == {k: meets(m) for k, m in s["final_metrics"].items()}
+        assert s["all_passed"] is all(s["passed"].values()) is everything
+        assert s["initial_passed"] is all(meets(m) for m in s["initial_metrics"].values()) is everything

@@ -534,12 +534,8 @@ def evaluate_run(
             raise ConfigError("the evaluation env and the baselines' problem drew different references", key="eval")
         th = config.eval.thresholds
         final = result.per_sensor(result.selected)
-        limits = (("area", th.area), ("dfd", th.dfd), ("rmse", th.rmse))
-
-        def passes(metrics: dict[str, float]) -> bool:
-            return all(lim is None or metrics[k] < lim for k, lim in limits)
-
-        passed = {s: passes(v) for s, v in final.items()}
+        ok = th.passes(Metrics(*(t[..., None] for t in result.metrics)))  # [I + 1, K]: each sensor on its own
+        passed = dict(zip(result.sensors, ok[result.selected].tolist(), strict=True))
         train_time = float(counters["wall_time_s"])
         steps = int(counters["env_steps"])
         collect_rates = [r["env_steps_per_s"] for r in log_rows]
@@ -561,7 +557,7 @@ def evaluate_run(
             "thresholds": {"area": th.area, "dfd": th.dfd, "rmse": th.rmse},
             "passed": passed,
             "all_passed": all(passed.values()),
-            "initial_passed": all(passes(v) for v in result.per_sensor(0).values()),
+            "initial_passed": bool(ok[0].all()),
             "iterations_trained": int(counters["iteration"]),
             "env_steps": steps,
             "simulations": int(counters["simulations"]),
