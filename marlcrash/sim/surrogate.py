@@ -542,7 +542,7 @@ class Surrogate:
         p = p.to(self.dtype)
         with torch.no_grad():
             # the values given first, then as the simulation's dtype holds them (1e39 is inf in float32)
-            for q, cast in ((given, False), (p, True)):
+            for q, cast in ((given, False), (p, True))[: 1 if p.dtype == given.dtype else 2]:  # once without a cast
                 act = q[:, self.active]
                 bad = ~torch.isfinite(act)
                 bad[..., :2] |= act[..., :2] <= 0
