@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 import os
 import re
 import types
@@ -131,16 +132,16 @@ def _check_type(value: Any, tp: Any, key: str, path: str | Path | None) -> Any:
         if value not in args:
             raise ConfigError(f"expected one of {list(args)}, got {value!r}", key=key, path=path)
         return value
-    if tp is float:
-        if isinstance(value, bool) or not isinstance(value, int | float):
+    if tp is float:  # numbers.Real: a numpy scalar (np.int64, np.float32) of a computed override too
+        if isinstance(value, bool) or not isinstance(value, numbers.Real):
             raise ConfigError(f"expected a number, got {value!r}", key=key, path=path)
         if not math.isfinite(value):  # no setting of this project means anything by inf or nan
             raise ConfigError(f"expected a finite number, got {value!r}", key=key, path=path)
         return float(value)
-    if tp is int:
-        if isinstance(value, bool) or not isinstance(value, int):
+    if tp is int:  # numbers.Integral: np.int64 of a computed override too (np.bool_ is none)
+        if isinstance(value, bool) or not isinstance(value, numbers.Integral):
             raise ConfigError(f"expected an integer, got {value!r}", key=key, path=path)
-        return value
+        return int(value)
     if tp is bool:
         if not isinstance(value, bool):
             raise ConfigError(f"expected true or false, got {value!r}", key=key, path=path)

@@ -349,3 +349,15 @@ def test_from_dict_types_keys_and_validate(tmp_path):
         load_config(_Outer, f)
     f.write_text("base: &b {rate: 1.0}\ninner:\n  <<: *b\n")  # a merge key is not a repeated key
     assert load_yaml(f)["inner"] == {"rate": 1.0}
+
+
+def test_from_dict_takes_numpy_integers_where_it_takes_an_int():
+    """A computed override (``np.int64`` from numpy arithmetic) was refused: "expected an integer, got np.int64(3)"."""
+    o = from_dict(_Outer, {"count": np.int64(3), "inner": {"rate": np.int32(2)}})
+    assert o.count == 3 and type(o.count) is int
+    assert o.inner.rate == 2.0 and type(o.inner.rate) is float
+    for flag in (True, np.True_):  # a bool is still no integer
+        with pytest.raises(ConfigError, match="key 'count': expected an integer"):
+            from_dict(_Outer, {"count": flag})
+        with pytest.raises(ConfigError, match=r"key 'inner\.rate': expected a number"):
+            from_dict(_Outer, {"inner": {"rate": flag}})
