@@ -361,3 +361,13 @@ def test_from_dict_takes_numpy_integers_where_it_takes_an_int():
             from_dict(_Outer, {"count": flag})
         with pytest.raises(ConfigError, match=r"key 'inner\.rate': expected a number"):
             from_dict(_Outer, {"inner": {"rate": flag}})
+
+
+def test_a_poisson_ratio_of_zero_is_kept_and_only_a_missing_one_defaulted():
+    """nu = 0 (cork, some foams and honeycombs) was read as missing and defaulted to 0.3 with a warning."""
+    m = complete_material(Material(8, "cork", "elastic", 240.0, 3e7, poisson_ratio=0.0))
+    assert m.poisson_ratio == 0.0 and not any("Poisson" in w for w in m.warnings)
+    assert m.shear_modulus == pytest.approx(3e7 / 2) and m.bulk_modulus == pytest.approx(3e7 / 3)
+    missing = complete_material(Material(9, "blank", "elastic", 240.0, 3e7))  # nan: not given
+    assert missing.poisson_ratio == 0.3 and any("Poisson's ratio missing, defaulted to 0.3" in w
+                                                 for w in missing.warnings)  # fmt: skip

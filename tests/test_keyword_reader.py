@@ -412,6 +412,18 @@ curve driven
         read_deck(_write(tmp_path, base + "*PART\np1\n         1         1         1\n" + kinematic + shells[:59]))
 
 
+def test_an_explicit_poisson_ratio_of_zero_is_read_as_zero_and_a_blank_one_defaulted(tmp_path):
+    """An explicit PR 0.0 (LS-DYNA takes it as 0: foams, honeycombs) was defaulted to 0.3 like a blank field."""
+    zero = HEAD.replace("210000.0       0.3", "210000.0       0.0")
+    m = _read(_write(tmp_path, zero + NODES + SHELL + "*END\n"))
+    assert m.materials[1].poisson_ratio == 0.0 and not any("Poisson" in w for w in m.warnings)
+    assert m.materials[1].shear_modulus == pytest.approx(2.1e11 / 2)
+    blank = HEAD.replace("210000.0       0.3", "210000.0")
+    m = _read(_write(tmp_path, blank + NODES + SHELL + "*END\n", "blank.k"))
+    assert m.materials[1].poisson_ratio == 0.3
+    assert any("material 1 (MAT_ELASTIC): Poisson's ratio missing, defaulted to 0.3" in w for w in m.warnings)
+
+
 def test_curve_offsets_apply_before_the_scale_factors(tmp_path):
     """*DEFINE_CURVE scales after the offsets (LS-DYNA manual, *DEFINE_CURVE remark 1): abscissa SFA (x + OFFA),
     ordinate SFO (y + OFFO). The reader took x SFA + OFFA and y SFO + OFFO, the same only where an offset is 0."""

@@ -76,8 +76,8 @@ def complete_material(m: Material) -> Material:
     """Fill the missing entries of a material's 8-vector.
 
     ``G = Y / (2 (1 + nu))`` and ``K = Y / (3 (1 - 2 nu))`` are derived; a missing
-    Poisson's ratio, yield, ultimate or fracture strength is defaulted, and each
-    default is recorded in ``warnings``.
+    Poisson's ratio (``nan``; a given 0 is kept), yield, ultimate or fracture strength
+    (``nan`` or 0) is defaulted, and each default is recorded in ``warnings``.
 
     Raises:
         ModelError: density or Young's modulus missing, non-finite or not positive
@@ -90,7 +90,7 @@ def complete_material(m: Material) -> Material:
         raise ModelError(f"{where}: Young's modulus must be a finite value > 0, got {m.youngs_modulus}")
     warnings = list(m.warnings)
     nu = m.poisson_ratio
-    if not math.isfinite(nu) or nu == 0.0:
+    if not math.isfinite(nu):  # nan: not given (a blank field); 0 is a Poisson's ratio (cork, foams, honeycombs)
         nu = DEFAULT_POISSON
         warnings.append(f"{where}: Poisson's ratio missing, defaulted to {nu}")
     if not -1.0 < nu < 0.5:
