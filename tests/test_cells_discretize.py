@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -658,3 +659,14 @@ def test_symmetric_car_gives_mirror_symmetric_cells():
         swap[i + 1] = names.index(other)
     mirrored = swap[sub[:, ::-1, :] + 1]
     assert (mirrored == sub).mean() > 0.999
+
+
+def test_a_subassembly_target_whose_name_looks_like_a_typo_warns_naming_the_close_name(car, cfg):
+    """Names a model lacks are ignored (the shared config names the synthetic car's wheels), but one that is a near
+    miss of a sub-assembly the model has is most likely a typo, which would otherwise change nothing in silence."""
+    typo = dataclasses.replace(cfg, subassembly_target_cell_volume={"powertrian": 0.002, "wheel_left": 0.002})
+    with pytest.warns(UserWarning, match=r"subassembly_target_cell_volume\.powertrian.*did you mean 'powertrain'"):
+        discretize(car, typo)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        discretize(car, dataclasses.replace(cfg, subassembly_target_cell_volume={"wheel_left": 0.002}))

@@ -11,6 +11,7 @@ the seven parameters (:mod:`.transmission`, :mod:`.params`).
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import functools
 import time
 import warnings
@@ -549,6 +550,16 @@ def _subassembly_targets(samples: Samples, n_sub: int, names: list[str], cfg: Di
     for i, name in enumerate(names[:n_sub]):
         if name in cfg.subassembly_target_cell_volume:
             target[i] = cfg.subassembly_target_cell_volume[name]
+    known = names[:n_sub]
+    for name in cfg.subassembly_target_cell_volume:
+        close = [] if name in known else difflib.get_close_matches(name, known, n=1, cutoff=0.8)
+        if close:  # names a model lacks are ignored (the shared config's wheels), a near miss is most likely a typo
+            warnings.warn(
+                f"subassembly_target_cell_volume.{name}: the model has no sub-assembly of this name, so it changes "
+                f"nothing; did you mean '{close[0]}'?",
+                UserWarning,
+                stacklevel=4,
+            )
     return target
 
 
