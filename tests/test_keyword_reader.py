@@ -1558,3 +1558,24 @@ def test_nint_in_a_parameter_expression_rounds_halves_away_from_zero_as_fortran(
     head = HEAD.replace("       2.0       2.0       2.0       2.0\n", "       &t3\n")
     m = _read(_write(tmp_path, params + head.replace("*KEYWORD\n", "") + NODES + SHELL))
     assert m.shell_thickness[0] == pytest.approx(6e-3)
+
+
+def test_include_names_written_with_backslashes_resolve(tmp_path):
+    """A deck written on Windows names its includes ``sub\\mesh.k``: on Linux that is one file name with a
+    backslash in it, which did not exist, and the deck was refused. Where the name as written is not found, its
+    backslashes are read as folder separators; a file whose name really holds a backslash still wins."""
+    sub = tmp_path / "sub"
+    (sub / "deeper").mkdir(parents=True)
+    _write(sub / "deeper", "*KEYWORD\n" + SHELL + "*END\n", "elems.k")
+    _write(sub, "*KEYWORD\n" + NODES + "*INCLUDE\ndeeper\\elems.k\n*END\n", "mesh.k")
+    m = _read(_write(tmp_path, HEAD + "*INCLUDE\n.\\sub\\mesh.k\n*END\n"))
+    assert m.n_nodes == 4 and m.n_shells == 1
+    m = _read(_write(tmp_path, HEAD + "*INCLUDE_PATH\nsub\\deeper\n*INCLUDE\nelems.k\n" + NODES + "*END\n", "p.k"))
+    assert m.n_nodes == 4 and m.n_shells == 1  # an *INCLUDE_PATH folder too
+    _write(tmp_path, "*KEYWORD\n" + NODES + SHELL + "*END\n", "lit\\x.k")  # a name holding a backslash
+    (tmp_path / "lit").mkdir()
+    _write(tmp_path / "lit", "*KEYWORD\n*END\n", "x.k")
+    m = _read(_write(tmp_path, HEAD + "*INCLUDE\nlit\\x.k\n*END\n", "lit.k"))
+    assert m.n_nodes == 4 and m.n_shells == 1
+    with pytest.raises(DeckError, match=r"bad.k line 13: \*INCLUDE file 'sub\\\\none.k' not found"):
+        _read(_write(tmp_path, HEAD + "*INCLUDE\nsub\\none.k\n*END\n", "bad.k"))

@@ -10,7 +10,8 @@ Coverage:
   (``1.0D+03``, and ``7.85-9``: a signed exponent needs no E);
 - structure: ``*KEYWORD``, ``*TITLE``, ``*END`` (ends the current file),
   ``*INCLUDE`` (paths relative to the including file, nested), ``*INCLUDE_PATH``
-  and ``*INCLUDE_PATH_RELATIVE``;
+  and ``*INCLUDE_PATH_RELATIVE`` (a name not found as written is looked up with its backslashes as folder
+  separators: a deck written on Windows);
 - ``*PARAMETER`` (``R``/``I``/``C`` typed), ``*PARAMETER_EXPRESSION`` and their ``_LOCAL`` forms (values of
   the defining file and the files it includes, before the deck's of the same name: component files may each
   define their own; expressions of arithmetic, ``pi`` and Fortran's intrinsic functions ``abs``, ``aint``, ``int``,
@@ -881,7 +882,10 @@ def _scan(
                 deck.title = src.text(int(rows[0])).strip()
         elif name in ("INCLUDE_PATH", "INCLUDE_PATH_RELATIVE"):
             for r in rows.tolist():
-                p = Path(src.text(r).strip())
+                name = src.text(r).strip()
+                p = Path(name)
+                if not (p if p.is_absolute() else path.parent / p).is_dir():  # a folder written on Windows
+                    p = Path(name.replace("\\", "/"))
                 deck.include_paths.append(p if p.is_absolute() else path.parent / p)
         elif name == "INCLUDE":
             for r, fname in _include_names(src, rows, k):
@@ -935,18 +939,21 @@ def _include_names(src: _Source, rows: np.ndarray, k: int, first: bool = False) 
 
 
 def _resolve_include(fname: str, including: Path, deck: _Deck, row: int) -> Path:
-    p = Path(fname)
     # the including file's folder, then the main deck's (LS-DYNA resolves a relative name against the main file's
-    # folder, so nested includes are often written relative to it), then the *INCLUDE_PATH folders
+    # folder, so nested includes are often written relative to it), then the *INCLUDE_PATH folders; a name as
+    # written first, then with its backslashes read as folder separators (a deck written on Windows)
     folders = [including.parent, deck.files[0].parent, *deck.include_paths]
-    candidates = [p] if p.is_absolute() else list(dict.fromkeys(d.resolve() / p for d in folders))
+    candidates: list[Path] = []
+    for p in dict.fromkeys([Path(fname), Path(fname.replace("\\", "/"))]):
+        candidates += [p] if p.is_absolute() else [d.resolve() / p for d in folders]
+    candidates = list(dict.fromkeys(candidates))
     for c in candidates:
         if c.is_file():
             return c.resolve()
     dirs = [c for c in candidates if c.is_dir()]
     if dirs:
         raise DeckError(f"*INCLUDE {fname!r} is a folder ({dirs[0]}); expected a keyword file", including, row + 1)
-    looked = ", ".join(str(c.parent) for c in candidates)
+    looked = ", ".join(dict.fromkeys(str(c.parent) for c in candidates))
     raise DeckError(f"*INCLUDE file {fname!r} not found (looked in {looked})", including, row + 1)
 
 
