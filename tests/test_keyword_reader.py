@@ -1560,6 +1560,23 @@ def test_nint_in_a_parameter_expression_rounds_halves_away_from_zero_as_fortran(
     assert m.shell_thickness[0] == pytest.approx(6e-3)
 
 
+def test_keywords_joining_nodes_are_named_where_they_stand(tmp_path):
+    """*NODE_MERGE, *CONSTRAINED_NODE_SET, *CONSTRAINED_SPOTWELD ... join nodes; the reader does not follow them,
+    and they were only counted in the skipped-cards summary (no file, no line, no word of what they change). Each
+    such keyword now gets one warning naming its first file and line and how many blocks there are."""
+    joins = "*NODE_MERGE\n0.01\n*CONSTRAINED_NODE_SET\n1,123\n*CONSTRAINED_SPOTWELD\n1,2\n*CONSTRAINED_SPOTWELD\n3,4\n"
+    with warnings.catch_warnings(record=True) as rec:
+        warnings.simplefilter("always")
+        m = read_deck(_write(tmp_path, HEAD + NODES + SHELL + joins))
+    msgs = [str(r.message) for r in rec if issubclass(r.category, UserWarning)]
+    for kw, line, more in (("NODE_MERGE", 19, ""), ("CONSTRAINED_NODE_SET", 21, ""), ("CONSTRAINED_SPOTWELD", 23, 2)):
+        hits = [w for w in msgs if f"*{kw} " in w and "not followed" in w]
+        assert len(hits) == 1, (kw, msgs)
+        assert f"deck.k line {line}" in hits[0] and (not more or f"{more} blocks" in hits[0])
+        assert any(w in hits[0] for w in m.warnings)
+    assert m.skipped_cards["CONSTRAINED_SPOTWELD"] == 2  # still counted among the skipped cards
+
+
 def test_include_names_written_with_backslashes_resolve(tmp_path):
     """A deck written on Windows names its includes ``sub\\mesh.k``: on Linux that is one file name with a
     backslash in it, which did not exist, and the deck was refused. Where the name as written is not found, its

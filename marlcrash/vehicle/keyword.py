@@ -76,7 +76,10 @@ other ``*INITIAL_*``, ``*RIGIDWALL_*``, ``*BOUNDARY_*``, other sets, unknown one
 skipped, counted per keyword in ``VehicleModel.skipped_cards`` and summarised in one
 :class:`UserWarning`. So are other element and section kinds (``*ELEMENT_DISCRETE``, ``_SEATBELT``,
 ``_TSHELL``, ...): a part with none of the elements read whose section or material the reader does not
-read is left out with a note. A blank line is a card of defaults, also as the last card of a section or
+read is left out with a note. Keywords that join nodes (``*NODE_MERGE``, ``*CONSTRAINED_NODE_SET``,
+``*CONSTRAINED_SPOTWELD``, ... :data:`_JOINING`) are not followed either: one warning per keyword names its file
+and line (the cells are built from the elements' geometry, which they do not change). A blank line is a card
+of defaults, also as the last card of a section or
 of an element with several lines.
 
 Big blocks (``*NODE``, ``*ELEMENT_*``) are parsed vectorised: the block's lines are
@@ -2698,6 +2701,36 @@ def _stationary_parts(model: VehicleModel, t: _Tables, skip: set[int]) -> tuple[
     return out, []
 
 
+# keywords that join nodes (merge them, tie them, weld them), which the reader does not follow
+_JOINING = (
+    "NODE_MERGE",
+    "CONSTRAINED_NODE_SET",
+    "CONSTRAINED_SPOTWELD",
+    "CONSTRAINED_GENERALIZED_WELD",
+    "CONSTRAINED_RIVET",
+    "CONSTRAINED_TIED_NODES_FAILURE",
+    "CONSTRAINED_LINEAR",
+    "CONSTRAINED_INTERPOLATION",
+    "CONSTRAINED_SHELL_TO_SOLID",
+)
+
+
+def _unfollowed_joints(deck: _Deck) -> list[str]:
+    """One note per keyword of :data:`_JOINING` in the deck, naming its first file and line and its count."""
+    first: dict[str, tuple[_Block, int]] = {}
+    for b in deck.blocks:
+        if any(b.keyword == j or b.keyword.startswith(j + "_") for j in _JOINING):
+            at, n = first.get(b.keyword, (b, 0))
+            first[b.keyword] = (at, n + 1)
+    return [
+        f"*{kw} ({b.src.path.name} line {b.lineno(b.line)}{f', {n} blocks in all' if n > 1 else ''}) is not "
+        "followed: the nodes it joins stay separate in the model (the cells, built from the elements' geometry, do "
+        "not depend on it; a part tied to the moving structure only by these joints is judged on its own nodes "
+        "where parts at rest are left out)"
+        for kw, (b, n) in first.items()
+    ]
+
+
 def deck_files(path: str | Path, params: dict[str, float] | None = None) -> list[Path]:
     """The files a deck consists of: ``path`` and every file it pulls in with ``*INCLUDE`` (nested), resolved.
 
@@ -2793,7 +2826,7 @@ def read_deck(
         model.validate()
     except ModelError as e:
         raise DeckError(str(e), main) from None
-    for note in [*deck.unread_includes, *_check_extent(model, tables)]:
+    for note in [*deck.unread_includes, *_unfollowed_joints(deck), *_check_extent(model, tables)]:
         model.warnings.append(note)
         warnings.warn(f"{main.name}: {note}", UserWarning, stacklevel=2)
     model = model.transformed(axis_map)
