@@ -373,6 +373,10 @@ def load_config(
     return from_dict(cls, data, path=path)
 
 
+MAX_STEPS = 2**63 - 1
+"""Most calibration steps an episode may be given (``termination.max_iterations``, ``eval.iterations``): the env
+counts steps in int64, which holds no more (torch compared 2**63 as -2**63 and truncated at the first step)."""
+
 MAX_SEED = 2**64 - 1
 """Largest seed a run takes: torch's generators (``torch.manual_seed``, gradient descent, ``lm``, the PPO runs)
 refuse a larger one ("Overflow when unpacking long long"), where numpy's take any."""

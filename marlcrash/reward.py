@@ -30,7 +30,7 @@ from typing import Any, ClassVar, Literal, NamedTuple
 
 import torch
 
-from marlcrash.config import checked, config_dir, from_dict, load_config, require
+from marlcrash.config import MAX_STEPS, checked, config_dir, from_dict, load_config, require
 from marlcrash.errors import ConfigError, PulseError
 from marlcrash.metrics import Metrics, MetricsConfig, compute_metrics
 
@@ -272,7 +272,7 @@ class TerminationConfig:
     max_iterations: int = 50
 
     def validate(self) -> None:
-        """Thresholds > 0, each success threshold below its failure limit, max_iterations >= 1."""
+        """Thresholds > 0, each success threshold below its failure limit, max_iterations in [1, MAX_STEPS]."""
         for metric in ("area", "dfd", "rmse"):
             lo, hi = getattr(self, f"success_{metric}"), getattr(self, f"failure_{metric}")
             for k, v in ((f"success_{metric}", lo), (f"failure_{metric}", hi)):
@@ -282,7 +282,8 @@ class TerminationConfig:
                 f"termination.success_{metric}",
                 f"must be below failure_{metric}, got {lo} >= {hi}",
             )
-        require(self.max_iterations >= 1, "termination.max_iterations", f"must be >= 1, got {self.max_iterations}")
+        require(1 <= self.max_iterations <= MAX_STEPS, "termination.max_iterations",
+                f"must be in [1, 2**63 - 1] (MAX_STEPS), got {self.max_iterations}")  # fmt: skip
 
 
 def shipped_termination() -> TerminationConfig:

@@ -538,6 +538,9 @@ def test_a_nested_override_changes_only_the_keys_it_gives():
     assert load_env_config(overrides={"scenarios": {"offset40_left": 1.0}}).scenarios == {"offset40_left": 1.0}
     with pytest.raises(ConfigError, match=r"key 'termination\.failure_dfdx': unknown key"):
         load_env_config(overrides={"termination": {"failure_dfdx": 10.0}})
+    # steps are counted in int64: 2**63 compared as -2**63 (every episode truncated at its first step)
+    with pytest.raises(ConfigError, match=r"key 'termination\.max_iterations': must be in \[1, 2\*\*63 - 1\]"):
+        load_env_config(overrides={"termination.max_iterations": 2**63})
 
 
 def test_an_override_inside_a_plain_value_names_the_key_that_set_it():

@@ -181,6 +181,8 @@ def test_ci_reads_the_environment(monkeypatch):
         (["algorithm.centralised_critic=false"], "algorithm.centralised_critic", "centralised critic"),
         (["+algorithm.learning_rate=0.1"], "algorithm.learning_rate", "unknown key"),
         (["eval.iterations=0"], "eval.iterations", ">= 1"),
+        # the env counts steps in int64: 2**63 compared as -2**63 and truncated the evaluation after its first step
+        (["eval.iterations=9223372036854775808"], "eval.iterations", "at most 2**63 - 1"),
         (["time_limit_s=-5"], "time_limit_s", "> 0 s"),
         (["name=.."], "name", "got '..', which names the output folder's parent"),  # no '/' in it: say why
         (["name=."], "name", "got '.', which names the output folder itself"),

@@ -76,6 +76,7 @@ from marlcrash.calibrate.logging import LOG_FILE, LOGGERS, CSVLogger, make_logge
 from marlcrash.calibrate.problem import SuccessConfig
 from marlcrash.calibrate.runlock import claim_dir, run_lock
 from marlcrash.config import (
+    MAX_STEPS,
     check_override,
     config_dir,
     flatten_overrides,
@@ -225,7 +226,9 @@ class EvalConfig:
     thresholds: SuccessConfig = field(default_factory=SuccessConfig)
 
     def validate(self) -> None:
-        require(self.iterations >= 1, "iterations", f"expected >= 1 calibration steps, got {self.iterations}")
+        require(1 <= self.iterations <= MAX_STEPS, "iterations",
+                f"expected >= 1 calibration steps and at most 2**63 - 1 (MAX_STEPS: the env counts them in "
+                f"int64), got {self.iterations}")  # fmt: skip
         require(self.scenario in list_scenarios(), "scenario",
                 f"unknown scenario {self.scenario!r}; registered: {list_scenarios()}")  # fmt: skip
         require(self.reference_seed >= 0, "reference_seed", f"expected a seed >= 0, got {self.reference_seed}")
