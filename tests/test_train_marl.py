@@ -627,6 +627,27 @@ def test_resuming_the_checkpoint_of_a_run_with_other_settings_names_the_setting(
     save_checkpoint(ckpt, mine)
 
 
+def test_evaluating_the_checkpoint_of_a_run_with_other_settings_names_the_setting(short, tmp_path):
+    """``evaluate_run(run, checkpoint=<a file of another run>)`` checked the network shapes only: a checkpoint of a
+    run with other settings and the same shapes was evaluated as this run's, its numbers reported under this run's
+    config. It is refused as a resume refuses it, naming the setting and this run's config.yaml; a copy of this
+    run's own checkpoint, and a re-evaluation with other ``iterations``, still evaluate."""
+    from marlcrash.calibrate.evaluate import evaluate_run
+
+    part = train(tiny(tmp_path, name="mine", iterations=1), evaluate=False)
+    mine = load_checkpoint(part.run_dir / "checkpoint.pt")
+    other = copy.deepcopy(mine)
+    other["config"]["algorithm"]["lr"] = 0.5
+    foreign = tmp_path / "foreign.pt"
+    save_checkpoint(foreign, other)
+    with pytest.raises(ConfigError, match=r"foreign\.pt was written by a run with other settings: algorithm\.lr is "
+                       r"0\.5 in it, 0\.001 in .*mine/config\.yaml") as e:  # fmt: skip
+        evaluate_run(part.run_dir, checkpoint=str(foreign))
+    assert e.value.key == "checkpoint" and not (part.run_dir / "eval").exists()
+    save_checkpoint(foreign, mine)
+    assert evaluate_run(part.run_dir, checkpoint=str(foreign), iterations=1)["eval_iterations"] == 1
+
+
 def test_resuming_a_run_whose_log_has_other_columns_is_refused_before_training(short, tmp_path, monkeypatch):
     """A run started by a version that logged other columns: the resume trained a whole iteration, then failed with a
     bare ValueError from the logger (and did so again on every resume). It is refused before any training, naming

@@ -70,6 +70,7 @@ from marlcrash.calibrate.marl import (
     make_env_config,
     make_policy,
     require_fits,
+    require_same_run,
 )
 from marlcrash.calibrate.problem import (
     CalibrationProblem,
@@ -454,6 +455,12 @@ def eval_name(run_dir: Path, ckpt: Path) -> str:
     return f"{ckpt.stem}_{hashlib.sha256(str(where).encode()).hexdigest()[:8]}"
 
 
+_OWN_CHECKPOINT = (
+    "expected a checkpoint of this run (latest, an iteration with a kept snapshot in {snapshots}/, or a copy of one); "
+    "evaluate another run's checkpoint in that run (run=<its folder>)"
+)
+
+
 def evaluate_run(
     run_dir: str | Path,
     trainer: Trainer | None = None,
@@ -483,8 +490,10 @@ def evaluate_run(
 
     Raises:
         ConfigError: a ``trainer`` and a ``checkpoint`` both (key ``checkpoint``); no run config or no such
-            checkpoint in ``run_dir``; the folder to write cannot be written (key ``run``: a read-only run folder),
-            before the evaluation's work, or is in use by another process (a run still training, or another
+            checkpoint in ``run_dir``; a checkpoint written under other settings than the run's ``config.yaml``
+            (another run's, of the same network shapes: key ``checkpoint``, the setting named, as a resume refuses
+            it); the folder to write cannot be written (key ``run``: a read-only run folder), before the evaluation's
+            work, or is in use by another process (a run still training, or another
             evaluation of the same checkpoint: :func:`marlcrash.calibrate.runlock.run_lock`).
     """
     t0 = time.perf_counter()
@@ -494,6 +503,7 @@ def evaluate_run(
     run_dir = Path(run_dir)
     out_dir = run_dir
     config = trainer.config if trainer is not None else load_run_config(run_dir, device="cpu")  # policy on the CPU
+    run_config = config  # before an iterations override: what the checkpoint's saved config is compared with
     own_steps = config.eval.iterations
     if iterations is not None:
         whole = isinstance(iterations, numbers.Integral) and not isinstance(iterations, (bool, np.bool_))
@@ -511,6 +521,7 @@ def evaluate_run(
         ckpt = find_checkpoint(run_dir, checkpoint)
         counters = load_training_checkpoint(ckpt, key="checkpoint")
         policy = policy_from_checkpoint(config, counters, ckpt, key="checkpoint")
+        require_same_run(counters.get("config"), run_config, ckpt, "checkpoint", run_dir, _OWN_CHECKPOINT)
         own, name = checkpoint in (None, "latest") and config.eval.iterations == own_steps, eval_name(run_dir, ckpt)
         if own and (run_dir / SUMMARY_FILE).is_file():  # the run's results exist: only the same evaluation redoes them
             own = not (check.configs or check.code)

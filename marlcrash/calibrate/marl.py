@@ -915,8 +915,18 @@ def _flat(config: dict[str, Any], prefix: str = "") -> dict[str, Any]:
     return out
 
 
-def require_same_run(saved: Any, config: TrainConfig, path: Path, key: str = "resume") -> None:
-    """Refuse a checkpoint written under other settings than ``config`` (the run's ``config.yaml``).
+_RESUME_HINT = (
+    "expected this run's checkpoint (a kept snapshot in {snapshots}/ to go back to), or start a new run with those "
+    "settings"
+)
+
+
+def require_same_run(
+    saved: Any, config: TrainConfig, path: Path, key: str = "resume", run_dir: Path | None = None,
+    hint: str = _RESUME_HINT,
+) -> None:  # fmt: skip
+    """Refuse a checkpoint written under other settings than ``config`` (the ``config.yaml`` of ``run_dir``, by
+    default the checkpoint's folder); ``hint`` says what was expected (``{snapshots}``: the kept snapshots' folder).
 
     :func:`require_fits` refuses weights of other shapes only: a checkpoint copied from a run with another ``n_envs``,
     seed or learning rate fits, and its optimizer, generators, counters and log position went on under settings that
@@ -933,8 +943,7 @@ def require_same_run(saved: Any, config: TrainConfig, path: Path, key: str = "re
         if k in b and k not in RESUME_FREE_KEYS and a[k] != b[k]:
             raise ConfigError(
                 f"{path} was written by a run with other settings: {k} is {a[k]!r} in it, {b[k]!r} in "
-                f"{path.parent / CONFIG_FILE}; expected this run's checkpoint (a kept snapshot in {SNAPSHOT_DIR}/ to "
-                "go back to), or start a new run with those settings",
+                f"{(path.parent if run_dir is None else run_dir) / CONFIG_FILE}; {hint.format(snapshots=SNAPSHOT_DIR)}",
                 key=key,
             )
 
