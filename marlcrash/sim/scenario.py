@@ -41,6 +41,8 @@ BASE_OUTPUT_DT = 5e-4
 at any output rate (the 2 kHz sensor rate of DESIGN 1.4 the caps were tuned at)."""
 MAX_SUBSTEPS = 1000
 """Most integration steps per ``BASE_OUTPUT_DT`` a sim config may ask for (``substeps``) [-]."""
+MAX_SPEED_KMH = 200.0
+"""Largest impact speed [km/h]: a scenario's ``speed_kmh`` and each row's ``speed`` of a run are in (0, this]."""
 
 
 def steps_per_output(output_dt: float, substeps: int) -> int | None:
@@ -92,9 +94,9 @@ class CrashScenario:
     def validate(self) -> None:
         """Check value ranges; raise :class:`ConfigError` naming the key."""
         require(
-            np.isfinite(self.speed_kmh) and 0.0 < self.speed_kmh <= 200.0,
+            np.isfinite(self.speed_kmh) and 0.0 < self.speed_kmh <= MAX_SPEED_KMH,
             "speed_kmh",
-            f"impact speed must be in (0, 200] km/h, got {self.speed_kmh}",
+            f"impact speed must be in (0, {MAX_SPEED_KMH:g}] km/h, got {self.speed_kmh}",
         )
         require(
             np.isfinite(self.overlap) and 0.0 < self.overlap <= 1.0,

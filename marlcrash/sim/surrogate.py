@@ -98,6 +98,8 @@ from marlcrash.errors import ModelError
 from marlcrash.sim.energy import cell_energies
 from marlcrash.sim.scenario import (
     BASE_OUTPUT_DT,
+    KMH,
+    MAX_SPEED_KMH,
     MAX_SUBSTEPS,
     CrashScenario,
     barrier_fraction,
@@ -613,7 +615,8 @@ class Surrogate:
         Args:
             batch: ``B``.
             scenario: defaults for any tensor not given.
-            speed: ``[B]`` impact speed [m/s]; overlap: ``[B]`` in (0, 1]; side: ``[B]`` +1 left, -1 right.
+            speed: ``[B]`` impact speed [m/s], a scenario's range (``MAX_SPEED_KMH``); overlap: ``[B]`` in (0, 1];
+            side: ``[B]`` +1 left, -1 right.
 
         Raises:
             ModelError: a ``batch`` that is no integer >= 0, tensors of the wrong shape, out of range or not on the
@@ -663,7 +666,13 @@ class Surrogate:
         ov = vec(overlap, None if scenario is None else scenario.overlap, "overlap")
         sd = vec(side, None if scenario is None else scenario.side_sign, "side")
         with torch.no_grad():
-            refuse("speed", sp <= 0, sp, "must be > 0 m/s")
+            top = MAX_SPEED_KMH * KMH  # a scenario's range (CrashScenario.validate): 1000 m/s ran
+            refuse(
+                "speed",
+                (sp <= 0) | (sp > top),
+                sp,
+                f"must be in (0, {top:g}] m/s (a scenario's speed_kmh in (0, {MAX_SPEED_KMH:g}] km/h)",
+            )
             refuse("overlap", (ov <= 0) | (ov > 1), ov, "must be in (0, 1]")
             refuse("side", sd.abs() != 1, sd, "must be +1 (left) or -1 (right)")
         frac = barrier_fraction(self.lo_y, self.hi_y, self.width, ov, sd, centre_y=self.centre_y) * self.exposed
