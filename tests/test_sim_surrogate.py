@@ -337,6 +337,27 @@ def test_crash_summary_of_probed_cells():
     assert probed["sensors"][f"cell{comp}"] == named["sensors"]["tunnel"]  # block(): the tunnel is on the compartment
 
 
+@pytest.mark.parametrize("backend", ["torch", "numba"])
+def test_crash_summary_of_a_row_uses_that_rows_impact_speed(backend):
+    """A batch run at per-row speeds (40 and 56 km/h) with one scenario (40 km/h): crash_summary of the 56 km/h row
+    reported ``speed_kmh`` 40 and a ``rebound_fraction`` of its rebound over 40 km/h. Each row's summary is now that of
+    the same crash run alone at its own speed."""
+    from marlcrash.pulse.simulation import crash_summary
+
+    cells = single_cell(mass=10.0, compartment_mass=1000.0, crush_force=3e5, crush_length=1.5, e_x=1.0)
+    sim = Surrogate(cells)
+    scs = [get_scenario("full_width_40", {"speed_kmh": kmh, "duration": 0.1}) for kmh in (40.0, 56.0)]
+    speed = torch.tensor([sc.speed for sc in scs], dtype=torch.float64)
+    both = sim.run(_params(cells, 2), scs[0], speed=speed, backend=backend, record_cells="none")
+    for row, sc in enumerate(scs):
+        alone = crash_summary(sim.run(_params(cells), sc, backend=backend, record_cells="none"), cells, sc)
+        got = crash_summary(both, cells, scs[0], row=row)
+        assert alone["rebound_fraction"] > 0.0
+        assert got["speed_kmh"] == sc.speed_kmh
+        assert got["rebound_fraction"] == pytest.approx(alone["rebound_fraction"], rel=1e-9)
+        assert got == alone  # batch rows are independent to the bit
+
+
 def test_energy_budget_takes_one_parameter_set_and_names_another_shape():
     """``energy_budget(cells, scenario, params)`` reshaped any array to ``[n_cells, -1]``: a batch of two sets
     ``[2, n, 7]`` became ``[n, 14]`` rows of two cells each, and its 'E_s' column summed values of the wrong cells."""
