@@ -601,6 +601,28 @@ def test_an_accepted_wall_stiffness_beyond_float32_stays_finite():
         assert max_balance_error(out) < 1e-4
 
 
+def test_an_empty_batch_is_refused_at_the_run_and_its_balance_error_by_name():
+    """``run`` of ``params [0, n, 7]`` simulated nothing and returned an empty result, whose ``max_balance_error``
+    then failed inside torch ("max(): Expected reduction dim to be specified for input.numel() == 0"). The run now
+    refuses an empty batch up front (every backend, and the implicit study), and the balance error of an empty
+    result (a slice of no rows) names the result."""
+    from marlcrash.sim.implicit import run_implicit
+
+    cells = block()
+    sim = Surrogate(cells)
+    sc = get_scenario("full_width_40", {"duration": 0.002})
+    empty = _params(cells)[:0]
+    for backend in ("torch", "numba", "adjoint"):
+        with pytest.raises(ModelError, match=r"params has no batch rows \(B = 0\): give at least one parameter set"):
+            sim.run(empty, sc, backend=backend, record_cells="none")
+    with pytest.raises(ModelError, match=r"params has no batch rows \(B = 0\)"):
+        run_implicit(sim, empty, sc)
+    out = sim.run(_params(cells, 2), sc, record_cells="none")
+    with pytest.raises(ModelError, match=r"max_balance_error: the result has no batch rows \(B = 0\)"):
+        max_balance_error(out[1:1])
+    assert max_balance_error(out[1:]) < 5e-3
+
+
 def test_parameter_validation_errors():
     cells = block()
     sim = Surrogate(cells)

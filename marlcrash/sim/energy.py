@@ -84,7 +84,13 @@ def balance_error(kinetic: torch.Tensor, stored: torch.Tensor, absorbed: torch.T
 
 
 def max_balance_error(result) -> float:
-    """Largest relative balance error over batch and output steps of a :class:`SimResult`."""
+    """Largest relative balance error over batch and output steps of a :class:`SimResult`.
+
+    Raises:
+        ModelError: a result of no batch rows (a slice of none: the largest of nothing failed inside torch).
+    """
+    if result.initial.shape[0] == 0:
+        raise ModelError("max_balance_error: the result has no batch rows (B = 0); give a result of at least one row")
     err = balance_error(result.kinetic, result.stored, result.absorbed, result.initial)
     return float(err.max())
 

@@ -788,8 +788,15 @@ class Surrogate:
 
         Returns:
             ``(params [B, n, 7], LinkProps, WallProps, n_out, (sensor names, [K] cell indices))``.
+
+        Raises:
+            ModelError: ``params`` of no batch rows (``B = 0``), besides what :meth:`run` names.
         """
         p = self.check_params(params)
+        if p.shape[0] == 0:  # an empty result, whose balance error failed inside torch ("max(): ... numel() == 0")
+            raise ModelError(
+                f"params has no batch rows (B = 0): give at least one parameter set [B >= 1, {self.n}, {N_PARAMS}]"
+            )
         scenario = checked_scenario(scenario)
         if scenario is not None and abs(scenario.output_dt - self.output_dt) > 1e-12:
             raise ModelError(
