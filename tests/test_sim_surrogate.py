@@ -710,6 +710,18 @@ def test_probing_a_null_cell_is_refused_by_name():
     assert out.sensor_names == ["cell0", f"cell{cells.compartment}"]
 
 
+def test_sensors_and_probe_cells_together_are_refused_naming_both():
+    """``run(sensors=["tunnel"], probe_cells=[0])`` recorded cell 0 alone and dropped the named sensor without a
+    word; the two choices of what to record are refused together. A scenario's sensor list is only a default, so
+    ``probe_cells`` still replaces it."""
+    cells = block()
+    sim = Surrogate(cells)
+    sc = get_scenario("full_width_40", {"duration": 0.002, "sensors": ["tunnel"]})
+    with pytest.raises(ModelError, match=r"give sensors or probe_cells, not both: sensors \['tunnel'\] .*probe_cells"):
+        sim.run(_params(cells), sc, sensors=["tunnel"], probe_cells=[0], record_cells="none")
+    assert sim.run(_params(cells), sc, probe_cells=[0], record_cells="none").sensor_names == ["cell0"]
+
+
 def test_bad_per_row_scenario_tensors_are_named_with_what_was_wrong():
     """A NaN speed was reported as a wrong shape ("must be a finite tensor of shape [2], got [2]"), a speed given as
     text failed inside torch ("new(): invalid data type 'str'"), and an out-of-range row was reported by printing

@@ -418,7 +418,7 @@ class CalibrationProblem:
             overlap=self.overlap.expand(n),
             side=self.side.expand(n),
             duration=self.sim_duration,
-            sensors=self.sensors,
+            sensors=self.sensors if probe_cells is None else None,  # the probes are recorded instead
             probe_cells=probe_cells,
             record_cells="none",
             backend=backend or ("torch" if x.requires_grad else self.sim_backend),

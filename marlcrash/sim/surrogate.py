@@ -719,7 +719,8 @@ class Surrogate:
             sensors: sensor names to record (default: the scenario's list, else all).
             probe_cells: record these cells' acceleration and velocity instead of the sensors (named
                 ``cell<i>`` in the result), e.g. to study sensor placement; indices into the cell model, of cells
-                with material (a null cell is refused).
+                with material (a null cell is refused). Not together with ``sensors`` (a scenario's list is
+                replaced).
             record_cells: per-cell energy series (``series``), final values only, or none.
             backend: ``torch`` (differentiable reference), ``numba`` (fast no-grad), ``adjoint`` (the
                 ``numba`` result with sensor velocities differentiable by a compiled reverse pass,
@@ -735,7 +736,7 @@ class Surrogate:
 
         Raises:
             ModelError: an unknown backend or ``record_cells``, ``cells_at`` outside the simulated time or between
-                samples.
+                samples, ``sensors`` and ``probe_cells`` both given.
             ConfigError: a scenario value of the wrong type or out of range (one built in Python), naming the key.
         """
         if backend not in (None, "torch", "numba", "adjoint", "auto"):
@@ -810,6 +811,11 @@ class Surrogate:
                 f"duration must be > 0 s and a whole number of {self.output_dt:.6g} s output steps, got {dur}"
             )
         n_out = round(steps) + 1
+        if sensors is not None and probe_cells is not None:  # the named sensors were dropped without a word
+            raise ModelError(
+                f"give sensors or probe_cells, not both: sensors {_short(sensors)} would not be recorded, the "
+                f"probe_cells {_short(probe_cells)} are recorded instead of sensors"
+            )
         names = sensors if sensors is not None else (list(scenario.sensors) if scenario is not None else [])
         # names from the scenario: the message says where they came from (a registered file's key)
         where = f" (scenario {scenario.name!r}, key 'sensors')" if sensors is None and scenario is not None else ""
