@@ -1,4 +1,5 @@
-"""The README's commands work as written, as far as that can be checked without running them.
+"""The README's commands (and those of the pages it links in ``docs/``) work as written, as far as that can be checked
+without running them.
 
 Every ``python train/<script>.py`` command of a ```bash block (and every inline one) composes with Hydra and passes
 the script's config loader, every ``marlcrash`` command of a ```bash block parses, and every inline
@@ -22,7 +23,8 @@ from marlcrash.config import config_dir
 from marlcrash.errors import ConfigError
 
 ROOT = Path(__file__).resolve().parents[1]
-README = (ROOT / "README.md").read_text()
+README = "\n".join(p.read_text() for p in [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))])
+"""The README and the study pages it links (``docs/*.md``): their commands are the README's too."""
 
 PLACEHOLDERS = {"<name>": "x", "<time stamp>": "x", "N": "1000", "S": "0", "V": "1e-3"}
 """Words the README writes for a value of the user's, and a value of that kind."""
@@ -155,3 +157,27 @@ def test_a_readme_benchmark_command_parses(argv, monkeypatch):
     main = runpy.run_path(str(script), run_name="readme_check")["main"]
     with pytest.raises(_Parsed):
         main()
+
+
+def test_the_readmes_links_into_the_repository_reach_a_file_and_heading():
+    """A relative link of the README or a ``docs/`` page (``docs/x.md#heading``, ``../README.md#heading``,
+    ``#heading``) names a file that exists and, with an anchor, a heading of it (GitHub's anchor rule: lower case,
+    punctuation dropped, spaces to hyphens): moving a section to a study page must not leave a link behind."""
+
+    def anchors(text: str) -> set[str]:
+        heads = re.findall(r"^#+ (.+)$", re.sub(r"```.*?```", "", text, flags=re.S), re.M)
+        return {re.sub(r"[^\w\- ]", "", h.strip().lower()).replace(" ", "-") for h in heads}
+
+    broken = []
+    for page in [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]:
+        text = page.read_text()
+        for target in re.findall(r"\]\(([^)\s]+)\)", text):
+            if re.match(r"[a-z]+://", target):
+                continue
+            path, _, anchor = target.partition("#")
+            file = (page.parent / path).resolve() if path else page
+            if not file.exists():
+                broken.append(f"{page.name}: {target} (no such file)")
+            elif anchor and file.suffix == ".md" and anchor not in anchors(file.read_text()):
+                broken.append(f"{page.name}: {target} (no such heading)")
+    assert not broken, broken
