@@ -24,7 +24,7 @@ its failure limit (a hopeless state); truncation after ``max_iterations``.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any, ClassVar, Literal, NamedTuple
 
@@ -123,7 +123,7 @@ class PaperFactorParams:
 
 @dataclass
 class WeightedSumParams:
-    """Parameters of ``log_ratio`` and ``neg_weighted_sum``: ``S = sum_k w_k * metric_k / scale_k``."""
+    """Parameters of ``neg_weighted_sum`` (and the base of ``log_ratio``'s): ``S = sum_k w_k * metric_k / scale_k``."""
 
     w_area: float = 1.0
     w_dfd: float = 1.0
@@ -131,14 +131,12 @@ class WeightedSumParams:
     area_scale: float = 0.02
     dfd_scale: float = 0.4
     rmse_scale: float = 0.25
-    eps: float = 1e-9
 
     def validate(self) -> None:
-        """Weights in [0, MAX_REWARD_WEIGHT] and not all 0; scales >= MIN_REWARD_SCALE; eps >= 0."""
+        """Weights in [0, MAX_REWARD_WEIGHT] and not all 0; scales >= MIN_REWARD_SCALE."""
         require_weights(self, ("w_area", "w_dfd", "w_rmse"))
         require(self.w_area + self.w_dfd + self.w_rmse > 0, "params", "at least one weight must be > 0")
         require_scales(self, ("area_scale", "dfd_scale", "rmse_scale"))
-        require(self.eps >= 0, "params.eps", f"must be >= 0, got {self.eps}")
 
     def weighted_sum(self, m: Metrics) -> torch.Tensor:
         """``S = wA*A/A0 + wD*DFD/D0 + wR*RMSE/R0``, elementwise."""
@@ -151,7 +149,10 @@ class WeightedSumParams:
 
 @dataclass
 class LogRatioParams(WeightedSumParams):
-    """Parameters of ``log_ratio``: those of the weighted sum, with ``eps > 0``."""
+    """Parameters of ``log_ratio``: those of the weighted sum, and ``eps > 0`` added to it before the logarithm
+    (``neg_weighted_sum`` takes no logarithm and no ``eps``)."""
+
+    eps: float = 1e-9
 
     def validate(self) -> None:
         """As :meth:`WeightedSumParams.validate`, and ``eps > 0``: with ``eps = 0`` a perfect fit (``S = 0``) would
@@ -164,7 +165,8 @@ class RewardForm(ABC):
     """A reward form: ``score`` of one iteration's metrics, and the reward from two iterations.
 
     Subclasses set ``name``, ``params_cls`` and implement :meth:`score`; the reward is the
-    improvement of the score (DESIGN 1.5) unless a form overrides :meth:`reward`.
+    improvement of the score (DESIGN 1.5) unless a form overrides :meth:`reward`. The fields of ``params_cls`` are
+    the options the form takes, each one used by it: any other is refused (:func:`form_params`).
     Metrics passed here are already combined over sensors (``[*batch]``).
     """
 
@@ -240,14 +242,30 @@ def require_reward(name: str, key: str) -> None:
         _form_class(name, key)
 
 
+def form_params(form: type[RewardForm], params: dict[str, Any]) -> Any:
+    """``params`` as ``form``'s parameter dataclass, checked like config keys (``params.<key>``).
+
+    Raises:
+        ConfigError: an option the form does not take (an unused ``eps`` of ``neg_weighted_sum`` was accepted and did
+            nothing), naming the form and the options it takes; a bad value.
+    """
+    options = sorted(f.name for f in fields(form.params_cls))
+    for k in params:
+        if k not in options:
+            raise ConfigError(f"reward form {form.name!r} takes no option {k!r}; its options: {options}",
+                              key=f"params.{k}")  # fmt: skip
+    return from_dict(form.params_cls, params, prefix="params")
+
+
 def get_reward(name: str, **params: Any) -> RewardForm:
     """A reward form by name, with parameters (checked like config keys; defaults otherwise).
 
     Raises:
-        ConfigError: unknown name (the message lists the known ones) or bad parameter.
+        ConfigError: unknown name (the message lists the known ones), an option the form does not take or a bad
+            parameter.
     """
     cls = _form_class(name)
-    return cls(from_dict(cls.params_cls, params, prefix="params"))
+    return cls(form_params(cls, params))
 
 
 # ------------------------------------------------------------------------------------------- configs
@@ -322,8 +340,7 @@ class RewardConfig:
 
     def validate(self) -> None:
         """Check the name is registered and the params fit the form."""
-        cls = _form_class(self.name)
-        from_dict(cls.params_cls, self.params, prefix="params")
+        form_params(_form_class(self.name), self.params)
 
 
 def reward_config_path(name: str) -> Path:

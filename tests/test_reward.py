@@ -174,16 +174,30 @@ def test_log_ratio_is_scale_free():
 
 def test_log_ratio_refuses_a_zero_eps():
     """With ``eps: 0`` a perfect fit scored ``-log(0) = +inf``: its reward was +inf and the next step's NaN
-    (``inf - inf``), both fed to the PPO loss. ``neg_weighted_sum`` takes no logarithm and keeps ``eps >= 0``."""
+    (``inf - inf``), both fed to the PPO loss."""
     with pytest.raises(ConfigError, match=r"params\.eps.*must be > 0 for log_ratio"):
         get_reward("log_ratio", eps=0.0)
     with pytest.raises(ConfigError, match=r"params\.eps"):
         load_reward_config("log_ratio", overrides={"params.eps": 0.0})
-    get_reward("neg_weighted_sum", eps=0.0)
     rw = get_reward("log_ratio")
     exact = Metrics(*(torch.zeros(1, dtype=torch.float64) for _ in range(3)))
     near = Metrics(*(torch.full((1,), 1e-3, dtype=torch.float64) for _ in range(3)))
     assert torch.isfinite(rw.reward(exact, near)).all() and torch.isfinite(rw.reward(exact, exact)).all()
+
+
+def test_a_form_refuses_an_option_it_does_not_use():
+    """``neg_weighted_sum`` took an ``eps`` it never used (it takes no logarithm): a user who set it believed it did
+    something. Every form takes only the options its score uses; any other is refused naming the form, the option and
+    the options the form takes, wherever the parameters come from."""
+    with pytest.raises(ConfigError, match=r"params\.eps.*'neg_weighted_sum'.*eps.*area_scale.*w_rmse"):
+        get_reward("neg_weighted_sum", eps=0.0)
+    with pytest.raises(ConfigError, match=r"params\.eps.*'neg_weighted_sum'"):
+        load_reward_config("neg_weighted_sum", overrides={"params.eps": 1e-9})
+    with pytest.raises(ConfigError, match=r"params\.a.*'log_ratio'.*a.*area_scale.*eps"):
+        Reward(RewardConfig(name="log_ratio", params={"a": 1.0}))
+    for name, form in REWARD_FORMS.items():  # every shipped file holds only options its form takes
+        assert set(load_reward_config(name).params) == {f.name for f in dataclasses.fields(form.params_cls)}
+    assert "eps" not in {f.name for f in dataclasses.fields(REWARD_FORMS["neg_weighted_sum"].params_cls)}
 
 
 def test_neg_weighted_sum():
