@@ -378,7 +378,7 @@ def termination(metrics: Metrics, cfg: TerminationConfig, iteration: int | torch
         every success threshold is below its failure limit).
 
     Raises:
-        PulseError: metrics of no sensors (``[*batch, 0]``).
+        PulseError: metrics of no sensors (``[*batch, 0]``); an ``iteration`` neither a scalar nor ``[*batch]``.
     """
     ref = _some_sensors(metrics).area
     success = torch.ones(ref.shape[:-1], dtype=torch.bool, device=ref.device)
@@ -395,6 +395,9 @@ def termination(metrics: Metrics, cfg: TerminationConfig, iteration: int | torch
     if not checked:
         success = torch.zeros_like(success)
     it = torch.as_tensor(iteration, device=ref.device)
+    if it.dim() and it.shape != success.shape:  # torch's expand failed naming no argument, or broadcast the counts
+        raise PulseError(f"iteration: expected a scalar or shape {tuple(success.shape)} (the batch), got shape "
+                         f"{tuple(it.shape)}")  # fmt: skip
     truncated = (it >= cfg.max_iterations).expand(success.shape).clone()
     return Termination(success=success, failure=failure & ~success, truncated=truncated)
 

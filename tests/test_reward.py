@@ -232,6 +232,27 @@ def test_termination_flags():
     assert not t.success.any() and not t.failure.any() and t.truncated.tolist() == [False, True, True]
 
 
+def test_termination_refuses_an_iteration_count_not_of_the_batch():
+    """An ``iteration`` of another size than the batch failed in torch's ``expand`` (``[2]`` for a batch of 3), or was
+    broadcast across the wrong dimension (``[4]`` for a ``[4, 4]`` batch: each row took the counts of the columns)."""
+    from marlcrash.errors import PulseError
+
+    cfg = TerminationConfig(max_iterations=5)
+    three = Metrics(*(torch.full((3, 2), 0.1) for _ in range(3)))
+    grid = Metrics(*(torch.full((4, 4, 2), 0.1) for _ in range(3)))
+    for metrics, iteration in (
+        (three, torch.tensor([1, 2])),
+        (three, torch.tensor([[1], [2], [3]])),
+        (grid, torch.tensor([1, 5, 9, 2])),
+        (three, [1, 2, 3, 4]),
+    ):
+        with pytest.raises(PulseError, match=r"iteration.*expected a scalar or shape \(.*\) \(the batch\), got"):
+            termination(metrics, cfg, iteration)
+    assert termination(three, cfg, torch.tensor([1, 5, 9])).truncated.tolist() == [False, True, True]
+    assert termination(grid, cfg, torch.full((4, 4), 5)).truncated.all()
+    assert termination(three, cfg, torch.tensor(5)).truncated.all() and not termination(three, cfg, 4).truncated.any()
+
+
 def test_reward_end_to_end_on_velocity_curves():
     """Metrics of a surrogate that moves toward the reference earn a positive reward under every form."""
     dt = 5e-4
