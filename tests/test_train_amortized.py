@@ -458,6 +458,15 @@ def test_the_yaml_config_loads_through_hydra():
     assert not {0} & set(config.reference_seeds)  # held out from the default evaluation seed
 
 
+def test_the_yaml_config_says_what_the_script_prints_on_stdout():
+    """The file said "stdout is the JSON"; the script prints its progress lines and the Markdown tables, and only
+    its last line is JSON (the files written), as :func:`test_script_smoke` checks."""
+    text = (REPO / "configs" / "train" / "amortized.yaml").read_text()
+    comment = next(line for line in text.splitlines() if "hydra/job_logging" in line).split("#", 1)[1]
+    assert "stdout is the JSON" not in comment
+    assert all(w in comment for w in ("stdout", "progress", "Markdown", "last line", "JSON")), comment
+
+
 @pytest.mark.slow
 def test_script_smoke(run_dir, short, tmp_path):
     env = {**os.environ, "MARLCRASH_CONFIGS": str(short)}
@@ -466,6 +475,10 @@ def test_script_smoke(run_dir, short, tmp_path):
     out = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=REPO, timeout=300)
     assert out.returncode == 0, out.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(FILES)
+    # what configs/train/amortized.yaml says stdout holds: progress lines, the Markdown tables, the files as JSON last
+    *head, last = out.stdout.strip().splitlines()
+    assert json.loads(last) == {name: str(tmp_path / name) for name in FILES}
+    assert "seed 101" in head[0] and (tmp_path / "amortized.md").read_text().strip() in "\n".join(head)
     bad = subprocess.run([*cmd[:2], f"run={tmp_path / 'nope'}"], capture_output=True, text=True, env=env, cwd=REPO,
                          timeout=300)  # fmt: skip
     assert bad.returncode == 2 and "key 'run'" in bad.stderr
