@@ -417,6 +417,27 @@ def test_a_budget_multiple_beyond_an_exact_simulation_count_is_refused_before_an
     assert small_config(run_dir, budgets={"cmaes": [1e15]}).budget(1e15, 3) == 3 * 10**15  # exact: accepted
 
 
+def test_budget_multiples_that_round_to_one_budget_are_refused_naming_the_key(run_dir, monkeypatch):
+    """Distinct multiples can round to one simulation count (``[1, 1.1]`` x 3 simulations: 3 and 3; ``[0.1, 0.2]``:
+    1 and 1): the optimizer ran the same budget twice and the tables showed it as two. Refused naming the key, both
+    multiples and the budget, before any simulation -- also when the count comes from the run (``iterations: null``)."""
+    import marlcrash.calibrate.amortized as amortized
+
+    def no_simulation(*args, **kwargs):
+        raise AssertionError("simulated before the budgets were checked")
+
+    monkeypatch.setattr(amortized, "evaluate_policy", no_simulation)
+    with pytest.raises(ConfigError, match=r"key 'budgets\.cmaes\[1\]': .*1\.1 x 3 simulations.*budget of 3 "
+                                          r"simulations.*budgets\.cmaes\[0\] \(1 x 3\)"):  # fmt: skip
+        small_config(run_dir, budgets={"cmaes": [1, 1.1]})
+    with pytest.raises(ConfigError, match=r"key 'budgets\.gradient\[2\]'.*budget of 1 simulations"):
+        small_config(run_dir, budgets={"gradient": [1, 0.1, 0.2]})
+    cfg = small_config(run_dir, iterations=None, budgets={"random_search": [1, 1.01]})  # the run's eval.iterations
+    with pytest.raises(ConfigError, match=r"key 'budgets\.random_search\[1\]'"):
+        amortized_comparison(cfg)
+    assert small_config(run_dir, budgets={"cmaes": [1, 1.5], "gradient": [1]}).budgets["cmaes"] == [1, 1.5]  # 3, 4
+
+
 @pytest.mark.parametrize("name", ["cmaes", "random_search", "gradient"])
 def test_an_empty_budget_list_is_refused_naming_the_key(name, tmp_path):
     """``budgets.<optimizer>=[]`` was accepted and ran nothing for that optimizer, while its settings were recorded

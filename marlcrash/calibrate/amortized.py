@@ -121,7 +121,8 @@ class AmortizedConfig:
         iterations: policy calibration steps; ``None`` = the run's ``eval.iterations``.
         target: the policy iterate whose score the optimizers must reach: ``best`` or ``last``.
         budgets: per optimizer, budgets as multiples of the policy's nominal simulation count ``iterations + 1``
-            (at least one each; an optimizer left out is skipped, but at least one must stay).
+            (at least one each, of distinct budgets once rounded; an optimizer left out is skipped, but at least one
+            must stay).
         seed: the optimizers' seed.
         out_dir: folder of the output files; ``None`` = the run folder.
         resume: continue the comparison in that folder: its finished pieces are kept, the others run.
@@ -186,17 +187,27 @@ class AmortizedConfig:
 
     def check_budgets(self, policy_sims: int) -> None:
         """Refuse a multiple whose budget is beyond :data:`MAX_BUDGET` simulations (``1e308`` overflowed to
-        ``inf``: an ``OverflowError`` after the policy had run).
+        ``inf``: an ``OverflowError`` after the policy had run), or whose budget is that of an earlier multiple of the
+        same optimizer (``[1, 1.1]`` x 3 simulations: 3 twice, one budget run twice and tabled as two).
 
         Raises:
             ConfigError: (key ``budgets.<optimizer>[i]``) the first such multiple.
         """
         for name, mults in self.budgets.items():
+            seen: dict[int, int] = {}  # budget -> index of the first multiple giving it
             for i, m in enumerate(mults):
                 require(m * policy_sims <= MAX_BUDGET, f"budgets.{name}[{i}]",
                         f"a budget of {m:g} x {policy_sims} simulations is beyond 2**53 = {MAX_BUDGET}, the largest "
                         f"count the best-score history (float64) holds exactly; expected a multiple <= "
                         f"{MAX_BUDGET / policy_sims:g}")  # fmt: skip
+                b = self.budget(m, policy_sims)
+                if b in seen:
+                    j = seen[b]
+                    raise ConfigError(f"{m:g} x {policy_sims} simulations rounds to a budget of {b} simulations, as "
+                                      f"budgets.{name}[{j}] ({mults[j]:g} x {policy_sims}) does; expected multiples "
+                                      f"of distinct budgets (budget: max(1, round(multiple x {policy_sims})))",
+                                      key=f"budgets.{name}[{i}]")  # fmt: skip
+                seen[b] = i
 
 
 def load_amortized_config(data: dict[str, Any], source: str | None = None) -> AmortizedConfig:
