@@ -578,6 +578,21 @@ def test_the_script_without_a_run_says_so_even_when_resuming(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["amortized.json"]
 
 
+def test_an_empty_run_or_out_dir_is_refused_naming_the_key(run_dir, tmp_path):
+    """``run=''`` (or ``run=$RUN`` with the variable unset) was the launch folder: "found none in ." there, and the
+    policy of whatever run the script was started in otherwise; ``out_dir=''`` wrote the tables into the launch
+    folder. Both are refused naming the key, also for a config made in Python."""
+    for key in ("run", "out_dir"):
+        with pytest.raises(ConfigError, match=rf"key '{key}': expected a folder.*got an empty one") as e:
+            load_amortized_config({"run": str(run_dir), key: ""})
+        assert e.value.key == key
+        with pytest.raises(ConfigError, match=rf"key '{key}'"):
+            AmortizedConfig(**{"run": str(run_dir), key: ""}).validate()
+    out = subprocess.run([sys.executable, str(REPO / "train" / "amortized.py"), "run="], capture_output=True,
+                         text=True, cwd=run_dir, timeout=300)  # fmt: skip
+    assert out.returncode == 2 and "key 'run'" in out.stderr and "empty" in out.stderr, out.stderr
+
+
 def test_a_resume_after_a_config_file_changed_is_refused_naming_it(run_dir, tmp_path, monkeypatch):
     """The rows kept at a resume were made with the files of ``configs/`` (simulator, cells, scenarios, reward) as they
     were then; a resume after one changed mixed two physics in one table without a word (the settings check saw only

@@ -143,6 +143,9 @@ class AmortizedConfig:
     gradient: GradientConfig = field(default_factory=GradientConfig)
 
     def validate(self) -> None:
+        # '' (run= on the command line) was the launch folder: the run found there, the tables written there
+        for key, like in (("run", ", e.g. run=runs/mappo/<name>"), ("out_dir", " or null (the run folder)")):
+            require(getattr(self, key) != "", key, f"expected a folder{like}, got an empty one")
         require(len(self.reference_seeds) >= 1, "reference_seeds", "expected at least one held-out reference seed")
         require(len(set(self.reference_seeds)) == len(self.reference_seeds), "reference_seeds",
                 f"expected distinct seeds, got {self.reference_seeds}")  # fmt: skip
