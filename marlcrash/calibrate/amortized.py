@@ -19,6 +19,11 @@ training references, and from ``reference.pin_seed`` of a run trained on that on
   first reached the policy's target score (``target``: its best or last iterate), resolved to the
   optimizer's batch (a CMA-ES generation, a random-search batch, a gradient step), ``None`` if never.
 
+``wall_time_s`` times the calibration alone: the policy's from its env's reset (the draw of the twin reference, the
+initial simulation, then its steps: :attr:`~marlcrash.calibrate.evaluate.EvalResult.wall_time_s`), an optimizer's
+from its start on the problem already built (its initial simulation, then its candidates); building the env or the
+problem (vehicle, cells, simulator) is in neither.
+
 Metrics in the tables are sensor means (area [m], DFD [m/s], RMSE [m/s]); ``score`` is the reward
 form's fit score (higher is better); ``passed``: every sensor below every success threshold
 (``eval.thresholds`` of the run); ``param_error``: mean relative error of the per-sub-assembly
@@ -47,7 +52,6 @@ import hashlib
 import io
 import json
 import math
-import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import asdict, dataclass, field, fields
 from datetime import UTC, datetime
@@ -469,15 +473,13 @@ def amortized_comparison(
         if all(r is not None for r in pol):
             say(f"seed {seed}: policy kept from the earlier comparison")
         else:
-            t0 = time.perf_counter()
             result = evaluate_policy(policy, cfg)
-            t_policy = time.perf_counter() - t0
             if problem.ref_velocity.shape != result.ref_velocity.shape or not torch.allclose(
                 problem.ref_velocity, result.ref_velocity, rtol=0, atol=1e-9
             ):
                 raise ConfigError(f"the policy's env and the optimizers' problem drew different references for "
                                   f"seed {seed}", key="reference_seeds")  # fmt: skip
-            pol = policy_rows(problem, result, seed, t_policy)
+            pol = policy_rows(problem, result, seed, result.wall_time_s)
             say(f"seed {seed}: policy best score {_fmt(pol[0]['score'])} in {pol[0]['simulations']} simulations")
         rows += pol
         finished_piece()
@@ -662,6 +664,9 @@ def markdown(comparison: Comparison, command: str | None = None, date: str | Non
         f"seed {meta['optimizer_seed']}",
         "- metrics: sensor means of the best candidate (area [m], DFD [m/s], RMSE [m/s]); score: fit score, "
         "higher is better; param err: mean relative error of the sub-assembly parameters vs the twin truth",
+        "- wall: seconds of the calibration alone; the policy's from its env's reset (the reference draw, the initial "
+        "simulation, its steps), an optimizer's from its start on a problem already built; neither building the "
+        "env nor the problem is counted",
         f"- sims to policy: simulations until the optimizer's best score reached the policy's {meta['target']} "
         "score, resolved to the optimizer's batch (CMA-ES generation, random-search batch, gradient step); "
         "- = never within the budget",

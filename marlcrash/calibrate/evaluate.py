@@ -163,6 +163,10 @@ class EvalResult:
         scenario: the evaluation scenario's name; ``seed``: its reset seed.
         reference: the reference kind (``twin``, ``cross_fidelity``, ``file``); ``source``: its origin
             (:attr:`marlcrash.references.ReferenceBatch.source`: ``twin``, the fine model, the test's path).
+        wall_time_s: seconds of the calibration [s]: from the env's reset (the reference draw and the initial
+            simulation) to the last step, building the env left out, as an optimizer's clock starts on a problem
+            already built (:attr:`~marlcrash.calibrate.baselines.CalibrationResult.wall_time_s`); ``None`` where a
+            result is made otherwise.
     """
 
     sensors: list[str]
@@ -177,6 +181,7 @@ class EvalResult:
     seed: int
     reference: str = "twin"
     source: str = "twin"
+    wall_time_s: float | None = None
 
     @property
     def iterations(self) -> int:
@@ -236,6 +241,7 @@ def evaluate_policy(policy: TensorDictModuleBase, config: TrainConfig) -> EvalRe
     env = make_env(config, n_envs=1, overrides=evaluation_overrides(config))
     core = env.core
     metrics, params = [], []
+    t0 = time.perf_counter()  # the calibration, not the env's construction (EvalResult.wall_time_s)
     with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
         td = env.reset(seed=ev.reference_seed)
         metrics.append(Metrics(*(m[0].clone() for m in core.metrics)))
@@ -247,6 +253,7 @@ def evaluate_policy(policy: TensorDictModuleBase, config: TrainConfig) -> EvalRe
             if bool(td.get(("next", "done")).any()):
                 break
             td = td.get("next")
+    wall = time.perf_counter() - t0
     m = Metrics(*(torch.stack([x[j] for x in metrics]) for j in range(3)))
     scores = ranked_scores(core.reward_fn.score(m))
     selected = select_iterate(m, scores, ev.thresholds, ev.select)
@@ -254,7 +261,7 @@ def evaluate_policy(policy: TensorDictModuleBase, config: TrainConfig) -> EvalRe
     return EvalResult(
         sensors=list(core.sensors), metrics=m, scores=scores, params=torch.stack(params), selected=selected,
         select=ev.select, true_params=truth, ref_velocity=core.ref_velocity[0].clone(), scenario=ev.scenario,
-        seed=ev.reference_seed, reference=core.config.reference.kind, source=core.source[0],
+        seed=ev.reference_seed, reference=core.config.reference.kind, source=core.source[0], wall_time_s=wall,
     )  # fmt: skip
 
 
