@@ -47,8 +47,8 @@ def grid_quads(n1: int, n2: int, periodic1: bool = False) -> np.ndarray:
         ``[n1 * n2, 4]`` int64 node indices.
     """
     rows = n1 if periodic1 else n1 + 1
-    i, j = np.meshgrid(np.arange(n1), np.arange(n2), indexing="ij")
-    i, j = i.ravel(), j.ravel()
+    gi, gj = np.meshgrid(np.arange(n1), np.arange(n2), indexing="ij")
+    i, j = gi.ravel(), gj.ravel()
     i1 = (i + 1) % rows
     m = n2 + 1
     return np.stack([i * m + j, i1 * m + j, i1 * m + j + 1, i * m + j + 1], axis=1).astype(np.int64)
@@ -174,7 +174,12 @@ def hex_block(lo, hi, size: float | None = None, counts=None) -> tuple[np.ndarra
         ``coords [N, 3]``, ``hexes [H, 8]``.
     """
     lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
-    n = [int(c) for c in counts] if counts is not None else [divisions(float(hi[k] - lo[k]), size) for k in range(3)]
+    if counts is not None:
+        n = [int(c) for c in counts]
+    elif size is not None:
+        n = [divisions(float(hi[k] - lo[k]), size) for k in range(3)]
+    else:
+        raise ValueError("hex_block needs size (largest element edge [m]) or counts (nx, ny, nz); got neither")
     axes = [np.linspace(lo[k], hi[k], n[k] + 1) for k in range(3)]
     gx, gy, gz = np.meshgrid(*axes, indexing="ij")
     coords = np.stack([gx.ravel(), gy.ravel(), gz.ravel()], axis=1)
