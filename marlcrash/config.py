@@ -111,7 +111,7 @@ def _check_type(value: Any, tp: Any, key: str, path: str | Path | None) -> Any:
             wanted = [r[len("expected ") : -len(got)] for r in errors]
             raise ConfigError(f"expected {' or '.join(wanted)}{got}", key=key, path=path)
         raise ConfigError("; ".join(errors), key=key, path=path)
-    if dataclasses.is_dataclass(tp):
+    if isinstance(tp, type) and dataclasses.is_dataclass(tp):
         if isinstance(value, tp):  # a schema made in Python, inside one being checked (checked())
             value = _fields_of(value)
         if not isinstance(value, dict):
