@@ -25,7 +25,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Literal, NamedTuple
+from typing import Any, Literal, NamedTuple
 
 import numba
 import numpy as np
@@ -149,7 +149,7 @@ def _check_device(q: torch.Tensor, p: torch.Tensor) -> None:
         raise PulseError(f"expected q and p on one device, got {q.device} and {p.device}; move one with .to()")
 
 
-def check_step(dt: object) -> float:
+def check_step(dt: Any) -> float:
     """``dt`` as seconds: a finite number > 0 (a Python or numpy number, or a one-element tensor), else a
     :class:`PulseError`."""
     try:
@@ -164,10 +164,14 @@ def check_step(dt: object) -> float:
 def _check_scale(value: object, name: str) -> float:
     """A factor on time or values before Frechet distances: a finite real number > 0, else a :class:`PulseError`
     naming ``name`` (0 dropped time or values from the distance, text was torch's index error)."""
-    real = isinstance(value, int | float | np.integer | np.floating) and not isinstance(value, bool)
-    if not (real and math.isfinite(value) and value > 0):
+    real = (
+        float(value)
+        if isinstance(value, int | float | np.integer | np.floating) and not isinstance(value, bool)
+        else math.nan
+    )
+    if not (math.isfinite(real) and real > 0):
         raise PulseError(f"{name}: expected a finite factor > 0 (1: unscaled SI), got {value!r}")
-    return float(value)
+    return real
 
 
 def _check_time(time: object, like: torch.Tensor) -> torch.Tensor:
@@ -321,6 +325,7 @@ def discrete_frechet_points(q: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
         value, arg = _frechet_dp(qb.detach(), pb.detach(), track)
     if not track:
         return value.reshape(batch)
+    assert arg is not None  # _frechet_dp returns the bottleneck indices whenever track is set
     # The distance equals the length of one bottleneck pair (i*, j*); its gradient is the
     # (sub)gradient of the whole dynamic program, without keeping n + m graphs of it.
     rows = torch.arange(qb.shape[0], device=qb.device)
