@@ -160,6 +160,8 @@ def atomic_output(path: str | Path, key: str | None = None) -> Iterator[Path]:
         OSError: writing failed (disk full, no permission); its ``filename`` is ``path``, not the temporary file.
     """
     final = check_output_file(path, key)
+    if final is None:  # check_output_file lets None pass (an output not asked for); here one was
+        raise TypeError(f"expected an output path{f' for {key}' if key else ''}, got None")
     tmp = _new_sibling(final)
     try:
         yield tmp
