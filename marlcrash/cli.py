@@ -436,6 +436,7 @@ def cmd_contributions(args: argparse.Namespace) -> int:
         if args.iteration is not None:
             raise ConfigError("--iteration needs a RUN (the twin's truth has no iterations)", key="--iteration")
         problem = build_problem(ProblemConfig(scenario="full_width_40", reference="twin", reference_seed=0))
+        assert problem.true_params is not None  # a twin reference always carries its hidden truth
         initial, calibrated, iteration = problem.init, problem.true_params, None
         what = "twin truth (full_width_40, reference seed 0)"
     else:
