@@ -161,7 +161,8 @@ class FileReference:
         require(self.time_unit in ("s", "ms"), "time_unit", f"expected s or ms, got {self.time_unit!r}")
         for key, unit in (("weight", ""), ("threshold_g", " g")):
             v = getattr(self, key)
-            ok = isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v) and v > 0
+            real = float(v) if isinstance(v, numbers.Real) and not isinstance(v, bool) else math.nan
+            ok = math.isfinite(real) and real > 0
             require(ok, key, f"expected a finite number > 0{unit}, got {v!r}")
 
 
@@ -248,13 +249,16 @@ class ReferenceBatch:
     def repeat(self, n: int) -> ReferenceBatch:
         """The first row repeated ``n`` times (every tensor ``[n, ...]``; copies, not views)."""
 
-        def rows(t: torch.Tensor | None) -> torch.Tensor | None:
-            return None if t is None else t[:1].repeat(n, *([1] * (t.ndim - 1)))
+        def rows(t: torch.Tensor) -> torch.Tensor:
+            return t[:1].repeat(n, *([1] * (t.ndim - 1)))
+
+        def some(t: torch.Tensor | None) -> torch.Tensor | None:
+            return None if t is None else rows(t)
 
         return ReferenceBatch([self.scenario[0]] * n, rows(self.speed), rows(self.overlap), rows(self.side),
-                              rows(self.velocity), rows(self.true_params),
-                              [self.source[0]] * n, rows(self.raw_velocity), rows(self.true_increments),
-                              rows(self.margin))  # fmt: skip
+                              rows(self.velocity), some(self.true_params),
+                              [self.source[0]] * n, some(self.raw_velocity), some(self.true_increments),
+                              some(self.margin))  # fmt: skip
 
 
 def twin_increments(noise: torch.Tensor, config: TwinConfig) -> torch.Tensor:
@@ -341,7 +345,7 @@ class ReferenceSampler:
         vehicle_options: VehicleOptions | None = None,
         bounds: tuple[float, float] | None = None,
         floor: float = 0.01,
-        backend: str = "auto",
+        backend: Literal["torch", "numba", "adjoint", "auto"] = "auto",
     ):
         self.cells, self.sim, self.sensors, self.config = cells, surrogate, list(sensors), config
         self.vehicle, self.bounds, self.floor, self.backend = vehicle, bounds, floor, backend
@@ -392,7 +396,8 @@ class ReferenceSampler:
         """
         kind = self.config.kind
         n_draws = (self.n_subassemblies, 7) if kind == "twin" else ()
-        pick, draws = np.empty(n, dtype=np.int64), []
+        pick = np.empty(n, dtype=np.int64)
+        draws: list[np.ndarray | np.integer] = []  # per row: twin normals [S, 7] or a vehicle-seed index
         for i in range(n):  # row by row, so that row i's draws do not depend on n
             pick[i] = rng.choice(len(self.choices), p=self.weights)
             if kind == "twin":
