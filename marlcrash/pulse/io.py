@@ -524,7 +524,7 @@ def _delimiter(lines: list[str], first: int, path: Path) -> str:
             path,
             first + 1,
         )
-    return max(n_head, key=n_head.get)  # the header's; the first row that disagrees is reported with its line
+    return max(n_head, key=lambda d: n_head[d])  # the header's; the first row that disagrees is reported with its line
 
 
 def write_csv(pulse: Pulse, path: str | Path, *, unit: str = "g", time_col: str = "time") -> Path:
@@ -858,7 +858,11 @@ def _listed_names(
         if test_count is None:
             return {}
         chn, count = mme, test_count  # the .mme file's count is all the test says of its channels
-    listed = set(names) if names else set(range(1, count[0] + 1))
+    if names:
+        listed = set(names)
+    else:
+        assert count is not None  # set just above where neither the list nor the count held any channels
+        listed = set(range(1, count[0] + 1))
     line = count[1] if count is not None else min(i for _, i in names.values())
     by_number = {int(p.suffix[1:]): p for p in files}
     unlisted = [by_number[k].name for k in sorted(set(by_number) - listed)]

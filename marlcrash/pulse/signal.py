@@ -164,8 +164,9 @@ class Pulse:
                 idx.append(c % self.n_channels)
         return replace(self, acc=self.acc[idx], channels=tuple(self.channels[i] for i in idx))
 
-    def velocity(self, v0: float = 0.0) -> np.ndarray:
-        """``[K, T]`` forward velocity [m/s]: ``v0`` plus the trapezoid integral of ``acc``."""
+    def velocity(self, v0: float | np.ndarray = 0.0) -> np.ndarray:
+        """``[K, T]`` forward velocity [m/s]: ``v0`` (or ``[K]``, one per channel) plus the trapezoid integral of
+        ``acc``."""
         return integrate(self.time, self.acc, v0=v0)
 
 
@@ -1092,7 +1093,7 @@ def prepare_velocity(
         raise PulseError(f"{pulse.source or 'pulse'}: time zero t = {t0 * 1e3:.4g} ms ({what}) lies outside the record "
                          f"[{pulse.time[0] * 1e3:.6g}, {pulse.time[-1] * 1e3:.6g}] ms{hint}")  # fmt: skip
     t_end = p.time[-1] if duration is None else t0 + float(duration)
-    if t_end > p.time[-1] + 1e-9:
+    if duration is not None and t_end > p.time[-1] + 1e-9:
         raise PulseError(
             f"{pulse.source or 'pulse'}: the record ends {(p.time[-1] - t0) * 1e3:.4g} ms after time zero "
             f"(t = {t0 * 1e3:.4g} ms); expected at least {float(duration) * 1e3:.4g} ms"
