@@ -239,7 +239,7 @@ def _resolve_owners(
     uk, inv = np.unique(key, return_inverse=True)
     mass = np.bincount(inv, weights=samples.mass, minlength=uk.size)
     ksub, kvox = uk // nvox, uk % nvox
-    groups = [(n_sub, comp_vox, np.zeros(comp_vox.size))]
+    groups: list[tuple[int, np.ndarray, np.ndarray]] = [(n_sub, comp_vox, np.zeros(comp_vox.size))]
     starts = np.searchsorted(ksub, np.arange(n_sub + 1))
     groups += [(s, kvox[starts[s] : starts[s + 1]], mass[starts[s] : starts[s + 1]]) for s in range(n_sub)]
     for s, vv, mm in groups:  # a loop over sub-assemblies, each vectorized over its voxels
@@ -378,7 +378,7 @@ def _sensor_requests(cfg: DiscretizationConfig, roi: Roi) -> list[tuple[str, np.
             sign = 1.0 if s.rule == "upfront_left" else -1.0
             p = np.array([cfg.upfront_sensor_x, ymid + sign * cfg.upfront_sensor_y_fraction * roi.width, zmid])
         inside = p is not None and bool(((p >= roi.lo) & (p <= roi.hi)).all())
-        if not inside and s.rule in ("upfront_left", "upfront_right"):
+        if p is not None and not inside and s.rule in ("upfront_left", "upfront_right"):  # their p is never None
             # an up-front sensor is on the deformable front by definition: outside the ROI (a position in mm, or
             # beside the car) it used to become a compartment sensor without a word
             at = functools.partial(_fmt, frame_y=roi.frame_y)
@@ -493,6 +493,7 @@ def _refuse_shared(
         if j != k:
             q = grid.voxel_centers(np.array([v]))[0]
             (a, pa), (b, pb) = reqs[j], reqs[k]
+            assert pa is not None and pb is not None  # a snapped voxel comes from a requested position
             raise ModelError(
                 f"sensors {a!r} and {b!r} land in one {what} at {at(q)} m (requested {at(pa)} and {at(pb)} m): "
                 "they would record one and the same signal. Move one farther from the other (a cell edge is about "
@@ -583,7 +584,9 @@ def _optimized(
     vvol = grid.voxel_volume().ravel()
     # sensors: a block of about one target volume around the snapped voxel, same sub-assembly and band
     group = np.full(nvox, -1, dtype=np.int64)
-    sensor_groups, sensor_pos, sensor_is_comp = [], [], []
+    sensor_groups: list[int] = []
+    sensor_pos: list[np.ndarray | None] = []  # None: the compartment's sensor
+    sensor_is_comp: list[bool] = []
     cand = np.flatnonzero((owner >= 0) & (owner < n_sub) & (own_mass > 0))
     half = cfg.voxels_per_cell_edge // 2
     reqs = _sensor_requests(cfg, roi)
@@ -597,6 +600,7 @@ def _optimized(
             sensor_is_comp.append(True)
             sensor_pos.append(None)
             continue
+        assert p is not None  # a snapped voxel comes from a requested position
         vi = np.array(np.unravel_index(v, shape))
         before = np.full(3, half)
         if p[1] < roi.centre_y:  # mirror the block's lateral extent for sensors right of the centre plane
@@ -745,7 +749,8 @@ def _uniform(
     n = cell_sub.size
     comp = n - 1
     is_sensor = np.zeros(n, dtype=bool)
-    sensor_cell, sensor_pos = [], []
+    sensor_cell: list[int] = []
+    sensor_pos: list[np.ndarray | None] = []  # None: the compartment's sensor
     reqs = _sensor_requests(cfg, roi)
     snapped = _snap_sensors(grid, cand, reqs, roi, cfg.sensor_snap_distance)
     _refuse_shared(reqs, snapped, labels, grid, "cell", cfg.target_cell_volume ** (1 / 3), roi.frame_y)

@@ -260,7 +260,8 @@ class CellModel:
         arrays["__header__"] = np.frombuffer(json.dumps(header).encode(), dtype=np.uint8)
         path = Path(path)
         with atomic_output(path) as tmp, open(tmp, "wb") as fh:
-            np.savez_compressed(fh, **arrays)
+            # numpy's stub types **kwds as its allow_pickle: bool keyword; these are arrays saved under their names
+            np.savez_compressed(fh, **arrays)  # type: ignore[arg-type]
 
     @classmethod
     def load(cls, path: str | Path) -> CellModel:

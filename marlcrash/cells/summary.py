@@ -92,7 +92,7 @@ def format_discretization_summary(s: dict) -> str:
             how = {  # per_block splits nothing: it differs from the blocks by the compartment alone
                 "per_block": "one per block, plus the compartment",
                 "per_subassembly": "blocks split by sub-assembly",
-            }.get(s.get("uniform_cells"), "this model")
+            }.get(s.get("uniform_cells", ""), "this model")
             counts.append((f"cells, uniform discretization ({how})", f"{s['n_cells']}", ""))
     rows = [
         ("model", s["name"], ""),
