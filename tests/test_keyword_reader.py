@@ -277,6 +277,15 @@ def test_an_include_without_a_file_name_is_refused_where_it_stands(tmp_path):
             _read(_write(tmp_path, text, name))
 
 
+def test_an_include_with_a_blank_card_before_its_file_name_reads_the_file(tmp_path):
+    """A blank card is skipped among a plain *INCLUDE's file names (only an *INCLUDE_<option>, whose first card must
+    be the name, is refused at it). The name-reading helper's ``first`` flag was shadowed by a loop variable, so a
+    plain *INCLUDE was refused too: 'expects a file name, got a blank card' for a deck that names its file."""
+    _write(tmp_path, "*KEYWORD\n" + SHELL, "elems.k")
+    m = _read(_write(tmp_path, HEAD + NODES + "*INCLUDE\n\nelems.k\n*END\n"))
+    assert m.shell_part.tolist() == [1]
+
+
 def test_shell_thickness_rules_and_triangles(tmp_path):
     nodes = NODES + "       5           200.0\n"
     shells = """*ELEMENT_SHELL_THICKNESS

@@ -926,13 +926,13 @@ def _include_names(src: _Source, rows: np.ndarray, k: int, first: bool = False) 
         t = src.text(r).strip()
         if pending is not None:
             t = pending[1] + t
-        first = pending[0] if pending is not None else r
+        start = pending[0] if pending is not None else r
         if t.endswith(" +"):
-            pending = (first, t[:-2].rstrip())
+            pending = (start, t[:-2].rstrip())
             continue
         pending = None
         if t:
-            out.append((first, t))
+            out.append((start, t))
     if pending is not None:
         out.append(pending)
     if not out or (first and out[0][0] != rows[0]):
