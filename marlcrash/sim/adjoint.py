@@ -348,7 +348,7 @@ def forward_velocity(props: tuple[torch.Tensor, ...], st: dict) -> torch.Tensor:
     """Sensor velocities ``[B, K, n_out]`` of the plain compiled forward pass (the one the gradients are of)."""
     args = _args(props, st)
     vel = np.zeros((args[0].shape[0], st["sidx"].shape[0], st["n_out"]))
-    _forward_batch(*args, vel)
+    _forward_batch(*args, vel)  # type: ignore[call-arg]  # numba's Dispatcher stub does not see the njit signature
     return torch.from_numpy(vel)
 
 

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import time
 import types as pytypes
+from typing import Any
 
 import numba
 import numpy as np
@@ -117,7 +118,7 @@ def measure_roofline(
     lanes = kernels.lanes_for(batch, L, sim.n, np.dtype(npdt).name)
     n_chunks = -(-batch // lanes)
     rng = np.random.default_rng(0)
-    lp = rng.uniform(1e3, 1e5, (n_chunks, L, nprop, lanes)).astype(npdt)
+    lp: np.ndarray = rng.uniform(1e3, 1e5, (n_chunks, L, nprop, lanes)).astype(npdt)
     lp[:, :, kernels.H_IK] = 1.0 / lp[:, :, kernels.H_K]
     lp[:, :, kernels.H_DC] = rng.uniform(0.0, 0.1, lp[:, :, kernels.H_DC].shape)  # c / (k dt): a fraction
     src = sim.src.numpy()[sim.link_order][:L]
@@ -473,7 +474,7 @@ def lane_study(
     ]
     return {
         "rows": rows,
-        "best_width": min(best, key=best.get),
+        "best_width": min(best, key=lambda w: best[w]),
         "threads": threads,
         "dtype": cfg.dtype,
         "lane_efficiency_in_use": {str(w): e for w, e in kernels.LANE_EFFICIENCY[cfg.dtype].items()},
@@ -630,7 +631,7 @@ def substep_study(
     nominal = load_sim_cells(target_cell_volume=target_cell_volume)
     variant_cells = [load_sim_cells(int(seed), target_cell_volume) for seed in vehicle_seeds]
     for sub, relief, *floor in variants:
-        overrides = {"substeps": int(sub), "springback_relief": bool(relief)}
+        overrides: dict[str, int | bool | float] = {"substeps": int(sub), "springback_relief": bool(relief)}
         if floor:
             overrides["mass_floor"] = float(floor[0])
         cfg = load_sim_config(overrides=overrides)
@@ -709,7 +710,7 @@ def implicit_study(
         grade = plausibility_checks(sim, run=run)
         fw = grade["figures"]["full_width_40@40"]
         steps = (get_scenario(SCENARIO).n_outputs - 1) * int(sub)
-        row = {
+        row: dict[str, Any] = {
             "substeps": int(sub),
             "steps_per_sim": steps,
             "newton": newton,

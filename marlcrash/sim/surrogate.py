@@ -87,7 +87,7 @@ import math
 import operator
 from dataclasses import dataclass, fields
 from pathlib import Path
-from typing import Literal, NamedTuple
+from typing import Any, Literal, NamedTuple
 
 import numpy as np
 import torch
@@ -264,7 +264,7 @@ class SimResult:
 
         return sampled_acceleration(self.velocity, float(self.time[1] - self.time[0]))
 
-    def batch_row(self, row: int) -> int:
+    def batch_row(self, row: Any) -> int:
         """``row`` as an index ``0..B-1`` into the batch (a negative row counts from the end).
 
         Raises:
@@ -296,7 +296,7 @@ class SimResult:
         else:
             row = self.batch_row(idx)
             idx = slice(row, row + 1)
-        out = {}
+        out: dict[str, Any] = {}
         for f in fields(self):
             v = getattr(self, f.name)
             out[f.name] = v[idx] if isinstance(v, torch.Tensor) and f.name != "time" else v
@@ -962,7 +962,8 @@ class Surrogate:
         rec: dict[str, list[torch.Tensor]] = {k: [] for k in ("vel", "s", "vc", "pen", "ke", "st", "ab", "pl")}
         cells_rec: dict[str, list[torch.Tensor]] = {"in": [], "ab": [], "tr": []}
         snap = n_out - 1 if snap is None else snap
-        at_snap: dict[str, tuple[torch.Tensor, ...] | torch.Tensor] = {}
+        at_snap: dict[str, torch.Tensor] = {}  # plastic work at the snapshot
+        cells_at_snap: dict[str, tuple[torch.Tensor, torch.Tensor, torch.Tensor]] = {}  # record_cells="final"
 
         def record(vel, ke):
             pen = torch.where(wall.covered, (s - wall.gap).clamp_min(0.0), zn).amax(dim=1)
@@ -983,7 +984,7 @@ class Surrogate:
             if len(rec["vel"]) - 1 == snap:
                 at_snap["plastic"] = plastic
                 if record_cells == "final":
-                    at_snap["cells"] = cell_energies(work, passed, stored_l, w_work, w_in, stored_w, src, dst)
+                    cells_at_snap["cells"] = cell_energies(work, passed, stored_l, w_work, w_in, stored_w, src, dst)
 
         record(v, e0)
         force = zn
@@ -1025,7 +1026,7 @@ class Surrogate:
 
         stack = lambda key: torch.stack(rec[key], dim=-1)  # noqa: E731
         if record_cells == "final":
-            ci, ca, ct = at_snap["cells"]
+            ci, ca, ct = cells_at_snap["cells"]
             cell_in, cell_ab, cell_tr = ci[..., None], ca[..., None], ct[..., None]
         elif record_cells == "series":
             cell_in, cell_ab, cell_tr = (torch.stack(cells_rec[k], dim=-1) for k in ("in", "ab", "tr"))
