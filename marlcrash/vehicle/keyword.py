@@ -108,9 +108,11 @@ import operator
 import re
 import warnings
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from keyword import iskeyword
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -483,7 +485,8 @@ class _Params:
         self.used.add(key)
         if key in self.user:
             return self.user[key]
-        f, seen = src, [None]
+        f = src
+        seen: list[int | None] = [None]  # None: the global expressions; then file ids from ``src`` up its includers
         while f is not None:
             local = self.local.get(id(f))
             if local is not None and key in local[1].values:
@@ -511,7 +514,7 @@ class _Params:
         )
 
 
-_FUNCS = {
+_FUNCS: dict[str, Callable[..., float]] = {
     "sin": math.sin,
     "cos": math.cos,
     "tan": math.tan,
@@ -635,8 +638,9 @@ def _columns(widths: list[int]) -> list[tuple[int, int]]:
 
 def _read_line(
     block: _Block, row: int, layout: tuple[_Field, ...], params: _Params, lenient: bool = False
-) -> list[float | int | None]:
-    """Slow path: parse one line against ``layout``; blanks are ``None``.
+) -> list[Any]:
+    """Slow path: parse one line against ``layout``; blanks are ``None``, numbers ``int`` (kind ``i``) or ``float``,
+    text ``str`` (kind ``s``).
 
     With ``lenient``, non-numeric fields become ``None`` instead of raising.
     """
@@ -708,7 +712,7 @@ def _field_where(block: _Block, row: int, layout: tuple[_Field, ...], k: int) ->
 def _convert(sub: np.ndarray, dtype: type) -> tuple[np.ndarray, np.ndarray]:
     """Convert ``[n, w]`` space-padded digits to numbers; returns values and a ``[n]`` failure mask."""
     n, w = sub.shape
-    vals = np.zeros(n, dtype=dtype)
+    vals: np.ndarray = np.zeros(n, dtype=dtype)
     bad = np.zeros(n, dtype=bool)
     strs = np.ascontiguousarray(sub).view(f"S{w}").ravel()
     for a in range(0, n, _CHUNK):
@@ -768,8 +772,8 @@ def _table(
             slow[fast[bad]] = True
         out[f.name] = col
     for i in np.flatnonzero(slow).tolist():
-        vals = _read_line(block, int(rows[i]), layout, params)
-        for k, (f, v) in enumerate(zip(layout, vals, strict=True)):
+        line_vals = _read_line(block, int(rows[i]), layout, params)
+        for k, (f, v) in enumerate(zip(layout, line_vals, strict=True)):
             if v is None and f.name in required:
                 raise block.err(
                     f"*{block.keyword} expects {f.label} {_field_where(block, int(rows[i]), layout, k)}", int(rows[i])
@@ -1137,6 +1141,11 @@ class _Tables:
     unread_stypes: Counter = field(default_factory=Counter)  # *ELEMENT_BEAM_SECTION types without an area -> count
     unread_sections: dict[int, tuple[str, Path, int]] = field(default_factory=dict)  # SECID -> (keyword, file, line)
     unread_parts: dict[int, tuple[str, Path, int]] = field(default_factory=dict)  # PID -> (keyword, file, line)
+
+    def section_of(self, part: Part) -> _Section:
+        """The section card of a part that :func:`_assemble` made (it refuses a part whose section is not read)."""
+        assert part.section_id is not None, f"part {part.id} has no section id"  # set for every part of the deck
+        return self.sections[part.section_id]
 
 
 @dataclass
@@ -1872,14 +1881,14 @@ def _dispatch(block: _Block, t: _Tables, deck: _Deck) -> None:
                 return
             deck.skipped[kw] += 1
             return
-    for base, reader in (
+    for base, read_or_refuse in (
         ("ELEMENT_MASS", _read_element_mass),
         ("ELEMENT_INERTIA", _read_element_inertia),
         ("CONSTRAINED_NODAL_RIGID_BODY", _read_nodal_body),
         ("CONSTRAINED_EXTRA_NODES", _read_extra_nodes),
     ):
         if kw == base or kw.startswith(base + "_"):
-            if not reader(block, _split_options(kw, base), t, params):
+            if not read_or_refuse(block, _split_options(kw, base), t, params):
                 deck.skipped[kw] += 1
             return
     if kw == "PART" or kw.startswith("PART_"):
@@ -2107,14 +2116,15 @@ def _assemble(deck: _Deck, t: _Tables, units: str | None, main: Path) -> tuple[V
             notes.append(msg)
             warnings.warn(f"{main.name}: {msg}", UserWarning, stacklevel=3)
     else:
-        u = detect_unit_system(rho, e)
-        if u is None:
+        detected = detect_unit_system(rho, e)
+        if detected is None:
             med = f"{np.nanmedian(rho):.4g}" if rho.size else "n/a"
             raise DeckError(
                 f"cannot tell the unit system from material densities (median {med}) and moduli{stopped}; "
                 "give it: --units on the command line, units= in Python, one of 'mm-t-s', 'mm-kg-ms', 'm-kg-s'",
                 main,
             )
+        u = detected
     # ---- nodes
     coords = np.concatenate(t.coords) * u.length
     order = np.argsort(node_ids, kind="stable")
@@ -2156,7 +2166,7 @@ def _assemble(deck: _Deck, t: _Tables, units: str | None, main: Path) -> tuple[V
         area = sec.value * u.area if sec.kind == "beam" and sec.value is not None else None
         parts[pid] = Part(pid, title, mid, secid, thick, area)
     part_keys = np.array(sorted(parts), dtype=np.int64)
-    sec_kind = np.array([t.sections[parts[p].section_id].kind for p in part_keys.tolist()], dtype=object)
+    sec_kind = np.array([t.section_of(parts[p]).kind for p in part_keys.tolist()], dtype=object)
 
     def part_checks(kind: str, elems: _Elements, ids: np.ndarray, pid: np.ndarray) -> np.ndarray:
         _check_duplicates(ids, elems.locs, f"{kind} element")
@@ -2172,9 +2182,9 @@ def _assemble(deck: _Deck, t: _Tables, units: str | None, main: Path) -> tuple[V
         wrong = np.flatnonzero(sec_kind[pos] != kind) if pos.size else np.zeros(0, int)
         if wrong.size:
             row = int(wrong[0])
-            p = parts[int(pid[row])]
+            part = parts[int(pid[row])]
             raise DeckError(
-                f"{kind} element {int(ids[row])} is in part {p.id} whose section {p.section_id} is a "
+                f"{kind} element {int(ids[row])} is in part {part.id} whose section {part.section_id} is a "
                 f"*SECTION_{sec_kind[pos[row]].upper()}, expected a *SECTION_{kind.upper()}",
                 *elems.locs.where(row),
             )
@@ -2207,7 +2217,7 @@ def _assemble(deck: _Deck, t: _Tables, units: str | None, main: Path) -> tuple[V
         b_area = sec_area[pos]
         has = ~np.isnan(b_parm[:, :4]).any(axis=1)
         for row in np.flatnonzero(has).tolist():  # element-level sections are rare: a loop is fine
-            sec = t.sections[parts[int(b_part[row])].section_id]
+            sec = t.section_of(parts[int(b_part[row])])
             a = _beam_area(sec.elform, sec.cst, *b_parm[row, :4].tolist())
             if a is not None:
                 b_area[row] = a
@@ -2354,7 +2364,7 @@ def _deck_masses(model: VehicleModel, t: _Tables) -> VehicleModel:
     part_measure = {k: model.sum_by_part({k: measures[k]}) for k in ("shell", "beam")}  # area, length per part
     added: dict[int, float] = {}
     for pid, part in model.parts.items():
-        sec = t.sections.get(part.section_id)
+        sec = None if part.section_id is None else t.sections.get(part.section_id)
         if sec is None or sec.marea <= 0 or sec.kind == "solid":
             continue
         field = "MAREA" if sec.kind == "shell" else "NSM"
@@ -2417,7 +2427,7 @@ def _deck_masses(model: VehicleModel, t: _Tables) -> VehicleModel:
                     )
                 add = max(add, 0.0)
             # by area (volume, length) as LS-DYNA spreads it; by mass across parts of different element kinds
-            kinds = {t.sections[model.parts[p].section_id].kind for p in pids}  # a part's elements are its section's
+            kinds = {t.section_of(model.parts[p]).kind for p in pids}  # a part's elements are its section's
             by_measure = len(kinds) == 1 or current <= 0
             weight = {p: measure[p] if by_measure else own[p] for p in pids}
             wsum = sum(weight.values())
@@ -2604,7 +2614,8 @@ def _fixed_parts(model: VehicleModel, t: _Tables, axis_map: AxisMap) -> tuple[di
         return pid
 
     own = {pid: held(pid) for pid in sorted({root(p) for p in rigid})}
-    masses = counts = None
+    masses: dict[int, float] | None = None  # computed once a part is fixed
+    counts: dict[int, int] = {}
     fixed: dict[int, str] = {}
     for pid in sorted(rigid):
         top = root(pid)
@@ -2683,8 +2694,8 @@ def _stationary_parts(model: VehicleModel, t: _Tables, skip: set[int]) -> tuple[
     if not moving.any():
         return {}, []
     moved = set()
-    for part, nodes in elems:
-        moved.update(np.unique(part[moving[nodes].any(axis=1)]).tolist())
+    for elem_part, nodes in elems:
+        moved.update(np.unique(elem_part[moving[nodes].any(axis=1)]).tolist())
     counts = _element_counts(model)
     rest = [pid for pid in sorted(model.parts) if pid not in moved and pid not in skip and counts.get(pid)]
     if not rest:

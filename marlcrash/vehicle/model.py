@@ -16,6 +16,7 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 
@@ -107,7 +108,7 @@ class AxisMap:
         """Parse ``"x=+x,y=+z,z=+y"`` (missing axes keep the identity; text naming no axis at all is refused)."""
         if not any(t.strip() for t in str(text).split(",")):  # "" read as the identity would be a silent no-op
             raise ConfigError(f"no axis given in {text!r}; expected items like 'x=+x,y=+z,z=+y'", key="axis_map")
-        fields: dict[str, str] = {}
+        fields: dict[str, Any] = {}  # keys x, y, z only: their direction strings
         for item in filter(None, (t.strip() for t in text.split(","))):
             key, sep, value = item.partition("=")
             key = key.strip()

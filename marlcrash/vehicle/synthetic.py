@@ -18,7 +18,7 @@ import dataclasses
 import math
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -369,7 +369,7 @@ class SyntheticCarConfig:
     wheel: WheelConfig
     variation: VariationConfig
 
-    def components(self) -> dict[str, object]:
+    def components(self) -> dict[str, Any]:
         """Section name -> nested config, in declaration order."""
         return {
             f.name: getattr(self, f.name)
@@ -409,8 +409,8 @@ class SyntheticCarConfig:
                     )
         require(bool(self.name.strip()), "name", "expected a non-empty model name")
         for section, comp in self.components().items():
-            t, dims = getattr(comp, "thickness", None), [getattr(comp, k, None) for k in ("width", "height", "depth")]
-            dims = [d for d in dims if d is not None]
+            t = getattr(comp, "thickness", None)
+            dims = [d for d in (getattr(comp, k, None) for k in ("width", "height", "depth")) if d is not None]
             if t is not None and dims and section not in ("dash_firewall", "hood", "compartment"):
                 require(
                     4 * t < min(dims),
@@ -925,7 +925,8 @@ def vehicle_scene(model: VehicleModel):
             continue
         mesh = trimesh.util.concatenate(meshes) if len(meshes) > 1 else meshes[0]
         rgba = np.array([160, 160, 160, 90], np.uint8) if name == COMPARTMENT else np.append(_SCENE_COLORS[i % 10], 255)
-        mesh.visual.face_colors = np.tile(rgba, (len(mesh.faces), 1))
+        # trimesh types concatenate() as any Geometry; of Trimesh meshes it returns a Trimesh
+        mesh.visual.face_colors = np.tile(rgba, (len(mesh.faces), 1))  # type: ignore[union-attr]
         scene.add_geometry(mesh, geom_name=name, node_name=name)
     return scene
 
