@@ -339,6 +339,7 @@ def agent_contributions(
                              zeros.clone(), zeros.clone(), counted, settings)  # fmt: skip
     if n <= exact_max:
         att: Attribution = exact_shapley(value, n, batch=batch)
+        assert att.table is not None  # exact_shapley always fills the table
         loo, add = from_table(att.table)
     else:
         att = sampled_shapley(value, n, n_permutations, seed=seed, batch=batch)

@@ -29,6 +29,7 @@ import math
 import operator
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import SupportsIndex, cast
 
 import numpy as np
 import torch
@@ -70,7 +71,7 @@ def _integer(x: object) -> int | None:
     if isinstance(x, bool):
         return None
     try:
-        return operator.index(x)
+        return operator.index(cast(SupportsIndex, x))  # any object: a TypeError below is the answer
     except TypeError:
         return None
 
