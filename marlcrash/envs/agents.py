@@ -188,9 +188,9 @@ def build_agents(cells: CellModel, config: AgentsConfig) -> AgentLayout:
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
         raise ConfigError(f"agent names must be unique; {dup} defined more than once", key="agents")
-    for name, subs, mask, key in groups:
+    for name, members, mask, key in groups:
         if not mask.any():
-            raise ConfigError(f"agent {name!r} (from {list(subs)}) owns no deformable cell", key=key)
+            raise ConfigError(f"agent {name!r} (from {list(members)}) owns no deformable cell", key=key)
 
     owners = np.stack([g[2] for g in groups]) if groups else np.zeros((0, cells.n_cells), dtype=bool)
     n_owners = owners.sum(axis=0)

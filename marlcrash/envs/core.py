@@ -195,7 +195,7 @@ def load_env_config(name_or_path: str | Path = "default", overrides: dict | None
         require_env(name_or_path)
         path = env_config_path(str(name_or_path))
     config = load_config(EnvConfig, path, overrides, complete=True)  # values live in the file, not the schema
-    config._source = str(path)  # for errors found later, when the environment is built from it
+    vars(config)["_source"] = str(path)  # no schema field: for errors found later, when the environment is built
     return config
 
 
@@ -250,7 +250,7 @@ def overridden(key: str, given: list[str]) -> bool:
 
 def _is_int_at_least(value: Any, lo: int) -> bool:
     """``value`` is an integer (Python or numpy, not a bool) ``>= lo``."""
-    return not isinstance(value, bool | np.bool_) and isinstance(value, int | np.integer) and value >= lo
+    return not isinstance(value, bool | np.bool_) and isinstance(value, int | np.integer) and bool(value >= lo)
 
 
 def check_env_args(config: Any, batch_size: Any) -> int:
@@ -312,7 +312,7 @@ def _input_files(vehicle: str, options: VehicleOptions) -> list[Path]:
 
 def _files_state(files: list[Path]) -> tuple:
     """Modification time and size of every file (``None`` for one that is gone): what tells that it changed."""
-    out = []
+    out: list[tuple[int, int] | None] = []
     for p in files:
         try:
             st = p.stat()
@@ -671,10 +671,12 @@ class CalibrationCore:
                               "stepping them again (TorchRL: a '_reset' entry, step_and_maybe_reset or a rollout reset "
                               "them) or leave them out of the step ('_step')")  # fmt: skip
         self.apply_actions(actions, rows)  # checked first: a refused step changes nothing
-        idx = slice(None) if rows is None else torch.nonzero(rows).flatten()
         self.reward = torch.zeros(self.B, dtype=torch.float64)
-        if rows is not None and idx.numel() == 0:
-            return
+        idx: slice | torch.Tensor = slice(None)
+        if rows is not None:
+            idx = torch.nonzero(rows).flatten()
+            if idx.numel() == 0:
+                return
         prev = Metrics(*(t[idx] for t in self.metrics))
         m = self._simulate(idx)
         self.metrics = Metrics(*(_put(t, idx, v) for t, v in zip(self.metrics, m, strict=True)))

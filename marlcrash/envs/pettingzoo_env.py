@@ -33,6 +33,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Any, ClassVar
 
 import numpy as np
@@ -97,7 +98,7 @@ class CalibrationParallelEnv(ParallelEnv):
         """The agent's action space; :class:`ActionError` naming the agent if it is not a possible agent."""
         return self._space(self._act_spaces, agent, "action_space")
 
-    def _space(self, table: dict[str, spaces.Box], agent: str, what: str) -> spaces.Box:
+    def _space(self, table: Mapping[str, spaces.Box], agent: str, what: str) -> spaces.Box:
         try:
             return table[agent]
         except (KeyError, TypeError):  # TypeError: an unhashable name
