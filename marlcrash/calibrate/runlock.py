@@ -19,20 +19,25 @@ moment (a parallel Hydra launcher; the default name is the launch second). So:
 from __future__ import annotations
 
 import contextlib
+import importlib
 import os
 from collections.abc import Iterator
 from pathlib import Path
+from types import ModuleType
 
 from marlcrash.errors import ConfigError
 
-try:
-    import fcntl
-except ImportError:  # pragma: no cover - Windows
-    fcntl = None
-try:
-    import msvcrt
-except ImportError:  # everywhere but Windows
-    msvcrt = None
+
+def _module(name: str) -> ModuleType | None:
+    """The standard-library module ``name`` where this platform has it (``fcntl``: POSIX; ``msvcrt``: Windows)."""
+    try:
+        return importlib.import_module(name)
+    except ImportError:
+        return None
+
+
+fcntl = _module("fcntl")
+msvcrt = _module("msvcrt")
 
 _WINDOWS_LOCK_OFFSET = 1 << 20
 """The byte ``msvcrt.locking`` locks: away from the process id at the start of the file, which others must read."""
@@ -130,6 +135,7 @@ def _try_lock(fd: int) -> bool:
         except BlockingIOError:
             return False
         return True
+    assert msvcrt is not None  # run_lock takes no lock where neither module is there
     os.lseek(fd, _WINDOWS_LOCK_OFFSET, os.SEEK_SET)
     try:
         msvcrt.locking(fd, msvcrt.LK_NBLCK, 1)
@@ -143,5 +149,6 @@ def _unlock(fd: int) -> None:
     if fcntl is not None:
         fcntl.flock(fd, fcntl.LOCK_UN)
         return
+    assert msvcrt is not None  # run_lock takes no lock where neither module is there
     os.lseek(fd, _WINDOWS_LOCK_OFFSET, os.SEEK_SET)
     msvcrt.locking(fd, msvcrt.LK_UNLCK, 1)
