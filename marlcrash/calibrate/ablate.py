@@ -198,8 +198,8 @@ class AblationConfig:
         for i, s in enumerate(self.scenarios):
             require(s in known, f"scenarios[{i}]", f"unknown scenario {s!r}; registered: {known}")
         require(len(self.seeds) >= 1, "seeds", "expected at least one reference seed, e.g. [0, 1, 2]")
-        for i, s in enumerate(self.seeds):
-            require_seed(s, f"seeds[{i}]")
+        for i, seed in enumerate(self.seeds):
+            require_seed(seed, f"seeds[{i}]")
         require(len(set(self.seeds)) == len(self.seeds), "seeds", f"expected distinct seeds, got {self.seeds}")
         require(self.budget >= 1, "budget", f"expected a simulation budget >= 1, got {self.budget}")
         require(self.max_wall_s is None or (math.isfinite(self.max_wall_s) and self.max_wall_s > 0), "max_wall_s",
