@@ -126,8 +126,9 @@ def check_overrides(config_dir: str | Path, config_name: str, overrides: Sequenc
     except ValueError as e:  # Hydra's check of a config-group choice (algorithm=null) is not a HydraException
         key = named(e)
         group = None if key is None else key.split("@")[0]  # algorithm@mappo: a choice of algorithm/
-        is_group = group is not None and (config_dir / group).is_dir()
-        expected = f"; expected one of {_options(config_dir, group)}" if is_group else ""
+        expected = ""
+        if group is not None and (config_dir / group).is_dir():
+            expected = f"; expected one of {_options(config_dir, group)}"
         raise ConfigError(f"{_whole(e)}{expected}", key=key, path=source) from None
 
 
