@@ -19,10 +19,13 @@ import os
 import warnings
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from marlcrash.errors import ConfigError
 from marlcrash.outputs import atomic_output
+
+if TYPE_CHECKING:  # imported where a TensorBoard log is asked for: it needs the tensorboard extra
+    from torch.utils.tensorboard import SummaryWriter
 
 LOG_FILE = "log.csv"
 """Name of the CSV log inside a run folder."""
@@ -143,7 +146,8 @@ class TensorBoardLogger(CSVLogger):
         self._writer_class = SummaryWriter
         self._log_dir = str(Path(run_dir) / "tensorboard")
         self._purge_step: int | None = None
-        self.writer = None  # opened by the first row, after a resume's truncate has set the purge step
+        # opened by the first row, after a resume's truncate has set the purge step
+        self.writer: SummaryWriter | None = None
 
     def truncate(self, position: int) -> None:
         """Cut the CSV rows after ``position`` and drop TensorBoard events from step ``position + 1`` on (steps are
