@@ -51,7 +51,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any, Literal, TypedDict, cast
 
 import numpy as np
 import torch
@@ -239,8 +239,8 @@ class CalibrationProblem:
         active: torch.Tensor | None = None,
         acting: torch.Tensor | None = None,
         box_radius: float = 1.0,
-        sim_backend: str = "numba",
-        metrics_backend: str = "numba",
+        sim_backend: Literal["numba", "torch"] = "numba",
+        metrics_backend: Literal["numba", "torch"] = "numba",
         compare_cfc: int | None = 60,
         compare_margin: float = DEFAULT_COMPARE_MARGIN,
     ):
@@ -399,7 +399,12 @@ class CalibrationProblem:
         return self.duration + self.margin * self.dt
 
     def simulate(
-        self, x: torch.Tensor, *, count: bool = True, backend: str | None = None, probe_cells=None
+        self,
+        x: torch.Tensor,
+        *,
+        count: bool = True,
+        backend: Literal["torch", "numba", "adjoint", "auto"] | None = None,
+        probe_cells=None,
     ) -> SimResult:
         """Simulate candidates ``x [N, n_agents, 7]`` over the window and the margin (:attr:`sim_duration`, ``T +
         margin`` samples: :meth:`compared` cuts them); ``count`` charges ``N`` simulations.
@@ -485,7 +490,7 @@ class CalibrationProblem:
         """
         if backend not in ("adjoint", "torch"):
             raise ConfigError(f"expected adjoint or torch, got {backend!r}", key="backend")
-        res = self.simulate(x, backend=backend)  # checks x, keeping its graph
+        res = self.simulate(x, backend=cast(Literal["adjoint", "torch"], backend))  # checks x, keeping its graph
         v = self.compared(res.velocity)
         ref = self.ref_velocity.expand_as(v)
         area = area_between(v, ref, dt=self.dt, method=self.fit.cfg.metrics.area_method)
@@ -543,6 +548,7 @@ class CalibrationProblem:
         inc = reference.true_increments
         names = list(self.cells.subassembly_names)
         if inc is None or any(len(subs) != 1 for subs in self.layout.subassemblies):
+            assert self.true_params is not None  # __init__ asks for true_x only of a reference with a truth
             return self._fit_true_x(self.true_params)
         sub = torch.tensor([names.index(subs[0]) for subs in self.layout.subassemblies], dtype=torch.int64)
         x = inc[0, sub].to(torch.float64) * self.free
@@ -589,11 +595,18 @@ class CalibrationProblem:
         return (x.detach()[0] * self.free).clamp(min=self.lower, max=self.upper)
 
 
-def env_backends(env: Any) -> dict[str, str]:
+class Backends(TypedDict):
+    """The engines of a :class:`ProblemConfig` (:func:`env_backends`)."""
+
+    sim_backend: Literal["numba", "torch"]
+    metrics_backend: Literal["numba", "torch"]
+
+
+def env_backends(env: Any) -> Backends:
     """The :class:`ProblemConfig` engines of an env config: its ``sim_backend`` (``auto``: the no-grad ``numba``,
     what ``auto`` runs without gradients) and ``metrics_backend``, so a problem built for an env's reference scores
     its candidates as that env does."""
-    sim = "numba" if env.sim_backend == "auto" else env.sim_backend
+    sim: Literal["numba", "torch"] = "numba" if env.sim_backend == "auto" else env.sim_backend
     return {"sim_backend": sim, "metrics_backend": env.metrics_backend}
 
 
