@@ -41,14 +41,17 @@ GROUPS: dict[str, slice] = {"E_x": slice(0, 1), "E_s": slice(1, 2), "transmissio
 DEFAULT_RADII = (1e-6, 1e-5, 1e-4, 1e-3, 3e-3, 1e-2, 3e-2, 0.1)
 
 
-def _check(problem: CalibrationProblem, groups: list[str] | tuple[str, ...]) -> None:
-    if problem.true_x is None:
+def _check(problem: CalibrationProblem, groups: list[str] | tuple[str, ...]) -> torch.Tensor:
+    """The problem's twin truth :attr:`~CalibrationProblem.true_x`, once it has one and ``groups`` are known."""
+    true_x = problem.true_x
+    if true_x is None:
         raise ConfigError("the landscape study needs a twin reference with ground truth", key="problem.reference")
     if isinstance(groups, str):  # iterated letter by letter: "unknown parameter group 'a'"
         raise ConfigError(f"expected a list of parameter groups, e.g. [{groups!r}], got {groups!r}", key="groups")
     for group in groups:
         if group not in GROUPS:
             raise ConfigError(f"unknown parameter group {group!r}; expected one of {list(GROUPS)}", key="groups")
+    return true_x
 
 
 def _is_number(v: Any) -> bool:
@@ -89,14 +92,14 @@ def neighbourhood_points(
     standard normal directions ``d_j`` (non-zero only on the group's free coordinates) at every
     radius, so the radii compare like with like.
     """
-    _check(problem, [group])
+    true_x = _check(problem, [group])
     g = torch.Generator().manual_seed(seed)
     d = torch.randn(draws, problem.n_agents, 7, generator=g, dtype=torch.float64)
     mask = torch.zeros(7, dtype=torch.bool)
     mask[GROUPS[group]] = True
     d = d * (problem.free & mask)
     r = torch.as_tensor(radii, dtype=torch.float64)[:, None, None, None]
-    return problem.clip((problem.true_x + r * d[None]).reshape(-1, problem.n_agents, 7))
+    return problem.clip((true_x + r * d[None]).reshape(-1, problem.n_agents, 7))
 
 
 def loglog_slopes(radii: list[float], values: list[float]) -> list[float | None]:
@@ -140,8 +143,8 @@ def truth_neighbourhood(
         "dfd": problem.success_cfg.success_dfd,
         "rmse": problem.success_cfg.success_rmse,
     }
-    _check(problem, groups)  # before simulating anything
-    m0 = problem.evaluate(problem.true_x[None])
+    true_x = _check(problem, groups)  # before simulating anything
+    m0 = problem.evaluate(true_x[None])
     out: dict[str, Any] = {"sensors": list(problem.sensors), "thresholds": thresholds, "radii": radii, "draws": draws,
                            "at_truth": {k: getattr(m0, k)[0].tolist() for k in thresholds}, "groups": {}}  # fmt: skip
     R, K = len(radii), len(problem.sensors)
@@ -224,7 +227,7 @@ def cluster_sensor_study(
         ConfigError: no ground truth, an unknown group, negative cluster radii, radii not increasing and
             positive (or below the float32 limit on a float32 problem, as for :func:`truth_neighbourhood`), draws < 1.
     """
-    _check(problem, [group])
+    true_x = _check(problem, [group])
     radii, draws = _check_radii(radii, draws, problem)
     if (
         isinstance(cluster_radii, str)
@@ -236,7 +239,7 @@ def cluster_sensor_study(
     clusters = [sensor_clusters(cells, problem.sensors, float(c)) for c in cluster_radii]
     probe = np.unique(np.concatenate([m for cl in clusters for m in cl]))
     col = {int(c): i for i, c in enumerate(probe)}
-    x = torch.cat([problem.true_x[None], neighbourhood_points(problem, radii, group, draws, seed)])
+    x = torch.cat([true_x[None], neighbourhood_points(problem, radii, group, draws, seed)])
     with torch.no_grad():
         res = problem.simulate(x, probe_cells=probe)
     mass = torch.as_tensor(cells.mass, dtype=torch.float64)
@@ -314,7 +317,7 @@ def local_fit(
         ConfigError: no twin truth, ``iterations`` not an integer >= 1, a non-positive ``fd_step`` (or one below
             the float32 limit) or ``damping``, or a negative or non-finite ``start_radius`` (key named).
     """
-    _check(problem, ())
+    true_x = _check(problem, ())
     iterations = _require_count(iterations, "iterations")
     if start_radius is not None and not (_is_number(start_radius) and np.isfinite(start_radius) and start_radius >= 0):
         raise ConfigError(f"expected a start radius >= 0 or None, got {start_radius!r}", key="start_radius")
@@ -323,7 +326,7 @@ def local_fit(
             raise ConfigError(f"expected {key} > 0, got {val!r}", key=key)
     check_fd_step(fd_step, problem.sim.config.dtype, "fd_step")
     lo, hi = problem.flat_box()
-    truth = problem.flat(problem.true_x[None])[0]
+    truth = problem.flat(true_x[None])[0]
     if x0 is not None:
         if start_radius is not None:
             raise ConfigError("give either start_radius or x0, not both", key="start_radius")
@@ -341,7 +344,7 @@ def local_fit(
 
     def record(zi: torch.Tensor, row: torch.Tensor, m, i: int) -> dict[str, Any]:
         ok = problem.success(Metrics(*(t[i : i + 1] for t in m)))[0]
-        out = {"simulations": problem.n_simulations, "cost": float((row**2).sum()),
+        out: dict[str, Any] = {"simulations": problem.n_simulations, "cost": float((row**2).sum()),
                "distance": float((zi - truth).abs().max()), "passed": bool(ok)}  # fmt: skip
         out["sensors"] = Metrics(*(t[i] for t in m)).per_sensor(problem.sensors)
         return out
@@ -424,8 +427,7 @@ def sensitivity_spectrum(
             not decreasing in (0, 1).
     """
     if x is None:
-        _check(problem, ())
-        x = problem.true_x
+        x = _check(problem, ())
     if not (_is_number(fd_step) and np.isfinite(fd_step) and fd_step > 0):
         raise ConfigError(f"expected fd_step > 0, got {fd_step!r}", key="fd_step")
     check_fd_step(fd_step, problem.sim.config.dtype, "fd_step")
