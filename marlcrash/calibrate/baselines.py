@@ -106,7 +106,7 @@ population CMA-ES is run with (its own default is ``4 + 3 ln n``, 18 for 127 fre
 def require_batch_size(value: Any, key: str) -> None:
     """Refuse, naming ``key``, a batch size of one batched simulation that is no integer in ``[1, MAX_BATCH]``
     (10**9 ran on into torch's "can't allocate memory")."""
-    ok = isinstance(value, int | np.integer) and not isinstance(value, bool) and 1 <= value <= MAX_BATCH
+    ok = isinstance(value, int | np.integer) and not isinstance(value, bool) and bool(1 <= value <= MAX_BATCH)
     require(ok, key, f"expected a batch size in [1, {MAX_BATCH}] (MAX_BATCH: one batch is simulated at once), "
                      f"got {value!r}")  # fmt: skip
 
@@ -314,7 +314,8 @@ def _finish(
 ) -> CalibrationResult:
     """The result of a run; ``ended``: the method's own rule that ended it with budget left
     (:attr:`CalibrationResult.stop_reason`), ``None`` where the budget or success ended it."""
-    best_x = progress.best_x
+    best_x, best_metrics = progress.best_x, progress.best_metrics
+    assert best_x is not None and best_metrics is not None  # the start (or the first step) was recorded
     if ended is not None:
         stop = "ended"
     else:
@@ -327,7 +328,7 @@ def _finish(
         best_params=problem.params(best_x[None])[0].detach(),
         sensor_names=list(problem.sensors),
         initial_metrics=initial,
-        final_metrics=progress.best_metrics,
+        final_metrics=best_metrics,
         initial_score=float(problem.score(Metrics(*(m[None] for m in initial)))[0]),
         best_score=progress.best_score,
         history=progress.history_array(),
@@ -374,6 +375,7 @@ def random_search(
         _evaluate(problem, progress, problem.unflat(torch.as_tensor(z)))
         if config.recenter:
             if progress.best_score > before:
+                assert progress.best_x is not None  # the start was recorded
                 centre = problem.flat(progress.best_x[None])[0].numpy()
             else:
                 radius = max(config.min_radius, radius * config.shrink)
@@ -426,6 +428,7 @@ def cmaes(
                 if not config.restarts:
                     ended = ", ".join(stopped)
                     break
+                assert progress.best_x is not None  # the start was recorded
                 es = cma.CMAEvolutionStrategy(problem.flat(progress.best_x[None])[0].numpy(), config.sigma0, opts)
             n = progress.grant(config.popsize)
             pop = np.asarray(es.ask())
@@ -488,11 +491,13 @@ def _adam_loop(
         if progress.done:
             break
         loss.sum().backward()
+        assert z.grad is not None  # z requires grad and the loss depends on it
         with torch.no_grad():  # a diverged candidate's NaN gradient made its log-scales NaN: drop it for this step
             z.grad[~torch.isfinite(z.grad).all(1)] = 0.0
         opt.step()
         with torch.no_grad():
             z.copy_(torch.minimum(torch.maximum(z, lo), hi))
+    assert initial is not None  # a Progress has a budget >= 1: the loop ran at least once
     return initial
 
 
