@@ -643,7 +643,7 @@ class MaskedClipPPOLoss(ClipPPOLoss):
         return entropy
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
-        self._diagnostics = {}
+        self._diagnostics: dict[str, torch.Tensor] = {}
         out = super().forward(tensordict)
         for key, value in self._diagnostics.items():
             out.set(key, self._reduce_loss(value, tensordict, reduction="mean"))
