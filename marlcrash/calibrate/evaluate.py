@@ -45,7 +45,7 @@ import time
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 import torch
@@ -193,7 +193,7 @@ class EvalResult:
         return Metrics(*(t[i] for t in self.metrics)).per_sensor(self.sensors)
 
 
-def evaluation_reference(config: TrainConfig) -> str:
+def evaluation_reference(config: TrainConfig) -> Literal["twin", "cross_fidelity", "file"]:
     """The evaluation's reference kind: ``eval.reference``, or for ``env`` the kind the run trained against.
 
     Raises:
@@ -212,7 +212,7 @@ def evaluation_reference(config: TrainConfig) -> str:
 def evaluation_overrides(config: TrainConfig) -> dict[str, Any]:
     """Env overrides of the evaluation: one scenario, its reference kind, ``eval.iterations`` steps."""
     kind = evaluation_reference(config)
-    over = {
+    over: dict[str, Any] = {
         "scenarios": {config.eval.scenario: 1.0},
         "reference.kind": kind,
         "termination.max_iterations": config.eval.iterations,
@@ -533,8 +533,8 @@ def evaluate_run(
         if own and (run_dir / SUMMARY_FILE).is_file():  # the run's results exist: only the same evaluation redoes them
             own = not (check.configs or check.code)
     if not own:  # only once the checkpoint proved usable: no empty folders
-        steps = "" if config.eval.iterations == own_steps else f"_steps{config.eval.iterations}"
-        out_dir = run_dir / EVAL_DIR / f"{name}{steps}"
+        suffix = "" if config.eval.iterations == own_steps else f"_steps{config.eval.iterations}"
+        out_dir = run_dir / EVAL_DIR / f"{name}{suffix}"
     check_output_dir(out_dir, "run")  # a read-only run folder: said now, not after the work (or by mkdir)
     out_dir.mkdir(parents=True, exist_ok=True)
     # a trainer holds its run folder already (its own evaluation goes there); otherwise hold the folder written, so
@@ -593,7 +593,7 @@ def evaluate_run(
         if result.true_params is not None:
             arrays["true"] = result.true_params.numpy()
         with atomic_output(out_dir / "calibrated.npz") as tmp:
-            np.savez(tmp, **arrays)
+            np.savez(tmp, **arrays)  # type: ignore[arg-type]  # numpy's stub matches **arrays against allow_pickle
         if config.eval.plots:  # a picture that cannot be drawn costs no result: summary.json is written after them
             _draw(plot_pulses, out_dir / "pulses.png", problem, result)
             _draw(plot_learning_curves, out_dir / "learning_curves.png", log_rows, result)
