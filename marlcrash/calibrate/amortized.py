@@ -275,7 +275,9 @@ def _sensor_mean(m: Metrics) -> dict[str, float]:
     return {"area": float(m.area.mean()), "dfd": float(m.dfd.mean()), "rmse": float(m.rmse.mean())}
 
 
-def policy_rows(problem: CalibrationProblem, result: EvalResult, seed: int, wall_time_s: float) -> list[dict]:
+def policy_rows(
+    problem: CalibrationProblem, result: EvalResult, seed: int, wall_time_s: float | None
+) -> list[dict[str, Any]]:
     """Rows ``policy_best`` and ``policy_last`` of one reference (scores by the problem's fit, as the baselines)."""
     scores = ranked_scores(problem.score(result.metrics))  # [I + 1]; a NaN never wins, as in the evaluation
     passed = problem.success(result.metrics)  # [I + 1]
@@ -463,14 +465,15 @@ def amortized_comparison(
     for seed in config.reference_seeds:
         cfg = held_out_config(train_config, seed, config.scenario, iterations)
         pieces = [(name, m) for name, mults in config.budgets.items() for m in mults]
-        pol = [kept.get((seed, method, None)) for method in POLICY_METHODS]
-        if all(r is not None for r in pol) and all((seed, name, m) in kept for name, m in pieces):
+        pol = [kept[(seed, method, None)] for method in POLICY_METHODS if (seed, method, None) in kept]
+        policy_kept = len(pol) == len(POLICY_METHODS)
+        if policy_kept and all((seed, name, m) in kept for name, m in pieces):
             rows += pol + [kept[(seed, name, m)] for name, m in pieces]  # the whole reference finished before
             finished_piece()
             say(f"seed {seed}: kept from the earlier comparison")
             continue
         problem = evaluation_problem(cfg)
-        if all(r is not None for r in pol):
+        if policy_kept:
             say(f"seed {seed}: policy kept from the earlier comparison")
         else:
             result = evaluate_policy(policy, cfg)
