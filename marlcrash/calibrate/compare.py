@@ -446,6 +446,7 @@ def run_optimizer(config: CompareConfig, method: str, seed: int, problem: Calibr
                                f"{result.best_score})")  # fmt: skip
         stop, reason = result.stop, result.stop_reason
     prog = rec.progress
+    assert prog.best_x is not None  # the recorder's first evaluation is never capped: it was recorded
     best = problem.params(prog.best_x[None])[0].detach()
     return RunOutcome(method, seed, prog, best, stop, time.perf_counter() - t0, stop_reason=reason)
 
@@ -510,6 +511,7 @@ def run_ppo(config: CompareConfig, method: str, seed: int, problem: CalibrationP
     if hook.seen != tr.simulations:
         raise RuntimeError(f"{method}: the env reported {hook.seen} simulations, the trainer counted {tr.simulations}")
     extra = {"iterations": tr.iteration, "env_steps": tr.env_steps, "trained_simulations": tr.simulations}
+    assert progress.best_x is not None  # validate(): the budget pays for one iteration, which no wall cap stops
     return RunOutcome(method, seed, progress, progress.best_x.clone(), stop, time.perf_counter() - t0, extra)
 
 
@@ -544,6 +546,7 @@ def outcome_row(
     """
     prog = out.progress
     m = prog.best_metrics
+    assert m is not None  # a RunOutcome's run recorded a candidate (run_optimizer, run_ppo)
     passed = bool(problem.success(Metrics(*(t[None] for t in m)))[0])
     err = init_err = None
     if problem.true_params is not None:
@@ -882,7 +885,7 @@ def _saved_rows(path: Path) -> list[dict[str, Any]] | None:
         return None
 
 
-def _lookup(d: dict[str, Any], dotted: str) -> Any:
+def _lookup(d: Any, dotted: str) -> Any:
     for p in dotted.split("."):
         if not isinstance(d, dict):
             return None
