@@ -946,6 +946,10 @@ def test_a_run_trained_against_measured_tests_is_evaluated_on_the_test_of_its_sc
     path = res.run_dir / "config.yaml"
     path.write_text(path.read_text().replace("  reference: env\n", ""))
     assert "reference: env" not in path.read_text()
+    ckpt = res.run_dir / "checkpoint.pt"  # its checkpoint was written without the key too
+    state = load_checkpoint(ckpt)
+    del state["config"]["eval"]["reference"]
+    save_checkpoint(ckpt, state)
     old = evaluate_run(res.run_dir)
     assert old["reference"] == "twin" and old["param_error"]
 
