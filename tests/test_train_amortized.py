@@ -380,6 +380,9 @@ def test_bad_configs_name_the_key(run_dir, tmp_path):
     assert small_config(run_dir, out_dir=str(tmp_path / "missing")).out_dir == str(tmp_path / "missing")  # made later
     with pytest.raises(ConfigError, match="iterations"):
         small_config(run_dir, iterations=0)
+    with pytest.raises(ConfigError, match=r"2\*\*63 - 1 \(MAX_STEPS\)") as e:  # was refused as budgets.<optimizer>[0]
+        small_config(run_dir, iterations=2**63)
+    assert e.value.key == "iterations"
     with pytest.raises(ConfigError, match=r"key 'scenario': unknown scenario 'ful_width_40'"):  # not default.yaml's
         small_config(run_dir, scenario="ful_width_40")
     with pytest.raises(ConfigError, match="reference_seeds"):

@@ -434,3 +434,14 @@ def test_a_multirun_sweep_records_itself_beside_the_runs_not_in_the_launch_direc
         sweep = OmegaConf.to_container(cfg.hydra.sweep, resolve=True)
     assert sweep["dir"].startswith(f"{parent}/multirun/") and len(sweep["dir"]) > len(f"{parent}/multirun/")
     assert sweep["subdir"] == "."  # no empty per-job folders
+
+
+@pytest.mark.parametrize("bad", [0, 2**63])
+def test_the_evaluate_scripts_step_count_is_refused_naming_its_key(bad):
+    """``train/evaluate.py iterations=2**63`` passed the script's check and was refused later as the env file's
+    ``termination.max_iterations``, a key the user never set."""
+    from marlcrash.calibrate.evaluate import load_evaluate_config
+
+    with pytest.raises(ConfigError, match=r"1 to 2\*\*63 - 1 \(MAX_STEPS\)") as e:
+        load_evaluate_config({"run": "runs/mappo/x", "checkpoint": "latest", "iterations": bad})
+    assert e.value.key == "iterations"

@@ -1090,8 +1090,10 @@ def test_evaluating_a_live_trainer_with_other_iterations_leaves_its_config_as_it
         with pytest.raises(ConfigError, match="either a live trainer or a checkpoint") as e:
             evaluate_run(run_dir, trainer=tr, checkpoint="2")
         assert e.value.key == "checkpoint" and not (run_dir / "summary.json").exists()
-        for bad in (1.5, True, "2"):  # range(1.5) raised a TypeError after the env was built; True ran one step
-            with pytest.raises(ConfigError, match="expected a whole number >= 1 of calibration steps") as e:
+        # range(1.5) raised a TypeError after the env was built; True ran one step; 2**63 was refused as the env
+        # file's termination.max_iterations (a key the user never set) after an empty eval/ folder was made
+        for bad in (1.5, True, "2", 0, 2**63):
+            with pytest.raises(ConfigError, match="expected a whole number of calibration steps from 1 to 2") as e:
                 evaluate_run(run_dir, trainer=tr, iterations=bad)
             assert e.value.key == "iterations" and not (run_dir / "eval").exists()
         s = evaluate_run(run_dir, trainer=tr, iterations=1)

@@ -82,7 +82,7 @@ from marlcrash.calibrate.evaluate import (
 from marlcrash.calibrate.marl import TrainConfig, load_run_config, make_env_config
 from marlcrash.calibrate.problem import CalibrationProblem
 from marlcrash.calibrate.runlock import run_lock
-from marlcrash.config import from_dict, require, require_complete, require_seed
+from marlcrash.config import MAX_STEPS, from_dict, require, require_complete, require_seed
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics
 from marlcrash.outputs import check_output_dir, finite_or_null, json_text, remove_temporaries_of, write_text
@@ -157,8 +157,8 @@ class AmortizedConfig:
             require_seed(s, f"reference_seeds[{i}]")
         known = list_scenarios()
         require(self.scenario in known, "scenario", f"unknown scenario {self.scenario!r}; registered: {known}")
-        require(self.iterations is None or self.iterations >= 1, "iterations",
-                f"expected >= 1 calibration steps or null, got {self.iterations}")  # fmt: skip
+        require(self.iterations is None or 1 <= self.iterations <= MAX_STEPS, "iterations",
+                f"expected 1 to 2**63 - 1 (MAX_STEPS) calibration steps or null, got {self.iterations}")  # fmt: skip
         optimizers = sorted(f.name for f in fields(self) if f.name in BASELINES)  # those with settings here
         # with none, the tables held the policy alone under "policy vs optimizers", nothing to compare it with
         require(len(self.budgets) >= 1, "budgets",

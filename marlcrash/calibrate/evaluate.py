@@ -80,7 +80,7 @@ from marlcrash.calibrate.problem import (
     env_backends,
 )
 from marlcrash.calibrate.runlock import run_lock
-from marlcrash.config import flatten_overrides, from_dict, require
+from marlcrash.config import MAX_STEPS, flatten_overrides, from_dict, require
 from marlcrash.envs import EnvConfig
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics
@@ -130,8 +130,8 @@ class EvaluateRunConfig:
     def validate(self) -> None:
         require(bool(self.run), "run", "expected a run folder, e.g. run=runs/mappo/<name>")
         require(bool(self.checkpoint), "checkpoint", "expected latest, an iteration or a checkpoint file")
-        require(self.iterations is None or self.iterations >= 1, "iterations",
-                f"expected >= 1 calibration steps or null, got {self.iterations}")  # fmt: skip
+        require(self.iterations is None or 1 <= self.iterations <= MAX_STEPS, "iterations",
+                f"expected 1 to 2**63 - 1 (MAX_STEPS) calibration steps or null, got {self.iterations}")  # fmt: skip
 
 
 def load_evaluate_config(data: dict[str, Any], source: str | None = None) -> EvaluateRunConfig:
@@ -514,9 +514,10 @@ def evaluate_run(
     own_steps = config.eval.iterations
     if iterations is not None:
         whole = isinstance(iterations, numbers.Integral) and not isinstance(iterations, (bool, np.bool_))
-        if not whole or iterations < 1:  # 1.5 was refused as the env file's termination.max_iterations
-            raise ConfigError(f"expected a whole number >= 1 of calibration steps, got {iterations!r}",
-                              key="iterations")  # fmt: skip
+        if not whole or not 1 <= iterations <= MAX_STEPS:  # 1.5 and 2**63 were refused as the env file's
+            # termination.max_iterations, a key the user never set, after the evaluation's folder was made
+            raise ConfigError(f"expected a whole number of calibration steps from 1 to 2**63 - 1 (MAX_STEPS), got "
+                              f"{iterations!r}", key="iterations")  # fmt: skip
         iterations = int(iterations)
         # a copy: a live trainer's config (the caller's) keeps its own eval.iterations
         config = dataclasses.replace(config, eval=dataclasses.replace(config.eval, iterations=iterations))
