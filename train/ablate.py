@@ -15,6 +15,7 @@ from __future__ import annotations
 import json
 import shlex
 import sys
+from typing import Any, cast
 
 import hydra
 from omegaconf import DictConfig, OmegaConf
@@ -28,7 +29,8 @@ from marlcrash.errors import MarlcrashError
 def main(cfg: DictConfig) -> None:
     command = ("python train/ablate.py " + " ".join(shlex.quote(a) for a in sys.argv[1:])).strip()
     try:
-        config = load_ablation_config(OmegaConf.to_container(cfg, resolve=True), source="configs/train/ablate.yaml")
+        data = cast(dict[str, Any], OmegaConf.to_container(cfg, resolve=True))  # a DictConfig's: str keys
+        config = load_ablation_config(data, source="configs/train/ablate.yaml")
         name_default_run(cfg, config, lambda c: c.run_dir)  # multirun jobs started in one second: one folder each
         run_dir, rows = run_ablation(config, command=command, progress=lambda msg: print(msg, flush=True))
     except MarlcrashError as e:  # bad config or input: a message, not a traceback

@@ -19,6 +19,7 @@ import json
 import shlex
 import sys
 from pathlib import Path
+from typing import Any, cast
 
 import hydra
 from omegaconf import DictConfig, OmegaConf
@@ -40,7 +41,8 @@ from marlcrash.outputs import check_output_dir
 def main(cfg: DictConfig) -> None:
     command = "python train/amortized.py " + " ".join(shlex.quote(a) for a in sys.argv[1:])
     try:
-        config = load_amortized_config(OmegaConf.to_container(cfg, resolve=True), source="configs/train/amortized.yaml")
+        data = cast(dict[str, Any], OmegaConf.to_container(cfg, resolve=True))  # a DictConfig's: str keys
+        config = load_amortized_config(data, source="configs/train/amortized.yaml")
         if config.run is None:  # a resume looked for its comparison in the launch folder and named key 'resume'
             raise ConfigError("expected a training run folder, e.g. run=runs/mappo/<name>", key="run")
         where = check_output_dir(config.out_dir or config.run, "out_dir")

@@ -10,6 +10,7 @@ Writes ``<out_dir>/<method>/<name>/``: summary.json, history.csv, config.json, p
 from __future__ import annotations
 
 import sys
+from typing import Any, cast
 
 import hydra
 from omegaconf import DictConfig, OmegaConf
@@ -24,7 +25,8 @@ from marlcrash.outputs import json_text
 @hydra.main(version_base=None, config_path="../configs/train", config_name="baseline")
 def main(cfg: DictConfig) -> None:
     try:
-        config = load_run_config(OmegaConf.to_container(cfg, resolve=True), source="configs/train/baseline.yaml")
+        data = cast(dict[str, Any], OmegaConf.to_container(cfg, resolve=True))  # a DictConfig's: str keys
+        config = load_run_config(data, source="configs/train/baseline.yaml")
         name_default_run(cfg, config, run_path)  # multirun jobs started in one second: one folder each
         run_folder(config)  # an existing run name fails now, not after the budget is spent
         record = run_record(config)  # the inputs as the run starts (provenance.json)

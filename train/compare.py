@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import shlex
 import sys
+from typing import Any, cast
 
 import hydra
 from omegaconf import DictConfig, OmegaConf
@@ -26,7 +27,8 @@ from marlcrash.errors import MarlcrashError
 def main(cfg: DictConfig) -> None:
     command = ("python train/compare.py " + " ".join(shlex.quote(a) for a in sys.argv[1:])).strip()
     try:
-        config = load_compare_config(OmegaConf.to_container(cfg, resolve=True), source="configs/train/compare.yaml")
+        data = cast(dict[str, Any], OmegaConf.to_container(cfg, resolve=True))  # a DictConfig's: str keys
+        config = load_compare_config(data, source="configs/train/compare.yaml")
         name_default_run(cfg, config, lambda c: c.run_dir)  # multirun jobs started in one second: one folder each
         run_dir, rows = run_comparison(config, command=command, progress=lambda msg: print(msg, flush=True))
     except MarlcrashError as e:  # bad config or input: a message, not a traceback

@@ -15,6 +15,7 @@ Settings: configs/train/evaluate.yaml.
 from __future__ import annotations
 
 import sys
+from typing import Any, cast
 
 import hydra
 from omegaconf import DictConfig, OmegaConf
@@ -28,12 +29,14 @@ from marlcrash.outputs import json_text
 @hydra.main(version_base=None, config_path="../configs/train", config_name="evaluate")
 def main(cfg: DictConfig) -> None:
     try:
-        config = load_evaluate_config(OmegaConf.to_container(cfg, resolve=True), source="configs/train/evaluate.yaml")
+        data = cast(dict[str, Any], OmegaConf.to_container(cfg, resolve=True))  # a DictConfig's: str keys
+        config = load_evaluate_config(data, source="configs/train/evaluate.yaml")
+        assert config.run is not None  # validate() requires a run folder
         s = evaluate_run(config.run, iterations=config.iterations, checkpoint=config.checkpoint)
     except MarlcrashError as e:
         print(f"error: {e}", file=sys.stderr)
         sys.exit(2)
-    keys = ("eval_dir", "checkpoint", "iterations_trained", "selected_iteration", "all_passed")
+    keys: tuple[str, ...] = ("eval_dir", "checkpoint", "iterations_trained", "selected_iteration", "all_passed")
     keys += ("final_metrics", "initial_metrics")
     print(json_text({k: s[k] for k in keys}, indent=1))
 

@@ -22,6 +22,7 @@ import time
 START = time.perf_counter()  # before the heavy imports: process_wall_time_s counts them too
 
 import sys  # noqa: E402
+from typing import Any, cast  # noqa: E402
 
 import hydra  # noqa: E402
 from hydra.core.hydra_config import HydraConfig  # noqa: E402
@@ -47,8 +48,9 @@ def main(cfg: DictConfig) -> None:
     try:
         overrides = HydraConfig.get().overrides.task
         given = [o.split("=")[0].lstrip("+~") for o in overrides]
+        data = cast(dict[str, Any], OmegaConf.to_container(cfg, resolve=True))  # a DictConfig's: str keys
         config = load_train_config(  # command-line values win over the ci: block
-            OmegaConf.to_container(cfg, resolve=True), source="configs/train/train.yaml", explicit=value_keys(given)
+            data, source="configs/train/train.yaml", explicit=value_keys(given)
         )
         locating = ("resume",) if isinstance(config.resume, str) else RESUME_KEYS  # a folder given: it alone
         if config.resume is True and "name" in given:  # a name given: that run or an error, never the newest instead
