@@ -18,6 +18,7 @@ import resource
 import sys
 import time
 from pathlib import Path
+from typing import Literal
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -47,16 +48,17 @@ def main() -> None:
     p0 = base[None] * torch.exp(0.2 * torch.randn(args.batch, *base.shape, generator=g, dtype=torch.float64))
     w = torch.randn(args.batch, len(cells.sensor_names), sc.n_outputs, generator=g, dtype=torch.float64)
 
-    def grad(backend: str) -> tuple[float, torch.Tensor]:
+    def grad(backend: Literal["adjoint", "torch"]) -> tuple[float, torch.Tensor]:
         p = p0.clone().requires_grad_(True)
         t0 = time.perf_counter()
         res = sim.run(p, sc, record_cells="none", backend=backend)
         (res.velocity * w).sum().backward()
+        assert p.grad is not None  # p requires grad and the sensor velocities depend on it
         return time.perf_counter() - t0, p.grad
 
     grad("adjoint")  # compile or load the numba cache
     best = {"adjoint": float("inf"), "torch": float("inf")}
-    rss = {}
+    rss: dict[str, float] = {}
     grads = {}
     for _ in range(max(args.repeat, 1)):
         for backend in ("adjoint", "torch"):

@@ -62,11 +62,13 @@ def main() -> None:
     problems = [build_problem(ProblemConfig(scenario=s, masking=False, reference_seed=args.reference_seed))
                 for s in args.scenarios]  # fmt: skip
     graded = problems[0]
+    true_x = graded.true_x
+    assert true_x is not None  # a twin reference (ProblemConfig's default) carries its hidden truth
     for p in problems[1:]:
-        if not (torch.equal(p.free, graded.free) and torch.equal(p.true_x, graded.true_x)):
+        if not (torch.equal(p.free, graded.free) and p.true_x is not None and torch.equal(p.true_x, true_x)):
             raise SystemExit(f"error: {p.scenario.name} searches other coordinates or another truth")
     lo, hi = graded.flat_box()
-    truth = graded.flat(graded.true_x[None])[0]
+    truth = graded.flat(true_x[None])[0]
     z = torch.zeros_like(truth)
     fs = 1.0 / graded.dt
     cutoff: float | None = None

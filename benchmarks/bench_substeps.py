@@ -17,6 +17,7 @@ import argparse
 import json
 import sys
 from pathlib import Path
+from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -34,7 +35,7 @@ def main() -> None:
         ap.error(f"--cell-volume: expected a volume > 0 m^3, got {args.cell_volume}")
     if args.substeps is not None and min(args.substeps) < 1:
         ap.error(f"--substeps: expected counts >= 1, got {args.substeps}")
-    kw = {} if args.substeps is None else {"variants": tuple((s, False) for s in args.substeps)}
+    kw: dict[str, Any] = {} if args.substeps is None else {"variants": tuple((s, False) for s in args.substeps)}
     res = substep_study(batch=args.batch, target_cell_volume=args.cell_volume, **kw)
     print(json.dumps(res, indent=1) if args.json else format_substep_study(res))
 
