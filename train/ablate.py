@@ -15,13 +15,12 @@ from __future__ import annotations
 import json
 import shlex
 import sys
-from typing import Any, cast
 
 import hydra
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
 from marlcrash.calibrate.ablate import load_ablation_config, run_ablation
-from marlcrash.calibrate.entry import exit_on_bad_overrides, name_default_run
+from marlcrash.calibrate.entry import config_mapping, exit_on_bad_overrides, name_default_run
 from marlcrash.errors import MarlcrashError
 
 
@@ -29,7 +28,7 @@ from marlcrash.errors import MarlcrashError
 def main(cfg: DictConfig) -> None:
     command = ("python train/ablate.py " + " ".join(shlex.quote(a) for a in sys.argv[1:])).strip()
     try:
-        data = cast(dict[str, Any], OmegaConf.to_container(cfg, resolve=True))  # a DictConfig's: str keys
+        data = config_mapping(cfg)
         config = load_ablation_config(data, source="configs/train/ablate.yaml")
         name_default_run(cfg, config, lambda c: c.run_dir)  # multirun jobs started in one second: one folder each
         run_dir, rows = run_ablation(config, command=command, progress=lambda msg: print(msg, flush=True))

@@ -19,10 +19,9 @@ import json
 import shlex
 import sys
 from pathlib import Path
-from typing import Any, cast
 
 import hydra
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
 from marlcrash.calibrate.amortized import (
     amortized_comparison,
@@ -32,7 +31,7 @@ from marlcrash.calibrate.amortized import (
     read_comparison,
     write_comparison,
 )
-from marlcrash.calibrate.entry import exit_on_bad_overrides
+from marlcrash.calibrate.entry import config_mapping, exit_on_bad_overrides
 from marlcrash.errors import ConfigError, MarlcrashError
 from marlcrash.outputs import check_output_dir
 
@@ -41,7 +40,7 @@ from marlcrash.outputs import check_output_dir
 def main(cfg: DictConfig) -> None:
     command = "python train/amortized.py " + " ".join(shlex.quote(a) for a in sys.argv[1:])
     try:
-        data = cast(dict[str, Any], OmegaConf.to_container(cfg, resolve=True))  # a DictConfig's: str keys
+        data = config_mapping(cfg)
         config = load_amortized_config(data, source="configs/train/amortized.yaml")
         if config.run is None:  # a resume looked for its comparison in the launch folder and named key 'resume'
             raise ConfigError("expected a training run folder, e.g. run=runs/mappo/<name>", key="run")

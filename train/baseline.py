@@ -10,14 +10,13 @@ Writes ``<out_dir>/<method>/<name>/``: summary.json, history.csv, config.json, p
 from __future__ import annotations
 
 import sys
-from typing import Any, cast
 
 import hydra
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
 from marlcrash.calibrate import build_problem, load_run_config, run_baseline, write_run
 from marlcrash.calibrate.baselines import run_folder, run_path, run_record
-from marlcrash.calibrate.entry import exit_on_bad_overrides, name_default_run
+from marlcrash.calibrate.entry import config_mapping, exit_on_bad_overrides, name_default_run
 from marlcrash.errors import MarlcrashError
 from marlcrash.outputs import json_text
 
@@ -25,7 +24,7 @@ from marlcrash.outputs import json_text
 @hydra.main(version_base=None, config_path="../configs/train", config_name="baseline")
 def main(cfg: DictConfig) -> None:
     try:
-        data = cast(dict[str, Any], OmegaConf.to_container(cfg, resolve=True))  # a DictConfig's: str keys
+        data = config_mapping(cfg)
         config = load_run_config(data, source="configs/train/baseline.yaml")
         name_default_run(cfg, config, run_path)  # multirun jobs started in one second: one folder each
         run_folder(config)  # an existing run name fails now, not after the budget is spent

@@ -13,13 +13,12 @@ from __future__ import annotations
 import json
 import shlex
 import sys
-from typing import Any, cast
 
 import hydra
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
 from marlcrash.calibrate.compare import load_compare_config, run_comparison
-from marlcrash.calibrate.entry import exit_on_bad_overrides, name_default_run
+from marlcrash.calibrate.entry import config_mapping, exit_on_bad_overrides, name_default_run
 from marlcrash.errors import MarlcrashError
 
 
@@ -27,7 +26,7 @@ from marlcrash.errors import MarlcrashError
 def main(cfg: DictConfig) -> None:
     command = ("python train/compare.py " + " ".join(shlex.quote(a) for a in sys.argv[1:])).strip()
     try:
-        data = cast(dict[str, Any], OmegaConf.to_container(cfg, resolve=True))  # a DictConfig's: str keys
+        data = config_mapping(cfg)
         config = load_compare_config(data, source="configs/train/compare.yaml")
         name_default_run(cfg, config, lambda c: c.run_dir)  # multirun jobs started in one second: one folder each
         run_dir, rows = run_comparison(config, command=command, progress=lambda msg: print(msg, flush=True))

@@ -15,12 +15,11 @@ Settings: configs/train/evaluate.yaml.
 from __future__ import annotations
 
 import sys
-from typing import Any, cast
 
 import hydra
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
-from marlcrash.calibrate.entry import exit_on_bad_overrides
+from marlcrash.calibrate.entry import config_mapping, exit_on_bad_overrides
 from marlcrash.calibrate.evaluate import evaluate_run, load_evaluate_config
 from marlcrash.errors import MarlcrashError
 from marlcrash.outputs import json_text
@@ -29,7 +28,7 @@ from marlcrash.outputs import json_text
 @hydra.main(version_base=None, config_path="../configs/train", config_name="evaluate")
 def main(cfg: DictConfig) -> None:
     try:
-        data = cast(dict[str, Any], OmegaConf.to_container(cfg, resolve=True))  # a DictConfig's: str keys
+        data = config_mapping(cfg)
         config = load_evaluate_config(data, source="configs/train/evaluate.yaml")
         assert config.run is not None  # validate() requires a run folder
         s = evaluate_run(config.run, iterations=config.iterations, checkpoint=config.checkpoint)

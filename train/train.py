@@ -22,13 +22,12 @@ import time
 START = time.perf_counter()  # before the heavy imports: process_wall_time_s counts them too
 
 import sys  # noqa: E402
-from typing import Any, cast  # noqa: E402
 
 import hydra  # noqa: E402
 from hydra.core.hydra_config import HydraConfig  # noqa: E402
-from omegaconf import DictConfig, OmegaConf  # noqa: E402
+from omegaconf import DictConfig  # noqa: E402
 
-from marlcrash.calibrate.entry import exit_on_bad_overrides, name_default_run  # noqa: E402
+from marlcrash.calibrate.entry import config_mapping, exit_on_bad_overrides, name_default_run  # noqa: E402
 from marlcrash.calibrate.marl import load_train_config, run_dir_of, train, value_keys  # noqa: E402
 from marlcrash.errors import MarlcrashError  # noqa: E402
 from marlcrash.outputs import json_text  # noqa: E402
@@ -48,7 +47,7 @@ def main(cfg: DictConfig) -> None:
     try:
         overrides = HydraConfig.get().overrides.task
         given = [o.split("=")[0].lstrip("+~") for o in overrides]
-        data = cast(dict[str, Any], OmegaConf.to_container(cfg, resolve=True))  # a DictConfig's: str keys
+        data = config_mapping(cfg)
         config = load_train_config(  # command-line values win over the ci: block
             data, source="configs/train/train.yaml", explicit=value_keys(given)
         )

@@ -23,7 +23,7 @@ import re
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from marlcrash.errors import ConfigError, MarlcrashError
 
@@ -185,6 +185,14 @@ def exit_on_bad_overrides(
     except MarlcrashError as e:
         print(f"error: {e}", file=sys.stderr)
         sys.exit(2)
+
+
+def config_mapping(cfg: Any) -> dict[str, Any]:
+    """A script's composed Hydra config (a ``DictConfig``, interpolations resolved) as the plain mapping the config
+    loaders take; its keys are strings (OmegaConf's type says any container)."""
+    from omegaconf import OmegaConf
+
+    return cast(dict[str, Any], OmegaConf.to_container(cfg, resolve=True))
 
 
 def name_default_run(cfg: Any, config: Any, run_dir: Callable[[Any], Path], given: Sequence[str] | None = None) -> None:
