@@ -889,10 +889,10 @@ def _scan(
                 deck.title = src.text(int(rows[0])).strip()
         elif name in ("INCLUDE_PATH", "INCLUDE_PATH_RELATIVE"):
             for r in rows.tolist():
-                name = src.text(r).strip()
-                p = Path(name)
+                folder = src.text(r).strip()
+                p = Path(folder)
                 if not (p if p.is_absolute() else path.parent / p).is_dir():  # a folder written on Windows
-                    p = Path(name.replace("\\", "/"))
+                    p = Path(folder.replace("\\", "/"))
                 deck.include_paths.append(p if p.is_absolute() else path.parent / p)
         elif name == "INCLUDE":
             for r, fname in _include_names(src, rows, k):
