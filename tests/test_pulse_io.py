@@ -1425,17 +1425,13 @@ def test_two_files_for_one_iso_mme_channel_number_are_refused_naming_both(tmp_pa
     channel 1) were both read, the channel twice; ``T.01`` beside ``T.001`` was passed over without a word; and
     ``t.002`` (the stem matched in any case) was read beside ``T.002``. Two files for one channel number are
     ambiguous: refused, naming both, by ``read_mme`` and ``mme_channels`` alike."""
-    from marlcrash.pulse import mme_channels
 
     write_mme(analytic, tmp_path / "T", "T")
     chan = tmp_path / "T" / "Channel"
     (chan / added).write_bytes((chan / existing).read_bytes())
     a, b = sorted((existing, added))
     said = rf"Channel: channel {int(existing[2:])} has two files, {re.escape(a)} and {re.escape(b)}; a channel is one"
-    with pytest.raises(PulseError, match=said):
-        read_mme(tmp_path / "T")
-    with pytest.raises(PulseError, match=said):
-        mme_channels(tmp_path / "T")
+    _reading_and_listing_refuse(tmp_path / "T", said)
     (chan / added).unlink()
     assert read_mme(tmp_path / "T").channels == analytic.channels
 
@@ -1708,6 +1704,16 @@ def test_write_mme_whose_renames_fail_midway_puts_back_the_files_it_replaced(tmp
     assert read_mme(tmp_path / "same").channels == analytic.channels
 
 
+def _reading_and_listing_refuse(test, match):
+    """Both ways into an ISO-MME test, reading it and listing its channels, refuse it with the same message."""
+    from marlcrash.pulse import mme_channels
+
+    with pytest.raises(PulseError, match=match):
+        read_mme(test)
+    with pytest.raises(PulseError, match=match):
+        mme_channels(test)
+
+
 def _three_channel_test(tmp_path: Path, analytic: Pulse) -> Path:
     three = Pulse(analytic.time, np.stack([*analytic.acc, analytic.acc[0]]), ("tunnel", "radsup", "11HEADCG0000ACXP"))
     write_mme(three, tmp_path / "T", "T")
@@ -1750,10 +1756,7 @@ def test_an_iso_mme_channel_list_and_its_channel_files_must_agree(tmp_path, anal
     _edit(chan / "T.chn", "Name of channel 003         :11HEADCG0000ACXP\n", "")
     unlisted = (r"T\.chn line 2: the Channel folder holds T\.003, a channel file the channel list does not hold "
                 r"\(it lists 2 channels\); remove it, or list it in T\.chn")  # fmt: skip
-    with pytest.raises(PulseError, match=unlisted):
-        read_mme(tmp_path / "T")
-    with pytest.raises(PulseError, match=unlisted):
-        mme_channels(tmp_path / "T")
+    _reading_and_listing_refuse(tmp_path / "T", unlisted)
     (chan / "T.chn").write_text(listing, encoding="latin-1")
     (chan / "T.002").unlink()
     missing = r"T\.chn line 4: lists channel 002 \('radsup'\), but the Channel folder holds no T\.002; read without it"
@@ -1912,7 +1915,6 @@ def test_an_iso_mme_number_of_channels_must_agree_with_its_channel_files(tmp_pat
     channel. The count is checked as the channel list is: a channel file it does not count is refused, naming the
     ``.mme`` file and line; a channel it counts whose file is missing is named in a warning; a count that is no whole
     number, or that differs from the channel list's, is refused naming its line."""
-    from marlcrash.pulse import mme_channels
 
     chan = _three_channel_test(tmp_path, analytic)
     mme = tmp_path / "T" / "T.mme"
@@ -1920,10 +1922,7 @@ def test_an_iso_mme_number_of_channels_must_agree_with_its_channel_files(tmp_pat
     _edit(mme, "Number of channels          :3", "Number of channels          :2")
     unlisted = (r"T\.mme line 4: the Channel folder holds T\.003, a channel file the test does not count \('Number "
                 r"of channels' says 2\); remove it, or count it in T\.mme")  # fmt: skip
-    with pytest.raises(PulseError, match=unlisted):
-        read_mme(tmp_path / "T")
-    with pytest.raises(PulseError, match=unlisted):
-        mme_channels(tmp_path / "T")
+    _reading_and_listing_refuse(tmp_path / "T", unlisted)
     _edit(mme, "Number of channels          :2", "Number of channels          :4")
     missing = r"T\.mme line 4: counts channel 004, but the Channel folder holds no T\.004; read without it"
     with pytest.warns(UserWarning, match=missing):
