@@ -358,6 +358,29 @@ def test_crash_summary_of_a_row_uses_that_rows_impact_speed(backend):
         assert got == alone  # batch rows are independent to the bit
 
 
+@pytest.mark.parametrize("backend", ["torch", "numba"])
+def test_crash_summary_of_a_row_reports_that_rows_overlap_side_and_the_runs_duration(backend):
+    """A batch run at per-row overlaps and sides with one scenario (full width, 150 ms) and a run's own ``duration``:
+    crash_summary reported every row as the scenario (``overlap`` 1.0, ``side`` left, its name) over 150 ms. Each
+    row's summary is now that of the same crash run alone as its own scenario, named only where it is that scenario's
+    load case; ``duration_ms`` is the run's."""
+    from marlcrash.pulse.simulation import crash_summary
+    from marlcrash.sim.scenario import scenario_tensors
+
+    cells = block()
+    sim = Surrogate(cells)
+    kw = {"speed_kmh": 40.0, "duration": 0.03}
+    scs = [get_scenario(n, kw) for n in ("full_width_40", "offset40_left", "offset40_right")]
+    fw = get_scenario("full_width_40")  # 150 ms
+    both = sim.run(_params(cells, 3), fw, **scenario_tensors(scs), duration=0.03, backend=backend, record_cells="none")
+    for row, sc in enumerate(scs):
+        alone = crash_summary(sim.run(_params(cells), sc, backend=backend, record_cells="none"), cells, sc)
+        got = crash_summary(both, cells, fw, row=row)
+        assert (got["overlap"], got["side"], got["duration_ms"]) == (sc.overlap, sc.side, 30.0)
+        assert got == {**alone, "scenario": "full_width_40" if row == 0 else None}
+    assert crash_summary(both, cells, fw, row=1)["peak_decel_g"] < crash_summary(both, cells, fw)["peak_decel_g"]
+
+
 def test_energy_budget_takes_one_parameter_set_and_names_another_shape():
     """``energy_budget(cells, scenario, params)`` reshaped any array to ``[n_cells, -1]``: a batch of two sets
     ``[2, n, 7]`` became ``[n, 14]`` rows of two cells each, and its 'E_s' column summed values of the wrong cells."""

@@ -12,6 +12,7 @@ from __future__ import annotations
 import csv
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -121,9 +122,10 @@ def crash_summary(result: SimResult, cells: CellModel, scenario: CrashScenario, 
     """Key figures of one simulated crash (batch row ``row``).
 
     Returns:
-        A JSON-ready dict: ``scenario``, ``speed_kmh`` (the row's impact speed: a run's per-row ``speed`` overrides
-        the scenario's), ``overlap``, ``side`` (the scenario's), ``duration_ms`` (the simulated
-        time after first contact), ``n_cells``,
+        A JSON-ready dict: ``scenario`` (its name; ``None`` where the row's overlap or side is not the
+        scenario's), ``speed_kmh``, ``overlap``, ``side`` (the row's load case: a run's per-row ``speed``,
+        ``overlap`` and ``side`` override the scenario's), ``duration_ms`` (the simulated
+        time after first contact: a run's ``duration`` overrides the scenario's), ``n_cells``,
         ``peak_decel_g`` (largest CFC-filtered compartment deceleration, g), ``t_peak_ms``,
         ``time_to_zero_velocity_ms`` (compartment; ``None`` if it never stops in the window),
         ``max_crush_m``, ``rebound_velocity_ms`` (largest rearward compartment speed after the
@@ -163,17 +165,26 @@ def crash_summary(result: SimResult, cells: CellModel, scenario: CrashScenario, 
     i_peak = int(np.argmin(a_comp))
     t_stop = _first_crossing_ms(t, v_comp)
     rebound = float(max(0.0, -v_comp.min())) if t_stop is not None else 0.0
-    # the row's own impact speed (the whole vehicle starts at it): a run's per-row speed tensor overrides the
-    # scenario's, and the 56 km/h row of a batch at 40 and 56 km/h was reported at 40 km/h; the scenario's nominal
-    # value where it is the row's (a float32 run holds 40 km/h as 40.0000005)
-    v0 = float(v_comp[0])
-    speed = scenario.speed if math.isclose(v0, scenario.speed, rel_tol=1e-6) else v0
-    out = {
-        "scenario": scenario.name,
+
+    # the row's own load case: a run's per-row tensors override the scenario's (the 56 km/h row of a batch at 40
+    # and 56 km/h was reported at 40 km/h, an offset row of a full-width scenario as full width, a run's own
+    # duration as the scenario's); the scenario's nominal values where they are the row's (a float32 run holds
+    # 40 km/h as 40.0000005)
+    def nominal(value: float, of_scenario: float) -> float:
+        return of_scenario if math.isclose(value, of_scenario, rel_tol=1e-6) else value
+
+    speed = nominal(float(result.speed[row]), scenario.speed)
+    overlap = nominal(float(result.overlap[row]), scenario.overlap)
+    side = "left" if float(result.side[row]) > 0 else "right"
+    if overlap == 1.0 == scenario.overlap:  # the side is irrelevant at full width
+        side = scenario.side
+    own = overlap == scenario.overlap and side == scenario.side
+    out: dict[str, Any] = {
+        "scenario": scenario.name if own else None,
         "speed_kmh": scenario.speed_kmh if speed == scenario.speed else speed / KMH,
-        "overlap": scenario.overlap,
-        "side": scenario.side,
-        "duration_ms": scenario.duration * 1e3,
+        "overlap": overlap,
+        "side": side,
+        "duration_ms": nominal(float(t[-1]), scenario.duration) * 1e3,
         "n_cells": cells.n_cells,
         "peak_decel_g": float(-a_comp[i_peak] / G0) + 0.0,
         "t_peak_ms": float(t[i_peak] * 1e3),

@@ -43,7 +43,7 @@ import numpy as np
 import torch
 
 from marlcrash.sim.noalias import njit_noalias
-from marlcrash.sim.surrogate import LinkProps, SimResult, Surrogate, WallProps
+from marlcrash.sim.surrogate import LinkProps, SimResult, Surrogate, WallProps, load_case
 
 _MODES = {"none": 0, "final": 1, "series": 2}
 _BIG = 1e30  # yield force of a bottomed-out link [N] (as in the torch path)
@@ -652,4 +652,5 @@ def run_numba(
         cell_transmitted=T(ctr),
         cell_plastic=plastic_t,
         saturated=plastic_t >= props.e_s.detach(),
+        **load_case(wall),
     )

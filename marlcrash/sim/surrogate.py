@@ -238,6 +238,8 @@ class SimResult:
             ``'final'``: at the end, or at ``Surrogate.run``'s ``cells_at``; 0 for ``'none'``).
         cell_plastic: ``[B, n_cells]`` plastic work per cell [J], at the end (or at ``cells_at``).
         saturated: ``[B, n_cells]`` bool, cell bottomed out (plastic work reached E_s), at the same time.
+        speed, overlap, side: ``[B]`` each row's load case: impact speed [m/s], barrier overlap fraction, +1 left /
+            -1 right (the scenario's, or the run's per-row tensors where given).
     """
 
     time: torch.Tensor
@@ -256,6 +258,9 @@ class SimResult:
     cell_transmitted: torch.Tensor
     cell_plastic: torch.Tensor
     saturated: torch.Tensor
+    speed: torch.Tensor
+    overlap: torch.Tensor
+    side: torch.Tensor
 
     @property
     def acceleration(self) -> torch.Tensor:
@@ -343,6 +348,13 @@ class WallProps:
     gap: torch.Tensor  # [B, n] x distance from the first contact point to the cell front [m]
     covered: torch.Tensor  # [B, n] bool, cell front covered by the barrier
     speed: torch.Tensor  # [B] impact speed [m/s]
+    overlap: torch.Tensor  # [B] barrier overlap fraction of the vehicle width
+    side: torch.Tensor  # [B] +1 left, -1 right
+
+
+def load_case(wall: WallProps) -> dict[str, torch.Tensor]:
+    """A run's per-row ``speed``, ``overlap`` and ``side`` for its :class:`SimResult` (detached copies)."""
+    return {k: getattr(wall, k).detach().clone() for k in ("speed", "overlap", "side")}
 
 
 def _short(x, limit: int = 80) -> str:
@@ -690,7 +702,7 @@ class Surrogate:
         capped = k_raw * self.cap_wall / (k_raw + self.cap_wall) if self.stability_caps else k_raw
         k = torch.where(covered, capped, torch.zeros_like(frac))
         damping = 2.0 * self.config.wall_damping_ratio * torch.sqrt(k * self.mass)
-        return WallProps(k, damping, gap, covered, sp)
+        return WallProps(k, damping, gap, covered, sp, ov, sd)
 
     # ------------------------------------------------------------------ run
     def run(
@@ -1050,4 +1062,5 @@ class Surrogate:
             cell_transmitted=cell_tr,
             cell_plastic=at_snap["plastic"],
             saturated=at_snap["plastic"] >= props.e_s,
+            **load_case(wall),
         )
