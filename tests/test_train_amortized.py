@@ -182,6 +182,25 @@ def test_policy_rows_match_an_independent_resimulation(comparison, run_dir):
     assert float(problem.score(m)[0]) == pytest.approx(row["score"], rel=1e-6, abs=1e-9)
 
 
+def test_a_run_whose_checkpoint_was_written_under_other_settings_is_refused(run_dir, tmp_path):
+    """A run folder whose ``checkpoint.pt`` was written under other settings than its ``config.yaml`` (another run's
+    file of the same network shapes copied in): ``load_policy`` took the weights and the folder's settings, and the
+    amortized comparison reported that policy as the run's. It is refused as a resume refuses it, naming the setting."""
+    import shutil
+
+    from marlcrash.calibrate.checkpoint import load_checkpoint, save_checkpoint
+
+    copied = tmp_path / "copied"
+    shutil.copytree(run_dir, copied)
+    state = load_checkpoint(copied / "checkpoint.pt")
+    state["config"]["algorithm"]["lr"] = 0.5
+    save_checkpoint(copied / "checkpoint.pt", state)
+    with pytest.raises(ConfigError, match=r"checkpoint\.pt was written by a run with other settings: algorithm\.lr "
+                       r"is 0\.5 in it, 0\.001 in .*copied/config\.yaml") as e:  # fmt: skip
+        load_policy(copied)
+    assert e.value.key == "run"
+
+
 def test_held_out_references_differ_from_the_evaluation_reference(run_dir):
     _, cfg, _ = load_policy(run_dir)
     assert cfg.eval.reference_seed == 0 and cfg.seed == 0

@@ -79,7 +79,7 @@ from marlcrash.calibrate.evaluate import (
     param_errors,
     policy_from_checkpoint,
 )
-from marlcrash.calibrate.marl import TrainConfig, load_run_config, make_env_config
+from marlcrash.calibrate.marl import TrainConfig, load_run_config, make_env_config, require_same_run
 from marlcrash.calibrate.problem import CalibrationProblem
 from marlcrash.calibrate.runlock import run_lock
 from marlcrash.config import MAX_STEPS, from_dict, require, require_complete, require_seed
@@ -89,6 +89,8 @@ from marlcrash.outputs import check_output_dir, finite_or_null, json_text, remov
 from marlcrash.sim import adjoint
 from marlcrash.sim.scenario import list_scenarios
 from marlcrash.sim.surrogate import load_sim_config
+
+_OWN_CHECKPOINT = "expected the checkpoint this run wrote; use another run's policy in its own folder (run=<folder>)"
 
 POLICY_METHODS = ("policy_best", "policy_last")
 """Row names of the policy: its best iterate by fit score and its last iterate."""
@@ -236,7 +238,9 @@ def load_policy(run_dir: str | Path) -> tuple[TensorDictModuleBase, TrainConfig,
     calibrates).
 
     Raises:
-        ConfigError: (key ``run``) no such folder, or no ``config.yaml`` / ``checkpoint.pt`` in it.
+        ConfigError: (key ``run``) no such folder, or no ``config.yaml`` / ``checkpoint.pt`` in it, or a
+            ``checkpoint.pt`` written under other settings than the ``config.yaml`` (another run's file of the same
+            network shapes), naming the first setting that differs.
     """
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
@@ -248,7 +252,9 @@ def load_policy(run_dir: str | Path) -> tuple[TensorDictModuleBase, TrainConfig,
         raise ConfigError(f"expected a run folder with {CHECKPOINT_FILE}, found none in {run_dir}", key="run")
     path = run_dir / CHECKPOINT_FILE
     state = load_training_checkpoint(path, key="run")
-    return policy_from_checkpoint(config, state, path, key="run"), config, check
+    policy = policy_from_checkpoint(config, state, path, key="run")
+    require_same_run(state.get("config"), config, path, "run", hint=_OWN_CHECKPOINT)  # same shapes, another run's
+    return policy, config, check
 
 
 def held_out_config(train_config: TrainConfig, seed: int, scenario: str, iterations: int) -> TrainConfig:
