@@ -667,6 +667,10 @@ def test_parameter_validation_errors():
         with pytest.raises(ModelError, match=r"duration must be > 0 s and a whole number of 0.0005 s output steps"):
             sim.run(_params(cells), FW40, duration=bad)
     assert sim.run(_params(cells), FW40, duration=0.01).time[-1].item() == pytest.approx(0.01)
+    for bad in (150.0, 1e9):  # 150 ms given in ms ran 150 s; 1e9 failed in numpy asking 43.7 TiB
+        with pytest.raises(ModelError, match=rf"at most 2 s .*got {re.escape(f'{bad:g}')} s; durations are in sec"):
+            sim.run(_params(cells), FW40, duration=bad, backend="numba")
+    assert sim.run(_params(cells), FW40, duration=2.0, backend="numba", record_cells="none").time.shape == (4001,)
     for backend in ("torch", "numba"):  # not a KeyError from the recording code
         with pytest.raises(ModelError, match="record_cells must be one of series, final, none; got 'all'"):
             sim.run(_params(cells), FW40, record_cells="all", backend=backend)

@@ -43,6 +43,11 @@ MAX_SUBSTEPS = 1000
 """Most integration steps per ``BASE_OUTPUT_DT`` a sim config may ask for (``substeps``) [-]."""
 MAX_SPEED_KMH = 200.0
 """Largest impact speed [km/h]: a scenario's ``speed_kmh`` and each row's ``speed`` of a run are in (0, this]."""
+MAX_DURATION_S = 1.0
+"""Longest crash window [s]: a scenario's ``duration`` is in (0, this]."""
+MAX_RUN_DURATION_S = 2.0
+"""Longest simulation of one run [s] (``Surrogate.run``'s ``duration``): a scenario's longest window with room for a
+compared record's filter margin (``ReferenceConfig.compare_margin``, at most 0.1 s)."""
 
 
 def steps_per_output(output_dt: float, substeps: int) -> int | None:
@@ -106,9 +111,9 @@ class CrashScenario:
         require(self.side in SIDES, "side", f"side must be one of {list(SIDES)}, got {self.side!r}")
         require(self.barrier == "rigid", "barrier", f"only a 'rigid' barrier is modelled, got {self.barrier!r}")
         require(
-            np.isfinite(self.duration) and 0.0 < self.duration <= 1.0,
+            np.isfinite(self.duration) and 0.0 < self.duration <= MAX_DURATION_S,
             "duration",
-            f"duration must be in (0, 1] s, got {self.duration}",
+            f"duration must be in (0, {MAX_DURATION_S:g}] s, got {self.duration}",
         )
         require(
             np.isfinite(self.output_rate) and 100.0 <= self.output_rate <= 1e5,
