@@ -1142,6 +1142,19 @@ def test_a_checkpoint_named_by_a_digit_int_cannot_read_is_no_iteration(tmp_path)
     assert find_checkpoint(tmp_path, "40") == kept
 
 
+def test_the_kept_snapshots_a_missing_checkpoint_lists_are_in_iteration_order(tmp_path):
+    """The refusal of a checkpoint with no file lists the kept snapshots; sorted by name, iteration 100000 (six digits
+    of ``iter_%05d``) came before 20000."""
+    from marlcrash.calibrate.checkpoint import find_checkpoint, snapshot_path
+
+    for i in (100000, 20000, 40):
+        snapshot_path(tmp_path, i).parent.mkdir(parents=True, exist_ok=True)
+        snapshot_path(tmp_path, i).write_bytes(b"")
+    with pytest.raises(ConfigError, match=r"\(iter_00040\.pt, iter_20000\.pt, iter_100000\.pt\)"):
+        find_checkpoint(tmp_path, "7")
+    assert find_checkpoint(tmp_path, 100000) == snapshot_path(tmp_path, 100000)
+
+
 def test_the_reported_iterate_passes_before_it_scores():
     """``eval.select: best`` reports the highest-scoring iterate that passes the evaluation's thresholds where any
     does, as a run's record ranks its candidates: it used to report the highest score alone, so an evaluation could

@@ -15,6 +15,7 @@ checkpoint or the new one, never a torn file.
 
 from __future__ import annotations
 
+import math
 import os
 import re
 import secrets
@@ -39,6 +40,17 @@ def snapshot_path(run_dir: str | Path, iteration: int) -> Path:
     return Path(run_dir) / SNAPSHOT_DIR / f"iter_{int(iteration):05d}.pt"
 
 
+def kept_snapshots(run_dir: str | Path) -> list[Path]:
+    """The kept snapshots of a run (``checkpoints/iter_<n>.pt``), in iteration order (by name, iteration 100000 came
+    before 20000); files of that pattern without a number last."""
+
+    def iteration(p: Path) -> tuple[float, str]:
+        n = p.stem.removeprefix("iter_")
+        return (int(n) if n.isdecimal() and n.isascii() else math.inf, p.name)
+
+    return sorted((Path(run_dir) / SNAPSHOT_DIR).glob("iter_*.pt"), key=iteration)
+
+
 def find_checkpoint(run_dir: str | Path, which: str | int | None = None) -> Path:
     """The checkpoint file of a run that ``which`` names.
 
@@ -58,7 +70,7 @@ def find_checkpoint(run_dir: str | Path, which: str | int | None = None) -> Path
     else:
         path = Path(which) if Path(which).is_file() else run_dir / which
     if not path.is_file():
-        kept = sorted(p.name for p in (run_dir / SNAPSHOT_DIR).glob("iter_*.pt"))
+        kept = [p.name for p in kept_snapshots(run_dir)]
         raise ConfigError(
             f"no checkpoint {path}; expected 'latest', an iteration with a kept snapshot "
             f"({', '.join(kept) if kept else f'none in {run_dir / SNAPSHOT_DIR}'}) or a checkpoint file",

@@ -65,6 +65,7 @@ from marlcrash.calibrate.budget import Progress
 from marlcrash.calibrate.checkpoint import (
     CHECKPOINT_FILE,
     SNAPSHOT_DIR,
+    kept_snapshots,
     load_training_checkpoint,
     remove_stale_temporaries,
     restore_rng,
@@ -1144,7 +1145,7 @@ def _train(
         try:
             state = load_training_checkpoint(run_dir / CHECKPOINT_FILE)
         except ConfigError as e:  # a damaged checkpoint.pt: the kept snapshots are where the run can go on from
-            kept = sorted((run_dir / SNAPSHOT_DIR).glob("iter_*.pt"))
+            kept = kept_snapshots(run_dir)
             if not kept:
                 raise
             raise ConfigError(f"{e.reason}; to go on from the last kept snapshot, copy {kept[-1]} over it",
