@@ -411,3 +411,20 @@ def test_actions_outside_the_box_act_as_its_bound_and_non_finite_ones_are_refuse
     obs, rew, _, _, _ = pz.step(big)
     obs0, rew0, _, _, _ = pz0.step({n: np.ones(7, np.float32) for n in pz0.agents})
     assert rew == rew0 and all(np.array_equal(obs[n], obs0[n]) for n in obs0)
+
+
+def test_the_pettingzoo_door_reads_a_bfloat16_policy_output_and_names_a_ragged_action(cells):
+    """A bfloat16 tensor (a mixed-precision policy's output) was torch's "unsupported ScalarType BFloat16" from inside
+    ``numpy()``, and a ragged list numpy's "inhomogeneous shape" ValueError, neither naming the agent. The bfloat16
+    action acts as its values do; the ragged one is an :class:`ActionError` naming the agent and the shape wanted."""
+    env, ref = CalibrationParallelEnv(cfg(), cells), CalibrationParallelEnv(cfg(), cells)
+    env.reset(seed=2)
+    ref.reset(seed=2)
+    act = torch.linspace(-1, 1, 7, dtype=torch.bfloat16)
+    _, rew, _, _, _ = env.step(dict.fromkeys(env.agents, act))
+    _, rew0, _, _, _ = ref.step({n: act.float().numpy() for n in ref.agents})
+    assert rew == rew0 and torch.equal(env.core.params, ref.core.params)
+    env.reset(seed=2)
+    name = env.agents[0]
+    with pytest.raises(ActionError, match=rf"action of agent '{name}' must be an array of shape \[7\]"):
+        env.step({name: [[0.0] * 3, [0.0] * 4]})

@@ -153,7 +153,14 @@ class CalibrationParallelEnv(ParallelEnv):
                 raise ActionError(f"unknown agent {name!r}; possible agents are {self.possible_agents}")
             if name not in live:
                 continue
-            a = np.asarray(act.detach().cpu() if isinstance(act, torch.Tensor) else act)  # a policy's output too
+            if isinstance(act, torch.Tensor):  # a policy's output too
+                act = act.detach().cpu()
+                act = act.double() if act.is_floating_point() else act  # bfloat16 has no numpy dtype
+            try:
+                a = np.asarray(act)
+            except (ValueError, TypeError) as e:  # a ragged list: numpy's "inhomogeneous shape"
+                raise ActionError(f"action of agent {name!r} must be an array of shape [{self.core.act_dim}], got "
+                                  f"{type(act).__name__} numpy cannot read as one ({e})") from None  # fmt: skip
             if a.shape != (self.core.act_dim,):
                 raise ActionError(
                     f"action of agent {name!r} must have shape [{self.core.act_dim}], got {list(a.shape)}"
