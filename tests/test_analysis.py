@@ -340,6 +340,23 @@ def test_agent_changes_reads_each_agents_factors(problem):
         agent_changes(problem, p[:3])
 
 
+def test_parameters_that_carry_gradients_are_read_as_their_values(problem):
+    """Parameters of a differentiable calibration (``problem.params(x)`` of an ``x`` that requires grad) failed inside
+    torch's ``numpy()`` ("Can't call numpy() on Tensor that requires grad") in every entry point; bfloat16 ones as an
+    "unsupported ScalarType". They are read as their values."""
+    calibrated, _ = _three_agents_at_the_truth(problem)
+    tracked = calibrated.clone().requires_grad_(True)
+    want = agent_contributions(problem, calibrated)
+    got = agent_contributions(problem, tracked, problem.init.clone().requires_grad_(True))
+    assert torch.equal(got.shapley, want.shapley) and torch.equal(got.calibrated, want.calibrated)
+    members = torch.ones(1, problem.n_agents, dtype=torch.bool)
+    assert torch.equal(coalition_params(problem, problem.init, tracked, members)[0], calibrated)
+    ch = agent_changes(problem, torch.stack([problem.init, tracked]))
+    assert np.array_equal(ch["E_s"], agent_changes(problem, torch.stack([problem.init, calibrated]))["E_s"])
+    rounded = calibrated.to(torch.bfloat16)
+    assert np.array_equal(agent_changes(problem, rounded)["E_x"], agent_changes(problem, rounded.double())["E_x"])
+
+
 def test_plots_and_tables_are_written(problem, tmp_path):
     calibrated, _ = _three_agents_at_the_truth(problem)
     c = agent_contributions(problem, calibrated)

@@ -219,8 +219,16 @@ def quantity_unit(quantity: str) -> str:
     return UNITS[metric]
 
 
+def _float64(p: torch.Tensor | np.ndarray) -> torch.Tensor:
+    """Parameters as a float64 CPU tensor of their values: a tensor detached first (a differentiable calibration's
+    ``problem.params(x)`` carries gradients; numpy reads neither those, nor bfloat16, nor a GPU's)."""
+    if isinstance(p, torch.Tensor):
+        return p.detach().to("cpu", torch.float64)
+    return torch.as_tensor(np.asarray(p), dtype=torch.float64)
+
+
 def _check_params(problem: CalibrationProblem, name: str, p: torch.Tensor | np.ndarray) -> torch.Tensor:
-    t = torch.as_tensor(np.asarray(p), dtype=torch.float64)
+    t = _float64(p)
     shape = tuple(problem.init.shape)
     if tuple(t.shape) != shape:
         raise ValueError(f"{name}: expected cell parameters of shape {shape}, got {tuple(t.shape)}")
@@ -377,7 +385,7 @@ def agent_changes(problem: CalibrationProblem, params: torch.Tensor | np.ndarray
         ModelError: (a :class:`ValueError`) parameters the simulator refuses (non-finite, ``E_x`` or ``E_s <= 0``, a
             negative transmission factor of an active cell), named by iteration and cell.
     """
-    p = torch.as_tensor(np.asarray(params), dtype=torch.float64)
+    p = _float64(params)
     if p.dim() == 2:
         p = p[None]
     if p.dim() != 3 or tuple(p.shape[1:]) != tuple(problem.init.shape):
