@@ -448,6 +448,13 @@ def test_constructor_arguments_are_checked_as_arguments(cells):
     for door in (CalibrationParallelEnv, CalibrationTorchEnv):
         with pytest.raises(ConfigError, match=r"key 'config': expected an EnvConfig \(load_env_config\('default'\)\)"):
             door("default", cells=cells)
+    for door in (
+        CalibrationCore,
+        CalibrationParallelEnv,
+        CalibrationTorchEnv,
+    ):  # was an AttributeError on .sensor_names
+        with pytest.raises(ConfigError, match=r"^key 'cells': expected a CellModel or None .*config.vehicle.*got str"):
+            door(config, cells="b_segment")
 
 
 def test_a_config_made_in_python_is_checked_as_a_file_is(cells):

@@ -253,18 +253,23 @@ def _is_int_at_least(value: Any, lo: int) -> bool:
     return not isinstance(value, bool | np.bool_) and isinstance(value, int | np.integer) and bool(value >= lo)
 
 
-def check_env_args(config: Any, batch_size: Any) -> int:
-    """Refuse an env's constructor arguments that are not an :class:`EnvConfig` and a whole number of episodes
-    >= 1 (a numpy integer too); return ``batch_size`` as an ``int``. Arguments, not keys of the env's YAML file.
+def check_env_args(config: Any, batch_size: Any, cells: Any = None) -> int:
+    """Refuse an env's constructor arguments that are not an :class:`EnvConfig`, a whole number of episodes
+    >= 1 (a numpy integer too) and a :class:`~marlcrash.cells.model.CellModel` or ``None``; return ``batch_size`` as
+    an ``int``. Arguments, not keys of the env's YAML file.
 
     Raises:
-        ConfigError: named ``config`` or ``batch_size``, without a file.
+        ConfigError: named ``config``, ``batch_size`` or ``cells``, without a file.
     """
     if not isinstance(config, EnvConfig):
         hint = f" (load_env_config({config!r}))" if isinstance(config, str | Path) else ""
         raise ConfigError(f"expected an EnvConfig{hint}, got {type(config).__name__}", key="config")
     if not _is_int_at_least(batch_size, 1):
         raise ConfigError(f"batch_size must be a positive integer, got {batch_size!r}", key="batch_size")
+    if cells is not None and not isinstance(cells, CellModel):  # a vehicle's name failed on '.sensor_names'
+        hint = "; the vehicle to discretize is config.vehicle" if isinstance(cells, str | Path) else ""
+        raise ConfigError(f"expected a CellModel or None (None: discretize config.vehicle){hint}, got "
+                          f"{type(cells).__name__}", key="cells")  # fmt: skip
     return int(batch_size)
 
 
@@ -356,7 +361,7 @@ class CalibrationCore:
         cells: CellModel | None = None,
         sim_config: SimConfig | None = None,
     ):
-        batch_size = check_env_args(config, batch_size)  # arguments: not keys of the env's YAML file
+        batch_size = check_env_args(config, batch_size, cells)  # arguments: not keys of the env's YAML file
         try:
             # the loaders check a file's values; an EnvConfig made or changed in Python (EnvConfig() in a notebook)
             # skipped that: a misspelt masking.mode ran primary_secondary, a granularity 'cells' per-cell actions

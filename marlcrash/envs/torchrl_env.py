@@ -71,7 +71,7 @@ class CalibrationTorchEnv(EnvBase):
             the device: each step's actions move to the CPU and its outputs to the device.
 
     Raises:
-        ConfigError: a bad argument, named (``config``, ``batch_size``, ``device``), or an invalid config.
+        ConfigError: a bad argument, named (``config``, ``batch_size``, ``cells``, ``device``), or an invalid config.
     """
 
     batch_locked = True
