@@ -266,6 +266,26 @@ def test_same_inputs_same_numbers_and_batch_rows_independent():
             torch.testing.assert_close(one.velocity[0], a.velocity[i], rtol=1e-6, atol=1e-9)
 
 
+def test_a_float64_simulation_does_not_depend_on_torchs_default_dtype():
+    """The links' tension ratio and damping ratios were made by ``torch.where`` of two Python floats, a tensor of
+    torch's default dtype, and only then cast: a float64 simulation ran with them rounded to float32, and
+    ``torch.set_default_dtype(torch.float64)`` (common in scientific code) changed its numbers (relative 2e-9 on the
+    default car's velocities, both backends)."""
+    cells = block()
+    sim = Surrogate(cells)
+    sc = get_scenario("offset40_right", {"duration": 0.02})
+    p = _random_params(cells, 2, seed=3)
+    before = torch.get_default_dtype()
+    for backend in ("torch", "numba"):
+        a = sim.run(p, sc, backend=backend, record_cells="none")
+        try:
+            torch.set_default_dtype(torch.float32 if before == torch.float64 else torch.float64)
+            b = sim.run(p, sc, backend=backend, record_cells="none")
+        finally:
+            torch.set_default_dtype(before)
+        assert torch.equal(a.velocity, b.velocity) and torch.equal(a.acceleration, b.acceleration), backend
+
+
 def test_result_rows_by_integer_keep_the_batch_dimension():
     """``result[i]`` is row ``i`` with the batch dimension kept, negative and numpy integers included; ``result[-1]``
     was the empty slice ``-1:0`` (so ``crash_summary(..., row=-1)`` failed in its balance error) and a numpy integer
