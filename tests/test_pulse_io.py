@@ -694,6 +694,30 @@ def test_csv_dialects_of_spreadsheets_and_lab_tools(tmp_path, analytic):
         read_csv(mixed)
 
 
+def test_an_excel_sep_line_names_the_delimiter_and_one_named_column_is_no_header(tmp_path, analytic):
+    """Excel reads (and some exports write) a first line ``sep=;`` naming the delimiter. It was taken for the
+    header: ``marlcrash pulse`` stopped with a bare ``StopIteration`` traceback, ``read_csv`` said the header line's
+    names held 'acc' under no name. The line now sets the delimiter (``;``: decimal commas, as in any ``;`` file)
+    and the header is the line after it; a header of one named column (``time;``) is refused, naming the line."""
+    from marlcrash.pulse.io import pulse_summary
+
+    ref = read_csv(_write_plain(tmp_path / "plain.csv", analytic))
+    rows = "".join(f"{t:.9f};{a / G0:.9f}\n".replace(".", ",") for t, a in zip(analytic.time, analytic.acc[0],
+                                                                              strict=True))  # fmt: skip
+    path = tmp_path / "excel.csv"
+    path.write_text("sep=;\n" + "time;acc\n" + rows)
+    p = read_csv(path)
+    assert p.channels == ("acc",)
+    np.testing.assert_allclose(p.acc, ref.acc, rtol=1e-8, atol=1e-6)
+    assert pulse_summary(path)["delta_v_ms"] == pytest.approx(DV, rel=0.01)
+    path.write_text("sep=\t\n" + "time\tacc\n" + rows.replace(",", ".").replace(";", "\t"))
+    np.testing.assert_allclose(read_csv(path).acc, ref.acc, rtol=1e-8, atol=1e-6)
+    path.write_text("time;\n" + "".join(f"{i},{i:04d};\n" for i in range(20)))  # no acceleration column
+    for read in (read_csv, pulse_summary):
+        with pytest.raises(PulseError, match=r"excel\.csv line 1: expected a header with at least two columns"):
+            read(path)
+
+
 def test_a_csv_line_ends_at_line_feeds_and_carriage_returns_only(tmp_path, analytic):
     """The CSV reader split its lines with ``str.splitlines``, which also breaks at form feeds, U+0085, U+2028 and
     other separators: a comment holding one ('# rig 2<U+2028>second take') went on as a line without '#', which was

@@ -8,13 +8,13 @@ data that records deceleration as positive.
 
 CSV: an optional block of ``#`` comment lines, one header row, then one row per sample. Time in seconds
 (``time_unit="ms"`` for milliseconds), acceleration in g (``unit="m/s2"`` for SI). Columns are chosen by name;
-the delimiter (``,``, ``;`` or tab) is the one that splits the header and the first rows alike; with ``;`` a
-decimal comma (``-2,5``) is read as a decimal point. A delimiter ending the lines (``time;acc;``) adds no column: a
-trailing column with no name in the header must be empty in every row. UTF-8, Windows-1252, or UTF-16/32 with its
-byte-order mark. A gap in the time column (``max_gap``) is reported as a warning: resampling bridges it with a straight
-line. A table of breakpoints (a pulse given by its corners, e.g. a trapezoid from a specification) is read
-with ``breakpoints=True``: at least two rows, no gap warning, and sampled at :data:`BREAKPOINT_RATE_HZ` by
-linear interpolation, so it is filtered and integrated like a record.
+the delimiter (``,``, ``;`` or tab) is the one that splits the header and the first rows alike, or the one a first
+line ``sep=;`` (Excel's) names; with ``;`` a decimal comma (``-2,5``) is read as a decimal point. A delimiter ending
+the lines (``time;acc;``) adds no column: a trailing column with no name in the header must be empty in every row.
+UTF-8, Windows-1252, or UTF-16/32 with its byte-order mark. A gap in the time column (``max_gap``) is reported as a
+warning: resampling bridges it with a straight line. A table of breakpoints (a pulse given by its corners, e.g. a
+trapezoid from a specification) is read with ``breakpoints=True``: at least two rows, no gap warning, and sampled
+at :data:`BREAKPOINT_RATE_HZ` by linear interpolation, so it is filtered and integrated like a record.
 
 ISO-MME (ISO/TS 13499): a test folder with ``<test>.mme`` and a ``Channel``
 folder holding ``<test>.chn`` (the channel list) and one file per channel,
@@ -414,11 +414,24 @@ def _csv_header(path: Path, lines: list[str], time_col: str | None) -> tuple[int
     first = next((i for i, s in enumerate(lines) if s.strip() and not s.lstrip().startswith("#")), None)
     if first is None:
         raise _err("expected a header row and samples, found no data", path)
-    delim = _delimiter(lines, first, path)
+    sep = _EXCEL_SEP.fullmatch(lines[first].strip(" "))  # not a tab: "sep=\t"
+    if sep is not None:  # Excel's 'sep=;' line names the delimiter; the header follows it
+        first = next((i for i in range(first + 1, len(lines))
+                      if lines[i].strip() and not lines[i].lstrip().startswith("#")), None)  # fmt: skip
+        if first is None:
+            raise _err("expected a header row and samples after the 'sep=' line, found no data", path)
+    delim = sep.group(1) if sep is not None else _delimiter(lines, first, path)
     header = [h.strip() for h in next(csv.reader([lines[first]], delimiter=delim))]
     width = len(header)
     while len(header) > 1 and not header[-1]:  # 'time;acc;': a trailing delimiter (the rows' cells: read_csv)
         header.pop()
+    if len(header) < 2:  # 'time;': no acceleration column (read as a pulse of no channels)
+        raise _err(
+            f"expected a header with at least two columns (time and acceleration) separated by {delim!r}, got "
+            f"{lines[first]!r}",
+            path,
+            first + 1,
+        )
     if all(_is_number(h) for h in header):  # reading it as names would silently drop the first sample
         raise _err(
             "expected a header row naming the columns (e.g. 'time,acc'), got only numbers; lines starting with "
@@ -437,6 +450,10 @@ def _csv_header(path: Path, lines: list[str], time_col: str | None) -> tuple[int
     else:
         ti = _csv_column(header, time_col, path, first + 1)
     return first, delim, header, ti, width
+
+
+_EXCEL_SEP = re.compile(r"sep=([,;\t])", re.IGNORECASE)
+"""Excel's first line naming a CSV file's delimiter (``sep=;``), which some exports write."""
 
 
 def _csv_column(header: list[str], name: str, path: Path, line: int) -> int:
