@@ -718,6 +718,23 @@ def test_an_excel_sep_line_names_the_delimiter_and_one_named_column_is_no_header
             read(path)
 
 
+def test_a_time_column_named_with_its_unit_is_found_wherever_it_stands(tmp_path, analytic):
+    """The time column is found by name (``time``, ``t``, ``zeit`` ...), but only ``time ...`` was found with a unit
+    after it: a German export's ``a_x [g];Zeit [s]`` read ``a_x [g]`` as the time ("column 'a_x [g]': duplicated
+    time"), and ``acc,t (ms)`` likewise. The name is now matched without the unit at its end."""
+    ref = read_csv(_write_plain(tmp_path / "plain.csv", analytic))
+    pairs = list(zip(analytic.time, analytic.acc[0] / G0, strict=True))
+    path = tmp_path / "lab.csv"
+    path.write_text("a_x [g];Zeit [s]\n" + "".join(f"{a:.9f};{t:.9f}\n".replace(".", ",") for t, a in pairs))
+    p = read_csv(path)
+    assert p.channels == ("a_x [g]",)
+    np.testing.assert_allclose(p.acc, ref.acc, rtol=1e-8, atol=1e-6)
+    path.write_text("acc,t (ms)\n" + "".join(f"{a:.9f},{t * 1e3:.9f}\n" for t, a in pairs))
+    p = read_csv(path, time_unit="ms")
+    assert p.channels == ("acc",)
+    np.testing.assert_allclose(p.time, ref.time, atol=1e-9)
+
+
 def test_a_csv_line_ends_at_line_feeds_and_carriage_returns_only(tmp_path, analytic):
     """The CSV reader split its lines with ``str.splitlines``, which also breaks at form feeds, U+0085, U+2028 and
     other separators: a comment holding one ('# rig 2<U+2028>second take') went on as a line without '#', which was

@@ -212,8 +212,8 @@ def read_csv(
 
     Args:
         path: the file.
-        time_col: name of the time column (default: the first column named like ``time``/``t``,
-            else the first column).
+        time_col: name of the time column (default: the first column named like ``time``/``t``/``zeit``, a unit at
+            its end aside (``Zeit [s]``), else the first column).
         acc_col: name (or names) of the acceleration column(s) (default: every other column).
         unit: acceleration unit of the file, ``g`` or ``m/s2``.
         time_unit: time unit of the file, ``s`` or ``ms``.
@@ -445,7 +445,7 @@ def _csv_header(path: Path, lines: list[str], time_col: str | None) -> tuple[int
         if header.index(h) != j:
             raise _err(f"duplicate column name {h!r} in the header", path, first + 1)
     if time_col is None:
-        low = [h.lower() for h in header]
+        low = [_UNIT_AT_END.sub("", h).strip().lower() for h in header]  # 'Zeit [s]', 't (ms)': by the name
         ti = next((j for j, h in enumerate(low) if h in _TIME_NAMES or h.startswith("time")), 0)
     else:
         ti = _csv_column(header, time_col, path, first + 1)
