@@ -735,6 +735,32 @@ def test_a_time_column_named_with_its_unit_is_found_wherever_it_stands(tmp_path,
     np.testing.assert_allclose(p.time, ref.time, atol=1e-9)
 
 
+def test_a_file_time_zero_long_before_the_pulse_is_named_in_a_warning(tmp_path):
+    """``time_zero: file`` (a file reference's default) takes the file's t = 0 as the contact. A lab record on a
+    clock from 0, its 30 ms of pre-trigger data at positive times, was compared as if the car hit the barrier 30 ms
+    before its pulse starts, and its 0.4 g offset stayed, without a word (only a clock starting after 0 was
+    refused). Now the pulse's onset that late after t = 0 is named in a warning, with the option that reads such a
+    record; a record whose t = 0 is the contact gets none, nor does a channel starting some ms after it."""
+    from marlcrash.pulse.io import pulse_summary
+
+    t = np.arange(0.0, 0.25, 1e-4)
+    acc_g = half_sine(t - 0.030, 0.080) / G0 + 0.4
+    path = tmp_path / "clock0.csv"
+    path.write_text("time,acc\n" + "".join(f"{a:.4f},{b:.6f}\n" for a, b in zip(t, acc_g, strict=True)))
+    late = r"clock0\.csv: the pulse starts at t = (29\.[5-9]|30\.[0-4])\d ms .*time_zero: threshold"
+    with pytest.warns(UserWarning, match=late):
+        pulse_summary(path, time_zero="file")
+    with pytest.warns(UserWarning, match=late):
+        prepare_velocity(read_pulse(path), time_zero="file", duration=0.15)  # as a file reference reads it
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert pulse_summary(path)["delta_v_ms"] == pytest.approx(DV, rel=0.01)  # read so, it is the pulse
+        for start in (0.0, 0.006):  # the pulse at the file's t = 0, or a channel some ms after the contact
+            path.write_text("time,acc\n" + "".join(f"{a:.4f},{b:.6f}\n" for a, b in zip(
+                t - 0.03, half_sine(t - 0.03 - start, 0.080) / G0, strict=True)))  # fmt: skip
+            pulse_summary(path, time_zero="file")
+
+
 def test_a_csv_line_ends_at_line_feeds_and_carriage_returns_only(tmp_path, analytic):
     """The CSV reader split its lines with ``str.splitlines``, which also breaks at form feeds, U+0085, U+2028 and
     other separators: a comment holding one ('# rig 2<U+2028>second take') went on as a line without '#', which was
