@@ -538,6 +538,15 @@ class ReferenceSampler:
                 f"{sc.speed:.4g} m/s; expected decelerations negative (SAE J211, x forward): if the file records them "
                 f"positive, set {key}.sign: -1"
             )
+        change = sc.speed - float(vel.min())
+        if change > 2.0 * sc.speed + max(1.0, 0.1 * sc.speed):  # at most a full rebound: v >= -speed
+            k = int(vel.min(axis=1).argmin())
+            raise PulseError(
+                f"{path.name}: channel {channels[k]!r} changes the velocity by {change:.3g} m/s, from the impact "
+                f"speed {sc.speed:.3g} m/s to {sc.speed - change:.3g} m/s; a crash changes it by at most about twice "
+                f"the impact speed (a full rebound): is the acceleration in another unit than unit {spec.unit} "
+                f"(m/s^2 read as g: 9.8 times the velocity change)? Set {key}.unit"
+            )
         if vel.shape[1] != self.n_outputs:
             raise PulseError(
                 f"{path.name}: expected {self.n_outputs} samples ({sc.duration} s at {sc.output_rate} Hz) after time "

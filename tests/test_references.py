@@ -265,6 +265,25 @@ def test_file_reference_conventions_and_time_zero_alignment(cells, sim, tmp_path
         sampler(cells, sim, kind="file", files=[positive])
 
 
+def test_a_file_reference_whose_velocity_change_no_crash_can_have_is_refused_naming_the_unit(cells, sim, tmp_path):
+    """A test in m/s^2 whose header gives no unit, read in g (the default), changes the velocity 9.8x as much: the
+    40 km/h half-sine's 11 m/s became 109 m/s, down to -98 m/s, and the surrogate was calibrated against it without a
+    word (only a velocity climbing above the impact speed was refused). A crash changes the velocity by at most about
+    twice the impact speed (a full rebound): more is refused, naming the channel and the unit; read in m/s2 it is
+    the test."""
+    rows = [r for r in (DATA / "halfsine_40kmh.csv").read_text().splitlines() if not r.startswith("#")]
+    data = np.array([[float(x) for x in r.split(",")] for r in rows[1:]])
+    path = tmp_path / "si.csv"
+    path.write_text("time,ax\n" + "".join(f"{t:.6f},{a * 9.80665:.12g}\n" for t, a in data[:, :2]))
+    spec = {"path": str(path), "scenario": "full_width_40", "channels": dict.fromkeys(cells.sensor_names, "ax")}
+    with pytest.raises(PulseError, match=r"si\.csv: channel 'ax' changes the velocity by 1\d\d m/s, from the impact "
+                       r"speed 11\.1 m/s.*unit g.*reference\.files\[0\]\.unit"):  # fmt: skip
+        sampler(cells, sim, kind="file", files=[FileReference(**spec)])
+    v = sampler(cells, sim, kind="file", files=[FileReference(**spec, unit="m/s2")]).sample(
+        np.random.default_rng(0), 1).velocity  # fmt: skip
+    assert float(v[0, 0, 0] - v[0, 0, -1]) == pytest.approx(40 / 3.6, rel=0.02)
+
+
 def test_a_simulation_written_as_csv_and_read_as_a_file_reference_is_the_simulation(cells, sim, tmp_path):
     """``marlcrash simulate --csv`` read back as a measured test: the reference equals the simulation's own
     compared signal. A record that starts at the impact (a bumper-region sensor at 485 g in its first sample)
