@@ -761,6 +761,24 @@ def test_a_file_time_zero_long_before_the_pulse_is_named_in_a_warning(tmp_path):
             pulse_summary(path, time_zero="file")
 
 
+def test_a_tab_separated_export_with_decimal_commas_is_read_where_no_comma_can_group_thousands(tmp_path, analytic):
+    """A German spreadsheet saved as tab-separated text writes decimal commas ('-0,025'); it was refused ("column
+    'Zeit [s]': expected a number, got '-0,02000'") with no option to read it, as a tab export of an English one
+    may group thousands ('-1,005'). A comma that cannot group thousands (after a leading 0, or not before exactly
+    three digits) is a decimal comma, and the file is read so; one of only ambiguous cells is still refused."""
+    ref = read_csv(_write_plain(tmp_path / "plain.csv", analytic))
+    rows = "".join(f"{t:.9f}\t{a / G0:.9f}\n".replace(".", ",") for t, a in zip(analytic.time, analytic.acc[0],
+                                                                               strict=True))  # fmt: skip
+    path = tmp_path / "excel.txt"
+    path.write_text("Zeit [s]\tBeschleunigung [g]\n" + rows)
+    p = read_csv(path)
+    np.testing.assert_allclose(p.acc, ref.acc, rtol=1e-8, atol=1e-6)
+    np.testing.assert_allclose(p.time, ref.time, atol=1e-9)
+    path.write_text("time\tacc\n" + "".join(f"{i * 1e-4:.4f}\t{'-1,005' if i == 3 else '-1.5'}\n" for i in range(20)))
+    with pytest.raises(PulseError, match=r"excel\.txt line 5, column 'acc': expected a number, got '-1,005'"):
+        read_csv(path)  # points elsewhere: the comma groups thousands
+
+
 def test_a_csv_line_ends_at_line_feeds_and_carriage_returns_only(tmp_path, analytic):
     """The CSV reader split its lines with ``str.splitlines``, which also breaks at form feeds, U+0085, U+2028 and
     other separators: a comment holding one ('# rig 2<U+2028>second take') went on as a line without '#', which was

@@ -9,10 +9,11 @@ data that records deceleration as positive.
 CSV: an optional block of ``#`` comment lines, one header row, then one row per sample. Time in seconds
 (``time_unit="ms"`` for milliseconds), acceleration in g (``unit="m/s2"`` for SI). Columns are chosen by name;
 the delimiter (``,``, ``;`` or tab) is the one that splits the header and the first rows alike, or the one a first
-line ``sep=;`` (Excel's) names; with ``;`` a decimal comma (``-2,5``) is read as a decimal point. A delimiter ending
-the lines (``time;acc;``) adds no column: a trailing column with no name in the header must be empty in every row.
-UTF-8, Windows-1252, or UTF-16/32 with its byte-order mark. A gap in the time column (``max_gap``) is reported as a
-warning: resampling bridges it with a straight line. A table of breakpoints (a pulse given by its corners, e.g. a
+line ``sep=;`` (Excel's) names; with ``;`` a decimal comma (``-2,5``) is read as a decimal point, and with tabs where
+no comma can group thousands (``-0,25``, not only ``-1,005``). A delimiter ending the lines (``time;acc;``) adds no
+column: a trailing column with no name in the header must be empty in every row. UTF-8, Windows-1252, or UTF-16/32
+with its byte-order mark. A gap in the time column (``max_gap``) is reported as a warning: resampling bridges it with
+a straight line. A table of breakpoints (a pulse given by its corners, e.g. a
 trapezoid from a specification) is read with ``breakpoints=True``: at least two rows, no gap warning, and sampled
 at :data:`BREAKPOINT_RATE_HZ` by linear interpolation, so it is filtered and integrated like a record.
 
@@ -256,8 +257,8 @@ def read_csv(
     first, delim, header, ti, width = _csv_header(path, lines, time_col)
     if acc_col is None and first_only:
         acc_col = header[next(j for j in range(len(header)) if j != ti)]
-    # '0,5;-2,25': European spreadsheets separate by ';' because the comma is their decimal mark. Not with tabs:
-    # a tab export of an English spreadsheet may hold thousands separators ('-1,005' is -1005 there).
+    # '0,5;-2,25': European spreadsheets separate by ';' because the comma is their decimal mark. With tabs only
+    # where no comma can group thousands: a tab export of an English spreadsheet may ('-1,005' is -1005 there).
     decimal_comma = delim == ";"
 
     def find(name: str) -> int:
@@ -297,6 +298,8 @@ def read_csv(
     rows: list[list[float]] = []
     line_of: list[int] = []
     wanted = [ti, *ai]
+    if delim == "\t":
+        decimal_comma = _decimal_commas(lines[first + 1 :], wanted)
     for lineno, row in enumerate(csv.reader(lines[first + 1 :], delimiter=delim), start=first + 2):
         if not row or all(not c.strip() for c in row) or row[0].lstrip().startswith("#"):
             continue
@@ -379,6 +382,27 @@ def read_csv(
         )
         warnings.warn(_located(reason, path, line_of[i + 1], header[ti]), stacklevel=2)
     return Pulse(time=time, acc=acc, channels=channels, source=str(path))
+
+
+_DECIMAL_COMMA = re.compile(r"[+-]?\d*,\d+(?:[eE][+-]?\d+)?")
+"""A number written with a decimal comma (``-0,25``, ``1,5E-03``)."""
+_THOUSANDS = re.compile(r"[+-]?[1-9]\d{0,2}(?:,\d{3})+")
+"""A whole number whose commas group thousands (``-1,005``, ``12,500``): read with a decimal comma, another number."""
+
+
+def _decimal_commas(lines: list[str], columns: list[int]) -> bool:
+    """Whether the tab-separated data ``lines`` write numbers in ``columns`` with a decimal comma: every cell there that
+    holds a comma is a number with one decimal comma, and one at least (``-0,025``, ``1,5``) can group no thousands
+    (``-1,005``, which an English spreadsheet writes for -1005)."""
+    unambiguous = False
+    for row in csv.reader(lines, delimiter="\t"):
+        if not row or row[0].lstrip().startswith("#"):
+            continue
+        for cell in (row[j].strip() for j in columns if j < len(row) and "," in row[j]):
+            if _DECIMAL_COMMA.fullmatch(cell) is None:
+                return False
+            unambiguous = unambiguous or _THOUSANDS.fullmatch(cell) is None
+    return unambiguous
 
 
 def is_sign(sign: Any) -> bool:
