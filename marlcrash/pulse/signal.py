@@ -984,7 +984,12 @@ def filtered_acceleration(acc: np.ndarray, dt: float, cfc: int = 60, pre_time: f
 
 
 def filtered_from_time_zero(
-    pulse: Pulse, cfc: int | None = 60, time_zero: str = "threshold", threshold_g: float = DEFAULT_THRESHOLD_G
+    pulse: Pulse,
+    cfc: int | None = 60,
+    time_zero: str = "threshold",
+    threshold_g: float = DEFAULT_THRESHOLD_G,
+    *,
+    warn_late: bool = False,
 ) -> tuple[Pulse, float]:
     """A record made uniform (resampled at its mean rate if needed), CFC-filtered at that rate, and its time zero.
 
@@ -993,15 +998,16 @@ def filtered_from_time_zero(
         cfc: CFC class, or ``None`` to skip filtering.
         time_zero: ``"threshold"`` (the earliest channel onset, :func:`find_onset`) or ``"file"`` (the file's t = 0).
         threshold_g: the lowest onset detection level [g] (:func:`find_onset`).
+        warn_late: with ``"file"``, name in a warning a pulse that starts more than :data:`LATE_ONSET_S` after t = 0
+            on a record at rest before it (a clock that does not start at the contact), as :func:`prepare_velocity`
+            does for a file reference, whose channels are the vehicle's (an occupant's start later, at rest).
 
     With ``"threshold"``, time zero is where the pulse starts (:func:`find_onset`): detected on the record filtered
     at ``cfc`` against its pre-trigger noise, and placed by a straight line fitted to the unfiltered record's onset.
     A level crossing of the filtered record lay milliseconds off: the zero-phase filter spreads a sharp onset
     (a bumper-region sensor stopping within 1-2 ms, a 3 ms half-sine) backwards, so it crosses 0.5 g 5-13 ms
     before it starts, and a noise level above 0.5 g is reached milliseconds after a slow onset. A channel with too
-    little pre-trigger data to measure its zero level and noise is named in a warning (:func:`find_onset`). With
-    ``"file"``, a pulse that starts more than :data:`LATE_ONSET_S` after t = 0 on a record at rest before it (a clock
-    that does not start at the contact) is named in a warning.
+    little pre-trigger data to measure its zero level and noise is named in a warning (:func:`find_onset`).
 
     Before filtering, the record is led in by :data:`PRE_IMPACT_TIME` of zero acceleration (the vehicle at
     constant speed before the record began), and the filtered lead-in is kept (its times precede the
@@ -1023,17 +1029,19 @@ def filtered_from_time_zero(
     if time_zero == "threshold":
         return p, find_onset(u, cfc, threshold_g).time
     if time_zero == "file":
-        _warn_late_onset(u, cfc, threshold_g)
+        if warn_late:
+            _warn_late_onset(u, cfc, threshold_g)
         return p, 0.0
     raise PulseError(f"time_zero must be 'threshold' or 'file', got {time_zero!r}")
 
 
 LATE_ONSET_S = 0.010
 """[s] A pulse that starts this long after the file's t = 0, read with ``time_zero: file`` (t = 0 the contact), is
-named in a warning by :func:`filtered_from_time_zero` where every channel is at rest before it: a record on a clock
-from 0 with its pre-trigger data at positive times. In the model's own simulations the onset of a record read with
-its up-front channels lies within 1 ms of the contact, and the tunnel's read alone at most 5.8 ms after it (full
-width, 40 km/h), or later after a pre-pulse that is no rest (small overlap, unfiltered: 21 ms, averaging 7.7 g)."""
+named in a warning by :func:`prepare_velocity` (a file reference) where every channel is at rest before it: a record
+on a clock from 0 with its pre-trigger data at positive times. In the model's own simulations the onset of a record
+read with its up-front channels lies within 1 ms of the contact, and the tunnel's read alone at most 5.8 ms after it
+(full width, 40 km/h), or later after a pre-pulse that is no rest (small overlap, unfiltered: 21 ms, averaging 7.7
+g)."""
 
 
 def _warn_late_onset(pulse: Pulse, cfc: int | None, threshold_g: float) -> None:
@@ -1124,7 +1132,7 @@ def prepare_velocity(
                          f"got {duration!r}")  # fmt: skip
     if not (_is_real(rate_hz) and math.isfinite(rate_hz) and rate_hz > 0):
         raise PulseError(f"rate_hz: expected a finite output rate > 0 Hz, got {rate_hz!r}")
-    p, t0 = filtered_from_time_zero(pulse, cfc, time_zero, threshold_g)
+    p, t0 = filtered_from_time_zero(pulse, cfc, time_zero, threshold_g, warn_late=True)
     if not p.time[0] <= t0 < p.time[-1]:  # the file's t = 0 off a record on another clock
         what, hint = ("its onset", "")
         if time_zero == "file":
