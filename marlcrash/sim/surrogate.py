@@ -603,13 +603,15 @@ class Surrogate:
             k_dense = kd_raw * cap / (kd_raw + cap) + _EPS_K * cap
         else:  # 1 N/m for idle links keeps f / k finite; they carry no force (yield force 0)
             k, k_dense = torch.where(k_raw > 0, k_raw, 1.0), torch.where(kd_raw > 0, kd_raw, 1.0)
+
         # the constants as tensors of the run's dtype: two Python floats make a tensor of torch's default dtype, so a
         # float64 run took them rounded to float32 (and changed with torch.set_default_dtype)
-        kw = {"dtype": self.dtype, "device": self.is_axial.device}
-        t_ratio = torch.where(self.is_axial, torch.tensor(cfg.tension_ratio, **kw), torch.tensor(1.0, **kw))
+        def const(x: float) -> torch.Tensor:
+            return torch.tensor(x, dtype=self.dtype, device=self.is_axial.device)
+
+        t_ratio = torch.where(self.is_axial, const(cfg.tension_ratio), const(1.0))
         yield_t = torch.where(self.is_gap, torch.zeros_like(yield_c), yield_c * t_ratio)
-        zeta = torch.where(self.is_gap, torch.tensor(cfg.contact_damping_ratio, **kw),
-                           torch.tensor(cfg.link_damping_ratio, **kw))  # fmt: skip
+        zeta = torch.where(self.is_gap, const(cfg.contact_damping_ratio), const(cfg.link_damping_ratio))
         damping = 2.0 * zeta * torch.sqrt(k * self.m_pair)
         e_s_cell = torch.where(self.has_links, e_s, torch.full_like(e_s, float("inf")))
         # Springback relief (module doc): the excess share k_raw / (k_raw + cap) = 1 - k_eff / k_raw of a
