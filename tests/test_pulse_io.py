@@ -851,8 +851,24 @@ def test_mme_reads_acceleration_channels_and_the_summary_takes_the_first(tmp_pat
     info = mme_channels(tmp_path / "T")
     assert [(c["code"], c["unit"], c["acceleration"]) for c in info] == [
         ("11SEBE0000B3FO0D", "N", False), ("10VEHC000000ACXP", "g", True), ("", "g", True)]  # fmt: skip
-    with pytest.raises(PulseError, match="time base"), pytest.warns(UserWarning, match="skipped T.001"):
-        read_mme(tmp_path / "T")  # the two accelerations differ in time base
+    # the two accelerations differ in time base (5 and 10 kHz): the 5 kHz one is interpolated onto the 10 kHz
+    # instants (refused before, "read them separately", which a file reference of both channels cannot)
+    resampled = (
+        r"T\.mme: the channels read have other time bases \(T\.002 \(10000 Hz from -0\.02 s\), T\.003 "
+        r"\(5000 Hz from -0\.02 s\)\); each is interpolated linearly onto 10000 Hz"
+    )
+    with pytest.warns(UserWarning, match=resampled):
+        both = read_mme(tmp_path / "T")
+    span = (analytic.time >= slow.time[0] - 1e-12) & (analytic.time <= slow.time[-1] + 1e-12)
+    np.testing.assert_allclose(both.time, analytic.time[span], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(both.acc[0], analytic.acc[0][span], rtol=0, atol=1e-9)
+    # linear interpolation of the 5 kHz samples: within h^2 / 8 max|a''| of the half-sine (A (pi / T)^2)
+    bound = (2e-4) ** 2 / 8 * np.abs(analytic.acc[0]).max() * (math.pi / 0.080) ** 2
+    assert 0 < np.abs(both.acc[1] - analytic.acc[0][span]).max() <= bound
+    _edit(tmp_path / "T" / "Channel" / "T.003", "Time of first sample        :-0.02", "Time of first sample        :5")
+    apart = r"T\.003: the channel's samples \(5 to 5\.2.* s\) and those of the other channels read share 0 sampling"
+    with pytest.raises(PulseError, match=apart), pytest.warns(UserWarning, match="skipped T.001"):
+        read_mme(tmp_path / "T")
     assert read_mme(tmp_path / "T", channels="10VEHC000000ACXP").channels == ("10VEHC000000ACXP",)
     s = pulse_summary(tmp_path / "T")
     assert s["channel"] == "10VEHC000000ACXP"

@@ -991,13 +991,14 @@ def read_mme(path: str | Path, *, channels: str | Sequence[str] | None = None, s
         sign: ``+1`` or ``-1``, multiplies the acceleration (module docstring).
 
     Returns:
-        A :class:`Pulse`; the selected channels must share one time base. Channel names are
+        A :class:`Pulse`. Channels of other time bases (sampling interval, first sample, length) are interpolated
+        linearly onto the finest interval over the span all of them cover, with a warning. Channel names are
         the channel codes where given, else the channel names.
 
     Raises:
         PulseError: missing files, two files for one channel number, a channel file the channel list
             ``<test>.chn`` (or the ``.mme`` file's ``Number of channels``) does not hold, malformed headers or
-            samples, a non-acceleration unit, unknown channels, or channels with different time bases.
+            samples, a non-acceleration unit, unknown channels, or channels that share too little time.
 
     Each file of the test is read once: a channel's header and samples together.
     """
@@ -1058,27 +1059,59 @@ def _read_mme(
                 known = sorted({n for c in info for n in (c["code"], c["name"], c["file"].name) if n})
                 raise _err(f"channel {w!r} not found; the test has {known}", mme)
             chosen_files.append(hit[0])
-    chans = [read[p] for p in chosen_files]
-    ref = chans[0]
-    for p, c in zip(chosen_files[1:], chans[1:], strict=True):
-        if (
-            c["n"] != ref["n"]
-            or abs(c["dt"] - ref["dt"]) > 1e-9 * ref["dt"]
-            or abs(c["t_first"] - ref["t_first"]) > 1e-12
-        ):
-            raise _err(
-                f"time base (first sample {c['t_first']} s, interval {c['dt']} s, {c['n']} samples) differs from "
-                f"{chosen_files[0].name} ({ref['t_first']} s, {ref['dt']} s, {ref['n']} samples); read them "
-                "separately",
-                p,
-            )
-    time = ref["t_first"] + np.arange(ref["n"]) * ref["dt"]
-    acc = np.stack([c["acc"] for c in chans]) * float(sign)
+    time, acc = _common_time_base(mme, chosen_files, [read[p] for p in chosen_files])
+    acc = acc * float(sign)
     entries = {c["file"]: c for c in info}  # the names of the channel file, else of the channel list
     names = tuple(entries[p]["code"] or entries[p]["name"] or p.name for p in chosen_files)
     # 'Channel frequency class' is not trusted as a record of filtering already applied (labs use it for
     # the class a channel *should* be filtered with), so the pulse counts as unfiltered (cfc=None).
     return Pulse(time=time, acc=acc, channels=names, source=str(mme))
+
+
+def _common_time_base(mme: Path, files: list[Path], chans: list[dict[str, Any]]) -> tuple[np.ndarray, np.ndarray]:
+    """The time ``[T]`` and samples ``[K, T]`` of channels read from ``files``: their own where they share one time
+    base, else each linearly interpolated onto the finest sampling interval over the span all of them cover (a test's
+    data acquisition may sample channels at other rates or start them at other times), with a warning naming them.
+
+    Raises:
+        PulseError: (naming the channel file) a channel that covers no time in common with the first.
+    """
+
+    def time_of(c: dict[str, Any]) -> np.ndarray:
+        return c["t_first"] + np.arange(c["n"]) * c["dt"]
+
+    ref = chans[0]
+    same = all(
+        c["n"] == ref["n"]
+        and abs(c["dt"] - ref["dt"]) <= 1e-9 * ref["dt"]
+        and abs(c["t_first"] - ref["t_first"]) <= 1e-12
+        for c in chans[1:]
+    )
+    if same:
+        return time_of(ref), np.stack([c["acc"] for c in chans])
+    lo = max(c["t_first"] for c in chans)
+    hi = min(float(time_of(c)[-1]) for c in chans)
+    dt = min(c["dt"] for c in chans)
+    n = math.floor((hi - lo) / dt * (1 + 1e-12)) + 1 if hi >= lo else 0
+    if n < MIN_SAMPLES:
+        late = max(range(len(chans)), key=lambda i: chans[i]["t_first"])  # a channel the others barely overlap
+        k = late if late > 0 else min(range(len(chans)), key=lambda i: float(time_of(chans[i])[-1]))
+        c = chans[k]
+        raise _err(
+            f"the channel's samples ({c['t_first']:g} to {float(time_of(c)[-1]):g} s) and those of the other channels "
+            f"read share {max(n, 0)} sampling instants of {dt:g} s (from {lo:g} to {hi:g} s), fewer than "
+            f"{MIN_SAMPLES}; choose channels recorded over the same time (channels=)",
+            files[k],
+        )
+    time = lo + np.arange(n) * dt
+    differ = [f"{p.name} ({1.0 / c['dt']:.6g} Hz from {c['t_first']:g} s)" for p, c in zip(files, chans, strict=True)]
+    warnings.warn(
+        f"{mme.name}: the channels read have other time bases ({', '.join(differ)}); each is interpolated linearly "
+        f"onto {1.0 / dt:.6g} Hz from {lo:g} to {float(time[-1]):g} s, the span all of them cover",
+        UserWarning,
+        stacklevel=4,
+    )
+    return time, np.stack([np.interp(time, time_of(c), c["acc"]) for c in chans])
 
 
 def _mme_text(text: str, what: str) -> None:
