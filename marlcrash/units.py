@@ -80,8 +80,13 @@ def get_unit_system(name: str) -> UnitSystem:
 # about 1e9 (polymers) to 4e11 Pa. Mass-scaled decks (density raised to enlarge the
 # explicit time step) reach ten times steel, so the density window is wide; the three
 # unit systems still differ by factors of 1e3 or more, so at most one fits.
-_DENSITY_WINDOW = (1e2, 1.5e5)
+DENSITY_WINDOW = (1e2, 1.5e5)
 _MODULUS_WINDOW = (1e8, 1e12)
+
+
+def density_fits(density: float, system: UnitSystem) -> bool:
+    """Whether a raw density written in ``system``'s units is that of a structural material."""
+    return DENSITY_WINDOW[0] <= density * system.density <= DENSITY_WINDOW[1]
 
 
 def detect_unit_system(densities: np.ndarray, moduli: np.ndarray) -> UnitSystem | None:
@@ -103,8 +108,7 @@ def detect_unit_system(densities: np.ndarray, moduli: np.ndarray) -> UnitSystem 
         return None
     fits = []
     for system in UNIT_SYSTEMS.values():
-        r = float(np.median(rho)) * system.density
-        ok = _DENSITY_WINDOW[0] <= r <= _DENSITY_WINDOW[1]
+        ok = density_fits(float(np.median(rho)), system)
         if ok and e.size:
             m = float(np.median(e)) * system.stress
             ok = _MODULUS_WINDOW[0] <= m <= _MODULUS_WINDOW[1]

@@ -577,6 +577,32 @@ def test_units_detection_and_override(tmp_path):
         _read(_write(tmp_path, HEAD + NODES + SHELL), units="furlongs")
 
 
+def test_a_material_whose_density_reads_in_another_unit_system_is_named(tmp_path):
+    # a steel card pasted from a mm-kg-ms library (RO 7.85e-6 kg/mm^3) into a mm-t-s deck: 1000x the mass
+    more = "*PART\nrail\n         2         1         2\n*MAT_ELASTIC\n         2   7.85e-6  210000.0       0.3\n"
+    more += (
+        "*PART\ncrossmember\n         3         1         3\n*MAT_ELASTIC\n         3    2.7e-9   70000.0      0.33\n"
+    )
+    shells = (
+        SHELL + "       2       2       1       2       3       4\n       3       3       1       2       3       4\n"
+    )
+    deck = _write(tmp_path, HEAD + more + NODES + shells)
+    with pytest.warns(
+        UserWarning,
+        match=r"material 2 \(\*MAT_ELASTIC\) density RO 7.85e-06 \(deck.k line 16\) as mm-t-s "
+        r"is 7\.85e\+06 kg/m\^3, outside .*; as mm-kg-ms it is 7850 kg/m\^3",
+    ):
+        m = read_deck(deck)
+    assert m.units == "mm-t-s" and m.part_masses()[2] == pytest.approx(1000 * m.part_masses()[1])
+    assert any("material 2" in w and "mm-kg-ms" in w for w in m.warnings)
+    with pytest.warns(UserWarning) as seen:  # the whole deck read in other units: one warning, not one per card
+        read_deck(_write(tmp_path, HEAD + NODES + SHELL, "ok.k"), units="mm-kg-ms")
+    assert [str(w.message) for w in seen if "density RO" in str(w.message)] == []
+    with warnings.catch_warnings():  # a plausible density in the deck's units: no such warning
+        warnings.simplefilter("error")
+        read_deck(_write(tmp_path, HEAD + NODES + SHELL, "ok.k"))
+
+
 def test_axis_map_rotates_then_shifts(tmp_path):
     m = _read(_write(tmp_path, HEAD + NODES + SHELL), axis_map=AxisMap(x="-y", y="+x", z="+z"))
     b = m.bounds()

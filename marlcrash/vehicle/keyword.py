@@ -117,7 +117,7 @@ from typing import Any
 import numpy as np
 
 from marlcrash.errors import DeckError, ModelError
-from marlcrash.units import UnitSystem, detect_unit_system, get_unit_system
+from marlcrash.units import DENSITY_WINDOW, UNIT_SYSTEMS, UnitSystem, density_fits, detect_unit_system, get_unit_system
 from marlcrash.vehicle.materials import Material, complete_material
 from marlcrash.vehicle.model import AxisMap, Part, VehicleModel
 
@@ -2105,10 +2105,12 @@ def _assemble(deck: _Deck, t: _Tables, units: str | None, main: Path) -> tuple[V
     judged = [m for mid, m in t.materials.items() if mid in used] or list(t.materials.values())
     rho = np.array([m.values["ro"] for m in judged], dtype=float)
     e = np.array([m.values["e"] for m in judged], dtype=float)
+    whole = False  # the deck as a whole reads in other units than those given (one warning says so)
     if units is not None:
         u = get_unit_system(units)
         seen = detect_unit_system(rho, e)
         if seen is not None and seen.name != u.name:  # the user may know better: a warning, not an error
+            whole = True
             msg = (
                 f"units {u.name} given, but the material densities (median {np.nanmedian(rho):.4g}) and moduli read "
                 f"as {seen.name}: lengths, masses and strengths will be off by orders of magnitude"
@@ -2125,6 +2127,23 @@ def _assemble(deck: _Deck, t: _Tables, units: str | None, main: Path) -> tuple[V
                 main,
             )
         u = detected
+    for mid, pid in used.items() if not whole else ():  # one card in other units than the rest: mass off 1e3x+
+        raw = t.materials.get(mid)
+        if raw is None or raw.densityless or pid in t.inertia:  # undefined (refused below), or its mass set
+            continue
+        ro = raw.values["ro"]
+        if ro > 0 and not density_fits(ro, u):
+            fits = [s.name for s in UNIT_SYSTEMS.values() if density_fits(ro, s)]
+            if fits:
+                msg = (
+                    f"material {mid} ({_mat_label(raw)}) density RO {ro:g} ({raw.where[0].name} line {raw.where[1]}) "
+                    f"as {u.name} is {ro * u.density:.4g} kg/m^3, outside the structural materials' "
+                    f"{DENSITY_WINDOW[0]:g} to {DENSITY_WINDOW[1]:g} kg/m^3; as {fits[0]} it is "
+                    f"{ro * get_unit_system(fits[0]).density:.4g} kg/m^3: a card in another unit system? "
+                    f"(part {pid}'s mass follows it)"
+                )
+                notes.append(msg)
+                warnings.warn(f"{main.name}: {msg}", UserWarning, stacklevel=3)
     # ---- nodes
     coords = np.concatenate(t.coords) * u.length
     order = np.argsort(node_ids, kind="stable")
