@@ -609,6 +609,27 @@ def test_axis_map_rotates_then_shifts(tmp_path):
     np.testing.assert_allclose(b, [[0, -0.05, 0], [0.1, 0.05, 0]], atol=1e-15)
 
 
+def test_initial_velocities_that_move_the_vehicle_other_than_front_first_are_named(tmp_path):
+    def deck(vx, vy, name):
+        vel = "*INITIAL_VELOCITY_NODE\n" + "".join(f"{n:10d}{vx:10.1f}{vy:10.1f}\n" for n in (1, 2, 3, 4))
+        return _write(tmp_path, HEAD + NODES + SHELL + vel, name)
+
+    def travel_warnings(path, **kw):
+        with warnings.catch_warnings(record=True) as seen:
+            warnings.simplefilter("always")
+            read_deck(path, **kw)
+        return [str(w.message) for w in seen if "front first" in str(w.message)]
+
+    assert travel_warnings(deck(-15640.0, 0.0, "ahead.k")) == []  # x rearward: the vehicle moves along -x
+    (msg,) = travel_warnings(deck(15640.0, 0.0, "back.k"))  # its rear would be read as its front
+    assert re.search(r"back.k line 20: the deck's initial velocities move the vehicle along deck \+x, marlcrash \+x "
+                     r"under the axis map .*smallest x.*--axis-map x=-x,y=-y,z=\+z", msg), msg  # fmt: skip
+    assert travel_warnings(deck(15640.0, 0.0, "back.k"), axis_map=AxisMap(x="-x", y="-y")) == []
+    (msg,) = travel_warnings(deck(0.0, 15640.0, "side.k"))
+    assert "along deck +y, marlcrash +y" in msg and "--axis-map x=-y,y=+x,z=+z" in msg
+    assert travel_warnings(deck(0.0, 15640.0, "side.k"), axis_map=AxisMap(x="-y", y="+x")) == []
+
+
 def test_subassembly_map_yaml_sets_and_errors(tmp_path):
     parts = "".join(
         f"*PART\n{name}\n{i:10d}{1:10d}{1:10d}\n" for i, name in ((1, "hood outer"), (2, "Hood inner"), (3, "bumper"))

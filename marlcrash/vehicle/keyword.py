@@ -1111,6 +1111,7 @@ class _Velocity:
     where: tuple[Path, int]
     except_set: int = 0
     except_moving: bool = False
+    vel: np.ndarray | None = None  # [k, 3] translational velocities given (deck axes); None: in a local system
 
 
 @dataclass
@@ -1404,7 +1405,7 @@ def _read_part(block: _Block, opts: set[str], t: _Tables, params: _Params) -> No
             vel = _read_line(block, rows[i + 2], _VEL_6, params) if i + 2 < len(rows) else []  # blank at the end
             if any(x not in (None, 0.0) for x in vel[:3]):  # a rigid body set moving; at rest it says nothing
                 where = (block.src.path, rows[i + 2] + 1)
-                t.velocities.append(_Velocity("part", np.array([pid]), np.array([True]), where))
+                t.velocities.append(_Velocity("part", np.array([pid]), np.array([True]), where, vel=_vec(vel[:3])))
             i += 3 + (ircs == 1)
         i += sum(o in opts for o in ("CONTACT", "PRINT", "ATTACHMENT", "AVERAGED"))
 
@@ -1685,6 +1686,11 @@ def _read_id_set(block: _Block, opts: set[str], out: dict[int, _IdSet], params: 
     out[int(sid)] = _IdSet(title, ids, ranges, where)
 
 
+def _vec(v: list[float | None]) -> np.ndarray:
+    """``[1, 3]`` translational velocity from read fields (blanks: 0)."""
+    return np.array([[x or 0.0 for x in v]], dtype=float)
+
+
 def _read_velocity(block: _Block, opts: set[str], t: _Tables, params: _Params) -> bool:
     """``*INITIAL_VELOCITY``, ``_NODE``, ``_GENERATION`` and ``_RIGID_BODY``; ``False`` for other options.
 
@@ -1703,25 +1709,43 @@ def _read_velocity(block: _Block, opts: set[str], t: _Tables, params: _Params) -
     if opts == {"NODE"}:
         v = _table(block, rows, _VEL_NODE, params, required=("nid",), positive=("nid",))
         mv = (v["vx"] != 0) | (v["vy"] != 0) | (v["vz"] != 0)
-        t.velocities.append(_Velocity("nodes", v["nid"], mv, where))
+        t.velocities.append(_Velocity("nodes", v["nid"], mv, where, vel=np.stack([v["vx"], v["vy"], v["vz"]], 1)))
     elif opts == {"RIGID", "BODY"}:
         for r in rows.tolist():
             pid, *vel = _read_line(block, r, _VEL_NODE, params)
-            t.velocities.append(_Velocity("part", np.array([pid or 0]), np.array([moving(*vel[:3])]), where))
+            t.velocities.append(
+                _Velocity("part", np.array([pid or 0]), np.array([moving(*vel[:3])]), where, vel=_vec(vel[:3]))
+            )
     elif not opts:  # NSID NSIDEX BOXID ..., then VX VY VZ ..., then VXE VYE VZE ... where NSIDEX > 0
         r = rows.tolist()
-        nsid, nsidex, boxid, *_ = _read_line(block, r[0], _VEL_HEAD, params)
+        nsid, nsidex, boxid, _, icid = _read_line(block, r[0], _VEL_HEAD, params)
         vel = _read_line(block, r[1], _VEL_6, params) if len(r) > 1 else []
         target = "box" if boxid else "node_set" if nsid else "all"
         exempt_moving = bool(nsidex) and len(r) > 2 and moving(*_read_line(block, r[2], _VEL_6, params)[:3])
         t.velocities.append(
-            _Velocity(target, np.array([nsid or 0]), np.array([moving(*vel[:3])]), where, nsidex or 0, exempt_moving)
+            _Velocity(
+                target,
+                np.array([nsid or 0]),
+                np.array([moving(*vel[:3])]),
+                where,
+                nsidex or 0,
+                exempt_moving,
+                vel=None if icid else _vec(vel[:3]),
+            )
         )
     elif opts == {"GENERATION"}:
         for k in range(0, rows.size, 2):  # ID STYP OMEGA VX VY VZ ..., then XC YC ZC NX NY NZ PHASE IRIGID
-            gid, styp, omega, vx, vy, vz, *_ = _read_line(block, int(rows[k]), _VEL_GEN, params)
+            gid, styp, omega, vx, vy, vz, _, icid = _read_line(block, int(rows[k]), _VEL_GEN, params)
             target = {1: "part_set", 2: "part", 3: "node_set"}.get(styp or 0, "unknown") if gid else "all"
-            t.velocities.append(_Velocity(target, np.array([gid or 0]), np.array([moving(vx, vy, vz, omega)]), where))
+            t.velocities.append(
+                _Velocity(
+                    target,
+                    np.array([gid or 0]),
+                    np.array([moving(vx, vy, vz, omega)]),
+                    where,
+                    vel=None if icid else _vec([vx, vy, vz]),
+                )
+            )
     else:
         return False
     return True
@@ -1819,9 +1843,8 @@ def _read_nodal_body(block: _Block, opts: set[str], t: _Tables, params: _Params)
         t.nodal_bodies.append(_NodalBody(int(pid), sid, float(tm or 0.0), where))
         vel = _read_line(block, rows[i + 2], _VEL_6, params) if i + 2 < len(rows) else []
         if any(x not in (None, 0.0) for x in vel[:3]):
-            t.velocities.append(
-                _Velocity("node_set", np.array([sid]), np.array([True]), (block.src.path, rows[i + 2] + 1))
-            )
+            where = (block.src.path, rows[i + 2] + 1)
+            t.velocities.append(_Velocity("node_set", np.array([sid]), np.array([True]), where, vel=_vec(vel[:3])))
         i += 3 + (ircs == 1)
     return True
 
@@ -2731,6 +2754,53 @@ def _stationary_parts(model: VehicleModel, t: _Tables, skip: set[int]) -> tuple[
     return out, []
 
 
+def _travel_note(t: _Tables, axis_map: AxisMap) -> list[str]:
+    """A note where every initial velocity the deck gives moves along one axis and direction other than
+    marlcrash's -x (the vehicle travels front first towards -x; its front is taken at the smallest x).
+
+    Nothing is said where the deck sets nothing moving, gives a velocity in a local system, or moves
+    things along several axes or directions (two vehicles, a moving barrier).
+    """
+    given = [v for v in t.velocities if v.target != "nodes" or v.moving.any()]
+    if not given or any(v.vel is None for v in given):
+        return []
+    vel = np.concatenate([v.vel[v.moving] if v.target == "nodes" else v.vel for v in given if v.vel is not None])
+    vel = vel[np.abs(vel).max(axis=1) > 0]
+    if vel.size == 0:
+        return []
+    axis = np.abs(vel).argmax(axis=1)
+    sign = np.sign(vel[np.arange(len(vel)), axis])
+    if np.unique(axis).size > 1 or np.unique(sign).size > 1:
+        return []
+    a, s = int(axis[0]), float(sign[0])
+    r = axis_map.matrix()
+    mapped = r @ (s * np.eye(3)[a])
+    if mapped[0] < 0:
+        return []
+    deck_dir = f"{'+' if s > 0 else '-'}{'xyz'[a]}"
+    m_axis = int(np.abs(mapped).argmax())
+    m_dir = f"{'+' if mapped[m_axis] > 0 else '-'}{'xyz'[m_axis]}"
+    # a map with x the deck's -travel, of the given map's handedness
+    spec = {k: (int(np.abs(row).argmax()), float(row[np.abs(row).argmax()])) for k, row in zip("xyz", r, strict=True)}
+    new = dict(spec, x=(a, -s))
+    if spec["x"][0] == a:  # x held the travel's axis, the wrong way round: turn half about z (y flips with x)
+        new["y"] = (spec["y"][0], -spec["y"][1])
+    else:  # the axis that held the travel's takes x's old one, signed to keep the map's handedness
+        other = "y" if spec["y"][0] == a else "z"
+        new[other] = (spec["x"][0], 1.0)
+        if np.linalg.det(np.array([np.eye(3)[ax] * sg for ax, sg in new.values()])) * np.linalg.det(r) < 0:
+            new[other] = (spec["x"][0], -1.0)
+    text = ",".join(f"{k}={'+' if sg > 0 else '-'}{'xyz'[ax]}" for k, (ax, sg) in new.items())
+    path, line = given[0].where
+    return [
+        f"{path.name} line {line}: the deck's initial velocities move the vehicle along deck {deck_dir}, marlcrash "
+        f"{m_dir} under the axis map x={axis_map.x},y={axis_map.y},z={axis_map.z}; marlcrash's vehicle travels "
+        "front first along -x (x rearward) and its front is taken at the smallest x, so its region of interest would "
+        f"lie at the far end from the impact: give --axis-map {text} (axis_map= in Python), and check that the "
+        "driver's left lands at +y"
+    ]
+
+
 # keywords that join nodes (merge them, tie them, weld them), which the reader does not follow
 _JOINING = (
     "NODE_MERGE",
@@ -2856,7 +2926,8 @@ def read_deck(
         model.validate()
     except ModelError as e:
         raise DeckError(str(e), main) from None
-    for note in [*deck.unread_includes, *_unfollowed_joints(deck), *_check_extent(model, tables)]:
+    extra = [*deck.unread_includes, *_unfollowed_joints(deck), *_check_extent(model, tables)]
+    for note in [*extra, *_travel_note(tables, axis_map)]:
         model.warnings.append(note)
         warnings.warn(f"{main.name}: {note}", UserWarning, stacklevel=2)
     model = model.transformed(axis_map)
