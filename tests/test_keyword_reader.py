@@ -609,6 +609,21 @@ def test_axis_map_rotates_then_shifts(tmp_path):
     np.testing.assert_allclose(b, [[0, -0.05, 0], [0.1, 0.05, 0]], atol=1e-15)
 
 
+def test_given_units_under_which_no_density_is_a_structural_materials_are_named(tmp_path):
+    # a mm-g-ms deck (steel 7.85e-3 g/mm^3, E in MPa) fits none of the three systems; given as mm-kg-ms it weighed 1000x
+    gms = HEAD.replace("  7.85e-09  210000.0", "   7.85e-3  210000.0")
+    with pytest.warns(
+        UserWarning,
+        match=r"units mm-kg-ms given, but the material densities \(median 0.00785\) read as "
+        r"7\.85e\+06 kg/m\^3 in it, outside the structural materials' 100 to 150000 kg/m\^3: ",
+    ):
+        m = read_deck(_write(tmp_path, gms + NODES + SHELL), units="mm-kg-ms")
+    assert m.total_mass() == pytest.approx(1000 * 0.01 * 2e-3 * 7850)  # read as asked, and said so
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        read_deck(_write(tmp_path, HEAD + NODES + SHELL, "ok.k"), units="mm-t-s")
+
+
 def test_initial_velocities_that_move_the_vehicle_other_than_front_first_are_named(tmp_path):
     def deck(vx, vy, name):
         vel = "*INITIAL_VELOCITY_NODE\n" + "".join(f"{n:10d}{vx:10.1f}{vy:10.1f}\n" for n in (1, 2, 3, 4))

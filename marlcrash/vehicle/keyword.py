@@ -2140,6 +2140,18 @@ def _assemble(deck: _Deck, t: _Tables, units: str | None, main: Path) -> tuple[V
             )
             notes.append(msg)
             warnings.warn(f"{main.name}: {msg}", UserWarning, stacklevel=3)
+        pos = rho[np.isfinite(rho) & (rho > 0)]
+        ro_med = float(np.median(pos)) if pos.size else 0.0
+        if seen is None and ro_med > 0 and not density_fits(ro_med, u):  # a system the reader does not know (mm-g-ms)
+            whole = True
+            msg = (
+                f"units {u.name} given, but the material densities (median {ro_med:.4g}) read as "
+                f"{ro_med * u.density:.4g} kg/m^3 in it, outside the structural materials' {DENSITY_WINDOW[0]:g} "
+                f"to {DENSITY_WINDOW[1]:g} kg/m^3: masses will be off by orders of magnitude (the reader knows "
+                f"{', '.join(UNIT_SYSTEMS)} only; a deck in another system must be converted)"
+            )
+            notes.append(msg)
+            warnings.warn(f"{main.name}: {msg}", UserWarning, stacklevel=3)
     else:
         detected = detect_unit_system(rho, e)
         if detected is None:
