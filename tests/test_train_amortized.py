@@ -759,3 +759,17 @@ def test_a_resume_that_leaves_out_finished_rows_is_refused_naming_them(run_dir, 
     more = amortized_comparison(small_config(run_dir, reference_seeds=[SEEDS[0]], budgets={"cmaes": [1, 2, 3]}),
                                 done=done)  # fmt: skip
     assert [r["multiplier"] for r in more.rows] == [None, None, 1, 2, 3]
+
+
+def test_a_run_that_names_a_file_is_refused_as_the_run_not_as_out_dir(run_dir, tmp_path):
+    """``run=<run>/checkpoint.pt`` (the checkpoint, not its folder) was refused as "key 'out_dir': ... is a file",
+    a key the command did not give (out_dir null: the tables go into the run folder); with an ``out_dir`` the file
+    was said not to exist. Both name ``run``, and say that it is a file."""
+    ckpt = run_dir / "checkpoint.pt"
+    with pytest.raises(ConfigError, match=r"is a file; expected a training run folder") as e:
+        load_policy(ckpt)
+    assert e.value.key == "run" and "does not exist" not in str(e.value)
+    out = subprocess.run([sys.executable, str(REPO / "train" / "amortized.py"), f"run={ckpt}"], capture_output=True,
+                         text=True, cwd=tmp_path, timeout=300)  # fmt: skip
+    assert out.returncode == 2 and "key 'run'" in out.stderr and "is a file" in out.stderr, out.stderr
+    assert "out_dir" not in out.stderr and sorted(tmp_path.iterdir()) == []

@@ -44,7 +44,7 @@ def main(cfg: DictConfig) -> None:
         config = load_amortized_config(data, source="configs/train/amortized.yaml")
         if config.run is None:  # a resume looked for its comparison in the launch folder and named key 'resume'
             raise ConfigError("expected a training run folder, e.g. run=runs/mappo/<name>", key="run")
-        where = check_output_dir(config.out_dir or config.run, "out_dir")
+        where = check_output_dir(config.out_dir or config.run, "out_dir" if config.out_dir else "run")
         # one comparison per folder; the run folder (out_dir null) or a resumed one must exist: a missing one is said
         with hold_comparison_dir(where, create=config.out_dir is not None and not config.resume):
             # before the work, not after it: a new comparison needs a folder without one, a resumed one its record

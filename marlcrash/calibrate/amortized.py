@@ -244,7 +244,8 @@ def load_policy(run_dir: str | Path) -> tuple[TensorDictModuleBase, TrainConfig,
     """
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
-        raise ConfigError(f"expected a training run folder, {run_dir} does not exist", key="run")
+        what = "is a file" if run_dir.exists() else "does not exist"  # run=<run>/checkpoint.pt: it exists
+        raise ConfigError(f"{run_dir} {what}; expected a training run folder", key="run")
     config = load_run_config(run_dir, device="cpu")  # the policy runs on the CPU: a GPU-trained run is read here
     check = provenance.check_run(run_dir, provenance.env_inputs(make_env_config(config)), key=None)
     provenance.warn_changes(run_dir, check, "amortized")  # a policy trained on other physics still calibrates
