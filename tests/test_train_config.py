@@ -187,6 +187,8 @@ def test_ci_reads_the_environment(monkeypatch):
         (["name=.."], "name", "got '..', which names the output folder's parent"),  # no '/' in it: say why
         (["name=."], "name", "got '.', which names the output folder itself"),
         (["name=a/b"], "name", "without '/'"),
+        # resume=$RUN with the variable unset: the launch folder, whose run (if it is one) was continued unasked
+        (["resume="], "resume", "got an empty one"),
         (["seed=-1"], "seed", "seed in [0, 2**64 - 1]"),
         # torch.manual_seed's overflow: a traceback once the run folder existed, not an error naming the key
         (["seed=18446744073709551616"], "seed", "seed in [0, 2**64 - 1]"),

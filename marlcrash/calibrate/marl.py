@@ -281,6 +281,8 @@ class TrainConfig:
                 f"expected >= 0 iterations (0: only the latest checkpoint), got {self.snapshot_every}")  # fmt: skip
         require_run_name(self.name)
         require(bool(self.out_dir), "out_dir", "expected an output folder")
+        # '' (resume=$RUN, the variable unset) was the launch folder: the run found there was continued unasked
+        require(self.resume != "", "resume", "expected true, false or a run folder, got an empty one")
         require_device(self.device, "device")
         mb = self.algorithm.minibatch_size
         require(self.frames_per_batch % mb == 0, "algorithm.minibatch_size",
