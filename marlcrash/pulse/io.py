@@ -1080,6 +1080,9 @@ def _common_time_base(mme: Path, files: list[Path], chans: list[dict[str, Any]])
     def time_of(c: dict[str, Any]) -> np.ndarray:
         return c["t_first"] + np.arange(c["n"]) * c["dt"]
 
+    def end(c: dict[str, Any]) -> float:
+        return c["t_first"] + (c["n"] - 1) * c["dt"]
+
     ref = chans[0]
     same = all(
         c["n"] == ref["n"]
@@ -1090,15 +1093,15 @@ def _common_time_base(mme: Path, files: list[Path], chans: list[dict[str, Any]])
     if same:
         return time_of(ref), np.stack([c["acc"] for c in chans])
     lo = max(c["t_first"] for c in chans)
-    hi = min(float(time_of(c)[-1]) for c in chans)
+    hi = min(end(c) for c in chans)
     dt = min(c["dt"] for c in chans)
     n = math.floor((hi - lo) / dt * (1 + 1e-12)) + 1 if hi >= lo else 0
     if n < MIN_SAMPLES:
         late = max(range(len(chans)), key=lambda i: chans[i]["t_first"])  # a channel the others barely overlap
-        k = late if late > 0 else min(range(len(chans)), key=lambda i: float(time_of(chans[i])[-1]))
+        k = late if late > 0 else min(range(len(chans)), key=lambda i: end(chans[i]))
         c = chans[k]
         raise _err(
-            f"the channel's samples ({c['t_first']:g} to {float(time_of(c)[-1]):g} s) and those of the other channels "
+            f"the channel's samples ({c['t_first']:g} to {end(c):g} s) and those of the other channels "
             f"read share {max(n, 0)} sampling instants of {dt:g} s (from {lo:g} to {hi:g} s), fewer than "
             f"{MIN_SAMPLES}; choose channels recorded over the same time (channels=)",
             files[k],

@@ -824,15 +824,16 @@ class Surrogate:
                 "build the Surrogate with output_dt=scenario.output_dt"
             )
         dur = duration if duration is not None else (scenario.duration if scenario is not None else 0.150)
-        steps = _seconds(dur, "duration") / self.output_dt
+        seconds = _seconds(dur, "duration")
+        steps = seconds / self.output_dt
         if not (np.isfinite(steps) and steps >= 0.5 and abs(steps - round(steps)) <= 1e-6 * steps):
             raise ModelError(
                 f"duration must be > 0 s and a whole number of {self.output_dt:.6g} s output steps, got {dur}"
             )
-        if steps * self.output_dt > MAX_RUN_DURATION_S * (1 + 1e-9):  # 150 (ms meant) asked 43.7 TiB of numpy
+        if seconds > MAX_RUN_DURATION_S:  # 150 (ms meant) asked 43.7 TiB of numpy
             raise ModelError(
                 f"duration must be at most {MAX_RUN_DURATION_S:g} s (MAX_RUN_DURATION_S: a crash window with room for "
-                f"a filter margin), got {dur:g} s; durations are in seconds (0.15 for 150 ms)"
+                f"a filter margin), got {seconds:g} s; durations are in seconds (0.15 for 150 ms)"
             )
         n_out = round(steps) + 1
         if sensors is not None and probe_cells is not None:  # the named sensors were dropped without a word

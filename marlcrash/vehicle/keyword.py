@@ -2938,8 +2938,12 @@ def read_deck(
         model.validate()
     except ModelError as e:
         raise DeckError(str(e), main) from None
-    extra = [*deck.unread_includes, *_unfollowed_joints(deck), *_check_extent(model, tables)]
-    for note in [*extra, *_travel_note(tables, axis_map)]:
+    for note in [
+        *deck.unread_includes,
+        *_unfollowed_joints(deck),
+        *_check_extent(model, tables),
+        *_travel_note(tables, axis_map),
+    ]:
         model.warnings.append(note)
         warnings.warn(f"{main.name}: {note}", UserWarning, stacklevel=2)
     model = model.transformed(axis_map)
