@@ -450,6 +450,18 @@ def test_csv_logger_truncates_to_a_checkpoint(tmp_path):
     assert again.position == 0
 
 
+def test_csv_logger_writes_counts_as_integers(tmp_path):
+    """Iteration, env step and simulation counts read as integers in pandas or a text editor ("3", not "3.0")."""
+    import numpy as np
+
+    log = CSVLogger(tmp_path)
+    log.log({"iteration": 3, "env_steps": np.int64(288), "x": 0.25, "y": float("nan")})
+    assert (tmp_path / "log.csv").read_text().splitlines()[1] == "3,288,0.25,nan"
+    assert read_log(tmp_path / "log.csv") == [
+        {"iteration": 3.0, "env_steps": 288.0, "x": 0.25, "y": pytest.approx(float("nan"), nan_ok=True)}
+    ]
+
+
 def test_a_torn_row_after_the_checkpoint_is_cut_and_a_malformed_row_before_it_is_named(tmp_path):
     """A kill while a row is written leaves it torn (no newline, fields missing, junk bytes): a resume cuts it
     unread. A malformed row that a resume keeps, or that an evaluation reads, is an error naming the file and

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import csv
 import math
+import numbers
 import os
 import warnings
 from collections.abc import Sequence
@@ -38,7 +39,8 @@ class CSVLogger:
     """Appends one row of scalars per iteration to ``<run_dir>/log.csv``.
 
     The columns are fixed by the first row written (later rows must have the same keys);
-    values are written with ``repr`` so a float read back is the float written.
+    integers (the counts) are written as integers and other values with ``repr``, so a float read back is the
+    float written.
 
     Args:
         run_dir: the run folder (created if missing).
@@ -255,5 +257,7 @@ def _values(path: Path, line: int, text: str, columns: list[str]) -> list[str]:
 
 
 def _fmt(value: Any) -> str:
+    if isinstance(value, numbers.Integral):  # counts (iteration, env_steps) stay integers for pandas and the eye
+        return str(int(value))
     v = float(value)
     return repr(v) if math.isfinite(v) else str(v)
