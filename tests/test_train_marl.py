@@ -92,6 +92,23 @@ def test_policy_and_critics_shapes(short, tmp_path):
             assert torch.equal(v, v[:, :1].expand_as(v))
 
 
+def test_training_does_not_depend_on_torchs_default_dtype(short, tmp_path):
+    """A notebook that set ``torch.set_default_dtype(torch.float64)`` (for the simulator, say) trains as any other:
+    the networks take the env's float32 observations, and the numbers are those of a float32 default."""
+    ref = train(tiny(tmp_path, name="f32", iterations=1), evaluate=False)
+    previous = torch.get_default_dtype()
+    torch.set_default_dtype(torch.float64)
+    try:
+        cfg = tiny(tmp_path, name="f64", iterations=1)
+        env = make_env(cfg)
+        for net in (make_policy(env, cfg.algorithm), make_critic(env, cfg.algorithm)):
+            assert {p.dtype for p in net.parameters()} == {torch.float32}
+        run = train(cfg, evaluate=False)
+    finally:
+        torch.set_default_dtype(previous)
+    assert _comparable_log(run.run_dir) == _comparable_log(ref.run_dir)
+
+
 def test_untrained_mean_action_is_near_zero(short, tmp_path):
     from torchrl.envs.utils import ExplorationType, set_exploration_type
 

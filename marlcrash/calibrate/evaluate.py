@@ -65,6 +65,7 @@ from marlcrash.calibrate.logging import LOG_FILE, read_log
 from marlcrash.calibrate.marl import (
     TrainConfig,
     act,
+    float32_default,
     load_run_config,
     make_env,
     make_env_config,
@@ -232,6 +233,7 @@ def select_iterate(metrics: Metrics, scores: torch.Tensor, thresholds: SuccessCo
     return best_index(scores, thresholds.passes(metrics))
 
 
+@float32_default()
 def evaluate_policy(policy: TensorDictModuleBase, config: TrainConfig) -> EvalResult:
     """Run the policy's mean action for ``eval.iterations`` steps on the evaluation reference (module docstring).
 

@@ -42,7 +42,7 @@ import os
 import shutil
 import time
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -566,6 +566,23 @@ class StateValue(nn.Module):
         return v.unsqueeze(-2).expand(*v.shape[:-1], self.n_agents, 1)
 
 
+@contextlib.contextmanager
+def float32_default() -> Iterator[None]:
+    """torch's default dtype float32 while in it (a context manager and a decorator), as it was before.
+
+    The networks take the envs' float32 observations, and their initial weights, the PPO loss and the advantages
+    are those of torch's own default: a caller that set ``torch.set_default_dtype(torch.float64)`` (common in
+    scientific code) gets the same runs, not networks of the wrong dtype.
+    """
+    previous = torch.get_default_dtype()
+    torch.set_default_dtype(torch.float32)
+    try:
+        yield
+    finally:
+        torch.set_default_dtype(previous)
+
+
+@float32_default()
 def make_policy(env: EnvBase, algo: AlgorithmConfig) -> ProbabilisticActor:
     """TanhNormal policy on ``("agents", "observation")`` writing ``("agents", "action")`` and its log-prob."""
     A, obs_dim, act_dim, _ = env_dims(env)
@@ -589,6 +606,7 @@ def make_policy(env: EnvBase, algo: AlgorithmConfig) -> ProbabilisticActor:
     )  # fmt: skip
 
 
+@float32_default()
 def make_critic(env: EnvBase, algo: AlgorithmConfig) -> TensorDictModule:
     """Value network writing ``("agents", "state_value")`` ``[*, n_agents, 1]`` (module docstring)."""
     A, obs_dim, _, state_dim = env_dims(env)
@@ -1126,6 +1144,7 @@ def train(
         return _train(config, run_dir, stop_at, evaluate, summary_extra)
 
 
+@float32_default()
 def _train(
     config: TrainConfig,
     run_dir: Path,
