@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import time
+
 import pytest
 import torch
 
@@ -246,3 +248,25 @@ def test_plausibility_checks_simulate_the_scenarios_exact_speed_and_overlap(defa
     res = seen["result"]
     assert res.compartment_velocity[:, 0].tolist() == [s.speed for s in scs]  # the speed simulated, to the bit
     assert res.compartment_velocity[0, 0].item() * 3.6 == 40.0
+
+
+def test_roofline_counts_the_simulations_asked_for_not_the_padded_lanes(default_sim):
+    """17 simulations run as 2 chunks of 16 lanes: the roofline pass streams 32 lanes, but the rate it stands for
+    (next to the kernel's ``B / t``, which pads the same way) is 17 per pass, not 32."""
+    from marlcrash.sim import kernels
+    from marlcrash.sim.bench import measure_roofline
+
+    batch, seconds = 17, 0.05
+    lanes = kernels.lanes_for(batch, default_sim.L, default_sim.n, "float64")
+    padded = -(-batch // lanes) * lanes
+    seen = []
+
+    def link_pass(lp, src, dst, n, n_steps, cst):  # a pass of known duration over the arrays it is given
+        seen.append(lp.shape[0] * lp.shape[-1])
+        if n_steps > 2:  # not the warm-up call
+            time.sleep(seconds)
+        return 0.0
+
+    rate = measure_roofline(default_sim, batch, 10, link_pass=link_pass)
+    assert padded > batch and seen[-1] == padded  # the pass does stream the padded chunks
+    assert rate == pytest.approx(batch / seconds, rel=0.2)

@@ -101,6 +101,9 @@ def measure_roofline(
 ) -> float:
     """Roofline of this machine in complete simulations per second at ``batch`` (see module doc).
 
+    The pass streams the same chunks as the kernel, the last one padded to the chunk width; like the kernel's rate
+    (``batch`` over its time) it counts the ``batch`` simulations asked for, not the padded lanes.
+
     Args:
         sim: the surrogate whose node count, dtype, springback setting and link ends are used.
         batch: simulations ``B``.
@@ -126,7 +129,7 @@ def measure_roofline(
     cst = np.array([0.5, 0.0, 1.0, 1.0 / sim.dt, sim.dt, kernels._BIG], dtype=npdt)
     link_pass(lp[:1], src, dst, sim.n, 2, cst)  # compile or load the cache
     t = _best(lambda: link_pass(lp, src, dst, sim.n, n_steps, cst), repeats)
-    return n_chunks * lanes / t
+    return batch / t
 
 
 def live_links(sim: Surrogate, params: torch.Tensor) -> int:
