@@ -270,3 +270,14 @@ def test_roofline_counts_the_simulations_asked_for_not_the_padded_lanes(default_
     rate = measure_roofline(default_sim, batch, 10, link_pass=link_pass)
     assert padded > batch and seen[-1] == padded  # the pass does stream the padded chunks
     assert rate == pytest.approx(batch / seconds, rel=0.2)
+
+
+@pytest.mark.parametrize("batch", [0, -3])
+def test_roofline_refuses_a_batch_it_cannot_time(default_sim, batch):
+    """A batch of 0 streamed no chunk and reported 0 sims/s (benchmarks/bench_implicit.py --batch 0 then scaled it
+    into every implicit row)."""
+    from marlcrash.sim.bench import measure_roofline
+
+    with pytest.raises(ConfigError, match=r"expected a batch size in \[1, ") as e:
+        measure_roofline(default_sim, batch, 10)
+    assert e.value.key == "batch"

@@ -113,7 +113,14 @@ def measure_roofline(
             with a non-zero transmission share, :func:`live_links`).
         link_pass: the compiled pass timed (default :func:`_roofline`; :func:`noalias_study` passes its unmarked
             compilation).
+
+    Raises:
+        ConfigError: ``batch`` is no integer in ``[1, MAX_BATCH]`` (key ``batch``; 0 streamed no chunk and
+            reported 0 sims/s).
     """
+    from marlcrash.calibrate.baselines import require_batch_size
+
+    require_batch_size(batch, "batch")
     link_pass = _roofline if link_pass is None else link_pass
     npdt = np.float32 if sim.dtype == torch.float32 else np.float64
     L = sim.L if n_links is None else int(n_links)
