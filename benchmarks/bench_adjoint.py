@@ -25,6 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import torch
 
 from marlcrash.cells import discretize
+from marlcrash.cli import _batch_size, _positive_int
 from marlcrash.sim import Surrogate, get_scenario
 from marlcrash.vehicle.synthetic import default_vehicle
 
@@ -35,8 +36,8 @@ def peak_rss_gb() -> float:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--batch", type=int, default=4, help="candidates per call (the gradient baseline's 4)")
-    ap.add_argument("--repeat", type=int, default=2, help="interleaved rounds; the best of each path is kept")
+    ap.add_argument("--batch", type=_batch_size, default=4, help="candidates per call (the gradient baseline's 4)")
+    ap.add_argument("--repeat", type=_positive_int, default=2, help="interleaved rounds; the best of each path is kept")
     ap.add_argument("--json", action="store_true", help="print one JSON object")
     args = ap.parse_args()
 

@@ -31,6 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's 
 import numpy as np
 import torch
 
+from marlcrash.cli import _positive_int
 from marlcrash.envs.core import load_env_config
 from marlcrash.envs.pettingzoo_env import CalibrationParallelEnv
 from marlcrash.envs.torchrl_env import CalibrationTorchEnv
@@ -55,9 +56,9 @@ def _raw_sim(core, run=None):
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--batch", type=int, default=256)
-    ap.add_argument("--repeat", type=int, default=7)
-    ap.add_argument("--pz-steps", type=int, default=30)
+    ap.add_argument("--batch", type=_positive_int, default=256)
+    ap.add_argument("--repeat", type=_positive_int, default=7)
+    ap.add_argument("--pz-steps", type=_positive_int, default=30)
     ap.add_argument("--config", default="default", help="env config name in configs/env")
     args = ap.parse_args()
     over: dict[str, Any] = {"termination.max_iterations": 10**6}

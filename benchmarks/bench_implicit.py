@@ -20,6 +20,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import torch
 
+from marlcrash.cli import _batch_size, _positive_int
 from marlcrash.sim.bench import (
     format_implicit_study,
     implicit_study,
@@ -33,14 +34,16 @@ from marlcrash.sim.surrogate import Surrogate, load_sim_config
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--substeps", type=int, nargs="+", default=[1, 2, 4], help="implicit steps per 0.5 ms output")
+    ap.add_argument(
+        "--substeps", type=_positive_int, nargs="+", default=[1, 2, 4], help="implicit steps per 0.5 ms output"
+    )
     ap.add_argument(
         "--explicit-substeps",
-        type=int,
+        type=_positive_int,
         default=7,
         help="the explicit scheme's fewest passing substeps, whose roofline is scaled (benchmarks/bench_substeps.py)",
     )
-    ap.add_argument("--batch", type=int, default=256, help="simulations per timed roofline batch")
+    ap.add_argument("--batch", type=_batch_size, default=256, help="simulations per timed roofline batch")
     ap.add_argument("--json", action="store_true", help="print the result dict as JSON only")
     args = ap.parse_args()
     sim = Surrogate(load_sim_cells(), load_sim_config(overrides={"substeps": args.explicit_substeps}))

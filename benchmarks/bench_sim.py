@@ -13,13 +13,14 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from marlcrash.cli import _batch_size, _positive_int
 from marlcrash.sim.bench import dtype_study, format_benchmark, format_dtype_study, run_benchmark
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--batches", type=int, nargs="+", default=[1, 64, 1024])
-    ap.add_argument("--repeat", type=int, default=2)
+    ap.add_argument("--batches", type=_batch_size, nargs="+", default=[1, 64, 1024])
+    ap.add_argument("--repeat", type=_positive_int, default=2)
     ap.add_argument("--skip-uniform", action="store_true", help="do not time the uniform (fine) model")
     ap.add_argument("--float32", action="store_true", help="simulate in float32 (config dtype)")
     ap.add_argument("--dtypes", action="store_true", help="time float64 against float32 in turn at the largest batch")

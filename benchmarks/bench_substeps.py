@@ -21,12 +21,13 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from marlcrash.cli import _batch_size
 from marlcrash.sim.bench import format_substep_study, substep_study
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--batch", type=int, default=256, help="simulations per timed batch")
+    ap.add_argument("--batch", type=_batch_size, default=256, help="simulations per timed batch")
     ap.add_argument("--json", action="store_true", help="print the result dict as JSON only")
     ap.add_argument("--cell-volume", type=float, default=None, help="target cell volume [m^3] (default: cells.yaml)")
     ap.add_argument("--substeps", type=int, nargs="+", default=None, help="only these substep counts (no relief)")

@@ -281,3 +281,26 @@ def test_roofline_refuses_a_batch_it_cannot_time(default_sim, batch):
     with pytest.raises(ConfigError, match=r"expected a batch size in \[1, ") as e:
         measure_roofline(default_sim, batch, 10)
     assert e.value.key == "batch"
+
+
+@pytest.mark.parametrize(
+    ("script", "args", "option"),
+    [("bench_sim.py", ["--batches", "0"], "--batches"), ("bench_sim.py", ["--dtypes", "--batches", "0"], "--batches"),
+     ("bench_sim.py", ["--repeat", "0"], "--repeat"), ("bench_adjoint.py", ["--batch", "0"], "--batch"),
+     ("bench_env.py", ["--batch", "0"], "--batch"), ("bench_env.py", ["--repeat", "0"], "--repeat"),
+     ("bench_env.py", ["--pz-steps", "0"], "--pz-steps"), ("bench_implicit.py", ["--batch", "0"], "--batch"),
+     ("bench_implicit.py", ["--explicit-substeps", "0"], "--explicit-substeps"),
+     ("bench_implicit.py", ["--substeps", "0"], "--substeps"),
+     ("bench_substeps.py", ["--batch", "0", "--substeps", "1"], "--batch")],
+)  # fmt: skip
+def test_benchmark_scripts_refuse_counts_below_one_as_usage_errors(script, args, option):
+    """A count of 0 ran into a traceback (ConfigError, ModelError, or bench_env's min() of no timings after the whole
+    TorchRL run); the scripts now refuse it before any work, as a usage error naming the option."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / script
+    out = subprocess.run([sys.executable, str(path), *args], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 2, out.stderr
+    assert f"error: argument {option}: expected " in out.stderr and "Traceback" not in out.stderr
