@@ -156,7 +156,8 @@ def run_benchmark(
     Args:
         batch_sizes: batch sizes ``B`` timed on the optimized model, each in ``[1, MAX_BATCH]``
             (:data:`~marlcrash.calibrate.baselines.MAX_BATCH`).
-        repeats: timed runs per batch size (best is kept); the JIT is warmed up first.
+        repeats: timed runs of every rate (each batch size, the roofline, the uniform model; the best is kept,
+            so the ratios compare like with like); the JIT is warmed up first.
         include_uniform: also time the uniform (fine) model at ``B = 64``.
         sim_overrides: dotted-key overrides of ``configs/sim.yaml`` (e.g. ``{"dtype": "float32"}``).
 
@@ -208,7 +209,7 @@ def run_benchmark(
         updates[str(B)] = B * steps * live / best
 
     bmax = max(batch_sizes)
-    roof = measure_roofline(sim, bmax, steps, repeats=1, n_links=live)
+    roof = measure_roofline(sim, bmax, steps, repeats=repeats, n_links=live)
 
     uniform_rate, n_uniform = None, None
     if include_uniform:
@@ -217,7 +218,7 @@ def run_benchmark(
         usim = Surrogate(fine, cfg)
         up = torch.as_tensor(fine.params)[None].repeat(64, 1, 1)
         usim.run(up[:1], scenario, backend="numba", record_cells="final")
-        uniform_rate = 64 / _best(lambda: usim.run(up, scenario, backend="numba", record_cells="final"), 1)
+        uniform_rate = 64 / _best(lambda: usim.run(up, scenario, backend="numba", record_cells="final"), repeats)
 
     target = 1000.0
     return {
