@@ -491,6 +491,35 @@ def test_crash_figure_draws_a_single_per_cell_record_as_bars():
             plt.close(f)
 
 
+def test_crash_figure_gives_every_subassembly_its_own_colour():
+    """The energy panel stacked the sub-assemblies in matplotlib's 10-colour cycle: the default car's 16 crushing
+    sub-assemblies drew the bumper beam and the cooling module, a front rail and the hood, in one colour each, so the
+    split could not be read off the picture. Each band now has its own colour, the one ``plot_cells`` gives it."""
+    from dataclasses import replace
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.collections import PolyCollection
+
+    from marlcrash.pulse.simulation import crash_figure
+
+    base = chain(14)
+    names = [f"part_{i}" for i in range(14)] + ["compartment"]
+    cells = replace(base, subassembly=np.arange(15), subassembly_names=names)
+    sc = get_scenario("full_width_56", {"duration": 0.1})
+    result = Surrogate(cells).run(_params(cells), sc, backend="numba", record_cells="series")
+    fig = crash_figure(result, cells)
+    try:
+        stacks = [c for c in fig.axes[2].collections if isinstance(c, PolyCollection)]
+        assert len(stacks) > 10, len(stacks)  # more bands than the colour cycle has colours
+        colours = [tuple(np.round(c.get_facecolor()[0], 6)) for c in stacks]
+        assert len(set(colours)) == len(colours), colours
+    finally:
+        plt.close(fig)
+
+
 @pytest.mark.parametrize("dtype", ["float64", "float32"])
 def test_numba_chunk_width_changes_no_result(dtype):
     """The fast path cuts the batch into chunks of ``lanes`` simulations; the width is a speed choice only.

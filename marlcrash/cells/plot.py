@@ -20,6 +20,19 @@ def draw_vehicle_frame(ax) -> None:
     ax.invert_yaxis()
 
 
+def subassembly_colours(n: int) -> list[tuple[float, float, float, float]]:
+    """One colour per sub-assembly ``0..n-1``, no two alike: ``tab20``'s for up to 20, else ``n`` evenly spaced along
+    ``turbo`` (a cycle of fewer colours drew two sub-assemblies in one colour). The picture of the cells and the
+    energy panel of :func:`marlcrash.pulse.simulation.crash_figure` colour a sub-assembly alike."""
+    import matplotlib.pyplot as plt
+
+    if n <= 20:
+        cmap = plt.get_cmap("tab20")
+        return [cmap(k) for k in range(n)]
+    cmap = plt.get_cmap("turbo")
+    return [cmap(k / (n - 1)) for k in range(n)]
+
+
 def plot_cells(cells: CellModel, path: str | Path, max_points: int = 60000) -> Path:
     """Write a 3D scatter PNG of the cells' voxels coloured by sub-assembly (null cells omitted).
 
@@ -54,11 +67,11 @@ def plot_cells(cells: CellModel, path: str | Path, max_points: int = 60000) -> P
     sensor = cells.is_sensor[flat[idx]]
     fig = plt.figure(figsize=(10, 7))
     ax = fig.add_subplot(projection="3d")
-    cmap = plt.get_cmap("tab20")
+    colours = subassembly_colours(len(cells.subassembly_names))
     for k, name in enumerate(cells.subassembly_names):
         m = (sub == k) & ~sensor
         if m.any():
-            ax.scatter(cx[ix[m]], cy[iy[m]], cz[iz[m]], s=2, color=cmap(k % 20), label=name, depthshade=False)
+            ax.scatter(cx[ix[m]], cy[iy[m]], cz[iz[m]], s=2, color=colours[k], label=name, depthshade=False)
     if sensor.any():
         ax.scatter(cx[ix[sensor]], cy[iy[sensor]], cz[iz[sensor]], s=8, color="k", label="sensor cells")
     ax.set_xlabel("x [m] (rearward)")

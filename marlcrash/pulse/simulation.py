@@ -284,8 +284,12 @@ def crash_figure(result: SimResult, cells: CellModel, title: str = "", cfc: int 
     if absorbed is not None:
         floor = 1e-3 * max(1.0, result.initial[row].item())
         names = [n for n, v in absorbed.items() if v[-1] > floor]
-        if series:
-            axes[2].stackplot(t * 1e3, *[absorbed[n] / 1e3 for n in names], labels=names)
+        if series:  # each sub-assembly in its own colour, as plot_cells draws it (the 10-colour cycle repeated)
+            from marlcrash.cells.plot import subassembly_colours
+
+            colours = dict(zip(absorbed, subassembly_colours(len(absorbed)), strict=True))
+            axes[2].stackplot(t * 1e3, *[absorbed[n] / 1e3 for n in names], labels=names,
+                              colors=[colours[n] for n in names])  # fmt: skip
             axes[2].plot(t * 1e3, result.kinetic[row].detach().cpu().numpy() / 1e3, "k--", lw=1, label="kinetic")
             axes[2].set_ylabel("absorbed energy [kJ]")
             axes[2].legend(fontsize=6, ncol=3, loc="upper right")
