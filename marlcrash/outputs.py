@@ -46,6 +46,7 @@ def check_output_file(
     p = Path(path)
     if isinstance(path, str) and path.endswith(("/", os.sep)):  # Path drops it: 'results/' was written as a file
         raise ConfigError(f"{path} ends in '/', so names a folder; expected a file name", key=key)
+    _check_name_length(p, key)  # first: a name the file system refuses fails even p.is_dir()
     if p.is_dir():
         raise ConfigError(f"{p} is a folder; expected a file name", key=key)
     if p.exists() and not p.is_file():  # a pipe, a device: the atomic write would rename a regular file over it
@@ -59,6 +60,22 @@ def check_output_file(
         raise ConfigError(f"{p}: expected a {suffix} file name (it is written in that format)", key=key)
     _check_writable(p.parent, key)
     return p
+
+
+def _check_name_length(p: Path, key: str | None) -> None:
+    """Raise :class:`ConfigError` where ``p``'s name, or the name of the temporary sibling :func:`atomic_output`
+    writes it through (:func:`_temporary_name`, 14 bytes longer), is longer than its folder's file system takes: that
+    failed with "File name too long" after the work, even for a name the file system takes."""
+    try:
+        limit = os.pathconf(p.parent, "PC_NAME_MAX")
+    except (AttributeError, OSError, ValueError):  # no pathconf (Windows), or the folder does not say
+        return
+    extra = len(os.fsencode(_temporary_name(p.name, "0" * 8))) - len(os.fsencode(p.name))
+    size = len(os.fsencode(p.name))
+    if size + extra > limit:
+        raise ConfigError(f"{p}: the file name is too long for its folder's file system: {size} bytes, at most "
+                          f"{limit - extra} bytes here (it is written through a temporary file whose name is {extra} "
+                          "bytes longer)", key=key)  # fmt: skip
 
 
 def _check_writable(folder: Path, key: str | None) -> None:

@@ -71,6 +71,23 @@ def test_folders_that_cannot_be_written_in_are_refused_before_the_work(tmp_path,
     assert sorted(p.name for p in tmp_path.iterdir()) == []  # the probes left nothing behind
 
 
+def test_a_file_name_too_long_for_the_file_system_is_refused_before_the_work(tmp_path):
+    """``simulate --csv <250 characters>.csv`` passed the check (the folder takes files) and failed after the
+    simulation with "File name too long": the file is written through a temporary sibling whose name is 14 bytes
+    longer, so even a name the file system takes (``touch`` makes it) could never be written. The check refuses it
+    at once, naming the key and the longest name that can be written there; a name just short enough is written."""
+    limit = os.pathconf(tmp_path, "PC_NAME_MAX")
+    extra = len(".") + len(".01234567.tmp")  # the temporary name's additions (the suffix is the name's own)
+    fits = tmp_path / ("a" * (limit - extra - 4) + ".csv")
+    for name in ("a" * (limit - 4) + ".csv", "b" * (limit + 10) + ".csv"):
+        with pytest.raises(ConfigError, match=rf"key '--csv': .*file name is too long .*at most {limit - extra} bytes"):
+            check_output_file(tmp_path / name, "--csv", suffix=".csv")
+    assert check_output_file(fits, "--csv", suffix=".csv") == fits
+    with atomic_output(fits) as tmp:
+        tmp.write_text("a,b\n")
+    assert fits.read_text() == "a,b\n" and [p.name for p in tmp_path.iterdir()] == [fits.name]
+
+
 def test_atomic_output_replaces_whole_or_leaves_the_old_file(tmp_path):
     target = tmp_path / "out.png"
     target.write_text("old")
