@@ -520,6 +520,35 @@ def test_crash_figure_gives_every_subassembly_its_own_colour():
         plt.close(fig)
 
 
+def test_crash_figure_energy_legend_hides_none_of_the_stack():
+    """The energy panel's legend sat inside the axes at the upper right, where the stack is highest once the crash is
+    over: with the default car's 16 sub-assemblies (6 rows of 3) it covered the top bands (hood, dash, wheels) from
+    60 ms on. It stands beside the axes now, overlapping none of the drawn data."""
+    from dataclasses import replace
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from marlcrash.pulse.simulation import crash_figure
+
+    base = chain(14)
+    cells = replace(
+        base, subassembly=np.arange(15), subassembly_names=[f"part_{i}" for i in range(14)] + ["compartment"]
+    )
+    sc = get_scenario("full_width_56", {"duration": 0.1})
+    fig = crash_figure(Surrogate(cells).run(_params(cells), sc, backend="numba", record_cells="series"), cells)
+    try:
+        fig.canvas.draw()
+        ax = fig.axes[2]
+        legend, frame = ax.get_legend().get_window_extent(), ax.get_window_extent()
+        assert legend.x0 >= frame.x1, (legend, frame)  # beside the axes, not over the stack
+        assert legend.x1 <= fig.bbox.x1 + 1 and legend.y0 >= fig.bbox.y0 - 1  # and inside the picture
+    finally:
+        plt.close(fig)
+
+
 @pytest.mark.parametrize("dtype", ["float64", "float32"])
 def test_numba_chunk_width_changes_no_result(dtype):
     """The fast path cuts the batch into chunks of ``lanes`` simulations; the width is a speed choice only.

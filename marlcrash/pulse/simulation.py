@@ -292,7 +292,8 @@ def crash_figure(result: SimResult, cells: CellModel, title: str = "", cfc: int 
                               colors=[colours[n] for n in names])  # fmt: skip
             axes[2].plot(t * 1e3, result.kinetic[row].detach().cpu().numpy() / 1e3, "k--", lw=1, label="kinetic")
             axes[2].set_ylabel("absorbed energy [kJ]")
-            axes[2].legend(fontsize=6, ncol=3, loc="upper right")
+            # beside the axes: inside, at the upper right, it covered the top bands once the crash was over
+            axes[2].legend(fontsize=6, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
         else:  # one per-cell record: the split at that record, not a curve at t = 0
             axes[2].barh(names, [absorbed[n][-1] / 1e3 for n in names])
             axes[2].invert_yaxis()
