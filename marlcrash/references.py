@@ -261,10 +261,17 @@ class ReferenceBatch:
                               some(self.margin))  # fmt: skip
 
 
-def twin_increments(noise: torch.Tensor, config: TwinConfig) -> torch.Tensor:
-    """The twin's log-scale increments ``[B, S, 7]``: standard normal ``noise`` times the spreads."""
+def twin_increments(noise: torch.Tensor, config: TwinConfig, bounds: tuple[float, float] | None = None) -> torch.Tensor:
+    """The twin's log-scale increments ``[B, S, 7]``: standard normal ``noise`` times the spreads.
+
+    With ``bounds`` ``(lo, hi)``, the ``E_x``, ``E_s`` increments are clipped to ``[log lo, log hi]``: the factors
+    :func:`perturb_twin` applies, so that the increments returned as the truth are the ones it was made with.
+    """
     sig = torch.tensor([config.e_x_spread, config.e_s_spread] + [config.transmission_spread] * 5, dtype=noise.dtype)
-    return noise * sig
+    inc = noise * sig
+    if bounds is not None:
+        inc = torch.cat([inc[..., :2].clamp(math.log(bounds[0]), math.log(bounds[1])), inc[..., 2:]], dim=-1)
+    return inc
 
 
 def perturb_twin(
@@ -279,8 +286,9 @@ def perturb_twin(
     """Apply per-sub-assembly twin perturbations to initial parameters.
 
     The perturbation is a log-scale increment per sub-assembly and parameter,
-    ``spread * noise``, mapped by :func:`~marlcrash.cells.parameterization.apply_increments`
-    -- the calibrators' own parameter space -- so the hidden truth is exactly reachable.
+    ``spread * noise`` (:func:`twin_increments`, ``E`` clipped to ``bounds``), mapped by
+    :func:`~marlcrash.cells.parameterization.apply_increments` -- the calibrators' own parameter space -- so the
+    hidden truth is exactly reachable.
 
     Args:
         params: ``[n_cells, 7]`` initial parameters.
@@ -295,7 +303,8 @@ def perturb_twin(
         ``[B, n_cells, 7]`` perturbed parameters; transmission factors stay feasible.
     """
     touched = (subassembly >= 0)[None, :, None]
-    inc = torch.where(touched, twin_increments(noise, config)[:, subassembly.clamp_min(0)], noise.new_zeros(()))
+    inc = twin_increments(noise, config, bounds)[:, subassembly.clamp_min(0)]
+    inc = torch.where(touched, inc, noise.new_zeros(()))
     p0 = params.to(noise.dtype)
     lo, hi = bounds if bounds is not None else (1e-12, 1e12)
     return apply_increments(p0[None].expand_as(inc), inc, p0, feasible, (lo, hi), floor)
@@ -420,7 +429,7 @@ class ReferenceSampler:
                                    sensors=self.sensors, record_cells="none", backend=self.backend)  # fmt: skip
             raw = res.velocity.to(torch.float64)
             source = ["twin"] * n
-            increments = twin_increments(noise, self.config.twin)
+            increments = twin_increments(noise, self.config.twin, self.bounds)
         elif kind == "cross_fidelity":
             seeds = self.config.cross_fidelity.vehicle_seeds
             seed_pick = [int(k) for k in draws]

@@ -236,6 +236,25 @@ def test_perturb_twin_bounds_clip_the_behaviour_factors(cells):
     torch.testing.assert_close(out[0, active, :2], 2.0 * p0[active, :2])
 
 
+def test_a_bounded_twins_increments_are_the_ones_its_truth_was_made_with(cells, sim):
+    """With behaviour bounds the twin's E factors are clipped: its returned increments are the clipped ones, and
+    apply_increments of them is its truth bit for bit (they were the raw draws, up to 3.0 past log 4)."""
+    s = ReferenceSampler(cells, sim, list(cells.sensor_names), {"full_width_40": 1.0},
+                         ReferenceConfig(twin=TwinConfig(1.5, 1.5, 0.2)), bounds=(0.25, 4.0))  # fmt: skip
+    ref = s.sample(np.random.default_rng(0), 2)
+    inc = ref.true_increments
+    assert float(inc[..., :2].abs().max()) <= float(np.log(4.0))
+    assert (inc[..., :2].abs() == float(np.log(4.0))).any()  # some factors clipped
+    p0 = torch.as_tensor(cells.params)
+    sub = torch.as_tensor(np.where(cells.is_null | cells.is_rigid, -1, cells.subassembly))
+    per_cell = torch.where((sub >= 0)[None, :, None], inc[:, sub.clamp_min(0)], torch.zeros((), dtype=inc.dtype))
+    again = apply_increments(p0[None].expand(2, -1, -1), per_cell, p0, torch.as_tensor(cells.feasible), (0.25, 4.0),
+                             0.01)  # fmt: skip
+    torch.testing.assert_close(again, ref.true_params, rtol=0, atol=0)
+    deform = sub >= 0
+    torch.testing.assert_close(torch.log(ref.true_params[:, deform, :2] / p0[deform, :2]), per_cell[:, deform, :2])
+
+
 def test_file_reference_conventions_and_time_zero_alignment(cells, sim, tmp_path):
     """The same test written another way: decelerations positive, m/s^2, time in ms, recorded 37 ms later.
 
