@@ -64,7 +64,7 @@ import torch
 
 from marlcrash.cells.model import CellModel
 from marlcrash.cells.parameterization import apply_increments
-from marlcrash.config import config_dir, require
+from marlcrash.config import checked, config_dir, require
 from marlcrash.errors import ConfigError, PulseError
 from marlcrash.pulse.io import ACC_UNITS, acc_unit_key, check_record_rate, is_mme, is_sign, read_pulse
 from marlcrash.pulse.signal import (
@@ -339,7 +339,8 @@ class ReferenceSampler:
         backend: simulator backend for references.
 
     Raises:
-        ConfigError: unknown scenarios, mixed output grids, unknown sensors or channels.
+        ConfigError: a bad ``config`` value (named as ``reference.<key>``), unknown scenarios, mixed output grids,
+            unknown sensors or channels.
         PulseError: unreadable or too short reference files.
     """
 
@@ -356,6 +357,7 @@ class ReferenceSampler:
         floor: float = 0.01,
         backend: Literal["torch", "numba", "adjoint", "auto"] = "auto",
     ):
+        config = checked(config, "reference")  # one made in Python skipped the checks a file's values get
         self.cells, self.sim, self.sensors, self.config = cells, surrogate, list(sensors), config
         self.vehicle, self.bounds, self.floor, self.backend = vehicle, bounds, floor, backend
         self.vehicle_options = vehicle_options

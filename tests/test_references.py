@@ -704,6 +704,21 @@ def test_sampler_config_errors(cells, sim):
         ReferenceSampler(cells, sim, ["nope"], {"full_width_40": 1.0}, ReferenceConfig())
 
 
+@pytest.mark.parametrize(
+    ("kw", "key"),
+    [
+        ({"kind": "bogus"}, "reference.kind"),  # was an IndexError at sample() (drawn as a file reference)
+        ({"twin": TwinConfig(e_x_spread=-0.5)}, "reference.twin.e_x_spread"),  # was taken: a mirrored draw
+        ({"twin": TwinConfig(e_s_spread=float("nan"))}, "reference.twin.e_s_spread"),
+        ({"pin_seed": -1}, "reference.pin_seed"),
+        ({"cross_fidelity": CrossFidelityConfig(vehicle_seeds=[-2])}, "reference.cross_fidelity.vehicle_seeds"),
+    ],
+)
+def test_a_reference_config_made_in_python_is_checked_naming_the_key(cells, sim, kw, key):
+    with pytest.raises(ConfigError, match=re.escape(key)):
+        sampler(cells, sim, **kw)
+
+
 def test_cross_fidelity_reference_uses_the_uniform_model(cells, sim):
     s = sampler(cells, sim, kind="cross_fidelity", scenarios={"full_width_40": 1.0, "offset40_left": 1.0})
     ref = s.sample(np.random.default_rng(1), 4)
