@@ -339,8 +339,8 @@ class ReferenceSampler:
         backend: simulator backend for references.
 
     Raises:
-        ConfigError: a bad ``config`` value (named as ``reference.<key>``), unknown scenarios, mixed output grids,
-            unknown sensors or channels.
+        ConfigError: a bad ``config`` value (named as ``reference.<key>``), unknown scenarios, mixed output grids
+            or one that is not ``surrogate``'s output step, unknown sensors or channels.
         PulseError: unreadable or too short reference files.
     """
 
@@ -378,6 +378,13 @@ class ReferenceSampler:
             raise ConfigError(f"scenario weights must be finite and > 0, got {weights}", key="scenarios")
         self.scenarios = {n: get_scenario(n) for n in dict.fromkeys(names)}
         self.duration, self.output_rate = _check_grid(self.scenarios)
+        if abs(surrogate.output_dt * self.output_rate - 1.0) > 1e-9:  # else the reference is read on the wrong clock
+            raise ConfigError(
+                f"the simulator's output step output_dt = {surrogate.output_dt:.6g} s is not the scenarios' "
+                f"{1.0 / self.output_rate:.6g} s (output_rate {self.output_rate:g} Hz); expected a Surrogate built "
+                "with output_dt = 1 / output_rate",
+                key="scenarios",
+            )
         self.choices = names
         self.weights = np.asarray(weights, dtype=np.float64) / np.sum(weights)
         self.n_outputs = round(self.duration * self.output_rate) + 1

@@ -704,6 +704,15 @@ def test_sampler_config_errors(cells, sim):
         ReferenceSampler(cells, sim, ["nope"], {"full_width_40": 1.0}, ReferenceConfig())
 
 
+@pytest.mark.parametrize("output_dt", [2.5e-4, 1e-3])
+def test_a_simulator_on_another_output_step_than_the_scenarios_is_refused(cells, output_dt):
+    """A 4 kHz simulator gave a 2 kHz scenario's twin 601 samples, filtered as 2 kHz and cut to its first 301 (the
+    first 75 ms taken for 150 ms) without a word; a 1 kHz one failed in the filter's window check."""
+    with pytest.raises(ConfigError, match=r"output_dt.*2000 Hz"):
+        ReferenceSampler(cells, Surrogate(cells, output_dt=output_dt), list(cells.sensor_names),
+                         {"full_width_40": 1.0}, ReferenceConfig())  # fmt: skip
+
+
 @pytest.mark.parametrize(
     ("kw", "key"),
     [
