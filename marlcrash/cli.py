@@ -410,12 +410,16 @@ def cmd_pulse(args: argparse.Namespace) -> int:
 
 _CONTRIBUTION_FILES = ("contributions.csv", "contributions.md", "contributions.png", "cells.png")
 """What ``marlcrash contributions`` writes into its folder (an earlier analysis there is refused or replaced whole)."""
+_CONTRIBUTION_LOCK = ".contributions.lock"
+"""The lock file in that folder while an analysis computes and writes it (not a run's own ``.lock``: ``--out`` may
+name a run folder)."""
 
 
 def cmd_contributions(args: argparse.Namespace) -> int:
     from marlcrash.analysis import agent_contributions, plot_cells_by_contribution, plot_contributions, run_calibration
     from marlcrash.analysis.contributions import require_run_folder
     from marlcrash.analysis.shapley import MAX_EXACT_PLAYERS
+    from marlcrash.calibrate.runlock import hold_output_dir
     from marlcrash.outputs import check_output_dir
 
     if args.run is not None:
@@ -451,51 +455,52 @@ def cmd_contributions(args: argparse.Namespace) -> int:
         what = f"{args.run}, calibration step {iteration}"
         if args.out is None:  # one folder per step: analysing another step never replaces this one's files
             out = out / f"iteration_{iteration}"
-    ours = [out / n for n in _CONTRIBUTION_FILES]
-    earlier = [p.name for p in ours if p.exists()]
-    if earlier and not args.replace:  # checked before the simulations; the tables do not say their settings
-        raise ConfigError(f"{out} holds an earlier analysis ({', '.join(earlier)}); --replace to write over it, or "
-                          "--out another folder", key="--out")  # fmt: skip
-    try:
-        contrib = agent_contributions(problem, calibrated, initial, exact_max=args.exact_max,
-                                      n_permutations=args.permutations, seed=args.seed)  # fmt: skip
-    except ValueError as e:  # parameters that do not fit the problem (another vehicle or layout) or simulate to NaN
-        raise ConfigError(f"{what}: {e}", key="run") from None
-    out.mkdir(parents=True, exist_ok=True)
-    for p in ours:  # --replace: none of the earlier analysis stays beside this one (its pictures with --no-plots)
-        p.unlink(missing_ok=True)
-    areas = [q for q in contrib.quantities if q.startswith("area/")]
-    table, text, bars, cells = ours  # the tables' heading lists the settings (Contributions.settings_lines)
-    files = [contrib.write_csv(table), contrib.write_markdown(text, heading=f"Contributions: {what}")]
-    if not args.no_plots:
-        worst = max(areas, key=lambda q: float(contrib.initial[contrib.column(q)]))
-        files += [plot_contributions(contrib, bars),
-                  plot_cells_by_contribution(problem, contrib, cells, quantity=worst)]  # fmt: skip
-    if args.json:
-        quantities = {}
-        for q in contrib.quantities:
-            j = contrib.column(q)
-            ranked = contrib.ranking(q)
-            rows = [(a, contrib.agents.index(a)) for a, _ in ranked]
-            quantities[q] = {
-                "initial": float(contrib.initial[j]),
-                "calibrated": float(contrib.calibrated[j]),
-                "shapley": dict(ranked),
-                "shapley_stderr": {a: float(contrib.shapley_stderr[i, j]) for a, i in rows},
-                "leave_one_out": {a: float(contrib.leave_one_out[i, j]) for a, i in rows},
-                "add_one": {a: float(contrib.add_one[i, j]) for a, i in rows},
-            }
-        _print_json({"analysed": what, "iteration": iteration, "provenance": None if args.run is None else
-                     run.provenance, "agents_moved": int(contrib.players.sum()),
-                     "n_agents": len(contrib.agents), "exact": contrib.exact, "simulations": contrib.n_simulations,
-                     "quantities": quantities, "files": [str(f) for f in files]})  # fmt: skip
+    # one analysis per folder at once: another that started earlier and writes later would replace this one's files
+    with hold_output_dir(out, "--out", _CONTRIBUTION_LOCK, _CONTRIBUTION_FILES):
+        ours = [out / n for n in _CONTRIBUTION_FILES]
+        earlier = [p.name for p in ours if p.exists()]
+        if earlier and not args.replace:  # checked before the simulations; the tables do not say their settings
+            raise ConfigError(f"{out} holds an earlier analysis ({', '.join(earlier)}); --replace to write over it, or "
+                              "--out another folder", key="--out")  # fmt: skip
+        try:
+            contrib = agent_contributions(problem, calibrated, initial, exact_max=args.exact_max,
+                                          n_permutations=args.permutations, seed=args.seed)  # fmt: skip
+        except ValueError as e:  # parameters that do not fit the problem (another vehicle or layout) or simulate to NaN
+            raise ConfigError(f"{what}: {e}", key="run") from None
+        for p in ours:  # --replace: none of the earlier analysis stays beside this one (its pictures with --no-plots)
+            p.unlink(missing_ok=True)
+        areas = [q for q in contrib.quantities if q.startswith("area/")]
+        table, text, bars, cells = ours  # the tables' heading lists the settings (Contributions.settings_lines)
+        files = [contrib.write_csv(table), contrib.write_markdown(text, heading=f"Contributions: {what}")]
+        if not args.no_plots:
+            worst = max(areas, key=lambda q: float(contrib.initial[contrib.column(q)]))
+            files += [plot_contributions(contrib, bars),
+                      plot_cells_by_contribution(problem, contrib, cells, quantity=worst)]  # fmt: skip
+        if args.json:
+            quantities = {}
+            for q in contrib.quantities:
+                j = contrib.column(q)
+                ranked = contrib.ranking(q)
+                rows = [(a, contrib.agents.index(a)) for a, _ in ranked]
+                quantities[q] = {
+                    "initial": float(contrib.initial[j]),
+                    "calibrated": float(contrib.calibrated[j]),
+                    "shapley": dict(ranked),
+                    "shapley_stderr": {a: float(contrib.shapley_stderr[i, j]) for a, i in rows},
+                    "leave_one_out": {a: float(contrib.leave_one_out[i, j]) for a, i in rows},
+                    "add_one": {a: float(contrib.add_one[i, j]) for a, i in rows},
+                }
+            _print_json({"analysed": what, "iteration": iteration, "provenance": None if args.run is None else
+                         run.provenance, "agents_moved": int(contrib.players.sum()),
+                         "n_agents": len(contrib.agents), "exact": contrib.exact, "simulations": contrib.n_simulations,
+                         "quantities": quantities, "files": [str(f) for f in files]})  # fmt: skip
+            return 0
+        print(f"{what}: {int(contrib.players.sum())} of {len(contrib.agents)} agents moved; {contrib.n_simulations} "
+              f"simulations; Shapley values {'exact' if contrib.exact else 'sampled'}\n")  # fmt: skip
+        for q in ["score", *areas]:
+            print(contrib.markdown(q))
+        print("written: " + ", ".join(str(f) for f in files))
         return 0
-    print(f"{what}: {int(contrib.players.sum())} of {len(contrib.agents)} agents moved; {contrib.n_simulations} "
-          f"simulations; Shapley values {'exact' if contrib.exact else 'sampled'}\n")  # fmt: skip
-    for q in ["score", *areas]:
-        print(contrib.markdown(q))
-    print("written: " + ", ".join(str(f) for f in files))
-    return 0
 
 
 # ------------------------------------------------------------------ parser

@@ -809,3 +809,30 @@ def test_the_settings_of_one_moving_agent_read_in_the_singular():
                       settings={"exact_max": 10, "n_permutations": 64, "seed": 0})  # fmt: skip
     want = "- Shapley values: exact: all 2**1 coalitions of the 1 agent that moved (exact_max 10)"
     assert c.settings_lines()[0] == want
+
+
+def test_two_analyses_into_one_folder_at_once_do_not_replace_each_other(problem, tmp_path, capsys, monkeypatch):
+    """Two ``marlcrash contributions`` into one folder at once (two terminals, two seeds, the default folder) both
+    passed the check for an earlier analysis before either wrote, so the one that finished last replaced the other's
+    tables and pictures without a word (or left a mix of both). Now the second is refused while the first computes,
+    naming ``--out``, and the first's files are its own."""
+    import marlcrash.analysis as analysis
+    import marlcrash.calibrate.problem as problem_module
+    from marlcrash.cli import main
+
+    monkeypatch.setattr(problem_module, "build_problem", lambda cfg: problem)  # the short twin: quicker
+    real, nested = analysis.agent_contributions, []
+
+    def while_computing(*args, **kwargs):  # a second analysis of the same folder starts while this one computes
+        if not nested:
+            nested.append(None)
+            nested[0] = main(["contributions", "--permutations", "4", "--seed", "1", "--no-plots", "--out", str(out)])
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(analysis, "agent_contributions", while_computing)
+    out = tmp_path / "c"
+    assert main(["contributions", "--permutations", "4", "--no-plots", "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert nested == [2] and "key '--out'" in err and "in use by another process" in err, (nested, err)
+    assert "orderings in antithetic pairs, seed 0" in (out / "contributions.md").read_text()
+    assert sorted(p.name for p in out.iterdir()) == ["contributions.csv", "contributions.md"]  # no lock file left

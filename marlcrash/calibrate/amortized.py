@@ -81,11 +81,11 @@ from marlcrash.calibrate.evaluate import (
 )
 from marlcrash.calibrate.marl import TrainConfig, load_run_config, make_env_config, require_same_run
 from marlcrash.calibrate.problem import CalibrationProblem
-from marlcrash.calibrate.runlock import run_lock
+from marlcrash.calibrate.runlock import hold_output_dir
 from marlcrash.config import MAX_STEPS, from_dict, require, require_complete, require_seed
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics
-from marlcrash.outputs import check_output_dir, finite_or_null, json_text, remove_temporaries_of, write_text
+from marlcrash.outputs import check_output_dir, finite_or_null, json_text, write_text
 from marlcrash.sim import adjoint
 from marlcrash.sim.scenario import list_scenarios
 from marlcrash.sim.surrogate import load_sim_config
@@ -785,17 +785,8 @@ def hold_comparison_dir(out_dir: str | Path, key: str = "out_dir", create: bool 
     Raises:
         ConfigError: (key ``key``) another process holds the folder (with its process id), or it takes no lock file.
     """
-    out = Path(out_dir)
-    made = create and not out.exists()
-    try:
-        with run_lock(out, key, create=create, name=COMPARISON_LOCK):
-            remove_temporaries_of(out, FILES)
-            yield out
-    except BaseException:
-        if made:  # a refused or failed comparison leaves no empty folder behind
-            with contextlib.suppress(OSError):
-                out.rmdir()
-        raise
+    with hold_output_dir(out_dir, key, COMPARISON_LOCK, FILES, create=create) as out:
+        yield out
 
 
 def write_comparison(

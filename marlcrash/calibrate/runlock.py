@@ -21,7 +21,7 @@ from __future__ import annotations
 import contextlib
 import importlib
 import os
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from types import ModuleType
 
@@ -45,7 +45,7 @@ _WINDOWS_LOCK_OFFSET = 1 << 20
 LOCK_FILE = ".lock"
 """The lock file inside a run folder while a run writes it (left unlocked by a killed run: nobody writes it)."""
 
-__all__ = ["LOCK_FILE", "claim_dir", "run_lock"]
+__all__ = ["LOCK_FILE", "claim_dir", "hold_output_dir", "run_lock"]
 
 
 def claim_dir(path: str | Path) -> bool:
@@ -125,6 +125,36 @@ def run_lock(run_dir: str | Path, key: str, create: bool = False, name: str = LO
             os.close(fd)
             with contextlib.suppress(OSError):
                 path.unlink()
+
+
+@contextlib.contextmanager
+def hold_output_dir(
+    out_dir: str | Path, key: str, name: str, outputs: Iterable[str], create: bool = True
+) -> Iterator[Path]:
+    """One writer of ``outputs`` per folder: hold ``out_dir``'s lock file ``name`` for the ``with`` block (made where
+    missing with ``create``, and removed again if the block fails leaving it empty); yields the folder.
+
+    For a tool that writes its files beside others' (a run's, or the working folder): two of them into one folder
+    at once would each pass a check for earlier results before either wrote, then replace each other's files. The
+    temporary files a kill left writing ``outputs`` are removed here
+    (:func:`~marlcrash.outputs.remove_temporaries_of`).
+
+    Raises:
+        ConfigError: (key ``key``) another process holds the folder (with its process id), or it takes no lock file.
+    """
+    from marlcrash.outputs import remove_temporaries_of
+
+    out = Path(out_dir)
+    made = create and not out.exists()
+    try:
+        with run_lock(out, key, create=create, name=name):
+            remove_temporaries_of(out, outputs)
+            yield out
+    except BaseException:
+        if made:  # a refused or failed writer leaves no empty folder behind
+            with contextlib.suppress(OSError):
+                out.rmdir()
+        raise
 
 
 def _try_lock(fd: int) -> bool:
