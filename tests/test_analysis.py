@@ -836,3 +836,44 @@ def test_two_analyses_into_one_folder_at_once_do_not_replace_each_other(problem,
     assert nested == [2] and "key '--out'" in err and "in use by another process" in err, (nested, err)
     assert "orderings in antithetic pairs, seed 0" in (out / "contributions.md").read_text()
     assert sorted(p.name for p in out.iterdir()) == ["contributions.csv", "contributions.md"]  # no lock file left
+
+
+def test_contributions_on_the_surrogate_equal_a_brute_force_game_of_direct_simulations(problem):
+    """An independent calculation: every coalition of three agents built by hand (their cells at the truth, every other
+    cell initial), simulated directly, and the Shapley values by the textbook average over all 3! orderings;
+    leave-one-out and add-one from the same table. Every quantity of every agent, exact and sampled."""
+    names = ["crash_box_left", "front_rail_right", "bumper_beam_left"]
+    agents = [problem.agent_names.index(a) for a in names]
+    owner = problem.layout.agent_of_cell
+
+    def params(members) -> torch.Tensor:
+        p = problem.init.clone()
+        for a in members:
+            p[owner == a] = problem.true_params[owner == a]
+        return p
+
+    coalitions = [frozenset(s) for k in range(4) for s in itertools.combinations(agents, k)]
+    m = evaluate_params(problem, torch.stack([params(s) for s in coalitions]))
+    values = torch.cat([m.area, m.dfd, m.rmse, problem.score(m)[:, None]], dim=1)
+    v = dict(zip(coalitions, values, strict=True))
+    full, empty = v[frozenset(agents)], v[frozenset()]
+    shapley = {a: torch.zeros_like(full) for a in agents}
+    for order in itertools.permutations(agents):
+        before: frozenset[int] = frozenset()
+        for a in order:
+            shapley[a] += (v[before | {a}] - v[before]) / math.factorial(len(agents))
+            before = before | {a}
+    calibrated = params(agents)
+    for c in (agent_contributions(problem, calibrated), agent_contributions(problem, calibrated, exact_max=0)):
+        assert c.quantities[-1] == "score" and c.quantities[: len(problem.sensors)] == [
+            f"area/{s}" for s in problem.sensors
+        ]
+        torch.testing.assert_close(c.initial, empty, rtol=0, atol=1e-12)
+        torch.testing.assert_close(c.calibrated, full, rtol=0, atol=1e-12)
+        for a in agents:
+            torch.testing.assert_close(c.leave_one_out[a], full - v[frozenset(agents) - {a}], rtol=0, atol=1e-12)
+            torch.testing.assert_close(c.add_one[a], v[frozenset({a})] - empty, rtol=0, atol=1e-12)
+            if c.exact:
+                torch.testing.assert_close(c.shapley[a], shapley[a], rtol=0, atol=1e-12)
+        others = [i for i in range(problem.n_agents) if i not in agents]
+        assert float(c.shapley[others].abs().max()) == float(c.add_one[others].abs().max()) == 0.0
