@@ -877,3 +877,18 @@ def test_contributions_on_the_surrogate_equal_a_brute_force_game_of_direct_simul
                 torch.testing.assert_close(c.shapley[a], shapley[a], rtol=0, atol=1e-12)
         others = [i for i in range(problem.n_agents) if i not in agents]
         assert float(c.shapley[others].abs().max()) == float(c.add_one[others].abs().max()) == 0.0
+
+
+def test_parameters_that_are_no_array_of_numbers_are_named(problem):
+    """``None`` (``run.true`` of a run evaluated on a measured test, which has no truth) or a ragged list as the
+    parameters: numpy's and torch's "can't convert np.ndarray of type numpy.object_" named neither the argument nor
+    what was expected. Now a ValueError names it and what it got."""
+    cal = problem.true_params
+    for call, name in [
+        (lambda bad: agent_contributions(problem, bad), "calibrated"),
+        (lambda bad: agent_changes(problem, bad), "params"),
+        (lambda bad: coalition_params(problem, bad, cal, torch.ones(1, problem.n_agents, dtype=torch.bool)), "initial"),
+    ]:
+        for bad, got in ((None, "None"), ([[1.0, 2.0], [3.0]], "list"), ("E_x", "str")):
+            with pytest.raises(ValueError, match=rf"^{name}: expected cell parameters .*got {got}"):
+                call(bad)

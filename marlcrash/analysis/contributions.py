@@ -22,6 +22,7 @@ problem it was evaluated on.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import math
 from dataclasses import dataclass
@@ -219,16 +220,24 @@ def quantity_unit(quantity: str) -> str:
     return UNITS[metric]
 
 
-def _float64(p: torch.Tensor | np.ndarray) -> torch.Tensor:
+def _float64(p: torch.Tensor | np.ndarray, name: str) -> torch.Tensor:
     """Parameters as a float64 CPU tensor of their values: a tensor detached first (a differentiable calibration's
-    ``problem.params(x)`` carries gradients; numpy reads neither those, nor bfloat16, nor a GPU's)."""
+    ``problem.params(x)`` carries gradients; numpy reads neither those, nor bfloat16, nor a GPU's).
+
+    Raises:
+        ValueError: naming ``name``, where ``p`` is no array of numbers (``None``, a ragged list, text).
+    """
     if isinstance(p, torch.Tensor):
         return p.detach().to("cpu", torch.float64)
-    return torch.as_tensor(np.asarray(p), dtype=torch.float64)
+    if p is not None and not isinstance(p, str | bytes):
+        with contextlib.suppress(TypeError, ValueError):  # what numpy cannot read as numbers: said below
+            return torch.as_tensor(np.asarray(p, dtype=np.float64))
+    what = type(p).__name__ + ("" if p is None else f" {str(p)[:40]!r}")
+    raise ValueError(f"{name}: expected cell parameters (a tensor or an array of numbers), got {what}")
 
 
 def _check_params(problem: CalibrationProblem, name: str, p: torch.Tensor | np.ndarray) -> torch.Tensor:
-    t = _float64(p)
+    t = _float64(p, name)
     shape = tuple(problem.init.shape)
     if tuple(t.shape) != shape:
         raise ValueError(f"{name}: expected cell parameters of shape {shape}, got {tuple(t.shape)}")
@@ -381,11 +390,11 @@ def agent_changes(problem: CalibrationProblem, params: torch.Tensor | np.ndarray
         square log change of ``E_x, E_s`` from the previous iteration (0 for the first).
 
     Raises:
-        ValueError: ``params`` of another shape.
+        ValueError: ``params`` of another shape, or no array of numbers.
         ModelError: (a :class:`ValueError`) parameters the simulator refuses (non-finite, ``E_x`` or ``E_s <= 0``, a
             negative transmission factor of an active cell), named by iteration and cell.
     """
-    p = _float64(params)
+    p = _float64(params, "params")
     if p.dim() == 2:
         p = p[None]
     if p.dim() != 3 or tuple(p.shape[1:]) != tuple(problem.init.shape):
