@@ -131,8 +131,9 @@ def run_lock(run_dir: str | Path, key: str, create: bool = False, name: str = LO
 def hold_output_dir(
     out_dir: str | Path, key: str, name: str, outputs: Iterable[str], create: bool = True
 ) -> Iterator[Path]:
-    """One writer of ``outputs`` per folder: hold ``out_dir``'s lock file ``name`` for the ``with`` block (made where
-    missing with ``create``, and removed again if the block fails leaving it empty); yields the folder.
+    """One writer of ``outputs`` per folder: hold ``out_dir``'s lock file ``name`` for the ``with`` block (made with its
+    missing parents where missing with ``create``, and those removed again if the block fails leaving them empty);
+    yields the folder.
 
     For a tool that writes its files beside others' (a run's, or the working folder): two of them into one folder
     at once would each pass a check for earlier results before either wrote, then replace each other's files. The
@@ -145,15 +146,17 @@ def hold_output_dir(
     from marlcrash.outputs import remove_temporaries_of
 
     out = Path(out_dir)
-    made = create and not out.exists()
+    made = [q for q in (out, *out.parents) if not q.exists()] if create else []  # the deepest first
     try:
         with run_lock(out, key, create=create, name=name):
             remove_temporaries_of(out, outputs)
             yield out
     except BaseException:
-        if made:  # a refused or failed writer leaves no empty folder behind
-            with contextlib.suppress(OSError):
-                out.rmdir()
+        for q in made:  # a refused or failed writer leaves no empty folder behind (nor the parents it made)
+            try:
+                q.rmdir()
+            except OSError:  # not empty: what it holds stays, and so do the folders around it
+                break
         raise
 
 
