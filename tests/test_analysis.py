@@ -892,3 +892,19 @@ def test_parameters_that_are_no_array_of_numbers_are_named(problem):
         for bad, got in ((None, "None"), ([[1.0, 2.0], [3.0]], "list"), ("E_x", "str")):
             with pytest.raises(ValueError, match=rf"^{name}: expected cell parameters .*got {got}"):
                 call(bad)
+
+
+def test_agent_changes_are_read_against_the_initial_parameters_given(problem):
+    """A run's changes against the parameters it started from (``initial``), which differ from today's problem's where
+    ``configs/`` changed since the run: they were always read against the problem's."""
+    start = problem.init.clone()
+    start[problem.layout.agent_of_cell >= 0, 0] *= 1.05
+    same = agent_changes(problem, start, start)
+    assert all(np.abs(v).max() == 0.0 for v in same.values())
+    assert float(np.abs(agent_changes(problem, start)["E_x"]).max()) == pytest.approx(math.log(1.05), abs=1e-12)
+    bad = start.clone()
+    bad[int(torch.nonzero(problem.layout.agent_of_cell >= 0)[0]), 0] = -1.0
+    with pytest.raises(ModelError, match=r"^initial: "):
+        agent_changes(problem, start, bad)
+    with pytest.raises(ValueError, match="initial: expected cell parameters of shape"):
+        agent_changes(problem, start, start[:3])

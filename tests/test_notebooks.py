@@ -90,3 +90,30 @@ def test_re_evaluations_of_two_runs_go_to_two_folders(tmp_path):
     path = next(p for p in NOTEBOOKS if p.name == "agent_contributions.ipynb")
     execute(path, f"N_PERMUTATIONS = 4\nRUN = {str(again)!r}\nOUT = {str(tmp_path / 'out')!r}")
     assert [p.name for p in (tmp_path / "out").iterdir()] == ["mappo_run_eval_checkpoint_steps2"]
+
+
+def test_a_runs_changes_are_read_against_its_own_initial_parameters(tmp_path):
+    """The table of what the calibration did to each agent's cells read a run's parameters against the initial ones
+    of today's problem, not the run's own (``calibrated.npz``'s ``initial``, which the contributions start from):
+    with ``configs/`` changed since the run (warned about, and supported), it showed moves the calibration never made.
+    Here a run that moved nothing, from initial parameters 5 % stiffer than today's: every change is 0."""
+    import numpy as np
+    from test_analysis import write_evaluated_run
+
+    run = tmp_path / "run"
+    run.mkdir()
+    problem = write_evaluated_run(run)
+    start = problem.init.clone()
+    start[problem.layout.agent_of_cell >= 0, 0] *= 1.05  # E_x of every owned cell
+    keep = dict(np.load(run / "calibrated.npz"))
+    np.savez(run / "calibrated.npz", **{**keep, "initial": start.numpy(), "calibrated": start.numpy(),
+                                         "per_iteration": np.stack([start.numpy()] * 2)})  # fmt: skip
+    path = next(p for p in NOTEBOOKS if p.name == "agent_contributions.ipynb")
+    nb = execute(path, f"N_PERMUTATIONS = 4\nRUN = {str(run)!r}\nOUT = {str(tmp_path / 'out')!r}")
+    shown = [o.get("data", {}).get("text/markdown", "") for c in nb.cells if c.cell_type == "code"
+             for o in c.get("outputs", [])]  # fmt: skip
+    tables = [t for t in shown if t.startswith("| agent | E_x |")]
+    assert len(tables) == 1
+    rows = [r.split("|")[2:5] for r in tables[0].splitlines()[2:]]  # E_x, E_s, transmission of the run
+    assert len(rows) == problem.n_agents
+    assert all(float(x) == 0.0 for r in rows for x in r), tables[0]

@@ -246,6 +246,15 @@ def _check_params(problem: CalibrationProblem, name: str, p: torch.Tensor | np.n
     return t
 
 
+def _simulable(problem: CalibrationProblem, name: str, p: torch.Tensor, note: str = "") -> None:
+    """The simulator's own check of parameters ``[B, n_cells, 7]``, its :class:`ModelError` named ``name`` (and
+    ``note``): a bad value is named by its array, not later by a coalition's index or as a NaN in a table."""
+    try:
+        problem.sim.check_params(p)
+    except ModelError as e:
+        raise ModelError(f"{name}: {e}{note}") from None
+
+
 def coalition_params(
     problem: CalibrationProblem,
     initial: torch.Tensor | np.ndarray,
@@ -310,10 +319,7 @@ def agent_contributions(
     init = problem.init if initial is None else _check_params(problem, "initial", initial)
     cal = _check_params(problem, "calibrated", calibrated)
     for name, p in (("initial", init), ("calibrated", cal)):
-        try:  # the simulator's own check, up front: a bad value is named by its array, not by a coalition's index
-            problem.sim.check_params(p[None])
-        except ModelError as e:
-            raise ModelError(f"{name}: {e}") from None
+        _simulable(problem, name, p[None])  # up front, before any simulation
     moved_cells = ((cal - init).abs() > MOVE_RTOL * init.abs()).any(-1)  # [n]
     agent = problem.layout.agent_of_cell
     stray = moved_cells & (agent < 0)
@@ -375,34 +381,39 @@ def agent_contributions(
     )  # fmt: skip
 
 
-def agent_changes(problem: CalibrationProblem, params: torch.Tensor | np.ndarray) -> dict[str, np.ndarray]:
+def agent_changes(
+    problem: CalibrationProblem, params: torch.Tensor | np.ndarray, initial: torch.Tensor | np.ndarray | None = None
+) -> dict[str, np.ndarray]:
     """What the calibration did to each agent's cells, per iteration.
 
     Args:
-        problem: supplies the agents and the initial parameters.
+        problem: supplies the agents (and the initial parameters where ``initial`` is not given).
         params: ``[I, n_cells, 7]`` cell parameters per calibration iteration (``calibrated.npz``'s
             ``per_iteration``), or one set ``[n_cells, 7]``.
+        initial: ``[n_cells, 7]`` the parameters the calibration started from (a run's: :class:`RunCalibration`'s
+            ``initial``, as :func:`agent_contributions` is given them; today's problem's may differ where
+            ``configs/`` changed since the run); default: the problem's initial parameters.
 
     Returns:
         ``{"E_x", "E_s"}``: ``[I, A]`` mean log factor of the agent's cells against the initial parameters
-        (``log(E / E0)``, 0.1 = +10.5 %); ``"transmission"``: ``[I, A]`` mean share of load moved to other
-        directions (half the L1 change of a cell's five factors, 0 to 1); ``"step"``: ``[I, A]`` the root mean
-        square log change of ``E_x, E_s`` from the previous iteration (0 for the first).
+        (``log(E / E0)``, ``E0`` of ``initial``, 0.1 = +10.5 %); ``"transmission"``: ``[I, A]`` mean share of load
+        moved to other directions (half the L1 change of a cell's five factors, 0 to 1); ``"step"``: ``[I, A]`` the
+        root mean square log change of ``E_x, E_s`` from the previous iteration (0 for the first).
 
     Raises:
-        ValueError: ``params`` of another shape, or no array of numbers.
+        ValueError: ``params`` or ``initial`` of another shape, or no array of numbers.
         ModelError: (a :class:`ValueError`) parameters the simulator refuses (non-finite, ``E_x`` or ``E_s <= 0``, a
-            negative transmission factor of an active cell), named by iteration and cell.
+            negative transmission factor of an active cell), named by iteration and cell (``initial`` by its name).
     """
     p = _float64(params, "params")
     if p.dim() == 2:
         p = p[None]
     if p.dim() != 3 or tuple(p.shape[1:]) != tuple(problem.init.shape):
         raise ValueError(f"params: expected [iterations, {problem.init.shape[0]}, 7], got {tuple(p.shape)}")
-    try:  # the simulator's check: a log factor of E <= 0 or NaN would be a silent NaN or -inf in the table
-        problem.sim.check_params(p)
-    except ModelError as e:
-        raise ModelError(f"params: {e} (the first index is the iteration)") from None
+    # the simulator's check: a log factor of E <= 0 or NaN would be a silent NaN or -inf in the table
+    _simulable(problem, "params", p, " (the first index is the iteration)")
+    init = problem.init[None] if initial is None else _check_params(problem, "initial", initial)[None]
+    _simulable(problem, "initial", init)
     agent = problem.layout.agent_of_cell
     owned = agent >= 0
     A = problem.n_agents
@@ -415,7 +426,6 @@ def agent_changes(problem: CalibrationProblem, params: torch.Tensor | np.ndarray
         out = torch.zeros(x.shape[0], A, dtype=torch.float64).index_add_(1, agent[owned], x[:, owned])
         return (out / count).numpy()
 
-    init = problem.init[None]
     log_e = torch.log(p[..., :2] / init[..., :2])  # [I, n, 2]
     moved = 0.5 * (p[..., 2:] - init[..., 2:]).abs().sum(-1)  # [I, n]
     step = torch.zeros_like(log_e[..., 0])
