@@ -65,7 +65,7 @@ def _add_vehicle_args(p: argparse.ArgumentParser, deck_required: bool) -> None:
         help="deck axes to marlcrash axes (x rearward, y left, z up), e.g. 'x=+x,y=+z,z=+y'",
     )
     p.add_argument(
-        "--subassemblies", type=_path, metavar="MAP.yaml", help="YAML file mapping parts to named sub-assemblies"
+        "--subassemblies", type=_input_file, metavar="MAP.yaml", help="YAML file mapping parts to named sub-assemblies"
     )
     p.add_argument(
         "--seed", type=_seed, default=None, help="variant seed of a synthetic vehicle, integer >= 0 (default: nominal)"
@@ -88,6 +88,20 @@ def _path(text: str) -> str:
     as none it chose the default (the embedded car, configs/cells.yaml), taken as ``Path("")`` the working folder."""
     if not text:
         raise argparse.ArgumentTypeError("expected a path, got an empty one")
+    return text
+
+
+def _input_file(text: str) -> str:
+    """argparse type of an input file that is no deck (a config, a sub-assembly map): a path (:func:`_path`) to a
+    file, so a folder or a missing file is named with its option before any work (a folder said only "<name>: cannot
+    read config file (Is a directory)")."""
+    path = Path(_path(text))
+    if path.is_dir():
+        raise argparse.ArgumentTypeError(f"{text} is a folder; expected a YAML file")
+    if not path.is_file():
+        raise argparse.ArgumentTypeError(
+            f"no such file {text!r}" if not path.exists() else f"{text} is no regular file"
+        )
     return text
 
 
@@ -521,7 +535,9 @@ def build_parser() -> argparse.ArgumentParser:
     _add_vehicle_args(p, deck_required=False)
     p.add_argument("--method", choices=["uniform", "optimized"], help="discretization method (default: config)")
     p.add_argument(
-        "--config", type=_path, help="cells config YAML giving every key of configs/cells.yaml (default: that file)"
+        "--config",
+        type=_input_file,
+        help="cells config YAML giving every key of configs/cells.yaml (default: that file)",
     )
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     p.add_argument(
@@ -549,7 +565,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "a lab's does")  # fmt: skip
     p.add_argument("--method", choices=["uniform", "optimized"], help="discretization method (default: config)")
     p.add_argument(
-        "--config", type=_path, help="cells config YAML giving every key of configs/cells.yaml (default: that file)"
+        "--config",
+        type=_input_file,
+        help="cells config YAML giving every key of configs/cells.yaml (default: that file)",
     )
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument(

@@ -642,6 +642,20 @@ def test_an_empty_path_is_refused_not_read_as_the_default_or_this_folder(tmp_pat
     assert list(tmp_path.iterdir()) == []
 
 
+def test_a_config_or_map_that_is_a_folder_or_missing_is_refused_naming_its_option(tmp_path, capsys):
+    """``--config FOLDER`` said only "<folder name>: cannot read config file (Is a directory)", after the deck was
+    read; a folder or missing file given for ``--config`` or ``--subassemblies`` is now refused by the parser."""
+    folder, missing = f"{tmp_path} is a folder; expected a YAML file", f"no such file '{tmp_path / 'm.yaml'}'"
+    cases = [
+        (("discretize", "--config", str(tmp_path)), "--config", folder),
+        (("simulate", "--config", str(tmp_path / "m.yaml")), "--config", missing),
+        (("inspect", "b_segment", "--subassemblies", str(tmp_path)), "--subassemblies", folder),
+        (("inspect", "b_segment", "--subassemblies", str(tmp_path / "m.yaml")), "--subassemblies", missing),
+    ]
+    for args, name, what in cases:
+        _refused_by_the_parser(capsys, args, f"error: argument {name}: {what}")
+
+
 def test_the_package_runs_as_a_module():
     """``python -m marlcrash`` (where the console script is not on PATH: a checkout run in place, another venv's
     Python) said "'marlcrash' is a package and cannot be directly executed"; it is now the ``marlcrash`` command."""
