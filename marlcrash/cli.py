@@ -571,7 +571,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument(
-        "--csv", type=_output_path, metavar="FILE.csv", help="write time, per-sensor acceleration and velocity, crush"
+        "--csv",
+        type=_output_path,
+        metavar="FILE.csv",
+        help="write time [s], per-sensor acceleration [g, unfiltered: "
+        "the JSON's peaks are CFC 60; marlcrash pulse FILE.csv filters it] and velocity [m/s], crush [m]",
     )
     p.add_argument(
         "--plot", type=_output_path, metavar="FILE.png", help="plot pulses per sensor and energy per sub-assembly"

@@ -222,7 +222,10 @@ def subassembly_absorbed(result: SimResult, cells: CellModel, row: int = 0) -> d
 
 
 def write_crash_csv(result: SimResult, path: str | Path, row: int = 0) -> Path:
-    """Write time [s], per-sensor acceleration [g] and velocity [m/s], crush [m] as CSV (atomically)."""
+    """Write time [s], per-sensor acceleration [g] and velocity [m/s], crush [m] as CSV (atomically).
+
+    The accelerations are the simulator's output, unfiltered (as a test's raw channels are): the crash summary's peaks
+    are CFC 60, and ``marlcrash pulse FILE.csv`` filters them the same way."""
     row = checked_row(result, row)
     path = Path(path)
     t = result.time.detach().cpu().numpy()
