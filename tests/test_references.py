@@ -458,6 +458,40 @@ def test_tests_of_several_load_cases_give_each_problem_the_test_of_its_scenario(
     assert e.value.key == "problem.scenario"
 
 
+def test_an_env_on_the_tests_of_one_scenario_simulates_at_that_scenarios_rate(cells, tmp_path, monkeypatch):
+    """The env built its simulator at the output rate of ``reference.files[0]``'s scenario, not of the tests
+    ``file_scenario`` draws: an env on the tests of a 1 kHz load case, listed after a 2 kHz one, was refused (the
+    simulator's output step is not the scenarios')."""
+    import shutil
+
+    import yaml
+
+    from marlcrash.config import config_dir
+    from marlcrash.envs import load_env_config
+    from marlcrash.envs.core import CalibrationCore
+    from marlcrash.pulse.simulation import write_crash_csv
+
+    configs = tmp_path / "configs"
+    shutil.copytree(config_dir(), configs)
+    data = yaml.safe_load((configs / "scenarios" / "full_width_40.yaml").read_text())
+    (configs / "scenarios" / "full_width_40_1khz.yaml").write_text(
+        yaml.safe_dump({**data, "name": "full_width_40_1khz", "output_rate": 1000.0})
+    )
+    monkeypatch.setenv("MARLCRASH_CONFIGS", str(configs))
+    files = []
+    for name in ("full_width_40", "full_width_40_1khz"):
+        sc = get_scenario(name)
+        result = Surrogate(cells, output_dt=1.0 / sc.output_rate).run(torch.as_tensor(cells.params)[None], sc)
+        path = write_crash_csv(result, tmp_path / f"{name}.csv")
+        files.append({"path": str(path), "scenario": name, "channels": {s: f"{s}_acc_g" for s in cells.sensor_names}})
+    for name, rate in (("full_width_40_1khz", 1000.0), ("full_width_40", 2000.0)):
+        over = {"reference.kind": "file", "reference.files": files, "reference.file_scenario": name}
+        core = CalibrationCore(load_env_config("default", over), batch_size=2, cells=cells)
+        assert core.sim.output_dt == pytest.approx(1.0 / rate) and core.dt == pytest.approx(1.0 / rate)
+        core.reset(seed=0)
+        assert float(core.metrics[0].max()) < 1e-6  # the initial parameters are the tests' own simulation
+
+
 def test_a_file_scenario_with_another_reference_kind_is_refused_naming_the_key():
     """``reference.file_scenario`` picks among the measured tests: with ``kind: twin`` it was read by nothing and
     loaded without a word, and a problem's ``env_overrides.reference.file_scenario`` was replaced by

@@ -387,19 +387,16 @@ class CalibrationCore:
         self.regions = ImpactRegions(self.cells, self.layout, cfg.masking)
         from marlcrash.sim.scenario import get_scenario
 
-        files = cfg.reference.files
-        drawn = cfg.scenarios if cfg.reference.kind != "file" else dict.fromkeys(f.scenario for f in files)
+        ref = cfg.reference  # the scenarios drawn: a file reference's are those of the tests it draws
+        files = [f for f in ref.files if ref.file_scenario in (None, f.scenario)]
+        drawn = cfg.scenarios if ref.kind != "file" else dict.fromkeys(f.scenario for f in files)
         idle = self.regions.idle_scenarios([get_scenario(name) for name in drawn])
         if idle:
             warnings.warn(f"{'; '.join(idle)}: such episodes calibrate nothing. On a deck, check that its axes map "
                           "onto marlcrash's (vehicle_options.axis_map: x rearward, y to the left, z up); else lower "
                           "masking.min_fraction or widen the depths", stacklevel=3)  # fmt: skip
         sim_cfg = sim_config if sim_config is not None else load_sim_config(overrides={"dtype": cfg.sim_dtype})
-        first = next(iter(cfg.scenarios))
-
-        rate = get_scenario(first).output_rate if cfg.reference.kind != "file" else None
-        if rate is None:
-            rate = get_scenario(cfg.reference.files[0].scenario).output_rate
+        rate = get_scenario(next(iter(drawn))).output_rate  # the sampler checks that all of them have it
         self.sim = Surrogate(self.cells, sim_cfg, output_dt=1.0 / rate)
         self.sampler = ReferenceSampler(
             self.cells, self.sim, self.sensors, cfg.scenarios, cfg.reference, vehicle=cfg.vehicle,
