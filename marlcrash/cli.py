@@ -261,7 +261,7 @@ def scenario_from_args(args: argparse.Namespace):
     }
     if not overrides:
         return scenario
-    scenario = replace(scenario, **overrides)
+    registered, scenario = scenario, replace(scenario, **overrides)
     try:
         scenario.validate()
     except ConfigError as e:  # said as the option the user typed, not the scenario file's key
@@ -269,10 +269,11 @@ def scenario_from_args(args: argparse.Namespace):
         if option is None or getattr(args, option) is None:
             raise
         raise ConfigError(e.reason, key=f"--{option}") from None
-    # named after what it is, not after the registered scenario it started from (an offset is no "full_width_40")
-    shape = "full_width" if scenario.overlap >= 1.0 else f"overlap{scenario.overlap:g}_{scenario.side}"
-    scenario = replace(scenario, name=f"custom_{scenario.speed_kmh:g}kmh_{shape}",
-                       description=f"command-line overrides of {scenario.name}")  # fmt: skip
+    if scenario != registered:  # overrides that repeat the scenario's values (--speed 56 on full_width_56) keep it
+        # named after what it is, not after the registered scenario it started from (an offset is no "full_width_40")
+        shape = "full_width" if scenario.overlap >= 1.0 else f"overlap{scenario.overlap:g}_{scenario.side}"
+        scenario = replace(scenario, name=f"custom_{scenario.speed_kmh:g}kmh_{shape}",
+                           description=f"command-line overrides of {scenario.name}")  # fmt: skip
     if args.side is not None and scenario.overlap >= 1.0:
         warnings.warn(f"--side {args.side} has no effect: the barrier covers the full width (overlap 1)", stacklevel=2)
     # the registered scenarios' speeds are those the default car's pulses are checked at (tests/test_sim_*)

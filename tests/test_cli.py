@@ -483,9 +483,12 @@ def test_simulate_overrides_and_errors():
     out = json.loads(run_cli("simulate", "--speed", "56", "--overlap", "0.4", "--side", "right", "--json").stdout)
     assert (out["speed_kmh"], out["overlap"], out["side"]) == (56.0, 0.4, "right")
     assert out["scenario"] == "custom_56kmh_overlap0.4_right"  # named after what it is, not full_width_40
-    proc = run_cli("simulate", "--side", "left", "--json")
-    assert "warning: --side left has no effect" in proc.stderr
+    proc = run_cli("simulate", "--side", "right", "--json")
+    assert "warning: --side right has no effect" in proc.stderr
     assert json.loads(proc.stdout)["scenario"] == "custom_40kmh_full_width"
+    # an override that repeats the scenario's own value is the registered load case, named so
+    same = run_cli("simulate", "--scenario", "offset40_left", "--speed", "56", "--side", "left", "--json").stdout
+    assert json.loads(same)["scenario"] == "offset40_left"
     proc = run_cli("simulate", "--speed", "-3", check=False)
     assert proc.returncode == 2 and "key '--speed'" in proc.stderr and "speed_kmh" not in proc.stderr
     proc = run_cli("simulate", "--speed", "40", "--overlap", "1.5", check=False)
