@@ -310,6 +310,13 @@ def perturb_twin(
     return apply_increments(p0[None].expand_as(inc), inc, p0, feasible, (lo, hi), floor)
 
 
+def _require_count(value: object, name: str, least: int) -> None:
+    """Refuse an argument that is no integer ``>= least``, naming it (0 references failed in the simulator, a seed
+    of -1 in numpy's "expected non-negative integer")."""
+    if not (isinstance(value, int | np.integer) and not isinstance(value, bool) and value >= least):
+        raise ValueError(f"expected {name} as an integer >= {least}, got {value!r}")
+
+
 def _check_grid(scenarios: dict[str, CrashScenario]) -> tuple[float, float]:
     first = next(iter(scenarios.values()))
     for name, sc in scenarios.items():
@@ -412,6 +419,7 @@ class ReferenceSampler:
         A reference that depends on a seed alone is ``sample(numpy.random.default_rng(seed), 1)``: the one
         :meth:`pinned` repeats and :func:`~marlcrash.calibrate.problem.build_problem` calibrates.
         """
+        _require_count(n, "n", 1)
         kind = self.config.kind
         n_draws = (self.n_subassemblies, 7) if kind == "twin" else ()
         pick = np.empty(n, dtype=np.int64)
@@ -459,6 +467,8 @@ class ReferenceSampler:
 
         It is ``sample(numpy.random.default_rng(seed), 1)`` repeated ``n`` times; no other generator is used.
         """
+        _require_count(seed, "seed", 0)
+        _require_count(n, "n", 1)
         if seed not in self._pinned:
             self._pinned[seed] = self.sample(np.random.default_rng(seed), 1)
         return self._pinned[seed].repeat(n)

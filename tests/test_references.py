@@ -971,3 +971,18 @@ def test_a_lead_in_that_is_not_a_duration_is_refused_by_name(pre_time):
     True was taken as a lead-in of 1 s."""
     with pytest.raises(PulseError, match="pre_time"):
         compared_velocity(torch.linspace(11.0, 0.0, 60, dtype=torch.float64), 5e-4, 60, pre_time=pre_time)
+
+
+def test_a_reference_count_or_seed_that_is_no_natural_number_is_named(cells, sim):
+    """``sample(rng, 0)`` failed in the simulator's parameter check, ``pinned(-1, n)`` in numpy ("expected
+    non-negative integer"): the arguments are named."""
+    s = sampler(cells, sim)
+    for call, name in (
+        (lambda: s.sample(np.random.default_rng(0), 0), "n"),
+        (lambda: s.sample(np.random.default_rng(0), 2.0), "n"),
+        (lambda: s.pinned(-1, 2), "seed"),
+        (lambda: s.pinned(0, 0), "n"),
+    ):
+        with pytest.raises(ValueError, match=rf"expected {name} as an integer >= [01], got"):
+            call()
+    assert s.pinned(np.int64(3), 2).velocity.shape[0] == 2
