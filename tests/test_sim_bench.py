@@ -291,7 +291,8 @@ def test_roofline_refuses_a_batch_it_cannot_time(default_sim, batch):
      ("bench_env.py", ["--pz-steps", "0"], "--pz-steps"), ("bench_implicit.py", ["--batch", "0"], "--batch"),
      ("bench_implicit.py", ["--explicit-substeps", "0"], "--explicit-substeps"),
      ("bench_implicit.py", ["--substeps", "0"], "--substeps"),
-     ("bench_substeps.py", ["--batch", "0", "--substeps", "1"], "--batch")],
+     ("bench_substeps.py", ["--batch", "0", "--substeps", "1"], "--batch"),
+     ("bench_wait_policy.py", ["--rounds", "0"], "--rounds"), ("bench_wait_policy.py", ["--busy", "-1"], "--busy")],
 )  # fmt: skip
 def test_benchmark_scripts_refuse_counts_below_one_as_usage_errors(script, args, option):
     """A count of 0 ran into a traceback (ConfigError, ModelError, or bench_env's min() of no timings after the whole
@@ -333,3 +334,36 @@ def test_run_benchmark_keeps_the_best_of_repeats_for_every_rate_it_compares(monk
     res = bench.run_benchmark(batch_sizes=(1,), repeats=3)
     assert seen == {"roofline": 3, "best": 3}
     assert res["roofline_sims_per_s"] == 1.0 and res["sims_per_s_uniform_b64"] > 0
+
+
+def test_import_makes_idle_openmp_threads_sleep_unless_the_user_chose():
+    """Two OpenMP runtimes share the cores (numba's system libgomp, torch's bundled one): ``import marlcrash`` sets
+    ``OMP_WAIT_POLICY=PASSIVE`` so that neither pool's idle threads spin while the other works; a value the user set
+    is kept (benchmarks/bench_wait_policy.py measures both)."""
+    import os
+    import subprocess
+    import sys
+
+    code = "import marlcrash, os; print(os.environ['OMP_WAIT_POLICY'])"
+    env = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
+    for given, expected in ((None, "PASSIVE"), ("ACTIVE", "ACTIVE")):
+        run_env = env if given is None else {**env, "OMP_WAIT_POLICY": given}
+        out = subprocess.run([sys.executable, "-c", code], env=run_env, capture_output=True, text=True, timeout=120)
+        assert out.stdout.strip() == expected, out.stderr
+
+
+@pytest.mark.slow
+def test_the_wait_policy_benchmark_runs_both_policies():
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_wait_policy.py"
+    args = ["--batch", "2", "--repeat", "1", "--rounds", "1", "--json"]
+    out = subprocess.run([sys.executable, str(path), *args], capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr
+    row = json.loads(out.stdout)["rounds"][0]
+    for policy in ("ACTIVE", "PASSIVE"):
+        assert 0 < row[policy]["outside_kernel_s"] < row[policy]["wall_s"]
+    assert row["wall_ratio_active_over_passive"] == pytest.approx(row["ACTIVE"]["wall_s"] / row["PASSIVE"]["wall_s"])
