@@ -675,6 +675,12 @@ def test_a_resume_after_a_config_file_changed_is_refused_naming_it(run_dir, tmp_
         lambda r: r["rows"][2].update(simulations=[3]),
         lambda r: r.update(rows=[x for x in r["rows"] if x["method"] != "policy_best"]),  # KeyError in aggregate
         lambda r: r.update(meta=[]),  # AttributeError at the settings check
+        # the keys a resume matches rows by: a ValueError/TypeError formatting them, or rows never matched
+        lambda r: r["rows"][2].update(multiplier="1"),
+        lambda r: r["rows"][2].update(multiplier=None),
+        lambda r: r["rows"][0].update(multiplier=1.0),
+        lambda r: r["rows"][2].update(method="lm"),
+        lambda r: r["rows"][2].update(reference_seed="101"),
     ],
 )
 def test_a_damaged_comparison_record_is_refused_naming_resume(comparison, tmp_path, corrupt):

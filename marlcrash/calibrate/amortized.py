@@ -580,6 +580,8 @@ def read_comparison(out_dir: str | Path) -> Comparison:
         if not (isinstance(rows, list) and all(isinstance(r, dict) and set(r) in (set(COLUMNS), older) for r in rows)):
             raise ValueError(f"expected rows with the columns {list(COLUMNS)}")
         rows = [{k: r[k] if k in r else _generations(r, meta) for k in COLUMNS} for r in rows]
+        for r in rows:  # the keys a resume matches rows by: a bad one failed formatting it, or was never matched
+            _check_row_key(r)
         for r in rows:
             for k, gone in (("area", math.nan), ("dfd", math.nan), ("rmse", math.nan), ("score", -math.inf),
                             ("initial_score", -math.inf)):  # fmt: skip
@@ -591,6 +593,22 @@ def read_comparison(out_dir: str | Path) -> Comparison:
             f"{path} is not a comparison this tool wrote: {type(e).__name__}: {e}", key="resume"
         ) from None
     return Comparison(rows=rows, aggregate=table, meta=meta)
+
+
+def _check_row_key(row: dict[str, Any]) -> None:
+    """Raise ``ValueError`` unless ``row``'s ``reference_seed``, ``method`` and ``multiplier`` are a comparison's: an
+    integer seed, a policy row (no multiplier) or one of an optimizer the comparison runs, with a multiple > 0."""
+    seed, method, mult = row["reference_seed"], row["method"], row["multiplier"]
+    optimizers = [f.name for f in fields(AmortizedConfig) if f.name in BASELINES]
+    if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
+        raise ValueError(f"expected a reference_seed >= 0, got {seed!r}")
+    if method in POLICY_METHODS:
+        if mult is not None:
+            raise ValueError(f"expected no multiplier in a {method} row, got {mult!r}")
+    elif method not in optimizers:
+        raise ValueError(f"expected a method of {[*POLICY_METHODS, *optimizers]}, got {method!r}")
+    elif isinstance(mult, bool) or not isinstance(mult, (int, float)) or not (math.isfinite(mult) and mult > 0):
+        raise ValueError(f"expected a budget multiplier > 0 in a {method} row, got {mult!r}")
 
 
 def _generations(row: dict[str, Any], meta: dict[str, Any]) -> int | None:
