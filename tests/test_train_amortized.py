@@ -488,6 +488,25 @@ def test_no_optimizer_at_all_is_refused_naming_budgets(tmp_path):
     assert small_config(tmp_path, budgets={"random_search": [1]}).budgets == {"random_search": [1]}
 
 
+def test_a_config_made_in_python_is_checked_as_a_files_values(tmp_path, monkeypatch):
+    """``amortized_comparison`` took an :class:`AmortizedConfig` made in Python unchecked: ``target="lats"`` compared
+    the optimizers with the policy's last iterate without a word, repeated reference seeds gave repeated rows
+    (aggregated as "passed 2/1"), an unknown scenario failed after the policy was read. Refused naming the key, before
+    any work, as a config file's values are."""
+    import marlcrash.calibrate.amortized as amortized
+
+    def never(*args, **kwargs):
+        raise AssertionError("nothing is read or simulated for a refused config")
+
+    monkeypatch.setattr(amortized, "load_policy", never)
+    monkeypatch.setattr(amortized, "evaluate_policy", never)
+    for kw, key in (({"target": "lats"}, "target"), ({"reference_seeds": [101, 101]}, "reference_seeds"),
+                    ({"scenario": "ful_width_40"}, "scenario"), ({"budgets": {"cmaes": [0.0]}}, r"budgets\.cmaes\[0\]"),
+                    ({"cmaes": amortized.CMAESConfig(popsize=1)}, r"cmaes\.popsize")):  # fmt: skip
+        with pytest.raises(ConfigError, match=rf"key '{key}'"):
+            amortized_comparison(AmortizedConfig(run=str(tmp_path), **kw))
+
+
 def test_the_yaml_config_loads_through_hydra():
     from hydra import compose, initialize_config_dir
 

@@ -82,7 +82,7 @@ from marlcrash.calibrate.evaluate import (
 from marlcrash.calibrate.marl import TrainConfig, load_run_config, make_env_config, require_same_run
 from marlcrash.calibrate.problem import CalibrationProblem
 from marlcrash.calibrate.runlock import hold_output_dir
-from marlcrash.config import MAX_STEPS, from_dict, require, require_complete, require_seed
+from marlcrash.config import MAX_STEPS, checked, from_dict, require, require_complete, require_seed
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics
 from marlcrash.outputs import check_output_dir, finite_or_null, json_text, write_text
@@ -377,7 +377,8 @@ def amortized_comparison(
         A :class:`Comparison` (``meta["complete"]`` true).
 
     Raises:
-        ConfigError: no run folder (key ``run``) or a checkpoint replaced every time it was read (a run that still
+        ConfigError: a ``config`` made in Python with a bad value (checked as a file's, naming the key), no run
+            folder (key ``run``) or a checkpoint replaced every time it was read (a run that still
             trains checkpointing faster than the policy is read), a reference seed that is not held out (key
             ``reference_seeds[i]``), a policy without its training config, or gradient budgets with
             ``gradient.backend: adjoint`` on a simulator the adjoint does not cover (the run's float32
@@ -385,6 +386,7 @@ def amortized_comparison(
             policy, other settings or other files of ``configs/``, or one with rows of reference seeds or budgets
             this config leaves out (key ``resume``), all before any simulation.
     """
+    config = checked(config)  # one made in Python skipped the checks a file's values get (target "lats": "last")
     changes = digest = None  # a policy given as an object: its run's files are not known
     if policy is None:
         if config.run is None:
