@@ -32,7 +32,7 @@ from marlcrash.calibrate.amortized import (
     write_comparison,
 )
 from marlcrash.calibrate.evaluate import evaluation_problem
-from marlcrash.calibrate.marl import train
+from marlcrash.calibrate.marl import build_trainer, train
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import compute_metrics
 
@@ -214,6 +214,16 @@ def test_held_out_references_differ_from_the_evaluation_reference(run_dir):
             amortized_comparison(small_config(run_dir, reference_seeds=[101, bad]))
     # a run trained on one pinned reference (reference.pin_seed): that seed is the one reference it has seen
     policy, _, _ = load_policy(run_dir)
+    # the training seed apart from the evaluation seed (above both are 0): its generator's first draw is the reference
+    # of held-out seed 7, which training row 0 calibrated
+    seeded = copy.deepcopy(cfg)
+    seeded.seed = 7
+    trainer = build_trainer(seeded, run_dir.parent / "seeded")  # seeds its env as a training run does
+    trainer.env.reset()
+    assert torch.equal(trainer.env.core.true_params[0], evaluation_problem(held_out_config(seeded, 7, "full_width_40",
+                                                                                          1)).true_params)  # fmt: skip
+    with pytest.raises(ConfigError, match=r"reference_seeds\[1\]': seed 7 is the run's training seed"):
+        amortized_comparison(small_config(run_dir, reference_seeds=[101, 7]), policy=policy, train_config=seeded)
     pinned = copy.deepcopy(cfg)
     pinned.env_overrides = {**pinned.env_overrides, "reference.pin_seed": 102}
     with pytest.raises(ConfigError, match=r"reference_seeds\[1\]': seed 102 is the reference the run trained on"):
