@@ -276,6 +276,22 @@ def test_a_failing_optimizer_keeps_the_pieces_that_finished(run_dir, tmp_path, m
     assert "**incomplete**" in (tmp_path / "amortized.md").read_text()
 
 
+def test_an_incomplete_table_counts_over_the_references_it_has(comparison):
+    """The tables written after every finished piece counted passes, reached and beaten references out of every
+    reference asked for: with one of two references finished, "passed 0/2", "reached policy 1/2" as if the second had
+    been measured and failed. They count out of the references a row has, and say how many that is."""
+    import marlcrash.calibrate.amortized as amortized
+
+    rows = [r for r in comparison.rows if r["reference_seed"] == SEEDS[0]]
+    partial = amortized.Comparison(rows, amortized.aggregate(rows), dict(comparison.meta, complete=False))
+    text = amortized.markdown(partial)
+    assert "## Aggregate over 1 of 2 references" in text
+    table = text.split("## Per reference")[0]
+    lines = [ln for ln in table.splitlines() if ln.startswith("| cmaes") or ln.startswith("| random_search")]
+    assert lines and all("/2" not in ln and "/1 |" in ln for ln in lines)
+    assert "## Aggregate over 2 references" in amortized.markdown(comparison)  # complete: as before
+
+
 def test_the_policy_compared_is_the_one_whose_checkpoint_is_recorded(run_dir, tmp_path, monkeypatch):
     """A comparison of a run that still trains: its next checkpoint.pt replaced the one just read (building the
     policy's env takes seconds), and meta.checkpoint_sha256, taken after the policy was read, named the new file

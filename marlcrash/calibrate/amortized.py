@@ -675,6 +675,8 @@ def markdown(comparison: Comparison, command: str | None = None, date: str | Non
     """The Markdown report: settings, aggregated table (mean ± std over references), per-reference table."""
     meta = comparison.meta
     n = len(meta["reference_seeds"])
+    measured = len({r["reference_seed"] for r in comparison.rows})  # an incomplete table: those with rows so far
+    over = n if measured == n else f"{measured} of {n}"
     lines = [
         f"# Amortized calibration: trained {meta['algorithm']} policy vs optimizers from scratch",
         "",
@@ -701,7 +703,7 @@ def markdown(comparison: Comparison, command: str | None = None, date: str | Non
         "score, resolved to the optimizer's batch (CMA-ES generation, random-search batch, gradient step); "
         "- = never within the budget",
         "",
-        f"## Aggregate over {n} references (mean ± std; population std, ddof 0)",
+        f"## Aggregate over {over} references (mean ± std; population std, ddof 0)",
         "",
         "| method | budget | area | DFD | RMSE | score | param err | passed | reached policy | median sims to policy "
         "| beats policy best | wall [s] |",
@@ -711,8 +713,8 @@ def markdown(comparison: Comparison, command: str | None = None, date: str | Non
     def pm(a: dict[str, Any], k: str, spec: str = ".4g") -> str:
         return f"{_fmt(a[f'{k}_mean'], spec)} ± {_fmt(a[f'{k}_std'], spec)}"
 
-    def of_n(v: int | None) -> str:
-        return "-" if v is None else f"{v}/{n}"
+    def of_n(v: int | None, a: dict[str, Any]) -> str:  # out of the references the row has (all, once complete)
+        return "-" if v is None else f"{v}/{a['references']}"
 
     idle = {(r["method"], r["multiplier"]) for r in comparison.rows if r.get("generations") == 0}
 
@@ -723,9 +725,9 @@ def markdown(comparison: Comparison, command: str | None = None, date: str | Non
         budget = _fmt(a["budget_mean"], ".0f")
         lines.append(
             f"| {label(a['method'], a['multiplier'])} | {budget} | {pm(a, 'area')} | {pm(a, 'dfd')} | "
-            f"{pm(a, 'rmse')} | {pm(a, 'score')} | {pm(a, 'param_error', '.3f')} | {a['passed']}/{n} | "
-            f"{of_n(a['reached'])} | {_fmt(a['sims_to_policy_median'], '.0f')} | "
-            f"{of_n(a['beats_policy'])} | {pm(a, 'wall_time_s', '.1f')} |"
+            f"{pm(a, 'rmse')} | {pm(a, 'score')} | {pm(a, 'param_error', '.3f')} | {of_n(a['passed'], a)} | "
+            f"{of_n(a['reached'], a)} | {_fmt(a['sims_to_policy_median'], '.0f')} | "
+            f"{of_n(a['beats_policy'], a)} | {pm(a, 'wall_time_s', '.1f')} |"
         )
     popsize = (meta.get("optimizers") or {}).get("cmaes", {}).get("popsize")
     footnote = [] if not idle else [
