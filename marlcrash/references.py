@@ -116,6 +116,15 @@ class CrossFidelityConfig:
     def validate(self) -> None:
         require(self.target_cell_volume is None or self.target_cell_volume > 0, "target_cell_volume",
                 f"expected > 0 m^3 or null, got {self.target_cell_volume}")  # fmt: skip
+        if self.target_cell_volume is not None:  # now, not at the first fine reference (after the env was built)
+            from marlcrash.cells.discretize import load_discretization_config
+
+            load_discretization_config()  # cells.yaml's own error names its own key
+            try:
+                load_discretization_config(overrides={"target_cell_volume": self.target_cell_volume})
+            except ConfigError as e:
+                raise ConfigError(f"the fine model's discretization (configs/cells.yaml with this volume) is "
+                                  f"refused: {e}", key="target_cell_volume") from None  # fmt: skip
         require(bool(self.vehicle_seeds), "vehicle_seeds", "expected at least one vehicle seed (null = nominal car)")
         for i, v in enumerate(self.vehicle_seeds):
             ok = v is None or (isinstance(v, int) and not isinstance(v, bool) and v >= 0)

@@ -762,6 +762,20 @@ def test_a_reference_config_made_in_python_is_checked_naming_the_key(cells, sim,
         sampler(cells, sim, **kw)
 
 
+@pytest.mark.parametrize(("volume", "words"), [(0.05, "'solid_target_cell_volume'"), (2.5, "exceeds roi_depth")])
+def test_a_fine_cell_volume_cells_yaml_refuses_is_named_as_the_env_key_when_loaded(volume, words):
+    """``reference.cross_fidelity.target_cell_volume`` was checked only as > 0: 0.05 m^3 loaded, and the first
+    cross-fidelity reference (the env built, a run folder made) failed as cells.yaml's ``solid_target_cell_volume``,
+    a key and a file the user had not touched."""
+    from marlcrash.envs.core import load_env_config
+
+    key = "reference.cross_fidelity.target_cell_volume"
+    with pytest.raises(ConfigError, match=words) as e:
+        load_env_config("default", {key: volume})
+    assert e.value.key == key and Path(e.value.path).name == "default.yaml"
+    assert load_env_config("default", {key: 1e-4}).reference.cross_fidelity.target_cell_volume == 1e-4
+
+
 def test_cross_fidelity_reference_uses_the_uniform_model(cells, sim):
     s = sampler(cells, sim, kind="cross_fidelity", scenarios={"full_width_40": 1.0, "offset40_left": 1.0})
     ref = s.sample(np.random.default_rng(1), 4)
