@@ -238,6 +238,8 @@ def test_unavailable_device_is_refused():
         ("+env_overrides.termination.max_iterations=9", "env_overrides.termination.max_iterations", "episode_length"),
         ("+env_overrides.seed=3", "env_overrides.seed", "the run's seed"),
         ("env=nope", "env", "unknown env config 'nope'"),
+        # refused only when the env was built, after the run folder was made, as the env file's key 'vehicle'
+        ("+env_overrides.vehicle=b_segmnet", "env_overrides.vehicle", "unknown vehicle 'b_segmnet'"),
         # a numpy traceback from inside the vehicle generator; an error after the discretization, naming default.yaml
         ("+env_overrides.vehicle_seed=-3", "env_overrides.vehicle_seed", "expected a seed >= 0 or null"),
         (

@@ -76,7 +76,7 @@ from marlcrash.references import ReferenceConfig, ReferenceSampler
 from marlcrash.reward import Reward, TerminationConfig, load_reward_config, require_reward, shipped_termination
 from marlcrash.sim.scenario import list_scenarios
 from marlcrash.sim.surrogate import SimConfig, Surrogate, load_sim_config
-from marlcrash.vehicle.registry import VehicleOptions, is_deck
+from marlcrash.vehicle.registry import VehicleOptions, is_deck, vehicle_config_path
 
 
 class ActionError(MarlcrashError):
@@ -144,6 +144,8 @@ class EnvConfig:
             self.vehicle_options.require_fits(self.vehicle)
         except ConfigError as e:
             raise ConfigError(e.reason, key=f"vehicle_options.{e.key}") from None
+        if not is_deck(self.vehicle) and Path(self.vehicle).suffix.lower() not in (".yaml", ".yml"):
+            vehicle_config_path(self.vehicle)  # a registered name: an unknown one now, not when the env is built
         require(self.vehicle_seed is None or _is_int_at_least(self.vehicle_seed, 0), "vehicle_seed",
                 f"expected a seed >= 0 or null (the nominal car), got {self.vehicle_seed!r}")  # fmt: skip
         if is_deck(self.vehicle):  # now, not when the env is built (or a cross-fidelity seed is first drawn)
