@@ -266,6 +266,21 @@ def test_bad_env_override_names_the_training_key(override, key, words):
     assert e.value.key == "env_overrides.reward"
 
 
+def test_an_algorithm_file_missing_a_key_is_named_not_defaulted(tmp_path, monkeypatch):
+    """load_algorithm_config filled a key left out of the file with the schema's default (mappo's values), where every
+    other loader of a shipped file refuses one."""
+    import shutil
+
+    configs = tmp_path / "configs"
+    shutil.copytree(config_dir(), configs)
+    path = configs / "train" / "algorithm" / "ippo.yaml"
+    path.write_text("".join(x for x in path.read_text().splitlines(True) if not x.startswith("lr:")))
+    monkeypatch.setenv("MARLCRASH_CONFIGS", str(configs))
+    with pytest.raises(ConfigError, match="missing") as e:
+        load_algorithm_config("ippo")
+    assert e.value.key == "lr" and e.value.path == str(path)
+
+
 def test_unknown_algorithm_file():
     with pytest.raises(ConfigError, match="unknown algorithm 'dqn'"):
         load_algorithm_config("dqn")

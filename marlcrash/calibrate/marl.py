@@ -299,12 +299,12 @@ def load_algorithm_config(name: str, overrides: dict[str, Any] | None = None) ->
     """Load a registered algorithm's settings by name.
 
     Raises:
-        ConfigError: unknown name (the registered ones listed) or an invalid file.
+        ConfigError: unknown name (the registered ones listed) or an invalid file (a key left out of it too).
     """
     path = algorithm_config_path(name)
     if name not in ALGORITHMS or not path.is_file():
         raise ConfigError(f"unknown algorithm {name!r}; expected one of {list(ALGORITHMS)}", key="algorithm")
-    return load_config(AlgorithmConfig, path, overrides)
+    return load_config(AlgorithmConfig, path, overrides, complete=True)  # values live in the file, not the schema
 
 
 def _set_dotted(data: dict[str, Any], dotted: str, value: Any) -> None:
