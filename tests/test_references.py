@@ -776,6 +776,28 @@ def test_a_fine_cell_volume_cells_yaml_refuses_is_named_as_the_env_key_when_load
     assert load_env_config("default", {key: 1e-4}).reference.cross_fidelity.target_cell_volume == 1e-4
 
 
+def test_fine_model_substeps_that_miss_a_scenarios_output_step_are_named_when_loaded(tmp_path, monkeypatch):
+    """``reference.cross_fidelity.substeps`` was checked only as an integer in [1, 1000]: 25 steps per 0.5 ms with a
+    4 kHz scenario loaded, and the first cross-fidelity reference (the env built) failed in the fine model's simulator,
+    naming configs/sim.yaml's substeps, a value the user had not touched."""
+    import shutil
+
+    from marlcrash.config import config_dir
+    from marlcrash.envs.core import load_env_config
+
+    configs = tmp_path / "configs"
+    shutil.copytree(config_dir(), configs)
+    path = configs / "scenarios" / "full_width_40.yaml"
+    path.write_text(path.read_text().replace("output_rate: 2000.0", "output_rate: 4000.0"))
+    monkeypatch.setenv("MARLCRASH_CONFIGS", str(configs))
+    over = {"scenarios": {"full_width_40": 1.0}, "reference.kind": "cross_fidelity"}
+    with pytest.raises(ConfigError, match=r"full_width_40.*4000 Hz") as e:
+        load_env_config("default", {**over, "reference.cross_fidelity.substeps": 25})
+    assert e.value.key == "reference.cross_fidelity.substeps" and Path(e.value.path).name == "default.yaml"
+    assert load_env_config("default", {**over, "reference.cross_fidelity.substeps": 24})  # 6 steps per output
+    assert load_env_config("default", {**over, "reference.kind": "twin", "reference.cross_fidelity.substeps": 25})
+
+
 def test_cross_fidelity_reference_uses_the_uniform_model(cells, sim):
     s = sampler(cells, sim, kind="cross_fidelity", scenarios={"full_width_40": 1.0, "offset40_left": 1.0})
     ref = s.sample(np.random.default_rng(1), 4)

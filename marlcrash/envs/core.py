@@ -74,7 +74,7 @@ from marlcrash.errors import ConfigError, MarlcrashError
 from marlcrash.metrics import Metrics, compute_metrics
 from marlcrash.references import ReferenceConfig, ReferenceSampler
 from marlcrash.reward import Reward, TerminationConfig, load_reward_config, require_reward, shipped_termination
-from marlcrash.sim.scenario import list_scenarios
+from marlcrash.sim.scenario import BASE_OUTPUT_DT, get_scenario, list_scenarios, steps_per_output
 from marlcrash.sim.surrogate import SimConfig, Surrogate, load_sim_config
 from marlcrash.vehicle.registry import VehicleOptions, is_deck, vehicle_config_path
 
@@ -165,6 +165,14 @@ class EnvConfig:
         for k, w in self.scenarios.items():
             require(k in known, f"scenarios.{k}", f"unknown scenario {k!r}; registered (configs/scenarios/): {known}")
             require(math.isfinite(w) and w > 0, f"scenarios.{k}", f"expected a weight > 0, got {w}")
+        fine = self.reference.cross_fidelity.substeps
+        if self.reference.kind == "cross_fidelity" and fine is not None:  # now, not in the fine model's simulator
+            for k in self.scenarios:
+                sc = get_scenario(k)
+                require(steps_per_output(sc.output_dt, fine) is not None, "reference.cross_fidelity.substeps",
+                        f"the fine model's {fine} steps per {BASE_OUTPUT_DT * 1e3:g} ms do not fit a whole number "
+                        f"in the {sc.output_dt * 1e3:.6g} ms output step of scenario {k!r} ({sc.output_rate:g} Hz); "
+                        f"expected substeps that make it one, or null (configs/sim.yaml's)")  # fmt: skip
         require(0.0 < self.max_step <= 2.0, "max_step", f"expected a log increment in (0, 2], got {self.max_step}")
         b = self.behaviour_bounds
         require(len(b) == 2 and 0.0 < b[0] <= 1.0 <= b[1] and math.isfinite(b[1]), "behaviour_bounds",
