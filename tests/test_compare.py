@@ -680,3 +680,30 @@ def test_a_passing_run_wins_its_reference_over_a_higher_score():
     assert w[0]["winner"] == ["lm"] and w[0]["score"] == 1.0
     assert w[1]["winner"] == ["cmaes"] and w[1]["score"] == 2.0
     assert w[2]["winner"] == [] and w[2]["score"] is None
+
+
+@pytest.mark.parametrize(
+    ("name", "override", "key"),
+    [
+        ("compare", "+env_overrides.max_step=0.2", "env_overrides.max_step"),
+        ("compare", "+env_overrides.observation.velocity_scale=3", "env_overrides.observation.velocity_scale"),
+        ("ablate", "+env_overrides.max_step=0.2", "env_overrides.max_step"),
+    ],
+)
+def test_an_env_override_the_ppo_ones_replace_in_every_run_that_reads_it_is_refused(name, override, key):
+    """``python train/compare.py +env_overrides.max_step=0.2`` ran with max_step 0.1: ``ppo.env_overrides`` (0.1)
+    replaces it in the PPO runs, and no optimizer reads it; an ablation's runs are all PPO runs. The setting did
+    nothing, without a word."""
+    from test_train_config import composed
+
+    from marlcrash.calibrate.ablate import load_ablation_config
+
+    load = {"compare": load_compare_config, "ablate": load_ablation_config}[name]
+    with pytest.raises(ConfigError, match=re.escape(f"ppo.env_overrides.{key.removeprefix('env_overrides.')}")) as e:
+        load(composed([override], name=name), source=f"configs/train/{name}.yaml")
+    assert e.value.key == key and e.value.path == f"configs/train/{name}.yaml"
+    same = composed(["+env_overrides.max_step=0.1"], name=name)  # the value the PPO runs take anyway: no conflict
+    load(same, source=f"configs/train/{name}.yaml")
+    if name == "compare":  # a key the optimizers read too is theirs to set (the PPO runs take their own)
+        load(composed(["+env_overrides.masking.min_fraction=0.2", "+ppo.env_overrides.masking.min_fraction=0.3"],
+                      name=name), source="configs/train/compare.yaml")  # fmt: skip

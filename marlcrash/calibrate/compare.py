@@ -60,7 +60,7 @@ import json
 import math
 import shutil
 import time
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import asdict, dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -276,7 +276,7 @@ def load_compare_config(data: dict[str, Any], source: str | None = None) -> Comp
     if source is not None:
         require_complete(CompareConfig, data, source)
     config = from_dict(CompareConfig, data, path=source)
-    check_env_overrides(config.env, config.env_overrides, config.ppo.env_overrides, source)
+    check_env_overrides(config.env, config.env_overrides, config.ppo.env_overrides, source, _PPO_ONLY_ENV_KEYS)
     sim_dtype = load_env_config(config.env, config.env_overrides).sim_dtype
     if "gradient" in config.methods:
         check_gradient_backend(config.gradient, sim_dtype, source=source)
@@ -285,8 +285,19 @@ def load_compare_config(data: dict[str, Any], source: str | None = None) -> Comp
     return config
 
 
-def check_env_overrides(env: str, shared: dict[str, Any], ppo: dict[str, Any], source: str | None) -> None:
+_PPO_ONLY_ENV_KEYS = ("max_step", "observation", "granularity", "termination")
+"""Env keys only the PPO runs of a comparison read: the optimizers' problem searches the sub-assembly log-scales in its
+own box (``box_radius``) with its own success test (``success``)."""
+
+
+def check_env_overrides(
+    env: str, shared: dict[str, Any], ppo: dict[str, Any], source: str | None, ppo_only: Sequence[str] | None = None
+) -> None:
     """Load env config ``env`` with the ``env_overrides`` and, on top, the ``ppo.env_overrides`` of a table of runs.
+
+    An ``env_overrides`` entry that a ``ppo.env_overrides`` entry sets to another value is refused where only the PPO
+    runs read it (``ppo_only`` keys; ``None``: every key, all runs being PPO runs): the PPO value replaced it and the
+    setting did nothing (``+env_overrides.max_step=0.2`` ran with ``ppo.env_overrides.max_step`` 0.1).
 
     The PPO runs' env may differ from the optimizers' problem in how the agents act and learn, not in the reference
     they calibrate against: a ``ppo.env_overrides`` entry that changes a key of :data:`_REFERENCE_ENV_KEYS` made every
@@ -294,8 +305,8 @@ def check_env_overrides(env: str, shared: dict[str, Any], ppo: dict[str, Any], s
     the entry removed was refused as another protocol.
 
     Raises:
-        ConfigError: a bad override, named by its dotted key under ``env_overrides`` or ``ppo.env_overrides``, or a
-            ``ppo.env_overrides`` entry that changes the reference pulse.
+        ConfigError: a bad override, named by its dotted key under ``env_overrides`` or ``ppo.env_overrides``, a
+            ``ppo.env_overrides`` entry that changes the reference pulse, or an ``env_overrides`` entry it replaces.
     """
     envs = []
     for key, over in (("env_overrides", shared), ("ppo.env_overrides", merge_overrides(EnvConfig, shared, ppo))):
@@ -303,6 +314,14 @@ def check_env_overrides(env: str, shared: dict[str, Any], ppo: dict[str, Any], s
             envs.append(env_config_of(env, over, overrides_key=key))
         except ConfigError as e:  # an override named in this file; an error of the env file's own keys in that one
             raise nested_error(e, "", source) from None
+    replaced = flatten_overrides(EnvConfig, ppo)
+    for k, v in flatten_overrides(EnvConfig, shared).items():
+        if k in replaced and replaced[k] != v and (ppo_only is None or any(k == p or k.startswith(p + ".")
+                                                                            for p in ppo_only)):  # fmt: skip
+            runs = "the only runs" if ppo_only is None else "the only runs that read it"
+            raise ConfigError(f"ppo.env_overrides.{k} ({replaced[k]!r}) replaces this value ({v!r}) in the PPO runs, "
+                              f"{runs}; set ppo.env_overrides.{k} instead", key=f"env_overrides.{k}",
+                              path=source)  # fmt: skip
     for k in _REFERENCE_ENV_KEYS:
         every, own = (_reference_setting(e, k) for e in envs)
         if own != every:
