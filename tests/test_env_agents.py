@@ -113,6 +113,21 @@ def test_secondary_region_definition(cells, layout):
     assert not none.any()
 
 
+def test_a_secondary_hop_count_beyond_the_reach_ends_when_the_reach_stops_growing(cells, layout):
+    """``masking.secondary_hops`` has no upper bound (a large one: follow the links as far as they go), but every hop
+    was walked whether it reached a new cell or not: 10**6 took 27 s per region (every reset of every episode),
+    10**9 about 8 hours."""
+    import time
+
+    t = lambda v: torch.tensor([v], dtype=torch.float64)  # noqa: E731
+    args = (t(0.25), t(1.0), t(17.8))
+    every = ImpactRegions(cells, layout, MaskingConfig(secondary_hops=cells.n_cells)).regions(*args)
+    start = time.perf_counter()
+    far = ImpactRegions(cells, layout, MaskingConfig(secondary_hops=10**6)).regions(*args)
+    assert time.perf_counter() - start < 2.0
+    assert all(torch.equal(a, b) for a, b in zip(far, every, strict=True))
+
+
 def test_an_agent_with_exactly_min_fraction_of_its_cells_in_the_region_is_active(cells):
     """ "At least ``min_fraction`` of its cells": 15 of 50 cells is 0.3 exactly, but the rule compared 15 with
     ``0.3 * 50`` taken in float32 (a Python float times the int64 cell counts), ``15.000001``, so an agent with

@@ -119,6 +119,8 @@ class ImpactRegions:
         for _ in range(self.config.secondary_hops):  # loop over hops, vectorized over cells and links
             step = torch.zeros_like(frontier).index_add_(1, self.dst, frontier[:, self.src])
             new = (step > 0) & ~reach
+            if not bool(new.any()):  # the reach stopped growing: further hops add nothing (a large count ends here)
+                break
             reach |= new
             frontier = new.to(torch.float64)
         near = self.x[None, :] - self._front <= self._depth(self.config.secondary_depth, speed)[:, None]
