@@ -394,7 +394,7 @@ def test_a_key_missing_from_an_older_runs_config_names_the_runs_file(tmp_path):
 @pytest.mark.parametrize(
     ("name", "drop"),
     [("train", "algorithm.lr"), ("train", "time_limit_s"), ("baseline", "gradient.lr"), ("compare", "budget"),
-     ("amortized", "seed")],
+     ("amortized", "seed"), ("evaluate", "checkpoint")],
 )  # fmt: skip
 def test_a_key_deleted_from_a_config_file_is_named_not_defaulted(name, drop):
     """Values live in the YAML files: every script's composed config gives every schema key, and one missing
@@ -406,6 +406,7 @@ def test_a_key_deleted_from_a_config_file_is_named_not_defaulted(name, drop):
     from marlcrash.calibrate.baselines import BaselineRunConfig
     from marlcrash.calibrate.baselines import load_run_config as load_baseline_config
     from marlcrash.calibrate.compare import CompareConfig, load_compare_config
+    from marlcrash.calibrate.evaluate import EvaluateRunConfig, load_evaluate_config
     from marlcrash.config import missing_keys
 
     schema, load = {
@@ -413,6 +414,7 @@ def test_a_key_deleted_from_a_config_file_is_named_not_defaulted(name, drop):
         "baseline": (BaselineRunConfig, load_baseline_config),
         "compare": (CompareConfig, load_compare_config),
         "amortized": (AmortizedConfig, load_amortized_config),
+        "evaluate": (EvaluateRunConfig, load_evaluate_config),
     }[name]
     with initialize_config_dir(config_dir=str(config_dir() / "train"), version_base=None):
         data = OmegaConf.to_container(compose(config_name=name), resolve=True)

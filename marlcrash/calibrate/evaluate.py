@@ -81,7 +81,7 @@ from marlcrash.calibrate.problem import (
     env_backends,
 )
 from marlcrash.calibrate.runlock import run_lock
-from marlcrash.config import MAX_STEPS, flatten_overrides, from_dict, require
+from marlcrash.config import MAX_STEPS, flatten_overrides, from_dict, require, require_complete
 from marlcrash.envs import EnvConfig
 from marlcrash.errors import ConfigError
 from marlcrash.metrics import Metrics
@@ -143,6 +143,8 @@ def load_evaluate_config(data: dict[str, Any], source: str | None = None) -> Eva
         ConfigError: unknown key, wrong type or bad value, naming the key.
     """
     data = {k: v for k, v in data.items() if k != "hydra"}
+    if source is not None:  # values live in the file: a key left out of it is named, not defaulted
+        require_complete(EvaluateRunConfig, data, source)
     if isinstance(data.get("checkpoint"), int) and not isinstance(data.get("checkpoint"), bool):
         data["checkpoint"] = str(data["checkpoint"])
     return from_dict(EvaluateRunConfig, data, path=source)
