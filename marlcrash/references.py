@@ -570,10 +570,15 @@ class ReferenceSampler:
         rise = float(vel.max()) - sc.speed
         if rise > max(1.0, 0.1 * sc.speed):  # a frontal impact slows the vehicle; rebound never exceeds the speed
             k = int(vel.max(axis=1).argmax())
+            remedy = (  # a sign of -1 given already turned the file's values over: the remedy is the other sign
+                f"{key}.sign: -1 is given (decelerations recorded positive): if the file records them negative, "
+                f"leave {key}.sign at 1 (the default)"
+                if spec.sign < 0
+                else f"if the file records them positive, set {key}.sign: -1"
+            )
             raise PulseError(
                 f"{path.name}: channel {channels[k]!r} integrates to {rise:.3g} m/s above the impact speed "
-                f"{sc.speed:.4g} m/s; expected decelerations negative (SAE J211, x forward): if the file records them "
-                f"positive, set {key}.sign: -1"
+                f"{sc.speed:.4g} m/s; expected decelerations negative (SAE J211, x forward): {remedy}"
             )
         change = sc.speed - float(vel.min())
         if change > 2.0 * sc.speed + max(1.0, 0.1 * sc.speed):  # at most a full rebound: v >= -speed

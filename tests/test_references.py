@@ -284,6 +284,18 @@ def test_file_reference_conventions_and_time_zero_alignment(cells, sim, tmp_path
         sampler(cells, sim, kind="file", files=[positive])
 
 
+def test_a_file_reference_read_with_sign_minus_one_that_climbs_names_the_sign_given_not_the_same_remedy(cells, sim):
+    """A test that records decelerations negative (SAE J211), read with ``sign: -1``, climbs above the impact speed
+    too: the refusal says that the sign given turned it over and to leave it at +1, not "set sign: -1" again (the
+    remedy the user has already applied)."""
+    channels = dict.fromkeys(cells.sensor_names, "tunnel_acx")
+    spec = FileReference(path=str(DATA / "halfsine_40kmh.csv"), scenario="full_width_40", channels=channels, sign=-1.0)
+    with pytest.raises(PulseError, match=r"above the impact speed") as e:
+        sampler(cells, sim, kind="file", files=[spec])
+    assert "set reference.files[0].sign: -1" not in str(e.value)
+    assert re.search(r"reference\.files\[0\]\.sign: -1 is given.*leave reference\.files\[0\]\.sign at 1", str(e.value))
+
+
 def test_a_file_reference_whose_velocity_change_no_crash_can_have_is_refused_naming_the_unit(cells, sim, tmp_path):
     """A test in m/s^2 whose header gives no unit, read in g (the default), changes the velocity 9.8x as much: the
     40 km/h half-sine's 11 m/s became 109 m/s, down to -98 m/s, and the surrogate was calibrated against it without a
