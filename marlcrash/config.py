@@ -27,11 +27,15 @@ T = TypeVar("T")
 
 
 def config_dir() -> Path:
-    """The folder of YAML configs: ``$MARLCRASH_CONFIGS`` or the repository's ``configs/``."""
+    """The folder of YAML configs: ``$MARLCRASH_CONFIGS``, else the copy a non-editable install ships inside the
+    package (``marlcrash/configs``), else the repository's ``configs/`` beside the package (a checkout, an editable
+    install)."""
     env = os.environ.get("MARLCRASH_CONFIGS")
     if env:
         return Path(env)
-    return Path(__file__).resolve().parent.parent / "configs"
+    package = Path(__file__).resolve().parent
+    shipped = package / "configs"
+    return shipped if shipped.is_dir() else package.parent / "configs"
 
 
 class _Loader(yaml.SafeLoader):

@@ -1,0 +1,104 @@
+"""A non-editable install (a wheel) ships the configs and runs the ``marlcrash`` commands on the embedded default.
+
+The repository keeps ``configs/`` at its root, beside the package; pyproject.toml maps it into the wheel as
+``marlcrash/configs``. These tests build the wheel from a copy of the sources (setuptools writes ``build/`` and
+``*.egg-info`` beside the sources it builds), install it into a folder of its own and run it from outside the
+checkout, so a config the package needs but the wheel lacks fails here and not on a user's machine.
+"""
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tomllib
+import zipfile
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def _pyproject() -> dict:
+    with open(ROOT / "pyproject.toml", "rb") as f:
+        return tomllib.load(f)
+
+
+def test_pyproject_lists_every_package():
+    """The explicit package list (needed for the configs mapping) names every package under marlcrash/."""
+    listed = set(_pyproject()["tool"]["setuptools"]["packages"])
+    on_disk = {
+        ".".join(init.parent.relative_to(ROOT).parts)
+        for init in (ROOT / "marlcrash").rglob("__init__.py")
+        if "__pycache__" not in init.parts
+    }
+    assert on_disk <= listed, f"packages missing from pyproject.toml [tool.setuptools] packages: {on_disk - listed}"
+    assert listed - on_disk == {"marlcrash.configs"}, f"listed but not packages: {listed - on_disk}"
+
+
+@pytest.fixture(scope="module")
+def wheel(tmp_path_factory) -> Path:
+    src = tmp_path_factory.mktemp("src")
+    ignore = shutil.ignore_patterns("__pycache__", "*.pyc")
+    for name in ("marlcrash", "configs"):
+        shutil.copytree(ROOT / name, src / name, ignore=ignore)
+    for name in ("pyproject.toml", "README.md"):
+        shutil.copy2(ROOT / name, src / name)
+    out = tmp_path_factory.mktemp("wheel")
+    cmd = [sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "--no-build-isolation", str(src), "-w", str(out)]
+    done = subprocess.run(cmd, capture_output=True, text=True, cwd=src)
+    assert done.returncode == 0, done.stderr
+    (found,) = out.glob("marlcrash-*.whl")
+    return found
+
+
+def test_wheel_ships_every_config(wheel):
+    with zipfile.ZipFile(wheel) as z:
+        shipped = {n.removeprefix("marlcrash/configs/") for n in z.namelist() if n.startswith("marlcrash/configs/")}
+    expected = {p.relative_to(ROOT / "configs").as_posix() for p in (ROOT / "configs").rglob("*.yaml")}
+    assert expected, "no configs found in the repository"
+    assert expected == shipped, f"missing from the wheel: {expected - shipped}; not in configs/: {shipped - expected}"
+
+
+@pytest.fixture(scope="module")
+def installed(wheel, tmp_path_factory) -> tuple[Path, dict[str, str]]:
+    """The wheel installed into a folder of its own, and an environment that imports it from there: the folder is
+    put before the checkout's editable install on ``sys.path``."""
+    target = tmp_path_factory.mktemp("site")
+    done = subprocess.run(
+        [sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--target", str(target), str(wheel)],
+        capture_output=True,
+        text=True,
+    )
+    assert done.returncode == 0, done.stderr
+    env = {k: v for k, v in os.environ.items() if k != "MARLCRASH_CONFIGS"}
+    env["PYTHONPATH"] = str(target)
+    return target, env
+
+
+def test_installed_wheel_reads_its_shipped_configs(installed, tmp_path):
+    target, env = installed
+    code = "import marlcrash, marlcrash.config as c; print(marlcrash.__file__); print(c.config_dir())"
+    where = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=tmp_path)
+    assert where.returncode == 0, where.stderr
+    module, configs = where.stdout.split()
+    assert Path(module).is_relative_to(target)
+    assert Path(configs) == target / "marlcrash" / "configs"
+
+
+@pytest.mark.slow
+def test_installed_wheel_simulates_the_default_car(installed, tmp_path):
+    """Outside the checkout, the installed package simulates the embedded default car (its numba kernels compile
+    afresh there, hence slow)."""
+    _, env = installed
+    done = subprocess.run(
+        [sys.executable, "-m", "marlcrash", "simulate", "--json", "--csv", "pulse.csv"],
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=tmp_path,
+    )
+    assert done.returncode == 0, done.stderr
+    assert json.loads(done.stdout)["scenario"] == "full_width_40"
+    assert (tmp_path / "pulse.csv").stat().st_size > 0
