@@ -18,6 +18,7 @@ from pathlib import Path
 from marlcrash import __version__
 from marlcrash.errors import ConfigError, MarlcrashError
 from marlcrash.outputs import check_output_file
+from marlcrash.units import UNIT_SYSTEM_NAMES
 
 DECK_SUFFIXES = (".k", ".key", ".dyn", ".kw")  # as marlcrash.vehicle.registry's (not imported: startup time)
 
@@ -58,7 +59,7 @@ def _add_vehicle_args(p: argparse.ArgumentParser, deck_required: bool) -> None:
         metavar="NAME=VALUE",
         help="value for a *PARAMETER the deck uses but does not define (repeatable)",
     )
-    p.add_argument("--units", help="deck unit system: mm-t-s, mm-kg-ms or m-kg-s (default: detected)")
+    p.add_argument("--units", help=f"deck unit system: one of {UNIT_SYSTEM_NAMES} (default: detected)")
     p.add_argument(
         "--axis-map",
         metavar="MAP",

@@ -8,6 +8,7 @@ follow from those three.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -58,16 +59,29 @@ class UnitSystem:
         return self.length**2
 
 
+INCH = 0.0254
+"""One inch [m] (exact)."""
+POUND_FORCE = 4.4482216152605
+"""One pound-force [N] (exact: 0.45359237 kg x standard gravity)."""
+
 UNIT_SYSTEMS: dict[str, UnitSystem] = {
-    "mm-t-s": UnitSystem("mm-t-s", 1e-3, 1e3, 1.0),
-    "mm-kg-ms": UnitSystem("mm-kg-ms", 1e-3, 1.0, 1e-3),
-    "m-kg-s": UnitSystem("m-kg-s", 1.0, 1.0, 1.0),
+    "mm-t-s": UnitSystem("mm-t-s", 1e-3, 1e3, 1.0),  # N, MPa: the usual crash deck
+    "mm-kg-ms": UnitSystem("mm-kg-ms", 1e-3, 1.0, 1e-3),  # kN, GPa
+    "m-kg-s": UnitSystem("m-kg-s", 1.0, 1.0, 1.0),  # SI
+    "mm-g-ms": UnitSystem("mm-g-ms", 1e-3, 1e-3, 1e-3),  # N, MPa
+    "cm-g-us": UnitSystem("cm-g-us", 1e-2, 1e-3, 1e-6),  # 1e7 N, Mbar
+    # the US customary crash system: length inch, force lbf, time s, so the mass unit is 1 lbf s^2/in (175.1 kg)
+    "in-lbf-s": UnitSystem("in-lbf-s", INCH, POUND_FORCE / INCH, 1.0),  # lbf, psi
 }
 """The unit systems a deck may use, by name."""
 
+UNIT_SYSTEM_NAMES = ", ".join(UNIT_SYSTEMS)
+"""The names of :data:`UNIT_SYSTEMS`, for messages and help texts."""
+
 
 def get_unit_system(name: str) -> UnitSystem:
-    """Look up a unit system by name (``mm-t-s``, ``mm-kg-ms``, ``m-kg-s``)."""
+    """Look up a unit system by name (one of :data:`UNIT_SYSTEMS`: ``mm-t-s``, ``mm-kg-ms``, ``m-kg-s``,
+    ``mm-g-ms``, ``cm-g-us``, ``in-lbf-s``)."""
     try:
         return UNIT_SYSTEMS[name]
     except KeyError:
@@ -78,10 +92,16 @@ def get_unit_system(name: str) -> UnitSystem:
 
 # Structural materials in a car body span about 1e3 to 1.2e4 kg/m^3, and moduli from
 # about 1e9 (polymers) to 4e11 Pa. Mass-scaled decks (density raised to enlarge the
-# explicit time step) reach ten times steel, so the density window is wide; the three
-# unit systems still differ by factors of 1e3 or more, so at most one fits.
+# explicit time step) reach ten times steel, so the density window is wide. The density
+# units of mm-t-s, mm-kg-ms, m-kg-s and cm-g-us differ by factors of 1e3 or more, so at
+# most one of them fits; mm-g-ms and in-lbf-s differ by 10.7x only, and a steel deck in
+# mm-g-ms read as in-lbf-s has a density of 84,000 kg/m^3 (mass-scaled steel) and a
+# modulus of 1.4 GPa (a polymer's). The wave speed sqrt(E/rho) of that pair, 130 m/s, is
+# no material's: metals and glass have about 5,000 m/s, polymers 1,300 m/s, steel
+# mass-scaled 10x 1,600 m/s; so the medians must also give a wave speed in its window.
 DENSITY_WINDOW = (1e2, 1.5e5)
 _MODULUS_WINDOW = (1e8, 1e12)
+_WAVE_SPEED_WINDOW = (3e2, 1e4)
 
 
 def density_fits(density: float, system: UnitSystem) -> bool:
@@ -94,24 +114,33 @@ def detect_unit_system(densities: np.ndarray, moduli: np.ndarray) -> UnitSystem 
 
     Args:
         densities: raw density values as written in the deck (zeros ignored).
-        moduli: raw Young's moduli as written in the deck (zeros ignored).
+        moduli: raw Young's moduli as written in the deck (zeros ignored), one per density: the same
+            materials in the same order.
 
     Returns:
-        The single unit system under which both medians are physically plausible,
-        or ``None`` if none or several fit (the caller must then ask for one).
+        The single unit system under which the median density, the median modulus and the median
+        wave speed sqrt(E/rho) of the materials that have both are physically plausible, or ``None``
+        if none or several fit (the caller must then ask for one).
     """
     rho = np.asarray(densities, dtype=float)
     e = np.asarray(moduli, dtype=float)
-    rho = rho[np.isfinite(rho) & (rho > 0)]
-    e = e[np.isfinite(e) & (e > 0)]
-    if rho.size == 0:
+    if rho.shape != e.shape:
+        raise ValueError(f"expected one modulus per density, got {rho.shape} densities and {e.shape} moduli")
+    has_rho = np.isfinite(rho) & (rho > 0)
+    has_e = np.isfinite(e) & (e > 0)
+    if not has_rho.any():
         return None
+    rho_med = float(np.median(rho[has_rho]))
+    both = has_rho & has_e
     fits = []
     for system in UNIT_SYSTEMS.values():
-        ok = density_fits(float(np.median(rho)), system)
-        if ok and e.size:
-            m = float(np.median(e)) * system.stress
+        ok = density_fits(rho_med, system)
+        if ok and has_e.any():
+            m = float(np.median(e[has_e])) * system.stress
             ok = _MODULUS_WINDOW[0] <= m <= _MODULUS_WINDOW[1]
+        if ok and both.any():
+            c = float(np.median(np.sqrt(e[both] / rho[both]))) * math.sqrt(system.stress / system.density)
+            ok = _WAVE_SPEED_WINDOW[0] <= c <= _WAVE_SPEED_WINDOW[1]
         if ok:
             fits.append(system)
     return fits[0] if len(fits) == 1 else None

@@ -54,8 +54,17 @@ def test_unit_system_conversions():
     assert mm_kg_ms.stress == pytest.approx(1e9)  # GPa
     assert mm_kg_ms.force == pytest.approx(1e3)  # kN
     assert mm_kg_ms.velocity == pytest.approx(1.0)  # mm/ms = m/s
-    with pytest.raises(ConfigError, match="unknown unit system"):
-        get_unit_system("in-lbf-s")
+    mm_g_ms = get_unit_system("mm-g-ms")
+    assert (mm_g_ms.density, mm_g_ms.stress, mm_g_ms.force) == pytest.approx((1e6, 1e6, 1.0))  # g/mm^3, MPa, N
+    cm_g_us = get_unit_system("cm-g-us")
+    assert (cm_g_us.density, cm_g_us.stress, cm_g_us.force) == pytest.approx((1e3, 1e11, 1e7))  # g/cm^3, Mbar
+    in_lbf_s = get_unit_system("in-lbf-s")
+    assert in_lbf_s.force == pytest.approx(4.4482216152605)  # lbf
+    assert in_lbf_s.stress == pytest.approx(6894.757293168)  # psi
+    assert in_lbf_s.mass == pytest.approx(175.126835246)  # lbf s^2/in
+    assert in_lbf_s.velocity == pytest.approx(0.0254)  # in/s
+    with pytest.raises(ConfigError, match="unknown unit system 'furlong-firkin-fortnight'"):
+        get_unit_system("furlong-firkin-fortnight")
 
 
 @pytest.mark.parametrize("name", sorted(UNIT_SYSTEMS))
@@ -64,6 +73,30 @@ def test_detect_unit_system_steel(name):
     rho = np.array([7850.0, 2700.0, 7850.0]) / u.density
     e = np.array([2.1e11, 7e10, 2.1e11]) / u.stress
     assert detect_unit_system(rho, e) == u
+
+
+@pytest.mark.parametrize("name", sorted(UNIT_SYSTEMS))
+@pytest.mark.parametrize(
+    "materials",
+    [
+        [(7850.0, 2.1e11)],  # steel
+        [(2700.0, 7e10)],  # aluminium
+        [(1200.0, 2e9)],  # a polymer
+        [(78500.0, 2.1e11)],  # steel mass-scaled 10x
+        [(7850.0, 2.1e11), (50.0, 2e6), (1000.0, 5e9), (7850.0, 2.1e11)],  # with a foam and a fabric
+    ],
+    ids=["steel", "aluminium", "polymer", "mass-scaled", "mixed"],
+)
+def test_detect_unit_system_is_unique_for_every_system_and_material(name, materials):
+    # mm-g-ms and in-lbf-s densities differ by 10.7x only: a steel deck in one must not also fit the other
+    u = UNIT_SYSTEMS[name]
+    rho, e = (np.array(v) for v in zip(*materials, strict=True))
+    assert detect_unit_system(rho / u.density, e / u.stress) == u
+
+
+def test_detect_unit_system_wants_one_modulus_per_density():
+    with pytest.raises(ValueError, match="one modulus per density"):
+        detect_unit_system(np.array([7.85e-9, 2.7e-9]), np.array([2.1e5]))
 
 
 def test_detect_unit_system_ambiguous_or_empty():

@@ -610,18 +610,58 @@ def test_axis_map_rotates_then_shifts(tmp_path):
 
 
 def test_given_units_under_which_no_density_is_a_structural_materials_are_named(tmp_path):
-    # a mm-g-ms deck (steel 7.85e-3 g/mm^3, E in MPa) fits none of the three systems; given as mm-kg-ms it weighed 1000x
-    gms = HEAD.replace("  7.85e-09  210000.0", "   7.85e-3  210000.0")
+    # a density that is no structural material's in any known system (RO typed 1000x too small in a mm-t-s deck);
+    # given as mm-t-s it weighs 1/1000 of steel, read as asked and said so
+    typo = HEAD.replace("  7.85e-09  210000.0", "  7.85e-12  210000.0")
     with pytest.warns(
         UserWarning,
-        match=r"units mm-kg-ms given, but the material densities \(median 0.00785\) read as "
-        r"7\.85e\+06 kg/m\^3 in it, outside the structural materials' 100 to 150000 kg/m\^3: ",
+        match=r"units mm-t-s given, but the material densities \(median 7.85e-12\) read as "
+        r"7\.85 kg/m\^3 in it, outside the structural materials' 100 to 150000 kg/m\^3: .*\(the reader knows "
+        r"mm-t-s, mm-kg-ms, m-kg-s, mm-g-ms, cm-g-us, in-lbf-s only",
     ):
-        m = read_deck(_write(tmp_path, gms + NODES + SHELL), units="mm-kg-ms")
-    assert m.total_mass() == pytest.approx(1000 * 0.01 * 2e-3 * 7850)  # read as asked, and said so
+        m = read_deck(_write(tmp_path, typo + NODES + SHELL), units="mm-t-s")
+    assert m.total_mass() == pytest.approx(0.01 * 2e-3 * 7.85)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         read_deck(_write(tmp_path, HEAD + NODES + SHELL, "ok.k"), units="mm-t-s")
+
+
+# The same 100 mm x 100 mm x 2 mm steel plate (SI: 7850 kg/m^3, 210 GPa, mass 0.157 kg) written in each unit
+# system a crash deck uses, with the conversion factors typed from their definitions (not taken from
+# marlcrash.units): length unit [m], density unit [kg/m^3], stress unit [Pa].
+_PSI = 4.4482216152605 / 0.0254**2
+_PLATE_IN = {
+    "mm-t-s": (1e-3, 1e12, 1e6),  # t/mm^3 = 1e3 kg / 1e-9 m^3; MPa
+    "mm-kg-ms": (1e-3, 1e9, 1e9),  # kg/mm^3; kN/mm^2 = GPa
+    "m-kg-s": (1.0, 1.0, 1.0),
+    "mm-g-ms": (1e-3, 1e6, 1e6),  # g/mm^3; g/(mm ms^2) = 1e-3 kg / (1e-3 m 1e-6 s^2) = MPa
+    "cm-g-us": (1e-2, 1e3, 1e11),  # g/cm^3; Mbar
+    "in-lbf-s": (0.0254, 4.4482216152605 / 0.0254**4, _PSI),  # (lbf s^2/in)/in^3; psi
+}
+
+
+@pytest.mark.parametrize("units", list(_PLATE_IN))
+def test_every_unit_system_is_detected_and_read_to_the_same_plate(tmp_path, units):
+    length, density, stress = _PLATE_IN[units]
+    fields = f"{7850.0 / density:10.4g}{2.1e11 / stress:10.4g}"
+    deck = HEAD.replace("  7.85e-09  210000.0", fields).replace(
+        "       2.0       2.0       2.0       2.0", "".join(f"{0.002 / length:10.5g}" for _ in range(4))
+    )
+    nodes = NODES.replace("100.0", f"{0.1 / length:5.4g}")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # nothing odd about any of them
+        m = read_deck(_write(tmp_path, deck + nodes + SHELL))
+    assert m.units == units
+    assert m.total_mass() == pytest.approx(0.1 * 0.1 * 0.002 * 7850, rel=1e-3)
+    np.testing.assert_allclose(m.bounds(), [[0, -0.05, 0], [0.1, 0.05, 0]], atol=1e-6)
+    assert m.materials[1].youngs_modulus == pytest.approx(2.1e11, rel=1e-3)
+
+
+def test_a_mm_g_ms_deck_given_as_mm_kg_ms_is_named(tmp_path):
+    gms = HEAD.replace("  7.85e-09  210000.0", "   7.85e-3  210000.0")  # steel in g/mm^3 and MPa
+    with pytest.warns(UserWarning, match=r"units mm-kg-ms given, but the material densities .* read as mm-g-ms"):
+        m = read_deck(_write(tmp_path, gms + NODES + SHELL), units="mm-kg-ms")
+    assert m.total_mass() == pytest.approx(1000 * 0.01 * 2e-3 * 7850)  # read as asked, and said so
 
 
 def test_initial_velocities_that_move_the_vehicle_other_than_front_first_are_named(tmp_path):

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from marlcrash.errors import ConfigError, DeckError, ModelError
+from marlcrash.units import UNIT_SYSTEMS
 from marlcrash.vehicle.keyword import read_deck
 from marlcrash.vehicle.keyword_writer import write_deck
 from marlcrash.vehicle.materials import MATERIAL_FIELDS, Material, complete_material
@@ -131,7 +132,7 @@ def _same(a: VehicleModel, b: VehicleModel) -> None:
     np.testing.assert_allclose(a.total_mass(), b.total_mass(), rtol=1e-9)
 
 
-@pytest.mark.parametrize("units", ["mm-t-s", "mm-kg-ms", "m-kg-s"])
+@pytest.mark.parametrize("units", list(UNIT_SYSTEMS))
 def test_round_trip_is_identical(tmp_path, units):
     m = _model()
     with warnings.catch_warnings():

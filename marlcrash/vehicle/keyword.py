@@ -117,7 +117,15 @@ from typing import Any
 import numpy as np
 
 from marlcrash.errors import DeckError, ModelError
-from marlcrash.units import DENSITY_WINDOW, UNIT_SYSTEMS, UnitSystem, density_fits, detect_unit_system, get_unit_system
+from marlcrash.units import (
+    DENSITY_WINDOW,
+    UNIT_SYSTEM_NAMES,
+    UNIT_SYSTEMS,
+    UnitSystem,
+    density_fits,
+    detect_unit_system,
+    get_unit_system,
+)
 from marlcrash.vehicle.materials import Material, complete_material
 from marlcrash.vehicle.model import AxisMap, Part, VehicleModel
 
@@ -2142,13 +2150,13 @@ def _assemble(deck: _Deck, t: _Tables, units: str | None, main: Path) -> tuple[V
             warnings.warn(f"{main.name}: {msg}", UserWarning, stacklevel=3)
         pos = rho[np.isfinite(rho) & (rho > 0)]
         ro_med = float(np.median(pos)) if pos.size else 0.0
-        if seen is None and ro_med > 0 and not density_fits(ro_med, u):  # a system the reader does not know (mm-g-ms)
+        if seen is None and ro_med > 0 and not density_fits(ro_med, u):  # a system the reader does not know
             whole = True
             msg = (
                 f"units {u.name} given, but the material densities (median {ro_med:.4g}) read as "
                 f"{ro_med * u.density:.4g} kg/m^3 in it, outside the structural materials' {DENSITY_WINDOW[0]:g} "
                 f"to {DENSITY_WINDOW[1]:g} kg/m^3: masses will be off by orders of magnitude (the reader knows "
-                f"{', '.join(UNIT_SYSTEMS)} only; a deck in another system must be converted)"
+                f"{UNIT_SYSTEM_NAMES} only; a deck in another system must be converted)"
             )
             notes.append(msg)
             warnings.warn(f"{main.name}: {msg}", UserWarning, stacklevel=3)
@@ -2158,7 +2166,7 @@ def _assemble(deck: _Deck, t: _Tables, units: str | None, main: Path) -> tuple[V
             med = f"{np.nanmedian(rho):.4g}" if rho.size else "n/a"
             raise DeckError(
                 f"cannot tell the unit system from material densities (median {med}) and moduli{stopped}; "
-                "give it: --units on the command line, units= in Python, one of 'mm-t-s', 'mm-kg-ms', 'm-kg-s'",
+                f"give it: --units on the command line, units= in Python, one of {UNIT_SYSTEM_NAMES}",
                 main,
             )
         u = detected
@@ -2876,8 +2884,9 @@ def read_deck(
         path: the main deck file; ``*INCLUDE`` paths are relative to the including file.
         params: values of parameters the deck uses (``&name``); they also override
             the deck's own ``*PARAMETER`` values.
-        units: the deck's unit system (``mm-t-s``, ``mm-kg-ms``, ``m-kg-s``); detected
-            from material densities and moduli when ``None``.
+        units: the deck's unit system, a name of :data:`marlcrash.units.UNIT_SYSTEMS` (``mm-t-s``,
+            ``mm-kg-ms``, ``m-kg-s``, ``mm-g-ms``, ``cm-g-us``, ``in-lbf-s``); detected from material
+            densities and moduli when ``None``.
         axis_map: how the deck's axes map onto marlcrash's (x rearward, y left, z up);
             identity when ``None``. The model is always shifted so its front is at
             x = 0 and its lateral centre at y = 0 (:meth:`VehicleModel.transformed`).

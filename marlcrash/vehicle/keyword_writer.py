@@ -226,7 +226,7 @@ def write_deck(model: VehicleModel, path: str | Path, *, units: str = "mm-t-s", 
     Args:
         model: a valid model (SI units).
         path: the deck file to write (written atomically, :func:`marlcrash.outputs.atomic_output`).
-        units: unit system of the deck: ``mm-t-s``, ``mm-kg-ms`` or ``m-kg-s``.
+        units: unit system of the deck, a name of :data:`marlcrash.units.UNIT_SYSTEMS`.
         subassembly_yaml: also write ``<stem>.subassemblies.yaml`` beside the deck.
 
     Returns:

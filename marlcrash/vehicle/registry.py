@@ -112,7 +112,7 @@ class VehicleOptions:
 
     Attributes:
         params: values of ``*PARAMETER`` names the deck uses (``--param``; they override the deck's own) [deck units].
-        units: the deck's unit system, ``mm-t-s``, ``mm-kg-ms`` or ``m-kg-s`` (``--units``); ``None``: detected.
+        units: the deck's unit system, a name of :data:`marlcrash.units.UNIT_SYSTEMS` (``--units``); ``None``: detected.
         axis_map: deck axes to marlcrash's, e.g. ``"x=+x,y=+z,z=+y"`` (``--axis-map``); ``None``: the identity.
         subassemblies: a sub-assembly map YAML file (``--subassemblies``, :mod:`marlcrash.vehicle.subassembly_map`),
             for a deck or a synthetic car; ``None``: a deck's parts are their own sub-assemblies, a synthetic car
