@@ -705,3 +705,20 @@ def test_the_standard_error_counts_references_not_pairs():
                                      scenario=r["scenario"]) for r in rows], None, "today")  # fmt: skip
     assert "| scenario | s2 vs s1 | 4 (2 references) | +0.1000 ± 1.0000 |" in md
     assert "| masking | primary vs none | 4 | +0.1000 ± 0.0577 |" in md
+
+
+def test_the_success_test_in_ablate_md_leaves_out_a_skipped_metric():
+    """``success.<metric>: null`` skips that metric (the yaml says so), yet ablate.md and compare.md stated the test as
+    'every sensor A < None m, ...': a threshold of ``None`` that no run was held to. The test they state names the
+    thresholds set, with their units, and only those."""
+    from marlcrash.calibrate.compare import CompareConfig
+    from marlcrash.calibrate.compare import markdown as compare_markdown
+    from marlcrash.calibrate.problem import SuccessConfig
+
+    success = SuccessConfig(area=None, dfd=0.3, rmse=None)
+    md = ablate.markdown(ablate.AblationConfig(success=success), [], None, "today")
+    assert "passed = every sensor DFD < 0.3 m/s;" in md and "None" not in md
+    md = compare_markdown(CompareConfig(success=SuccessConfig(area=0.002, dfd=None, rmse=0.1)), [], None, "today")
+    assert "success = every sensor A < 0.002 m, RMSE < 0.1 m/s " in md and "None" not in md
+    default = ablate.markdown(ablate.AblationConfig(), [], None, "today")  # every metric: as before
+    assert "passed = every sensor A < 0.0015 m, DFD < 0.335 m/s, RMSE < 0.1511 m/s;" in default

@@ -567,9 +567,9 @@ def markdown(config: AblationConfig, rows: list[dict[str, Any]], command: str | 
         "its result is the best candidate of all its simulations",
         f"- one yardstick for every cell: score = fit score of the `{config.score}` form (higher is better) "
         "whatever reward the cell trained on; gain = score minus the initial parameters' score on the same "
-        f"reference; passed = every sensor A < {th.area} m, DFD < {th.dfd} m/s, "
-        f"RMSE < {th.rmse} m/s; param err = mean relative error of every sub-assembly's parameters "
-        "(masked ones included) against the twin truth; active = agents the masking level lets act",
+        f"reference; passed = every sensor {th.describe()}; param err = mean relative error of every "
+        "sub-assembly's parameters (masked ones included) against the twin truth; active = agents the masking level "
+        "lets act",
         "",
     ]
     effects = paired_effects(rows, lv)

@@ -687,7 +687,7 @@ def markdown(config: CompareConfig, rows: list[dict[str, Any]], command: str | N
         f"step and one per episode reset, {config.ppo.n_envs} envs x {config.ppo.episode_length} steps per "
         f"iteration); wall cap {_fmt(config.max_wall_s, 'g')} s per run",
         f"- result of a run: its best candidate by fit score, a passing one before any other; success = every "
-        f"sensor A < {th.area} m, DFD < {th.dfd} m/s, RMSE < {th.rmse} m/s (the paper's best Table 3 row); passed: "
+        f"sensor {th.describe()} (the paper's best Table 3 row); passed: "
         "the best candidate meets it; sims to success: simulations until the first candidate met it (median over the "
         "runs where one did)",
         "- area [m], DFD [m/s], RMSE [m/s] of the best candidate: mean over sensors and worst sensor; score: fit "

@@ -108,6 +108,12 @@ class SuccessConfig:
         require(any(getattr(self, k) is not None for k in ("area", "dfd", "rmse")), "area",
                 "at least one of area, dfd, rmse needs a threshold")  # fmt: skip
 
+    def describe(self) -> str:
+        """The test for a results table, thresholds with units: ``A < 0.0015 m, DFD < 0.335 m/s, RMSE < 0.1511 m/s``;
+        a skipped metric (``None``) is left out."""
+        parts = [("A", self.area, "m"), ("DFD", self.dfd, "m/s"), ("RMSE", self.rmse, "m/s")]
+        return ", ".join(f"{name} < {v} {unit}" for name, v, unit in parts if v is not None)
+
     def termination_config(self) -> TerminationConfig:
         """The episode-end config whose success test is this one (no failure limits)."""
         return TerminationConfig(success_area=self.area, success_dfd=self.dfd, success_rmse=self.rmse, max_iterations=1)
