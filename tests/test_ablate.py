@@ -722,3 +722,32 @@ def test_the_success_test_in_ablate_md_leaves_out_a_skipped_metric():
     assert "success = every sensor A < 0.002 m, RMSE < 0.1 m/s " in md and "None" not in md
     default = ablate.markdown(ablate.AblationConfig(), [], None, "today")  # every metric: as before
     assert "passed = every sensor A < 0.0015 m, DFD < 0.335 m/s, RMSE < 0.1511 m/s;" in default
+
+
+def test_the_mean_gain_curve_of_a_level_leaves_no_run_out(tmp_path, monkeypatch):
+    """The lower panels of ablate.png averaged the gain-so-far curves with ``nanmean``: a run whose every candidate
+    diverged (no gain) was dropped, so the level's curve, labelled '2 runs', was the other run's alone, where the
+    tables and the upper panel give that level no mean. The curve is now the mean over every run of the level where
+    each has a number, and the legend says how many runs have no gain."""
+    figures = []
+    monkeypatch.setattr(ablate, "save_figure", lambda fig, path, key=None: figures.append(fig) or path)
+
+    def row(seed, history, masking="none"):
+        r = _table_row(seed, None if history[-1][1] is None else history[-1][1] + 4.0, 0.01, masking=masking)
+        return {**r, "initial_score": -4.0, "simulations": 6, "history": history}
+
+    rows = [row(0, [[2, -3.0], [5, -2.0]]), row(1, [[2, -3.5], [5, -2.5]]),
+            row(0, [[2, -3.0], [5, -1.0]], "primary"), row(1, [[2, None], [5, None]], "primary")]  # fmt: skip
+    cfg = ablate.AblationConfig(masking=["none", "primary"], scenarios=["s1"], budget=6)
+    ablate.plot_ablation(cfg, rows, tmp_path / "ablate.png")
+    [fig] = figures
+    top, bottom = fig.axes[:2]
+    lines = {ln.get_label(): ln for ln in bottom.get_lines()}
+    assert set(lines) == {"none (2 runs)", "primary (2 runs, 1 without a gain: no mean)"}
+    x, y = (np.asarray(v, dtype=np.float64) for v in lines["none (2 runs)"].get_data())
+    np.testing.assert_allclose(y[x >= 5], 4.0 - 2.25)  # (-2 + -2.5) / 2 + 4
+    assert np.isnan(y[x < 2]).all()
+    assert np.isnan(np.asarray(lines["primary (2 runs, 1 without a gain: no mean)"].get_ydata(), float)).all()
+    from matplotlib.collections import LineCollection
+
+    assert sum(isinstance(c, LineCollection) for c in top.collections) == 1  # none's mean; primary has none

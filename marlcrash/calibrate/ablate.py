@@ -673,7 +673,9 @@ def plot_ablation(config: AblationConfig, rows: list[dict[str, Any]], path: Path
 
     One column per factor with more than one level (one column for the single cell if none varies): on
     top every run's gain (best score minus the initial score; dots) and the level means (lines); below
-    the gain so far against the simulations spent, averaged over the runs of each level.
+    the gain so far against the simulations spent, averaged over the runs of each level. As in the tables, a level
+    with a run without a gain (every candidate diverged) has no mean: no line on top, none below, and its legend
+    entry says how many runs lack one.
     """
     import matplotlib
 
@@ -697,10 +699,11 @@ def plot_ablation(config: AblationConfig, rows: list[dict[str, Any]], path: Path
             initial = np.array([r["initial_score"] for r in g], dtype=np.float64)[:, None]
             curves = np.array([best_so_far_curve(r["history"], grid) for r in g]) - initial
             curves[~np.isfinite(curves)] = np.nan  # a diverged best so far: no number
-            seen = ~np.isnan(curves).all(axis=0)  # grid points where some run has a candidate
-            mean = np.full(grid.shape, np.nan)
-            mean[seen] = np.nanmean(curves[:, seen], axis=0)
-            bottom.plot(grid, mean, color=f"C{i}", label=f"{level} ({len(g)} runs)")
+            # as the tables: a mean where every run of the level has a number (a run without a gain: nowhere)
+            mean = curves.mean(axis=0)
+            lost = int((~np.isfinite(gains)).sum())
+            note = f", {lost} without a gain: no mean" if lost else ""
+            bottom.plot(grid, mean, color=f"C{i}", label=f"{level} ({len(g)} runs{note})")
         top.set_xticks(range(len(lv[factor])), [str(x) for x in lv[factor]], rotation=15, fontsize=8)
         top.set_title(f"{factor}: gain of each run", fontsize=9)
         top.set_ylabel(f"best - initial fit score ({config.score})", fontsize=8)
