@@ -707,3 +707,11 @@ def test_an_env_override_the_ppo_ones_replace_in_every_run_that_reads_it_is_refu
     if name == "compare":  # a key the optimizers read too is theirs to set (the PPO runs take their own)
         load(composed(["+env_overrides.masking.min_fraction=0.2", "+ppo.env_overrides.masking.min_fraction=0.3"],
                       name=name), source="configs/train/compare.yaml")  # fmt: skip
+
+
+def test_compare_md_says_no_wall_cap_where_there_is_none():
+    """``max_wall_s: null`` (no cap) read 'wall cap - s per run' in compare.md; it says 'no wall cap', as ablate.md."""
+    from marlcrash.calibrate.compare import CompareConfig, markdown
+
+    assert "iteration); no wall cap\n" in markdown(CompareConfig(max_wall_s=None), [], None, "today")
+    assert "iteration); wall cap 300 s per run\n" in markdown(CompareConfig(max_wall_s=300.0), [], None, "today")

@@ -685,7 +685,7 @@ def markdown(config: CompareConfig, rows: list[dict[str, Any]], command: str | N
         "reference seed; PPO methods train on the pinned reference (RL calibration = training on it)",
         f"- budget: {config.budget} simulations per run (every simulated candidate counts one; PPO: one per env "
         f"step and one per episode reset, {config.ppo.n_envs} envs x {config.ppo.episode_length} steps per "
-        f"iteration); wall cap {_fmt(config.max_wall_s, 'g')} s per run",
+        f"iteration); {'no wall cap' if config.max_wall_s is None else f'wall cap {config.max_wall_s:g} s per run'}",
         f"- result of a run: its best candidate by fit score, a passing one before any other; success = every "
         f"sensor {th.describe()} (the paper's best Table 3 row); passed: "
         "the best candidate meets it; sims to success: simulations until the first candidate met it (median over the "
