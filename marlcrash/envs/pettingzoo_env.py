@@ -29,6 +29,9 @@
   rounded to float32 (relative error at most 6e-8, 2**-24) and ``action_entries`` as 1.0 / 0.0 (``.bool()`` gives
   the mask back). The float64 metrics are this env's infos, or the native env's ``("metrics", ...)``.
 - Seeding: ``reset(seed=...)`` re-seeds the core's own generator only.
+- ``reset(options=...)`` is accepted and ignored: the env has no per-episode options (the scenario mix, references
+  and masking are env config). It is not refused: PettingZoo's ``parallel_api_test`` calls
+  ``reset(seed=0, options={"options": 1})`` to check that ``reset`` takes the argument.
 """
 
 from __future__ import annotations
@@ -125,7 +128,9 @@ class CalibrationParallelEnv(ParallelEnv):
 
     # ---------------------------------------------------------------------------------- API
     def reset(self, seed: int | None = None, options: dict | None = None):
-        """New episode; observations and infos for every possible agent, or the live ones (module docstring)."""
+        """New episode; observations and infos for every possible agent, or the live ones (module docstring).
+
+        ``options`` is ignored (no per-episode options; module docstring)."""
         self.core.reset(seed=seed)
         active = self.core.active[0].tolist()
         self.agents = [a for a, on in zip(self.possible_agents, active, strict=True) if on]
