@@ -28,7 +28,7 @@ from marlcrash.vehicle.model import VehicleModel
 KIND_SHELL, KIND_SOLID, KIND_BEAM = 0, 1, 2
 """Element kinds carried by samples."""
 
-EDGE_TOL = 1e-9  # m: a sample point this close to a lateral grid edge is on it (mirror-symmetric binning)
+EDGE_TOL = 1e-9  # m: a sample point this close to a grid edge is on it (binning decided by geometry, not rounding)
 
 MAX_SAMPLES = 50_000_000
 """Most material samples :func:`sample_elements` makes (the default car takes 1.1 million; this many take gigabytes):
@@ -127,9 +127,11 @@ def bin_index(edges: np.ndarray, values: np.ndarray, mirror: bool = False) -> np
     a mirror-symmetric vehicle gives a mirror-symmetric binning (panels lying exactly
     in a grid plane, like a wheel's flat side, are common in generated meshes).
     """
-    if mirror and len(edges) > 1 and values.size:
+    if len(edges) > 1 and values.size:
         # a point within EDGE_TOL of an edge is on it: a mirror-symmetric mesh is symmetric only to rounding
-        # (2e-16 m on the default car), and a tie decided by that rounding put mirror twins in different bins
+        # (2e-16 m on the default car), and a tie decided by that rounding put mirror twins in different bins.
+        # Along x and z too: a wall lying in a grid plane (z = 0.35 m, the hand-built car's bumper) had its samples
+        # in the voxel layer above or below it by their rounding, alternating along the wall and between twins
         j = np.clip(np.searchsorted(edges, values), 1, len(edges) - 1)
         values = np.where(np.abs(values - edges[j - 1]) <= EDGE_TOL, edges[j - 1], values)
         values = np.where(np.abs(edges[j] - values) <= EDGE_TOL, edges[j], values)
