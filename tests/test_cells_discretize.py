@@ -558,6 +558,28 @@ def test_a_car_inside_the_roi_warns_that_the_compartment_has_no_mass(cfg):
     assert cells.mass[cells.compartment] == 0.0  # not -1.7e-15 (printed -0.000 kg)
 
 
+def test_elements_sampled_sparser_than_the_voxel_pitch_warn_naming_max_subdivision(cfg):
+    """A coarse mesh was sampled at most max_subdivision = 12 times per edge without a word: 98 of the LS-OPT small
+    car's 284 shells in the ROI got samples up to 22 mm apart against 17 mm voxels, its walls were voxelized with
+    gaps (18034 wall voxels instead of 27112, 307 cells instead of 401, 1424 links instead of 2230 with the 17 the
+    warning now asks for)."""
+    car = build_model(
+        [
+            ("rail", "shell", tube_x(0.0, 1.2, -0.1, 0.1, 0.2, 0.4, 2, 1), 2e-3, 1),
+            (COMPARTMENT, "shell", tube_x(1.2, 2.0, -0.5, 0.5, 0.1, 0.8, 2, 2), 2e-3, 2),
+        ],
+        name="coarse",
+    )
+    few = dataclasses.replace(cfg, sensors=[])
+    with pytest.warns(UserWarning, match=r"coarse: 8 of 8 elements .* raise max_subdivision \(12\) to \d+ ") as w:
+        discretize(car, few)
+    need = int(str(w[0].message).split("to ")[-1].split()[0])
+    assert need >= 0.6 / 0.0167  # one sample per voxel pitch along the 0.6 m elements at least
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        discretize(car, dataclasses.replace(few, max_subdivision=need))
+
+
 def test_no_material_in_front_of_the_roi_depth_is_a_model_error(cfg):
     model = build_model(
         [

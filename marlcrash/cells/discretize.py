@@ -990,6 +990,7 @@ def discretize(model: VehicleModel, config: DiscretizationConfig | None = None, 
     samples = sample_elements(
         model, roi.shell_in, roi.solid_in, roi.beam_in, part_row, part_sub, pitch,
         cfg.samples_per_pitch, cfg.max_subdivision, roi.masses, roi.added,
+        np.array([grid.widths(a).min() for a in range(3)]),
     )  # fmt: skip
     vox, _ = grid.locate(samples.pos, clamp=True)
     # compartment material inside the ROI box labels its voxels as the compartment

@@ -18,6 +18,7 @@ voxels therefore conserves mass exactly.
 from __future__ import annotations
 
 import itertools
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -300,6 +301,31 @@ def _solid_samples(p: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
     return pos, _normalise_weights(w)
 
 
+def _warn_sparse(name: str, voxel: np.ndarray, max_subdivision: int, groups) -> None:
+    """Warn when samples lie farther apart than a voxel along some axis (``voxel``: ``[3]`` smallest voxel width per
+    axis [m]; ``groups``: per element kind, ``[E, 3]`` extents along x, y, z of its edges [m], ``[E]`` subdivisions,
+    and how many times its cap ``max_subdivision`` is: 2 for solids, capped at half of it)."""
+    n = total = 0
+    spacing, need = 0.0, max_subdivision
+    for extent, k, ratio in groups:
+        step = extent / k[:, None]
+        sparse = (step > voxel * (1 + 1e-9)).any(axis=1)
+        total += k.size
+        if sparse.any():
+            n += int(sparse.sum())
+            spacing = max(spacing, float(step[sparse].max()))
+            need = max(need, int(np.ceil(ratio * np.ceil((extent[sparse] / voxel).max() * (1 - 1e-9)))))
+    if n:
+        warnings.warn(
+            f"{name}: {n} of {total} elements in the region of interest are sampled up to {spacing:.3g} m apart, "
+            f"farther than a voxel ({', '.join(f'{v:.3g}' for v in voxel)} m along x, y, z): their walls are "
+            f"voxelized with gaps, which splits cells and drops links; raise max_subdivision ({max_subdivision}) to "
+            f"{need} in the cells config",
+            UserWarning,
+            stacklevel=4,
+        )
+
+
 def sample_elements(
     model: VehicleModel,
     shell_mask: np.ndarray,
@@ -312,6 +338,7 @@ def sample_elements(
     max_subdivision: int = 12,
     masses: dict[str, np.ndarray] | None = None,
     added: dict[str, np.ndarray] | None = None,
+    voxel: np.ndarray | None = None,
 ) -> Samples:
     """Sample the selected elements into sub-elements carrying mass, volume and material.
 
@@ -327,6 +354,8 @@ def sample_elements(
         max_subdivision: cap on ``k``.
         masses: precomputed :meth:`VehicleModel.element_masses` (computed if ``None``).
         added: precomputed :meth:`VehicleModel.element_added_masses` (computed if ``None``).
+        voxel: ``[3]`` smallest voxel width along x, y, z [m]: warn (naming ``max_subdivision``) where its cap
+            leaves samples farther apart than a voxel, so walls are voxelized with gaps; ``None``: no check.
 
     Returns:
         The :class:`Samples` of all selected elements.
@@ -372,6 +401,11 @@ def sample_elements(
             f"{n_samples:.3g} samples, more than {MAX_SAMPLES:.0e} (gigabytes): lower samples_per_pitch "
             f"({samples_per_pitch}) or max_subdivision ({max_subdivision}) of the cells config"
         )
+    if voxel is not None:
+        s_ext = np.abs(s_p - np.roll(s_p, 1, axis=1)).max(axis=1, initial=0.0)
+        v_ext = v_p.max(axis=1, initial=-np.inf) - v_p.min(axis=1, initial=np.inf)
+        b_ext = np.abs(b_p[:, 1] - b_p[:, 0])
+        _warn_sparse(model.name, voxel, max_subdivision, [(s_ext, s_k, 1), (v_ext, v_k, 2), (b_ext, b_k, 1)])
     # shells
     idx = s_idx
     if idx.size:
