@@ -172,3 +172,21 @@ def test_a_sensor_position_off_the_vehicle_is_refused_naming_it(cfg, method):
         cells = discretize(car, dataclasses.replace(cfg, sensors=[SensorSpec("t", "position", p)]), method=method)
         assert cells.subassembly_names[cells.subassembly[cells.sensor_cell[0]]] == COMPARTMENT
         np.testing.assert_allclose(cells.sensor_position[0], p)
+
+
+def test_the_vehicle_a_sensor_must_lie_in_is_that_of_its_elements_not_of_every_node(cfg):
+    """The LS-OPT small car's deck keeps the nodes of the barrier it leaves out (x down to -0.381 m, z up to
+    1.778 m, the car's elements end at 0 and 1.397 m): a sensor 0.3 m above the roof was accepted against a
+    bounding box of every node, and the message gave that box as the vehicle's. Unused nodes now count for nothing."""
+    car = _car(left_inner=True)
+    far = np.array([[-0.4, 0.0, 2.0]])  # an unused node, ahead of and above the car
+    car = dataclasses.replace(
+        car, node_ids=np.append(car.node_ids, car.node_ids.max() + 1), coords=np.vstack([car.coords, far])
+    )
+    roof = dataclasses.replace(cfg, sensors=[SensorSpec("t", "position", [2.0, 0.0, 1.7])])
+    with pytest.raises(
+        ModelError,
+        match=r"sensor 't' \(rule 'position'\): position \[2\.000, 0\.000, 1\.700\] m lies outside the "
+        r"vehicle \[0\.000, -0\.800, 0\.050\] to \[3\.200, 0\.800, 1\.300\] m",
+    ):
+        discretize(car, roof)

@@ -401,7 +401,7 @@ def _refuse_off_vehicle(cfg: DiscretizationConfig, model: VehicleModel) -> None:
     Raises:
         ModelError: naming the sensor, its position and the vehicle's bounds, in the model's own frame.
     """
-    lo, hi = model.coords.min(axis=0), model.coords.max(axis=0)
+    lo, hi = model.bounds()  # of the nodes of its elements: a deck keeps those of a barrier it leaves out
     pad = cfg.sensor_snap_distance
     for s in cfg.sensors:
         if s.position is None or s.rule in ("upfront_left", "upfront_right"):
