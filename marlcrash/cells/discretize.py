@@ -880,16 +880,36 @@ def _material_table(model: VehicleModel) -> tuple[np.ndarray, dict[int, int]]:
     return table, {pid: row[p.material_id] for pid, p in model.parts.items()}
 
 
-def _point_masses(model: VehicleModel, grid: FineGrid, labels: np.ndarray, n: int) -> np.ndarray:
+def _point_masses(
+    model: VehicleModel,
+    grid: FineGrid,
+    labels: np.ndarray,
+    structural: np.ndarray,
+    roi: Roi,
+    samples: Samples,
+    cell_of_sample: np.ndarray,
+) -> np.ndarray:
     """``[n]`` point mass [kg] in each cell: a node's lumped mass goes to the cell of its voxel.
 
-    A mass outside the ROI box is left out here; with masses in cells without structure, the caller
-    leaves it to the rigid compartment, which takes the rest of the vehicle's total mass.
+    A mass on a node of a discretized element whose voxel holds no cell of structure (``structural``: ``[n]``
+    bool; null space beside a wall whose samples lie in the next voxel, a compartment voxel, or outside the box at
+    the rear of an element straddling ``roi_depth``) goes to the cell of the nearest material sample: it rode with
+    the rigid compartment. Any other mass outside the ROI box or in a cell without structure is left out here; the
+    caller leaves it to the rigid compartment, which takes the rest of the vehicle's total mass.
     """
-    out = np.zeros(n)
+    out = np.zeros(structural.size)
     if model.point_mass.size:
-        vox, inside = grid.locate(model.coords[model.point_mass_nodes], clamp=False)
-        np.add.at(out, labels.ravel()[vox[inside]], model.point_mass[inside])
+        pts = model.coords[model.point_mass_nodes]
+        vox, inside = grid.locate(pts, clamp=False)
+        cell = np.where(inside, labels.ravel()[np.where(inside, vox, 0)], -1)
+        front = np.concatenate([model.shell_nodes[roi.shell_in].ravel(), model.solid_nodes[roi.solid_in].ravel(),
+                                model.beam_nodes[roi.beam_in].ravel()])  # fmt: skip
+        stray = np.isin(model.point_mass_nodes, front) & ((cell < 0) | ~structural[np.maximum(cell, 0)])
+        if stray.any() and samples.n:
+            _, nearest = cKDTree(samples.pos).query(pts[stray])
+            cell[stray] = cell_of_sample[nearest]
+        ok = cell >= 0
+        np.add.at(out, cell[ok], model.point_mass[ok])
     return out
 
 
@@ -1026,7 +1046,7 @@ def discretize(model: VehicleModel, config: DiscretizationConfig | None = None, 
     centroid = np.where(smass[:, None] > 0, mom / np.where(smass > 0, smass, 1.0)[:, None], geo_centre)
     # inertia: structural, added and point masses; what lands in a cell without structure rides with the compartment
     mass = np.bincount(cos, weights=samples.mass + samples.added, minlength=n)
-    mass += _point_masses(model, grid, lab.labels, n)
+    mass += _point_masses(model, grid, lab.labels, smass > 0, roi, samples, cos)
     mass[smass <= 0] = 0.0
     cvec, ccen, clo, chi = _compartment_aggregate(model, roi, mat_table, part_row)
     comp_mass = roi.total_mass - float(mass.sum())
