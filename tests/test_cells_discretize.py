@@ -580,6 +580,23 @@ def test_elements_sampled_sparser_than_the_voxel_pitch_warn_naming_max_subdivisi
         discretize(car, dataclasses.replace(few, max_subdivision=need))
 
 
+def test_a_uniform_summary_warns_once_not_again_for_the_optimized_count(cfg):
+    """``marlcrash discretize --method uniform`` also discretizes by the optimized method for Table 2's other count;
+    its warnings (the same sampling, here max_subdivision's) were printed a second time."""
+    car = build_model(
+        [
+            ("rail", "shell", tube_x(0.0, 1.2, -0.1, 0.1, 0.2, 0.4, 2, 1), 2e-3, 1),
+            (COMPARTMENT, "shell", tube_x(1.2, 2.0, -0.5, 0.5, 0.1, 0.8, 2, 2), 2e-3, 2),
+        ],
+        name="coarse",
+    )
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        s, _ = discretization_summary(car, dataclasses.replace(cfg, sensors=[]), method="uniform")
+    assert s["n_cells_optimized"] is not None
+    assert len([w for w in seen if "max_subdivision" in str(w.message)]) == 1
+
+
 def test_no_material_in_front_of_the_roi_depth_is_a_model_error(cfg):
     model = build_model(
         [

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 from marlcrash.cells.discretize import DiscretizationConfig, discretize, load_discretization_config
@@ -72,7 +74,11 @@ def discretization_summary(
     """
     cfg = load_discretization_config() if config is None else config
     cells = discretize(model, cfg, method=method)
-    n_opt = None if cells.method == "optimized" else discretize(model, cfg, method="optimized").n_cells
+    n_opt = None
+    if cells.method != "optimized":
+        with warnings.catch_warnings():  # the model asked for has warned already; the other's count is all we need
+            warnings.simplefilter("ignore")
+            n_opt = discretize(model, cfg, method="optimized").n_cells
     return summarize_cells(cells, n_opt), cells
 
 
