@@ -377,6 +377,12 @@ class ReferenceSampler:
         self.cells, self.sim, self.sensors, self.config = cells, surrogate, list(sensors), config
         self.vehicle, self.bounds, self.floor, self.backend = vehicle, bounds, floor, backend
         self.vehicle_options = vehicle_options
+        if not self.sensors:  # a calibration compares sensor pulses: nothing to compare is no calibration
+            raise ConfigError(
+                f"no sensors to compare: none named and the cell model of {cells.name!r} has none (its "
+                "discretization config's sensors, configs/cells.yaml)",
+                key="sensors",
+            )
         unknown = [s for s in self.sensors if s not in cells.sensor_names]
         if unknown:
             raise ConfigError(f"unknown sensors {unknown}; the cell model has {cells.sensor_names}", key="sensors")

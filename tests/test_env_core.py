@@ -656,6 +656,27 @@ def test_a_scenario_that_activates_no_agent_is_named_when_the_env_is_built(lsopt
         assert not idle or "offset40_right" not in said[0]
 
 
+def test_a_cell_model_without_sensors_is_refused_naming_the_key(tmp_path, monkeypatch):
+    """configs/cells.yaml with ``sensors: []`` discretizes (a cell model may have none), but an environment has no
+    pulse to compare: it failed at its first reset inside a reduction over zero sensors (IndexError from amax)."""
+    import shutil
+
+    import yaml
+
+    from marlcrash.config import config_dir
+
+    configs = tmp_path / "configs"
+    shutil.copytree(config_dir(), configs)
+    cells_yaml = configs / "cells.yaml"
+    data = yaml.safe_load(cells_yaml.read_text())
+    data["sensors"] = []
+    cells_yaml.write_text(yaml.safe_dump(data))
+    monkeypatch.setenv("MARLCRASH_CONFIGS", str(configs))
+    with pytest.raises(ConfigError, match=r"key 'sensors'.*no sensors to compare: .* configs/cells.yaml") as e:
+        CalibrationCore(load_env_config("default"), batch_size=1)
+    assert str(e.value.path).endswith("default.yaml")  # the env's own sensors key is there
+
+
 def test_episodes_that_start_past_the_failure_limits_are_named_once(cells):
     """The uniform model's small-overlap pulses lie up to 5.4 m/s RMSE from this model's
     (benchmarks/bench_cross_fidelity.py), past the shipped failure limit of 3 m/s: such an episode ends as a
