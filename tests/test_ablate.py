@@ -707,6 +707,30 @@ def test_the_standard_error_counts_references_not_pairs():
     assert "| masking | primary vs none | 4 | +0.1000 ± 0.0577 |" in md
 
 
+def test_the_mean_gain_difference_is_the_mean_the_standard_error_describes():
+    """``gain_diff_mean`` averaged over pairs while ``gain_diff_se`` is the standard error of the per-reference
+    averages: with unequal pair counts per reference (a partial or resumed ablation) the printed 'mean ± s.e.' were of
+    two different estimators. The mean is now the mean of the per-reference averages; with equal counts it is the
+    mean over pairs, as before."""
+    rows = [
+        _row(0, 0.0, 0.01), _row(0, 0.0, 0.01, masking="primary"),
+        _row(1, 0.0, 0.01),  # masking primary on seed 1 not run yet
+        _row(0, 1.0, 0.01, scenario="s2"), _row(0, 2.0, 0.01, scenario="s2", masking="primary"),
+        _row(1, -1.0, 0.01, scenario="s2"),
+    ]  # fmt: skip
+    levels = {"algorithm": ["mappo"], "masking": ["none", "primary"], "scenario": ["s1", "s2"],
+              "granularity": ["subassembly"], "reward": ["log_ratio"]}  # fmt: skip
+    [s] = [e for e in paired_effects(rows, levels) if e["factor"] == "scenario"]
+    per_ref = [np.mean([1.0, 2.0]), -1.0]  # seed 0: two pairs, seed 1: one
+    assert (s["pairs"], s["references"]) == (3, 2)
+    assert s["gain_diff_mean"] == pytest.approx(np.mean(per_ref), abs=1e-15)  # 0.25; over pairs it read 0.667
+    assert s["gain_diff_se"] == pytest.approx(np.std(per_ref, ddof=1) / math.sqrt(2), abs=1e-15)
+    done = [_row(1, 0.0, 0.01, masking="primary"), _row(1, 0.5, 0.01, scenario="s2", masking="primary")]
+    even = paired_effects(rows + done, levels)
+    [s2] = [e for e in even if e["factor"] == "scenario"]  # every reference two pairs: the mean over pairs
+    assert s2["gain_diff_mean"] == pytest.approx(np.mean([1.0, 2.0, -1.0, 0.5]), abs=1e-15)
+
+
 def test_the_success_test_in_ablate_md_leaves_out_a_skipped_metric():
     """``success.<metric>: null`` skips that metric (the yaml says so), yet ablate.md and compare.md stated the test as
     'every sensor A < None m, ...': a threshold of ``None`` that no run was held to. The test they state names the

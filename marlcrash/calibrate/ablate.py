@@ -29,9 +29,11 @@ Protocol (the results table's, :mod:`marlcrash.calibrate.compare`, so the number
 - Paired effects: for every factor with more than one level, each level is compared with the factor's
   first level (the baseline) on runs that agree in every other factor and in the seed (same reference,
   same other settings; for the scenario factor, the same seed): the mean difference of the gain with its
-  standard error, how many pairs the level wins (and ties), and the geometric mean ratio of the worst-sensor area.
-  Pairs of one reference (a scenario's seed; for the scenario factor, a seed) are not independent, so the standard
-  error is taken over references, of the differences averaged per reference.
+  standard error (both over references, see below), how many pairs the level wins (and ties), and the geometric
+  mean ratio of the worst-sensor area.
+  Pairs of one reference (a scenario's seed; for the scenario factor, a seed) are not independent, so the mean and
+  its standard error are taken over references, of the differences averaged per reference (a reference with more
+  pairs, as in a partial or resumed ablation, does not weigh more).
 
 :func:`run_ablation` rewrites ``ablate.json``, ``ablate.csv`` and ``ablate.md`` atomically after every
 finished run and draws ``ablate.png`` at the end (a picture an earlier run left in the folder is removed when
@@ -475,8 +477,9 @@ def paired_effects(rows: list[dict[str, Any]], levels: dict[str, list[Any]]) -> 
     Returns:
         One entry per (factor, non-baseline level): ``pairs`` (runs matched on every other factor and the
         seed), ``references`` (the references they are on: a scenario and a seed, or for the scenario factor a seed;
-        pairs of one reference are not independent), ``gain_diff_mean`` and ``gain_diff_se`` (standard error over
-        references of the differences averaged per reference, ddof 1; ``None`` below 2 references),
+        pairs of one reference are not independent), ``gain_diff_mean`` and ``gain_diff_se`` (mean and standard error
+        over references of the differences averaged per reference, ddof 1; ``None`` below 2 references; with the
+        same number of pairs on every reference the mean is the mean over pairs),
         ``wins`` (pairs where the level gains more), ``ties`` (pairs where both gain the same, or neither has a
         gain: neither a win nor a loss), ``area_worst_ratio`` (geometric mean of the level's
         worst-sensor area over the baseline's, over the ``ratio_pairs`` pairs where both are finite
@@ -510,7 +513,7 @@ def paired_effects(rows: list[dict[str, Any]], levels: dict[str, list[Any]]) -> 
             m = per_ref.size
             out.append(finite_or_null({
                 "factor": factor, "baseline": lv[0], "level": level, "pairs": n, "references": m,
-                "gain_diff_mean": float(d.mean()) if n and whole else None,
+                "gain_diff_mean": float(per_ref.mean()) if n and whole else None,  # the estimator the s.e. is of
                 "gain_diff_se": float(per_ref.std(ddof=1) / math.sqrt(m)) if m >= 2 and whole else None,
                 "wins": sum(ranked(r["gain"]) > ranked(b["gain"]) for r, b in pairs),
                 "ties": sum(ranked(r["gain"]) == ranked(b["gain"]) for r, b in pairs),
