@@ -775,3 +775,17 @@ def test_the_mean_gain_curve_of_a_level_leaves_no_run_out(tmp_path, monkeypatch)
     from matplotlib.collections import LineCollection
 
     assert sum(isinstance(c, LineCollection) for c in top.collections) == 1  # none's mean; primary has none
+
+
+def test_a_cell_of_one_seed_has_no_spread_in_ablate_md():
+    """With one seed per cell the per-cell table printed '± 0' (the population std of one value), which reads as a
+    measured zero spread. Below two seeds it prints '± -' (no spread); two seeds or more keep the population std."""
+    rows = [_table_row(0, -1.0, 0.04), _table_row(0, -0.5, 0.01, masking="primary"),
+            _table_row(1, -1.5, 0.02, masking="primary")]  # fmt: skip
+    md = ablate.markdown(ablate.AblationConfig(masking=["none", "primary"], scenarios=["s1"]), rows, None, "today")
+    per_cell = md.split("## Per cell")[1].split("## Per run")[0]
+    [one] = [line for line in per_cell.splitlines() if "| none |" in line]
+    assert "± 0" not in one and "| 0/1 | -1 ± - | -3 ± - | 0.04 ± - |" in one
+    [two] = [line for line in per_cell.splitlines() if "| primary |" in line]
+    assert "| 0/2 | -1 ± 0.5 | -3 ± 0.5 | 0.015 ± 0.005 | 0.5 ± 0 |" in two
+    assert "a single seed: no std (-)" in md

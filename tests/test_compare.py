@@ -715,3 +715,27 @@ def test_compare_md_says_no_wall_cap_where_there_is_none():
 
     assert "iteration); no wall cap\n" in markdown(CompareConfig(max_wall_s=None), [], None, "today")
     assert "iteration); wall cap 300 s per run\n" in markdown(CompareConfig(max_wall_s=300.0), [], None, "today")
+
+
+def _md_row(method: str, seed: int, score: float) -> dict:
+    """A finished row with every column ``compare.md`` reads."""
+    r: dict = dict.fromkeys(COLUMNS)
+    r.update(method=method, seed=seed, budget=1500, simulations=1500, stop="budget", area_mean=0.02, area_worst=0.03,
+             dfd_mean=0.4, dfd_worst=0.7, rmse_mean=0.2, rmse_worst=0.3, score=score, initial_score=-2.0,
+             passed=False, param_error=0.2, wall_time_s=10.0)  # fmt: skip
+    return r
+
+
+def test_a_single_run_has_no_spread_in_compare_md():
+    """With one seed per method the per-method table printed '± 0' (the population std of one value), which reads as a
+    measured zero spread. Below two runs it prints '± -' (no spread); two runs or more keep the population std, a
+    measured 0 included."""
+    from marlcrash.calibrate.compare import markdown
+
+    rows = [_md_row("cmaes", 0, -1.0), _md_row("lm", 0, -1.0), _md_row("lm", 1, -2.0)]
+    md = markdown(CompareConfig(methods=["cmaes", "lm"], seeds=[0, 1]), rows, None, "today")
+    [one] = [line for line in md.splitlines() if line.startswith("| cmaes | 0/1 |")]
+    assert "± 0" not in one and "| 1500 ± - | 0.02 ± - |" in one and "| -1 ± - |" in one
+    [two] = [line for line in md.splitlines() if line.startswith("| lm | 0/2 |")]
+    assert "| 1500 ± 0 | 0.02 ± 0 |" in two and "| -1.5 ± 0.5 |" in two
+    assert "a single reference: no std (-)" in md

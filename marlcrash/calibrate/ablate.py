@@ -608,7 +608,8 @@ def markdown(config: AblationConfig, rows: list[dict[str, Any]], command: str | 
         lines.append("")
 
     lines += [
-        "## Per cell (mean ± std over reference seeds; population std, ddof 0)",
+        "## Per cell (mean ± std over reference seeds; population std, ddof 0"
+        + ("; a single seed: no std (-))" if any(a["seeds"] < 2 for a in agg) else ")"),
         "",
         "| " + " | ".join(FACTORS) + " | active | acting cells | passed | gain | score | area worst [m] "
         "| DFD worst [m/s] | RMSE worst [m/s] | param err | median sims to success | wall [s] | note |",

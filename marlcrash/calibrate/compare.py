@@ -657,8 +657,10 @@ def _present(config: CompareConfig, rows: list[dict[str, Any]]) -> tuple[list[st
 
 
 def pm(a: dict[str, Any], k: str, spec: str = ".4g") -> str:
-    """``mean ± std`` of an aggregate's ``<k>_mean`` and ``<k>_std`` (:func:`summarize`), ``-`` for ``None``."""
-    return f"{_fmt(a[f'{k}_mean'], spec)} ± {_fmt(a[f'{k}_std'], spec)}"
+    """``mean ± std`` of an aggregate's ``<k>_mean`` and ``<k>_std`` (:func:`summarize`), ``-`` for ``None``; the std
+    of fewer than two runs (``seeds``) is ``-`` too: the population std of one value is 0, not a measured spread."""
+    std = a[f"{k}_std"] if a["seeds"] >= 2 else None
+    return f"{_fmt(a[f'{k}_mean'], spec)} ± {_fmt(std, spec)}"
 
 
 def markdown(config: CompareConfig, rows: list[dict[str, Any]], command: str | None, date: str) -> str:
@@ -697,7 +699,8 @@ def markdown(config: CompareConfig, rows: list[dict[str, Any]], command: str | N
     n = len(seeds)
 
     lines += [
-        f"## Per method (mean ± std over {n} reference{'s' if n != 1 else ''}; population std, ddof 0)",
+        f"## Per method (mean ± std over {n} reference{'s' if n != 1 else ''}; population std, ddof 0"
+        + ("; a single reference: no std (-))" if any(a["seeds"] < 2 for a in agg) else ")"),
         "",
         "| method | passed | median sims to success | simulations | area mean | area worst | DFD mean | DFD worst "
         "| RMSE mean | RMSE worst | score | param err | wall [s] | note |",
