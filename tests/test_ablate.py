@@ -789,3 +789,15 @@ def test_a_cell_of_one_seed_has_no_spread_in_ablate_md():
     [two] = [line for line in per_cell.splitlines() if "| primary |" in line]
     assert "| 0/2 | -1 ± 0.5 | -3 ± 0.5 | 0.015 ± 0.005 | 0.5 ± 0 |" in two
     assert "a single seed: no std (-)" in md
+
+
+def test_ablate_md_says_the_median_sims_to_success_is_over_the_runs_that_passed():
+    """The per-cell table's 'median sims to success' is the median over the runs in which a candidate met the success
+    test only (:func:`~marlcrash.calibrate.compare.summarize`); compare.md said so, ablate.md did not, so a cell with
+    1/3 passed read as a median over three runs. It now says so in compare.md's words."""
+    from marlcrash.calibrate.compare import CompareConfig
+    from marlcrash.calibrate.compare import markdown as compare_markdown
+
+    said = "sims to success: simulations until the first candidate met it (median over the runs where one did)"
+    assert said in compare_markdown(CompareConfig(), [], None, "today")
+    assert said in ablate.markdown(ablate.AblationConfig(), [], None, "today")

@@ -62,6 +62,7 @@ import numpy as np
 from marlcrash.calibrate.amortized import _fmt
 from marlcrash.calibrate.compare import (
     COLUMNS,
+    SIMS_TO_SUCCESS,
     CompareConfig,
     PPOBudgetConfig,
     budget_algorithm,
@@ -570,7 +571,8 @@ def markdown(config: AblationConfig, rows: list[dict[str, Any]], command: str | 
         "its result is the best candidate of all its simulations",
         f"- one yardstick for every cell: score = fit score of the `{config.score}` form (higher is better) "
         "whatever reward the cell trained on; gain = score minus the initial parameters' score on the same "
-        f"reference; passed = every sensor {th.describe()}; param err = mean relative error of every "
+        f"reference; passed = every sensor {th.describe()}; {SIMS_TO_SUCCESS}; "
+        "param err = mean relative error of every "
         "sub-assembly's parameters (masked ones included) against the twin truth; active = agents the masking level "
         "lets act",
         "",

@@ -142,6 +142,9 @@ COLUMNS = (
 _ADDED_COLUMNS = ("stop_reason",)
 """Columns a finished row of an older comparison may lack (a resume reads it, the column ``None`` there: unknown)."""
 
+SIMS_TO_SUCCESS = "sims to success: simulations until the first candidate met it (median over the runs where one did)"
+"""What the tables' 'sims to success' column and its median are (:func:`summarize`), after the success test ('it')."""
+
 STOP_LABELS = {"wall_cap": "stopped by wall cap", "ended": "ended on its own"}
 """How the tables say a run's ``stop`` (``budget`` as it is): :class:`RunOutcome`."""
 
@@ -690,8 +693,7 @@ def markdown(config: CompareConfig, rows: list[dict[str, Any]], command: str | N
         f"iteration); {'no wall cap' if config.max_wall_s is None else f'wall cap {config.max_wall_s:g} s per run'}",
         f"- result of a run: its best candidate by fit score, a passing one before any other; success = every "
         f"sensor {th.describe()} (the paper's best Table 3 row); passed: "
-        "the best candidate meets it; sims to success: simulations until the first candidate met it (median over the "
-        "runs where one did)",
+        f"the best candidate meets it; {SIMS_TO_SUCCESS}",
         "- area [m], DFD [m/s], RMSE [m/s] of the best candidate: mean over sensors and worst sensor; score: fit "
         "score, higher is better; param err: mean relative error of the sub-assembly parameters vs the twin truth",
         "",
