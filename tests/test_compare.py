@@ -739,3 +739,21 @@ def test_a_single_run_has_no_spread_in_compare_md():
     [two] = [line for line in md.splitlines() if line.startswith("| lm | 0/2 |")]
     assert "| 1500 ± 0 | 0.02 ± 0 |" in two and "| -1.5 ± 0.5 |" in two
     assert "a single reference: no std (-)" in md
+
+
+def test_compare_md_names_the_papers_thresholds_only_when_they_are_the_papers():
+    """compare.md called the success thresholds 'the paper's best Table 3 row' whatever they were, so a comparison
+    run with ``success.area=0.002`` claimed the paper's test. It says so only for the paper's thresholds (the
+    :class:`SuccessConfig` defaults) and otherwise states them as configured."""
+    from marlcrash.calibrate.compare import markdown
+    from marlcrash.calibrate.problem import SuccessConfig
+
+    paper = markdown(CompareConfig(), [], None, "today")
+    assert (
+        "success = every sensor A < 0.0015 m, DFD < 0.335 m/s, RMSE < 0.1511 m/s (the paper's best Table 3 row)"
+        in paper
+    )
+    for th in (SuccessConfig(area=0.002), SuccessConfig(rmse=None)):
+        md = markdown(CompareConfig(success=th), [], None, "today")
+        assert "(the paper's best Table 3 row)" not in md
+        assert f"success = every sensor {th.describe()} (as configured, not the paper's best Table 3 row)" in md

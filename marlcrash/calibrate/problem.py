@@ -89,7 +89,8 @@ from marlcrash.sim.surrogate import SimResult, Surrogate, load_sim_config
 
 @dataclass
 class SuccessConfig:
-    """Success thresholds per sensor (DESIGN 1.5); ``None`` skips a metric.
+    """Success thresholds per sensor (DESIGN 1.5); ``None`` skips a metric. The defaults are the paper's best
+    Table 3 row (iteration I5): :meth:`is_paper`.
 
     Attributes:
         area: area between the velocity curves [m].
@@ -113,6 +114,10 @@ class SuccessConfig:
         a skipped metric (``None``) is left out."""
         parts = [("A", self.area, "m"), ("DFD", self.dfd, "m/s"), ("RMSE", self.rmse, "m/s")]
         return ", ".join(f"{name} < {v} {unit}" for name, v, unit in parts if v is not None)
+
+    def is_paper(self) -> bool:
+        """Whether these are the paper's thresholds (the defaults, its best Table 3 row), every metric set."""
+        return self == SuccessConfig()
 
     def termination_config(self) -> TerminationConfig:
         """The episode-end config whose success test is this one (no failure limits)."""
