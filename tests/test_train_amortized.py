@@ -547,6 +547,21 @@ def test_the_yaml_config_loads_through_hydra():
     assert not {0} & set(config.reference_seeds)  # held out from the default evaluation seed
 
 
+def test_a_single_reference_has_no_spread_in_amortized_md(comparison, tmp_path):
+    """One held-out reference printed ``score ± 0`` (the population std of one value), read as a measured zero
+    spread; compare.md and ablate.md print ``± -`` there, and so does amortized.md now (the JSON's std is null)."""
+    from marlcrash.calibrate.amortized import Comparison, aggregate
+
+    one = [r for r in copy.deepcopy(comparison.rows) if r["reference_seed"] == SEEDS[0]]
+    agg = aggregate(one)
+    assert all(a[f"{k}_std"] is None for a in agg for k in ("score", "area", "simulations"))
+    assert all(a["score_mean"] is not None for a in agg)
+    md = write_comparison(Comparison(one, agg, copy.deepcopy(comparison.meta)), tmp_path)["amortized.md"].read_text()
+    assert " ± -" in md and " ± 0 " not in md and " ± 0|" not in md
+    two = aggregate(copy.deepcopy(comparison.rows))  # SEEDS has two references at least: a spread again
+    assert len(SEEDS) >= 2 and all(a["score_std"] is not None for a in two)
+
+
 def test_the_yaml_config_says_what_the_script_prints_on_stdout():
     """The file said "stdout is the JSON"; the script prints its progress lines and the Markdown tables, and only
     its last line is JSON (the files written), as :func:`test_script_smoke` checks."""

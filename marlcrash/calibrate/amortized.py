@@ -623,7 +623,8 @@ def _generations(row: dict[str, Any], meta: dict[str, Any]) -> int | None:
 
 
 def aggregate(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Per method and budget multiple: means and standard deviations (ddof 0) over references.
+    """Per method and budget multiple: means and standard deviations (ddof 0) over references; the std is ``None``
+    where fewer than two references have a value.
 
     Also ``passed`` (references passing), ``reached`` (references where the optimizer reached the
     policy's target score), ``beats_policy`` (references where its best score is at least the
@@ -639,7 +640,7 @@ def aggregate(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
         for k in ("budget", "simulations", "area", "dfd", "rmse", "score", "param_error", "wall_time_s"):
             v = np.array([r[k] for r in g if r[k] is not None], dtype=np.float64)
             a[f"{k}_mean"] = float(v.mean()) if v.size else None
-            a[f"{k}_std"] = float(v.std()) if v.size else None
+            a[f"{k}_std"] = float(v.std()) if v.size >= 2 else None  # one value has no spread (0 is not measured)
         a["passed"] = sum(bool(r["passed"]) for r in g)
         if method in POLICY_METHODS:
             a["reached"] = a["beats_policy"] = a["sims_to_policy_median"] = None
