@@ -28,6 +28,7 @@ from marlcrash.pulse import (
     write_csv,
     write_mme,
 )
+from marlcrash.pulse.io import MAX_CRASH_DELTA_V
 from marlcrash.units import G0
 
 DATA = Path(__file__).parent / "data"
@@ -1324,6 +1325,28 @@ def test_a_frontal_pulse_read_with_the_other_sign_is_named_in_a_warning(tmp_path
     for key in ("t0_ms", "peak_g", "t_peak_ms", "delta_v_ms", "delta_v_max_ms", "delta_v_150ms_ms"):
         assert s[key] == pytest.approx(right[key], rel=1e-12, abs=1e-12), key
     assert right["delta_v_ms"] == pytest.approx(DV, rel=0.01)
+
+
+def test_a_pulse_in_m_s2_read_as_g_is_named_in_a_warning(tmp_path, analytic):
+    """A record in m/s^2 read with the CSV default unit g integrates to 9.8x its velocity change (a 300 m/s^2 half
+    sine over 100 ms: 674 km/h) and ``marlcrash pulse`` printed it without a word; a warning now names the file, the
+    channel, the figure and the option. Read in its own unit, or a real pulse in g, nothing is said."""
+    in_ms2 = Pulse(analytic.time, analytic.acc, analytic.channels)
+    path = write_csv(in_ms2, tmp_path / "ms2.csv", unit="m/s2")  # the numbers of m/s^2 under a header...
+    text = path.read_text().replace("[m/s2]", "").replace("_ms2", "")  # ...that does not say so
+    path.write_text(text)
+    with pytest.warns(UserWarning) as caught:
+        s = pulse_summary(path)  # read as g
+    said = [str(w.message) for w in caught if "more than any vehicle crash" in str(w.message)]
+    assert len(said) == 1, [str(w.message) for w in caught]
+    assert s["delta_v_max_ms"] == pytest.approx(G0 * DV, rel=0.01) and s["delta_v_max_ms"] > MAX_CRASH_DELTA_V
+    assert re.search(rf"ms2\.csv: channel '.*' changes velocity by {re.escape(f'{G0 * DV:.3g}')}.* km/h\).*"
+                     r"--unit m/s2 \(unit: m/s2\)", said[0]), said[0]  # fmt: skip
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert pulse_summary(path, unit="m/s2")["delta_v_max_ms"] == pytest.approx(DV, rel=0.01)
+        pulse_summary(write_csv(analytic, tmp_path / "g.csv"))
+    assert DV < MAX_CRASH_DELTA_V
 
 
 def test_an_iso_mme_test_reads_each_channel_file_once(tmp_path, analytic, monkeypatch):

@@ -1396,6 +1396,12 @@ SPEED_UP_NOTE = 0.5
 changes the velocity by 10 m/s and more; the drift of a 0.3 g transducer offset over 150 ms stays below it."""
 
 
+MAX_CRASH_DELTA_V = 50.0
+"""[m/s] A velocity change above this (180 km/h: a full rebound from 90 km/h) is no vehicle crash test's and is named
+in a warning by :func:`pulse_figures` as a likely unit mix-up: m/s^2 read as g gives 9.8x the velocity change (a
+56 km/h test: 550 km/h)."""
+
+
 def pulse_figures(pulse: Pulse, work: Pulse, t0: float, path: str | Path = "") -> dict[str, Any]:
     """Key figures of a channel prepared by :func:`processed_pulse` (filtered acceleration integrated from time zero).
 
@@ -1414,7 +1420,8 @@ def pulse_figures(pulse: Pulse, work: Pulse, t0: float, path: str | Path = "") -
 
     A channel whose largest velocity change is a gain of more than :data:`SPEED_UP_NOTE` is named in a warning: a
     frontal crash pulse is negative in the module's sign (SAE J211), and one read with the other sign convention
-    gave the same figures without a word.
+    gave the same figures without a word. So is one whose largest velocity change exceeds :data:`MAX_CRASH_DELTA_V`
+    (an acceleration in m/s^2 read as g gave 674 km/h without a word).
 
     "Before the impact" is :data:`~marlcrash.pulse.signal.PRE_IMPACT_TIME` before time zero, or the
     start of the filtered record (which includes the lead-in of :func:`filtered_from_time_zero`): the
@@ -1433,6 +1440,15 @@ def pulse_figures(pulse: Pulse, work: Pulse, t0: float, path: str | Path = "") -
             "largest velocity change is positive); in marlcrash's sign (SAE J211, x forward) a frontal crash pulse is "
             "negative. If this is one, the file records deceleration as positive: read it with the other sign "
             "(--deceleration-positive, sign=-1; or without it, if given). The figures are magnitudes either way",
+            UserWarning,
+            stacklevel=2,
+        )
+    if abs(largest) > MAX_CRASH_DELTA_V:
+        warnings.warn(
+            f"{path or pulse.source or 'pulse'}: channel {pulse.channels[0]!r} changes velocity by {abs(largest):.4g} "
+            f"m/s ({abs(largest) * 3.6:.4g} km/h), more than any vehicle crash test (a full rebound from 90 km/h is "
+            f"{MAX_CRASH_DELTA_V:g} m/s): is the acceleration in another unit than it was read in? An acceleration in "
+            f"m/s2 read as g (the CSV default) is {G0:.4g}x too large: read it with --unit m/s2 (unit: m/s2)",
             UserWarning,
             stacklevel=2,
         )
