@@ -14,8 +14,9 @@ libraries that make the numbers (torch, numpy, cma, numba).
 
 - changed, added or removed config files (``kind="configs"``): a resume refuses them, naming the
   files; an evaluation warns and reports them in its summary;
-- changed code (``kind="code"``: the package's source or a ``train/`` script): always a warning, because a
-  resumed run is still that run's training (but no longer bit-identical to an uninterrupted one).
+- changed code (``kind="code"``: the package's source, a ``train/`` script, or the version of Python or of one of
+  those libraries): always a warning, because a resumed run is still that run's training (but no longer
+  bit-identical to an uninterrupted one).
 
 A vehicle deck (its sub-assembly map, an env config file) named by a relative path is read from the working
 directory, by the run (``chdir: false``) and by the record alike, which keeps that directory (``cwd``): a resume or
@@ -178,11 +179,6 @@ def git_commit() -> str | None:
 
 def record(extra: Iterable[str | Path] = ()) -> dict[str, Any]:
     """The provenance of a run starting now (see the module docstring); ``extra`` as in :func:`config_digests`."""
-    import cma
-    import numba
-    import numpy
-    import torch
-
     from marlcrash import __version__
 
     return {
@@ -194,6 +190,18 @@ def record(extra: Iterable[str | Path] = ()) -> dict[str, Any]:
             "train_sha256": train_digest(),
             "git_commit": git_commit(),
         },
+        **versions(),
+    }
+
+
+def versions() -> dict[str, str]:
+    """The versions of Python and of the libraries that make a run's numbers, as :func:`record` keeps them."""
+    import cma
+    import numba
+    import numpy
+    import torch
+
+    return {
         "python": platform.python_version(),
         "torch": torch.__version__,
         "numpy": numpy.__version__,
@@ -251,7 +259,7 @@ class ProvenanceCheck:
     """Changed, added or removed input files, e.g. ``"configs/sim.yaml changed"``."""
     code: list[str]
     """Code changes, e.g. ``"marlcrash source changed (git 1c27aa5 -> 5d0f473)"``, ``"train/ scripts changed
-    (uncommitted changes at git 1c27aa5)"``."""
+    (uncommitted changes at git 1c27aa5)"``, ``"torch 2.3.1 -> 2.4.0"``."""
     note: str | None = None
     """The record's note (:data:`RESUME_NOTE`: written at a resume, not when the run started)."""
 
@@ -353,6 +361,7 @@ def check_run(run_dir: str | Path, extra: Iterable[str | Path] = (), key: str | 
         else:
             where = f" (git {str(then)[:7]} -> {str(now)[:7]})" if then or now else ""
         code = [f"{what} changed{where}" for what in code]
+    code += [f"{lib} {saved[lib]} -> {v}" for lib, v in versions().items() if lib in saved and saved[lib] != v]
     note = saved.get("note") if isinstance(saved, dict) else None
     return ProvenanceCheck(recorded=True, configs=configs, code=code, note=None if note is None else str(note))
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import logging
+import platform
 import shutil
 from pathlib import Path
 
@@ -179,6 +180,28 @@ def test_a_record_names_cma_and_numba_and_a_changed_train_script_warns_like_chan
     (run / provenance.PROVENANCE_FILE).write_text(json.dumps(old))
     check = provenance.require_unchanged(run)
     assert check.recorded and check.configs == [] and check.code == []
+
+
+def test_other_library_versions_at_a_resume_or_evaluation_are_warned_about(configs, tmp_path, caplog):
+    """The record keeps the versions of Python, torch, numpy, cma and numba, but nothing compared them: a run
+    resumed or evaluated after ``pip install -U torch`` (other kernels, other random streams) went on without a word,
+    though its numbers no longer come from the same code. Now each version that differs is a code change (a
+    warning, not a refusal), naming the library and both versions; a record without a field is compared on what it
+    holds."""
+    import torch
+
+    run = tmp_path / "run"
+    run.mkdir()
+    rec = provenance.write_record(run)
+    assert provenance.check_run(run).code == []
+    rec["torch"], rec["python"] = "1.0.0", "3.0.1"
+    del rec["numba"]  # an older record without it
+    (run / provenance.PROVENANCE_FILE).write_text(json.dumps(rec))
+    with caplog.at_level(logging.WARNING, logger="marlcrash.provenance"):
+        check = provenance.require_unchanged(run)  # warned, not refused
+    assert check.configs == []
+    assert check.code == [f"python 3.0.1 -> {platform.python_version()}", f"torch 1.0.0 -> {torch.__version__}"]
+    assert f"torch 1.0.0 -> {torch.__version__} since the run started" in caplog.text
 
 
 def test_a_folder_without_a_record_warns_and_a_broken_record_is_named(configs, tmp_path, caplog):
