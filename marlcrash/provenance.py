@@ -284,15 +284,20 @@ def config_changes(saved: dict[str, str], now: dict[str, str]) -> list[str]:
     return out
 
 
-def _explained(changes: list[str], extra: list[str | Path], started_in: Any) -> list[str]:
-    """:func:`config_changes` told as the run reads its inputs.
+def _explained(saved: dict[str, str], now: dict[str, str], extra: list[str | Path], started_in: Any) -> list[str]:
+    """:func:`config_changes` of the record's digests (``saved``) and today's (``now``) told as the run reads its
+    inputs.
 
     An input named by a relative path (a vehicle deck ``decks/car.k``) is read from the working directory, by the
     run as by :func:`config_digests`: from another folder than the run started in (``started_in``, the record's
     ``cwd``) it is another file, or none. That is one entry, naming the path, both files and where to start, in
-    place of the old file and its includes "removed" and the new ones "added". A file outside ``configs/`` that is
-    still there but no longer read (an include the deck dropped) is said so, not "removed".
+    place of the old file and its includes "removed" and the new ones "added". Where the file the run read is not
+    here (the run folder was copied to another machine, or its project moved), the files read now are compared
+    with those recorded at the same place relative to ``started_in``: the same bytes are no change, and a changed
+    one is named as it is here and as it was recorded. A file outside ``configs/`` that is still there but no
+    longer read (an include the deck dropped) is said so, not "removed".
     """
+    changes = config_changes(saved, now)
     out: list[str] = []
     covered: set[str] = set()
     here = _cwd()
@@ -300,13 +305,24 @@ def _explained(changes: list[str], extra: list[str | Path], started_in: Any) -> 
         for e in extra:
             if Path(e).is_absolute():
                 continue
-            then, now = (Path(started_in) / e).resolve(), Path(e).resolve()
-            if then == now:
+            then, read = (Path(started_in) / e).resolve(), Path(e).resolve()
+            if then == read:
                 continue
-            covered |= {f"{p} removed" for p in with_includes(then)} | {f"{p} added" for p in with_includes(now)}
-            missing = "" if now.is_file() else " (no such file)"
+            if not then.is_file() and read.is_file():  # on another machine, or in a moved project
+                for p in with_includes(read):
+                    if str(p) in saved:  # an include named by an absolute path: read from the same place
+                        continue
+                    q = os.path.normpath(Path(started_in) / os.path.relpath(p, here))  # where the run read it
+                    covered |= {f"{q} removed", f"{p} added"}
+                    if q not in saved:
+                        out.append(f"{p} added")
+                    elif saved[q] != now.get(str(p)):
+                        out.append(f"{p} changed (read as {q} where the run started, in {started_in})")
+                continue
+            covered |= {f"{p} removed" for p in with_includes(then)} | {f"{p} added" for p in with_includes(read)}
+            missing = "" if read.is_file() else " (no such file)"
             out.append(f"{str(e)!r} is a relative path, read from the working directory: {then} where the run "
-                       f"started, {now} here{missing}; start it from {started_in}, or name it by an absolute "
+                       f"started, {read} here{missing}; start it from {started_in}, or name it by an absolute "
                        "path")  # fmt: skip
     for change in changes:
         if change in covered:
@@ -348,7 +364,7 @@ def check_run(run_dir: str | Path, extra: Iterable[str | Path] = (), key: str | 
             return ProvenanceCheck(recorded=False, configs=[], code=[])
         raise ConfigError(f"{path} cannot be read as a provenance record; delete it to go on without one",
                           key=key) from None  # fmt: skip
-    configs = _explained(config_changes(saved_configs, config_digests(extra)), extra, saved.get("cwd"))
+    configs = _explained(saved_configs, config_digests(extra), extra, saved.get("cwd"))
     code: list[str] = []
     if saved_code.get("source_sha256") != source_digest():
         code.append("marlcrash source")

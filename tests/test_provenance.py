@@ -365,6 +365,40 @@ def test_a_deck_named_by_a_relative_path_is_read_from_the_working_directory_and_
     ]
 
 
+def test_a_run_moved_with_its_project_to_another_machine_resumes_on_the_same_relative_deck(
+    configs, tmp_path, monkeypatch
+):
+    """A run folder copied to another machine (or its project moved to another folder) with the deck at the same
+    path relative to where the run starts was refused though every byte was the same: the record names the files by
+    their resolved paths on the first machine, and the check told the user to start from a folder this machine does
+    not have; deleting the record was the only way on, which dropped the guard. Where the file the run read is not
+    here, the files read now are compared with the recorded ones at the same place relative to the working
+    directory: the same bytes resume, a changed include is still refused, naming it here and as recorded."""
+    first, second = tmp_path / "first" / "proj", tmp_path / "second" / "home" / "proj"
+    (first / "decks" / "sub").mkdir(parents=True)
+    shared = tmp_path / "barrier.k"  # named by an absolute path: the same file on both machines
+    shared.write_text("*KEYWORD\n$ a rigid wall\n*END\n")
+    (first / "decks" / "car.k").write_text(f"*KEYWORD\n*INCLUDE\nsub/part.k\n*INCLUDE\n{shared}\n*END\n")
+    (first / "decks" / "sub" / "part.k").write_text("*KEYWORD\n$ shells of the bumper\n*END\n")
+    run = tmp_path / "run"
+    run.mkdir()
+    monkeypatch.chdir(first)
+    assert str(shared.resolve()) in provenance.write_record(run, ["decks/car.k"])["configs"]
+    second.parent.mkdir(parents=True)
+    first.rename(second)  # the first machine's folder is not here
+    monkeypatch.chdir(second)
+    assert provenance.require_unchanged(run, ["decks/car.k"]).configs == []
+
+    (second / "decks" / "sub" / "part.k").write_text("*KEYWORD\n$ thicker shells of the bumper\n*END\n")
+    with pytest.raises(ConfigError) as e:
+        provenance.require_unchanged(run, ["decks/car.k"])
+    assert e.value.key == "resume"
+    part, recorded = (second / "decks" / "sub" / "part.k").resolve(), first.resolve() / "decks" / "sub" / "part.k"
+    assert f"other configs ({part} changed (read as {recorded} where the run started, in {first.resolve()}));" in (
+        str(e.value)
+    )
+
+
 @pytest.mark.parametrize(
     ("rows", "says"),
     [([{"method": "cmaes"}], r"row 0 of .*compare\.json lacks seed, score"),
