@@ -68,7 +68,7 @@ def config_digests(extra: Iterable[str | Path] = ()) -> dict[str, str]:
     Args:
         extra: further input files (a vehicle deck, a measured pulse) named by paths outside ``configs/``;
             missing ones are left out (the run that needs them fails on them with its own error). A keyword deck
-            brings the files it ``*INCLUDE``s.
+            brings the files it ``*INCLUDE``s, an ISO-MME test the files it is read from (:func:`with_includes`).
 
     Returns:
         ``{name: hex digest}``: files under ``configs/`` (:func:`config_files`) named by their path
@@ -105,16 +105,20 @@ def _editor_leftover(name: str) -> bool:
 
 
 def with_includes(path: Path) -> list[Path]:
-    """``path`` and, for a keyword deck, the files it ``*INCLUDE``s (a deck that cannot be split: itself only;
-    reading the vehicle reports the problem)."""
+    """``path`` and, for a keyword deck, the files it ``*INCLUDE``s; for an ISO-MME test (its folder or ``.mme``
+    file), the files it is read from (:func:`marlcrash.pulse.io.mme_files`). A deck or test that cannot be read:
+    ``path`` only (reading it in the run reports the problem)."""
     from marlcrash.errors import MarlcrashError
+    from marlcrash.pulse.io import is_mme, mme_files
     from marlcrash.vehicle.registry import DECK_SUFFIXES
 
-    if path.suffix.lower() not in DECK_SUFFIXES or not path.is_file():
-        return [path]
-    from marlcrash.vehicle.keyword import deck_files
-
     try:
+        if path.exists() and is_mme(path):
+            return mme_files(path)
+        if path.suffix.lower() not in DECK_SUFFIXES or not path.is_file():
+            return [path]
+        from marlcrash.vehicle.keyword import deck_files
+
         return deck_files(path)
     except (MarlcrashError, OSError):
         return [path]

@@ -229,6 +229,35 @@ def test_env_inputs_are_files_named_by_path():
     assert provenance.env_inputs(load_env_config("default")) == []  # a registered vehicle lives in configs/
 
 
+@pytest.mark.parametrize("named", ["folder", "mme"])
+def test_a_measured_iso_mme_test_outside_configs_is_recorded_by_its_channel_files(configs, tmp_path, named):
+    """A measured reference given as an ISO-MME test (its folder, or its ``.mme`` file) outside ``configs/`` is
+    read from the ``.mme`` file, the channel list and the channel files, but the record hashed only a file: a folder
+    not at all, a ``.mme`` file without the measured signals. Editing a measured channel then resumed a run on
+    other reference data without a word. Now every file the test is read from is recorded, and a changed channel
+    refuses the resume naming it."""
+    import numpy as np
+
+    from marlcrash.pulse.io import Pulse, write_mme
+
+    t = np.arange(0.0, 0.1, 1e-4)
+    mme = write_mme(Pulse(t, np.stack([-np.sin(t * 30.0), -np.sin(t * 25.0)]), ("tunnel", "radsup")),
+                    tmp_path / "T1", "T1")  # fmt: skip
+    channel = (tmp_path / "T1" / "Channel" / "T1.002").resolve()
+    test = str(mme if named == "mme" else tmp_path / "T1")
+    recorded = provenance.config_digests([test])
+    assert {str(mme.resolve()), str(channel)} <= set(recorded)
+    run = tmp_path / "run"
+    run.mkdir()
+    provenance.write_record(run, [test])
+    assert provenance.require_unchanged(run, [test]).configs == []
+    lines = channel.read_text().splitlines()
+    channel.write_text("\n".join([*lines[:-1], "0.5", ""]))  # the last sample measured otherwise
+    with pytest.raises(ConfigError, match=f"{channel} changed") as e:
+        provenance.require_unchanged(run, [test])
+    assert e.value.key == "resume"
+
+
 def test_an_env_config_file_outside_configs_is_an_input(configs, tmp_path):
     """An env config named by its path (``env=my_env.yaml``) holds the vehicle, scenarios, reward and reference a
     run reads at a resume, but was not recorded: editing it changed a resumed run's physics without a word."""

@@ -819,6 +819,21 @@ def _mme_channel_files(path: Path) -> tuple[Path, list[Path], dict[Path, tuple[s
     return mme, files, _listed_names(folder, test, files, (mme, count))
 
 
+def mme_files(path: str | Path) -> list[Path]:
+    """The files an ISO-MME test (its folder or its ``.mme`` file) is read from: the ``.mme`` file, the channel list
+    ``<test>.chn`` where there is one, and the channel files in order (what a run's record hashes,
+    :mod:`marlcrash.provenance`).
+
+    Raises:
+        PulseError: a test that cannot be read (as :func:`read_mme` says).
+    """
+    with warnings.catch_warnings():  # reading the test itself warns of a channel file it skips
+        warnings.simplefilter("ignore")
+        mme, files, _ = _mme_channel_files(Path(path))
+    chn = _mme_channel_list(files[0].parent, mme.stem)[0]
+    return [mme, *([chn] if chn.is_file() else []), *files]
+
+
 _LISTED_CHANNEL = re.compile(r"name of channel (\d+)")
 """A channel of the channel list ``<test>.chn``: ``Name of channel 001 :<code> / <name>`` (the key's case and
 spaces as :func:`_mme_channel_list` normalizes them)."""
