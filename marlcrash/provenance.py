@@ -5,8 +5,9 @@ environments read the rest at run time from ``configs/``: the env config, ``sim.
 ``materials.yaml``, the vehicle, the scenarios, the reward forms and measured reference pulses. A run
 resumed or evaluated after one of them changed would silently mix two physics. So every run folder
 gets ``provenance.json`` when it starts: the SHA-256 of every file under ``configs/`` except ``configs/train/``
-(saved resolved in the run) and an editor's leftovers (``sim.yaml~``, ``#sim.yaml#``, hidden files), of an env
-config, vehicle deck or reference pulse named by a path outside ``configs/``, of the package's source and of the
+(saved resolved in the run) and an editor's leftovers (``sim.yaml~``, ``#sim.yaml#``, ``sim.yaml.orig``, hidden
+files), of an env config, vehicle deck or reference pulse named by a path outside ``configs/`` (with a deck's
+``*INCLUDE`` files, an ISO-MME test's channel files), of the package's source and of the
 ``train/`` entry scripts beside it (plus the git commit where there is one), and the versions of Python and of the
 libraries that make the numbers (torch, numpy, cma, numba).
 
@@ -98,10 +99,16 @@ def config_files() -> list[Path]:
     return out
 
 
+_LEFTOVER_SUFFIXES = ("~", ".swp", ".swo", ".bak", ".orig", ".rej")
+"""Endings of an editor's backup or swap file, and of what ``git mergetool`` (``.orig``) or ``patch`` (``.orig``,
+``.rej``) leave beside a file."""
+
+
 def _editor_leftover(name: str) -> bool:
-    """A hidden file or folder (a swap file ``.sim.yaml.swp``, an Emacs lock ``.#sim.yaml``), a backup ``sim.yaml~``,
-    an Emacs autosave ``#sim.yaml#`` or a swap file ``sim.yaml.swp``: deleting one is no config change."""
-    return name.startswith(".") or name.endswith(("~", ".swp", ".swo")) or (name.startswith("#") and name.endswith("#"))
+    """A hidden file or folder (a swap file ``.sim.yaml.swp``, an Emacs lock ``.#sim.yaml``), a backup ``sim.yaml~``
+    or ``sim.yaml.bak``, an Emacs autosave ``#sim.yaml#``, a swap file ``sim.yaml.swp``, or a merge or patch leftover
+    ``sim.yaml.orig``, ``sim.yaml.rej`` (:data:`_LEFTOVER_SUFFIXES`): deleting one is no config change."""
+    return name.startswith(".") or name.endswith(_LEFTOVER_SUFFIXES) or (name.startswith("#") and name.endswith("#"))
 
 
 def with_includes(path: Path) -> list[Path]:

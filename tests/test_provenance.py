@@ -469,3 +469,23 @@ def test_editor_leftovers_in_configs_are_no_inputs_of_a_run_or_of_the_cell_model
     _touch(configs / "sim.yaml")
     with pytest.raises(ConfigError, match=r"configs/sim\.yaml changed"):  # a real config edit still refuses
         provenance.require_unchanged(run)
+
+
+def test_merge_and_patch_leftovers_in_configs_are_no_inputs(configs, tmp_path):
+    """``git mergetool`` keeps ``sim.yaml.orig`` beside a resolved conflict, ``patch`` leaves ``.orig`` and ``.rej``
+    files, and many tools a ``.bak``: the record hashed them as inputs, so cleaning them up refused the resume
+    ("configs/sim.yaml.orig removed") though no loader reads one. A real edit still refuses."""
+    leftovers = [configs / "sim.yaml.orig", configs / "scenarios" / "full_width_40.yaml.rej",
+                 configs / "cells.yaml.bak"]  # fmt: skip
+    for p in leftovers:
+        p.write_text("sim: old\n")
+    run = tmp_path / "run"
+    run.mkdir()
+    rec = provenance.write_record(run)
+    assert not any(n.endswith((".orig", ".rej", ".bak")) for n in rec["configs"])
+    for p in leftovers:
+        p.unlink()
+    assert provenance.require_unchanged(run).configs == []
+    _touch(configs / "cells.yaml")
+    with pytest.raises(ConfigError, match=r"configs/cells\.yaml changed"):
+        provenance.require_unchanged(run)
