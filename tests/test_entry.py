@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
@@ -94,6 +95,29 @@ def test_exit_status_2_with_the_message_and_flags_left_to_hydra(tmp_path, capsys
     assert capsys.readouterr().err == "error: tiny.yaml key 'sed': unknown key; expected one of ['seed']\n"
     exit_on_bad_overrides(script, "tiny", argv=["--cfg", "job", "sed=1"])  # Hydra's flags: Hydra decides
     exit_on_bad_overrides(script, "tiny", argv=["seed=3"])
+
+
+def test_a_checkout_script_that_imports_another_marlcrash_exits_2(tmp_path, capsys):
+    """With a non-editable install, ``python train/train.py`` in a checkout imported the installed copy: its code and
+    (since configs ship inside the package) its configs ran under the checkout's training configs, and edits to
+    the checkout went unseen. A script of a checkout now refuses a marlcrash imported from elsewhere."""
+    import marlcrash
+
+    script = tmp_path / "train" / "script.py"
+    configs = tmp_path / "configs" / "train"
+    configs.mkdir(parents=True)
+    (configs / "tiny.yaml").write_text("seed: 0  # a seed\n")
+    (tmp_path / "marlcrash").mkdir()
+    (tmp_path / "marlcrash" / "__init__.py").write_text("")
+    with pytest.raises(SystemExit) as e:
+        exit_on_bad_overrides(script, "tiny", argv=["seed=3"])
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    imported = Path(marlcrash.__file__).resolve().parent
+    assert err.startswith(f"error: {script} belongs to the checkout {tmp_path}, but Python imports marlcrash from ")
+    assert str(imported) in err and f"pip install -e {tmp_path}" in err
+    here = Path(__file__).resolve().parent.parent / "train" / "train.py"  # this checkout's own script and package
+    exit_on_bad_overrides(here, "train", argv=["seed=3"])
 
 
 @pytest.mark.parametrize("name", ["train", "baseline", "compare", "ablate"])

@@ -176,7 +176,12 @@ def exit_on_bad_overrides(
 
     A command line with a flag (``--help``, ``--cfg``, ``-m``, ``--config-name``, ...) is left to Hydra as it
     is: those change what is composed, or compose nothing.
+
+    First, a script of a checkout (a ``marlcrash/`` package beside its ``train/`` folder) that imports marlcrash
+    from elsewhere (a non-editable install, another checkout's editable one) exits the same way: it would run
+    that copy's code and configs under the checkout's training configs, and edits to the checkout go unseen.
     """
+    _exit_on_other_package(Path(script).resolve())
     args = list(sys.argv[1:] if argv is None else argv)
     if any(a.startswith("-") for a in args):
         return
@@ -184,6 +189,22 @@ def exit_on_bad_overrides(
         check_overrides(Path(script).resolve().parent / config_path, config_name, args)
     except MarlcrashError as e:
         print(f"error: {e}", file=sys.stderr)
+        sys.exit(2)
+
+
+def _exit_on_other_package(script: Path) -> None:
+    """``error: ...`` and exit status 2 where ``script``'s checkout has a ``marlcrash`` package other than the one
+    imported (see :func:`exit_on_bad_overrides`)."""
+    import marlcrash
+
+    checkout = script.parent.parent
+    beside = (checkout / "marlcrash").resolve()
+    imported = Path(marlcrash.__file__).resolve().parent
+    if (beside / "__init__.py").is_file() and imported != beside:
+        print(f"error: {script} belongs to the checkout {checkout}, but Python imports marlcrash from {imported} "
+              "(a non-editable install, or another checkout's): that copy's code and configs would run, not the "
+              f"checkout's; install the checkout editable (pip install -e {checkout}) or run that copy's own "
+              "scripts", file=sys.stderr)  # fmt: skip
         sys.exit(2)
 
 
