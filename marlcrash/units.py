@@ -98,7 +98,7 @@ def get_unit_system(name: str) -> UnitSystem:
 # mm-g-ms read as in-lbf-s has a density of 84,000 kg/m^3 (mass-scaled steel) and a
 # modulus of 1.4 GPa (a polymer's). The wave speed sqrt(E/rho) of that pair, 130 m/s, is
 # no material's: metals and glass have about 5,000 m/s, polymers 1,300 m/s, steel
-# mass-scaled 10x 1,600 m/s; so the medians must also give a wave speed in its window.
+# mass-scaled 10x 1,600 m/s; so the materials' median wave speed must lie in its window too.
 DENSITY_WINDOW = (1e2, 1.5e5)
 _MODULUS_WINDOW = (1e8, 1e12)
 _WAVE_SPEED_WINDOW = (3e2, 1e4)

@@ -59,7 +59,7 @@ from typing import Any
 
 import numpy as np
 
-from marlcrash.calibrate.amortized import _fmt
+from marlcrash.calibrate.amortized import _fmt, pm
 from marlcrash.calibrate.compare import (
     COLUMNS,
     SIMS_TO_SUCCESS,
@@ -72,7 +72,6 @@ from marlcrash.calibrate.compare import (
     initial_score,
     open_run_dir,
     outcome_row,
-    pm,
     problem_config,
     ranked,
     run_ppo,

@@ -668,6 +668,13 @@ def _fmt(v: Any, spec: str = ".4g") -> str:
     return str(v)
 
 
+def pm(a: dict[str, Any], k: str, spec: str = ".4g") -> str:
+    """``mean ± std`` of an aggregate's ``<k>_mean`` and ``<k>_std`` (:func:`aggregate`, and the results table's and
+    the ablation's :func:`marlcrash.calibrate.compare.summarize`), ``-`` for ``None``: no number, or a std of fewer
+    than two values (the population std of one value is 0, not a measured spread)."""
+    return f"{_fmt(a[f'{k}_mean'], spec)} ± {_fmt(a[f'{k}_std'], spec)}"
+
+
 def _label(method: str, mult: Any) -> str:
     return method if mult is None else f"{method} {_fmt(mult, 'g')}x"
 
@@ -710,9 +717,6 @@ def markdown(comparison: Comparison, command: str | None = None, date: str | Non
         "| beats policy best | wall [s] |",
         "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
-
-    def pm(a: dict[str, Any], k: str, spec: str = ".4g") -> str:
-        return f"{_fmt(a[f'{k}_mean'], spec)} ± {_fmt(a[f'{k}_std'], spec)}"
 
     def of_n(v: int | None, a: dict[str, Any]) -> str:  # out of the references the row has (all, once complete)
         return "-" if v is None else f"{v}/{a['references']}"

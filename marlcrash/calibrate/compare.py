@@ -70,7 +70,7 @@ import numpy as np
 import torch
 
 from marlcrash import provenance
-from marlcrash.calibrate.amortized import _fmt, _mean_param_error, csv_field
+from marlcrash.calibrate.amortized import _fmt, _mean_param_error, csv_field, pm
 from marlcrash.calibrate.baselines import (
     BASELINES,
     CMAESConfig,
@@ -613,7 +613,8 @@ def summarize(group: list[dict[str, Any]], keys: tuple[str, ...]) -> dict[str, A
     """Runs of one group (a method, an ablation cell): ``seeds``, mean and std (ddof 0) of ``keys``, ``passed``,
     ``sims_to_success_median`` and ``wall_capped`` (:func:`aggregate`).
 
-    The mean and std of a key are ``None`` where a run of the group has no number for it (``None``: not
+    The std is ``None`` for a group of one run. The mean and std of a key are ``None`` where a run of the group has
+    no number for it (``None``: not
     applicable, or not finite, as a run whose every candidate diverged has no score): leaving that run out would
     rank a method that failed on one reference by its other runs.
     """
@@ -622,7 +623,7 @@ def summarize(group: list[dict[str, Any]], keys: tuple[str, ...]) -> dict[str, A
         v = np.array([r[k] for r in group], dtype=np.float64)  # None: nan
         whole = v.size and np.isfinite(v).all()
         a[f"{k}_mean"] = float(v.mean()) if whole else None
-        a[f"{k}_std"] = float(v.std()) if whole else None
+        a[f"{k}_std"] = float(v.std()) if whole and v.size >= 2 else None  # one run has no spread (0 is not one)
     a["passed"] = sum(bool(r["passed"]) for r in group)
     hit = [r["sims_to_success"] for r in group if r["sims_to_success"] is not None]
     a["sims_to_success_median"] = float(np.median(hit)) if hit else None
@@ -657,13 +658,6 @@ def _present(config: CompareConfig, rows: list[dict[str, Any]]) -> tuple[list[st
     methods = [m for m in [*config.methods, *METHODS] if any(r["method"] == m for r in rows)]
     seeds = [*config.seeds, *sorted({r["seed"] for r in rows} - set(config.seeds))]
     return list(dict.fromkeys(methods)), [s for s in seeds if any(r["seed"] == s for r in rows)]
-
-
-def pm(a: dict[str, Any], k: str, spec: str = ".4g") -> str:
-    """``mean ± std`` of an aggregate's ``<k>_mean`` and ``<k>_std`` (:func:`summarize`), ``-`` for ``None``; the std
-    of fewer than two runs (``seeds``) is ``-`` too: the population std of one value is 0, not a measured spread."""
-    std = a[f"{k}_std"] if a["seeds"] >= 2 else None
-    return f"{_fmt(a[f'{k}_mean'], spec)} ± {_fmt(std, spec)}"
 
 
 def markdown(config: CompareConfig, rows: list[dict[str, Any]], command: str | None, date: str) -> str:
