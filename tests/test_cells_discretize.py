@@ -559,10 +559,10 @@ def test_a_car_inside_the_roi_warns_that_the_compartment_has_no_mass(cfg):
 
 
 def test_elements_sampled_sparser_than_the_voxel_pitch_warn_naming_max_subdivision(cfg):
-    """A coarse mesh was sampled at most max_subdivision = 12 times per edge without a word: 98 of the LS-OPT small
-    car's 284 shells in the ROI got samples up to 22 mm apart against 17 mm voxels, its walls were voxelized with
-    gaps (18034 wall voxels instead of 27112, 307 cells instead of 401, 1424 links instead of 2230 with the 17 the
-    warning now asks for)."""
+    """A coarse mesh was sampled at most max_subdivision times per edge without a word: at the former default of 12,
+    98 of the LS-OPT small car's 284 shells in the ROI got samples up to 22 mm apart against 17 mm voxels, its walls
+    were voxelized with gaps (18034 wall voxels instead of 27112, 307 cells instead of 401, 1424 links instead of 2230
+    with the 17 the warning asks for)."""
     car = build_model(
         [
             ("rail", "shell", tube_x(0.0, 1.2, -0.1, 0.1, 0.2, 0.4, 2, 1), 2e-3, 1),
@@ -571,13 +571,27 @@ def test_elements_sampled_sparser_than_the_voxel_pitch_warn_naming_max_subdivisi
         name="coarse",
     )
     few = dataclasses.replace(cfg, sensors=[])
-    with pytest.warns(UserWarning, match=r"coarse: 8 of 8 elements .* raise max_subdivision \(12\) to \d+ ") as w:
+    with pytest.warns(UserWarning, match=r"coarse: 8 of 8 elements .* raise max_subdivision \(32\) to \d+ ") as w:
         discretize(car, few)
     need = int(str(w[0].message).split("to ")[-1].split()[0])
     assert need >= 0.6 / 0.0167  # one sample per voxel pitch along the 0.6 m elements at least
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         discretize(car, dataclasses.replace(few, max_subdivision=need))
+
+
+def test_the_public_deck_is_sampled_densely_enough_by_default(cfg, lsopt_deck):
+    """The default ``max_subdivision`` was 12, which left the LS-OPT small car (elements up to 0.37 m) voxelized with
+    gaps and warned on every discretization of the one real deck here; 32 samples its largest shells at least once
+    per voxel pitch. The synthetic default car's cells are the same at either value (its elements are small)."""
+    from marlcrash.vehicle.keyword import read_deck
+
+    car = read_deck(lsopt_deck, params={"tbumper": 3.0, "thood": 1.0})
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        cells = discretize(car, cfg)
+    assert not [w for w in seen if "max_subdivision" in str(w.message)], [str(w.message) for w in seen]
+    assert cells.n_cells > 380  # 307 with the gaps of max_subdivision 12 (401 at 17, 411 at 32)
 
 
 def test_a_uniform_summary_warns_once_not_again_for_the_optimized_count(cfg):

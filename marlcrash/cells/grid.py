@@ -335,7 +335,7 @@ def sample_elements(
     part_subassembly: dict[int, int],
     pitch: float,
     samples_per_pitch: int = 2,
-    max_subdivision: int = 12,
+    max_subdivision: int = 32,
     masses: dict[str, np.ndarray] | None = None,
     added: dict[str, np.ndarray] | None = None,
     voxel: np.ndarray | None = None,
