@@ -362,19 +362,31 @@ def check_run(run_dir: str | Path, extra: Iterable[str | Path] = (), key: str | 
     Raises:
         ConfigError: (key ``key``) the record exists but cannot be read.
     """
-    extra = list(extra)
     path = Path(run_dir) / PROVENANCE_FILE
     if not path.exists():
         return ProvenanceCheck(recorded=False, configs=[], code=[])
     try:
-        saved = json.loads(path.read_text(encoding="utf-8"))
-        saved_configs, saved_code = dict(saved["configs"]), dict(saved["code"])
-    except (OSError, ValueError, KeyError, TypeError):
+        return check_record(json.loads(path.read_text(encoding="utf-8")), extra)
+    except (OSError, ValueError):
         if key is None:
             log.warning("%s cannot be read as a provenance record; going on without it", path)
             return ProvenanceCheck(recorded=False, configs=[], code=[])
         raise ConfigError(f"{path} cannot be read as a provenance record; delete it to go on without one",
                           key=key) from None  # fmt: skip
+
+
+def check_record(saved: Any, extra: Iterable[str | Path] = ()) -> ProvenanceCheck:
+    """Compare a provenance record (:func:`record`, as a run folder's ``provenance.json`` or a results file holds it)
+    with the configs and code of this process: :func:`check_run` without the file.
+
+    Raises:
+        ValueError: ``saved`` is not a record (no ``configs`` and ``code`` mappings).
+    """
+    extra = list(extra)
+    try:
+        saved_configs, saved_code = dict(saved["configs"]), dict(saved["code"])
+    except (KeyError, TypeError, ValueError):
+        raise ValueError("not a provenance record (expected 'configs' and 'code' mappings)") from None
     configs = _explained(saved_configs, config_digests(extra), extra, saved.get("cwd"))
     code: list[str] = []
     if saved_code.get("source_sha256") != source_digest():
@@ -389,7 +401,7 @@ def check_run(run_dir: str | Path, extra: Iterable[str | Path] = (), key: str | 
             where = f" (git {str(then)[:7]} -> {str(now)[:7]})" if then or now else ""
         code = [f"{what} changed{where}" for what in code]
     code += [f"{lib} {saved[lib]} -> {v}" for lib, v in versions().items() if lib in saved and saved[lib] != v]
-    note = saved.get("note") if isinstance(saved, dict) else None
+    note = saved.get("note")
     return ProvenanceCheck(recorded=True, configs=configs, code=code, note=None if note is None else str(note))
 
 

@@ -710,7 +710,7 @@ def test_a_resume_after_a_config_file_changed_is_refused_naming_it(run_dir, tmp_
     first = amortized_comparison(config)
     _, cfg, _ = load_policy(run_dir)
     now = provenance.config_digests(provenance.env_inputs(make_env_config(cfg)))
-    assert first.meta["configs"] == now
+    assert first.meta["record"]["configs"] == now
     write_comparison(first, tmp_path)
     done = amortized.read_comparison(tmp_path)
     assert amortized_comparison(config, done=done).rows == done.rows  # unchanged files: the rows stand
@@ -724,8 +724,30 @@ def test_a_resume_after_a_config_file_changed_is_refused_naming_it(run_dir, tmp_
     added = dict(now, **{"configs/scenarios/new_one.yaml": "0" * 64})  # a file the earlier rows did not read
     monkeypatch.setattr(amortized.provenance, "config_digests", lambda extra=(): added)
     assert amortized_comparison(config, done=done).rows == done.rows
-    older = amortized.Comparison(done.rows, done.aggregate, {k: v for k, v in done.meta.items() if k != "configs"})
-    assert amortized_comparison(config, done=older).rows == done.rows  # written before the record: cannot tell
+    monkeypatch.setattr(amortized.provenance, "config_digests", lambda extra=(): changed)
+    older = amortized.Comparison(done.rows, done.aggregate, {k: v for k, v in done.meta.items() if k != "record"})
+    assert amortized_comparison(config, done=older).rows == done.rows  # written before any record: cannot tell
+    digests = dict(older.meta, configs=now)  # written with the input files' digests only: still checked on them
+    with pytest.raises(ConfigError, match=r"configs/sim\.yaml changed"):
+        amortized_comparison(config, done=amortized.Comparison(done.rows, done.aggregate, digests))
+
+
+def test_a_resume_compares_the_record_as_a_training_resume_does(run_dir, tmp_path, caplog):
+    """The comparison kept the input files' digests only: a resume after a library upgrade went on without a word (a
+    training resume warns), and one whose record cannot be read is refused, naming it."""
+    import marlcrash.calibrate.amortized as amortized
+
+    config = small_config(run_dir, reference_seeds=[SEEDS[0]], budgets={"random_search": [1]})
+    first = amortized_comparison(config)
+    assert {"configs", "code", "cwd", "torch", "numba"} <= set(first.meta["record"])
+    meta = dict(first.meta, record=dict(first.meta["record"], numba="0.1.0"))
+    with caplog.at_level("WARNING", logger="marlcrash.calibrate.amortized"):
+        rows = amortized_comparison(config, done=amortized.Comparison(first.rows, first.aggregate, meta)).rows
+    assert rows == first.rows
+    assert any("numba 0.1.0 -> " in r.getMessage() for r in caplog.records), caplog.text
+    broken = dict(first.meta, record=["not", "a", "record"])
+    with pytest.raises(ConfigError, match=r"key 'resume': .*record of the input files cannot be read"):
+        amortized_comparison(config, done=amortized.Comparison(first.rows, first.aggregate, broken))
 
 
 @pytest.mark.parametrize(

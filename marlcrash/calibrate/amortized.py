@@ -51,8 +51,9 @@ import csv
 import hashlib
 import io
 import json
+import logging
 import math
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import asdict, dataclass, field, fields
 from datetime import UTC, datetime
 from pathlib import Path
@@ -89,6 +90,8 @@ from marlcrash.outputs import check_output_dir, finite_or_null, json_text, write
 from marlcrash.sim import adjoint
 from marlcrash.sim.scenario import list_scenarios
 from marlcrash.sim.surrogate import load_sim_config
+
+log = logging.getLogger(__name__)
 
 _OWN_CHECKPOINT = "expected the checkpoint this run wrote; use another run's policy in its own folder (run=<folder>)"
 
@@ -424,6 +427,7 @@ def amortized_comparison(
     nominal = iterations + 1
     config.check_budgets(nominal)  # before any simulation: the run's eval.iterations is known only now
     say = progress or (lambda _msg: None)
+    inputs = provenance.env_inputs(make_env_config(train_config))
     meta = {
         "run": None if config.run is None else str(config.run),
         "algorithm": train_config.algorithm.name,
@@ -439,14 +443,15 @@ def amortized_comparison(
         "optimizers": {k: asdict(getattr(config, k)) for k in config.budgets},
         "thresholds": asdict(train_config.eval.thresholds),
         "checkpoint_sha256": digest if digest is not None or config.run is None else _checkpoint_digest(config.run),
-        # the files the simulations read (simulator, cells, scenarios, reward): a resume after one changed mixed physics
-        "configs": provenance.config_digests(provenance.env_inputs(make_env_config(train_config))),
+        # the files the simulations read (simulator, cells, scenarios, reward), the code and the libraries, as a run's
+        # provenance.json holds them: a resume after a file changed mixed physics (resume_mismatch)
+        "record": provenance.record(inputs),
         "provenance": changes,  # configs or code changed since the policy's run started
         "complete": False,  # every reference and budget finished
     }
     kept: dict[tuple[int, str, Any], dict[str, Any]] = {}  # (reference seed, method, multiplier) -> row
     if done is not None:
-        why = resume_mismatch(done.meta, meta)
+        why = resume_mismatch(done.meta, meta, inputs)
         if why is not None:
             raise ConfigError(f"cannot continue the comparison: {why}", key="resume")
         kept = {(r["reference_seed"], r["method"], r["multiplier"]): r for r in done.rows}
@@ -526,17 +531,22 @@ def _checkpoint_digest(run_dir: str | Path) -> str | None:
     return h.hexdigest()
 
 
-RESUME_FREE = ("run", "reference_seeds", "budgets", "optimizers", "configs", "provenance", "complete")
+RESUME_FREE = ("run", "reference_seeds", "budgets", "optimizers", "configs", "record", "provenance", "complete")
 """Entries of ``meta`` a resumed comparison may change: how the run folder is spelled (``checkpoint_sha256`` names
 the policy), which pieces it asks for (the settings of the optimizers both ask for are compared), what changed since
-the policy's run started, and whether it finished. ``configs`` (the digests of the input files) is compared file by
-file, naming the files that changed."""
+the policy's run started, and whether it finished. ``record`` (the provenance of the input files, code and
+libraries; ``configs``, the input files' digests, in a comparison written before it) is compared as a training
+resume compares its run's ``provenance.json``."""
 
 
-def resume_mismatch(earlier: dict[str, Any], now: dict[str, Any]) -> str | None:
+def resume_mismatch(earlier: dict[str, Any], now: dict[str, Any], inputs: Iterable[str | Path] = ()) -> str | None:
     """Why the rows of comparison ``earlier`` (its ``meta``) cannot stand in a comparison with ``now``'s settings,
-    or ``None``: the policy (checkpoint digest), every setting a row depends on and the input files of ``configs/``
-    (``configs``: their digests; a comparison written before that record is not checked on them) must be equal."""
+    or ``None``: the policy (checkpoint digest), every setting a row depends on and the input files (``configs/``
+    and ``inputs``, those outside it: :func:`marlcrash.provenance.env_inputs`) must be equal.
+
+    The files are compared as :func:`marlcrash.provenance.require_unchanged` compares a training run's: a deck named
+    by a relative path is followed into a moved project, a file added since is one the rows did not read; changed
+    code or libraries are logged as warnings. A comparison written before either record is not checked on them."""
 
     def settings(meta: dict[str, Any]) -> dict[str, Any]:
         meta = json.loads(json_text(meta))  # as the JSON holds it
@@ -546,10 +556,18 @@ def resume_mismatch(earlier: dict[str, Any], now: dict[str, Any]) -> str | None:
     a, b = settings(earlier), settings(now)
     differ = [k for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k) and not (k.startswith("optimizers.")
               and (k not in a or k not in b))]  # fmt: skip
-    files = []
-    if isinstance(earlier.get("configs"), dict) and isinstance(now.get("configs"), dict):
-        # a file added since is one the earlier rows did not read (as a training resume, provenance.require_unchanged)
-        files = [c for c in provenance.config_changes(earlier["configs"], now["configs"]) if not c.endswith(" added")]
+    files: list[str] = []
+    if "record" in earlier:
+        try:
+            check = provenance.check_record(earlier["record"], inputs)
+        except ValueError as e:
+            return f"its record of the input files cannot be read ({e})"
+        files = check.configs
+        for change in check.code:
+            log.warning("amortized resume: %s since the comparison started", change)
+    elif isinstance(earlier.get("configs"), dict):  # written before the full record: the input files' digests
+        files = provenance.config_changes(earlier["configs"], provenance.config_digests(inputs))
+    files = [c for c in files if not c.endswith(" added")]  # a file added since is one the earlier rows did not read
     if not differ and not files:
         return None
     said = "; ".join([f"{k}: {a.get(k)!r} then, {b.get(k)!r} now" for k in differ] + files)
