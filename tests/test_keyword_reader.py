@@ -685,6 +685,30 @@ def test_initial_velocities_that_move_the_vehicle_other_than_front_first_are_nam
     assert travel_warnings(deck(0.0, 15640.0, "side.k"), axis_map=AxisMap(x="-y", y="+x")) == []
 
 
+@pytest.mark.parametrize(
+    "cards",
+    [
+        # ICID, the eighth field: the velocity is in local system 7, whose x is the deck's -x (the vehicle moves
+        # front first); read as global it looked like +x travel and drew a wrong --axis-map advice
+        "*INITIAL_VELOCITY_NODE\n" + "".join(f"{n:10d}{15640.0:10.1f}{'':50}{7:10d}\n" for n in (1, 2, 3, 4)),
+        f"*INITIAL_VELOCITY_RIGID_BODY\n{1:10d}{15640.0:10.1f}{'':50}{7:10d}\n",
+        f"*INITIAL_VELOCITY\n{0:10d}{'':30}{7:10d}\n{15640.0:10.1f}\n",  # NSID NSIDEX BOXID IRIGID ICID
+        f"*INITIAL_VELOCITY_GENERATION\n{1:10d}{2:10d}{0.0:10.1f}{15640.0:10.1f}{'':30}{7:10d}\n\n",
+    ],
+)
+def test_initial_velocities_in_a_local_system_are_not_read_as_global(tmp_path, cards):
+    local_x_is_minus_x = "*DEFINE_COORDINATE_VECTOR\n         7      -1.0       0.0       0.0       0.0       1.0\n"
+    path = _write(tmp_path, HEAD + NODES + SHELL + local_x_is_minus_x + cards)
+    line = path.read_text().splitlines().index(cards.splitlines()[0]) + 2  # the first card after the keyword
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        read_deck(path)
+    said = [str(w.message) for w in seen]
+    assert not [w for w in said if "--axis-map" in w], said
+    (msg,) = [w for w in said if "local coordinate system" in w]
+    assert f"deck.k line {line}: " in msg and "ICID 7" in msg and "not checked" in msg, msg
+
+
 def test_subassembly_map_yaml_sets_and_errors(tmp_path):
     parts = "".join(
         f"*PART\n{name}\n{i:10d}{1:10d}{1:10d}\n" for i, name in ((1, "hood outer"), (2, "Hood inner"), (3, "bumper"))

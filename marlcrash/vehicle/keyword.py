@@ -65,7 +65,8 @@ Coverage:
 - ``*CONSTRAINED_RIGID_BODIES`` (which rigid parts move as one body), ``*SET_NODE``/
   ``*SET_NODE_LIST`` (``_TITLE``, ``_GENERATE``) and ``*INITIAL_VELOCITY``,
   ``_NODE``, ``_GENERATION`` (part, part set or node set) and ``_RIGID_BODY``, for which
-  parts the deck sets moving;
+  parts the deck sets moving (a velocity in a local coordinate system, ICID, is not turned into the deck's
+  axes: the direction of travel is then not checked, a note says so);
 - parts that are not vehicle: a ``*MAT_RIGID`` part whose constraints (``CMO``, ``CON1``,
   ``CON2``) hold it along the direction of travel, and, where the deck sets nodes moving, a
   part none of whose nodes moves, are a barrier or fixture: they are left out of the model
@@ -212,7 +213,8 @@ _SET_PIDS = _card(*(f"pid{i}" for i in range(1, 9)), kinds="i" * 8)
 _SET_NIDS = _card(*(f"nid{i}" for i in range(1, 9)), kinds="i" * 8)
 _SET_RANGES = _card(*(f"b{i}{end}" for i in range(1, 5) for end in ("beg", "end")), kinds="i" * 8)  # _GENERATE
 _CURVE_HEAD = _card("lcid", "sidr", "sfa", "sfo", "offa", "offo", kinds="iiffff")
-_VEL_NODE = _card("nid", "vx", "vy", "vz", kinds="ifff")  # then VXR VYR VZR ICID, not needed
+# NID (_RIGID_BODY: PID) VX VY VZ VXR VYR VZR ICID: ICID > 0, the velocities are in that local system
+_VEL_NODE = _card("nid", "vx", "vy", "vz", "vxr", "vyr", "vzr", "icid", kinds="iffffffi")
 _MERGE = _card("pidm", "pids", kinds="ii")
 _VEL_HEAD = _card("nsid", "nsidex", "boxid", "irigid", "icid", kinds="iiiff")
 _VEL_6 = _card("vx", "vy", "vz", "vxr", "vyr", "vzr")
@@ -1120,6 +1122,7 @@ class _Velocity:
     except_set: int = 0
     except_moving: bool = False
     vel: np.ndarray | None = None  # [k, 3] translational velocities given (deck axes); None: in a local system
+    local: tuple[int, int] | None = None  # (ICID, line) of a velocity given in a local system, which is not read
 
 
 @dataclass
@@ -1717,12 +1720,23 @@ def _read_velocity(block: _Block, opts: set[str], t: _Tables, params: _Params) -
     if opts == {"NODE"}:
         v = _table(block, rows, _VEL_NODE, params, required=("nid",), positive=("nid",))
         mv = (v["vx"] != 0) | (v["vy"] != 0) | (v["vz"] != 0)
-        t.velocities.append(_Velocity("nodes", v["nid"], mv, where, vel=np.stack([v["vx"], v["vy"], v["vz"]], 1)))
+        loc = np.flatnonzero(mv & (v["icid"] != 0))
+        local = (int(v["icid"][loc[0]]), block.lineno(int(rows[loc[0]]))) if loc.size else None
+        given = None if local else np.stack([v["vx"], v["vy"], v["vz"]], 1)
+        t.velocities.append(_Velocity("nodes", v["nid"], mv, where, vel=given, local=local))
     elif opts == {"RIGID", "BODY"}:
         for r in rows.tolist():
-            pid, *vel = _read_line(block, r, _VEL_NODE, params)
+            pid, *vel, icid = _read_line(block, r, _VEL_NODE, params)
+            local = (int(icid), block.lineno(r)) if icid else None
             t.velocities.append(
-                _Velocity("part", np.array([pid or 0]), np.array([moving(*vel[:3])]), where, vel=_vec(vel[:3]))
+                _Velocity(
+                    "part",
+                    np.array([pid or 0]),
+                    np.array([moving(*vel[:3])]),
+                    where,
+                    vel=None if local else _vec(vel[:3]),
+                    local=local,
+                )
             )
     elif not opts:  # NSID NSIDEX BOXID ..., then VX VY VZ ..., then VXE VYE VZE ... where NSIDEX > 0
         r = rows.tolist()
@@ -1739,6 +1753,7 @@ def _read_velocity(block: _Block, opts: set[str], t: _Tables, params: _Params) -
                 nsidex or 0,
                 exempt_moving,
                 vel=None if icid else _vec(vel[:3]),
+                local=(int(icid), where[1]) if icid else None,
             )
         )
     elif opts == {"GENERATION"}:
@@ -1752,6 +1767,7 @@ def _read_velocity(block: _Block, opts: set[str], t: _Tables, params: _Params) -
                     np.array([moving(vx, vy, vz, omega)]),
                     where,
                     vel=None if icid else _vec([vx, vy, vz]),
+                    local=(int(icid), block.lineno(int(rows[k]))) if icid else None,
                 )
             )
     else:
@@ -2778,10 +2794,19 @@ def _travel_note(t: _Tables, axis_map: AxisMap) -> list[str]:
     """A note where every initial velocity the deck gives moves along one axis and direction other than
     marlcrash's -x (the vehicle travels front first towards -x; its front is taken at the smallest x).
 
-    Nothing is said where the deck sets nothing moving, gives a velocity in a local system, or moves
-    things along several axes or directions (two vehicles, a moving barrier).
+    Nothing is said where the deck sets nothing moving, or moves things along several axes or directions (two
+    vehicles, a moving barrier). Where it sets something moving in a local coordinate system (ICID), which the
+    reader does not evaluate, a note says that the direction is not checked.
     """
     given = [v for v in t.velocities if v.target != "nodes" or v.moving.any()]
+    local = [(v.local, v.where[0]) for v in given if v.local is not None and (v.moving.any() or v.except_moving)]
+    if local:
+        (icid, line), path = local[0]
+        return [
+            f"{path.name} line {line}: an initial velocity is given in the local coordinate system ICID {icid}; "
+            "the reader takes initial velocities in the deck's global axes only, so the direction of travel is not "
+            "checked against the axis map: make sure the vehicle moves front first along marlcrash -x (x rearward)"
+        ]
     if not given or any(v.vel is None for v in given):
         return []
     vel = np.concatenate([v.vel[v.moving] if v.target == "nodes" else v.vel for v in given if v.vel is not None])
