@@ -101,12 +101,23 @@ def get_unit_system(name: str) -> UnitSystem:
 # mass-scaled 10x 1,600 m/s; so the materials' median wave speed must lie in its window too.
 DENSITY_WINDOW = (1e2, 1.5e5)
 _MODULUS_WINDOW = (1e8, 1e12)
-_WAVE_SPEED_WINDOW = (3e2, 1e4)
+WAVE_SPEED_WINDOW = (3e2, 1e4)
+# One material card is checked against a window 3x wider above: a lumped block with its density lowered (a
+# powertrain modelled as a box: cast iron at 850 kg/m^3 has 11,400 m/s) lies above the deck's window. A modulus
+# typed in another unit system than the deck's is off by 1e3 or more, its wave speed by 31.6x or more: steel's
+# 5,000 m/s becomes 160 or 160,000 m/s, mass-scaled steel's 1,600 becomes 50 or 50,000, all outside.
+CARD_WAVE_SPEED_WINDOW = (3e2, 3e4)
 
 
 def density_fits(density: float, system: UnitSystem) -> bool:
     """Whether a raw density written in ``system``'s units is that of a structural material."""
     return DENSITY_WINDOW[0] <= density * system.density <= DENSITY_WINDOW[1]
+
+
+def wave_speed(density: np.ndarray | float, modulus: np.ndarray | float, system: UnitSystem) -> np.ndarray:
+    """The bar wave speed sqrt(E/rho) [m/s] of raw densities and Young's moduli written in ``system``'s units."""
+    e = np.asarray(modulus, dtype=float)
+    return np.sqrt(e / np.asarray(density, dtype=float)) * math.sqrt(system.stress / system.density)
 
 
 def detect_unit_system(densities: np.ndarray, moduli: np.ndarray) -> UnitSystem | None:
@@ -139,8 +150,8 @@ def detect_unit_system(densities: np.ndarray, moduli: np.ndarray) -> UnitSystem 
             m = float(np.median(e[has_e])) * system.stress
             ok = _MODULUS_WINDOW[0] <= m <= _MODULUS_WINDOW[1]
         if ok and both.any():
-            c = float(np.median(np.sqrt(e[both] / rho[both]))) * math.sqrt(system.stress / system.density)
-            ok = _WAVE_SPEED_WINDOW[0] <= c <= _WAVE_SPEED_WINDOW[1]
+            c = float(np.median(wave_speed(rho[both], e[both], system)))
+            ok = WAVE_SPEED_WINDOW[0] <= c <= WAVE_SPEED_WINDOW[1]
         if ok:
             fits.append(system)
     return fits[0] if len(fits) == 1 else None

@@ -603,6 +603,35 @@ def test_a_material_whose_density_reads_in_another_unit_system_is_named(tmp_path
         read_deck(_write(tmp_path, HEAD + NODES + SHELL, "ok.k"))
 
 
+def test_a_material_whose_modulus_reads_in_another_unit_system_is_named(tmp_path):
+    # an SI deck (m-kg-s) with three steel parts, one of whose E was typed in MPa: its wave speed
+    # sqrt(E/RO) is 5.2 m/s, 1000x below steel's; the median still picks m-kg-s, and the card was taken silently
+    si = HEAD.replace("  7.85e-09  210000.0", "    7850.0   2.1e+11").replace(
+        "       2.0       2.0       2.0       2.0", "     0.002"
+    )
+    more = "".join(
+        f"*PART\npart {i}\n{i:10d}         1{i:10d}\n*MAT_PLASTIC_KINEMATIC\n{i:10d}    7850.0{e:>10}       0.3\n\n"
+        for i, e in ((2, "2.1e+11"), (3, "210000.0"))
+    )
+    shells = SHELL + "".join(f"{i:8d}{i:8d}       1       2       3       4\n" for i in (2, 3))
+    deck = _write(tmp_path, si + more + NODES.replace("100.0", "  0.1") + shells)
+    line = deck.read_text().splitlines().index(f"{3:10d}    7850.0  210000.0       0.3") + 1
+    with pytest.warns(
+        UserWarning,
+        match=rf"material 3 \(\*MAT_PLASTIC_KINEMATIC\) \(deck.k line {line}\): RO 7850 and E 210000 as m-kg-s give "
+        r"a wave speed sqrt\(E/RO\) of 5\.172 m/s, outside the 300 to 30000 m/s of metals and structural polymers",
+    ):
+        m = read_deck(deck)
+    assert m.units == "m-kg-s" and m.materials[3].youngs_modulus == 210000.0  # read as written, and said so
+    assert any("material 3" in w and "wave speed" in w for w in m.warnings)
+    assert [w for w in m.warnings if "wave speed" in w and "material 3" not in w] == []
+    for units in ("m-kg-s", None):  # the same deck with E right: no such warning, given or detected units
+        fixed = _write(tmp_path, deck.read_text().replace("  210000.0       0.3", "   2.1e+11       0.3"), "ok.k")
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            assert read_deck(fixed, units=units).units == "m-kg-s"
+
+
 def test_axis_map_rotates_then_shifts(tmp_path):
     m = _read(_write(tmp_path, HEAD + NODES + SHELL), axis_map=AxisMap(x="-y", y="+x", z="+z"))
     b = m.bounds()

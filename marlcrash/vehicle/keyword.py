@@ -119,6 +119,7 @@ import numpy as np
 
 from marlcrash.errors import DeckError, ModelError
 from marlcrash.units import (
+    CARD_WAVE_SPEED_WINDOW,
     DENSITY_WINDOW,
     UNIT_SYSTEM_NAMES,
     UNIT_SYSTEMS,
@@ -126,6 +127,7 @@ from marlcrash.units import (
     density_fits,
     detect_unit_system,
     get_unit_system,
+    wave_speed,
 )
 from marlcrash.vehicle.materials import Material, complete_material
 from marlcrash.vehicle.model import AxisMap, Part, VehicleModel
@@ -2126,6 +2128,12 @@ def _check_duplicates(ids: np.ndarray, locs: _Locs, what: str) -> None:
         raise DeckError(f"{what} id {int(s[k])} is defined twice (first in {p1.name} line {l1})", p2, l2)
 
 
+_WAVE_SPEED_KINDS = ("elastic", "plastic_kinematic", "piecewise_linear")
+"""The material kinds whose wave speed is checked card by card: the metals and structural polymers of a body in
+white (foams, honeycombs and rubbers lie outside :data:`marlcrash.units.CARD_WAVE_SPEED_WINDOW`, and a rigid body's E
+is a contact stiffness)."""
+
+
 def _assemble(deck: _Deck, t: _Tables, units: str | None, main: Path) -> tuple[VehicleModel, list[str]]:
     notes: list[str] = list(deck.params.notes)
     stopped = "".join(f" (reading stopped at the *END in {p.name} line {n}, before the rest of that file)"
@@ -2186,7 +2194,7 @@ def _assemble(deck: _Deck, t: _Tables, units: str | None, main: Path) -> tuple[V
                 main,
             )
         u = detected
-    for mid, pid in used.items() if not whole else ():  # one card in other units than the rest: mass off 1e3x+
+    for mid, pid in used.items() if not whole else ():  # one card in other units than the rest: mass or E off 1e3x+
         raw = t.materials.get(mid)
         if raw is None or raw.densityless or pid in t.inertia:  # undefined (refused below), or its mass set
             continue
@@ -2203,6 +2211,22 @@ def _assemble(deck: _Deck, t: _Tables, units: str | None, main: Path) -> tuple[V
                 )
                 notes.append(msg)
                 warnings.warn(f"{main.name}: {msg}", UserWarning, stacklevel=3)
+            continue
+        e_raw = raw.values["e"]
+        if raw.kind not in _WAVE_SPEED_KINDS or not (ro > 0 and e_raw > 0):
+            continue
+        c = float(wave_speed(ro, e_raw, u))
+        lo, hi = CARD_WAVE_SPEED_WINDOW
+        if not lo <= c <= hi:  # E in another unit system than the deck's
+            msg = (
+                f"material {mid} ({_mat_label(raw)}) ({raw.where[0].name} line {raw.where[1]}): RO {ro:g} and E "
+                f"{e_raw:g} as {u.name} give a wave speed sqrt(E/RO) of {c:.4g} m/s, outside the {lo:g} to {hi:g} "
+                "m/s of metals and structural polymers: "
+                f"E in another unit system than the deck's {u.name}? (part {pid}'s stiffness follows it; a soft "
+                "foam or rubber may lie below)"
+            )
+            notes.append(msg)
+            warnings.warn(f"{main.name}: {msg}", UserWarning, stacklevel=3)
     # ---- nodes
     coords = np.concatenate(t.coords) * u.length
     order = np.argsort(node_ids, kind="stable")
