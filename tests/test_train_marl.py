@@ -26,6 +26,7 @@ from marlcrash.calibrate.marl import (
     collect,
     expand_team,
     load_algorithm_config,
+    load_run_config,
     load_train_config,
     make_advantage,
     make_critic,
@@ -547,7 +548,8 @@ def test_resume_reaches_the_same_result_as_a_straight_run(short, tmp_path):
 
 
 def test_resuming_a_finished_run_evaluates_without_training_further(short, tmp_path):
-    """A run that the time limit stopped is finished: resume=true re-evaluates it, the same numbers."""
+    """A run that the time limit stopped is finished: resume=true re-evaluates it, the same numbers (more time given
+    with it is said to change nothing)."""
     done = train(tiny(tmp_path, name="limited", time_limit_s=1e-6))  # stops after its first iteration
     assert done.iterations == 1
     state = load_checkpoint(done.run_dir / "checkpoint.pt")
@@ -555,7 +557,8 @@ def test_resuming_a_finished_run_evaluates_without_training_further(short, tmp_p
     save_checkpoint(done.run_dir / "checkpoint.pt", state)
     update_summary(done.run_dir, process_wall_time_s=12.5)  # as train/train.py stamps it
     ckpt = (done.run_dir / "checkpoint.pt").read_bytes()
-    again = train(tiny(tmp_path, name="limited", resume=True))
+    with pytest.warns(UserWarning, match=r"is finished: a resume evaluates it again.*time_limit_s=100.0"):
+        again = train(tiny(tmp_path, name="limited", resume=True, time_limit_s=100.0), given=["time_limit_s"])
     assert again.iterations == 1 and again.simulations == done.simulations
     assert again.summary["final_metrics"] == done.summary["final_metrics"]
     assert len(read_log(done.run_dir / "log.csv")) == 1
@@ -574,6 +577,39 @@ def test_the_time_limit_clock_is_the_runs_own_and_survives_a_kill(short, tmp_pat
     resumed = train(tiny(tmp_path, name="clock", resume=str(part.run_dir)))
     assert resumed.iterations == 2
     assert resumed.summary is not None
+
+
+def test_a_resume_takes_the_given_free_settings_and_refuses_the_others_naming_them(short, tmp_path):
+    """A resume trained on with the run's config.yaml whatever the command line gave: ``time_limit_s=5000`` (a
+    killed run given more time) was dropped, and so was ``algorithm.lr=1e-4``, the run going on with its own lr.
+    The settings a resume may change (``RESUME_FREE_KEYS``) now take effect and are recorded in config.yaml; any
+    other given setting must be the run's, else the resume is refused naming it and both values."""
+    part = train(tiny(tmp_path, name="more", time_limit_s=1000.0), stop_at=2, evaluate=False)
+    state = load_checkpoint(part.run_dir / "checkpoint.pt")
+    state["wall_time_s"], state["last_iteration_s"] = 999.5, 1.0  # the run's 1000 s are spent
+    save_checkpoint(part.run_dir / "checkpoint.pt", state)
+    ckpt = (part.run_dir / "checkpoint.pt").read_bytes()
+    for key, given, saved in (("algorithm.lr", 1e-4, 1e-3), ("seed", 5, 0), ("iterations", 9, 4), ("n_envs", 8, 4)):
+        with pytest.raises(ConfigError, match=rf"the run has {key} = {saved!r}, the command line gives {given!r}"):
+            train(tiny(tmp_path, name="more", resume=True, **{key: given}), given=[key])
+        assert (part.run_dir / "checkpoint.pt").read_bytes() == ckpt  # refused before any training
+    with pytest.raises(ConfigError) as e:
+        train(tiny(tmp_path, name="more", resume=True, **{"algorithm.lr": 1e-4}), given=["algorithm.lr"])
+    assert e.value.key == "algorithm.lr"
+    # a run moved from a machine with a GPU this one lacks: its device is refused, unless the resume names another
+    yaml_path = part.run_dir / "config.yaml"
+    yaml_path.write_text(yaml_path.read_text().replace("device: cpu", "device: cuda:99"))
+    with pytest.raises(ConfigError, match=r"key 'device': device 'cuda:99' is not available here"):
+        train(tiny(tmp_path, name="more", resume=True, time_limit_s=5000.0), given=["time_limit_s"])
+    # a given setting equal to the run's is no change; the free ones are taken, and kept for the next resume
+    resumed = train(tiny(tmp_path, name="more", resume=True, time_limit_s=5000.0, checkpoint_every=2,
+                         **{"eval.plots": True}), evaluate=False,
+                    given=["time_limit_s", "seed", "checkpoint_every", "eval.plots", "device"])  # fmt: skip
+    assert resumed.iterations == 4  # trained on: with the run's own 1000 s it stopped at once (iteration 2)
+    saved_config = load_run_config(part.run_dir)
+    assert (saved_config.time_limit_s, saved_config.checkpoint_every, saved_config.eval.plots) == (5000.0, 2, True)
+    assert saved_config.device == "cpu"
+    assert (saved_config.algorithm.lr, saved_config.seed) == (1e-3, 0)
 
 
 def test_resume_true_finds_the_run_and_fresh_runs_refuse_to_overwrite(short, tmp_path):

@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 
 import pytest
+import yaml
 
 from marlcrash.calibrate.checkpoint import load_checkpoint
 from marlcrash.calibrate.marl import ALGORITHMS
@@ -124,6 +125,26 @@ def test_a_resume_of_a_given_folder_reports_the_keys_that_locate_a_run_as_ignore
 
 
 @pytest.mark.slow
+def test_a_resume_takes_a_free_override_and_refuses_one_that_changes_the_run(short_configs, tmp_path):
+    """``resume=<run> algorithm.lr=1e-4`` went on with the run's lr, and ``resume=<run> time_limit_s=1200`` with its
+    time limit, both behind a warning that they were ignored. A setting a resume may change now takes effect and is
+    kept in config.yaml; another one is refused naming it and both values, before anything runs."""
+    p = run("train.py", [*TINY, "name=r", "checkpoint_every=1"], short_configs, tmp_path)
+    assert p.returncode == 0, p.stderr[-3000:]
+    run_dir = tmp_path / "runs" / "mappo" / "r"
+    ckpt = (run_dir / "checkpoint.pt").read_bytes()
+    p = run("train.py", [f"resume={run_dir}", "algorithm.lr=1e-4", "seed=0"], short_configs, tmp_path)
+    assert p.returncode == 2, p.stderr[-2000:]
+    assert "key 'algorithm.lr': resume: the run has algorithm.lr = 0.001, the command line gives 0.0001" in p.stderr
+    assert "ignored" not in p.stderr and (run_dir / "checkpoint.pt").read_bytes() == ckpt
+    p = run("train.py", ["resume=true", "name=r", "checkpoint_every=2", "eval.plots=false"], short_configs, tmp_path)
+    assert p.returncode == 0, p.stderr[-2000:]
+    assert "ignored" not in p.stderr
+    saved = yaml.safe_load((run_dir / "config.yaml").read_text())
+    assert (saved["checkpoint_every"], saved["eval"]["plots"], saved["algorithm"]["lr"]) == (2, False, 1e-3)
+
+
+@pytest.mark.slow
 def test_evaluate_script_reports_a_missing_run(short_configs, tmp_path):
     p = run("evaluate.py", [f"run={tmp_path / 'nope'}"], short_configs, tmp_path)
     assert p.returncode == 2 and "config.yaml" in p.stderr
@@ -134,8 +155,8 @@ def test_evaluate_script_reports_a_missing_run(short_configs, tmp_path):
 @pytest.mark.slow
 def test_a_killed_training_process_resumes_to_the_uninterrupted_result(short_configs, tmp_path):
     """SIGKILL during training (after the second checkpoint), then `resume=<run>`: the same final metrics,
-    counters and log as the run that was never interrupted; command-line overrides of a resume are reported
-    as ignored."""
+    counters and log as the run that was never interrupted; a resume's override that changes the run is refused,
+    one that only restates it or that a resume may change (``checkpoint_every``) is taken."""
     args = [*TINY, "iterations=8", "time_limit_s=null"]
     straight = run("train.py", [*args, "name=straight"], short_configs, tmp_path)
     assert straight.returncode == 0, straight.stderr[-3000:]
@@ -162,9 +183,10 @@ def test_a_killed_training_process_resumes_to_the_uninterrupted_result(short_con
     assert killed_at is not None and killed_at < 8, "the process finished before it could be killed"
     assert not (run_dir / "summary.json").exists()
 
-    resumed = run("train.py", [f"resume={run_dir}", "iterations=99"], short_configs, tmp_path)
+    refused = run("train.py", [f"resume={run_dir}", "iterations=99"], short_configs, tmp_path)
+    assert refused.returncode == 2 and "key 'iterations': resume: the run has iterations = 8" in refused.stderr
+    resumed = run("train.py", [f"resume={run_dir}", "iterations=8", "checkpoint_every=2"], short_configs, tmp_path)
     assert resumed.returncode == 0, resumed.stderr[-3000:]
-    assert "ignored: iterations=99" in resumed.stderr
     a = json.loads((tmp_path / "runs" / "mappo" / "straight" / "summary.json").read_text())
     b = json.loads((run_dir / "summary.json").read_text())
     for key in ("final_metrics", "initial_metrics", "selected_iteration", "param_error", "env_steps", "simulations"):

@@ -5,6 +5,7 @@
     python train/train.py algorithm=ppo_single n_envs=32 algorithm.minibatch_size=64
     python train/train.py resume=true                      # continue the newest run (or resume=runs/mappo/<name>)
     python train/train.py resume=true name=ippo1 algorithm=ippo   # continue that run (an error if it has none)
+    python train/train.py resume=true time_limit_s=1200    # ... with more time (its other settings may not change)
     MARLCRASH_CI=1 python train/train.py                   # the 1-2 minute smoke run of CI (the `ci:` overrides;
                                                            # keys given on the command line keep their values)
 
@@ -33,8 +34,9 @@ from marlcrash.errors import MarlcrashError  # noqa: E402
 from marlcrash.outputs import json_text  # noqa: E402
 
 RESUME_KEYS = ("resume", "name", "out_dir", "algorithm")
-"""Command-line keys a ``resume=true`` reads (they locate the run folder); a ``resume=<folder>`` reads only itself.
-Every other override is ignored (the run's saved config.yaml wins), and a warning names it."""
+"""Command-line keys a ``resume=true`` reads (they locate the run folder); a ``resume=<folder>`` reads only itself and
+ignores them, with a warning naming them. Every other override goes to :func:`train`: the run's saved config.yaml
+takes those of ``RESUME_FREE_KEYS`` (``time_limit_s=1200``) and refuses any other that is not the run's."""
 
 
 _JOBS = [0]  # jobs this process ran: a multirun (-m seed=0,1,2) runs them all in one process
@@ -56,13 +58,13 @@ def main(cfg: DictConfig) -> None:
             config.resume = str(run_dir_of(config))
         name_default_run(cfg, config, run_dir_of)  # multirun jobs started in one second: one folder each
         if config.resume is not False:
-            ignored = [o for o, k in zip(overrides, given, strict=True) if k not in locating]
+            ignored = [o for o, k in zip(overrides, given, strict=True) if k in RESUME_KEYS and k not in locating]
             if ignored:
-                print(f"warning: resume continues the run with its saved config.yaml; ignored: {' '.join(ignored)}",
+                print(f"warning: resume=<folder> continues the run in that folder; ignored: {' '.join(ignored)}",
                       file=sys.stderr)  # fmt: skip
         # the whole job, imports (first job) and discretization included; added while the run folder is held
         stamp = None if config.resume is not False else lambda: {"process_wall_time_s": time.perf_counter() - start}
-        result = train(config, summary_extra=stamp)
+        result = train(config, summary_extra=stamp, given=[k for k in value_keys(given) if k not in RESUME_KEYS])
     except MarlcrashError as e:
         print(f"error: {e}", file=sys.stderr)
         sys.exit(2)

@@ -920,9 +920,9 @@ RESUME_FREE_KEYS = ("name", "out_dir", "resume", "ci", "progress_bar", "logger",
                     "eval.plots", "time_limit_s", "threads", "device")  # fmt: skip
 """Settings a checkpoint's saved config may hold otherwise than the run's ``config.yaml`` (:func:`require_same_run`):
 where the run folder is (a moved or renamed folder), how the run shows its progress and which copies it keeps, how
-long it may train (``time_limit_s``: a killed run given more time in its ``config.yaml``; the schedules follow
-``iterations``) and what it runs on (``threads``, ``device``: a run moved to another machine); none changes what an
-iteration computes beyond rounding."""
+long it may train (``time_limit_s``: a killed run given more time, ``resume=true time_limit_s=1200``; the schedules
+follow ``iterations``) and what it runs on (``threads``, ``device``: a run moved to another machine); none changes
+what an iteration computes beyond rounding. A resume takes these from the command line (:func:`resumed_config`)."""
 
 
 def _flat(config: dict[str, Any], prefix: str = "") -> dict[str, Any]:
@@ -934,6 +934,58 @@ def _flat(config: dict[str, Any], prefix: str = "") -> dict[str, Any]:
         else:
             out[f"{prefix}{k}"] = v
     return out
+
+
+_LOCATING_KEYS = ("name", "out_dir", "resume")
+"""Settings of :data:`RESUME_FREE_KEYS` that say which run a resume continues, never replaced in its config."""
+
+
+def resumed_config(run_dir: Path, config: TrainConfig, given: Sequence[str]) -> tuple[TrainConfig, list[str]]:
+    """The config a resume of the run in ``run_dir`` trains with: its ``config.yaml``, with the settings of
+    :data:`RESUME_FREE_KEYS` the command line set replaced by theirs.
+
+    Args:
+        run_dir: the run folder.
+        config: the command line's config; only the settings under ``given`` are read from it.
+        given: the dotted keys set on the command line (``eval`` stands for every ``eval.*`` setting;
+            ``env_overrides.<key>`` for all of ``env_overrides``); keys that are no setting (Hydra's) are skipped.
+
+    Returns:
+        The config and the dotted keys whose values it changed (to be saved in ``config.yaml`` once the run resumes).
+
+    Raises:
+        ConfigError: (the dotted key) a given setting outside :data:`RESUME_FREE_KEYS` that is not the run's (it would
+            change what an iteration computes, or where it stops), naming the run's value and the given one.
+    """
+    keys = list(given)
+
+    def named(k: str) -> bool:
+        return any(k == g or k.startswith(g + ".") or g.startswith(k + ".") for g in keys)
+
+    saved = load_run_config(run_dir, device=config.device if named("device") else None)  # may not exist here
+    data = dataclasses.asdict(saved)
+    now, before = _flat(dataclasses.asdict(config)), _flat(data)
+    if named("device"):
+        before["device"] = load_yaml(run_dir / CONFIG_FILE).get("device")  # as the run has it, to record the change
+    changed = [k for k, v in now.items() if named(k) and k not in _LOCATING_KEYS and before.get(k) != v]
+    free = ", ".join(k for k in RESUME_FREE_KEYS if k not in (*_LOCATING_KEYS, "ci"))
+    for k in changed:
+        if k not in RESUME_FREE_KEYS:
+            raise ConfigError(
+                f"resume: the run has {k} = {before.get(k)!r}, the command line gives {now[k]!r}; a resume continues "
+                f"the run with its settings ({run_dir / CONFIG_FILE}), of which only {free} "
+                f"may change: drop {k} or start a new run with it",
+                key=k,
+            )
+    for k in changed:
+        *parents, last = k.split(".")
+        node = data
+        for part in parents:
+            node = node[part]
+        node[last] = now[k]
+    if not changed:
+        return saved, []
+    return load_train_config(data, source=str(run_dir / CONFIG_FILE), ci=False), changed
 
 
 _RESUME_HINT = (
@@ -1112,29 +1164,34 @@ def train(
     stop_at: int | None = None,
     evaluate: bool = True,
     summary_extra: Callable[[], dict[str, Any]] | None = None,
+    given: Sequence[str] = (),
 ) -> TrainResult:
     """Train (or resume) one run, checkpointing atomically, then evaluate it.
 
     Args:
-        config: the run config; ``resume`` true or a run folder continues that run with ITS saved config.
+        config: the run config; ``resume`` true or a run folder continues that run with ITS saved config, changed only
+            where ``given`` names a setting of :data:`RESUME_FREE_KEYS` (:func:`resumed_config`).
         stop_at: stop after this iteration as if the process were killed there (after its checkpoint);
             no evaluation. For resume tests and staged runs.
         evaluate: run the end-of-run evaluation (:func:`marlcrash.calibrate.evaluate.evaluate_run`).
         summary_extra: called after the evaluation; its entries are added to ``summary.json`` while the run
             folder is still held (train/train.py's ``process_wall_time_s``), so no other process rewrites the
             file between the evaluation and them.
+        given: the dotted keys of ``config`` set on the command line; a resume takes those of
+            :data:`RESUME_FREE_KEYS` (recorded in the run's ``config.yaml``) and refuses any other that is not the
+            run's.
 
     Returns:
         A :class:`TrainResult`.
 
     Raises:
-        ConfigError: the run folder exists (fresh run), cannot be resumed, or another process writes it
-            (:func:`marlcrash.calibrate.runlock.run_lock`).
+        ConfigError: the run folder exists (fresh run), cannot be resumed (a given setting that is not the run's: that
+            key), or another process writes it (:func:`marlcrash.calibrate.runlock.run_lock`).
     """
     if config.resume is not False:
         run_dir = find_resume_dir(config)
         with run_lock(run_dir, "resume"):
-            return _train(config, run_dir, stop_at, evaluate, summary_extra)
+            return _train(config, run_dir, stop_at, evaluate, summary_extra, given)
     run_dir = run_dir_of(config)
     check_output_dir(run_dir, "out_dir")  # the nearest existing folder of the run's (<out_dir>/<algorithm>)
     if not claim_dir(run_dir):  # created here or refused, in one step: two runs of one name never share it
@@ -1151,6 +1208,7 @@ def _train(
     stop_at: int | None,
     evaluate: bool,
     summary_extra: Callable[[], dict[str, Any]] | None = None,
+    given: Sequence[str] = (),
 ) -> TrainResult:
     """:func:`train` in its run folder, which this process holds."""
     from tqdm import tqdm
@@ -1161,8 +1219,9 @@ def _train(
     remove_stale_temporaries(run_dir, (CONFIG_FILE, LOG_FILE, provenance.PROVENANCE_FILE, *EVAL_FILES))
 
     resume = config.resume
+    changed: list[str] = []
     if resume is not False:
-        config = load_run_config(run_dir)
+        config, changed = resumed_config(run_dir, config, given)
         try:
             state = load_training_checkpoint(run_dir / CHECKPOINT_FILE)
         except ConfigError as e:  # a damaged checkpoint.pt: the kept snapshots are where the run can go on from
@@ -1206,6 +1265,12 @@ def _train(
         if not state.get("finished", False):  # rows will be appended (a finished run is only evaluated again)
             tr.logger.require_columns(LOG_ROW_COLUMNS, key="resume")
         tr.load_state_dict(state)
+        if changed:  # the settings the command line changed, for the next resume and the evaluations
+            save_run_config(config, run_dir)
+            if tr.finished and "time_limit_s" in changed:
+                warnings.warn(f"the run in {run_dir} is finished: a resume evaluates it again, it trains no "
+                              f"further (time_limit_s={config.time_limit_s} is recorded, to no effect)",
+                              stacklevel=2)  # fmt: skip
     was_finished = tr.finished  # a finished run's checkpoint is its record: a resume only evaluates it again
     # with a time limit the iteration count is only a cap: say when training will stop
     desc = config.algorithm.name
