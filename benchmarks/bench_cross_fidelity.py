@@ -51,7 +51,7 @@ def main() -> None:
     sensors = list(env.sensors or cells.sensor_names)
     sim = Surrogate(cells, load_sim_config())
     base = env.reference
-    own = replace(base.cross_fidelity, vehicle_seeds=[None])  # the nominal car
+    own = replace(base.cross_fidelity, vehicle_seeds=[None])  # the calibrated car (env.vehicle_seed)
     variants = {
         "sim.yaml": replace(own, mass_floor=None, substeps=None),
         "env config": own,
@@ -64,7 +64,8 @@ def main() -> None:
         sc = get_scenario(name)
         samplers = {
             k: ReferenceSampler(cells, sim, sensors, {name: 1.0}, replace(base, kind="cross_fidelity",
-                                                                              cross_fidelity=v))
+                                                                              cross_fidelity=v),
+                                vehicle=env.vehicle, vehicle_options=env.vehicle_options, vehicle_seed=env.vehicle_seed)
             for k, v in variants.items()
         }  # fmt: skip
         with torch.no_grad():

@@ -11,8 +11,9 @@ surrogate's sign convention (forward speed, starting at the impact speed). Three
   and renormalised to sum one (fixed zeros stay zero). Optional bounds clip the factors
   so the ground truth stays reachable by the agents. The ground-truth parameters are
   returned for evaluation.
-- ``cross_fidelity``: a uniform-discretization model of the same vehicle (optionally a
-  seeded variant) is simulated as the reference for the optimized model, with its own mass floor and
+- ``cross_fidelity``: a uniform-discretization model of the same vehicle (the calibrated car's own variant, the env's
+  ``vehicle_seed``, for a null entry of ``vehicle_seeds``; another seeded variant for a seed) is simulated as the
+  reference for the optimized model, with its own mass floor and
   step (:class:`CrossFidelityConfig`: its cells are too light for the calibrated model's mass scaling); sensors
   are matched by name. Deterministic per (vehicle seed, scenario), so results are cached.
 - ``file``: measured pulses read with :func:`marlcrash.pulse.io.read_pulse` (CSV or
@@ -125,10 +126,10 @@ class CrossFidelityConfig:
             except ConfigError as e:
                 raise ConfigError(f"the fine model's discretization (configs/cells.yaml with this volume) is "
                                   f"refused: {e}", key="target_cell_volume") from None  # fmt: skip
-        require(bool(self.vehicle_seeds), "vehicle_seeds", "expected at least one vehicle seed (null = nominal car)")
+        require(bool(self.vehicle_seeds), "vehicle_seeds", "expected at least one vehicle seed (null = the car's own)")
         for i, v in enumerate(self.vehicle_seeds):
             ok = v is None or (isinstance(v, int) and not isinstance(v, bool) and v >= 0)
-            require(ok, f"vehicle_seeds[{i}]", f"expected a seed >= 0 or null (the nominal car), got {v!r}")
+            require(ok, f"vehicle_seeds[{i}]", f"expected a seed >= 0 or null (the car's own variant), got {v!r}")
         floor = self.mass_floor
         require(floor is None or (isinstance(floor, (int, float)) and not isinstance(floor, bool)
                                   and np.isfinite(floor) and floor >= 0), "mass_floor",
@@ -350,6 +351,8 @@ class ReferenceSampler:
         config: the reference settings.
         vehicle: the vehicle name or path (cross-fidelity builds its fine model from it).
         vehicle_options: how ``vehicle`` is read (``None``: the defaults).
+        vehicle_seed: the variant of ``vehicle`` that ``cells`` is (``None``: the nominal car); a null entry of
+            ``cross_fidelity.vehicle_seeds`` is this variant, so the fine model is the calibrated car's.
         bounds: optional ``(lo, hi)`` factor bounds of ``E_x``, ``E_s`` for twins.
         floor: transmission shift of the parameter space (:mod:`marlcrash.cells.parameterization`).
         backend: simulator backend for references.
@@ -372,11 +375,12 @@ class ReferenceSampler:
         bounds: tuple[float, float] | None = None,
         floor: float = 0.01,
         backend: Literal["torch", "numba", "adjoint", "auto"] = "auto",
+        vehicle_seed: int | None = None,
     ):
         config = checked(config, "reference")  # one made in Python skipped the checks a file's values get
         self.cells, self.sim, self.sensors, self.config = cells, surrogate, list(sensors), config
         self.vehicle, self.bounds, self.floor, self.backend = vehicle, bounds, floor, backend
-        self.vehicle_options = vehicle_options
+        self.vehicle_options, self.vehicle_seed = vehicle_options, vehicle_seed
         if not self.sensors:  # a calibration compares sensor pulses: nothing to compare is no calibration
             raise ConfigError(
                 f"no sensors to compare: none named and the cell model of {cells.name!r} has none (its "
@@ -463,7 +467,7 @@ class ReferenceSampler:
             source = ["twin"] * n
             increments = twin_increments(noise, self.config.twin, self.bounds)
         elif kind == "cross_fidelity":
-            seeds = self.config.cross_fidelity.vehicle_seeds
+            seeds = [self.variant(v) for v in self.config.cross_fidelity.vehicle_seeds]
             seed_pick = [int(k) for k in draws]
             raw = torch.as_tensor(np.stack([self._fine_reference(seeds[k], s)
                                             for k, s in zip(seed_pick, names, strict=True)]))  # fmt: skip
@@ -503,8 +507,14 @@ class ReferenceSampler:
                                self.n_outputs, margin)  # fmt: skip
 
     # ------------------------------------------------------------------------------ cross-fidelity
+    def variant(self, seed: int | None) -> int | None:
+        """The vehicle variant of an entry of ``cross_fidelity.vehicle_seeds``: ``None`` is the calibrated car's."""
+        return self.vehicle_seed if seed is None else seed
+
     def fine_model(self, seed: int | None = None) -> tuple[CellModel, Surrogate]:
-        """The cross-fidelity reference model of a vehicle variant and its simulator (built once)."""
+        """The cross-fidelity reference model of a vehicle variant (an entry of ``cross_fidelity.vehicle_seeds``:
+        ``None`` is the calibrated car's, :meth:`variant`) and its simulator, built once per variant."""
+        seed = self.variant(seed)
         if seed not in self._fine:
             from marlcrash.cells.discretize import discretize, load_discretization_config
             from marlcrash.vehicle.registry import load_configured_vehicle
@@ -521,8 +531,8 @@ class ReferenceSampler:
         return self._fine[seed]
 
     def _fine_reference(self, seed: int | None, scenario: str) -> np.ndarray:
-        """The raw velocity ``[K, T]`` of the fine model of ``seed`` in ``scenario`` (simulated once)."""
-        key = (seed, scenario)
+        """The raw velocity ``[K, T]`` of the fine model of ``seed`` in ``scenario`` (simulated once per variant)."""
+        key = (self.variant(seed), scenario)
         if key not in self._cache:
             fine, sim = self.fine_model(seed)
             with torch.no_grad():

@@ -825,6 +825,40 @@ def test_cross_fidelity_reference_uses_the_uniform_model(cells, sim):
     torch.testing.assert_close(ref.velocity, again.velocity, rtol=0, atol=0)
 
 
+def test_the_cross_fidelity_reference_of_a_vehicle_variant_is_that_variant(monkeypatch):
+    """With ``vehicle_seed: 1`` the calibrated model is variant 1, but its cross-fidelity reference (``vehicle_seeds:
+    [null]``, the default) was the uniform model of the nominal car: another car (8939 cells against the variant's
+    8927), so the calibration chased a vehicle it is not. A null entry is now the calibrated car's own variant, in the
+    env and in a baseline's problem, and the fine model is built (and kept) once per variant."""
+    from marlcrash.calibrate.problem import ProblemConfig, build_problem
+    from marlcrash.envs.core import CalibrationCore, load_env_config
+
+    seeded = build_cells("b_segment", 1, "optimized")
+    variant = build_cells("b_segment", 1, "uniform")
+    seen = []
+
+    def simulated(self, seed, scenario):  # the fine model each reference is drawn from, without simulating it
+        seen.append(self.fine_model(seed)[0])
+        return np.full((len(self.sensors), self.n_outputs), self.scenarios[scenario].speed)
+
+    monkeypatch.setattr(ReferenceSampler, "_fine_reference", simulated)
+    over = {"vehicle_seed": 1, "reference.kind": "cross_fidelity", "scenarios": {"full_width_40": 1.0}}
+    core = CalibrationCore(load_env_config(overrides=over), 1, seeded)
+    ref = core.sampler.sample(np.random.default_rng(0), 1)
+    problem = build_problem(ProblemConfig(reference="cross_fidelity", env_overrides={"vehicle_seed": 1}), seeded)
+    assert ref.source == problem.reference.source == ["uniform:seed=1"]
+    for fine in seen:
+        assert fine.name == variant.name == seeded.name == "b_segment_seed1"
+        assert fine.n_cells == variant.n_cells and np.array_equal(fine.centroid, variant.centroid)
+        assert np.array_equal(fine.mass, variant.mass) and np.array_equal(fine.params, variant.params)
+    assert len(seen) == 2
+    both = ReferenceSampler(seeded, core.sim, list(seeded.sensor_names), {"full_width_40": 1.0},
+                            ReferenceConfig(kind="cross_fidelity", cross_fidelity=CrossFidelityConfig(
+                                vehicle_seeds=[None, 1, 2])), vehicle_seed=1)  # fmt: skip
+    assert both.fine_model(None) is both.fine_model(1)  # one variant, one fine model
+    assert both.fine_model(2)[0].name == "b_segment_seed2"
+
+
 def test_the_fine_reference_has_its_own_mass_scaling_and_step(cells, sim):
     """The fine model's light cells under the calibrated model's mass floor (0.5 kg) would take 1102 kg of the
     1324 kg compartment into the crush zone and peak at 115 g; its own floor and step keep the added mass small and

@@ -699,7 +699,7 @@ def build_problem(config: ProblemConfig, cells: CellModel | None = None) -> Cali
         sim = Surrogate(cells, load_sim_config(overrides={"dtype": env.sim_dtype}), output_dt=scenario.output_dt)
         sampler = ReferenceSampler(cells, sim, sensors, env.scenarios, env.reference, vehicle=env.vehicle,
                                    vehicle_options=env.vehicle_options, bounds=bounds, floor=env.transmission_floor,
-                                   backend=config.sim_backend)  # fmt: skip
+                                   backend=config.sim_backend, vehicle_seed=env.vehicle_seed)  # fmt: skip
         reference = sampler.sample(np.random.default_rng(config.reference_seed), 1)
         if config.masking:
             regions = ImpactRegions(cells, layout, env.masking)

@@ -411,7 +411,7 @@ class CalibrationCore:
         self.sampler = ReferenceSampler(
             self.cells, self.sim, self.sensors, cfg.scenarios, cfg.reference, vehicle=cfg.vehicle,
             vehicle_options=cfg.vehicle_options, bounds=(cfg.behaviour_bounds[0], cfg.behaviour_bounds[1]),
-            floor=cfg.transmission_floor, backend=cfg.sim_backend,
+            floor=cfg.transmission_floor, backend=cfg.sim_backend, vehicle_seed=cfg.vehicle_seed,
         )  # fmt: skip
         self.duration, self.dt = self.sampler.duration, 1.0 / self.sampler.output_rate
         self.T, self.K = self.sampler.n_outputs, len(self.sensors)
