@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 import torch
@@ -161,6 +163,31 @@ def test_twin_truth_is_exact_with_the_default_spreads(problem):
         assert float(t[1].abs().max()) == 0.0  # compared signals do not depend on the batch they came in
         assert float(t[0].min()) > 1e-4
     assert float(problem.param_error(problem.true_x[None]).abs().max()) == 0.0
+
+
+def test_a_twin_truth_outside_the_search_box_is_named_when_the_problem_is_built(cells):
+    """The twin's log factors are normal (``reference.twin.*_spread`` their sigmas), so a wide spread draws truths
+    past ``box_radius``: ``true_x`` was clipped to the box without a word, and no calibrator could reach the truth
+    (``param_error`` 0.49 at ``true_x`` with a transmission spread of 1). Building such a problem warns, naming the
+    agent, its sub-assembly and the parameter; the default spreads' truths lie inside, and a wider box takes them."""
+    from marlcrash.cells.model import PARAM_NAMES
+
+    wide = {"reference.twin.transmission_spread": 1.0}
+    with pytest.warns(UserWarning, match=r"outside the search box \(box_radius = 1\b") as rec:
+        p = make(cells, env_overrides=wide)
+    msg = " ".join(str(w.message) for w in rec)
+    raw = p.reference.true_increments[0, [p.cells.subassembly_names.index(s[0]) for s in p.layout.subassemblies]]
+    out = p.free & ((raw > p.upper) | (raw < p.lower))
+    a, j = (int(i) for i in torch.nonzero(out)[0])
+    assert f"agent {p.agent_names[a]!r} (sub-assembly {p.layout.subassemblies[a][0]}) {PARAM_NAMES[j]}" in msg
+    assert f"{int(out.sum())} of the {p.n_free} free coordinates" in msg
+    assert "reference.twin.transmission_spread" in msg and float(p.param_error(p.true_x[None]).max()) > 0.1
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for seed in range(3):  # the default spreads (0.2) draw their truths inside the default box
+            inside = make(cells, reference_seed=seed)
+            assert float(inside.param_error(inside.true_x[None]).abs().max()) == 0.0
+        make(cells, env_overrides=wide, box_radius=5.0)  # the box holds the wide truth
 
 
 def test_problem_simulates_in_the_env_configs_precision(cells):

@@ -43,11 +43,15 @@ the environment's behaviour bounds (``log lo <= x <= log hi``). Coordinates that
 change anything are fixed at zero (:attr:`CalibrationProblem.free`): agents inactive in the
 scenario (impact-region rule, when ``masking`` is on), transmission directions
 no increment can change in any cell an agent reaches (infeasible there, or the cell's only feasible one), and
-``E_x``, ``E_s`` where the environment's behaviour bounds are ``[1, 1]`` (a box of no width).
+``E_x``, ``E_s`` where the environment's behaviour bounds are ``[1, 1]`` (a box of no width). The twin's log
+factors are normal (``reference.twin`` spreads, unbounded; only ``E`` is clipped to the behaviour bounds), so a wide
+spread can draw a truth outside the box: ``true_x`` is clipped to it, and building the problem warns, naming each
+agent, sub-assembly and parameter outside (the default spreads, 0.2, put the box 5 sigma out).
 """
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -302,7 +306,7 @@ class CalibrationProblem:
             0, self._agent_of, (movable_factors(self.feasible) & owned[:, None]).to(f64)
         )
         free = torch.cat([torch.ones(A, 2, dtype=torch.bool), feas_agent > 0], dim=1) & self.active[:, None]
-        r = float(box_radius)
+        self.box_radius = r = float(box_radius)
         lo_e, hi_e = max(-r, float(np.log(self.bounds[0]))), min(r, float(np.log(self.bounds[1])))
         lower = torch.tensor([lo_e, lo_e] + [-r] * 5, dtype=f64).expand(A, 7)
         upper = torch.tensor([hi_e, hi_e] + [r] * 5, dtype=f64).expand(A, 7)
@@ -560,10 +564,50 @@ class CalibrationProblem:
         names = list(self.cells.subassembly_names)
         if inc is None or any(len(subs) != 1 for subs in self.layout.subassemblies):
             assert self.true_params is not None  # __init__ asks for true_x only of a reference with a truth
-            return self._fit_true_x(self.true_params)
-        sub = torch.tensor([names.index(subs[0]) for subs in self.layout.subassemblies], dtype=torch.int64)
-        x = inc[0, sub].to(torch.float64) * self.free
+            x = self._fit_true_x(self.true_params)
+        else:
+            sub = torch.tensor([names.index(subs[0]) for subs in self.layout.subassemblies], dtype=torch.int64)
+            x = inc[0, sub].to(torch.float64) * self.free
+        self._warn_outside_box(inc, x)
         return x.clamp(min=self.lower, max=self.upper)
+
+    def _warn_outside_box(self, inc: torch.Tensor | None, x: torch.Tensor) -> None:
+        """Warn, naming agents, sub-assemblies and parameters, where the twin's hidden truth lies outside the search
+        box: its log factors are normal (unbounded), so a wide spread draws truths no candidate reaches, and
+        ``true_x`` is clipped to the box. Checked on the twin's own increments ``inc [1, S, 7]`` per sub-assembly
+        an agent owns (``None``: on the point ``x [n_agents, 7]``; a merged agent's least-squares point is only an
+        approximation of them)."""
+        names = list(self.cells.subassembly_names)
+        where: list[str] = []
+        keys: dict[str, None] = {}  # the spreads behind the coordinates outside
+        count = 0
+        for a, subs in enumerate(self.layout.subassemblies):
+            drawn = ([(f"sub-assembly {s}", inc[0, names.index(s)]) for s in subs] if inc is not None
+                     else [(f"sub-assemblies {', '.join(subs)}", x[a])])  # fmt: skip
+            for j in range(7):
+                lo, hi = float(self.lower[a, j]), float(self.upper[a, j])
+                tol = 1e-9 * (1.0 + max(abs(lo), abs(hi)))
+                out = [(s, float(v[j])) for s, v in drawn if not lo - tol <= float(v[j]) <= hi + tol]
+                if not bool(self.free[a, j]) or not out:
+                    continue
+                count += 1
+                keys.setdefault(("e_x_spread", "e_s_spread", *["transmission_spread"] * 5)[j])
+                if len(where) < 5:
+                    owner, v = out[0]
+                    where.append(f"agent {self.agent_names[a]!r} ({owner}) {PARAM_NAMES[j]} at log factor {v:.3g} "
+                                 f"(box [{lo:.3g}, {hi:.3g}])")  # fmt: skip
+        if not count:
+            return
+        more = f", and {count - len(where)} more" if count > len(where) else ""
+        b_lo, b_hi = self.bounds
+        warnings.warn(
+            f"the twin's hidden truth lies outside the search box (box_radius = {self.box_radius:g}; E_x, E_s also "
+            f"within behaviour_bounds [{b_lo:g}, {b_hi:g}]) at {count} of the {self.n_free} free coordinates: "
+            f"{'; '.join(where)}{more}. true_x is clipped to the box, so no candidate reaches the truth: param_error "
+            f"and success cannot get to those of the truth. The twin's log factors are normal (unbounded): lower "
+            f"{', '.join('reference.twin.' + k for k in keys)} or raise box_radius",
+            stacklevel=4,
+        )
 
     def _fit_true_x(self, truth: torch.Tensor, sweeps: int = 200, refine_iters: int = 200) -> torch.Tensor:
         """The point ``[n_agents, 7]`` representing the twin truth ``[n_cells, 7]`` (module docstring).
@@ -603,7 +647,7 @@ class CalibrationProblem:
 
         if float(w.sum()) > 0 and float((self.params(x.detach())[0, owned, 2:] - truth[owned, 2:]).abs().max()) > 0:
             opt.step(mismatch)
-        return (x.detach()[0] * self.free).clamp(min=self.lower, max=self.upper)
+        return x.detach()[0] * self.free  # clipped to the box by _true_x
 
 
 class Backends(TypedDict):
