@@ -744,3 +744,21 @@ def test_a_subassembly_target_whose_name_looks_like_a_typo_warns_naming_the_clos
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         discretize(car, dataclasses.replace(cfg, subassembly_target_cell_volume={"wheel_left": 0.002}))
+
+
+def test_a_roi_depth_longer_than_the_vehicle_warns_naming_the_key_and_the_length(car, cfg):
+    """``roi_depth: 12`` (1.2 mistyped) was taken without a word: the region of interest ran 8 m past the default
+    car's rear, its grid changed (539 cells instead of 518, 40.8 g instead of 37.5 g at 40 km/h), and the LS-OPT small
+    car (no compartment sub-assembly) was discretized whole, leaving a compartment of 0 kg that `marlcrash simulate`
+    then refused as a deck read in the wrong units. The model is still valid: a warning names the key, the value and
+    the vehicle's length."""
+    with pytest.warns(UserWarning, match=r"mini_car: roi_depth = 4 m is longer than the vehicle \(3\.200 m") as w:
+        cells = discretize(car, dataclasses.replace(cfg, roi_depth=4.0))
+    assert cells.roi_depth == 4.0 and any("roi_depth = 4 m" in n for n in cells.meta["warnings"])
+    assert len([x for x in w if "roi_depth" in str(x.message)]) == 1
+    short = build_model([("rail", "shell", tube_x(0.0, 0.5, -0.1, 0.1, 0.2, 0.4), 2e-3, 1)], name="short")
+    with pytest.warns(UserWarning, match=r"short: roi_depth = 1\.2 m is longer than the vehicle \(0\.500 m"):
+        discretize(short, cfg)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        discretize(car, dataclasses.replace(cfg, roi_depth=3.2))  # the whole car, not past it

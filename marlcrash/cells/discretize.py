@@ -986,6 +986,16 @@ def discretize(model: VehicleModel, config: DiscretizationConfig | None = None, 
     model.validate()
     _refuse_off_vehicle(cfg, model)
     roi = region_of_interest(model, cfg.roi_depth, cfg.overlaps)
+    notes = []
+    length = float(np.ptp(model.bounds()[:, 0]))  # the front is at x = 0 (region_of_interest checked it)
+    if cfg.roi_depth > length * (1 + 1e-9):  # a valid model all the same: the box behind the rear is null space
+        notes.append(
+            f"roi_depth = {cfg.roi_depth:g} m is longer than the vehicle ({length:.3f} m from its front-most to its "
+            f"rear-most node): the region of interest runs {cfg.roi_depth - length:.3g} m past its rear, every "
+            "element but the rigid compartment's is discretized and the rest of the box is null space; roi_depth is "
+            "the crop depth in m behind the front (1.2 in the paper)"
+        )
+        warnings.warn(f"{model.name}: {notes[-1]}", UserWarning, stacklevel=2)
     # Discretize in the frame centred on the vehicle's centre line, where the grid's mirror rules hold (ties fall
     # away from y = 0, the bisection mirrors about it): a model read with AxisMap.y_center off its middle, 1 mm
     # sideways, got 505 cells instead of the default car's 518. Moved back at the end.
@@ -1099,7 +1109,6 @@ def discretize(model: VehicleModel, config: DiscretizationConfig | None = None, 
         if not np.isfinite(sensor_pos[k]).all():
             spec = cfg.sensors[k]
             sensor_pos[k] = spec.position if spec.position is not None else ccen
-    notes = []
     if comp_mass <= 0:
         notes.append(f"the compartment has no mass ({comp_mass:.3g} kg): every element lies in the ROI")
         warnings.warn(f"{model.name}: {notes[-1]}", UserWarning, stacklevel=2)  # was only kept in meta
