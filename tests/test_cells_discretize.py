@@ -762,3 +762,42 @@ def test_a_roi_depth_longer_than_the_vehicle_warns_naming_the_key_and_the_length
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         discretize(car, dataclasses.replace(cfg, roi_depth=3.2))  # the whole car, not past it
+
+
+@pytest.mark.parametrize("method", ["optimized", "uniform"])
+def test_a_target_cell_larger_than_the_vehicle_front_warns_naming_the_key(car, cfg, method):
+    """A target cell volume whose edge exceeds the vehicle's width or its front's height cannot be had: the grid gets
+    one block across each section band and the box height, the optimized method one cell per band of a sub-assembly
+    (the default car at target_cell_volume 1.5 m^3: 57 cells; 8 m^3, edge 2 m against 1.7 m of width: 48), and this
+    was taken without a word. The model is still valid: a warning names the key, its value and the dimension."""
+    big = dataclasses.replace(
+        cfg, target_cell_volume=1.0, solid_target_cell_volume=1.0, subassembly_target_cell_volume={}
+    )
+    with pytest.warns(
+        UserWarning, match=r"mini_car: target_cell_volume = 1 m\^3, a cell edge of 1 m, exceeds the height of the"
+    ) as w:
+        cells = discretize(car, big, method=method)
+    assert "0.800 m" in str(w[0].message) and "1.600" not in str(w[0].message)
+    assert any("target_cell_volume = 1 m^3" in n for n in cells.meta["warnings"])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        discretize(car, dataclasses.replace(big, target_cell_volume=0.5, solid_target_cell_volume=0.5), method=method)
+
+
+@pytest.mark.parametrize(
+    ("change", "key"),
+    [
+        ({"solid_target_cell_volume": 2.0}, r"solid_target_cell_volume = 2 m\^3 \(powertrain\)"),
+        ({"subassembly_target_cell_volume": {"powertrain": 0.7}}, r"subassembly_target_cell_volume\.powertrain = 0\.7"),
+    ],
+)
+def test_a_subassembly_target_larger_than_the_vehicle_front_warns_naming_the_key(car, cfg, change, key):
+    """The per-sub-assembly targets alike (optimized method): an edge beyond the front's width or height makes each of
+    the sub-assembly's y bands one cell whatever the number. A target for a sub-assembly the model lacks changes
+    nothing and does not warn."""
+    with pytest.warns(UserWarning, match=rf"{key}.* exceeds the height of the vehicle's front"):
+        discretize(car, dataclasses.replace(cfg, **change))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        discretize(car, dataclasses.replace(cfg, subassembly_target_cell_volume={"wheel_left": 8.0}))
+        discretize(car, dataclasses.replace(cfg, solid_target_cell_volume=2.0), method="uniform")  # not used there

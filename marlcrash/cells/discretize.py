@@ -535,13 +535,27 @@ def _attribute_samples(
     return cell
 
 
-def _subassembly_targets(samples: Samples, n_sub: int, names: list[str], cfg: DiscretizationConfig) -> np.ndarray:
+def _oversized_cell(volume: float, roi: Roi) -> str | None:
+    """How a cell of ``volume`` [m^3] overflows the region of interest, for a warning: its edge against the vehicle's
+    width and its front's height (the box's), the ones it exceeds; ``None`` where it fits both. (Its depth is
+    ``roi_depth``, which the config checks against ``target_cell_volume``.)"""
+    edge = volume ** (1 / 3)
+    size = roi.hi - roi.lo
+    dims = ((1, "the vehicle's width"), (2, "the height of the vehicle's front in the region of interest"))
+    over = [f"{what} ({size[a]:.3f} m)" for a, what in dims if edge > size[a] * (1 + 1e-9)]
+    return f"a cell edge of {edge:.3g} m, exceeds {' and '.join(over)}" if over else None
+
+
+def _subassembly_targets(
+    samples: Samples, n_sub: int, names: list[str], cfg: DiscretizationConfig, roi: Roi
+) -> np.ndarray:
     """``[n_sub]`` target cell volume [m^3] per sub-assembly.
 
     ``subassembly_target_cell_volume`` overrides by name; otherwise sub-assemblies whose
     material volume is mostly solid elements (near-rigid blocks such as a powertrain, which
     crush little and move as a few lumped masses) use ``solid_target_cell_volume``; all
-    others ``target_cell_volume``.
+    others ``target_cell_volume``. Warns, naming the key, where one of the first two sets a target whose cell
+    edge exceeds the vehicle's width or its front's height (``discretize`` warns for ``target_cell_volume``).
     """
     vol = np.bincount(samples.subassembly, weights=samples.volume, minlength=n_sub)[:n_sub]
     solid = np.bincount(
@@ -551,6 +565,24 @@ def _subassembly_targets(samples: Samples, n_sub: int, names: list[str], cfg: Di
     for i, name in enumerate(names[:n_sub]):
         if name in cfg.subassembly_target_cell_volume:
             target[i] = cfg.subassembly_target_cell_volume[name]
+    big: dict[tuple[str, float], list[str]] = {}  # (key, value) -> the sub-assemblies with material it sets it for
+    for i, name in enumerate(names[:n_sub]):
+        if name in cfg.subassembly_target_cell_volume:
+            key = f"subassembly_target_cell_volume.{name}"
+        elif solid[i] > 0.5 * vol[i]:
+            key = "solid_target_cell_volume"
+        else:
+            continue  # target_cell_volume: discretize warns
+        if vol[i] > 0 and _oversized_cell(float(target[i]), roi):
+            big.setdefault((key, float(target[i])), []).append(name)
+    for (key, v), subs in big.items():
+        what = f" ({', '.join(subs)})" if key == "solid_target_cell_volume" else ""
+        warnings.warn(
+            f"{key} = {v:g} m^3{what}, {_oversized_cell(v, roi)}: no cell fits that size, each y band of the "
+            "sub-assembly's material becomes about one cell (a volume in other units?)",
+            UserWarning,
+            stacklevel=4,
+        )
     known = names[:n_sub]
     for name in cfg.subassembly_target_cell_volume:
         close = [] if name in known else difflib.get_close_matches(name, known, n=1, cutoff=0.8)
@@ -576,7 +608,7 @@ def _optimized(
 ) -> _Labels:
     shape = grid.shape
     nvox = grid.n_voxels
-    target = _subassembly_targets(samples, n_sub, names, cfg)
+    target = _subassembly_targets(samples, n_sub, names, cfg, roi)
     n_bands = int(grid.band_y.max()) + 1
     owner, own_mass = _resolve_owners(grid, vox, samples, n_sub, comp_vox, cfg.envelope_closing_iterations)
     _, iy, _ = np.unravel_index(np.arange(nvox), shape)
@@ -994,6 +1026,14 @@ def discretize(model: VehicleModel, config: DiscretizationConfig | None = None, 
             f"rear-most node): the region of interest runs {cfg.roi_depth - length:.3g} m past its rear, every "
             "element but the rigid compartment's is discretized and the rest of the box is null space; roi_depth is "
             "the crop depth in m behind the front (1.2 in the paper)"
+        )
+        warnings.warn(f"{model.name}: {notes[-1]}", UserWarning, stacklevel=2)
+    oversized = _oversized_cell(cfg.target_cell_volume, roi)
+    if oversized:  # a valid model all the same, of a few cells cut to the box
+        notes.append(
+            f"target_cell_volume = {cfg.target_cell_volume:g} m^3, {oversized}: no cell fits that size, the grid "
+            "gets about one block across each band between section planes and the box's height (a volume in other "
+            "units?)"
         )
         warnings.warn(f"{model.name}: {notes[-1]}", UserWarning, stacklevel=2)
     # Discretize in the frame centred on the vehicle's centre line, where the grid's mirror rules hold (ties fall
