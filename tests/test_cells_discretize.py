@@ -801,3 +801,18 @@ def test_a_subassembly_target_larger_than_the_vehicle_front_warns_naming_the_key
         warnings.simplefilter("error")
         discretize(car, dataclasses.replace(cfg, subassembly_target_cell_volume={"wheel_left": 8.0}))
         discretize(car, dataclasses.replace(cfg, solid_target_cell_volume=2.0), method="uniform")  # not used there
+
+
+def test_a_target_cell_volume_for_the_compartment_is_refused_naming_the_key(car, cfg, tmp_path):
+    """The compartment is one rigid cell, never discretized: a target cell volume given for it (the default car, the
+    LS-OPT small car alike: 518 and 304 cells, as without it) changed nothing without a word, while the user believed
+    the compartment was split. The name is the compartment's in every model, so the config itself is refused."""
+    text = (config_dir() / "cells.yaml").read_text()
+    path = tmp_path / "cells.yaml"
+    path.write_text(text.replace("  wheel_right: 0.01", "  wheel_right: 0.01\n  compartment: 0.05", 1))
+    with pytest.raises(ConfigError, match=r"compartment is one rigid cell and is not discretized") as err:
+        load_discretization_config(path)
+    assert err.value.key == "subassembly_target_cell_volume.compartment"
+    assert "cells.yaml" in str(err.value)
+    with pytest.raises(ConfigError, match=r"subassembly_target_cell_volume\.compartment"):
+        discretize(car, dataclasses.replace(cfg, subassembly_target_cell_volume={COMPARTMENT: 0.05}))

@@ -127,6 +127,23 @@ def test_discretize_default_car_json(tmp_path):
     assert plot.stat().st_size > 10_000
 
 
+def test_discretize_says_which_cells_config_key_does_not_fit_the_vehicle(tmp_path):
+    """A roi_depth longer than the car (12 for 1.2) warns naming the key, its value and the car's length; a target
+    cell volume for the compartment, which is rigid and not discretized, is refused naming the key (both were taken
+    without a word)."""
+    text = (Path(__file__).parents[1] / "configs" / "cells.yaml").read_text()
+    deep, comp = tmp_path / "deep.yaml", tmp_path / "comp.yaml"
+    deep.write_text(re.sub(r"^roi_depth: 1\.2 ", "roi_depth: 12 ", text, count=1, flags=re.M))
+    comp.write_text(text.replace("  wheel_right: 0.01", "  wheel_right: 0.01\n  compartment: 0.05", 1))
+    proc = run_cli("discretize", "--config", str(deep), "--json")
+    assert "warning: b_segment: roi_depth = 12 m is longer than the vehicle (4.000 m" in proc.stderr, proc.stderr
+    assert json.loads(proc.stdout)["n_cells_optimized"] > 0
+    proc = run_cli("discretize", "--config", str(comp), "--json", check=False)
+    assert proc.returncode != 0 and "Traceback" not in proc.stderr and not proc.stdout
+    assert proc.stderr.startswith("error: comp.yaml key 'subassembly_target_cell_volume.compartment': the compartment "
+                                  "is one rigid cell and is not discretized"), proc.stderr  # fmt: skip
+
+
 def _refused_by_the_parser(capsys, args: tuple[str, ...], message: str) -> None:
     """``marlcrash args`` ends with argparse's exit status 2 and ``message`` on standard error."""
     from marlcrash.cli import main

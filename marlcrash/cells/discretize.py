@@ -130,6 +130,12 @@ class DiscretizationConfig:
         )
         for name, v in self.subassembly_target_cell_volume.items():
             require(v > 0, f"subassembly_target_cell_volume.{name}", f"expected a volume > 0 m^3, got {v}")
+        require(  # the name is the rigid compartment's in every model (its sub-assembly, or its rigid parts)
+            COMPARTMENT not in self.subassembly_target_cell_volume,
+            f"subassembly_target_cell_volume.{COMPARTMENT}",
+            "the compartment is one rigid cell and is not discretized, so a target cell volume for it would change "
+            "nothing: remove the key (a sub-assembly to split into cells needs a name of its own)",
+        )
         for i, o in enumerate(self.overlaps):
             require(0 < o < 1, f"overlaps[{i}]", f"expected a fraction in (0, 1), got {o}")
         for key in ("voxels_per_cell_edge", "samples_per_pitch", "max_subdivision"):
