@@ -558,6 +558,19 @@ def test_a_car_inside_the_roi_warns_that_the_compartment_has_no_mass(cfg):
     assert cells.mass[cells.compartment] == 0.0  # not -1.7e-15 (printed -0.000 kg)
 
 
+def test_simulating_a_car_inside_the_roi_blames_roi_depth_not_the_units(cfg):
+    """The surrogate's mass floor is paid by the compartment; with the whole car in the region of interest it has
+    0 kg, and the error said "a deck read in the wrong unit system is this light: check its units"."""
+    from marlcrash.sim import Surrogate
+
+    car = build_model([("rail", "shell", tube_x(0.0, 0.5, -0.1, 0.1, 0.2, 0.4), 2e-3, 1)], name="short")
+    with pytest.warns(UserWarning, match="compartment has no mass"):
+        cells = discretize(car, cfg)
+    with pytest.raises(ModelError, match=r"short: the compartment has no mass .* roi_depth \(cells config\)") as e:
+        Surrogate(cells)
+    assert "units" not in str(e.value)
+
+
 def test_elements_sampled_sparser_than_the_voxel_pitch_warn_naming_max_subdivision(cfg):
     """A coarse mesh was sampled at most max_subdivision times per edge without a word: at the former default of 12,
     98 of the LS-OPT small car's 284 shells in the ROI got samples up to 22 mm apart against 17 mm voxels, its walls

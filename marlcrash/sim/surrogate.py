@@ -484,6 +484,12 @@ class Surrogate:
         mass[self.comp] -= added.sum()
         if (mass[~null] <= 0).any():
             total = float(cells.mass[~null].sum())
+            if cells.mass[self.comp] <= 0:  # not the units: the region of interest took the whole vehicle
+                raise ModelError(
+                    f"{cells.name}: the compartment has no mass (0 kg), so it cannot pay for the mass floor of "
+                    f"{cfg.mass_floor:g} kg (mass_floor, sim config) on {int((added > 0).sum())} light cells: every "
+                    "element lies in the region of interest; give a roi_depth (cells config) shorter than the vehicle"
+                )
             raise ModelError(
                 f"{cells.name}: the mass floor of {cfg.mass_floor:g} kg (mass_floor, sim config) adds "
                 f"{added.sum():.4g} kg to {int((added > 0).sum())} light cells, more than the compartment's "
