@@ -157,7 +157,7 @@ def _refused_by_the_parser(capsys, args: tuple[str, ...], message: str) -> None:
 
 def _without_upfront_left(tmp_path: Path) -> Path:
     """A copy of configs/cells.yaml without the up-front left sensor: the LS-OPT car read with x=+x,y=+z,z=+y has no
-    material within 0.76 m of its default position on its side of the centre line."""
+    material within 0.75 m of its default position on its side of the centre line."""
     import yaml
 
     data = yaml.safe_load((Path(__file__).parents[1] / "configs" / "cells.yaml").read_text())

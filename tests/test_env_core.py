@@ -626,7 +626,7 @@ def test_a_vehicle_seed_for_a_deck_is_refused_when_the_config_loads(lsopt_deck):
 def test_a_scenario_that_activates_no_agent_is_named_when_the_env_is_built(lsopt_deck, tmp_path, monkeypatch):
     """The deck read with its height as marlcrash's width (a wrong ``axis_map``) strikes almost nothing on the
     left: those scenarios' episodes would mask every action, and the env says so; read with its own axes, none.
-    So read, it has no material within 0.76 m of the default up-front left sensor on its side, which discretization
+    So read, it has no material within 0.75 m of the default up-front left sensor on its side, which discretization
     refuses (tests/test_sensor_placement.py): the configs here leave that sensor out."""
     import shutil
     import warnings

@@ -173,7 +173,7 @@ def test_a_flat_deck_is_a_clear_error(lsopt_deck):
 def test_an_up_front_sensor_with_no_material_near_it_on_its_side_is_named(lsopt_deck):
     """Read with x=+x,y=+z,z=+y the car has no material left of its centre line near the default up-front left
     position (0.2, 0.3 W, mid-height): the sensor went 0.51 m away to a voxel right of the centre line, silently.
-    Now discretization stops naming it, its requested position and the nearest material on its side (0.76 m away);
+    Now discretization stops naming it, its requested position and the nearest material on its side (0.75 m away);
     given the reach, it lands left of the centre line."""
     from dataclasses import replace
 
