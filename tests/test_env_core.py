@@ -643,7 +643,8 @@ def test_a_scenario_that_activates_no_agent_is_named_when_the_env_is_built(lsopt
     cells_yaml.write_text(yaml.safe_dump(data))
     monkeypatch.setenv("MARLCRASH_CONFIGS", str(configs))
     base = {"vehicle": str(lsopt_deck), "agents.split_lr": []}
-    for axis_map, idle in (("x=+x,y=+z,z=+y", ["offset40_left", "small_overlap_left"]), (None, [])):
+    # with the walls sampled without gaps (max_subdivision 32) the 40 % offset on the left reaches enough of one agent
+    for axis_map, idle in (("x=+x,y=+z,z=+y", ["small_overlap_left"]), (None, [])):
         opts = {"params": {"tbumper": 3.0, "thood": 1.0}, "axis_map": axis_map}
         cfg = load_env_config("default", {**base, "vehicle_options": opts})
         with warnings.catch_warnings(record=True) as caught:
