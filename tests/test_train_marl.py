@@ -590,12 +590,10 @@ def test_a_resume_takes_the_given_free_settings_and_refuses_the_others_naming_th
     save_checkpoint(part.run_dir / "checkpoint.pt", state)
     ckpt = (part.run_dir / "checkpoint.pt").read_bytes()
     for key, given, saved in (("algorithm.lr", 1e-4, 1e-3), ("seed", 5, 0), ("iterations", 9, 4), ("n_envs", 8, 4)):
-        with pytest.raises(ConfigError, match=rf"the run has {key} = {saved!r}, the command line gives {given!r}"):
+        with pytest.raises(ConfigError, match=rf"the run has {key} = {saved!r}, the command line gives {given!r}") as e:
             train(tiny(tmp_path, name="more", resume=True, **{key: given}), given=[key])
+        assert e.value.key == key
         assert (part.run_dir / "checkpoint.pt").read_bytes() == ckpt  # refused before any training
-    with pytest.raises(ConfigError) as e:
-        train(tiny(tmp_path, name="more", resume=True, **{"algorithm.lr": 1e-4}), given=["algorithm.lr"])
-    assert e.value.key == "algorithm.lr"
     # a run moved from a machine with a GPU this one lacks: its device is refused, unless the resume names another
     yaml_path = part.run_dir / "config.yaml"
     yaml_path.write_text(yaml_path.read_text().replace("device: cpu", "device: cuda:99"))
