@@ -924,20 +924,107 @@ def test_a_scenario_made_in_python_is_checked_as_a_file_is():
     assert out.sensor_names == ["tunnel"]
 
 
-def test_tensors_off_the_cpu_are_refused_by_name():
-    """The simulator runs on the CPU (configs/train/train.yaml: the policy may sit on a GPU, the simulator does
-    not). A parameter or scenario tensor on another device failed deep inside torch ("Tensor.item() cannot be called
-    on meta tensors", or with CUDA "Expected all tensors to be on the same device"). The meta device stands in for a
-    GPU here: it is not the CPU on every machine."""
+def test_tensors_off_the_surrogates_device_are_refused_by_name():
+    """A surrogate on the CPU (its default, Surrogate.to) takes tensors from the CPU only. A parameter or scenario
+    tensor on another device failed deep inside torch ("Tensor.item() cannot be called on meta tensors", or with CUDA
+    "Expected all tensors to be on the same device"). The meta device stands in for a GPU here: it is not the CPU on
+    every machine."""
     cells = block()
     sim = Surrogate(cells)
+    assert sim.device == torch.device("cpu")
     sc = get_scenario("full_width_40", {"duration": 0.002})
     p = _params(cells)
-    with pytest.raises(ModelError, match=r"params must be on the CPU \(the surrogate runs there\), got device meta"):
+    with pytest.raises(
+        ModelError, match=r"params must be on the surrogate's device cpu .*or on the CPU, got device meta"
+    ):
         sim.run(p.to("meta"), sc)
     for name in ("speed", "overlap", "side"):
-        with pytest.raises(ModelError, match=f"'{name}' must be on the CPU .*, got device meta"):
+        with pytest.raises(ModelError, match=f"'{name}' must be on the surrogate's device cpu .*, got device meta"):
             sim.run(p, sc, **{name: torch.ones(1, device="meta")})
+
+
+def test_to_moves_every_tensor_and_refuses_a_device_this_machine_lacks():
+    """``Surrogate.to`` moves every tensor the run reads (a tensor left behind failed inside a step on a GPU), returns
+    the surrogate, and refuses by key a device that is no torch device or not on this machine."""
+    cells = block()
+    sim = Surrogate(cells)
+    assert sim.to("cpu") is sim and sim.to(torch.device("cpu")) is sim
+    tensors = {k for k, v in vars(sim).items() if isinstance(v, torch.Tensor)}
+    assert {"src", "dst", "mass", "cap_link", "exposed", "lo_x"} <= tensors
+    assert all(getattr(sim, k).device.type == "cpu" for k in tensors)
+    for bad, why in (("gpu7", "expected a torch device"), ("meta", "expected a cpu or cuda device")):
+        with pytest.raises(ConfigError, match=f"key 'device'.*{why}|{why}.*key 'device'"):
+            sim.to(bad)
+    if not torch.cuda.is_available():
+        with pytest.raises(ConfigError, match="'cuda' is not available here"):
+            sim.to("cuda")
+    assert sim.device == torch.device("cpu")  # a refused move leaves it where it was
+    sc = get_scenario("full_width_40", {"duration": 0.002})
+    with pytest.raises(ModelError, match=r"backend 'cuda_graph' runs on a CUDA device: move .* \.to\('cuda'\)"):
+        sim.run(_params(cells), sc, backend="cuda_graph")
+
+
+def test_branchless_saturation_step_gives_the_branching_steps_numbers(monkeypatch, default_sim):
+    """The CUDA-graph replay (backend cuda_graph, which CI cannot run) steps with ``branchless=True``: the saturation
+    crossing's correction applied everywhere instead of after asking the device whether any cell crosses. On a crash
+    where cells bottom out within a step, every step taken that way gives the branching step's numbers."""
+    sim = default_sim
+    sc = get_scenario("full_width_56", {"duration": 0.03})
+    p = _params(sim.cells)
+    ref = sim.run(p, sc, backend="torch", record_cells="final")
+    assert bool(ref.saturated.any())
+    step, flags = Surrogate._step, []
+
+    def branchless(self, *args, **kw):
+        flags.append(kw.get("branchless", False))
+        return step(self, *args, **{**kw, "branchless": True})
+
+    monkeypatch.setattr(Surrogate, "_step", branchless)
+    out = sim.run(p, sc, backend="torch", record_cells="final")
+    assert flags and not any(flags)  # the eager path branches; the test made it branchless
+    for name in ("velocity", "crush", "kinetic", "absorbed", "cell_absorbed", "cell_plastic"):
+        a, b = getattr(ref, name), getattr(out, name)
+        assert torch.allclose(a, b, rtol=1e-12, atol=1e-12 * float(a.abs().max())), name
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_cuda_run_equals_the_cpu_run():
+    """On a GPU the torch backend gives the CPU's numbers (float64, to rounding), results come back on the GPU,
+    parameters given on the CPU are moved there, gradients flow, and the CPU-only backends are refused by name."""
+    from marlcrash.cells import discretize
+    from marlcrash.vehicle.synthetic import default_vehicle
+
+    cells = discretize(default_vehicle())
+    sc = get_scenario("offset40_left", {"duration": 0.06})
+    p = torch.as_tensor(cells.params)[None].repeat(3, 1, 1)
+    p[1, :, 1] *= 1.2
+    p[2, :, 0] *= 0.7
+    cpu = Surrogate(cells).run(p, sc, backend="torch", record_cells="final")
+    gpu_sim = Surrogate(cells).to("cuda")
+    eager = gpu_sim.run(p, sc, backend="torch", record_cells="final")
+    with torch.no_grad():
+        out = gpu_sim.run(p, sc, record_cells="final")  # auto: the graph replay on a GPU at B <= GRAPH_MAX_BATCH
+        series = gpu_sim.run(p, sc, backend="cuda_graph", record_cells="series", cells_at=0.03)
+    assert out.velocity.device.type == "cuda" and out.time.device.type == "cuda"
+    # (a GPU's index_add sums in no fixed order, so not bit for bit, not even eager against eager)
+    for name in ("velocity", "crush", "kinetic", "absorbed", "cell_absorbed", "cell_plastic"):
+        a = getattr(cpu, name)
+        for res in (eager, out):
+            b = getattr(res, name).cpu()
+            assert torch.allclose(a, b, rtol=1e-9, atol=1e-9 * float(a.abs().max())), name
+    assert torch.allclose(series.velocity, out.velocity, rtol=1e-9, atol=1e-9)
+    assert torch.allclose(series.cell_absorbed[..., -1], out.cell_absorbed[..., 0], rtol=1e-9, atol=1e-6)
+    ref = Surrogate(cells).run(p, sc, backend="numba", record_cells="final", cells_at=0.03)
+    assert torch.allclose(series.cell_plastic.cpu(), ref.cell_plastic, rtol=1e-7, atol=1e-6)
+    for backend in ("numba", "adjoint"):
+        with pytest.raises(ModelError, match=f"backend '{backend}' runs on the CPU only"):
+            gpu_sim.run(p, sc, backend=backend)
+    q = p.cuda().requires_grad_(True)
+    loss = gpu_sim.run(q, sc, record_cells="none").velocity[..., -1].square().sum()
+    (grad,) = torch.autograd.grad(loss, q)
+    assert torch.isfinite(grad).all() and bool(grad.abs().sum() > 0)
+    with pytest.raises(ModelError, match="backend 'cuda_graph' gives no gradients"):
+        gpu_sim.run(q, sc, backend="cuda_graph")
 
 
 def test_sim_config_validation_names_key():

@@ -93,7 +93,7 @@ import numpy as np
 import torch
 
 from marlcrash.cells.model import N_PARAMS, PARAM_NAMES, CellModel
-from marlcrash.config import checked, config_dir, load_config, require
+from marlcrash.config import checked, config_dir, load_config, require, require_device
 from marlcrash.errors import ModelError
 from marlcrash.sim.energy import cell_energies
 from marlcrash.sim.scenario import (
@@ -353,6 +353,17 @@ class WallProps:
     side: torch.Tensor  # [B] +1 left, -1 right
 
 
+GRAPH_MAX_BATCH = 1024
+"""The largest batch ``backend="auto"`` replays as a CUDA graph on a GPU; above it runs the eager ``torch`` backend.
+On an H100 (``benchmarks/bench_gpu.py``, default car, 150 ms) the replay ran 3.3-5.6x the eager rate at B = 1 to
+64, 0.93x (float64) and 1.5x (float32) at 1024, and 0.70x (float64) and 0.73x (float32) at 8192, where the kernels
+are bandwidth-bound and the replay's branchless saturation step (:meth:`Surrogate._step`) adds traffic."""
+
+Backend = Literal["torch", "numba", "adjoint", "cuda_graph", "auto"]
+BACKENDS: tuple[Backend, ...] = ("torch", "numba", "adjoint", "cuda_graph", "auto")
+"""The engines :meth:`Surrogate.run` takes (its ``backend``)."""
+
+
 def load_case(wall: WallProps) -> dict[str, torch.Tensor]:
     """A run's per-row ``speed``, ``overlap`` and ``side`` for its :class:`SimResult` (detached copies)."""
     return {k: getattr(wall, k).detach().clone() for k in ("speed", "overlap", "side")}
@@ -531,6 +542,44 @@ class Surrogate:
         self.link_order = np.lexsort((dst, src, cells.link_gap > 0))
         self.tension_ratio_np = np.where(cells.link_dir == 0, cfg.tension_ratio, 1.0)
 
+    # ------------------------------------------------------------------ device
+    @property
+    def device(self) -> torch.device:
+        """Where the surrogate's tensors live and the ``torch`` backend runs (:meth:`to`); the CPU by default."""
+        return self.mass.device
+
+    def to(self, device: str | torch.device) -> Surrogate:
+        """Move the surrogate's tensors to ``device`` (in place, as ``nn.Module.to``) and return it.
+
+        On a CUDA device only the differentiable ``torch`` backend runs (``auto`` picks it; the compiled ``numba`` and
+        ``adjoint`` backends are CPU code and are refused), results come back on that device, and parameters or
+        scenario tensors given on the CPU (or as arrays) are moved there. A GPU pays where the batch is large: every
+        integration step is a few dozen kernel launches whatever ``B`` is (``benchmarks/bench_gpu.py``).
+
+        Raises:
+            ConfigError: a ``device`` that is not ``cpu`` or a CUDA device this machine has (key ``device``).
+        """
+        require_device(device, "device")
+        dev = torch.device(device)
+        if dev.type == "cuda" and dev.index is None:
+            dev = torch.device("cuda", torch.cuda.current_device())
+        for name, value in list(vars(self).items()):
+            if isinstance(value, torch.Tensor):
+                setattr(self, name, value.to(dev))
+        return self
+
+    def _on_device(self, x: torch.Tensor, name: str) -> torch.Tensor:
+        """``x`` on the surrogate's device: from the CPU it is moved (autograd follows), from another device refused
+        (torch's "Expected all tensors to be on the same device" came from deep inside a step)."""
+        if x.device == self.device:
+            return x
+        if x.device.type != "cpu":
+            raise ModelError(
+                f"{name} must be on the surrogate's device {self.device} (Surrogate.to) or on the CPU, got device "
+                f"{x.device}"
+            )
+        return x.to(self.device)
+
     # ------------------------------------------------------------------ inputs
     def check_params(self, params: torch.Tensor | np.ndarray) -> torch.Tensor:
         """Validate ``params`` and return them as ``[B, n_cells, 7]`` in the simulation dtype.
@@ -538,7 +587,8 @@ class Surrogate:
         Null and rigid cells' rows are ignored (not checked, replaced by neutral values).
 
         Raises:
-            ModelError: not numbers, wrong shape, not on the CPU, non-finite values, ``E_x <= 0`` or ``E_s <= 0`` or
+            ModelError: not numbers, wrong shape, on a device that is neither the CPU nor the surrogate's, non-finite
+                values, ``E_x <= 0`` or ``E_s <= 0`` or
                 negative transmission factors in an active cell (named by index and parameter), also where only the
                 simulation's dtype makes them so (float32: ``E_s = 1e39`` is inf, ``E_x = 1e-50`` is 0).
         """
@@ -549,8 +599,7 @@ class Surrogate:
                 f"params must be an array or tensor of numbers [B, {self.n}, {N_PARAMS}], got "
                 f"{type(params).__name__} {_short(params)}"
             ) from None
-        if p.device.type != "cpu":  # with CUDA: "Expected all tensors to be on the same device" from deep inside
-            raise ModelError(f"params must be on the CPU (the surrogate runs there), got device {p.device}")
+        p = self._on_device(p, "params")
         if p.ndim == 2:
             p = p[None]
         if p.ndim != 3 or p.shape[1:] != (self.n, N_PARAMS):
@@ -580,7 +629,7 @@ class Surrogate:
                         f"{'> 0' if j < 2 else '>= 0'} there"
                     )
                 raise ModelError(f"{where} must be finite and {'> 0' if j < 2 else '>= 0'}, got {float(act[b, i, j])}")
-        neutral = torch.tensor([1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0], dtype=self.dtype)
+        neutral = torch.tensor([1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0], dtype=self.dtype, device=self.device)
         return torch.where(self.active[None, :, None], p, neutral)
 
     def link_props(self, params: torch.Tensor) -> LinkProps:
@@ -613,7 +662,7 @@ class Surrogate:
         # the constants as tensors of the run's dtype: two Python floats make a tensor of torch's default dtype, so a
         # float64 run took them rounded to float32 (and changed with torch.set_default_dtype)
         def const(x: float) -> torch.Tensor:
-            return torch.tensor(x, dtype=self.dtype, device=self.is_axial.device)
+            return torch.tensor(x, dtype=self.dtype, device=self.device)
 
         t_ratio = torch.where(self.is_axial, const(cfg.tension_ratio), const(1.0))
         yield_t = torch.where(self.is_gap, torch.zeros_like(yield_c), yield_c * t_ratio)
@@ -670,8 +719,6 @@ class Surrogate:
                 if scenario is None:
                     raise ModelError(f"give a scenario or the per-batch tensor '{name}'")
                 x = default
-            if isinstance(x, torch.Tensor) and x.device.type != "cpu":
-                raise ModelError(f"'{name}' must be on the CPU (the surrogate runs there), got device {x.device}")
             try:  # real numbers: a complex one was cast to its real part (only torch warned), a bool taken as 1 or 0
                 if not _is_real(x):
                     raise TypeError
@@ -680,6 +727,7 @@ class Surrogate:
                 raise ModelError(
                     f"'{name}' must be a number or a tensor of numbers {unit[name]}, got {_short(x)}"
                 ) from None
+            x = self._on_device(x, f"'{name}'")
             if x.ndim == 0:
                 x = x.expand(batch)
             if x.shape != (batch,):
@@ -730,7 +778,7 @@ class Surrogate:
         sensors: list[str] | None = None,
         probe_cells: list[int] | np.ndarray | torch.Tensor | None = None,
         record_cells: Literal["series", "final", "none"] = "series",
-        backend: Literal["torch", "numba", "adjoint", "auto"] | None = None,
+        backend: Backend | None = None,
         cells_at: float | None = None,
     ) -> SimResult:
         """Simulate ``B`` crashes.
@@ -749,9 +797,11 @@ class Surrogate:
             record_cells: per-cell energy series (``series``), final values only, or none.
             backend: ``torch`` (differentiable reference), ``numba`` (fast no-grad), ``adjoint`` (the
                 ``numba`` result with sensor velocities differentiable by a compiled reverse pass,
-                :mod:`marlcrash.sim.adjoint`), ``auto``
-                (numba unless gradients are required: of ``params`` or of a ``speed``, ``overlap`` or ``side`` that
-                requires grad); default from the config.
+                :mod:`marlcrash.sim.adjoint`), ``cuda_graph`` (the ``torch`` steps replayed as a CUDA graph per
+                output interval: a surrogate on a CUDA device, :meth:`to`, no gradient), ``auto`` (where gradients
+                are required, of ``params`` or of a ``speed``, ``overlap`` or ``side`` that requires grad, ``torch``;
+                else ``numba`` on the CPU, and on a GPU ``cuda_graph`` up to ``GRAPH_MAX_BATCH`` rows, ``torch``
+                above); default from the config.
             cells_at: time [s] of the ``final`` per-cell energies, ``cell_plastic`` and ``saturated``, an
                 output sample's (default: the end), e.g. a compared window's end when the simulation runs on
                 past it to filter the pulse over a longer record.
@@ -760,12 +810,13 @@ class Surrogate:
             A :class:`SimResult`.
 
         Raises:
-            ModelError: an unknown backend or ``record_cells``, ``cells_at`` outside the simulated time or between
-                samples, ``sensors`` and ``probe_cells`` both given.
+            ModelError: an unknown backend or ``record_cells``, ``numba`` or ``adjoint`` on a CUDA device,
+                ``cuda_graph`` on the CPU or where gradients are required, ``cells_at`` outside the simulated time
+                or between samples, ``sensors`` and ``probe_cells`` both given.
             ConfigError: a scenario value of the wrong type or out of range (one built in Python), naming the key.
         """
-        if backend not in (None, "torch", "numba", "adjoint", "auto"):
-            raise ModelError(f"backend must be one of torch, numba, adjoint, auto; got {backend!r}")
+        if backend not in (None, *BACKENDS):
+            raise ModelError(f"backend must be one of {', '.join(BACKENDS)}; got {backend!r}")
         if record_cells not in ("series", "final", "none"):
             raise ModelError(f"record_cells must be one of series, final, none; got {record_cells!r}")
         if not self.stability_caps:
@@ -786,9 +837,29 @@ class Surrogate:
                 )
             snap = round(at)
         backend = backend or self.config.backend
-        if backend == "auto":  # gradients are required by the parameters or by a scenario tensor (speed, overlap, side)
-            graded = p.requires_grad or wall.speed.requires_grad or wall.k.requires_grad
-            backend = "torch" if (torch.is_grad_enabled() and graded) else "numba"
+        # gradients are required by the parameters or by a scenario tensor (speed, overlap, side)
+        graded = torch.is_grad_enabled() and (p.requires_grad or wall.speed.requires_grad or wall.k.requires_grad)
+        on_cpu = self.device.type == "cpu"
+        if backend == "auto":
+            graph = p.shape[0] <= GRAPH_MAX_BATCH
+            backend = "torch" if graded else ("numba" if on_cpu else ("cuda_graph" if graph else "torch"))
+        if backend in ("numba", "adjoint") and not on_cpu:
+            raise ModelError(
+                f"backend {backend!r} runs on the CPU only; this surrogate is on {self.device} (Surrogate.to): use "
+                "backend 'torch', 'cuda_graph' or 'auto' there, or move it back with .to('cpu')"
+            )
+        if backend == "cuda_graph":
+            if on_cpu:
+                raise ModelError(
+                    "backend 'cuda_graph' runs on a CUDA device: move the surrogate there with .to('cuda'), or use "
+                    "'numba' (or 'auto') on the CPU"
+                )
+            if graded:
+                raise ModelError(
+                    "backend 'cuda_graph' gives no gradients (a replayed graph records no autograd history) and "
+                    "these inputs require grad: use backend 'torch', or run under torch.no_grad()"
+                )
+            return self._run_torch(props, wall, n_out, sensor_idx, record_cells, snap=snap, graphed=True)
         if backend == "adjoint":
             from marlcrash.sim.adjoint import run_adjoint
 
@@ -871,7 +942,7 @@ class Surrogate:
         if missing:
             raise ModelError(f"unknown sensors {missing}{where}; the cell model has {all_names}")
         idx = [int(self.cells.sensor_cell[all_names.index(s)]) for s in names]
-        return list(names), torch.tensor(idx, dtype=torch.int64)
+        return list(names), torch.tensor(idx, dtype=torch.int64, device=self.device)
 
     def _probe_index(self, cells) -> tuple[list[str], torch.Tensor]:
         raw = np.asarray(cells.detach().cpu() if isinstance(cells, torch.Tensor) else cells).reshape(-1)
@@ -889,15 +960,20 @@ class Surrogate:
                 f"probe_cells must be cells with material: cell {null[0]} is a null cell (empty space, no links or "
                 f"contact, it keeps the impact speed); got {idx.tolist()}"
             )
-        return [f"cell{int(i)}" for i in idx], idx
+        return [f"cell{int(i)}" for i in idx], idx.to(self.device)
 
-    def _step(self, props, wall, f_el, o, plastic, yielded, s, ds, v_wall, tangent: bool = False) -> _Step:
+    def _step(
+        self, props, wall, f_el, o, plastic, yielded, s, ds, v_wall, tangent: bool = False, branchless: bool = False
+    ) -> _Step:
         """One step's element forces for the node increments ``ds [B, n]`` (``s`` the travel after them).
 
         Pure: returns the updated link state instead of writing it. ``v_wall`` is the velocity the wall
         damping sees (the explicit step's start velocity, ``ds / dt`` in the implicit study). With ``tangent``
         it also returns each element's force derivative by its deformation increment (stiffness plus damping
         ``/ dt`` where elastic, 0 while yielding, open or not pushing), for the implicit study's linear solve.
+        ``branchless`` applies the saturation crossing's correction to every link (zero where no cell crosses) instead
+        of asking the device whether any crosses: the same numbers without a host synchronisation, as a captured CUDA
+        graph needs.
         """
         dt, src, dst, is_gap, relief = self.dt, self.src, self.dst, self.is_gap, self.config.springback_relief
         zl = torch.zeros_like(f_el)
@@ -930,7 +1006,7 @@ class Surrogate:
         f_tot = torch.where(is_gap, f_tot.clamp_min(0.0), f_tot)
         # saturation within the step (module doc): the part of the step past E_s is densified
         cross = (plastic_new >= props.e_s) & (plastic < props.e_s)  # [B, n]
-        if bool(cross.any()):
+        if branchless or bool(cross.any()):
             gain = plastic_new - plastic
             phi = torch.where(cross, (plastic_new - props.e_s) / torch.where(cross, gain, 1.0), 0.0)[:, src]
             live = cross[:, src] & (props.yield_c > 0) & (~is_gap | (f_new > 0))
@@ -953,6 +1029,78 @@ class Surrogate:
         destination) less the wall force."""
         return torch.zeros_like(st.fw).index_add(1, self.src, st.f_tot).index_add(1, self.dst, -st.f_tot) - st.fw
 
+    def _advance(self, props, wall, z: dict, step_in, increment=None, theta=1.0, branchless=False) -> dict:
+        """One integration step of the state ``z`` (:meth:`_run_torch`): the changed entries, new tensors."""
+        dt, m = self.dt, self.mass
+        s, v = z["s"], z["v"]
+        u = None
+        if increment is None:
+            ds, v_wall = dt * v, v
+        else:
+            ds, u = increment(props, wall, z["f_el"], z["o"], z["plastic"], z["yielded"], s, v, z["force"])
+            v_wall = ds / dt
+        s = s + ds
+        st = self._step(
+            props, wall, z["f_el"], z["o"], z["plastic"], z["yielded"], s, ds, v_wall, branchless=branchless
+        )
+        force = self._node_force(st)
+        # explicit: symplectic Euler; the implicit study: theta of the end and 1 - theta of the start forces
+        if increment is None:
+            acc = force / m
+        elif u is None:
+            acc = ((1.0 - theta) * z["force"] + theta * force) / m
+        else:  # linearly implicit: the velocity change of the linear solve
+            acc = u / dt
+        # Work with the same discrete forces (trapezoid): closes the leapfrog balance exactly.
+        fbar = 0.5 * (z["f_prev"] + st.f_tot)
+        fwbar = 0.5 * (z["fw_prev"] + st.fw)
+        return {
+            "s": s,
+            "v": v + dt * acc,
+            "v_start": v,
+            "force": force,
+            "f_el": st.f_new,
+            "o": st.o,
+            "yielded": st.yielded,
+            "plastic": st.plastic,
+            "f_prev": st.f_tot,
+            "fw_prev": st.fw,
+            "work": z["work"] + fbar * st.dd,
+            "passed": z["passed"] + fbar * (step_in - ds[:, self.dst]),
+            "w_work": z["w_work"] + fwbar * ds,
+            "w_in": z["w_in"] + fwbar * step_in,
+            "stored_l": 0.5 * st.f_new * st.f_new / st.k,
+            "stored_w": torch.where(st.in_contact, 0.5 * wall.k * st.pen * st.pen, torch.zeros_like(st.pen)),
+        }
+
+    def _capture_interval(self, props, wall, z: dict, step_in):
+        """A function that advances ``z`` in place by one output interval (``substeps`` explicit steps) by replaying a
+        CUDA graph captured here; ``z``'s tensors are the graph's fixed inputs and outputs.
+
+        The steps are :meth:`_advance`'s, branchless (no host synchronisation may fall inside a capture), so a replay
+        gives the eager loop's numbers. Warmed up on a side stream first, as ``torch.cuda.graphs`` asks.
+        """
+
+        def interval():
+            w = z
+            for _ in range(self.substeps):
+                w = {**w, **self._advance(props, wall, w, step_in, branchless=True)}
+            for key, value in w.items():
+                z[key].copy_(value)
+
+        saved = {key: value.clone() for key, value in z.items()}
+        side = torch.cuda.Stream(self.device)
+        side.wait_stream(torch.cuda.current_stream(self.device))
+        with torch.cuda.stream(side):
+            interval()  # warm-up: it advanced z, put back below
+        torch.cuda.current_stream(self.device).wait_stream(side)
+        graph = torch.cuda.CUDAGraph()
+        with torch.cuda.graph(graph):
+            interval()
+        for key, value in saved.items():
+            z[key].copy_(value)
+        return graph.replay
+
     def _run_torch(
         self,
         props: LinkProps,
@@ -963,11 +1111,16 @@ class Surrogate:
         increment=None,
         theta=1.0,
         snap: int | None = None,
+        graphed: bool = False,
     ) -> SimResult:
         """The explicit reference path (symplectic Euler); ``increment`` swaps in the implicit study's step.
 
         ``snap``: the output sample of the ``final`` per-cell energies and the plastic work per cell (default:
         the last).
+
+        ``graphed`` (explicit, on a CUDA device, no gradient): the steps of one output interval are captured once as a
+        CUDA graph and replayed (:meth:`_capture_interval`), the same kernels without the Python and launch cost of
+        each (``backend="cuda_graph"``).
 
         ``increment(props, wall, f_el, o, plastic, yielded, s, v, force)`` returns a step's node increments
         ``ds``; the velocity update then applies ``(1 - theta)`` of the start and ``theta`` of the end forces
@@ -975,20 +1128,32 @@ class Surrogate:
         """
         names, sidx = sensor_idx
         B, n = props.k.shape[0], self.n
-        dt, sub = self.dt, self.substeps
+        sub = self.substeps
         src, dst = self.src, self.dst
-        m, m_ke = self.mass, self.mass_ke
+        m_ke = self.mass_ke
         zl = props.k.new_zeros((B, self.L))
         zn = props.k.new_zeros((B, n))
         v = wall.speed[:, None].expand(B, n).clone()
-        s = zn.clone()
-        f_el, o, f_prev, fw_prev = zl.clone(), self.gap.expand(B, -1).clone(), zl.clone(), zn.clone()
-        plastic = zn.clone()
-        yielded = torch.zeros((B, self.L), dtype=torch.bool)  # [B, L] link has yielded (springback relief)
-        work, passed, w_work, w_in = zl.clone(), zl.clone(), zn.clone(), zn.clone()
-        stored_l, stored_w = zl.clone(), zn.clone()
+        z = {  # the state a step advances (_advance)
+            "s": zn.clone(),
+            "v": v,
+            "v_start": v.clone(),
+            "force": zn.clone(),
+            "f_el": zl.clone(),
+            "o": self.gap.expand(B, -1).clone(),
+            "yielded": torch.zeros((B, self.L), dtype=torch.bool, device=self.device),  # springback relief
+            "plastic": zn.clone(),
+            "f_prev": zl.clone(),
+            "fw_prev": zn.clone(),
+            "work": zl.clone(),
+            "passed": zl.clone(),
+            "w_work": zn.clone(),
+            "w_in": zn.clone(),
+            "stored_l": zl.clone(),
+            "stored_w": zn.clone(),
+        }
         e0 = 0.5 * (m_ke * v * v).sum(dim=1)
-        step_in = wall.speed[:, None] * dt  # [B, 1] moving-frame drift per step
+        step_in = wall.speed[:, None] * self.dt  # [B, 1] moving-frame drift per step
 
         rec: dict[str, list[torch.Tensor]] = {k: [] for k in ("vel", "s", "vc", "pen", "ke", "st", "ab", "pl")}
         cells_rec: dict[str, list[torch.Tensor]] = {"in": [], "ab": [], "tr": []}
@@ -996,64 +1161,48 @@ class Surrogate:
         at_snap: dict[str, torch.Tensor] = {}  # plastic work at the snapshot
         cells_at_snap: dict[str, tuple[torch.Tensor, torch.Tensor, torch.Tensor]] = {}  # record_cells="final"
 
-        def record(vel, ke):
+        def record(vel, ke):  # copies only: a CUDA graph's replay overwrites the state tensors in place
+            s, plastic, stored_l, stored_w = z["s"], z["plastic"], z["stored_l"], z["stored_w"]
+            work, w_work = z["work"], z["w_work"]
             pen = torch.where(wall.covered, (s - wall.gap).clamp_min(0.0), zn).amax(dim=1)
             st = stored_l.sum(dim=1) + stored_w.sum(dim=1)
             rec["vel"].append(vel[:, sidx])
-            rec["s"].append(s[:, self.comp])
-            rec["vc"].append(vel[:, self.comp])
+            rec["s"].append(s[:, self.comp].clone())
+            rec["vc"].append(vel[:, self.comp].clone())
             rec["pen"].append(pen)
             rec["ke"].append(ke)
             rec["st"].append(st)
             rec["ab"].append(work.sum(dim=1) + w_work.sum(dim=1) - st)
             rec["pl"].append(plastic.sum(dim=1))
+            ledgers = (work, z["passed"], stored_l, w_work, z["w_in"], stored_w, src, dst)
             if record_cells == "series":
-                ci, ca, ct = cell_energies(work, passed, stored_l, w_work, w_in, stored_w, src, dst)
+                ci, ca, ct = cell_energies(*ledgers)
                 cells_rec["in"].append(ci)
                 cells_rec["ab"].append(ca)
                 cells_rec["tr"].append(ct)
             if len(rec["vel"]) - 1 == snap:
-                at_snap["plastic"] = plastic
+                at_snap["plastic"] = plastic.clone()
                 if record_cells == "final":
-                    cells_at_snap["cells"] = cell_energies(work, passed, stored_l, w_work, w_in, stored_w, src, dst)
+                    cells_at_snap["cells"] = cell_energies(*ledgers)
+
+        def record_output():
+            if increment is None:  # leapfrog: mid-step velocity, kinetic energy m v v_new / 2
+                v0, v1 = z["v_start"], z["v"]
+                record(0.5 * (v0 + v1), 0.5 * (m_ke * v0 * v1).sum(dim=1))
+            else:  # implicit study: end-of-step velocity and kinetic energy
+                record(z["v"], 0.5 * (m_ke * z["v"] * z["v"]).sum(dim=1))
 
         record(v, e0)
-        force = zn
-        for step in range(1, (n_out - 1) * sub + 1):
-            if increment is None:
-                ds, v_wall = dt * v, v
-            else:
-                ds, u = increment(props, wall, f_el, o, plastic, yielded, s, v, force)
-                v_wall = ds / dt
-            s = s + ds
-            st = self._step(props, wall, f_el, o, plastic, yielded, s, ds, v_wall)
-            o, yielded, plastic, k = st.o, st.yielded, st.plastic, st.k
-            f_new, f_tot, fw = st.f_new, st.f_tot, st.fw
-            force_prev, force = force, self._node_force(st)
-            # explicit: symplectic Euler; the implicit study: theta of the end and 1 - theta of the start forces
-            if increment is None:
-                acc = force / m
-            elif u is None:
-                acc = ((1.0 - theta) * force_prev + theta * force) / m
-            else:  # linearly implicit: the velocity change of the linear solve
-                acc = u / dt
-            v_new = v + dt * acc
-            # Work with the same discrete forces (trapezoid): closes the leapfrog balance exactly.
-            fbar = 0.5 * (f_prev + f_tot)
-            work = work + fbar * st.dd
-            passed = passed + fbar * (step_in - ds[:, dst])
-            fwbar = 0.5 * (fw_prev + fw)
-            w_work = w_work + fwbar * ds
-            w_in = w_in + fwbar * step_in
-            stored_l = 0.5 * f_new * f_new / k
-            stored_w = torch.where(st.in_contact, 0.5 * wall.k * st.pen * st.pen, zn)
-            f_el, f_prev, fw_prev = f_new, f_tot, fw
-            if step % sub == 0:
-                if increment is None:  # leapfrog: mid-step velocity, kinetic energy m v v_new / 2
-                    record(0.5 * (v + v_new), 0.5 * (m_ke * v * v_new).sum(dim=1))
-                else:  # implicit study: end-of-step velocity and kinetic energy
-                    record(v_new, 0.5 * (m_ke * v_new * v_new).sum(dim=1))
-            v = v_new
+        if graphed:
+            replay = self._capture_interval(props, wall, z, step_in)
+            for _ in range(n_out - 1):
+                replay()
+                record_output()
+        else:
+            for step in range(1, (n_out - 1) * sub + 1):
+                z.update(self._advance(props, wall, z, step_in, increment, theta))
+                if step % sub == 0:
+                    record_output()
 
         stack = lambda key: torch.stack(rec[key], dim=-1)  # noqa: E731
         if record_cells == "final":
@@ -1065,7 +1214,7 @@ class Surrogate:
             cell_in = cell_ab = cell_tr = zn.new_zeros((B, n, 0))
         comp = stack("s")
         return SimResult(
-            time=torch.arange(n_out, dtype=self.dtype) * self.output_dt,
+            time=torch.arange(n_out, dtype=self.dtype, device=self.device) * self.output_dt,
             sensor_names=names,
             velocity=stack("vel"),
             compartment_displacement=comp,
