@@ -11,7 +11,9 @@ from marlcrash.calibrate.baselines import MAX_BATCH
 from marlcrash.errors import ConfigError
 from marlcrash.sim.bench import (
     PARTIAL,
+    device_study,
     dtype_study,
+    format_device_study,
     format_dtype_study,
     format_implicit_study,
     format_lane_study,
@@ -292,7 +294,9 @@ def test_roofline_refuses_a_batch_it_cannot_time(default_sim, batch):
      ("bench_implicit.py", ["--explicit-substeps", "0"], "--explicit-substeps"),
      ("bench_implicit.py", ["--substeps", "0"], "--substeps"),
      ("bench_substeps.py", ["--batch", "0", "--substeps", "1"], "--batch"),
-     ("bench_wait_policy.py", ["--rounds", "0"], "--rounds"), ("bench_wait_policy.py", ["--busy", "-1"], "--busy")],
+     ("bench_wait_policy.py", ["--rounds", "0"], "--rounds"), ("bench_wait_policy.py", ["--busy", "-1"], "--busy"),
+     ("bench_gpu.py", ["--device", "cpu", "--repeats", "0"], "--repeats"),
+     ("bench_gpu.py", ["--device", "cpu", "--batch-sizes", "0"], "--batch-sizes")],
 )  # fmt: skip
 def test_benchmark_scripts_refuse_counts_below_one_as_usage_errors(script, args, option):
     """A count of 0 ran into a traceback (ConfigError, ModelError, or bench_env's min() of no timings after the whole
@@ -367,3 +371,23 @@ def test_the_wait_policy_benchmark_runs_both_policies():
     for policy in ("ACTIVE", "PASSIVE"):
         assert 0 < row[policy]["outside_kernel_s"] < row[policy]["wall_s"]
     assert row["wall_ratio_active_over_passive"] == pytest.approx(row["ACTIVE"]["wall_s"] / row["PASSIVE"]["wall_s"])
+
+
+def test_device_study_times_the_torch_backend_and_its_limits_on_the_cpu():
+    """The GPU study runs anywhere: on the CPU it times the eager torch path (no graph replay there) and the numba
+    kernel in one run; its floor is the smallest batch's time per step and its roofline the copy bandwidth over the
+    bytes of the live link-steps, so both follow from the reported figures."""
+    res = device_study("cpu", batch_sizes=(1, 2), dtypes=("float32",), repeats=1, duration=0.005)
+    assert res["backends"] == ["torch"] and res["device"] == "cpu"
+    r = res["float32"]
+    steps, live = res["steps_per_sim"], res["n_links_live"]
+    assert steps == 10 * 8 and live > 0
+    assert set(r["sims_per_s"]["torch"]) == {"1", "2"} and all(x > 0 for x in r["sims_per_s"]["torch"].values())
+    assert r["step_floor_s"] == pytest.approx(1.0 / r["sims_per_s"]["torch"]["1"] / steps)
+    assert r["roofline_sims_per_s"] == pytest.approx(r["copy_bandwidth_bytes_per_s"] / ((4 + 2) * 4 * live * steps))
+    assert r["roofline_ratio"]["torch"] == pytest.approx(r["sims_per_s"]["torch"]["2"] / r["roofline_sims_per_s"])
+    assert r["cpu_numba_batch"] == 2 and r["cpu_numba_sims_per_s"] > 0
+    text = format_device_study(res)
+    assert "float32: eager launch floor" in text and "torch: B=1:" in text and "compiled CPU kernel" in text
+    with pytest.raises(ConfigError, match="key 'device'"):
+        device_study("tpu")

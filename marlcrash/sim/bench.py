@@ -30,11 +30,11 @@ import numba
 import numpy as np
 import torch
 
-from marlcrash.config import require
+from marlcrash.config import require, require_device
 from marlcrash.sim import kernels
 from marlcrash.sim.noalias import njit_noalias
 from marlcrash.sim.scenario import get_scenario, scenario_tensors
-from marlcrash.sim.surrogate import Surrogate, load_sim_config
+from marlcrash.sim.surrogate import Backend, Surrogate, load_sim_config
 
 SCENARIO = "full_width_56"
 """Load case timed (its 150 ms window and 2 kHz output define the step count)."""
@@ -331,6 +331,152 @@ def format_dtype_study(res: dict) -> str:
             f"crush up to {res['max_crush_diff_m']:.1e} m",
         ]
     )
+
+
+# ------------------------------------------------------------------------------------------ device
+def _synchronize(device: torch.device) -> None:
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+
+
+def copy_bandwidth(device: torch.device, dtype: torch.dtype, nbytes: int = 1 << 28, repeats: int = 3) -> float:
+    """Bytes per second a device-to-device copy of ``nbytes`` moves on ``device``, read and written counted (best of
+    ``repeats``)."""
+    x = torch.ones(nbytes // torch.tensor([], dtype=dtype).element_size(), dtype=dtype, device=device)
+    y = torch.empty_like(x)
+    y.copy_(x)
+
+    def copy():
+        y.copy_(x)
+        _synchronize(device)
+
+    return 2.0 * x.numel() * x.element_size() / _best(copy, repeats)
+
+
+def _device_rate(sim: Surrogate, p: torch.Tensor, scenario, backend: Backend, repeats: int) -> float:
+    """Complete simulations per second of ``sim`` on ``p`` with ``backend``, waiting for the device (best of
+    ``repeats``)."""
+
+    def once():
+        sim.run(p, scenario, backend=backend, record_cells="final")
+        _synchronize(sim.device)
+
+    return p.shape[0] / _best(once, repeats)
+
+
+def device_study(
+    device: str | torch.device = "cuda",
+    batch_sizes: tuple[int, ...] = (1, 64, 1024, 8192),
+    dtypes: tuple[str, ...] = ("float64", "float32"),
+    repeats: int = 2,
+    duration: float | None = None,
+) -> dict:
+    """The ``torch`` backend, and on a GPU its ``cuda_graph`` replay, on ``device`` (:meth:`Surrogate.to`), default car.
+
+    Times complete ``full_width_56`` simulations (per-cell energies at the final step, no gradient) at each batch
+    size and precision, and measures in the same run two limits of that device: the *launch floor* (the eager
+    ``torch`` backend's time per integration step at the smallest batch, where the step's few dozen kernels do almost
+    no work, so its time is their Python, launch and synchronisation cost) and a *bandwidth roofline* (a device copy's
+    bytes per second over the bytes one link-step must move at least: the streamed link fields
+    :func:`marlcrash.sim.kernels.n_hot` and the link force read and written, for the live links, as the fused CPU
+    kernel streams them; it binds a GPU at large batches, whose link arrays outgrow its cache). It also times the
+    compiled CPU kernel (``numba``, all this machine's cores) at the largest batch up to 1024, so the engines
+    compare within one run.
+
+    Args:
+        device: a torch device (``cpu`` times the eager torch reference path on this machine).
+        batch_sizes: ``B`` timed, each in ``[1, MAX_BATCH]``.
+        dtypes: simulation precisions timed (``float64``, ``float32``).
+        repeats: timed runs of each rate (best kept).
+        duration: simulated window [s] (default the scenario's 150 ms; tests pass a short one).
+
+    Returns:
+        ``device`` (its name), ``n_cells``, ``n_links_live``, ``steps_per_sim``, ``batch_sizes``, ``backends`` and
+        per dtype (keyed by name): ``sims_per_s`` (keyed by backend, then ``str(B)``), ``step_floor_s`` [s per
+        step], ``copy_bandwidth_bytes_per_s``, ``roofline_sims_per_s`` (bandwidth-bound, any ``B``),
+        ``roofline_ratio`` (each backend's rate at the largest ``B`` over the roofline), ``cpu_numba_sims_per_s``,
+        ``cpu_numba_batch`` and ``threads`` (numba's).
+
+    Raises:
+        ConfigError: a ``device`` this machine lacks (key ``device``), a batch size out of range
+            (``batch_sizes[i]``), an unknown dtype (``dtype``).
+    """
+    from marlcrash.calibrate.baselines import require_batch_size
+
+    require_device(device, "device")
+    require(len(batch_sizes) > 0, "batch_sizes", "expected at least one batch size")
+    for i, b in enumerate(batch_sizes):
+        require_batch_size(b, f"batch_sizes[{i}]")
+    dev = torch.device(device)
+    backends: tuple[Backend, ...] = ("torch", "cuda_graph") if dev.type == "cuda" else ("torch",)
+    cells = load_sim_cells()
+    scenario = get_scenario(SCENARIO, None if duration is None else {"duration": duration})
+    base = torch.as_tensor(cells.params)[None]
+    bmin, bmax = min(batch_sizes), max(batch_sizes)
+    cpu_b = min(bmax, 1024)
+    out: dict[str, Any] = {
+        "device": torch.cuda.get_device_name(dev) if dev.type == "cuda" else "cpu",
+        "n_cells": cells.n_cells,
+        "batch_sizes": list(batch_sizes),
+        "backends": list(backends),
+        "scenario": scenario.name,
+        "duration_s": scenario.duration,
+    }
+    for name in dtypes:
+        cfg = load_sim_config(overrides={"dtype": name})
+        steps = (scenario.n_outputs - 1) * cfg.substeps
+        cpu_sim = Surrogate(cells, cfg)
+        live = live_links(cpu_sim, base)
+        sim = Surrogate(cells, cfg).to(dev)
+        rates: dict[str, dict[str, float]] = {k: {} for k in backends}
+        with torch.no_grad():
+            for backend in backends:
+                sim.run(base, scenario, backend=backend, record_cells="final")  # CUDA context, allocator, caches
+                for B in batch_sizes:
+                    rates[backend][str(B)] = _device_rate(sim, base.repeat(B, 1, 1).to(dev), scenario, backend, repeats)
+            cpu_sim.run(base, scenario, backend="numba", record_cells="final")  # compile or load the cache
+            cpu_rate = _device_rate(cpu_sim, base.repeat(cpu_b, 1, 1), scenario, "numba", repeats)
+        item = torch.tensor([], dtype=cfg.torch_dtype).element_size()
+        roof = copy_bandwidth(dev, cfg.torch_dtype) / ((kernels.n_hot(bool(cfg.springback_relief)) + 2) * item)
+        out["steps_per_sim"], out["n_links_live"] = steps, live
+        out[name] = {
+            "sims_per_s": rates,
+            "step_floor_s": bmin / rates["torch"][str(bmin)] / steps,
+            "copy_bandwidth_bytes_per_s": roof * (kernels.n_hot(bool(cfg.springback_relief)) + 2) * item,
+            "roofline_sims_per_s": roof / (live * steps),
+            "roofline_ratio": {k: r[str(bmax)] * live * steps / roof for k, r in rates.items()},
+            "cpu_numba_sims_per_s": cpu_rate,
+            "cpu_numba_batch": cpu_b,
+            "threads": numba.get_num_threads(),
+        }
+    return out
+
+
+def format_device_study(res: dict) -> str:
+    """The lines of :func:`device_study`."""
+    lines = [
+        f"{res['device']}: default car, {res['n_cells']} cells, {res['n_links_live']} live links, "
+        f"{res['steps_per_sim']} steps per {1e3 * res['duration_s']:.0f} ms simulation ({res['scenario']})"
+    ]
+    bmax = str(max(res["batch_sizes"]))
+    for name in ("float64", "float32"):
+        if name not in res:
+            continue
+        r = res[name]
+        lines.append(
+            f"{name}: eager launch floor {1e6 * r['step_floor_s']:.0f} us per step; copy bandwidth "
+            f"{r['copy_bandwidth_bytes_per_s'] / 1e9:.0f} GB/s -> roofline {r['roofline_sims_per_s']:.0f} sims/s"
+        )
+        for backend, by_b in r["sims_per_s"].items():
+            cells = ", ".join(f"B={b}: {rate:.1f}" for b, rate in by_b.items())
+            lines.append(f"  {backend:>10}: {cells} sims/s; largest B / roofline {r['roofline_ratio'][backend]:.3f}")
+        best = max(by_b[bmax] for by_b in r["sims_per_s"].values())
+        lines.append(
+            f"  compiled CPU kernel (numba, {r['threads']} threads) B={r['cpu_numba_batch']}: "
+            f"{r['cpu_numba_sims_per_s']:.1f} sims/s; the best at B={bmax} over that: "
+            f"{best / r['cpu_numba_sims_per_s']:.2f}x"
+        )
+    return "\n".join(lines)
 
 
 # ------------------------------------------------------------------------------------------ noalias
