@@ -757,6 +757,10 @@ def test_a_subassembly_target_whose_name_looks_like_a_typo_warns_naming_the_clos
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         discretize(car, dataclasses.replace(cfg, subassembly_target_cell_volume={"wheel_left": 0.002}))
+    # the compartment's own key is refused (one rigid cell); a near miss of it changed nothing without a word
+    typo = dataclasses.replace(cfg, subassembly_target_cell_volume={"compartmnet": 0.002})
+    with pytest.warns(UserWarning, match=r"\.compartmnet.*did you mean 'compartment'\? \(the compartment is one rigid"):
+        discretize(car, typo)
 
 
 def test_a_roi_depth_longer_than_the_vehicle_warns_naming_the_key_and_the_length(car, cfg):

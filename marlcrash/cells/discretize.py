@@ -591,11 +591,17 @@ def _subassembly_targets(
         )
     known = names[:n_sub]
     for name in cfg.subassembly_target_cell_volume:
-        close = [] if name in known else difflib.get_close_matches(name, known, n=1, cutoff=0.8)
+        # the compartment's name too: its key is refused (validate), a near miss of it changed nothing in silence
+        close = [] if name in known else difflib.get_close_matches(name, [*known, COMPARTMENT], n=1, cutoff=0.8)
         if close:  # names a model lacks are ignored (the shared config's wheels), a near miss is most likely a typo
+            why = (
+                " (the compartment is one rigid cell and is not discretized: remove the key)"
+                if close[0] == COMPARTMENT
+                else ""
+            )
             warnings.warn(
                 f"subassembly_target_cell_volume.{name}: the model has no sub-assembly of this name, so it changes "
-                f"nothing; did you mean '{close[0]}'?",
+                f"nothing; did you mean '{close[0]}'?{why}",
                 UserWarning,
                 stacklevel=4,
             )
