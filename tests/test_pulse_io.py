@@ -2157,3 +2157,27 @@ def test_write_csv_rewrites_a_unit_suffix_to_the_unit_it_writes(tmp_path, analyt
     assert path.read_text().splitlines()[0] == "time_s,tunnel_acc_ms2,radsup_acc_ms2"
     back = read_csv(path, unit="m/s2")
     np.testing.assert_allclose(back.acc, analytic.acc, rtol=1e-12, atol=1e-9)
+
+
+def test_read_csv_leaves_out_the_columns_whose_header_says_they_hold_no_acceleration(tmp_path):
+    """``read_csv`` of a ``marlcrash simulate --csv`` file read its ``<sensor>_vel_ms`` velocities and ``crush_m``
+    as accelerations in g (six channels for three sensors, a "pulse" of 11 m/s = 11 g). Without ``acc_col`` the
+    columns a header marks as velocity, length or time are left out, also for ``marlcrash pulse`` (the first
+    acceleration column); named, a column is read as before, and a file of none is a clear error."""
+    t = np.arange(0, 0.02, 5e-4)
+    acc = -20.0 * np.sin(np.pi * t / 0.02)
+    rows = "".join(f"{x},{a},{11.1 + a * x},{0.4 * x}\n" for x, a in zip(t, acc, strict=True))
+    sim = tmp_path / "sim.csv"
+    sim.write_text("time_s,tunnel_acc_g,tunnel_vel_ms,crush_m\n" + rows)
+    p = read_csv(sim)
+    assert p.channels == ("tunnel_acc_g",)
+    np.testing.assert_allclose(p.acc[0], acc * G0)
+    assert read_csv(sim, acc_col="tunnel_vel_ms", unit="m/s2").channels == ("tunnel_vel_ms",)
+    lab = tmp_path / "lab.csv"
+    lab.write_text("time [s],v_x [m/s],s_x (mm),a_x [g],remark\n" + rows.replace("\n", ",0\n"))
+    assert read_csv(lab).channels == ("a_x [g]", "remark")
+    assert read_csv(lab, first_only=True).channels == ("a_x [g]",)
+    only = tmp_path / "only.csv"
+    only.write_text("time_s,tunnel_vel_ms,crush_m\n" + "".join(f"{x},1,{x}\n" for x in t))
+    with pytest.raises(PulseError, match=r"only\.csv line 1: no acceleration column: .*'tunnel_vel_ms', 'crush_m'"):
+        read_csv(only)

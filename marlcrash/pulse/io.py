@@ -146,6 +146,22 @@ def _header_unit(name: str) -> str | None:
     return _ACC_SUFFIXES[m.group(1).lower()] if m.group(1) else _TIME_SUFFIXES[m.group(2).lower()]
 
 
+_NOT_ACC_NAME = re.compile(r"(?:.*_)?vel_ms|crush_m", re.IGNORECASE)
+"""The columns ``marlcrash simulate --csv`` writes beside the accelerations: ``<sensor>_vel_ms`` (m/s) and
+``crush_m`` (m)."""
+_NOT_ACC_UNITS = frozenset({"m/s", "km/h", "kph", "mph", "m", "cm", "mm", "s", "ms"})
+"""Header units (lower case) of columns that hold no acceleration: velocities, lengths and times."""
+
+
+def _not_acceleration(name: str) -> bool:
+    """Column ``name`` holds no acceleration by its header: one of the library's velocity or crush columns
+    (:data:`_NOT_ACC_NAME`), or a bracketed unit of velocity, length or time (``v_x [m/s]``, ``s (mm)``)."""
+    if _NOT_ACC_NAME.fullmatch(name.strip()):
+        return True
+    said = _header_unit(name)
+    return said is not None and said.strip().lower().replace(" ", "") in _NOT_ACC_UNITS
+
+
 _UNIT_LIKE = re.compile(r"[^\W\d_]{2,3}|.*[/^²*].*")
 """What a bracketed header suffix must look like to be taken for a unit the reader does not know (``mg``, ``km/h``,
 ``ft/s2``, ``us``), not a remark (``(filtered)``, ``[CH1]``, ``(x)``)."""
@@ -215,7 +231,9 @@ def read_csv(
         path: the file.
         time_col: name of the time column (default: the first column named like ``time``/``t``/``zeit``, a unit at
             its end aside (``Zeit [s]``), else the first column).
-        acc_col: name (or names) of the acceleration column(s) (default: every other column).
+        acc_col: name (or names) of the acceleration column(s) (default: every other column, but those whose header
+            says they hold no acceleration: ``marlcrash simulate --csv``'s ``<sensor>_vel_ms`` and ``crush_m``, or a
+            bracketed unit of velocity, length or time, ``v [m/s]``, ``crush (mm)``).
         unit: acceleration unit of the file, ``g`` or ``m/s2``.
         time_unit: time unit of the file, ``s`` or ``ms``.
 
@@ -233,7 +251,8 @@ def read_csv(
         breakpoints: the rows are the corners of a piecewise linear pulse, not samples: two rows or more, no gap
             check, and the result is sampled at :data:`BREAKPOINT_RATE_HZ` from the first to the last row.
         first_only: without ``acc_col``, read the first acceleration column only (the first column that is not the
-            time column), as ``marlcrash pulse`` does: the others are neither parsed nor checked.
+            time column nor marked as no acceleration), as ``marlcrash pulse`` does: the others are neither parsed
+            nor checked.
 
     Returns:
         A :class:`Pulse` with one channel per acceleration column, named by its header.
@@ -255,8 +274,18 @@ def read_csv(
     _names(acc_col, "acc_col", "column")
     lines = _read_text_lines(path)
     first, delim, header, ti, width = _csv_header(path, lines, time_col)
-    if acc_col is None and first_only:
-        acc_col = header[next(j for j in range(len(header)) if j != ti)]
+    if acc_col is None:  # a simulation's own CSV: its velocities and crush were read as accelerations in g
+        ai = [j for j in range(len(header)) if j != ti and not _not_acceleration(header[j])]
+        if not ai:
+            others = [header[j] for j in range(len(header)) if j != ti]
+            raise _err(
+                f"no acceleration column: the columns besides the time, {others}, hold velocities, lengths or times "
+                "by their headers; name the acceleration column (--acc-col; acc_col)",
+                path,
+                first + 1,
+            )
+        if first_only:
+            acc_col = header[ai[0]]
     # '0,5;-2,25': European spreadsheets separate by ';' because the comma is their decimal mark. With tabs only
     # where no comma can group thousands: a tab export of an English spreadsheet may ('-1,005' is -1005 there).
     decimal_comma = delim == ";"
@@ -264,9 +293,7 @@ def read_csv(
     def find(name: str) -> int:
         return _csv_column(header, name, path, first + 1)
 
-    if acc_col is None:
-        ai = [j for j in range(len(header)) if j != ti]
-    else:
+    if acc_col is not None:
         names = [acc_col] if isinstance(acc_col, str) else list(acc_col)
         ai = [find(n) for n in names]
         if ti in ai:
