@@ -436,15 +436,16 @@ def device_study(
                     rates[backend][str(B)] = _device_rate(sim, base.repeat(B, 1, 1).to(dev), scenario, backend, repeats)
             cpu_sim.run(base, scenario, backend="numba", record_cells="final")  # compile or load the cache
             cpu_rate = _device_rate(cpu_sim, base.repeat(cpu_b, 1, 1), scenario, "numba", repeats)
+        bw = copy_bandwidth(dev, cfg.torch_dtype)
         item = torch.tensor([], dtype=cfg.torch_dtype).element_size()
-        roof = copy_bandwidth(dev, cfg.torch_dtype) / ((kernels.n_hot(bool(cfg.springback_relief)) + 2) * item)
+        roof = bw / ((kernels.n_hot(bool(cfg.springback_relief)) + 2) * item * live * steps)  # [sims/s]
         out["steps_per_sim"], out["n_links_live"] = steps, live
         out[name] = {
             "sims_per_s": rates,
             "step_floor_s": bmin / rates["torch"][str(bmin)] / steps,
-            "copy_bandwidth_bytes_per_s": roof * (kernels.n_hot(bool(cfg.springback_relief)) + 2) * item,
-            "roofline_sims_per_s": roof / (live * steps),
-            "roofline_ratio": {k: r[str(bmax)] * live * steps / roof for k, r in rates.items()},
+            "copy_bandwidth_bytes_per_s": bw,
+            "roofline_sims_per_s": roof,
+            "roofline_ratio": {k: r[str(bmax)] / roof for k, r in rates.items()},
             "cpu_numba_sims_per_s": cpu_rate,
             "cpu_numba_batch": cpu_b,
             "threads": numba.get_num_threads(),
