@@ -342,7 +342,7 @@ def _synchronize(device: torch.device) -> None:
 def copy_bandwidth(device: torch.device, dtype: torch.dtype, nbytes: int = 1 << 28, repeats: int = 3) -> float:
     """Bytes per second a device-to-device copy of ``nbytes`` moves on ``device``, read and written counted (best of
     ``repeats``)."""
-    x = torch.ones(nbytes // torch.tensor([], dtype=dtype).element_size(), dtype=dtype, device=device)
+    x = torch.ones(nbytes // dtype.itemsize, dtype=dtype, device=device)
     y = torch.empty_like(x)
     y.copy_(x)
 
@@ -437,8 +437,7 @@ def device_study(
             cpu_sim.run(base, scenario, backend="numba", record_cells="final")  # compile or load the cache
             cpu_rate = _device_rate(cpu_sim, base.repeat(cpu_b, 1, 1), scenario, "numba", repeats)
         bw = copy_bandwidth(dev, cfg.torch_dtype)
-        item = torch.tensor([], dtype=cfg.torch_dtype).element_size()
-        roof = bw / ((kernels.n_hot(bool(cfg.springback_relief)) + 2) * item * live * steps)  # [sims/s]
+        roof = bw / ((kernels.n_hot(bool(cfg.springback_relief)) + 2) * cfg.torch_dtype.itemsize * live * steps)
         out["steps_per_sim"], out["n_links_live"] = steps, live
         out[name] = {
             "sims_per_s": rates,
