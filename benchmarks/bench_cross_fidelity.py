@@ -1,7 +1,7 @@
 """How far the cross-fidelity reference lies from the calibrated model, and how settled its integration is.
 
 The cross-fidelity reference (``reference.kind: cross_fidelity``) is the same vehicle discretized on the uniform
-grid (8939 cells for the default car, 2910 of them active, against 518 optimized), simulated as the "real test".
+grid (8939 cells for the default car, 2910 of them active, against 501 optimized), simulated as the "real test".
 Its cells are light, so the mass scaling and step that suit the calibrated model (``configs/sim.yaml``: every active
 cell raised to 0.5 kg, 8 steps per 0.5 ms) move most of the compartment's mass into its crush zone. The reference
 therefore has its own ``mass_floor`` and ``substeps`` (``reference.cross_fidelity`` of the env config). This prints,

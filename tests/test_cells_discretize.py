@@ -703,14 +703,17 @@ def test_synthetic_car_round_trip(synthetic, tmp_path):
     assert back.subassembly_names == opt.subassembly_names and back.sensor_names == opt.sensor_names
 
 
-def test_symmetric_car_gives_mirror_symmetric_cells():
-    """The nominal synthetic car is mirror-symmetric, so its cell model must be too.
+@pytest.mark.parametrize("method", ["optimized", "uniform"])
+def test_symmetric_car_gives_mirror_symmetric_cells(method):
+    """The nominal synthetic car is mirror-symmetric, so its cell model must be too, voxel for voxel.
 
     Panels lying exactly in a grid plane (a wheel's flat side) used to be binned to the
-    inner voxel on one side and the outer one on the other.
+    inner voxel on one side and the outer one on the other. The compartment's panels in the box's outer y faces
+    had samples outside the box by rounding, more on one side: 42 voxels differed from their mirror image, 17 of
+    them null cells of the optimized model (8 left, 9 right) where the compartment is.
     """
     synthetic = pytest.importorskip("marlcrash.vehicle.synthetic")
-    cells = discretize(synthetic.default_vehicle())
+    cells = discretize(synthetic.default_vehicle(), method=method)
     names = cells.subassembly_names
     for name in names:
         if name.endswith("_left"):
@@ -718,7 +721,9 @@ def test_symmetric_car_gives_mirror_symmetric_cells():
             assert cells.cells_of(name).size == cells.cells_of(twin).size, name
             np.testing.assert_allclose(cells.mass[cells.cells_of(name)].sum(), cells.mass[cells.cells_of(twin)].sum())
     sub, mirrored = _subassembly_voxels_and_mirror(cells)
-    assert (mirrored == sub).mean() > 0.999
+    assert (mirrored == sub).all(), int((mirrored != sub).sum())
+    null_y = cells.centroid[cells.is_null, 1]
+    np.testing.assert_allclose(np.sort(null_y), np.sort(-null_y), atol=1e-9)
 
 
 def _subassembly_voxels_and_mirror(cells):

@@ -54,3 +54,19 @@ def test_grid_sections_bin_the_tube_into_its_columns():
     outside = (yc < -0.07) | (yc > 0.05)
     assert sx[:, outside, :].sum() == 0.0
     assert sy.shape[0] == 0 and sz.shape[0] == 0
+
+
+def test_a_point_on_an_outer_face_to_rounding_is_inside_the_grid():
+    """``locate(clamp=False)`` decided "inside" without the binning's tolerance: a compartment sample interpolated
+    between nodes on the box's outer face fell outside by rounding, and its voxel was left to a null cell."""
+    from marlcrash.cells.grid import EDGE_TOL
+
+    grid = build_grid(np.array([0.0, -0.85, 0.0]), np.array([1.2, 0.85, 1.0]), np.array([0.0]), 3e-4, 4)
+    on_faces = np.array([[0.6, 0.85 + 2e-16, 0.5], [0.6, -0.85 - 2e-16, 0.5], [1.2 + 1e-15, 0.1, -1e-17]])
+    flat, inside = grid.locate(on_faces, clamp=False)
+    assert inside.all() and (flat >= 0).all()
+    clamped, _ = grid.locate(on_faces, clamp=True)
+    np.testing.assert_array_equal(flat, clamped)  # the boundary voxels
+    beyond = np.array([[0.6, 0.85 + 10 * EDGE_TOL, 0.5], [-10 * EDGE_TOL, 0.0, 0.5]])
+    flat, inside = grid.locate(beyond, clamp=False)
+    assert not inside.any() and (flat == -1).all()

@@ -98,7 +98,7 @@ def test_coarser_cells_do_not_buy_a_larger_step():
     plausible pulse at a larger step: at 2 substeps the rebound stays far above 20 %, and at the configured 8 the
     coarse front no longer gives partial overlaps their softer, longer pulses (README, Simulator speed)."""
     res = substep_study(variants=((2, False), (8, False)), batch=2, vehicle_seeds=(), target_cell_volume=3e-3)
-    assert 60 < res["n_cells"] < 300 and res["target_cell_volume"] == 3e-3  # the default car: 518 cells
+    assert 60 < res["n_cells"] < 300 and res["target_cell_volume"] == 3e-3  # the default car: 501 cells
     two, eight = res["rows"]
     assert not two["passed"] and two["figures"]["rebound"] > 0.2
     assert not eight["passed"] and any("softer and longer" in f for f in eight["failed"])
@@ -140,8 +140,8 @@ def test_default_lanes_balances_vector_width_and_cores():
     uniform = chunk_bytes_per_lane(11462, 6891)
     assert 8 * uniform <= CHUNK_BYTES < 16 * uniform
     assert default_lanes(64, 2, uniform) == 8
-    assert default_lanes(64, 2, chunk_bytes_per_lane(2138, 518)) == 16  # the default car is not capped
-    assert default_lanes(64, 2, chunk_bytes_per_lane(2138, 518), "float64") * chunk_bytes_per_lane(2138, 518) * 4 < (
+    assert default_lanes(64, 2, chunk_bytes_per_lane(2138, 501)) == 16  # the default car is not capped
+    assert default_lanes(64, 2, chunk_bytes_per_lane(2138, 501), "float64") * chunk_bytes_per_lane(2138, 501) * 4 < (
         CHUNK_BYTES
     )  # ... by far
     assert default_lanes(64, 2, 10 * CHUNK_BYTES) == 1  # nothing fits: one lane, never an empty choice
@@ -151,9 +151,9 @@ def test_default_lanes_in_float32_fills_the_same_row_bytes():
     """float32 has its own table: its fastest chunk is 16 lanes, as in float64 (since the noalias kernel)."""
     from marlcrash.sim.kernels import CHUNK_BYTES, chunk_bytes_per_lane, default_lanes
 
-    car32 = chunk_bytes_per_lane(2138, 518, itemsize=4)
+    car32 = chunk_bytes_per_lane(2138, 501, itemsize=4)
     assert default_lanes(1024, 2, car32, "float32") == default_lanes(128, 2, car32, "float32") == 16
-    assert default_lanes(1024, 2, chunk_bytes_per_lane(2138, 518), "float64") == 16
+    assert default_lanes(1024, 2, chunk_bytes_per_lane(2138, 501), "float64") == 16
     # the main job's 48 episodes: 6 chunks of 8 at 0.86 of 16's rate still beat 3 of 16 (a core idle for a round)
     assert default_lanes(48, 2, car32, "float32") == 8
     assert default_lanes(1, 2, car32, "float32") == 1
