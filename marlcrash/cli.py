@@ -208,6 +208,7 @@ def cmd_inspect(args: argparse.Namespace) -> int:
 
 def cmd_discretize(args: argparse.Namespace) -> int:
     from marlcrash.cells import discretization_summary, format_discretization_summary, load_discretization_config
+    from marlcrash.provenance import output_record
 
     inputs = _input_files(args)
     check_output_file(args.save, "--save", suffix=".npz", inputs=inputs)  # before the work
@@ -215,14 +216,17 @@ def cmd_discretize(args: argparse.Namespace) -> int:
     model = load_model_from_args(args)
     config = load_discretization_config(args.config)
     summary, cells = discretization_summary(model, config, method=args.method)
+    origin = output_record(inputs, getattr(args, "argv", None))
     if args.save:
+        cells.meta["provenance"] = origin  # CellModel.load gives it back
         cells.save(args.save)
     if args.plot:
         from marlcrash.cells.plot import plot_cells
 
         plot_cells(cells, args.plot)
     if args.json:  # with the files written, as simulate's
-        _print_json({**summary, **{k: str(v) for k, v in (("save", args.save), ("plot", args.plot)) if v}})
+        files = {k: str(v) for k, v in (("save", args.save), ("plot", args.plot)) if v}
+        _print_json({**summary, **files, "provenance": origin})
     else:
         print(format_discretization_summary(summary))
         if args.save:
@@ -290,9 +294,13 @@ def scenario_from_args(args: argparse.Namespace):
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
+    import dataclasses
+
     import torch
 
     from marlcrash.cells import discretize, load_discretization_config
+    from marlcrash.outputs import json_text, write_text
+    from marlcrash.provenance import output_record, record_path
     from marlcrash.pulse.simulation import (
         bottoming_note,
         crash_summary,
@@ -310,7 +318,9 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     inputs = _input_files(args)
     # before the work: a typo in an output path costs nothing; .csv, the name marlcrash pulse reads it back by
     check_output_file(args.csv, "--csv", suffix=".csv", inputs=inputs)
-    check_output_file(args.plot, "--plot", suffix=".png", inputs=(*inputs, args.csv))
+    csv_record = None if args.csv is None else record_path(args.csv)  # what made the CSV, beside it
+    check_output_file(csv_record, "--csv", suffix=".json", inputs=inputs)
+    check_output_file(args.plot, "--plot", suffix=".png", inputs=(*inputs, args.csv, csv_record))
     model = load_model_from_args(args)
     cells = discretize(model, load_discretization_config(args.config), method=args.method)
     sim = Surrogate(cells, output_dt=scenario.output_dt)
@@ -318,14 +328,19 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     result = sim.run(params, scenario, record_cells="series" if args.plot else "final")
     summary = crash_summary(result, cells, scenario)
     summary.update(energy_budget(cells, scenario))
-    if args.csv:
+    origin = output_record(inputs, getattr(args, "argv", None))
+    if args.csv and csv_record is not None:
         write_crash_csv(result, args.csv)
         summary["csv"] = str(args.csv)
+        what = {"csv": str(args.csv), "vehicle": cells.name, "n_cells": cells.n_cells, "method": cells.method,
+                "scenario": dataclasses.asdict(scenario), "params": "the cell model's own"}  # fmt: skip
+        write_text(csv_record, json_text({**what, "provenance": origin}))
+        summary["provenance_file"] = str(csv_record)
     if args.plot:
         plot_crash(result, cells, args.plot, title=f"{cells.name}: {scenario.name}")
         summary["plot"] = str(args.plot)
     if args.json:
-        _print_json(summary)
+        _print_json({**summary, "provenance": origin})
         return 0
     t0v = summary["time_to_zero_velocity_ms"]
     print(
@@ -352,9 +367,9 @@ def cmd_simulate(args: argparse.Namespace) -> int:
             f"  sensor {name:<16} peak {d['peak_g']:7.1f} g at {d['t_peak_ms']:6.1f} ms, "
             f"delta-v {d['delta_v_ms']:6.2f} m/s"
         )
-    for key in ("csv", "plot"):
+    for key, label in (("csv", "csv"), ("provenance_file", "what made it"), ("plot", "plot")):
         if key in summary:
-            print(f"{key} written to {summary[key]}")
+            print(f"{label} written to {summary[key]}")
     return 0
 
 
@@ -679,6 +694,7 @@ def main(argv: list[str] | None = None) -> int:
     a test, an interrupt is raised to the caller instead of ending the process)."""
     parser = build_parser()
     args = parser.parse_args(argv)
+    args.argv = list(sys.argv[1:] if argv is None else argv)  # what made a command's outputs (their provenance)
     # Warnings (skipped cards, defaulted material values) are messages for the user, not
     # for a developer: print them without the source line that raised them.
     warnings.formatwarning = lambda message, category, *a, **k: f"warning: {message}\n"

@@ -37,6 +37,7 @@ import json
 import logging
 import os
 import platform
+import shlex
 import subprocess
 from collections.abc import Iterable
 from dataclasses import dataclass
@@ -203,6 +204,29 @@ def record(extra: Iterable[str | Path] = ()) -> dict[str, Any]:
         },
         **versions(),
     }
+
+
+def output_record(inputs: Iterable[str | Path] = (), command: list[str] | None = None) -> dict[str, Any]:
+    """The provenance of a command's outputs (``marlcrash simulate``'s crash record, ``marlcrash discretize``'s cell
+    model): :func:`record` of its input files, with the command line that made them (``command``: the arguments after
+    ``marlcrash``) and the configs folder read (``MARLCRASH_CONFIGS`` may name another than the checkout's).
+
+    Args:
+        inputs: input files named by paths outside ``configs/`` (a deck, with the files it ``*INCLUDE``s; a cells
+            config or sub-assembly map given by path), as ``extra`` of :func:`config_digests`.
+        command: the command's arguments, e.g. ``["simulate", "--scenario", "full_width_40"]``.
+    """
+    out: dict[str, Any] = {} if command is None else {"command": shlex.join(["marlcrash", *command])}
+    out["configs_folder"] = str(config_dir().resolve())
+    return {**out, **record(inputs)}
+
+
+def record_path(output: str | Path) -> Path:
+    """Where a command writes the provenance of a data file it writes (:func:`output_record`), beside it:
+    ``crash.csv`` -> ``crash.provenance.json``. The data file stays as it was (a comment block above a CSV's header
+    breaks ``pandas.read_csv`` and ``numpy.loadtxt(skiprows=1)``)."""
+    p = Path(output)
+    return p.with_name(f"{p.stem}.provenance.json")
 
 
 def versions() -> dict[str, str]:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
 import re
 import subprocess
@@ -125,6 +126,14 @@ def test_discretize_default_car_json(tmp_path):
     assert out["n_cells_optimized"] * 8 <= out["n_cells_uniform"]
     assert out["cell_mass_kg"] == pytest.approx(out["roi_mass_kg"], rel=5e-3)
     assert plot.stat().st_size > 10_000
+    # the saved model says what made it (it said nothing: a cell model kept for later could not be traced)
+    from marlcrash.cells import CellModel
+
+    origin = out["provenance"]
+    assert CellModel.load(save).meta["provenance"] == origin
+    assert origin["command"] == f"marlcrash discretize --json --plot {plot} --save {save}"
+    cells_yaml = Path(origin["configs_folder"]) / "cells.yaml"
+    assert origin["configs"]["configs/cells.yaml"] == hashlib.sha256(cells_yaml.read_bytes()).hexdigest()
 
 
 def test_discretize_says_which_cells_config_key_does_not_fit_the_vehicle(tmp_path):
@@ -373,9 +382,23 @@ def test_simulate_json_csv_plot(tmp_path):
     # the default car weighs 1600 kg (DESIGN 3); its front can take far more than 40 km/h brings
     assert out["impact_energy_kj"] == pytest.approx(0.5 * 1600 * (40 / 3.6) ** 2 / 1e3, rel=1e-9)
     assert out["crush_capacity_kj"] > out["impact_energy_kj"]
-    header = csv_path.read_text().splitlines()[0].split(",")
+    lines = csv_path.read_text().splitlines()
+    header = lines[0].split(",")
     assert header[0] == "time_s" and "tunnel_acc_g" in header and "crush_m" in header
-    assert len(csv_path.read_text().splitlines()) == 1 + 301  # 150 ms at 2 kHz, t = 0 included
+    assert len(lines) == 1 + 301  # 150 ms at 2 kHz, t = 0 included
+    # what made the record, beside it (the CSV stays plain data): the car and load case, the command, the code and
+    # every config file with its SHA-256; a record kept for a test report could not be traced to its inputs
+    record = json.loads((tmp_path / "sim.provenance.json").read_text())
+    assert out["provenance_file"] == str(tmp_path / "sim.provenance.json") and record["csv"] == str(csv_path)
+    assert (record["vehicle"], record["n_cells"], record["scenario"]["speed_kmh"]) == ("b_segment", out["n_cells"], 40)
+    origin = record["provenance"]
+    assert origin == out["provenance"]
+    assert origin["command"] == f"marlcrash simulate --scenario full_width_40 --json --csv {csv_path} --plot {plot}"
+    assert origin["code"]["marlcrash"] and len(origin["code"]["source_sha256"]) == 64 and origin["torch"]
+    folder = Path(origin["configs_folder"])
+    assert {"configs/sim.yaml", "configs/cells.yaml", "configs/scenarios/full_width_40.yaml"} <= set(origin["configs"])
+    for name, digest in origin["configs"].items():
+        assert hashlib.sha256((folder / name.removeprefix("configs/")).read_bytes()).hexdigest() == digest, name
     assert plot.stat().st_size > 10_000
     # Round trip: the written acceleration, read back and filtered, carries the simulated velocity change
     # (the up-front sensors stop within 1-2 ms; an aliased point acceleration gave 7.7 of their 12.0 m/s,
@@ -400,6 +423,10 @@ def test_simulate_a_keyword_deck(lsopt_deck, tmp_path):
     args = ("--param", "tbumper=3", "--param", "thood=1", "--axis-map", "x=+x,y=+z,z=+y", "--json")
     out = json.loads(run_cli("simulate", str(lsopt_deck), *config, *args).stdout)
     assert out["n_cells"] > 100 and out["scenario"] == "full_width_40"
+    # the deck and the cells config given by path are inputs of the record, with their SHA-256
+    inputs = out["provenance"]["configs"]
+    for path in (lsopt_deck, Path(config[1])):
+        assert inputs[str(path.resolve())] == hashlib.sha256(path.read_bytes()).hexdigest(), path
     assert set(out["absorbed_energy_kj"]) == {"part_1", "part_2", "part_3", "part_4", "part_5", "compartment"}
     assert out["energy_balance_max_rel_error"] < 5e-3
     assert 0.0 < out["max_crush_m"] < 2.0 and out["peak_decel_g"] > 1.0
@@ -421,6 +448,11 @@ def test_output_paths_are_checked_before_the_work(tmp_path):
     assert not (tmp_path / "ok.csv").exists()  # the csv was not written before the plot path failed
     proc = run_cli("pulse", str(DATA / "halfsine_40kmh.csv"), "--plot", str(tmp_path / "adir"), check=False)
     assert proc.returncode == 2 and "'--plot'" in proc.stderr
+    # the record beside the csv is an output too: checked with it (adir.provenance.json, a folder, for --csv adir.csv)
+    (tmp_path / "adir.provenance.json").mkdir()
+    proc = run_cli("simulate", "--csv", str(tmp_path / "adir.csv"), check=False)
+    assert proc.returncode == 2 and "'--csv'" in proc.stderr and "adir.provenance.json is a folder" in proc.stderr
+    (tmp_path / "adir.provenance.json").rmdir()
     proc = run_cli("simulate", "--seed", "-1", check=False)
     assert proc.returncode == 2 and "--seed" in proc.stderr and "integer >= 0" in proc.stderr
     assert "Traceback" not in proc.stderr

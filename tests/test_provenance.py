@@ -489,3 +489,18 @@ def test_merge_and_patch_leftovers_in_configs_are_no_inputs(configs, tmp_path):
     _touch(configs / "cells.yaml")
     with pytest.raises(ConfigError, match=r"configs/cells\.yaml changed"):
         provenance.require_unchanged(run)
+
+
+def test_an_output_record_names_the_command_and_every_input(configs, tmp_path):
+    """A command's record (``marlcrash simulate --csv``, ``discretize --save``): the command line as a shell would take
+    it back, the configs folder read and every input with its SHA-256, a deck outside ``configs/`` by its path."""
+    import hashlib
+
+    deck = tmp_path / "my car.k"
+    deck.write_text("*KEYWORD\n*END\n")
+    rec = provenance.output_record([deck], ["simulate", str(deck), "--json"])
+    assert rec["command"] == f"marlcrash simulate '{deck}' --json" and rec["configs_folder"] == str(configs.resolve())
+    assert rec["configs"][str(deck.resolve())] == hashlib.sha256(deck.read_bytes()).hexdigest()
+    assert len(rec["configs"]) == len(provenance.config_files()) + 1 and rec["code"]["source_sha256"]
+    assert "command" not in provenance.output_record()
+    assert provenance.record_path(tmp_path / "crash.csv") == tmp_path / "crash.provenance.json"
