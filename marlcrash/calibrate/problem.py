@@ -32,7 +32,8 @@ layout: sub-assemblies, some split left/right) ``true_x`` is the twin's own incr
 (:attr:`marlcrash.references.ReferenceBatch.true_increments`) and its parameters equal the
 truth bit for bit: zero metrics, zero parameter error. Agents that merge sub-assemblies
 cannot follow per-sub-assembly increments; then ``true_x`` is a least-squares fit in
-parameter space and the truth is representable only approximately. With ``masking`` on, the
+parameter space and the truth is representable only approximately (the fit can leave the search box where the twin's
+draws do not: it is clipped to the box, with a warning naming the coordinates). With ``masking`` on, the
 coordinates of agents the impact-region rule leaves inactive stay at zero in ``true_x`` too, so
 the twin's perturbation of their cells is out of reach by design (all agents are active at full
 width); with ``masking.cells: region`` so is that of an active agent's cells outside the impact region, and
@@ -562,21 +563,26 @@ class CalibrationProblem:
         """The point ``[n_agents, 7]`` representing the twin truth (module docstring)."""
         inc = reference.true_increments
         names = list(self.cells.subassembly_names)
-        if inc is None or any(len(subs) != 1 for subs in self.layout.subassemblies):
+        merged = any(len(subs) != 1 for subs in self.layout.subassemblies)
+        if inc is None or merged:
             assert self.true_params is not None  # __init__ asks for true_x only of a reference with a truth
             x = self._fit_true_x(self.true_params)
         else:
             sub = torch.tensor([names.index(subs[0]) for subs in self.layout.subassemblies], dtype=torch.int64)
             x = inc[0, sub].to(torch.float64) * self.free
         self._warn_outside_box(inc, x)
+        if inc is not None and merged:  # the twin's draw may lie inside the box while the fit to it does not
+            self._warn_outside_box(None, x, fitted=True)
         return x.clamp(min=self.lower, max=self.upper)
 
-    def _warn_outside_box(self, inc: torch.Tensor | None, x: torch.Tensor) -> None:
+    def _warn_outside_box(self, inc: torch.Tensor | None, x: torch.Tensor, fitted: bool = False) -> None:
         """Warn, naming agents, sub-assemblies and parameters, where the twin's hidden truth lies outside the search
         box: its log factors are normal (unbounded), so a wide spread draws truths no candidate reaches, and
         ``true_x`` is clipped to the box. Checked on the twin's own increments ``inc [1, S, 7]`` per sub-assembly
         an agent owns (``None``: on the point ``x [n_agents, 7]``; a merged agent's least-squares point is only an
-        approximation of them)."""
+        approximation of them). ``fitted``: ``x`` is merged agents' least-squares point for increments that all lie
+        in the box; it can still leave it (a shared transmission factor for two sub-assemblies' cells moved past
+        +1 in log scale with the default spreads), and clipping it doubled those parameters' error: said as such."""
         names = list(self.cells.subassembly_names)
         where: list[str] = []
         keys: dict[str, None] = {}  # the spreads behind the coordinates outside
@@ -600,6 +606,17 @@ class CalibrationProblem:
             return
         more = f", and {count - len(where)} more" if count > len(where) else ""
         b_lo, b_hi = self.bounds
+        if fitted:
+            warnings.warn(
+                f"the least-squares point that represents the twin's truth for the merged agents lies outside the "
+                f"search box (box_radius = {self.box_radius:g}) at {count} of the {self.n_free} free coordinates: "
+                f"{'; '.join(where)}{more}. The twin's draws lie inside it, but one factor of a merged agent stands "
+                f"for several sub-assemblies' truths and the fit leaves the box; true_x is clipped to it, so "
+                f"param_error at true_x is larger than the fit's own. Raise box_radius, or split the merged agents "
+                f"(agents.merge)",
+                stacklevel=4,
+            )
+            return
         warnings.warn(
             f"the twin's hidden truth lies outside the search box (box_radius = {self.box_radius:g}; E_x, E_s also "
             f"within behaviour_bounds [{b_lo:g}, {b_hi:g}]) at {count} of the {self.n_free} free coordinates: "
