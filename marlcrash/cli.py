@@ -367,7 +367,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
             f"  sensor {name:<16} peak {d['peak_g']:7.1f} g at {d['t_peak_ms']:6.1f} ms, "
             f"delta-v {d['delta_v_ms']:6.2f} m/s"
         )
-    for key, label in (("csv", "csv"), ("provenance_file", "what made it"), ("plot", "plot")):
+    for key, label in (("csv", "csv"), ("provenance_file", "provenance"), ("plot", "plot")):
         if key in summary:
             print(f"{label} written to {summary[key]}")
     return 0
