@@ -329,7 +329,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     summary = crash_summary(result, cells, scenario)
     summary.update(energy_budget(cells, scenario))
     origin = output_record(inputs, getattr(args, "argv", None))
-    if args.csv and csv_record is not None:
+    if csv_record is not None:  # exactly when --csv is given
         write_crash_csv(result, args.csv)
         summary["csv"] = str(args.csv)
         what = {"csv": str(args.csv), "vehicle": cells.name, "n_cells": cells.n_cells, "method": cells.method,
