@@ -271,6 +271,23 @@ BAD_CELL_ROWS = "".join(f"{i * 1e-4:.4f},{'abc' if i == 5 else -float(i)}\n" for
         ("time,acc\n" + GOOD_ROWS, {"unit": "furlong"}, r"expected an acceleration unit"),
         (GOOD_ROWS, {}, r"bad\.csv line 1: expected a header row naming the columns"),
         ("# time,acc\n" + GOOD_ROWS, {}, r"bad\.csv line 2: expected a header row naming .*comments=''"),
+        # Python's float reads digit groups: '1_000' was 1000 g
+        (
+            "time,acc\n" + GOOD_ROWS + "0.0020,1_000\n",
+            {},
+            r"bad\.csv line 22, column 'acc': expected a number, got '1_0",
+        ),
+        # a quoted line break joined two lines, and every later line number was one short
+        (
+            "time,acc\n" + GOOD_ROWS[:24] + '0.0002,"1\n",x\n' + GOOD_ROWS[24:],
+            {},
+            r"bad\.csv line 4: cannot split the line into fields at ',': expected every quoted field to close on",
+        ),
+        (
+            "time,acc\n" + GOOD_ROWS + "0.0020," + "1" * 200_000 + "\n",
+            {},  # csv's own error, of no file or line
+            r"bad\.csv line 22: cannot split .* at most 131072 characters in a field",
+        ),
     ],
     ids=[
         "missing-column",
@@ -284,6 +301,9 @@ BAD_CELL_ROWS = "".join(f"{i * 1e-4:.4f},{'abc' if i == 5 else -float(i)}\n" for
         "unit",
         "no-header",
         "commented-header",
+        "digit-groups",
+        "quoted-line-break",
+        "huge-field",
     ],
 )
 def test_bad_csv_raises_pulse_error_with_file_and_line(tmp_path, text, kwargs, pattern):
@@ -315,6 +335,17 @@ def test_bad_mme_sample_line(tmp_path, analytic):
     ch.write_text("\n".join(lines) + "\n", encoding="latin-1")
     with pytest.raises(PulseError, match=r"B\.001 line 21: expected one sample value per line, got '1.0e0x'"):
         read_mme(tmp_path / "B")
+    lines[20] = "1_000"  # Python's float reads digit groups: 1000 g
+    ch.write_text("\n".join(lines) + "\n", encoding="latin-1")
+    with pytest.raises(PulseError, match=r"B\.001 line 21: expected one sample value per line, got '1_000'"):
+        read_mme(tmp_path / "B")
+
+
+def test_a_blank_line_inside_an_mme_channel_header_does_not_end_it(tmp_path, analytic):
+    ch = _mme(tmp_path, analytic)
+    _edit(ch, "Unit                        :g\n", "\nUnit                        :g\n\n")  # the Unit line was 'missing'
+    plain = read_mme(_mme(tmp_path / "c", analytic).parent.parent)
+    np.testing.assert_array_equal(read_mme(tmp_path / "B").acc, plain.acc)
 
 
 def test_bad_mme_headers(tmp_path, analytic):
@@ -370,6 +401,67 @@ def test_time_zero_outside_the_record_names_the_record_as_written(tmp_path):
                        r"time_zero='file'\) lies outside the record \[1, 1\.15\] s: its clock does not start at the "
                        r"contact; read it with --time-zero threshold \(time_zero='threshold'\)"):  # fmt: skip
         processed_pulse(late, time_zero="file")
+
+
+@pytest.mark.parametrize("start", [0.0, 1e-4, 0.015])
+def test_a_record_starting_after_its_t0_is_refused_not_led_in_by_made_up_data(tmp_path, start):
+    """The zero-acceleration lead-in before a record is an assumption for the filter, not data: a record whose first
+    sample lies 15 ms after the file's t = 0 had those 15 ms of its window made up (accepted, 0.84 m/s short of the
+    20 g half-sine's velocity change). One sample interval late is a clock whose first sample closes an interval."""
+    from marlcrash.pulse.io import processed_pulse
+
+    t = start + np.arange(2000) * 1e-4
+    pulse = Pulse(t, half_sine(t, 0.080)[None], ("x",), source="rec.csv")
+    path = write_csv(pulse, tmp_path / "rec.csv")
+    if start > 1e-4:
+        with pytest.raises(PulseError, match=r"rec\.csv: time zero t = 0 ms .* lies outside the record \[15, 214\.9\]"):
+            prepare_velocity(pulse, time_zero="file", duration=0.1)
+        with pytest.raises(PulseError, match=r"rec\.csv: time zero 0 s \(the file's t = 0.* the record \[0\.015,"):
+            processed_pulse(path, time_zero="file")
+        return
+    _, v = prepare_velocity(pulse, time_zero="file", duration=0.1)
+    assert v[0, -1] == pytest.approx(-DV, rel=2e-3)  # -DV - v0 = -DV from a record that holds the whole pulse
+    assert processed_pulse(path, time_zero="file")[2] == 0.0
+
+
+def test_filtering_a_pulse_again_with_its_own_class_leaves_it_as_it_is(analytic):
+    once = filter_pulse(analytic, 60)
+    assert filter_pulse(once, 60) is once  # filtered twice, a 10 ms, 50 g half-sine's 47.5 g peak came out at 45 g
+    # the compared signal of a filtered pulse is that of the pulse read as filtered (cfc=None), not filtered again
+    as_read = prepare_velocity(once, cfc=None, duration=0.1)[1]
+    np.testing.assert_array_equal(prepare_velocity(once, duration=0.1)[1], as_read)
+    assert filter_pulse(filter_pulse(analytic, 180), 60).cfc == 60  # a stricter class still filters
+    with pytest.raises(PulseError, match="already filtered with CFC 60, cannot apply CFC 180"):
+        filter_pulse(once, 180)
+
+
+def test_bad_arguments_to_the_signal_helpers_are_pulse_errors_that_say_what_was_expected(analytic):
+    from marlcrash.pulse.cfc import cfc_filter_torch, cfc_matrix
+    from marlcrash.pulse.signal import filtered_acceleration
+
+    with pytest.raises(PulseError, match=r"v0: expected one speed or one per trace \(shape \[2\]\), got shape \[3\]"):
+        analytic.velocity(np.zeros(3))  # 3 speeds for 2 channels: a [3, T] broadcast for 1 channel
+    with pytest.raises(PulseError, match=r"v0: .*shape \[1\]\), got shape \[3\]"):
+        analytic.select(0).velocity(np.zeros(3))
+    assert analytic.velocity(np.array([1.0, 2.0]))[:, 0].tolist() == [1.0, 2.0]
+    with pytest.raises(PulseError, match=r"time: expected \[T\] sample times for accelerations of shape \[2200\]"):
+        integrate(analytic.time[:10], analytic.acc[0])
+    with pytest.raises(PulseError, match="expected a finite sampling interval dt > 0"):
+        filtered_acceleration(analytic.acc, 0.0)
+    for bad in ("1e-4", 0.0):
+        with pytest.raises(PulseError, match="expected a finite sampling interval dt > 0"):
+            cfc_matrix(10, bad)
+        with pytest.raises(PulseError, match="expected a finite sampling interval dt > 0"):
+            cfc_filter_torch(torch.zeros(1, 300), bad)
+    with pytest.raises(PulseError, match="resampling rate must be a positive number of Hz, got '2000'"):
+        resample(analytic, "2000")
+    with pytest.raises(PulseError, match="t_start: expected a time"):
+        resample(analytic, 2000.0, "a")
+    assert analytic.select(np.int64(1)).channels == ("radsup",)  # numpy's index was 'not iterable'
+    with pytest.raises(PulseError, match="channels: expected a sequence of channel names, got the text 'x'"):
+        Pulse(analytic.time, analytic.acc[0], "x")
+    with pytest.raises(PulseError, match=r"expected at least one channel, got acc of shape \(0, 2200\)"):
+        Pulse(analytic.time, np.zeros((0, analytic.n_samples)), ())
 
 
 def test_pulse_rejects_non_increasing_time_and_nan():
@@ -867,7 +959,8 @@ def test_mme_reads_acceleration_channels_and_the_summary_takes_the_first(tmp_pat
     bound = (2e-4) ** 2 / 8 * np.abs(analytic.acc[0]).max() * (math.pi / 0.080) ** 2
     assert 0 < np.abs(both.acc[1] - analytic.acc[0][span]).max() <= bound
     _edit(tmp_path / "T" / "Channel" / "T.003", "Time of first sample        :-0.02", "Time of first sample        :5")
-    apart = r"T\.003: the channel's samples \(5 to 5\.2.* s\) and those of the other channels read share 0 sampling"
+    # of two channels either may be the one off: both are named, with their spans, on the test's file
+    apart = r"T\.mme: the channels read \(T\.002 -0\.02 to 0\.1.* s, T\.003 5 to 5\.2.* s\) share 0 sampling instants"
     with pytest.raises(PulseError, match=apart), pytest.warns(UserWarning, match="skipped T.001"):
         read_mme(tmp_path / "T")
     assert read_mme(tmp_path / "T", channels="10VEHC000000ACXP").channels == ("10VEHC000000ACXP",)

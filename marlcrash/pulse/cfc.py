@@ -44,7 +44,7 @@ import scipy.signal
 import torch
 
 from marlcrash.errors import ConfigError, PulseError
-from marlcrash.metrics import _as_signal
+from marlcrash.metrics import _as_signal, check_step
 
 CFC_CLASSES: tuple[int, ...] = (60, 180, 600, 1000)
 """The channel frequency classes of SAE J211 / ISO 6487."""
@@ -177,7 +177,7 @@ def cfc_matrix(n: int, dt: float, cfc: int = 60, pad_time: float = DEFAULT_PAD_T
     """The ``[n, n]`` matrix ``M`` with ``cfc_filter(x) == M @ x`` for records of ``n`` samples."""
     if isinstance(n, bool) or not isinstance(n, int) or n < 3:
         raise PulseError(f"CFC filtering needs at least 3 samples, got n={n!r}")
-    return _cfc_matrix_cached(n, float(dt), check_cfc(cfc), _check_pad_time(pad_time))
+    return _cfc_matrix_cached(n, check_step(dt), check_cfc(cfc), _check_pad_time(pad_time))
 
 
 def cfc_filter_torch(x: torch.Tensor, dt: float, cfc: int = 60, pad_time: float = DEFAULT_PAD_TIME) -> torch.Tensor:
@@ -204,7 +204,7 @@ def cfc_filter_torch(x: torch.Tensor, dt: float, cfc: int = 60, pad_time: float 
         if n < 3:
             raise PulseError(f"CFC filtering needs at least 3 samples, got n={n}")
         y = _filtfilt(  # through float64 in torch: numpy has no bfloat16
-            x.detach().to(torch.float64).numpy(), float(dt), check_cfc(cfc), -1, _check_pad_time(pad_time)
+            x.detach().to(torch.float64).numpy(), check_step(dt), check_cfc(cfc), -1, _check_pad_time(pad_time)
         )
         return torch.from_numpy(np.ascontiguousarray(y)).to(x.dtype)
     m = torch.as_tensor(cfc_matrix(n, dt, cfc, pad_time), dtype=x.dtype, device=x.device)

@@ -62,6 +62,7 @@ from marlcrash.pulse.signal import (
     Pulse,
     drawn_without_noise,
     filtered_from_time_zero,
+    on_record,
     without_zero_offset,
 )
 from marlcrash.units import G0
@@ -93,9 +94,17 @@ seconds spans tens of seconds (and would give 1000x the velocity change)."""
 _UNIT_HINT = "is the time column in ms (--time-unit ms; time_unit: ms)?"
 
 
+def _number(text: str) -> float:
+    """``text`` as a number the way a data file writes one: Python's ``float`` also reads digit groups with ``_``
+    (``1_000``) and non-ASCII digits, which no spreadsheet or test system writes (a ``ValueError`` here)."""
+    if "_" in text or not text.isascii():
+        raise ValueError(f"not a number as a data file writes one: {text!r}")
+    return float(text)
+
+
 def _is_number(text: str) -> bool:
     try:
-        float(text.replace(",", "."))
+        _number(text.replace(",", "."))
     except ValueError:
         return False
     return True
@@ -327,7 +336,8 @@ def read_csv(
     wanted = [ti, *ai]
     if delim == "\t":
         decimal_comma = _decimal_commas(lines[first + 1 :], wanted)
-    for lineno, row in enumerate(csv.reader(lines[first + 1 :], delimiter=delim), start=first + 2):
+    for lineno, line in enumerate(lines[first + 1 :], start=first + 2):
+        row = _row(line, delim, path, lineno)  # line by line: a quoted line break shifted every later line number
         if not row or all(not c.strip() for c in row) or row[0].lstrip().startswith("#"):
             continue
         if len(row) not in (len(header), width):
@@ -340,7 +350,7 @@ def read_csv(
         for j in wanted:
             cell = row[j].strip()
             try:
-                v = float(cell.replace(",", ".") if decimal_comma else cell)
+                v = _number(cell.replace(",", ".") if decimal_comma else cell)
             except ValueError:
                 raise _err(f"expected a number, got {cell!r}", path, lineno, header[j]) from None
             if not math.isfinite(v):
@@ -422,7 +432,7 @@ def _decimal_commas(lines: list[str], columns: list[int]) -> bool:
     holds a comma is a number with one decimal comma, and one at least (``-0,025``, ``1,5``) can group no thousands
     (``-1,005``, which an English spreadsheet writes for -1005)."""
     unambiguous = False
-    for row in csv.reader(lines, delimiter="\t"):
+    for row in (_fields(line, "\t") or [] for line in lines):  # a line that is no CSV: read_csv names it
         if not row or row[0].lstrip().startswith("#"):
             continue
         for cell in (row[j].strip() for j in columns if j < len(row) and "," in row[j]):
@@ -472,7 +482,7 @@ def _csv_header(path: Path, lines: list[str], time_col: str | None) -> tuple[int
         if first is None:
             raise _err("expected a header row and samples after the 'sep=' line, found no data", path)
     delim = sep.group(1) if sep is not None else _delimiter(lines, first, path)
-    header = [h.strip() for h in next(csv.reader([lines[first]], delimiter=delim))]
+    header = [h.strip() for h in _row(lines[first], delim, path, first + 1)]
     width = len(header)
     while len(header) > 1 and not header[-1]:  # 'time;acc;': a trailing delimiter (the rows' cells: read_csv)
         header.pop()
@@ -577,14 +587,37 @@ def _decode_line(raw: bytes, legacy: tuple[str, ...]) -> str:
     return raw.decode("latin-1")  # never fails: every byte is a character
 
 
+def _fields(line: str, delim: str) -> list[str] | None:
+    """``line`` split at ``delim`` as CSV, or ``None`` where it is none: a quoted field that does not close on the
+    line, text after a closing quote, a field over csv's size limit."""
+    try:
+        return next(csv.reader([line], delimiter=delim, strict=True), [])
+    except csv.Error:
+        return None
+
+
+def _row(line: str, delim: str, path: Path, lineno: int) -> list[str]:
+    """``line`` split at ``delim`` (:func:`_fields`), else a :class:`PulseError` naming the file and line."""
+    row = _fields(line, delim)
+    if row is None:
+        raise _err(
+            f"cannot split the line into fields at {delim!r}: expected every quoted field to close on its line (no "
+            f"line break inside a cell) with the delimiter right after it, and at most {csv.field_size_limit()} "
+            "characters in a field",
+            path,
+            lineno,
+        )
+    return row
+
+
 def _delimiter(lines: list[str], first: int, path: Path) -> str:
     """The delimiter (``,``, ``;`` or tab) that splits the header into at least two names and the first data rows
     into as many fields; the header alone is ambiguous (``"time (s)";"acc, g"`` holds one of each)."""
     data = [s for s in lines[first + 1 : first + 21] if s.strip() and not s.lstrip().startswith("#")]
-    n_head = {d: len(next(csv.reader([lines[first]], delimiter=d))) for d in (",", ";", "\t")}
+    n_head = {d: len(_fields(lines[first], d) or ()) for d in (",", ";", "\t")}
     # ';' and tab first: a ';' file's decimal commas (and commas in its names) also split it evenly at ','
     for d in (";", "\t", ","):
-        if n_head[d] >= 2 and all(len(next(csv.reader([s], delimiter=d))) == n_head[d] for s in data):
+        if n_head[d] >= 2 and all(len(_fields(s, d) or ()) == n_head[d] for s in data):
             return d
     if max(n_head.values()) < 2:
         raise _err(
@@ -622,6 +655,8 @@ def _parse_header(path: Path, lines: list[str]) -> tuple[dict[str, tuple[str, in
     header: dict[str, tuple[str, int]] = {}
     start = len(lines)
     for i, raw in enumerate(lines):
+        if not raw.strip():  # a blank line inside the header ended it: its later lines were read as samples
+            continue
         if ":" not in raw:
             start = i
             break
@@ -717,7 +752,7 @@ def _header_float(path: Path, header: dict[str, tuple[str, int]], key: str) -> f
         raise _err(f"missing header line {key.capitalize()!r} (expected 'Name :value')", path)
     value, line = header[key]
     try:
-        v = float(value)
+        v = _number(value)
     except ValueError:
         raise _err(f"{key.capitalize()!r}: expected a number, got {value!r}", path, line) from None
     if not math.isfinite(v):
@@ -742,7 +777,7 @@ def _read_mme_channel(path: Path, lines: list[str], header: dict[str, tuple[str,
         if not s:
             continue
         try:
-            v = float(s)
+            v = _number(s)
         except ValueError:
             raise _err(f"expected one sample value per line, got {s!r}", path, lineno) from None
         if not math.isfinite(v):
@@ -1139,14 +1174,19 @@ def _common_time_base(mme: Path, files: list[Path], chans: list[dict[str, Any]])
     dt = min(c["dt"] for c in chans)
     n = math.floor((hi - lo) / dt * (1 + 1e-12)) + 1 if hi >= lo else 0
     if n < MIN_SAMPLES:
-        late = max(range(len(chans)), key=lambda i: chans[i]["t_first"])  # a channel the others barely overlap
-        k = late if late > 0 else min(range(len(chans)), key=lambda i: end(chans[i]))
-        c = chans[k]
+        # the channel that shares MIN_SAMPLES instants with the fewest others is named, where one is (of two, neither:
+        # the latest starting one was named, and with the first channel off it was the other)
+        def shared(a: dict[str, Any], b: dict[str, Any]) -> bool:
+            return min(end(a), end(b)) - max(a["t_first"], b["t_first"]) >= (MIN_SAMPLES - 1) * dt
+
+        overlaps = [sum(shared(a, b) for b in chans) for a in chans]
+        odd = [i for i, v in enumerate(overlaps) if v == min(overlaps)]
+        spans = ", ".join(f"{p.name} {c['t_first']:g} to {end(c):g} s" for p, c in zip(files, chans, strict=True))
         raise _err(
-            f"the channel's samples ({c['t_first']:g} to {end(c):g} s) and those of the other channels "
-            f"read share {max(n, 0)} sampling instants of {dt:g} s (from {lo:g} to {hi:g} s), fewer than "
-            f"{MIN_SAMPLES}; choose channels recorded over the same time (channels=)",
-            files[k],
+            f"the channels read ({spans}) share {max(n, 0)} sampling instants of {dt:g} s, fewer than {MIN_SAMPLES}"
+            f"{f'; {files[odd[0]].name} lies apart from the others' if len(odd) == 1 else ''}: choose channels "
+            "recorded over the same time (channels=)",
+            files[odd[0]] if len(odd) == 1 else mme,
         )
     time = lo + np.arange(n) * dt
     differ = [f"{p.name} ({1.0 / c['dt']:.6g} Hz from {c['t_first']:g} s)" for p, c in zip(files, chans, strict=True)]
@@ -1596,7 +1636,7 @@ def processed_pulse(
         if p.name not in str(e):
             raise _err(str(e), p) from None
         raise
-    if not work.time[0] <= t0 < work.time[-1]:
+    if not on_record(pulse, t0):
         what = hint = ""
         if time_zero == "file":  # named as typed, on the command line and in Python
             what = " (the file's t = 0, --time-zero file; time_zero='file')"

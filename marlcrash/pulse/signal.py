@@ -117,7 +117,11 @@ class Pulse:
                 f"{where}time must strictly increase; sample {i + 1} has t={float(time[i + 1])!r} "
                 f"after t={float(time[i])!r}"
             )
+        if isinstance(self.channels, str):  # 'xy' was two channels 'x' and 'y'
+            raise PulseError(f"{where}channels: expected a sequence of channel names, got the text {self.channels!r}")
         channels = tuple(str(c) for c in self.channels)
+        if acc.shape[0] == 0:
+            raise PulseError(f"{where}expected at least one channel, got acc of shape {acc.shape}")
         if len(channels) != acc.shape[0]:
             raise PulseError(f"{where}expected {acc.shape[0]} channel names, got {len(channels)}")
         object.__setattr__(self, "time", time)
@@ -151,7 +155,7 @@ class Pulse:
 
     def select(self, channels: str | int | Sequence[str | int]) -> Pulse:
         """The pulse restricted to some channels, by name or index (order kept as given)."""
-        items = [channels] if isinstance(channels, str | int) else list(channels)
+        items = [channels] if isinstance(channels, str | int | np.integer) else list(channels)
         idx = []
         for c in items:
             if isinstance(c, str):
@@ -185,12 +189,28 @@ def integrate(time: np.ndarray, acc: np.ndarray, v0: float | np.ndarray = 0.0) -
 
     Returns:
         ``[..., T]`` velocity [m/s].
+
+    Raises:
+        PulseError: ``time`` not of the length of ``acc``'s last axis, or a ``v0`` of another shape than ``[...]``
+            that does not broadcast to it without growing it (3 speeds for 1 channel gave 3 velocities).
     """
     acc = np.asarray(acc, dtype=np.float64)
-    h = np.diff(np.asarray(time, dtype=np.float64))
+    time = np.asarray(time, dtype=np.float64)
+    speed = np.asarray(v0, dtype=np.float64)
+    if time.ndim != 1 or acc.ndim < 1 or time.shape[0] != acc.shape[-1]:
+        raise PulseError(f"time: expected [T] sample times for accelerations of shape {list(acc.shape)}, got shape "
+                         f"{list(time.shape)}")  # fmt: skip
+    try:
+        grows = np.broadcast_shapes(speed.shape, acc.shape[:-1]) != acc.shape[:-1]
+    except ValueError:
+        grows = True
+    if grows:
+        raise PulseError(f"v0: expected one speed or one per trace (shape {list(acc.shape[:-1])}), got shape "
+                         f"{list(speed.shape)}")  # fmt: skip
+    h = np.diff(time)
     inc = 0.5 * (acc[..., 1:] + acc[..., :-1]) * h
     out = np.concatenate([np.zeros((*acc.shape[:-1], 1)), np.cumsum(inc, axis=-1)], axis=-1)
-    return out + np.asarray(v0, dtype=np.float64)[..., None]
+    return out + speed[..., None]
 
 
 def integrate_torch(acc: torch.Tensor, dt: float, v0: float | torch.Tensor = 0.0) -> torch.Tensor:
@@ -375,6 +395,8 @@ def sampled_acceleration(velocity: torch.Tensor, dt: float) -> torch.Tensor:
 def filter_pulse(pulse: Pulse, cfc: int = 60, pad_time: float = DEFAULT_PAD_TIME) -> Pulse:
     """CFC-filter every channel of a uniformly sampled pulse (see :mod:`marlcrash.pulse.cfc`).
 
+    A pulse already filtered with ``cfc`` (``pulse.cfc``) is returned as it is.
+
     Raises:
         PulseError: the pulse is not uniformly sampled (resample it first), already filtered
             with a lower (stricter) class, or shorter than one period of the -3 dB frequency (10 ms at
@@ -395,6 +417,8 @@ def filter_pulse(pulse: Pulse, cfc: int = 60, pad_time: float = DEFAULT_PAD_TIME
         )
     if pulse.cfc is not None and pulse.cfc < cfc:
         raise PulseError(f"{pulse.source or 'pulse'}: already filtered with CFC {pulse.cfc}, cannot apply CFC {cfc}")
+    if pulse.cfc == cfc:  # filtered twice, a 10 ms, 50 g half-sine's 47.5 g CFC 60 peak came out at 45.0 g
+        return pulse
     acc = cfc_filter(pulse.acc, pulse.dt, cfc, axis=-1, pad_time=pad_time)
     return replace(pulse, acc=acc, cfc=cfc)
 
@@ -416,8 +440,11 @@ def resample(
     Raises:
         PulseError: a bad rate or a window outside the record.
     """
-    if not (np.isfinite(rate_hz) and rate_hz > 0):
+    if not (_is_real(rate_hz) and np.isfinite(rate_hz) and rate_hz > 0):
         raise PulseError(f"resampling rate must be a positive number of Hz, got {rate_hz!r}")
+    for name, t in (("t_start", t_start), ("t_end", t_end)):
+        if t is not None and not (_is_real(t) and np.isfinite(t)):
+            raise PulseError(f"{name}: expected a time [s] or None, got {t!r}")
     t0 = pulse.time[0] if t_start is None else float(t_start)
     t1 = pulse.time[-1] if t_end is None else float(t_end)
     eps = 1e-9
@@ -977,7 +1004,7 @@ def filtered_acceleration(acc: np.ndarray, dt: float, cfc: int = 60, pre_time: f
     value at the start; an up-front sensor of the default car at 40 km/h then peaked at 485 g instead
     of its 315 g. The lead-in (the vehicle at constant speed before the contact) is dropped again.
     """
-    n = round(pre_time / dt)
+    n = round(pre_time / check_step(dt))
     a = np.asarray(acc, dtype=np.float64)
     led = np.concatenate([np.zeros((*a.shape[:-1], n)), a], axis=-1)
     return cfc_filter(led, dt, cfc, axis=-1)[..., n:]
@@ -1073,6 +1100,17 @@ def _warn_late_onset(pulse: Pulse, cfc: int | None, threshold_g: float) -> None:
         )
 
 
+def on_record(pulse: Pulse, t0: float) -> bool:
+    """Whether time zero ``t0`` [s] lies on ``pulse`` as read: from one sample interval before its first sample
+    (a clock whose first sample closes the first interval) to before its last.
+
+    Not on the lead-in :func:`filtered_from_time_zero` puts before the record: that is zero acceleration assumed,
+    not data, and a record starting 15 ms after its t = 0 read with ``time_zero: file`` had those 15 ms of its
+    window made up (a 20 g, 80 ms half-sine's velocity change came out 0.84 m/s short, silently).
+    """
+    return bool(pulse.time[0] - pulse.dt * (1.0 + 1e-6) <= t0 < pulse.time[-1])
+
+
 def _is_real(x: object) -> bool:
     """Whether ``x`` is a real number (a Python or numpy number; not a bool or text)."""
     return isinstance(x, int | float | np.integer | np.floating) and not isinstance(x, bool)
@@ -1133,7 +1171,7 @@ def prepare_velocity(
     if not (_is_real(rate_hz) and math.isfinite(rate_hz) and rate_hz > 0):
         raise PulseError(f"rate_hz: expected a finite output rate > 0 Hz, got {rate_hz!r}")
     p, t0 = filtered_from_time_zero(pulse, cfc, time_zero, threshold_g, warn_late=True)
-    if not p.time[0] <= t0 < p.time[-1]:  # the file's t = 0 off a record on another clock
+    if not on_record(pulse, t0):  # the file's t = 0 off a record on another clock
         what, hint = ("its onset", "")
         if time_zero == "file":
             what = "the file's t = 0, time_zero: file"
