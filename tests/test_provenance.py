@@ -306,6 +306,26 @@ def test_a_training_resume_refuses_changed_configs_and_an_evaluation_reports_the
         train(tiny(tmp_path, name="p", iterations=2, resume=str(part.run_dir)))  # a finished run: how to evaluate
 
 
+def test_a_resume_of_a_finished_run_after_the_code_changed_keeps_the_runs_results(configs, tmp_path, caplog):
+    """A finished run resumed evaluates its checkpoint again, as ``train/evaluate.py`` does: after the code changed
+    the evaluation goes beside the run's own (it rewrote ``summary.json``, calibrated parameters and plots)."""
+    from test_train_marl import tiny
+
+    from marlcrash.calibrate.marl import train
+
+    done = train(tiny(tmp_path, name="f", iterations=1))
+    own = {f: (done.run_dir / f).read_bytes() for f in ("summary.json", "calibrated.npz")}
+    path = done.run_dir / provenance.PROVENANCE_FILE
+    rec = json.loads(path.read_text())
+    rec["code"]["source_sha256"] = "0" * 64  # the code the run started with was other
+    path.write_text(json.dumps(rec))
+    again = train(tiny(tmp_path, name="f", iterations=1, resume=str(done.run_dir)))
+    assert again.iterations == 1 and "since the run started" in caplog.text
+    assert again.summary["eval_dir"] == str(done.run_dir / "eval" / "checkpoint")
+    assert again.summary["provenance"]["code_changes"]
+    assert {f: (done.run_dir / f).read_bytes() for f in own} == own
+
+
 def test_a_resumed_table_of_runs_refuses_changed_configs(configs, tmp_path):
     from test_compare import tiny
 

@@ -477,6 +477,8 @@ def evaluate_run(
     trainer: Trainer | None = None,
     iterations: int | None = None,
     checkpoint: str | int | None = None,
+    *,
+    finished_before: bool = False,
 ) -> dict[str, Any]:
     """Evaluate a run's latest checkpoint, a kept one, or a live trainer; write the files of the module docstring.
 
@@ -487,6 +489,8 @@ def evaluate_run(
         checkpoint: ``None`` or ``"latest"``: ``checkpoint.pt``; otherwise an iteration with a kept snapshot or a
             checkpoint file (:func:`find_checkpoint`), and the learning curves then end at that checkpoint's
             iteration. ``None`` with a ``trainer``, whose networks are evaluated.
+        finished_before: the ``trainer`` resumed a run that had finished (it trained no further): its evaluation is
+            one of the run's checkpoint, with that one's rule on changed inputs.
 
     Where the files go: the run's own evaluation (by ``trainer``, or of ``checkpoint.pt``, with the run's
     ``eval.iterations``; of ``checkpoint.pt`` with the inputs it started with, or its first) is written into
@@ -529,14 +533,18 @@ def evaluate_run(
     if trainer is not None:
         policy, counters = trainer.policy, trainer.state_dict()
         own, name = config.eval.iterations == own_steps, snapshot_path(run_dir, trainer.iteration).stem
+        if finished_before:  # a resume of a finished run evaluates its checkpoint again: as evaluate.py would
+            name = eval_name(run_dir, run_dir / CHECKPOINT_FILE)
     else:
         ckpt = find_checkpoint(run_dir, checkpoint)
         counters = load_training_checkpoint(ckpt, key="checkpoint")
         policy = policy_from_checkpoint(config, counters, ckpt, key="checkpoint")
         require_same_run(counters.get("config"), run_config, ckpt, "checkpoint", run_dir, _OWN_CHECKPOINT)
         own, name = checkpoint in (None, "latest") and config.eval.iterations == own_steps, eval_name(run_dir, ckpt)
-        if own and (run_dir / SUMMARY_FILE).is_file():  # the run's results exist: only the same evaluation redoes them
-            own = not (check.configs or check.code)
+    if (trainer is None or finished_before) and own and (run_dir / SUMMARY_FILE).is_file():
+        # the run's results exist: only the same evaluation redoes them (a resume of a finished run after the code
+        # changed rewrote them, where train/evaluate.py of the same checkpoint wrote eval/checkpoint/)
+        own = not (check.configs or check.code)
     if not own:  # only once the checkpoint proved usable: no empty folders
         suffix = "" if config.eval.iterations == own_steps else f"_steps{config.eval.iterations}"
         out_dir = run_dir / EVAL_DIR / f"{name}{suffix}"

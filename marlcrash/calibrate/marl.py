@@ -1315,7 +1315,7 @@ def _train(
     if evaluate:
         from marlcrash.calibrate.evaluate import evaluate_run, update_summary
 
-        summary = evaluate_run(run_dir, trainer=tr)
+        summary = evaluate_run(run_dir, trainer=tr, finished_before=was_finished)
         if summary_extra is not None:
             summary = update_summary(run_dir, **summary_extra())
     return TrainResult(run_dir, tr.iteration, tr.env_steps, tr.simulations, tr.wall_time_s, summary)
