@@ -144,3 +144,20 @@ def test_a_default_run_name_takes_the_next_free_folder_and_a_given_one_is_kept(n
     (tmp_path / "mine").mkdir()
     name_default_run(fixed, config, lambda c: tmp_path / c.name, given=[])  # a plain value in the file: the user's
     assert config.name == "mine"
+
+
+@pytest.mark.parametrize(
+    ("value", "words"),
+    [("s${sed}", "Interpolation key 'sed' not found"), ("${oc.env:MARLCRASH_TEST_UNSET}", "MARLCRASH_TEST_UNSET")],
+)
+def test_an_interpolation_that_does_not_resolve_is_named_with_its_key(value, words, monkeypatch):
+    """A typo of the README's ``name=s${seed}`` was OmegaConf's traceback (exit 1), not ``error: key 'name'``."""
+    from omegaconf import OmegaConf
+
+    from marlcrash.calibrate.entry import config_mapping
+
+    monkeypatch.delenv("MARLCRASH_TEST_UNSET", raising=False)
+    with pytest.raises(ConfigError, match=f"cannot resolve the value: .*{words}") as e:
+        config_mapping(OmegaConf.create({"seed": 0, "name": value}))
+    assert e.value.key == "name"
+    assert config_mapping(OmegaConf.create({"seed": 3, "name": "s${seed}"})) == {"seed": 3, "name": "s3"}

@@ -210,10 +210,20 @@ def _exit_on_other_package(script: Path) -> None:
 
 def config_mapping(cfg: Any) -> dict[str, Any]:
     """A script's composed Hydra config (a ``DictConfig``, interpolations resolved) as the plain mapping the config
-    loaders take; its keys are strings (OmegaConf's type says any container)."""
-    from omegaconf import OmegaConf
+    loaders take; its keys are strings (OmegaConf's type says any container).
 
-    return cast(dict[str, Any], OmegaConf.to_container(cfg, resolve=True))
+    Raises:
+        ConfigError: an interpolation that does not resolve (``name=s${sed}``, ``${oc.env:UNSET}``), naming its key
+            (OmegaConf's traceback before).
+    """
+    from omegaconf import OmegaConf
+    from omegaconf.errors import OmegaConfBaseException
+
+    try:
+        return cast(dict[str, Any], OmegaConf.to_container(cfg, resolve=True))
+    except OmegaConfBaseException as e:
+        reason = str(getattr(e, "msg", None) or e).splitlines()[0]
+        raise ConfigError(f"cannot resolve the value: {reason}", key=str(e.full_key) or None) from None
 
 
 def name_default_run(cfg: Any, config: Any, run_dir: Callable[[Any], Path], given: Sequence[str] | None = None) -> None:
