@@ -57,7 +57,8 @@ def _add_vehicle_args(p: argparse.ArgumentParser, deck_required: bool) -> None:
         "--param",
         action="append",
         metavar="NAME=VALUE",
-        help="value for a *PARAMETER the deck uses but does not define (repeatable)",
+        help="value for a *PARAMETER of the deck: one it uses but does not define, or one overriding its own "
+        "(repeatable)",
     )
     p.add_argument("--units", help=f"deck unit system: one of {UNIT_SYSTEM_NAMES} (default: detected)")
     p.add_argument(
