@@ -341,6 +341,16 @@ def test_bad_mme_sample_line(tmp_path, analytic):
         read_mme(tmp_path / "B")
 
 
+def test_of_three_mme_channels_the_one_recorded_apart_is_named(tmp_path, analytic):
+    """The channel sharing no time with the others is named, whichever it is (the latest starting one was, and with
+    the first channel moved earlier than the rest it was another)."""
+    three = Pulse(analytic.time, np.stack([*analytic.acc, analytic.acc[0]]), ("a", "b", "c"))
+    write_mme(three, tmp_path / "T", "T")
+    _edit(tmp_path / "T" / "Channel" / "T.001", "Time of first sample        :-0.02", "Time of first sample        :-5")
+    with pytest.raises(PulseError, match=r"T\.001: the channels read \(T\.001 -5 to .*; T\.001 lies apart from the"):
+        read_mme(tmp_path / "T")
+
+
 def test_a_blank_line_inside_an_mme_channel_header_does_not_end_it(tmp_path, analytic):
     ch = _mme(tmp_path, analytic)
     _edit(ch, "Unit                        :g\n", "\nUnit                        :g\n\n")  # the Unit line was 'missing'
