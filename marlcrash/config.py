@@ -157,6 +157,16 @@ def _check_type(value: Any, tp: Any, key: str, path: str | Path | None) -> Any:
     return value
 
 
+def _unknown_key(cls: type, name: str, key: str, path: str | Path | None) -> ConfigError:
+    """The error for key ``name`` that schema ``cls`` does not have: why, where the schema lists it among its
+    ``RETIRED_KEYS`` (a mapping of removed key to what replaced it), else the keys there are."""
+    retired = getattr(cls, "RETIRED_KEYS", {})
+    if name in retired:
+        return ConfigError(f"this key was removed: {retired[name]}; delete it", key=key, path=path)
+    names = sorted(f.name for f in dataclasses.fields(cls))
+    return ConfigError(f"unknown key; expected one of {names}", key=key, path=path)
+
+
 def from_dict(cls: type[T], data: dict[str, Any], prefix: str = "", path: str | Path | None = None) -> T:
     """Build dataclass ``cls`` from ``data``, checking keys and types, then ``validate()``.
 
@@ -175,7 +185,7 @@ def from_dict(cls: type[T], data: dict[str, Any], prefix: str = "", path: str | 
     for k, v in data.items():
         key = f"{prefix}.{k}" if prefix else str(k)
         if k not in names:
-            raise ConfigError(f"unknown key; expected one of {sorted(names)}", key=key, path=path)
+            raise _unknown_key(cls, str(k), key, path)
         kwargs[k] = _check_type(v, hints[k], key, path)
     required = [
         f.name
@@ -297,8 +307,7 @@ def check_override(cls: type, dotted: str, value: Any, key: str | None = None, p
             return  # inside a mapping (or a plain value, whose override fails when it is applied)
         hints = typing.get_type_hints(t)
         if p not in hints:
-            names = sorted(f.name for f in dataclasses.fields(t))
-            raise ConfigError(f"unknown key; expected one of {names}", key=key or dotted, path=path)
+            raise _unknown_key(t, p, key or dotted, path)
         hint = hints[p]
         t = _field_type(t, [p])
     _check_type(value, hint, key or dotted, path)

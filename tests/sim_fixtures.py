@@ -137,6 +137,7 @@ def grid_model(
     )
     crush_length = np.full(n, dx)
     crush_length[comp] = 0.0
+    stroke = np.where(is_null | is_rigid, 0.0, 0.7 * crush_length)  # thin-walled cells: compaction 0.3
     e_s = column_force * 0.7 * dx / np.maximum(fx, 0.3)  # axial link then crushes at about column_force
     params[:, 0] = ex_ratio * e_s
     params[:, 1] = e_s
@@ -184,6 +185,7 @@ def grid_model(
         is_rigid=is_rigid,
         front_area=front_area,
         crush_length=crush_length,
+        stroke=stroke,
         link_src=src,
         link_dst=dst,
         link_dir=ldir,
@@ -222,7 +224,7 @@ def single_cell(
     """One crushable cell in front of the compartment (the analytic case).
 
     The cell touches the wall; its +x link to the compartment crushes at ``crush_force``
-    (``E_s = crush_force * 0.7 * crush_length`` for the default stroke fraction).
+    (``E_s = crush_force * stroke``, the stroke ``0.7 * crush_length`` of a thin-walled cell).
     """
     m = grid_model(
         1,
@@ -238,7 +240,7 @@ def single_cell(
         name="single",
     )
     m.params[0, 0] = e_x
-    m.params[0, 1] = crush_force * 0.7 * crush_length
+    m.params[0, 1] = crush_force * m.stroke[0]
     return m
 
 

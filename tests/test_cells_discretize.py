@@ -3,13 +3,22 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 import warnings
 from pathlib import Path
 
 import numpy as np
 import pytest
 from sim_fixtures import grid_model
-from test_cells_helpers import build_model, drawn_figures, drawn_turn_from_x_to_y, mini_car, plate, tube_x
+from test_cells_helpers import (
+    build_model,
+    drawn_figures,
+    drawn_turn_from_x_to_y,
+    hex_block,
+    mini_car,
+    plate,
+    tube_x,
+)
 from test_cells_transmission import check_invariants
 
 from marlcrash.cells import (
@@ -25,6 +34,7 @@ from marlcrash.cells import (
 from marlcrash.cells.plot import plot_cells
 from marlcrash.config import config_dir, from_dict
 from marlcrash.errors import ConfigError, ModelError
+from marlcrash.sim import SimConfig, Surrogate
 from marlcrash.vehicle.model import COMPARTMENT
 
 
@@ -231,8 +241,42 @@ def test_behaviour_parameters_of_a_tube_cell_match_closed_form():
     length = 0.1
     force = cfg.crush_efficiency_shell * 0.5 * (3e8 + 5e8) * area
     assert cells.crush_length[c] == pytest.approx(length, rel=1e-12)
+    assert cells.stroke[c] == pytest.approx((1 - cfg.compaction_shell) * length, rel=1e-12)
     assert cells.params[c, 1] == pytest.approx(force * (1 - cfg.compaction_shell) * length, rel=1e-9)
     assert cells.params[c, 0] == pytest.approx(force**2 / (2 * 210e9 * area / length), rel=1e-9)
+
+
+def test_the_simulator_crushes_a_solid_cell_at_its_closed_form_force():
+    """A solid cell's stroke is short (compaction_solid 0.9), so its E_s = F_c * 0.1 L; the simulator took every
+    cell's stroke as 0.7 L and crushed solid cells (the powertrain) at 1/7 of F_c, with 1/49 of their stiffness."""
+    model = build_model(
+        [
+            ("block", "solid", hex_block([0.0, 0.01, -0.04], [0.3, 0.09, 0.04], (6, 2, 2)), None, 1),
+            (COMPARTMENT, "shell", plate([0.3, -0.3, -0.05], [0, 0.6, 0], [0.2, 0, 0.1], 2, 2), 0.01, 2),
+        ]
+    )
+    cfg = DiscretizationConfig(
+        roi_depth=0.2,
+        target_cell_volume=0.1**3,
+        solid_target_cell_volume=0.1**3,
+        overlaps=[],
+        upfront_sensor_x=0.05,
+        sensors=[SensorSpec("c", "compartment")],
+    )
+    with pytest.warns(UserWarning, match="exceeds the height"):  # the 8 cm block is thinner than a cell
+        cells = discretize(model, cfg, method="uniform")
+    c = int(cells.grid_labels[0, np.searchsorted(cells.grid_edges[1], 0.05) - 1, 1])
+    length, area = 0.1, 0.08 * 0.08
+    force = cfg.crush_efficiency_solid * 0.5 * (3e8 + 5e8) * area
+    assert cells.crush_length[c] == pytest.approx(length, rel=1e-12)
+    assert cells.stroke[c] == pytest.approx((1 - cfg.compaction_solid) * length, rel=1e-12)
+    assert cells.params[c, 1] == pytest.approx(force * (1 - cfg.compaction_solid) * length, rel=1e-9)
+    sim = Surrogate(cells, SimConfig())
+    props = sim.link_props(sim.check_params(cells.params[None]))
+    axial = np.flatnonzero((cells.link_src == c) & (cells.link_dir == 0))
+    assert axial.size
+    yield_c = props.yield_c[0, axial].numpy()
+    np.testing.assert_allclose(yield_c, force * cells.link_share[axial], rtol=1e-9)
 
 
 def test_save_load_round_trip(optimized, tmp_path):
@@ -286,6 +330,26 @@ def test_a_damaged_cell_model_file_is_a_model_error_naming_the_file(optimized, t
     with pytest.raises(ModelError, match=match) as info:
         CellModel.load(bad)
     assert str(info.value).startswith(f"{bad}: ")
+
+
+def test_a_cell_model_file_of_format_1_asks_for_a_rebuild(optimized, tmp_path):
+    """Format 1 files have no per-cell stroke; the simulator took 0.7 of every cell's length from them."""
+    good = tmp_path / "good.npz"
+    optimized.save(good)
+    with np.load(good) as z:
+        arrays = {k: z[k] for k in z.files if k != "stroke"}
+    header = json.loads(arrays["__header__"].tobytes().decode())
+    header["format_version"] = 1
+    arrays["__header__"] = np.frombuffer(json.dumps(header).encode(), dtype=np.uint8)
+    old = tmp_path / "old.npz"
+    np.savez(old, **arrays)
+    with pytest.raises(ModelError, match=r"old\.npz: CellModel format version 1.*rebuild it"):
+        CellModel.load(old)
+    header["format_version"] = 99
+    arrays["__header__"] = np.frombuffer(json.dumps(header).encode(), dtype=np.uint8)
+    np.savez(old, **arrays)
+    with pytest.raises(ModelError, match=r"old\.npz: unsupported CellModel format version 99"):
+        CellModel.load(old)
 
 
 def _corrupt(cells, field):

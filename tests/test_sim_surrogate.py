@@ -9,8 +9,9 @@ import pytest
 import torch
 from sim_fixtures import block, chain, single_cell, vehicle_block
 
+from marlcrash.config import check_override, config_dir
 from marlcrash.errors import ConfigError, ModelError
-from marlcrash.sim import Surrogate, get_scenario, load_sim_config, max_balance_error
+from marlcrash.sim import SimConfig, Surrogate, get_scenario, load_sim_config, max_balance_error
 from marlcrash.sim.energy import balance_error
 
 FW40 = get_scenario("full_width_40")
@@ -1034,6 +1035,24 @@ def test_sim_config_validation_names_key():
         load_sim_config(overrides={"stiffness_cap": 2.5})
     with pytest.raises(ConfigError, match="springback_tau"):
         load_sim_config(overrides={"springback_tau": 0.0})
+
+
+def test_the_retired_stroke_fraction_key_says_where_the_stroke_comes_from_now(tmp_path):
+    """One stroke fraction for every cell gave solid cells 1/7 of their crush force; a sim.yaml that still sets it
+    is told what replaced it (file, override and a held override alike), not only "unknown key"."""
+    text = (config_dir() / "sim.yaml").read_text() + "stroke_fraction: 0.7\n"
+    path = tmp_path / "sim.yaml"
+    path.write_text(text)
+    said = r"stroke_fraction.*removed: the crushable stroke is each cell's own now \(CellModel\.stroke"
+    with pytest.raises(ConfigError, match=said) as info:
+        load_sim_config(path)
+    assert "sim.yaml key 'stroke_fraction'" in str(info.value)  # the file and the key
+    with pytest.raises(ConfigError, match=said):
+        load_sim_config(overrides={"stroke_fraction": 0.5})
+    with pytest.raises(ConfigError, match=said):
+        check_override(SimConfig, "stroke_fraction", 0.5)
+    with pytest.raises(ConfigError, match="unknown key; expected one of"):
+        load_sim_config(overrides={"stroke_fractoin": 0.5})
 
 
 def test_gap_link_engages_only_after_closing():

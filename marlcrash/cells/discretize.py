@@ -1144,7 +1144,7 @@ def discretize(model: VehicleModel, config: DiscretizationConfig | None = None, 
     )
     crush_length = np.where(lab.is_null | is_rigid, 0.0, hi[:, 0] - lo[:, 0])
     crush_length = np.where(np.isfinite(crush_length), crush_length, 0.0)
-    e_x, e_s, _ = behaviour_params(
+    e_x, e_s, _, stroke = behaviour_params(
         samples, cos, n, material, crush_length, active,
         cfg.crush_efficiency_shell, cfg.crush_efficiency_solid, cfg.compaction_shell, cfg.compaction_solid,
         cfg.min_section_fraction,
@@ -1179,6 +1179,7 @@ def discretize(model: VehicleModel, config: DiscretizationConfig | None = None, 
         is_rigid=is_rigid,
         front_area=front_area,
         crush_length=crush_length,
+        stroke=stroke,
         link_src=links.src,
         link_dst=links.dst,
         link_dir=links.dir,

@@ -46,7 +46,8 @@ DIRECTIONS: tuple[str, ...] = ("+x", "+y", "-y", "+z", "-z")
 """Link directions, aligned with the transmission factors."""
 DIRECTION_VECTORS = np.array([[1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], dtype=np.float64)
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+"""2: per-cell ``stroke`` (version 1 files took 0.7 of ``crush_length`` for every cell)."""
 
 
 @dataclass
@@ -68,8 +69,9 @@ class CellModel:
         is_null, is_sensor, is_rigid: ``[n]`` bool flags.
         front_area: ``[n]`` projected area [m^2] the cell exposes to a rigid wall
             at the front (non-zero only for cells the barrier plane meets first).
-        crush_length: ``[n]`` length [m] of the cell along x (its crushable stroke
-            before compaction is applied by the simulator).
+        crush_length: ``[n]`` length [m] of the cell along x.
+        stroke: ``[n]`` crushable stroke [m]: ``crush_length`` less the compacted material
+            (:mod:`marlcrash.cells.params`); the simulator's crush force is ``E_s / stroke``.
         link_src, link_dst: ``[L]`` int64 cell indices (``src`` upstream).
         link_dir: ``[L]`` int64 index into :data:`DIRECTIONS`.
         link_contact_area: ``[L]`` shared face area between the two cells [m^2].
@@ -109,6 +111,7 @@ class CellModel:
     is_rigid: np.ndarray
     front_area: np.ndarray
     crush_length: np.ndarray
+    stroke: np.ndarray
     link_src: np.ndarray
     link_dst: np.ndarray
     link_dir: np.ndarray
@@ -188,7 +191,9 @@ class CellModel:
             width = {"lo": 3, "hi": 3, "centroid": 3, "material": 8, "params": N_PARAMS, "feasible": 5}[f]
             if a.shape != (n, width):
                 raise ModelError(f"CellModel.{f} must be [{n}, {width}], got {list(a.shape)}")
-        for f in ("volume", "mass", "subassembly", "is_null", "is_sensor", "is_rigid", "front_area", "crush_length"):
+        for f in (
+            "volume", "mass", "subassembly", "is_null", "is_sensor", "is_rigid", "front_area", "crush_length", "stroke"
+        ):  # fmt: skip
             if getattr(self, f).shape != (n,):
                 raise ModelError(f"CellModel.{f} must be [{n}], got {list(getattr(self, f).shape)}")
         L = self.n_links
@@ -197,14 +202,23 @@ class CellModel:
                 raise ModelError(f"CellModel.{f} must be [{L}], got {list(getattr(self, f).shape)}")
         if int(self.is_rigid.sum()) != 1:
             raise ModelError(f"CellModel needs exactly one rigid compartment cell, got {int(self.is_rigid.sum())}")
-        for f in ("mass", "params", "material", "lo", "hi", "centroid", "link_gap", "link_share"):
+        for f in (
+            "mass", "params", "material", "lo", "hi", "centroid", "crush_length", "stroke", "link_gap", "link_share"
+        ):  # fmt: skip
             if not np.isfinite(getattr(self, f)).all():
                 raise ModelError(f"CellModel.{f} contains non-finite values")
-        for f in ("link_share", "link_gap", "front_area"):  # a negative share made every output of a crash NaN
+        for f in ("link_share", "link_gap", "front_area", "stroke"):  # a negative share made every output NaN
             a = getattr(self, f)
             if (a < 0).any():
                 bad = int(np.flatnonzero(a < 0)[0])
                 raise ModelError(f"CellModel.{f} must be >= 0, got {a[bad]:g} at {bad}")
+        longer = self.stroke > self.crush_length * (1.0 + 1e-12)
+        if longer.any():
+            bad = int(np.flatnonzero(longer)[0])
+            raise ModelError(
+                f"CellModel.stroke must be at most the cell's crush_length, got {self.stroke[bad]:g} m > "
+                f"{self.crush_length[bad]:g} m at {bad}"
+            )
         if L and (
             min(self.link_src.min(), self.link_dst.min()) < 0 or max(self.link_src.max(), self.link_dst.max()) >= n
         ):
@@ -281,8 +295,16 @@ class CellModel:
             raise ModelError(f"{path}: not a CellModel file (its header is not JSON text: {e})") from None
         if not isinstance(header, dict):
             raise ModelError(f"{path}: not a CellModel file (its header is not a JSON object)")
-        if header.pop("format_version", None) != FORMAT_VERSION:
-            raise ModelError(f"{path}: unsupported CellModel format version")
+        version = header.pop("format_version", None)
+        if version == 1:
+            raise ModelError(
+                f"{path}: CellModel format version 1, written before cells had their own stroke (the simulator then "
+                f"gave solid cells 1/7 of their crush force); rebuild it from the deck with `marlcrash build --save`"
+            )
+        if version != FORMAT_VERSION:
+            raise ModelError(
+                f"{path}: unsupported CellModel format version {version!r} (this marlcrash reads {FORMAT_VERSION})"
+            )
         kwargs = dict(header)
         edges = [f"grid_edges_{a}" for a in "xyz"]
         if all(e in arrays for e in edges):

@@ -19,7 +19,9 @@ and aggregate material (mass-weighted 8-vector):
   0.22 in ``configs/cells.yaml``: superfolding theory gives 0.11 to 0.23 for car
   sections, times a strain-rate factor; solids ``eta_solid``);
 - stroke ``s = (1 - c) * L_x`` [m], ``c`` the volume-weighted compaction
-  (fraction of the length left as compacted material);
+  (fraction of the length left as compacted material): a fixed geometric property of the
+  cell, kept in :attr:`CellModel.stroke`, from which the simulator recovers the crush force
+  ``F_c = E_s / s`` of whatever ``E_s`` it is given (a solid cell's short stroke makes it strong);
 - saturation energy ``E_s = F_c * s`` [J];
 - elastic stiffness ``k = Y * A / L_x`` [N/m] and elastic energy at crush onset
   ``E_x = F_c^2 / (2 k)`` [J].
@@ -46,8 +48,8 @@ def behaviour_params(
     compaction_shell: float,
     compaction_solid: float,
     min_section_fraction: float,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``E_x``, ``E_s`` [J] and the effective section ``A`` [m^2] of each cell (formulas above).
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``E_x``, ``E_s`` [J], the effective section ``A`` [m^2] and the stroke ``s`` [m] of each cell (formulas above).
 
     Args:
         samples: material samples ``[P]``.
@@ -61,7 +63,7 @@ def behaviour_params(
         min_section_fraction: least section as a fraction of ``V / L_x`` [-].
 
     Returns:
-        ``(E_x [n], E_s [n], A [n])``.
+        ``(E_x [n], E_s [n], A [n], s [n])``; zeros where no parameters are given.
     """
     solid = samples.kind == KIND_SOLID
     vol = np.bincount(cell_of_sample, weights=samples.volume, minlength=n)
@@ -76,8 +78,9 @@ def behaviour_params(
     sigma_flow = 0.5 * (material[:, 4] + material[:, 5])
     youngs = material[:, 1]
     force = eta * sigma_flow * area
-    e_s = force * (1.0 - comp) * length
+    stroke = (1.0 - comp) * length
+    e_s = force * stroke
     k = youngs * area / length
     e_x = np.divide(force**2, 2.0 * k, out=np.zeros(n), where=k > 0)
     zero = np.zeros(n)
-    return np.where(ok, e_x, zero), np.where(ok, e_s, zero), np.where(ok, area, zero)
+    return np.where(ok, e_x, zero), np.where(ok, e_s, zero), np.where(ok, area, zero), np.where(ok, stroke, zero)

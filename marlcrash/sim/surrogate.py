@@ -9,7 +9,8 @@ along x per cell.
 - Links: each link ``src -> dst`` is an elastic-plastic element on the relative
   travel ``delta = s_dst - s_src`` (compression positive; for +x links the rear
   cell closing on the front one, for lateral links a shear-like coupling). From the
-  source cell's parameters: crush force ``F_c = E_s / (stroke_fraction * crush_length)``,
+  source cell's parameters: crush force ``F_c = E_s / stroke`` (:attr:`CellModel.stroke`, the cell's length
+  less its compacted material: a solid cell's short stroke makes it strong),
   elastic stiffness ``k = F_c^2 / (2 E_x)``; the link carries the share
   ``(f_dir / max_d f_d) * link_share`` of both. The transmission factors are
   relative shares (the paper's share of transmitted energy per direction): the
@@ -87,6 +88,7 @@ import math
 import operator
 from dataclasses import dataclass, fields
 from pathlib import Path
+from types import MappingProxyType
 from typing import Any, Literal, NamedTuple
 
 import numpy as np
@@ -133,7 +135,6 @@ class SimConfig:
     substeps: int = 8
     stiffness_cap: float = 1.0
     mass_floor: float = 0.5
-    stroke_fraction: float = 0.7
     densification_factor: float = 10.0
     tension_ratio: float = 0.3
     link_damping_ratio: float = 0.05
@@ -144,6 +145,15 @@ class SimConfig:
     springback_tau: float = 2e-3
     dtype: Literal["float64", "float32"] = "float64"
     backend: Literal["torch", "numba", "auto"] = "auto"
+
+    # not a field: removed keys and what replaced them, for the error that names one (marlcrash.config)
+    RETIRED_KEYS = MappingProxyType(
+        {
+            "stroke_fraction": "the crushable stroke is each cell's own now (CellModel.stroke, from compaction_shell "
+            "and compaction_solid in configs/cells.yaml); one fraction for every cell gave solid cells 1/7 of their "
+            "crush force"
+        }
+    )
 
     def validate(self) -> None:
         """Range checks; raise :class:`~marlcrash.errors.ConfigError` naming the key."""
@@ -159,11 +169,6 @@ class SimConfig:
             f"got {self.stiffness_cap}",
         )
         require(self.mass_floor >= 0.0, "mass_floor", f"mass_floor must be >= 0 kg, got {self.mass_floor}")
-        require(
-            0.0 < self.stroke_fraction <= 1.0,
-            "stroke_fraction",
-            f"stroke_fraction must be in (0, 1], got {self.stroke_fraction}",
-        )
         require(
             self.densification_factor >= 1.0,
             "densification_factor",
@@ -478,6 +483,9 @@ class Surrogate:
         if (cells.crush_length[active] <= 0).any():
             bad = int(np.flatnonzero(active & (cells.crush_length <= 0))[0])
             raise ModelError(f"cell {bad}: crush_length must be > 0 m, got {cells.crush_length[bad]}")
+        if (cells.stroke[active] <= 0).any():
+            bad = int(np.flatnonzero(active & (cells.stroke <= 0))[0])
+            raise ModelError(f"cell {bad}: stroke must be > 0 m, got {cells.stroke[bad]}")
 
         # Mass scaling: light cells raised to the floor, the compartment pays for it.
         mass = np.where(null, 1.0, cells.mass.astype(np.float64))
@@ -533,7 +541,7 @@ class Surrogate:
         self.front_area = t(np.where(exposed, cells.front_area, 0.0))
         self.active = t(active, torch.bool)
         self.has_links = t(np.bincount(src, minlength=n) > 0, torch.bool)
-        self.crush_length = t(np.where(active, cells.crush_length, 1.0))
+        self.stroke = t(np.where(active, cells.stroke, 1.0))
         self.lo_x = t(cells.lo[:, 0])
         self.lo_y, self.hi_y = t(cells.lo[:, 1]), t(cells.hi[:, 1])
         self.width = float(cells.vehicle_width)
@@ -638,7 +646,7 @@ class Surrogate:
         cfg = self.config
         B = params.shape[0]
         e_x, e_s = params[..., 0], params[..., 1]
-        f_c = e_s / (cfg.stroke_fraction * self.crush_length)  # [B, n] crush force [N]
+        f_c = e_s / self.stroke  # [B, n] crush force [N]
         k_max = self.k_max
         k_c = (f_c * f_c / (2.0 * e_x)).clamp(max=k_max)  # [B, n] elastic stiffness [N/m]
         f = params[..., 2:]
