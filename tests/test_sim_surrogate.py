@@ -71,6 +71,30 @@ def test_single_cell_bottoms_out_at_saturation_energy():
     assert max_balance_error(out) < 5e-3
 
 
+@pytest.mark.parametrize("start_yielding", [True, False])
+def test_a_saturation_crossing_at_the_start_of_a_step_gives_the_saturated_step(start_yielding):
+    """A cell whose plastic work crosses E_s just after a step's start densifies its links for (nearly) the whole
+    step: their forces are those of a cell saturated at the start, ``f_old + k_dense dd``. A link that started
+    yielding within the step (elastic from 0.5 yc to yc, then plastic) had its start force taken as the yield force,
+    and its force jumped by 0.5 yc with the step the crossing fell in (the sensors' velocities up to 0.015 m/s on the
+    default car); a link that yields throughout the step was right before and stays so."""
+    cells = single_cell(mass=10.0, crush_force=1e5, crush_length=1.0, e_x=100.0)
+    sim = Surrogate(cells, _cfg())
+    _, props, wall, _, _ = sim.prepare(_params(cells, 2), FW40)
+    yc, k, e_s = float(props.yield_c[0, 0]), float(props.k[0, 0]), float(props.e_s[0, 0])
+    f0 = (0.5 if start_yielding else 1.0) * yc
+    dd = yc / k  # the trial force f0 + k dd passes yc
+    f_el = torch.full((2, 1), f0, dtype=torch.float64)
+    plastic = torch.tensor([[e_s, 0.0], [e_s * (1 - 1e-12), 0.0]], dtype=torch.float64)  # saturated; crosses at once
+    ds = torch.tensor([[0.0, dd]] * 2, dtype=torch.float64)
+    idle = torch.zeros(2, 1, dtype=torch.float64)
+    st = sim._step(props, wall, f_el, idle, plastic, idle.bool(), ds - 10.0, ds, ds / sim.dt)  # off the wall
+    dense = f0 + float(props.k_dense[0, 0]) * dd
+    assert float(st.f_new[0, 0]) == pytest.approx(dense, rel=1e-12)
+    assert float(st.f_new[1, 0]) == pytest.approx(dense, rel=1e-9)  # 1e-12 of the step's work on the intact link
+    assert float(st.f_tot[1, 0]) == pytest.approx(float(st.f_tot[0, 0]), rel=1e-9)  # the damping likewise
+
+
 @pytest.mark.parametrize("relief", [False, True])
 def test_springback_relief_keeps_crush_cuts_rebound(relief):
     """Springback relief acts only on unloading: crush and stop time stay on the closed form, rebound drops.

@@ -58,7 +58,7 @@ def _links(v, f_el, o, pl, yc0, yt0, k0, kd, c, es, src, dst, gap, dt, w):
 
     Writes into the work arrays ``w`` (rows: dd, k, z, f_tr, f_ret, f_tot0, f_new, f_tot, phi, el,
     flags) and returns the plastic work after the step (before the saturation clamp) and whether any
-    cell crossed its saturation energy. ``flags`` bits: 1 sat, 2 dense, 4 live (crossing), 8 yielding.
+    cell crossed its saturation energy. ``flags`` bits: 1 sat, 2 dense, 4 live (crossing).
     """
     L = src.shape[0]
     n = v.shape[0]
@@ -103,15 +103,14 @@ def _links(v, f_el, o, pl, yc0, yt0, k0, kd, c, es, src, dst, gap, dt, w):
             if not live:
                 continue
             p = (pn[a] - es[a]) / (pn[a] - pl[a])
-            yielding = fr == yc0[li] or (not gap[li] and fr == -yt0[li])
-            e = 0.0 if yielding else kk[li] * dd[li]
+            e = fr - f_el[li]  # this step's force change (the surrogate's _step)
             df = p * (kd[li] * dd[li] - e)
             dv = p * c[li] * (dd[li] - e / kk[li]) / dt
             f_new[li] = fr + df
             f_tot[li] = f_tot[li] + df + dv
             phi[li] = p
             el[li] = e
-            flags[li] += 4.0 + (8.0 if yielding else 0.0)
+            flags[li] += 4.0
     return pn, cross
 
 
@@ -192,7 +191,8 @@ def _backward_one(v0, yc0, yt0, k0, kd, c, es, kw, cw, gapw, covered, m, src, ds
     w = np.empty((11, L))
     g_vin, g_force, g_ds = np.zeros(n), np.zeros(n), np.zeros(n)
     g_pn, g_phic, g_plx = np.zeros(n), np.zeros(n), np.zeros(n)
-    x_k, x_dd = np.zeros(L), np.zeros(L)  # a crossing link's stiffness and deformation adjoints (switch part)
+    # a crossing link's stiffness, deformation and force-change adjoints (switch part)
+    x_k, x_dd, x_e = np.zeros(L), np.zeros(L), np.zeros(L)
     for step in range(steps, 0, -1):
         v, s, pl, f_el, o = tv[step - 1], ts[step - 1], tp[step - 1], tf[step - 1], to[step - 1]
         pn, cross = _links(v, f_el, o, pl, yc0, yt0, k0, kd, c, es, src, dst, gap, dt, w)
@@ -239,9 +239,7 @@ def _backward_one(v0, yc0, yt0, k0, kd, c, es, kw, cw, gapw, covered, m, src, ds
                 g_e = -g_df * p - g_dv * p * c[li] / (k * dt)
                 x_k[li] = g_dv * p * c[li] * e / (k * k * dt)
                 x_dd[li] = g_df * p * kd[li] + g_dv * p * c[li] / dt
-                if not (int(flags[li]) & 8):  # el = k dd
-                    x_k[li] += g_e * dd[li]
-                    x_dd[li] += g_e * k
+                x_e[li] = g_e  # e = f_ret - f_el
             for i in range(n):  # phi = (pn - es) / (pn - pl)
                 if g_phic[i] != 0.0:
                     gain = pn[i] - pl[i]
@@ -256,15 +254,16 @@ def _backward_one(v0, yc0, yt0, k0, kd, c, es, kw, cw, gapw, covered, m, src, ds
             fr, fe, ft, zz = f_ret[li], f_el[li], f_tr[li], z[li]
             g_ft = g_force[a] - g_force[b]
             g_fr = gfel[li]
-            g_k_, g_dd = 0.0, 0.0
+            g_k_, g_dd, g_e = 0.0, 0.0, 0.0
             if fl & 4:
-                g_k_, g_dd = x_k[li], x_dd[li]
-                x_k[li], x_dd[li] = 0.0, 0.0
+                g_k_, g_dd, g_e = x_k[li], x_dd[li], x_e[li]
+                x_k[li], x_dd[li], x_e[li] = 0.0, 0.0, 0.0
+            g_fr += g_e
             # f_tot = f_tot0 (a gap link's clamped at 0), f_tot0 = f_ret + c (f_ret - f_el) / (k dt)
             g_t0 = g_ft if (not gap[li] or f_tot0[li] >= 0) else 0.0
             g_fr += g_t0 * (1.0 + c[li] / (k * dt))
             g_c[li] += g_t0 * (fr - fe) / (k * dt)
-            g_fe = -g_t0 * c[li] / (k * dt)
+            g_fe = -g_t0 * c[li] / (k * dt) - g_e
             g_k_ -= g_t0 * c[li] * (fr - fe) / (k * k * dt)
             # plastic work f_ret (f_tr - f_ret) / k, summed into the source cell
             g_w = g_pn[a]

@@ -28,8 +28,7 @@ along x per cell.
   so all further load is transmitted. The switch happens within the step that crosses
   ``E_s``: if the fraction ``phi`` of the cell's plastic work in that step lies past ``E_s``,
   each out-link's force moves ``phi`` of the way from its update toward the dense update
-  ``f_old + k_dense dd`` (``f_old`` estimated from the return mapping: the force itself
-  for a yielding link, ``f - k dd`` for an elastic one), its damping likewise, and the cell
+  ``f_old + k_dense dd`` (``f_old`` its force at the step's start), its damping likewise, and the cell
   keeps exactly ``E_s`` as plastic work (the rest became elastic energy of the dense links).
   Switching at the next step instead made every later force depend on which step the
   crossing fell in: 1e-4 changes of the parameters moved the pulses 10x more than the
@@ -1019,8 +1018,10 @@ class Surrogate:
             gain = plastic_new - plastic
             phi = torch.where(cross, (plastic_new - props.e_s) / torch.where(cross, gain, 1.0), 0.0)[:, src]
             live = cross[:, src] & (props.yield_c > 0) & (~is_gap | (f_new > 0))
-            yielding = (f_new == props.yield_c) | (~is_gap & (f_new == -props.yield_t))
-            el = torch.where(yielding, zl, k * dd)  # elastic force increment of this step
+            # this step's force change: k dd while elastic, 0 while yielding throughout, and the elastic part where the
+            # link started or stopped yielding within the step (0 was taken there: the force jumped by that part, with
+            # the step the crossing fell in, up to 0.015 m/s in a sensor's velocity)
+            el = f_new - f_el
             df = torch.where(live, phi * (props.k_dense * dd - el), zl)
             dv = torch.where(live, phi * props.damping * (dd - el / k) / dt, zl)
             f_new, f_tot = f_new + df, f_tot + df + dv
