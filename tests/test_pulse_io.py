@@ -2266,7 +2266,8 @@ def test_read_csv_leaves_out_the_columns_whose_header_says_they_hold_no_accelera
     """``read_csv`` of a ``marlcrash simulate --csv`` file read its ``<sensor>_vel_ms`` velocities and ``crush_m``
     as accelerations in g (six channels for three sensors, a "pulse" of 11 m/s = 11 g). Without ``acc_col`` the
     columns a header marks as velocity, length or time are left out, also for ``marlcrash pulse`` (the first
-    acceleration column); named, a column is read as before, and a file of none is a clear error."""
+    acceleration column); named, such a column is refused (it was read as accelerations), and a file of none is a
+    clear error."""
     t = np.arange(0, 0.02, 5e-4)
     acc = -20.0 * np.sin(np.pi * t / 0.02)
     rows = "".join(f"{x},{a},{11.1 + a * x},{0.4 * x}\n" for x, a in zip(t, acc, strict=True))
@@ -2275,10 +2276,14 @@ def test_read_csv_leaves_out_the_columns_whose_header_says_they_hold_no_accelera
     p = read_csv(sim)
     assert p.channels == ("tunnel_acc_g",)
     np.testing.assert_allclose(p.acc[0], acc * G0)
-    assert read_csv(sim, acc_col="tunnel_vel_ms", unit="m/s2").channels == ("tunnel_vel_ms",)
+    with pytest.raises(PulseError, match=r"sim\.csv line 1: column 'tunnel_vel_ms' holds no acceleration"):
+        read_csv(sim, acc_col="tunnel_vel_ms", unit="m/s2")
     lab = tmp_path / "lab.csv"
     lab.write_text("time [s],v_x [m/s],s_x (mm),a_x [g],remark\n" + rows.replace("\n", ",0\n"))
     assert read_csv(lab).channels == ("a_x [g]", "remark")
+    for named in ("v_x [m/s]", "s_x (mm)"):
+        with pytest.raises(PulseError, match=rf"lab\.csv line 1: column '{re.escape(named)}' holds no acceleration"):
+            read_csv(lab, acc_col=["a_x [g]", named])
     assert read_csv(lab, first_only=True).channels == ("a_x [g]",)
     only = tmp_path / "only.csv"
     only.write_text("time_s,tunnel_vel_ms,crush_m\n" + "".join(f"{x},1,{x}\n" for x in t))

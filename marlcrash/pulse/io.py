@@ -307,6 +307,14 @@ def read_csv(
         ai = [find(n) for n in names]
         if ti in ai:
             raise _err(f"column {header[ti]!r} is chosen as both time and acceleration", path, first + 1)
+        for j in ai:  # named, such a column was read as accelerations (11 m/s of velocity as an 11 g pulse)
+            if _not_acceleration(header[j]):
+                raise _err(
+                    f"column {header[j]!r} holds no acceleration by its header (a velocity, length or time); "
+                    "name an acceleration column (--acc-col; acc_col)",
+                    path,
+                    first + 1,
+                )
     for j in ai:  # a unit written in the header ('a_x [m/s2]', 'ACC (g)') must be the unit the column is read in
         said = _header_unit(header[j])
         if said is not None and acc_unit_key(said) not in ACC_UNITS:
