@@ -1760,3 +1760,31 @@ def test_include_names_written_with_backslashes_resolve(tmp_path):
     assert m.n_nodes == 4 and m.n_shells == 1
     with pytest.raises(DeckError, match=r"bad.k line 13: \*INCLUDE file 'sub\\\\none.k' not found"):
         _read(_write(tmp_path, HEAD + "*INCLUDE\nsub\\none.k\n*END\n", "bad.k"))
+
+
+def test_shells_without_any_thickness_are_named_with_their_part_and_line(tmp_path):
+    """A shell whose element card and part section both give no thickness gets no mass: only the summary's notes
+    said so, and the mass was gone from every later figure without a word on the screen."""
+    body = HEAD + NODES + SHELL + _part_with_shell(2, "0.0") + "*END\n"
+    with pytest.warns(UserWarning, match=r"deck\.k: 1 shells in parts \[2\] have neither element nor section "
+                      r"thickness .* the first deck\.k line 31: they get no mass"):  # fmt: skip
+        m = read_deck(_write(tmp_path, body))
+    assert m.element_masses()["shell"][1] == 0.0
+    assert any("shells in parts [2]" in w for w in m.warnings)
+    with warnings.catch_warnings():  # a deck whose shells all have a thickness says nothing of it
+        warnings.simplefilter("error", UserWarning)
+        read_deck(_write(tmp_path, HEAD + NODES + SHELL + _part_with_shell(2, "1.0") + "*END\n", "ok.k"))
+
+
+def test_a_rigid_body_merge_of_an_undefined_or_deformable_part_is_named_where_it_stands(tmp_path):
+    """LS-DYNA refuses a *CONSTRAINED_RIGID_BODIES pair whose parts are not both rigid; the reader dropped it without
+    a word (a rigid part merged into a fixed barrier then stayed vehicle structure)."""
+    body = HEAD + NODES + SHELL + "*CONSTRAINED_RIGID_BODIES\n         1        99\n*END\n"
+    with pytest.warns(
+        UserWarning,
+        match=r"deck\.k: \*CONSTRAINED_RIGID_BODIES \(deck\.k line 20\): PIDM 1 is not rigid \(no \*MAT_RIGID\) and "
+        r"PIDS 99 is not a part of the deck; the pair is not merged",
+    ):
+        m = read_deck(_write(tmp_path, body))
+    assert any("PIDS 99 is not a part" in w for w in m.warnings)
+    assert m.n_shells == 1  # the deck is read on

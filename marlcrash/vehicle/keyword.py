@@ -1146,7 +1146,7 @@ class _Tables:
     curves: dict[int, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
     curve_at: dict[int, tuple[Path, int]] = field(default_factory=dict)  # LCID -> where its *DEFINE_CURVE is
     velocities: list[_Velocity] = field(default_factory=list)
-    rigid_merges: list[tuple[int, int]] = field(default_factory=list)  # (PIDM, PIDS) pairs
+    rigid_merges: list[tuple[int, int, tuple[Path, int]]] = field(default_factory=list)  # (PIDM, PIDS, where)
     point_masses: list[_PointMasses] = field(default_factory=list)
     part_masses: list[_PartMass] = field(default_factory=list)
     inertia: dict[int, tuple[float, tuple[Path, int]]] = field(default_factory=dict)  # pid -> (TM, where)
@@ -1986,7 +1986,7 @@ def _dispatch(block: _Block, t: _Tables, deck: _Deck) -> None:
         for r in _nonblank(block, block.rows).tolist():
             pidm, pids = _read_line(block, r, _MERGE, params)
             if pidm and pids:
-                t.rigid_merges.append((int(pidm), int(pids)))
+                t.rigid_merges.append((int(pidm), int(pids), (block.src.path, block.lineno(r))))
         return
     if kw in ("DEFINE_CURVE", "DEFINE_CURVE_TITLE"):
         _read_curve(block, _split_options(kw, "DEFINE_CURVE"), t, params)
@@ -2302,9 +2302,16 @@ def _assemble(deck: _Deck, t: _Tables, units: str | None, main: Path) -> tuple[V
     tri = s_nid[:, 3] == s_nid[:, 2]
     s_thick = np.where(tri, tt[:, :3].mean(axis=1), tt.mean(axis=1)) * u.length
     zero = np.flatnonzero(s_thick <= 0)
-    if zero.size:
+    if zero.size:  # mass and section lost without a word to the screen (only the summary's notes said it)
         zp = np.unique(s_part[zero]).tolist()
-        notes.append(f"{zero.size} shells in parts {zp[:10]} have neither element nor section thickness: mass 0")
+        at, line = t.shells.locs.where(int(zero[0]))
+        msg = (
+            f"{zero.size} shells in parts {zp[:10]}{' ...' if len(zp) > 10 else ''} have neither element nor section "
+            f"thickness (*SECTION_SHELL T1 of their part, or thickness on the element card), the first {at.name} "
+            f"line {line}: they get no mass and no section"
+        )
+        notes.append(msg)
+        warnings.warn(f"{main.name}: {msg}", UserWarning, stacklevel=3)
     # solids
     v_ids, v_part, v_nid, _ = t.solids.cat(())
     part_checks("solid", t.solids, v_ids, v_part)
@@ -2673,9 +2680,19 @@ def _fixed_parts(model: VehicleModel, t: _Tables, axis_map: AxisMap) -> tuple[di
     """
     travel = "xyz"[int(np.abs(axis_map.matrix()[0]).argmax())]
     rigid = {pid for pid, p in model.parts.items() if t.materials[p.material_id].kind == "rigid"}
-    if not rigid:
-        return {}, []
     notes: list[str] = []
+    for pm, ps, (path, line) in t.rigid_merges:  # LS-DYNA refuses these; the pair was dropped without a word
+        bad = [
+            f"{role} {pid} is {'not a part of the deck' if pid not in t.parts else 'not rigid (no *MAT_RIGID)'}"
+            for role, pid in (("PIDM", pm), ("PIDS", ps))
+            if pid not in rigid and pid not in t.dropped
+        ]
+        if bad:
+            msg = f"*CONSTRAINED_RIGID_BODIES ({path.name} line {line}): {' and '.join(bad)}; the pair is not merged"
+            notes.append(msg)
+            warnings.warn(f"{path.name}: {msg}", UserWarning, stacklevel=4)
+    if not rigid:
+        return {}, notes
 
     def held(pid: int) -> tuple[str, str]:
         """(deck axes held, how) of a rigid part's own material."""
@@ -2706,7 +2723,7 @@ def _fixed_parts(model: VehicleModel, t: _Tables, axis_map: AxisMap) -> tuple[di
             notes.append(f"part {pid}: {at} has CMO = {cmo:g}, expected -1, 0 or 1; read as unconstrained")
         return "", ""
 
-    master = {s: m for m, s in t.rigid_merges if m in rigid and s in rigid and m != s}
+    master = {s: m for m, s, _ in t.rigid_merges if m in rigid and s in rigid and m != s}
 
     def root(pid: int) -> int:
         seen = {pid}
