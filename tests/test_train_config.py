@@ -198,6 +198,12 @@ def test_ci_reads_the_environment(monkeypatch):
         # an infinite initial scale: the first update's loss was NaN, refused as a diverged 'algorithm.lr'
         (["algorithm.init_std=100"], "algorithm.init_std", "softplus head can represent in float32"),
         (["algorithm.mean_init_gain=nan"], "algorithm.mean_init_gain", "expected a finite number"),
+        # the loss holds its coefficients in float32: 1e39 became inf, and the first update was refused as a diverged
+        # 'algorithm.lr'
+        (["algorithm.entropy_coef=1e39"], "algorithm.entropy_coef", "float32 holds (at most 3.403e+38)"),
+        (["algorithm.entropy_coef_final=1e39"], "algorithm.entropy_coef_final", "float32 holds"),
+        (["algorithm.critic_coef=1e39"], "algorithm.critic_coef", "float32 holds"),
+        (["algorithm.mean_init_gain=1e39"], "algorithm.mean_init_gain", "float32 holds"),
         # a floor <= 0 on its own was named algorithm.init_std, the key the user had not touched
         (["algorithm.min_std=0"], "algorithm.min_std", "expected a standard deviation floor > 0, got 0.0"),
         (["algorithm.min_std=0.5"], "algorithm.init_std", "min_std (0.5) < init_std (0.3)"),
@@ -466,3 +472,36 @@ def test_the_evaluate_scripts_step_count_is_refused_naming_its_key(bad):
     with pytest.raises(ConfigError, match=r"1 to 2\*\*63 - 1 \(MAX_STEPS\)") as e:
         load_evaluate_config({"run": "runs/mappo/x", "checkpoint": "latest", "iterations": bad})
     assert e.value.key == "iterations"
+
+
+@pytest.mark.parametrize(
+    ("terms", "key"),
+    [
+        ((1.0, 2.0, float("inf")), "algorithm.entropy_coef"),
+        ((1.0, float("nan"), -1.0), "algorithm.critic_coef"),
+        ((float("nan"), 2.0, -1.0), "algorithm.lr"),
+        ((1.0, 2.0, -1.0), "algorithm.lr"),  # every term finite, the gradient not
+        ((1.0, float("inf"), float("inf")), "algorithm.lr"),
+    ],
+)
+def test_a_diverged_update_names_the_coefficient_of_its_one_non_finite_loss_term(terms, key):
+    """An entropy or critic coefficient too large for the loss made that term infinite, and the error blamed the
+    learning rate."""
+    from types import SimpleNamespace
+
+    import torch
+    from tensordict import TensorDict
+
+    from marlcrash.calibrate.marl import _diverged
+
+    names = ("loss_objective", "loss_critic", "loss_entropy")
+    out = TensorDict(
+        {**{k: torch.tensor(v) for k, v in zip(names, terms, strict=True)}, "kl_approx": torch.tensor(0.0)}
+    )
+    loss = SimpleNamespace(entropy_coeff=torch.tensor(3e38), critic_coeff=torch.tensor(1.0))
+    e = _diverged(out, torch.tensor(sum(terms)), torch.tensor(float("inf")), 3e-4, loss)
+    assert e.key == key
+    if key == "algorithm.entropy_coef":
+        assert "loss_entropy is not finite" in str(e) and "entropy_coef 3e+38" in str(e)
+    if key == "algorithm.lr":
+        assert "learning rate 0.0003" in str(e)

@@ -113,6 +113,8 @@ defaults of the schemas built in Python (``tests/test_config_defaults.py`` keeps
 
 _ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU}
 
+_F32_MAX = float(torch.finfo(torch.float32).max)
+"""Largest float32: the loss holds its coefficients in float32 buffers."""
 MAX_HIDDEN_WIDTH = 16_384
 """Widest hidden layer of a policy or critic network [-]: a square layer of it holds 1 GiB of float32 weights (the
 shipped networks are 128 wide); 10**9 failed allocating 3.9 TB with a torch traceback instead of naming the key."""
@@ -177,16 +179,19 @@ class AlgorithmConfig:
         for k in ("lr", "lr_final"):
             v = getattr(self, k)
             require(math.isfinite(v) and v > 0, k, f"expected a learning rate > 0, got {v}")
-        for k in ("entropy_coef", "entropy_coef_final", "critic_coef"):
+        for k in ("entropy_coef", "entropy_coef_final", "critic_coef"):  # float32 buffers of the loss: 1e39 is inf
             v = getattr(self, k)
-            require(math.isfinite(v) and v >= 0, k, f"expected a coefficient >= 0, got {v}")
+            require(math.isfinite(v) and 0 <= v <= _F32_MAX, k,
+                    f"expected a coefficient >= 0 that float32 holds (at most {_F32_MAX:.4g}), got {v}")  # fmt: skip
         require(self.min_std > 0, "min_std", f"expected a standard deviation floor > 0, got {self.min_std}")
         require(self.min_std < self.init_std, "init_std",
                 f"expected 0 < min_std ({self.min_std}) < init_std ({self.init_std})")  # fmt: skip
         require(math.isfinite(initial_std(self.init_std, self.min_std)), "init_std",
                 f"expected an initial standard deviation the policy's softplus head can represent in float32 "
                 f"(below about 88; tanh saturates far below that), got {self.init_std}")  # fmt: skip
-        require(self.mean_init_gain > 0, "mean_init_gain", f"expected a factor > 0, got {self.mean_init_gain}")
+        gain = self.mean_init_gain
+        require(0 < gain <= _F32_MAX, "mean_init_gain",
+                f"expected a factor > 0 that float32 holds (at most {_F32_MAX:.4g}), got {gain}")  # fmt: skip
         require(0 < self.clip_epsilon < 1, "clip_epsilon", f"expected a ratio clip in (0, 1), got {self.clip_epsilon}")
         for k in ("gamma", "lmbda"):
             v = getattr(self, k)
@@ -796,19 +801,36 @@ def update(
             total.backward()
             gn = torch.nn.utils.clip_grad_norm_(params, algo.max_grad_norm)
             if not (torch.isfinite(total) and torch.isfinite(gn)):  # before the step: the weights stay usable
-                raise ConfigError(
-                    f"the PPO update diverged at learning rate {optimizer.param_groups[0]['lr']:.3g} (loss "
-                    f"{float(total):.3g}, gradient norm {float(gn):.3g}, approximate KL "
-                    f"{float(out['kl_approx']):.3g}); the last checkpoint holds the weights before it. Lower the "
-                    "learning rate (or use per-sub-assembly actions for a joint policy of many cells)",
-                    key="algorithm.lr",
-                )
+                raise _diverged(out, total, gn, optimizer.param_groups[0]["lr"], loss)
             optimizer.step()
             for k in ("loss_objective", "loss_critic", "loss_entropy", "entropy", "kl_approx"):
                 sums[k] = sums.get(k, 0.0) + float(out[k].detach())
             sums["grad_norm"] = sums.get("grad_norm", 0.0) + float(gn)
             count += 1
     return {k: v / count for k, v in sums.items()}
+
+
+def _diverged(out: TensorDictBase, total: torch.Tensor, gn: torch.Tensor, lr: float, loss: Any) -> ConfigError:
+    """The error of a PPO minibatch whose loss or gradient is not finite, keyed by its likeliest cause: the
+    coefficient of the one loss term that is not finite (an entropy or critic coefficient too large for the loss,
+    which blamed the learning rate before), else the learning rate."""
+    terms = {k: float(out[k]) for k in ("loss_objective", "loss_critic", "loss_entropy")}
+    bad = [k for k, v in terms.items() if not math.isfinite(v)]
+    said = ", ".join(f"{k} {v:.3g}" for k, v in terms.items())
+    if bad in (["loss_entropy"], ["loss_critic"]):
+        name = "entropy_coef" if bad == ["loss_entropy"] else "critic_coef"
+        coef = float(loss.entropy_coeff if name == "entropy_coef" else loss.critic_coeff)
+        return ConfigError(
+            f"the PPO update diverged: {bad[0]} is not finite ({said}) at {name} {coef:.3g}; the last checkpoint "
+            f"holds the weights before it. Lower {name}",
+            key=f"algorithm.{name}",
+        )
+    return ConfigError(
+        f"the PPO update diverged at learning rate {lr:.3g} (loss {float(total):.3g}: {said}; gradient norm "
+        f"{float(gn):.3g}, approximate KL {float(out['kl_approx']):.3g}); the last checkpoint holds the weights before "
+        "it. Lower the learning rate (or use per-sub-assembly actions for a joint policy of many cells)",
+        key="algorithm.lr",
+    )
 
 
 def schedule(start: float, end: float, iteration: int, iterations: int) -> float:
