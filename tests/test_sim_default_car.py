@@ -112,6 +112,29 @@ def test_56_kmh_crushes_more_than_40(sim, base, fw40):
     assert _pulse(fast)["crush"] > 1.2 * _pulse(fw40)["crush"]
 
 
+def test_the_wall_meets_each_cell_where_its_exposed_material_begins(car, sim):
+    # reference: walk every voxel column from the front to its first voxel of a non-null cell
+    lab, edges = car.grid_labels, car.grid_edges[0]
+    ref = {}
+    for j in range(lab.shape[1]):
+        for k in range(lab.shape[2]):
+            for i in range(lab.shape[0]):
+                c = int(lab[i, j, k])
+                if c >= 0 and not car.is_null[c]:
+                    ref[c] = min(ref.get(c, np.inf), float(edges[i]))
+                    break
+    exposed = np.flatnonzero((car.front_area > 0) & ~car.is_rigid)
+    assert sorted(ref.keys() - {car.compartment}) == exposed.tolist()
+    want = np.array([ref[c] for c in exposed])
+    np.testing.assert_allclose(car.front_x[exposed], want, rtol=0, atol=1e-12)
+    # the sloping hood's cells reach forward of their exposed faces: their boxes met the wall 8 cm early
+    ahead = want - car.lo[exposed, 0]
+    assert ahead.max() > 0.05 and set(car.subassembly[exposed[ahead > 1e-9]]) == {car.subassembly_names.index("hood")}
+    wall = sim.scenario_tensors(1, get_scenario("full_width_40"))
+    gap = wall.gap[0, exposed].numpy()
+    np.testing.assert_allclose(gap, want - want.min(), rtol=0, atol=1e-12)
+
+
 @pytest.mark.parametrize("sensor", ["upfront_left", "upfront_right"])
 def test_upfront_sensor_peaks_before_the_tunnel(fw40, sensor):
     up, tunnel = _pulse(fw40, sensor=sensor), _pulse(fw40)

@@ -975,7 +975,7 @@ def test_to_moves_every_tensor_and_refuses_a_device_this_machine_lacks():
     sim = Surrogate(cells)
     assert sim.to("cpu") is sim and sim.to(torch.device("cpu")) is sim
     tensors = {k for k, v in vars(sim).items() if isinstance(v, torch.Tensor)}
-    assert {"src", "dst", "mass", "cap_link", "exposed", "lo_x"} <= tensors
+    assert {"src", "dst", "mass", "cap_link", "exposed", "front_x"} <= tensors
     assert all(getattr(sim, k).device.type == "cpu" for k in tensors)
     for bad, why in (("gpu7", "expected a torch device"), ("meta", "expected a cpu or cuda device")):
         with pytest.raises(ConfigError, match=f"key 'device'.*{why}|{why}.*key 'device'"):

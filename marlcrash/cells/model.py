@@ -170,6 +170,25 @@ class CellModel:
         return float(0.5 * (self.roi_lo[1] + self.roi_hi[1]))
 
     @property
+    def front_x(self) -> np.ndarray:
+        """``[n]`` x [m] where a rigid wall at the front first meets each cell: the front face of its foremost voxel
+        among the voxel columns it exposes (:attr:`front_area`); ``lo[:, 0]`` for a cell that exposes none.
+
+        Not the bounding box front: a cell of a sloping panel (the hood) has its foremost voxel in a column another
+        cell covers, and the wall met it there up to 8 cm before it reached the cell's material.
+        """
+        from marlcrash.cells.transmission import front_voxels
+
+        out = self.lo[:, 0].astype(np.float64, copy=True)
+        if not self.grid_labels.size:
+            return out
+        first, cell = front_voxels(self.grid_labels, self.is_null)
+        hit = cell >= 0
+        at = np.full(self.n_cells, np.inf)
+        np.minimum.at(at, cell[hit], self.grid_edges[0][first[hit]])
+        return np.where(np.isfinite(at), at, out)
+
+    @property
     def roi_volume(self) -> float:
         """Volume of the ROI box [m^3]."""
         return float(np.prod(self.roi_hi - self.roi_lo))

@@ -170,9 +170,29 @@ def extract_faces(
             gap[keep],
         )
     )
-    front = padded[nxt[0], np.arange(ny)[:, None], np.arange(nz)[None, :]]
+    _, front = front_voxels(labels, is_null)
+    front = np.where(front >= 0, front, compartment)
     front_area = np.bincount(front.ravel(), weights=(dy[:, None] * dz[None, :]).ravel(), minlength=n)
     return Faces.concat(parts), front_area
+
+
+def front_voxels(labels: np.ndarray, is_null: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The voxel a rigid wall at the front meets first in each voxel column.
+
+    Args:
+        labels: ``[nx, ny, nz]`` cell index per voxel (-1 outside cells).
+        is_null: ``[n]`` bool, null cells.
+
+    Returns:
+        ``(first, cell)``, each ``[ny, nz]``: the x index of the column's first voxel of a non-null cell
+        (``nx`` where the column has none) and that cell (-1 where none).
+    """
+    nx = labels.shape[0]
+    solid = (labels >= 0) & ~is_null[np.maximum(labels, 0)]
+    first = np.where(solid.any(axis=0), solid.argmax(axis=0), nx)
+    j, k = np.indices(first.shape)
+    cell = np.where(first < nx, labels[np.minimum(first, nx - 1), j, k], -1)
+    return first, cell
 
 
 @dataclass

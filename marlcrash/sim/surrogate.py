@@ -34,7 +34,8 @@ along x per cell.
   crossing fell in: 1e-4 changes of the parameters moved the pulses 10x more than the
   linear response; now the response stays linear to about 1e-3.
 - Wall: one-sided penalty contact (with damping while penetrating) on each cell's
-  front area covered by the barrier (:func:`~marlcrash.sim.scenario.barrier_fraction`).
+  front area covered by the barrier (:func:`~marlcrash.sim.scenario.barrier_fraction`), from
+  the x where the wall meets the cell's exposed material (:attr:`CellModel.front_x`).
 - Damping (Kelvin-Voigt on the elastic part only): a link's viscous force is its damping
   coefficient times the rate of its *elastic* deformation in the step, ``(f_ret - f_old) / k / dt``
   (``f_ret`` the return-mapped force): the full relative velocity while elastic, nothing during
@@ -541,7 +542,7 @@ class Surrogate:
         self.active = t(active, torch.bool)
         self.has_links = t(np.bincount(src, minlength=n) > 0, torch.bool)
         self.stroke = t(np.where(active, cells.stroke, 1.0))
-        self.lo_x = t(cells.lo[:, 0])
+        self.front_x = t(cells.front_x)  # where the wall meets each cell (not its bounding box front)
         self.lo_y, self.hi_y = t(cells.lo[:, 1]), t(cells.hi[:, 1])
         self.width = float(cells.vehicle_width)
         self.centre_y = cells.centre_y
@@ -765,8 +766,8 @@ class Surrogate:
                 f"{'left' if sd[rows[0]].item() > 0 else 'right'}): the overlap is narrower than the vehicle's "
                 "front cells; use a larger overlap"
             )
-        first = torch.where(covered, self.lo_x, torch.full_like(frac, float("inf"))).amin(dim=1, keepdim=True)
-        gap = torch.where(covered, self.lo_x - first, torch.zeros_like(frac))
+        first = torch.where(covered, self.front_x, torch.full_like(frac, float("inf"))).amin(dim=1, keepdim=True)
+        gap = torch.where(covered, self.front_x - first, torch.zeros_like(frac))
         k_raw = (self.config.wall_stiffness * self.front_area * frac).clamp(max=self.k_max)
         capped = k_raw * self.cap_wall / (k_raw + self.cap_wall) if self.stability_caps else k_raw
         k = torch.where(covered, capped, torch.zeros_like(frac))
