@@ -101,9 +101,10 @@ def n_cold(relief: bool) -> int:
 
 
 def chunk_bytes_per_lane(n_links: int, n_cells: int, itemsize: int = 8) -> int:
-    """Estimated bytes one lane of a chunk touches per step: about 6 values per link (hot properties, force,
-    contact opening, ledger force) and 24 per cell (state, node properties, ledgers)."""
-    return itemsize * (6 * int(n_links) + 24 * int(n_cells))
+    """Estimated bytes one lane of a chunk touches per step: about 7 values per link (hot properties, force,
+    start force of a saturation crossing, contact opening, ledger force) and 26 per cell (state, node properties,
+    ledgers, the two saturation-crossing bounds)."""
+    return itemsize * (7 * int(n_links) + 26 * int(n_cells))
 
 
 def default_lanes(batch: int, threads: int, bytes_per_lane: int = 0, dtype: str = "float64") -> int:
