@@ -73,7 +73,6 @@ from marlcrash.pulse.io import ACC_UNITS, acc_unit_key, check_record_rate, is_mm
 from marlcrash.pulse.signal import (
     DEFAULT_COMPARE_MARGIN,
     compared_window,
-    drawn_without_noise,
     margin_samples,
     prepare_velocity,
     without_zero_offset,
@@ -578,11 +577,10 @@ class ReferenceSampler:
         sc = self.scenarios[spec.scenario]
         # the samples before the contact are at rest: their mean is the offset (as `marlcrash pulse` removes it)
         most = margin_samples(self.config.compare_margin, sc.output_rate, self.config.compare_cfc)
-        with drawn_without_noise(spec.breakpoints):
-            pulse = without_zero_offset(pulse, spec.time_zero, spec.cfc, spec.threshold_g)
-            _, vel = prepare_velocity(pulse, cfc=spec.cfc, rate_hz=sc.output_rate, duration=sc.duration,
-                                      time_zero=spec.time_zero, threshold_g=spec.threshold_g, v0=sc.speed,
-                                      beyond=most / sc.output_rate)  # fmt: skip
+        pulse = without_zero_offset(pulse, spec.time_zero, spec.cfc, spec.threshold_g)
+        _, vel = prepare_velocity(pulse, cfc=spec.cfc, rate_hz=sc.output_rate, duration=sc.duration,
+                                  time_zero=spec.time_zero, threshold_g=spec.threshold_g, v0=sc.speed,
+                                  beyond=most / sc.output_rate)  # fmt: skip
         margin = vel.shape[1] - self.n_outputs
         vel = vel[:, : self.n_outputs]
         rise = float(vel.max()) - sc.speed

@@ -1047,6 +1047,32 @@ def test_a_table_of_breakpoints_is_sampled_between_its_corners(tmp_path):
         read_csv(dense, breakpoints=True)
 
 
+def test_a_table_of_breakpoints_drawn_from_its_first_row_starts_there_with_a_zero_level_of_0(tmp_path):
+    # a specification's rectangle, 20 g for 50 ms from the first row: no rest before it, nothing to measure. The
+    # median of its first 2 ms was taken as its level at rest: its falling edge became the onset (49.9 ms) and the
+    # -20 g plateau its "offset", doubling the velocity change (19.6 m/s) with two warnings pointing elsewhere
+    from marlcrash.pulse.io import processed_pulse
+    from marlcrash.pulse.signal import find_onset
+
+    path = tmp_path / "rect.csv"
+    path.write_text("time,acc\n0,-20\n50,-20\n50,0\n150,0\n")
+    dv = 20 * G0 * 0.050
+    for cfc, tol in ((None, 1e-6), (60, 2e-3)):
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")  # a drawn pulse: nothing to say about rest, offset or pre-trigger data
+            raw, work, t0 = processed_pulse(path, breakpoints=True, time_unit="ms", cfc=cfc, time_zero="threshold")
+        assert raw.drawn and t0 == 0.0
+        assert abs(work.velocity()[0, -1]) == pytest.approx(dv, rel=tol)
+    onset = find_onset(raw)
+    assert onset.zero_level.tolist() == [0.0] and not onset.measured.any()
+    # drawn with a rest first: the onset is the rise's corner, found as for a record
+    late = tmp_path / "late.csv"
+    late.write_text("time,acc\n0,0\n20,0\n25,-20\n60,-20\n70,0\n150,0\n")
+    _, work, t0 = processed_pulse(late, breakpoints=True, time_unit="ms", cfc=None, time_zero="threshold")
+    assert t0 == pytest.approx(0.020, abs=2e-4)
+    assert abs(work.velocity()[0, -1]) == pytest.approx(20 * G0 * (0.035 + 0.005 / 2 + 0.010 / 2), rel=1e-6)
+
+
 def test_a_table_of_breakpoints_read_as_samples_is_refused_with_the_option_to_use(tmp_path):
     from marlcrash.pulse.io import processed_pulse
 
@@ -1395,6 +1421,31 @@ def test_a_header_unit_the_reader_does_not_know_is_warned_about_naming_the_colum
     path.write_text(header + "\n" + "\n".join(f"{k * 1e-4:.4f},{-20.0 * (k % 7)}" for k in range(60)) + "\n")
     with pytest.warns(UserWarning, match=rf"p\.csv line 1: column '{re.escape(named)}' gives the unit"):
         read_csv(path)
+
+
+def test_the_first_acceleration_column_skips_columns_whose_header_gives_another_unit(tmp_path):
+    # a lab's CSV with a pitch angle and a barrier force before the acceleration: the angle was read as g (3 g,
+    # 1.5 m/s, plausible), and only a generic unknown-unit warning said anything
+    from marlcrash.pulse.io import processed_pulse
+
+    t = np.arange(-0.02, 0.2, 1e-4)
+    a = np.where((t >= 0) & (t < 0.08), -30 * np.sin(np.pi * np.clip(t, 0, 0.08) / 0.08), 0.0)
+    rows = "".join(f"{x:.5f},{0.1 * y:.4f},{2 * y:.4f},{y:.4f},{y:.6f}\n" for x, y in zip(t, a, strict=True))
+    path = tmp_path / "lab.csv"
+    path.write_text("time,pitch [deg],F_barrier [kN],F [N],a_x [g]\n" + rows)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the other columns are not read, so nothing is said of their units
+        raw, work, _ = processed_pulse(path, cfc=None, time_zero="file")
+    assert raw.channels == ("a_x [g]",)
+    assert work.velocity()[0, -1] == pytest.approx(-30 * G0 * 0.08 * 2 / np.pi, rel=1e-3)
+    # a file whose columns all give other units: the first is read, as before, and its unit warned about
+    alone = tmp_path / "alone.csv"
+    alone.write_text("time,pitch [deg]\n" + "".join(f"{x:.5f},{0.1 * y:.4f}\n" for x, y in zip(t, a, strict=True)))
+    with pytest.warns(UserWarning, match=r"column 'pitch \[deg\]' gives the unit 'deg'"):
+        assert read_csv(alone, first_only=True).channels == ("pitch [deg]",)
+    # named, a column is read whatever its header (with the warning)
+    with pytest.warns(UserWarning, match=r"column 'F_barrier \[kN\]' gives the unit 'kN'"):
+        assert read_csv(path, acc_col="F_barrier [kN]").channels == ("F_barrier [kN]",)
 
 
 @pytest.mark.parametrize(

@@ -908,6 +908,16 @@ def test_file_reference_checks_its_rate_and_reads_breakpoints(cells, sim, tmp_pa
     torch.testing.assert_close(refs[1], refs[0], rtol=0, atol=1e-9)
     # 2 ms before the rise: too short to measure a record's zero level (said), exact for corners (nothing to say)
     assert short == [True, False]
+    rect = tmp_path / "rect.csv"  # drawn from its first row: time zero there, its plateau no transducer offset
+    rect.write_text("time,acc\n0,-20\n0.05,-20\n0.05,0\n0.3,0\n")
+    got = []
+    for time_zero in ("file", "threshold"):
+        spec = FileReference(path=str(rect), scenario="full_width_40", channels=channels, time_zero=time_zero,
+                             breakpoints=True)  # fmt: skip
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            got.append(sampler(cells, sim, kind="file", files=[spec]).sample(np.random.default_rng(0), 1).velocity)
+    torch.testing.assert_close(got[1], got[0], rtol=0, atol=1e-9)
     in_ms = tmp_path / "in_ms.csv"  # a record in ms, configured as seconds: 1000x delta-v unless refused
     in_ms.write_text("time,acc\n" + "".join(f"{a * 1e3:.1f},{b:.12g}\n" for a, b in zip(t, acc, strict=True)))
     spec = FileReference(path=str(in_ms), scenario="full_width_40", channels=channels)

@@ -60,7 +60,6 @@ from marlcrash.pulse.signal import (
     MIN_SAMPLES,
     PRE_IMPACT_TIME,
     Pulse,
-    drawn_without_noise,
     filtered_from_time_zero,
     on_record,
     without_zero_offset,
@@ -176,6 +175,18 @@ _UNIT_LIKE = re.compile(r"[^\W\d_]{2,3}|.*[/^²*].*")
 ``ft/s2``, ``us``), not a remark (``(filtered)``, ``[CH1]``, ``(x)``)."""
 
 
+_SI_LETTERS = frozenset({"N", "V", "W", "J", "K"})
+"""One-letter SI unit symbols a header may give (force, voltage, ...), none an acceleration's; other single letters
+in brackets are remarks (``acc (x)``)."""
+
+
+def _gives_other_unit(said: str) -> bool:
+    """A header unit ``said`` is a unit (:data:`_UNIT_LIKE`, not a remark such as ``(filtered)``) but none of the
+    acceleration units the reader knows: ``deg``, ``kN``, ``mg``, or an SI symbol of one letter (``N``, ``V``)."""
+    u = said.strip()
+    return acc_unit_key(u) not in ACC_UNITS and (_UNIT_LIKE.fullmatch(u) is not None or u in _SI_LETTERS)
+
+
 def _unknown_unit_warning(name: str, said: str, known: list[str], read_in: str, path: Path, line: int) -> None:
     """Warn that column ``name`` gives a unit ``said`` in its header that is none of ``known``, and is read in
     ``read_in``: a column of ``mg`` or ``km/h`` read as g or m/s is off by a factor the results do not show."""
@@ -260,8 +271,9 @@ def read_csv(
         breakpoints: the rows are the corners of a piecewise linear pulse, not samples: two rows or more, no gap
             check, and the result is sampled at :data:`BREAKPOINT_RATE_HZ` from the first to the last row.
         first_only: without ``acc_col``, read the first acceleration column only (the first column that is not the
-            time column nor marked as no acceleration), as ``marlcrash pulse`` does: the others are neither parsed
-            nor checked.
+            time column nor marked as no acceleration, and whose header gives an acceleration unit or none where
+            such a column exists: not ``pitch [deg]`` or ``F [kN]`` before ``a_x [g]``), as ``marlcrash pulse``
+            does: the others are neither parsed nor checked.
 
     Returns:
         A :class:`Pulse` with one channel per acceleration column, named by its header.
@@ -293,8 +305,10 @@ def read_csv(
                 path,
                 first + 1,
             )
-        if first_only:
-            acc_col = header[ai[0]]
+        if first_only:  # the first whose header gives an acceleration unit or none: not 'pitch [deg]', 'F [kN]'
+            units = [_header_unit(header[j]) for j in ai]
+            plain = [j for j, u in zip(ai, units, strict=True) if u is None or not _gives_other_unit(u)]
+            acc_col = header[(plain or ai)[0]]
     # '0,5;-2,25': European spreadsheets separate by ';' because the comma is their decimal mark. With tabs only
     # where no comma can group thousands: a tab export of an English spreadsheet may ('-1,005' is -1005 there).
     decimal_comma = delim == ";"
@@ -414,7 +428,7 @@ def read_csv(
             warnings.warn(_located(reason, path), stacklevel=2)
         grid = time[0] + np.arange(n) / BREAKPOINT_RATE_HZ
         dense = np.stack([np.interp(grid, time, a) for a in acc])
-        return Pulse(time=grid, acc=dense, channels=channels, source=str(path))
+        return Pulse(time=grid, acc=dense, channels=channels, source=str(path), drawn=True)
     median = float(np.median(steps))
     n_gaps = 0 if max_gap is None else int(np.count_nonzero(steps > max(max_gap * median, MIN_GAP_S)))
     if n_gaps:
@@ -1637,9 +1651,8 @@ def processed_pulse(
     check_record_rate(pulse, p, time_unit=time_unit)
     try:
         # the transducer offset, from the samples before the contact, as a file reference removes it
-        with drawn_without_noise(breakpoints):
-            work, t0 = filtered_from_time_zero(without_zero_offset(pulse, time_zero, cfc, threshold_g), cfc,
-                                               time_zero, threshold_g)  # fmt: skip
+        work, t0 = filtered_from_time_zero(without_zero_offset(pulse, time_zero, cfc, threshold_g), cfc, time_zero,
+                                           threshold_g)  # fmt: skip
     except PulseError as e:  # e.g. a sampling rate too low for the filter class: say which file
         if p.name not in str(e):
             raise _err(str(e), p) from None

@@ -34,11 +34,10 @@ pre-trigger data for its zero level is named in a warning.
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import math
 import warnings
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -84,6 +83,9 @@ class Pulse:
         channels: ``K`` channel names.
         source: the file the pulse came from ('' if built in memory).
         cfc: the CFC class already applied, ``None`` for unfiltered data.
+        drawn: a table of breakpoints sampled (``read_csv(breakpoints=True)``, a pulse drawn by its corners): it has
+            neither noise nor offset, so its zero level is 0 exactly; :func:`find_onset` and the offset removal
+            (:func:`without_zero_offset`, :func:`remove_zero_offset`) measure none.
     """
 
     time: np.ndarray
@@ -91,6 +93,7 @@ class Pulse:
     channels: tuple[str, ...]
     source: str = ""
     cfc: int | None = None
+    drawn: bool = False
 
     def __post_init__(self):
         where = f"{self.source}: " if self.source else ""
@@ -739,7 +742,9 @@ def find_onset(pulse: Pulse, cfc: int | None = 60, threshold_g: float = DEFAULT_
     A channel with less than :data:`MIN_PRE_TRIGGER` of samples before time zero has no pre-trigger data to measure:
     its zero level is taken as 0, the threshold is its level, and a warning names the file and channel (a record
     that starts at the contact is read with ``time_zero: file``). The record's time zero is the earliest channel
-    onset, not before its first sample.
+    onset, not before its first sample. A table of breakpoints (:attr:`Pulse.drawn`) has a zero level of 0 and no
+    noise by construction: none is measured (the median of its first 2 ms, the rough start's reference, took a
+    rectangle drawn from its first row as the level at rest, and its falling edge as the onset) and nothing is said.
 
     Limits of the method (README, "Calibrating against a measured test"): an onset is placed to about a sample (a
     2 kHz simulated up-front sensor, 480 g in its first sample: 0.56 ms before the contact); and a channel read alone
@@ -776,7 +781,7 @@ def find_onset(pulse: Pulse, cfc: int | None = 60, threshold_g: float = DEFAULT_
     # the noise of those 2 ms (median absolute deviation; without it, 3 g of noise on a 10 g pulse crossed first
     # near the record's start, and the pre-trigger data were given up as too short)
     head = u.acc[:, : max(1, round(0.002 / dt))]
-    centre = np.median(head, axis=1, keepdims=True)
+    centre = np.zeros((k_n, 1)) if u.drawn else np.median(head, axis=1, keepdims=True)  # drawn: its level is 0
     head_noise = 1.4826 * np.median(np.abs(head - centre), axis=1) * _white_gain(bands[0], dt)
     rough = led.acc - centre
     rough[:, :n_lead] = 0.0
@@ -795,7 +800,8 @@ def find_onset(pulse: Pulse, cfc: int | None = 60, threshold_g: float = DEFAULT_
         before = ends.copy()
         for k in range(k_n):
             quiet = quiet_of[k] = (t >= first) & (t < ends[k])
-            measured[k] = quiet.sum() >= MIN_SAMPLES and ends[k] - first >= need - ONSET_GAP - 0.5 * dt
+            measured[k] = (not u.drawn and quiet.sum() >= MIN_SAMPLES
+                           and ends[k] - first >= need - ONSET_GAP - 0.5 * dt)  # fmt: skip
             zero[k] = float(led.acc[k, quiet].mean()) if measured[k] else 0.0
             noise[k] = float(led.acc[k, quiet].std()) if measured[k] else 0.0
             x = led.acc[k] - zero[k]
@@ -828,7 +834,7 @@ def find_onset(pulse: Pulse, cfc: int | None = 60, threshold_g: float = DEFAULT_
         if n_pass > 0 and np.all(np.abs(ends - before) < dt):  # measured before the time zero found with it
             break
     pre = np.full(k_n, t_zero - first)  # the samples each zero level is measured on: those before time zero
-    for k in np.flatnonzero(~measured).tolist():
+    for k in [] if u.drawn else np.flatnonzero(~measured).tolist():  # drawn: its zero level is 0, not a fallback
         at = f"its onset at t = {_ms(onsets[k])} ms" if onsets[k] == t_zero else (
             f"the record's time zero at t = {_ms(t_zero)} ms")  # fmt: skip
         warnings.warn(
@@ -881,21 +887,9 @@ def _warn_pre_pulse(
 
 
 SHORT_PRE_TRIGGER = "too few to measure its zero level and noise"
-"""Part of :func:`find_onset`'s warning about a channel without pre-trigger data (:func:`drawn_without_noise`)."""
+"""Part of :func:`find_onset`'s warning about a channel without pre-trigger data (never said of a drawn pulse)."""
 OFFSET_LEFT_IN = "any transducer offset is left in the record"
 """Part of :func:`remove_zero_offset`'s warning about a record with too little pre-trigger data."""
-
-
-@contextlib.contextmanager
-def drawn_without_noise(active: bool = True) -> Iterator[None]:
-    """Inside, :func:`find_onset` and :func:`remove_zero_offset` say nothing of a record without pre-trigger data:
-    for a table of breakpoints (a pulse drawn by its corners from a specification), which has neither noise nor
-    offset, so a zero level of 0 is exact, not a fallback. Other warnings pass."""
-    with warnings.catch_warnings():
-        if active:
-            warnings.filterwarnings("ignore", message=f".*{SHORT_PRE_TRIGGER}")
-            warnings.filterwarnings("ignore", message=f".*{OFFSET_LEFT_IN}")
-        yield
 
 
 ZERO_LEVEL_MARGIN = 0.001
@@ -917,9 +911,10 @@ def remove_zero_offset(
     otherwise. A record without samples before ``before`` (one that starts at the impact) is returned unchanged (the
     same object); so is one with less than ``min_time`` of them, with a warning naming the file (its offset, if any,
     stays: 0.8 g drifts about 8 % into a 40 km/h velocity change over 150 ms); and so is a channel whose pre-trigger
-    mean exceeds ``max_offset_g`` (with a warning): those samples are not at rest.
+    mean exceeds ``max_offset_g`` (with a warning): those samples are not at rest. A table of breakpoints
+    (:attr:`Pulse.drawn`) has no offset: it is returned unchanged.
     """
-    if float(pulse.time[0]) >= 0.0:  # starts at the contact: nothing to measure, nothing to say
+    if pulse.drawn or float(pulse.time[0]) >= 0.0:  # drawn, or starts at the contact: nothing to measure or say
         return pulse
     pre = pulse.time < before
     span = float(pulse.time[pre][-1] - pulse.time[0]) if pre.any() else 0.0  # 0-1 ms of negative times: none
@@ -958,8 +953,10 @@ def without_zero_offset(
     :data:`MIN_PRE_TRIGGER`) is left as recorded; :func:`filtered_from_time_zero`, which finds time zero on the
     result, warns about it, naming the channel. A threshold-mode offset above :data:`MAX_ZERO_OFFSET_G` (by more than
     three standard errors of the mean) is subtracted all the same (those samples precede the onset), with a warning
-    naming the channel.
+    naming the channel. A table of breakpoints (:attr:`Pulse.drawn`) has no offset: it is returned unchanged.
     """
+    if pulse.drawn:  # zero level 0 by construction: its first rows may be the pulse itself (a rectangle)
+        return pulse
     if time_zero != "threshold":
         return remove_zero_offset(pulse)
     with warnings.catch_warnings():  # said once, by filtered_from_time_zero, which runs on the result
@@ -1088,7 +1085,8 @@ def _warn_late_onset(pulse: Pulse, cfc: int | None, threshold_g: float) -> None:
     before = (pulse.time >= 0.0) & (pulse.time <= onset.time)
     # every channel at rest up to the onset, averaging no more than a transducer offset, as pre-trigger data do; a
     # record from the contact whose onset is misplaced is not (a channel read alone or unfiltered: the simulated
-    # tunnel's 7.7 g over the 21 ms before its small-overlap onset; a rectangle of corners: its onset at its end)
+    # tunnel's 7.7 g over the 21 ms before its small-overlap onset; a rectangle sampled from its first row: its
+    # onset at its end)
     if np.all(np.abs(pulse.acc[:, before].mean(axis=1)) <= MAX_ZERO_OFFSET_G * G0):
         warnings.warn(
             f"{pulse.source or 'pulse'}: the pulse starts at t = {_ms(onset.time)} ms (channel "
