@@ -500,6 +500,33 @@ def test_a_bad_seed_is_named(cells):
     assert torch.equal(core.ref_velocity, first)
 
 
+def test_a_row_mask_that_is_no_flag_per_row_is_refused_naming_it(cells):
+    """Cast to bool first, row indices ``[0, 2, 1, 3]`` read as ``[F, T, T, T]``, a float mask as non-zero and a
+    ``[2, 2]`` one as four rows: the wrong rows were reset or stepped without a word."""
+    core = make(cells, 4)
+    core.reset(seed=1)
+    act = torch.zeros(4, core.A, core.act_dim)
+    core.step(act)
+    for bad, said in (
+        (
+            torch.tensor([0, 2, 1, 3]),
+            r"reset mask must be \[4\] bool \(one flag per row, not row indices\), got "
+            r"dtype int64 with values \[0, 2, 1, 3\]",
+        ),
+        (torch.tensor([0.2, 0.0, 0.0, 1.0]), r"got dtype float32"),
+        (torch.ones(2, 2, dtype=torch.bool), r"reset mask must be \[4\] bool, got shape \[2, 2\]"),
+        ("rows", r"reset mask must be \[4\] bool, got str"),
+    ):
+        with pytest.raises(ActionError, match=said):
+            core.reset(mask=bad)
+    assert core.iteration.tolist() == [1, 1, 1, 1]  # nothing reset
+    with pytest.raises(ActionError, match=r"step mask must be \[4\] bool \(one flag"):
+        core.step(act, mask=[1, 0, 2, 0])
+    core.step(act, mask=[[1], [0], [0], [1]])  # 0/1 integers, [B, 1]: flags
+    core.reset(mask=np.array([True, False, False, False]))
+    assert core.iteration.tolist() == [0, 1, 1, 2]
+
+
 def test_a_refused_reset_leaves_the_generator_alone(cells):
     """``reset(seed=s, mask=bad)`` re-seeded the generator and then refused the mask: the refused call moved the
     episodes every later ``reset()`` draws. A refused call changes nothing."""

@@ -700,11 +700,24 @@ class CalibrationCore:
         self.truncated = _put(self.truncated, idx, term.truncated & ~(term.success | term.failure))
 
     def _row_mask(self, mask: torch.Tensor, what: str) -> torch.Tensor:
-        """``mask`` as ``[B]`` bool (a ``[B, 1]`` one too); :class:`ActionError` naming ``what`` otherwise."""
-        mask = torch.as_tensor(mask, dtype=torch.bool, device="cpu").reshape(-1)
-        if mask.shape != (self.B,):
-            raise ActionError(f"{what} mask must be [{self.B}] bool, got shape {list(mask.shape)}")
-        return mask
+        """``mask`` as ``[B]`` bool (a ``[B, 1]`` one too; integers only if all 0 or 1); :class:`ActionError` naming
+        ``what`` otherwise. Cast to bool first, row indices ``[0, 2, 1, 3]`` read as ``[F, T, T, T]``, a float mask
+        as non-zero, and any shape of ``B`` elements was taken: the wrong rows were reset or stepped."""
+        try:
+            m = torch.as_tensor(mask, device="cpu")
+        except (TypeError, ValueError, RuntimeError) as e:
+            raise ActionError(f"{what} mask must be [{self.B}] bool, got {type(mask).__name__} ({e})") from None
+        if m.shape not in ((self.B,), (self.B, 1)) and not (self.B == 1 and m.dim() == 0):
+            raise ActionError(
+                f"{what} mask must be [{self.B}] bool, got shape {list(m.shape)} ([{self.B}, 1] is taken too)"
+            )
+        integer = not (m.is_floating_point() or m.is_complex() or m.dtype == torch.bool)
+        if m.dtype != torch.bool and not (integer and bool(((m == 0) | (m == 1)).all())):
+            raise ActionError(
+                f"{what} mask must be [{self.B}] bool (one flag per row, not row indices), got dtype "
+                f"{str(m.dtype).removeprefix('torch.')} with values {m.reshape(-1)[:8].tolist()}"
+            )
+        return m.reshape(-1).to(torch.bool)
 
     @property
     def done(self) -> torch.Tensor:
