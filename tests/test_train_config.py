@@ -204,6 +204,9 @@ def test_ci_reads_the_environment(monkeypatch):
         (["algorithm.entropy_coef_final=1e39"], "algorithm.entropy_coef_final", "float32 holds"),
         (["algorithm.critic_coef=1e39"], "algorithm.critic_coef", "float32 holds"),
         (["algorithm.mean_init_gain=1e39"], "algorithm.mean_init_gain", "float32 holds"),
+        # Adam's step lr / (1 - beta1) on the float32 weights: a traceback from inside torch's optimizer step
+        (["algorithm.lr=4e37"], "algorithm.lr", "Adam step (10 x lr) float32 holds (at most 3.403e+37)"),
+        (["algorithm.lr_final=1e38"], "algorithm.lr_final", "float32 holds"),
         # a floor <= 0 on its own was named algorithm.init_std, the key the user had not touched
         (["algorithm.min_std=0"], "algorithm.min_std", "expected a standard deviation floor > 0, got 0.0"),
         (["algorithm.min_std=0.5"], "algorithm.init_std", "min_std (0.5) < init_std (0.3)"),

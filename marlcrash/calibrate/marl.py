@@ -114,6 +114,9 @@ defaults of the schemas built in Python (``tests/test_config_defaults.py`` keeps
 _ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU}
 
 _F32_MAX = float(torch.finfo(torch.float32).max)
+_MAX_LR = _F32_MAX * (1.0 - 0.9)
+"""Largest learning rate: Adam (beta1 = 0.9) divides it by 1 - beta1 on the float32 weights (torch raised "value
+cannot be converted to type float without overflow" from inside its step above this)."""
 """Largest float32: the loss holds its coefficients in float32 buffers."""
 MAX_HIDDEN_WIDTH = 16_384
 """Widest hidden layer of a policy or critic network [-]: a square layer of it holds 1 GiB of float32 weights (the
@@ -176,9 +179,11 @@ class AlgorithmConfig:
         require(bool(self.hidden) and all(1 <= h <= MAX_HIDDEN_WIDTH for h in self.hidden), "hidden",
                 f"expected a non-empty list of layer widths in [1, {MAX_HIDDEN_WIDTH}] (MAX_HIDDEN_WIDTH), "
                 f"got {self.hidden}")  # fmt: skip
-        for k in ("lr", "lr_final"):
+        for k in ("lr", "lr_final"):  # Adam's first step size lr / (1 - beta1) on float32 weights: 4e37 overflowed
             v = getattr(self, k)
-            require(math.isfinite(v) and v > 0, k, f"expected a learning rate > 0, got {v}")
+            require(math.isfinite(v) and 0 < v <= _MAX_LR, k,
+                    f"expected a learning rate > 0 whose Adam step (10 x lr) float32 holds (at most {_MAX_LR:.4g}), "
+                    f"got {v}")  # fmt: skip
         for k in ("entropy_coef", "entropy_coef_final", "critic_coef"):  # float32 buffers of the loss: 1e39 is inf
             v = getattr(self, k)
             require(math.isfinite(v) and 0 <= v <= _F32_MAX, k,
