@@ -192,3 +192,5 @@ def test_a_killed_training_process_resumes_to_the_uninterrupted_result(short_con
     for key in ("final_metrics", "initial_metrics", "selected_iteration", "param_error", "env_steps", "simulations"):
         assert a[key] == b[key], key
     assert b["iterations_trained"] == 8
+    # a resume stamps no process wall time (train/train.py's doc): its printed summary says null, not 0.0 s
+    assert "process_wall_time_s" not in b and json.loads(resumed.stdout)["process_wall_time_s"] is None

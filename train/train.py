@@ -69,9 +69,10 @@ def main(cfg: DictConfig) -> None:
         print(f"error: {e}", file=sys.stderr)
         sys.exit(2)
     s = result.summary or {}
+    wall = s.get("process_wall_time_s")  # none after a resume (module doc): null, as in summary.json, not 0.0
     print(json_text({
         "run": str(result.run_dir), "iterations": result.iterations, "env_steps": result.env_steps,
-        "simulations": result.simulations, "process_wall_time_s": round(s.get("process_wall_time_s", 0.0), 1),
+        "simulations": result.simulations, "process_wall_time_s": None if wall is None else round(wall, 1),
         "selected_iteration": s.get("selected_iteration"), "all_passed": s.get("all_passed"),
         "final_metrics": s.get("final_metrics"),
     }, indent=1))  # fmt: skip
