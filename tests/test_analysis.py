@@ -86,6 +86,27 @@ def test_sampled_shapley_is_efficient_unbiased_and_exact_on_additive_games():
     torch.testing.assert_close(again.phi, est.phi, rtol=0, atol=0)  # seeded
 
 
+def test_a_sampled_player_never_pivotal_gets_no_standard_error_of_zero():
+    """Worth 1 only when players 0, 1 and 2 all take part: with 4 orderings, one of them is often never the one that
+    completes the three, its sampled marginals all 0, and it was reported 0 +- 0 ("exact") against its 1/3. Its
+    leave-one-out effect (1) contradicts them: the error is unavailable. The null players 3 and 4 stay exact."""
+
+    def and3(m: torch.Tensor) -> torch.Tensor:
+        return (m[:, 0] & m[:, 1] & m[:, 2]).to(torch.float64)[:, None]
+
+    exact = exact_shapley(and3, 5).phi[:, 0]
+    np.testing.assert_allclose(exact.numpy(), [1 / 3, 1 / 3, 1 / 3, 0, 0], rtol=0, atol=1e-12)
+    overconfident = never_pivotal = null_exact = 0
+    for seed in range(100):
+        est = sampled_shapley(and3, 5, 4, seed=seed)
+        off = (est.phi[:, 0] - exact).abs() > 0.1
+        overconfident += int(((est.stderr[:, 0] == 0) & off).sum())
+        never_pivotal += int((est.phi[:3, 0] == 0).sum())
+        assert est.phi[3:, 0].tolist() == [0.0, 0.0]
+        null_exact += int((est.stderr[3:, 0] == 0).sum())  # else NaN: every pair split the others alike
+    assert never_pivotal > 10 and overconfident == 0 and null_exact > 150
+
+
 def glove_game(masks: torch.Tensor) -> torch.Tensor:
     """Players 0 and 1 hold left gloves, 2 and 3 right ones (a pair is worth 1), player 4 holds nothing."""
     m = masks.to(torch.float64)
