@@ -359,6 +359,9 @@ def test_agent_changes_reads_each_agents_factors(problem):
     assert np.abs(ch["transmission"]).max() == 0.0
     with pytest.raises(ValueError, match="params: expected"):
         agent_changes(problem, p[:3])
+    # no iteration: accepted as [0, A] tables, and a notebook's max over them failed inside numpy
+    with pytest.raises(ValueError, match=r"with at least one iteration, got \(0, "):
+        agent_changes(problem, p[None][:0])
 
 
 def test_parameters_that_carry_gradients_are_read_as_their_values(problem):

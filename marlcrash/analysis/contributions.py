@@ -408,8 +408,9 @@ def agent_changes(
     p = _float64(params, "params")
     if p.dim() == 2:
         p = p[None]
-    if p.dim() != 3 or tuple(p.shape[1:]) != tuple(problem.init.shape):
-        raise ValueError(f"params: expected [iterations, {problem.init.shape[0]}, 7], got {tuple(p.shape)}")
+    if p.dim() != 3 or tuple(p.shape[1:]) != tuple(problem.init.shape) or p.shape[0] < 1:
+        raise ValueError(f"params: expected [iterations, {problem.init.shape[0]}, 7] with at least one iteration, "
+                         f"got {tuple(p.shape)}")  # fmt: skip
     # the simulator's check: a log factor of E <= 0 or NaN would be a silent NaN or -inf in the table
     _simulable(problem, "params", p, " (the first index is the iteration)")
     init = problem.init[None] if initial is None else _check_params(problem, "initial", initial)[None]
