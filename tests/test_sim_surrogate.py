@@ -910,6 +910,13 @@ def test_sensor_names_given_to_run_are_checked_as_a_scenario_checks_them():
     sc = get_scenario("full_width_40", {"duration": 0.002})
     with pytest.raises(ModelError, match=r"sensors must be a list of sensor names, got 'tunnel'"):
         sim.run(_params(cells), sc, sensors="tunnel")
+    for bad in (3, [["tunnel"]]):  # failed inside set(): "'int' object is not iterable", "unhashable type: 'list'"
+        with pytest.raises(ModelError, match=rf"sensors must be a list of sensor names, got {re.escape(repr(bad))}"):
+            sim.run(_params(cells), sc, sensors=bad)
+    with pytest.raises(
+        ModelError, match=r"probe_cells must be whole cell indices in \[0, 41\), got \[\[0, 1\], \[2\]\]"
+    ):
+        sim.run(_params(cells), sc, probe_cells=[[0, 1], [2]])  # numpy's "inhomogeneous shape"
     with pytest.raises(ModelError, match=r"duplicate sensor names in \['tunnel', 'front_left', 'tunnel'\]"):
         sim.run(_params(cells), sc, sensors=["tunnel", "front_left", "tunnel"])
     assert sim.run(_params(cells), sc, sensors=("tunnel",), record_cells="none").sensor_names == ["tunnel"]
@@ -1155,6 +1162,24 @@ def test_an_output_step_that_is_not_a_number_is_refused_by_name():
         with pytest.raises(ModelError, match=r"^output_dt must be a time in s \(a real number\), got "):
             Surrogate(cells, output_dt=bad)
     assert Surrogate(cells, output_dt=np.float64(1e-3)).substeps == 2 * Surrogate(cells).substeps
+
+
+def test_an_output_step_within_rounding_of_the_integration_steps_labels_the_step_simulated():
+    """``output_dt=np.float32(5e-4)`` (5.0000002e-4 s) fits 8 integration steps within the 1e-6 accepted and 5e-4 s
+    was simulated, but the time axis was labelled by the step given (0.150000007 s at the end of 0.150 s) and the
+    2 kHz scenarios were refused as of another output step."""
+    cells = block()
+    sim = Surrogate(cells, output_dt=np.float32(5e-4))
+    exact = Surrogate(cells)
+    assert sim.output_dt == exact.output_dt == 5e-4
+    p = torch.as_tensor(cells.params)[None]
+    got = sim.run(p, get_scenario("full_width_40"), duration=0.15)
+    want = exact.run(p, get_scenario("full_width_40"), duration=0.15)
+    assert float(got.time[-1]) == 0.15
+    torch.testing.assert_close(got.time, want.time, rtol=0, atol=0)
+    torch.testing.assert_close(got.acceleration, want.acceleration, rtol=0, atol=0)
+    with pytest.raises(ModelError, match=r"scenario output step 0\.0005 s differs from the surrogate's 0\.001 s"):
+        Surrogate(cells, output_dt=1e-3).run(p, get_scenario("full_width_40"))
 
 
 def test_float32_per_cell_energies_follow_float64():

@@ -461,6 +461,9 @@ class Surrogate:
             )
         self.substeps = per
         """Integration steps per output sample."""
+        # the step simulated, not the one given within the 1e-6 accepted (np.float32(5e-4)): the time axis was
+        # labelled by the inexact step (0.150000007 s at the end of 0.150 s) and every 2 kHz scenario refused
+        self.output_dt = BASE_OUTPUT_DT * (per / cfg.substeps)
         dtype = self.dtype = cfg.torch_dtype
         # Stiffnesses (links and wall) are clamped at sqrt(largest float), far above any stability cap (which then
         # binds fully), so that k_raw * cap stays finite: in float32 E_x = 1e-20 J, 1e11 x E_s or a wall_stiffness of
@@ -904,7 +907,7 @@ class Surrogate:
                 f"params has no batch rows (B = 0): give at least one parameter set [B >= 1, {self.n}, {N_PARAMS}]"
             )
         scenario = checked_scenario(scenario)
-        if scenario is not None and abs(scenario.output_dt - self.output_dt) > 1e-12:
+        if scenario is not None and steps_per_output(scenario.output_dt, self.config.substeps) != self.substeps:
             raise ModelError(
                 f"scenario output step {scenario.output_dt} s differs from the surrogate's {self.output_dt} s; "
                 "build the Surrogate with output_dt=scenario.output_dt"
@@ -940,8 +943,9 @@ class Surrogate:
         )
 
     def _sensor_index(self, names: list[str], where: str = "") -> tuple[list[str], torch.Tensor]:
-        if isinstance(names, str | bytes):  # one name was split into letters: "unknown sensors ['t', 'u', ...]"
-            raise ModelError(f"sensors must be a list of sensor names, got {names!r}")
+        # one name was split into letters ("unknown sensors ['t', 'u', ...]"); 3 or [["tunnel"]] failed inside set()
+        if not isinstance(names, list | tuple) or not all(isinstance(n, str) for n in names):
+            raise ModelError(f"sensors must be a list of sensor names, got {_short(names)}")
         if len(set(names)) != len(names):  # as a scenario file's list: the same signal twice
             raise ModelError(f"duplicate sensor names in {list(names)}")
         all_names = list(self.cells.sensor_names)
@@ -954,7 +958,10 @@ class Surrogate:
         return list(names), torch.tensor(idx, dtype=torch.int64, device=self.device)
 
     def _probe_index(self, cells) -> tuple[list[str], torch.Tensor]:
-        raw = np.asarray(cells.detach().cpu() if isinstance(cells, torch.Tensor) else cells).reshape(-1)
+        try:  # [[0, 1], [2]] failed inside numpy ("inhomogeneous shape")
+            raw = np.asarray(cells.detach().cpu() if isinstance(cells, torch.Tensor) else cells).reshape(-1)
+        except (TypeError, ValueError):
+            raise ModelError(f"probe_cells must be whole cell indices in [0, {self.n}), got {_short(cells)}") from None
         if raw.dtype.kind not in "iu" and not (
             raw.dtype.kind == "f" and np.isfinite(raw).all() and (raw == np.round(raw)).all()
         ):
