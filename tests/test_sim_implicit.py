@@ -81,8 +81,12 @@ def test_uncapped_surrogate_refuses_the_explicit_paths_and_bad_arguments_are_nam
     p = torch.as_tensor(cells.params)[None]
     with pytest.raises(ModelError, match="stability_caps=False"):
         sim.run(p, get_scenario("full_width_40"))
+    # None and text failed inside '<=' or int() (a TypeError, "x" a ValueError); linear="no" ran the linear scheme
     for kw, key in (({"theta": 0.3}, "theta"), ({"max_newton": 0}, "max_newton"), ({"cg_rtol": 0.0}, "cg_rtol"),
-                    ({"newton_rtol": -1.0}, "newton_rtol")):  # fmt: skip
+                    ({"newton_rtol": -1.0}, "newton_rtol"), ({"theta": None}, "theta"), ({"max_newton": "x"},
+                    "max_newton"), ({"max_newton": None}, "max_newton"), ({"max_newton": True}, "max_newton"),
+                    ({"newton_rtol": "1e-10"}, "newton_rtol"), ({"cg_rtol": None}, "cg_rtol"),
+                    ({"linear": "no"}, "linear must be True or False, got 'no'")):  # fmt: skip
         with pytest.raises(ModelError, match=key):
             run_implicit(sim, p, get_scenario("full_width_40"), **kw)
     # as Surrogate.run: an unknown mode is refused, not run as "none" (no per-cell energies, without a word)

@@ -39,6 +39,8 @@ and ``benchmarks/bench_implicit.py`` grade it.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import scipy.sparse as sp
 import torch
@@ -89,14 +91,20 @@ def run_implicit(
         ModelError: an argument out of range, an unknown ``record_cells``, a float32 surrogate, and every input
             error of :meth:`Surrogate.run`.
     """
-    if int(max_newton) != max_newton or max_newton < 1:
+
+    def number(x) -> bool:  # None, text and bools failed inside int() or '<=' ("x" a ValueError), or passed as 1
+        return isinstance(x, int | float | np.integer | np.floating) and not isinstance(x, bool | np.bool_)
+
+    if not (number(max_newton) and math.isfinite(max_newton) and int(max_newton) == max_newton and max_newton >= 1):
         raise ModelError(f"max_newton must be an integer >= 1, got {max_newton!r}")
-    if not 0.5 <= theta <= 1.0:
+    if not (number(theta) and 0.5 <= theta <= 1.0):
         raise ModelError(f"theta must be in [0.5, 1] (0.5 trapezoidal rule, 1 backward Euler), got {theta!r}")
     max_newton = int(max_newton)
     for name, val in (("newton_rtol", newton_rtol), ("cg_rtol", cg_rtol)):
-        if not val > 0:
-            raise ModelError(f"{name} must be > 0, got {val!r}")
+        if not (number(val) and val > 0):
+            raise ModelError(f"{name} must be a number > 0, got {val!r}")
+    if not isinstance(linear, bool | np.bool_):  # bool("no") is True: the linearly implicit scheme ran
+        raise ModelError(f"linear must be True or False, got {linear!r}")
     if record_cells not in ("series", "final", "none"):  # as Surrogate.run: "all" ran as "none" without a word
         raise ModelError(f"record_cells must be one of series, final, none; got {record_cells!r}")
     if sim.dtype != torch.float64:
