@@ -114,10 +114,10 @@ defaults of the schemas built in Python (``tests/test_config_defaults.py`` keeps
 _ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU}
 
 _F32_MAX = float(torch.finfo(torch.float32).max)
+"""Largest float32: the loss holds its coefficients in float32 buffers."""
 _MAX_LR = _F32_MAX * (1.0 - 0.9)
 """Largest learning rate: Adam (beta1 = 0.9) divides it by 1 - beta1 on the float32 weights (torch raised "value
 cannot be converted to type float without overflow" from inside its step above this)."""
-"""Largest float32: the loss holds its coefficients in float32 buffers."""
 MAX_HIDDEN_WIDTH = 16_384
 """Widest hidden layer of a policy or critic network [-]: a square layer of it holds 1 GiB of float32 weights (the
 shipped networks are 128 wide); 10**9 failed allocating 3.9 TB with a torch traceback instead of naming the key."""
