@@ -466,6 +466,59 @@ def test_a_curve_defined_twice_is_refused(tmp_path):
         _read(_write(tmp_path, deck))
 
 
+@pytest.mark.parametrize(
+    "curve",
+    [
+        "       0.0       0.0        77\n*DEFINE_CURVE\n        77\n0.0,300.0\n0.1,350.0\n0.5,400.0\n",
+        "       0.0       0.0         0\n       0.0       0.1       0.5\n     300.0     350.0     400.0\n",
+    ],
+    ids=["lcss", "eps-es"],
+)
+def test_sigy_is_ignored_where_a_curve_gives_the_yield(tmp_path, curve):
+    """LS-DYNA ignores *MAT_024's SIGY where LCSS or the EPS/ES points give the curve: the yield is its first point.
+    A SIGY left beside a curve (common in decks) was read as the yield strength."""
+    mat = "*MAT_024\n         1  7.85e-09  210000.0       0.3     200.0\n" + curve
+    deck = HEAD.replace("*MAT_ELASTIC\n         1  7.85e-09  210000.0       0.3\n", mat) + NODES + SHELL
+    m = _read(_write(tmp_path, deck)).materials[1]
+    assert m.yield_strength == pytest.approx(300e6) and m.ultimate_strength == pytest.approx(400e6)
+
+
+def test_a_curve_whose_abscissae_decrease_is_refused(tmp_path):
+    """An LCSS curve out of order was interpolated as given: FAIL 0.2 on (0, 200), (0.5, 400), (0.1, 300) gave a
+    fracture strength of 300 MPa where the ordered curve gives 325 MPa. LS-DYNA refuses such a curve."""
+    mat = "*MAT_024\n         1  7.85e-09  210000.0       0.3       0.0       0.0       0.2\n"
+    mat += "       0.0       0.0        77\n"
+    curve = "*DEFINE_CURVE\n        77\n0.0,200.0\n0.5,400.0\n0.1,300.0\n"
+    deck = HEAD.replace("*MAT_ELASTIC\n         1  7.85e-09  210000.0       0.3\n", mat + curve) + NODES + SHELL
+    with pytest.raises(
+        DeckError,
+        match=r"deck.k line 17: \*DEFINE_CURVE LCID 77: the abscissae must not decrease, point 3 has 0.1 after 0.5",
+    ):
+        _read(_write(tmp_path, deck))
+
+
+def test_a_negative_fourth_node_is_refused_not_read_as_a_triangle(tmp_path):
+    """N4 < 0 (a typo) made a triangle of half the quad's mass without a word; only blank or 0 means a triangle."""
+    shell = "*ELEMENT_SHELL\n       1       1       1       2       3      -4\n"
+    with pytest.raises(DeckError, match=r"deck.k line 18: \*ELEMENT_SHELL element 1: N4 -4 is no node id"):
+        _read(_write(tmp_path, HEAD + NODES + shell))
+
+
+@pytest.mark.parametrize(
+    "keyword", ["ELASTIC_SPRING_DISCRETE_BEAM", "074", "121", "GENERAL_NONLINEAR_6DOF_DISCRETE_BEAM", "146"]
+)
+def test_discrete_beam_stiffness_is_not_read_as_a_youngs_modulus(tmp_path, keyword):
+    """*MAT_074, 119, 121 and 146 give a spring stiffness [force/length] where most materials give E: it was read as a
+    Young's modulus of 5e8 Pa (and fed the median that defaults other materials' E and the unit detection)."""
+    spring = (
+        "*PART\nspring\n         2         2         2\n*SECTION_BEAM\n         2         6\n       1.0\n"
+        f"*MAT_{keyword}\n         2  7.85e-09     500.0       0.0\n*ELEMENT_BEAM\n       2       2       1       2\n"
+    )
+    m = _read(_write(tmp_path, HEAD + spring + NODES + SHELL))
+    assert m.materials[2].youngs_modulus == pytest.approx(2.1e11)  # defaulted, not 5e8
+    assert any(f"material 2 (*MAT_{keyword}): its first card gives no Young's modulus" in w for w in m.warnings)
+
+
 def test_skipped_cards_counted_in_one_warning(tmp_path):
     extra = (
         "*CONTROL_TERMINATION\n0.1\n*DATABASE_GLSTAT\n1e-4\n*DATABASE_GLSTAT\n1e-4\n*FOO_BAR\nx\n"

@@ -1295,7 +1295,15 @@ def _read_shell(block: _Block, opts: set[str], t: _Tables, params: _Params) -> N
     main = groups[0]
     v = _table(block, main, _SHELL[:6], params, ("eid", "pid", "n1", "n2", "n3"), ("eid", "pid", "n1", "n2", "n3"))
     nodes = np.stack([v["n1"], v["n2"], v["n3"], v["n4"]], axis=1)
-    nodes[:, 3] = np.where(nodes[:, 3] <= 0, nodes[:, 2], nodes[:, 3])
+    neg = np.flatnonzero(nodes[:, 3] < 0)
+    if neg.size:
+        i = int(neg[0])
+        raise block.err(
+            f"*{block.keyword} element {v['eid'][i]}: N4 {nodes[i, 3]} is no node id (a positive id, or blank or 0 "
+            "for a triangle)",
+            int(main[i]),
+        )
+    nodes[:, 3] = np.where(nodes[:, 3] == 0, nodes[:, 2], nodes[:, 3])
     thick = np.zeros((main.size, 4))
     if per > 1 and opts & {"THICKNESS", "BETA", "MCID"}:
         th = _table(block, groups[1], _SHELL_T, params)
@@ -1567,7 +1575,9 @@ _MAT_LAYOUT_GROUPS: tuple[tuple[tuple[int | None, int | None, int | None], tuple
     ((0, 1, None), ("ENHANCED_COMPOSITE_DAMAGE", "054", "055", "LAMINATED_COMPOSITE_FABRIC", "058")),
     # discrete beams: MID RO, then stiffnesses
     ((0, None, None), ("LINEAR_ELASTIC_DISCRETE_BEAM", "066", "NONLINEAR_ELASTIC_DISCRETE_BEAM", "067")),
-    ((0, None, None), ("NONLINEAR_PLASTIC_DISCRETE_BEAM", "068")),
+    ((0, None, None), ("NONLINEAR_PLASTIC_DISCRETE_BEAM", "068", "ELASTIC_SPRING_DISCRETE_BEAM", "074")),
+    ((0, None, None), ("GENERAL_NONLINEAR_6DOF_DISCRETE_BEAM", "119", "GENERAL_NONLINEAR_1DOF_DISCRETE_BEAM", "121")),
+    ((0, None, None), ("1DOF_GENERALIZED_SPRING", "146")),
 )
 _MAT_LAYOUTS = {name: layout for layout, names in _MAT_LAYOUT_GROUPS for name in names}
 """Where RO, E and PR sit among the fields after MID on the first card of ``*MAT`` types read as "other", where
@@ -1909,6 +1919,14 @@ def _read_curve(block: _Block, opts: set[str], t: _Tables, params: _Params) -> N
     # scaled after the offsets are applied (LS-DYNA manual, *DEFINE_CURVE); SFA, SFO 0 (or blank) mean 1
     x = (pts[:, 0] + (offa or 0.0)) * (sfa or 1.0)
     y = (pts[:, 1] + (offo or 0.0)) * (sfo or 1.0)
+    back = np.flatnonzero(np.diff(x) < 0)
+    if back.size:  # LS-DYNA refuses such a curve; interpolating it would give a silently wrong value
+        i = int(back[0]) + 1
+        raise block.err(
+            f"*{block.keyword} LCID {lcid}: the abscissae must not decrease, point {i + 1} has {pts[i, 0]:g} after "
+            f"{pts[i - 1, 0]:g}",
+            rows[1 + i],
+        )
     t.curves[int(lcid)] = (x, y)
 
 
@@ -2022,8 +2040,7 @@ def _material_si(raw: _RawMaterial, u: UnitSystem, curves: dict, notes: list[str
                     pts = (np.asarray(v["eps"], dtype=float)[keep], es[keep] * u.stress)
         if pts is not None and len(pts[1]):
             x, y = pts
-            if not sy > 0:
-                sy = float(y[0])
+            sy = float(y[0])  # LS-DYNA ignores SIGY where LCSS or the EPS/ES points give the curve
             su = float(np.max(y))
             sf = float(np.interp(fail, x, y)) if has_fail else su
         elif has_fail and sy > 0:
