@@ -188,6 +188,24 @@ def test_writer_warns_about_values_it_cannot_carry(tmp_path):
         write_deck(m, tmp_path / "x.k")
 
 
+def test_zero_element_values_read_back_as_zero_or_are_named(tmp_path):
+    """An element of thickness or area 0 reads back as its section's value (LS-DYNA's rule). The writer gave a beam
+    part without an area of its own the median of its elements' (a 0.314 kg model read back at 0.3925 kg) and named
+    neither case; now a beam part without an area gets section area 0, and a nonzero section value is named."""
+    m = _model()
+    two = (np.array([30, 31]), np.array([13, 13]), np.array([[4, 14], [13, 14]]), np.array([4.1e-4, 0.0]))
+    m = replace(m, beam_ids=two[0], beam_part=two[1], beam_nodes=two[2], beam_area=two[3])
+    m.parts = {**m.parts, 13: replace(m.parts[13], beam_area=None)}
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # carried: section area 0
+        back = read_deck(write_deck(m, tmp_path / "beam.k"), subassemblies=tmp_path / "beam.subassemblies.yaml")
+    _same(m, back)
+    m = replace(_model(), shell_thickness=np.array([1.7e-3, 0.0]))
+    with pytest.warns(UserWarning, match=r"part 11: 1 shells of thickness 0 \(read back, they take the section's 2.25"):
+        deck = write_deck(m, tmp_path / "shell.k", units="mm-t-s")
+    assert read_deck(deck).shell_thickness[1] == pytest.approx(2.25e-3)  # as the warning says
+
+
 def test_writer_rejects_mixed_parts_and_leaves_nothing_behind(tmp_path):
     m = _model()
     m.solid_part = np.array([12, 10])

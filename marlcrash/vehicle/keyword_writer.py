@@ -28,7 +28,8 @@ E and nu, a set mass (:attr:`VehicleModel.part_mass`) of a deformable part or a 
 (``*PART_INERTIA`` TM is read for rigid parts only, and must be positive), and names that do not fit their title
 line: ``*TITLE`` and a material's title are one line of 80 columns, a part's heading one of 70 (LS-DYNA reads
 no more; the deck is UTF-8, and a column is a byte), so a longer name is cut to its field and a line break in one
-becomes a space. The writer warns
+becomes a space, and an element thickness or beam area of 0 in a part whose section value is not 0 (LS-DYNA gives
+such an element its section's). The writer warns
 (:class:`UserWarning`) when a model holds such values, naming each and what it reads back as.
 """
 
@@ -258,7 +259,7 @@ def write_deck(model: VehicleModel, path: str | Path, *, units: str = "mm-t-s", 
         for pid in sorted(model.parts):
             p = model.parts[pid]
             kind = kinds.get(pid, "shell")
-            section = _section_cards(model, pid, kind, u)
+            section = _section_cards(model, pid, kind, u, cannot)
             secid = p.section_id
             if secid is not None and secid in written and written[secid][1] != section(0):
                 cannot.append(f"part {pid}: its section {secid} (shared with part {written[secid][0]}, whose section "
@@ -289,19 +290,33 @@ def write_deck(model: VehicleModel, path: str | Path, *, units: str = "mm-t-s", 
     return path
 
 
-def _section_cards(model: VehicleModel, pid: int, kind: str, u):
-    """``secid -> text`` of part ``pid``'s ``*SECTION_SHELL/SOLID/BEAM`` (long format) with section id ``secid``."""
+def _section_cards(model: VehicleModel, pid: int, kind: str, u, cannot: list[str]):
+    """``secid -> text`` of part ``pid``'s ``*SECTION_SHELL/SOLID/BEAM`` (long format) with section id ``secid``.
+
+    An element thickness or area of 0 reads back as its section's value (LS-DYNA's rule), so a part whose elements
+    include such ones is noted in ``cannot`` where its section value is not 0; a beam part without an area of its own
+    gets section area 0 then (else the median of its elements', a section LS-DYNA can run)."""
     p = model.parts[pid]
     if kind == "shell":
         t = (p.thickness or 0.0) / u.length
+        _note_zero_elements(model.shell_thickness[model.shell_part == pid], t, pid, "shells", "thickness", cannot)
         return lambda secid: "*SECTION_SHELL+\n" + _card([secid, 2, 1.0, 2, 0.0]) + _card([t, t, t, t])
     if kind == "solid":
         return lambda secid: "*SECTION_SOLID+\n" + _card([secid, 1])
-    sel = model.beam_part == pid
-    a = p.beam_area if p.beam_area else float(np.median(model.beam_area[sel])) if sel.any() else 0.0
+    areas = model.beam_area[model.beam_part == pid]
+    a = p.beam_area if p.beam_area else 0.0 if (areas <= 0).any() or not areas.size else float(np.median(areas))
     a /= u.area
+    _note_zero_elements(areas, a, pid, "beams", "area", cannot)
     i = a * a / (4 * math.pi)  # solid circular section of that area
     return lambda secid: "*SECTION_BEAM+\n" + _card([secid, 2, 1.0, 2.0, 0.0]) + _card([a, i, i, 2 * i])
+
+
+def _note_zero_elements(values: np.ndarray, section: float, pid: int, what: str, name: str, cannot: list[str]) -> None:
+    """Note in ``cannot`` the elements of part ``pid`` whose ``name`` is 0 under a section value that is not."""
+    zero = int((values <= 0).sum())
+    if zero and section > 0:
+        cannot.append(f"part {pid}: {zero} {what} of {name} 0 (read back, they take the section's {section:.4g} in the "
+                      "deck's units, as LS-DYNA gives an element without its own)")  # fmt: skip
 
 
 def _write_geometry(f, model: VehicleModel, u) -> None:
