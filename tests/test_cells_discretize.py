@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from sim_fixtures import grid_model
 from test_cells_helpers import (
+    box_shell,
     build_model,
     drawn_figures,
     drawn_turn_from_x_to_y,
@@ -174,6 +175,28 @@ def test_cells_never_straddle_section_planes(uniform, optimized):
             left, right = c.grid_labels[:, j - 1, :], c.grid_labels[:, j, :]
             shared = np.intersect1d(left, right)
             assert shared.size == 0 or (c.is_rigid[shared]).all()
+
+
+@pytest.mark.parametrize("method", ["optimized", "uniform"])
+def test_massless_cells_merge_within_their_band(method):
+    """A hollow tube whose section reaches just across the centre plane (y in [-0.3, 0.03]): the cells of its
+    interior (no material) joined the nearest material cell of the tube, often one across the plane, so 31 cells
+    spanned y = 0 and no overlap edge there covered whole cells (DESIGN 1.2); on the LS-OPT deck 37 did."""
+    m = build_model(
+        [
+            ("box", "shell", tube_x(0.0, 0.3, -0.3, 0.03, 0.0, 0.4, 12, 12), 2e-3, 1),
+            (COMPARTMENT, "shell", box_shell([0.4, -0.35, -0.05], [1.0, 0.35, 0.45], 2), 0.003, 2),
+        ]
+    )
+    cfg = DiscretizationConfig(
+        roi_depth=0.3, target_cell_volume=0.05**3, overlaps=[], sensors=[SensorSpec("t", "compartment")]
+    )
+    c = discretize(m, cfg, method=method)
+    assert c.planes_y.tolist() == [0.0]
+    j0 = int(np.searchsorted(c.grid_edges[1], 0.0))
+    both = np.intersect1d(c.grid_labels[:, :j0], c.grid_labels[:, j0:])
+    assert (c.is_rigid[both] | c.is_null[both]).all(), both[~(c.is_rigid[both] | c.is_null[both])]
+    assert c.mass.sum() == pytest.approx(m.total_mass(), rel=1e-9)
 
 
 def test_every_cell_holds_only_its_own_subassembly(car, optimized):

@@ -735,7 +735,9 @@ def _merge_massless(
     samples: Samples,
     names: list[str],
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """Material cells given no material (envelope interior only) join the nearest cell of their sub-assembly.
+    """Material cells given no material (envelope interior only) join the nearest cell of their sub-assembly in
+    their y band: a cell spanning a section plane would break the overlaps' whole cells (DESIGN 1.2). Only where the
+    sub-assembly has no material in that band do they join its nearest cell across the plane.
 
     Returns the renumbered voxel labels and sample cells, and the mask of the cells kept (``None`` when every cell
     has material and nothing changed); the compartment (last cell) is always kept.
@@ -746,13 +748,19 @@ def _merge_massless(
     empty[n - 1] = False
     if not empty.any():
         return labels, cell_of_sample, None
+    _, ny, nz = grid.shape
+    band = grid.band_y[(np.arange(labels.size) // nz) % ny]
     for s in np.unique(cell_sub[empty]).tolist():
-        src = np.flatnonzero(empty[labels] & (cell_sub[labels] == s))
-        dst = np.flatnonzero(~empty[labels] & (cell_sub[labels] == s))
-        if dst.size == 0:  # every cell of the sub-assembly is empty
+        own = cell_sub[labels] == s
+        if not (own & ~empty[labels]).any():  # every cell of the sub-assembly is empty
             raise _no_cell(grid, names[s], float(samples.mass[samples.subassembly == s].sum()))
-        _, nearest = cKDTree(grid.voxel_centers(dst)).query(grid.voxel_centers(src))
-        labels[src] = labels[dst[nearest]]
+        for b in np.unique(band[own & empty[labels]]).tolist():  # a handful of bands
+            src = np.flatnonzero(own & empty[labels] & (band == b))
+            dst = np.flatnonzero(own & ~empty[labels] & (band == b))
+            if dst.size == 0:
+                dst = np.flatnonzero(own & ~empty[labels])
+            _, nearest = cKDTree(grid.voxel_centers(dst)).query(grid.voxel_centers(src))
+            labels[src] = labels[dst[nearest]]
     keep = ~empty
     new = np.cumsum(keep) - 1
     return new[labels], new[cell_of_sample], keep
