@@ -826,6 +826,27 @@ def _subassembly_voxels_and_mirror(cells):
 
 
 @pytest.mark.parametrize("method", ["optimized", "uniform"])
+def test_material_on_the_centre_plane_is_shared_by_both_sides(method):
+    """A mirror-symmetric tube with 5 elements across: one element straddles y = 0, and its samples on the plane all
+    went to the left voxel (left 1.724 kg, right 1.667 kg of cells); split half to each side they are equal."""
+    m = build_model(
+        [
+            ("rail", "shell", tube_x(0.0, 0.6, -0.05, 0.05, 0.0, 0.08, 12, 5), 2e-3, 1),
+            (COMPARTMENT, "shell", box_shell([0.7, -0.2, -0.1], [1.5, 0.2, 0.2], 2), 0.003, 2),
+        ]
+    )
+    cfg = DiscretizationConfig(
+        roi_depth=0.6, target_cell_volume=0.1**3, overlaps=[], sensors=[SensorSpec("t", "compartment")]
+    )
+    c = discretize(m, cfg, method=method)
+    act = ~c.is_null & ~c.is_rigid
+    left, right = act & (c.centroid[:, 1] > 0), act & (c.centroid[:, 1] < 0)
+    assert c.mass[left].sum() == pytest.approx(c.mass[right].sum(), rel=1e-12)
+    assert c.params[left, 1].sum() == pytest.approx(c.params[right, 1].sum(), rel=1e-12)  # E_s
+    assert c.mass.sum() == pytest.approx(m.total_mass(), rel=1e-12)
+
+
+@pytest.mark.parametrize("method", ["optimized", "uniform"])
 def test_walls_lying_in_a_grid_plane_bin_alike_on_both_sides(car, cfg, method):
     """The hand-built car is mirror-symmetric to 2e-16 m, and its bumper's bottom wall lies in the grid plane
     z = 0.35 m. Ties were broken by rounding along x and z (only y snapped to the edge): the wall's voxels
