@@ -282,6 +282,21 @@ def _shell_samples(p: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
     return pos, _normalise_weights(w)
 
 
+def _triangle_samples(p: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Centroids ``[S, k*k, 3]`` of the ``k*k`` congruent sub-triangles of triangles ``p`` ``[S, 3, 3]``, equal weights.
+
+    The set of points does not depend on the order of the vertices, as a collapsed quad's bilinear samples do: the
+    mirror twin of a triangle written from another vertex was sampled up to 0.6 mm off the mirror of its samples, so
+    the default car's left and right wheels fell into different voxels (uniform cells 0.08 % apart).
+    """
+    i, j = (a.ravel() for a in np.meshgrid(np.arange(k), np.arange(k), indexing="ij"))
+    up, down = i + j <= k - 1, i + j <= k - 2
+    b = np.concatenate([i[up] + 1 / 3, i[down] + 2 / 3]) / k  # barycentric weights of vertices 1 and 2
+    c = np.concatenate([j[up] + 1 / 3, j[down] + 2 / 3]) / k
+    n = np.stack([1 - b - c, b, c], axis=1)  # [k2, 3]
+    return n @ p, np.full((p.shape[0], k * k), 1.0 / (k * k))
+
+
 def _solid_samples(p: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
     """Trilinear sub-brick centres ``[V, k^3, 3]`` and volume weights of bricks ``p`` ``[V, 8, 3]``."""
     t = (np.arange(k) + 0.5) / k
@@ -420,10 +435,13 @@ def sample_elements(
         nx = np.divide(np.abs(nrm[:, 0]), nn, out=np.zeros_like(nn), where=nn > 0)
         ax = np.sqrt(np.clip(1.0 - nx**2, 0.0, 1.0))
         vol = model.shell_areas()[idx] * model.shell_thickness[idx]
+        tri = model.shell_nodes[idx, 2] == model.shell_nodes[idx, 3]
         for kk in np.unique(k):
-            g = k == kk
-            pos, w = _shell_samples(p[g], int(kk))
-            emit(pos, w, idx[g], vol[g], ax[g], KIND_SHELL, model.shell_part[idx[g]])
+            for is_tri in (False, True):
+                g = (k == kk) & (tri == is_tri)
+                if g.any():
+                    pos, w = _triangle_samples(p[g, :3], int(kk)) if is_tri else _shell_samples(p[g], int(kk))
+                    emit(pos, w, idx[g], vol[g], ax[g], KIND_SHELL, model.shell_part[idx[g]])
     # solids
     idx = v_idx
     if idx.size:
