@@ -179,6 +179,37 @@ def test_success_counts_the_candidate_that_passed(problem):
     assert float(r.history[0, 1]) == r.initial_score  # the first batch is x = 0 alone, which fails
 
 
+def test_random_search_recentres_on_a_first_passing_candidate_of_a_lower_score(problem, monkeypatch):
+    """The success test ranks a passing candidate first; the worst of the second batch passing (a lower score than
+    the failing best) was kept as the best, but the search recentred only on a higher score, so it went on drawing
+    around the failing one and shrinking its radius."""
+    calls = []
+    evaluate, score = problem.evaluate, problem.score
+
+    def success(m):
+        s = score(m)
+        ok = torch.zeros(s.shape[0], dtype=torch.bool)
+        if len(calls) == 3:  # the start, batch 1, batch 2: the worst of batch 2 passes
+            ok[int(torch.argmin(s))] = True
+        return ok
+
+    def recorded(x):
+        calls.append(x.clone())
+        return evaluate(x)
+
+    monkeypatch.setattr(problem, "success", success)
+    monkeypatch.setattr(problem, "evaluate", recorded)
+    config = RandomSearchConfig(batch_size=8)
+    r = BASELINES["random_search"][1](problem, 1 + 3 * 8, config, 0)
+    assert any(torch.equal(r.best_x, c) for c in calls[2]) and r.sims_to_success is not None
+    centre = problem.flat(r.best_x[None])[0].numpy()
+    lo, hi = (b.numpy() for b in problem.flat_box())
+    z3 = problem.flat(calls[3]).numpy()
+    reach = config.radius * 0.5 * (hi - lo)  # the radius is kept where the centre moves
+    inner = (z3 > lo) & (z3 < hi)  # draws the box did not clip
+    assert (np.abs(z3 - centre)[inner] <= np.broadcast_to(reach, z3.shape)[inner] * (1 + 1e-9)).all()
+
+
 @pytest.mark.parametrize(
     ("over", "key"),
     [

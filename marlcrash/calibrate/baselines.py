@@ -371,10 +371,11 @@ def random_search(
         n = progress.grant(config.batch_size)
         u = rng.uniform(-1.0, 1.0, size=(n, lo.size))
         z = np.clip(centre + radius * half * u, lo, hi) if config.recenter else lo + (u + 1.0) * half
-        before = progress.best_score
+        before = progress.best_x  # record() keeps a fresh clone whenever the best changes
         _evaluate(problem, progress, problem.unflat(torch.as_tensor(z)))
         if config.recenter:
-            if progress.best_score > before:
+            # the best changed, not its score rose: a first passing candidate is kept with a lower score
+            if progress.best_x is not before:
                 assert progress.best_x is not None  # the start was recorded
                 centre = problem.flat(progress.best_x[None])[0].numpy()
             else:
