@@ -43,20 +43,21 @@ class _Loader(yaml.SafeLoader):
     key given twice in one mapping (PyYAML keeps the last silently: ``hood: [1]`` then ``hood: [2]`` dropped part 1)."""
 
     def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
-        seen: dict[Any, int] = {}
+        seen: dict[Any, yaml.Mark] = {}
         for key_node, _ in node.value:
             if key_node.tag == "tag:yaml.org,2002:merge":  # `<<: *anchor` merges, it is not a key
                 continue
             key = self.construct_object(key_node, deep=True)
             try:
-                first = seen.setdefault(key, key_node.start_mark.line)
+                first = seen.setdefault(key, key_node.start_mark)
             except TypeError:  # an unhashable (complex) key: SafeLoader refuses it below
                 continue
-            if first != key_node.start_mark.line:
+            if first is not key_node.start_mark:  # by position: two keys of a one-line `{...}` share their line
                 raise yaml.constructor.ConstructorError(
                     None,
                     None,
-                    f"key {key!r} given twice (first at line {first + 1}); expected each key once",
+                    f"key {key!r} given twice (first at line {first.line + 1}, column {first.column + 1}); expected "
+                    "each key once",
                     key_node.start_mark,
                 )
         return super().construct_mapping(node, deep=deep)

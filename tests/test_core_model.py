@@ -380,6 +380,9 @@ def test_from_dict_types_keys_and_validate(tmp_path):
     f.write_text("name: b\ninner:\n  rate: 0.5\n  rate: 2.0\n")
     with pytest.raises(ConfigError, match=r"c\.yaml: invalid YAML at line 4: key 'rate' given twice \(first at line 3"):
         load_config(_Outer, f)
+    f.write_text("name: b\ninner: {rate: 0.5, rate: 2.0}\n")  # one line: the check compared lines only
+    with pytest.raises(ConfigError, match=r"line 2: key 'rate' given twice \(first at line 2, column 9\)"):
+        load_config(_Outer, f)
     f.write_text("base: &b {rate: 1.0}\ninner:\n  <<: *b\n")  # a merge key is not a repeated key
     assert load_yaml(f)["inner"] == {"rate": 1.0}
 
