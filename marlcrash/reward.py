@@ -30,7 +30,7 @@ from typing import Any, ClassVar, Literal, NamedTuple
 
 import torch
 
-from marlcrash.config import MAX_STEPS, checked, config_dir, from_dict, load_config, require
+from marlcrash.config import MAX_STEPS, checked, config_dir, from_dict, load_config, load_yaml, missing_keys, require
 from marlcrash.errors import ConfigError, PulseError
 from marlcrash.metrics import Metrics, MetricsConfig, compute_metrics
 
@@ -354,7 +354,26 @@ def load_reward_config(name_or_path: str | Path, overrides: dict[str, Any] | Non
     if path.suffix not in (".yaml", ".yml"):
         _form_class(str(name_or_path))
         path = reward_config_path(str(name_or_path))
-    return load_config(RewardConfig, path, overrides, complete=True)
+    cfg = load_config(RewardConfig, path, overrides, complete=True)
+    # params is a mapping to the schema, so the completeness check stops at it; the form's parameters left out would
+    # take the code's defaults (RewardConfig fills them in)
+    given = load_yaml(path).get("params")
+    given = dict(given) if isinstance(given, dict) else {}
+    for key, value in (overrides or {}).items():
+        if key == "params" and isinstance(value, dict):
+            given.update(value)
+        elif key.startswith("params."):
+            given[key[len("params.") :]] = value
+    form = REWARD_FORMS.get(cfg.name)
+    missing = [] if form is None else missing_keys(form.params_cls, given, "params.")
+    if missing:
+        raise ConfigError(
+            f"missing: every value lives in the config file; add this key (a parameter of the {cfg.name!r} form) to "
+            f"{path}" + (f" (and {len(missing) - 1} more: {', '.join(missing[1:4])})" if len(missing) > 1 else ""),
+            key=missing[0],
+            path=path,
+        )
+    return cfg
 
 
 class Termination(NamedTuple):

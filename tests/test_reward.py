@@ -104,6 +104,20 @@ def test_bad_params_name_the_key(tmp_path):
         load_reward_config("log_ratio", overrides={"termination.success_rmse": 5.0})
 
 
+def test_a_reward_file_that_leaves_out_a_parameter_of_its_form_is_refused(tmp_path):
+    """Every loader refuses a file that leaves a key out, but the form's parameters (a mapping to the schema) were
+    not checked: a log_ratio file without eps and rmse_scale loaded with the code's 1e-9 and 0.25."""
+    lines = (REWARD_DIR / "log_ratio.yaml").read_text().splitlines(keepends=True)
+    short = tmp_path / "short.yaml"
+    short.write_text("".join(x for x in lines if not x.lstrip().startswith(("eps:", "rmse_scale:"))))
+    with pytest.raises(
+        ConfigError, match=r"short\.yaml key 'params\.rmse_scale': missing: .*\(and 1 more: params\.eps\)"
+    ):
+        load_reward_config(short)
+    cfg = load_reward_config(short, overrides={"params.rmse_scale": 0.3, "params.eps": 1e-6})
+    assert cfg.params["rmse_scale"] == 0.3 and cfg.params["eps"] == 1e-6
+
+
 @pytest.mark.parametrize(
     "name, key, value",
     [
