@@ -253,13 +253,25 @@ def _cwd() -> str | None:
         return None
 
 
+def _outside_configs(path: str | Path) -> bool:
+    return not Path(path).resolve().is_relative_to(config_dir().resolve())
+
+
+def reward_input(reward: Any) -> list[str]:
+    """A reward config named by a YAML path outside ``configs/`` (``EnvConfig.reward``, ``ProblemConfig.fit``); a form
+    name's file is under ``configs/reward`` and recorded with ``configs/``."""
+    r = str(reward)
+    return [r] if Path(r).suffix in (".yaml", ".yml") and _outside_configs(r) else []
+
+
 def env_inputs(env_config: Any) -> list[str]:
-    """Input files of an env config named by a path outside ``configs/``: the env config file itself, a vehicle file,
-    its sub-assembly map, measured pulses."""
+    """Input files of an env config named by a path outside ``configs/``: the env config file itself, its reward
+    file, a vehicle file, its sub-assembly map, measured pulses."""
     paths: list[str] = []
     source = getattr(env_config, "_source", None)  # the YAML file it was loaded from (load_env_config)
-    if source is not None and not Path(source).resolve().is_relative_to(config_dir().resolve()):
+    if source is not None and _outside_configs(source):
         paths.append(str(source))  # one under configs/ is recorded with configs/
+    paths += reward_input(getattr(env_config, "reward", ""))
     vehicle = str(getattr(env_config, "vehicle", ""))
     if Path(vehicle).suffix:  # a registered vehicle has no suffix; its YAML is under configs/ already
         paths.append(vehicle)

@@ -276,6 +276,29 @@ def test_an_env_config_file_outside_configs_is_an_input(configs, tmp_path):
     assert provenance.env_inputs(load_env_config("default")) == []  # a registered env is under configs/ already
 
 
+def test_a_reward_file_outside_configs_is_an_input(configs, tmp_path):
+    """An env's ``reward`` (or a baseline's ``problem.fit``) may name a YAML file by its path; it was not recorded, so
+    editing its weights between the start and a resume mixed two rewards in one run without a word."""
+    from marlcrash.calibrate import ProblemConfig
+    from marlcrash.calibrate.baselines import BaselineRunConfig, run_record
+    from marlcrash.config import from_dict
+    from marlcrash.envs.core import load_env_config
+
+    mine = tmp_path / "my_reward.yaml"
+    mine.write_text((configs / "reward" / "log_ratio.yaml").read_text())
+    inputs = provenance.env_inputs(load_env_config("default", {"reward": str(mine)}))
+    assert inputs == [str(mine)]
+    run = tmp_path / "run"
+    run.mkdir()
+    provenance.write_record(run, inputs)
+    _touch(mine)
+    with pytest.raises(ConfigError, match=r"my_reward\.yaml changed"):
+        provenance.require_unchanged(run, inputs)
+    baseline = BaselineRunConfig(problem=from_dict(ProblemConfig, {"fit": str(mine)}))
+    assert str(mine.resolve()) in run_record(baseline)["configs"]
+    assert provenance.reward_input("log_ratio") == [] and provenance.env_inputs(load_env_config("default")) == []
+
+
 def test_a_training_resume_refuses_changed_configs_and_an_evaluation_reports_them(configs, tmp_path):
     from test_train_marl import tiny
 

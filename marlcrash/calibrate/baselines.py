@@ -780,7 +780,8 @@ def run_record(config: BaselineRunConfig) -> dict[str, Any]:
     """The provenance record of a baseline run (:func:`marlcrash.provenance.record`): ``configs/``, the code, and
     the input files its problem names outside ``configs/`` (a vehicle deck, measured pulses). Take it when the run
     starts, so it holds the files the run read."""
-    return provenance.record(provenance.env_inputs(problem_env_config(config.problem)))
+    inputs = provenance.env_inputs(problem_env_config(config.problem)) + provenance.reward_input(config.problem.fit)
+    return provenance.record(inputs)
 
 
 def write_run(
