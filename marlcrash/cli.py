@@ -250,7 +250,7 @@ def scenario_from_args(args: argparse.Namespace):
     try:
         scenario = get_scenario("full_width_40" if args.scenario is None else args.scenario)
     except ConfigError as e:  # an unknown name said as the option the user typed, as --speed's are
-        if e.key != "scenario":
+        if e.key != "scenario" or args.scenario is None:  # not the default's: the user typed no --scenario
             raise
         raise ConfigError(e.reason, key="--scenario") from None
     ms = getattr(args, "duration", None)
@@ -301,7 +301,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
     from marlcrash.cells import discretize, load_discretization_config
     from marlcrash.outputs import json_text, write_text
-    from marlcrash.provenance import output_record, record_path
+    from marlcrash.provenance import check_record_path, output_record, record_path
     from marlcrash.pulse.simulation import (
         bottoming_note,
         crash_summary,
@@ -321,6 +321,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     check_output_file(args.csv, "--csv", suffix=".csv", inputs=inputs)
     csv_record = None if args.csv is None else record_path(args.csv)  # what made the CSV, beside it
     check_output_file(csv_record, "--csv", suffix=".json", inputs=inputs)
+    if args.csv is not None:  # a file there must be such a record: the user did not name it
+        check_record_path(args.csv, "--csv")
     check_output_file(args.plot, "--plot", suffix=".png", inputs=(*inputs, args.csv, csv_record))
     model = load_model_from_args(args)
     cells = discretize(model, load_discretization_config(args.config), method=args.method)

@@ -29,9 +29,17 @@ T = TypeVar("T")
 def config_dir() -> Path:
     """The folder of YAML configs: ``$MARLCRASH_CONFIGS``, else the copy a non-editable install ships inside the
     package (``marlcrash/configs``), else the repository's ``configs/`` beside the package (a checkout, an editable
-    install)."""
+    install).
+
+    Raises:
+        ConfigError: ``$MARLCRASH_CONFIGS`` names no folder (every config then read as missing: "unknown scenario
+            'full_width_40'; registered: []").
+    """
     env = os.environ.get("MARLCRASH_CONFIGS")
     if env:
+        if not Path(env).is_dir():
+            raise ConfigError(f"{env} is no folder; expected the folder of marlcrash's YAML configs (a copy of the "
+                              "repository's configs/), or unset it", key="MARLCRASH_CONFIGS")  # fmt: skip
         return Path(env)
     package = Path(__file__).resolve().parent
     shipped = package / "configs"

@@ -229,6 +229,27 @@ def record_path(output: str | Path) -> Path:
     return p.with_name(f"{p.stem}.provenance.json")
 
 
+def check_record_path(output: str | Path, key: str) -> Path:
+    """:func:`record_path` of ``output``, refused (:class:`ConfigError` naming ``key``) where a file is there that is
+    not such a record of a file of ``output``'s name: the command writes it without being asked by name, so it must
+    not replace the user's ``lab.provenance.json`` beside ``lab.csv``."""
+    rec = record_path(output)
+    if not rec.exists():
+        return rec
+    try:
+        earlier = json.loads(rec.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError):
+        earlier = None
+    name = Path(output).name
+    if not (isinstance(earlier, dict) and "provenance" in earlier and Path(str(earlier.get("csv", ""))).name == name):
+        raise ConfigError(
+            f"{rec} exists and is not the provenance record of an earlier {name}, which this command writes there; "
+            "move it or choose another name",
+            key=key,
+        )
+    return rec
+
+
 def versions() -> dict[str, str]:
     """The versions of Python and of the libraries that make a run's numbers, as :func:`record` keeps them."""
     import cma

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import re
 import subprocess
 import sys
@@ -457,6 +458,30 @@ def test_output_paths_are_checked_before_the_work(tmp_path):
     assert proc.returncode == 2 and "--seed" in proc.stderr and "integer >= 0" in proc.stderr
     assert "Traceback" not in proc.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == ["adir"] and not any((tmp_path / "adir").iterdir())
+
+
+def test_simulate_keeps_a_file_beside_its_csv_that_is_no_record_of_it(tmp_path):
+    """``--csv lab.csv`` writes ``lab.provenance.json`` beside it, a file the user did not name: one of theirs there
+    was replaced without a word. Refused before the work; the command's own record of an earlier run is replaced."""
+    (tmp_path / "lab.provenance.json").write_text('{"mine": 1}')
+    proc = run_cli("simulate", "--csv", str(tmp_path / "lab.csv"), check=False)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert "key '--csv'" in proc.stderr and "lab.provenance.json exists and is not the provenance record" in proc.stderr
+    assert (tmp_path / "lab.provenance.json").read_text() == '{"mine": 1}' and not (tmp_path / "lab.csv").exists()
+    (tmp_path / "lab.provenance.json").unlink()
+    for _ in range(2):  # the second run replaces the first's csv and record
+        run_cli("simulate", "--duration", "20", "--csv", str(tmp_path / "lab.csv"))
+    assert json.loads((tmp_path / "lab.provenance.json").read_text())["csv"] == str(tmp_path / "lab.csv")
+
+
+def test_a_configs_folder_that_is_missing_is_named_not_its_default_scenario(tmp_path):
+    """``MARLCRASH_CONFIGS`` naming no folder read as "key '--scenario': unknown scenario 'full_width_40'; registered:
+    []", though no --scenario was given."""
+    env = {**os.environ, "MARLCRASH_CONFIGS": str(tmp_path / "nowhere")}
+    proc = subprocess.run([sys.executable, "-m", "marlcrash.cli", "simulate"], capture_output=True, text=True,
+                          timeout=600, env=env)  # fmt: skip
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert proc.stderr.startswith(f"error: key 'MARLCRASH_CONFIGS': {tmp_path / 'nowhere'} is no folder"), proc.stderr
 
 
 def test_an_output_file_name_ending_in_a_slash_is_refused_not_written_as_a_file(tmp_path, monkeypatch):
