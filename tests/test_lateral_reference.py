@@ -164,7 +164,8 @@ def test_cells_on_the_centre_line_of_a_car_off_y0_go_to_split_centre():
     for shift in (0.0, 0.03, -0.37):
         cells = discretize(car.transformed(AxisMap(y_center=-shift)), cfg, method="uniform")
         web = np.flatnonzero(cells.subassembly == cells.subassembly_names.index("web"))
-        assert np.abs(cells.centroid[web, 1] - cells.centre_y).max() < 1e-12  # the premise: on the line
+        # the premise: on the line (the plate's material is split into halves 2 nm either side, mirror twins)
+        assert np.abs(cells.centroid[web, 1] - cells.centre_y).max() < 3e-9
         for centre in ("left", "right"):
             for side in ("left", "right"):
                 took = _side_mask(cells, side, centre)[web]

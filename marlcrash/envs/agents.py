@@ -30,6 +30,7 @@ from typing import Literal
 import numpy as np
 import torch
 
+from marlcrash.cells.grid import EDGE_TOL
 from marlcrash.cells.model import CellModel
 from marlcrash.config import require
 from marlcrash.errors import ConfigError
@@ -130,8 +131,10 @@ def _side_mask(cells: CellModel, side: str, centre: str) -> np.ndarray:
     return ((y < 0) & ~on) | (on & (centre == "right"))
 
 
-_ON_CENTRE_LINE = 1e-9
-"""[m] A centroid this close to the vehicle's centre line lies on it (``split_centre`` decides its side)."""
+_ON_CENTRE_LINE = 4 * EDGE_TOL
+"""[m] A centroid this close to the vehicle's centre line lies on it (``split_centre`` decides its side): material in
+the centre plane is split into halves ``2 EDGE_TOL`` either side of it (:mod:`marlcrash.cells.grid`), whose cells
+are on the line."""
 
 
 def build_agents(cells: CellModel, config: AgentsConfig) -> AgentLayout:
