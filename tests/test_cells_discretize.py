@@ -404,6 +404,42 @@ def test_an_inconsistent_cell_model_file_is_refused_naming_the_field(optimized, 
         CellModel.load(path)
 
 
+def _broken_parameters(cells, change):
+    """A copy of ``cells`` whose parameters break one boundary condition (module doc of marlcrash.cells.model)."""
+    p = cells.params.copy()
+    c = int(np.flatnonzero(~cells.is_null & ~cells.is_rigid & (cells.feasible.sum(axis=1) >= 2))[0])
+    shut = np.flatnonzero(~cells.is_null & ~cells.is_rigid & ~cells.feasible.all(axis=1))[0]
+    if change == "negative E_s":
+        p[c, 1] = -5.0
+    elif change == "sum 3":
+        p[c, 2:] = np.where(cells.feasible[c], 1.0, 0.0) * 3.0 / cells.feasible[c].sum()
+    elif change == "null cell":
+        p[int(np.flatnonzero(cells.is_null)[0]), 1] = 100.0
+    elif change == "infeasible":
+        d = int(np.flatnonzero(~cells.feasible[shut])[0])
+        p[shut, 2:] *= 0.5
+        p[shut, 2 + d] = 0.5
+    return dataclasses.replace(cells, params=p)
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ("negative E_s", r"CellModel.params must be >= 0, got E_s -5 at cell"),
+        ("sum 3", r"transmission factors must sum to 1, got 3"),
+        ("null cell", r"is null, so has no parameters"),
+        ("infeasible", r"transmission factor f_\w+ must be 0 where transfer [-+][xyz] is impossible"),
+    ],
+)
+def test_a_cell_model_file_breaking_a_boundary_condition_is_refused(optimized, tmp_path, change, message):
+    """Only finiteness was checked: factors summing to 3, one on an impossible direction (the simulator's shares are
+    f / max f, so it changed every share of the cell), a null cell with energy or a negative E_s loaded and ran."""
+    path = tmp_path / "bad.npz"
+    _broken_parameters(optimized, change).save(path)
+    with pytest.raises(ModelError, match=message):
+        CellModel.load(path)
+
+
 def test_summary_and_plot(car, cfg, optimized, tmp_path):
     s, cells = discretization_summary(car, cfg)
     assert cells.n_cells == optimized.n_cells

@@ -231,6 +231,7 @@ class CellModel:
             if (a < 0).any():
                 bad = int(np.flatnonzero(a < 0)[0])
                 raise ModelError(f"CellModel.{f} must be >= 0, got {a[bad]:g} at {bad}")
+        self._validate_parameters()
         longer = self.stroke > self.crush_length * (1.0 + 1e-12)
         if longer.any():
             bad = int(np.flatnonzero(longer)[0])
@@ -243,6 +244,36 @@ class CellModel:
         ):
             raise ModelError("CellModel links refer to cells outside 0..n_cells-1")
         self._validate_references()
+
+    def _validate_parameters(self) -> None:
+        """The boundary conditions of the module docstring, naming the cell: energies >= 0; a null cell
+        without mass or parameters, the compartment without parameters; transmission factors >= 0, 0 where transfer
+        is impossible (``feasible``), summing to one on every cell with material (a model saved with factors summing
+        to 3 or an infeasible factor loaded and simulated without a word; the simulator's shares are f / max f)."""
+        neg = np.argwhere(self.params < 0)  # a negative mass: the surrogate names it (with the mass floor's rule)
+        if neg.size:
+            c, k = (int(v) for v in neg[0])
+            raise ModelError(f"CellModel.params must be >= 0, got {PARAM_NAMES[k]} {self.params[c, k]:g} at cell {c}")
+        active = ~self.is_null & ~self.is_rigid
+        carries = np.flatnonzero(~active & (self.params != 0).any(axis=1))
+        if carries.size:
+            c = int(carries[0])
+            raise ModelError(f"cell {c} is {'null' if self.is_null[c] else 'the rigid compartment'}, so has no "
+                             f"parameters; got {self.params[c].tolist()}")  # fmt: skip
+        heavy = np.flatnonzero(self.is_null & (self.mass != 0))
+        if heavy.size:
+            raise ModelError(f"cell {int(heavy[0])} is null, so has no mass; got {self.mass[heavy[0]]:g} kg")
+        f = self.params[:, TRANSMISSION]
+        off = np.argwhere(~self.feasible & (f != 0))
+        if off.size:
+            c, d = (int(v) for v in off[0])
+            raise ModelError(f"cell {c}: transmission factor {PARAM_NAMES[2 + d]} must be 0 where transfer "
+                             f"{DIRECTIONS[d]} is impossible (feasible), got {f[c, d]:g}")  # fmt: skip
+        total = f.sum(axis=1)
+        bad = np.flatnonzero(active & (np.abs(total - 1.0) > 1e-6))
+        if bad.size:
+            c = int(bad[0])
+            raise ModelError(f"cell {c}: transmission factors must sum to 1, got {total[c]:.9g} ({f[c].tolist()})")
 
     def _validate_references(self) -> None:
         """Sensors, sub-assembly indices and voxel labels refer to cells and names that exist."""
