@@ -1009,3 +1009,19 @@ def test_triangle_samples_do_not_depend_on_the_vertex_order(k):
         pos, _ = _triangle_samples(p[:, list(order)], k)
         for a, b in zip(ref, pos, strict=True):
             np.testing.assert_allclose(a[np.lexsort(a.T)], b[np.lexsort(b.T)], atol=1e-12)
+
+
+@pytest.mark.parametrize(
+    ("overlaps", "message"),
+    [
+        ([0.4, 0.4000001], r"two section planes lie 1\.6e-07 m apart \(y - y0 = -0\.16 and -0\.15999984 m\)"),
+        ([0.4, 0.9999999], r"a section plane and the side of the region of interest lie"),
+    ],
+)
+def test_overlaps_whose_planes_lie_closer_than_a_voxel_are_refused(overlaps, message):
+    """Planes were deduplicated only where equal: [0.4, 0.4000001] made a band of 1.6e-7 m, voxels of 4e-8 m and a
+    warning to raise max_subdivision to 3,750,000; refused before the work, naming ``overlaps``."""
+    cfg = dataclasses.replace(load_discretization_config(), overlaps=overlaps)
+    with pytest.raises(ConfigError, match=message) as e:
+        discretize(mini_car(), cfg)
+    assert e.value.key == "overlaps"

@@ -22,7 +22,7 @@ import numpy as np
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
-from marlcrash.cells.grid import KIND_SOLID, FineGrid, Samples, build_grid, sample_elements
+from marlcrash.cells.grid import EDGE_TOL, KIND_SOLID, FineGrid, Samples, build_grid, sample_elements
 from marlcrash.cells.model import CellModel
 from marlcrash.cells.params import behaviour_params
 from marlcrash.cells.roi import Roi, region_of_interest
@@ -726,6 +726,35 @@ def _optimized(
     )
 
 
+MIN_BAND = 1e-3
+"""[m] The narrowest band between section planes (or a plane and the side of the region of interest): barrier
+overlaps whose edges differ by less are one load case to any test (a barrier is placed to about 2 cm)."""
+
+
+def _refuse_slivers(roi: Roi, cfg: DiscretizationConfig) -> None:
+    """Raise :class:`ConfigError` (key ``overlaps``) where two section planes, or a plane and the side of the region
+    of interest, lie closer than :data:`MIN_BAND`: the band between them gets a column of cells that thin
+    (``overlaps: [0.4, 0.4000001]`` made voxels of 4e-8 m, and a warning to raise max_subdivision to 3,750,000)."""
+    lo, hi = roi.lo[1], roi.hi[1]
+    inner = roi.planes_y[(roi.planes_y > lo + EDGE_TOL) & (roi.planes_y < hi - EDGE_TOL)]
+    bounds = np.concatenate([[lo], inner, [hi]])
+    gaps = np.diff(bounds)
+    if gaps.size > 1 and gaps.min() < MIN_BAND:
+        i = int(np.argmin(gaps))
+        a, b = (float(v - roi.centre_y) for v in bounds[i : i + 2])
+        what = (
+            "a section plane and the side of the region of interest"
+            if i in (0, gaps.size - 1)
+            else "two section planes"
+        )
+        raise ConfigError(
+            f"{what} lie {gaps[i]:.3g} m apart (y - y0 = {a:.9g} and {b:.9g} m), less than {MIN_BAND:g} m: the band "
+            f"between them would be a sliver of cells; drop one of the overlaps {cfg.overlaps} or make their barrier "
+            "edges differ by more",
+            key="overlaps",
+        )
+
+
 def _merge_massless(
     grid: FineGrid,
     labels: np.ndarray,
@@ -1038,6 +1067,7 @@ def discretize(model: VehicleModel, config: DiscretizationConfig | None = None, 
     model.validate()
     _refuse_off_vehicle(cfg, model)
     roi = region_of_interest(model, cfg.roi_depth, cfg.overlaps)
+    _refuse_slivers(roi, cfg)
     notes = []
     length = float(np.ptp(model.bounds()[:, 0]))  # the front is at x = 0 (region_of_interest checked it)
     if cfg.roi_depth > length * (1 + 1e-9):  # a valid model all the same: the box behind the rear is null space
