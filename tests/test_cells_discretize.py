@@ -178,21 +178,27 @@ def test_cells_never_straddle_section_planes(uniform, optimized):
             assert shared.size == 0 or (c.is_rigid[shared]).all()
 
 
+def _tube_before_a_box(tube, box_lo, box_hi, depth, cell_edge, method):
+    """A 2 mm shell tube ahead of a shell compartment box, and its cells (no overlaps: one plane, at y = 0)."""
+    m = build_model(
+        [
+            ("tube", "shell", tube, 2e-3, 1),
+            (COMPARTMENT, "shell", box_shell(box_lo, box_hi, 2), 0.003, 2),
+        ]
+    )
+    cfg = DiscretizationConfig(
+        roi_depth=depth, target_cell_volume=cell_edge**3, overlaps=[], sensors=[SensorSpec("t", "compartment")]
+    )
+    return m, discretize(m, cfg, method=method)
+
+
 @pytest.mark.parametrize("method", ["optimized", "uniform"])
 def test_massless_cells_merge_within_their_band(method):
     """A hollow tube whose section reaches just across the centre plane (y in [-0.3, 0.03]): the cells of its
     interior (no material) joined the nearest material cell of the tube, often one across the plane, so 31 cells
     spanned y = 0 and no overlap edge there covered whole cells (DESIGN 1.2); on the LS-OPT deck 37 did."""
-    m = build_model(
-        [
-            ("box", "shell", tube_x(0.0, 0.3, -0.3, 0.03, 0.0, 0.4, 12, 12), 2e-3, 1),
-            (COMPARTMENT, "shell", box_shell([0.4, -0.35, -0.05], [1.0, 0.35, 0.45], 2), 0.003, 2),
-        ]
-    )
-    cfg = DiscretizationConfig(
-        roi_depth=0.3, target_cell_volume=0.05**3, overlaps=[], sensors=[SensorSpec("t", "compartment")]
-    )
-    c = discretize(m, cfg, method=method)
+    m, c = _tube_before_a_box(tube_x(0.0, 0.3, -0.3, 0.03, 0.0, 0.4, 12, 12), [0.4, -0.35, -0.05], [1.0, 0.35, 0.45],
+                              depth=0.3, cell_edge=0.05, method=method)  # fmt: skip
     assert c.planes_y.tolist() == [0.0]
     j0 = int(np.searchsorted(c.grid_edges[1], 0.0))
     both = np.intersect1d(c.grid_labels[:, :j0], c.grid_labels[:, j0:])
@@ -874,16 +880,8 @@ def _subassembly_voxels_and_mirror(cells):
 def test_material_on_the_centre_plane_is_shared_by_both_sides(method):
     """A mirror-symmetric tube with 5 elements across: one element straddles y = 0, and its samples on the plane all
     went to the left voxel (left 1.724 kg, right 1.667 kg of cells); split half to each side they are equal."""
-    m = build_model(
-        [
-            ("rail", "shell", tube_x(0.0, 0.6, -0.05, 0.05, 0.0, 0.08, 12, 5), 2e-3, 1),
-            (COMPARTMENT, "shell", box_shell([0.7, -0.2, -0.1], [1.5, 0.2, 0.2], 2), 0.003, 2),
-        ]
-    )
-    cfg = DiscretizationConfig(
-        roi_depth=0.6, target_cell_volume=0.1**3, overlaps=[], sensors=[SensorSpec("t", "compartment")]
-    )
-    c = discretize(m, cfg, method=method)
+    m, c = _tube_before_a_box(tube_x(0.0, 0.6, -0.05, 0.05, 0.0, 0.08, 12, 5), [0.7, -0.2, -0.1], [1.5, 0.2, 0.2],
+                              depth=0.6, cell_edge=0.1, method=method)  # fmt: skip
     act = ~c.is_null & ~c.is_rigid
     left, right = act & (c.centroid[:, 1] > 0), act & (c.centroid[:, 1] < 0)
     assert c.mass[left].sum() == pytest.approx(c.mass[right].sum(), rel=1e-12)
