@@ -105,19 +105,17 @@ def measure_roofline(
     return batch / _best(roofline_pass(sim, batch, n_steps, n_links, link_pass), repeats)
 
 
-def interleaved_best(fns: dict[str, Any], repeats: int) -> tuple[dict[str, float], list[dict[str, float]]]:
-    """Best wall time [s] of each of ``fns`` over ``repeats`` rounds, each round calling every one in turn, and the
-    times of every round: rates measured so share the machine's state, and a ratio of two does not take in a change
-    of load between them (timed one after the other, the roofline alone moved 2x between two runs)."""
-    rounds = []
+def interleaved_best(fns: dict[str, Any], repeats: int) -> dict[str, float]:
+    """Best wall time [s] of each of ``fns`` over ``repeats`` rounds, each round calling every one in turn: rates
+    measured so share the machine's state, and a ratio of two does not take in a change of load between them (timed
+    one after the other, the roofline alone moved 2x between two runs)."""
+    best = dict.fromkeys(fns, float("inf"))
     for _ in range(max(repeats, 1)):
-        times = {}
         for name, fn in fns.items():
             t0 = time.perf_counter()
             fn()
-            times[name] = time.perf_counter() - t0
-        rounds.append(times)
-    return {name: min(r[name] for r in rounds) for name in fns}, rounds
+            best[name] = min(best[name], time.perf_counter() - t0)
+    return best
 
 
 def roofline_pass(sim: Surrogate, batch: int, n_steps: int, n_links: int | None = None, link_pass=None):
@@ -830,7 +828,7 @@ def substep_study(
         p = torch.as_tensor(sim.cells.params)[None].repeat(batch, 1, 1)
         sim.run(p[:1], scenario, backend="numba", record_cells="final")  # compile or load the cache
         steps = (scenario.n_outputs - 1) * sim.substeps
-        best, _ = interleaved_best(
+        best = interleaved_best(
             {
                 "kernel": lambda: sim.run(p, scenario, backend="numba", record_cells="final"),  # noqa: B023
                 "roofline": roofline_pass(sim, batch, steps, n_links=live_links(sim, p[:1])),
