@@ -265,17 +265,22 @@ def missing_keys(cls: type, data: dict[str, Any], prefix: str = "") -> list[str]
     return out
 
 
-def require_complete(cls: type, data: dict[str, Any], path: str | Path | None) -> None:
+def require_complete(
+    cls: type, data: dict[str, Any], path: str | Path | None, prefix: str = "", what: str = ""
+) -> None:
     """Values live in the YAML files, not in the schemas: a config file must give every key of ``cls``.
+
+    ``prefix`` and ``what``: where ``data`` sits in the file (``"params."``) and what the keys are (``" (a parameter
+    of the 'log_ratio' form)"``), for the message.
 
     Raises:
         ConfigError: naming the first missing key (and how many more there are).
     """
-    missing = missing_keys(cls, data)
+    missing = missing_keys(cls, data, prefix)
     if missing:
         more = f" (and {len(missing) - 1} more: {', '.join(missing[1:4])}{', ...' if len(missing) > 4 else ''})"
         raise ConfigError(
-            "missing: every value lives in the config file; add this key"
+            f"missing: every value lives in the config file; add this key{what}"
             + (f" to {path}" if path is not None else "")  # the whole path: every run folder has a config.yaml
             + (more if len(missing) > 1 else ""),
             key=missing[0],

@@ -30,7 +30,16 @@ from typing import Any, ClassVar, Literal, NamedTuple
 
 import torch
 
-from marlcrash.config import MAX_STEPS, checked, config_dir, from_dict, load_config, load_yaml, missing_keys, require
+from marlcrash.config import (
+    MAX_STEPS,
+    checked,
+    config_dir,
+    from_dict,
+    load_config,
+    load_yaml,
+    require,
+    require_complete,
+)
 from marlcrash.errors import ConfigError, PulseError
 from marlcrash.metrics import Metrics, MetricsConfig, compute_metrics
 
@@ -365,14 +374,8 @@ def load_reward_config(name_or_path: str | Path, overrides: dict[str, Any] | Non
         elif key.startswith("params."):
             given[key[len("params.") :]] = value
     form = REWARD_FORMS.get(cfg.name)
-    missing = [] if form is None else missing_keys(form.params_cls, given, "params.")
-    if missing:
-        raise ConfigError(
-            f"missing: every value lives in the config file; add this key (a parameter of the {cfg.name!r} form) to "
-            f"{path}" + (f" (and {len(missing) - 1} more: {', '.join(missing[1:4])})" if len(missing) > 1 else ""),
-            key=missing[0],
-            path=path,
-        )
+    if form is not None:
+        require_complete(form.params_cls, given, path, "params.", f" (a parameter of the {cfg.name!r} form)")
     return cfg
 
 
