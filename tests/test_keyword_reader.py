@@ -368,6 +368,29 @@ steel
     assert mat.shear_modulus == pytest.approx(2e11 / 2.6)
 
 
+@pytest.mark.parametrize("kind", ["solid", "beam"])
+def test_user_element_cards_after_a_section_are_not_read_as_sections(tmp_path, kind):
+    # ELFORM 101-105: the integration card (NIP, NXDOF, ...) and NIP integration point cards follow the section
+    # cards; read as sections they defined section 2 (then a clash with part 2's) or ran out of cards
+    if kind == "solid":
+        section = "*SECTION_SOLID\n         3       101\n"
+        user = "         1" + "         0" * 6 + "\n       0.0       0.0       0.0       8.0\n"
+    else:
+        section = "*SECTION_BEAM\n         3       101       1.0\n      50.0\n"
+        user = "         2" + "         0" * 7 + "\n       0.5       0.5       1.0\n      -0.5      -0.5       1.0\n"
+    deck = (
+        HEAD
+        + f"*PART\nuser part\n         3         3         1\n{section}{user}"
+        + ("*PART\nsecond\n         2         2         1\n*SECTION_SHELL\n         2\n       1.0\n")
+        + NODES
+        + SHELL
+        + "*ELEMENT_SHELL\n       2       2       1       2       3       4\n*END\n"
+    )
+    m = _read(_write(tmp_path, deck))
+    assert sorted(m.parts) == [1, 2, 3] and m.parts[3].section_id == 3
+    np.testing.assert_allclose(m.shell_thickness, [2e-3, 1e-3])
+
+
 def test_material_cards(tmp_path):
     mats = """*MAT_PIECEWISE_LINEAR_PLASTICITY
          1  7.85e-09  210000.0       0.3     250.0       0.0      0.25

@@ -1476,6 +1476,8 @@ def _read_section(block: _Block, kind: str, opts: set[str], t: _Tables, params: 
             secid, elform = _read_line(block, r, _SEC_SOLID, params)
             _add_section(block, t, secid, _Section("solid", None, int(elform or 1), 0, where), r)
             i += 1
+            if (elform or 0) >= 101 or (opts - {"TITLE"}):
+                break  # user-element or option cards follow: only the first section of this block is read
             continue
         if i + 1 >= len(rows):
             rows = block.complete(np.asarray(rows, dtype=np.int64), i + 2).tolist()  # a blank last card: defaults
@@ -1508,8 +1510,8 @@ def _read_section(block: _Block, kind: str, opts: set[str], t: _Tables, params: 
             area = _beam_area(elform, cst, a1, a2, a3, a4, qr or 0.0)
             _add_section(block, t, secid, _Section("beam", area, elform, cst, where, float(nsm)), r)
             i += 2
-            if opts - {"TITLE"}:
-                break
+            if elform >= 101 or (opts - {"TITLE"}):
+                break  # user-element or option cards follow: only the first section of this block is read
 
 
 def _note_unread_section(block: _Block, t: _Tables) -> None:
