@@ -16,6 +16,7 @@ import math
 import os
 import re
 import secrets
+import stat
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -171,6 +172,10 @@ def atomic_output(path: str | Path, key: str | None = None) -> Iterator[Path]:
     has: with one name per path, two writers of one output at once wrote into one file, and the first to finish
     renamed the other's partial writing into place.
 
+    Where ``path`` is a symbolic link, the file it points at is replaced (the temporary file lies beside that one),
+    not the link; where ``path`` exists, the new file takes its permissions. A link to shared storage was replaced by
+    a local file, and a file a group could read came back readable by its owner alone.
+
     Raises:
         ConfigError: ``path`` cannot be written (see :func:`check_output_file`); the message names the path
             (and ``key``, if given).
@@ -179,11 +184,14 @@ def atomic_output(path: str | Path, key: str | None = None) -> Iterator[Path]:
     final = check_output_file(path, key)
     if final is None:  # check_output_file lets None pass (an output not asked for); here one was
         raise TypeError(f"expected an output path{f' for {key}' if key else ''}, got None")
+    if final.is_symlink():
+        final = final.resolve()  # the file the link points at is the output; the link stays
     tmp = _new_sibling(final)
     try:
         yield tmp
         with open(tmp, "rb+") as fh:  # on disk before the name points at it: a system crash leaves old or new
             os.fsync(fh.fileno())
+        _keep_mode(tmp, final)
         os.replace(tmp, final)
     except OSError as e:  # disk full, no permission: name the file the user asked for, not the temporary one
         err = write_error(e, final, tmp)
@@ -192,6 +200,15 @@ def atomic_output(path: str | Path, key: str | None = None) -> Iterator[Path]:
         raise err from e
     finally:
         tmp.unlink(missing_ok=True)
+
+
+def _keep_mode(tmp: Path, final: Path) -> None:
+    """Give ``tmp`` the permission bits of ``final``, where ``final`` exists (:func:`atomic_output`)."""
+    try:
+        mode = stat.S_IMODE(final.stat().st_mode)
+    except FileNotFoundError:
+        return
+    os.chmod(tmp, mode)
 
 
 def write_error(e: OSError, final: Path, tmp: Path) -> OSError:

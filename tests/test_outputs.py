@@ -104,6 +104,31 @@ def test_atomic_output_replaces_whole_or_leaves_the_old_file(tmp_path):
         pass
 
 
+@pytest.mark.skipif(os.name != "posix", reason="symbolic links and permission bits as on POSIX")
+def test_atomic_output_writes_through_a_link_and_keeps_the_files_permissions(tmp_path):
+    shared, here = tmp_path / "shared", tmp_path / "run"
+    shared.mkdir(), here.mkdir()
+    target = shared / "pulse.csv"
+    target.write_text("old")
+    os.chmod(target, 0o640)
+    link = here / "pulse.csv"
+    link.symlink_to(target)
+    with atomic_output(link) as tmp:
+        assert tmp.parent == shared  # renamed within the target's folder
+        tmp.write_text("new")
+    assert link.is_symlink() and os.readlink(link) == str(target)
+    assert target.read_text() == "new" and (target.stat().st_mode & 0o777) == 0o640
+    assert sorted(p.name for p in shared.iterdir()) == ["pulse.csv"]
+    fresh = here / "fresh.csv"  # a new file: 0o666 less the umask, as open() makes it
+    umask = os.umask(0o022)
+    try:
+        with atomic_output(fresh) as tmp:
+            tmp.write_text("x")
+    finally:
+        os.umask(umask)
+    assert (fresh.stat().st_mode & 0o777) == 0o644
+
+
 def test_a_failed_write_names_the_file_asked_for_not_the_temporary_one(tmp_path):
     import errno
 
