@@ -54,6 +54,7 @@ def test_speed_conversion():
         ("overlap", 0.0),
         ("overlap", 1.5),
         ("speed_kmh", -3.0),
+        ("speed_kmh", 1e-170),  # ran with an initial kinetic energy of 0 J and a NaN energy balance
         ("side", "top"),
         ("duration", 0.0),
         ("barrier", "odb"),

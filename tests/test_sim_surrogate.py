@@ -856,7 +856,7 @@ def test_bad_per_row_scenario_tensors_are_named_with_what_was_wrong():
     """A NaN speed was reported as a wrong shape ("must be a finite tensor of shape [2], got [2]"), a speed given as
     text failed inside torch ("new(): invalid data type 'str'"), and an out-of-range row was reported by printing
     all three tensors. Each message now names the tensor, the row and the value. A row's speed has a scenario's
-    range (speed_kmh in (0, 200] km/h): 1000 m/s ran."""
+    range (speed_kmh in [1, 200] km/h): 1000 m/s ran, and 1e-170 m/s ran with an initial energy of 0 J."""
     cells = block()
     sim = Surrogate(cells)
     p = _params(cells, 2)
@@ -867,11 +867,18 @@ def test_bad_per_row_scenario_tensors_are_named_with_what_was_wrong():
         ({"speed": [10.0]}, r"'speed' must be of shape \[2\] \(one value per batch row\), got \[1\]"),
         (
             {"speed": torch.tensor([10.0, 0.0])},
-            r"'speed' must be in \(0, 55.5556\] m/s \(a scenario's speed_kmh in "
-            r"\(0, 200\] km/h\), got 0 in row 1",
+            r"'speed' must be in \[0.277778, 55.5556\] m/s \(a scenario's speed_kmh in "
+            r"\[1, 200\] km/h\), got 0 in row 1",
+        ),
+        (
+            {"speed": torch.tensor([10.0, 1e-170], dtype=torch.float64)},
+            r"'speed' must be in \[0.277778, 55.5556\] m/s .*, got 1e-170 in row 1",
         ),
         # above a scenario's largest speed_kmh: 1000 m/s ran where a scenario of 3600 km/h is refused
-        ({"speed": torch.tensor([10.0, 1000.0])}, r"'speed' must be in \(0, 55.5556\] m/s .*, got 1000 in row 1"),
+        (
+            {"speed": torch.tensor([10.0, 1000.0])},
+            r"'speed' must be in \[0.277778, 55.5556\] m/s .*, got 1000 in row 1",
+        ),
         ({"overlap": torch.tensor([1.0, 1.5])}, r"'overlap' must be in \(0, 1\], got 1.5 in row 1"),
         ({"side": torch.tensor([1, 0])}, r"'side' must be \+1 \(left\) or -1 \(right\), got 0 in row 1"),
     ):

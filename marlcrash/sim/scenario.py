@@ -41,8 +41,12 @@ BASE_OUTPUT_DT = 5e-4
 at any output rate (the 2 kHz sensor rate of DESIGN 1.4 the caps were tuned at)."""
 MAX_SUBSTEPS = 1000
 """Most integration steps per ``BASE_OUTPUT_DT`` a sim config may ask for (``substeps``) [-]."""
+MIN_SPEED_KMH = 1.0
+"""Smallest impact speed [km/h], below any crash test (low-speed bumper tests are 4 km/h): a scenario's
+``speed_kmh`` and each row's ``speed`` of a run are at least this. Any speed above zero was taken: 1e-170 km/h ran
+with an initial kinetic energy of 0 J and a NaN energy balance."""
 MAX_SPEED_KMH = 200.0
-"""Largest impact speed [km/h]: a scenario's ``speed_kmh`` and each row's ``speed`` of a run are in (0, this]."""
+"""Largest impact speed [km/h]: a scenario's ``speed_kmh`` and each row's ``speed`` of a run are at most this."""
 MAX_DURATION_S = 1.0
 """Longest crash window [s]: a scenario's ``duration`` is in (0, this]."""
 MAX_RUN_DURATION_S = 2.0
@@ -99,9 +103,9 @@ class CrashScenario:
     def validate(self) -> None:
         """Check value ranges; raise :class:`ConfigError` naming the key."""
         require(
-            np.isfinite(self.speed_kmh) and 0.0 < self.speed_kmh <= MAX_SPEED_KMH,
+            np.isfinite(self.speed_kmh) and MIN_SPEED_KMH <= self.speed_kmh <= MAX_SPEED_KMH,
             "speed_kmh",
-            f"impact speed must be in (0, {MAX_SPEED_KMH:g}] km/h, got {self.speed_kmh}",
+            f"impact speed must be in [{MIN_SPEED_KMH:g}, {MAX_SPEED_KMH:g}] km/h, got {self.speed_kmh}",
         )
         require(
             np.isfinite(self.overlap) and 0.0 < self.overlap <= 1.0,

@@ -104,6 +104,7 @@ from marlcrash.sim.scenario import (
     MAX_RUN_DURATION_S,
     MAX_SPEED_KMH,
     MAX_SUBSTEPS,
+    MIN_SPEED_KMH,
     CrashScenario,
     barrier_fraction,
     checked_scenario,
@@ -701,8 +702,8 @@ class Surrogate:
         Args:
             batch: ``B``.
             scenario: defaults for any tensor not given.
-            speed: ``[B]`` impact speed [m/s], a scenario's range (``MAX_SPEED_KMH``); overlap: ``[B]`` in (0, 1];
-            side: ``[B]`` +1 left, -1 right.
+            speed: ``[B]`` impact speed [m/s], a scenario's range (``MIN_SPEED_KMH`` to ``MAX_SPEED_KMH``);
+            overlap: ``[B]`` in (0, 1]; side: ``[B]`` +1 left, -1 right.
 
         Raises:
             ModelError: a ``batch`` that is no integer >= 0, tensors of the wrong shape, out of range or not on the
@@ -751,12 +752,13 @@ class Surrogate:
         ov = vec(overlap, None if scenario is None else scenario.overlap, "overlap")
         sd = vec(side, None if scenario is None else scenario.side_sign, "side")
         with torch.no_grad():
-            top = MAX_SPEED_KMH * KMH  # a scenario's range (CrashScenario.validate): 1000 m/s ran
+            low, top = MIN_SPEED_KMH * KMH, MAX_SPEED_KMH * KMH  # a scenario's range (CrashScenario.validate)
             refuse(
                 "speed",
-                (sp <= 0) | (sp > top),
+                (sp < low) | (sp > top),
                 sp,
-                f"must be in (0, {top:g}] m/s (a scenario's speed_kmh in (0, {MAX_SPEED_KMH:g}] km/h)",
+                f"must be in [{low:g}, {top:g}] m/s (a scenario's speed_kmh in [{MIN_SPEED_KMH:g}, "
+                f"{MAX_SPEED_KMH:g}] km/h)",
             )
             refuse("overlap", (ov <= 0) | (ov > 1), ov, "must be in (0, 1]")
             refuse("side", sd.abs() != 1, sd, "must be +1 (left) or -1 (right)")
