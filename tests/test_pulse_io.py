@@ -2340,3 +2340,21 @@ def test_read_csv_leaves_out_the_columns_whose_header_says_they_hold_no_accelera
     only.write_text("time_s,tunnel_vel_ms,crush_m\n" + "".join(f"{x},1,{x}\n" for x in t))
     with pytest.raises(PulseError, match=r"only\.csv line 1: no acceleration column: .*'tunnel_vel_ms', 'crush_m'"):
         read_csv(only)
+
+
+@pytest.mark.parametrize("time_zero", ["file", "threshold"])
+def test_a_record_uniform_within_its_tolerance_stays_uniform_when_led_in(tmp_path, time_zero):
+    """Times written to 7 decimals at 12.8 kHz jitter by up to 0.96e-3 of the step: uniform within UNIFORM_RTOL, so
+    not resampled. The 20 ms lead-in was spaced by the first step, which moved the mean step, and the led-in record
+    was refused by the filter ("CFC filtering needs uniform sampling; resample first")."""
+    fs, span = 12800.0, 0.06
+    t = np.arange(int(0.1 * fs) + 1) / fs - 0.02
+    acc_g = -20.0 * np.sin(np.pi * t / span) * ((t > 0) & (t < span))
+    path = tmp_path / "jitter.csv"
+    path.write_text("time,acc\n" + "".join(f"{a:.7f},{b:.6f}\n" for a, b in zip(t, acc_g, strict=True)))
+    assert read_csv(path).is_uniform
+    dv = 20.0 * G0 * 2 * span / np.pi  # the half-sine's velocity change
+    s = pulse_summary(path, time_zero=time_zero)
+    assert abs(s["delta_v_ms"]) == pytest.approx(dv, rel=2e-3)
+    _, v = prepare_velocity(read_csv(path), cfc=60, time_zero=time_zero)
+    assert float(v[0, 0] - v[0].min()) == pytest.approx(dv, rel=2e-3)

@@ -770,7 +770,7 @@ def find_onset(pulse: Pulse, cfc: int | None = 60, threshold_g: float = DEFAULT_
         raise PulseError(f"threshold_g: time-zero threshold must be > 0 g, got {threshold_g!r}")
     where = pulse.source or "pulse"
     u = pulse if pulse.is_uniform else resample(pulse, pulse.sample_rate_hz)
-    dt = float(u.time[1] - u.time[0])
+    dt = u.dt
     led = lead_in(u, PRE_IMPACT_TIME)
     t, n_lead, first = led.time, led.n_samples - u.n_samples, float(u.time[0])
     bands = _onset_bands(cfc, 1.0 / dt)
@@ -983,8 +983,12 @@ def shift_time(pulse: Pulse, t0: float) -> Pulse:
 
 
 def lead_in(pulse: Pulse, pre_time: float) -> Pulse:
-    """A uniform pulse with ``pre_time`` [s] of zero acceleration put before its first sample (same rate)."""
-    dt = float(pulse.time[1] - pulse.time[0])
+    """A uniform pulse with ``pre_time`` [s] of zero acceleration put before its first sample (same rate).
+
+    The lead-in is spaced by the record's mean step, which it leaves unchanged: spaced by the first step, a record
+    uniform within :data:`UNIFORM_RTOL` (times written to 7 decimals at 12.8 kHz) came out non-uniform, and the
+    filter refused it ("CFC filtering needs uniform sampling")."""
+    dt = pulse.dt
     n = round(pre_time / dt)
     if n <= 0:
         return pulse
