@@ -179,6 +179,8 @@ def test_ci_reads_the_environment(monkeypatch):
         (["logger=wandb"], "logger", "unknown logger"),
         (["algorithm.gamma=1.5"], "algorithm.gamma", "[0, 1]"),
         (["algorithm.centralised_critic=false"], "algorithm.centralised_critic", "centralised critic"),
+        # a centralised critic is one network: false was accepted, saved in config.yaml and built the shared one
+        (["algorithm.share_critic_params=false"], "algorithm.share_critic_params", "shared by every agent"),
         (["+algorithm.learning_rate=0.1"], "algorithm.learning_rate", "unknown key"),
         (["eval.iterations=0"], "eval.iterations", ">= 1"),
         # the env counts steps in int64: 2**63 compared as -2**63 and truncated the evaluation after its first step

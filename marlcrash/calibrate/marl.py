@@ -176,6 +176,10 @@ class AlgorithmConfig:
                 "ippo has a decentralised critic by definition; expected false")  # fmt: skip
         require(self.name == "ippo" or self.centralised_critic, "centralised_critic",
                 f"{self.name} uses the centralised critic on the global state; expected true")  # fmt: skip
+        # one network values the global state for every agent: false was accepted, saved, and built the shared critic
+        require(not self.centralised_critic or self.share_critic_params, "share_critic_params",
+                f"{self.name}'s centralised critic is one network on the global state, shared by every agent; "
+                "expected true")  # fmt: skip
         require(bool(self.hidden) and all(1 <= h <= MAX_HIDDEN_WIDTH for h in self.hidden), "hidden",
                 f"expected a non-empty list of layer widths in [1, {MAX_HIDDEN_WIDTH}] (MAX_HIDDEN_WIDTH), "
                 f"got {self.hidden}")  # fmt: skip
