@@ -882,6 +882,28 @@ def test_the_evaluation_keeps_its_results_when_a_picture_or_a_table_cannot_be_wr
     assert not [p.name for p in res.run_dir.iterdir() if p.name.endswith(".tmp") or ".tmp." in p.name]
 
 
+def test_an_earlier_evaluations_pictures_do_not_stay_beside_new_results(short, tmp_path, monkeypatch):
+    """A resume with eval.plots=false rewrote summary.json and left the earlier evaluation's pulses.png and
+    learning_curves.png (of the policy of iteration 1) beside it; a picture that failed to draw left its old file
+    the same way. Now both are removed."""
+    import marlcrash.calibrate.evaluate as evaluate
+
+    res = train(tiny(tmp_path, name="pics", iterations=1, **{"eval.plots": True, "eval.iterations": 1}))
+    pics = [res.run_dir / "pulses.png", res.run_dir / "learning_curves.png"]
+    assert all(p.stat().st_size > 0 for p in pics)
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("matplotlib failed")
+
+    with monkeypatch.context() as m, pytest.warns(UserWarning, match=r"pulses\.png was not drawn"):
+        m.setattr(evaluate, "plot_pulses", broken)
+        evaluate.evaluate_run(res.run_dir)
+    assert not pics[0].exists() and pics[1].stat().st_size > 0
+    more = train(tiny(tmp_path, name="pics", resume=True, **{"eval.plots": False}), given=["eval.plots"])
+    assert more.summary["iterations_trained"] == 1 and (more.run_dir / "summary.json").is_file()
+    assert not any(p.exists() for p in pics)
+
+
 def test_evaluating_a_run_whose_folder_cannot_be_written_is_refused_before_the_work(short, tmp_path, monkeypatch):
     """A read-only run folder (an archived or a colleague's run): the evaluation made eval/<checkpoint>_steps<n>/
     (or, as root, went on), ran the policy and the baselines' problem, and only then failed to write its first file,

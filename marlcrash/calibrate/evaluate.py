@@ -424,10 +424,12 @@ def plot_learning_curves(log_rows: list[dict[str, float]], result: EvalResult, p
 
 def _draw(plot: Any, path: Path, *args: Any) -> None:
     """``plot(*args, path)``; a failure (matplotlib, a full disk) is a warning naming the picture, so the evaluation's
-    results are still written (:func:`evaluate_run`)."""
+    results are still written (:func:`evaluate_run`), and removes an earlier evaluation's picture there, which would
+    stand beside results it does not show."""
     try:
         plot(*args, path)
     except Exception as e:
+        path.unlink(missing_ok=True)
         warnings.warn(f"{path} was not drawn: {type(e).__name__}: {e}; the results are in {SUMMARY_FILE}, "
                       "eval_metrics.csv/.md and calibrated.npz beside it", stacklevel=3)  # fmt: skip
 
@@ -610,6 +612,9 @@ def evaluate_run(
         if config.eval.plots:  # a picture that cannot be drawn costs no result: summary.json is written after them
             _draw(plot_pulses, out_dir / "pulses.png", problem, result)
             _draw(plot_learning_curves, out_dir / "learning_curves.png", log_rows, result)
+        else:  # an earlier evaluation's pictures (a resume with eval.plots=false) do not show these results
+            for name in ("pulses.png", "learning_curves.png"):
+                (out_dir / name).unlink(missing_ok=True)
         summary["eval_wall_time_s"] = time.perf_counter() - t0
         summary["wall_time_s"] = train_time + summary["eval_wall_time_s"]
         old = out_dir / SUMMARY_FILE
