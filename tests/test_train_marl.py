@@ -93,6 +93,34 @@ def test_policy_and_critics_shapes(short, tmp_path):
             assert torch.equal(v, v[:, :1].expand_as(v))
 
 
+def test_single_agent_ppo_leaves_inactive_agents_out_of_its_loss(short, tmp_path):
+    """ppo_single's log-probability summed the whole joint action, inactive agents' entries included (the env ignores
+    them): changing only those entries of a batch moved the clipped objective from -0.41 to -2e-5 and the KL
+    estimate from 0 to 766, where MAPPO's loss mask leaves them out. Their distribution is now fixed (mean 0, scale
+    init_std), whatever the weights: their log importance ratio is 0."""
+    cfg = tiny(tmp_path, "ppo_single")
+    env = make_env(cfg)
+    torch.manual_seed(0)
+    policy, other = make_policy(env, cfg.algorithm), make_policy(env, cfg.algorithm)
+    with torch.no_grad():
+        for w in other.parameters():  # another policy: every weight moved
+            w.add_(0.3 * torch.randn_like(w))
+        td = policy(env.reset())
+    active = td["agents", "active_dims"]
+    assert active.shape == td["agents", "action"].shape and active.any() and (~active).any()
+    a = td["agents", "action"]
+    b = torch.where(active, a, (0.7 - a).clamp(-0.95, 0.95))  # the inactive agents' entries changed
+
+    def change(pol):  # log pi(b) - log pi(a): the inactive entries' part of the log-probability
+        with torch.no_grad():
+            dist = pol.get_dist(td.clone())
+            return dist.log_prob(b) - dist.log_prob(a)
+
+    torch.testing.assert_close(change(policy), change(other), rtol=1e-5, atol=1e-3)  # float32 sums of ~300
+    with torch.no_grad():  # the active entries still follow the weights
+        assert not torch.allclose(policy(td.clone())["agents", "loc"], other(td.clone())["agents", "loc"])
+
+
 def test_training_does_not_depend_on_torchs_default_dtype(short, tmp_path):
     """A notebook that set ``torch.set_default_dtype(torch.float64)`` (for the simulator, say) trains as any other:
     the networks take the env's float32 observations, and the numbers are those of a float32 default."""
