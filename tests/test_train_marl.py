@@ -23,6 +23,7 @@ from marlcrash.calibrate.evaluate import update_summary
 from marlcrash.calibrate.logging import CSVLogger, read_log
 from marlcrash.calibrate.marl import (
     JointActionEnv,
+    batch_stats,
     collect,
     expand_team,
     load_algorithm_config,
@@ -119,6 +120,26 @@ def test_single_agent_ppo_leaves_inactive_agents_out_of_its_loss(short, tmp_path
     torch.testing.assert_close(change(policy), change(other), rtol=1e-5, atol=1e-3)  # float32 sums of ~300
     with torch.no_grad():  # the active entries still follow the weights
         assert not torch.allclose(policy(td.clone())["agents", "loc"], other(td.clone())["agents", "loc"])
+
+
+def test_the_logged_return_and_final_metrics_are_those_of_each_rows_first_episode():
+    """An episode that ended early (success) was reset in place and its row went on with a new one: the logged
+    return added up both, and the final metrics were the new episode's, half run."""
+    from tensordict import TensorDict
+
+    done = torch.tensor([[False, True, False, False], [False, False, False, False]])[..., None]  # row 0 ends at t=1
+    reward = torch.tensor([[1.0, 2.0, -5.0, -5.0], [0.5, 0.5, 0.5, 0.5]])[..., None]
+    area = torch.tensor([[[0.4, 0.2], [0.01, 0.03], [0.5, 0.5], [0.4, 0.4]], [[0.3, 0.1], [0.2, 0.1], [0.1, 0.1],
+                                                                                [0.05, 0.07]]])  # fmt: skip
+    start = torch.tensor([[[0.6, 0.4]] * 4, [[0.5, 0.3]] * 4])
+    metrics = dict.fromkeys(("area", "dfd", "rmse"), start)
+    nxt = dict.fromkeys(("area", "dfd", "rmse"), area)
+    data = TensorDict({"metrics": metrics, "next": {"reward": reward, "done": done, "metrics": nxt}}, batch_size=(2, 4))
+    s = batch_stats(data)
+    assert s["reward_mean"] == pytest.approx(float(reward.mean()))
+    assert s["return_mean"] == pytest.approx((3.0 + 2.0) / 2)  # row 0: its episode's two steps, not -7
+    assert s["area_final"] == pytest.approx((0.02 + 0.06) / 2)  # row 0 at t=1 (sensor mean 0.02), row 1 at t=3
+    assert s["area_initial"] == pytest.approx((0.5 + 0.4) / 2)
 
 
 def test_training_does_not_depend_on_torchs_default_dtype(short, tmp_path):

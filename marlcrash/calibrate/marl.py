@@ -883,12 +883,24 @@ def schedule(start: float, end: float, iteration: int, iterations: int) -> float
 
 
 def batch_stats(data: TensorDictBase) -> dict[str, float]:
-    """Fit statistics of a ``[B, L]`` batch: mean team reward and return, initial and final metrics (sensor means)."""
-    reward = data.get(("next", "reward"))
-    out = {"reward_mean": float(reward.mean()), "return_mean": float(reward.sum(1).mean())}
+    """Fit statistics of a ``[B, L]`` batch: mean team reward per step, and of the episode each row starts with (the
+    iteration's fresh one, :func:`collect`): its return, initial and final metrics (sensor means).
+
+    An episode that ends before the last step is reset in place and its row goes on with another: its return
+    stops at its end and its final metrics are those of its last step. Taken over the whole row, the return added
+    up two episodes and the final metrics were those of the restarted one, half run, instead of the one that had
+    succeeded.
+    """
+    reward = data.get(("next", "reward"))[..., 0]  # [B, L]
+    done = data.get(("next", "done"))[..., 0]
+    B, L = done.shape
+    first = done.long().cumsum(1) - done.long() == 0  # steps of each row's first episode, its last step included
+    last = torch.where(done.any(1), done.long().argmax(1), L - 1)  # [B] its last step
+    rows = torch.arange(B, device=done.device)
+    out = {"reward_mean": float(reward.mean()), "return_mean": float((reward * first).sum(1).mean())}
     for k in ("area", "dfd", "rmse"):
         out[f"{k}_initial"] = float(data.get(("metrics", k))[:, 0].mean())
-        out[f"{k}_final"] = float(data.get(("next", "metrics", k))[:, -1].mean())
+        out[f"{k}_final"] = float(data.get(("next", "metrics", k))[rows, last].mean())
     return out
 
 
