@@ -1097,6 +1097,14 @@ def test_a_run_on_a_pinned_reference_is_evaluated_on_its_evaluation_seed(short, 
     assert res.summary["reference"] == "twin" and res.summary["reference_seed"] == 0
 
 
+def test_an_evaluation_on_a_scenario_the_training_never_drew_is_named_in_a_warning(short, tmp_path):
+    """Training on offset40_left alone and evaluating on full_width_40 (the default eval.scenario) went unremarked."""
+    with pytest.warns(UserWarning, match=r"scenario 'full_width_40' \(eval.scenario\) is not among the training's "
+                                         r"scenarios \['offset40_left'\]"):  # fmt: skip
+        res = train(tiny(tmp_path, iterations=1, env_overrides={"scenarios": {"offset40_left": 1.0}}), evaluate=True)
+    assert res.summary["scenario"] == "full_width_40"
+
+
 def test_a_training_resume_of_a_run_another_process_writes_is_refused_before_reading_it(short_configs, tmp_path,
                                                                                         monkeypatch):  # fmt: skip
     from marlcrash.calibrate.runlock import run_lock

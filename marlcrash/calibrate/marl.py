@@ -1318,11 +1318,19 @@ def _train(
             from marlcrash.calibrate.evaluate import evaluation_overrides
 
             make_env_config(config, evaluation_overrides(config))
-            pin = make_env_config(config).reference.pin_seed
+            trained = make_env_config(config)
+            pin = trained.reference.pin_seed
             if pin is not None and pin != config.eval.reference_seed:
                 warnings.warn(
                     f"training calibrates the pinned reference {pin} (reference.pin_seed); the evaluation "
                     f"calibrates reference {config.eval.reference_seed} (eval.reference_seed)",
+                    stacklevel=2,
+                )
+            if config.eval.scenario not in trained.scenarios:  # the policy never saw this load case
+                warnings.warn(
+                    f"the evaluation's scenario {config.eval.scenario!r} (eval.scenario) is not among the training's "
+                    f"scenarios {sorted(trained.scenarios)} (the env's scenarios): the policy is evaluated on a "
+                    "load case it never trained on",
                     stacklevel=2,
                 )
         tr = build_trainer(config, run_dir)
