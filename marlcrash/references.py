@@ -69,6 +69,7 @@ from marlcrash.cells.model import CellModel
 from marlcrash.cells.parameterization import apply_increments
 from marlcrash.config import checked, config_dir, require
 from marlcrash.errors import ConfigError, PulseError
+from marlcrash.pulse.cfc import CFC_CLASSES, DESIGN_FACTOR
 from marlcrash.pulse.io import ACC_UNITS, acc_unit_key, check_record_rate, is_mme, is_sign, read_pulse
 from marlcrash.pulse.signal import (
     DEFAULT_COMPARE_MARGIN,
@@ -411,6 +412,14 @@ class ReferenceSampler:
                 f"{1.0 / self.output_rate:.6g} s (output_rate {self.output_rate:g} Hz); expected a Surrogate built "
                 "with output_dt = 1 / output_rate",
                 key="scenarios",
+            )
+        cfc = config.compare_cfc
+        if cfc is not None and 2.0 * DESIGN_FACTOR * cfc >= self.output_rate:  # the simulation is filtered at it
+            fits = [c for c in CFC_CLASSES if 2.0 * DESIGN_FACTOR * c < self.output_rate]
+            raise ConfigError(
+                f"CFC {cfc} needs an output rate above {2.0 * DESIGN_FACTOR * cfc:.0f} Hz (its design frequency below "
+                f"Nyquist); the scenarios' output_rate is {self.output_rate:g} Hz: expected one of {fits} or null",
+                key="reference.compare_cfc",
             )
         self.choices = names
         self.weights = np.asarray(weights, dtype=np.float64) / np.sum(weights)

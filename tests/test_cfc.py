@@ -153,6 +153,11 @@ def test_torch_filter_equals_numpy_and_is_differentiable():
     y.sum().backward()
     assert torch.isfinite(xt.grad).all() and xt.grad.abs().sum() > 0
     assert cfc_matrix(300, dt, 60).shape == (300, 300)
+    # a numpy count (an array's size) is a count: np.int64(300) was refused as "needs at least 3 samples"
+    np.testing.assert_array_equal(cfc_matrix(np.int64(300), dt, 60), cfc_matrix(300, dt, 60))
+    for bad in (2, 300.0, True):
+        with pytest.raises(PulseError, match=r"an integer count of at least 3 samples, got n="):
+            cfc_matrix(bad, dt, 60)
 
 
 def test_torch_filter_without_grad_is_batch_independent_bit_for_bit():

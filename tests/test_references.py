@@ -67,6 +67,17 @@ def test_twin_without_spread_is_the_model_itself(cells, sim):
     assert float(v0[:, :2].max()) < -1.0 and float(v0[:, 2].abs().max()) < 0.01  # up-front sensors, tunnel
 
 
+@pytest.mark.parametrize("cfc", [600, 1000])
+def test_a_compare_cfc_the_output_rate_cannot_carry_is_refused_by_name(cells, sim, cfc):
+    """The simulation is filtered at the scenarios' 2 kHz: CFC 600 and 1000 passed the config's check and failed at
+    the first comparison with the filter's PulseError, naming no key."""
+    with pytest.raises(ConfigError, match=rf"CFC {cfc} needs an output rate above .* 2000 Hz: expected one of "
+                                          r"\[60, 180\] or null") as e:  # fmt: skip
+        sampler(cells, sim, compare_cfc=cfc)
+    assert e.value.key == "reference.compare_cfc"
+    assert sampler(cells, sim, compare_cfc=180).config.compare_cfc == 180
+
+
 def test_a_reference_batch_holds_the_compared_velocity_and_no_acceleration_that_disagrees_with_it():
     """``ReferenceBatch.acceleration`` was read by nothing (the env, the problems and the plots differentiate the
     compared velocity), and it was not that velocity's derivative: a simulated reference stored the simulator's

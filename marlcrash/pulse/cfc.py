@@ -175,9 +175,9 @@ def _cfc_matrix_cached(n: int, dt: float, cfc: int, pad_time: float) -> np.ndarr
 
 def cfc_matrix(n: int, dt: float, cfc: int = 60, pad_time: float = DEFAULT_PAD_TIME) -> np.ndarray:
     """The ``[n, n]`` matrix ``M`` with ``cfc_filter(x) == M @ x`` for records of ``n`` samples."""
-    if isinstance(n, bool) or not isinstance(n, int) or n < 3:
-        raise PulseError(f"CFC filtering needs at least 3 samples, got n={n!r}")
-    return _cfc_matrix_cached(n, check_step(dt), check_cfc(cfc), _check_pad_time(pad_time))
+    if isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 3:  # numpy's integers are counts too
+        raise PulseError(f"CFC filtering needs an integer count of at least 3 samples, got n={n!r}")
+    return _cfc_matrix_cached(int(n), check_step(dt), check_cfc(cfc), _check_pad_time(pad_time))
 
 
 def cfc_filter_torch(x: torch.Tensor, dt: float, cfc: int = 60, pad_time: float = DEFAULT_PAD_TIME) -> torch.Tensor:
