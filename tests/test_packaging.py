@@ -6,6 +6,7 @@ The repository keeps ``configs/`` at its root, beside the package; pyproject.tom
 checkout, so a config the package needs but the wheel lacks fails here and not on a user's machine.
 """
 
+import glob
 import json
 import os
 import shutil
@@ -16,6 +17,8 @@ import zipfile
 from pathlib import Path
 
 import pytest
+
+from marlcrash.provenance import _editor_leftover
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -56,9 +59,25 @@ def wheel(tmp_path_factory) -> Path:
 def test_wheel_ships_every_config(wheel):
     with zipfile.ZipFile(wheel) as z:
         shipped = {n.removeprefix("marlcrash/configs/") for n in z.namelist() if n.startswith("marlcrash/configs/")}
-    expected = {p.relative_to(ROOT / "configs").as_posix() for p in (ROOT / "configs").rglob("*.yaml")}
+    # every file a loader could read, not only *.yaml: a scenario saved as extra.yml ran in a checkout and was an
+    # "unknown scenario" after pip install, and the test, looking for *.yaml alone, passed
+    files = [p for p in (ROOT / "configs").rglob("*") if p.is_file() and "__pycache__" not in p.parts]
+    expected = {p.relative_to(ROOT / "configs").as_posix() for p in files}
+    expected = {n for n in expected if not any(_editor_leftover(part) for part in n.split("/"))}
     assert expected, "no configs found in the repository"
     assert expected == shipped, f"missing from the wheel: {expected - shipped}; not in configs/: {shipped - expected}"
+
+
+def test_package_data_ships_every_ending_the_config_loaders_read(tmp_path):
+    """The loaders read scenarios, rewards and vehicles from ``*.yaml`` and ``*.yml``; package-data shipped
+    ``*.yaml`` alone. The patterns are expanded as setuptools does (``glob`` in the package folder, recursive)."""
+    patterns = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"]
+    names = ["sim.yaml", "sim.yml", "scenarios/extra.yml", "scenarios/extra.yaml", "train/algorithm/x.yml"]
+    for name in names:
+        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / name).write_text("a: 1\n")
+    found = {f for pat in patterns["marlcrash.configs"] for f in glob.glob(pat, root_dir=tmp_path, recursive=True)}
+    assert set(names) <= found, f"not shipped: {set(names) - found}"
 
 
 @pytest.fixture(scope="module")
