@@ -811,7 +811,8 @@ def test_the_strict_uniform_grid_gives_massless_material_no_cell(cfg):
 # ------------------------------------------------------------------ the synthetic B-segment car
 @pytest.fixture(scope="module")
 def synthetic():
-    syn = pytest.importorskip("marlcrash.vehicle.synthetic")
+    import marlcrash.vehicle.synthetic as syn
+
     model = syn.default_vehicle()
     cfg = load_discretization_config()
     return model, cfg, discretize(model, cfg, method="uniform"), discretize(model, cfg, method="optimized")
@@ -842,7 +843,8 @@ def test_symmetric_car_gives_mirror_symmetric_cells(method):
     had samples outside the box by rounding, more on one side: 42 voxels differed from their mirror image, 17 of
     them null cells of the optimized model (8 left, 9 right) where the compartment is.
     """
-    synthetic = pytest.importorskip("marlcrash.vehicle.synthetic")
+    import marlcrash.vehicle.synthetic as synthetic
+
     cells = discretize(synthetic.default_vehicle(), method=method)
     names = cells.subassembly_names
     for name in names:

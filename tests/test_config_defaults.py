@@ -101,3 +101,18 @@ def test_the_comparison_finds_a_difference():
         "d: only in the schema",
         "e: only in the file",
     ]
+
+
+def test_the_suite_reads_the_shipped_configs_whatever_the_shell_names(tmp_path):
+    """A MARLCRASH_CONFIGS set in the user's shell was honoured by the suite: these tests read that folder and failed
+    falsely ("differs from configs/sim.yaml") or could not be collected; conftest drops it."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    env = {**os.environ, "MARLCRASH_CONFIGS": str(tmp_path / "nowhere")}
+    cmd = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
+           f"{Path(__file__).name}::test_a_schema_made_in_python_holds_the_shipped_values"]  # fmt: skip
+    done = subprocess.run(cmd, cwd=Path(__file__).parent, env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
