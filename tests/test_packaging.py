@@ -46,7 +46,7 @@ def wheel(tmp_path_factory) -> Path:
     ignore = shutil.ignore_patterns("__pycache__", "*.pyc")
     for name in ("marlcrash", "configs"):
         shutil.copytree(ROOT / name, src / name, ignore=ignore)
-    for name in ("pyproject.toml", "README.md"):
+    for name in ("pyproject.toml", "README.md", "LICENSE"):
         shutil.copy2(ROOT / name, src / name)
     out = tmp_path_factory.mktemp("wheel")
     cmd = [sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "--no-build-isolation", str(src), "-w", str(out)]
@@ -66,6 +66,14 @@ def test_wheel_ships_every_config(wheel):
     expected = {n for n in expected if not any(_editor_leftover(part) for part in n.split("/"))}
     assert expected, "no configs found in the repository"
     assert expected == shipped, f"missing from the wheel: {expected - shipped}; not in configs/: {shipped - expected}"
+
+
+def test_wheel_ships_the_license_it_declares(wheel):
+    """``license = "MIT"`` was declared with no licence text in the repository or the wheel."""
+    with zipfile.ZipFile(wheel) as z:
+        (name,) = [n for n in z.namelist() if n.endswith(".dist-info/licenses/LICENSE")]
+        text = z.read(name).decode()
+    assert text.startswith("MIT License") and text == (ROOT / "LICENSE").read_text()
 
 
 def test_package_data_ships_every_ending_the_config_loaders_read(tmp_path):
