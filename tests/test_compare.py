@@ -519,6 +519,8 @@ def test_bad_config_fails_naming_the_key(short, tmp_path, override, key, words):
         ({"discretization": "uniform"}, "ppo.env_overrides.discretization"),
         ({"transmission_floor": 0.05}, "ppo.env_overrides.transmission_floor"),
         ({"vehicle_seed": 3}, "ppo.env_overrides.vehicle_seed"),
+        # the twin's draws are clipped to the bounds: accepted, and the table stopped at its first PPO run
+        ({"behaviour_bounds": [0.9, 1.1]}, "ppo.env_overrides.behaviour_bounds"),
     ],
 )
 def test_ppo_env_overrides_that_change_the_reference_fail_before_any_run(short, tmp_path, override, key):
@@ -757,3 +759,21 @@ def test_compare_md_names_the_papers_thresholds_only_when_they_are_the_papers():
         md = markdown(CompareConfig(success=th), [], None, "today")
         assert "(the paper's best Table 3 row)" not in md
         assert f"success = every sensor {th.describe()} (as configured, not the paper's best Table 3 row)" in md
+
+
+def test_a_ppo_reward_form_that_measures_differently_fails_before_any_run(short, tmp_path):
+    """A ppo.env_overrides.reward form with other metrics settings (trapezoid area, a DFD time scale of 1000) was
+    accepted: the PPO rows' area, DFD, RMSE and success were measured by another definition than the optimizers'
+    (a DFD of 0.58 recorded where the problem measured 0.25 for the same parameters)."""
+    import yaml
+
+    from marlcrash.config import config_dir
+
+    form = yaml.safe_load((config_dir() / "reward" / "log_ratio.yaml").read_text())
+    form["metrics"] = {**form["metrics"], "area_method": "trapezoid", "dfd_time_scale": 1000.0}
+    path = tmp_path / "other_metrics.yaml"
+    path.write_text(yaml.safe_dump(form))
+    with pytest.raises(ConfigError, match=r"measures A, DFD and RMSE differently from the shared env's") as e:
+        tiny(tmp_path, **{"ppo.env_overrides": {"reward": str(path)}})
+    assert e.value.key == "ppo.env_overrides.reward"
+    assert not (tmp_path / "runs").exists()

@@ -124,6 +124,7 @@ from marlcrash.outputs import (
     require_run_name,
     write_text,
 )
+from marlcrash.reward import load_reward_config
 from marlcrash.sim.scenario import list_scenarios
 
 METHODS: tuple[str, ...] = (*ALGORITHMS, *BASELINES)
@@ -156,10 +157,11 @@ _PPO_ENV_KEYS = {**_SHARED_ENV_KEYS, "reference": f"{_PROTOCOL} for the pinned P
                  "in the top-level env_overrides"}  # fmt: skip
 """Env keys a ``ppo.env_overrides`` entry may not change: the PPO runs' reference must be the problem's."""
 _REFERENCE_ENV_KEYS = ("vehicle", "vehicle_seed", "vehicle_options", "discretization", "sensors", "transmission_floor",
-                       "sim_dtype", "sim_backend")  # fmt: skip
+                       "behaviour_bounds", "sim_dtype", "sim_backend")  # fmt: skip
 """Env keys that shape the reference pulse besides ``reference`` (the car, its cells, the sensors compared, the twin's
-mapping and the simulator): a ``ppo.env_overrides`` entry may not make them differ from the optimizers' problem, whose
-reference the pinned PPO runs must draw bit for bit (:func:`check_env_overrides`)."""
+mapping, the bounds its draws are clipped to, and the simulator): a ``ppo.env_overrides`` entry may not make them
+differ from the optimizers' problem, whose reference the pinned PPO runs must draw bit for bit
+(:func:`check_env_overrides`)."""
 
 
 # ------------------------------------------------------------------------------------------- config
@@ -307,9 +309,14 @@ def check_env_overrides(
     PPO run stop at its start ("drew different references"), after the optimizers' runs before it, and a resume with
     the entry removed was refused as another protocol.
 
+    Nor may they measure differently: a ``ppo.env_overrides.reward`` form whose ``metrics`` (area method, DFD
+    scales) differ from the shared env's form recorded the PPO runs' area, DFD and RMSE, and tested their success,
+    by another definition than the optimizers' rows of the same table.
+
     Raises:
         ConfigError: a bad override, named by its dotted key under ``env_overrides`` or ``ppo.env_overrides``, a
-            ``ppo.env_overrides`` entry that changes the reference pulse, or an ``env_overrides`` entry it replaces.
+            ``ppo.env_overrides`` entry that changes the reference pulse or the metrics, or an ``env_overrides``
+            entry it replaces.
     """
     envs = []
     for key, over in (("env_overrides", shared), ("ppo.env_overrides", merge_overrides(EnvConfig, shared, ppo))):
@@ -333,6 +340,11 @@ def check_env_overrides(
                               f"the optimizers' problem ({every!r}, here {own!r}); set it in the top-level "
                               "env_overrides", key=f"ppo.env_overrides.{given[0] if given else k}",
                               path=source)  # fmt: skip
+    every, own = (load_reward_config(e.reward).metrics for e in envs)
+    if own != every:
+        raise ConfigError(f"the reward form {envs[1].reward!r} measures A, DFD and RMSE differently from the shared "
+                          f"env's {envs[0].reward!r} ({own} against {every}); the PPO rows would not compare with the "
+                          "others", key="ppo.env_overrides.reward", path=source)  # fmt: skip
 
 
 def _reference_setting(env: EnvConfig, key: str) -> Any:
