@@ -523,6 +523,28 @@ def test_run_calibration_loads_an_evaluated_run(tmp_path):
     assert e.value.key == "run"
 
 
+def test_a_folder_whose_evaluation_used_another_reference_is_refused(tmp_path):
+    """A re-evaluation made while configs/ differed (<run>/eval/<checkpoint>/, a changed twin spread) was analysed
+    against the reference of today's files with no word: only the run's start record was checked. The metrics its
+    summary.json records for the initial and calibrated parameters are now compared with the rebuilt problem's."""
+    import json
+
+    from marlcrash.metrics import Metrics
+
+    problem = write_evaluated_run(tmp_path)
+    m = evaluate_params(problem, torch.stack([problem.init, problem.true_params]))
+    rows = [Metrics(m.area[i], m.dfd[i], m.rmse[i]).per_sensor(list(problem.sensors)) for i in range(2)]
+    summary = {"initial_metrics": rows[0], "final_metrics": rows[1]}
+    (tmp_path / "summary.json").write_text(json.dumps(summary))
+    assert run_calibration(tmp_path).selected_iteration == 1  # the evaluation's own reference: accepted
+    sensor = problem.sensors[0]
+    rows[0][sensor]["area"] *= 1.01  # the evaluation's twin was another one
+    (tmp_path / "summary.json").write_text(json.dumps(summary))
+    with pytest.raises(ConfigError, match=rf"records initial area .* for {sensor}, the reference rebuilt") as e:
+        run_calibration(tmp_path)
+    assert e.value.key == "run" and "evaluate the run again" in str(e.value)
+
+
 def test_contributions_command_analyses_a_run_and_names_bad_arguments(tmp_path, capsys, monkeypatch):
     """``marlcrash contributions RUN``: the evaluated run's iterate, Shapley values that add up to the whole change
     (here: to the twin's truth, every area to zero), the tables and pictures; bad arguments exit 2 naming the flag."""

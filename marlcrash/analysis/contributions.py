@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -45,6 +46,7 @@ from marlcrash.analysis.shapley import (
 from marlcrash.calibrate.compare import evaluate_params
 from marlcrash.calibrate.problem import CalibrationProblem
 from marlcrash.errors import ConfigError, ModelError
+from marlcrash.metrics import Metrics
 from marlcrash.outputs import atomic_output, read_npz, write_text
 
 METRICS = ("area", "dfd", "rmse")
@@ -460,6 +462,41 @@ def require_run_folder(run_dir: str | Path) -> Path:
     return run
 
 
+RECORDED_RTOL = 1e-6
+"""Relative tolerance of :func:`_require_recorded_metrics` (the rebuilt problem gives the evaluation's metrics to the
+last digit; float32 runs and another machine's arithmetic stay far inside it)."""
+
+
+def _require_recorded_metrics(
+    run: Path, problem: CalibrationProblem, initial: torch.Tensor, calibrated: torch.Tensor, again: str
+) -> None:
+    """Refuse (key ``run``) where the rebuilt problem does not give the initial and calibrated metrics that the
+    evaluation in ``run`` recorded in its ``summary.json`` (``initial_metrics``, ``final_metrics``): its reference is
+    another one. A re-evaluation made while ``configs/`` differed (``<run>/eval/<checkpoint>/``) was analysed against
+    the reference of today's files, with no word, since only the run's own start record was checked. Two
+    simulations; a folder without those entries (an older evaluation) is not checked."""
+    from marlcrash.calibrate.evaluate import SUMMARY_FILE
+
+    try:
+        summary = json.loads((run / SUMMARY_FILE).read_text(encoding="utf-8"))
+        recorded = [summary["initial_metrics"], summary["final_metrics"]]
+    except (OSError, ValueError, KeyError, TypeError):
+        return
+    now = evaluate_params(problem, torch.stack([initial, calibrated]))
+    for row, (what, rec) in enumerate(zip(("initial", "final"), recorded, strict=True)):
+        per_sensor = Metrics(now.area[row], now.dfd[row], now.rmse[row]).per_sensor(list(problem.sensors))
+        for name, got in per_sensor.items():
+            for metric, value in got.items():
+                old = rec.get(name, {}).get(metric) if isinstance(rec, dict) else None
+                if isinstance(old, int | float) and not math.isclose(value, old, rel_tol=RECORDED_RTOL, abs_tol=1e-12):
+                    raise ConfigError(
+                        f"{run / SUMMARY_FILE} records {what} {metric} {old:.6g} for {name}, the reference rebuilt "
+                        f"from today's configs and code gives {value:.6g}: the evaluation there used other inputs "
+                        f"(its summary's provenance says which); {again}, or analyse it with the configs it used",
+                        key="run",
+                    )
+
+
 def run_calibration(run_dir: str | Path) -> RunCalibration:
     """Load ``<run>/calibrated.npz`` and rebuild the problem the run was evaluated on (its reference).
 
@@ -526,6 +563,7 @@ def run_calibration(run_dir: str | Path) -> RunCalibration:
     if sel.shape != () or not np.issubdtype(sel.dtype, np.integer) or not 0 <= int(sel) < per_it.shape[0]:
         raise ConfigError(f"{path}[selected_iteration]: expected an iteration in 0..{per_it.shape[0] - 1} of "
                           f"per_iteration, got {sel.tolist()!r}: {again}", key="run")  # fmt: skip
+    _require_recorded_metrics(run, problem, t["initial"], t["calibrated"], again)
     return RunCalibration(problem=problem, initial=t["initial"], calibrated=t["calibrated"],
                           per_iteration=t["per_iteration"], selected_iteration=int(arrays["selected_iteration"]),
                           true=t.get("true"), provenance=check.as_dict())  # fmt: skip
