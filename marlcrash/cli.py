@@ -527,7 +527,8 @@ def cmd_contributions(args: argparse.Namespace) -> int:
             _print_json({"analysed": what, "iteration": iteration, "provenance": None if args.run is None else
                          run.provenance, "agents_moved": int(contrib.players.sum()),
                          "n_agents": len(contrib.agents), "exact": contrib.exact, "simulations": contrib.n_simulations,
-                         "quantities": quantities, "files": [str(f) for f in files]})  # fmt: skip
+                         "settings": contrib.settings, "quantities": quantities,
+                         "files": [str(f) for f in files]})  # fmt: skip
             return 0
         print(f"{what}: {int(contrib.players.sum())} of {len(contrib.agents)} agents moved; {contrib.n_simulations} "
               f"simulations; Shapley values {'exact' if contrib.exact else 'sampled'}\n")  # fmt: skip

@@ -409,6 +409,9 @@ def test_the_markdown_tables_are_headed_by_the_settings_they_were_computed_with(
     settings = [x for x in lines if x.startswith("- ")]
     assert any("sampled" in x and "6 orderings" in x and "seed 5" in x and "exact_max 2" in x for x in settings), text
     assert any("3 of 21 agents moved" in x and f"{sampled.n_simulations} simulations" in x for x in settings), text
+    # 3 orderings' prefixes, each agent alone and all but each: the 2**3 coalitions, each simulated once (the
+    # one-at-a-time effects simulated the 2 * 3 + 2 end coalitions again, and counted 16)
+    assert sampled.n_simulations == 8
     sections = [x for x in lines if x.startswith("## ")]
     assert [x.split(" ")[1] for x in sections] == sampled.selected()  # score, then every sensor's area
     exact = agent_contributions(problem, calibrated, exact_max=3, n_permutations=6, seed=5)
@@ -560,6 +563,7 @@ def test_contributions_command_analyses_a_run_and_names_bad_arguments(tmp_path, 
     assert main(["contributions", str(run), "--permutations", "4", "--out", str(out), "--json"]) == 0
     s = json.loads(capsys.readouterr().out)
     assert s["iteration"] == 1 and s["agents_moved"] == s["n_agents"] == 21 and not s["exact"]
+    assert s["settings"] == {"exact_max": 10, "n_permutations": 4, "seed": 0}  # which orderings made the values
     names = ("contributions.csv", "contributions.md", "contributions.png", "cells.png")
     assert sorted(s["files"]) == sorted(str(out / f) for f in names)
     for q, v in s["quantities"].items():
