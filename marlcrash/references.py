@@ -69,7 +69,7 @@ from marlcrash.cells.model import CellModel
 from marlcrash.cells.parameterization import apply_increments
 from marlcrash.config import checked, config_dir, require
 from marlcrash.errors import ConfigError, PulseError
-from marlcrash.pulse.cfc import CFC_CLASSES, DESIGN_FACTOR
+from marlcrash.pulse.cfc import CFC_CLASSES, min_rate_hz
 from marlcrash.pulse.io import ACC_UNITS, acc_unit_key, check_record_rate, is_mme, is_sign, read_pulse
 from marlcrash.pulse.signal import (
     DEFAULT_COMPARE_MARGIN,
@@ -414,10 +414,10 @@ class ReferenceSampler:
                 key="scenarios",
             )
         cfc = config.compare_cfc
-        if cfc is not None and 2.0 * DESIGN_FACTOR * cfc >= self.output_rate:  # the simulation is filtered at it
-            fits = [c for c in CFC_CLASSES if 2.0 * DESIGN_FACTOR * c < self.output_rate]
+        if cfc is not None and min_rate_hz(cfc) >= self.output_rate:  # the simulation is filtered at it
+            fits = [c for c in CFC_CLASSES if min_rate_hz(c) < self.output_rate]
             raise ConfigError(
-                f"CFC {cfc} needs an output rate above {2.0 * DESIGN_FACTOR * cfc:.0f} Hz (its design frequency below "
+                f"CFC {cfc} needs an output rate above {min_rate_hz(cfc):.0f} Hz (its design frequency below "
                 f"Nyquist); the scenarios' output_rate is {self.output_rate:g} Hz: expected one of {fits} or null",
                 key="reference.compare_cfc",
             )

@@ -73,13 +73,19 @@ def f_n(cfc: int) -> float:
     return 5.0 / 3.0 * check_cfc(cfc)
 
 
+def min_rate_hz(cfc: int) -> float:
+    """[Hz] The sampling rate a class needs to exceed: twice its design frequency (``2 * 2.0775 * CFC``), which must
+    lie below Nyquist."""
+    return 2.0 * DESIGN_FACTOR * cfc
+
+
 def _check_dt(dt: float, cfc: int) -> float:
     if not (isinstance(dt, int | float | np.floating) and math.isfinite(dt) and dt > 0):
         raise PulseError(f"sampling interval must be a positive number of seconds, got {dt!r}")
     fd = DESIGN_FACTOR * cfc
     if dt * fd >= 0.5:
         raise PulseError(
-            f"CFC {cfc} needs a sampling rate above {2 * fd:.0f} Hz (its design frequency {fd:.1f} Hz "
+            f"CFC {cfc} needs a sampling rate above {min_rate_hz(cfc):.0f} Hz (its design frequency {fd:.1f} Hz "
             f"must lie below Nyquist); got {1 / dt:.1f} Hz"
         )
     if 1.0 / dt < 10.0 * f_h(cfc):  # the customary minimum: 10 kHz for CFC 1000

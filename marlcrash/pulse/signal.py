@@ -48,11 +48,11 @@ from marlcrash.metrics import check_step
 from marlcrash.pulse.cfc import (
     CFC_CLASSES,
     DEFAULT_PAD_TIME,
-    DESIGN_FACTOR,
     cfc_filter,
     cfc_filter_torch,
     check_cfc,
     f_n,
+    min_rate_hz,
 )
 from marlcrash.units import G0
 
@@ -607,7 +607,7 @@ def _onset_bands(cfc: int | None, rate_hz: float) -> list[int | None]:
     """The detection class, then every wider one the rate can filter, then the record as it is (``None``)."""
     if cfc is None:
         return [None]
-    wider = [c for c in CFC_CLASSES if c > cfc and 2.0 * DESIGN_FACTOR * c < rate_hz]
+    wider = [c for c in CFC_CLASSES if c > cfc and min_rate_hz(c) < rate_hz]
     return [cfc, *wider, None]
 
 
