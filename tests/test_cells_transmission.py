@@ -8,7 +8,7 @@ from test_cells_helpers import build_model, plate, tube_x
 
 from marlcrash.cells import DiscretizationConfig, SensorSpec, discretize
 from marlcrash.cells.model import DIRECTIONS
-from marlcrash.cells.transmission import Links, transmission_factors
+from marlcrash.cells.transmission import Links, orient_x_links, transmission_factors, x_cycles
 from marlcrash.vehicle.model import COMPARTMENT
 
 T1, T2, TT = 2e-3, 1e-3, 1.5e-3  # plate strip and tube wall thicknesses [m]
@@ -79,7 +79,11 @@ def check_invariants(cells):
             strict=True,
         )
     )
-    assert pairs <= xl
+    # cells interleaved along x touch both ways round; their link follows the x centroids instead
+    assert pairs <= xl | {(b, a) for a, b in xl}
+    turned = {(a, b) for a, b in pairs if (a, b) not in xl}
+    assert all(cells.centroid[b, 0] <= cells.centroid[a, 0] for a, b in turned)
+    assert np.bincount(x_cycles(cells.link_src[x], cells.link_dst[x], cells.n_cells)).max() == 1, "a +x cycle"
     # the minimum principal share where +x material continuity exists
     A = np.bincount(g, weights=cells.link_material_area, minlength=5 * cells.n_cells).reshape(-1, 5)
     cont = active & (A[:, X] > 0)
@@ -198,3 +202,77 @@ def test_contact_fallback_and_link_shares():
     f, _, share = transmission_factors(4, links, np.array([True, False, False, False]), (1.0, 1.0, 1.0), 0.6)
     np.testing.assert_allclose(f[0], [0.6, 0, 0, 0.4, 0], atol=1e-15)
     np.testing.assert_allclose(share, [0.25, 0.75, 1.0])
+
+
+def _x_links(src, dst, contact, material, gap):
+    n = len(src)
+    return Links(
+        src=np.array(src),
+        dst=np.array(dst),
+        dir=np.full(n, X),
+        contact_area=np.array(contact, dtype=float),
+        material_area=np.array(material, dtype=float),
+        gap=np.array(gap, dtype=float),
+    )
+
+
+def test_cells_interleaved_along_x_get_one_link_along_their_centroids():
+    """Two cells whose voxels interleave along x touch face to face both ways round: the faces alone gave a link
+    A -> B and one B -> A, so energy flowed toward -x (DESIGN 1.3, rule 1; 23 such pairs on the LS-OPT small car).
+    The pair becomes one link from the cell with the smaller x centroid, with both links' areas and the smaller gap;
+    links outside a cycle keep their direction even against the centroids (a member's rear end ahead of a large
+    cell's centroid), and lateral pairs stay two-way."""
+    x = np.array([0.5, 0.3, 0.9, 0.2, 0.0])
+    links = _x_links([0, 1, 0, 2], [1, 0, 2, 3], [1.0, 2.0, 0.5, 0.25], [0.1, 0.2, 0.0, 0.0], [0.0, 0.02, 0.0, 0.01])
+    lateral = Links(np.array([0, 1]), np.array([1, 0]), np.array([Y, YN]), np.ones(2), np.ones(2), np.zeros(2))
+    both = Links(*(np.concatenate([getattr(links, f), getattr(lateral, f)]) for f in Links.__dataclass_fields__))
+    out, turned = orient_x_links(both, x)
+    assert turned == 1
+    got = {(int(s), int(d), int(k)): (c, m, g) for s, d, k, c, m, g in zip(out.src, out.dst, out.dir,
+           out.contact_area, out.material_area, out.gap, strict=True)}  # fmt: skip
+    assert got == {
+        (1, 0, X): (3.0, pytest.approx(0.3), 0.0),  # 0 -> 1 turned round and merged: x 0.3 < 0.5
+        (0, 2, X): (0.5, 0.0, 0.0),
+        (2, 3, X): (0.25, 0.0, 0.01),  # against the centroids (0.9 > 0.2) but in no cycle: kept
+        (0, 1, Y): (1.0, 1.0, 0.0),
+        (1, 0, YN): (1.0, 1.0, 0.0),
+    }
+
+
+def test_a_longer_cycle_of_x_links_is_ordered_along_the_centroids_with_ties_by_index():
+    # 0 -> 1 -> 2 -> 0: a cycle of three interleaved cells; 1 and 2 share their centroid
+    links = _x_links([0, 1, 2], [1, 2, 0], [1.0, 1.0, 1.0], [1.0, 1.0, 1.0], [0.0, 0.0, 0.0])
+    out, turned = orient_x_links(links, np.array([0.4, 0.1, 0.1]))
+    assert turned == 1  # 0 -> 1 only: 1 -> 2 goes along the tie by index, 2 -> 0 along the centroids
+    assert sorted(zip(out.src.tolist(), out.dst.tolist(), strict=True)) == [(1, 0), (1, 2), (2, 0)]
+    assert np.bincount(x_cycles(out.src, out.dst, 3)).max() == 1
+    same, none = orient_x_links(out, np.array([0.4, 0.1, 0.1]))
+    assert none == 0 and same is out
+
+
+def test_a_cell_model_with_a_cycle_of_x_links_is_refused(default_cells):
+    """A model saved before the discretizer turned interleaved cells' links (or one built by hand) with +x links
+    both ways round between two cells is refused, naming them, instead of letting energy flow toward -x."""
+    import dataclasses
+
+    from marlcrash.errors import ModelError
+
+    c = default_cells
+    i = int(np.flatnonzero((c.link_dir == X) & ~c.is_rigid[c.link_dst])[0])
+    a, b = int(c.link_src[i]), int(c.link_dst[i])
+
+    def add(v, extra):
+        return np.concatenate([v, np.asarray([extra], dtype=v.dtype)])
+
+    bad = dataclasses.replace(
+        c,
+        link_src=add(c.link_src, b),
+        link_dst=add(c.link_dst, a),
+        link_dir=add(c.link_dir, X),
+        link_contact_area=add(c.link_contact_area, 1e-4),
+        link_material_area=add(c.link_material_area, 0.0),
+        link_gap=add(c.link_gap, 0.0),
+        link_share=add(c.link_share, 0.0),
+    )
+    with pytest.raises(ModelError, match=rf"the \+x links of cells \[{min(a, b)}, {max(a, b)}\] form a cycle.*-x"):
+        bad.validate()

@@ -247,3 +247,22 @@ def test_the_deck_written_back_reads_as_the_same_model(lsopt_deck, tmp_path, uni
     assert back.subassemblies == m.subassemblies
     assert back.part_masses() == pytest.approx(m.part_masses(), rel=1e-9)
     assert sum(m.part_masses().values()) == pytest.approx(4443.797, rel=1e-6)  # parts 1-5, as read from the deck
+
+
+def test_interleaved_cells_of_the_deck_link_along_x_one_way(lsopt_deck):
+    """The LS-OPT small car's sub-assemblies interleave along x: its faces gave 23 pairs of cells linked +x both ways
+    round and a cycle of 18 cells, by either method. Now no +x link closes a cycle, and the turned links are counted."""
+    from dataclasses import replace
+
+    from marlcrash.cells.discretize import discretize, load_discretization_config
+    from marlcrash.cells.transmission import DIR_X, x_cycles
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        m = read_deck(lsopt_deck, params=PARAMS, axis_map=AxisMap(x="+x", y="+z", z="+y"))
+        cfg = replace(load_discretization_config(), sensor_snap_distance=1.0)
+        for method in ("optimized", "uniform"):
+            cells = discretize(m, cfg, method=method)
+            x = cells.link_dir == DIR_X
+            assert np.bincount(x_cycles(cells.link_src[x], cells.link_dst[x], cells.n_cells)).max() == 1, method
+            assert cells.meta["x_links_turned"] >= 23, method

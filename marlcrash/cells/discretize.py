@@ -27,7 +27,7 @@ from marlcrash.cells.model import CellModel
 from marlcrash.cells.params import behaviour_params
 from marlcrash.cells.roi import Roi, region_of_interest
 from marlcrash.cells.sections import grid_sections
-from marlcrash.cells.transmission import aggregate_links, extract_faces, transmission_factors
+from marlcrash.cells.transmission import aggregate_links, extract_faces, orient_x_links, transmission_factors
 from marlcrash.config import checked, config_dir, load_config, require
 from marlcrash.errors import ConfigError, ModelError
 from marlcrash.vehicle.model import COMPARTMENT, VehicleModel
@@ -1172,7 +1172,7 @@ def discretize(model: VehicleModel, config: DiscretizationConfig | None = None, 
         for nodes in (model.shell_nodes, model.solid_nodes, model.beam_nodes)
     ]
     sections = grid_sections(model, grid, planes, *near_roi)
-    links = aggregate_links(faces, sections, planes, n)
+    links, n_turned = orient_x_links(aggregate_links(faces, sections, planes, n), centroid[:, 0])
     tick("links_sections")
     is_rigid = np.zeros(n, dtype=bool)
     is_rigid[comp] = True
@@ -1247,6 +1247,7 @@ def discretize(model: VehicleModel, config: DiscretizationConfig | None = None, 
             "grid_shape": list(grid.shape),
             "n_samples": samples.n,
             "timings_s": timings,
+            "x_links_turned": n_turned,  # +x links of interleaved cells turned along the x centroids (transmission)
             "warnings": notes,
         },
     )

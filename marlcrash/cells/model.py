@@ -243,7 +243,25 @@ class CellModel:
             min(self.link_src.min(), self.link_dst.min()) < 0 or max(self.link_src.max(), self.link_dst.max()) >= n
         ):
             raise ModelError("CellModel links refer to cells outside 0..n_cells-1")
+        self._validate_x_order()
         self._validate_references()
+
+    def _validate_x_order(self) -> None:
+        """Energy never flows toward -x (DESIGN 1.3, rule 1): no cycle of +x links, a pair of cells linked +x both
+        ways included (what the discretizer gave interleaved cells before it turned their links along the x
+        centroids)."""
+        from marlcrash.cells.transmission import DIR_X, x_cycles
+
+        ax = self.link_dir == DIR_X
+        group = x_cycles(self.link_src[ax], self.link_dst[ax], self.n_cells)
+        size = np.bincount(group)
+        if (size > 1).any():
+            cells = np.flatnonzero(group == int(np.argmax(size > 1)))
+            raise ModelError(
+                f"CellModel: the +x links of cells {cells.tolist()[:12]}{' ...' if cells.size > 12 else ''} form a "
+                f"cycle, so energy would flow toward -x (DESIGN 1.3, rule 1); rebuild the model from its deck "
+                f"(`marlcrash discretize DECK --save CELLS.npz`), which turns such links along the cells' x centroids"
+            )
 
     def _validate_parameters(self) -> None:
         """The boundary conditions of the module docstring, naming the cell: energies >= 0; a null cell
@@ -349,7 +367,8 @@ class CellModel:
         if version == 1:
             raise ModelError(
                 f"{path}: CellModel format version 1, written before cells had their own stroke (the simulator then "
-                f"gave solid cells 1/7 of their crush force); rebuild it from the deck with `marlcrash build --save`"
+                f"gave solid cells 1/7 of their crush force); rebuild it from the deck with "
+                f"`marlcrash discretize DECK --save CELLS.npz`"
             )
         if version != FORMAT_VERSION:
             raise ModelError(

@@ -10,6 +10,15 @@ rigid compartment owns none. Where a cell's rear face borders null space, a
 (``gap`` = null distance to close). A virtual voxel layer of the compartment
 sits behind the ROI, so rear cells link +x into the compartment.
 
+Cells whose voxels interleave along x (a sub-assembly's voxels at x = 1 and 3 of a
+column, another's at 2) meet face to face both ways, so the voxel faces alone gave
+a link ``A -> B`` and one ``B -> A``, or a longer cycle of +x links (23 pairs and a
+cycle of 18 cells on the LS-OPT small car; energy then flowed forward, against
+rule 1 below). :func:`orient_x_links` orders the cells of every such cycle by their
+x centroid: each +x link inside one points from the cell with the smaller centroid
+to the larger, and a pair's two links become one with both contact and material
+areas. The +x links then form no cycle (:meth:`CellModel.validate` refuses one).
+
 Transmission factors, per non-null, non-rigid cell, with ``A_d`` the material
 area and ``C_d`` the contact area summed over the cell's links in direction
 ``d`` (the five boundary conditions of DESIGN 1.3):
@@ -43,6 +52,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 
 from marlcrash.cells.grid import FineGrid
 
@@ -229,20 +240,57 @@ def aggregate_links(
         if sel.any():
             p = np.searchsorted(planes[a], faces.plane[sel])
             mat[sel] = sections[a][p, faces.iu[sel], faces.iv[sel]]
-    key = (faces.src * n + faces.dst) * 5 + faces.dir
+    return _summed(faces.src, faces.dst, faces.dir, faces.area, mat, faces.gap, n)
+
+
+def _summed(src, dst, d, contact, material, gap, n: int) -> Links:
+    """One link per (src, dst, direction) of the rows given: areas summed, the smallest gap; sorted by that key."""
+    key = (src * n + dst) * 5 + d
     uk, inv = np.unique(key, return_inverse=True)
-    contact = np.bincount(inv, weights=faces.area, minlength=uk.size)
-    material = np.bincount(inv, weights=mat, minlength=uk.size)
-    gap = np.full(uk.size, np.inf)
-    np.minimum.at(gap, inv, faces.gap)
+    least = np.full(uk.size, np.inf)
+    np.minimum.at(least, inv, gap)
     return Links(
         src=uk // 5 // n,
         dst=(uk // 5) % n,
         dir=uk % 5,
-        contact_area=contact,
-        material_area=material,
-        gap=gap,
+        contact_area=np.bincount(inv, weights=contact, minlength=uk.size),
+        material_area=np.bincount(inv, weights=material, minlength=uk.size),
+        gap=least,
     )
+
+
+def x_cycles(src: np.ndarray, dst: np.ndarray, n: int) -> np.ndarray:
+    """``[n]`` label of each cell's strongly connected set under the +x links ``src -> dst``; two cells share a
+    label exactly when +x links lead from each to the other (a cycle), every other cell has its own."""
+    graph = coo_matrix((np.ones(src.size), (src, dst)), shape=(n, n))
+    return connected_components(graph, directed=True, connection="strong")[1]
+
+
+def orient_x_links(links: Links, x: np.ndarray) -> tuple[Links, int]:
+    """Orient the +x links inside every cycle along the cells' x centroids (module doc).
+
+    Args:
+        links: the aggregated links (:func:`aggregate_links`).
+        x: ``[n]`` x centroid of every cell [m]; ties go to the lower cell index.
+
+    Returns:
+        ``(links, n_flipped)``: the links (sorted and aggregated as :func:`aggregate_links` gives them; the input
+        itself where no cycle exists) and how many were turned round.
+    """
+    n = x.shape[0]
+    ax = links.dir == DIR_X
+    s, d = links.src[ax], links.dst[ax]
+    group = x_cycles(s, d, n)
+    rank = np.empty(n, dtype=np.int64)
+    rank[np.lexsort((np.arange(n), x))] = np.arange(n)
+    flip = np.zeros(links.src.shape[0], dtype=bool)
+    flip[ax] = (group[s] == group[d]) & (rank[s] > rank[d])
+    if not flip.any():
+        return links, 0
+    src = np.where(flip, links.dst, links.src)
+    dst = np.where(flip, links.src, links.dst)
+    out = _summed(src, dst, links.dir, links.contact_area, links.material_area, links.gap, n)
+    return out, int(flip.sum())
 
 
 def transmission_factors(
