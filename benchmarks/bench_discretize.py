@@ -128,6 +128,8 @@ def main() -> None:
         f"model: {model.n_nodes} nodes, {model.n_shells} shells, {model.total_mass():.1f} kg, built in {t_build:.2f} s"
     )
     cfg = load_discretization_config()
+    for method in ("uniform", "optimized"):  # warm-up: the first call also paid for lazy imports (scipy, shapely)
+        discretize(tube_lattice(2e4), cfg, method=method)
     times = {}
     cells = {}
     for method in ("uniform", "optimized"):
