@@ -1742,6 +1742,15 @@ def test_a_fixed_format_parameter_expression_may_hold_commas(tmp_path):
         assert m.shell_thickness[0] == pytest.approx(t3 * 1e-3), line
 
 
+@pytest.mark.parametrize("line", ["R thk", "R thk     ", "I n  "])
+def test_a_parameter_expression_without_an_expression_is_named(tmp_path, line):
+    """A line with a type and a name only crashed the reader with Python's 'not enough values to unpack': with no
+    comma in it, the whole line looked like the head of a free-format line."""
+    p = _write(tmp_path, f"*KEYWORD\n*PARAMETER_EXPRESSION\n{line}\n" + HEAD.replace("*KEYWORD\n", "") + NODES + SHELL)
+    with pytest.raises(DeckError, match=r"deck\.k line 3: \*PARAMETER_EXPRESSION expects an arithmetic expression"):
+        _read(p)
+
+
 @pytest.mark.parametrize(
     ("expr", "value"),
     [

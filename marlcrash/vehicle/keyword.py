@@ -1044,7 +1044,9 @@ def _read_parameter_expressions(block: _Block, params: _Params, local: bool = Fa
         text = block.src.text(r)
         if not text.strip():
             continue
-        free = _EXPR_HEAD.fullmatch(text.split(",", 1)[0]) is not None  # a comma after the name, not in max(a, b)
+        # free format: a comma right after the name, not in max(a, b); a line without any is fixed format (one
+        # that ended after its name, 'R thk', matched the head whole and was split at the comma it lacked)
+        free = "," in text and _EXPR_HEAD.fullmatch(text.split(",", 1)[0]) is not None
         head, expr = text.split(",", 1) if free else (text[:w], text[w:])
         head = head.strip()
         kind, name = head[:1].upper(), head[1:].strip()
