@@ -1532,6 +1532,26 @@ def test_blank_lines_before_the_first_solid_are_skipped_as_for_shells_and_nodes(
         assert m.total_mass() == ref.total_mass() and np.array_equal(m.solid_nodes, ref.solid_nodes)
 
 
+@pytest.mark.parametrize("option", ["TET4TOTET10", "H8TOH20", "H8TOH27"])
+def test_solids_lsdyna_gives_mid_side_nodes_read_as_plain_solids(tmp_path, option):
+    """*ELEMENT_SOLID_TET4TOTET10 (H8TOH20, H8TOH27) holds plain 4- and 8-node cards to which LS-DYNA adds mid-side
+    nodes; it was skipped as an unknown option, so a part meshed that way stayed in the model with no mass."""
+    head = HEAD.replace("*SECTION_SHELL\n         1         2\n       2.0       2.0       2.0       2.0\n",
+                        "*SECTION_SOLID\n         1         1\n")  # fmt: skip
+    nodes = "*NODE\n1,0,0,0\n2,10,0,0\n3,10,20,0\n4,0,20,0\n5,0,0,30\n6,10,0,30\n7,10,20,30\n8,0,20,30\n"
+    card = (
+        "       1       1       1       2       4       5       5       5       5       5\n"
+        if option == "TET4TOTET10"
+        else "       1       1       1       2       3       4       5       6       7       8\n"
+    )
+    ref = _read(_write(tmp_path, head + nodes + "*ELEMENT_SOLID\n" + card))
+    m = _read(_write(tmp_path, head + nodes + f"*ELEMENT_SOLID_{option}\n" + card, "opt.k"))
+    volume = 10 * 20 * 30 / (6 if option == "TET4TOTET10" else 1) * 1e-9
+    np.testing.assert_allclose(m.solid_volumes(), [volume], rtol=1e-12)
+    assert m.total_mass() == ref.total_mass() > 0 and np.array_equal(m.solid_nodes, ref.solid_nodes)
+    assert not any("skipped" in w for w in m.warnings), m.warnings
+
+
 @pytest.mark.parametrize(
     ("card", "pattern"),
     [

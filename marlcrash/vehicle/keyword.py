@@ -25,7 +25,8 @@ Coverage:
 - geometry: ``*NODE`` (blank fields read as 0), ``*ELEMENT_SHELL`` with options
   ``THICKNESS``/``BETA``/``MCID``/``OFFSET`` (element thickness 0 means the
   section's), ``*ELEMENT_SOLID`` (one line of 8 nodes, or the two-line form with 8
-  or 10 nodes, 10-node tets kept as their 4 corner nodes; option ``ORTHO``),
+  or 10 nodes, 10-node tets kept as their 4 corner nodes; options ``ORTHO``, and ``TET4TOTET10``, ``H8TOH20``,
+  ``H8TOH27``, whose cards are plain ones),
   ``*ELEMENT_BEAM`` (options ``THICKNESS`` and ``SECTION`` give element areas, the latter for the circular,
   tubular and solid-box section types ``SECTION_08``, ``_09``, ``_11``, other types taking the part's section area;
   ``PID``/``OFFSET``/``ORIENTATION``/``SCALAR``/``SCALR``/``WARPAGE`` are read past);
@@ -1284,7 +1285,9 @@ def _grouped(block: _Block, per: int, rows: np.ndarray | None = None) -> list[np
 
 
 _SHELL_OPTS = {"THICKNESS", "BETA", "MCID", "OFFSET"}
-_SOLID_OPTS = {"ORTHO", "TET10"}
+_SOLID_OPTS = {"ORTHO", "TET10", "TET4TOTET10", "H8TOH20", "H8TOH27"}
+"""``*ELEMENT_SOLID`` options read; ``TET4TOTET10``, ``H8TOH20`` and ``H8TOH27`` ask LS-DYNA to add mid-side nodes to
+plain 4- and 8-node cards, so they read as ``*ELEMENT_SOLID`` (they were skipped: a part meshed so weighed nothing)."""
 _BEAM_OPTS = {"THICKNESS", "SECTION", "PID", "OFFSET", "ORIENTATION", "SCALAR", "SCALR", "WARPAGE"}
 
 
