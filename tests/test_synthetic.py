@@ -432,6 +432,15 @@ def test_unknown_or_non_rigid_material_is_a_config_error():
     assert err.value.key == "compartment.material"
 
 
+def test_a_material_library_that_is_not_there_is_named_by_its_key_and_folder():
+    """'nope.yaml: cannot read config file' named neither the key nor the configs folder a relative path is read
+    from, so a library copied beside a vehicle file looked found while the packaged one was read."""
+    cfg = load_synthetic_config(CONFIG, {"materials": "nope.yaml"})
+    with pytest.raises(ConfigError, match=r"material library 'nope.yaml' not found.*configs folder") as err:
+        build_vehicle(cfg)
+    assert err.value.key == "materials" and str(config_dir()) in str(err.value)
+
+
 def test_front_heavier_than_total_mass_is_a_config_error():
     cfg = load_synthetic_config(CONFIG, {"total_mass": 250.0})
     with pytest.raises(ConfigError) as err:

@@ -761,6 +761,12 @@ def _resolve_materials(config: SyntheticCarConfig) -> dict[str, Material]:
     path = Path(config.materials)
     if not path.is_absolute():
         path = config_dir() / path
+    if not path.is_file():  # named without its key or where it was looked for ('nope.yaml: cannot read config file')
+        raise ConfigError(
+            f"material library {config.materials!r} not found: {path} is no file (a relative path is read from the "
+            f"configs folder {config_dir()}, not from the vehicle file's)",
+            key="materials",
+        )
     library = load_material_library(path)
     for section, comp in config.components().items():
         name = getattr(comp, "material", None)
