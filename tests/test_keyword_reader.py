@@ -1239,6 +1239,19 @@ def test_line_endings_of_any_platform_read_alike(tmp_path):
         _read(p)
 
 
+def test_a_shell_thicker_than_it_is_wide_is_noted_as_a_thickness_typo(lsopt_deck, tmp_path):
+    """A coordinate typo was noted, a thickness typo not: 2000. for 2.0 mm made a 157 kg plate of a 0.157 kg one."""
+    thick = HEAD.replace("       2.0       2.0       2.0       2.0\n", "    2000.0    2000.0    2000.0    2000.0\n")
+    m = _read(_write(tmp_path, thick + NODES + SHELL))
+    (note,) = [w for w in m.warnings if "thicker than" in w]
+    assert "shell 1 of part 1 is 2000 mm thick; a thickness typo" in note, note
+    assert not [w for w in _read(_write(tmp_path, HEAD + NODES + SHELL)).warnings if "thicker than" in w]
+    # the real deck: 3 mm bumper, and the same bumper 3000 mm thick
+    assert not [w for w in _read(lsopt_deck, params={"tbumper": 3, "thood": 1}).warnings if "thicker than" in w]
+    (note,) = [w for w in _read(lsopt_deck, params={"tbumper": 3000, "thood": 1}).warnings if "thicker than" in w]
+    assert "is 3000 mm thick" in note, note
+
+
 def _lsopt_with_node_500_x(lsopt_deck, tmp_path, x: str) -> Path:
     lines = lsopt_deck.read_text().splitlines(keepends=True)
     start = lines.index("*NODE\n")

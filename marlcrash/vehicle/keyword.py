@@ -139,6 +139,7 @@ _CHUNK = 65536  # rows converted per numpy call when a fast conversion needs a f
 MAX_VEHICLE_EXTENT = 50.0  # m: the kept structure spans more only by a coordinate typo or wrong units
 OUTLIER_SIZE_RATIO = 100.0  # an element this many times its part's median size is noted ...
 OUTLIER_MIN_SIZE = 0.5  # m: ... when it is also at least this large
+THICK_SHELL = 0.05  # m: a shell thicker than this and than its own size is noted (a thickness typo: 2000. for 2.)
 _NO_FAILURE = 1e20  # LS-DYNA's conventional "never fails" strain
 
 # --------------------------------------------------------------------------- layouts
@@ -2403,7 +2404,8 @@ def _element_sizes(coords: np.ndarray, nodes: np.ndarray) -> np.ndarray:
 
 
 def _check_extent(model: VehicleModel, t: _Tables) -> list[str]:
-    """Refuse a structure larger than a vehicle; note elements far larger than the rest of their part.
+    """Refuse a structure larger than a vehicle; note elements far larger than the rest of their part, and shells
+    thicker than :data:`THICK_SHELL` and than they are wide.
 
     A coordinate typo (``1.5e12`` for ``1500.``) makes the elements on that node huge, and their mass with
     them: the car weighed 8e10 kg without a word. Runs on the parts kept (a ground plane may be large).
@@ -2430,11 +2432,12 @@ def _check_extent(model: VehicleModel, t: _Tables) -> list[str]:
             *where(i),
         )
     notes = []
+    sizes: dict[str, np.ndarray] = {}
     for kind, nodes in (("shell", model.shell_nodes), ("solid", model.solid_nodes), ("beam", model.beam_nodes)):
         if not len(nodes):
             continue
         part = getattr(model, f"{kind}_part")
-        size = _element_sizes(model.coords, nodes)
+        size = sizes[kind] = _element_sizes(model.coords, nodes)
         order = np.lexsort((size, part))
         pids, first, count = np.unique(part[order], return_index=True, return_counts=True)
         median = size[order][first + (count - 1) // 2]  # lower median per part
@@ -2452,6 +2455,18 @@ def _check_extent(model: VehicleModel, t: _Tables) -> list[str]:
             f"median {ref[e]:.3g} m); its node {int(model.node_ids[i])} ({path.name} line {line}) may have a "
             f"coordinate typo, which also inflates the elements' mass"
         )
+    if "shell" in sizes:  # the same mass error from a thickness typo: a 2 m thick shell on a 0.1 m plate
+        thick = model.shell_thickness
+        out = np.flatnonzero((thick > THICK_SHELL) & (thick > sizes["shell"]))
+        if out.size:
+            e = int(out[np.argmax(thick[out])])
+            pids = np.unique(model.shell_part[out])
+            notes.append(
+                f"{out.size} shell element(s) of part(s) {pids[:8].tolist()}{' ...' if pids.size > 8 else ''} are "
+                f"thicker than {THICK_SHELL * 1e3:g} mm and than they are wide: shell {int(model.shell_ids[e])} of "
+                f"part {int(model.shell_part[e])} is {thick[e] * 1e3:.4g} mm thick; a thickness typo (its section's "
+                f"T1-T4 or the element's card), which inflates the part's mass in proportion"
+            )
     return notes
 
 
