@@ -480,6 +480,26 @@ def test_a_config_made_in_python_is_checked_as_a_file_is(cells):
     assert CalibrationCore(EnvConfig(), 1, cells).config == EnvConfig()
 
 
+def test_a_section_given_as_a_mapping_in_python_is_used_as_the_checked_section(cells):
+    """The check converted ``EnvConfig(masking={"mode": "none"})`` into its section but the env kept the mapping, and
+    failed with "'dict' object has no attribute 'secondary_directions'" (at build, or at the first reset)."""
+    from marlcrash.envs.core import EnvConfig
+    from marlcrash.envs.masking import MaskingConfig
+
+    for kw, typed in (
+        ({"masking": {"mode": "none"}}, {"masking": MaskingConfig(mode="none")}),
+        ({"agents": {"split_lr": []}}, None),
+        ({"observation": {"velocity_scale": 2.0}}, None),
+    ):
+        core = CalibrationCore(EnvConfig(**kw), 1, cells)
+        core.reset(seed=0)
+        if typed is not None:
+            assert core.config == EnvConfig(**typed)
+        key, value = next(iter(kw.items()))
+        section = getattr(core.config, key)
+        assert not isinstance(section, dict) and all(getattr(section, k) == v for k, v in value.items())
+
+
 def test_a_bad_seed_is_named(cells):
     """numpy's own messages ("expected non-negative integer", "SeedSequence expects int ...") named no value."""
     from marlcrash.envs.pettingzoo_env import CalibrationParallelEnv

@@ -125,6 +125,20 @@ def test_pettingzoo_wrapper_specs(cells):
     check_env_specs(env, seed=0)
 
 
+def test_the_documented_wrapping_runs_an_offset_episode_to_its_end(cells):
+    """In an offset crash some agents are outside the impact region, never in ``agents``; the wrapper counts them as
+    done, and its parallel-env default ``done_on_any=True`` ended the episode after one step. The wrapping the
+    module doc and README give runs it to the env's own end (4 iterations here)."""
+    config = cfg(scenarios={"offset40_left": 1.0})
+    default = PettingZooWrapper(CalibrationParallelEnv(config, cells), use_mask=True)
+    default.set_seed(0)
+    assert default.rollout(10).shape[0] == 1  # why the docs name done_on_any
+    wrapped = PettingZooWrapper(CalibrationParallelEnv(config, cells), use_mask=True, done_on_any=False)
+    wrapped.set_seed(0)
+    roll = wrapped.rollout(10)
+    assert roll.shape[0] == 4 and roll["next", "done"][-1].all() and not roll["next", "done"][:-1].any()
+
+
 @pytest.mark.parametrize("granularity", ["subassembly", "cell"])
 def test_the_pettingzoo_door_gives_each_agent_the_native_action_mask(cells, granularity):
     """Per cell with ``masking.cells: region`` in a driver-side small overlap, the active left bumper beam's

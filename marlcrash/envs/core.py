@@ -372,13 +372,17 @@ class CalibrationCore:
         sim_config: SimConfig | None = None,
     ):
         batch_size = check_env_args(config, batch_size, cells)  # arguments: not keys of the env's YAML file
+        source = getattr(config, "_source", None)
         try:
             # the loaders check a file's values; an EnvConfig made or changed in Python (EnvConfig() in a notebook)
-            # skipped that: a misspelt masking.mode ran primary_secondary, a granularity 'cells' per-cell actions
-            checked(config)
+            # skipped that: a misspelt masking.mode ran primary_secondary, a granularity 'cells' per-cell actions.
+            # The env runs the checked copy: a section given as a mapping (EnvConfig(masking={"mode": "none"}))
+            # passed the check as such and failed later with "'dict' object has no attribute ..."
+            config = checked(config)
+            if source is not None:
+                vars(config)["_source"] = source
             self._build(config, batch_size, cells, sim_config)
         except ConfigError as e:  # name the YAML file the bad key came from
-            source = getattr(config, "_source", None)
             if e.path is None and source is not None:
                 raise ConfigError(e.reason, key=e.key, path=source) from None
             raise

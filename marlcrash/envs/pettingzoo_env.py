@@ -24,6 +24,10 @@
   region; all ``False`` for an agent inactive in the episode). Not named ``action_mask``: PettingZoo's API test
   samples each agent's space with an info of that name as the mask, which a ``Box`` refuses. TorchRL's
   ``PettingZooWrapper`` gives it as ``(group, "info", "action_entries")``.
+- Wrap it as ``PettingZooWrapper(env, use_mask=True, done_on_any=False)``. The wrapper counts an agent that is not in
+  ``agents`` as done, and for a parallel env its default ``done_on_any=True`` ends the episode when any agent is
+  done: every episode with an agent outside the impact region (4 of the 5 default scenarios: the offset and small
+  overlap ones) ended after its first step without a word. ``use_mask=True`` gives the live agents' mask.
 - TorchRL's ``PettingZooWrapper`` hands every info entry on as float32: it builds the info spec without a dtype
   (TorchRL 0.14: no option sets one, and it writes the values into float32 buffers), so the float64 metrics come out
   rounded to float32 (relative error at most 6e-8, 2**-24) and ``action_entries`` as 1.0 / 0.0 (``.bool()`` gives
