@@ -7,7 +7,14 @@ from types import SimpleNamespace
 
 import pytest
 
-from marlcrash.calibrate.entry import check_overrides, exit_on_bad_overrides, name_default_run
+from marlcrash.calibrate.entry import (
+    check_overrides,
+    check_sweep,
+    exit_on_bad_overrides,
+    fixed_run_folder,
+    name_default_run,
+    sweep_jobs,
+)
 from marlcrash.config import config_dir
 from marlcrash.errors import ConfigError
 
@@ -161,3 +168,45 @@ def test_an_interpolation_that_does_not_resolve_is_named_with_its_key(value, wor
         config_mapping(OmegaConf.create({"seed": 0, "name": value}))
     assert e.value.key == "name"
     assert config_mapping(OmegaConf.create({"seed": 3, "name": "s${seed}"})) == {"seed": 3, "name": "s3"}
+
+
+def test_a_sweep_expands_into_hydras_jobs():
+    assert sweep_jobs(["seed=0,1", "lr=1,2", "x=3"]) == [
+        ["seed=0", "lr=1", "x=3"], ["seed=0", "lr=2", "x=3"], ["seed=1", "lr=1", "x=3"], ["seed=1", "lr=2", "x=3"]
+    ]  # fmt: skip
+    with pytest.raises(ConfigError, match=r"key 'seed': cannot parse the override 'seed=\[0,'"):
+        sweep_jobs(["seed=[0,", "x=1"])
+
+
+def _sweep_configs(tmp_path) -> Path:
+    configs = tmp_path / "configs"
+    configs.mkdir()
+    (configs / "tiny.yaml").write_text("seed: 0  # a seed\nname: ${now:%Y%m%d-%H%M%S}  # run name\n")
+    return configs
+
+
+def _check(cfg, data, given):  # a script's check of one job: its values, and its run folder
+    if data["seed"] < 0:
+        raise ConfigError(f"expected a seed >= 0, got {data['seed']}", key="seed")
+    return fixed_run_folder(cfg, SimpleNamespace(**data), lambda c: Path("runs") / c.name, given)
+
+
+def test_every_job_of_a_sweep_is_checked_before_the_first_runs(tmp_path, capsys):
+    """Hydra runs a multirun's jobs in turn and each checked its values when it started: ``seed=0,-1,2`` trained
+    job 1, then stopped at job 2, and job 3 never ran; ``name=same`` trained job 1, then refused job 2's folder."""
+    configs = _sweep_configs(tmp_path)
+    with pytest.raises(ConfigError, match=r"key 'seed': multirun job 2 of 3 \(seed=-1 name=s\$\{seed\}\): expected a "
+                       r"seed >= 0, got -1; no job was run"):  # fmt: skip
+        check_sweep(configs, "tiny", ["seed=0,-1,2", "name=s${seed}"], _check)
+    with pytest.raises(ConfigError, match=r"key 'name': multirun jobs 1 and 2 of 2 would write one run folder .*same"):
+        check_sweep(configs, "tiny", ["seed=0,1", "name=same"], _check)
+    with pytest.raises(ConfigError, match=r"key 'sed': multirun job 1 of 2 \(seed=0 sed=1\): unknown key"):
+        check_sweep(configs, "tiny", ["seed=0,1", "sed=1"], _check)
+    check_sweep(configs, "tiny", ["seed=0,1,2", "name=s${seed}"], _check)
+    check_sweep(configs, "tiny", ["seed=0,1"], _check)  # the default time-stamped name: each job gets its own folder
+    script = tmp_path / "train" / "script.py"  # configs/ beside train/, as config_path="../configs" finds it
+    with pytest.raises(SystemExit) as e:
+        exit_on_bad_overrides(script, "tiny", "../configs", ["-m", "seed=1,-2"], check_job=_check)
+    assert e.value.code == 2 and "multirun job 2 of 2 (seed=-2)" in capsys.readouterr().err
+    exit_on_bad_overrides(script, "tiny", "../configs", ["-m", "seed=1,-2"])  # no job check given: left to Hydra
+    exit_on_bad_overrides(script, "tiny", "../configs", ["-m", "--cfg", "job", "seed=-2"], check_job=_check)

@@ -83,6 +83,16 @@ def test_a_multirun_seed_sweep_writes_one_run_per_seed_and_nothing_in_the_launch
     assert sorted(x.name for x in record.parent.iterdir()) == ["multirun.yaml"]  # no empty per-job folders
 
 
+def test_a_multirun_with_a_bad_job_runs_none(short_configs, tmp_path):
+    """Each job of ``-m`` checked its values as it started: job 1 trained, job 2 stopped the sweep, job 3 never ran."""
+    p = run("train.py", ["-m", "seed=0,-1,2", "name=s${seed}", *TINY, "iterations=1"], short_configs, tmp_path)
+    assert p.returncode == 2, p.stderr[-3000:]
+    assert "key 'seed': multirun job 2 of 3 (seed=-1 name=s${seed}" in p.stderr and "no job was run" in p.stderr
+    p = run("baseline.py", ["-m", "seed=0,1", "name=same", "method=random_search", "budget=8"], short_configs, tmp_path)
+    assert p.returncode == 2 and "multirun jobs 1 and 2 of 2 would write one run folder" in p.stderr, p.stderr[-3000:]
+    assert not (tmp_path / "runs").exists()
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize(
     ("override", "key"),

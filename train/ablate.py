@@ -20,7 +20,7 @@ import hydra
 from omegaconf import DictConfig
 
 from marlcrash.calibrate.ablate import load_ablation_config, run_ablation
-from marlcrash.calibrate.entry import config_mapping, exit_on_bad_overrides, name_default_run
+from marlcrash.calibrate.entry import config_mapping, exit_on_bad_overrides, fixed_run_folder, name_default_run
 from marlcrash.errors import MarlcrashError
 
 
@@ -39,6 +39,14 @@ def main(cfg: DictConfig) -> None:
     print(json.dumps({"run": str(run_dir), "rows": len(rows)}))
 
 
+def check_job(cfg, data, given):
+    """A multirun job's values and run folder, checked before the sweep's first job runs (entry.check_sweep)."""
+    config = load_ablation_config(data, source="configs/train/ablate.yaml")
+    return fixed_run_folder(cfg, config, lambda c: c.run_dir, given)
+
+
 if __name__ == "__main__":
-    exit_on_bad_overrides(__file__, "ablate")  # Hydra's composition errors as ours: the key, exit 2
+    exit_on_bad_overrides(
+        __file__, "ablate", check_job=check_job
+    )  # Hydra's composition errors as ours: the key, exit 2
     main()

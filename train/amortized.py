@@ -64,6 +64,13 @@ def main(cfg: DictConfig) -> None:
     print(json.dumps({k: str(v) for k, v in paths.items()}))
 
 
+def check_job(cfg, data, given):
+    """A multirun job's values, checked before the sweep's first job runs (entry.check_sweep)."""
+    load_amortized_config(data, source="configs/train/amortized.yaml")
+
+
 if __name__ == "__main__":
-    exit_on_bad_overrides(__file__, "amortized")  # Hydra's composition errors as ours: the key, exit 2
+    exit_on_bad_overrides(
+        __file__, "amortized", check_job=check_job
+    )  # Hydra's composition errors as ours: the key, exit 2
     main()

@@ -16,7 +16,7 @@ from omegaconf import DictConfig
 
 from marlcrash.calibrate import build_problem, load_run_config, run_baseline, write_run
 from marlcrash.calibrate.baselines import run_folder, run_path, run_record
-from marlcrash.calibrate.entry import config_mapping, exit_on_bad_overrides, name_default_run
+from marlcrash.calibrate.entry import config_mapping, exit_on_bad_overrides, fixed_run_folder, name_default_run
 from marlcrash.errors import MarlcrashError
 from marlcrash.outputs import json_text
 
@@ -42,6 +42,15 @@ def main(cfg: DictConfig) -> None:
                       "wall_time_s": round(s["wall_time_s"], 2)}, indent=None))  # fmt: skip
 
 
+def check_job(cfg, data, given):
+    """A multirun job's values and run folder, checked before the sweep's first job runs (entry.check_sweep)."""
+    config = load_run_config(data, source="configs/train/baseline.yaml")
+    folder = fixed_run_folder(cfg, config, run_path, given)
+    return None if folder is None else run_folder(config)  # an existing one refused, as a single run does
+
+
 if __name__ == "__main__":
-    exit_on_bad_overrides(__file__, "baseline")  # Hydra's composition errors as ours: the key, exit 2
+    exit_on_bad_overrides(
+        __file__, "baseline", check_job=check_job
+    )  # Hydra's composition errors as ours: the key, exit 2
     main()

@@ -18,7 +18,7 @@ import hydra
 from omegaconf import DictConfig
 
 from marlcrash.calibrate.compare import load_compare_config, run_comparison
-from marlcrash.calibrate.entry import config_mapping, exit_on_bad_overrides, name_default_run
+from marlcrash.calibrate.entry import config_mapping, exit_on_bad_overrides, fixed_run_folder, name_default_run
 from marlcrash.errors import MarlcrashError
 
 
@@ -37,6 +37,14 @@ def main(cfg: DictConfig) -> None:
     print(json.dumps({"run": str(run_dir), "rows": len(rows)}))
 
 
+def check_job(cfg, data, given):
+    """A multirun job's values and run folder, checked before the sweep's first job runs (entry.check_sweep)."""
+    config = load_compare_config(data, source="configs/train/compare.yaml")
+    return fixed_run_folder(cfg, config, lambda c: c.run_dir, given)
+
+
 if __name__ == "__main__":
-    exit_on_bad_overrides(__file__, "compare")  # Hydra's composition errors as ours: the key, exit 2
+    exit_on_bad_overrides(
+        __file__, "compare", check_job=check_job
+    )  # Hydra's composition errors as ours: the key, exit 2
     main()

@@ -40,6 +40,13 @@ def main(cfg: DictConfig) -> None:
     print(json_text({k: s[k] for k in keys}, indent=1))
 
 
+def check_job(cfg, data, given):
+    """A multirun job's values, checked before the sweep's first job runs (entry.check_sweep)."""
+    load_evaluate_config(data, source="configs/train/evaluate.yaml")
+
+
 if __name__ == "__main__":
-    exit_on_bad_overrides(__file__, "evaluate")  # Hydra's composition errors as ours: the key, exit 2
+    exit_on_bad_overrides(
+        __file__, "evaluate", check_job=check_job
+    )  # Hydra's composition errors as ours: the key, exit 2
     main()

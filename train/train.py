@@ -28,9 +28,14 @@ import hydra  # noqa: E402
 from hydra.core.hydra_config import HydraConfig  # noqa: E402
 from omegaconf import DictConfig  # noqa: E402
 
-from marlcrash.calibrate.entry import config_mapping, exit_on_bad_overrides, name_default_run  # noqa: E402
+from marlcrash.calibrate.entry import (  # noqa: E402
+    config_mapping,
+    exit_on_bad_overrides,
+    fixed_run_folder,
+    name_default_run,
+)
 from marlcrash.calibrate.marl import load_train_config, run_dir_of, train, value_keys  # noqa: E402
-from marlcrash.errors import MarlcrashError  # noqa: E402
+from marlcrash.errors import ConfigError, MarlcrashError  # noqa: E402
 from marlcrash.outputs import json_text  # noqa: E402
 
 RESUME_KEYS = ("resume", "name", "out_dir", "algorithm")
@@ -78,6 +83,15 @@ def main(cfg: DictConfig) -> None:
     }, indent=1))  # fmt: skip
 
 
+def check_job(cfg, data, given):
+    """A multirun job's values and run folder, checked before the sweep's first job trains (entry.check_sweep)."""
+    config = load_train_config(data, source="configs/train/train.yaml", explicit=value_keys(given))
+    folder = fixed_run_folder(cfg, config, run_dir_of, given)
+    if folder is not None and folder.exists():
+        raise ConfigError(f"run folder {folder} exists already; choose another name or resume=true", key="name")
+    return folder
+
+
 if __name__ == "__main__":
-    exit_on_bad_overrides(__file__, "train")  # Hydra's composition errors as ours: the key, exit 2
+    exit_on_bad_overrides(__file__, "train", check_job=check_job)  # Hydra errors as ours; a sweep checked first
     main()

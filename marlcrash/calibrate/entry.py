@@ -11,7 +11,11 @@ messages in the form of every other config error: the key, what was expected and
     $ python train/train.py algorithm=sac
     error: train.yaml key 'algorithm': no config 'sac' in configs/train/algorithm/; expected one of [...]
 
-Hydra's own flags (``--help``, ``--cfg job``, ``-m``, ...) leave the command line to Hydra.
+Hydra's own flags (``--help``, ``--cfg job``, ...) leave the command line to Hydra. A multirun (``-m`` or
+``--multirun``, alone among the flags) of a script that gives :func:`exit_on_bad_overrides` its job check is checked
+job by job before the first starts (:func:`check_sweep`): Hydra runs the jobs one after the other, so a bad value
+of the third job (``seed=0,-1,2``) or two jobs of one run folder (``name=same``) stopped the sweep after the
+first had trained, and the jobs after it never ran.
 
 :func:`name_default_run` gives a run whose name is the default launch time stamp a folder of its own: the jobs of a
 multirun (``--multirun seed=0,1,2``) start within one second and would share it.
@@ -27,7 +31,15 @@ from typing import Any, cast
 
 from marlcrash.errors import ConfigError, MarlcrashError
 
-__all__ = ["check_overrides", "exit_on_bad_overrides", "name_default_run"]
+__all__ = ["check_overrides", "check_sweep", "exit_on_bad_overrides", "fixed_run_folder", "name_default_run"]
+
+MULTIRUN_FLAGS = ("-m", "--multirun")
+
+JobCheck = Callable[[Any, dict[str, Any], list[str]], "Path | None"]
+"""``check(cfg, mapping, given)`` of a multirun job: its composed config, that as a plain mapping
+(:func:`config_mapping`) and the keys its overrides set; validates the values as the script does before it works
+(raising :class:`~marlcrash.errors.ConfigError`) and returns the run folder the job writes, or ``None`` where the job
+picks its own (:func:`fixed_run_folder`)."""
 
 
 def _key(override: str) -> str:
@@ -164,7 +176,11 @@ def _unparsable(overrides: Sequence[str]) -> str | None:
 
 
 def exit_on_bad_overrides(
-    script: str | Path, config_name: str, config_path: str = "../configs/train", argv: Sequence[str] | None = None
+    script: str | Path,
+    config_name: str,
+    config_path: str = "../configs/train",
+    argv: Sequence[str] | None = None,
+    check_job: JobCheck | None = None,
 ) -> None:
     """:func:`check_overrides` on an entry script's command line: ``error: ...`` on stderr and exit status 2.
 
@@ -173,9 +189,11 @@ def exit_on_bad_overrides(
         config_name: the script's primary config, as in ``hydra.main``.
         config_path: as in ``hydra.main``.
         argv: the command line's arguments (default ``sys.argv[1:]``).
+        check_job: the script's check of one job's values (:data:`JobCheck`): with it, a multirun is checked job by
+            job before the first runs (:func:`check_sweep`).
 
-    A command line with a flag (``--help``, ``--cfg``, ``-m``, ``--config-name``, ...) is left to Hydra as it
-    is: those change what is composed, or compose nothing.
+    A command line with another flag (``--help``, ``--cfg``, ``--config-name``, ...), or a multirun without
+    ``check_job``, is left to Hydra as it is: those change what is composed, or compose nothing.
 
     First, a script of a checkout (a ``marlcrash/`` package beside its ``train/`` folder) that imports marlcrash
     from elsewhere (a non-editable install, another checkout's editable one) exits the same way: it would run
@@ -183,13 +201,83 @@ def exit_on_bad_overrides(
     """
     _exit_on_other_package(Path(script).resolve())
     args = list(sys.argv[1:] if argv is None else argv)
-    if any(a.startswith("-") for a in args):
-        return
+    flags = [a for a in args if a.startswith("-")]
+    config_dir = Path(script).resolve().parent / config_path
     try:
-        check_overrides(Path(script).resolve().parent / config_path, config_name, args)
+        if not flags:
+            check_overrides(config_dir, config_name, args)
+        elif check_job is not None and set(flags) <= set(MULTIRUN_FLAGS):
+            check_sweep(config_dir, config_name, [a for a in args if not a.startswith("-")], check_job)
     except MarlcrashError as e:
         print(f"error: {e}", file=sys.stderr)
         sys.exit(2)
+
+
+def sweep_jobs(overrides: Sequence[str]) -> list[list[str]]:
+    """The overrides of every job of a multirun's command line, in Hydra's order (its basic sweeper's expansion:
+    ``seed=0,1 lr=1,2`` is four jobs).
+
+    Raises:
+        ConfigError: an override Hydra's grammar cannot parse, naming it.
+    """
+    from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+    from hydra.errors import HydraException
+
+    try:
+        parsed = OverridesParser.create().parse_overrides(list(overrides))
+    except HydraException as e:
+        bad = _unparsable(overrides) or " ".join(overrides)
+        raise ConfigError(f"cannot parse the override {bad!r}: {_first_line(e)}", key=_key(bad)) from None
+    return [list(job) for batch in BasicSweeper.split_arguments(parsed, None) for job in batch]
+
+
+def check_sweep(config_dir: str | Path, config_name: str, overrides: Sequence[str], check: JobCheck) -> None:
+    """Check every job of a multirun before the first runs (module doc): its overrides (:func:`check_overrides`), its
+    values (``check``) and that no two jobs write one run folder.
+
+    Raises:
+        ConfigError: the first job that fails, named with its overrides; or two jobs of one run folder (key
+            ``name``).
+    """
+    from hydra import compose, initialize_config_dir
+
+    jobs = sweep_jobs(overrides)
+    folders: dict[Path, int] = {}
+    for i, job in enumerate(jobs):
+        try:
+            check_overrides(config_dir, config_name, job)
+            with initialize_config_dir(config_dir=str(Path(config_dir).resolve()), version_base=None):
+                cfg = compose(config_name, overrides=job)
+            folder = check(cfg, config_mapping(cfg), [_key(o) for o in job])
+        except ConfigError as e:
+            shown = " ".join(job).replace("\\{", "{").replace("\\}", "}")  # Hydra's sweeper escapes s${seed}
+            raise ConfigError(f"multirun job {i + 1} of {len(jobs)} ({shown}): {e.reason}; no job was run",
+                              key=e.key, path=e.path) from None  # fmt: skip
+        if folder is None:
+            continue
+        folder = folder.absolute()
+        if folder in folders:
+            raise ConfigError(
+                f"multirun jobs {folders[folder] + 1} and {i + 1} of {len(jobs)} would write one run folder {folder}; "
+                f"give each its own name (name=run_${{seed}}, or leave name out: every job then gets a time stamp of "
+                f"its own); no job was run",
+                key="name",
+            )
+        folders[folder] = i
+
+
+def fixed_run_folder(cfg: Any, config: Any, run_dir: Callable[[Any], Path], given: Sequence[str]) -> Path | None:
+    """The run folder of a job whose name is fixed (given, or a plain value in the YAML file): ``None`` for the
+    default time-stamped name (:func:`name_default_run` gives each job its own) and for a resume (``resume`` set),
+    which continues a run."""
+    from omegaconf import OmegaConf
+
+    if getattr(config, "resume", False) not in (False, None):
+        return None
+    if "name" not in given and OmegaConf.is_interpolation(cfg, "name"):
+        return None
+    return run_dir(config)
 
 
 def _exit_on_other_package(script: Path) -> None:
