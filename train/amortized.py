@@ -70,7 +70,5 @@ def check_job(cfg, data, given):
 
 
 if __name__ == "__main__":
-    exit_on_bad_overrides(
-        __file__, "amortized", check_job=check_job
-    )  # Hydra's composition errors as ours: the key, exit 2
+    exit_on_bad_overrides(__file__, "amortized", check_job=check_job)  # Hydra errors as ours; a sweep checked first
     main()
