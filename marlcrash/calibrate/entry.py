@@ -65,13 +65,16 @@ def _options(config_dir: Path, group: str) -> list[str]:
     return sorted(p.stem for p in (config_dir / group).glob("*.yaml"))
 
 
-def check_overrides(config_dir: str | Path, config_name: str, overrides: Sequence[str]) -> None:
+def check_overrides(config_dir: str | Path, config_name: str, overrides: Sequence[str]) -> Any:
     """Compose ``config_name`` with ``overrides`` as Hydra will, and name what it cannot apply.
 
     Args:
         config_dir: the scripts' Hydra config directory (``configs/train``).
         config_name: the primary config, without ``.yaml``.
         overrides: the command line's ``key=value`` overrides.
+
+    Returns:
+        The composed config (a ``DictConfig``).
 
     Raises:
         ConfigError: an override that sets a key the config does not have (with the keys there are), picks a
@@ -91,7 +94,7 @@ def check_overrides(config_dir: str | Path, config_name: str, overrides: Sequenc
         return _named(e) or _culprit(composed, overrides, e)
 
     try:
-        composed(overrides)
+        return composed(overrides)
     except MissingConfigException as e:
         # an unknown choice, an empty one (algorithm=) and one of a list (algorithm=[mappo,sac]) alike
         found = re.search(r"Could not (?:find|load) '([^']+)/([^'/]*)'", str(e))
@@ -240,15 +243,11 @@ def check_sweep(config_dir: str | Path, config_name: str, overrides: Sequence[st
         ConfigError: the first job that fails, named with its overrides; or two jobs of one run folder (key
             ``name``).
     """
-    from hydra import compose, initialize_config_dir
-
     jobs = sweep_jobs(overrides)
     folders: dict[Path, int] = {}
     for i, job in enumerate(jobs):
         try:
-            check_overrides(config_dir, config_name, job)
-            with initialize_config_dir(config_dir=str(Path(config_dir).resolve()), version_base=None):
-                cfg = compose(config_name, overrides=job)
+            cfg = check_overrides(config_dir, config_name, job)
             folder = check(cfg, config_mapping(cfg), [_key(o) for o in job])
         except ConfigError as e:
             shown = " ".join(job).replace("\\{", "{").replace("\\}", "}")  # Hydra's sweeper escapes s${seed}
