@@ -16,7 +16,7 @@ import warnings
 from pathlib import Path
 
 from marlcrash import __version__
-from marlcrash.errors import ConfigError, MarlcrashError
+from marlcrash.errors import ConfigError, MarlcrashError, end_by_sigint, report_interrupt
 from marlcrash.outputs import check_output_file
 from marlcrash.units import UNIT_SYSTEM_NAMES
 
@@ -681,18 +681,6 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _end_by_sigint() -> None:
-    """End this process by SIGINT, as an uncaught KeyboardInterrupt does: a shell running it in a loop stops at the
-    interrupt, where an exit status (130) would go on to the next command."""
-    import os
-    import signal
-
-    if hasattr(signal, "SIGINT") and hasattr(os, "kill"):
-        sys.stdout.flush()
-        signal.signal(signal.SIGINT, signal.SIG_DFL)
-        os.kill(os.getpid(), signal.SIGINT)
-
-
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``marlcrash`` console script (``argv`` ``None``: ``sys.argv``; given, as by a notebook or
     a test, an interrupt is raised to the caller instead of ending the process)."""
@@ -709,11 +697,11 @@ def main(argv: list[str] | None = None) -> int:
         sys.stdout.reconfigure(errors="surrogateescape")
     try:
         return int(args.func(args) or 0)
-    except KeyboardInterrupt:  # Ctrl-C: no traceback from wherever the work was; outputs are written whole or not
-        print("interrupted", file=sys.stderr)
+    except KeyboardInterrupt as e:  # Ctrl-C: no traceback from wherever the work was; outputs are written whole or not
+        report_interrupt(e)
         if argv is not None:  # called by Python code (a notebook, a test): the interrupt is the caller's to handle
             raise
-        _end_by_sigint()
+        end_by_sigint()
         return 130  # where a process cannot end by a signal
     except BrokenPipeError:  # e.g. `marlcrash ... | head`
         sys.stderr.close()

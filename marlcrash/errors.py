@@ -66,3 +66,28 @@ class ConfigError(MarlcrashError):
 
 class PulseError(MarlcrashError):
     """A crash pulse (measured or simulated signal) is malformed."""
+
+
+def report_interrupt(e: KeyboardInterrupt) -> None:
+    """Print a Ctrl-C as a command reports it: ``interrupted`` on standard error, then each note the work added to
+    the interrupt (:meth:`BaseException.add_note`: what it kept, how to continue), instead of a traceback."""
+    import sys
+
+    print("interrupted", file=sys.stderr)
+    for note in getattr(e, "__notes__", ()):
+        print(note, file=sys.stderr)
+
+
+def end_by_sigint() -> None:
+    """End this process by SIGINT, as an uncaught KeyboardInterrupt does: a shell running it in a loop stops at the
+    interrupt, where an exit status (130) would go on to the next command. Returns only where the system has no
+    such signal (the caller then exits with 130)."""
+    import os
+    import signal
+    import sys
+
+    if hasattr(signal, "SIGINT") and hasattr(os, "kill"):
+        sys.stdout.flush()
+        sys.stderr.flush()
+        signal.signal(signal.SIGINT, signal.SIG_DFL)
+        os.kill(os.getpid(), signal.SIGINT)

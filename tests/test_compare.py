@@ -616,6 +616,41 @@ def test_script_runs_every_method(short_configs, tmp_path):
         assert (run_dir / "ppo" / m / "seed1" / "log.csv").is_file()
 
 
+def test_ctrl_c_in_the_script_says_what_the_folder_keeps_and_the_resume_that_continues_it(short_configs, tmp_path):
+    """Ctrl-C in train/compare.py printed a traceback from wherever the work was (exit -2), and the user had to know
+    that the finished rows were kept and that ``name=<the time stamp> resume=true`` goes on. It prints
+    ``interrupted`` and that note, no traceback, and the process still ends by SIGINT (a shell loop stops there);
+    the command the note names continues the comparison, skipping the finished row."""
+    import signal
+
+    interrupted_second = (
+        "import runpy, sys\n"
+        "import marlcrash.calibrate.compare as compare\n"
+        "real, calls = compare.run_method, []\n"
+        "def second_interrupted(*args, **kwargs):\n"
+        "    calls.append(1)\n"
+        "    if len(calls) == 2:\n"
+        "        raise KeyboardInterrupt\n"
+        "    return real(*args, **kwargs)\n"
+        "compare.run_method = second_interrupted\n"
+        f"sys.argv = [{str(REPO / 'train' / 'compare.py')!r}, *sys.argv[1:]]\n"
+        "runpy.run_path(sys.argv[0], run_name='__main__')\n"
+    )
+    args = ["budget=16", "seeds=[0,1]", "max_wall_s=null", "methods=[random_search]", "random_search.batch_size=8"]
+    env = {**os.environ, "MARLCRASH_CONFIGS": str(short_configs)}
+    p = subprocess.run([sys.executable, "-c", interrupted_second, *args], cwd=tmp_path, env=env, capture_output=True,
+                       text=True, timeout=600)  # fmt: skip
+    (run_dir,) = (tmp_path / "runs" / "compare").iterdir()  # the default name: the launch time stamp
+    note = (f"runs/compare/{run_dir.name} keeps the finished runs (compare.json); the same command with "
+            f"name={run_dir.name} resume=true continues it, skipping them")  # fmt: skip
+    assert p.returncode == -signal.SIGINT and "Traceback" not in p.stderr, p.stderr[-3000:]
+    assert p.stderr.endswith(f"interrupted\n{note}\n"), p.stderr[-3000:]
+    assert [r["seed"] for r in json.loads((run_dir / "compare.json").read_text())["rows"]] == [0]
+    p = _script([*args, f"name={run_dir.name}", "resume=true"], short_configs, tmp_path)
+    assert p.returncode == 0, p.stderr[-3000:]
+    assert [r["seed"] for r in json.loads((run_dir / "compare.json").read_text())["rows"]] == [0, 1]
+
+
 @pytest.mark.slow
 def test_script_rejects_bad_config_before_running(short_configs, tmp_path):
     p = _script(["methods=[mappo,sgd]", "name=bad"], short_configs, tmp_path)

@@ -595,6 +595,39 @@ def test_script_smoke(run_dir, short, tmp_path):
     assert json.loads((tmp_path / "amortized.json").read_text())["meta"]["complete"] is True
 
 
+def test_ctrl_c_in_the_script_says_the_finished_pieces_are_kept_and_how_to_resume(run_dir, short, tmp_path):
+    """Ctrl-C in train/amortized.py printed a traceback; it prints ``interrupted`` and which folder keeps the
+    finished pieces with the ``resume=true`` that continues them, and ends by SIGINT; the resume finishes it."""
+    import signal
+
+    first_piece_then_ctrl_c = (
+        "import runpy, sys\n"
+        "import marlcrash.calibrate.amortized as amortized\n"
+        "real = amortized.amortized_comparison\n"
+        "def interrupted(config, progress, partial, done):\n"
+        "    def keep_then_stop(c):\n"
+        "        partial(c)\n"
+        "        raise KeyboardInterrupt\n"
+        "    return real(config, progress=progress, partial=keep_then_stop, done=done)\n"
+        "amortized.amortized_comparison = interrupted\n"
+        f"sys.argv = [{str(REPO / 'train' / 'amortized.py')!r}, *sys.argv[1:]]\n"
+        "runpy.run_path(sys.argv[0], run_name='__main__')\n"
+    )
+    args = [f"run={run_dir}", "reference_seeds=[101,102]", "iterations=1", "budgets={cmaes: [1]}", "cmaes.popsize=2",
+            f"out_dir={tmp_path}"]  # fmt: skip
+    env = {**os.environ, "MARLCRASH_CONFIGS": str(short)}
+    p = subprocess.run([sys.executable, "-c", first_piece_then_ctrl_c, *args], capture_output=True, text=True, env=env,
+                       cwd=REPO, timeout=300)  # fmt: skip
+    note = f"{tmp_path} keeps the finished pieces (amortized.json); the same command with resume=true continues it"
+    assert p.returncode == -signal.SIGINT and "Traceback" not in p.stderr, p.stderr[-3000:]
+    assert p.stderr.endswith(f"interrupted\n{note}\n"), p.stderr[-3000:]
+    assert json.loads((tmp_path / "amortized.json").read_text())["meta"]["complete"] is False
+    cmd = [sys.executable, str(REPO / "train" / "amortized.py"), *args, "resume=true"]
+    resumed = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=REPO, timeout=300)
+    assert resumed.returncode == 0, resumed.stderr
+    assert json.loads((tmp_path / "amortized.json").read_text())["meta"]["complete"] is True
+
+
 def test_the_documented_budget_overrides_compose():
     """train/amortized.py's docstring: change one optimizer's budgets, drop another (Hydra merges mappings)."""
     from hydra import compose, initialize_config_dir

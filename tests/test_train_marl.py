@@ -797,12 +797,46 @@ def test_a_fresh_run_interrupted_before_its_first_checkpoint_leaves_no_folder(sh
     def interrupted(tr):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(marl, "train_iteration", interrupted)
-    with pytest.raises(KeyboardInterrupt):
+    with monkeypatch.context() as m, pytest.raises(KeyboardInterrupt) as e:  # undo() would drop `short`'s configs too
+        m.setattr(marl, "train_iteration", interrupted)
         train(tiny(tmp_path, name="ctrl_c", iterations=2))
     assert not any((tmp_path / "runs").rglob("ctrl_c"))
-    monkeypatch.undo()
+    run_dir = tmp_path / "runs" / "mappo" / "ctrl_c"
+    assert e.value.__notes__ == [f"{run_dir} was removed (no checkpoint yet): the same command starts the run again"]
     assert train(tiny(tmp_path, name="ctrl_c", iterations=1), evaluate=False).iterations == 1
+
+
+def test_an_interrupted_run_says_which_iteration_its_folder_keeps_and_how_to_continue_it(short, tmp_path, monkeypatch):
+    """Ctrl-C ended train/train.py with a traceback and no word of what was kept: the interrupt now carries a note
+    (printed by the scripts, train/ entry.run_script) naming the folder, the iteration its checkpoint holds and the
+    ``resume=`` that continues it; that resume does, to the iteration cap. Ctrl-C during the evaluation of a finished
+    run says that the training is finished and its evaluation was interrupted."""
+    import marlcrash.calibrate.marl as marl
+
+    real = marl.train_iteration
+
+    def third_interrupted(tr):
+        if tr.iteration == 2:
+            raise KeyboardInterrupt
+        return real(tr)
+
+    with monkeypatch.context() as m, pytest.raises(KeyboardInterrupt) as e:
+        m.setattr(marl, "train_iteration", third_interrupted)
+        train(tiny(tmp_path, name="ctrl_c", iterations=4, checkpoint_every=2, snapshot_every=0))
+    run_dir = tmp_path / "runs" / "mappo" / "ctrl_c"
+    note = f"{run_dir} keeps the run (checkpoint.pt: training at iteration 2 of 4); resume={run_dir} continues it"
+    assert e.value.__notes__ == [note]
+    resume = note.rsplit("resume=", 1)[1].split(" ", 1)[0]
+    assert train(tiny(tmp_path, resume=resume), evaluate=False).iterations == 4
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr("marlcrash.calibrate.evaluate.evaluate_run", interrupted)
+    with pytest.raises(KeyboardInterrupt) as e:
+        train(tiny(tmp_path, resume=str(run_dir)))
+    assert e.value.__notes__ == [f"{run_dir} keeps the run (checkpoint.pt: finished training; its evaluation was "
+                                 f"interrupted); resume={run_dir} continues it"]  # fmt: skip
 
 
 def test_a_fresh_run_stopped_while_it_starts_leaves_no_folder(short, tmp_path, monkeypatch):

@@ -31,7 +31,7 @@ from marlcrash.calibrate.amortized import (
     read_comparison,
     write_comparison,
 )
-from marlcrash.calibrate.entry import config_mapping, exit_on_bad_overrides
+from marlcrash.calibrate.entry import config_mapping, exit_on_bad_overrides, run_script
 from marlcrash.errors import ConfigError, MarlcrashError
 from marlcrash.outputs import check_output_dir
 
@@ -51,11 +51,20 @@ def main(cfg: DictConfig) -> None:
             done = read_comparison(where) if config.resume else None
             out = where if config.resume else check_comparison_dir(where)
 
+            kept = [done is not None]  # whether amortized.json holds a comparison to resume
+
             def keep(partial):  # the tables so far after every finished piece: a failure or kill keeps them
                 write_comparison(partial, out, command=command.strip(), replace=True)
+                kept[0] = True
 
-            comparison = amortized_comparison(config, progress=lambda msg: print(msg, flush=True), partial=keep,
-                                              done=done)  # fmt: skip
+            try:
+                comparison = amortized_comparison(config, progress=lambda msg: print(msg, flush=True), partial=keep,
+                                                  done=done)  # fmt: skip
+            except KeyboardInterrupt as e:
+                if kept[0]:
+                    e.add_note(f"{out} keeps the finished pieces (amortized.json); the same command with resume=true "
+                               "continues it")  # fmt: skip
+                raise
             paths = write_comparison(comparison, out, command=command.strip(), replace=True)
     except MarlcrashError as e:
         print(f"error: {e}", file=sys.stderr)
@@ -71,4 +80,4 @@ def check_job(cfg, data, given):
 
 if __name__ == "__main__":
     exit_on_bad_overrides(__file__, "amortized", check_job=check_job)  # Hydra errors as ours; a sweep checked first
-    main()
+    run_script(main)  # Ctrl-C: 'interrupted' and what the run kept, no traceback

@@ -16,7 +16,13 @@ from omegaconf import DictConfig
 
 from marlcrash.calibrate import build_problem, load_run_config, run_baseline, write_run
 from marlcrash.calibrate.baselines import run_folder, run_path, run_record
-from marlcrash.calibrate.entry import config_mapping, exit_on_bad_overrides, fixed_run_folder, name_default_run
+from marlcrash.calibrate.entry import (
+    config_mapping,
+    exit_on_bad_overrides,
+    fixed_run_folder,
+    name_default_run,
+    run_script,
+)
 from marlcrash.errors import MarlcrashError
 from marlcrash.outputs import json_text
 
@@ -51,4 +57,4 @@ def check_job(cfg, data, given):
 
 if __name__ == "__main__":
     exit_on_bad_overrides(__file__, "baseline", check_job=check_job)  # Hydra errors as ours; a sweep checked first
-    main()
+    run_script(main)  # Ctrl-C: 'interrupted' and what the run kept, no traceback

@@ -18,7 +18,13 @@ import hydra
 from omegaconf import DictConfig
 
 from marlcrash.calibrate.compare import load_compare_config, run_comparison
-from marlcrash.calibrate.entry import config_mapping, exit_on_bad_overrides, fixed_run_folder, name_default_run
+from marlcrash.calibrate.entry import (
+    config_mapping,
+    exit_on_bad_overrides,
+    fixed_run_folder,
+    name_default_run,
+    run_script,
+)
 from marlcrash.errors import MarlcrashError
 
 
@@ -45,4 +51,4 @@ def check_job(cfg, data, given):
 
 if __name__ == "__main__":
     exit_on_bad_overrides(__file__, "compare", check_job=check_job)  # Hydra errors as ours; a sweep checked first
-    main()
+    run_script(main)  # Ctrl-C: 'interrupted' and what the run kept, no traceback

@@ -19,7 +19,7 @@ import sys
 import hydra
 from omegaconf import DictConfig
 
-from marlcrash.calibrate.entry import config_mapping, exit_on_bad_overrides
+from marlcrash.calibrate.entry import config_mapping, exit_on_bad_overrides, run_script
 from marlcrash.calibrate.evaluate import evaluate_run, load_evaluate_config
 from marlcrash.errors import MarlcrashError
 from marlcrash.outputs import json_text
@@ -47,4 +47,4 @@ def check_job(cfg, data, given):
 
 if __name__ == "__main__":
     exit_on_bad_overrides(__file__, "evaluate", check_job=check_job)  # Hydra errors as ours; a sweep checked first
-    main()
+    run_script(main)  # Ctrl-C: 'interrupted' and what the run kept, no traceback

@@ -33,6 +33,7 @@ from marlcrash.calibrate.entry import (  # noqa: E402
     exit_on_bad_overrides,
     fixed_run_folder,
     name_default_run,
+    run_script,
 )
 from marlcrash.calibrate.marl import load_train_config, run_dir_of, train, value_keys  # noqa: E402
 from marlcrash.errors import ConfigError, MarlcrashError  # noqa: E402
@@ -94,4 +95,4 @@ def check_job(cfg, data, given):
 
 if __name__ == "__main__":
     exit_on_bad_overrides(__file__, "train", check_job=check_job)  # Hydra errors as ours; a sweep checked first
-    main()
+    run_script(main)  # Ctrl-C: 'interrupted' and what the run kept, no traceback

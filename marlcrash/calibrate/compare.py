@@ -809,12 +809,21 @@ def hold_run_dir(run_dir: Path, resume: bool, outputs: Iterable[str]) -> Iterato
     a second run of this name, or a second resume, fails there before it reads or writes a row. A fresh run's folder
     is made here; a resumed one's must exist (:func:`open_run_dir` names it where it does not).
 
-    The temporaries a kill left writing ``outputs`` (the files the run writes into the folder) or ``provenance.json``
-    there are removed once the folder is held (:func:`marlcrash.outputs.remove_temporaries_of`)."""
+    The temporaries a kill left writing ``outputs`` (the files the run writes into the folder, its record first) or
+    ``provenance.json`` there are removed once the folder is held (:func:`marlcrash.outputs.remove_temporaries_of`).
+    A Ctrl-C in the block gets a note of what the folder keeps and how to continue it
+    (:func:`marlcrash.errors.report_interrupt` prints it)."""
     check_output_dir(run_dir, "out_dir")  # before the folder is made: out_dir may be a file
+    outputs = tuple(outputs)
     with run_lock(run_dir, "resume" if resume else "name", create=not resume):
         remove_temporaries_of(run_dir, (*outputs, provenance.PROVENANCE_FILE))
-        yield
+        try:
+            yield
+        except KeyboardInterrupt as e:
+            if (run_dir / outputs[0]).is_file():
+                e.add_note(f"{run_dir} keeps the finished runs ({outputs[0]}); the same command with "
+                           f"name={run_dir.name} resume=true continues it, skipping them")  # fmt: skip
+            raise
 
 
 def open_run_dir(

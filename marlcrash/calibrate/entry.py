@@ -19,6 +19,9 @@ first had trained, and the jobs after it never ran.
 
 :func:`name_default_run` gives a run whose name is the default launch time stamp a folder of its own: the jobs of a
 multirun (``--multirun seed=0,1,2``) start within one second and would share it.
+
+:func:`run_script` runs a script's Hydra main as the ``marlcrash`` command runs its subcommands: a Ctrl-C prints
+``interrupted`` and what the run kept (where to resume it), not a traceback from wherever the work was.
 """
 
 from __future__ import annotations
@@ -29,9 +32,16 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, cast
 
-from marlcrash.errors import ConfigError, MarlcrashError
+from marlcrash.errors import ConfigError, MarlcrashError, end_by_sigint, report_interrupt
 
-__all__ = ["check_overrides", "check_sweep", "exit_on_bad_overrides", "fixed_run_folder", "name_default_run"]
+__all__ = [
+    "check_overrides",
+    "check_sweep",
+    "exit_on_bad_overrides",
+    "fixed_run_folder",
+    "name_default_run",
+    "run_script",
+]
 
 MULTIRUN_FLAGS = ("-m", "--multirun")
 
@@ -214,6 +224,19 @@ def exit_on_bad_overrides(
     except MarlcrashError as e:
         print(f"error: {e}", file=sys.stderr)
         sys.exit(2)
+
+
+def run_script(main: Callable[[], Any]) -> None:
+    """Run an entry script's ``hydra.main`` function; a Ctrl-C (at any job of a multirun) prints ``interrupted`` and
+    the notes the work added to it (:func:`~marlcrash.errors.report_interrupt`: which run folder keeps what, the
+    command that continues it) on standard error, not a traceback, and ends the process by SIGINT, as the
+    ``marlcrash`` command does (:func:`~marlcrash.errors.end_by_sigint`): a shell loop of runs stops there."""
+    try:
+        main()
+    except KeyboardInterrupt as e:
+        report_interrupt(e)
+        end_by_sigint()
+        sys.exit(130)  # where a process cannot end by a signal
 
 
 def sweep_jobs(overrides: Sequence[str]) -> list[list[str]]:

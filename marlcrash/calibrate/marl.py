@@ -1130,6 +1130,8 @@ class Trainer:
     wall_time_s: float = 0.0
     last_iteration_s: float = 0.0
     finished: bool = False
+    saved_iteration: int | None = None
+    """The iteration ``checkpoint.pt`` holds: the last one written or the one resumed from (``None``: none yet)."""
 
     def state_dict(self) -> dict[str, Any]:
         """Checkpoint contents (:mod:`marlcrash.calibrate.checkpoint`)."""
@@ -1160,6 +1162,7 @@ class Trainer:
         self.wall_time_s = float(state["wall_time_s"])
         self.last_iteration_s = float(state.get("last_iteration_s", 0.0))
         self.finished = bool(state.get("finished", False))  # checkpoints before this key: not known, train on
+        self.saved_iteration = self.iteration
         self.logger.truncate(int(state["log_position"]))
 
     def checkpoint_due(self) -> bool:
@@ -1175,7 +1178,17 @@ class Trainer:
         every = self.config.snapshot_every
         if every and self.iteration % every == 0:
             save_checkpoint(snapshot_path(self.run_dir, self.iteration), state)
-        return save_checkpoint(self.run_dir / CHECKPOINT_FILE, state)
+        path = save_checkpoint(self.run_dir / CHECKPOINT_FILE, state)
+        self.saved_iteration = self.iteration
+        return path
+
+
+def _interrupt_note(run_dir: Path, kept: str | None) -> str:
+    """What a Ctrl-C left of a run, for the message of the interrupt (:func:`marlcrash.errors.report_interrupt`):
+    ``kept`` says what its ``checkpoint.pt`` holds, ``None``: the folder was removed (a fresh run with none yet)."""
+    if kept is None:
+        return f"{run_dir} was removed (no checkpoint yet): the same command starts the run again"
+    return f"{run_dir} keeps the run ({CHECKPOINT_FILE}: {kept}); resume={run_dir} continues it"
 
 
 def build_trainer(config: TrainConfig, run_dir: Path) -> Trainer:
@@ -1336,11 +1349,13 @@ def _train(
         tr = build_trainer(config, run_dir)
         if resume is False:  # which configs and code the run's numbers come from, checked by a resume, an evaluation
             provenance.write_record(run_dir, provenance.env_inputs(make_env_config(config)))
-    except BaseException:  # Ctrl-C too: building the env (discretizing a deck) takes seconds
+    except BaseException as e:  # Ctrl-C too: building the env (discretizing a deck) takes seconds
         if resume is False:  # a fresh run that cannot start leaves no folder behind to block a rerun
             shutil.rmtree(run_dir, ignore_errors=True)
             with contextlib.suppress(OSError):  # and no empty <out_dir>/<algorithm>/ it created
                 run_dir.parent.rmdir()
+        if isinstance(e, KeyboardInterrupt):
+            e.add_note(_interrupt_note(run_dir, None if resume is False else "as before this resume"))
         raise
     if state is not None:  # weights of other networks (config.yaml edited, a checkpoint of another run): refused
         for what, module in (("policy", tr.policy), ("critic", tr.critic)):
@@ -1383,13 +1398,17 @@ def _train(
                             DFD=f"{row['dfd_final']:.3f}", RMSE=f"{row['rmse_final']:.3f}",
                             sps=f"{row['env_steps_per_s']:.0f}")  # fmt: skip
         tr.finished = True  # by the time limit or the iteration cap: a resume evaluates, it trains no further
-    except BaseException:
+    except BaseException as e:
         # A fresh run stopped (Ctrl-C, an error) before its first checkpoint cannot be resumed: remove its
         # folder so that the same command can start it again.
-        if resume is False and not (run_dir / CHECKPOINT_FILE).is_file():
+        saved = resume is not False or (run_dir / CHECKPOINT_FILE).is_file()
+        if not saved:
             bar.close()
             tr.logger.close()
             shutil.rmtree(run_dir, ignore_errors=True)
+        if isinstance(e, KeyboardInterrupt):
+            e.add_note(_interrupt_note(run_dir, f"training at iteration {tr.saved_iteration} of {config.iterations}"
+                                       if saved else None))  # fmt: skip
         raise
     finally:
         bar.close()
@@ -1400,7 +1419,11 @@ def _train(
     if evaluate:
         from marlcrash.calibrate.evaluate import evaluate_run, update_summary
 
-        summary = evaluate_run(run_dir, trainer=tr, finished_before=was_finished)
+        try:
+            summary = evaluate_run(run_dir, trainer=tr, finished_before=was_finished)
+        except KeyboardInterrupt as e:
+            e.add_note(_interrupt_note(run_dir, "finished training; its evaluation was interrupted"))
+            raise
         if summary_extra is not None:
             summary = update_summary(run_dir, **summary_extra())
     return TrainResult(run_dir, tr.iteration, tr.env_steps, tr.simulations, tr.wall_time_s, summary)
