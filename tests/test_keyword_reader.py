@@ -506,6 +506,95 @@ def test_sigy_is_ignored_where_a_curve_gives_the_yield(tmp_path, curve):
     assert m.yield_strength == pytest.approx(300e6) and m.ultimate_strength == pytest.approx(400e6)
 
 
+_MAT024_LCSS = "*MAT_024\n         1  7.85e-09  210000.0       0.3     200.0\n       0.0       0.0         7\n"
+
+
+def _curve(lcid: int, stress: float) -> str:
+    return f"*DEFINE_CURVE\n{lcid:>10}\n0.0,{stress}\n0.5,{stress + 100.0}\n"
+
+
+@pytest.mark.parametrize(
+    ("table", "rate"),
+    [
+        (
+            "*DEFINE_TABLE\n         7\n0.001\n1.0\n100.0\n"
+            + _curve(101, 300.0)
+            + _curve(102, 330.0)
+            + _curve(103, 380.0),
+            "0.001/s, LCID 101",
+        ),
+        (
+            "*DEFINE_TABLE_TITLE\nln rates\n         7       1.0\n-6.907755\n0.0\n4.60517\n"
+            + _curve(101, 300.0)
+            + _curve(102, 330.0)
+            + _curve(103, 380.0),
+            "0.001/s, LCID 101",
+        ),  # a first value < 0: ln(strain rate)
+        (
+            _curve(102, 330.0) + _curve(101, 300.0) + "*DEFINE_TABLE_2D\n         7\n0.001,101\n1.0,102\n",
+            "0.001/s, LCID 101",
+        ),
+    ],
+    ids=["table", "ln-rates", "table-2d"],
+)
+def test_an_lcss_table_of_strain_rates_gives_its_lowest_rates_curve(tmp_path, table, rate):
+    """*MAT_024 LCSS naming a *DEFINE_TABLE (a curve per strain rate, the common form in crash decks) fell back to
+    SIGY and ETAN with a note ('not a *DEFINE_CURVE'): 200 MPa and no hardening where the deck's quasi-static curve
+    says 300 to 400 MPa. The curve of the table's lowest rate is read (the cells' eta carries rate effects), with a
+    note; the curves of a *DEFINE_TABLE are the *DEFINE_CURVE keywords right after it, as LS-DYNA reads them."""
+    deck = HEAD.replace("*MAT_ELASTIC\n         1  7.85e-09  210000.0       0.3\n", _MAT024_LCSS + table)
+    m = _read(_write(tmp_path, deck + NODES + SHELL))
+    assert m.materials[1].yield_strength == pytest.approx(300e6)
+    assert m.materials[1].ultimate_strength == pytest.approx(400e6)
+    assert any("LCSS 7 is a *DEFINE_TABLE of" in w and f"the lowest ({rate})" in w for w in m.warnings), m.warnings
+
+
+@pytest.mark.parametrize(
+    ("table", "after", "pattern"),
+    [
+        (
+            "*DEFINE_TABLE\n         7\n0.001\n1.0\n" + _curve(101, 300.0),
+            "",
+            r"deck.k line 14: \*DEFINE_TABLE 7 lists 2 values but 1 \*DEFINE_CURVE follow it before \*NODE \(deck.k "
+            r"line 21\); LS-DYNA reads a table's curves from the keywords right after it",
+        ),
+        (
+            "*DEFINE_TABLE\n         7\n0.001\n1.0\n" + _curve(101, 300.0),
+            "_end",
+            r"deck.k line 14: \*DEFINE_TABLE 7 lists 2 values but 1 \*DEFINE_CURVE follow it before the end of the "
+            r"deck",
+        ),
+        (
+            "*DEFINE_TABLE\n         7\n1.0\n0.001\n" + _curve(101, 300.0) + _curve(102, 330.0),
+            "",
+            r"deck.k line 16: \*DEFINE_TABLE TBID 7: the values must increase, value 2 is 0.001 after 1",
+        ),
+        (
+            "*DEFINE_TABLE_2D\n         7\n0.001,101\n1.0,102\n" + _curve(101, 300.0),
+            "",
+            r"deck.k line 14: \*DEFINE_TABLE_2D 7 \(LCSS of material 1\) names curve 102, which the deck does not "
+            r"define",
+        ),
+        (
+            _curve(7, 300.0) + "*DEFINE_TABLE_2D\n         7\n0.001,101\n",
+            "",
+            r"deck.k line 18: \*DEFINE_TABLE_2D TBID 7 is defined twice \(first in deck.k line 14\)",
+        ),
+        ("*DEFINE_TABLE\n         7\n", "", r"deck.k line 14: \*DEFINE_TABLE TBID 7 lists no value"),
+    ],
+    ids=["curves-missing", "deck-ends", "values-decrease", "2d-curve-undefined", "id-of-a-curve", "no-values"],
+)
+def test_a_table_lcss_that_cannot_give_a_curve_is_refused_at_its_line(tmp_path, table, after, pattern):
+    deck = HEAD.replace("*MAT_ELASTIC\n         1  7.85e-09  210000.0       0.3\n", _MAT024_LCSS)
+    if after == "_end":  # the table last in the deck, its curves missing
+        text = deck + NODES + SHELL + table
+        pattern = pattern.replace("line 14", "line 21")
+    else:
+        text = deck + table + NODES + SHELL
+    with pytest.raises(DeckError, match=pattern):
+        _read(_write(tmp_path, text))
+
+
 def test_a_curve_whose_abscissae_decrease_is_refused(tmp_path):
     """An LCSS curve out of order was interpolated as given: FAIL 0.2 on (0, 200), (0.5, 400), (0.1, 300) gave a
     fracture strength of 300 MPa where the ordered curve gives 325 MPa. LS-DYNA refuses such a curve."""

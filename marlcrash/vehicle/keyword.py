@@ -37,7 +37,8 @@ Coverage:
   integrated beams), all with ``_TITLE``;
 - materials: ``*MAT_ELASTIC``/``*MAT_001``, ``*MAT_PLASTIC_KINEMATIC``/``*MAT_003``,
   ``*MAT_RIGID``/``*MAT_020``, ``*MAT_PIECEWISE_LINEAR_PLASTICITY``/``*MAT_024``
-  (eight-point curves or an LCSS ``*DEFINE_CURVE``), with ``_TITLE``; any other
+  (eight-point curves, an LCSS ``*DEFINE_CURVE``, or an LCSS ``*DEFINE_TABLE``/``_2D`` of strain rates, whose
+  lowest rate's curve is taken: the cells' crush efficiency carries rate effects), with ``_TITLE``; any other
   ``*MAT_...`` is read for RO, E, PR from its first card where those fields are
   numbers: ``MID RO E PR`` unless :data:`_MAT_LAYOUTS` knows its layout (``*MAT_NULL``, Johnson-Cook,
   foams, rubbers, orthotropic and discrete-beam materials); a card whose PR field is no Poisson's ratio
@@ -118,7 +119,7 @@ from typing import Any
 
 import numpy as np
 
-from marlcrash.errors import DeckError, ModelError
+from marlcrash.errors import DeckError, ModelError, file_label
 from marlcrash.units import (
     CARD_WAVE_SPEED_WINDOW,
     DENSITY_WINDOW,
@@ -224,6 +225,8 @@ _VEL_HEAD = _card("nsid", "nsidex", "boxid", "irigid", "icid", kinds="iiiff")
 _VEL_6 = _card("vx", "vy", "vz", "vxr", "vyr", "vzr")
 _VEL_GEN = _card("id", "styp", "omega", "vx", "vy", "vz", "ivatn", "icid", kinds="iifffffi")
 _CURVE_PT = (_Field("a", 20, "f", "abscissa"), _Field("o", 20, "f", "ordinate"))
+_TABLE_HEAD = _card("tbid", "sfa", "offa", kinds="iff")
+_TABLE_2D_ROW = (_Field("value", 20, "f", "VALUE"), _Field("lcid", 20, "i", "CURVEID"))
 _ELEM_MASS = _layout(
     ("eid", 8, "i", "element id"), ("nid", 8, "i", "node id"), ("mass", 16, "f", "mass"), ("pid", 8, "i", "part id")
 )
@@ -1132,6 +1135,16 @@ class _Velocity:
 
 
 @dataclass
+class _CurveTable:
+    """A ``*DEFINE_TABLE`` or ``*DEFINE_TABLE_2D``: one curve per value (a strain rate where a ``*MAT_024`` LCSS
+    names it), the values scaled and offset as the card says, and where the card is."""
+
+    values: np.ndarray
+    curve_ids: list[int]
+    where: tuple[Path, int]
+
+
+@dataclass
 class _Tables:
     node_ids: list[np.ndarray] = field(default_factory=list)
     coords: list[np.ndarray] = field(default_factory=list)
@@ -1149,6 +1162,8 @@ class _Tables:
     node_sets: dict[int, tuple[str, np.ndarray]] = field(default_factory=dict)  # node sets, resolved
     curves: dict[int, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
     curve_at: dict[int, tuple[Path, int]] = field(default_factory=dict)  # LCID -> where its *DEFINE_CURVE is
+    tables: dict[int, _CurveTable] = field(default_factory=dict)  # TBID -> *DEFINE_TABLE (_2D)
+    table_open: int | None = None  # the *DEFINE_TABLE whose curves are being read (they follow it, in its order)
     velocities: list[_Velocity] = field(default_factory=list)
     rigid_merges: list[tuple[int, int, tuple[Path, int]]] = field(default_factory=list)  # (PIDM, PIDS, where)
     point_masses: list[_PointMasses] = field(default_factory=list)
@@ -1936,11 +1951,70 @@ def _read_curve(block: _Block, opts: set[str], t: _Tables, params: _Params) -> N
             rows[1 + i],
         )
     t.curves[int(lcid)] = (x, y)
+    if t.table_open is not None:  # one of the curves of the *DEFINE_TABLE before it
+        table = t.tables[t.table_open]
+        table.curve_ids.append(int(lcid))
+        if len(table.curve_ids) == len(table.values):
+            t.table_open = None
+
+
+def _read_table(block: _Block, opts: set[str], t: _Tables, params: _Params) -> None:
+    """``*DEFINE_TABLE`` (values; its curves are the ``*DEFINE_CURVE`` keywords right after it, in the values'
+    order, as LS-DYNA reads them) or ``*DEFINE_TABLE_2D`` (value and curve id on each card), with ``_TITLE``."""
+    rows = _nonblank(block, block.rows).tolist()
+    if "TITLE" in opts:
+        rows = rows[1:]
+    if not rows:
+        raise block.err(f"*{block.keyword} expects a card with TBID, got end of block")
+    tbid, sfa, offa = _read_line(block, rows[0], _TABLE_HEAD, params)
+    if tbid is None or tbid <= 0:
+        raise block.err(f"*{block.keyword} expects a positive TBID in columns 1-10, got {tbid!r}", rows[0])
+    prev = t.curve_at.get(int(tbid))  # tables and curves share one id space in LS-DYNA
+    if prev is not None:
+        raise block.err(
+            f"*{block.keyword} TBID {tbid} is defined twice (first in {prev[0].name} line {prev[1]})", rows[0]
+        )
+    two_d = "2D" in opts
+    layout = _TABLE_2D_ROW if two_d else _TABLE_2D_ROW[:1]
+    cards = [_read_line(block, r, layout, params) for r in rows[1:]]
+    for r, card in zip(rows[1:], cards, strict=True):
+        if card[0] is None or (two_d and (card[1] is None or card[1] <= 0)):
+            what = "a VALUE and a positive CURVEID" if two_d else "a VALUE"
+            raise block.err(f"*{block.keyword} TBID {tbid} expects {what} on each card, got {card!r}", r)
+    if not cards:
+        raise block.err(f"*{block.keyword} TBID {tbid} lists no value", rows[0])
+    values = (np.array([c[0] for c in cards], dtype=float) + (offa or 0.0)) * (sfa or 1.0)
+    back = np.flatnonzero(np.diff(values) <= 0)
+    if back.size:  # LS-DYNA interpolates between the curves of increasing values
+        i = int(back[0]) + 1
+        raise block.err(
+            f"*{block.keyword} TBID {tbid}: the values must increase, value {i + 1} is {cards[i][0]:g} after "
+            f"{cards[i - 1][0]:g}",
+            rows[1 + i],
+        )
+    where = (block.src.path, block.lineno(rows[0]))
+    t.curve_at[int(tbid)] = where
+    t.tables[int(tbid)] = _CurveTable(values, [int(c[1]) for c in cards] if two_d else [], where)
+    if not two_d:
+        t.table_open = int(tbid)
+
+
+def _table_unfinished(t: _Tables, before: str) -> DeckError:
+    """The error of a ``*DEFINE_TABLE`` whose curves do not all follow it (``before``: what came instead)."""
+    assert t.table_open is not None  # only asked while a table waits for its curves
+    table = t.tables[t.table_open]
+    return DeckError(
+        f"*DEFINE_TABLE {t.table_open} lists {len(table.values)} values but {len(table.curve_ids)} *DEFINE_CURVE "
+        f"follow it before {before}; LS-DYNA reads a table's curves from the keywords right after it, one per value",
+        *table.where,
+    )
 
 
 def _dispatch(block: _Block, t: _Tables, deck: _Deck) -> None:
     kw = block.keyword
     params = deck.params
+    if t.table_open is not None and kw not in ("DEFINE_CURVE", "DEFINE_CURVE_TITLE"):
+        raise _table_unfinished(t, f"*{kw} ({file_label(block.src.path)} line {block.lineno(block.line)})")
     if kw == "NODE":
         _read_node(block, t, params)
         return
@@ -2017,13 +2091,36 @@ def _dispatch(block: _Block, t: _Tables, deck: _Deck) -> None:
     if kw in ("DEFINE_CURVE", "DEFINE_CURVE_TITLE"):
         _read_curve(block, _split_options(kw, "DEFINE_CURVE"), t, params)
         return
+    if kw == "DEFINE_TABLE" or kw.startswith("DEFINE_TABLE_"):
+        opts = _split_options(kw, "DEFINE_TABLE")
+        if opts <= {"TITLE", "2D"}:
+            _read_table(block, opts, t, params)
+            return
     deck.skipped[kw] += 1
 
 
 # --------------------------------------------------------------------------- assembly
 
 
-def _material_si(raw: _RawMaterial, u: UnitSystem, curves: dict, notes: list[str]) -> Material:
+def _table_curve(raw: _RawMaterial, lcss: int, t: _Tables, notes: list[str]) -> tuple[np.ndarray, np.ndarray]:
+    """The stress-strain curve of a ``*MAT_024`` whose LCSS is a ``*DEFINE_TABLE``: that of its lowest strain rate
+    (the quasi-static one; the cells' crush efficiency ``eta_shell`` carries the rate effects), with a note."""
+    table = t.tables[lcss]
+    absent = [c for c in table.curve_ids if c not in t.curves]
+    if absent:
+        raise DeckError(f"*DEFINE_TABLE_2D {lcss} (LCSS of material {raw.mid}) names curve {absent[0]}, which the "
+                        "deck does not define", *table.where)  # fmt: skip
+    lowest = float(table.values[0])
+    rate = math.exp(lowest) if lowest < 0 else lowest  # a first value < 0: the values are ln(strain rate)
+    notes.append(
+        f"material {raw.mid} ({raw.name}): LCSS {lcss} is a *DEFINE_TABLE of {len(table.values)} strain rates; the "
+        f"curve of the lowest ({rate:.4g}/s, LCID {table.curve_ids[0]}) is used (eta_shell carries rate effects)"
+    )
+    return t.curves[table.curve_ids[0]]
+
+
+def _material_si(raw: _RawMaterial, u: UnitSystem, t: _Tables, notes: list[str]) -> Material:
+    curves = t.curves
     v = raw.values
     ro, e, pr = v["ro"] * u.density, v["e"] * u.stress, v["pr"]
     sy = su = sf = math.nan
@@ -2036,11 +2133,12 @@ def _material_si(raw: _RawMaterial, u: UnitSystem, curves: dict, notes: list[str
         pts = None
         if raw.kind == "piecewise_linear":
             lcss = int(v["lcss"])
-            if lcss > 0 and lcss in curves:
-                x, y = curves[lcss]
+            if lcss > 0 and (lcss in curves or lcss in t.tables):
+                x, y = curves[lcss] if lcss in curves else _table_curve(raw, lcss, t, notes)
                 pts = (x, y * u.stress)
             elif lcss > 0:
-                notes.append(f"material {raw.mid} ({raw.name}): LCSS {lcss} is not a *DEFINE_CURVE, ETAN used")
+                notes.append(f"material {raw.mid} ({raw.name}): LCSS {lcss} is neither a *DEFINE_CURVE nor a "
+                             "*DEFINE_TABLE, ETAN used")  # fmt: skip
             else:
                 es = np.asarray(v["es"], dtype=float)
                 keep = es > 0
@@ -2114,7 +2212,7 @@ def _complete_raw(
         raise DeckError(f"material {mid} ({_mat_label(raw)}) is {raw.note}, yet part {user} uses it", *raw.where)
     if raw.note is not None:
         notes.append(f"material {mid} ({_mat_label(raw)}): {raw.note}")
-    m = _material_si(raw, u, t.curves, notes)
+    m = _material_si(raw, u, t, notes)
     if not (math.isfinite(m.youngs_modulus) and m.youngs_modulus > 0) and raw.kind == "other":
         e_def = float(np.median(es_known)) if es_known else 2.1e11
         notes.append(f"material {mid} ({raw.name}): Young's modulus not given, defaulted to {e_def:.4g} Pa")
@@ -3018,6 +3116,8 @@ def read_deck(
     tables = _Tables()
     for block in deck.blocks:
         _dispatch(block, tables, deck)
+    if tables.table_open is not None:
+        raise _table_unfinished(tables, "the end of the deck")
     stray = sorted(set(deck.params.user) - deck.params.deck_names - deck.params.used)
     if stray:  # most likely a misspelt name, whose intended parameter then keeps the deck's value
         known = sorted(deck.params.deck_names | deck.params.used)
