@@ -388,7 +388,7 @@ def _chunk(
                     w_work[i, j] += fwbar * dsi
                     w_in[i, j] += fwbar * float(step_in[j])
                     fw_prev[i, j] = fw
-                    pmax[j] = max(pmax[j], float(pen) if inc else 0.0)
+                    pmax[j] = max(pmax[j], float(pen * NP[i, W_COV, j]) if inc else 0.0)  # SimResult.crush
                     fwv[j] = fw  # taken (and reset to zero) by the update below
             if led:  # per-cell ledgers: only where per-cell energies are recorded
                 for j in range(CH):
@@ -611,7 +611,7 @@ def run_numba(
         lp = torch.stack([x.to(tdt) for x in hot], dim=1)[:, :, order]  # [B, nh, L]
         lc = torch.stack([x.to(tdt) for x in cold], dim=1)[:, :, order]  # [B, nc, L]
         e_s = props.e_s.detach().clamp(max=min(_HUGE, torch.finfo(props.e_s.dtype).max))
-        npr = torch.stack([e_s, wall.k, wall.damping, wall.gap, wall.covered.to(e_s.dtype)], dim=1).to(tdt)
+        npr = torch.stack([e_s, wall.k, wall.damping, wall.gap, wall.coverage.to(e_s.dtype)], dim=1).to(tdt)
         sp = wall.speed.detach().to(tdt)
         if Bp > B:  # pad the last chunk by repeating the last row
             lp = torch.cat([lp, lp[-1:].expand(Bp - B, -1, -1)])

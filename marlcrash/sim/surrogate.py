@@ -234,7 +234,10 @@ class SimResult:
         compartment_displacement: ``[B, T]`` compartment travel since first contact [m].
         compartment_velocity: ``[B, T]`` compartment velocity [m/s].
         crush: ``[B, T]`` dynamic crush [m]: compartment travel since the front touched
-            the barrier, less the (numerical) penalty penetration of the front into the wall.
+            the barrier, less the (numerical) penalty penetration of the front into the wall: the largest of the
+            covered cell fronts' penetrations, each times the fraction of its front the barrier covers (a front the
+            barrier's edge clips meets a wall as stiff as that fraction and sinks into it; unweighted, an overlap
+            just past a cell's edge took centimetres off the crush).
         kinetic, stored, absorbed: ``[B, T]`` energy totals [J] (leapfrog kinetic energy;
             elastic energy in links and contact; work dissipated by plasticity,
             densification, damping).
@@ -354,6 +357,7 @@ class WallProps:
     damping: torch.Tensor  # [B, n] contact damping [N s/m]
     gap: torch.Tensor  # [B, n] x distance from the first contact point to the cell front [m]
     covered: torch.Tensor  # [B, n] bool, cell front covered by the barrier
+    coverage: torch.Tensor  # [B, n] the covered fraction of the cell front (0 where not covered)
     speed: torch.Tensor  # [B] impact speed [m/s]
     overlap: torch.Tensor  # [B] barrier overlap fraction of the vehicle width
     side: torch.Tensor  # [B] +1 left, -1 right
@@ -777,7 +781,7 @@ class Surrogate:
         capped = k_raw * self.cap_wall / (k_raw + self.cap_wall) if self.stability_caps else k_raw
         k = torch.where(covered, capped, torch.zeros_like(frac))
         damping = 2.0 * self.config.wall_damping_ratio * torch.sqrt(k * self.mass)
-        return WallProps(k, damping, gap, covered, sp, ov, sd)
+        return WallProps(k, damping, gap, covered, frac, sp, ov, sd)
 
     # ------------------------------------------------------------------ run
     def run(
@@ -1184,7 +1188,8 @@ class Surrogate:
         def record(vel, ke):  # copies only: a CUDA graph's replay overwrites the state tensors in place
             s, plastic, stored_l, stored_w = z["s"], z["plastic"], z["stored_l"], z["stored_w"]
             work, w_work = z["work"], z["w_work"]
-            pen = torch.where(wall.covered, (s - wall.gap).clamp_min(0.0), zn).amax(dim=1)
+            # weighted by coverage: a cell front the barrier edge clips is held by a wall as soft as that fraction
+            pen = torch.where(wall.covered, wall.coverage * (s - wall.gap).clamp_min(0.0), zn).amax(dim=1)
             st = stored_l.sum(dim=1) + stored_w.sum(dim=1)
             rec["vel"].append(vel[:, sidx])
             rec["s"].append(s[:, self.comp].clone())
