@@ -21,6 +21,7 @@ from marlcrash.outputs import check_output_file
 from marlcrash.units import UNIT_SYSTEM_NAMES
 
 DECK_SUFFIXES = (".k", ".key", ".dyn", ".kw")  # as marlcrash.vehicle.registry's (not imported: startup time)
+ACC_UNIT_CHOICES = ("g", "m/s2", "mm/s2", "mm/ms2")  # marlcrash.pulse.io.ACC_UNIT_NAMES (not imported: startup time)
 
 
 # ----------------------------------------------------------------- helpers
@@ -627,7 +628,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--time-col", help="CSV time column; default: the first column named like time, else the first")
     p.add_argument("--time-unit", choices=["s", "ms"], default="s", help="CSV time unit (default s)")
     p.add_argument("--acc-col", help="acceleration column / ISO-MME channel; default: the first acceleration")
-    p.add_argument("--unit", choices=["g", "m/s2", "mm/s2"], default="g", help="CSV acceleration unit (default g)")
+    p.add_argument("--unit", choices=ACC_UNIT_CHOICES, default="g",
+                   help="CSV acceleration unit (default g; mm/ms2: an LS-DYNA run in mm-ms-kg or mm-g-ms)")  # fmt: skip
     p.add_argument(
         "--cfc", type=int, default=60, choices=[0, 60, 180, 600, 1000], help="CFC class, 0 for none (default 60)"
     )

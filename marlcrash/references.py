@@ -58,6 +58,7 @@ from __future__ import annotations
 
 import math
 import numbers
+import warnings
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Literal
@@ -70,7 +71,7 @@ from marlcrash.cells.parameterization import apply_increments
 from marlcrash.config import checked, config_dir, require
 from marlcrash.errors import ConfigError, PulseError
 from marlcrash.pulse.cfc import CFC_CLASSES, min_rate_hz
-from marlcrash.pulse.io import ACC_UNITS, acc_unit_key, check_record_rate, is_mme, is_sign, read_pulse
+from marlcrash.pulse.io import ACC_UNIT_NAMES, ACC_UNITS, acc_unit_key, check_record_rate, is_mme, is_sign, read_pulse
 from marlcrash.pulse.signal import (
     DEFAULT_COMPARE_MARGIN,
     compared_window,
@@ -169,7 +170,7 @@ class FileReference:
                 f"unknown scenario {self.scenario!r}; registered: {list_scenarios()}")  # fmt: skip
         require(bool(self.channels), "channels", "expected a mapping sensor name -> channel name")
         require(is_sign(self.sign), "sign", f"expected +1 or -1, got {self.sign!r}")
-        require(acc_unit_key(self.unit) in ACC_UNITS, "unit", f"expected one of {sorted(ACC_UNITS)}, got {self.unit!r}")
+        require(acc_unit_key(self.unit) in ACC_UNITS, "unit", f"expected one of {ACC_UNIT_NAMES}, got {self.unit!r}")
         require(self.time_unit in ("s", "ms"), "time_unit", f"expected s or ms, got {self.time_unit!r}")
         for key, unit in (("weight", ""), ("threshold_g", " g")):
             v = getattr(self, key)
@@ -613,6 +614,17 @@ class ReferenceSampler:
                 f"speed {sc.speed:.3g} m/s to {sc.speed - change:.3g} m/s; a crash changes it by at most about twice "
                 f"the impact speed (a full rebound): is the acceleration in another unit than unit {spec.unit} "
                 f"(m/s^2 read as g: 9.8 times the velocity change)? Set {key}.unit"
+            )
+        slowest = vel.min(axis=1)  # [K]: each channel's lowest velocity in the window
+        if float(slowest.max()) > 0.25 * sc.speed:  # a rigid barrier stops a frontal impact within the window
+            k = int(slowest.argmax())
+            warnings.warn(
+                f"{path.name}: channel {channels[k]!r} is still at {float(slowest[k]):.3g} m/s of the impact speed "
+                f"{sc.speed:.4g} m/s at its slowest in the {sc.duration * 1e3:g} ms of scenario {sc.name!r}: a rigid "
+                f"barrier brings the vehicle to rest (but where it glances off a small overlap); is the test of "
+                f"another scenario ({key}.scenario), its time in another unit ({key}.time_unit: "
+                f"{spec.time_unit}) or its acceleration ({key}.unit: {spec.unit})?",
+                stacklevel=2,
             )
         if vel.shape[1] != self.n_outputs:
             raise PulseError(

@@ -1393,6 +1393,17 @@ def test_the_pulse_summary_reads_only_the_first_acceleration_column_of_a_csv(tmp
         pulse_summary(bad)
 
 
+def test_a_channel_file_key_with_doubled_spaces_is_read_as_the_mme_and_chn_keys_are(tmp_path, analytic):
+    """The .mme and .chn readers take ``Number  of channels`` as ``Number of channels``; a channel file's keys were
+    only stripped, so ``Sampling  interval`` failed with "missing header line 'Sampling interval'" though it was
+    there."""
+    ch = _mme(tmp_path, analytic)
+    _edit(ch, "Sampling interval           :", "Sampling  interval          :")
+    _edit(ch, "Number of samples           :", "Number  of samples          :")
+    p = read_mme(tmp_path / "B")
+    assert p.n_samples == analytic.n_samples and p.sample_rate_hz == pytest.approx(analytic.sample_rate_hz)
+
+
 def test_an_iso_mme_number_of_samples_given_as_novalue_is_not_a_count(tmp_path, analytic):
     """ISO-MME writes ``NOVALUE`` for a value not given (as the reader takes for ``Channel code``); the optional
     ``Number of samples`` said so was refused as "expected a number, got 'NOVALUE'". It is checked when given."""
@@ -1406,10 +1417,58 @@ def test_an_iso_mme_number_of_samples_given_as_novalue_is_not_a_count(tmp_path, 
 
 
 @pytest.mark.parametrize(
+    ("unit", "factor"),
+    [("m s-2", 1.0), ("m.s-2", 1.0), ("m·s⁻²", 1.0), ("ms-2", 1.0), ("mps2", 1.0), ("m/sec^2", 1.0),
+     ("mm/s^2", 1e-3), ("mm s-2", 1e-3), ("mm/ms2", 1e3), ("mm/ms^2", 1e3)],
+)  # fmt: skip
+def test_si_spellings_of_an_acceleration_unit_in_a_header_are_read_in_that_unit(tmp_path, unit, factor):
+    """``a_x [m s-2]`` (the SI spelling of many data loggers), ``[m.s-2]``, ``[ms-2]``, ``[mps2]`` were taken for
+    remarks: the column was read as g without a word, 9.8x every figure (a 6.5 g pulse printed 63.7 g). They, mm/s^2
+    (a known unit that was called unknown) and LS-DYNA's mm/ms^2 (mm-ms-kg runs: 1000 m/s^2) are read as what they
+    say: in that unit when it is given, and a clear refusal naming it when another is."""
+    from marlcrash.pulse.io import ACC_UNIT_NAMES, acc_unit_factor
+
+    path = tmp_path / "p.csv"
+    m_s2 = -np.sin(np.linspace(0.0, np.pi, 200)) * 60.0  # m/s^2
+    path.write_text(
+        f"time [s],a_x [{unit}]\n" + "".join(f"{k * 1e-4:.4f},{float(a / factor)!r}\n" for k, a in enumerate(m_s2))
+    )
+    typed = next(u for u in ACC_UNIT_NAMES if acc_unit_factor(u) == factor)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        pulse = read_csv(path, unit=typed)
+    np.testing.assert_allclose(pulse.acc[0], m_s2, rtol=1e-12)
+    with pytest.raises(
+        PulseError,
+        match=rf"p\.csv line 1: column 'a_x \[{re.escape(unit)}\]' is in {re.escape(unit)} "
+        rf"by its header, but is read in g: give that unit \(--unit {re.escape(typed)}",
+    ):
+        read_csv(path)  # unit g, the default
+
+
+def test_a_sampled_record_of_minutes_is_refused_as_a_time_column_in_ms(tmp_path):
+    """An LS-DYNA run in mm-ms-kg written every 2 us has its time in ms: read as seconds it is 160 s at 500 Hz,
+    which passed the rate check (500 Hz is accepted), and the 150 ms window of a reference held 0.1 % of the pulse
+    (velocity change 0.09 of 11.1 m/s, no error). A sampled record longer than 10 s is refused with the hint."""
+    from marlcrash.pulse.io import check_record_rate, read_pulse
+
+    path = tmp_path / "dyna_ms.csv"
+    t_ms = np.arange(0.0, 160.0, 0.002)
+    acc = -20.0 * np.sin(np.pi * np.clip(t_ms / 80.0, 0.0, 1.0))
+    path.write_text("time,acc\n" + "".join(f"{a:.4f},{b:.6g}\n" for a, b in zip(t_ms, acc, strict=True)))
+    with pytest.raises(PulseError, match=r"dyna_ms\.csv: record of 160 s at 500 Hz: .*at most 10 s\); is the time "
+                                         r"column in ms \(--time-unit ms; time_unit: ms\)\?"):  # fmt: skip
+        check_record_rate(read_pulse(path), path)  # as a file reference and `marlcrash pulse` check a record
+    in_ms = read_pulse(path, time_unit="ms")
+    check_record_rate(in_ms, path, time_unit="ms")
+    assert float(in_ms.time[-1] - in_ms.time[0]) == pytest.approx(0.16, abs=1e-4)
+
+
+@pytest.mark.parametrize(
     ("header", "named"),
     [
         ("time [s],acc [mg]", "acc [mg]"),  # milli-g: 1000x off when read as g
-        ("time [s],acc [mm/ms2]", "acc [mm/ms2]"),  # LS-DYNA's mm-ms units: 1000 m/s^2
+        ("time [s],acc [cm/s2]", "acc [cm/s2]"),  # gal
         ("time [s],acc [ft/s^2]", "acc [ft/s^2]"),
         ("time [us],acc [g]", "time [us]"),  # microseconds read as seconds
     ],

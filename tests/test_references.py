@@ -652,6 +652,32 @@ def test_file_reference_settings_that_cannot_line_up_are_refused(cells, sim, tmp
     assert e.value.key == "reference.files[0].path"
 
 
+def test_a_test_that_leaves_the_vehicle_moving_is_warned_about_naming_scenario_and_units(cells, sim, tmp_path):
+    """A reference whose velocity change is far too small loaded without a word: accelerations in mm/ms^2 read as
+    g (0.1 of 11.1 m/s), or a 40 km/h test under a 56 km/h scenario (still at 5.6 m/s after 150 ms against a rigid
+    wall). A channel still above a quarter of the impact speed at its slowest is warned about, naming the keys to
+    check; a test that stops the vehicle is not."""
+    rate, width = 10_000.0, 0.08
+    t = np.arange(0.0, 0.16, 1.0 / rate)
+
+    def spec(name, dv):
+        acc_g = -np.where(t <= width, np.sin(np.pi * t / width), 0.0) * dv * np.pi / (2 * width) / 9.80665
+        path = tmp_path / f"{name}.csv"
+        path.write_text("time_s,acc_g\n" + "".join(f"{a:.5f},{b:.9g}\n" for a, b in zip(t, acc_g, strict=True)))
+        return FileReference(path=str(path), scenario="full_width_40", channels=dict.fromkeys(cells.sensor_names,
+                                                                                              "acc_g"))  # fmt: skip
+
+    with pytest.warns(UserWarning, match=r"slow\.csv: channel 'acc_g' is still at 9\.\d+ m/s of the impact speed "
+                      r"11\.11 m/s at its slowest in the 150 ms of scenario 'full_width_40': a rigid barrier brings "
+                      r"the vehicle to rest .*\(reference\.files\[0\]\.scenario\), its time in another unit "
+                      r"\(reference\.files\[0\]\.time_unit: s\) or its acceleration \(reference\.files\[0\]\.unit: "
+                      r"g\)\?"):  # fmt: skip
+        sampler(cells, sim, kind="file", files=[spec("slow", 2.0)]).sample(np.random.default_rng(0), 1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        sampler(cells, sim, kind="file", files=[spec("stops", 12.5)]).sample(np.random.default_rng(0), 1)
+
+
 @pytest.mark.parametrize("peak_g", [30.0, 300.0])
 def test_a_sharp_file_pulse_after_pre_trigger_data_keeps_its_whole_velocity_change(cells, sim, tmp_path, peak_g):
     """A 3 ms half-sine after 20 ms of pre-trigger samples at 10 kHz: the reference loses none of its velocity

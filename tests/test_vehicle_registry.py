@@ -111,6 +111,9 @@ def test_deck_path_is_read_with_the_keyword_reader(tmp_path):
     assert model.total_mass() == pytest.approx(car.total_mass(), rel=1e-6)
     # every suffix `marlcrash simulate DECK` reads as a deck is one in an env config's vehicle too
     assert set(cli.DECK_SUFFIXES) == set(DECK_SUFFIXES)
+    from marlcrash.pulse.io import ACC_UNIT_NAMES  # `pulse --unit`'s choices, written out there for startup time
+
+    assert list(cli.ACC_UNIT_CHOICES) == ACC_UNIT_NAMES
     kw = path.rename(tmp_path / "car.kw")
     assert load_vehicle(str(kw), units="mm-t-s").n_shells == car.n_shells
 

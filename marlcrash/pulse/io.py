@@ -66,8 +66,28 @@ from marlcrash.pulse.signal import (
 )
 from marlcrash.units import G0
 
-ACC_UNITS = {"g": G0, "m/s2": 1.0, "m/s^2": 1.0, "m/s**2": 1.0, "m/s²": 1.0, "m/(s*s)": 1.0, "mm/s2": 1e-3}
-"""SI factor of each acceleration unit spelling; a factor's first spelling is the one ``pulse --unit`` takes."""
+
+def _spellings(length: str, time: str) -> list[str]:
+    """The spellings of ``length/time²`` a header or a channel file gives, spaces removed and in lower case (as
+    :func:`acc_unit_key` makes them): ``m/s2``, ``m/s^2``, ``m s-2``, ``m·s⁻²``, ``m/sec2`` ..."""
+    out = []
+    for t in (time, "sec") if time == "s" else (time,):
+        out += [f"{length}/{t}{sq}" for sq in ("2", "^2", "**2", "²")] + [f"{length}/({t}*{t})", f"{length}/{t}/{t}"]
+        out += [f"{length}{dot}{t}{neg}" for dot in ("", ".", "·", "*") for neg in ("-2", "^-2", "⁻²")]
+    return out
+
+
+ACC_UNITS = {
+    "g": G0,
+    **dict.fromkeys([*_spellings("m", "s"), "mps2"], 1.0),
+    **dict.fromkeys(_spellings("mm", "s"), 1e-3),
+    **dict.fromkeys(_spellings("mm", "ms"), 1e3),  # the acceleration of the mm-ms-kg and mm-g-ms unit systems
+}
+"""SI factor of each acceleration unit spelling (normalized: :func:`acc_unit_key`); a factor's first spelling is the
+one ``pulse --unit`` takes (:data:`ACC_UNIT_NAMES`)."""
+ACC_UNIT_NAMES = list(dict.fromkeys(next(k for k, f in ACC_UNITS.items() if f == v) for v in ACC_UNITS.values()))
+"""The first spelling of each acceleration unit: what messages list and ``pulse --unit`` takes."""
+_OTHER_SPELLINGS = "; other spellings such as m/s^2, m s-2 or m/sec2 are read too"
 _TIME_UNITS = {"s": 1.0, "ms": 1e-3}
 _TIME_NAMES = ("time", "t", "zeit", "time_s", "time [s]", "time (s)")
 MIN_GAP_S = 2.5e-3
@@ -82,6 +102,10 @@ MIN_RECORD_S = 1e-3
 """Shortest record :func:`check_record_rate` accepts [s]. A crash pulse lasts tens to hundreds of ms (a record
 too short for its filter is accepted with a note); a record in seconds read as ms lasts 1000x less (150 ms: 0.15
 ms)."""
+MAX_RECORD_S = 10.0
+"""Longest sampled record :func:`check_record_rate` accepts [s], as :data:`MAX_BREAKPOINT_SPAN_S` for tables: a
+crash record with its pre-trigger part lasts well under a second; one in ms read as seconds lasts 1000x longer (an
+LS-DYNA run in mm-ms-kg written every 2 us reads as 160 s at 500 Hz, its 150 ms window then 0.1 % of the pulse)."""
 MAX_RECORD_RATE_HZ = 1e6
 """Highest sampling rate :func:`check_record_rate` accepts [Hz]: crash data loggers sample at 10-100 kHz; a record
 in seconds read as ms samples 1000x faster (2 kHz: 2 MHz)."""
@@ -226,7 +250,7 @@ def acc_unit_factor(unit: str, path: str | Path | None = None, line: int | None 
     key = acc_unit_key(unit)
     if key in ACC_UNITS:
         return ACC_UNITS[key]
-    reason = f"expected an acceleration unit in {sorted(ACC_UNITS)}, got {unit!r}"
+    reason = f"expected an acceleration unit in {ACC_UNIT_NAMES}{_OTHER_SPELLINGS}, got {unit!r}"
     raise _err(reason, path, line) if path is not None else PulseError(reason)
 
 
@@ -332,7 +356,7 @@ def read_csv(
     for j in ai:  # a unit written in the header ('a_x [m/s2]', 'ACC (g)') must be the unit the column is read in
         said = _header_unit(header[j])
         if said is not None and acc_unit_key(said) not in ACC_UNITS:
-            _unknown_unit_warning(header[j], said, sorted(ACC_UNITS), unit, path, first + 1)
+            _unknown_unit_warning(header[j], said, ACC_UNIT_NAMES, unit, path, first + 1)
         elif said is not None and ACC_UNITS[acc_unit_key(said)] != factor:
             typed = next(k for k, v in ACC_UNITS.items() if v == ACC_UNITS[acc_unit_key(said)])  # as --unit takes it
             raise _err(
@@ -685,7 +709,7 @@ def _parse_header(path: Path, lines: list[str]) -> tuple[dict[str, tuple[str, in
         name, _, value = raw.partition(":")
         if not name.strip():
             raise _err(f"expected 'Name :value', got {raw!r}", path, i + 1)
-        header.setdefault(name.strip().lower(), (value.strip(), i + 1))
+        header.setdefault(" ".join(name.split()).lower(), (value.strip(), i + 1))  # as .mme/.chn keys
     return header, start
 
 
@@ -1141,7 +1165,7 @@ def _read_mme(
         chosen_files = [c["file"] for c in info if c["acceleration"]]
         if not chosen_files:
             units = sorted({c["unit"] for c in info})
-            known = sorted(ACC_UNITS)
+            known = ACC_UNIT_NAMES
             raise _err(
                 f"no acceleration channel in the test (channel units: {units}; acceleration units: {known})", mme
             )
@@ -1669,8 +1693,9 @@ def processed_pulse(
 
 
 def check_record_rate(pulse: Pulse, path: str | Path, *, time_unit: str = "s") -> None:
-    """Refuse a record sampled below :data:`MIN_RECORD_RATE_HZ` (a time column in ms read as s, typically) or
-    shorter than :data:`MIN_RECORD_S` or sampled above :data:`MAX_RECORD_RATE_HZ` (one in s read as ms).
+    """Refuse a record sampled below :data:`MIN_RECORD_RATE_HZ` or longer than :data:`MAX_RECORD_S` (a time column
+    in ms read as s, typically) or shorter than :data:`MIN_RECORD_S` or sampled above :data:`MAX_RECORD_RATE_HZ`
+    (one in s read as ms).
 
     Args:
         pulse: the record as read.
@@ -1692,6 +1717,13 @@ def check_record_rate(pulse: Pulse, path: str | Path, *, time_unit: str = "s") -
             p,
         )
     if pulse.sample_rate_hz >= MIN_RECORD_RATE_HZ:
+        if span > MAX_RECORD_S:
+            cause = "is the record's time in the unit given?" if time_unit == "ms" or is_mme(p) else _UNIT_HINT
+            raise _err(
+                f"record of {span:.4g} s at {pulse.sample_rate_hz:.4g} Hz: crash pulse records last tens to hundreds "
+                f"of ms (accepted here: at most {MAX_RECORD_S:g} s); {cause}",
+                p,
+            )
         return
     mme = is_mme(p)
     if mme:
