@@ -51,17 +51,14 @@ def main(cfg: DictConfig) -> None:
             done = read_comparison(where) if config.resume else None
             out = where if config.resume else check_comparison_dir(where)
 
-            kept = [done is not None]  # whether amortized.json holds a comparison to resume
-
             def keep(partial):  # the tables so far after every finished piece: a failure or kill keeps them
                 write_comparison(partial, out, command=command.strip(), replace=True)
-                kept[0] = True
 
             try:
                 comparison = amortized_comparison(config, progress=lambda msg: print(msg, flush=True), partial=keep,
                                                   done=done)  # fmt: skip
             except KeyboardInterrupt as e:
-                if kept[0]:
+                if (out / "amortized.json").is_file():  # a new comparison's folder holds none (checked above)
                     e.add_note(f"{out} keeps the finished pieces (amortized.json); the same command with resume=true "
                                "continues it")  # fmt: skip
                 raise

@@ -1923,6 +1923,20 @@ def _read_extra_nodes(block: _Block, opts: set[str], t: _Tables, params: _Params
     return True
 
 
+def _claim_curve_id(block: _Block, t: _Tables, label: str, ident: int | None, row: int) -> int:
+    """A ``*DEFINE_CURVE``'s LCID or a ``*DEFINE_TABLE``'s TBID (``label``), checked positive and not yet defined
+    (curves and tables share one id space in LS-DYNA), and recorded as defined at ``row``."""
+    if ident is None or ident <= 0:
+        raise block.err(f"*{block.keyword} expects a positive {label} in columns 1-10, got {ident!r}", row)
+    prev = t.curve_at.get(int(ident))
+    if prev is not None:
+        raise block.err(
+            f"*{block.keyword} {label} {ident} is defined twice (first in {prev[0].name} line {prev[1]})", row
+        )
+    t.curve_at[int(ident)] = (block.src.path, block.lineno(row))
+    return int(ident)
+
+
 def _read_curve(block: _Block, opts: set[str], t: _Tables, params: _Params) -> None:
     rows = block.rows.tolist()
     if "TITLE" in opts:
@@ -1930,14 +1944,7 @@ def _read_curve(block: _Block, opts: set[str], t: _Tables, params: _Params) -> N
     if not rows:
         raise block.err(f"*{block.keyword} expects a card with LCID, got end of block")
     lcid, _sidr, sfa, sfo, offa, offo = _read_line(block, rows[0], _CURVE_HEAD, params)
-    if lcid is None or lcid <= 0:
-        raise block.err(f"*{block.keyword} expects a positive LCID in columns 1-10, got {lcid!r}", rows[0])
-    prev = t.curve_at.get(int(lcid))
-    if prev is not None:
-        raise block.err(
-            f"*{block.keyword} LCID {lcid} is defined twice (first in {prev[0].name} line {prev[1]})", rows[0]
-        )
-    t.curve_at[int(lcid)] = (block.src.path, rows[0] + 1)
+    lcid = _claim_curve_id(block, t, "LCID", lcid, rows[0])
     pts = np.array([[x or 0.0 for x in _read_line(block, r, _CURVE_PT, params)] for r in rows[1:]]).reshape(-1, 2)
     # scaled after the offsets are applied (LS-DYNA manual, *DEFINE_CURVE); SFA, SFO 0 (or blank) mean 1
     x = (pts[:, 0] + (offa or 0.0)) * (sfa or 1.0)
@@ -1967,13 +1974,7 @@ def _read_table(block: _Block, opts: set[str], t: _Tables, params: _Params) -> N
     if not rows:
         raise block.err(f"*{block.keyword} expects a card with TBID, got end of block")
     tbid, sfa, offa = _read_line(block, rows[0], _TABLE_HEAD, params)
-    if tbid is None or tbid <= 0:
-        raise block.err(f"*{block.keyword} expects a positive TBID in columns 1-10, got {tbid!r}", rows[0])
-    prev = t.curve_at.get(int(tbid))  # tables and curves share one id space in LS-DYNA
-    if prev is not None:
-        raise block.err(
-            f"*{block.keyword} TBID {tbid} is defined twice (first in {prev[0].name} line {prev[1]})", rows[0]
-        )
+    tbid = _claim_curve_id(block, t, "TBID", tbid, rows[0])
     two_d = "2D" in opts
     layout = _TABLE_2D_ROW if two_d else _TABLE_2D_ROW[:1]
     cards = [_read_line(block, r, layout, params) for r in rows[1:]]
@@ -1992,19 +1993,16 @@ def _read_table(block: _Block, opts: set[str], t: _Tables, params: _Params) -> N
             f"{cards[i - 1][0]:g}",
             rows[1 + i],
         )
-    where = (block.src.path, block.lineno(rows[0]))
-    t.curve_at[int(tbid)] = where
-    t.tables[int(tbid)] = _CurveTable(values, [int(c[1]) for c in cards] if two_d else [], where)
+    t.tables[tbid] = _CurveTable(values, [int(c[1]) for c in cards] if two_d else [], t.curve_at[tbid])
     if not two_d:
-        t.table_open = int(tbid)
+        t.table_open = tbid
 
 
-def _table_unfinished(t: _Tables, before: str) -> DeckError:
-    """The error of a ``*DEFINE_TABLE`` whose curves do not all follow it (``before``: what came instead)."""
-    assert t.table_open is not None  # only asked while a table waits for its curves
-    table = t.tables[t.table_open]
+def _table_unfinished(t: _Tables, tbid: int, before: str) -> DeckError:
+    """The error of *DEFINE_TABLE ``tbid`` whose curves do not all follow it (``before``: what came instead)."""
+    table = t.tables[tbid]
     return DeckError(
-        f"*DEFINE_TABLE {t.table_open} lists {len(table.values)} values but {len(table.curve_ids)} *DEFINE_CURVE "
+        f"*DEFINE_TABLE {tbid} lists {len(table.values)} values but {len(table.curve_ids)} *DEFINE_CURVE "
         f"follow it before {before}; LS-DYNA reads a table's curves from the keywords right after it, one per value",
         *table.where,
     )
@@ -2014,7 +2012,9 @@ def _dispatch(block: _Block, t: _Tables, deck: _Deck) -> None:
     kw = block.keyword
     params = deck.params
     if t.table_open is not None and kw not in ("DEFINE_CURVE", "DEFINE_CURVE_TITLE"):
-        raise _table_unfinished(t, f"*{kw} ({file_label(block.src.path)} line {block.lineno(block.line)})")
+        raise _table_unfinished(
+            t, t.table_open, f"*{kw} ({file_label(block.src.path)} line {block.lineno(block.line)})"
+        )
     if kw == "NODE":
         _read_node(block, t, params)
         return
@@ -3117,7 +3117,7 @@ def read_deck(
     for block in deck.blocks:
         _dispatch(block, tables, deck)
     if tables.table_open is not None:
-        raise _table_unfinished(tables, "the end of the deck")
+        raise _table_unfinished(tables, tables.table_open, "the end of the deck")
     stray = sorted(set(deck.params.user) - deck.params.deck_names - deck.params.used)
     if stray:  # most likely a misspelt name, whose intended parameter then keeps the deck's value
         known = sorted(deck.params.deck_names | deck.params.used)
