@@ -8,11 +8,11 @@ surrogate's sign convention (forward speed, starting at the impact speed). Three
   sub-assembly, simulated as the "real test". Per environment and sub-assembly, ``E_x``
   and ``E_s`` are multiplied by ``exp(spread * N(0, 1))`` (log-normal) factors; the five
   transmission factors of its cells are multiplied by per-direction log-normal factors
-  and renormalised to sum one (fixed zeros stay zero). Optional bounds clip the ``E`` factors
-  so the ground truth stays reachable by the agents; the transmission factors are not clipped, and a baseline's
-  search box (``box_radius``) is not a bound of the draw: :class:`~marlcrash.calibrate.problem.CalibrationProblem`
-  warns when a truth lies outside it. The ground-truth parameters are
-  returned for evaluation.
+  and renormalised to sum one (fixed zeros stay zero, x no lower than a lateral factor where
+  feasible). Optional bounds clip the ``E`` factors so the ground truth stays reachable by the
+  agents; the transmission factors are not clipped, and a baseline's search box (``box_radius``)
+  is not a bound of the draw: :class:`~marlcrash.calibrate.problem.CalibrationProblem` warns when
+  a truth lies outside it. The ground-truth parameters are returned for evaluation.
 - ``cross_fidelity``: a uniform-discretization model of the same vehicle (the calibrated car's own variant, the env's
   ``vehicle_seed``, for a null entry of ``vehicle_seeds``; another seeded variant for a seed) is simulated as the
   reference for the optimized model, with its own mass floor and

@@ -41,6 +41,9 @@ def feasibility(core):
     assert torch.allclose(f.sum(-1), torch.ones((), dtype=torch.float64), atol=1e-12)
     assert (f >= 0).all()
     assert (f[:, ~core.feasible[deform]] == 0).all()
+    # DESIGN 1.3 boundary condition 3: x, where feasible, transmits no less than any lateral direction
+    x_ok = core.feasible[deform][:, 0]
+    assert (f[:, x_ok, 0] >= f[:, x_ok, 1:].amax(-1)).all()
     e = p[:, deform, :2]
     assert (e >= lo * e0 * (1 - 1e-12)).all() and (e <= hi * e0 * (1 + 1e-12)).all()
     assert torch.equal(p[:, ~deform], init[~deform].expand(p.shape[0], -1, -1))
@@ -56,7 +59,9 @@ def test_feasibility_after_10000_random_actions(cells, granularity, steps):
         core.apply_actions(torch.rand(100, core.A, core.act_dim, generator=g) * 2.4 - 1.2)
     feasibility(core)
     assert (core.params[..., :2] != core.init[..., :2]).any()
-    small = make(cells, 3, granularity=granularity)
+    # no early ends: a row that reached a success or failure threshold in a random walk refused the next step
+    no_end = {f"termination.{k}": None for k in ("failure_area", "failure_dfd", "failure_rmse", "success_area")}
+    small = make(cells, 3, granularity=granularity, **no_end)
     small.reset(seed=1)
     for _ in range(3):  # a few full steps
         small.step(torch.rand(3, small.A, small.act_dim, generator=g) * 2 - 1)

@@ -206,6 +206,28 @@ def _action_bound_params(cells, batch, seed):
     return apply_increments(init[None].repeat(batch, 1, 1), inc, init, feasible, (lo, hi), env.transmission_floor)
 
 
+def test_no_reachable_parameters_drive_the_sensors_through_the_wall(car, sim):
+    """Transmission increments keep x the principal direction where it is feasible (DESIGN 1.3 boundary condition
+    3). An increment of -5 on f_x (E_s at its lower bound) left the lateral links principal and the axial ones with a
+    share near 0: the up-front sensors drove on at the impact speed (15.56 m/s at 150 ms, 56 km/h) through the cells
+    ahead of them and the wall, as cells interact only through their links."""
+    env = load_env_config()
+    lo, hi = env.behaviour_bounds
+    init, feasible = torch.as_tensor(car.params), torch.as_tensor(car.feasible)
+    p = _action_bound_params(car, 6, seed=3)
+    inc = torch.zeros_like(p)
+    inc[..., 2] = -5.0
+    inc[::2, :, 1] = -5.0  # every other row with E_s at its lower bound too
+    p = apply_increments(p, inc, init, feasible, (lo, hi), env.transmission_floor)
+    deform = torch.as_tensor(~car.is_null & ~car.is_rigid)
+    f, x = p[:, deform, 2:], feasible[deform, 0]
+    assert bool((f[:, x, 0] >= f[:, x, 1:].amax(-1)).all())
+    sc = get_scenario("full_width_56")
+    out = sim.run(p, sc, backend="numba", record_cells="none")
+    slowest = out.velocity.amin(dim=-1)  # [B, sensors]
+    assert bool((slowest < 0.25 * sc.speed).all()), slowest
+
+
 @pytest.mark.slow
 def test_energy_balance_1000_random_parameter_sets_one_numba_batch(car, sim):
     p = _action_bound_params(car, 1000, seed=11)

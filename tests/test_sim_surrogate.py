@@ -799,6 +799,33 @@ def test_float64_params_outside_a_float32_simulation_are_named_as_such():
         sim.run(p, sc, record_cells="none")
 
 
+def test_a_cell_with_links_but_no_factor_in_their_directions_is_refused_by_name():
+    """A cell whose transmission factors are 0 in every direction it has links in transmits nothing: with all factors
+    0 the default car's compartment and sensors drove 2.3 m on through the cells ahead and the wall in 150 ms."""
+    cells = block()
+    sim = Surrogate(cells)
+    sc = get_scenario("full_width_40", {"duration": 0.002})
+    dirs = np.zeros((cells.n_cells, 5), bool)
+    dirs[cells.link_src, cells.link_dir] = True
+    c = int(np.flatnonzero(dirs.any(1) & ~cells.is_rigid & ~cells.is_null)[0])
+    p = _params(cells, batch=2)
+    p[1, c, 2:] = 0.0
+    with pytest.raises(
+        ModelError,
+        match=rf"params\[1, {c}, 2:7\] .* of active cell {c}: f_x.* the directions it has "
+        r"links in, are all 0, so it would transmit nothing",
+    ):
+        sim.run(p, sc, record_cells="none")
+    p = _params(cells)
+    p[0, c, 2:] = torch.as_tensor(~dirs[c], dtype=p.dtype)  # factors only where it has no links: the same
+    assert (p[0, c, 2:] > 0).any()
+    with pytest.raises(ModelError, match=rf"params\[0, {c}, 2:7\]"):
+        sim.run(p, sc, record_cells="none")
+    p = _params(cells)
+    p[0, c, 2:] = torch.as_tensor(dirs[c], dtype=p.dtype) * 1e-30  # tiny shares, but some: relative, so accepted
+    assert sim.run(p, sc, record_cells="none").velocity.isfinite().all()
+
+
 def test_params_that_are_not_numbers_are_refused_by_name():
     """Parameters given as text, None or a ragged nested list failed inside torch ("new(): invalid data type 'str'",
     "Could not infer dtype of NoneType", "expected sequence of length 7 at dim 2 (got 6)"), naming no argument."""

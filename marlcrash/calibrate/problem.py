@@ -5,7 +5,8 @@ one reference pulse, and exposes the search space the environments act in:
 ``x [N, n_agents, 7]`` log-scale factors per agent (sub-assembly granularity), mapped to
 feasible cell parameters by :func:`marlcrash.cells.parameterization.apply_increments` applied once to
 the initial parameters: ``E <- clip(E0 * exp(x_E), lo * E0, hi * E0)``; transmission factors
-``((f0 + floor) * exp(x_f) - floor)^+`` on feasible entries, renormalised to sum one. An
+``((f0 + floor) * exp(x_f) - floor)^+`` on feasible entries, ``f_x`` no lower than a lateral factor where x is
+feasible (DESIGN 1.3 boundary condition 3), renormalised to sum one. An
 agent at ``x`` is exactly (bit for bit) where the environment's agent stands after one step of
 increments ``x``. After several steps whose increments sum to ``x`` its ``E_x``, ``E_s`` are there too
 (to rounding) where no step hit a bound, but its transmission factors only near: each step renormalises,
@@ -62,7 +63,7 @@ import numpy as np
 import torch
 
 from marlcrash.cells.model import PARAM_NAMES, CellModel
-from marlcrash.cells.parameterization import apply_increments, movable_factors
+from marlcrash.cells.parameterization import apply_increments, movable_factors, moved_factors
 from marlcrash.config import flatten_overrides, require
 from marlcrash.envs.agents import AgentLayout, build_agents
 from marlcrash.envs.core import (
@@ -402,7 +403,7 @@ class CalibrationProblem:
         p = apply_increments(init, inc, self.init, self.feasible, self.bounds, self.floor)
         if not x.requires_grad:
             return p
-        g = ((init[..., 2:] + self.floor) * torch.exp(inc[..., 2:]) - self.floor).clamp_min(0.0) * self.feasible
+        g = moved_factors(init[..., 2:], inc[..., 2:], self.feasible, self.floor)
         total = g.sum(-1, keepdim=True)
         smooth = torch.where(total > 0, g / torch.where(total > 0, total, torch.ones_like(total)), init[..., 2:])
         f = smooth + (p[..., 2:] - smooth).detach()

@@ -14,7 +14,8 @@ along x per cell.
   elastic stiffness ``k = F_c^2 / (2 E_x)``; the link carries the share
   ``(f_dir / max_d f_d) * link_share`` of both. The transmission factors are
   relative shares (the paper's share of transmitted energy per direction): the
-  principal direction (x, where the cell has +x links, boundary condition 3) keeps
+  principal direction (the largest factor: x, where the cell has +x links, in the parameter space,
+  which keeps boundary condition 3, :mod:`marlcrash.cells.parameterization`) keeps
   the cell's full crush strength and every other direction ``f_d / f_max`` of it.
   (Scaling by ``f_x`` itself took 40 % of a rail's axial strength away into
   lateral links that carry little, and ``f_x = 0`` cut load paths.) Lateral links
@@ -549,6 +550,9 @@ class Surrogate:
         self.front_area = t(np.where(exposed, cells.front_area, 0.0))
         self.active = t(active, torch.bool)
         self.has_links = t(np.bincount(src, minlength=n) > 0, torch.bool)
+        link_dirs = np.zeros((n, 5), bool)
+        link_dirs[src, cells.link_dir.astype(np.int64)] = True
+        self.link_dirs = t(link_dirs, torch.bool)  # [n, 5] the directions each cell has links in
         self.stroke = t(np.where(active, cells.stroke, 1.0))
         self.front_x = t(cells.front_x)  # where the wall meets each cell (not its bounding box front)
         self.lo_y, self.hi_y = t(cells.lo[:, 1]), t(cells.hi[:, 1])
@@ -606,7 +610,8 @@ class Surrogate:
         Raises:
             ModelError: not numbers, wrong shape, on a device that is neither the CPU nor the surrogate's, non-finite
                 values, ``E_x <= 0`` or ``E_s <= 0`` or
-                negative transmission factors in an active cell (named by index and parameter), also where only the
+                negative transmission factors in an active cell (named by index and parameter), factors 0 in every
+                direction an active cell has links in, also where only the
                 simulation's dtype makes them so (float32: ``E_s = 1e39`` is inf, ``E_x = 1e-50`` is 0).
         """
         try:
@@ -634,18 +639,35 @@ class Surrogate:
                 bad = ~torch.isfinite(act)
                 bad[..., :2] |= act[..., :2] <= 0
                 bad[..., 2:] |= act[..., 2:] < 0
-                if not bool(bad.any()):
-                    continue
-                b, i, j = (int(x) for x in torch.nonzero(bad)[0])
-                cell = int(torch.nonzero(self.active)[i])
-                where = f"params[{b}, {cell}, {j}] ({PARAM_NAMES[j]}) of active cell {cell}"
-                if cast:
+                if bool(bad.any()):
+                    b, i, j = (int(x) for x in torch.nonzero(bad)[0])
+                    cell = int(torch.nonzero(self.active)[i])
+                    where = f"params[{b}, {cell}, {j}] ({PARAM_NAMES[j]}) of active cell {cell}"
+                    if cast:
+                        raise ModelError(
+                            f"{where}: got {float(given[b, cell, j]):g}, which {self.config.dtype} (the simulation's "
+                            f"dtype, configs/sim.yaml) holds as {float(act[b, i, j])}; it must be finite and "
+                            f"{'> 0' if j < 2 else '>= 0'} there"
+                        )
                     raise ModelError(
-                        f"{where}: got {float(given[b, cell, j]):g}, which {self.config.dtype} (the simulation's "
-                        f"dtype, configs/sim.yaml) holds as {float(act[b, i, j])}; it must be finite and "
-                        f"{'> 0' if j < 2 else '>= 0'} there"
+                        f"{where} must be finite and {'> 0' if j < 2 else '>= 0'}, got {float(act[b, i, j])}"
                     )
-                raise ModelError(f"{where} must be finite and {'> 0' if j < 2 else '>= 0'}, got {float(act[b, i, j])}")
+                # a cell with links whose factors are 0 in every direction it has links in transmits nothing: the
+                # cells behind it and the rigid compartment drove on through it (all factors 0: 2.3 m in 150 ms at
+                # 56 km/h, the sensors never slowed)
+                dirs = self.link_dirs[self.active]
+                mute = ((act[..., 2:] == 0) | ~dirs).all(-1) & dirs.any(-1)
+                if bool(mute.any()):
+                    b, i = (int(x) for x in torch.nonzero(mute)[0])
+                    cell = int(torch.nonzero(self.active)[i])
+                    names = [PARAM_NAMES[2 + d] for d in torch.nonzero(dirs[i]).flatten().tolist()]
+                    raise ModelError(
+                        f"params[{b}, {cell}, 2:7] (the transmission factors {', '.join(PARAM_NAMES[2:])}) of active "
+                        f"cell {cell}: {', '.join(names)}, the directions it has links in, are all 0"
+                        f"{f' as {self.config.dtype} holds them' if cast else ''}, so it would transmit nothing and "
+                        "let the cells behind it pass through it; give one of them a factor > 0 (the factors are "
+                        "relative shares, summing to one in the parameter space)"
+                    )
         neutral = torch.tensor([1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0], dtype=self.dtype, device=self.device)
         return torch.where(self.active[None, :, None], p, neutral)
 
