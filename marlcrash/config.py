@@ -240,13 +240,14 @@ def nested_error(e: ConfigError, prefix: str, path: str | Path | None = None) ->
     """``e``, raised by the section at dotted key ``prefix`` of a config read from ``path``, keyed as the user sets it.
 
     A section names its keys relative to itself (``require`` in a schema's ``validate()``, a bad override of a config
-    it names): the key becomes ``<prefix>.<key>`` (one already under ``prefix`` is kept) and the error takes ``path``
+    it names): the key becomes ``<prefix>.<key>`` (one already under ``prefix``, or ``prefix`` itself, the section
+    naming itself, is kept) and the error takes ``path``
     where it names no file. An error that names another file is about that file's own keys: it is returned as it is.
     """
     if e.path is not None and (path is None or Path(e.path) != Path(path)):
         return e
     key = e.key
-    if prefix and key is not None and not key.startswith(prefix + "."):
+    if prefix and key is not None and key != prefix and not key.startswith(prefix + "."):
         key = f"{prefix}.{key}"
     return ConfigError(e.reason, key=key or prefix or None, path=e.path or path)
 

@@ -363,15 +363,19 @@ def load_reward_config(name_or_path: str | Path, overrides: dict[str, Any] | Non
     if path.suffix not in (".yaml", ".yml"):
         _form_class(str(name_or_path))
         path = reward_config_path(str(name_or_path))
+    # params is a mapping to the schema, so an override of it as a mapping replaced the file's whole block: the
+    # parameters it left out took the code's defaults ({'params': {'a': 2}} reset the file's b: 3 to 1); key by key
+    overrides = dict(overrides or {})
+    if isinstance(overrides.get("params"), dict):
+        spread = {f"params.{k}": v for k, v in overrides.pop("params").items()}
+        overrides = {**spread, **overrides}  # a dotted params.<k> given beside it wins
     cfg = load_config(RewardConfig, path, overrides, complete=True)
     # params is a mapping to the schema, so the completeness check stops at it; the form's parameters left out would
     # take the code's defaults (RewardConfig fills them in)
     given = load_yaml(path).get("params")
     given = dict(given) if isinstance(given, dict) else {}
-    for key, value in (overrides or {}).items():
-        if key == "params" and isinstance(value, dict):
-            given.update(value)
-        elif key.startswith("params."):
+    for key, value in overrides.items():
+        if key.startswith("params."):
             given[key[len("params.") :]] = value
     form = REWARD_FORMS.get(cfg.name)
     if form is not None:

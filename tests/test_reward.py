@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import math
+import re
 
 import pytest
 import torch
@@ -116,6 +117,29 @@ def test_a_reward_file_that_leaves_out_a_parameter_of_its_form_is_refused(tmp_pa
         load_reward_config(short)
     cfg = load_reward_config(short, overrides={"params.rmse_scale": 0.3, "params.eps": 1e-6})
     assert cfg.params["rmse_scale"] == 0.3 and cfg.params["eps"] == 1e-6
+
+
+def test_a_params_override_given_as_a_mapping_keeps_the_files_other_parameters(tmp_path):
+    """``{'params': {'a': 2.0}}`` replaced the file's whole params block: the parameters it left out took the code's
+    defaults (the file's b: 3 became 1), which the completeness check, reading the file, did not see."""
+    text = (REWARD_DIR / "paper_factor.yaml").read_text()
+    path = tmp_path / "pf.yaml"
+    path.write_text(re.sub(r"(?m)^(\s*)b:\s*[0-9.eE+-]+", r"\g<1>b: 3.0", text, count=1))
+    assert load_reward_config(path).params["b"] == 3.0
+    cfg = load_reward_config(path, overrides={"params": {"a": 2.0}})
+    assert cfg.params["a"] == 2.0 and cfg.params["b"] == 3.0
+    assert cfg == load_reward_config(path, overrides={"params.a": 2.0})
+    both = load_reward_config(path, overrides={"params": {"a": 2.0, "c": 4.0}, "params.c": 5.0})
+    assert (both.params["a"], both.params["b"], both.params["c"]) == (2.0, 3.0, 5.0)  # the dotted key wins
+
+
+def test_all_weights_zero_is_refused_naming_params_once(tmp_path):
+    """The section named itself, and the key came out as 'params.params', a key no config has."""
+    zero = {"params.w_area": 0.0, "params.w_dfd": 0.0, "params.w_rmse": 0.0}
+    with pytest.raises(ConfigError, match=r"log_ratio\.yaml key 'params': at least one weight must be > 0"):
+        load_reward_config("log_ratio", overrides=zero)
+    with pytest.raises(ConfigError, match=r"key 'params': at least one of a, b, c must be > 0"):
+        load_reward_config("paper_factor", overrides={"params.a": 0.0, "params.b": 0.0, "params.c": 0.0})
 
 
 @pytest.mark.parametrize(
