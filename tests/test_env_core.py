@@ -411,6 +411,12 @@ def test_bad_input_raises_clear_errors(cells):
         make(cells, 1, scenarios={"moon_landing": 1.0})
     with pytest.raises(ConfigError, match="behaviour_bounds"):
         load_env_config(overrides={"behaviour_bounds": [2.0, 4.0]})
+    # 1e300 let a float32 run's E_s grow to inf mid-training, refused then naming a cell, not the setting
+    for bad in ([0.25, 1e300], [1e-300, 4.0], [0.25, 1001.0]):
+        with pytest.raises(ConfigError, match=r"key 'behaviour_bounds': expected \[lo, hi\] with 0.001 <= lo <= 1 "
+                           r"<= hi <= 1000 .*MAX_BEHAVIOUR_FACTOR"):  # fmt: skip
+            load_env_config(overrides={"behaviour_bounds": bad, "sim_dtype": "float32"})
+    assert load_env_config(overrides={"behaviour_bounds": [1e-3, 1e3]}).behaviour_bounds == [1e-3, 1e3]
     with pytest.raises(ConfigError, match="unknown env config"):
         load_env_config("nope")
     with pytest.raises(ConfigError, match="granularity"):
