@@ -14,6 +14,7 @@ from marlcrash.calibrate.entry import (
     fixed_run_folder,
     name_default_run,
     sweep_jobs,
+    train_config_dir,
 )
 from marlcrash.config import config_dir
 from marlcrash.errors import ConfigError
@@ -125,6 +126,30 @@ def test_a_checkout_script_that_imports_another_marlcrash_exits_2(tmp_path, caps
     assert str(imported) in err and f"pip install -e {tmp_path}" in err
     here = Path(__file__).resolve().parent.parent / "train" / "train.py"  # this checkout's own script and package
     exit_on_bad_overrides(here, "train", argv=["seed=3"])
+
+
+def test_marlcrash_configs_moves_the_library_configs_and_says_the_scripts_own_stay(tmp_path, monkeypatch, capsys):
+    """``$MARLCRASH_CONFIGS`` points the env, reward, scenario, sim and cells configs at another folder; Hydra composes
+    a script's own from the checkout's ``configs/train``. An edited ``train/`` copy in that folder went unread without
+    a word, and a folder without ``train/`` made ``algorithm=ippo`` a value key (the ci block's ``algorithm.*`` keys
+    were then not applied to the file picked)."""
+    from marlcrash.calibrate.marl import value_keys
+
+    lib = tmp_path / "configs"
+    lib.mkdir()
+    monkeypatch.setenv("MARLCRASH_CONFIGS", str(lib))
+    assert train_config_dir() == Path(__file__).resolve().parent.parent / "configs" / "train"
+    assert value_keys(["algorithm", "algorithm.lr", "seed"]) == ["algorithm.lr", "seed"]
+    here = Path(__file__).resolve().parent.parent / "train" / "train.py"
+    exit_on_bad_overrides(here, "train", argv=["seed=3"])
+    assert capsys.readouterr().err == (
+        f"warning: MARLCRASH_CONFIGS={lib} gives the env, reward, scenario, sim and cells configs; this script's own "
+        f"(train.yaml and its groups) come from {train_config_dir()} (Hydra's --config-dir adds a folder searched "
+        "before it)\n"
+    )
+    monkeypatch.delenv("MARLCRASH_CONFIGS")
+    exit_on_bad_overrides(here, "train", argv=["seed=3"])
+    assert capsys.readouterr().err == ""
 
 
 @pytest.mark.parametrize("name", ["train", "baseline", "compare", "ablate"])

@@ -26,6 +26,7 @@ multirun (``--multirun seed=0,1,2``) start within one second and would share it.
 
 from __future__ import annotations
 
+import os
 import re
 import sys
 from collections.abc import Callable, Sequence
@@ -208,11 +209,15 @@ def exit_on_bad_overrides(
     A command line with another flag (``--help``, ``--cfg``, ``--config-name``, ...), or a multirun without
     ``check_job``, is left to Hydra as it is: those change what is composed, or compose nothing.
 
+    With ``$MARLCRASH_CONFIGS`` set, a warning says which configs it gives and which it does not (the script's own,
+    :func:`train_config_dir`).
+
     First, a script of a checkout (a ``marlcrash/`` package beside its ``train/`` folder) that imports marlcrash
     from elsewhere (a non-editable install, another checkout's editable one) exits the same way: it would run
     that copy's code and configs under the checkout's training configs, and edits to the checkout go unseen.
     """
     _exit_on_other_package(Path(script).resolve())
+    _warn_configs_env(config_name)
     args = list(sys.argv[1:] if argv is None else argv)
     flags = [a for a in args if a.startswith("-")]
     config_dir = Path(script).resolve().parent / config_path
@@ -224,6 +229,30 @@ def exit_on_bad_overrides(
     except MarlcrashError as e:
         print(f"error: {e}", file=sys.stderr)
         sys.exit(2)
+
+
+def train_config_dir() -> Path:
+    """The training configs the ``train/`` scripts' ``hydra.main`` composes: the checkout's ``configs/train``.
+
+    Not ``$MARLCRASH_CONFIGS``: Hydra's search path is the scripts' own (``--config-dir`` adds another); that
+    variable points the library's configs (env, reward, scenario, sim, cells) elsewhere, which
+    :func:`exit_on_bad_overrides` says in a warning.
+    """
+    return Path(__file__).resolve().parents[2] / "configs" / "train"
+
+
+def _warn_configs_env(config_name: str) -> None:
+    """A warning on standard error where ``$MARLCRASH_CONFIGS`` is set: it moves the library's configs, not the
+    script's own, so an edited ``train/`` copy there went unread without a word."""
+    env = os.environ.get("MARLCRASH_CONFIGS")
+    if not env:
+        return
+    print(
+        f"warning: MARLCRASH_CONFIGS={env} gives the env, reward, scenario, sim and cells configs; this script's own "
+        f"({config_name}.yaml and its groups) come from {train_config_dir()} (Hydra's --config-dir adds a folder "
+        "searched before it)",
+        file=sys.stderr,
+    )
 
 
 def run_script(main: Callable[[], Any]) -> None:

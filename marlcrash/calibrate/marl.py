@@ -356,10 +356,14 @@ def _apply_ci(data: dict[str, Any], key: str, value: Any) -> None:
 def value_keys(keys: Sequence[str]) -> list[str]:
     """The command-line override keys that set values, for ``load_train_config(explicit=...)``.
 
-    A key naming a config group of ``configs/train/`` (``algorithm=ippo``) picks a file; it is left out, so the
-    ``ci`` block's ``algorithm.*`` keys still apply to the file picked.
+    A key naming a config group of the training configs Hydra composes (``algorithm=ippo``: the checkout's
+    ``configs/train/``, :func:`~marlcrash.calibrate.entry.train_config_dir`) picks a file; it is left out, so the
+    ``ci`` block's ``algorithm.*`` keys still apply to the file picked. (With ``$MARLCRASH_CONFIGS`` set to a folder
+    without ``train/`` the group was looked for there, and ``algorithm=ippo`` taken as a value.)
     """
-    return [k for k in keys if not (config_dir() / "train" / k).is_dir()]
+    from marlcrash.calibrate.entry import train_config_dir
+
+    return [k for k in keys if not (train_config_dir() / k).is_dir()]
 
 
 def load_train_config(
