@@ -234,7 +234,8 @@ def test_passed_and_sims_to_success_columns_count_runs_that_meet_the_thresholds(
     def run(area: float, dfd: float, rmse: float, seed: int) -> dict:
         problem = copy.copy(problem0)
         problem.success_cfg = TerminationConfig(success_area=area, success_dfd=dfd, success_rmse=rmse, max_iterations=1)
-        row = outcome_row(cfg, problem, run_optimizer(cfg, "random_search", 0, problem))
+        # optimizer seed 2: a run whose best candidate also lowers the worst-sensor area (asserted below)
+        row = outcome_row(cfg, problem, run_optimizer(cfg, "random_search", 2, problem))
         return {**row, "seed": seed}
 
     strict = run(0.0015, 0.335, 0.1511, 2)

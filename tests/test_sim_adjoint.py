@@ -148,7 +148,7 @@ def test_adjoint_gradient_equals_torch_in_partial_overlaps_at_kinks_and_row_by_r
     sim, car = default_sim, default_cells
     p0 = _params(car, 3, seed=9)
     p0[0, :, 3] = 0.0  # f_y = 0 in every cell
-    p0[1, ::3, 2:] = 0.0  # every third cell transmits nothing
+    p0[1, ::3, 3:] = 0.0  # every third cell transmits along x only (lateral links of share 0)
     rows = {"speed": torch.tensor([15.56, 11.11, 13.0]), "overlap": torch.tensor([0.4, 0.25, 0.25]),
             "side": torch.tensor([-1.0, 1.0, -1.0])}  # fmt: skip
     duration = 0.015
