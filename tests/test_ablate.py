@@ -14,6 +14,7 @@ import os
 import shutil
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -138,6 +139,27 @@ def test_a_masking_level_that_activates_no_agent_on_a_scenario_is_refused(short,
     assert e.value.key == "masking[1]", str(e.value)
     assert "'offset40_left' activates no agent" in str(e.value) and "'primary'" in str(e.value)
     tiny(tmp_path, env_overrides={"masking.min_fraction": 1.0})  # every scenario keeps an agent: accepted
+
+
+def test_masking_levels_that_let_the_same_agents_act_on_the_same_cells_are_refused_or_flagged(short, tmp_path):
+    """On a full-width scenario ``none`` and ``primary`` both activate every agent on every cell, and
+    ``secondary_hops: 0`` makes ``primary_secondary`` ``primary``: their runs were bit-identical and the tables read
+    "+0.0000, 1 tie" as a measured effect. Levels that coincide on every scenario are refused; on some, warned."""
+    with pytest.raises(ConfigError) as e:
+        tiny(tmp_path, masking=["none", "primary"], scenarios=["full_width_40"])
+    assert e.value.key == "masking[1]", str(e.value)
+    assert "'primary' lets the same agents act on the same cells as masking[0] 'none' on every scenario" in str(e.value)
+    assert "full_width_40 (21 of 21 agents, 488 cells acting)" in str(e.value)
+    with pytest.raises(ConfigError) as e:
+        tiny(tmp_path, masking=["primary", "primary_secondary"], env_overrides={"masking.secondary_hops": 0})
+    assert e.value.key == "masking[1]" and "as masking[0] 'primary' on every scenario" in str(e.value)
+    with pytest.warns(UserWarning, match=r"'primary' lets the same agents act .* on full_width_40 \(21 of 21"):
+        tiny(tmp_path, masking=["none", "primary"], scenarios=["full_width_40", "offset40_left"])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        tiny(tmp_path, masking=["none", "primary"], scenarios=["offset40_left"])  # they differ: no word
+        tiny(tmp_path, masking=["none+nosat", "primary+sat"], scenarios=["offset40_left"])
+        tiny(tmp_path, masking=["primary+sat", "primary+nosat"], scenarios=["full_width_40"])  # preference differs
 
 
 def test_reward_forms_must_measure_as_the_score_form_does(short, tmp_path):

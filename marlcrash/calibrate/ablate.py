@@ -58,6 +58,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch
 
 from marlcrash.calibrate.amortized import _fmt, pm
 from marlcrash.calibrate.compare import (
@@ -86,7 +87,7 @@ from marlcrash.envs.masking import ImpactRegions
 from marlcrash.errors import ConfigError
 from marlcrash.outputs import finite_or_null, json_text, require_run_name, save_figure, write_text
 from marlcrash.reward import load_reward_config
-from marlcrash.sim.scenario import get_scenario, list_scenarios
+from marlcrash.sim.scenario import get_scenario, list_scenarios, scenario_tensors
 
 FACTORS: tuple[str, ...] = ("algorithm", "masking", "scenario", "granularity", "reward")
 """The factors of a cell, in the order of its name (``mappo-none-offset40_left-subassembly-log_ratio``)."""
@@ -349,7 +350,8 @@ def load_ablation_config(data: dict[str, Any], source: str | None = None) -> Abl
     Every level of an env factor is loaded into the env config (with ``env_overrides`` and the PPO
     ones), so an unknown masking level (mode or modifier), granularity or reward form fails here, naming
     its list entry; so does a masking level that runs the setting of an earlier one
-    (:func:`require_distinct_masking`) or activates no agent on a scenario (:func:`require_active_agents`).
+    (:func:`require_distinct_masking`), activates no agent on a scenario (:func:`require_active_agents`) or lets
+    the same agents act on the same cells as an earlier one on every scenario (:func:`require_masking_differs`).
 
     Raises:
         ConfigError: unknown key, wrong type or bad value, naming the dotted key -- before any run.
@@ -380,6 +382,7 @@ def load_ablation_config(data: dict[str, Any], source: str | None = None) -> Abl
     try:
         require_distinct_masking(config)
         require_active_agents(config)
+        require_masking_differs(config)
     except ConfigError as e:
         raise ConfigError(e.reason, key=e.key, path=source) from None
     return config
@@ -410,6 +413,65 @@ def reference_problem(config: AblationConfig, scenario: str, seed: int) -> Calib
     return build_problem(pc)
 
 
+def _acting(
+    regions: ImpactRegions, overlap: torch.Tensor, side: torch.Tensor, speed: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(active [B, A], acting [B, n_cells])``: the agents a masking activates on ``[B]`` load cases and the cells
+    their actions reach (every cell they own, or with ``masking.cells: region`` their cells in the region), as
+    :class:`~marlcrash.envs.core.CalibrationCore` applies them."""
+    region = regions.region(overlap, side, speed)
+    active = regions.active(overlap, side, speed, region)
+    owner = regions.layout.agent_of_cell
+    acting = (owner >= 0)[None] & active[:, owner.clamp_min(0)]
+    if regions.config.cells == "region":
+        acting &= region
+    return active, acting
+
+
+def require_masking_differs(config: AblationConfig) -> None:
+    """Refuse a masking level that lets the same agents act on the same cells as an earlier level, with the same
+    saturation preference, on every scenario of the ablation; warn where they coincide on some scenarios.
+
+    Such levels run the same calibration: on a full-width scenario ``none``, ``primary`` and ``primary_secondary``
+    all activate every agent, and ``secondary_hops: 0`` makes ``primary_secondary`` ``primary``. Their rows were
+    bit-identical and read as a measured effect of exactly 0 ("+0.0000, 1 tie").
+
+    Raises:
+        ConfigError: naming ``masking[i]``, the level it duplicates and what both let act.
+    """
+    if len(config.masking) < 2:
+        return
+    over = merge_overrides(EnvConfig, config.env_overrides, config.ppo.env_overrides)
+    env = load_env_config(config.env, over)  # the masking keys do not change the cells or the agents
+    cells = build_cells(env.vehicle, env.vehicle_seed, env.discretization, env.vehicle_options)
+    layout = build_agents(cells, env.agents)
+    rows = scenario_tensors([get_scenario(s) for s in config.scenarios])
+    acts = []
+    for lv in config.masking:
+        masking = load_env_config(config.env, {**over, **masking_overrides(lv)}).masking
+        active, acting = _acting(ImpactRegions(cells, layout, masking), rows["overlap"], rows["side"], rows["speed"])
+        acts.append((active, acting, bool(masking.saturation_preference)))
+    for i, (a_i, c_i, sat_i) in enumerate(acts):
+        for j in range(i):
+            a_j, c_j, sat_j = acts[j]
+            if sat_i != sat_j:
+                continue
+            same = (a_i == a_j).all(dim=1) & (c_i == c_j).all(dim=1)  # [scenarios]
+            both = [f"{s} ({int(a.sum())} of {layout.n_agents} agents, {int(c.sum())} cells acting)"
+                    for s, a, c, hit in zip(config.scenarios, a_i, c_i, same, strict=True) if hit]  # fmt: skip
+            if not both:
+                continue
+            pair = f"masking level {config.masking[i]!r} lets the same agents act on the same cells as masking[{j}] "
+            pair += f"{config.masking[j]!r}"
+            if bool(same.all()):
+                raise ConfigError(f"{pair} on every scenario of the ablation: {'; '.join(both)}; its runs would "
+                                  "repeat those runs and report an effect of exactly 0; leave one out, or add a "
+                                  "scenario where they differ (an offset or small overlap) or the env_overrides "
+                                  "that make them differ", key=f"masking[{i}]")  # fmt: skip
+            warnings.warn(f"{pair} on {'; '.join(both)}: their runs there are the same calibration, and the effect "
+                          "between them there is 0 by construction, not measured", stacklevel=2)  # fmt: skip
+
+
 def masking_reach(config: AblationConfig, problem: CalibrationProblem, masking: str) -> dict[str, int]:
     """What masking level ``masking`` lets act on the problem's reference in the PPO runs' env (``ppo.env_overrides``
     may set the agents, which the problem does not see).
@@ -423,14 +485,8 @@ def masking_reach(config: AblationConfig, problem: CalibrationProblem, masking: 
     env = load_env_config(config.env, over)
     ref = problem.reference
     layout = build_agents(problem.cells, env.agents)
-    regions = ImpactRegions(problem.cells, layout, env.masking)
-    region = regions.region(ref.overlap, ref.side, ref.speed)[0]  # [n_cells]
-    active = regions.active(ref.overlap, ref.side, ref.speed, region[None])[0]  # [A]
-    owner = layout.agent_of_cell
-    acting = (owner >= 0) & active[owner.clamp_min(0)]
-    if env.masking.cells == "region":
-        acting &= region
-    return {"active_agents": int(active.sum()), "n_agents": layout.n_agents, "acting_cells": int(acting.sum())}
+    active, acting = _acting(ImpactRegions(problem.cells, layout, env.masking), ref.overlap, ref.side, ref.speed)
+    return {"active_agents": int(active[0].sum()), "n_agents": layout.n_agents, "acting_cells": int(acting[0].sum())}
 
 
 def run_cell(
