@@ -371,7 +371,10 @@ def sampled_acceleration(velocity: torch.Tensor, dt: float) -> torch.Tensor:
     intervals around sample ``k``, with ``v[-1] = v[0]`` (constant speed before the first sample,
     the first contact) and the backward difference at the last sample. This is the acceleration
     :func:`compared_velocity` filters and integrates, so a record written with it (``marlcrash
-    simulate --csv``) and read back (``marlcrash pulse``) gives the velocity change of the simulation.
+    simulate --csv``) and read back (``marlcrash pulse``) gives the velocity change of the simulation
+    (the trapezoid rule gives it with the zero acceleration before the contact as a sample at ``-dt``,
+    as the lead-in of :func:`compared_velocity` has; from the first sample on, its half weight falls short
+    by ``a[0] dt / 2``).
     The simulator's instantaneous acceleration at the output instants is not a usable sample: the
     light front cells ring far above the 1 kHz Nyquist frequency of a 2 kHz record, and on the
     default car at 40 km/h those point values integrate to 8.9 of an up-front sensor's 12.0 m/s.

@@ -231,7 +231,9 @@ class SimResult:
         velocity: ``[B, K, T]`` sensor-cell velocity [m/s].
         acceleration: ``[B, K, T]`` sensor-cell acceleration [m/s^2] as an anti-aliased accelerometer
             records it at the output rate, derived from ``velocity``
-            (:func:`~marlcrash.pulse.signal.sampled_acceleration`): its integral is the velocity change.
+            (:func:`~marlcrash.pulse.signal.sampled_acceleration`): its integral is the velocity change, by the
+            trapezoid rule with the zero acceleration before the first contact as a sample at ``-dt`` (without it
+            the first sample's half weight left an up-front sensor 9.5 % short: it loses 4.7 m/s in 0.5 ms).
         compartment_displacement: ``[B, T]`` compartment travel since first contact [m].
         compartment_velocity: ``[B, T]`` compartment velocity [m/s].
         crush: ``[B, T]`` dynamic crush [m]: compartment travel since the front touched
