@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -142,10 +143,17 @@ def test_marlcrash_configs_moves_the_library_configs_and_says_the_scripts_own_st
     assert value_keys(["algorithm", "algorithm.lr", "seed"]) == ["algorithm.lr", "seed"]
     here = Path(__file__).resolve().parent.parent / "train" / "train.py"
     exit_on_bad_overrides(here, "train", argv=["seed=3"])
+    assert capsys.readouterr().err == ""  # no train/ there: nothing left unread
+    shutil.copytree(train_config_dir(), lib / "train")
+    exit_on_bad_overrides(here, "train", argv=["seed=3"])
+    assert capsys.readouterr().err == ""  # the checkout's own, copied: the same configs either way
+    algo = lib / "train" / "algorithm" / "mappo.yaml"
+    algo.write_text(algo.read_text().replace("lr: ", "lr: 5.0e-3  # edited\n_was_lr: ", 1))
+    exit_on_bad_overrides(here, "train", argv=["seed=3"])
     assert capsys.readouterr().err == (
         f"warning: MARLCRASH_CONFIGS={lib} gives the env, reward, scenario, sim and cells configs; this script's own "
-        f"(train.yaml and its groups) come from {train_config_dir()} (Hydra's --config-dir adds a folder searched "
-        "before it)\n"
+        f"(train.yaml and its groups) come from {train_config_dir()}, not from its train/, which differs (Hydra's "
+        "--config-dir adds a folder searched before it)\n"
     )
     monkeypatch.delenv("MARLCRASH_CONFIGS")
     exit_on_bad_overrides(here, "train", argv=["seed=3"])

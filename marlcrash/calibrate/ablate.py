@@ -80,8 +80,9 @@ from marlcrash.calibrate.compare import (
 )
 from marlcrash.calibrate.marl import ALGORITHMS, AlgorithmConfig
 from marlcrash.calibrate.problem import CalibrationProblem, SuccessConfig, build_problem
+from marlcrash.cells.model import CellModel
 from marlcrash.config import from_dict, merge_overrides, require, require_complete, require_seed
-from marlcrash.envs.agents import build_agents
+from marlcrash.envs.agents import AgentLayout, build_agents
 from marlcrash.envs.core import EnvConfig, build_cells, load_env_config, require_env, require_env_keys_unset
 from marlcrash.envs.masking import ImpactRegions
 from marlcrash.errors import ConfigError
@@ -306,6 +307,15 @@ def require_distinct_masking(config: AblationConfig, finished: Iterable[str] = (
                               "and compared", key=f"masking[{i}]")  # fmt: skip
 
 
+def _runs_cells_and_agents(config: AblationConfig) -> tuple[dict[str, Any], CellModel, AgentLayout]:
+    """The env overrides of the PPO runs (``env_overrides`` and ``ppo.env_overrides``), their cell model and agents
+    (the masking keys change neither)."""
+    over = merge_overrides(EnvConfig, config.env_overrides, config.ppo.env_overrides)
+    env = load_env_config(config.env, over)
+    cells = build_cells(env.vehicle, env.vehicle_seed, env.discretization, env.vehicle_options)
+    return over, cells, build_agents(cells, env.agents)
+
+
 def require_active_agents(config: AblationConfig) -> None:
     """Refuse a masking level under which a scenario of the ablation activates no agent (the env's own test,
     :meth:`~marlcrash.envs.masking.ImpactRegions.idle_scenarios`, with ``env_overrides`` and ``ppo.env_overrides``).
@@ -316,13 +326,10 @@ def require_active_agents(config: AblationConfig) -> None:
     Raises:
         ConfigError: naming ``masking[i]``, the level and the scenarios it leaves idle.
     """
-    over = merge_overrides(EnvConfig, config.env_overrides, config.ppo.env_overrides)
     levels = [(i, lv) for i, lv in enumerate(config.masking) if masking_overrides(lv)["masking.mode"] != "none"]
     if not levels:  # mode none: every agent acts
         return
-    env = load_env_config(config.env, over)  # the masking keys do not change the cells or the agents
-    cells = build_cells(env.vehicle, env.vehicle_seed, env.discretization, env.vehicle_options)
-    layout = build_agents(cells, env.agents)
+    over, cells, layout = _runs_cells_and_agents(config)
     scenarios = [get_scenario(s) for s in config.scenarios]
     for i, lv in levels:
         masking = load_env_config(config.env, {**over, **masking_overrides(lv)}).masking
@@ -441,10 +448,7 @@ def require_masking_differs(config: AblationConfig) -> None:
     """
     if len(config.masking) < 2:
         return
-    over = merge_overrides(EnvConfig, config.env_overrides, config.ppo.env_overrides)
-    env = load_env_config(config.env, over)  # the masking keys do not change the cells or the agents
-    cells = build_cells(env.vehicle, env.vehicle_seed, env.discretization, env.vehicle_options)
-    layout = build_agents(cells, env.agents)
+    over, cells, layout = _runs_cells_and_agents(config)
     rows = scenario_tensors([get_scenario(s) for s in config.scenarios])
     acts = []
     for lv in config.masking:

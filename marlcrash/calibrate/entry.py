@@ -26,6 +26,7 @@ multirun (``--multirun seed=0,1,2``) start within one second and would share it.
 
 from __future__ import annotations
 
+import filecmp
 import os
 import re
 import sys
@@ -209,8 +210,8 @@ def exit_on_bad_overrides(
     A command line with another flag (``--help``, ``--cfg``, ``--config-name``, ...), or a multirun without
     ``check_job``, is left to Hydra as it is: those change what is composed, or compose nothing.
 
-    With ``$MARLCRASH_CONFIGS`` set, a warning says which configs it gives and which it does not (the script's own,
-    :func:`train_config_dir`).
+    Where ``$MARLCRASH_CONFIGS`` holds a ``train/`` folder that differs from the checkout's, a warning says which
+    configs the variable gives and which it does not (the script's own, :func:`train_config_dir`).
 
     First, a script of a checkout (a ``marlcrash/`` package beside its ``train/`` folder) that imports marlcrash
     from elsewhere (a non-editable install, another checkout's editable one) exits the same way: it would run
@@ -241,16 +242,26 @@ def train_config_dir() -> Path:
     return Path(__file__).resolve().parents[2] / "configs" / "train"
 
 
+def _same_tree(a: Path, b: Path) -> bool:
+    """Folders ``a`` and ``b`` hold the same files with the same contents (recursively)."""
+    cmp = filecmp.dircmp(a, b)
+    _, mismatch, errors = filecmp.cmpfiles(a, b, cmp.common_files, shallow=False)
+    if cmp.left_only or cmp.right_only or cmp.common_funny or mismatch or errors:
+        return False
+    return all(_same_tree(a / d, b / d) for d in cmp.common_dirs)
+
+
 def _warn_configs_env(config_name: str) -> None:
-    """A warning on standard error where ``$MARLCRASH_CONFIGS`` is set: it moves the library's configs, not the
-    script's own, so an edited ``train/`` copy there went unread without a word."""
+    """A warning on standard error where ``$MARLCRASH_CONFIGS`` holds a ``train/`` folder other than the checkout's:
+    the variable moves the library's configs, not the script's own, so an edited copy there went unread without a
+    word."""
     env = os.environ.get("MARLCRASH_CONFIGS")
-    if not env:
+    if not env or not (Path(env) / "train").is_dir() or _same_tree(Path(env) / "train", train_config_dir()):
         return
     print(
         f"warning: MARLCRASH_CONFIGS={env} gives the env, reward, scenario, sim and cells configs; this script's own "
-        f"({config_name}.yaml and its groups) come from {train_config_dir()} (Hydra's --config-dir adds a folder "
-        "searched before it)",
+        f"({config_name}.yaml and its groups) come from {train_config_dir()}, not from its train/, which differs "
+        "(Hydra's --config-dir adds a folder searched before it)",
         file=sys.stderr,
     )
 
