@@ -58,7 +58,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import torch
 
 from marlcrash.calibrate.amortized import _fmt, pm
 from marlcrash.calibrate.compare import (
@@ -420,21 +419,6 @@ def reference_problem(config: AblationConfig, scenario: str, seed: int) -> Calib
     return build_problem(pc)
 
 
-def _acting(
-    regions: ImpactRegions, overlap: torch.Tensor, side: torch.Tensor, speed: torch.Tensor
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """``(active [B, A], acting [B, n_cells])``: the agents a masking activates on ``[B]`` load cases and the cells
-    their actions reach (every cell they own, or with ``masking.cells: region`` their cells in the region), as
-    :class:`~marlcrash.envs.core.CalibrationCore` applies them."""
-    region = regions.region(overlap, side, speed)
-    active = regions.active(overlap, side, speed, region)
-    owner = regions.layout.agent_of_cell
-    acting = (owner >= 0)[None] & active[:, owner.clamp_min(0)]
-    if regions.config.cells == "region":
-        acting &= region
-    return active, acting
-
-
 def require_masking_differs(config: AblationConfig) -> None:
     """Refuse a masking level that lets the same agents act on the same cells as an earlier level, with the same
     saturation preference, on every scenario of the ablation; warn where they coincide on some scenarios.
@@ -453,7 +437,7 @@ def require_masking_differs(config: AblationConfig) -> None:
     acts = []
     for lv in config.masking:
         masking = load_env_config(config.env, {**over, **masking_overrides(lv)}).masking
-        active, acting = _acting(ImpactRegions(cells, layout, masking), rows["overlap"], rows["side"], rows["speed"])
+        active, acting = ImpactRegions(cells, layout, masking).acting(rows["overlap"], rows["side"], rows["speed"])
         acts.append((active, acting, bool(masking.saturation_preference)))
     for i, (a_i, c_i, sat_i) in enumerate(acts):
         for j in range(i):
@@ -489,7 +473,7 @@ def masking_reach(config: AblationConfig, problem: CalibrationProblem, masking: 
     env = load_env_config(config.env, over)
     ref = problem.reference
     layout = build_agents(problem.cells, env.agents)
-    active, acting = _acting(ImpactRegions(problem.cells, layout, env.masking), ref.overlap, ref.side, ref.speed)
+    active, acting = ImpactRegions(problem.cells, layout, env.masking).acting(ref.overlap, ref.side, ref.speed)
     return {"active_agents": int(active[0].sum()), "n_agents": layout.n_agents, "acting_cells": int(acting[0].sum())}
 
 

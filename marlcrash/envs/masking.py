@@ -149,6 +149,20 @@ class ImpactRegions:
         share = n_in.to(torch.float64) / self.layout.count.to(torch.float64)
         return (n_in > 0) & (share >= self.config.min_fraction)
 
+    def acting(
+        self, overlap: torch.Tensor, side: torch.Tensor, speed: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(active [B, n_agents], acting [B, n_cells])``: the agents active on ``[B]`` load cases and the cells their
+        actions reach (every cell they own, or with ``cells: region`` their cells in the region), as
+        :class:`~marlcrash.envs.core.CalibrationCore` applies them."""
+        region = self.region(overlap, side, speed)
+        active = self.active(overlap, side, speed, region)
+        owner = self.layout.agent_of_cell
+        acting = (owner >= 0)[None] & active[:, owner.clamp_min(0)]
+        if self.config.cells == "region":
+            acting &= region
+        return active, acting
+
     def idle_scenarios(self, scenarios: list[CrashScenario]) -> list[str]:
         """Sentences for the scenarios whose episodes would activate no agent (empty where every one has some).
 

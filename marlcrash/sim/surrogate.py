@@ -551,10 +551,10 @@ class Surrogate:
         self.exposed = t(exposed, torch.bool)
         self.front_area = t(np.where(exposed, cells.front_area, 0.0))
         self.active = t(active, torch.bool)
-        self.has_links = t(np.bincount(src, minlength=n) > 0, torch.bool)
         link_dirs = np.zeros((n, 5), bool)
         link_dirs[src, cells.link_dir.astype(np.int64)] = True
         self.link_dirs = t(link_dirs, torch.bool)  # [n, 5] the directions each cell has links in
+        self.has_links = self.link_dirs.any(dim=1)
         self.stroke = t(np.where(active, cells.stroke, 1.0))
         self.front_x = t(cells.front_x)  # where the wall meets each cell (not its bounding box front)
         self.lo_y, self.hi_y = t(cells.lo[:, 1]), t(cells.hi[:, 1])
