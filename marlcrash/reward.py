@@ -318,7 +318,7 @@ def shipped_termination() -> TerminationConfig:
     :class:`~marlcrash.envs.core.EnvConfig` made in Python (``tests/test_config_defaults.py`` keeps it equal to the
     files). A bare ``TerminationConfig()`` checks nothing but the iteration limit."""
     return TerminationConfig(
-        success_area=0.002, success_dfd=0.05, success_rmse=0.03, failure_area=0.5, failure_dfd=5.0, failure_rmse=3.0
+        success_area=0.002, success_dfd=0.05, success_rmse=0.03, failure_area=1.0, failure_dfd=10.0, failure_rmse=6.0
     )
 
 

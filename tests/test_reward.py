@@ -102,7 +102,7 @@ def test_bad_params_name_the_key(tmp_path):
     with pytest.raises(ConfigError, match=r"bad\.yaml key 'params.rmse_scale': must be > 0"):
         load_reward_config(bad)
     with pytest.raises(ConfigError, match=r"success_rmse"):
-        load_reward_config("log_ratio", overrides={"termination.success_rmse": 5.0})
+        load_reward_config("log_ratio", overrides={"termination.success_rmse": 7.0})
 
 
 def test_a_reward_file_that_leaves_out_a_parameter_of_its_form_is_refused(tmp_path):
