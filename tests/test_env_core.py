@@ -759,8 +759,8 @@ def test_episodes_that_start_past_the_failure_limits_are_named_once(cells):
 def test_no_episode_of_the_default_distribution_starts_past_the_shipped_failure_limits(cells):
     """A failure limit is a hopeless state, so the shipped ones lie past every start the default scenarios' twins
     draw: the limits before (area 0.5 m, DFD 5 m/s, RMSE 3 m/s) ended 1.5 % of them at their first step whatever
-    the agents did (15 of 1024; small-overlap starts reach 0.42 m, 5.1 m/s and 3.4 m/s in 512), and the README's main job
-    warned about it. A margin of 1.5x on each is asked of these 256 starts."""
+    the agents did (15 of 1024; small-overlap starts reach 0.42 m, 5.1 m/s and 3.4 m/s in 512), and the README's
+    main job warned about it. A margin of 1.5x on each is asked of these 256 starts."""
     import warnings
 
     core = make(cells, 256)
