@@ -94,12 +94,15 @@ def test_policy_and_critics_shapes(short, tmp_path):
             assert torch.equal(v, v[:, :1].expand_as(v))
 
 
-def test_single_agent_ppo_leaves_inactive_agents_out_of_its_loss(short, tmp_path):
+@pytest.mark.parametrize("algorithm", ["ppo_single", "mappo"])
+def test_action_entries_that_do_not_act_leave_the_loss(short, tmp_path, algorithm):
     """ppo_single's log-probability summed the whole joint action, inactive agents' entries included (the env ignores
     them): changing only those entries of a batch moved the clipped objective from -0.41 to -2e-5 and the KL
-    estimate from 0 to 766, where MAPPO's loss mask leaves them out. Their distribution is now fixed (mean 0, scale
-    init_std), whatever the weights: their log importance ratio is 0."""
-    cfg = tiny(tmp_path, "ppo_single")
+    estimate from 0 to 766. MAPPO's loss mask leaves inactive agents out, but an active agent's factors that no cell
+    takes (20 of the default car's 147) were in its importance ratio and entropy. The distribution of every entry the
+    env's action mask leaves out is now fixed (mean 0, scale init_std), whatever the weights: its log importance
+    ratio is 0."""
+    cfg = tiny(tmp_path, algorithm)
     env = make_env(cfg)
     torch.manual_seed(0)
     policy, other = make_policy(env, cfg.algorithm), make_policy(env, cfg.algorithm)
@@ -107,12 +110,14 @@ def test_single_agent_ppo_leaves_inactive_agents_out_of_its_loss(short, tmp_path
         for w in other.parameters():  # another policy: every weight moved
             w.add_(0.3 * torch.randn_like(w))
         td = policy(env.reset())
-    active = td["agents", "active_dims"]
+    active = td["agents", "action_mask"]
     assert active.shape == td["agents", "action"].shape and active.any() and (~active).any()
+    if algorithm == "mappo":  # entries of active agents are among those left out
+        assert (~active & td["agents", "mask"][..., None]).any()
     a = td["agents", "action"]
-    b = torch.where(active, a, (0.7 - a).clamp(-0.95, 0.95))  # the inactive agents' entries changed
+    b = torch.where(active, a, (0.7 - a).clamp(-0.95, 0.95))  # the entries that do not act changed
 
-    def change(pol):  # log pi(b) - log pi(a): the inactive entries' part of the log-probability
+    def change(pol):  # log pi(b) - log pi(a): those entries' part of the log-probability
         with torch.no_grad():
             dist = pol.get_dist(td.clone())
             return dist.log_prob(b) - dist.log_prob(a)
@@ -184,7 +189,9 @@ def test_the_policy_std_starts_at_init_std_and_is_bounded_below_by_min_std(short
         last = str(max(int(k) for k in net.params.keys()))  # noqa: SIM118
         net.params[last, "bias"].fill_(-100.0)  # as far down as the head goes
         scale = policy(td.clone())["agents", "scale"]
-    torch.testing.assert_close(scale, torch.full_like(scale, 0.001), rtol=1e-3, atol=0)
+    acts = td["agents", "action_mask"]  # the entries that do not act keep init_std whatever the weights
+    torch.testing.assert_close(scale[acts], torch.full_like(scale[acts], 0.001), rtol=1e-3, atol=0)
+    assert bool((scale[~acts] == 0.005).all())
     default = tiny(tmp_path).algorithm  # the shipped values (min_std 0.01 = TorchRL's floor) are unchanged
     with torch.no_grad():
         scale = make_policy(env, default)(td.clone())["agents", "scale"]

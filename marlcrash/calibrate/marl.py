@@ -435,18 +435,14 @@ def make_env_config(config: TrainConfig, overrides: dict[str, Any] | None = None
 
 
 # -------------------------------------------------------------------------------- joint-action env
-ACTIVE_DIMS = "active_dims"
-"""Key (in the group ``"agents"``) of :class:`JointActionEnv`'s per-entry activity of the joint action."""
-
-
 class JointActionEnv(EnvBase):
     """Single-agent view of a :class:`CalibrationTorchEnv` for ``ppo_single`` (same core, same budget).
 
     One agent in the group ``"agents"``: observation ``[B, 1, state_dim]`` (the global state),
     action ``[B, 1, n_agents * act_dim]`` (all agents' actions concatenated; the env ignores
-    the parts of inactive agents), mask ``[B, 1]`` (some agent active), ``active_dims``
-    ``[B, 1, n_agents * act_dim]`` (the action's entries of active agents: :func:`make_policy`
-    holds the others' distribution fixed, so they leave the loss). Reward, end flags,
+    the parts of inactive agents), mask ``[B, 1]`` (some agent active), ``action_mask``
+    ``[B, 1, n_agents * act_dim]`` (the joint action's entries that act: the agents' ``action_mask``
+    concatenated; :func:`make_policy` holds the others' distribution fixed, so they leave the loss). Reward, end flags,
     ``"state"`` and ``"metrics"`` pass through unchanged.
 
     Args:
@@ -465,7 +461,7 @@ class JointActionEnv(EnvBase):
             {
                 "observation": Unbounded(shape=(B, 1, c.state_dim), dtype=torch.float32),
                 "mask": Categorical(n=2, shape=(B, 1), dtype=torch.bool),
-                ACTIVE_DIMS: Categorical(n=2, shape=(B, 1, self._joint), dtype=torch.bool),
+                "action_mask": Categorical(n=2, shape=(B, 1, self._joint), dtype=torch.bool),
             },
             shape=(B, 1),
         )
@@ -486,9 +482,9 @@ class JointActionEnv(EnvBase):
 
     def _convert(self, td: TensorDictBase) -> TensorDictBase:
         c = self.core
-        dims = c.active.repeat_interleave(c.act_dim, dim=-1)[:, None]  # [B, 1, A * act_dim]
+        acts = td.get((GROUP, "action_mask")).reshape(c.B, 1, self._joint)  # [B, 1, A * act_dim]
         group = TensorDict(
-            {"observation": td.get("state")[:, None], "mask": c.active.any(-1, keepdim=True), ACTIVE_DIMS: dims},
+            {"observation": td.get("state")[:, None], "mask": c.active.any(-1, keepdim=True), "action_mask": acts},
             batch_size=(c.B, 1),
         )
         td.set(GROUP, group)
@@ -609,14 +605,17 @@ def float32_default() -> Iterator[None]:
         torch.set_default_dtype(previous)
 
 
-class _FixedWhereInactive(nn.Sequential):
+class _FixedWhereNoEffect(nn.Sequential):
     """The policy network and its scale head (:func:`make_policy`), whose mean and scale are 0 and ``init_std`` on the
-    entries of the joint action that belong to inactive agents (``active_dims`` false: :class:`JointActionEnv`).
+    action entries that do not act (the env's ``("agents", "action_mask")`` false: an inactive agent's, a factor no
+    cell of the agent takes, a padded cell slot, a cell outside the region with ``masking.cells: region``).
 
     Those entries' distribution then does not depend on the weights: their log importance ratio is 0 and their
-    entropy has no gradient, so inactive agents leave single-agent PPO's loss as the loss mask takes them out of
-    MAPPO's. Summed over the whole joint action, changing only the inactive agents' actions of a batch moved the
-    clipped objective from -0.41 to -2e-5 and the KL estimate from 0 to 766. The entries are those of
+    entropy has no gradient, so they leave the PPO loss, as the loss mask takes inactive agents out of MAPPO's.
+    Summed over the whole joint action, changing only the inactive agents' actions of a batch moved single-agent
+    PPO's clipped objective from -0.41 to -2e-5 and the KL estimate from 0 to 766; in MAPPO's and IPPO's loss the
+    20 of the default car's 147 sub-assembly factors that no cell takes (transmission factors of directions without
+    links) entered every active agent's importance ratio and entropy. The entries are those of
     ``nn.Sequential(net, head)``, so a checkpoint's weights load either way.
     """
 
@@ -624,15 +623,15 @@ class _FixedWhereInactive(nn.Sequential):
         super().__init__(net, head)
         self.init_std = init_std
 
-    def forward(self, obs: torch.Tensor, active: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:  # type: ignore[override]
+    def forward(self, obs: torch.Tensor, acts: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:  # type: ignore[override]
         loc, scale = super().forward(obs)
-        return torch.where(active, loc, torch.zeros_like(loc)), torch.where(active, scale, self.init_std)
+        return torch.where(acts, loc, torch.zeros_like(loc)), torch.where(acts, scale, self.init_std)
 
 
 @float32_default()
 def make_policy(env: EnvBase, algo: AlgorithmConfig) -> ProbabilisticActor:
-    """TanhNormal policy on ``("agents", "observation")`` writing ``("agents", "action")`` and its log-prob; on a
-    :class:`JointActionEnv` the entries of inactive agents have a fixed distribution (:class:`_FixedWhereInactive`).
+    """TanhNormal policy on ``("agents", "observation")`` writing ``("agents", "action")`` and its log-prob; the
+    entries the env's ``("agents", "action_mask")`` leaves out have a fixed distribution (:class:`_FixedWhereNoEffect`).
     """
     A, obs_dim, act_dim, _ = env_dims(env)
     net = MultiAgentMLP(
@@ -646,9 +645,9 @@ def make_policy(env: EnvBase, algo: AlgorithmConfig) -> ProbabilisticActor:
         net.params[last, "bias"].zero_()
     extractor = scale_head(algo.init_std, algo.min_std)
     out_keys = [(GROUP, "loc"), (GROUP, "scale")]
-    if (GROUP, ACTIVE_DIMS) in env.observation_spec.keys(True):
-        joint = _FixedWhereInactive(net, extractor, algo.init_std)
-        module = TensorDictModule(joint, in_keys=[(GROUP, "observation"), (GROUP, ACTIVE_DIMS)], out_keys=out_keys)
+    if (GROUP, "action_mask") in env.observation_spec.keys(True):
+        fixed = _FixedWhereNoEffect(net, extractor, algo.init_std)
+        module = TensorDictModule(fixed, in_keys=[(GROUP, "observation"), (GROUP, "action_mask")], out_keys=out_keys)
     else:
         module = TensorDictModule(nn.Sequential(net, extractor), in_keys=[(GROUP, "observation")], out_keys=out_keys)
     return ProbabilisticActor(
