@@ -644,12 +644,10 @@ def make_policy(env: EnvBase, algo: AlgorithmConfig) -> ProbabilisticActor:
         net.params[last, "weight"].mul_(algo.mean_init_gain)
         net.params[last, "bias"].zero_()
     extractor = scale_head(algo.init_std, algo.min_std)
-    out_keys = [(GROUP, "loc"), (GROUP, "scale")]
-    if (GROUP, "action_mask") in env.observation_spec.keys(True):
-        fixed = _FixedWhereNoEffect(net, extractor, algo.init_std)
-        module = TensorDictModule(fixed, in_keys=[(GROUP, "observation"), (GROUP, "action_mask")], out_keys=out_keys)
-    else:
-        module = TensorDictModule(nn.Sequential(net, extractor), in_keys=[(GROUP, "observation")], out_keys=out_keys)
+    module = TensorDictModule(
+        _FixedWhereNoEffect(net, extractor, algo.init_std),
+        in_keys=[(GROUP, "observation"), (GROUP, "action_mask")], out_keys=[(GROUP, "loc"), (GROUP, "scale")],
+    )  # fmt: skip
     return ProbabilisticActor(
         module, in_keys=[(GROUP, "loc"), (GROUP, "scale")], out_keys=[(GROUP, "action")],
         distribution_class=TanhNormal, distribution_kwargs={"low": -1.0, "high": 1.0},
