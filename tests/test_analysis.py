@@ -23,6 +23,7 @@ from marlcrash.analysis import (
     plot_contributions,
     run_calibration,
     sampled_shapley,
+    step_directions,
 )
 from marlcrash.analysis.shapley import MAX_EXACT_PLAYERS, from_table
 from marlcrash.calibrate.compare import evaluate_params
@@ -362,6 +363,48 @@ def test_agent_changes_reads_each_agents_factors(problem):
     # no iteration: accepted as [0, A] tables, and a notebook's max over them failed inside numpy
     with pytest.raises(ValueError, match=r"with at least one iteration, got \(0, "):
         agent_changes(problem, p[None][:0])
+
+
+def _line(problem, coefficients, direction) -> torch.Tensor:
+    """Cell parameters of the candidates ``k * direction`` (per-agent log increments), one per coefficient."""
+    x = torch.stack([k * direction for k in coefficients])
+    return problem.params(x)
+
+
+def test_step_directions_measure_parallel_reversed_and_turning_steps_against_the_truth(problem):
+    """Steps along one line: parallel (cosine 1 to each other and to the net move), at the truth until they pass it
+    (cosine +1), away after (-1), with distances |k - 2.5| times the step; a step back reverses (-1); a step on
+    another agent's coordinate is orthogonal (0). E_x and E_s only, so the log coordinates are linear in the increments
+    and every figure has its closed form."""
+    a, b = problem.agent_names.index("front_rail_left"), problem.agent_names.index("crash_box_right")
+    d = torch.zeros(problem.n_agents, 7, dtype=torch.float64)
+    d[a, 0], d[a, 1] = 0.02, -0.01
+    truth = _line(problem, [2.5], d)[0]
+    out = step_directions(problem, _line(problem, [0, 1, 2, 3, 4], d), truth)
+    assert np.isnan(out["cos_previous"][0])
+    np.testing.assert_allclose(out["cos_previous"][1:], 1.0, atol=1e-12)
+    np.testing.assert_allclose(out["cos_net"], 1.0, atol=1e-12)
+    np.testing.assert_allclose(out["cos_truth"], [1, 1, 1, -1], atol=1e-12)
+    # the rms runs over every agent's coordinates some cell of it defines (E > 0, a feasible transmission factor)
+    owner = problem.layout.agent_of_cell
+    defined = torch.cat([problem.init[:, :2] > 0, problem.feasible], dim=1)
+    dims = sum(int(defined[owner == i].any(0).sum()) for i in range(problem.n_agents))
+    step = math.hypot(0.02, 0.01) / math.sqrt(dims)
+    np.testing.assert_allclose(out["size"], step, rtol=1e-9)
+    np.testing.assert_allclose(out["distance_truth"], step * np.abs(np.arange(5) - 2.5), rtol=1e-9)
+    e = torch.zeros_like(d)
+    e[b, 1] = 0.03
+    zigzag = problem.params(torch.stack([0 * d, d, 0 * d, e]))  # out, back, then sideways on another agent
+    out = step_directions(problem, zigzag)
+    np.testing.assert_allclose(out["cos_previous"][1:], [-1.0, 0.0], atol=1e-12)
+    assert np.isnan(out["cos_net"][:2]).sum() == 0 and "cos_truth" not in out and "distance_truth" not in out
+    np.testing.assert_allclose(out["size"][0], out["size"][1], rtol=1e-12)
+    still = step_directions(problem, torch.stack([problem.init, problem.init]))
+    assert still["size"][0] == 0.0 and np.isnan(still["cos_net"][0])  # a zero step has no direction
+    with pytest.raises(ValueError, match="at least two iterations"):
+        step_directions(problem, problem.init[None])
+    with pytest.raises(ValueError, match="truth: expected"):
+        step_directions(problem, zigzag, truth=problem.init[:3])
 
 
 def test_parameters_that_carry_gradients_are_read_as_their_values(problem):

@@ -6,6 +6,7 @@ an output folder under tmp_path) and executes every cell in a fresh kernel of th
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import nbclient  # the dev extra installs nbformat, nbclient and ipykernel
@@ -61,6 +62,14 @@ def test_agent_contributions_notebook_analyses_a_run(tmp_path):
     text = _stdout(nb)
     assert f"analysing the calibration of {run} (its iterate 1)" in text and "largest per-step move" in text
     assert (tmp_path / "out" / f"{tmp_path.name}_run" / "contributions.csv").is_file()
+    shown = "".join(o.get("data", {}).get("text/markdown", "") for c in nb.cells if c.cell_type == "code"
+                    for o in c.get("outputs", []))  # fmt: skip
+    # the run's one step goes from the initial parameters to the truth: straight at it, and there after it
+    table = (
+        "| step | size | cos previous | cos net | cos truth | distance truth |\n|---|---|---|---|---|---|\n"
+        "| 1 | 0.0000 | +nan | +1.00 | +1.00 | 0.000 |"
+    )
+    assert re.search(re.escape(table).replace("0\\.0000", r"0\.\d{4}") + "$", shown), shown
 
 
 def test_a_picture_that_cannot_be_written_does_not_lose_the_tables(tmp_path):

@@ -9,6 +9,7 @@ from marlcrash.analysis.contributions import (
     coalition_params,
     quantity_names,
     run_calibration,
+    step_directions,
 )
 from marlcrash.analysis.plots import plot_cells_by_contribution, plot_contributions
 from marlcrash.analysis.shapley import Attribution, exact_shapley, one_at_a_time, sampled_shapley
@@ -27,4 +28,5 @@ __all__ = [
     "quantity_names",
     "run_calibration",
     "sampled_shapley",
+    "step_directions",
 ]

@@ -16,8 +16,9 @@ Agents whose cells did not move are null players: their contributions are exactl
 enumerated. A contribution below zero to an error metric means the agent's changes lowered that error.
 
 :func:`agent_changes` summarizes the calibration per agent and iteration (the actions' net effect on its
-cells), and :func:`run_calibration` loads a training run's evaluated calibration (``calibrated.npz``) with the
-problem it was evaluated on.
+cells), :func:`step_directions` where its steps point (do they turn and shorten near a minimum, or walk on past it),
+and :func:`run_calibration` loads a training run's evaluated calibration (``calibrated.npz``) with the problem it was
+evaluated on.
 """
 
 from __future__ import annotations
@@ -448,6 +449,91 @@ def agent_changes(
         step[1:] = torch.sqrt(0.5 * ((log_e[1:] - log_e[:-1]) ** 2).sum(-1))
     return {"E_x": per_agent(log_e[..., 0]), "E_s": per_agent(log_e[..., 1]), "transmission": per_agent(moved),
             "step": per_agent(step)}  # fmt: skip
+
+
+def step_directions(
+    problem: CalibrationProblem,
+    params: torch.Tensor | np.ndarray,
+    truth: torch.Tensor | np.ndarray | None = None,
+    initial: torch.Tensor | np.ndarray | None = None,
+) -> dict[str, np.ndarray]:
+    """Where the calibration's steps point, in the coordinates the agents observe and move.
+
+    A point is every agent's 7 mean log-ratios against ``initial`` (the environment's own-parameter observation:
+    ``log(E / E0)`` of ``E_x`` and ``E_s``, ``log((f + floor) / (f0 + floor))`` of a feasible transmission factor, each
+    the mean over the agent's cells where it is defined), one vector of ``7 * n_agents`` log-scale values; a step is
+    the difference of two successive points. A learned optimizer that settles turns and shortens its steps as the fit
+    nears a minimum; one that keeps its steps parallel (``cos_previous`` near 1) walks past it.
+
+    Args:
+        problem: supplies the agents, the transmission floor and (where ``initial`` is not given) the initial
+            parameters.
+        params: ``[I, n_cells, 7]`` cell parameters per calibration iteration, ``I >= 2`` (``calibrated.npz``'s
+            ``per_iteration``: the initial parameters first).
+        truth: ``[n_cells, 7]`` the twin's hidden parameters, or None.
+        initial: ``[n_cells, 7]`` the parameters the log-ratios are taken against (a run's own, as for
+            :func:`agent_changes`); default: the problem's initial parameters.
+
+    Returns:
+        ``"size"``: ``[I - 1]`` root mean square of each step over the coordinates defined (log scale; 0.1 = 10.5 %);
+        ``"cos_previous"``: ``[I - 1]`` cosine of each step to the one before (NaN for the first, or beside a step of
+        zero length); ``"cos_net"``: ``[I - 1]`` cosine of each step to the whole move, last point minus first.
+        With ``truth``, also ``"cos_truth"``: ``[I - 1]`` cosine of each step to the way from where it started to the
+        truth (1: straight at it; below 0: away from it), and ``"distance_truth"``: ``[I]`` root mean square distance
+        of each point to the truth's.
+
+    Raises:
+        ValueError: ``params`` (fewer than two iterations), ``truth`` or ``initial`` of another shape, or no array of
+            numbers.
+        ModelError: (a :class:`ValueError`) parameters the simulator refuses, named by array (and iteration).
+    """
+    p = _float64(params, "params")
+    if p.dim() != 3 or tuple(p.shape[1:]) != tuple(problem.init.shape) or p.shape[0] < 2:
+        raise ValueError(f"params: expected [iterations, {problem.init.shape[0]}, 7] with at least two iterations (a "
+                         f"step), got {tuple(p.shape)}")  # fmt: skip
+    _simulable(problem, "params", p, " (the first index is the iteration)")
+    init = problem.init if initial is None else _check_params(problem, "initial", initial)
+    _simulable(problem, "initial", init[None])
+    points = [p]
+    if truth is not None:
+        true = _check_params(problem, "truth", truth)[None]
+        _simulable(problem, "truth", true)
+        points.append(true)
+    shift = torch.zeros(7, dtype=torch.float64)
+    shift[2:] = problem.floor
+    defined = torch.cat([init[:, :2] > 0, problem.feasible], dim=1)  # [n, 7]: as the environment observes
+    agent = problem.layout.agent_of_cell
+    owned = agent >= 0
+    w = torch.zeros(problem.n_agents, init.shape[0], 7, dtype=torch.float64)  # [A, n, 7] mean weights
+    w[agent[owned], owned.nonzero()[:, 0]] = defined[owned].to(torch.float64)
+    count = w.sum(1)  # [A, 7]
+    w = w / count.clamp_min(1.0)[:, None]
+    den = init + shift
+
+    def coordinates(q: torch.Tensor) -> torch.Tensor:  # [I, n, 7] -> [I, D] over the coordinates defined
+        num = q + shift
+        ok = defined & (num > 0) & (den > 0)  # a factor at 0 with no floor reads as unmoved, as the env observes it
+        ratio = torch.where(ok, torch.log(torch.where(ok, num, 1.0) / torch.where(ok, den, 1.0)), 0.0)
+        return torch.einsum("anc,inc->iac", w, ratio)[:, count > 0]
+
+    z = coordinates(p)
+    steps = z[1:] - z[:-1]  # [S, D]
+    dims = math.sqrt(z.shape[1])
+
+    def cos(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+        na, nb = a.norm(dim=-1), b.norm(dim=-1)
+        ok = (na > 0) & (nb > 0)
+        return torch.where(ok, (a * b).sum(-1) / torch.where(ok, na * nb, 1.0), torch.nan)
+
+    previous = torch.full((steps.shape[0],), torch.nan, dtype=torch.float64)
+    previous[1:] = cos(steps[1:], steps[:-1])
+    out = {"size": (steps.norm(dim=-1) / dims).numpy(), "cos_previous": previous.numpy(),
+           "cos_net": cos(steps, (z[-1] - z[0]).expand_as(steps)).numpy()}  # fmt: skip
+    if truth is not None:
+        to_truth = coordinates(points[1]) - z  # [I, D]
+        out["cos_truth"] = cos(steps, to_truth[:-1]).numpy()
+        out["distance_truth"] = (to_truth.norm(dim=-1) / dims).numpy()
+    return out
 
 
 @dataclass
