@@ -480,6 +480,8 @@ def test_a_config_made_in_python_is_checked_as_a_file_is(cells):
         "granularity": EnvConfig(granularity="cells"),
         "max_step": EnvConfig(max_step=-0.5),
         "masking.min_fraction": EnvConfig(masking=MaskingConfig(min_fraction=0.0)),
+        # a direction twice was taken once, so a typo for another one ran without it
+        "masking.secondary_directions": EnvConfig(masking=MaskingConfig(secondary_directions=["+x", "+y", "+y"])),
     }
     for key, config in bad.items():
         with pytest.raises(ConfigError, match=rf"^key '{key}'"):

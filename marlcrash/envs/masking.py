@@ -61,6 +61,9 @@ class MaskingConfig:
         require(self.secondary_depth >= 0, "secondary_depth", f"must be >= 0 m, got {self.secondary_depth}")
         bad = [d for d in self.secondary_directions if d not in DIRECTIONS]
         require(not bad, "secondary_directions", f"expected directions from {list(DIRECTIONS)}, got {bad}")
+        twice = sorted({d for d in self.secondary_directions if self.secondary_directions.count(d) > 1})
+        require(not twice, "secondary_directions", f"expected each direction at most once, got {twice} more than "
+                "once (a typo for another direction?); [] follows no link, as secondary_hops: 0")  # fmt: skip
         require(self.speed_depth_time >= 0, "speed_depth_time", f"must be >= 0 s, got {self.speed_depth_time}")
         require(0.0 < self.min_fraction <= 1.0, "min_fraction", f"must be in (0, 1], got {self.min_fraction}")
         require(0.0 <= self.saturation_damping <= 1.0, "saturation_damping",
