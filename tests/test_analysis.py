@@ -407,6 +407,42 @@ def test_step_directions_measure_parallel_reversed_and_turning_steps_against_the
         step_directions(problem, zigzag, truth=problem.init[:3])
 
 
+def test_step_directions_read_the_coordinates_the_environment_observes(problem):
+    """Against the environment's own observation (every agent's mean log-ratios, ``param_scale`` 1): a random walk of
+    every free coordinate, transmission factors included (renormalised, some at zero), from another starting set
+    than the problem's initial one, gives the same cosines and relative step sizes from either."""
+    from marlcrash.envs.core import CalibrationCore, load_env_config
+
+    core = CalibrationCore(load_env_config(overrides={"observation.param_scale": 1.0}), 1)
+    core.reset(seed=0)
+    assert torch.equal(core.init, problem.init)  # the same cells and agents
+    gen = torch.Generator().manual_seed(3)
+    walk = torch.cumsum(0.05 * torch.randn(6, problem.n_agents, 7, generator=gen, dtype=torch.float64), 0)
+    walk[0] = 0.0
+    start = problem.params(0.1 * torch.randn(1, problem.n_agents, 7, generator=gen, dtype=torch.float64))[0]
+    params = problem.params(walk)  # moves from the problem's initial parameters, read against `start`
+    assert (params[:, :, 2:] == 0).any() and not torch.equal(start, problem.init)
+    core.init = start.clone()
+    KT = core.K * core.T
+    seen = []
+    for q in params:
+        core.params = q[None].clone()
+        seen.append(core.observations()[0][0, :, KT : KT + 7].reshape(-1).double())
+    z = torch.stack(seen)
+    steps = z[1:] - z[:-1]
+    cos = lambda a, b: float(a @ b / (a.norm() * b.norm()))  # noqa: E731
+    truth = problem.true_params
+    core.params = truth[None].clone()
+    at_truth = core.observations()[0][0, :, KT : KT + 7].reshape(-1).double()
+    out = step_directions(problem, params, truth, initial=start)
+    np.testing.assert_allclose(out["cos_previous"][1:], [cos(steps[k], steps[k - 1]) for k in range(1, 5)], atol=1e-5)
+    np.testing.assert_allclose(out["cos_net"], [cos(s, z[-1] - z[0]) for s in steps], atol=1e-5)
+    np.testing.assert_allclose(out["cos_truth"], [cos(steps[k], at_truth - z[k]) for k in range(5)], atol=1e-5)
+    np.testing.assert_allclose(out["size"] / out["size"][0], (steps.norm(dim=1) / steps[0].norm()).numpy(), rtol=1e-5)
+    dist = (at_truth - z).norm(dim=1)
+    np.testing.assert_allclose(out["distance_truth"] / out["distance_truth"][0], (dist / dist[0]).numpy(), rtol=1e-5)
+
+
 def test_parameters_that_carry_gradients_are_read_as_their_values(problem):
     """Parameters of a differentiable calibration (``problem.params(x)`` of an ``x`` that requires grad) failed inside
     torch's ``numpy()`` ("Can't call numpy() on Tensor that requires grad") in every entry point; bfloat16 ones as an
