@@ -480,7 +480,8 @@ def step_directions(
         zero length); ``"cos_net"``: ``[I - 1]`` cosine of each step to the whole move, last point minus first.
         With ``truth``, also ``"cos_truth"``: ``[I - 1]`` cosine of each step to the way from where it started to the
         truth (1: straight at it; below 0: away from it), and ``"distance_truth"``: ``[I]`` root mean square distance
-        of each point to the truth's.
+        of each point to the truth's. Both count the coordinates no step of the calibration could move (agents the
+        impact-region rule left inactive) too, so a calibration that could not reach the truth reads that way.
 
     Raises:
         ValueError: ``params`` (fewer than two iterations), ``truth`` or ``initial`` of another shape, or no array of
