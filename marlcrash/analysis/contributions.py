@@ -46,6 +46,7 @@ from marlcrash.analysis.shapley import (
 )
 from marlcrash.calibrate.compare import evaluate_params
 from marlcrash.calibrate.problem import CalibrationProblem
+from marlcrash.cells.parameterization import log_ratios
 from marlcrash.errors import ConfigError, ModelError
 from marlcrash.metrics import Metrics
 from marlcrash.outputs import atomic_output, read_npz, write_text
@@ -495,13 +496,9 @@ def step_directions(
     _simulable(problem, "params", p, " (the first index is the iteration)")
     init = problem.init if initial is None else _check_params(problem, "initial", initial)
     _simulable(problem, "initial", init[None])
-    points = [p]
     if truth is not None:
         true = _check_params(problem, "truth", truth)[None]
         _simulable(problem, "truth", true)
-        points.append(true)
-    shift = torch.zeros(7, dtype=torch.float64)
-    shift[2:] = problem.floor
     defined = torch.cat([init[:, :2] > 0, problem.feasible], dim=1)  # [n, 7]: as the environment observes
     agent = problem.layout.agent_of_cell
     owned = agent >= 0
@@ -509,13 +506,9 @@ def step_directions(
     w[agent[owned], owned.nonzero()[:, 0]] = defined[owned].to(torch.float64)
     count = w.sum(1)  # [A, 7]
     w = w / count.clamp_min(1.0)[:, None]
-    den = init + shift
 
     def coordinates(q: torch.Tensor) -> torch.Tensor:  # [I, n, 7] -> [I, D] over the coordinates defined
-        num = q + shift
-        ok = defined & (num > 0) & (den > 0)  # a factor at 0 with no floor reads as unmoved, as the env observes it
-        ratio = torch.where(ok, torch.log(torch.where(ok, num, 1.0) / torch.where(ok, den, 1.0)), 0.0)
-        return torch.einsum("anc,inc->iac", w, ratio)[:, count > 0]
+        return torch.einsum("anc,inc->iac", w, log_ratios(q, init, defined, problem.floor))[:, count > 0]
 
     z = coordinates(p)
     steps = z[1:] - z[:-1]  # [S, D]
@@ -531,7 +524,7 @@ def step_directions(
     out = {"size": (steps.norm(dim=-1) / dims).numpy(), "cos_previous": previous.numpy(),
            "cos_net": cos(steps, (z[-1] - z[0]).expand_as(steps)).numpy()}  # fmt: skip
     if truth is not None:
-        to_truth = coordinates(points[1]) - z  # [I, D]
+        to_truth = coordinates(true) - z  # [I, D]
         out["cos_truth"] = cos(steps, to_truth[:-1]).numpy()
         out["distance_truth"] = (to_truth.norm(dim=-1) / dims).numpy()
     return out

@@ -66,6 +66,17 @@ def moved_factors(f: torch.Tensor, inc: torch.Tensor, feasible: torch.Tensor, fl
     return torch.cat([g_x, g[..., 1:]], dim=-1)
 
 
+def log_ratios(params: torch.Tensor, init: torch.Tensor, observed: torch.Tensor, floor: float) -> torch.Tensor:
+    """``[..., n_cells, 7]`` the log-scale coordinates of ``params`` against ``init [n_cells, 7]``: ``log(E / E0)`` of
+    ``E_x`` and ``E_s``, ``log((f + floor) / (f0 + floor))`` of a transmission factor; 0 where ``observed [n_cells, 7]``
+    is False (a null cell's E, an infeasible factor) or the shifted value is not positive."""
+    shift = torch.zeros(7, dtype=params.dtype)
+    shift[2:] = floor
+    num, den = params + shift, (init + shift).expand_as(params)
+    ok = observed & (num > 0)
+    return torch.where(ok, torch.log(torch.where(ok, num, 1.0) / torch.where(ok, den, 1.0)), 0.0)
+
+
 def movable_factors(feasible: torch.Tensor) -> torch.Tensor:
     """``[n_cells, 5]`` bool: the transmission factors an increment can change.
 

@@ -66,7 +66,7 @@ import numpy as np
 import torch
 
 from marlcrash.cells.model import CellModel
-from marlcrash.cells.parameterization import apply_increments, movable_factors
+from marlcrash.cells.parameterization import apply_increments, log_ratios, movable_factors
 from marlcrash.config import checked, config_dir, flatten_overrides, load_config, require
 from marlcrash.envs.agents import AgentsConfig, build_agents
 from marlcrash.envs.masking import ImpactRegions, MaskingConfig
@@ -738,11 +738,7 @@ class CalibrationCore:
 
     # ------------------------------------------------------------------------------- observations
     def _log_ratio(self) -> torch.Tensor:
-        shift = torch.zeros(7, dtype=self.params.dtype)
-        shift[2:] = self.config.transmission_floor
-        num, den = self.params + shift, (self.init + shift).expand_as(self.params)
-        ok = self._observed & (num > 0)
-        return torch.where(ok, torch.log(torch.where(ok, num, 1.0) / torch.where(ok, den, 1.0)), 0.0)
+        return log_ratios(self.params, self.init, self._observed, self.config.transmission_floor)
 
     def state_vector(self) -> torch.Tensor:
         """``[B, K * T]`` scaled signed differences reference minus estimate (DESIGN 1.4)."""
